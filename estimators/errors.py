@@ -1,0 +1,41 @@
+"""Typed failures of the estimators. Each message says what happened and what to do."""
+from __future__ import annotations
+
+
+class EstimationError(Exception):
+    """Base class of every error the estimators raise on purpose."""
+
+    exit_code = 3
+
+
+class ModelDefinitionError(EstimationError, ValueError):
+    """The model, its parameters or a segment are inconsistent (shapes, names, bounds)."""
+
+
+class BoundsError(ModelDefinitionError):
+    """A start value lies outside its parameter's bounds."""
+
+
+class SimulationDivergedError(EstimationError, FloatingPointError):
+    """The model simulation produced NaN/Inf or overflowed.
+
+    Attributes: ``segment`` (index), ``time`` (s, first non-finite sample), ``state`` (name).
+    """
+
+    def __init__(self, message: str, *, segment: int | None = None,
+                 time: float | None = None, state: str | None = None) -> None:
+        super().__init__(message)
+        self.segment, self.time, self.state = segment, time, state
+
+
+class IdentifiabilityError(EstimationError, ArithmeticError):
+    """The information matrix is singular: ``parameters`` lists those that cannot be
+    identified from these data (no sensitivity, or a linear combination of others)."""
+
+    def __init__(self, message: str, *, parameters: list[str] | None = None) -> None:
+        super().__init__(message)
+        self.parameters = list(parameters or [])
+
+
+class ConvergenceError(EstimationError, RuntimeError):
+    """The optimiser could not reduce the cost from the start values."""

@@ -1,0 +1,69 @@
+"""The ``fsid`` command line: ``fsid demo | simulate | check | estimate | run | view``.
+
+Every failure the user can act on arrives as :class:`pipeline.errors.FsidError` (or one of
+the estimators' typed errors) and ends in one line on stderr and a non-zero exit, never a
+traceback. Set ``FSID_DEBUG=1`` to see the traceback anyway.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+from pipeline.commands import COMMANDS
+from pipeline.errors import FsidError
+
+
+def _load(name: str):
+    try:
+        return importlib.import_module(f"pipeline.commands.{COMMANDS[name]}")
+    except ModuleNotFoundError as exc:  # a command whose stage has not landed yet
+        if exc.name and exc.name.startswith("pipeline.commands"):
+            return None
+        raise
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="fsid",
+        description="Flight-vehicle system identification: flight logs in, "
+        "aerodynamic derivatives with Cramér-Rao bounds out.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        mod = _load(name)
+        if mod is None:
+            continue
+        p = sub.add_parser(name, help=mod.HELP, description=mod.HELP)
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_run", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        print("fsid: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # one clear line, never a traceback
+        if os.environ.get("FSID_DEBUG"):
+            raise
+        from estimators.errors import EstimationError
+
+        if isinstance(exc, (FsidError, EstimationError)):
+            print(f"fsid: error: {exc}", file=sys.stderr)
+            return getattr(exc, "exit_code", 2)
+        print(f"fsid: error: unexpected {type(exc).__name__}: {exc} "
+              "(rerun with FSID_DEBUG=1 for the traceback and report it)", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
