@@ -1,0 +1,37 @@
+"""Validation of identified models, on plain numpy/pandas arrays so that it applies to the
+result of any method (OEM, FEM, EKF, UKF, equation error).
+
+Modules: :mod:`.fit` (det R, Theil inequality coefficient and proportions, R^2, RMS),
+:mod:`.residuals` (statistics, autocorrelation, whiteness test, PSD),
+:mod:`.uncertainty` (Cramér-Rao bounds, Morelli-Klein correction, correlation flags),
+:mod:`.modes` (named modes of a linearised model, numerical linearisation),
+:mod:`.frequency` (model frequency response, spectral estimates with coherence, mismatch),
+:mod:`.match` (proof of match against tolerance bands),
+:mod:`.plausibility` (estimates vs a-priori values), :mod:`.inverse` (inverse simulation).
+Needs only numpy, scipy and pandas.
+"""
+from __future__ import annotations
+
+from .fit import TheilResult, det_r, fit_metrics, r_squared, residual_covariance, rms, theil
+from .frequency import (MismatchResult, SpectralEstimate, bode, freq_response, mismatch,
+                        spectral_estimate)
+from .inverse import InverseSimResult, inverse_simulation
+from .match import DEFAULT_TOLERANCES, default_tolerances, proof_of_match
+from .modes import ModeAnalysis, linearize, mode_properties, modes
+from .plausibility import load_apriori, plausibility
+from .residuals import (WhitenessResult, autocorrelation, autocovariance, psd,
+                        residual_stats, whiteness)
+from .uncertainty import (UncertaintyResult, correlation, correlation_flags, crb,
+                          morelli_klein)
+
+__all__ = [
+    "TheilResult", "theil", "fit_metrics", "det_r", "r_squared", "rms", "residual_covariance",
+    "residual_stats", "autocovariance", "autocorrelation", "WhitenessResult", "whiteness", "psd",
+    "UncertaintyResult", "crb", "morelli_klein", "correlation", "correlation_flags",
+    "ModeAnalysis", "modes", "mode_properties", "linearize",
+    "freq_response", "bode", "SpectralEstimate", "spectral_estimate", "MismatchResult",
+    "mismatch",
+    "DEFAULT_TOLERANCES", "default_tolerances", "proof_of_match",
+    "load_apriori", "plausibility",
+    "InverseSimResult", "inverse_simulation",
+]

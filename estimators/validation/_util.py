@@ -1,0 +1,36 @@
+"""Shared helpers of the validation package: array coercion and output names."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+
+def as_2d(a, name: str = "array") -> np.ndarray:
+    """Return ``a`` as a float array of shape (N, n_out); 1-D input becomes (N, 1).
+
+    pandas objects are accepted (their values are used).
+    """
+    arr = np.asarray(a.to_numpy() if isinstance(a, (pd.DataFrame, pd.Series)) else a,
+                     dtype=float)
+    if arr.ndim == 1:
+        arr = arr[:, None]
+    if arr.ndim != 2:
+        raise ValueError(f"{name} must have shape (N,) or (N, n_out), got {arr.shape}")
+    return arr
+
+
+def output_names(names: Sequence[str] | None, n: int, *arrays) -> list[str]:
+    """Names for ``n`` outputs: the given ones, else DataFrame columns, else y0, y1, ..."""
+    if names is not None:
+        names = list(names)
+        if len(names) != n:
+            raise ValueError(f"got {len(names)} names for {n} outputs")
+        return names
+    for a in arrays:
+        if isinstance(a, pd.DataFrame):
+            return [str(c) for c in a.columns]
+        if isinstance(a, pd.Series) and a.name is not None:
+            return [str(a.name)]
+    return [f"y{i}" for i in range(n)]

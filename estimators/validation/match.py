@@ -1,0 +1,74 @@
+"""Proof of match: compare a held-fixed model's simulation with measured data of a
+maneuver not used in the fit, against tolerance bands, pass/fail per channel.
+
+Default bands (SI, canonical channel names of DESIGN.md section 3): 1.5 deg/s on body
+rates (p, q, r), 0.1 g on specific forces (ax, ay, az), 1.5 deg on angles (phi, theta,
+psi, alpha, beta). Other channels have no default and are reported but not judged unless
+a tolerance is given.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from ._util import as_2d, output_names
+
+__all__ = ["G0", "DEFAULT_TOLERANCES", "default_tolerances", "proof_of_match"]
+
+G0 = 9.80665  # m/s^2
+_DEG = np.pi / 180.0
+DEFAULT_TOLERANCES: Mapping[str, float] = {
+    **{k: 1.5 * _DEG for k in ("p", "q", "r")},                  # rad/s
+    **{k: 0.1 * G0 for k in ("ax", "ay", "az")},                 # m/s^2
+    **{k: 1.5 * _DEG for k in ("phi", "theta", "psi", "alpha", "beta")},   # rad
+}
+
+
+def default_tolerances(rate_deg_s: float = 1.5, accel_g: float = 0.1,
+                       angle_deg: float = 1.5) -> dict[str, float]:
+    """Tolerance per canonical channel in SI units (rad/s, m/s^2, rad) from the bands
+    given in deg/s, g and deg."""
+    return {**{k: rate_deg_s * _DEG for k in ("p", "q", "r")},
+            **{k: accel_g * G0 for k in ("ax", "ay", "az")},
+            **{k: angle_deg * _DEG for k in ("phi", "theta", "psi", "alpha", "beta")}}
+
+
+def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
+                   tolerances: Mapping[str, float] | None = None, *,
+                   required_fraction: float = 1.0,
+                   allowed_bias: Mapping[str, float] | None = None) -> pd.DataFrame:
+    """Pass/fail per channel of predicted vs measured time histories.
+
+    measured, predicted: (N, n_out) arrays or DataFrames (columns give the names), SI units.
+    tolerances: band half-width per channel name (SI); merged over the defaults (see
+    :func:`default_tolerances`); a channel with no tolerance is reported with pass = NA.
+    required_fraction: share of samples that must lie inside the band (1.0: all of them).
+    allowed_bias: per channel, the largest constant offset (SI) that may be removed first
+    (the mean error, clipped to +/- this value), for "small allowed biases".
+    Returns a DataFrame indexed by channel with ``tolerance``, ``bias_removed``,
+    ``max_abs_error``, ``rms_error``, ``fraction_within``, ``pass``; the attribute
+    ``df.attrs["all_pass"]`` is True when every judged channel passes.
+    """
+    z, y = as_2d(measured, "measured"), as_2d(predicted, "predicted")
+    if z.shape != y.shape:
+        raise ValueError(f"measured {z.shape} and predicted {y.shape} must have the same shape")
+    names = output_names(names, z.shape[1], measured, predicted)
+    tol_map = {**DEFAULT_TOLERANCES, **(tolerances or {})}
+    tol = np.array([tol_map.get(n, np.nan) for n in names], dtype=float)
+    e = z - y
+    bmax = np.array([(allowed_bias or {}).get(n, 0.0) for n in names], dtype=float)
+    bias = np.clip(np.nanmean(e, axis=0), -bmax, bmax)
+    e = e - bias
+    ae = np.abs(e)
+    frac = np.mean(ae <= tol, axis=0)
+    judged = np.isfinite(tol)
+    passed = pd.array(np.where(judged, frac >= required_fraction, False), dtype="boolean")
+    passed[~judged] = pd.NA
+    df = pd.DataFrame({"tolerance": tol, "bias_removed": bias, "max_abs_error": ae.max(axis=0),
+                       "rms_error": np.sqrt(np.mean(e * e, axis=0)),
+                       "fraction_within": np.where(judged, frac, np.nan), "pass": passed},
+                      index=pd.Index(names, name="channel"))
+    df.attrs["all_pass"] = bool(judged.any() and df["pass"][judged].all())
+    return df

@@ -1,0 +1,78 @@
+"""Plausibility: estimates against a-priori values (wind tunnel, handbook) that carry
+their own uncertainty; flagged where |estimate - a priori| > k * sqrt(std^2 + std_ap^2).
+
+A-priori TOML, one table per parameter (values per radian as in DESIGN.md section 3):
+
+    [Cmq]
+    value = -25.0
+    std = 5.0            # or rel_std = 0.2 (fraction of |value|)
+    source = "DATCOM"    # optional
+
+An optional top-level table ``[apriori]`` holding these tables is also accepted.
+"""
+from __future__ import annotations
+
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+__all__ = ["load_apriori", "plausibility"]
+
+
+def load_apriori(source: str | Path | Mapping) -> pd.DataFrame:
+    """Read a-priori values from a TOML file (or an already parsed mapping).
+
+    Returns a DataFrame indexed by parameter with ``value``, ``std`` and ``source``.
+    Raises ValueError naming the entry when a value or its uncertainty is missing.
+    """
+    if isinstance(source, Mapping):
+        data = dict(source)
+    else:
+        with open(source, "rb") as fh:
+            data = tomllib.load(fh)
+    if isinstance(data.get("apriori"), Mapping):
+        data = data["apriori"]
+    rows = {}
+    for name, entry in data.items():
+        if not isinstance(entry, Mapping) or "value" not in entry:
+            raise ValueError(f"a-priori entry {name!r}: needs a table with 'value' and "
+                             f"'std' (or 'rel_std'); got {entry!r}")
+        v = float(entry["value"])
+        if "std" in entry:
+            s = float(entry["std"])
+        elif "rel_std" in entry:
+            s = abs(v) * float(entry["rel_std"])
+        else:
+            raise ValueError(f"a-priori entry {name!r}: give 'std' or 'rel_std'")
+        if not s >= 0:
+            raise ValueError(f"a-priori entry {name!r}: std must be >= 0, got {s}")
+        rows[name] = {"value": v, "std": s, "source": str(entry.get("source", ""))}
+    return pd.DataFrame.from_dict(rows, orient="index",
+                                  columns=["value", "std", "source"]).rename_axis("parameter")
+
+
+def plausibility(estimates, std, apriori, k: float = 3.0) -> pd.DataFrame:
+    """Compare estimates (Series/dict by name) and their std with a-priori values.
+
+    apriori: DataFrame from :func:`load_apriori` (``value``, ``std``), a TOML path or
+    mapping. Only parameters present in both are compared. k: number of combined standard
+    deviations allowed. Returns a DataFrame indexed by parameter: ``estimate``, ``std``,
+    ``apriori``, ``apriori_std``, ``diff`` (estimate - a priori), ``combined_std``,
+    ``z`` = |diff| / combined_std, ``flag`` (z > k).
+    """
+    ap = apriori if isinstance(apriori, pd.DataFrame) else load_apriori(apriori)
+    est, sd = pd.Series(estimates, dtype=float), pd.Series(std, dtype=float)
+    names = [n for n in est.index if n in ap.index]
+    e, s = est[names].to_numpy(), sd.reindex(names).fillna(0.0).to_numpy()
+    a, sa = ap.loc[names, "value"].to_numpy(float), ap.loc[names, "std"].to_numpy(float)
+    diff = e - a
+    comb = np.sqrt(s ** 2 + sa ** 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.abs(diff) / comb
+    z = np.where((comb == 0) & (diff == 0), 0.0, z)
+    return pd.DataFrame({"estimate": e, "std": s, "apriori": a, "apriori_std": sa,
+                         "diff": diff, "combined_std": comb, "z": z, "flag": z > k},
+                        index=pd.Index(names, name="parameter"))
