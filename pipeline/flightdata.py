@@ -1,0 +1,320 @@
+"""The canonical flight-data container every reader produces.
+
+Units and names follow DESIGN.md section 3: SI units, body axes x forward / y right /
+z down, angles in rad, NED velocities, altitude positive up. Each channel keeps its own
+native sample times; :meth:`FlightData.resample` puts any subset on one common time base.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterable, Sequence
+
+import numpy as np
+import pandas as pd
+
+#: canonical channel name -> SI unit (DESIGN.md section 3)
+CANONICAL_UNITS: dict[str, str] = {
+    "t": "s",
+    "ax": "m/s^2", "ay": "m/s^2", "az": "m/s^2",
+    "p": "rad/s", "q": "rad/s", "r": "rad/s",
+    "pdot": "rad/s^2", "qdot": "rad/s^2", "rdot": "rad/s^2",
+    "phi": "rad", "theta": "rad", "psi": "rad",
+    "V": "m/s", "alpha": "rad", "beta": "rad",
+    "u": "m/s", "v": "m/s", "w": "m/s",
+    "vn": "m/s", "ve": "m/s", "vd": "m/s",
+    "h": "m", "qbar": "Pa", "rho": "kg/m^3",
+    "de": "rad", "da": "rad", "dr": "rad",
+    "throttle": "-", "thrust": "N",
+}
+
+#: channels holding angles that wrap at +-pi (interpolated unwrapped)
+WRAPPED_ANGLES = ("phi", "psi")
+#: control-input channels used for automatic segmentation
+CONTROL_INPUTS = ("de", "da", "dr")
+
+
+@dataclass
+class Channel:
+    """One canonical channel at its native rate.
+
+    t : (n,) float64, seconds on the log's time base (see ``FlightData.meta['time_base']``)
+    values : (n,) float64 in the SI unit ``unit``
+    source : the log field it came from, e.g. ``"IMU[0].GyrX"``
+    """
+
+    t: np.ndarray
+    values: np.ndarray
+    unit: str
+    source: str = ""
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def rate_hz(self) -> float:
+        """Mean sample rate [Hz]: (n - 1) / span (0 when fewer than two distinct times).
+
+        The mean, not the median interval, so bursty arrival times (telemetry) give the
+        real rate."""
+        if len(self.t) < 2:
+            return 0.0
+        span = float(np.nanmax(self.t) - np.nanmin(self.t))
+        return float((len(self.t) - 1) / span) if span > 0 else 0.0
+
+
+@dataclass
+class SegmentSpec:
+    """A time span of the flight: ``t0 <= t <= t1`` [s] on the log's time base.
+
+    kind : "time" (user range), "mode" (one flight mode), "auto" (control activity)
+    """
+
+    name: str
+    t0: float
+    t1: float
+    kind: str = "time"
+    mode: str | None = None
+    axis: str | None = None
+
+    @property
+    def duration(self) -> float:
+        return float(self.t1 - self.t0)
+
+    def as_dict(self) -> dict:
+        return {"name": self.name, "t0": float(self.t0), "t1": float(self.t1), "kind": self.kind,
+                "mode": self.mode, "axis": self.axis, "duration": self.duration}
+
+
+@dataclass
+class FlightData:
+    """Canonical flight data: per-channel series at native rates, metadata, segments.
+
+    channels : canonical name -> :class:`Channel` (SI units)
+    meta : ``source`` (path), ``format``, ``map`` (map name), ``time_base`` (sentence
+        saying which clock ``t`` is), ``params`` (dict name -> float), ``modes`` (list of
+        ``(t_start [s], mode name)``), ``damage`` (dict or None: where the file stops being
+        readable), ``unmapped`` (canonical name -> why it could not be filled), ``rates``.
+    segments : user, mode or automatic segments (:class:`SegmentSpec`)
+    """
+
+    channels: dict[str, Channel] = field(default_factory=dict)
+    meta: dict = field(default_factory=dict)
+    segments: list[SegmentSpec] = field(default_factory=list)
+
+    # ----------------------------------------------------------------- access
+    def __contains__(self, name: str) -> bool:
+        return name in self.channels
+
+    def __getitem__(self, name: str) -> Channel:
+        return self.channels[name]
+
+    @property
+    def names(self) -> list[str]:
+        return list(self.channels)
+
+    @property
+    def params(self) -> dict[str, float]:
+        return self.meta.setdefault("params", {})
+
+    @property
+    def modes(self) -> list[tuple[float, str]]:
+        return self.meta.setdefault("modes", [])
+
+    @property
+    def span(self) -> tuple[float, float]:
+        """(first, last) sample time over all channels [s]; (nan, nan) when empty."""
+        starts = [c.t[0] for c in self.channels.values() if len(c)]
+        ends = [c.t[-1] for c in self.channels.values() if len(c)]
+        if not starts:
+            return (float("nan"), float("nan"))
+        return (float(min(starts)), float(max(ends)))
+
+    def rates(self) -> dict[str, float]:
+        """Median native rate of each channel [Hz]."""
+        return {k: c.rate_hz for k, c in self.channels.items()}
+
+    def missing(self, channels: Iterable[str]) -> list[str]:
+        """Those of ``channels`` this flight does not have (or has with no samples)."""
+        return [c for c in channels if c not in self.channels or len(self.channels[c]) == 0]
+
+    def explain_missing(self, channels: Iterable[str]) -> dict[str, str]:
+        """``missing(channels)`` with the map's reason for each (e.g. "no ARSP messages")."""
+        why = self.meta.get("unmapped", {})
+        return {c: why.get(c, "not in the channel map") for c in self.missing(channels)}
+
+    # ----------------------------------------------------------------- resampling
+    def resample(self, rate_hz: float, channels: Sequence[str] | None = None, *,
+                 t0: float | None = None, t1: float | None = None, span: str = "common",
+                 antialias: bool = True, unwrap: bool = False,
+                 max_gap: float | None = None) -> pd.DataFrame:
+        """Channels on one uniform time base.
+
+        Parameters
+        ----------
+        rate_hz : output rate [Hz]
+        channels : canonical names (default: all present); absent names are skipped
+        t0, t1 : limits [s] (default from ``span``)
+        span : "common" (overlap of the channels) or "union" (NaN where a channel has no data)
+        antialias : low-pass (zero-phase 4th-order Butterworth at 0.4 x rate_hz) channels
+            sampled faster than ``rate_hz`` before interpolating
+        unwrap : keep phi/psi unwrapped (continuous) instead of wrapping to (-pi, pi]
+        max_gap : samples further than this [s] from native data become NaN
+            (default: 5 native periods, at least 2 output periods)
+
+        Returns
+        -------
+        DataFrame with column ``t`` [s] and one column per channel, SI units; shape (N, 1 + n).
+        """
+        if rate_hz <= 0:
+            raise ValueError("rate_hz must be positive")
+        names = [c for c in (channels if channels is not None else self.names)
+                 if c in self.channels and len(self.channels[c]) > 0]
+        if not names:
+            return pd.DataFrame({"t": np.zeros(0)})
+        starts = np.array([self.channels[c].t[0] for c in names])
+        ends = np.array([self.channels[c].t[-1] for c in names])
+        if span == "common":
+            lo, hi = float(starts.max()), float(ends.min())
+        else:
+            lo, hi = float(starts.min()), float(ends.max())
+        lo = lo if t0 is None else float(t0)
+        hi = hi if t1 is None else float(t1)
+        n = int(np.floor((hi - lo) * rate_hz + 1e-9)) + 1 if hi >= lo else 0
+        t = lo + np.arange(n) / rate_hz
+        out = {"t": t}
+        for c in names:
+            out[c] = _resample_channel(self.channels[c], t, rate_hz, antialias,
+                                       unwrap or c not in WRAPPED_ANGLES, c in WRAPPED_ANGLES,
+                                       max_gap)
+        return pd.DataFrame(out)
+
+    # ----------------------------------------------------------------- segments
+    def add_segment(self, t0: float, t1: float, name: str | None = None) -> SegmentSpec:
+        """Add a user segment ``t0..t1`` [s] and return it."""
+        seg = SegmentSpec(name or f"time_{len(self.segments)}", float(t0), float(t1), "time")
+        self.segments.append(seg)
+        return seg
+
+    def mode_segments(self, min_duration: float = 0.0) -> list[SegmentSpec]:
+        """One segment per flight-mode interval (from ``meta['modes']``), clipped to the data."""
+        lo, hi = self.span
+        modes = sorted(self.modes, key=lambda m: m[0])
+        segs: list[SegmentSpec] = []
+        for i, (ts, name) in enumerate(modes):
+            te = modes[i + 1][0] if i + 1 < len(modes) else hi
+            a, b = max(ts, lo), min(te, hi)
+            if b - a >= min_duration and b > a:
+                segs.append(SegmentSpec(f"mode_{i}_{name}", float(a), float(b), "mode", mode=name))
+        return segs
+
+    def find_segments(self, inputs: Sequence[str] = CONTROL_INPUTS, *, window: float = 1.0,
+                      threshold: float | None = None, pad_before: float = 1.0,
+                      pad_after: float = 3.0, min_duration: float = 2.0,
+                      rate_hz: float = 50.0) -> list[SegmentSpec]:
+        """Segments where a control input is being moved (maneuvers).
+
+        Activity is the moving standard deviation of each input over ``window`` [s]; an
+        input is active where it exceeds ``threshold`` [rad] (default: max(0.25 x its peak
+        moving std, 0.2 deg)). Active spans are padded, merged per axis and kept when at
+        least ``min_duration`` [s] long.
+        """
+        segs: list[SegmentSpec] = []
+        for axis in inputs:
+            if axis not in self.channels or len(self.channels[axis]) < 3:
+                continue
+            df = self.resample(rate_hz, [axis], antialias=False)
+            t, x = df["t"].to_numpy(), df[axis].to_numpy()
+            if t.size < 3:
+                continue
+            w = max(int(round(window * rate_hz)), 3)
+            s = pd.Series(x).rolling(w, center=True, min_periods=2).std().to_numpy()
+            s = np.nan_to_num(s)
+            thr = threshold if threshold is not None else max(0.25 * float(s.max()), np.radians(0.2))
+            active = s > thr
+            if not active.any():
+                continue
+            edges = np.flatnonzero(np.diff(np.r_[0, active.astype(np.int8), 0]))
+            spans = [(t[a] - pad_before, t[min(b, t.size) - 1] + pad_after)
+                     for a, b in zip(edges[::2], edges[1::2])]
+            merged: list[list[float]] = []
+            for a, b in spans:
+                a, b = max(a, t[0]), min(b, t[-1])
+                if merged and a <= merged[-1][1]:
+                    merged[-1][1] = max(merged[-1][1], b)
+                else:
+                    merged.append([a, b])
+            for k, (a, b) in enumerate(m for m in merged if m[1] - m[0] >= min_duration):
+                segs.append(SegmentSpec(f"auto_{axis}_{k}", float(a), float(b), "auto", axis=axis))
+        segs.sort(key=lambda s: s.t0)
+        return segs
+
+    def segment_frames(self, rate_hz: float, channels: Sequence[str] | None = None,
+                       segments: Sequence[SegmentSpec] | None = None,
+                       **kw) -> list[pd.DataFrame]:
+        """One resampled DataFrame per segment (default: ``self.segments``)."""
+        segs = list(segments if segments is not None else self.segments)
+        return [self.resample(rate_hz, channels, t0=s.t0, t1=s.t1, **kw) for s in segs]
+
+    # ----------------------------------------------------------------- conversion
+    @classmethod
+    def from_frame(cls, df: pd.DataFrame, *, time: str = "t", meta: dict | None = None,
+                   source: str = "") -> "FlightData":
+        """Build from a DataFrame whose columns are canonical names in SI units."""
+        t = df[time].to_numpy(dtype=float)
+        chans = {c: Channel(t.copy(), df[c].to_numpy(dtype=float), CANONICAL_UNITS.get(c, ""),
+                            f"{source}{c}") for c in df.columns if c != time}
+        return cls(chans, dict(meta or {}), [])
+
+    def summary(self) -> str:
+        """Short text: one line per channel with samples, rate, span and source."""
+        lines = [f"{self.meta.get('format', '?')} {self.meta.get('source', '')}",
+                 f"time base: {self.meta.get('time_base', '?')}"]
+        for k, c in self.channels.items():
+            lines.append(f"  {k:9s} {len(c):8d} samples {c.rate_hz:8.2f} Hz  [{c.unit}]  <- {c.source}")
+        return "\n".join(lines)
+
+
+def _uniform(t: np.ndarray, v: np.ndarray, rate: float) -> tuple[np.ndarray, np.ndarray]:
+    n = int(np.floor((t[-1] - t[0]) * rate)) + 1
+    tu = t[0] + np.arange(n) / rate
+    return tu, np.interp(tu, t, v)
+
+
+def _resample_channel(ch: Channel, t: np.ndarray, rate_hz: float, antialias: bool,
+                      unwrap: bool, is_angle: bool, max_gap: float | None) -> np.ndarray:
+    tc = np.asarray(ch.t, dtype=float)
+    vc = np.asarray(ch.values, dtype=float)
+    ok = np.isfinite(tc) & np.isfinite(vc)
+    tc, vc = tc[ok], vc[ok]
+    if tc.size == 0:
+        return np.full(t.shape, np.nan)
+    # sort and drop duplicate times (keep the first)
+    if np.any(np.diff(tc) <= 0):
+        order = np.argsort(tc, kind="stable")
+        tc, vc = tc[order], vc[order]
+        keep = np.r_[True, np.diff(tc) > 0]
+        tc, vc = tc[keep], vc[keep]
+    if is_angle:
+        vc = np.unwrap(vc)
+    native = Channel(tc, vc, ch.unit).rate_hz if tc.size > 1 else 0.0
+    if antialias and native > 1.25 * rate_hz and tc.size > 30:
+        from scipy.signal import butter, sosfiltfilt
+
+        tu, vu = _uniform(tc, vc, native)
+        wn = min(0.4 * rate_hz / (0.5 * native), 0.99)
+        sos = butter(4, wn, output="sos")
+        if vu.size > 3 * (2 * sos.shape[0] + 1):
+            vu = sosfiltfilt(sos, vu)
+        tc, vc = tu, vu
+    out = np.interp(t, tc, vc, left=np.nan, right=np.nan) if tc.size > 1 else \
+        np.where(np.isclose(t, tc[0]), vc[0], np.nan)
+    # blank samples far from native data
+    gap = max_gap if max_gap is not None else max(5.0 / native if native > 0 else 0.0,
+                                                  2.0 / rate_hz)
+    idx = np.clip(np.searchsorted(tc, t), 1, max(tc.size - 1, 1))
+    if tc.size > 1:
+        near = np.minimum(np.abs(t - tc[idx - 1]), np.abs(tc[idx] - t))
+        out[near > gap] = np.nan
+    if is_angle and not unwrap:
+        out = (out + np.pi) % (2 * np.pi) - np.pi
+    return out

@@ -1,0 +1,336 @@
+"""Channel maps: TOML files saying which log field becomes which canonical channel.
+
+Map file format (all keys but ``source`` optional)::
+
+    [map]
+    name = "ardupilot_bin"
+    formats = ["dataflash"]          # readers this map fits
+    extends = "ardupilot_bin"        # (user maps) start from a built-in map and override it
+
+    [channels.q]
+    source = ["IMU[0].GyrY", "IMU.GyrY"]   # "MESSAGE.field"; first one present wins
+    unit = "rad/s"                          # unit of the *source* (converted to SI)
+    scale = 1.0                             # si = to_si(unit)((raw * scale) + offset) * sign
+    offset = 0.0
+    sign = 1
+
+    [channels.de]                            # servo PWM -> deflection (ArduPilot SERVOn_*)
+    source = "RCOU.C2"
+    unit = "pwm"
+    pwm = { function = 19, channel = 2, travel_deg = 30.0 }
+
+    [channels.phi]                           # quaternion -> Euler angle (w, x, y, z order)
+    source = ["vehicle_attitude.q[0]", "vehicle_attitude.q[1]", "vehicle_attitude.q[2]", "vehicle_attitude.q[3]"]
+    transform = "quat_wxyz"
+    component = "phi"
+
+MESSAGE is the text before the first dot: a DataFlash/MAVLink message name (``IMU``,
+``ATTITUDE``), a DataFlash instance (``IMU[1]``), a ULog topic (``sensor_combined``, multi
+instance ``actuator_outputs[1]``), an MCAP topic (``/imu/data``), an MCAP schema prefixed
+with ``@`` (``@sensor_msgs/msg/Imu``: the first topic with that schema), or ``csv`` for
+column files. The field after the dot may be nested (``angular_velocity.x``) or indexed
+(``q[0]``).
+
+PWM calibration: ``pwm = {function = F}`` finds the output n whose ``SERVOn_FUNCTION``
+parameter is F (ArduPilot: 4 aileron, 19 elevator, 21 rudder, 70 throttle), else uses
+``channel``. The pulse is normalised with the ``SERVOn_MIN/MAX/TRIM/REVERSED`` parameters
+(or ``min``/``max``/``trim`` numbers in the map, default 1100/1900/1500): (pwm - trim) /
+(max - trim) above trim, (pwm - trim) / (trim - min) below, negated when reversed, and
+multiplied by ``travel_deg`` (deflection at full travel). ``throttle = true`` gives
+(pwm - min) / (max - min) instead.
+
+Sign conventions: canonical body axes are x forward, y right, z down (FRD); ROS uses
+x forward, y left, z up (FLU) and ENU, which the ROS 2 map flips with ``sign = -1``.
+Control surfaces: positive de = trailing edge down, positive da = right aileron trailing
+edge up (roll right ... negative Cl), positive dr = trailing edge left. Altitude ``h`` is
+positive up.
+"""
+from __future__ import annotations
+
+import copy
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import FsidError
+from pipeline.flightdata import CANONICAL_UNITS, Channel
+from pipeline.readers.base import RawLog, Table
+
+#: source unit -> factor to SI (the canonical unit of the channel)
+UNIT_FACTORS: dict[str, float] = {
+    "m/s^2": 1.0, "m/s/s": 1.0, "mG": 9.80665e-3, "g": 9.80665, "cm/s^2": 0.01,
+    "rad/s": 1.0, "deg/s": np.pi / 180, "mrad/s": 1e-3, "cdeg/s": np.pi / 18000,
+    "rad/s^2": 1.0, "deg/s^2": np.pi / 180,
+    "rad": 1.0, "deg": np.pi / 180, "cdeg": np.pi / 18000, "mrad": 1e-3,
+    "m/s": 1.0, "cm/s": 0.01, "mm/s": 1e-3, "km/h": 1 / 3.6, "kt": 0.514444, "ft/s": 0.3048,
+    "m": 1.0, "cm": 0.01, "mm": 1e-3, "ft": 0.3048, "km": 1000.0,
+    "Pa": 1.0, "hPa": 100.0, "mbar": 100.0, "kPa": 1000.0,
+    "kg/m^3": 1.0, "N": 1.0, "-": 1.0, "%": 0.01, "s": 1.0, "ms": 1e-3, "us": 1e-6,
+    "pwm": 1.0,
+}
+
+BUILTIN = {
+    "dataflash": "ardupilot_bin",
+    "tlog": "mavlink_tlog",
+    "ulog": "px4_ulog",
+    "mcap": "fsid_mcap",
+    "mcap-ros2": "ros2",
+    "csv": "canonical_csv",
+}
+
+
+@dataclass
+class ChannelRule:
+    """How to fill one canonical channel (see the module docstring)."""
+
+    name: str
+    sources: list[str]
+    unit: str = ""
+    scale: float = 1.0
+    offset: float = 0.0
+    sign: float = 1.0
+    pwm: dict | None = None
+    transform: str | None = None
+    component: str | None = None
+
+
+@dataclass
+class ChannelMap:
+    """A parsed channel map: ``rules`` by canonical name plus the ``[map]`` header."""
+
+    name: str
+    rules: dict[str, ChannelRule] = field(default_factory=dict)
+    formats: list[str] = field(default_factory=list)
+    header: dict = field(default_factory=dict)
+    origin: str = ""
+
+    def merged(self, other: "ChannelMap") -> "ChannelMap":
+        """A copy of self with ``other``'s rules added / overriding."""
+        out = copy.deepcopy(self)
+        out.rules.update(copy.deepcopy(other.rules))
+        out.name = f"{self.name}+{other.name}"
+        out.header = {**self.header, **other.header}
+        return out
+
+
+def builtin_names() -> list[str]:
+    """Names of the built-in maps (the TOML files shipped in this package)."""
+    return sorted(p.name[:-5] for p in resources.files(__name__).iterdir()
+                  if p.name.endswith(".toml"))
+
+
+def _parse(doc: dict, origin: str) -> ChannelMap:
+    head = doc.get("map", {})
+    chans = doc.get("channels", {})
+    if not isinstance(chans, dict):
+        raise FsidError(f"channel map {origin}: [channels] must be a table; see pipeline/maps/__init__.py")
+    rules: dict[str, ChannelRule] = {}
+    for name, spec in chans.items():
+        if not isinstance(spec, dict) or "source" not in spec:
+            raise FsidError(f"channel map {origin}: [channels.{name}] needs a 'source' "
+                            "(\"MESSAGE.field\" or a list of them)")
+        src = spec["source"]
+        sources = [src] if isinstance(src, str) else [str(s) for s in src]
+        unit = str(spec.get("unit", CANONICAL_UNITS.get(name, "-")))
+        if unit not in UNIT_FACTORS:
+            raise FsidError(f"channel map {origin}: [channels.{name}] unit '{unit}' unknown; "
+                            f"use one of {', '.join(sorted(UNIT_FACTORS))}")
+        rules[name] = ChannelRule(name, sources, unit, float(spec.get("scale", 1.0)),
+                                  float(spec.get("offset", 0.0)), float(spec.get("sign", 1.0)),
+                                  spec.get("pwm"), spec.get("transform"), spec.get("component"))
+    return ChannelMap(str(head.get("name", Path(origin).stem)), rules,
+                      list(head.get("formats", [])), dict(head), origin)
+
+
+def load_map(spec: "str | Path | ChannelMap | None", fmt: str | None = None) -> ChannelMap:
+    """Load a map: a built-in name, a TOML path, a ChannelMap, or None (built-in for ``fmt``).
+
+    A user map with ``extends = "<builtin>"`` (or, for a known format, no ``extends`` and
+    ``[map] override = true``) is merged over the built-in map.
+    """
+    if isinstance(spec, ChannelMap):
+        return spec
+    if spec is None:
+        if fmt is None or fmt not in BUILTIN:
+            raise FsidError(f"no built-in channel map for format '{fmt}'; pass --map FILE.toml")
+        return load_map(BUILTIN[fmt])
+    s = str(spec)
+    if s in builtin_names():
+        text = resources.files(__name__).joinpath(f"{s}.toml").read_text(encoding="utf-8")
+        doc = tomllib.loads(text)
+        own = _parse(doc, f"built-in map {s}")
+        base = doc.get("map", {}).get("extends")
+        if base:
+            merged = load_map(base, fmt).merged(own)
+            merged.name = own.name
+            return merged
+        return own
+    path = Path(s)
+    if not path.is_file():
+        raise FsidError(f"channel map '{s}' not found: give a TOML file or one of "
+                        f"{', '.join(builtin_names())}")
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise FsidError(f"channel map {path}: not valid TOML ({exc}); fix the file") from None
+    user = _parse(doc, str(path))
+    base = doc.get("map", {}).get("extends")
+    if base is None and doc.get("map", {}).get("override") and fmt in BUILTIN:
+        base = BUILTIN[fmt]
+    if base:
+        return load_map(base, fmt).merged(user)
+    return user
+
+
+# ------------------------------------------------------------------ applying a map
+def _split(source: str) -> tuple[str, str]:
+    if "." not in source:
+        return source, ""
+    msg, fld = source.split(".", 1)
+    return msg, fld
+
+
+def _find_table(raw: RawLog, msg: str) -> Table | None:
+    if msg in raw.tables:
+        return raw.tables[msg]
+    if msg.startswith("@"):  # by schema name (MCAP)
+        schema = msg[1:]
+        for tab in raw.tables.values():
+            if tab.units.get("__schema__") == schema:
+                return tab
+        return None
+    if msg.endswith("]"):
+        return None
+    inst0 = f"{msg}[0]"
+    return raw.tables.get(inst0)
+
+
+def _lookup(raw: RawLog, source: str) -> tuple[Table, np.ndarray] | str:
+    msg, fld = _split(source)
+    tab = _find_table(raw, msg)
+    if tab is None:
+        return f"no {msg} messages"
+    if len(tab) == 0:
+        return f"{msg} has no samples"
+    if fld not in tab:
+        return f"{msg} has no field {fld}"
+    return tab, np.asarray(tab[fld], dtype=np.float64)
+
+
+def _param(params: dict, value, default: float) -> float:
+    if isinstance(value, str):
+        return float(params.get(value, default))
+    if value is None:
+        return default
+    return float(value)
+
+
+def _servo_number(rule: ChannelRule, params: dict) -> int | None:
+    cfg = dict(rule.pwm or {})
+    fn = cfg.get("function")
+    if fn is not None:
+        for k in range(1, 33):
+            if params.get(f"SERVO{k}_FUNCTION") == float(fn):
+                return k
+    n = cfg.get("channel")
+    return int(n) if n is not None else None
+
+
+def _pwm(rule: ChannelRule, pwm: np.ndarray, params: dict, source: str) -> tuple[np.ndarray, str]:
+    cfg = dict(rule.pwm or {})
+    n = _servo_number(rule, params)
+    note = ""
+    if n is not None:
+        pre = f"SERVO{n}_"
+        lo = _param(params, cfg.get("min", pre + "MIN"), 1100.0)
+        hi = _param(params, cfg.get("max", pre + "MAX"), 1900.0)
+        tr = _param(params, cfg.get("trim", pre + "TRIM"), 1500.0)
+        rev = _param(params, cfg.get("reversed", pre + "REVERSED"), 0.0)
+        note = f" (SERVO{n}: min {lo:g} trim {tr:g} max {hi:g}{' reversed' if rev else ''})"
+    else:
+        lo, hi, tr, rev = (float(cfg.get("min", 1100)), float(cfg.get("max", 1900)),
+                           float(cfg.get("trim", 1500)), float(cfg.get("reversed", 0)))
+    if cfg.get("throttle"):
+        x = (pwm - lo) / max(hi - lo, 1e-9)
+        return np.clip(x, 0.0, 1.0), note
+    up = max(hi - tr, 1e-9)
+    dn = max(tr - lo, 1e-9)
+    x = np.where(pwm >= tr, (pwm - tr) / up, (pwm - tr) / dn)
+    if rev:
+        x = -x
+    return x * np.radians(float(cfg.get("travel_deg", 30.0))), note
+
+
+def _quat_euler(w, x, y, z, comp: str) -> np.ndarray:
+    if comp == "phi":
+        return np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    if comp == "theta":
+        return np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
+    if comp == "psi":
+        return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    raise FsidError(f"quaternion component '{comp}' unknown; use phi, theta or psi")
+
+
+def apply_rule(raw: RawLog, rule: ChannelRule) -> Channel | str:
+    """Fill one channel from the raw tables, or return why it cannot be filled."""
+    if rule.transform in ("quat_wxyz", "quat_xyzw"):
+        if len(rule.sources) != 4:
+            return "quaternion transform needs 4 sources"
+        got = [_lookup(raw, s) for s in rule.sources]
+        for g in got:
+            if isinstance(g, str):
+                return g
+        tabs = [g[0] for g in got]
+        n = min(len(g[1]) for g in got)
+        comps = [g[1][:n] for g in got]
+        if rule.transform == "quat_xyzw":
+            comps = [comps[3], comps[0], comps[1], comps[2]]
+        vals = (_quat_euler(*comps, rule.component or "phi") + rule.offset) * rule.sign
+        if rule.component in ("phi", "psi"):
+            vals = (vals + np.pi) % (2 * np.pi) - np.pi
+        return Channel(np.asarray(tabs[0].t[:n], float), vals, CANONICAL_UNITS.get(rule.name, "rad"),
+                       f"{rule.transform}({', '.join(rule.sources)}).{rule.component}")
+    reasons = []
+    for src in rule.sources:
+        if "{n}" in src:  # servo output number from the pwm block (function or channel)
+            n = _servo_number(rule, raw.params)
+            if n is None:
+                reasons.append(f"no servo output configured for {rule.name}")
+                continue
+            src = src.replace("{n}", str(n))
+        got = _lookup(raw, src)
+        if isinstance(got, str):
+            reasons.append(got)
+            continue
+        tab, raw_v = got
+        note = ""
+        if rule.pwm is not None:
+            vals, note = _pwm(rule, raw_v * rule.scale + rule.offset, raw.params, src)
+            vals = vals * rule.sign
+        else:
+            vals = (raw_v * rule.scale + rule.offset) * UNIT_FACTORS[rule.unit] * rule.sign
+        return Channel(np.asarray(tab.t, dtype=np.float64), vals,
+                       CANONICAL_UNITS.get(rule.name, rule.unit), src + note)
+    return "; ".join(dict.fromkeys(reasons))
+
+
+def apply_map(raw: RawLog, cmap: ChannelMap) -> tuple[dict[str, Channel], dict[str, str]]:
+    """All channels of ``cmap`` that the log can fill, and for the others the reason."""
+    chans: dict[str, Channel] = {}
+    why: dict[str, str] = {}
+    rules = dict(cmap.rules)
+    if cmap.header.get("canonical"):  # every canonical column of every table, SI units
+        for tname, tab in raw.tables.items():
+            for f in tab.fields:
+                if f in CANONICAL_UNITS and f != "t" and f not in rules:
+                    rules[f] = ChannelRule(f, [f"{tname}.{f}"], CANONICAL_UNITS[f])
+    for name, rule in rules.items():
+        got = apply_rule(raw, rule)
+        if isinstance(got, str):
+            why[name] = got
+        else:
+            chans[name] = got
+    return chans, why

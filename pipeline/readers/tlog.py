@@ -1,0 +1,208 @@
+"""MAVLink telemetry log (.tlog) reader.
+
+A .tlog is a sequence of ``<8-byte big-endian microseconds since 1970><MAVLink packet>``.
+Packets (v1 0xFE or v2 0xFD, CRC-checked) are decoded with pymavlink's ``ardupilotmega``
+dialect (a superset of ``common``, so PX4 logs decode too). Only the vehicle's own
+messages (the system that sends autopilot HEARTBEATs, default the most frequent sender)
+are kept. PARAM_VALUE messages fill ``params`` (PX4 integer parameters are decoded
+bytewise), HEARTBEAT ``custom_mode`` gives the flight modes (pymavlink's mode tables).
+Time base: the .tlog's receive timestamps (UTC seconds).
+
+Damage: bytes that are not a valid timestamped packet are skipped until the next one;
+the first such offset is reported in ``RawLog.damage``.
+"""
+from __future__ import annotations
+
+import os
+import struct
+from collections import Counter, defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.readers.base import Damage, LogReadError, RawLog, Table
+
+MAV_AUTOPILOT_ARDUPILOTMEGA = 3
+MAV_AUTOPILOT_PX4 = 12
+_INT_TYPES = {1: "<B", 2: "<b", 3: "<H", 4: "<h", 5: "<I", 6: "<i"}
+
+
+def _mavlink():
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink.dialects.v20 import ardupilotmega as mav
+    return mav
+
+
+def _packet_len(data: bytes, i: int) -> int:
+    """Length of the MAVLink packet starting at i (0 if not a packet start)."""
+    magic = data[i]
+    if i + 2 > len(data):
+        return 0
+    plen = data[i + 1]
+    if magic == 0xFE:
+        return plen + 8
+    if magic == 0xFD:
+        if i + 3 > len(data):
+            return 0
+        sig = 13 if data[i + 2] & 0x01 else 0
+        return plen + 12 + sig
+    return 0
+
+
+def _flatten(m, fields: list[str]) -> list:
+    out = []
+    for f in fields:
+        v = getattr(m, f, None)
+        if isinstance(v, (list, tuple)):
+            out.extend(v)
+        else:
+            out.append(v)
+    return out
+
+
+def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | None = None) -> RawLog:
+    """Read a .tlog into one table per message type (fields flattened: ``controls[0]``).
+
+    ``system``: MAVLink system id to keep (default: the autopilot's).
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise LogReadError(f"cannot read {path}: {exc.strerror}", path=str(path), offset=0,
+                           where="open") from None
+    mav = _mavlink()
+    parser = mav.MAVLink(None)
+    parser.robust_parsing = True
+    n = len(data)
+    i = 0
+    first_bad = -1
+    skipped = 0
+    prev_ts = None
+    rows: dict[tuple[int, str], list] = defaultdict(list)
+    times: dict[tuple[int, str], list] = defaultdict(list)
+    fields_of: dict[str, list[str]] = {}
+    heartbeats: list[tuple[float, int, object]] = []
+    params: dict[int, dict[str, float]] = defaultdict(dict)
+    senders: Counter = Counter()
+    kept = 0
+    while i + 8 < n:
+        ln = _packet_len(data, i + 8)
+        ok = False
+        if ln and i + 8 + ln <= n:
+            ts = struct.unpack_from(">Q", data, i)[0] * 1e-6
+            if prev_ts is None or abs(ts - prev_ts) < 86400 * 7:
+                try:
+                    m = parser.decode(bytearray(data[i + 8:i + 8 + ln]))
+                    ok = m is not None
+                except Exception:
+                    ok = False
+        if not ok:
+            if first_bad < 0:
+                first_bad = i
+                if strict:
+                    break
+            skipped += 1
+            i += 1
+            continue
+        prev_ts = ts
+        kept += 1
+        i += 8 + ln
+        name = m.get_type()
+        if name == "BAD_DATA":
+            continue
+        sysid = m.get_srcSystem()
+        senders[sysid] += 1
+        if name == "HEARTBEAT":
+            heartbeats.append((ts, sysid, m))
+        elif name == "PARAM_VALUE":
+            pid = m.param_id if isinstance(m.param_id, str) else m.param_id.decode("ascii", "replace")
+            params[sysid][pid.rstrip("\0")] = (m.param_value, m.param_type)
+        fl = fields_of.get(name)
+        if fl is None:
+            fl = fields_of[name] = list(m.get_fieldnames())
+        rows[(sysid, name)].append(_flatten(m, fl))
+        times[(sysid, name)].append(ts)
+    trailing = n - i if i < n else 0
+    if kept == 0:
+        raise LogReadError(f"{path}: no MAVLink packets found (first bytes "
+                           f"{data[:12].hex()}); is this a .tlog?", path=str(path), offset=0,
+                           where="byte 0")
+    # the vehicle: a system sending autopilot heartbeats, else the busiest sender
+    autop = [s for _, s, hb in heartbeats if hb.autopilot != 8]
+    sysid = system if system is not None else (Counter(autop).most_common(1)[0][0] if autop
+                                               else senders.most_common(1)[0][0])
+    hbs = [(t, hb) for t, s, hb in heartbeats if s == sysid and hb.autopilot != 8]
+    autopilot = hbs[0][1].autopilot if hbs else None
+    tables: dict[str, Table] = {}
+    for (s, name), r in rows.items():
+        if s != sysid or name in ("PARAM_VALUE", "STATUSTEXT"):
+            continue
+        proto = fields_of[name]
+        width = len(r[0])
+        cols: dict[str, np.ndarray] = {}
+        expanded = proto if len(proto) == width else _expand_names(mav, name, proto, width)
+        arr_rows = [row for row in r if len(row) == width]
+        for c, col in enumerate(expanded):
+            vals = [row[c] for row in arr_rows]
+            try:
+                cols[col] = np.asarray(vals, dtype=np.float64)
+            except (TypeError, ValueError):
+                cols[col] = np.asarray([str(v) for v in vals], dtype=object)
+        t = np.asarray([tt for tt, row in zip(times[(s, name)], r) if len(row) == width])
+        tables[name] = Table(name, t, cols)
+    par: dict[str, float] = {}
+    for pid, (val, ptype) in params.get(sysid, {}).items():
+        if autopilot == MAV_AUTOPILOT_PX4 and ptype in _INT_TYPES:
+            val = struct.unpack("<i", struct.pack("<f", val))[0]
+        par[pid] = float(val)
+    modes: list[tuple[float, str]] = []
+    try:
+        from pymavlink import mavutil
+        for t, hb in hbs:
+            name = mavutil.mode_string_v10(hb)
+            if not modes or modes[-1][1] != name:
+                modes.append((float(t), name))
+    except Exception:  # pragma: no cover
+        pass
+    damage = None
+    if first_bad >= 0 or trailing:
+        at = first_bad if first_bad >= 0 else i
+        damage = Damage(at, f"byte {at}", f"not a timestamped MAVLink packet from byte {at} "
+                        f"({skipped + trailing} bytes skipped)", kept, skipped + trailing)
+        if strict:
+            raise LogReadError(f"{path}: {damage.message}", path=str(path), offset=at,
+                               where=damage.where, partial=tables)
+    ap = {MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot", MAV_AUTOPILOT_PX4: "px4"}.get(autopilot, "")
+    info = {"system": int(sysid), "autopilot": ap,
+            "message_counts": {k: len(v) for k, v in tables.items()},
+            "param_value_count": int(sum(len(r) for (s, nm), r in rows.items()
+                                         if nm == "PARAM_VALUE" and s == sysid)),
+            "map_hint": "px4_tlog" if ap == "px4" else "mavlink_tlog"}
+    return RawLog(tables, "tlog", par, modes,
+                  "tlog receive timestamps (UTC, seconds since 1970)", damage, info)
+
+
+def _expand_names(mav, name: str, proto: list[str], width: int) -> list[str]:
+    cls = mav.mavlink_map.get(getattr(mav, f"MAVLINK_MSG_ID_{name}", -1))
+    lengths = dict(zip(getattr(cls, "fieldnames", []), getattr(cls, "array_lengths", [])))
+    if cls is not None and hasattr(cls, "ordered_fieldnames"):
+        lengths = dict(zip(cls.ordered_fieldnames, cls.array_lengths))
+    out = []
+    for f in proto:
+        k = lengths.get(f, 0)
+        if k and k > 1 and not _is_char(cls, f):
+            out.extend(f"{f}[{j}]" for j in range(k))
+        else:
+            out.append(f)
+    if len(out) != width:
+        out = [f"f{j}" for j in range(width)]
+    return out
+
+
+def _is_char(cls, f: str) -> bool:
+    try:
+        types = dict(zip(cls.fieldnames, cls.fieldtypes))
+        return types.get(f) == "char"
+    except Exception:
+        return False
