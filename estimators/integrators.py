@@ -1,0 +1,183 @@
+"""Fixed-step Euler, RK2, RK3, RK4 and adaptive RKF45 over a batch of trajectories.
+
+Every integrator marches ``x`` of shape (n_states, B) - B trajectories at once, one per
+parameter set of a finite-difference batch - over the sample times ``t`` (N,), with the
+inputs averaged over each step, ``u = (U[k] + U[k+1]) / 2``, held over [t_k, t_k+1]
+(the convention of Jategaonkar's output-error codes). The right-hand side is a kernel
+
+    rhs(x (n, B), u (n_in,), P (n_p, B), c, out (n, B)) -> None
+
+built by :mod:`estimators.jit`. The functions below are plain Python; ``estimators.jit``
+compiles the same source with numba, so there is one definition of each scheme.
+
+The integrators return X of shape (N, n, B). When a state becomes non-finite the rest of
+the trajectory is filled with NaN and marching stops (the caller reports divergence).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+try:  # the same source runs compiled (estimators.jit) and as plain Python
+    from numba.extending import register_jitable
+except ImportError:  # pragma: no cover - numba is a dependency; keep numpy-only use possible
+    def register_jitable(fn):
+        return fn
+
+INTEGRATORS = ("euler", "rk2", "rk3", "rk4", "rkf45")
+ORDER = {"euler": 1, "rk2": 2, "rk3": 3, "rk4": 4, "rkf45": 5}
+
+
+@register_jitable
+def _finite(x):
+    for v in x.ravel():
+        if not np.isfinite(v):
+            return False
+    return True
+
+
+def euler(rhs, x0, U, t, P, c, rtol, atol):
+    N = t.size
+    n, B = x0.shape
+    X = np.full((N, n, B), np.nan)
+    x = x0.copy()
+    X[0] = x
+    k1 = np.empty((n, B))
+    for i in range(N - 1):
+        h = t[i + 1] - t[i]
+        ua = 0.5 * (U[i] + U[i + 1])
+        rhs(x, ua, P, c, k1)
+        x = x + h * k1
+        if not _finite(x):
+            break
+        X[i + 1] = x
+    return X
+
+
+def rk2(rhs, x0, U, t, P, c, rtol, atol):
+    """Heun's method (trapezoidal predictor-corrector), order 2."""
+    N = t.size
+    n, B = x0.shape
+    X = np.full((N, n, B), np.nan)
+    x = x0.copy()
+    X[0] = x
+    k1 = np.empty((n, B))
+    k2 = np.empty((n, B))
+    for i in range(N - 1):
+        h = t[i + 1] - t[i]
+        ua = 0.5 * (U[i] + U[i + 1])
+        rhs(x, ua, P, c, k1)
+        rhs(x + h * k1, ua, P, c, k2)
+        x = x + 0.5 * h * (k1 + k2)
+        if not _finite(x):
+            break
+        X[i + 1] = x
+    return X
+
+
+def rk3(rhs, x0, U, t, P, c, rtol, atol):
+    """Kutta's third-order method."""
+    N = t.size
+    n, B = x0.shape
+    X = np.full((N, n, B), np.nan)
+    x = x0.copy()
+    X[0] = x
+    k1 = np.empty((n, B))
+    k2 = np.empty((n, B))
+    k3 = np.empty((n, B))
+    for i in range(N - 1):
+        h = t[i + 1] - t[i]
+        ua = 0.5 * (U[i] + U[i + 1])
+        rhs(x, ua, P, c, k1)
+        rhs(x + 0.5 * h * k1, ua, P, c, k2)
+        rhs(x + h * (2.0 * k2 - k1), ua, P, c, k3)
+        x = x + h / 6.0 * (k1 + 4.0 * k2 + k3)
+        if not _finite(x):
+            break
+        X[i + 1] = x
+    return X
+
+
+def rk4(rhs, x0, U, t, P, c, rtol, atol):
+    """Classical fourth-order Runge-Kutta."""
+    N = t.size
+    n, B = x0.shape
+    X = np.full((N, n, B), np.nan)
+    x = x0.copy()
+    X[0] = x
+    k1 = np.empty((n, B))
+    k2 = np.empty((n, B))
+    k3 = np.empty((n, B))
+    k4 = np.empty((n, B))
+    for i in range(N - 1):
+        h = t[i + 1] - t[i]
+        ua = 0.5 * (U[i] + U[i + 1])
+        rhs(x, ua, P, c, k1)
+        rhs(x + 0.5 * h * k1, ua, P, c, k2)
+        rhs(x + 0.5 * h * k2, ua, P, c, k3)
+        rhs(x + h * k3, ua, P, c, k4)
+        x = x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        if not _finite(x):
+            break
+        X[i + 1] = x
+    return X
+
+
+def rkf45(rhs, x0, U, t, P, c, rtol, atol):
+    """Runge-Kutta-Fehlberg 4(5) with step-size control inside each sample interval
+    (local extrapolation: the 5th-order solution is kept). The error norm is the largest
+    scaled error over all states and all trajectories of the batch, so the batch shares
+    its steps and finite differences between its members stay smooth."""
+    N = t.size
+    n, B = x0.shape
+    X = np.full((N, n, B), np.nan)
+    x = x0.copy()
+    X[0] = x
+    k1 = np.empty((n, B))
+    k2 = np.empty((n, B))
+    k3 = np.empty((n, B))
+    k4 = np.empty((n, B))
+    k5 = np.empty((n, B))
+    k6 = np.empty((n, B))
+    h = t[1] - t[0]
+    ok = True
+    for i in range(N - 1):
+        ua = 0.5 * (U[i] + U[i + 1])
+        tau = t[i]
+        t_end = t[i + 1]
+        n_sub = 0
+        while tau < t_end and ok:
+            if tau + h > t_end:
+                h = t_end - tau
+            rhs(x, ua, P, c, k1)
+            rhs(x + h * (0.25 * k1), ua, P, c, k2)
+            rhs(x + h * (3.0 / 32.0 * k1 + 9.0 / 32.0 * k2), ua, P, c, k3)
+            rhs(x + h * (1932.0 / 2197.0 * k1 - 7200.0 / 2197.0 * k2 + 7296.0 / 2197.0 * k3),
+                ua, P, c, k4)
+            rhs(x + h * (439.0 / 216.0 * k1 - 8.0 * k2 + 3680.0 / 513.0 * k3
+                         - 845.0 / 4104.0 * k4), ua, P, c, k5)
+            rhs(x + h * (-8.0 / 27.0 * k1 + 2.0 * k2 - 3544.0 / 2565.0 * k3
+                         + 1859.0 / 4104.0 * k4 - 11.0 / 40.0 * k5), ua, P, c, k6)
+            x5 = x + h * (16.0 / 135.0 * k1 + 6656.0 / 12825.0 * k3 + 28561.0 / 56430.0 * k4
+                          - 9.0 / 50.0 * k5 + 2.0 / 55.0 * k6)
+            err = h * (1.0 / 360.0 * k1 - 128.0 / 4275.0 * k3 - 2197.0 / 75240.0 * k4
+                       + 1.0 / 50.0 * k5 + 2.0 / 55.0 * k6)
+            scale = atol + rtol * np.maximum(np.abs(x), np.abs(x5))
+            enorm = np.max(np.abs(err) / scale)
+            if not np.isfinite(enorm):
+                ok = False
+                break
+            n_sub += 1
+            if enorm <= 1.0 or n_sub > 10000:
+                tau += h
+                x = x5
+                fac = 5.0 if enorm == 0.0 else min(5.0, 0.9 * enorm ** -0.2)
+            else:
+                fac = max(0.1, 0.9 * enorm ** -0.25)
+            h = h * fac
+        if not ok or not _finite(x):
+            break
+        X[i + 1] = x
+    return X
+
+
+PY_SCHEMES = {"euler": euler, "rk2": rk2, "rk3": rk3, "rk4": rk4, "rkf45": rkf45}

@@ -1,0 +1,77 @@
+"""Linear lateral-directional model (perturbations from wings-level trim).
+
+States  beta (rad), p, r (rad/s), phi (rad); inputs da, dr (rad);
+outputs beta, p, r, phi, ay (m/s^2), pdot, rdot (rad/s^2).
+With qbar = rho V^2 / 2, phat = p b / (2V), rhat = r b / (2V):
+
+    CY = CYbeta beta + CYp phat + CYr rhat + CYda da + CYdr dr        (likewise Cl, Cn)
+    betadot = qbar S / (m V) CY + p sin(alpha0) - r cos(alpha0) + g cos(theta0) / V phi
+    Ixx pdot - Ixz rdot = qbar S b Cl,   Izz rdot - Ixz pdot = qbar S b Cn
+    phidot = p + tan(theta0) r,          ay = qbar S CY / m
+
+Constants: m, Ixx, Izz, Ixz (kg m^2), S, b (m), rho, V (m/s); alpha0, theta0 (rad, trim,
+default 0), g.
+"""
+from __future__ import annotations
+
+from typing import Iterable, Mapping
+
+import numpy as np
+from numba.extending import register_jitable
+
+from estimators.model import Model
+from estimators.models._build import make_parameters, require_constants
+
+DEFAULTS = {
+    "CYbeta": -0.5, "CYp": 0.0, "CYr": 0.0, "CYda": 0.0, "CYdr": 0.15,
+    "Clbeta": -0.08, "Clp": -0.45, "Clr": 0.1, "Clda": 0.15, "Cldr": 0.01,
+    "Cnbeta": 0.08, "Cnp": -0.05, "Cnr": -0.15, "Cnda": -0.01, "Cndr": -0.07,
+}
+DEFAULT_FREE = ("CYbeta", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
+                "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
+
+
+@register_jitable
+def _moments(beta, pr, rr, da, dr, p, c):
+    qbar = 0.5 * c.rho * c.V * c.V
+    ph = pr * c.b / (2.0 * c.V)
+    rh = rr * c.b / (2.0 * c.V)
+    CY = p.CYbeta * beta + p.CYp * ph + p.CYr * rh + p.CYda * da + p.CYdr * dr
+    Cl = p.Clbeta * beta + p.Clp * ph + p.Clr * rh + p.Clda * da + p.Cldr * dr
+    Cn = p.Cnbeta * beta + p.Cnp * ph + p.Cnr * rh + p.Cnda * da + p.Cndr * dr
+    L = qbar * c.S * c.b * Cl
+    N = qbar * c.S * c.b * Cn
+    det = c.Ixx * c.Izz - c.Ixz * c.Ixz
+    pdot = (c.Izz * L + c.Ixz * N) / det
+    rdot = (c.Ixz * L + c.Ixx * N) / det
+    return qbar * c.S * CY, pdot, rdot
+
+
+def f(x, u, p, c):
+    beta, pr, rr, phi = x
+    da, dr = u
+    Y, pdot, rdot = _moments(beta, pr, rr, da, dr, p, c)
+    betadot = (Y / (c.m * c.V) + pr * np.sin(c.alpha0) - rr * np.cos(c.alpha0)
+               + c.g * np.cos(c.theta0) / c.V * phi)
+    return betadot, pdot, rdot, pr + np.tan(c.theta0) * rr
+
+
+def g(x, u, p, c):
+    beta, pr, rr, phi = x
+    da, dr = u
+    Y, pdot, rdot = _moments(beta, pr, rr, da, dr, p, c)
+    return beta, pr, rr, phi, Y / c.m, pdot, rdot
+
+
+def lateral_directional(constants: Mapping[str, float], values: Mapping[str, float] | None = None,
+                        free: Iterable[str] | None = None,
+                        bounds: Mapping[str, tuple[float, float]] | None = None,
+                        output_biases: Iterable[str] = (), name: str = "lateral") -> Model:
+    """The linear lateral-directional model; see the module docstring."""
+    c = require_constants(constants, ("m", "Ixx", "Izz", "Ixz", "S", "b", "rho", "V"),
+                          "lateral-directional")
+    c.setdefault("g", 9.80665); c.setdefault("alpha0", 0.0); c.setdefault("theta0", 0.0)
+    return Model(states=["beta", "p", "r", "phi"], inputs=["da", "dr"],
+                 outputs=["beta", "p", "r", "phi", "ay", "pdot", "rdot"],
+                 parameters=make_parameters(DEFAULTS, values, free, DEFAULT_FREE, bounds),
+                 constants=c, f=f, g=g, output_biases=list(output_biases), name=name)

@@ -1,0 +1,376 @@
+"""Output-error maximum-likelihood estimation (measurement noise only).
+
+For fixed parameters the noise covariance is R = (1/N) sum e e^T; for fixed R the cost
+J = 1/2 sum e^T R^-1 e is minimised by Gauss-Newton with F = sum S^T R^-1 S and
+G = sum S^T R^-1 e, S = dy/dtheta from finite differences over a batch of perturbed
+parameter sets integrated together. The two alternate (relaxation) until det(R) stops
+falling. Cramér-Rao bounds come from F^-1 at the optimum.
+
+Safeguards: step halving, Levenberg-Marquardt, bounded-variable Gauss-Newton (a
+parameter on a bound whose gradient points outward leaves the active set), an a-priori
+penalty (theta - theta*)^T W (theta - theta*), and a Nelder-Mead start for poor starts.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+from scipy import optimize
+
+from estimators.errors import ModelDefinitionError
+from estimators.integrators import INTEGRATORS
+from estimators.model import Model, Segment
+from estimators.results import EstimationResult, frames
+from estimators.simulation import Layout, divergence_error, simulate_batch
+from estimators import statistics as st
+
+OPTIMIZERS = ("gauss-newton", "levenberg-marquardt")
+DIVERGE_HINT = ("Check the units and signs of the start values, set bounds, start closer "
+                "(e.g. from an equation-error fit); for an unstable aircraft use a stabilised "
+                "method (filter error, EKF/UKF, or equation decoupling).")
+
+#: (model, segment, k, layout, theta (n_all,)) -> (Y (N, n_out), S (N, n_out, n_relevant))
+SensitivityHook = Callable[[Model, Segment, int, Layout, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+class OutputError:
+    """Output-error method.
+
+    Parameters
+    ----------
+    model : the :class:`~estimators.Model` to fit.
+    integrator : "euler", "rk2", "rk3", "rk4" (default) or "rkf45" (adaptive; rtol/atol).
+    noise : "diagonal" (default) or "full" R.
+    optimizer : "gauss-newton" (with step halving) or "levenberg-marquardt".
+    jacobian : "forward" or "central" finite differences, or a callable
+        ``hook(model, segment, k, layout, theta) -> (Y, S)`` returning analytic sensitivities
+        for the free parameters ``layout.relevant[k]``.
+    fd_step : relative perturbation; parameter j moves by fd_step * max(|theta_j|, 1).
+    max_iter : maximum Gauss-Newton iterations.
+    tol : convergence when the relative change of det(R) between iterations is below tol.
+    step_halvings : maximum halvings of a step that does not lower the cost.
+    priors : {name: (value, std)} a-priori values; adds (theta-theta*)^2 / (2 std^2) to J.
+    fallback : "auto" runs Nelder-Mead when Gauss-Newton cannot lower the cost from the
+        start, "always" runs it first, "never" does not.
+    rtol, atol : tolerances of the adaptive integrator.
+    callback : called as callback(iteration, cost, params Series) after each iteration.
+    """
+
+    method = "oem"
+
+    def __init__(self, model: Model, integrator: str = "rk4", *, noise: str = "diagonal",
+                 optimizer: str = "gauss-newton", jacobian: str | SensitivityHook = "forward",
+                 fd_step: float = 1e-6, max_iter: int = 50, tol: float = 1e-6,
+                 step_halvings: int = 10, priors: Mapping[str, tuple[float, float]] | None = None,
+                 fallback: str = "auto", rtol: float = 1e-8, atol: float = 1e-10,
+                 callback: Callable[[int, float, pd.Series], None] | None = None) -> None:
+        if integrator not in INTEGRATORS:
+            raise ModelDefinitionError(f"unknown integrator {integrator!r}: use one of {INTEGRATORS}")
+        if noise not in ("diagonal", "full"):
+            raise ModelDefinitionError(f"noise must be 'diagonal' or 'full', not {noise!r}")
+        aliases = {"gn": "gauss-newton", "lm": "levenberg-marquardt"}
+        optimizer = aliases.get(optimizer, optimizer)
+        if optimizer not in OPTIMIZERS:
+            raise ModelDefinitionError(f"unknown optimizer {optimizer!r}: use one of {OPTIMIZERS}")
+        if not callable(jacobian) and jacobian not in ("forward", "central"):
+            raise ModelDefinitionError("jacobian must be 'forward', 'central' or a callable")
+        if fallback not in ("auto", "always", "never"):
+            raise ModelDefinitionError("fallback must be 'auto', 'always' or 'never'")
+        self.model = model
+        self.integrator = integrator
+        self.noise = noise
+        self.optimizer = optimizer
+        self.jacobian = jacobian
+        self.fd_step = fd_step
+        self.max_iter = max_iter
+        self.tol = tol
+        self.step_halvings = step_halvings
+        self.priors = dict(priors or {})
+        self.fallback = fallback
+        self.rtol, self.atol = rtol, atol
+        self.callback = callback
+
+    # -- simulation of the whole data set ---------------------------------------------------
+    def _simulate(self, theta: np.ndarray) -> list[np.ndarray] | None:
+        """Outputs per segment for one parameter vector; None if any simulation diverged."""
+        Ys = []
+        for k, seg in enumerate(self._segments):
+            Y = simulate_batch(self.model, seg, theta[None, :], self._lay, k, self.integrator,
+                               self.rtol, self.atol)[:, :, 0]
+            if not np.all(np.isfinite(Y)):
+                return None
+            Ys.append(Y)
+        return Ys
+
+    def _residuals(self, Ys: Sequence[np.ndarray] | None) -> list[np.ndarray] | None:
+        if Ys is None:
+            return None
+        return [seg.z - Y for seg, Y in zip(self._segments, Ys)]
+
+    def _sensitivities(self, theta: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Outputs Y_k (N, n_out) and sensitivities S_k (N, n_out, n_free) per segment, all
+        perturbed parameter sets of a segment integrated in one batch."""
+        lay = self._lay
+        free_idx = lay.free_idx
+        col = {j: i for i, j in enumerate(free_idx)}
+        Ys, Ss = [], []
+        for k, seg in enumerate(self._segments):
+            rel = lay.relevant[k]
+            S = np.zeros((seg.n, len(self.model.outputs), free_idx.size))
+            if callable(self.jacobian):
+                Y, Srel = self.jacobian(self.model, seg, k, lay, theta)
+                S[:, :, [col[j] for j in rel]] = Srel
+                Ys.append(Y); Ss.append(S)
+                continue
+            step = self.fd_step * np.maximum(np.abs(theta[rel]), 1.0)
+            up_ok = theta[rel] + step <= lay.upper[rel]
+            sgn = np.where(up_ok, 1.0, -1.0)           # step backwards at an upper bound
+            m = rel.size
+            central = self.jacobian == "central"
+            B = 1 + m * (2 if central else 1)
+            Theta = np.repeat(theta[None, :], B, axis=0)
+            Theta[1 + np.arange(m), rel] += sgn * step
+            if central:
+                Theta[1 + m + np.arange(m), rel] -= sgn * step
+            Yb, Xb = simulate_batch(self.model, seg, Theta, lay, k, self.integrator,
+                                    self.rtol, self.atol, return_states=True)
+            if not np.all(np.isfinite(Yb[:, :, 0])):
+                raise divergence_error(self.model, seg, Xb[:, :, 0], k,
+                                       "at the current parameter values", DIVERGE_HINT)
+            Y = Yb[:, :, 0]
+            if central:
+                Srel = (Yb[:, :, 1:1 + m] - Yb[:, :, 1 + m:]) / (2.0 * sgn * step)
+            else:
+                Srel = (Yb[:, :, 1:1 + m] - Y[:, :, None]) / (sgn * step)
+            if not np.all(np.isfinite(Srel)):
+                bad = [lay.names[rel[i]] for i in np.flatnonzero(~np.isfinite(Srel).all(axis=(0, 1)))]
+                raise divergence_error(self.model, seg, Xb[:, :, 1 + int(np.flatnonzero(
+                    ~np.isfinite(Srel).all(axis=(0, 1)))[0])], k,
+                    f"when perturbing {', '.join(bad)}", DIVERGE_HINT)
+            S[:, :, [col[j] for j in rel]] = Srel
+            Ys.append(Y); Ss.append(S)
+        return Ys, Ss
+
+    # -- a-priori penalty -----------------------------------------------------------------
+    def _prior_terms(self, theta_free: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """W (n_free, n_free), W (theta* - theta), and 1/2 (theta-theta*)^T W (theta-theta*)."""
+        n = theta_free.size
+        W = np.zeros((n, n)); g = np.zeros(n); J = 0.0
+        names = self._lay.free_names
+        for name, (mu, sd) in self.priors.items():
+            if name not in names:
+                raise ModelDefinitionError(f"prior on {name!r}: not a free parameter ({names})")
+            i = names.index(name)
+            w = 1.0 / float(sd) ** 2
+            W[i, i] = w
+            g[i] = w * (float(mu) - theta_free[i])
+            J += 0.5 * w * (theta_free[i] - float(mu)) ** 2
+        return W, g, J
+
+    def _R(self, E: Sequence[np.ndarray]) -> np.ndarray:
+        return self._R_fixed if self._R_fixed is not None else \
+            st.residual_covariance(E, full=self.noise == "full")
+
+    def _nll(self, theta: np.ndarray) -> float:
+        """Negative log-likelihood with R at its optimum: (N/2) log det R + prior penalty."""
+        E = self._residuals(self._simulate(theta))
+        if E is None:
+            return np.inf
+        R = self._R(E)
+        sign, logdet = np.linalg.slogdet(R)
+        if sign <= 0 or not np.isfinite(logdet):
+            return np.inf
+        n = sum(e.shape[0] for e in E)
+        if self._R_fixed is not None:
+            val = st.weighted_cost(E, st.whitener(R))
+        else:
+            val = 0.5 * n * logdet
+        return val + self._prior_terms(theta[self._lay.free_idx])[2]
+
+    def _simplex(self, theta: np.ndarray, max_evals: int | None = None) -> np.ndarray:
+        """Nelder-Mead on the free parameters (within bounds) from a poor start."""
+        lay = self._lay
+        fi = lay.free_idx
+        x0 = theta[fi]
+        scale = np.where(np.abs(x0) > 1e-8, np.abs(x0), 1.0)
+
+        def fun(xs):
+            th = theta.copy()
+            th[fi] = np.clip(xs * scale, lay.lower[fi], lay.upper[fi])
+            return self._nll(th)
+
+        n = fi.size
+        sim0 = np.vstack([x0 / scale] + [x0 / scale + 0.2 * np.eye(n)[i] for i in range(n)])
+        res = optimize.minimize(fun, x0 / scale, method="Nelder-Mead",
+                                options={"maxfev": max_evals or max(600, 200 * n),
+                                         "initial_simplex": sim0, "xatol": 1e-6, "fatol": 1e-8})
+        out = theta.copy()
+        out[fi] = np.clip(res.x * scale, lay.lower[fi], lay.upper[fi])
+        self._n_simplex_evals += int(res.nfev)
+        return out
+
+    # -- the fit --------------------------------------------------------------------------
+    def fit(self, segments: Segment | Sequence[Segment], estimate_x0: bool | Sequence[str] = False,
+            R: np.ndarray | None = None, start: Mapping[str, float] | None = None) -> EstimationResult:
+        """Estimate the free parameters from one or several segments.
+
+        segments : data; system parameters are shared, per-segment ones get ``[k]``.
+        estimate_x0 : False, True (all states) or a list of state names whose initial value
+            is estimated per segment (``x0_<state>[k]``).
+        R : a fixed measurement-noise covariance (n_out, n_out); estimated when None.
+        start : start values by expanded name, overriding the model's.
+        """
+        segments = [segments] if isinstance(segments, Segment) else list(segments)
+        if not segments:
+            raise ModelDefinitionError("fit() needs at least one segment")
+        self._segments = segments
+        lay = self._lay = Layout.build(self.model, segments, estimate_x0, values=start)
+        fi = lay.free_idx
+        if fi.size == 0:
+            raise ModelDefinitionError("no free parameters: mark some Parameter(..., free=True)")
+        self._R_fixed = None if R is None else np.atleast_2d(np.asarray(R, dtype=float))
+        self._n_simplex_evals = 0
+        theta = lay.values.copy()
+        lo, hi = lay.lower[fi], lay.upper[fi]
+
+        E0 = self._residuals(self._simulate(theta))
+        if E0 is None:
+            k, X = self._first_diverged(theta)
+            raise divergence_error(self.model, segments[k], X, k, "with the start values",
+                                   DIVERGE_HINT)
+        used_simplex = False
+        if self.fallback == "always":
+            theta = self._simplex(theta)
+            used_simplex = True
+
+        history: list[dict[str, Any]] = []
+        converged = False
+        message = ""
+        lam = 1e-3
+        cost_old = np.inf
+        it = 0
+        R_cur = None
+        for it in range(1, self.max_iter + 1):
+            Ys, Ss = self._sensitivities(theta)
+            E = [seg.z - Y for seg, Y in zip(segments, Ys)]
+            R_cur = self._R(E)
+            L = st.whitener(R_cur)
+            F, G, J = st.information_and_gradient(Ss, E, L)
+            W, gp, Jp = self._prior_terms(theta[fi])
+            F = F + W; G = G + gp; J = J + Jp
+            cost = float(np.linalg.det(R_cur))
+            watched = cost if self._R_fixed is None else J   # det(R), or J when R is given
+            if it == 1:
+                st.check_identifiable(F, lay.free_names, " at the start values")
+            history.append(self._history_row(it - 1, cost, J, theta, np.nan, lam))
+            if self.callback:
+                self.callback(it - 1, cost, pd.Series(theta[fi], index=lay.free_names))
+            if np.isfinite(cost_old) and abs(cost_old - watched) <= self.tol * abs(watched):
+                converged = True
+                break
+            cost_old = watched
+
+            # bounded-variable Gauss-Newton: freeze parameters on a bound pushed outward
+            tf = theta[fi]
+            span = np.maximum(1.0, np.abs(tf))
+            at_lo = tf <= lo + 1e-12 * span
+            at_hi = tf >= hi - 1e-12 * span
+            active = ~((at_lo & (G < 0)) | (at_hi & (G > 0)))
+            if not np.any(active):
+                converged = True
+                message = "every free parameter is held on a bound"
+                break
+            a = np.flatnonzero(active)
+            accepted = False
+            tries = self.step_halvings + 1
+            alpha = 1.0
+            delta = np.zeros_like(tf)
+            if self.optimizer == "gauss-newton":
+                delta[a] = st.solve_step(F[np.ix_(a, a)], G[a])
+            for _ in range(tries):
+                if self.optimizer == "levenberg-marquardt":
+                    delta = np.zeros_like(tf)
+                    delta[a] = st.solve_step(F[np.ix_(a, a)], G[a], lam)
+                    step = delta
+                else:
+                    step = alpha * delta
+                trial = theta.copy()
+                trial[fi] = np.clip(tf + step, lo, hi)
+                Et = self._residuals(self._simulate(trial))
+                Jt = st.weighted_cost(Et, L) if Et is not None else np.inf
+                Jt += self._prior_terms(trial[fi])[2]
+                if Jt < J:
+                    accepted = True
+                    theta = trial
+                    lam = max(lam / 10.0, 1e-10)
+                    break
+                alpha *= 0.5
+                lam *= 10.0
+            history[-1]["step"] = alpha if self.optimizer == "gauss-newton" else 1.0
+            if not accepted:
+                predicted = 0.5 * float(G[a] @ delta[a])
+                if predicted <= 1e-10 * max(J, 1.0):
+                    converged = True        # no descent left: at the minimum to round-off
+                    break
+                if self.fallback == "auto" and not used_simplex:
+                    theta = self._simplex(theta)
+                    used_simplex = True
+                    cost_old = np.inf
+                    continue
+                message = ("no step lowered the cost (line search failed) - the start may be "
+                           "poor or the model may not describe the data")
+                break
+        else:
+            message = f"stopped at max_iter={self.max_iter} before det(R) settled"
+
+        if not converged and not message:
+            message = "did not converge"
+        # final information matrix at the final parameters
+        Ys, Ss = self._sensitivities(theta)
+        E = [seg.z - Y for seg, Y in zip(segments, Ys)]
+        R_cur = self._R(E)
+        L = st.whitener(R_cur)
+        F, G, J = st.information_and_gradient(Ss, E, L)
+        W, _, _ = self._prior_terms(theta[fi])
+        F = F + W
+        tf = theta[fi]
+        span = np.maximum(1.0, np.abs(tf))
+        on_bound = (tf <= lo + 1e-9 * span) | (tf >= hi - 1e-9 * span)
+        inner = np.flatnonzero(~on_bound)
+        cov = np.full((fi.size, fi.size), np.nan)
+        if inner.size:
+            st.check_identifiable(F[np.ix_(inner, inner)], [lay.free_names[i] for i in inner],
+                                  " at the estimates")
+            cov[np.ix_(inner, inner)] = st.covariance(F[np.ix_(inner, inner)])
+        if used_simplex:
+            message = (message + "; " if message else "") + \
+                f"started with Nelder-Mead ({self._n_simplex_evals} evaluations)"
+        return EstimationResult(
+            method=self.method, model=self.model, names=list(lay.names), values=theta,
+            free=lay.free.copy(), cov=cov, R=R_cur, converged=converged, iterations=it,
+            history=pd.DataFrame(history), segments=segments,
+            predicted=frames([s.t for s in segments], Ys, self.model.outputs),
+            residuals=frames([s.t for s in segments], E, self.model.outputs),
+            at_bounds=[lay.free_names[i] for i in np.flatnonzero(on_bound)],
+            message=message, information=F, sensitivities=Ss,
+            settings={"integrator": self.integrator, "optimizer": self.optimizer,
+                      "noise": self.noise, "jacobian": self.jacobian if isinstance(self.jacobian, str)
+                      else "analytic", "tol": self.tol, "max_iter": self.max_iter})
+
+    # -- helpers --------------------------------------------------------------------------
+    def _first_diverged(self, theta: np.ndarray) -> tuple[int, np.ndarray]:
+        for k, seg in enumerate(self._segments):
+            _, X = simulate_batch(self.model, seg, theta[None, :], self._lay, k, self.integrator,
+                                  self.rtol, self.atol, return_states=True)
+            if not np.all(np.isfinite(X)):
+                return k, X[:, :, 0]
+        return 0, X[:, :, 0]  # outputs (not states) went non-finite
+
+    def _history_row(self, it: int, cost: float, J: float, theta: np.ndarray, step: float,
+                     lam: float) -> dict[str, Any]:
+        row: dict[str, Any] = {"iteration": it, "det_R": cost, "J": J, "step": step}
+        if self.optimizer == "levenberg-marquardt":
+            row["lambda"] = lam
+        row.update(zip(self._lay.free_names, theta[self._lay.free_idx]))
+        return row

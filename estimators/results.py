@@ -1,0 +1,205 @@
+"""The result type shared by every estimation method (OEM, FEM, EKF, UKF, least squares)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+import pandas as pd
+
+from estimators.model import Model, Segment
+
+#: correlation magnitude above which a pair of estimates is flagged
+CORR_FLAG = 0.9
+
+
+@dataclass
+class EstimationResult:
+    """Estimates, Cramér-Rao bounds and fit of one estimation run.
+
+    Attributes
+    ----------
+    method : "oem", "fem", "ekf", ...
+    model : the model fitted (start values as given).
+    names : (n_all,) expanded parameter names (``Cmq``, ``bias_az[0]``, ``x0_V[1]``).
+    values : (n_all,) estimates (fixed parameters at their values).
+    free : (n_all,) True where estimated.
+    cov : (n_free, n_free) parameter covariance (Cramér-Rao: inverse information matrix)
+        over the free parameters in ``names`` order; NaN rows/columns for parameters that
+        ended at a bound.
+    R : (n_outputs, n_outputs) measurement-noise (residual) covariance.
+    converged, iterations, message : optimiser outcome.
+    history : one row per iteration: cost, step length, and the free parameters.
+    predicted, residuals : per segment, DataFrames on t with one column per output.
+    at_bounds : names of parameters that ended on a bound (their std is NaN).
+    information : (n_free, n_free) Fisher information matrix at the optimum.
+    sensitivities : per segment (N, n_outputs, n_free) output sensitivities, when kept.
+    extra : method-specific details (filter gain, process noise, parameter trajectories).
+    """
+
+    method: str
+    model: Model
+    names: list[str]
+    values: np.ndarray
+    free: np.ndarray
+    cov: np.ndarray
+    R: np.ndarray
+    converged: bool
+    iterations: int
+    history: pd.DataFrame
+    predicted: list[pd.DataFrame]
+    residuals: list[pd.DataFrame]
+    segments: list[Segment] = field(default_factory=list)
+    at_bounds: list[str] = field(default_factory=list)
+    message: str = ""
+    information: np.ndarray | None = None
+    sensitivities: list[np.ndarray] | None = None
+    settings: dict[str, Any] = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    # -- parameter tables -----------------------------------------------------------------
+    @property
+    def free_names(self) -> list[str]:
+        return [n for n, f in zip(self.names, self.free) if f]
+
+    @property
+    def params(self) -> pd.Series:
+        """All parameters (free and fixed) by expanded name."""
+        return pd.Series(self.values, index=self.names, name="estimate")
+
+    @property
+    def std(self) -> pd.Series:
+        """Cramér-Rao standard deviations; NaN for fixed parameters and those at a bound."""
+        s = pd.Series(np.nan, index=self.names, name="std")
+        d = np.diag(self.cov)
+        s.loc[self.free_names] = np.sqrt(np.where(d >= 0, d, np.nan))
+        return s
+
+    @property
+    def rel_std(self) -> pd.Series:
+        """Relative standard deviation in percent, 100 std / |estimate|."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (100.0 * self.std / self.params.abs()).rename("rel_std_pct")
+
+    @property
+    def corr(self) -> pd.DataFrame:
+        """Correlation coefficients of the free estimates."""
+        d = np.sqrt(np.diag(self.cov))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c = self.cov / np.outer(d, d)
+        return pd.DataFrame(c, index=self.free_names, columns=self.free_names)
+
+    @property
+    def flagged_correlations(self) -> list[tuple[str, str, float]]:
+        """Pairs with |rho| > 0.9: estimates that the data cannot separate well."""
+        c = self.corr.to_numpy()
+        names = self.free_names
+        i, j = np.triu_indices(len(names), 1)
+        hit = np.abs(c[i, j]) > CORR_FLAG
+        return [(names[a], names[b], float(c[a, b])) for a, b in zip(i[hit], j[hit])]
+
+    @property
+    def cost(self) -> float:
+        """det(R), the maximum-likelihood cost with R estimated."""
+        return float(np.linalg.det(self.R))
+
+    @property
+    def outputs(self) -> list[str]:
+        return list(self.model.outputs)
+
+    @property
+    def n_samples(self) -> int:
+        return int(sum(len(r) for r in self.residuals))
+
+    def table(self, truth: dict[str, float] | None = None) -> pd.DataFrame:
+        """Free parameters: estimate, std, rel. std %, and with ``truth`` the error in std."""
+        names = self.free_names
+        df = pd.DataFrame({"estimate": self.params[names], "std": self.std[names],
+                           "rel_std_pct": self.rel_std[names]})
+        df["at_bound"] = [n in self.at_bounds for n in names]
+        if truth:
+            df["truth"] = [truth.get(n, np.nan) for n in names]
+            df["error_in_std"] = (df["estimate"] - df["truth"]).abs() / df["std"]
+        return df
+
+    def model_with_estimates(self) -> Model:
+        """The model with its shared parameters set to the estimates, all held fixed -
+        for proof of match on data not used in the fit."""
+        vals = {n: v for n, v in zip(self.names, self.values) if "[" not in n}
+        return self.model.with_values(vals, free=False)
+
+    # -- text -----------------------------------------------------------------------------
+    def summary(self, truth: dict[str, float] | None = None) -> str:
+        """A text table in the manner of statsmodels' summary()."""
+        width = 78
+        s = self.settings
+        head = [
+            f"{self.method.upper()} estimation results".center(width), "=" * width,
+            f"Model: {self.model.name:<22} Method: {self.method.upper()}"
+            + (f" ({s.get('integrator')}, {s.get('optimizer')})" if s.get("integrator") else ""),
+            f"Segments: {len(self.residuals):<19} Samples: {self.n_samples:<10} "
+            f"Outputs: {len(self.outputs)}",
+            f"Converged: {'yes' if self.converged else 'NO':<18} Iterations: {self.iterations:<7} "
+            f"det(R): {self.cost:.4e}",
+        ]
+        if self.message:
+            head.append(f"Note: {self.message}")
+        head.append("-" * width)
+        cols = f"{'parameter':<16}{'estimate':>13}{'std (CRB)':>13}{'rel std %':>11}"
+        if truth:
+            cols += f"{'truth':>12}{'|err|/std':>10}"
+        head.append(cols)
+        head.append("-" * width)
+        tab = self.table(truth)
+        for name, row in tab.iterrows():
+            line = f"{name:<16}{row['estimate']:>13.5g}"
+            line += f"{row['std']:>13.4g}" if np.isfinite(row["std"]) else f"{'-':>13}"
+            line += f"{row['rel_std_pct']:>11.2f}" if np.isfinite(row["rel_std_pct"]) else f"{'-':>11}"
+            if truth:
+                line += f"{row['truth']:>12.5g}" if np.isfinite(row["truth"]) else f"{'':>12}"
+                line += f"{row['error_in_std']:>10.2f}" if np.isfinite(row["error_in_std"]) else f"{'':>10}"
+            if row["at_bound"]:
+                line += "  at bound"
+            head.append(line)
+        fixed = [n for n, f in zip(self.names, self.free) if not f and not n.startswith("x0_")]
+        if fixed:
+            head.append("-" * width)
+            head.append("fixed: " + ", ".join(f"{n}={v:.4g}" for n, v in
+                                               zip(self.names, self.values) if n in fixed))
+        head.append("-" * width)
+        sd = np.sqrt(np.diag(self.R))
+        head.append("residual std: " + "  ".join(f"{o}={v:.3g}" for o, v in zip(self.outputs, sd)))
+        flags = self.flagged_correlations
+        if flags:
+            head.append(f"|correlation| > {CORR_FLAG}: " + ", ".join(
+                f"{a}~{b} ({r:+.3f})" for a, b, r in flags))
+        head.append("=" * width)
+        return "\n".join(head)
+
+    def __repr__(self) -> str:  # pragma: no cover - convenience
+        return self.summary()
+
+    def to_dict(self, truth: dict[str, float] | None = None) -> dict[str, Any]:
+        """JSON-ready numbers: parameters with estimate/std/rel std (and truth), R, fit."""
+        tab = self.table(truth)
+        params = {}
+        for name, row in tab.iterrows():
+            d = {k: (None if not np.isfinite(v) else float(v)) for k, v in row.items()
+                 if k != "at_bound"}
+            d["at_bound"] = bool(row["at_bound"])
+            params[name] = d
+        return {
+            "method": self.method, "model": self.model.name, "converged": bool(self.converged),
+            "iterations": int(self.iterations), "message": self.message,
+            "det_R": self.cost, "R": np.asarray(self.R).tolist(), "outputs": self.outputs,
+            "n_samples": self.n_samples, "parameters": params,
+            "correlations_flagged": [list(f) for f in self.flagged_correlations],
+            "settings": {k: v for k, v in self.settings.items() if isinstance(v, (str, int, float, bool))},
+        }
+
+
+def frames(t_list: Sequence[np.ndarray], arrays: Sequence[np.ndarray],
+           columns: Sequence[str]) -> list[pd.DataFrame]:
+    """Per-segment DataFrames on t from (N, n) arrays."""
+    return [pd.DataFrame(a, index=pd.Index(t, name="t"), columns=list(columns))
+            for t, a in zip(t_list, arrays)]

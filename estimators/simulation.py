@@ -1,0 +1,150 @@
+"""Parameter layout over several segments and batched simulation of a model.
+
+The *layout* expands a model's parameters for a list of segments into one vector:
+shared system parameters (``Cmq``), per-segment parameters (``bias_az[k]``) and, when
+requested, per-segment initial states (``x0_alpha[k]``). Each segment reads its model
+parameter row ``P`` (n_params, B) and initial state ``X0`` (n_states, B) from a batch
+of such vectors ``Theta`` (B, n_all) by index, so B perturbed parameter sets simulate in
+one integration.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from estimators.errors import ModelDefinitionError, SimulationDivergedError
+from estimators.jit import kernel_for
+from estimators.model import Model, Segment, check_in_bounds
+
+
+@dataclass
+class Layout:
+    """Expanded parameter vector for a model over segments.
+
+    names (n_all,), values (n_all,), free (n_all,) bool, lower/upper (n_all,),
+    pidx[k] (n_params,) and x0idx[k] (n_states,) index into the vector for segment k,
+    relevant[k] the free indices segment k depends on.
+    """
+
+    names: list[str]
+    values: np.ndarray
+    free: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    kind: list[str]
+    pidx: list[np.ndarray]
+    x0idx: list[np.ndarray]
+    relevant: list[np.ndarray]
+
+    @classmethod
+    def build(cls, model: Model, segments: Sequence[Segment],
+              estimate_x0: bool | Sequence[str] = False,
+              values: Mapping[str, float] | None = None) -> "Layout":
+        nseg = len(segments)
+        if estimate_x0 is True:
+            est = set(model.states)
+        elif not estimate_x0:
+            est = set()
+        else:
+            est = set(estimate_x0)
+            bad = est - set(model.states)
+            if bad:
+                raise ModelDefinitionError(f"estimate_x0 names {sorted(bad)} are not states {model.states}")
+        names, vals, free, lo, hi, kind = [], [], [], [], [], []
+
+        def add(name, v, fr, b, k):
+            names.append(name); vals.append(v); free.append(fr)
+            lo.append(b[0]); hi.append(b[1]); kind.append(k)
+            return len(names) - 1
+
+        shared: dict[str, int] = {}
+        for p in model.parameters:
+            if not p.per_segment:
+                shared[p.name] = add(p.name, p.value, p.free, p.bounds, "system")
+        pidx, x0idx = [], []
+        for k, seg in enumerate(segments):
+            seg.check_against(model)
+            row = []
+            for p in model.parameters:
+                if p.per_segment:
+                    row.append(add(f"{p.name}[{k}]", p.value, p.free, p.bounds, "segment"))
+                else:
+                    row.append(shared[p.name])
+            pidx.append(np.array(row, dtype=int))
+            x0 = seg.initial_state(model)
+            x0idx.append(np.array([add(f"x0_{s}[{k}]", x0[i], s in est, (-np.inf, np.inf), "x0")
+                                   for i, s in enumerate(model.states)], dtype=int))
+        values_arr = np.array(vals, dtype=float)
+        if values:
+            for i, n in enumerate(names):
+                if n in values:
+                    values_arr[i] = float(values[n])
+        free_arr = np.array(free, dtype=bool)
+        relevant = []
+        for k in range(nseg):
+            used = np.zeros(len(names), dtype=bool)
+            used[pidx[k]] = True
+            used[x0idx[k]] = True
+            relevant.append(np.flatnonzero(used & free_arr))
+        lay = cls(names, values_arr, free_arr, np.array(lo), np.array(hi), kind, pidx, x0idx, relevant)
+        for i in np.flatnonzero(free_arr):
+            check_in_bounds(names[i], values_arr[i], lo[i], hi[i])
+        return lay
+
+    @property
+    def free_idx(self) -> np.ndarray:
+        return np.flatnonzero(self.free)
+
+    @property
+    def free_names(self) -> list[str]:
+        return [self.names[i] for i in self.free_idx]
+
+
+def simulate_batch(model: Model, seg: Segment, Theta: np.ndarray, layout: Layout, k: int,
+                   integrator: str = "rk4", rtol: float = 1e-8, atol: float = 1e-10,
+                   return_states: bool = False):
+    """Outputs Y (N, n_outputs, B) of segment ``k`` for parameter vectors Theta (B, n_all).
+    Diverged trajectories carry NaN from the first non-finite sample on."""
+    Theta = np.atleast_2d(Theta)
+    P = np.ascontiguousarray(Theta[:, layout.pidx[k]].T)
+    X0 = np.ascontiguousarray(Theta[:, layout.x0idx[k]].T)
+    c = model.constants_for(seg)
+    X = kernel_for(model).integrate(integrator, X0, seg.u, seg.t, P, c, rtol=rtol, atol=atol)
+    with np.errstate(all="ignore"):
+        Y = model.eval_g(X.transpose(1, 0, 2), seg.u.T[:, :, None], P, c)
+    Y = Y.transpose(1, 0, 2)
+    return (Y, X) if return_states else Y
+
+
+def divergence_error(model: Model, seg: Segment, X: np.ndarray, k: int, what: str,
+                     hint: str) -> SimulationDivergedError:
+    """Build the message for a trajectory X (N, n) that went non-finite."""
+    bad = ~np.isfinite(X)
+    i = int(np.argmax(bad.any(axis=1)))
+    j = int(np.argmax(bad[i])) if i > 0 else 0
+    state = model.states[j]
+    label = seg.name or str(k)
+    return SimulationDivergedError(
+        f"the simulation of segment {label} diverged at t={seg.t[i]:.4g} s (state {state!r} "
+        f"became non-finite) {what}. {hint}", segment=k, time=float(seg.t[i]), state=state)
+
+
+def simulate_outputs(model: Model, segment: Segment, params: Mapping[str, float] | None = None,
+                     integrator: str = "rk4", *, states: bool = False, **kw) -> pd.DataFrame:
+    """Simulate one segment; a DataFrame of outputs (and states when ``states``) on t.
+    ``params`` may hold model parameter names or expanded names (``bias_az[0]``)."""
+    lay = Layout.build(model, [segment], values=params)
+    if params:
+        for p in model.parameters:
+            if p.per_segment and p.name in params:
+                lay.values[lay.pidx[0][model.parameter_names.index(p.name)]] = params[p.name]
+    Y, X = simulate_batch(model, segment, lay.values[None, :], lay, 0, integrator,
+                          return_states=True, **kw)
+    df = pd.DataFrame(Y[:, :, 0], index=pd.Index(segment.t, name="t"), columns=model.outputs)
+    if states:
+        for i, s in enumerate(model.states):
+            df[f"state_{s}" if s in df.columns else s] = X[:, i, 0]
+    return df
