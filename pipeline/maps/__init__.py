@@ -8,7 +8,8 @@ Map file format (all keys but ``source`` optional)::
     extends = "ardupilot_bin"        # (user maps) start from a built-in map and override it
 
     [channels.q]
-    source = ["IMU[0].GyrY", "IMU.GyrY"]   # "MESSAGE.field"; first one present wins
+    source = ["IMU[0].GyrY", "IMU.GyrY", "SCALED_IMU.ygyro mrad/s"]   # first present wins;
+                                            # a unit after a space applies to that source
     unit = "rad/s"                          # unit of the *source* (converted to SI)
     scale = 1.0                             # si = to_si(unit)((raw * scale) + offset) * sign
     offset = 0.0
@@ -138,6 +139,11 @@ def _parse(doc: dict, origin: str) -> ChannelMap:
         if unit not in UNIT_FACTORS:
             raise FsidError(f"channel map {origin}: [channels.{name}] unit '{unit}' unknown; "
                             f"use one of {', '.join(sorted(UNIT_FACTORS))}")
+        for src_ in sources:
+            parts = src_.split()
+            if len(parts) > 1 and parts[1] not in UNIT_FACTORS:
+                raise FsidError(f"channel map {origin}: [channels.{name}] source '{src_}' has "
+                                f"unknown unit '{parts[1]}'")
         rules[name] = ChannelRule(name, sources, unit, float(spec.get("scale", 1.0)),
                                   float(spec.get("offset", 0.0)), float(spec.get("sign", 1.0)),
                                   spec.get("pwm"), spec.get("transform"), spec.get("component"))
@@ -301,17 +307,20 @@ def apply_rule(raw: RawLog, rule: ChannelRule) -> Channel | str:
                 reasons.append(f"no servo output configured for {rule.name}")
                 continue
             src = src.replace("{n}", str(n))
+        unit = rule.unit
+        if " " in src.strip():  # "MSG.field unit": a unit for this source only
+            src, unit = src.split()[0], src.split()[1]
         got = _lookup(raw, src)
         if isinstance(got, str):
             reasons.append(got)
             continue
         tab, raw_v = got
-        note = ""
+        note = f" [{unit}]" if unit != rule.unit else ""
         if rule.pwm is not None:
             vals, note = _pwm(rule, raw_v * rule.scale + rule.offset, raw.params, src)
             vals = vals * rule.sign
         else:
-            vals = (raw_v * rule.scale + rule.offset) * UNIT_FACTORS[rule.unit] * rule.sign
+            vals = (raw_v * rule.scale + rule.offset) * UNIT_FACTORS.get(unit, 1.0) * rule.sign
         return Channel(np.asarray(tab.t, dtype=np.float64), vals,
                        CANONICAL_UNITS.get(rule.name, rule.unit), src + note)
     return "; ".join(dict.fromkeys(reasons))

@@ -1,0 +1,77 @@
+"""``fsid check LOG``: ingest a log, run the data-quality checks (and, when the log has the
+channels, the sensor-compatibility reconstruction), write ``checks.json`` and the
+canonical data (``canonical.csv``: every canonical channel resampled to one time base)."""
+from __future__ import annotations
+
+import argparse
+import io
+import sys
+from pathlib import Path
+
+from pipeline.errors import FsidError
+
+HELP = "ingest a flight log, check its data quality and sensor compatibility"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("log", help="flight log: .mcap, .bin, .tlog, .ulg or .csv")
+    parser.add_argument("--map", default=None,
+                        help="channel map (built-in name or TOML file; default: built-in for the format)")
+    parser.add_argument("--out", default=None, help="output folder (default: a new folder under ./runs/)")
+    parser.add_argument("--rate", type=float, default=None,
+                        help="rate of canonical.csv in Hz (default: fastest core channel, at most 100)")
+    parser.add_argument("--segments", default=None,
+                        help="'mode', 'auto' or time ranges 't0:t1,t0:t1' in s on the log's time base")
+    parser.add_argument("--no-compat", action="store_true", help="skip the sensor-compatibility fit")
+
+
+def _segments(spec: str | None):
+    if spec is None or spec in ("mode", "auto"):
+        return spec
+    out = []
+    for part in spec.split(","):
+        try:
+            a, b = part.split(":")
+            out.append((float(a), float(b)))
+        except ValueError:
+            raise FsidError(f"--segments '{part}' is not t0:t1 (seconds); e.g. --segments 10:30,45:70") from None
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from pipeline.checks import findings_to_json, run_checks, summarize
+    from pipeline.paths import atomic_write_text, new_run_dir
+    from pipeline.readers import read_log
+
+    log = Path(args.log)
+    if not log.is_file():
+        raise FsidError(f"log '{log}' not found; give the path of a .mcap/.bin/.tlog/.ulg/.csv file")
+    fd = read_log(log, map=args.map, segments=_segments(args.segments))
+    print(f"read {log} ({fd.meta['format']}, map {fd.meta['map']}): {len(fd.channels)} channels")
+    findings = run_checks(fd)
+    extra: dict = {}
+    if not args.no_compat:
+        try:
+            from pipeline.compatibility import compatibility_report
+            extra["compatibility"] = compatibility_report(fd)
+        except ImportError:
+            extra["compatibility"] = {"status": "skipped", "reason": "compatibility stage not available"}
+        except FsidError as exc:
+            extra["compatibility"] = {"status": "skipped", "reason": str(exc)}
+    out = new_run_dir("check", args.out)
+    atomic_write_text(out / "checks.json", findings_to_json(findings, fd, extra))
+    rate = args.rate
+    if rate is None:
+        rates = [c.rate_hz for k, c in fd.channels.items() if k in ("ax", "p", "phi", "V", "de")]
+        rate = min(max(rates), 100.0) if rates else 10.0
+    df = fd.resample(rate, span="union")
+    buf = io.StringIO()
+    df.to_csv(buf, index=False, float_format="%.9g")
+    atomic_write_text(out / "canonical.csv", buf.getvalue())
+    c = summarize(findings)
+    print(f"checks: {c['pass']} pass, {c['warn']} warn, {c['fail']} fail")
+    for f in findings:
+        if f.status == "fail":
+            print(f"  FAIL {f.check} {f.channel or ''}: {f.message}", file=sys.stderr)
+    print(f"wrote {out / 'checks.json'} and {out / 'canonical.csv'} ({len(df)} rows at {rate:g} Hz)")
+    return 0
