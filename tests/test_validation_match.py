@@ -1,0 +1,135 @@
+"""Proof of match against tolerance bands, plausibility against a-priori values, inverse
+simulation."""
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import signal
+
+from estimators.validation import (default_tolerances, inverse_simulation, load_apriori,
+                                   plausibility, proof_of_match)
+
+DEG = np.pi / 180
+
+
+def contrived():
+    t = np.linspace(0, 10, 501)
+    meas = pd.DataFrame({"q": 0.1 * np.sin(t), "az": -9.81 + np.sin(2 * t),
+                         "theta": 0.05 * np.cos(t), "V": 50 + t})
+    pred = meas.copy()
+    pred["q"] += 1.0 * DEG * np.sin(5 * t)       # within 1.5 deg/s everywhere
+    pred["az"] += 0.15 * 9.80665 * (t > 5)       # 0.15 g error on the second half
+    pred["theta"] += 1.0 * DEG                   # 1 deg constant bias, within 1.5 deg
+    pred["V"] += 3.0                             # no default band for V
+    return t, meas, pred
+
+
+def test_default_tolerances_in_si():
+    tol = default_tolerances()
+    assert tol["q"] == pytest.approx(1.5 * DEG)            # rad/s
+    assert tol["az"] == pytest.approx(0.980665)            # m/s^2
+    assert tol["alpha"] == pytest.approx(0.02617993878)    # rad
+    assert default_tolerances(rate_deg_s=3.0)["p"] == pytest.approx(3 * DEG)
+
+
+def test_proof_of_match_pass_fail_per_channel():
+    _, meas, pred = contrived()
+    df = proof_of_match(meas, pred)
+    assert bool(df.loc["q", "pass"]) and bool(df.loc["theta", "pass"])
+    assert not bool(df.loc["az", "pass"])
+    assert pd.isna(df.loc["V", "pass"])                       # not judged
+    assert df.attrs["all_pass"] is False
+    assert df.loc["az", "max_abs_error"] == pytest.approx(0.15 * 9.80665)
+    assert df.loc["az", "fraction_within"] == pytest.approx(251 / 501)   # t <= 5: samples 0..250
+    assert df.loc["theta", "rms_error"] == pytest.approx(1.0 * DEG)
+    # configurable: a wider az band, a V band
+    df2 = proof_of_match(meas, pred, tolerances={"az": 0.2 * 9.80665, "V": 2.0})
+    assert bool(df2.loc["az", "pass"]) and not bool(df2.loc["V", "pass"])
+    # a required fraction of 45 % lets the half-failing az channel pass
+    assert bool(proof_of_match(meas, pred, required_fraction=0.45).loc["az", "pass"])
+    # an allowed bias of 3 m/s removes the V offset entirely
+    df3 = proof_of_match(meas, pred, tolerances={"V": 0.5, "az": 0.2 * 9.80665}, allowed_bias={"V": 3.0})
+    assert df3.loc["V", "bias_removed"] == pytest.approx(-3.0)
+    assert bool(df3.loc["V", "pass"]) and df3.attrs["all_pass"] is True
+    # a smaller allowed bias is clipped
+    df4 = proof_of_match(meas, pred, tolerances={"V": 0.5}, allowed_bias={"V": 1.0})
+    assert df4.loc["V", "bias_removed"] == pytest.approx(-1.0)
+    assert not bool(df4.loc["V", "pass"])
+
+
+APRIORI = """
+[Cmq]
+value = -25.0
+std = 4.0
+source = "DATCOM"
+
+[Cmde]
+value = 1.0
+std = 0.1
+
+[Clp]
+value = -0.5
+rel_std = 0.2
+"""
+
+
+def test_plausibility_flags_hand_computed(tmp_path):
+    path = tmp_path / "apriori.toml"
+    path.write_text(APRIORI)
+    ap = load_apriori(path)
+    assert ap.loc["Clp", "std"] == pytest.approx(0.1)
+    assert ap.loc["Cmq", "source"] == "DATCOM"
+    est = pd.Series({"Cmq": -20.0, "Cmde": 0.5, "Clp": -0.45, "CL0": 0.3})
+    std = pd.Series({"Cmq": 3.0, "Cmde": 0.1, "Clp": 0.05, "CL0": 0.01})
+    df = plausibility(est, std, path, k=3.0)
+    assert list(df.index) == ["Cmq", "Cmde", "Clp"]              # CL0 has no a-priori value
+    assert df.loc["Cmq", "combined_std"] == pytest.approx(5.0)   # sqrt(3^2 + 4^2)
+    assert df.loc["Cmq", "z"] == pytest.approx(1.0)
+    assert df.loc["Cmde", "z"] == pytest.approx(0.5 / np.sqrt(0.02))   # 3.54
+    assert df.loc["Clp", "z"] == pytest.approx(0.05 / np.sqrt(0.0125))
+    assert df["flag"].tolist() == [False, True, False]
+    assert plausibility(est, std, ap, k=4.0)["flag"].sum() == 0
+
+
+def test_load_apriori_errors_and_section(tmp_path):
+    with pytest.raises(ValueError, match="Cmq"):
+        load_apriori({"Cmq": {"value": -25.0}})
+    with pytest.raises(ValueError, match="Cmq"):
+        load_apriori({"Cmq": -25.0})
+    ap = load_apriori({"apriori": {"Cmq": {"value": -25.0, "std": 1.0}}})
+    assert ap.loc["Cmq", "value"] == -25.0
+
+
+A = np.array([[-1.0, 1.0], [-4.0, -1.4]])      # alpha, q
+B = np.array([[-0.1], [-6.0]])                 # elevator
+T = np.arange(0, 10, 0.02)
+U = (np.where((T > 1) & (T < 2), 0.05, 0) - np.where((T >= 2) & (T < 3), 0.05, 0))[:, None]
+
+
+def measured(Bm=B, C=np.eye(2)):
+    _, y, _ = signal.lsim((A, Bm, C, np.zeros((C.shape[0], 1))), U, T, interp=False)
+    return y.reshape(T.size, -1)
+
+
+def test_inverse_simulation_exact_model_has_no_residual_inputs():
+    z = measured()
+    r = inverse_simulation(A, B, np.eye(2), None, T, z, u_ref=U)
+    np.testing.assert_allclose(r.residual_inputs, 0.0, atol=1e-12)
+    np.testing.assert_allclose(r.tracking_error, 0.0, atol=1e-12)
+    # without the measured inputs the loop reconstructs the doublet from the outputs alone
+    r0 = inverse_simulation(A, B, np.eye(2), None, T, z)
+    assert r0.u.shape == (T.size, 1)
+    err = np.abs(r0.u - U)[:, 0]
+    assert np.median(err) < 0.002 and err.mean() < 0.005        # doublet amplitude 0.05
+    assert np.abs(r0.tracking_error).max() < 0.02
+
+
+def test_inverse_simulation_reveals_control_effectiveness_error():
+    # the data come from an aircraft 25 % more effective than the model (B_model = 0.8 B)
+    z = measured(C=np.array([[0.0, 1.0]]))
+    r = inverse_simulation(A, 0.8 * B, np.array([[0.0, 1.0]]), None, T, z, u_ref=U)
+    hold = (T > 1.5) & (T < 2.0)
+    # the model needs u / 0.8: residual input = 0.25 u
+    np.testing.assert_allclose(r.residual_inputs[hold, 0], 0.25 * 0.05, rtol=0.25)
+    assert np.abs(r.residual_inputs[T < 1.0]).max() < 1e-12
+    with pytest.raises(ValueError, match="unstable"):
+        inverse_simulation(A, B, np.eye(2), None, T, measured(), bandwidth=500.0)
