@@ -124,3 +124,20 @@ def test_linearize_matches_analytic_jacobian():
                        np.zeros(4), np.zeros(1), None, None)
     np.testing.assert_allclose(Al, A_LONG, atol=1e-8)
     np.testing.assert_allclose(Bl[:, 0], [0.0, -0.1, -6.0, 0.0], atol=1e-8)
+
+
+def test_statically_unstable_short_period_hand_computed():
+    # M_alpha > 0: s^2 + 2.4 s - 1.6 = 0, roots -1.2 +/- sqrt(3.04), one divergent
+    m = modes([[-1.0, 1.0], [3.0, -1.4]], ["alpha", "q"])
+    t = m.table
+    assert list(t.index) == ["short period (real) 1", "short period (real) 2"]
+    div = t.loc["short period (real) 2"]
+    assert div["eigenvalue"] == pytest.approx(-1.2 + np.sqrt(3.04))
+    assert div["t_double"] == pytest.approx(np.log(2) / (-1.2 + np.sqrt(3.04)))
+    assert not div["stable"]
+    # in the 4x4 model the stable oscillatory pair is the phugoid, the real roots short period
+    A = A_LONG.copy()
+    A[2, 1] = 3.0
+    t4 = modes(A, ["V", "alpha", "q", "theta"]).table
+    assert set(t4.index) == {"short period (real) 1", "short period (real) 2", "phugoid"}
+    assert (t4["real"] > 0).sum() == 1 and t4.loc["short period (real) 2", "real"] > 0

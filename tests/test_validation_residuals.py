@@ -59,3 +59,15 @@ def test_psd_white_level_and_sine_peak():
     assert f[np.argmax(p[:, 0])] == pytest.approx(12.5, abs=fs / 1024)
     f2, p2 = psd(np.sin(2 * np.pi * 12.5 * t), fs, method="periodogram")
     assert f2[np.argmax(p2[:, 0])] == pytest.approx(12.5, abs=fs / n)
+
+
+def test_whiteness_segments_pool_without_crossing_boundaries():
+    rng = np.random.default_rng(8)
+    a, b = rng.normal(size=(1500, 1)), rng.normal(size=(1500, 1)) + 5.0   # different means
+    pooled = whiteness([a, b], max_lag=10)
+    assert pooled.white[0]
+    # concatenated, the step in the mean between segments looks like strong colour
+    assert not whiteness(np.vstack([a, b]), max_lag=10).white[0]
+    # one segment as a list equals the plain call
+    np.testing.assert_allclose(whiteness([a], max_lag=10).statistic,
+                               whiteness(a, max_lag=10).statistic, rtol=1e-12)

@@ -10,9 +10,10 @@ optional per-state scaling) decides its axis; within an axis:
 * longitudinal oscillatory pairs: the highest natural frequency is the short period, the
   lowest the phugoid (one pair only: short period when no speed state is present or the
   angle-of-attack content is comparable to the pitch-attitude content, else phugoid);
-  longitudinal real roots: near-zero with height content -> "height", otherwise
-  "short period (real)" when the model has no oscillatory short period and the root is
-  dominated by alpha/q/w, else "phugoid (real)";
+  longitudinal real roots: near-zero with height content -> "height"; the others are
+  the real form of whichever of short period / phugoid is not oscillatory (with neither
+  oscillatory: the two fastest are "short period (real)", the rest "phugoid (real)"),
+  e.g. the divergent root of a statically unstable aircraft is "short period (real)";
 * lateral oscillatory pair: Dutch roll; lateral real roots: near-zero with heading content
   -> "heading", the fastest remaining -> roll, the slowest -> spiral.
 Anything else is called "longitudinal"/"lateral"/"other" with its index.
@@ -91,6 +92,7 @@ def modes(A, states: Sequence[str], *, scales: Mapping[str, float] | None = None
     if A.shape != (n, n) or len(states) != n:
         raise ValueError(f"A must be square with one name per state; got {A.shape}, {len(states)} names")
     lam, vec = np.linalg.eig(A)
+    lam, vec = lam.astype(complex), vec.astype(complex)
     scale = np.array([float((scales or {}).get(s, 1.0)) for s in states])
     content = np.abs(vec / scale[:, None]) ** 2
     content /= content.sum(axis=0, keepdims=True)
@@ -124,14 +126,23 @@ def modes(A, states: Sequence[str], *, scales: Mapping[str, float] | None = None
         else:
             name[j] = "short period" if abs(lam[j]) > 1.0 else "phugoid"
     lon_real = [j for j in reps if axis[j] == "longitudinal" and j not in osc]
-    sp_osc = "short period" in name.values()
-    for j in lon_real:
+    for j in list(lon_real):
         if abs(lam[j]) < zero_tol and c(j, {"h", "z"}) > 0.5:
             name[j] = "height"
-        elif not sp_osc and c(j, {"alpha", "q", "w"}) > c(j, {"V", "u", "theta", "vn", "vd"}):
-            name[j] = "short period (real)"
-        else:
-            name[j] = "phugoid (real)"
+            lon_real.remove(j)
+    lon_real.sort(key=lambda j: -abs(lam[j]))
+    named = set(name.values())
+    if "short period" in named and "phugoid" not in named:
+        kinds = ["phugoid (real)"] * len(lon_real)
+    elif "phugoid" in named and "short period" not in named:
+        kinds = ["short period (real)"] * len(lon_real)
+    elif not named & {"short period", "phugoid"}:
+        n_sp = 2 if has_speed else len(lon_real)     # the two fastest real roots
+        kinds = ["short period (real)" if i < n_sp else "phugoid (real)"
+                 for i in range(len(lon_real))]
+    else:
+        kinds = ["longitudinal"] * len(lon_real)
+    name.update(zip(lon_real, kinds))
 
     lat_osc = sorted((j for j in reps if axis[j] == "lateral" and j in osc),
                      key=lambda j: -abs(lam[j]))

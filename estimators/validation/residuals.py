@@ -91,22 +91,28 @@ def whiteness(residuals, max_lag: int | None = None, alpha: float = 0.05,
               names: Sequence[str] | None = None) -> WhitenessResult:
     """Whiteness test of residuals (N, n_out) by the Ljung-Box statistic over lags 1..max_lag.
 
+    residuals may also be a list of (N_s, n_out) arrays, one per segment: each is demeaned
+    on its own, lag products never cross segments, and N is the total sample count.
     max_lag defaults to min(20, N // 5). alpha is the significance level (probability of
     rejecting truly white residuals). Returns a :class:`WhitenessResult`.
     """
-    e = as_2d(residuals, "residuals")
-    n = e.shape[0]
+    segs = ([as_2d(r, "residuals") for r in residuals] if isinstance(residuals, (list, tuple))
+            else [as_2d(residuals, "residuals")])
+    n = sum(s.shape[0] for s in segs)
     if n < 10:
         raise ValueError("whiteness test needs at least 10 samples")
     m = int(min(20, n // 5) if max_lag is None else max_lag)
-    if not 1 <= m < n:
-        raise ValueError(f"max_lag must be in [1, N-1], got {m}")
-    rho = autocorrelation(e, m)
+    if not 1 <= m < min(s.shape[0] for s in segs):
+        raise ValueError(f"max_lag must be in [1, shortest segment - 1], got {m}")
+    c = sum(autocovariance(s, m) * s.shape[0] for s in segs)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho = c / c[0]
     k = np.arange(1, m + 1)[:, None]
     q = n * (n + 2) * np.sum(rho[1:] ** 2 / (n - k), axis=0)
     thr = float(stats.chi2.ppf(1.0 - alpha, m))
     band = float(stats.norm.ppf(1.0 - alpha / 2) / np.sqrt(n))
-    return WhitenessResult(names=output_names(names, e.shape[1], residuals), statistic=q,
+    first = residuals[0] if isinstance(residuals, (list, tuple)) else residuals
+    return WhitenessResult(names=output_names(names, segs[0].shape[1], first), statistic=q,
                            threshold=thr, p_value=stats.chi2.sf(q, m), white=q <= thr,
                            max_lag=m, alpha=alpha, acf=rho, band=band,
                            frac_outside=np.mean(np.abs(rho[1:]) > band, axis=0))

@@ -196,9 +196,13 @@ def correlation_flags(cov_or_corr, names: Sequence[str] | None = None,
     Input: a covariance (or, with is_corr=True, a correlation) matrix, array or DataFrame.
     Returns a DataFrame with columns ``a``, ``b``, ``rho``, sorted by |rho| descending.
     """
-    rho = (cov_or_corr if isinstance(cov_or_corr, pd.DataFrame) and is_corr else
-           correlation(cov_or_corr, names) if not is_corr else
-           pd.DataFrame(np.asarray(cov_or_corr), index=names, columns=names))
+    if names is None and not isinstance(cov_or_corr, pd.DataFrame):
+        names = [f"p{i}" for i in range(np.shape(cov_or_corr)[0])]
+    if is_corr:
+        rho = cov_or_corr if isinstance(cov_or_corr, pd.DataFrame) else pd.DataFrame(
+            np.asarray(cov_or_corr, dtype=float), index=names, columns=names)
+    else:
+        rho = correlation(cov_or_corr, names)
     R = rho.to_numpy()
     i, j = np.triu_indices(len(R), k=1)
     keep = np.abs(R[i, j]) > threshold
