@@ -58,3 +58,9 @@ def test_fit_metrics_table_names_and_values():
                                atol=1e-12)
     with pytest.raises(ValueError):
         fit_metrics(Z, Y[:, :2])
+
+
+def test_segment_lists_are_concatenated():
+    z = pd.DataFrame(Z, columns=["q", "alpha", "az"])
+    df = fit_metrics([z.iloc[:2], z.iloc[2:]], [Y[:2], Y[2:]])
+    pd.testing.assert_frame_equal(df, fit_metrics(z, Y))

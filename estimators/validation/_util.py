@@ -7,11 +7,20 @@ import numpy as np
 import pandas as pd
 
 
+def _is_segment_list(a) -> bool:
+    return (isinstance(a, (list, tuple)) and len(a) > 0
+            and all(isinstance(x, (np.ndarray, pd.DataFrame, pd.Series)) and np.ndim(x) >= 1
+                    for x in a))
+
+
 def as_2d(a, name: str = "array") -> np.ndarray:
     """Return ``a`` as a float array of shape (N, n_out); 1-D input becomes (N, 1).
 
-    pandas objects are accepted (their values are used).
+    pandas objects are accepted (their values are used); a list of per-segment arrays or
+    DataFrames is concatenated along time.
     """
+    if _is_segment_list(a):
+        return np.concatenate([as_2d(x, name) for x in a], axis=0)
     arr = np.asarray(a.to_numpy() if isinstance(a, (pd.DataFrame, pd.Series)) else a,
                      dtype=float)
     if arr.ndim == 1:
@@ -29,6 +38,8 @@ def output_names(names: Sequence[str] | None, n: int, *arrays) -> list[str]:
             raise ValueError(f"got {len(names)} names for {n} outputs")
         return names
     for a in arrays:
+        if _is_segment_list(a):
+            a = a[0]
         if isinstance(a, pd.DataFrame):
             return [str(c) for c in a.columns]
         if isinstance(a, pd.Series) and a.name is not None:

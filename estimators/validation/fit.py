@@ -2,7 +2,8 @@
 covariance proportions, R^2 and RMS per output.
 
 All functions take the measured outputs ``z`` and the model outputs ``y`` as arrays of
-shape (N, n_out) (or (N,) for one output), in any consistent units; they apply to the
+shape (N, n_out) (or (N,) for one output, or lists of per-segment arrays/DataFrames,
+concatenated), in any consistent units; they apply to the
 result of any method (OEM, FEM, EKF, UKF, equation error).
 
 Definitions (per output, e = z - y, bars are means over the N samples, s are the
