@@ -166,7 +166,10 @@ def scaled(arr: np.ndarray, mf: MsgFormat, name: str) -> np.ndarray:
         return col
     mul = FORMAT_CHARS[c][1]
     v = col.astype(np.float64)
-    return v * mul if mul is not None else v
+    if mul is None:
+        return v
+    # divide (as DFReader does) rather than multiply: 0.01 and 1e-7 are inexact in binary
+    return v / (1.0 / mul) if 0.0 < mul < 1.0 else v * mul
 
 
 def _apply_fmtu(arrays: dict[str, np.ndarray], formats: dict[int, MsgFormat]) -> None:

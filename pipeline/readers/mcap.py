@@ -61,8 +61,12 @@ def _flatten(obj, prefix: str, out: dict) -> None:
     elif isinstance(obj, (bytes, bytearray, str)):
         return
     elif hasattr(obj, "DESCRIPTOR") and hasattr(obj, "ListFields"):  # protobuf
-        for fd, v in obj.ListFields():
-            if fd.label == fd.LABEL_REPEATED:
+        for fd in obj.DESCRIPTOR.fields:  # all fields: proto3 omits zeros from ListFields
+            v = getattr(obj, fd.name)
+            rep = getattr(fd, "is_repeated", None)
+            if rep is None:
+                rep = getattr(fd, "label", 1) == 3
+            if rep:
                 v = list(v)
             _flatten(v, f"{prefix}.{fd.name}" if prefix else fd.name, out)
     elif hasattr(obj, "__slots__") or hasattr(obj, "__dict__"):  # ROS 2 dynamic messages

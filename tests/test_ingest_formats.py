@@ -1,0 +1,230 @@
+"""Readers on small files written with the real formats' own libraries/layouts."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.errors import FsidError
+from pipeline.readers import LogReadError, detect_format, read_log
+from pipeline.readers.dataflash import message_arrays, read_dataflash, scaled
+from pipeline.readers.synth import demo_dataflash, encode_tlog, write_json_mcap
+
+
+@pytest.fixture(scope="module")
+def binfile(tmp_path_factory):
+    p = tmp_path_factory.mktemp("df") / "demo.bin"
+    p.write_bytes(demo_dataflash(n=300, seed=3))
+    return p
+
+
+def test_dataflash_matches_dfreader_exactly(binfile):
+    from pymavlink import DFReader
+
+    arrays, formats, damage = message_arrays(binfile)
+    by_name = {f.name: f for f in formats.values()}
+    r = DFReader.DFReader_binary(str(binfile))
+    seen: dict[str, int] = {}
+    while True:
+        m = r.recv_msg()
+        if m is None:
+            break
+        name = m.get_type()
+        if name not in arrays or name in ("FMT", "FMTU", "UNIT", "MULT", "PARM"):
+            continue
+        k = seen.get(name, 0)
+        seen[name] = k + 1
+        for col in m.get_fieldnames():
+            ours = scaled(arrays[name][k:k + 1], by_name[name], col)[0]
+            assert ours == getattr(m, col), (name, k, col)
+    assert seen["IMU"] == 600 and seen["ATT"] == 300 and damage is None
+
+
+def test_dataflash_instances_units_modes_and_pwm(binfile):
+    fd = read_log(binfile)
+    assert fd.meta["tables"]["IMU[0]"] == 300 and fd.meta["tables"]["IMU[1]"] == 300
+    raw = read_dataflash(binfile)
+    assert raw.tables["IMU[0]"].units["GyrX"] == "rad/s"   # from FMTU + UNIT
+    assert raw.tables["ATT"].units["Roll"] == "deg"
+    assert [m for _, m in fd.modes] == ["FBWA", "MANUAL"]
+    arr = message_arrays(binfile)[0]["RCOU"]
+    # SERVO2 (function 19 = elevator): min 1000, trim 1500, max 2000, not reversed, 30 deg
+    n = (arr["C2"].astype(float) - 1500) / 500
+    assert np.allclose(fd["de"].values, -n * np.radians(30))
+    assert np.allclose(fd["phi"].values, np.radians(arr_att(binfile)["Roll"] * 0.01))
+
+
+def arr_att(p):
+    return message_arrays(p)[0]["ATT"]
+
+
+def test_user_map_overrides_builtin(binfile, tmp_path):
+    m = tmp_path / "m.toml"
+    m.write_text('[map]\nname = "mine"\nextends = "ardupilot_bin"\n'
+                 '[channels.p]\nsource = "IMU[1].GyrX"\nunit = "rad/s"\n'
+                 '[channels.V]\nsource = "ARSP.Airspeed"\nunit = "kt"\n')
+    fd = read_log(binfile, map=m)
+    arrays = message_arrays(binfile)[0]
+    imu = arrays["IMU"]
+    assert np.allclose(fd["p"].values, imu["GyrX"][imu["I"] == 1].astype(float))
+    assert np.allclose(fd["V"].values, arrays["ARSP"]["Airspeed"].astype(float) * 0.514444)
+    assert "q" in fd.channels  # the rest still comes from the built-in map
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[channels.p]\nsource = "IMU.GyrX"\nunit = "furlong"\n')
+    with pytest.raises(FsidError, match="furlong"):
+        read_log(binfile, map=bad)
+
+
+def test_tlog_synthetic(tmp_path):
+    p = tmp_path / "x.tlog"
+    p.write_bytes(encode_tlog(n=100))
+    fd = read_log(p)
+    assert len(fd["phi"]) == 100
+    assert fd["phi"].values[10] == pytest.approx(0.1 * np.sin(1.0), rel=1e-6)
+    assert fd["az"].values[0] == pytest.approx(-1000 * 9.80665e-3)
+    assert fd["r"].values[0] == pytest.approx(0.1)
+    assert [m for _, m in fd.modes] == ["FBWA", "AUTO"]
+    assert fd.params["SERVO2_TRIM"] == 1500.0
+    # servo2 = 1500 + (i % 20) * 10 -> de = -(pwm - 1500)/500 * 30 deg
+    assert fd["de"].values[5] == pytest.approx(-50 / 500 * np.radians(30))
+    assert fd.rates()["phi"] == pytest.approx(20.0, rel=1e-6)
+
+
+def test_mcap_json_header_vs_log_time(tmp_path):
+    p = tmp_path / "f.mcap"
+    msgs = [{"t": 100.0 + i * 0.01, "p": 0.01 * i, "q": 0.0, "r": -0.5} for i in range(200)]
+    write_json_mcap(p, {"/imu": msgs, "/baro": [{"t": 100.0 + i * 0.1, "h": 50.0} for i in range(20)]})
+    fd = read_log(p)
+    assert fd.meta["format"] == "mcap" and fd.meta["map"] == "fsid_mcap"
+    assert np.allclose(fd["p"].values, 0.01 * np.arange(200))
+    assert fd["p"].t[0] == pytest.approx(100.0) and fd["h"].values[0] == 50.0
+    fd2 = read_log(p, time_base="log")
+    assert "log_time" in fd2.meta["time_base"]
+
+
+ROS_IMU = """std_msgs/Header header
+geometry_msgs/Quaternion orientation
+float64[9] orientation_covariance
+geometry_msgs/Vector3 angular_velocity
+float64[9] angular_velocity_covariance
+geometry_msgs/Vector3 linear_acceleration
+float64[9] linear_acceleration_covariance
+================================================================================
+MSG: std_msgs/Header
+builtin_interfaces/Time stamp
+string frame_id
+================================================================================
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+================================================================================
+MSG: geometry_msgs/Quaternion
+float64 x
+float64 y
+float64 z
+float64 w
+================================================================================
+MSG: geometry_msgs/Vector3
+float64 x
+float64 y
+float64 z
+"""
+
+
+def test_mcap_ros2_imu_flu_to_frd(tmp_path):
+    from mcap_ros2.writer import Writer
+
+    p = tmp_path / "ros.mcap"
+    yaw_enu = 0.3
+    with open(p, "wb") as fh:
+        w = Writer(fh)
+        s = w.register_msgdef("sensor_msgs/msg/Imu", ROS_IMU)
+        for i in range(30):
+            w.write_message(topic="/imu/data", schema=s, log_time=i * 10**7, publish_time=i * 10**7,
+                            message={"header": {"stamp": {"sec": 5, "nanosec": i * 10**7}, "frame_id": "b"},
+                                     "orientation": {"x": 0.0, "y": 0.0, "z": np.sin(yaw_enu / 2),
+                                                     "w": np.cos(yaw_enu / 2)},
+                                     "orientation_covariance": [0.0] * 9,
+                                     "angular_velocity": {"x": 0.1, "y": 0.2, "z": 0.3},
+                                     "angular_velocity_covariance": [0.0] * 9,
+                                     "linear_acceleration": {"x": 1.0, "y": 2.0, "z": 9.81},
+                                     "linear_acceleration_covariance": [0.0] * 9})
+        w.finish()
+    fd = read_log(p)
+    assert fd.meta["map"] == "ros2"
+    assert fd["p"].values[0] == pytest.approx(0.1) and fd["q"].values[0] == pytest.approx(-0.2)
+    assert fd["r"].values[0] == pytest.approx(-0.3) and fd["az"].values[0] == pytest.approx(-9.81)
+    assert fd["psi"].values[0] == pytest.approx(np.pi / 2 - yaw_enu)
+    assert fd["p"].t[3] == pytest.approx(5.03)
+    assert "h" in fd.meta["unmapped"]
+
+
+def test_mcap_protobuf(tmp_path):
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+    from mcap_protobuf.writer import Writer
+
+    fdp = descriptor_pb2.FileDescriptorProto(name="rates.proto", package="demo")
+    m = fdp.message_type.add(name="Rates")
+    for k, n in enumerate(["t", "p", "q", "r"], 1):
+        m.field.add(name=n, number=k, type=descriptor_pb2.FieldDescriptorProto.TYPE_DOUBLE,
+                    label=descriptor_pb2.FieldDescriptorProto.LABEL_OPTIONAL)
+    pool = descriptor_pool.DescriptorPool()
+    pool.Add(fdp)
+    cls = message_factory.GetMessageClass(pool.FindMessageTypeByName("demo.Rates"))
+    p = tmp_path / "pb.mcap"
+    with open(p, "wb") as fh:
+        w = Writer(fh)
+        for i in range(40):
+            w.write_message("/rates", cls(t=1.0 + i * 0.02, p=0.5, q=-0.25, r=float(i)),
+                            log_time=i * 10**6, publish_time=i * 10**6)
+        w.finish()
+    fd = read_log(p)
+    assert len(fd["r"]) == 40 and fd["r"].values[-1] == 39.0 and fd["q"].values[0] == -0.25
+    assert fd["p"].t[1] == pytest.approx(1.02)
+
+
+def test_csv_with_column_map(tmp_path):
+    p = tmp_path / "d.csv"
+    t = np.arange(50) * 0.02
+    p.write_text("time_ms;roll_deg;airspeed_kt\n" +
+                 "\n".join(f"{ti * 1000:.0f};{10 * np.sin(ti):.6f};{30:.1f}" for ti in t) + "\n")
+    m = tmp_path / "m.toml"
+    m.write_text('[map]\nname = "mine"\n[channels.phi]\nsource = "csv.roll_deg"\nunit = "deg"\n'
+                 '[channels.V]\nsource = "csv.airspeed_kt"\nunit = "kt"\n')
+    fd = read_log(p, map=m, time_column="time_ms", time_scale=1e-3)
+    assert np.allclose(fd["phi"].t, t)
+    assert np.allclose(fd["phi"].values, np.radians(10 * np.sin(t)), atol=1e-7)
+    assert fd["V"].values[0] == pytest.approx(30 * 0.514444)
+
+
+def test_wrong_extension_and_empty(tmp_path):
+    p = tmp_path / "really_a_bin.tlog"
+    p.write_bytes(demo_dataflash(n=20))
+    assert detect_format(p) == "dataflash"
+    assert len(read_log(p)["p"]) == 20
+    e = tmp_path / "e.ulg"
+    e.write_bytes(b"")
+    with pytest.raises(LogReadError) as ei:
+        read_log(e)
+    assert ei.value.offset == 0
+    g = tmp_path / "g.bin"
+    g.write_bytes(bytes(range(256)) * 4)
+    with pytest.raises(LogReadError):
+        read_log(g)
+
+
+def test_resample_antialias_and_segments(binfile):
+    from pipeline.flightdata import Channel, FlightData
+
+    t = np.arange(0, 60, 0.005)  # 200 Hz
+    de = np.where((t > 20) & (t < 26), np.radians(5) * np.sign(np.sin(2 * np.pi * (t - 20) / 3)), 0.0)
+    hf = np.sin(2 * np.pi * 41 * t)  # 41 Hz: aliases to 1 Hz at a 10 Hz output without the filter
+    fd = FlightData({"de": Channel(t, de, "rad"), "q": Channel(t, hf, "rad/s")},
+                    {"modes": [(0.0, "FBWA"), (30.0, "AUTO")]})
+    df = fd.resample(10.0, ["q"])
+    assert np.nanstd(df["q"]) < 0.01
+    assert np.nanstd(fd.resample(10.0, ["q"], antialias=False)["q"]) > 0.5
+    segs = fd.find_segments()
+    assert len(segs) == 1 and segs[0].axis == "de"
+    assert 18.0 <= segs[0].t0 <= 20.5 and 25.5 <= segs[0].t1 <= 29.5
+    ms = fd.mode_segments()
+    assert [(s.mode, s.t0, s.t1) for s in ms] == [("FBWA", 0.0, 30.0), ("AUTO", 30.0, t[-1])]

@@ -1,0 +1,178 @@
+"""Ingest the real third-party logs in ../shared/data/logs (skipped when absent).
+
+Expected numbers were taken independently from pymavlink (DFReader, mavutil) and pyulog
+over the same files, and from scipy's Rotation for the quaternion -> Euler conversion.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.checks import run_checks
+from pipeline.readers import read_log
+
+
+def _logs_dir() -> Path:
+    env = os.environ.get("FSID_LOGS_DIR")
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parents[2] / "shared" / "data" / "logs"
+
+
+LOGS = _logs_dir()
+BIN = LOGS / "ardupilot_plane_ground_truncated.BIN"
+TLOG = LOGS / "ardupilot_quadplane_sitl.tlog"
+ULG = LOGS / "px4_vtol_ground_small.ulg"
+
+
+def need(p: Path) -> Path:
+    if not p.is_file():
+        pytest.skip(f"real log {p.name} not available")
+    return p
+
+
+@pytest.fixture(scope="module")
+def bin_fd():
+    return read_log(need(BIN))
+
+
+@pytest.fixture(scope="module")
+def tlog_fd():
+    return read_log(need(TLOG))
+
+
+@pytest.fixture(scope="module")
+def ulg_fd():
+    return read_log(need(ULG))
+
+
+# ------------------------------------------------------------------ ArduPilot .BIN
+def test_bin_counts_values_and_units(bin_fd):
+    fd = bin_fd
+    counts = fd.meta["info"]["message_counts"]
+    # DFReader over the same file: IMU 45, IMU2 45, ATT 24, PARM 809, FMT 132, AOA 23, BARO 8
+    assert counts["IMU"] == 45 and counts["IMU2"] == 45 and counts["ATT"] == 24
+    assert counts["PARM"] == 809 and counts["FMT"] == 132 and counts["AOA"] == 23
+    assert counts["BARO"] == 8 and counts["RCOU"] == 23
+    assert len(fd["p"]) == 45
+    # first IMU: TimeUS 81794643, GyrX -0.1165708526968956 rad/s, AccZ -9.780994415283203
+    assert fd["p"].t[0] == pytest.approx(81.794643, abs=1e-9)
+    assert fd["p"].values[0] == pytest.approx(-0.1165708526968956, rel=1e-12)
+    assert fd["az"].values[0] == pytest.approx(-9.780994415283203, rel=1e-12)
+    # last complete IMU: TimeUS 82769489, AccZ -9.931867599487305
+    assert fd["az"].t[-1] == pytest.approx(82.769489, abs=1e-9)
+    assert fd["az"].values[-1] == pytest.approx(-9.931867599487305, rel=1e-12)
+    # ATT Roll -7.18 deg, Yaw 337.1 deg (format 'c' / 'C': 0.01 deg) -> rad
+    assert fd["phi"].values[0] == pytest.approx(np.radians(-7.18), abs=1e-12)
+    assert fd["psi"].values[0] == pytest.approx(np.radians(337.1), abs=1e-9)
+    assert fd["phi"].unit == "rad" and fd["az"].unit == "m/s^2"
+
+
+def test_bin_params_modes_servo_calibration(bin_fd):
+    fd = bin_fd
+    assert len(fd.params) == 809  # DFReader.params has 809 names
+    assert fd.params["SERVO2_FUNCTION"] == 19.0
+    assert fd.params["INS_ACCOFFS_Y"] == pytest.approx(2.4852089881896973)
+    assert fd.modes == [(pytest.approx(82.020997), "MANUAL")]
+    # de from RCOU C2 (elevator by SERVO2_FUNCTION=19): first pulse 1402, trim 1401,
+    # max 2000, reversed -> -(1/599) of full travel (30 deg), ArduPilot sign -> +
+    assert "RCOU.C2" in fd["de"].source
+    assert fd["de"].values[0] == pytest.approx(np.radians(30.0) / 599.0, rel=1e-9)
+    # throttle on SERVO3 (function 70): pulse 1100 at min -> 0
+    assert fd["throttle"].values[0] == 0.0
+
+
+def test_bin_truncated_last_record_is_reported_and_data_kept(bin_fd):
+    dmg = bin_fd.meta["damage"]
+    # 65536-byte file; DFReader stops at offset 65515 = 65512 + 3 header bytes
+    assert dmg["offset"] == 65512
+    assert dmg["kept_records"] == 1731  # DFReader decodes 1731 messages
+    assert "cut short" in dmg["message"]
+
+
+def test_bin_checks_flag_truncation_ground_and_missing_airspeed(bin_fd):
+    fs = run_checks(bin_fd)
+    by = {(f.check, f.channel): f for f in fs}
+    assert by[("damage", None)].status == "warn"
+    assert by[("missing", "V")].status == "warn"
+    ground = [f for f in fs if f.check == "ground"]
+    assert ground and all(f.status == "warn" for f in ground)
+    assert not any(f.status == "fail" for f in fs)
+
+
+# ------------------------------------------------------------------ MAVLink .tlog
+def test_tlog_counts_params_modes(tlog_fd):
+    fd = tlog_fd
+    info = fd.meta["info"]
+    # mavutil over the same file: ATTITUDE 888, VFR_HUD 878, SCALED_IMU2 796, HEARTBEAT 199,
+    # PARAM_VALUE 1147 messages for 1053 parameters
+    assert info["message_counts"]["ATTITUDE"] == 888
+    assert info["message_counts"]["VFR_HUD"] == 878
+    assert info["message_counts"]["SCALED_IMU2"] == 796
+    assert info["message_counts"]["HEARTBEAT"] == 199
+    assert info["param_value_count"] == 1147
+    assert len(fd.params) == 1053
+    assert fd.params["SR0_RAW_SENS"] == 4.0  # last value sent wins (first was 2.0)
+    assert fd.params["ARSPD_TYPE"] == 2.0
+    assert [m for _, m in fd.modes] == ["QLOITER", "CIRCLE", "GUIDED", "QLAND"]
+    assert fd.modes[0][0] == pytest.approx(1533737161.935, abs=1e-3)
+    assert fd.modes[3][0] == pytest.approx(1533737285.271, abs=1e-3)
+
+
+def test_tlog_values_and_units(tlog_fd):
+    fd = tlog_fd
+    assert fd["phi"].values[0] == pytest.approx(-0.024653663858771324, rel=1e-7)
+    assert fd["phi"].t[0] == pytest.approx(1533737161.914, abs=1e-3)
+    # SCALED_IMU2 first: zacc -999 mG, xgyro -8 mrad/s
+    assert fd["az"].values[0] == pytest.approx(-999 * 9.80665e-3)
+    assert fd["p"].values[0] == pytest.approx(-0.008)
+    assert "SCALED_IMU2" in fd["az"].source
+    # GLOBAL_POSITION_INT relative_alt 6750 mm, vx -188 cm/s
+    assert fd["h"].values[0] == pytest.approx(6.75)
+    assert fd["vn"].values[0] == pytest.approx(-1.88)
+
+
+def test_tlog_checks_flag_low_rate_and_hover_segments(tlog_fd):
+    fs = run_checks(tlog_fd)
+    slow = [f for f in fs if f.check == "rate" and f.status == "warn"]
+    assert {"p", "q", "r", "phi", "V"} <= {f.channel for f in slow}
+    for f in slow:
+        assert 3.0 < f.value < 5.0  # ~4 Hz telemetry
+    assert any(f.check == "ground" and "QLOITER" in f.message for f in fs)
+    assert not any(f.status == "fail" for f in fs)
+
+
+def test_tlog_mode_segments(tlog_fd):
+    segs = [s for s in tlog_fd.segments if s.kind == "mode"]
+    assert [s.mode for s in segs] == ["QLOITER", "CIRCLE", "GUIDED", "QLAND"]
+    assert segs[1].duration == pytest.approx(1533737246.913 - 1533737201.028, abs=1e-2)
+
+
+# ------------------------------------------------------------------ PX4 .ulg
+def test_ulg_values_quaternion_params(ulg_fd):
+    fd = ulg_fd
+    assert len(fd["p"]) == 1298
+    assert fd["p"].t[0] == pytest.approx(20.326716)
+    assert fd["p"].values[0] == pytest.approx(0.0029683835, rel=1e-6)
+    assert fd["az"].values[0] == pytest.approx(-9.634243, rel=1e-6)
+    # vehicle_attitude sample 100 (t = 20.971931 s): scipy ZYX euler = (yaw, pitch, roll)
+    i = int(np.argmin(np.abs(fd["psi"].t - 20.971931)))
+    assert fd["psi"].values[i] == pytest.approx(0.19692472, abs=1e-6)
+    assert fd["theta"].values[i] == pytest.approx(-0.00189195, abs=1e-6)
+    assert fd["phi"].values[i] == pytest.approx(0.01894606, abs=1e-6)
+    assert len(fd.params) == 980
+    assert fd.params["ASPD_BETA_NOISE"] == pytest.approx(0.3)
+    assert [m for _, m in fd.modes] == ["MANUAL"]
+    assert set(fd.missing(["alpha", "beta", "V"])) == {"alpha", "beta"}
+
+
+def test_ulg_resample_common_base(ulg_fd):
+    df = ulg_fd.resample(50.0, ["p", "q", "phi", "de"])
+    assert list(df.columns) == ["t", "p", "q", "phi", "de"]
+    assert np.allclose(np.diff(df["t"]), 0.02)
+    assert np.isfinite(df[["p", "q", "phi", "de"]].to_numpy()).mean() > 0.99
+    # anti-aliased, so the resampled gyro has smaller spread than the raw 200 Hz one
+    assert df["p"].std() < np.std(ulg_fd["p"].values)
