@@ -87,6 +87,12 @@ def read_raw(path: str | os.PathLike, fmt: str | None = None, **opts) -> RawLog:
     except MemoryError:
         raise LogReadError(f"{path}: out of memory while reading ({fmt}); the file header "
                            "probably claims absurd sizes", path=str(path), where="reading") from None
+    except Exception as exc:  # safety net: a damaged file must end in the documented error
+        err = LogReadError(f"{path}: the {fmt} reader could not decode this file "
+                           f"({type(exc).__name__}: {exc}); it is probably damaged — please "
+                           "report it if it opens elsewhere", path=str(path), where="decoding")
+        err.internal = True
+        raise err from exc
     raise LogReadError(f"{path}: no reader for format '{fmt}'", path=str(path), where="dispatch")
 
 

@@ -35,6 +35,7 @@ class LogReadError(FsidError):
         self.offset = offset
         self.where = where
         self.partial = partial
+        self.internal = False  # True when raised by the safety net (a reader bug)
 
 
 @dataclass

@@ -180,12 +180,10 @@ def _apply_fmtu(arrays: dict[str, np.ndarray], formats: dict[int, MsgFormat]) ->
         return
     unit_of = {}
     if units is not None and "Id" in units.dtype.names and "Label" in units.dtype.names:
-        unit_of = {chr(int(i)) if not isinstance(i, bytes) else i.decode("latin1"): _cstr(l)
-                   for i, l in zip(units["Id"], units["Label"])}
+        unit_of = {chr(int(i) & 0xFF): _cstr(l) for i, l in zip(units["Id"], units["Label"])}
     mult_of = {}
     if mults is not None and "Id" in mults.dtype.names and "Mult" in mults.dtype.names:
-        mult_of = {chr(int(i)) if not isinstance(i, bytes) else i.decode("latin1"): float(m)
-                   for i, m in zip(mults["Id"], mults["Mult"])}
+        mult_of = {chr(int(i) & 0xFF): float(m) for i, m in zip(mults["Id"], mults["Mult"])}
     names = fmtu.dtype.names
     if not {"FmtType", "UnitIds", "MultIds"} <= set(names):
         return

@@ -157,3 +157,40 @@ def write_json_mcap(path: str | os.PathLike, topics: dict[str, Iterable[dict]]) 
                 ns = int(round(msg.get("t", 0.0) * 1e9))
                 w.add_message(cid, log_time=ns, publish_time=ns, data=json.dumps(msg).encode())
         w.finish()
+
+
+def encode_ulog(n: int = 100, rate_hz: float = 100.0, seed: int = 0) -> bytes:
+    """A minimal valid PX4 ULog: sensor_combined, vehicle_attitude, actuator_controls_0,
+    vehicle_status; one parameter and sys_name info."""
+    rng = np.random.default_rng(seed)
+
+    def msg(kind: bytes, payload: bytes) -> bytes:
+        return struct.pack("<HB", len(payload), kind[0]) + payload
+
+    out = bytearray(b"ULog\x01\x12\x35" + bytes([1]) + struct.pack("<Q", 0))
+    out += msg(b"B", bytes(16) + struct.pack("<3Q", 0, 0, 0))
+    key = b"char[4] sys_name"
+    out += msg(b"I", bytes([len(key)]) + key + b"PX4\0")
+    formats = {
+        "sensor_combined": "uint64_t timestamp;float[3] gyro_rad;float[3] accelerometer_m_s2;",
+        "vehicle_attitude": "uint64_t timestamp;float[4] q;",
+        "actuator_controls_0": "uint64_t timestamp;float[8] control;",
+        "vehicle_status": "uint64_t timestamp;uint8_t nav_state;uint8_t[7] _padding0;",
+    }
+    for name, f in formats.items():
+        out += msg(b"F", f"{name}:{f}".encode())
+    pkey = b"float FW_AIRSPD_TRIM"
+    out += msg(b"P", bytes([len(pkey)]) + pkey + struct.pack("<f", 15.0))
+    for k, name in enumerate(formats):
+        out += msg(b"A", struct.pack("<BH", 0, k) + name.encode())
+    for i in range(n):
+        ts = 1_000_000 + int(i * 1e6 / rate_hz)
+        g = rng.normal(0, 0.1, 3)
+        a = rng.normal([0, 0, -9.81], 0.1, 3)
+        out += msg(b"D", struct.pack("<HQ6f", 0, ts, *g, *a))
+        yaw = 0.01 * i
+        out += msg(b"D", struct.pack("<HQ4f", 1, ts, np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)))
+        out += msg(b"D", struct.pack("<HQ8f", 2, ts, 0.1, -0.2 * np.sin(i / 5), 0.0, 0.5, 0, 0, 0, 0))
+        if i % 20 == 0:
+            out += msg(b"D", struct.pack("<HQB7x", 3, ts, 0 if i < n // 2 else 3))
+    return bytes(out)

@@ -60,9 +60,13 @@ def read_ulog(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
             if a.dtype.kind in "biuf":
                 cols[k] = a.astype(np.float64)
         tables[name] = Table(name, t, cols)
-    params = {k: float(v) for k, v in ulog.initial_parameters.items()}
-    for _t, k, v in ulog.changed_parameters:
-        params[k] = float(v)
+    params: dict[str, float] = {}
+    changes = [(k, v) for _t, k, v in getattr(ulog, "changed_parameters", [])]
+    for k, v in list(ulog.initial_parameters.items()) + changes:
+        try:
+            params[str(k)] = float(v)
+        except (TypeError, ValueError):
+            continue  # damaged parameter record
     modes: list[tuple[float, str]] = []
     vs = tables.get("vehicle_status")
     if vs is not None and "nav_state" in vs:
