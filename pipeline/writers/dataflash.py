@@ -1,0 +1,228 @@
+"""ArduPilot DataFlash (.bin) writer with the real ArduPlane message layouts.
+
+Layouts (format chars, labels, units, multipliers) are those of ArduPilot's
+``AP_Logger/LogStructure.h``, ``AP_InertialSensor``, ``AP_AHRS``, ``AP_Baro``, ``AP_GPS``,
+``AP_NavEKF3`` and ``ArduPlane/Log.cpp`` (4.x): FMT, UNIT, MULT, FMTU, PARM, MSG, IMU,
+ATT, ARSP, AOA, BARO, RCOU, GPS, CTUN, XKF1. Records are written in time order, TimeUS
+= round(t * 1e6) with t the simulation time (the log starts at boot, t = 0).
+
+What each message carries (sensor tables of the flight, see ``sim.sensors``):
+
+* IMU (I = 0): the IMU sensor (rad/s, m/s^2).  ATT: the attitude sensor (deg, Yaw 0..360).
+* ARSP.Airspeed: *equivalent* airspeed, as ArduPilot logs it: EAS = V_meas * sqrt(rho/1.225)
+  (``airspeed="eas"``, default); true airspeed is ARSP.Airspeed * CTUN.E2T.  With
+  ``airspeed="tas"`` ARSP.Airspeed holds the true airspeed instead (E2T still logged).
+* AOA.AOA / AOA.SSA: the boom vanes' alpha and beta (deg).
+* BARO.Alt: the barometric altitude sensor (m above sea level, Offset 0); Press, Temp ISA.
+* RCOU: servo PWM of the *commanded* deflections (truth ``*_cmd``, the autopilot's output)
+  at the surfaces-sensor rate, integer microseconds. Channels and PARM calibration:
+  C1 aileron (SERVO1_FUNCTION 4), C2 elevator (19), C3 throttle (70), C4 rudder (21);
+  surfaces MIN 1100 / TRIM 1500 / MAX 1900, REVERSED 0, full travel (MAX - TRIM) =
+  ``SERVO_TRAVEL_DEG`` degrees (also logged as PARM ``FSID_SRV_TRAVEL``). ArduPilot's
+  convention: PWM above trim = roll right / pitch up / yaw right, so
+  da = +x*travel, de = -x*travel, dr = -x*travel with x = (PWM - TRIM)/(MAX - TRIM)
+  (de > 0 trailing edge down, dr > 0 trailing edge left). Throttle: MIN 1000, MAX 2000,
+  throttle = (PWM - 1000)/1000.
+* GPS / XKF1: the GPS sensor velocities (NED) and altitude; XKF1 also the attitude.
+* CTUN: roll, pitch (centideg), ThO throttle (%), As/SAs airspeed (EAS), E2T.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from pipeline.paths import atomic_write_bytes
+
+#: deflection at full servo travel (PWM MAX - TRIM), degrees, all surfaces
+SERVO_TRAVEL_DEG = 30.0
+RHO0 = 1.225
+_DT = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "f": "<f4", "d": "<f8",
+       "n": "S4", "N": "S16", "Z": "S64", "c": "<i2", "C": "<u2", "e": "<i4", "E": "<u4", "L": "<i4",
+       "M": "u1", "q": "<i8", "Q": "<u8"}
+
+
+@dataclass(frozen=True)
+class MsgDef:
+    id: int
+    name: str
+    fmt: str
+    labels: str
+    units: str
+    mults: str
+
+    @property
+    def dtype(self) -> np.dtype:
+        cols = self.labels.split(",")
+        return np.dtype([("h1", "u1"), ("h2", "u1"), ("id", "u1")] + [(c, _DT[f]) for c, f in zip(cols, self.fmt)])
+
+
+MSGS = {m.name: m for m in [
+    MsgDef(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns", "-b---", "-----"),
+    MsgDef(177, "UNIT", "QbZ", "TimeUS,Id,Label", "s--", "F--"),
+    MsgDef(178, "FMTU", "QBNN", "TimeUS,FmtType,UnitIds,MultIds", "s---", "F---"),
+    MsgDef(179, "MULT", "Qbd", "TimeUS,Id,Mult", "s--", "F--"),
+    MsgDef(64, "PARM", "QNff", "TimeUS,Name,Value,Default", "s---", "F---"),
+    MsgDef(91, "MSG", "QZ", "TimeUS,Message", "s-", "F-"),
+    MsgDef(20, "IMU", "QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz",
+           "s#EEEooo--O--zz", "F-000000-----00"),
+    MsgDef(21, "ATT", "QffffffB", "TimeUS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw,AEKF", "sddddhh-", "F000000-"),
+    MsgDef(22, "ARSP", "QBffcffBBffB", "TimeUS,I,Airspeed,DiffPress,Temp,RawPress,Offset,U,H,Hp,TR,Pri",
+           "s#nPOPP-----", "F-00B00-----"),
+    MsgDef(23, "AOA", "Qff", "TimeUS,AOA,SSA", "sdd", "F00"),
+    MsgDef(24, "BARO", "QBffcfIffB", "TimeUS,I,Alt,Press,Temp,CRt,SMS,Offset,GndTemp,Health",
+           "s#mPOnsmO-", "F-00B0C?0-"),
+    MsgDef(25, "RCOU", "QHHHHHHHHHHHHHH", "TimeUS,C1,C2,C3,C4,C5,C6,C7,C8,C9,C10,C11,C12,C13,C14",
+           "sYYYYYYYYYYYYYY", "F--------------"),
+    MsgDef(26, "GPS", "QBBIHBcLLeffffB", "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U",
+           "s#---SmDUmnhnh-", "F----0BGGB000--"),
+    MsgDef(27, "CTUN", "Qccccffffffi", "TimeUS,NavRoll,Roll,NavPitch,Pitch,ThO,RdrOut,ThD,As,SAs,E2T,GU",
+           "sdddd---nn-n", "FBBBB---00-B"),
+    MsgDef(28, "XKF1", "QBccCfffffffccce", "TimeUS,C,Roll,Pitch,Yaw,VN,VE,VD,dPD,PN,PE,PD,GX,GY,GZ,OH",
+           "s#ddhnnnnmmmkkkm", "F-BBB0000000BBBB"),
+]}
+UNITS = {"-": "", "?": "UNKNOWN", "#": "instance", "b": "B", "d": "deg", "D": "deglatitude", "E": "rad/s",
+         "h": "degheading", "k": "deg/s", "m": "m", "n": "m/s", "o": "m/s/s", "O": "degC", "P": "Pa",
+         "s": "s", "S": "satellites", "U": "deglongitude", "Y": "us", "z": "Hz"}
+MULTS = {"-": 0.0, "?": 1.0, "0": 1.0, "B": 1e-2, "C": 1e-3, "F": 1e-6, "G": 1e-7}
+
+
+def _records(name: str, n: int, **cols) -> np.ndarray:
+    m = MSGS[name]
+    a = np.zeros(n, dtype=m.dtype)
+    a["h1"], a["h2"], a["id"] = 0xA3, 0x95, m.id
+    for k, v in cols.items():
+        a[k] = v
+    return a
+
+
+def _isa(h: np.ndarray, rho: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """ISA temperature (K) at altitude h (m) and the pressure (Pa) matching density rho."""
+    T = 288.15 - 0.0065 * h
+    return T, rho * 287.05287 * T
+
+
+def _at(df: pd.DataFrame, col: str, t: np.ndarray) -> np.ndarray:
+    return np.interp(t, df["t"].to_numpy(), df[col].to_numpy())
+
+
+def _pwm(defl: np.ndarray, sign: float, travel: float) -> np.ndarray:
+    return np.clip(np.round(1500.0 + sign * 400.0 * defl / travel), 1100, 1900)
+
+
+def write_dataflash(path: str | os.PathLike, result, airspeed: str = "eas",
+                    travel_deg: float = SERVO_TRAVEL_DEG) -> None:
+    """Write ``result`` (a :class:`sim.SimResult`) as an ArduPilot DataFlash log (atomic).
+
+    airspeed: "eas" (ArduPilot semantics, default) or "tas" for ARSP.Airspeed.
+    travel_deg: deflection at full servo travel, degrees (must exceed the surface limits).
+    """
+    if airspeed not in ("eas", "tas"):
+        raise ValueError(f"airspeed must be 'eas' or 'tas', got {airspeed!r}")
+    S, T = result.sensors, result.truth
+    tt = T["t"].to_numpy()
+    blocks: list[tuple[np.ndarray, np.ndarray]] = []   # (TimeUS, records)
+
+    def add(name: str, t: np.ndarray, **cols) -> None:
+        us = np.round(np.asarray(t) * 1e6).astype(np.uint64)
+        blocks.append((us, _records(name, len(us), TimeUS=us, **cols)))
+
+    def truth_at(col: str, t: np.ndarray) -> np.ndarray:
+        return np.interp(t, tt, T[col].to_numpy())
+
+    imu = S["imu"]
+    ti = imu["t"].to_numpy()
+    rate = result.meta["sensors"]["imu"]["rate_hz"]
+    add("IMU", ti, I=0, GyrX=imu["p"], GyrY=imu["q"], GyrZ=imu["r"], AccX=imu["ax"], AccY=imu["ay"],
+        AccZ=imu["az"], T=25.0, GH=1, AH=1, GHz=int(round(rate)), AHz=int(round(rate)))
+    att = S["attitude"]
+    ta = att["t"].to_numpy()
+    roll, pitch = np.rad2deg(att["phi"].to_numpy()), np.rad2deg(att["theta"].to_numpy())
+    yaw = np.mod(np.rad2deg(att["psi"].to_numpy()), 360.0)
+    add("ATT", ta, Roll=roll, Pitch=pitch, Yaw=yaw, DesYaw=yaw, AEKF=3)
+    ad = S["airdata"]
+    td = ad["t"].to_numpy()
+    e2t_d = np.sqrt(RHO0 / truth_at("rho", td))
+    v_as = ad["V"].to_numpy() / (e2t_d if airspeed == "eas" else 1.0)
+    Tk, p = _isa(truth_at("h", td), truth_at("rho", td))
+    add("ARSP", td, I=0, Airspeed=v_as, DiffPress=0.5 * RHO0 * (ad["V"].to_numpy() / e2t_d) ** 2,
+        Temp=np.round((Tk - 273.15) * 100), RawPress=0.5 * RHO0 * (ad["V"].to_numpy() / e2t_d) ** 2,
+        Offset=0.0, U=1, H=1, Hp=1.0, TR=0.0, Pri=0)
+    add("AOA", td, AOA=np.rad2deg(ad["alpha"].to_numpy()), SSA=np.rad2deg(ad["beta"].to_numpy()))
+    ba = S["baro"]
+    tb = ba["t"].to_numpy()
+    Tk, p = _isa(truth_at("h", tb), truth_at("rho", tb))
+    add("BARO", tb, I=0, Alt=ba["h"], Press=p, Temp=np.round((Tk - 273.15) * 100), CRt=-truth_at("vd", tb),
+        SMS=np.round(tb * 1000).astype(np.uint32), Offset=0.0, GndTemp=15.0, Health=1)
+    su = S["surfaces"]
+    ts = su["t"].to_numpy()
+    trav = np.deg2rad(travel_deg)
+    lim = result.aircraft.limits
+    de = np.clip(truth_at("de_cmd", ts), -lim["de"], lim["de"])
+    da = np.clip(truth_at("da_cmd", ts), -lim["da"], lim["da"])
+    dr = np.clip(truth_at("dr_cmd", ts), -lim["dr"], lim["dr"])
+    thr = truth_at("throttle", ts)
+    rc = {f"C{k}": 0 for k in range(5, 15)}
+    add("RCOU", ts, C1=_pwm(da, +1, trav), C2=_pwm(de, -1, trav), C3=np.clip(np.round(1000 + 1000 * thr), 1000, 2000),
+        C4=_pwm(dr, -1, trav), **rc)
+    gp = S["gps"]
+    tg = gp["t"].to_numpy()
+    vn, ve, vd = (gp[c].to_numpy() for c in ("vn", "ve", "vd"))
+    add("GPS", tg, I=0, Status=3, GMS=(np.round(tg * 1000).astype(np.int64) + 345_600_000) % 604_800_000,
+        GWk=2300, NSats=12, HDop=80, Lat=np.round(truth_at("lat", tg) * 1e7), Lng=np.round(truth_at("lon", tg) * 1e7),
+        Alt=np.round(gp["h"].to_numpy() * 100), Spd=np.hypot(vn, ve),
+        GCrs=np.mod(np.rad2deg(np.arctan2(ve, vn)), 360.0), VZ=vd, Yaw=0.0, U=1)
+    pn = np.concatenate([[0.0], np.cumsum(0.5 * (T["vn"].to_numpy()[1:] + T["vn"].to_numpy()[:-1]) * np.diff(tt))])
+    pe = np.concatenate([[0.0], np.cumsum(0.5 * (T["ve"].to_numpy()[1:] + T["ve"].to_numpy()[:-1]) * np.diff(tt))])
+    add("XKF1", tg, C=0, Roll=np.round(_at(att, "phi", tg) * 18000 / np.pi),
+        Pitch=np.round(_at(att, "theta", tg) * 18000 / np.pi),
+        Yaw=np.round(np.mod(np.rad2deg(np.unwrap(np.interp(tg, ta, np.unwrap(att["psi"].to_numpy())))), 360.0) * 100) % 36000,
+        VN=vn, VE=ve, VD=vd, dPD=vd, PN=np.interp(tg, tt, pn), PE=np.interp(tg, tt, pe),
+        PD=-(gp["h"].to_numpy() - result.trim["h"]), GX=0, GY=0, GZ=0, OH=0)
+    e2t_a = np.sqrt(RHO0 / truth_at("rho", ta))
+    eas_a = np.interp(ta, td, ad["V"].to_numpy()) / e2t_a
+    add("CTUN", ta, Roll=np.round(roll * 100), Pitch=np.round(pitch * 100),
+        ThO=100 * truth_at("throttle", ta), RdrOut=-4500 * truth_at("dr_cmd", ta) / trav,
+        ThD=100 * truth_at("throttle", ta), As=eas_a, SAs=eas_a, E2T=e2t_a, GU=0)
+
+    head = _header(result, travel_deg, airspeed)
+    times = np.concatenate([b[0] for b in blocks])
+    which = np.concatenate([np.full(len(b[0]), i) for i, b in enumerate(blocks)])
+    index = np.concatenate([np.arange(len(b[0])) for b in blocks])
+    order = np.lexsort((which, times))
+    raw = [b[1].tobytes() for b in blocks]
+    size = [b[1].dtype.itemsize for b in blocks]
+    body = b"".join(raw[i][j * size[i]:(j + 1) * size[i]] for i, j in zip(which[order], index[order]))
+    atomic_write_bytes(path, head + body)
+
+
+def _header(result, travel_deg: float, airspeed: str) -> bytes:
+    out = []
+    for m in MSGS.values():
+        length = m.dtype.itemsize
+        out.append(_records("FMT", 1, Type=m.id, Length=length, Name=m.name.encode(), Format=m.fmt.encode(),
+                            Columns=m.labels.encode()).tobytes())
+    for uid, lab in UNITS.items():
+        out.append(_records("UNIT", 1, TimeUS=0, Id=ord(uid), Label=lab.encode()).tobytes())
+    for mid, mult in MULTS.items():
+        out.append(_records("MULT", 1, TimeUS=0, Id=ord(mid), Mult=mult).tobytes())
+    for m in MSGS.values():
+        out.append(_records("FMTU", 1, TimeUS=0, FmtType=m.id, UnitIds=m.units.encode(),
+                            MultIds=m.mults.encode()).tobytes())
+    params = {"SERVO1_FUNCTION": 4, "SERVO2_FUNCTION": 19, "SERVO3_FUNCTION": 70, "SERVO4_FUNCTION": 21}
+    for k in (1, 2, 4):
+        params.update({f"SERVO{k}_MIN": 1100, f"SERVO{k}_MAX": 1900, f"SERVO{k}_TRIM": 1500, f"SERVO{k}_REVERSED": 0})
+    params.update({"SERVO3_MIN": 1000, "SERVO3_MAX": 2000, "SERVO3_TRIM": 1000, "SERVO3_REVERSED": 0,
+                   "FSID_SRV_TRAVEL": travel_deg, "INS_GYRO_FILTER": 0, "AHRS_EKF_TYPE": 3,
+                   "ARSPD_TYPE": 100 if airspeed == "tas" else 1})
+    for k, v in params.items():
+        out.append(_records("PARM", 1, TimeUS=0, Name=k.encode(), Value=float(v), Default=float(v)).tobytes())
+    notes = [f"fsid sim: scenario {result.scenario.name} seed {result.meta['seed']}",
+             f"fsid sim: aircraft {result.aircraft.name}",
+             f"fsid sim: servo travel {travel_deg:g} deg at PWM MAX-TRIM",
+             f"fsid sim: ARSP.Airspeed is {airspeed.upper()}; TAS = EAS * CTUN.E2T"]
+    for n in notes:
+        out.append(_records("MSG", 1, TimeUS=0, Message=n.encode()[:64]).tobytes())
+    return b"".join(out)
