@@ -208,6 +208,8 @@ def _find_table(raw: RawLog, msg: str) -> Table | None:
             if tab.units.get("__schema__") == schema:
                 return tab
         return None
+    if msg.endswith("[0]"):  # instance 0 of a log that does not split instances
+        return raw.tables.get(msg[:-3])
     if msg.endswith("]"):
         return None
     inst0 = f"{msg}[0]"
@@ -299,6 +301,27 @@ def apply_rule(raw: RawLog, rule: ChannelRule) -> Channel | str:
             vals = (vals + np.pi) % (2 * np.pi) - np.pi
         return Channel(np.asarray(tabs[0].t[:n], float), vals, CANONICAL_UNITS.get(rule.name, "rad"),
                        f"{rule.transform}({', '.join(rule.sources)}).{rule.component}")
+    if rule.transform == "product":  # sources[0] x sources[1] (interpolated onto sources[0])
+        a = _lookup(raw, rule.sources[0])
+        if isinstance(a, str):
+            return a
+        if len(rule.sources) < 2:
+            return "product transform needs 2 sources"
+        b = _lookup(raw, rule.sources[1])
+        tab, va = a
+        if isinstance(b, str):  # keep the first factor alone and say so
+            vals = (va * rule.scale + rule.offset) * UNIT_FACTORS.get(rule.unit, 1.0) * rule.sign
+            return Channel(np.asarray(tab.t, float), vals, CANONICAL_UNITS.get(rule.name, rule.unit),
+                           f"{rule.sources[0]} (without {rule.sources[1]}: {b})")
+        tb, vb = b
+        ok = np.isfinite(tb.t) & np.isfinite(vb)
+        if not ok.any():
+            return f"{rule.sources[1]} has no finite samples"
+        order = np.argsort(tb.t[ok], kind="stable")
+        f = np.interp(tab.t, tb.t[ok][order], vb[ok][order])
+        vals = (va * f * rule.scale + rule.offset) * UNIT_FACTORS.get(rule.unit, 1.0) * rule.sign
+        return Channel(np.asarray(tab.t, float), vals, CANONICAL_UNITS.get(rule.name, rule.unit),
+                       f"{rule.sources[0]} x {rule.sources[1]}")
     reasons = []
     for src in rule.sources:
         if "{n}" in src:  # servo output number from the pwm block (function or channel)
