@@ -153,7 +153,26 @@ class Model:
             new.append(Parameter(p.name, float(v), p.free if free is None else free,
                                  p.bounds, p.per_segment, p.unit))
         return Model(self.states, self.inputs, self.outputs, new, self.f, self.g,
-                     self.constants, [], self.name)
+                     self.constants, self.output_biases, self.name)
+
+    def select_outputs(self, names: Sequence[str]) -> "Model":
+        """A copy observing only ``names`` (a subset of the outputs, any order): for data
+        that lack a channel of the built-in model (e.g. no angular acceleration)."""
+        missing = [n for n in names if n not in self.outputs]
+        if missing:
+            raise ModelDefinitionError(f"{missing} are not outputs of {self.name!r} ({self.outputs})")
+        idx = [self.outputs.index(n) for n in names]
+        g0 = self.g
+
+        def g(x, u, p, c):
+            out = g0(x, u, p, c)
+            return tuple(out[i] for i in idx)
+
+        params = [p for p in self.parameters
+                  if not (p.name.startswith("bias_") and p.name[5:] in self.output_biases
+                          and p.name[5:] not in names)]
+        return Model(self.states, self.inputs, list(names), params, self.f, g, self.constants,
+                     [o for o in self.output_biases if o in names], self.name)
 
     def fixed(self, names: Iterable[str]) -> "Model":
         """A copy with the named parameters held at their values."""
@@ -161,7 +180,7 @@ class Model:
         new = [Parameter(p.name, p.value, p.free and p.name not in names, p.bounds,
                          p.per_segment, p.unit) for p in self.parameters]
         return Model(self.states, self.inputs, self.outputs, new, self.f, self.g,
-                     self.constants, [], self.name)
+                     self.constants, self.output_biases, self.name)
 
     # -- evaluation helpers ---------------------------------------------------------------
     def constants_for(self, segment: "Segment | None" = None) -> dict[str, float]:

@@ -10,7 +10,8 @@ With qbar = rho V^2 / 2, phat = p b / (2V), rhat = r b / (2V):
     phidot = p + tan(theta0) r,          ay = qbar S CY / m
 
 Constants: m, Ixx, Izz, Ixz (kg m^2), S, b (m), rho, V (m/s); alpha0, theta0 (rad, trim,
-default 0), g.
+default 0), g; sensor positions from the CG (m, default 0): x_vane, z_vane (beta observed
+as beta + (r x - p z)/V) and x_imu, z_imu (ay + rdot x - pdot z).
 """
 from __future__ import annotations
 
@@ -60,7 +61,10 @@ def g(x, u, p, c):
     beta, pr, rr, phi = x
     da, dr = u
     Y, pdot, rdot = _moments(beta, pr, rr, da, dr, p, c)
-    return beta, pr, rr, phi, Y / c.m, pdot, rdot
+    # sensors away from the CG (linearised): vane at (x_vane, z_vane), IMU at (x_imu, z_imu)
+    beta_s = beta + (rr * c.x_vane - pr * c.z_vane) / c.V
+    ay_s = Y / c.m + rdot * c.x_imu - pdot * c.z_imu
+    return beta_s, pr, rr, phi, ay_s, pdot, rdot
 
 
 def lateral_directional(constants: Mapping[str, float], values: Mapping[str, float] | None = None,
@@ -70,7 +74,9 @@ def lateral_directional(constants: Mapping[str, float], values: Mapping[str, flo
     """The linear lateral-directional model; see the module docstring."""
     c = require_constants(constants, ("m", "Ixx", "Izz", "Ixz", "S", "b", "rho", "V"),
                           "lateral-directional")
-    c.setdefault("g", 9.80665); c.setdefault("alpha0", 0.0); c.setdefault("theta0", 0.0)
+    for k, v in {"g": 9.80665, "alpha0": 0.0, "theta0": 0.0, "x_vane": 0.0, "z_vane": 0.0,
+                 "x_imu": 0.0, "z_imu": 0.0}.items():
+        c.setdefault(k, v)
     return Model(states=["beta", "p", "r", "phi"], inputs=["da", "dr"],
                  outputs=["beta", "p", "r", "phi", "ay", "pdot", "rdot"],
                  parameters=make_parameters(DEFAULTS, values, free, DEFAULT_FREE, bounds),

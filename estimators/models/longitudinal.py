@@ -12,7 +12,9 @@ Thrust acts at angle ``sigmaT`` (rad, up from body x) with its line ``zT`` (m) b
 CG. Wings level, no sideslip: flight-path angle gamma = theta - alpha.
 
 Constants: m (kg), Iyy (kg m^2), S (m^2), cbar (m), rho (kg/m^3); optional g (m/s^2,
-default 9.80665), sigmaT (rad, 0), zT (m, 0).
+default 9.80665), sigmaT (rad, 0), zT (m, 0), and the sensor positions in body axes
+from the CG (m, default 0): x_vane, z_vane (air data: V and alpha are observed there,
+u + q z, w - q x) and x_imu, z_imu (accelerometer: ax + qdot z - q^2 x, az - qdot x - q^2 z).
 """
 from __future__ import annotations
 
@@ -60,10 +62,16 @@ def g(x, u, p, c):
     V, alpha, theta, q = x
     de, thrust = u
     L, D, M = _loads(V, alpha, q, de, thrust, p, c)
+    qdot = M / c.Iyy
     ca, sa = np.cos(alpha), np.sin(alpha)
     ax = (thrust * np.cos(c.sigmaT) + L * sa - D * ca) / c.m
     az = (-thrust * np.sin(c.sigmaT) - L * ca - D * sa) / c.m
-    return V, alpha, theta, q, M / c.Iyy, ax, az
+    # sensors away from the CG: air-data vane/pitot at (x_vane, z_vane), IMU at (x_imu, z_imu)
+    ub = V * ca + q * c.z_vane
+    wb = V * sa - q * c.x_vane
+    ax_s = ax + qdot * c.z_imu - q * q * c.x_imu
+    az_s = az - qdot * c.x_imu - q * q * c.z_imu
+    return np.sqrt(ub * ub + wb * wb), np.arctan2(wb, ub), theta, q, qdot, ax_s, az_s
 
 
 def longitudinal(constants: Mapping[str, float], values: Mapping[str, float] | None = None,
@@ -79,7 +87,9 @@ def longitudinal(constants: Mapping[str, float], values: Mapping[str, float] | N
     output_biases : outputs that get a per-segment bias ``bias_<output>[k]``.
     """
     c = require_constants(constants, ("m", "Iyy", "S", "cbar", "rho"), "longitudinal")
-    c.setdefault("g", 9.80665); c.setdefault("sigmaT", 0.0); c.setdefault("zT", 0.0)
+    for k, v in {"g": 9.80665, "sigmaT": 0.0, "zT": 0.0, "x_vane": 0.0, "z_vane": 0.0,
+                 "x_imu": 0.0, "z_imu": 0.0}.items():
+        c.setdefault(k, v)
     params = make_parameters(LONGITUDINAL_DEFAULTS, values, free, DEFAULT_FREE, bounds)
     return Model(states=["V", "alpha", "theta", "q"], inputs=["de", "thrust"],
                  outputs=["V", "alpha", "theta", "q", "qdot", "ax", "az"],
