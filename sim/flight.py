@@ -218,7 +218,7 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
                    for ax in ("de", "da", "dr", "throttle")}
         dt = 1.0 / s.rate_hz
         n_steps = int(round(s.duration * s.rate_hz))
-        tgrid = np.arange(n_steps + 1) * dt
+        tgrid = np.arange(n_steps + 1) / s.rate_hz
         inputs = input_histories(list(s.maneuvers), tgrid)
         active = [(setters[ax].set_double_value, inputs[ax]) for ax in inputs if np.any(inputs[ax] != 0.0)]
         data = np.empty((n_steps + 1, len(props)))
@@ -232,6 +232,11 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
             if progress is not None and k % every == 0:
                 progress(k / n_steps)
     truth, terms = _truth_table(data, props, coef_names, ac)
+    # JSBSim accumulates dt (2.99999999999998 for 3.0); the exact grid is k/rate_hz
+    if np.max(np.abs(truth["t"].to_numpy() - tgrid)) > 1e-6:
+        raise RuntimeError("JSBSim time base drifted from the sample grid")
+    truth["t"] = tgrid
+    terms["t"] = tgrid
     rng_seq = np.random.SeedSequence([int(s.seed), 0x5E45])
     sensors = {}
     for (name, spec), child in zip(s.sensors.items(), rng_seq.spawn(len(s.sensors))):
