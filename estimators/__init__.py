@@ -9,6 +9,7 @@ Public API (DESIGN.md section 4)::
 from estimators.errors import (BoundsError, ConvergenceError, EstimationError,
                                IdentifiabilityError, ModelDefinitionError,
                                SimulationDivergedError)
+from estimators.equation_error import FourierRegression, LeastSquares, RecursiveLeastSquares
 from estimators.model import Model, Parameter, Segment
 from estimators.oem import OutputError
 from estimators.results import EstimationResult
@@ -18,4 +19,5 @@ __all__ = [
     "Model", "Parameter", "Segment", "OutputError", "EstimationResult", "simulate_outputs",
     "EstimationError", "ModelDefinitionError", "BoundsError", "SimulationDivergedError",
     "IdentifiabilityError", "ConvergenceError",
+    "LeastSquares", "RecursiveLeastSquares", "FourierRegression",
 ]
