@@ -1,0 +1,358 @@
+"""Validation of one estimation result: every check of :mod:`estimators.validation` in one call.
+
+:func:`validate` returns a dict whose entries are JSON-ready (plain floats, lists, dicts,
+``None`` for NaN) except ``"arrays"``, which holds the numpy arrays the recording plots
+(residual spectra, frequency responses, proof-of-match time histories). Use
+:func:`json_ready` to drop ``"arrays"`` and convert any stray numpy values.
+
+Units: everything numeric is SI (rad, rad/s, m/s, m/s^2, s, Hz, rad/s for angular
+frequency) unless a key says otherwise: ``*_deg``, ``*_deg_s``, ``*_g`` and ``*_db`` keys
+are the human-facing forms (degrees, degrees per second, g, decibels).
+
+Keys of the returned dict
+-------------------------
+``method``, ``converged``, ``det_R``
+``fit``: per output ``TIC UM US UC R2 RMS NRMS mean std`` (see
+    :func:`estimators.validation.fit_metrics`), on all fitted segments together; plus
+    ``max_TIC`` and ``tic_ok`` (every TIC < ``tic_limit``).
+``residuals``: ``stats`` per output (mean, std, rms, mean_over_std), ``whiteness`` per output
+    (Q, threshold, p_value, white, frac_outside), ``max_lag``, ``all_white``.
+``uncertainty``: per free parameter ``crb_std``, ``mk_std`` (Morelli-Klein corrected),
+    ``ratio``; ``None`` when the result kept no sensitivities.
+``modes``: ``trim`` (x0 per state, u0 per input), ``table`` per mode (``real imag wn zeta
+    period t_half t_double stable axis``), ``eigenvalues`` (list of [real, imag]).
+``proof_of_match``: ``None`` without ``held_out``; else ``segments`` (per held-out segment:
+    ``name``, ``channels`` per output with ``tolerance max_abs_error rms_error
+    fraction_within pass`` (SI) and the same in display units ``*_display`` with ``unit``,
+    ``TIC``, ``all_pass``) and ``all_pass`` over all segments.
+``frequency``: ``None`` when no input is excited; else ``inputs`` used, ``table`` per
+    ``"<output>/<input>"`` (``max_mag_db max_phase_deg n_used pass``), ``bounds``.
+``plausibility``: ``truth`` (per parameter: ``truth error error_in_std within``) and
+    ``apriori`` (per parameter: columns of :func:`estimators.validation.plausibility`).
+``verdict``: ``ok`` (bool) and ``reasons`` (list of short sentences), see :func:`verdict`.
+``arrays``: ``psd`` (``f`` (n_f,) Hz, ``Pxx`` (n_f, n_out) units^2/Hz),
+    ``freq`` (``f`` (n_f,) Hz, ``H_model``/``H_data``/``coherence`` (n_f, n_out, n_in_used),
+    ``inputs``, ``outputs``), ``match`` (list per held-out segment of
+    ``t`` (N,), ``measured``/``predicted`` (N, n_out) DataFrames, ``tolerance`` (n_out,)).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from estimators import EstimationResult, Segment, simulate_outputs
+from estimators import validation as V
+from estimators.model import Namespace
+
+#: TIC below which a channel's fit counts as good (DESIGN.md section 8)
+TIC_LIMIT = 0.1
+#: |estimate - truth| / std allowed for a truth check to pass
+TRUTH_K = 3.0
+#: channels shown in degrees (rad -> deg) and degrees per second (rad/s -> deg/s)
+ANGLES = frozenset({"alpha", "beta", "phi", "theta", "psi", "de", "da", "dr"})
+RATES = frozenset({"p", "q", "r"})
+ACCELS = frozenset({"ax", "ay", "az"})
+ANG_ACCELS = frozenset({"pdot", "qdot", "rdot"})
+_SPEEDS = ("V", "u", "vn", "vd")
+
+
+# -- small helpers ---------------------------------------------------------------------------
+def num(x: Any) -> Any:
+    """A JSON-ready copy of x: numpy scalars/arrays to Python, NaN/inf to None."""
+    if isinstance(x, Mapping):
+        return {str(k): num(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [num(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return [num(v) for v in x.tolist()]
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if x is pd.NA or x is None:
+        return None
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(float(x)) else None
+    if isinstance(x, complex):
+        return [num(x.real), num(x.imag)]
+    return x
+
+
+def json_ready(validation: Mapping[str, Any]) -> dict[str, Any]:
+    """The validation dict without ``"arrays"``, every value JSON-serialisable."""
+    return num({k: v for k, v in validation.items() if k != "arrays"})
+
+
+def frame_dict(df: pd.DataFrame) -> dict[str, dict[str, Any]]:
+    """{row: {column: value}} of a DataFrame, JSON-ready."""
+    return num({str(i): row.to_dict() for i, row in df.iterrows()})
+
+
+def display_unit(channel: str) -> tuple[float, str]:
+    """(factor, unit) turning an SI value of a canonical channel into its human-facing form:
+    angles deg, rates deg/s, angular accelerations deg/s^2, specific forces g; else SI."""
+    if channel in ANGLES:
+        return 180.0 / np.pi, "deg"
+    if channel in RATES:
+        return 180.0 / np.pi, "deg/s"
+    if channel in ANG_ACCELS:
+        return 180.0 / np.pi, "deg/s^2"
+    if channel in ACCELS:
+        return 1.0 / V.match.G0, "g"
+    unit = {"V": "m/s", "u": "m/s", "v": "m/s", "w": "m/s", "h": "m", "qbar": "Pa",
+            "rho": "kg/m^3", "thrust": "N", "throttle": "-"}.get(channel, "SI")
+    return 1.0, unit
+
+
+# -- pieces ---------------------------------------------------------------------------------
+def _measured(result: EstimationResult) -> list[pd.DataFrame]:
+    """Measured outputs per fitted segment, DataFrames on t (z = predicted + residual)."""
+    return [p + r for p, r in zip(result.predicted, result.residuals)]
+
+
+def _fit(result: EstimationResult, tic_limit: float) -> dict[str, Any]:
+    df = V.fit_metrics(_measured(result), result.predicted, names=result.outputs)
+    out = frame_dict(df)
+    tic = df["TIC"].to_numpy()
+    return {"per_output": out, "det_R": num(df.attrs["det_R"]),
+            "max_TIC": num(np.nanmax(tic)) if np.isfinite(tic).any() else None,
+            "tic_limit": tic_limit, "tic_ok": bool(np.all(tic < tic_limit))}
+
+
+def _residuals(result: EstimationResult) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    res = [r.to_numpy() for r in result.residuals]
+    stats = V.residual_stats(res, names=result.outputs)
+    w = V.whiteness(res, names=result.outputs)
+    t0 = result.residuals[0].index.to_numpy()
+    fs = 1.0 / float(np.median(np.diff(t0)))
+    f, P = V.psd(res[int(np.argmax([len(r) for r in res]))], fs)
+    return ({"stats": frame_dict(stats), "whiteness": frame_dict(w.to_frame()),
+             "max_lag": w.max_lag, "all_white": bool(np.all(w.white)), "fs_hz": fs},
+            {"f": f, "Pxx": P})
+
+
+def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
+    if not result.sensitivities:
+        return None
+    names = result.free_names
+    try:
+        u = V.morelli_klein(result.sensitivities, [r.to_numpy() for r in result.residuals],
+                            R=result.R, info=result.information, names=names)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return {"error": str(exc)}
+    df = pd.DataFrame({"crb_std": result.std[names].to_numpy(), "mk_std": u.std,
+                       "ratio": u.std / result.std[names].to_numpy()},
+                      index=pd.Index(names, name="parameter"))
+    return {"per_parameter": frame_dict(df), "max_lag": u.max_lag}
+
+
+def linear_model(result: EstimationResult, segment: Segment | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(A, B, C, D, x0, u0): the identified model linearised at the first sample of
+    ``segment`` (default: the first fitted segment): x0 its initial state, u0 its first input.
+    A (n_x, n_x), B (n_x, n_u), C (n_y, n_x), D (n_y, n_u) in SI per SI."""
+    model = result.model_with_estimates()
+    seg = segment if segment is not None else result.segments[0]
+    x0 = np.asarray(seg.initial_state(model), dtype=float)
+    u0 = np.asarray(seg.u[0], dtype=float)
+    p = Namespace({pp.name: float(pp.value) for pp in model.parameters})
+    c = Namespace(model.constants_for(seg))
+    A, B = V.linearize(model.f, x0, u0, p, c)
+    C, D = V.linearize(model.g, x0, u0, p, c)
+    return A, B, C, D, x0, u0
+
+
+def _modes(result: EstimationResult, lin) -> dict[str, Any]:
+    A, B, C, D, x0, u0 = lin
+    model = result.model
+    speed = next((abs(x0[model.states.index(s)]) for s in _SPEEDS if s in model.states), None)
+    scales = {s: speed for s in _SPEEDS if speed} if speed else None
+    ma = V.modes(A, model.states, scales=scales)
+    tab = ma.table.drop(columns=["eigenvalue"])
+    return {"trim": {"x0": num(dict(zip(model.states, x0))), "u0": num(dict(zip(model.inputs, u0)))},
+            "table": frame_dict(tab),
+            "eigenvalues": [[float(v.real), float(v.imag)] for v in ma.eigenvalues]}
+
+
+def _frequency(result: EstimationResult, lin, *, mag_bound_db: float, phase_bound_deg: float,
+               min_coherence: float, input_power_fraction: float) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
+    A, B, C, D, _, _ = lin
+    seg = max(result.segments, key=lambda s: s.t.size)
+    dt = np.diff(seg.t)
+    if seg.t.size < 64 or np.ptp(dt) > 1e-6 * np.median(dt):
+        return None, None                                   # needs uniform sampling
+    excited = [i for i in range(seg.u.shape[1]) if np.std(seg.u[:, i]) > 1e-12]
+    if not excited:
+        return None, None
+    z = seg.z
+    keep = np.all(np.isfinite(z), axis=0)
+    outs = [o for o, k in zip(result.outputs, keep) if k]
+    fs = 1.0 / float(np.median(dt))
+    se = V.spectral_estimate(seg.u[:, excited], z[:, keep], fs)
+    w = se.w[1:]                                            # drop DC
+    Hm = V.freq_response(A, B[:, excited], C[keep], D[keep][:, excited], w)
+    Hd, coh = se.H[1:], se.coherence[1:].copy()
+    # judge only where the input carries power: Welch coherence from a few averages is
+    # biased high, so spectral nulls of the input would otherwise count as evidence
+    suu = np.real(np.diagonal(se.Suu[1:], axis1=1, axis2=2))          # (n_f, n_in)
+    weak = suu < input_power_fraction * suu.max(axis=0, keepdims=True)
+    coh_used = np.where(weak[:, None, :], 0.0, coh)
+    ins = [result.model.inputs[i] for i in excited]
+    mm = V.mismatch(Hm, Hd, w, coh_used, mag_bound_db=mag_bound_db, phase_bound_deg=phase_bound_deg,
+                    min_coherence=min_coherence, outputs=outs, inputs=ins)
+    tab = {f"{o}/{i}": num(row.to_dict()) for (o, i), row in mm.table.iterrows()}
+    judged = mm.table[mm.table["n_used"] > 0]
+    out = {"inputs": ins, "outputs": outs, "segment": seg.name, "table": tab,
+           "bounds": {"mag_db": mag_bound_db, "phase_deg": phase_bound_deg,
+                      "min_coherence": min_coherence,
+                      "input_power_fraction": input_power_fraction},
+           "n_judged": int(len(judged)),
+           "all_pass": bool(len(judged) and judged["pass"].all())}
+    arrays = {"f": w / (2 * np.pi), "H_model": Hm, "H_data": Hd, "coherence": coh,
+              "inputs": ins, "outputs": outs}
+    return out, arrays
+
+
+def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
+                    tolerances: Mapping[str, float] | None,
+                    allowed_bias: Mapping[str, float] | None, integrator: str
+                    ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    model = result.model_with_estimates()
+    segs, arrays = [], []
+    for k, seg in enumerate(held_out):
+        y = simulate_outputs(model, seg, integrator=integrator)
+        z = pd.DataFrame(seg.z, index=y.index, columns=model.outputs)
+        pm = V.proof_of_match(z, y, tolerances=tolerances, allowed_bias=allowed_bias)
+        tic = V.theil(z.to_numpy(), y.to_numpy()).U
+        chans = {}
+        for (name, row), u in zip(pm.iterrows(), tic):
+            fac, unit = display_unit(name)
+            d = num(row.to_dict())
+            d.update(unit=unit, tolerance_display=num(row["tolerance"] * fac),
+                     max_abs_error_display=num(row["max_abs_error"] * fac),
+                     rms_error_display=num(row["rms_error"] * fac), TIC=num(u))
+            chans[name] = d
+        name = seg.name or f"held-out {k}"
+        segs.append({"name": name, "channels": chans, "all_pass": bool(pm.attrs["all_pass"])})
+        arrays.append({"name": name, "t": seg.t, "measured": z, "predicted": y,
+                       "tolerance": pm["tolerance"].to_numpy(float)})
+    return {"segments": segs, "all_pass": bool(segs) and all(s["all_pass"] for s in segs)}, arrays
+
+
+def _truth_check(result: EstimationResult, truth: Mapping[str, float], k: float) -> dict[str, Any]:
+    out = {}
+    std = result.std
+    for name in result.free_names:
+        if name not in truth:
+            continue
+        est, sd, tr = float(result.params[name]), float(std[name]), float(truth[name])
+        err = est - tr
+        ins = abs(err) / sd if sd > 0 and math.isfinite(sd) else math.nan
+        out[name] = num({"estimate": est, "std": sd, "truth": tr, "error": err,
+                         "error_in_std": ins, "within": bool(ins <= k)})
+    return {"k": k, "per_parameter": out,
+            "all_within": bool(out) and all(v["within"] for v in out.values())}
+
+
+def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
+    """``ok`` and the ``reasons`` behind it from a validation dict: converged, every TIC
+    below the limit, proof of match passed (when run), truth within k std (when known);
+    residual colour, correlation flags and frequency mismatch are listed as notes only."""
+    reasons, notes = [], []
+    if not v.get("converged", True):
+        reasons.append("the optimiser did not converge")
+    fit = v.get("fit") or {}
+    if fit and not fit.get("tic_ok", True):
+        bad = [o for o, d in fit["per_output"].items()
+               if d.get("TIC") is None or d["TIC"] >= fit["tic_limit"]]
+        reasons.append(f"TIC >= {fit['tic_limit']} on {', '.join(bad)}")
+    pm = v.get("proof_of_match")
+    if pm is not None and not pm["all_pass"]:
+        bad = sorted({c for s in pm["segments"] for c, d in s["channels"].items()
+                      if d.get("pass") is False})
+        reasons.append("proof of match failed on " + (", ".join(bad) or "every channel (none judged)"))
+    tr = (v.get("plausibility") or {}).get("truth")
+    if tr and tr["per_parameter"] and not tr["all_within"]:
+        bad = [n for n, d in tr["per_parameter"].items() if not d["within"]]
+        reasons.append(f"{', '.join(bad)} more than {tr['k']:g} std from the truth")
+    ap = (v.get("plausibility") or {}).get("apriori")
+    if ap:
+        flagged = [n for n, d in ap.items() if d.get("flag")]
+        if flagged:
+            notes.append(f"disagree with a-priori values: {', '.join(flagged)}")
+    res = v.get("residuals") or {}
+    if res and not res.get("all_white", True):
+        col = [o for o, d in res["whiteness"].items() if not d.get("white")]
+        notes.append(f"coloured residuals on {', '.join(col)} (see Morelli-Klein std)")
+    if v.get("correlations_flagged"):
+        notes.append("highly correlated: " + ", ".join(f"{a}~{b}" for a, b, _ in v["correlations_flagged"]))
+    fr = v.get("frequency")
+    if fr and fr.get("n_judged") and not fr["all_pass"]:
+        bad = [k for k, d in fr["table"].items() if d["n_used"] and not d["pass"]]
+        notes.append(f"frequency-response mismatch beyond bounds on {', '.join(bad)}")
+    return {"ok": not reasons, "reasons": reasons, "notes": notes}
+
+
+# -- entry point ------------------------------------------------------------------------------
+def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = None,
+             tolerances: Mapping[str, float] | None = None, apriori: Any = None,
+             truth: Mapping[str, float] | None = None, allowed_bias: Mapping[str, float] | None = None,
+             tic_limit: float = TIC_LIMIT, truth_k: float = TRUTH_K, mag_bound_db: float = 3.0,
+             phase_bound_deg: float = 20.0, min_coherence: float = 0.6,
+             input_power_fraction: float = 0.02, integrator: str | None = None) -> dict[str, Any]:
+    """Run the validation of :mod:`estimators.validation` on one result (see module doc).
+
+    held_out: segments NOT used in the fit (same model input/output columns); the
+        identified model, all parameters held fixed, simulates each from its measured
+        initial condition (``Segment.x0`` or the states read from z[0]) and is judged
+        against ``tolerances`` (SI per channel, merged over the defaults: 1.5 deg/s on
+        rates, 0.1 g on specific forces, 1.5 deg on angles).
+    allowed_bias: largest constant offset per channel (SI) removed before judging.
+    apriori: a-priori values (TOML path, mapping or DataFrame of
+        :func:`estimators.validation.load_apriori`); truth: true parameter values by name.
+    mag_bound_db, phase_bound_deg, min_coherence: frequency-response mismatch bounds; only
+        frequencies where an input's auto-spectrum reaches input_power_fraction of its peak
+        and the coherence reaches min_coherence are judged.
+    integrator: for the proof-of-match simulation (default: the one used in the fit).
+    """
+    integ = integrator or result.settings.get("integrator", "rk4")
+    out: dict[str, Any] = {"method": result.method, "converged": bool(result.converged),
+                           "det_R": num(result.cost),
+                           "correlations_flagged": num([list(f) for f in result.flagged_correlations])}
+    arrays: dict[str, Any] = {}
+    out["fit"] = _fit(result, tic_limit)
+    out["residuals"], arrays["psd"] = _residuals(result)
+    out["uncertainty"] = _uncertainty(result)
+    lin = None
+    try:
+        lin = linear_model(result)
+        out["modes"] = _modes(result, lin)
+    except Exception as exc:                      # noqa: BLE001 - reported, not fatal
+        out["modes"] = {"error": f"{type(exc).__name__}: {exc}"}
+    out["frequency"], arrays["freq"] = (None, None)
+    if lin is not None:
+        try:
+            out["frequency"], arrays["freq"] = _frequency(
+                result, lin, mag_bound_db=mag_bound_db, phase_bound_deg=phase_bound_deg,
+                min_coherence=min_coherence, input_power_fraction=input_power_fraction)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            out["frequency"] = {"error": f"{type(exc).__name__}: {exc}"}
+    out["proof_of_match"], arrays["match"] = None, []
+    if held_out:
+        out["proof_of_match"], arrays["match"] = _proof_of_match(
+            result, list(held_out), tolerances, allowed_bias, integ)
+    plaus: dict[str, Any] = {}
+    if truth:
+        plaus["truth"] = _truth_check(result, truth, truth_k)
+    if apriori is not None:
+        names = result.free_names
+        pl = V.plausibility(result.params[names], result.std[names], apriori)
+        plaus["apriori"] = frame_dict(pl)
+    out["plausibility"] = plaus
+    out["verdict"] = verdict(out)
+    out["arrays"] = arrays
+    return out
