@@ -1,0 +1,208 @@
+"""JSBSim flights: coefficient identity, trim, surface inputs, reproducibility, SAS, sensors."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import sim
+from sim.maneuvers import input_histories
+from tests._simdata import custom, flown, quiet_flight
+
+G0 = 9.80665
+
+
+@pytest.mark.parametrize("name", ["default", "multiaxis_multisine_turbulence", "unstable_short_period"])
+def test_jsbsim_coefficients_equal_the_truth_formula(name):
+    r = flown(name)
+    T = r.truth
+    want = r.aircraft.coefficients(T)
+    for c, v in want.items():
+        got = T[c].to_numpy()
+        assert np.all(np.isfinite(got))
+        assert np.max(np.abs(got - v)) < 1e-12 * max(1.0, np.max(np.abs(v))), c
+        assert np.std(got) > 0, f"{c} not excited"
+    if name == "multiaxis_multisine_turbulence":           # alphadot and rate terms really act
+        ac = r.aircraft
+        assert ac.derivatives["CLalphadot"] != 0 and np.std(T["alphadot"]) > 0.01
+        qS = T["qbar"] * ac.S
+        np.testing.assert_allclose(r.aero_terms["Cmalphadot"], qS * ac.cbar * ac.derivatives["Cmalphadot"]
+                                   * T["alphadot"] * ac.cbar / (2 * T["V"]), rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(r.aero_terms["Clp"], qS * ac.b * ac.derivatives["Clp"]
+                                   * T["p_aero"] * ac.b / (2 * T["V"]), rtol=1e-9, atol=1e-12)
+        # aero rates are body rates minus turbulence rates
+        np.testing.assert_allclose(T["q_aero"], T["q"] - T["q_turb"], atol=1e-12)
+        assert np.std(T["q_turb"]) > 1e-3
+
+
+@pytest.mark.parametrize("aircraft, h, V", [("uav_small", 150.0, 30.0), ("light_aircraft", 1500.0, 67.0)])
+def test_calm_trim_holds_for_30_s_without_input(aircraft, h, V):
+    r = quiet_flight(aircraft, h, V)
+    T = r.truth
+    assert T["t"].iloc[-1] == pytest.approx(30.0)
+    assert np.max(np.abs(np.rad2deg(T["alpha"] - T["alpha"].iloc[0]))) < 0.1
+    assert np.max(np.abs(T["V"] - T["V"].iloc[0])) < 0.1
+    assert T["V"].iloc[0] == pytest.approx(V, abs=1e-6) and T["h"].iloc[0] == pytest.approx(h, abs=1e-3)
+    assert abs(r.trim["udot"]) < 1e-3 and abs(r.trim["wdot"]) < 1e-3 and abs(r.trim["qdot"]) < 1e-4
+    # thrust model: throttle * max thrust
+    assert T["thrust"].iloc[0] == pytest.approx(T["throttle"].iloc[0] * r.aircraft.max_thrust, rel=1e-12)
+
+
+def test_specific_force_is_that_of_the_cg():
+    """ax, ay, az (= non-gravitational force / mass) satisfy the rigid-body kinematics
+    a = dv/dt + w x v - g in body axes, with v the inertial velocity."""
+    T = flown("longitudinal_3211_calm").truth
+    ph, th, ps = (T[c].to_numpy() for c in ("phi", "theta", "psi"))
+    cph, sph, cth, sth, cps, sps = np.cos(ph), np.sin(ph), np.cos(th), np.sin(th), np.cos(ps), np.sin(ps)
+    R = np.array([[cth * cps, cth * sps, -sth],
+                  [sph * sth * cps - cph * sps, sph * sth * sps + cph * cps, sph * cth],
+                  [cph * sth * cps + sph * sps, cph * sth * sps - sph * cps, cph * cth]])   # NED -> body
+    vned = np.vstack([T["vn"], T["ve"], T["vd"]])
+    vb = np.einsum("ijn,jn->in", R, vned)
+    w = np.vstack([T["p"], T["q"], T["r"]])
+    dv = np.gradient(vb, T["t"].to_numpy(), axis=1)
+    acc = dv + np.cross(w.T, vb.T).T - R[:, 2, :] * G0
+    meas = np.vstack([T["ax"], T["ay"], T["az"]])
+    err = np.abs(acc - meas)[:, 5:-5]
+    # quiet flight: gravity, signs and the CG location agree to a few mm/s^2; during the
+    # 1.6 g pull-ups JSBSim's multistep integrators put the velocity about half a frame
+    # off the rates (0.5*dt*qdot*V ~ 0.4 m/s^2), which bounds the worst samples
+    assert np.median(err) < 0.005
+    assert np.percentile(err, 90) < 0.05 and np.max(err) < 0.6
+    assert np.std(meas[2]) > 0.5
+
+
+@pytest.mark.parametrize("name", ["longitudinal_3211_calm", "lateral_doublets_calm", "multiaxis_multisine_turbulence"])
+def test_surfaces_follow_the_designed_maneuvers(name):
+    r = flown(name)
+    T = r.truth
+    u = input_histories(list(r.scenario.maneuvers), T["t"].to_numpy())
+    trim = {"de": r.trim["de"], "da": 0.0, "dr": 0.0, "throttle": r.trim["throttle"]}
+    for ax in ("de", "da", "dr", "throttle"):
+        assert np.max(np.abs(T[ax] - trim[ax] - u[ax])) < 1e-12, ax
+    for m in r.scenario.maneuvers:
+        for ax, amp in zip(m.axes, m.amplitude):
+            inside = (T["t"] >= m.t_start) & (T["t"] < m.t_end - 1e-9)
+            x = (T[ax] - trim[ax])[inside]
+            assert np.max(np.abs(x)) == pytest.approx(abs(amp), rel=2e-3), (m.name, ax)
+            on = T["t"][inside & (np.abs(T[ax] - trim[ax]) > 1e-9)]
+            assert on.iloc[0] == pytest.approx(m.t_start, abs=0.011)
+            if m.shape in ("doublet", "3211"):
+                assert on.iloc[-1] == pytest.approx(m.t_end - 0.01, abs=1e-6)
+                assert np.sign(x.iloc[0]) == np.sign(amp)
+
+
+def test_same_seed_is_bit_identical_and_other_seeds_differ():
+    s = sim.load_scenario(flown("default").scenario.path)
+    a, b = sim.fly(s), sim.fly(s)
+    assert a.truth.equals(b.truth)
+    for k in a.sensors:
+        assert a.sensors[k].equals(b.sensors[k])
+    c = sim.fly(s, seed=2)
+    assert c.meta["seed"] == 2
+    assert not np.allclose(a.truth["gust_d"], c.truth["gust_d"])
+    assert not np.allclose(a.sensors["imu"]["q"], c.sensors["imu"]["q"])
+    # calm air: the seed changes the sensor noise only
+    calm = sim.load_scenario(flown("longitudinal_3211_calm").scenario.path)
+    x, y = flown("longitudinal_3211_calm"), sim.fly(calm, seed=77)
+    assert x.truth.equals(y.truth)
+    assert not x.sensors["airdata"].equals(y.sensors["airdata"])
+
+
+def test_unstable_aircraft_is_held_by_the_sas_with_correlated_inputs():
+    r = flown("unstable_short_period")
+    T, ac, s = r.truth, r.aircraft, r.scenario
+    assert ac.derivatives["Cmalpha"] > 0
+    a0 = r.trim["alpha"]
+    # JSBSim runs the FCS before it recomputes alpha: the SAS sees alpha one frame late
+    alpha_prev = np.concatenate([[a0], T["alpha"].to_numpy()[:-1]])
+    np.testing.assert_allclose(T["de_sas"], s.sas_k_alpha * (alpha_prev - a0) + s.sas_k_q * T["q"], atol=1e-12)
+    u = input_histories(list(s.maneuvers), T["t"].to_numpy())["de"]
+    np.testing.assert_allclose(T["de_cmd"], r.trim["de"] + u + T["de_sas"], atol=1e-12)
+    # actuator lag: the position trails the command by about lag_s
+    lag = np.argmax(np.correlate(np.diff(T["de"]), np.diff(T["de_cmd"]), "full")) - (len(T) - 2)
+    assert 1 <= lag <= 3
+    # closed loop: bounded, back to trim after the last maneuver, surface correlated with alpha
+    assert np.max(np.abs(T["alpha"] - a0)) < np.deg2rad(5)
+    assert abs(T["alpha"].iloc[-1] - a0) < np.deg2rad(0.2)
+    assert np.corrcoef(T["de_sas"], T["alpha"])[0, 1] > 0.5
+    # the same aircraft without the SAS departs within seconds
+    raw = dict(s.raw)
+    raw["sas"] = {}
+    raw["duration_s"] = 8.0
+    raw["maneuver"] = [dict(s.raw["maneuver"][-1], start_s=1.0)]
+    open_loop = sim.fly(custom(raw, "unstable_open_loop"))
+    assert np.nanmax(np.abs(open_loop.truth["alpha"] - open_loop.trim["alpha"])) > np.deg2rad(10)
+
+
+def test_sensor_tables_have_their_rates_and_columns():
+    r = flown("default")
+    want = {"imu": (100.0, ["ax", "ay", "az", "p", "q", "r"]), "airdata": (50.0, ["V", "alpha", "beta"]),
+            "attitude": (50.0, ["phi", "theta", "psi"]), "baro": (20.0, ["h"]),
+            "surfaces": (50.0, ["de", "da", "dr", "throttle"]), "gps": (10.0, ["vn", "ve", "vd", "h"])}
+    assert set(r.sensors) == set(want)
+    for k, (rate, cols) in want.items():
+        df = r.sensors[k]
+        assert list(df.columns) == ["t", *cols]
+        assert len(df) == int(r.scenario.duration * rate) + 1
+        assert np.allclose(np.diff(df["t"]), 1 / rate)
+        assert r.meta["sensors"][k]["rate_hz"] == rate
+
+
+def _expected(r, name):
+    spec = r.scenario.sensors[name]
+    src = sim.sensors.lever_arm_signals(r.truth, spec) if hasattr(sim, "sensors") else None
+    from sim.sensors import lever_arm_signals
+    src = lever_arm_signals(r.truth, spec)
+    t = r.sensors[name]["t"].to_numpy()
+    tt = r.truth["t"].to_numpy()
+    return spec, {c: np.interp(np.maximum(t - spec.delay, 0), tt, src[c]) for c in spec.channels}
+
+
+def test_sensor_errors_are_applied_as_recorded():
+    r = flown("sensor_errors_calm")
+    for name in ("imu", "airdata", "baro"):
+        spec, x = _expected(r, name)
+        meas = r.sensors[name]
+        n = len(meas)
+        for i, c in enumerate(spec.channels):
+            res = meas[c].to_numpy() - ((1 + spec.scale[i]) * x[c] + spec.bias[i])
+            sd = np.sqrt(spec.noise[i] ** 2 + spec.quant[i] ** 2 / 12)
+            assert abs(res.mean()) < 4 * sd / np.sqrt(n) + 1e-12, (name, c)
+            assert res.std() == pytest.approx(sd, rel=0.06), (name, c)
+    rec = r.meta["sensors"]
+    assert rec["imu"]["bias"]["q"] == pytest.approx(np.deg2rad(-0.25))
+    assert rec["airdata"]["scale_factor"]["alpha"] == 0.08 and rec["airdata"]["delay_s"] == 0.04
+    assert rec["imu"]["position_m"] == [0.10, 0.02, 0.03]
+
+
+def test_airdata_delay_is_visible_in_the_data():
+    r = flown("sensor_errors_calm")
+    spec = r.scenario.sensors["airdata"]
+    from sim.sensors import lever_arm_signals
+    src = lever_arm_signals(r.truth, spec)
+    t = r.sensors["airdata"]["t"].to_numpy()
+    meas = (r.sensors["airdata"]["alpha"].to_numpy() - spec.bias[1]) / (1 + spec.scale[1])
+    cost = [np.var(meas - np.interp(t - d, r.truth["t"], src["alpha"])) for d in np.arange(0, 0.101, 0.01)]
+    assert np.argmin(cost) == 4
+
+
+def test_mounting_positions_add_the_rotation_terms():
+    """Independent cross-product form of the IMU and boom lever-arm terms."""
+    r = flown("lateral_doublets_calm")
+    T = r.truth
+    from sim.sensors import lever_arm_signals
+    w = T[["p", "q", "r"]].to_numpy()
+    wd = T[["pdot", "qdot", "rdot"]].to_numpy()
+    for name in ("imu", "airdata"):
+        spec = r.scenario.sensors[name]
+        pos = np.broadcast_to(spec.position, w.shape)
+        got = lever_arm_signals(T, spec)
+        if name == "imu":
+            a = T[["ax", "ay", "az"]].to_numpy() + np.cross(wd, pos) + np.cross(w, np.cross(w, pos))
+            for i, c in enumerate(("ax", "ay", "az")):
+                np.testing.assert_allclose(got[c], a[:, i], atol=1e-12)
+        else:
+            v = T[["u", "v", "w"]].to_numpy() + np.cross(w, pos)
+            np.testing.assert_allclose(got["alpha"], np.arctan2(v[:, 2], v[:, 0]), atol=1e-12)
+            np.testing.assert_allclose(got["beta"], np.arcsin(v[:, 1] / np.linalg.norm(v, axis=1)), atol=1e-12)
+            assert np.max(np.abs(got["alpha"] - T["alpha"])) > 1e-3     # the boom really sees q x r
