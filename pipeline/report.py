@@ -1,0 +1,238 @@
+"""``report.md`` and ``report.json``: the human and the machine view of one run.
+
+``report.json`` (schema ``fsid-report/1``)::
+
+    {"schema": "fsid-report/1",
+     "meta": {...},                      # as given (scenario, log, seed, versions, ...)
+     "checks": {...} | null,             # data-quality summary, as given
+     "truth": {name: value} | null,
+     "methods": {
+       "<method>": {
+         "model", "converged", "iterations", "message", "det_R", "n_samples",
+         "outputs": [...], "R": [[...]],
+         "parameters": {"<name>": {"estimate", "std", "rel_std_pct", "truth",
+                                   "error_in_std", "mk_std", "at_bound"}},
+         "fixed": {"<name>": value},
+         "correlations_flagged": [[a, b, rho], ...],
+         "fit": {"<output>": {"TIC", "UM", "US", "UC", "R2", "RMS", ...}},
+         "validation": {...}            # pipeline.validate.validate() minus "arrays"
+         "verdict": {"ok", "reasons", "notes"}}}}
+
+Numbers are SI (per radian for derivatives) with NaN written as ``null``. ``estimate`` and
+``std`` are exactly the result's ``params``/``std`` (Cramér-Rao); ``mk_std`` the
+Morelli-Klein corrected std. ``report.md`` shows the same numbers, angles in degrees where a
+person reads them (proof-of-match bands and errors). Both files are written atomically.
+"""
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from estimators import EstimationResult
+from pipeline.paths import atomic_write_text
+from pipeline.validate import json_ready, num, verdict
+
+SCHEMA = "fsid-report/1"
+
+
+# -- JSON -------------------------------------------------------------------------------------
+def method_json(result: EstimationResult, validation: Mapping[str, Any] | None,
+                truth: Mapping[str, float] | None) -> dict[str, Any]:
+    """The ``methods.<method>`` entry of report.json for one result and its validation."""
+    d = result.to_dict(dict(truth) if truth else None)
+    params = {}
+    val = json_ready(validation) if validation else {}
+    mk = ((val.get("uncertainty") or {}).get("per_parameter") or {})
+    for name, p in d["parameters"].items():
+        p = dict(p)
+        p.setdefault("truth", (truth or {}).get(name) if truth else None)
+        p.setdefault("error_in_std", None)
+        p["mk_std"] = (mk.get(name) or {}).get("mk_std")
+        params[name] = p
+    d["parameters"] = params
+    d["fixed"] = num({n: v for n, v, f in zip(result.names, result.values, result.free)
+                      if not f and not n.startswith("x0_")})
+    d["fit"] = (val.get("fit") or {}).get("per_output", {})
+    d["validation"] = val
+    d["verdict"] = val.get("verdict") or verdict({"converged": result.converged})
+    return num(d)
+
+
+def report_dict(results: Mapping[str, EstimationResult], validations: Mapping[str, Mapping[str, Any]],
+                *, truth: Mapping[str, float] | None = None, meta: Mapping[str, Any] | None = None,
+                checks: Any = None) -> dict[str, Any]:
+    """The full report.json content (see module doc)."""
+    return {"schema": SCHEMA, "meta": num(dict(meta or {})), "checks": num(checks),
+            "truth": num(dict(truth)) if truth else None,
+            "methods": {m: method_json(r, validations.get(m), truth) for m, r in results.items()}}
+
+
+# -- Markdown ---------------------------------------------------------------------------------
+def _g(x: Any, fmt: str = ".4g") -> str:
+    """A number for a table cell; '-' for missing/NaN."""
+    if x is None or isinstance(x, str):
+        return x or "-"
+    if isinstance(x, (bool, np.bool_)):
+        return "yes" if x else "no"
+    x = float(x)
+    return format(x, fmt) if math.isfinite(x) else "-"
+
+
+def _table(head: list[str], rows: list[list[str]]) -> list[str]:
+    out = ["| " + " | ".join(head) + " |", "|" + "|".join("---" for _ in head) + "|"]
+    out += ["| " + " | ".join(r) + " |" for r in rows]
+    return out + [""]
+
+
+def param_rows(mj: Mapping[str, Any], with_truth: bool) -> list[list[str]]:
+    """Rows of the parameter table: name, estimate, std, rel std %, (truth, |error|/std),
+    Morelli-Klein std, note."""
+    rows = []
+    for name, p in mj["parameters"].items():
+        r = [name, _g(p["estimate"], ".6g"), _g(p["std"]), _g(p["rel_std_pct"], ".2f")]
+        if with_truth:
+            r += [_g(p.get("truth"), ".6g"), _g(p.get("error_in_std"), ".2f")]
+        r += [_g(p.get("mk_std")), "at bound" if p.get("at_bound") else ""]
+        rows.append(r)
+    return rows
+
+
+def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
+    v = mj.get("validation") or {}
+    vd = mj["verdict"]
+    L = [f"## {m.upper()} ({mj['model']})", ""]
+    L.append(f"**Verdict: {'PASS' if vd['ok'] else 'CHECK'}**"
+             + ("" if vd["ok"] else " - " + "; ".join(vd["reasons"])))
+    L += [f"- note: {n}" for n in vd.get("notes", [])]
+    L += ["", f"Converged: {'yes' if mj['converged'] else 'NO'} after {mj['iterations']} "
+          f"iterations; det(R) = {_g(mj['det_R'], '.4e')}; {mj['n_samples']} samples."
+          + (f" {mj['message']}" if mj.get("message") else ""), ""]
+    L += ["### Parameters", ""]
+    head = ["parameter", "estimate", "std (CRB)", "rel std %"]
+    if with_truth:
+        head += ["truth", "abs(error)/std"]
+    head += ["std (Morelli-Klein)", ""]
+    L += _table(head, param_rows(mj, with_truth))
+    if mj.get("fixed"):
+        L += ["Fixed: " + ", ".join(f"{n} = {_g(x)}" for n, x in mj["fixed"].items()), ""]
+    if mj.get("correlations_flagged"):
+        L += ["Correlation |rho| > 0.9: " + ", ".join(
+            f"{a}~{b} ({r:+.3f})" for a, b, r in mj["correlations_flagged"]), ""]
+    fit = mj.get("fit") or {}
+    white = ((v.get("residuals") or {}).get("whiteness")) or {}
+    if fit:
+        L += ["### Fit and residuals", "",
+              "TIC: Theil inequality coefficient with bias (UM), variance (US) and covariance "
+              "(UC) proportions; RMS and residual mean in SI output units; Ljung-Box "
+              "whiteness of the residuals.", ""]
+        rows = []
+        for o, f in fit.items():
+            w = white.get(o, {})
+            rows.append([o, _g(f["TIC"], ".4f"), _g(f["UM"], ".3f"), _g(f["US"], ".3f"),
+                         _g(f["UC"], ".3f"), _g(f["R2"], ".4f"), _g(f["RMS"]), _g(f["mean"]),
+                         _g(w.get("white")), _g(w.get("p_value"), ".3f")])
+        L += _table(["output", "TIC", "UM", "US", "UC", "R2", "RMS", "mean", "white", "p"], rows)
+    modes = v.get("modes") or {}
+    if modes.get("table"):
+        L += ["### Modes (model linearised at the first sample)", ""]
+        rows = []
+        for name, d in modes["table"].items():
+            rows.append([name, f"{_g(d['real'])} {'+' if (d['imag'] or 0) >= 0 else '-'} "
+                         f"{_g(abs(d['imag'] or 0))}j", _g(d["wn"]), _g(d["zeta"], ".3f"),
+                         _g(d["period"]), _g(d["t_half"]), _g(d["t_double"]),
+                         "yes" if d["stable"] else "NO"])
+        L += _table(["mode", "eigenvalue (1/s)", "wn (rad/s)", "zeta", "period (s)",
+                     "t_half (s)", "t_double (s)", "stable"], rows)
+    elif modes.get("error"):
+        L += [f"Modes: not computed ({modes['error']}).", ""]
+    pm = v.get("proof_of_match")
+    L += ["### Proof of match", ""]
+    if not pm:
+        L += ["No held-out maneuver: not run.", ""]
+    else:
+        for s in pm["segments"]:
+            L += [f"Held-out segment **{s['name']}**: {'PASS' if s['all_pass'] else 'FAIL'}", ""]
+            rows = []
+            for c, d in s["channels"].items():
+                judged = d.get("pass")
+                rows.append([c, d["unit"], _g(d.get("tolerance_display")),
+                             _g(d.get("max_abs_error_display")), _g(d.get("rms_error_display")),
+                             _g(d.get("fraction_within"), ".3f"), _g(d.get("TIC"), ".4f"),
+                             "-" if judged is None else ("pass" if judged else "FAIL")])
+            L += _table(["channel", "unit", "tolerance", "max abs error", "rms error",
+                         "fraction within", "TIC", "result"], rows)
+    fr = v.get("frequency")
+    if fr and fr.get("table"):
+        b = fr["bounds"]
+        L += ["### Frequency response (model vs spectral estimate)", "",
+              f"Segment {fr['segment']}; bounds {b['mag_db']} dB / {b['phase_deg']} deg where "
+              f"coherence >= {b['min_coherence']} and the input carries power.", ""]
+        rows = [[k, _g(d["max_mag_db"], ".2f"), _g(d["max_phase_deg"], ".1f"), str(d["n_used"]),
+                 ("pass" if d["pass"] else "FAIL") if d["n_used"] else "-"]
+                for k, d in fr["table"].items()]
+        L += _table(["output/input", "max abs mag (dB)", "max abs phase (deg)", "points", "result"],
+                    rows)
+    ap = (v.get("plausibility") or {}).get("apriori")
+    if ap:
+        L += ["### Plausibility against a-priori values", ""]
+        rows = [[n, _g(d["estimate"]), _g(d["apriori"]), _g(d["combined_std"]), _g(d["z"], ".2f"),
+                 "FLAG" if d["flag"] else ""] for n, d in ap.items()]
+        L += _table(["parameter", "estimate", "a priori", "combined std", "z", ""], rows)
+    return L
+
+
+def report_markdown(rep: Mapping[str, Any]) -> str:
+    """report.md text from the report dict of :func:`report_dict`."""
+    meta = rep.get("meta") or {}
+    L = ["# System-identification report", ""]
+    for k, x in meta.items():
+        if isinstance(x, (str, int, float, bool)) or x is None:
+            L.append(f"- {k}: {x}")
+    if meta:
+        L.append("")
+    with_truth = bool(rep.get("truth"))
+    if rep["methods"]:
+        L += ["## Summary", ""]
+        rows = []
+        for m, mj in rep["methods"].items():
+            fit = mj.get("fit") or {}
+            tics = [d["TIC"] for d in fit.values() if d.get("TIC") is not None]
+            pm = (mj.get("validation") or {}).get("proof_of_match")
+            rows.append([m, "PASS" if mj["verdict"]["ok"] else "CHECK",
+                         "yes" if mj["converged"] else "NO", _g(mj["det_R"], ".4e"),
+                         _g(max(tics) if tics else None, ".4f"),
+                         "-" if not pm else ("pass" if pm["all_pass"] else "FAIL")])
+        L += _table(["method", "verdict", "converged", "det(R)", "max TIC", "proof of match"], rows)
+    checks = rep.get("checks")
+    if isinstance(checks, Mapping) and checks:
+        L += ["## Data checks", ""]
+        for k, x in checks.items():
+            if isinstance(x, (str, int, float, bool)):
+                L.append(f"- {k}: {x}")
+        L.append("")
+    for m, mj in rep["methods"].items():
+        L += _method_md(m, mj, with_truth)
+    return "\n".join(L).rstrip() + "\n"
+
+
+def write_report(out_dir: str | Path, results: Mapping[str, EstimationResult],
+                 validations: Mapping[str, Mapping[str, Any]], *,
+                 truth: Mapping[str, float] | None = None, meta: Mapping[str, Any] | None = None,
+                 checks: Any = None) -> tuple[Path, Path]:
+    """Write ``out_dir/report.md`` and ``out_dir/report.json`` atomically.
+
+    results: method name -> result; validations: method name -> :func:`pipeline.validate.
+    validate` output (missing ones are fine); truth: true parameter values; meta: flat
+    facts shown at the top (scenario, log, seed, ...); checks: data-quality summary
+    (JSON-ready). Returns (md path, json path).
+    """
+    out = Path(out_dir)
+    rep = report_dict(results, validations, truth=truth, meta=meta, checks=checks)
+    pj = atomic_write_text(out / "report.json", json.dumps(rep, indent=2, allow_nan=False) + "\n")
+    pm = atomic_write_text(out / "report.md", report_markdown(rep))
+    return pm, pj
