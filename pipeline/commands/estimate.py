@@ -1,0 +1,31 @@
+"""``fsid estimate LOG --aircraft AIRCRAFT.toml [--method oem] [--map MAP] [--out DIR]``."""
+from __future__ import annotations
+
+import argparse
+
+from pipeline.paths import new_run_dir
+
+HELP = "identify derivatives from a real log with a built-in model and an aircraft description"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("log", help="flight log (.bin, .tlog, .ulg, .mcap, .csv)")
+    p.add_argument("--aircraft", required=True,
+                   help="aircraft TOML (geometry, mass, inertia, propulsion; see scenarios/aircraft/)")
+    p.add_argument("--model", default="longitudinal", choices=["longitudinal"],
+                   help="built-in model (default: longitudinal)")
+    p.add_argument("--method", action="append", choices=["oem"], help="estimation method(s)")
+    p.add_argument("--map", help="channel map TOML extending the built-in one")
+    p.add_argument("--out", help="output folder (default: a new folder under ./runs/)")
+    p.add_argument("--quiet", action="store_true")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pipeline.commands.run import print_outputs
+    from pipeline.run import estimate_log
+
+    out = new_run_dir("estimate", args.out)
+    paths = estimate_log(args.log, out, aircraft=args.aircraft, map_path=args.map,
+                         methods=args.method or ["oem"], quiet=args.quiet)
+    print_outputs(out, paths)
+    return 0

@@ -1,0 +1,32 @@
+"""``fsid run SCENARIO [--out DIR] [--seed N]``."""
+from __future__ import annotations
+
+import argparse
+
+from pipeline.paths import new_run_dir
+
+HELP = "simulate a scenario, write its logs, ingest them, identify, validate, report"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", help="scenario TOML (see scenarios/)")
+    p.add_argument("--out", help="output folder (default: a new folder under ./runs/)")
+    p.add_argument("--seed", type=int, help="override the scenario's seed")
+    p.add_argument("--method", action="append", choices=["oem"], help="estimation method(s)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def print_outputs(out, paths) -> None:
+    print(f"wrote {out}/")
+    for name, path in paths.items():
+        print(f"  {name:<12} {path}")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pipeline.run import run_scenario
+
+    out = new_run_dir("run", args.out)
+    paths = run_scenario(args.scenario, out, seed=args.seed, methods=args.method or ["oem"],
+                         quiet=args.quiet)
+    print_outputs(out, paths)
+    return 0

@@ -1,0 +1,215 @@
+"""From canonical flight data to estimation problems: models, segments, start values.
+
+This is where the pipeline decides, for one axis of one flight, which built-in model to
+fit, with which constants (from an aircraft description), on which time segments (the
+maneuvers found in the log), from which start values (an equation-error regression on the
+same data), and which maneuver is held out for proof of match.
+
+Longitudinal: the nonlinear model of :mod:`estimators.models.longitudinal` observing
+V, alpha, theta, q, ax, az (angular acceleration is not measured by loggers), with the
+air-data and IMU positions as constants, per-segment initial states and per-segment
+biases on q, ax, az. Thrust (N) comes from a ``thrust`` channel when the log has one,
+else from ``throttle * max_thrust``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from estimators import Segment
+from estimators.models import longitudinal
+from pipeline.errors import FsidError
+from pipeline.flightdata import FlightData, SegmentSpec
+
+#: derivatives estimated by default for the longitudinal axis
+LONG_FREE = ("CD0", "CDalpha", "CDalpha2", "CL0", "CLalpha", "CLq", "CLde",
+             "Cm0", "Cmalpha", "Cmq", "Cmde")
+LONG_OUTPUTS = ("V", "alpha", "theta", "q", "ax", "az")
+LONG_CHANNELS = ("V", "alpha", "theta", "q", "ax", "az", "de")
+G0 = 9.80665
+
+
+@dataclass
+class AircraftConstants:
+    """What the models need to know about the aircraft (SI units).
+
+    mass (kg), Ixx Iyy Izz Ixz (kg m^2), S (m^2), b, cbar (m), max_thrust (N, thrust =
+    throttle * max_thrust when the log has no thrust channel), sensor positions from the
+    CG in body axes (m): ``airdata`` and ``imu`` as (x, y, z).
+    """
+
+    mass: float
+    Ixx: float
+    Iyy: float
+    Izz: float
+    Ixz: float
+    S: float
+    b: float
+    cbar: float
+    max_thrust: float | None = None
+    airdata: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    imu: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @classmethod
+    def from_truth(cls, truth: Mapping[str, Any]) -> "AircraftConstants":
+        """From a run's truth.json dictionary (aircraft + sensor positions)."""
+        ac = truth["aircraft"]
+        sensors = truth.get("sensors", {})
+
+        def pos(name):
+            s = sensors.get(name, {}) or {}
+            return tuple(float(v) for v in s.get("position_m", s.get("position", (0, 0, 0))))
+
+        g = ac.get("geometry", ac)
+        m = ac.get("mass", ac)
+        prop = ac.get("propulsion", ac)
+        return cls(mass=_num(m, "mass_kg", "mass"), Ixx=_num(m, "Ixx_kgm2", "Ixx"),
+                   Iyy=_num(m, "Iyy_kgm2", "Iyy"), Izz=_num(m, "Izz_kgm2", "Izz"),
+                   Ixz=_num(m, "Ixz_kgm2", "Ixz"), S=_num(g, "S_m2", "S"), b=_num(g, "b_m", "b"),
+                   cbar=_num(g, "cbar_m", "cbar"),
+                   max_thrust=_num(prop, "max_thrust_N", "max_thrust", default=None),
+                   airdata=pos("airdata"), imu=pos("imu"))
+
+    @classmethod
+    def from_aircraft(cls, aircraft: Any, sensors: Mapping[str, Sequence[float]] | None = None
+                      ) -> "AircraftConstants":
+        """From a :class:`sim.Aircraft` (an aircraft TOML) and optional sensor positions."""
+        d = aircraft.to_dict()
+        return cls.from_truth({"aircraft": d, "sensors": {
+            k: {"position_m": list(v)} for k, v in (sensors or {}).items()}})
+
+
+def _num(d: Mapping[str, Any], *keys: str, default: Any = ...) -> Any:
+    for k in keys:
+        if k in d and d[k] is not None:
+            return float(d[k])
+    if default is not ...:
+        return default
+    raise FsidError(f"aircraft description has no {keys[0]!r}: add it (SI units) to the aircraft TOML")
+
+
+def isa_density(h: np.ndarray | float) -> np.ndarray:
+    """ISA air density (kg/m^3) at geometric altitude h (m), troposphere."""
+    T = 288.15 - 0.0065 * np.asarray(h, dtype=float)
+    return 1.225 * (T / 288.15) ** 4.2559
+
+
+@dataclass
+class Problem:
+    """One estimation problem: a model, the segments it is fitted to, held-out segments."""
+
+    axis: str
+    model: Any
+    fit: list[Segment]
+    held_out: list[Segment]
+    specs: list[SegmentSpec]
+    held_specs: list[SegmentSpec]
+    estimate_x0: bool | Sequence[str] = True
+    notes: list[str] = field(default_factory=list)
+
+
+def thrust_signal(df: pd.DataFrame, ac: AircraftConstants) -> np.ndarray:
+    if "thrust" in df and df["thrust"].notna().all():
+        return df["thrust"].to_numpy()
+    if "throttle" in df and ac.max_thrust:
+        return df["throttle"].to_numpy() * ac.max_thrust
+    raise FsidError("the log has neither a thrust channel nor throttle with a known max_thrust: "
+                    "add [propulsion] max_thrust_N to the aircraft description")
+
+
+def _window(df: pd.DataFrame, spec: SegmentSpec) -> pd.DataFrame:
+    w = df[(df["t"] >= spec.t0) & (df["t"] <= spec.t1)]
+    return w.reset_index(drop=True)
+
+
+def longitudinal_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
+                        thrusts: Sequence[np.ndarray]) -> dict[str, float]:
+    """Equation-error start values: least squares of CL, CD, Cm computed from the measured
+    specific forces and the differentiated pitch rate on the maneuver windows."""
+    rows = {"L": [], "D": [], "M": []}
+    yL, yD, yM = [], [], []
+    for df, T in zip(frames, thrusts):
+        t = df["t"].to_numpy()
+        V, a, q, de = (df[k].to_numpy() for k in ("V", "alpha", "q", "de"))
+        qbar = 0.5 * c["rho"] * V ** 2
+        CX = (c["m"] * df["ax"].to_numpy() - T) / (qbar * c["S"])
+        CZ = c["m"] * df["az"].to_numpy() / (qbar * c["S"])
+        CL = -CZ * np.cos(a) + CX * np.sin(a)
+        CD = -CX * np.cos(a) - CZ * np.sin(a)
+        qdot = np.gradient(q, t)
+        Cm = c["Iyy"] * qdot / (qbar * c["S"] * c["cbar"])
+        qh = q * c["cbar"] / (2 * V)
+        one = np.ones_like(a)
+        rows["L"].append(np.column_stack([one, a, qh, de])); yL.append(CL)
+        rows["D"].append(np.column_stack([one, a, a * a])); yD.append(CD)
+        rows["M"].append(np.column_stack([one, a, qh, de])); yM.append(Cm)
+    sol = {}
+    for key, y, names in (("L", yL, ("CL0", "CLalpha", "CLq", "CLde")),
+                          ("D", yD, ("CD0", "CDalpha", "CDalpha2")),
+                          ("M", yM, ("Cm0", "Cmalpha", "Cmq", "Cmde"))):
+        X = np.vstack(rows[key]); Y = np.concatenate(y)
+        ok = np.all(np.isfinite(X), axis=1) & np.isfinite(Y)
+        beta = np.linalg.lstsq(X[ok], Y[ok], rcond=None)[0]
+        sol.update(zip(names, beta))
+    # keep the signs that make a flyable start (stable pitch damping, positive lift slope)
+    sol["Cmq"] = min(sol["Cmq"], -1.0)
+    sol["Cmalpha"] = min(sol["Cmalpha"], -0.05)
+    sol["CLalpha"] = max(sol["CLalpha"], 1.0)
+    return {k: float(v) for k, v in sol.items()}
+
+
+def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float = 50.0,
+                         segments: Sequence[SegmentSpec] | None = None,
+                         hold_out: int = 1, free: Sequence[str] = LONG_FREE,
+                         biases: Sequence[str] = ("q", "ax", "az")) -> Problem:
+    """Build the longitudinal problem from flight data.
+
+    segments : windows to use (default: the log's segments whose axis is 'de' or
+        'throttle'); the last ``hold_out`` elevator windows are kept for proof of match.
+    """
+    missing = fd.missing(LONG_CHANNELS)
+    if missing:
+        raise FsidError(f"longitudinal identification needs channels {missing} that the log "
+                        f"does not provide ({fd.meta.get('source', 'log')}); add them to the "
+                        "channel map (--map) or choose another model")
+    specs = list(segments if segments is not None else
+                 [s for s in fd.segments if s.axis in ("de", "throttle")])
+    if len(specs) < 1 + hold_out:
+        raise FsidError(f"found {len(specs)} longitudinal maneuver segment(s) but need at least "
+                        f"{1 + hold_out} (one to fit, {hold_out} to hold out): fly more elevator "
+                        "maneuvers or give segments by time range")
+    chans = list(LONG_CHANNELS) + [c for c in ("throttle", "thrust", "rho", "h") if c in fd]
+    df = fd.resample(rate_hz, chans)
+    rho = float(np.nanmean(df["rho"])) if "rho" in df else float(np.nanmean(isa_density(df["h"]))) \
+        if "h" in df else 1.225
+    c = {"m": ac.mass, "Iyy": ac.Iyy, "S": ac.S, "cbar": ac.cbar, "rho": rho,
+         "x_vane": ac.airdata[0], "z_vane": ac.airdata[2], "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
+    elev = [s for s in specs if s.axis == "de"]
+    held = elev[-hold_out:] if hold_out else []
+    fit_specs = [s for s in specs if s not in held]
+    frames = {id(s): _window(df, s) for s in specs}
+    for s in specs:
+        w = frames[id(s)]
+        if len(w) < 10 or w[list(LONG_CHANNELS)].isna().any().any():
+            raise FsidError(f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in "
+                            f"{[k for k in LONG_CHANNELS if w[k].isna().any()]}: cut it or fix the log")
+    thrust = {id(s): thrust_signal(frames[id(s)], ac) for s in specs}
+    start = longitudinal_starts([frames[id(s)] for s in fit_specs], c,
+                                [thrust[id(s)] for s in fit_specs])
+    model = longitudinal(c, values=start, free=free, output_biases=biases,
+                         name="longitudinal").select_outputs(LONG_OUTPUTS)
+
+    def seg(s):
+        w = frames[id(s)]
+        x0 = np.array([w["V"].iloc[0], w["alpha"].iloc[0], w["theta"].iloc[0], w["q"].iloc[0]])
+        return Segment(t=w["t"].to_numpy(), u=np.column_stack([w["de"], thrust[id(s)]]),
+                       z=w[list(LONG_OUTPUTS)].to_numpy(), x0=x0, name=s.name)
+
+    notes = [f"density {rho:.4f} kg/m^3 (mean over the flight)",
+             f"thrust from {'thrust channel' if 'thrust' in df else 'throttle x max_thrust'}",
+             f"start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())]
+    return Problem("longitudinal", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
+                   fit_specs, held, estimate_x0=True, notes=notes)
