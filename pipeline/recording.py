@@ -1,0 +1,389 @@
+"""``run.rrd``: the run for review in the rerun viewer (rerun-sdk 0.41), written column-wise.
+
+Every time history goes in with ONE ``send_columns`` call per entity (``rr.TimeColumn`` index
+columns + ``rr.Scalars.columns``), never one call per sample. Each series entity also gets a
+static ``rr.SeriesLines`` (legend name with unit, colour per method). The file is written to
+a temporary name and renamed (:class:`pipeline.paths.atomic_path`).
+
+Entity layout (stable; ``<out>``/``<in>`` are model output/input names, ``<method>`` the
+keys of ``results`` such as ``oem``, ``<name>`` a parameter name with any character outside
+``[A-Za-z0-9_.-]`` replaced by ``_``, so ``bias_az[0]`` becomes ``bias_az_0_``)::
+
+    /README                               static TextDocument: this layout
+    /summary/<method>                     static TextDocument: result.summary(truth)
+    /outputs/<out>/measured               z            timelines t, segment
+    /outputs/<out>/<method>               model y      t, segment
+    /residuals/<method>/<out>             z - y        t, segment
+    /inputs/<in>                          u            t, segment
+    /match/<out>/measured                 held-out z   t, segment
+    /match/<out>/<method>                 held-fixed model simulation of the held-out data
+    /match/<out>/upper, /match/<out>/lower   measured +/- tolerance (judged channels only)
+    /params/<name>/<method>               estimate per iteration (timeline ``iteration``) or,
+                                          for filters, per step (timeline ``t``)
+    /params/<name>/<method>/upper|lower   estimate +/- std (final Cramer-Rao std for
+                                          iterations; the step's std for filters)
+    /params/<name>/truth                  true value on every iteration index of the
+                                          longest history (and at the first and last t
+                                          of a filter trajectory)
+    /spectra/<method>/<out>               residual PSD, 10 log10(units^2/Hz) dB, timeline
+                                          ``frequency`` = f in mHz (integer)
+    /freq_response/<out>/<in>/mag_db/data            |H| of the spectral estimate (dB)
+    /freq_response/<out>/<in>/mag_db/<method>        the model through the same estimator
+    /freq_response/<out>/<in>/mag_db/<method>_linear G(jw) of the linearised model
+    /freq_response/<out>/<in>/phase_deg/...          same three, phase in deg
+    /freq_response/<out>/<in>/coherence              coherence of the data estimate [0, 1]
+    /data/<channel>                       optional extra channels (``data=``), timeline t
+
+Values are SI (rad, rad/s, m/s, m/s^2, N ...) as in the data contract, not degrees.
+
+Timelines: ``t`` (duration, s); ``segment`` (sequence) the segment index of each sample:
+fitted segments 0..n-1, then held-out segments n..; ``iteration`` (sequence) the optimiser
+iteration; ``frequency`` (sequence, mHz). Several segments share ``t``: when they are
+disjoint in time (pieces of one log) they keep their own times; when they overlap (e.g.
+each starts at 0) they are laid end to end, fitted then held-out, each starting 1 s
+(:data:`SEGMENT_GAP`) after the previous one ends; so a series' sample count is the sum of
+its segments' finite samples.
+
+Filter methods (EKF/UKF/FEM) that keep a parameter trajectory put it in ``result.extra``
+as ``"param_trajectory"`` (DataFrame on t, one column per parameter) and optionally
+``"param_std_trajectory"`` (same shape); it is recorded instead of the iteration history.
+"""
+from __future__ import annotations
+
+import re
+import uuid
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from estimators import EstimationResult
+from pipeline.paths import atomic_path
+from pipeline.validate import display_unit
+
+#: gap in s between segments laid end to end on the ``t`` timeline
+SEGMENT_GAP = 1.0
+#: colours of the methods and of measured/truth lines (RGB)
+COLORS = {"measured": (40, 40, 40), "truth": (200, 160, 0), "data": (40, 40, 40),
+          "oem": (31, 119, 180), "fem": (255, 127, 14), "ekf": (44, 160, 44),
+          "ukf": (214, 39, 40), "ls": (148, 103, 189), "eq": (148, 103, 189)}
+_PALETTE = [(140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
+
+
+def entity_part(name: str) -> str:
+    """One entity-path part from a name: characters outside [A-Za-z0-9_.-] become '_'."""
+    return re.sub(r"[^A-Za-z0-9_.\-]", "_", str(name))
+
+
+def _color(key: str, order: Sequence[str]) -> tuple[int, int, int]:
+    if key in COLORS:
+        return COLORS[key]
+    return _PALETTE[list(order).index(key) % len(_PALETTE)] if key in order else _PALETTE[0]
+
+
+def _si_unit(channel: str) -> str:
+    fac, unit = display_unit(channel)
+    if fac == 1.0:
+        return unit
+    return {"deg": "rad", "deg/s": "rad/s", "deg/s^2": "rad/s^2", "g": "m/s^2"}[unit]
+
+
+def segment_starts(t_list: Sequence[np.ndarray], gap: float = SEGMENT_GAP) -> list[float]:
+    """Offset in s to add to each segment's own times (t, (N_k,)) on the shared ``t`` line:
+    0 for all when the segments are disjoint and in order, else end to end with ``gap``."""
+    t_list = [np.asarray(t, dtype=float) for t in t_list]
+    if all(a[-1] < b[0] for a, b in zip(t_list, t_list[1:])):
+        return [0.0] * len(t_list)
+    offs, start = [], 0.0
+    for t in t_list:
+        offs.append(start - float(t[0]))
+        start += float(t[-1] - t[0]) + gap
+    return offs
+
+
+class _Writer:
+    """Thin helper around one RecordingStream: series and their static styles."""
+
+    def __init__(self, rec, methods: Sequence[str]) -> None:
+        import rerun as rr
+
+        self.rr, self.rec, self.methods = rr, rec, list(methods)
+        self.counts: dict[str, int] = {}
+
+    def style(self, path: str, name: str, color: tuple[int, int, int], width: float = 1.5) -> None:
+        self.rec.log(path, self.rr.SeriesLines(names=name, colors=[color], widths=width), static=True)
+
+    def series(self, path: str, values, *, t=None, segment=None, sequence=None,
+               timeline: str = "iteration", name: str | None = None, color=None) -> None:
+        """One entity, one send_columns call; non-finite samples are left out."""
+        rr = self.rr
+        v = np.asarray(values, dtype=float).ravel()
+        ok = np.isfinite(v)
+        idx = []
+        if t is not None:
+            idx.append(rr.TimeColumn("t", duration=np.asarray(t, dtype=float).ravel()[ok]))
+        if segment is not None:
+            idx.append(rr.TimeColumn("segment", sequence=np.asarray(segment, dtype=np.int64).ravel()[ok]))
+        if sequence is not None:
+            idx.append(rr.TimeColumn(timeline, sequence=np.asarray(sequence, dtype=np.int64).ravel()[ok]))
+        if not ok.any():
+            return
+        self.rec.send_columns(path, indexes=idx, columns=rr.Scalars.columns(scalars=v[ok]))
+        self.counts[path] = self.counts.get(path, 0) + int(ok.sum())
+        if name is not None:
+            self.style(path, name, color or (100, 100, 100))
+
+    def text(self, path: str, body: str, media_type: str = "text/markdown") -> None:
+        self.rec.log(path, self.rr.TextDocument(body, media_type=media_type), static=True)
+
+
+def _cat(frames: Sequence[pd.DataFrame], offs: Sequence[float], seg_ids: Sequence[int]
+         ) -> tuple[np.ndarray, np.ndarray, pd.DataFrame]:
+    """Concatenate per-segment DataFrames on t into (t_run (N,), segment (N,), values)."""
+    ts = [df.index.to_numpy(float) + o for df, o in zip(frames, offs)]
+    sg = [np.full(len(df), k, dtype=np.int64) for df, k in zip(frames, seg_ids)]
+    vals = pd.concat([df.reset_index(drop=True) for df in frames], ignore_index=True)
+    return np.concatenate(ts), np.concatenate(sg), vals
+
+
+def _time_histories(w: _Writer, results: Mapping[str, EstimationResult],
+                    validations: Mapping[str, Mapping[str, Any]],
+                    inputs: Sequence[pd.DataFrame] | None) -> None:
+    first = next(iter(results.values()))
+    fit_t = [p.index.to_numpy(float) for p in first.predicted]
+    match_arrays = next((v["arrays"]["match"] for v in validations.values()
+                         if v and v.get("arrays", {}).get("match")), [])
+    held_t = [np.asarray(a["t"], dtype=float) for a in match_arrays]
+    offs = segment_starts(fit_t + held_t)
+    n_fit = len(fit_t)
+    fit_offs, held_offs = offs[:n_fit], offs[n_fit:]
+    fit_ids = list(range(n_fit))
+
+    # measured outputs: from the first result that has the output (z = y + e)
+    done: set[str] = set()
+    for m, r in results.items():
+        meas = [p + e for p, e in zip(r.predicted, r.residuals)]
+        t, sg, z = _cat(meas, fit_offs, fit_ids)
+        _, _, y = _cat(r.predicted, fit_offs, fit_ids)
+        _, _, e = _cat(r.residuals, fit_offs, fit_ids)
+        for o in r.outputs:
+            po, unit = entity_part(o), _si_unit(o)
+            if o not in done:
+                w.series(f"/outputs/{po}/measured", z[o], t=t, segment=sg,
+                         name=f"{o} measured [{unit}]", color=COLORS["measured"])
+                done.add(o)
+            w.series(f"/outputs/{po}/{entity_part(m)}", y[o], t=t, segment=sg,
+                     name=f"{o} {m} [{unit}]", color=_color(m, w.methods))
+            w.series(f"/residuals/{entity_part(m)}/{po}", e[o], t=t, segment=sg,
+                     name=f"{o} residual {m} [{unit}]", color=_color(m, w.methods))
+
+    # inputs
+    if inputs is None:
+        inputs = [pd.DataFrame(s.u, index=pd.Index(s.t, name="t"), columns=first.model.inputs)
+                  for s in first.segments]
+    if inputs:
+        t, sg, u = _cat(list(inputs), fit_offs[:len(inputs)], fit_ids[:len(inputs)])
+        for i in u.columns:
+            w.series(f"/inputs/{entity_part(i)}", u[i], t=t, segment=sg,
+                     name=f"{i} [{_si_unit(i)}]", color=(90, 90, 90))
+
+    # proof of match on held-out segments
+    if match_arrays:
+        ids = list(range(n_fit, n_fit + len(match_arrays)))
+        t, sg, z = _cat([a["measured"] for a in match_arrays], held_offs, ids)
+        tol = match_arrays[0]["tolerance"]
+        for j, o in enumerate(z.columns):
+            po, unit = entity_part(o), _si_unit(o)
+            w.series(f"/match/{po}/measured", z[o], t=t, segment=sg,
+                     name=f"{o} measured (held out) [{unit}]", color=COLORS["measured"])
+            if np.isfinite(tol[j]):
+                w.series(f"/match/{po}/upper", z[o] + tol[j], t=t, segment=sg,
+                         name=f"{o} + tolerance", color=(170, 170, 170))
+                w.series(f"/match/{po}/lower", z[o] - tol[j], t=t, segment=sg,
+                         name=f"{o} - tolerance", color=(170, 170, 170))
+        for m, v in validations.items():
+            arr = (v or {}).get("arrays", {}).get("match") or []
+            if not arr:
+                continue
+            t, sg, y = _cat([a["predicted"] for a in arr], held_offs, ids)
+            for o in y.columns:
+                w.series(f"/match/{entity_part(o)}/{entity_part(m)}", y[o], t=t, segment=sg,
+                         name=f"{o} {m} (held-fixed model) [{_si_unit(o)}]",
+                         color=_color(m, w.methods))
+
+
+def _params(w: _Writer, results: Mapping[str, EstimationResult],
+            truth: Mapping[str, float] | None) -> None:
+    n_iter = 0
+    traj_t: dict[str, tuple[float, float]] = {}
+    for m, r in results.items():
+        pm, col = entity_part(m), _color(m, w.methods)
+        std = r.std
+        traj = r.extra.get("param_trajectory") if isinstance(r.extra, Mapping) else None
+        if isinstance(traj, pd.DataFrame) and len(traj):
+            tstd = r.extra.get("param_std_trajectory")
+            t = traj.index.to_numpy(float)
+            traj_t[m] = (float(t[0]), float(t[-1]))
+            for name in traj.columns:
+                base = f"/params/{entity_part(name)}/{pm}"
+                x = traj[name].to_numpy(float)
+                w.series(base, x, t=t, name=f"{name} {m}", color=col)
+                if isinstance(tstd, pd.DataFrame) and name in tstd:
+                    s = tstd[name].to_numpy(float)
+                    w.series(f"{base}/upper", x + s, t=t, name=f"{name} {m} + std", color=col)
+                    w.series(f"{base}/lower", x - s, t=t, name=f"{name} {m} - std", color=col)
+            continue
+        h = r.history
+        if h is None or not len(h):
+            continue
+        it = h["iteration"].to_numpy() if "iteration" in h else np.arange(len(h))
+        n_iter = max(n_iter, int(np.max(it)) + 1)
+        for name in r.free_names:
+            if name not in h:
+                continue
+            base = f"/params/{entity_part(name)}/{pm}"
+            x = h[name].to_numpy(float)
+            w.series(base, x, sequence=it, name=f"{name} {m}", color=col)
+            s = float(std[name])
+            if np.isfinite(s):
+                w.series(f"{base}/upper", x + s, sequence=it, name=f"{name} {m} + std (CRB)", color=col)
+                w.series(f"{base}/lower", x - s, sequence=it, name=f"{name} {m} - std (CRB)", color=col)
+    if truth:
+        names = sorted({n for r in results.values() for n in r.free_names if n in truth})
+        for name in names:
+            path = f"/params/{entity_part(name)}/truth"
+            if n_iter:
+                w.series(path, np.full(n_iter, float(truth[name])), sequence=np.arange(n_iter),
+                         name=f"{name} truth", color=COLORS["truth"])
+            if traj_t:
+                t0 = min(a for a, _ in traj_t.values())
+                t1 = max(b for _, b in traj_t.values())
+                w.series(path, [truth[name]] * 2, t=[t0, t1], name=f"{name} truth",
+                         color=COLORS["truth"])
+
+
+def _spectra(w: _Writer, results: Mapping[str, EstimationResult],
+             validations: Mapping[str, Mapping[str, Any]]) -> None:
+    data_done: set[tuple[str, str]] = set()
+    for m, v in validations.items():
+        arr = (v or {}).get("arrays") or {}
+        pm, col = entity_part(m), _color(m, w.methods)
+        ps = arr.get("psd")
+        if ps is not None and m in results:
+            fm = np.round(np.asarray(ps["f"]) * 1000.0).astype(np.int64)
+            with np.errstate(divide="ignore"):
+                db = 10.0 * np.log10(np.asarray(ps["Pxx"], dtype=float))
+            for j, o in enumerate(results[m].outputs):
+                w.series(f"/spectra/{pm}/{entity_part(o)}", db[:, j], sequence=fm,
+                         timeline="frequency", name=f"{o} residual PSD {m} [dB]", color=col)
+        fr = arr.get("freq")
+        if not fr:
+            continue
+        fm = np.round(np.asarray(fr["f"]) * 1000.0).astype(np.int64)
+        for a, o in enumerate(fr["outputs"]):
+            for b, i in enumerate(fr["inputs"]):
+                base = f"/freq_response/{entity_part(o)}/{entity_part(i)}"
+                curves = {m: fr["H_model"][:, a, b], f"{m}_linear": fr["H_analytic"][:, a, b]}
+                if (o, i) not in data_done:
+                    curves["data"] = fr["H_data"][:, a, b]
+                    w.series(f"{base}/coherence", fr["coherence"][:, a, b], sequence=fm,
+                             timeline="frequency", name=f"{o}/{i} coherence", color=COLORS["data"])
+                    data_done.add((o, i))
+                for key, H in curves.items():
+                    with np.errstate(divide="ignore"):
+                        mag = 20.0 * np.log10(np.abs(H))
+                    ph = np.degrees(np.unwrap(np.angle(H)))
+                    c = COLORS["data"] if key == "data" else col
+                    w.series(f"{base}/mag_db/{entity_part(key)}", mag, sequence=fm,
+                             timeline="frequency", name=f"{o}/{i} {key} [dB]", color=c)
+                    w.series(f"{base}/phase_deg/{entity_part(key)}", ph, sequence=fm,
+                             timeline="frequency", name=f"{o}/{i} {key} [deg]", color=c)
+
+
+def _extra_data(w: _Writer, data: pd.DataFrame | Sequence[pd.DataFrame]) -> None:
+    frames = [data] if isinstance(data, pd.DataFrame) else list(data)
+    if not frames:
+        return
+    offs = segment_starts([f.index.to_numpy(float) for f in frames])
+    t, sg, d = _cat(frames, offs, list(range(len(frames))))
+    for c in d.columns:
+        if pd.api.types.is_numeric_dtype(d[c]):
+            w.series(f"/data/{entity_part(c)}", d[c].to_numpy(float), t=t, segment=sg,
+                     name=f"{c} [{_si_unit(str(c))}]", color=(90, 90, 90))
+
+
+def _blueprint(results: Mapping[str, EstimationResult], validations, truth) -> Any:
+    import rerun.blueprint as rrb
+
+    first = next(iter(results.values()))
+    outs = list(dict.fromkeys(o for r in results.values() for o in r.outputs))
+    params = list(dict.fromkeys(n for r in results.values() for n in r.free_names))
+    tabs = [
+        rrb.Grid(*[rrb.TimeSeriesView(origin=f"/outputs/{entity_part(o)}", name=o) for o in outs],
+                 name="outputs"),
+        rrb.Grid(*[rrb.TimeSeriesView(origin=f"/residuals/{entity_part(m)}", name=f"residuals {m}")
+                   for m in results], name="residuals"),
+        rrb.Grid(*[rrb.TimeSeriesView(origin=f"/inputs/{entity_part(i)}", name=i)
+                   for i in first.model.inputs], name="inputs"),
+        rrb.Grid(*[rrb.TimeSeriesView(origin=f"/params/{entity_part(p)}", name=p) for p in params],
+                 name="parameters"),
+    ]
+    if any((v or {}).get("arrays", {}).get("match") for v in validations.values()):
+        tabs.append(rrb.Grid(*[rrb.TimeSeriesView(origin=f"/match/{entity_part(o)}", name=o)
+                               for o in outs], name="proof of match"))
+    tabs.append(rrb.Grid(*[rrb.TimeSeriesView(origin=f"/spectra/{entity_part(m)}", name=f"PSD {m}")
+                           for m in results], name="spectra"))
+    if any((v or {}).get("arrays", {}).get("freq") for v in validations.values()):
+        tabs.append(rrb.Grid(rrb.TimeSeriesView(origin="/freq_response", name="frequency response"),
+                             name="frequency response"))
+    tabs.append(rrb.Vertical(rrb.TextDocumentView(origin="/README", name="layout"),
+                             *[rrb.TextDocumentView(origin=f"/summary/{entity_part(m)}", name=m)
+                               for m in results], name="summary"))
+    return rrb.Blueprint(rrb.Tabs(*tabs), collapse_panels=False)
+
+
+def write_recording(path: str | Path, results: Mapping[str, EstimationResult],
+                    validations: Mapping[str, Mapping[str, Any]] | None = None, *,
+                    data: pd.DataFrame | Sequence[pd.DataFrame] | None = None,
+                    truth: Mapping[str, float] | None = None,
+                    inputs: Sequence[pd.DataFrame] | None = None,
+                    application_id: str = "fsid", recording_id: str | None = None,
+                    blueprint: bool = True) -> Path:
+    """Write the rerun recording of a run (layout in the module doc); returns the path.
+
+    results: method -> result (the first one's segments give the inputs and the time base);
+    validations: method -> :func:`pipeline.validate.validate` output (its ``"arrays"`` give
+    the spectra, frequency responses and proof-of-match histories; may be empty);
+    data: optional extra channels, a DataFrame on t (s) or one per segment, SI units;
+    truth: true parameter values; inputs: per fitted segment, DataFrames on t of the inputs
+    (default: the first result's segments' u under the model's input names).
+    """
+    import rerun as rr
+
+    if not results:
+        raise ValueError("write_recording needs at least one result")
+    validations = dict(validations or {})
+    path = Path(path)
+    rec = rr.RecordingStream(application_id, recording_id=recording_id or str(uuid.uuid4()))
+    with atomic_path(path) as tmp:
+        rec.save(str(tmp))
+        try:
+            rec.send_recording_name(path.parent.name or "fsid run")
+            w = _Writer(rec, list(results))
+            w.text("/README", __doc__ or "")
+            for m, r in results.items():
+                w.text(f"/summary/{entity_part(m)}", "```\n" + r.summary(dict(truth) if truth else None)
+                       + "\n```")
+            _time_histories(w, results, validations, inputs)
+            _params(w, results, truth)
+            _spectra(w, results, validations)
+            if data is not None:
+                _extra_data(w, data)
+            if blueprint:
+                rec.send_blueprint(_blueprint(results, validations, truth))
+        finally:
+            rec.flush()
+            rec.disconnect()
+    return path
