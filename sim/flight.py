@@ -220,17 +220,27 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
         n_steps = int(round(s.duration * s.rate_hz))
         tgrid = np.arange(n_steps + 1) / s.rate_hz
         inputs = input_histories(list(s.maneuvers), tgrid)
-        active = [(setters[ax].set_double_value, inputs[ax]) for ax in inputs if np.any(inputs[ax] != 0.0)]
-        data = np.empty((n_steps + 1, len(props)))
-        data[0] = [g() for g in getters]
+        # set an input property only on the steps where its value changes
+        changes: dict[int, list] = {}
+        for ax, hist in inputs.items():
+            hist = hist.copy()
+            hist[0] = 0.0            # the property's value at the trim point; inputs act from step 1
+            ks = np.flatnonzero(np.diff(hist) != 0.0) + 1
+            setv = setters[ax].set_double_value
+            for k, v in zip(ks.tolist(), hist[ks].tolist()):
+                changes.setdefault(k, []).append((setv, v))
+        rows = [[g() for g in getters]]
         every = max(1, n_steps // 20)
+        run = fdm.run
         for k in range(1, n_steps + 1):
-            for setv, hist in active:
-                setv(float(hist[k]))
-            fdm.run()
-            data[k] = [g() for g in getters]
+            if k in changes:
+                for setv, v in changes[k]:
+                    setv(v)
+            run()
+            rows.append([g() for g in getters])
             if progress is not None and k % every == 0:
                 progress(k / n_steps)
+        data = np.array(rows)
     truth, terms = _truth_table(data, props, coef_names, ac)
     # JSBSim accumulates dt (2.99999999999998 for 3.0); the exact grid is k/rate_hz
     if np.max(np.abs(truth["t"].to_numpy() - tgrid)) > 1e-6:

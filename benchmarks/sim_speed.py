@@ -1,0 +1,54 @@
+"""Simulated seconds per wall-clock second for the built-in ``default`` scenario.
+
+Measures the whole `fsid simulate` work: JSBSim trim and flight, sensor models, writing
+flight.mcap and flight.bin (truth.json is small and left out). Median of 5 runs after one
+warm-up; the breakdown shows where the time goes. The ratio is printed last.
+Target: >= 300.
+"""
+from __future__ import annotations
+
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import sim  # noqa: E402
+from pipeline.writers import write_dataflash, write_mcap  # noqa: E402
+
+
+def main(runs: int = 5) -> float:
+    scenario = sim.load_scenario(ROOT / "scenarios" / "default.toml")
+    parts: dict[str, list[float]] = {"fly": [], "mcap": [], "bin": [], "total": []}
+    cpu: list[float] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for k in range(runs + 1):
+            c0 = time.process_time()
+            t0 = time.perf_counter()
+            result = sim.fly(scenario)
+            t1 = time.perf_counter()
+            write_mcap(Path(tmp) / "flight.mcap", result)
+            t2 = time.perf_counter()
+            write_dataflash(Path(tmp) / "flight.bin", result)
+            t3 = time.perf_counter()
+            c3 = time.process_time()
+            if k:
+                cpu.append(c3 - c0)                       # the first run warms caches and imports
+                for key, v in zip(parts, (t1 - t0, t2 - t1, t3 - t2, t3 - t0)):
+                    parts[key].append(v)
+    med = {k: statistics.median(v) for k, v in parts.items()}
+    print(f"scenario default: {scenario.duration:g} s simulated at {scenario.rate_hz:g} Hz, median of {runs} runs")
+    for k in ("fly", "mcap", "bin"):
+        print(f"  {k:5s} {med[k] * 1e3:7.1f} ms  ({med[k] / med['total']:.0%})")
+    ratio = scenario.duration / med["total"]
+    print(f"  (CPU time {statistics.median(cpu) * 1e3:.1f} ms: {scenario.duration / statistics.median(cpu):.0f} "
+          "simulated s per CPU s; wall time grows when other processes share the cores)")
+    print(f"sim_speed: {ratio:.0f} simulated seconds per wall second (target >= 300)")
+    return ratio
+
+
+if __name__ == "__main__":
+    main()
