@@ -1,0 +1,144 @@
+"""pipeline.validate and pipeline.report on a real OEM fit of the HFB-320-like example:
+proof of match passes on a held-out maneuver and fails for a wrong model; report.json
+carries exactly the result's numbers; report.md has the parameter table rows."""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+
+import estimators
+from estimators.datasets import longitudinal_example
+from pipeline.report import param_rows, write_report
+from pipeline.validate import json_ready, validate
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    ex = longitudinal_example(0, segments=2)
+    res = estimators.OutputError(ex.model).fit(ex.segments[:1])
+    v = validate(res, held_out=ex.segments[1:], truth=ex.truth)
+    return ex, res, v
+
+
+def _wrong(res):
+    """The same result with the pitch derivatives badly off (a deliberately wrong model)."""
+    vals = res.values.copy()
+    for name, factor in (("Cmalpha", 0.5), ("Cmq", 0.5)):
+        vals[res.names.index(name)] *= factor
+    return dataclasses.replace(res, values=vals)
+
+
+def test_good_fit_passes_proof_of_match_on_held_out_segment(fitted):
+    ex, res, v = fitted
+    pm = v["proof_of_match"]
+    assert pm["all_pass"]
+    chans = pm["segments"][0]["channels"]
+    judged = {c for c, d in chans.items() if d["pass"] is not None}
+    assert judged == {"alpha", "theta", "q", "ax", "az"}     # V, qdot have no default band
+    assert all(chans[c]["pass"] for c in judged)
+    # display units: q in deg/s against the 1.5 deg/s band, az in g against 0.1 g
+    assert chans["q"]["unit"] == "deg/s" and chans["q"]["tolerance_display"] == pytest.approx(1.5)
+    assert chans["az"]["unit"] == "g" and chans["az"]["tolerance_display"] == pytest.approx(0.1)
+    assert v["verdict"]["ok"], v["verdict"]
+    assert v["fit"]["tic_ok"] and v["fit"]["max_TIC"] < 0.1
+    assert v["plausibility"]["truth"]["all_within"]
+
+
+def test_wrong_model_fails_proof_of_match(fitted):
+    ex, res, _ = fitted
+    v = validate(_wrong(res), held_out=ex.segments[1:], truth=ex.truth)
+    assert not v["proof_of_match"]["all_pass"]
+    assert v["proof_of_match"]["segments"][0]["channels"]["q"]["pass"] is False
+    assert not v["verdict"]["ok"]
+    assert any("proof of match failed" in r for r in v["verdict"]["reasons"])
+
+
+def test_validation_contents(fitted):
+    ex, res, v = fitted
+    json.dumps(json_ready(v), allow_nan=False)               # JSON-ready apart from arrays
+    assert "arrays" not in json_ready(v)
+    names = set(v["modes"]["table"])
+    assert {"short period", "phugoid"} <= names
+    sp = v["modes"]["table"]["short period"]
+    assert sp["stable"] and 0.1 < sp["zeta"] < 1.0
+    # white residuals: the Morelli-Klein correction changes the bounds little
+    ratios = [d["ratio"] for d in v["uncertainty"]["per_parameter"].values()]
+    assert len(ratios) == len(res.free_names) and all(0.7 < r < 1.3 for r in ratios)
+    assert v["residuals"]["all_white"]
+    fr = v["frequency"]
+    assert fr["inputs"] == ["de"] and fr["n_judged"] > 0
+    for key in ("q/de", "qdot/de", "az/de"):                   # well-excited, low-noise pairs
+        assert fr["table"][key]["pass"], (key, fr["table"][key])
+    a = v["arrays"]
+    assert a["psd"]["Pxx"].shape == (a["psd"]["f"].size, len(res.outputs))
+    assert a["freq"]["H_data"].shape == (a["freq"]["f"].size, len(fr["outputs"]), 1)
+
+
+def test_apriori_plausibility(fitted):
+    ex, res, _ = fitted
+    ap = {"Cmq": {"value": -16.0, "std": 2.0}, "Cmalpha": {"value": -0.3, "std": 0.01}}
+    v = validate(res, apriori=ap)
+    pl = v["plausibility"]["apriori"]
+    assert pl["Cmq"]["flag"] is False and pl["Cmalpha"]["flag"] is True
+    assert any("a-priori" in n for n in v["verdict"]["notes"])
+
+
+def test_report_json_equals_result_numbers(fitted, tmp_path):
+    ex, res, v = fitted
+    md, js = write_report(tmp_path, {"oem": res}, {"oem": v}, truth=ex.truth,
+                          meta={"scenario": "unit test", "seed": 0})
+    assert md == tmp_path / "report.md" and js == tmp_path / "report.json"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json", "report.md"]  # no temp files
+    rep = json.loads(js.read_text())
+    assert rep["schema"] == "fsid-report/1" and rep["meta"]["seed"] == 0
+    m = rep["methods"]["oem"]
+    assert set(m["parameters"]) == set(res.free_names)
+    for name in res.free_names:
+        p = m["parameters"][name]
+        assert p["estimate"] == float(res.params[name])
+        assert p["std"] == float(res.std[name])
+        assert p["truth"] == ex.truth[name]
+        assert p["error_in_std"] == pytest.approx(abs(res.params[name] - ex.truth[name]) / res.std[name])
+        assert p["mk_std"] == pytest.approx(v["uncertainty"]["per_parameter"][name]["mk_std"])
+    assert m["det_R"] == res.cost and m["converged"] is True
+    assert m["fixed"] == {"CDalpha2": 0.0}
+    for o in res.outputs:
+        assert m["fit"][o]["TIC"] == v["fit"]["per_output"][o]["TIC"]
+        assert m["fit"][o]["RMS"] == pytest.approx(float(np.sqrt(np.mean(res.residuals[0][o] ** 2))))
+    assert m["verdict"]["ok"] is True
+    assert m["validation"]["proof_of_match"]["all_pass"] is True
+
+
+def test_report_md_has_table_rows_and_verdict(fitted, tmp_path):
+    ex, res, v = fitted
+    md, js = write_report(tmp_path, {"oem": res, "wrong": _wrong(res)},
+                          {"oem": v, "wrong": validate(_wrong(res), held_out=ex.segments[1:],
+                                                       truth=ex.truth)}, truth=ex.truth)
+    text = md.read_text()
+    rep = json.loads(js.read_text())
+    for name in res.free_names:
+        est, sd = float(res.params[name]), float(res.std[name])
+        row = (f"| {name} | {est:.6g} | {sd:.4g} | {100 * sd / abs(est):.2f} | "
+               f"{ex.truth[name]:.6g} | {abs(est - ex.truth[name]) / sd:.2f} |")
+        assert row in text, row
+    rows = param_rows(rep["methods"]["oem"], True)
+    assert len(rows) == len(res.free_names)
+    assert "## OEM (longitudinal)" in text and "**Verdict: PASS**" in text
+    assert "## WRONG (longitudinal)" in text and "**Verdict: CHECK**" in text
+    assert "| oem | PASS | yes |" in text and "| wrong | CHECK | yes |" in text
+    assert "| short period |" in text and "Held-out segment **3211-1**: PASS" in text
+    assert "| q | deg/s | 1.5 |" in text
+
+
+def test_report_without_truth_or_validation(fitted, tmp_path):
+    ex, res, _ = fitted
+    md, js = write_report(tmp_path, {"oem": res}, {})
+    rep = json.loads(js.read_text())
+    assert rep["truth"] is None
+    assert all(p["truth"] is None for p in rep["methods"]["oem"]["parameters"].values())
+    assert "truth" not in md.read_text().split("### Parameters")[1].split("\n")[2]
+    assert not math.isnan(rep["methods"]["oem"]["det_R"])
