@@ -77,6 +77,7 @@ def test_mcap_topics_schemas_units_and_rates(mcap_messages):
         else:
             assert set(props) == set(units)
     assert json.loads(topics["/sensors/imu"].metadata["units"])["q"] == "rad/s"
+    assert json.loads(topics["/controls"].metadata["units"])["thrust"] == "N"
     for name, df in r.sensors.items():
         rows = msgs[f"/sensors/{name}"]
         assert len(rows) == len(df)
@@ -121,7 +122,8 @@ def test_bin_has_the_ardupilot_layouts_units_and_params(bin_messages):
     params = {p["Name"]: p["Value"] for p in m["PARM"]}
     assert params["SERVO2_FUNCTION"] == 19 and params["SERVO1_FUNCTION"] == 4 and params["SERVO4_FUNCTION"] == 21
     assert params["SERVO2_MIN"] == 1100 and params["SERVO2_TRIM"] == 1500 and params["SERVO2_MAX"] == 1900
-    assert params["FSID_SRV_TRAVEL"] == SERVO_TRAVEL_DEG
+    assert params["FSID_SRV_TRAVEL"] == SERVO_TRAVEL_DEG and params["FSID_ARSP_TAS"] == 1
+    assert params["FSID_MAX_THRUST"] == flown(NAME).aircraft.max_thrust
     r = flown(NAME)
     for name, sensor in (("IMU", "imu"), ("ATT", "attitude"), ("ARSP", "airdata"), ("AOA", "airdata"),
                          ("BARO", "baro"), ("RCOU", "surfaces"), ("GPS", "gps"), ("CTUN", "attitude")):
@@ -140,11 +142,14 @@ def test_bin_values_match_sensors_and_truth(bin_messages):
     want, spec = _truth_at(r, "imu", t_imu)
     for f, c, i in (("GyrY", "q", 4), ("AccX", "ax", 0)):
         _within_noise(_col(m["IMU"], f), want[c], np.sqrt(spec.noise[i] ** 2 + spec.quant[i] ** 2 / 12), f)
-    # airspeed: ArduPilot logs EAS; EAS * E2T is the measured true airspeed
+    # airspeed: ARSP.Airspeed holds TAS by default; CTUN.As is EAS and As * E2T is TAS
     t_ad = _col(m["ARSP"], "TimeUS") * 1e-6
     t_ct = _col(m["CTUN"], "TimeUS") * 1e-6
-    tas = _col(m["ARSP"], "Airspeed") * np.interp(t_ad, t_ct, _col(m["CTUN"], "E2T"))
-    np.testing.assert_allclose(tas, r.sensors["airdata"]["V"], rtol=2e-5)
+    tas = _col(m["ARSP"], "Airspeed")
+    np.testing.assert_allclose(tas, r.sensors["airdata"]["V"], rtol=2e-6)
+    eas = _col(m["CTUN"], "As")
+    np.testing.assert_allclose(eas * _col(m["CTUN"], "E2T"), np.interp(t_ct, t_ad, tas), rtol=2e-5)
+    assert 0.98 < np.median(eas / np.interp(t_ct, t_ad, tas)) < 0.995          # 150 m: rho < 1.225
     want, spec = _truth_at(r, "airdata", t_ad)
     _within_noise(tas, want["V"], spec.noise[0], "V")
     _within_noise(np.deg2rad(_col(m["AOA"], "AOA")), want["alpha"], spec.noise[1], "AOA")
@@ -222,3 +227,21 @@ def test_fsid_simulate_cli(tmp_path, capsys):
     assert main(["simulate", str(bad), "--out", str(tmp_path / "y")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "trim.airspeed_kts: wrong unit" in err
+
+
+def test_bin_can_carry_equivalent_airspeed(tmp_path):
+    from pymavlink.DFReader import DFReader_binary
+
+    r = flown("default")
+    write_dataflash(tmp_path / "eas.bin", r, airspeed="eas")
+    log = DFReader_binary(str(tmp_path / "eas.bin"))
+    arsp, ctun = [], []
+    while (m := log.recv_msg()) is not None:
+        if m.get_type() == "ARSP":
+            arsp.append(m.Airspeed)
+        elif m.get_type() == "CTUN":
+            ctun.append(m.E2T)
+    tas = np.array(arsp) * np.array(ctun)            # same rate (50 Hz) in the default scenario
+    np.testing.assert_allclose(tas, r.sensors["airdata"]["V"], rtol=2e-5)
+    with pytest.raises(ValueError, match="airspeed"):
+        write_dataflash(tmp_path / "x.bin", r, airspeed="ias")

@@ -9,9 +9,10 @@ ATT, ARSP, AOA, BARO, RCOU, GPS, CTUN, XKF1. Records are written in time order, 
 What each message carries (sensor tables of the flight, see ``sim.sensors``):
 
 * IMU (I = 0): the IMU sensor (rad/s, m/s^2).  ATT: the attitude sensor (deg, Yaw 0..360).
-* ARSP.Airspeed: *equivalent* airspeed, as ArduPilot logs it: EAS = V_meas * sqrt(rho/1.225)
-  (``airspeed="eas"``, default); true airspeed is ARSP.Airspeed * CTUN.E2T.  With
-  ``airspeed="tas"`` ARSP.Airspeed holds the true airspeed instead (E2T still logged).
+* ARSP.Airspeed: the measured *true* airspeed (``airspeed="tas"``, default, what the
+  built-in ardupilot_bin channel map expects today). Real ArduPilot logs the *equivalent*
+  airspeed there; ``airspeed="eas"`` writes EAS = V_meas * sqrt(rho/1.225) instead. Either
+  way CTUN.E2T holds the EAS-to-TAS ratio, so TAS = EAS * CTUN.E2T.
 * AOA.AOA / AOA.SSA: the boom vanes' alpha and beta (deg).
 * BARO.Alt: the barometric altitude sensor (m above sea level, Offset 0); Press, Temp ISA.
 * RCOU: servo PWM of the *commanded* deflections (truth ``*_cmd``, the autopilot's output)
@@ -25,6 +26,8 @@ What each message carries (sensor tables of the flight, see ``sim.sensors``):
   throttle = (PWM - 1000)/1000.
 * GPS / XKF1: the GPS sensor velocities (NED) and altitude; XKF1 also the attitude.
 * CTUN: roll, pitch (centideg), ThO throttle (%), As/SAs airspeed (EAS), E2T.
+* PARM FSID_MAX_THRUST: the thrust model's maximum (N); thrust = throttle * FSID_MAX_THRUST
+  along body x (ArduPilot has no thrust message).
 """
 from __future__ import annotations
 
@@ -112,11 +115,11 @@ def _pwm(defl: np.ndarray, sign: float, travel: float) -> np.ndarray:
     return np.clip(np.round(1500.0 + sign * 400.0 * defl / travel), 1100, 1900)
 
 
-def write_dataflash(path: str | os.PathLike, result, airspeed: str = "eas",
+def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas",
                     travel_deg: float = SERVO_TRAVEL_DEG) -> None:
     """Write ``result`` (a :class:`sim.SimResult`) as an ArduPilot DataFlash log (atomic).
 
-    airspeed: "eas" (ArduPilot semantics, default) or "tas" for ARSP.Airspeed.
+    airspeed: "tas" (default) or "eas" (ArduPilot's own semantics) for ARSP.Airspeed.
     travel_deg: deflection at full servo travel, degrees (must exceed the surface limits).
     """
     if airspeed not in ("eas", "tas"):
@@ -215,14 +218,15 @@ def _header(result, travel_deg: float, airspeed: str) -> bytes:
     for k in (1, 2, 4):
         params.update({f"SERVO{k}_MIN": 1100, f"SERVO{k}_MAX": 1900, f"SERVO{k}_TRIM": 1500, f"SERVO{k}_REVERSED": 0})
     params.update({"SERVO3_MIN": 1000, "SERVO3_MAX": 2000, "SERVO3_TRIM": 1000, "SERVO3_REVERSED": 0,
-                   "FSID_SRV_TRAVEL": travel_deg, "INS_GYRO_FILTER": 0, "AHRS_EKF_TYPE": 3,
-                   "ARSPD_TYPE": 100 if airspeed == "tas" else 1})
+                   "FSID_SRV_TRAVEL": travel_deg, "FSID_MAX_THRUST": result.aircraft.max_thrust,
+                   "FSID_ARSP_TAS": 1.0 if airspeed == "tas" else 0.0, "AHRS_EKF_TYPE": 3})
     for k, v in params.items():
         out.append(_records("PARM", 1, TimeUS=0, Name=k.encode(), Value=float(v), Default=float(v)).tobytes())
     notes = [f"fsid sim: scenario {result.scenario.name} seed {result.meta['seed']}",
              f"fsid sim: aircraft {result.aircraft.name}",
              f"fsid sim: servo travel {travel_deg:g} deg at PWM MAX-TRIM",
-             f"fsid sim: ARSP.Airspeed is {airspeed.upper()}; TAS = EAS * CTUN.E2T"]
+             f"fsid sim: ARSP.Airspeed is {airspeed.upper()}; TAS = EAS * CTUN.E2T",
+             "fsid sim: thrust = throttle * FSID_MAX_THRUST (N) along body x"]
     for n in notes:
         out.append(_records("MSG", 1, TimeUS=0, Message=n.encode()[:64]).tobytes())
     return b"".join(out)

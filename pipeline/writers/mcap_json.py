@@ -5,8 +5,8 @@ Topics (message encoding ``json``, schema encoding ``jsonschema``, one schema pe
 * ``/sensors/<name>`` for every sensor of the flight (imu, airdata, attitude, baro,
   surfaces, gps): ``{"t": s, <channel>: value, ...}`` with canonical channel names in SI
   units (DESIGN.md section 3), at the sensor's own rate.
-* ``/controls``: commanded deflections ``de_cmd, da_cmd, dr_cmd`` (rad) and ``throttle``
-  command, at ``truth_rate_hz``.
+* ``/controls``: commanded deflections ``de_cmd, da_cmd, dr_cmd`` (rad), ``throttle`` (-)
+  and ``thrust`` (N, = throttle * max thrust along body x), at ``truth_rate_hz``.
 * ``/truth``: ``{"t": s, "truth": {column: value}}`` the noise-free truth table, every
   column of ``SimResult.truth``, at ``truth_rate_hz`` (default 50 Hz, a decimation of
   the simulation rate; ``None`` = every simulation step). Nested so that a
@@ -46,7 +46,7 @@ TOPICS = {
     "/sensors/baro": "barometric altitude h (m, above sea level)",
     "/sensors/surfaces": "surface position sensors de, da, dr (rad) and throttle (-)",
     "/sensors/gps": "GPS velocity vn, ve, vd (m/s, NED) and altitude h (m)",
-    "/controls": "commanded surface deflections (rad) and throttle (-)",
+    "/controls": "commanded surface deflections (rad), throttle (-) and thrust (N)",
     "/truth": "noise-free simulation truth (SI units)",
 }
 
@@ -98,9 +98,9 @@ def write_mcap(path: str | os.PathLike, result, truth_rate_hz: float | None = 50
         streams.append((f"/sensors/{name}", f"fsid.sensors.{name}", units, spec["rate_hz"],
                         df["t"].to_numpy(), _lines(df), None))
     ctrl = pd.DataFrame({"t": truth["t"], "de_cmd": truth["de_cmd"], "da_cmd": truth["da_cmd"],
-                         "dr_cmd": truth["dr_cmd"], "throttle": truth["throttle"]})
+                         "dr_cmd": truth["dr_cmd"], "throttle": truth["throttle"], "thrust": truth["thrust"]})
     streams.append(("/controls", "fsid.controls", {"t": "s", "de_cmd": "rad", "da_cmd": "rad", "dr_cmd": "rad",
-                                                    "throttle": "-"}, out_rate,
+                                                    "throttle": "-", "thrust": "N"}, out_rate,
                     ctrl["t"].to_numpy(), _lines(ctrl), None))
     tr_lines = _lines(truth)
     tt = truth["t"].to_numpy()
