@@ -195,52 +195,51 @@ def fly(scenario: Scenario, seed: int | None = None, workdir: str | os.PathLike 
 
 def _fly(s: Scenario, root: Path, progress) -> SimResult:
     ac = s.aircraft
-    with _quiet_stdout():
+    with _quiet_stdout():        # JSBSim prints trim diagnostics on fd 1
         fdm = _make_fdm(s, root)
         trim = _trim(fdm, s)
-        if s.sas_k_alpha or s.sas_k_q:
-            fdm["fcs/sas-alpha-ref-rad"] = trim["alpha"]
-            fdm["fcs/sas-on"] = 1.0
-        if s.turbulence.model != "off":
-            fdm["atmosphere/turb-type"] = 3 if s.turbulence.model == "milspec" else 4
-            fdm["atmosphere/turbulence/milspec/windspeed_at_20ft_AGL-fps"] = s.turbulence.windspeed_20ft / FT
-            fdm["atmosphere/turbulence/milspec/severity"] = s.turbulence.poe_index
-        fdm["simulation/randomseed"] = int(s.turbulence.seed) % 2**31
-        pm = fdm.get_property_manager()
-        coef_names = [n for n in (x for v in DERIVATIVES.values() for x in v) if ac.derivatives[n] != 0.0]
-        props = [p for p, _ in _PROPS.values()] + _AUX + [f"aero/coefficient/{n}" for n in coef_names]
-        nodes = [pm.get_node(p) for p in props]
-        missing = [p for p, n in zip(props, nodes) if n is None]
-        if missing:
-            raise RuntimeError(f"JSBSim properties missing: {missing}")
-        getters = [n.get_double_value for n in nodes]
-        setters = {ax: pm.get_node(f"fcs/{ax}-maneuver-rad" if ax != "throttle" else "fcs/throttle-maneuver")
-                   for ax in ("de", "da", "dr", "throttle")}
-        dt = 1.0 / s.rate_hz
-        n_steps = int(round(s.duration * s.rate_hz))
-        tgrid = np.arange(n_steps + 1) / s.rate_hz
-        inputs = input_histories(list(s.maneuvers), tgrid)
-        # set an input property only on the steps where its value changes
-        changes: dict[int, list] = {}
-        for ax, hist in inputs.items():
-            hist = hist.copy()
-            hist[0] = 0.0            # the property's value at the trim point; inputs act from step 1
-            ks = np.flatnonzero(np.diff(hist) != 0.0) + 1
-            setv = setters[ax].set_double_value
-            for k, v in zip(ks.tolist(), hist[ks].tolist()):
-                changes.setdefault(k, []).append((setv, v))
-        rows = [[g() for g in getters]]
-        every = max(1, n_steps // 20)
-        run = fdm.run
-        for k in range(1, n_steps + 1):
-            if k in changes:
-                for setv, v in changes[k]:
-                    setv(v)
-            run()
-            rows.append([g() for g in getters])
-            if progress is not None and k % every == 0:
-                progress(k / n_steps)
-        data = np.array(rows)
+    if s.sas_k_alpha or s.sas_k_q:
+        fdm["fcs/sas-alpha-ref-rad"] = trim["alpha"]
+        fdm["fcs/sas-on"] = 1.0
+    if s.turbulence.model != "off":
+        fdm["atmosphere/turb-type"] = 3 if s.turbulence.model == "milspec" else 4
+        fdm["atmosphere/turbulence/milspec/windspeed_at_20ft_AGL-fps"] = s.turbulence.windspeed_20ft / FT
+        fdm["atmosphere/turbulence/milspec/severity"] = s.turbulence.poe_index
+    fdm["simulation/randomseed"] = int(s.turbulence.seed) % 2**31
+    pm = fdm.get_property_manager()
+    coef_names = [n for n in (x for v in DERIVATIVES.values() for x in v) if ac.derivatives[n] != 0.0]
+    props = [p for p, _ in _PROPS.values()] + _AUX + [f"aero/coefficient/{n}" for n in coef_names]
+    nodes = [pm.get_node(p) for p in props]
+    missing = [p for p, n in zip(props, nodes) if n is None]
+    if missing:
+        raise RuntimeError(f"JSBSim properties missing: {missing}")
+    getters = [n.get_double_value for n in nodes]
+    setters = {ax: pm.get_node(f"fcs/{ax}-maneuver-rad" if ax != "throttle" else "fcs/throttle-maneuver")
+               for ax in ("de", "da", "dr", "throttle")}
+    n_steps = int(round(s.duration * s.rate_hz))
+    tgrid = np.arange(n_steps + 1) / s.rate_hz
+    inputs = input_histories(list(s.maneuvers), tgrid)
+    # set an input property only on the steps where its value changes
+    changes: dict[int, list] = {}
+    for ax, hist in inputs.items():
+        hist = hist.copy()
+        hist[0] = 0.0            # the property's value at the trim point; inputs act from step 1
+        ks = np.flatnonzero(np.diff(hist) != 0.0) + 1
+        setv = setters[ax].set_double_value
+        for k, v in zip(ks.tolist(), hist[ks].tolist()):
+            changes.setdefault(k, []).append((setv, v))
+    rows = [[g() for g in getters]]
+    every = max(1, n_steps // 20)
+    run = fdm.run
+    for k in range(1, n_steps + 1):
+        if k in changes:
+            for setv, v in changes[k]:
+                setv(v)
+        run()
+        rows.append([g() for g in getters])
+        if progress is not None and k % every == 0:
+            progress(k / n_steps)
+    data = np.array(rows)
     truth, terms = _truth_table(data, props, coef_names, ac)
     # JSBSim accumulates dt (2.99999999999998 for 3.0); the exact grid is k/rate_hz
     if np.max(np.abs(truth["t"].to_numpy() - tgrid)) > 1e-6:
