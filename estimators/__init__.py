@@ -10,6 +10,7 @@ from estimators.errors import (BoundsError, ConvergenceError, EstimationError,
                                IdentifiabilityError, ModelDefinitionError,
                                SimulationDivergedError)
 from estimators.equation_error import FourierRegression, LeastSquares, RecursiveLeastSquares
+from estimators.kalman import EKF, UKF
 from estimators.model import Model, Parameter, Segment
 from estimators.oem import OutputError
 from estimators.results import EstimationResult
@@ -19,5 +20,5 @@ __all__ = [
     "Model", "Parameter", "Segment", "OutputError", "EstimationResult", "simulate_outputs",
     "EstimationError", "ModelDefinitionError", "BoundsError", "SimulationDivergedError",
     "IdentifiabilityError", "ConvergenceError",
-    "LeastSquares", "RecursiveLeastSquares", "FourierRegression",
+    "LeastSquares", "RecursiveLeastSquares", "FourierRegression", "EKF", "UKF",
 ]

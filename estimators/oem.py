@@ -18,8 +18,8 @@ import numpy as np
 import pandas as pd
 from scipy import optimize
 
-from estimators.errors import ModelDefinitionError
-from estimators.integrators import INTEGRATORS
+from estimators.errors import ModelDefinitionError, SimulationDivergedError
+from estimators.integrators import INPUT_MODES, INTEGRATORS
 from estimators.model import Model, Segment
 from estimators.results import EstimationResult, frames
 from estimators.simulation import Layout, divergence_error, simulate_batch
@@ -27,8 +27,42 @@ from estimators import statistics as st
 
 OPTIMIZERS = ("gauss-newton", "levenberg-marquardt")
 DIVERGE_HINT = ("Check the units and signs of the start values, set bounds, start closer "
-                "(e.g. from an equation-error fit); for an unstable aircraft use a stabilised "
-                "method (filter error, EKF/UKF, or equation decoupling).")
+                "(e.g. from an equation-error fit, estimators.LeastSquares); for an unstable "
+                "aircraft use a method that keeps the simulation bounded: StabilizedOutputError "
+                "(stabilisation matrix S), EigenvalueTransformation (exp(-sigma t) weighting) "
+                "or EquationDecoupling (measured states as pseudo-inputs), or the filter "
+                "methods FilterError, EKF or UKF.")
+
+#: a simulated output further from the data's median than this many times the data's own
+#: largest deviation from it counts as a diverged (runaway) simulation: an unstable model
+#: integrated open loop grows exponentially long before it overflows to Inf
+RUNAWAY_FACTOR = 1e3
+
+
+def runaway(seg: Segment, Y: np.ndarray) -> tuple[int, int] | None:
+    """(sample, output) where the simulated outputs Y (N, n_out) first run away from the
+    measured ones (see RUNAWAY_FACTOR), or None."""
+    with np.errstate(all="ignore"):
+        med = np.nanmedian(seg.z, axis=0) if np.any(np.isfinite(seg.z)) else np.zeros(Y.shape[1])
+        scale = np.nanmax(np.abs(seg.z - med), axis=0)
+    ok = np.isfinite(scale) & (scale > 0)
+    if not np.any(ok):
+        return None
+    bad = np.abs(Y[:, ok] - med[ok]) > RUNAWAY_FACTOR * scale[ok]
+    if not np.any(bad):
+        return None
+    i = int(np.argmax(bad.any(axis=1)))
+    return i, int(np.flatnonzero(ok)[np.argmax(bad[i])])
+
+
+def runaway_error(model: Model, seg: Segment, k: int, where: tuple[int, int],
+                  what: str) -> SimulationDivergedError:
+    i, o = where
+    return SimulationDivergedError(
+        f"the simulation of segment {seg.name or k} diverged at t={seg.t[i]:.4g} s (output "
+        f"{model.outputs[o]!r} ran away to more than {RUNAWAY_FACTOR:g} times the measured "
+        f"range; the model is unstable or far off) {what}. {DIVERGE_HINT}",
+        segment=k, time=float(seg.t[i]), state=model.outputs[o])
 
 #: (model, segment, k, layout, theta (n_all,)) -> (Y (N, n_out), S (N, n_out, n_relevant))
 SensitivityHook = Callable[[Model, Segment, int, Layout, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -54,6 +88,8 @@ class OutputError:
     fallback : "auto" runs Nelder-Mead when Gauss-Newton cannot lower the cost from the
         start, "always" runs it first, "never" does not.
     rtol, atol : tolerances of the adaptive integrator.
+    inputs : input variation inside a sample interval: "average" (default), "linear" or
+        "hold" (see :data:`estimators.integrators.INPUT_MODES`).
     callback : called as callback(iteration, cost, params Series) after each iteration.
     """
 
@@ -64,7 +100,7 @@ class OutputError:
                  fd_step: float = 1e-6, max_iter: int = 50, tol: float = 1e-6,
                  step_halvings: int = 10, priors: Mapping[str, tuple[float, float]] | None = None,
                  fallback: str = "auto", rtol: float = 1e-8, atol: float = 1e-10,
-                 callback: Callable[[int, float, pd.Series], None] | None = None) -> None:
+                 inputs: str = "average", callback: Callable[[int, float, pd.Series], None] | None = None) -> None:
         if integrator not in INTEGRATORS:
             raise ModelDefinitionError(f"unknown integrator {integrator!r}: use one of {INTEGRATORS}")
         if noise not in ("diagonal", "full"):
@@ -88,7 +124,10 @@ class OutputError:
         self.step_halvings = step_halvings
         self.priors = dict(priors or {})
         self.fallback = fallback
+        if inputs not in INPUT_MODES:
+            raise ModelDefinitionError(f"inputs must be one of {list(INPUT_MODES)}, not {inputs!r}")
         self.rtol, self.atol = rtol, atol
+        self.inputs = inputs
         self.callback = callback
 
     # -- simulation of the whole data set ---------------------------------------------------
@@ -97,8 +136,8 @@ class OutputError:
         Ys = []
         for k, seg in enumerate(self._segments):
             Y = simulate_batch(self.model, seg, theta[None, :], self._lay, k, self.integrator,
-                               self.rtol, self.atol)[:, :, 0]
-            if not np.all(np.isfinite(Y)):
+                               self.rtol, self.atol, inputs=self.inputs)[:, :, 0]
+            if not np.all(np.isfinite(Y)) or runaway(seg, Y) is not None:
                 return None
             Ys.append(Y)
         return Ys
@@ -134,11 +173,14 @@ class OutputError:
             if central:
                 Theta[1 + m + np.arange(m), rel] -= sgn * step
             Yb, Xb = simulate_batch(self.model, seg, Theta, lay, k, self.integrator,
-                                    self.rtol, self.atol, return_states=True)
+                                    self.rtol, self.atol, return_states=True, inputs=self.inputs)
             if not np.all(np.isfinite(Yb[:, :, 0])):
                 raise divergence_error(self.model, seg, Xb[:, :, 0], k,
                                        "at the current parameter values", DIVERGE_HINT)
             Y = Yb[:, :, 0]
+            away = runaway(seg, Y)
+            if away is not None:
+                raise runaway_error(self.model, seg, k, away, "at the current parameter values")
             if central:
                 Srel = (Yb[:, :, 1:1 + m] - Yb[:, :, 1 + m:]) / (2.0 * sgn * step)
             else:
@@ -236,6 +278,12 @@ class OutputError:
 
         E0 = self._residuals(self._simulate(theta))
         if E0 is None:
+            for k, seg in enumerate(segments):
+                Yk = simulate_batch(self.model, seg, theta[None, :], lay, k, self.integrator,
+                                    self.rtol, self.atol, inputs=self.inputs)[:, :, 0]
+                away = runaway(seg, Yk) if np.all(np.isfinite(Yk)) else None
+                if away is not None:
+                    raise runaway_error(self.model, seg, k, away, "with the start values")
             k, X = self._first_diverged(theta)
             raise divergence_error(self.model, segments[k], X, k, "with the start values",
                                    DIVERGE_HINT)
@@ -355,14 +403,14 @@ class OutputError:
             at_bounds=[lay.free_names[i] for i in np.flatnonzero(on_bound)],
             message=message, information=F, sensitivities=Ss,
             settings={"integrator": self.integrator, "optimizer": self.optimizer,
-                      "noise": self.noise, "jacobian": self.jacobian if isinstance(self.jacobian, str)
+                      "noise": self.noise, "inputs": self.inputs, "jacobian": self.jacobian if isinstance(self.jacobian, str)
                       else "analytic", "tol": self.tol, "max_iter": self.max_iter})
 
     # -- helpers --------------------------------------------------------------------------
     def _first_diverged(self, theta: np.ndarray) -> tuple[int, np.ndarray]:
         for k, seg in enumerate(self._segments):
             _, X = simulate_batch(self.model, seg, theta[None, :], self._lay, k, self.integrator,
-                                  self.rtol, self.atol, return_states=True)
+                                  self.rtol, self.atol, return_states=True, inputs=self.inputs)
             if not np.all(np.isfinite(X)):
                 return k, X[:, :, 0]
         return 0, X[:, :, 0]  # outputs (not states) went non-finite

@@ -1,0 +1,475 @@
+"""Extended and unscented Kalman filters for parameter estimation.
+
+The unknown parameters are appended to the state with zero dynamics (optionally a random
+walk), s = [x; theta], and one filter pass over the data estimates both::
+
+    ekf = EKF(model, process_noise={"alpha": 0.01, "q": 0.02},
+              measurement_noise={"alpha": 1.7e-3, "q": 3.5e-3, ...})
+    res = ekf.fit([seg1, seg2])
+    res.params, res.std                    # final estimate and sqrt(diag P_theta)
+    res.extra["trajectory"][0]             # parameter estimates over time (segment 0)
+
+Discrete model used by both filters, sample k -> k+1 (step h = t_{k+1} - t_k):
+
+    x_{k+1} = Phi_h(x_k, u, theta) + w_k,   w_k ~ N(0, Qd),  Qd = F F^T h
+    theta_{k+1} = theta_k + w_theta,        w_theta ~ N(0, diag(param_noise^2) h)
+    z_k = g(x_k, u_k, theta) + v_k,         v_k ~ N(0, R)
+
+Phi_h is one step of the package's integrator (default RK4, inputs averaged over the step
+as in output error), so the filters predict exactly like the OEM simulation.
+
+* :class:`EKF`: Jacobians of Phi_h and g with respect to s by forward differences, all
+  perturbed columns in one vectorised model call; covariance update in Joseph form
+  P = (I - K H) P (I - K H)^T + K R K^T.
+* :class:`UKF`: scaled sigma points (van der Merwe: alpha, beta, kappa), sigma points
+  redrawn after the prediction so Qd reaches the output statistics; ``augmented=True``
+  puts the process and measurement noise into the sigma points (noise-augmented state
+  [s; w; v]) instead of adding Qd and R to the covariances.
+
+Noise settings (continuous-time process-noise std per state, measurement-noise std per
+output) come from the caller; the defaults are documented on :class:`EKF`. Several
+segments: the filter restarts at each segment's initial state with the parameter estimate
+and its covariance carried over from the previous segment. Per-segment parameters
+(``bias_az[k]``) sit in the state for every segment; they only move while their own
+segment runs.
+
+The result is an :class:`~estimators.EstimationResult`: ``predicted`` are the a-priori
+(one-step-ahead) outputs g(x_k|k-1) and ``residuals`` the innovations z_k - g(x_k|k-1);
+``R`` is the sample covariance of the innovations (the measurement-noise covariance the
+filter used is ``extra["measurement_noise"]``); ``cov`` the final parameter block of P.
+``extra`` holds ``trajectory``/``trajectory_std`` (per segment, DataFrames on t),
+``states`` (a-posteriori states), ``posterior_outputs``, ``gain`` (last Kalman gain) and
+``process_noise`` (F).
+"""
+from __future__ import annotations
+
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from estimators.errors import ModelDefinitionError, SimulationDivergedError
+from estimators.integrators import INTEGRATORS
+from estimators.jit import kernel_for
+from estimators.model import Model, Segment
+from estimators.results import EstimationResult, frames
+from estimators.simulation import Layout
+from estimators import statistics as st
+
+
+# -- noise settings ---------------------------------------------------------------------------
+def _vector(spec: Any, names: Sequence[str], what: str, default: np.ndarray) -> np.ndarray:
+    """A per-name vector from None (default), a scalar, a mapping or a sequence."""
+    out = np.array(default, dtype=float)
+    if spec is None:
+        return out
+    if isinstance(spec, Mapping):
+        bad = sorted(set(spec) - set(names))
+        if bad:
+            raise ModelDefinitionError(f"{what}: unknown names {bad}; expected some of {list(names)}")
+        for k, v in spec.items():
+            out[list(names).index(k)] = float(v)
+        return out
+    arr = np.asarray(spec, dtype=float)
+    if arr.ndim == 0:
+        return np.full(len(names), float(arr))
+    if arr.shape != (len(names),):
+        raise ModelDefinitionError(f"{what}: expected {len(names)} values for {list(names)}, got shape {arr.shape}")
+    return arr
+
+
+def process_noise_matrix(model: Model, spec: Any) -> np.ndarray:
+    """F (n_states, n_states) from None (zeros), {state: std}, a (n,) vector of std or an
+    (n, n) matrix. Units: state unit per sqrt(s) (std of the continuous white noise)."""
+    n = len(model.states)
+    if spec is not None and np.ndim(spec) == 2:
+        F = np.asarray(spec, dtype=float)
+        if F.shape[0] != n:
+            raise ModelDefinitionError(f"process_noise matrix needs {n} rows (states {model.states})")
+        return F
+    return np.diag(_vector(spec, model.states, "process_noise", np.zeros(n)))
+
+
+def default_measurement_noise(model: Model, segments: Sequence[Segment]) -> np.ndarray:
+    """Measurement-noise variance per output from the data: half the variance of the
+    first differences, pooled over segments. It is an upper bound (signal change between
+    samples counts as noise); pass ``measurement_noise`` when the sensor noise is known."""
+    D = np.concatenate([np.diff(s.z, axis=0) for s in segments], axis=0)
+    v = 0.5 * np.nanvar(D, axis=0)
+    return np.where(v > 0, v, 1e-12)
+
+
+def measurement_noise_matrix(model: Model, spec: Any, segments: Sequence[Segment]) -> np.ndarray:
+    """R (n_out, n_out) from None (data default), {output: std}, (n_out,) std or a matrix."""
+    m = len(model.outputs)
+    if spec is not None and np.ndim(spec) == 2:
+        R = np.asarray(spec, dtype=float)
+        if R.shape != (m, m):
+            raise ModelDefinitionError(f"measurement_noise matrix must be {m}x{m} (outputs {model.outputs})")
+        return R
+    var0 = default_measurement_noise(model, segments)
+    if spec is None:
+        return np.diag(var0)
+    sd = _vector(spec, model.outputs, "measurement_noise", np.sqrt(var0))
+    return np.diag(sd ** 2)
+
+
+# -- the augmented model ----------------------------------------------------------------------
+class AugmentedModel:
+    """Batched evaluation of the parameter-augmented system for one segment.
+
+    Columns of S (n + m, B) are augmented states [x; theta_free]; ``step`` advances the
+    x part over one sample interval with the package integrator, ``outputs`` evaluates g.
+    """
+
+    def __init__(self, model: Model, layout: Layout, seg: Segment, k: int, integrator: str,
+                 rtol: float = 1e-8, atol: float = 1e-10) -> None:
+        self.model, self.lay, self.seg, self.k = model, layout, seg, k
+        self.integrator = integrator
+        self.n = len(model.states)
+        self.fi = layout.free_idx
+        self.c = model.constants_for(seg)
+        self.kernel = kernel_for(model)
+        self.rtol, self.atol = rtol, atol
+
+    def params(self, S: np.ndarray) -> np.ndarray:
+        """Model parameter matrix P (n_params, B) for augmented columns S."""
+        B = S.shape[1]
+        Theta = np.repeat(self.lay.values[:, None], B, axis=1)
+        Theta[self.fi] = S[self.n:]
+        return Theta[self.lay.pidx[self.k]]
+
+    def step(self, S: np.ndarray, i: int) -> np.ndarray:
+        """x part of S advanced from sample i to i+1 (n, B); theta unchanged."""
+        seg = self.seg
+        X = self.kernel.integrate(self.integrator, S[:self.n], seg.u[i:i + 2], seg.t[i:i + 2],
+                                  self.params(S), self.c, rtol=self.rtol, atol=self.atol)
+        return X[1]
+
+    def outputs(self, S: np.ndarray, i: int) -> np.ndarray:
+        """g at sample i for the augmented columns S: (n_out, B)."""
+        u = self.seg.u[i][:, None, None]
+        with np.errstate(all="ignore"):
+            Y = self.model.eval_g(S[:self.n, None, :], u, self.params(S), self.c)
+        return Y[:, 0, :]
+
+    def outputs_along(self, S: np.ndarray) -> np.ndarray:
+        """g along a trajectory of augmented states S (N, n+m): (N, n_out)."""
+        P = self.params(S.T)                                    # (n_p, N)
+        X = S[:, :self.n].T[:, None, :]                          # (n, 1, N)
+        U = self.seg.u.T[:, None, :]                             # (n_in, 1, N)
+        with np.errstate(all="ignore"):
+            return self.model.eval_g(X, U, P, self.c)[:, 0, :].T
+
+
+# -- the filters --------------------------------------------------------------------------------
+class _ParameterFilter:
+    method = "ekf"
+
+    def __init__(self, model: Model, *, integrator: str = "rk4", process_noise: Any = None,
+                 measurement_noise: Any = None, param_std: Any = None, state_std: Any = None,
+                 param_noise: Any = None, rtol: float = 1e-8, atol: float = 1e-10) -> None:
+        if integrator not in INTEGRATORS:
+            raise ModelDefinitionError(f"unknown integrator {integrator!r}: use one of {INTEGRATORS}")
+        self.model = model
+        self.integrator = integrator
+        self.process_noise = process_noise
+        self.measurement_noise = measurement_noise
+        self.param_std = param_std
+        self.state_std = state_std
+        self.param_noise = param_noise
+        self.rtol, self.atol = rtol, atol
+
+    # set-up ----------------------------------------------------------------------------------
+    def _initial_param_cov(self, lay: Layout) -> np.ndarray:
+        fi = lay.free_idx
+        v = lay.values[fi]
+        names = lay.free_names
+        default = np.where(np.abs(v) > 0, 0.5 * np.abs(v), 1.0)
+        if self.param_std is None:
+            sd = default
+        elif np.ndim(self.param_std) == 0 and not isinstance(self.param_std, Mapping):
+            sd = np.where(np.abs(v) > 0, float(self.param_std) * np.abs(v), 1.0)
+        else:
+            spec = dict(self.param_std) if isinstance(self.param_std, Mapping) else self.param_std
+            if isinstance(spec, dict):
+                # a model parameter name applies to all its per-segment copies
+                spec = {n: spec.get(n, spec.get(n.split("[")[0], None)) for n in names}
+                spec = {n: s for n, s in spec.items() if s is not None}
+            sd = _vector(spec, names, "param_std", default)
+        return np.diag(sd ** 2)
+
+    def _param_noise(self, lay: Layout) -> np.ndarray:
+        names = lay.free_names
+        if isinstance(self.param_noise, Mapping):
+            spec = {n: self.param_noise.get(n, self.param_noise.get(n.split("[")[0]))
+                    for n in names}
+            spec = {n: s for n, s in spec.items() if s is not None}
+        else:
+            spec = self.param_noise
+        return _vector(spec, names, "param_noise", np.zeros(len(names)))
+
+    def _initial_state_cov(self, R: np.ndarray, x0: np.ndarray) -> np.ndarray:
+        m = self.model
+        default = np.array([np.sqrt(R[m.outputs.index(s), m.outputs.index(s)]) if s in m.outputs
+                            else 1e-3 * max(abs(x0[i]), 1.0) for i, s in enumerate(m.states)])
+        sd = _vector(self.state_std, m.states, "state_std", default)
+        return np.diag(sd ** 2)
+
+    # one filter pass -----------------------------------------------------------------------
+    def fit(self, segments: Segment | Sequence[Segment],
+            start: Mapping[str, float] | None = None) -> EstimationResult:
+        """Run the filter over the segments in order; returns the final estimates.
+
+        start : start values by expanded name, overriding the model's.
+        """
+        segments = [segments] if isinstance(segments, Segment) else list(segments)
+        if not segments:
+            raise ModelDefinitionError("fit() needs at least one segment")
+        model = self.model
+        lay = Layout.build(model, segments, False, values=start)
+        fi = lay.free_idx
+        if fi.size == 0:
+            raise ModelDefinitionError("no free parameters: mark some Parameter(..., free=True)")
+        n, m = len(model.states), fi.size
+        F = process_noise_matrix(model, self.process_noise)
+        R = measurement_noise_matrix(model, self.measurement_noise, segments)
+        theta = lay.values[fi].copy()
+        Pth = self._initial_param_cov(lay)
+        qth = self._param_noise(lay) ** 2
+        out = {"pred": [], "innov": [], "traj": [], "traj_std": [], "states": [], "post": []}
+        history = []
+        K = None
+        for k, seg in enumerate(segments):
+            aug = AugmentedModel(model, lay, seg, k, self.integrator, self.rtol, self.atol)
+            x0 = lay.values[lay.x0idx[k]]
+            s = np.concatenate([x0, theta])
+            P = np.zeros((n + m, n + m))
+            P[:n, :n] = self._initial_state_cov(R, x0)
+            P[n:, n:] = Pth
+            N = seg.n
+            Ypred = np.full((N, len(model.outputs)), np.nan)
+            Spost = np.empty((N, n + m))
+            Pdiag = np.empty((N, n + m))
+            for i in range(N):
+                if i > 0:
+                    h = seg.t[i] - seg.t[i - 1]
+                    Q = np.zeros((n + m, n + m))
+                    Q[:n, :n] = F @ F.T * h
+                    Q[n:, n:] = np.diag(qth * h)
+                    s, P = self._predict(aug, s, P, Q, i - 1)
+                    if not np.all(np.isfinite(s)) or not np.all(np.isfinite(P)):
+                        raise SimulationDivergedError(
+                            f"the {self.method.upper()} prediction of segment {seg.name or k} became "
+                            f"non-finite at t={seg.t[i]:.4g} s: reduce param_std/state_std, "
+                            "start closer, or use a smaller sample interval",
+                            segment=k, time=float(seg.t[i]))
+                z = seg.z[i]
+                ok = np.isfinite(z)
+                s, P, yp, K = self._update(aug, s, P, z, ok, R, i)
+                Ypred[i] = yp
+                Spost[i] = s
+                Pdiag[i] = np.diag(P)
+            theta = s[n:].copy()
+            Pth = P[n:, n:].copy()
+            idx = pd.Index(seg.t, name="t")
+            out["pred"].append(Ypred)
+            out["innov"].append(seg.z - Ypred)
+            out["traj"].append(pd.DataFrame(Spost[:, n:], index=idx, columns=lay.free_names))
+            out["traj_std"].append(pd.DataFrame(np.sqrt(np.maximum(Pdiag[:, n:], 0)), index=idx,
+                                                columns=lay.free_names))
+            out["states"].append(pd.DataFrame(Spost[:, :n], index=idx, columns=model.states))
+            out["post"].append(pd.DataFrame(aug.outputs_along(Spost), index=idx, columns=model.outputs))
+            history.append({"segment": k, **dict(zip(lay.free_names, theta))})
+        values = lay.values.copy()
+        values[fi] = theta
+        free = lay.free.copy()
+        E = out["innov"]
+        Rinn = st.residual_covariance(E, full=False)
+        return EstimationResult(
+            method=self.method, model=model, names=list(lay.names), values=values, free=free,
+            cov=0.5 * (Pth + Pth.T), R=Rinn, converged=True, iterations=len(segments),
+            history=pd.DataFrame(history), segments=segments,
+            predicted=frames([s.t for s in segments], out["pred"], model.outputs),
+            residuals=frames([s.t for s in segments], E, model.outputs),
+            message="one filter pass; residuals are the innovations (a-priori)",
+            settings=self._settings(),
+            extra={"trajectory": out["traj"], "trajectory_std": out["traj_std"],
+                   "states": out["states"], "posterior_outputs": out["post"], "gain": K,
+                   "measurement_noise": R, "process_noise": F, "residuals_are": "innovations"})
+
+    def _settings(self) -> dict[str, Any]:
+        return {"integrator": self.integrator, "optimizer": "recursive"}
+
+    # filter equations, per subclass
+    def _predict(self, aug, s, P, Q, i):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _update(self, aug, s, P, z, ok, R, i):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+class EKF(_ParameterFilter):
+    """Extended Kalman filter with the parameters in the state (Joseph-form update).
+
+    Parameters
+    ----------
+    model : the :class:`~estimators.Model` (free parameters are estimated).
+    integrator : one-step predictor, "euler" ... "rk4" (default) or "rkf45".
+    process_noise : F: {state: std}, (n,) std or an (n, n) matrix; continuous white noise
+        in state units per sqrt(s), Qd = F F^T dt. Default 0 (calm air).
+    measurement_noise : {output: std}, (n_out,) std or an (n_out, n_out) covariance.
+        Default: half the variance of the first differences of each output (an upper
+        bound; give the sensor noise when known).
+    param_std : initial std of the parameters: {name: std}, a fraction of |start| (float),
+        default 0.5 |start| (1.0 where the start is 0 - give biases explicitly).
+    state_std : initial std of the states, {state: std} or (n,); default the measurement
+        std of states that are outputs, 1e-3 max(|x0|, 1) otherwise.
+    param_noise : random-walk std of the parameters per sqrt(s) (default 0: constant).
+    fd_step : relative forward-difference step of the Jacobians,
+        h_j = fd_step * max(|s_j|, 1).
+    """
+
+    method = "ekf"
+
+    def __init__(self, model: Model, *, fd_step: float = 1e-6, **kw) -> None:
+        super().__init__(model, **kw)
+        self.fd_step = fd_step
+
+    def _columns(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        h = self.fd_step * np.maximum(np.abs(s), 1.0)
+        S = np.repeat(s[:, None], s.size + 1, axis=1)
+        S[np.arange(s.size), 1 + np.arange(s.size)] += h
+        return S, h
+
+    def _predict(self, aug, s, P, Q, i):
+        n = aug.n
+        S, h = self._columns(s)
+        Xn = aug.step(S, i)
+        Phi = np.eye(s.size)
+        Phi[:n, :] = (Xn[:, 1:] - Xn[:, :1]) / h
+        s_new = s.copy()
+        s_new[:n] = Xn[:, 0]
+        P = Phi @ P @ Phi.T + Q
+        return s_new, 0.5 * (P + P.T)
+
+    def _update(self, aug, s, P, z, ok, R, i):
+        S, h = self._columns(s)
+        Y = aug.outputs(S, i)
+        y = Y[:, 0]
+        if not np.any(ok):
+            return s, P, y, None
+        H = ((Y[:, 1:] - Y[:, :1]) / h)[ok]
+        Rk = R[np.ix_(ok, ok)]
+        Sinn = H @ P @ H.T + Rk
+        K = np.linalg.solve(Sinn, H @ P).T            # P H^T S^-1 (S symmetric)
+        s = s + K @ (z[ok] - y[ok])
+        IKH = np.eye(s.size) - K @ H
+        P = IKH @ P @ IKH.T + K @ Rk @ K.T             # Joseph form
+        return s, 0.5 * (P + P.T), y, K
+
+    def _settings(self) -> dict[str, Any]:
+        return {**super()._settings(), "fd_step": self.fd_step}
+
+
+def _sqrt_psd(A: np.ndarray) -> np.ndarray:
+    """A lower factor L with L L^T = A for a symmetric positive semi-definite A."""
+    try:
+        return np.linalg.cholesky(A)
+    except np.linalg.LinAlgError:
+        w, V = np.linalg.eigh(0.5 * (A + A.T))
+        return V * np.sqrt(np.maximum(w, 0.0))
+
+
+class UKF(_ParameterFilter):
+    """Unscented Kalman filter with the parameters in the state.
+
+    Scaled sigma points (van der Merwe): lambda = alpha^2 (L + kappa) - L, points
+    s +- columns of sqrt((L + lambda) P), weights Wm0 = lambda / (L + lambda),
+    Wc0 = Wm0 + 1 - alpha^2 + beta, Wi = 1 / (2 (L + lambda)). Defaults alpha = 1,
+    beta = 2, kappa = 0 (Wm0 = 0: no negative weights, so P stays positive).
+
+    augmented : False (default) adds Qd and R to the predicted covariances; True draws the
+        sigma points from the noise-augmented state [s; w; v] (process noise w ~ N(0, Qd)
+        added after the step, measurement noise v ~ N(0, R) added to g).
+    Other keywords as :class:`EKF` (process_noise, measurement_noise, param_std, ...).
+    """
+
+    method = "ukf"
+
+    def __init__(self, model: Model, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
+                 augmented: bool = False, **kw) -> None:
+        super().__init__(model, **kw)
+        self.alpha, self.beta, self.kappa = float(alpha), float(beta), float(kappa)
+        self.augmented = augmented
+        if augmented:
+            self.method = "ukf-aug"
+
+    def _weights(self, L: int) -> tuple[np.ndarray, np.ndarray, float]:
+        lam = self.alpha ** 2 * (L + self.kappa) - L
+        Wm = np.full(2 * L + 1, 0.5 / (L + lam))
+        Wc = Wm.copy()
+        Wm[0] = lam / (L + lam)
+        Wc[0] = Wm[0] + 1.0 - self.alpha ** 2 + self.beta
+        return Wm, Wc, L + lam
+
+    def _sigmas(self, s: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        L = s.size
+        Wm, Wc, c = self._weights(L)
+        A = _sqrt_psd(c * P)
+        S = np.concatenate([s[:, None], s[:, None] + A, s[:, None] - A], axis=1)
+        return S, Wm, Wc
+
+    def _predict(self, aug, s, P, Q, i):
+        n, L = aug.n, s.size
+        if self.augmented:
+            Pa = np.zeros((2 * L, 2 * L))
+            Pa[:L, :L] = P
+            Pa[L:, L:] = Q
+            Sa, Wm, Wc = self._sigmas(np.concatenate([s, np.zeros(L)]), Pa)
+            S = Sa[:L].copy()
+            S[:n] = aug.step(S, i)
+            S = S + Sa[L:]
+            mean = S @ Wm
+            D = S - mean[:, None]
+            P = (D * Wc) @ D.T
+        else:
+            S, Wm, Wc = self._sigmas(s, P)
+            S = S.copy()
+            S[:n] = aug.step(S, i)
+            mean = S @ Wm
+            D = S - mean[:, None]
+            P = (D * Wc) @ D.T + Q
+        return mean, 0.5 * (P + P.T)
+
+    def _update(self, aug, s, P, z, ok, R, i):
+        L = s.size
+        if self.augmented:
+            r = R.shape[0]
+            Pa = np.zeros((L + r, L + r))
+            Pa[:L, :L] = P
+            Pa[L:, L:] = R
+            Sa, Wm, Wc = self._sigmas(np.concatenate([s, np.zeros(r)]), Pa)
+            S = Sa[:L]
+            Y = aug.outputs(S, i) + Sa[L:]
+            Rk = 0.0
+        else:
+            S, Wm, Wc = self._sigmas(s, P)
+            Y = aug.outputs(S, i)
+            Rk = R
+        y = Y @ Wm
+        if not np.any(ok):
+            return s, P, y, None
+        Dy = Y - y[:, None]
+        Ds = S - s[:, None]
+        Syy = (Dy * Wc) @ Dy.T + Rk
+        Ssy = (Ds * Wc) @ Dy.T
+        Syy, Ssy = Syy[np.ix_(ok, ok)], Ssy[:, ok]
+        K = np.linalg.solve(Syy, Ssy.T).T
+        s = s + K @ (z[ok] - y[ok])
+        P = P - K @ Syy @ K.T
+        return s, 0.5 * (P + P.T), y, K
+
+    def _settings(self) -> dict[str, Any]:
+        return {**super()._settings(), "alpha": self.alpha, "beta": self.beta,
+                "kappa": self.kappa, "augmented": self.augmented}

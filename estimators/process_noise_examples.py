@@ -1,0 +1,143 @@
+"""Model-simulated problems with process noise (turbulence) and an unstable aircraft, with
+known truth - for the filter-error / Kalman tests and benchmarks.
+
+* :func:`simulate_with_process_noise`: x_{k+1} = Phi_h(x_k) + F w_k h, w_k ~ N(0, I/h)
+  (white noise of unit spectral density held over each step - the discrete model the
+  filters assume), outputs g(x) plus white measurement noise.
+* :func:`turbulent_longitudinal_example`: the HFB-320-like longitudinal case of
+  :mod:`estimators.datasets` flown in turbulence (process noise on alpha and q).
+* :func:`unstable_short_period_example`: a statically unstable short period
+  (Cmalpha > 0, time to double about 0.8 s) flown with an angle-of-attack and pitch-rate
+  stability augmentation loop de = de_pilot + K_alpha alpha_m + K_q q_m on the measured
+  (noisy) signals of the previous sample; the recorded input is the total elevator.
+* :func:`dryden_gust_longitudinal` (benchmark): a linear short period driven by a
+  Dryden-filtered vertical gust, with the gust filter as an extra state.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimators.datasets import (HFB320_CONSTANTS, HFB320_NOISE, HFB320_TRUTH, multistep,
+                                 trim_level)
+from estimators.jit import kernel_for
+from estimators.model import Model, Parameter, Segment
+from estimators.models import short_period
+from estimators.models.longitudinal import longitudinal
+from estimators.simulation import Layout
+
+
+@dataclass
+class NoisyExample:
+    model: Model                 # model with start values (free as requested)
+    truth_model: Model
+    segments: list[Segment]
+    truth: dict[str, float]
+    process_noise: np.ndarray    # F (n, n), state units per sqrt(s)
+    noise_std: np.ndarray        # measurement-noise std per output
+    states: list[np.ndarray]     # true states per segment (N, n)
+
+
+def simulate_with_process_noise(model: Model, seg: Segment, F: np.ndarray, rng: np.random.Generator,
+                                noise_std: np.ndarray | None = None, integrator: str = "rk4",
+                                feedback=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Simulate one segment with process noise F (see module docstring).
+
+    feedback : optional callable (i, z_{i-1}) -> u_i replacing the input at sample i from
+        the outputs measured one sample earlier (a closed loop on the measurements with one
+        sample of computation delay, so the recorded input is known over each integration
+        step exactly as the estimators assume); the realised inputs are returned. Returns (X (N, n), Z (N, n_out) measured, U (N, n_in)).
+    """
+    lay = Layout.build(model, [seg])
+    P = lay.values[lay.pidx[0]][:, None]
+    c = model.constants_for(seg)
+    kern = kernel_for(model)
+    n, N = len(model.states), seg.n
+    sd = np.zeros(len(model.outputs)) if noise_std is None else np.asarray(noise_std, float)
+    X = np.empty((N, n))
+    Z = np.empty((N, len(model.outputs)))
+    U = seg.u.copy()
+    x = seg.initial_state(model)
+    for i in range(N):
+        X[i] = x
+        y = model.eval_g(x[:, None, None], U[i][:, None, None], P, c)[:, 0, 0]
+        Z[i] = y + sd * rng.standard_normal(sd.size)
+        if i + 1 < N:
+            if feedback is not None:
+                U[i + 1] = feedback(i + 1, Z[i])
+            h = seg.t[i + 1] - seg.t[i]
+            Xs = kern.integrate(integrator, x[:, None], U[i:i + 2], seg.t[i:i + 2], P, c)
+            x = Xs[1, :, 0] + F @ rng.standard_normal(F.shape[1]) * np.sqrt(h)
+    return X, Z, U
+
+
+def turbulent_longitudinal_example(seed: int = 0, n: int = 600, dt: float = 0.02, *,
+                                   sigma_alpha: float = 0.005, sigma_q: float = 0.01,
+                                   start_offset: float = 0.2,
+                                   free=("CLalpha", "CLde", "Cmalpha", "Cmq", "Cmde", "CL0", "Cm0"),
+                                   segments: int = 1) -> NoisyExample:
+    """HFB-320-like longitudinal 3-2-1-1 in turbulence: process noise std sigma_alpha
+    (rad/sqrt(s)) on alpha and sigma_q (rad/s/sqrt(s)) on q, sensor noise as in
+    :data:`estimators.datasets.HFB320_NOISE`. Start values off by +-start_offset."""
+    truth_model = longitudinal(HFB320_CONSTANTS, values=HFB320_TRUTH, free=free)
+    x0, u0 = trim_level(truth_model, 100.0)
+    rng = np.random.default_rng(seed)
+    sd = np.array([HFB320_NOISE[o] for o in truth_model.outputs])
+    F = np.diag([0.0, sigma_alpha, 0.0, sigma_q])
+    t = np.arange(n) * dt
+    segs, states = [], []
+    for k in range(segments):
+        de = u0[0] + multistep(t, 1.0 + 0.5 * k, 0.5 + 0.1 * k, amplitude=np.radians(2.0) * (-1) ** k)
+        seg = Segment(t=t, u=np.column_stack([de, np.full(n, u0[1])]), z=np.zeros((n, 7)), x0=x0,
+                      name=f"turb-{k}")
+        X, Z, _ = simulate_with_process_noise(truth_model, seg, F, rng, sd)
+        seg.z = Z
+        segs.append(seg)
+        states.append(X)
+    signs = np.where(np.arange(len(free)) % 2 == 0, 1.0, -1.0)
+    start = {nm: HFB320_TRUTH[nm] * (1.0 + s * start_offset) for nm, s in zip(free, signs)}
+    model = longitudinal(HFB320_CONSTANTS, values={**HFB320_TRUTH, **start}, free=free)
+    return NoisyExample(model, truth_model, segs, dict(HFB320_TRUTH), F, sd, states)
+
+
+#: short-period constants (HFB-320 class at 100 m/s) and an unstable truth
+SP_CONSTANTS = {"m": 7472.0, "Iyy": 65000.0, "S": 30.0, "cbar": 2.14, "rho": 0.792, "V": 100.0}
+UNSTABLE_SP_TRUTH = {"CLalpha": 4.8, "CLq": 0.0, "CLde": 0.38, "Cmalpha": 0.5, "Cmq": -16.0,
+                     "Cmde": -1.6}
+UNSTABLE_SP_FREE = ("CLalpha", "CLde", "Cmalpha", "Cmq", "Cmde")
+SP_NOISE = {"alpha": np.radians(0.1), "q": np.radians(0.2), "qdot": np.radians(1.0), "az": 0.1}
+
+
+def unstable_short_period_example(seed: int = 0, n: int = 1000, dt: float = 0.02, *,
+                                  k_alpha: float = 0.5, k_q: float = 0.3,
+                                  sigma_alpha: float = 0.0, sigma_q: float = 0.0,
+                                  start_offset: float = 0.2, segments: int = 1) -> NoisyExample:
+    """The statically unstable short period (Cmalpha = +0.5) with the SAS loop
+    de = de_pilot + k_alpha alpha_m + k_q q_m closed on the measured signals; de_pilot a
+    3-2-1-1 and a later doublet. Optional process noise (rad/sqrt(s)) on alpha and q.
+    Start values off by +-start_offset (Cmalpha starts at +0.5 (1 +- offset), still
+    unstable)."""
+    truth_model = short_period(SP_CONSTANTS, values=UNSTABLE_SP_TRUTH, free=UNSTABLE_SP_FREE)
+    rng = np.random.default_rng(seed)
+    sd = np.array([SP_NOISE[o] for o in truth_model.outputs])
+    F = np.diag([sigma_alpha, sigma_q])
+    t = np.arange(n) * dt
+    segs, states = [], []
+    for k in range(segments):
+        pilot = multistep(t, 1.0 + 0.3 * k, 0.6, amplitude=np.radians(1.5) * (-1) ** k) \
+            + multistep(t, 12.0, 1.0, (1, -1), np.radians(1.0))
+        seg = Segment(t=t, u=pilot[:, None], z=np.zeros((n, 4)), x0=np.zeros(2), name=f"sas-{k}")
+
+        def feedback(i, z, pilot=pilot):
+            return np.array([pilot[i] + k_alpha * z[0] + k_q * z[1]])
+
+        X, Z, U = simulate_with_process_noise(truth_model, seg, F, rng, sd, feedback=feedback)
+        seg.z, seg.u = Z, U
+        segs.append(seg)
+        states.append(X)
+    signs = np.where(np.arange(len(UNSTABLE_SP_FREE)) % 2 == 0, 1.0, -1.0)
+    start = {nm: UNSTABLE_SP_TRUTH[nm] * (1.0 + s * start_offset)
+             for nm, s in zip(UNSTABLE_SP_FREE, signs)}
+    model = short_period(SP_CONSTANTS, values={**UNSTABLE_SP_TRUTH, **start}, free=UNSTABLE_SP_FREE)
+    return NoisyExample(model, truth_model, segs, dict(UNSTABLE_SP_TRUTH), F, sd, states)

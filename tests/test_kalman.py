@@ -1,0 +1,89 @@
+"""EKF and UKF parameter estimation: turbulent longitudinal case, segments, result contents."""
+import numpy as np
+import pandas as pd
+import pytest
+
+from estimators import EKF, UKF, EstimationResult, ModelDefinitionError, OutputError
+from estimators.process_noise_examples import turbulent_longitudinal_example
+
+
+@pytest.fixture(scope="module")
+def turb():
+    return turbulent_longitudinal_example(seed=3, segments=2)
+
+
+def settings(ex):
+    return {"measurement_noise": ex.noise_std, "process_noise": np.diag(ex.process_noise)}
+
+
+@pytest.fixture(scope="module")
+def ekf(turb):
+    return EKF(turb.model, **settings(turb)).fit(turb.segments)
+
+
+def within(res, truth, k=3.0):
+    err = {n: abs(res.params[n] - truth[n]) / res.std[n] for n in res.free_names if n in truth}
+    bad = {n: round(e, 2) for n, e in err.items() if not e < k}
+    assert not bad, f"estimates outside {k} std of truth: {bad}"
+
+
+def test_ekf_in_turbulence_ends_within_3_std(turb, ekf):
+    assert isinstance(ekf, EstimationResult) and ekf.method == "ekf"
+    within(ekf, turb.truth)
+    # plain output error on the same turbulent data is off by many of its (too small) std
+    oem = OutputError(turb.model).fit(turb.segments)
+    worst = max(abs(oem.params[n] - turb.truth[n]) / oem.std[n] for n in oem.free_names)
+    assert worst > 3
+
+
+@pytest.mark.parametrize("augmented", [False, True])
+def test_ukf_in_turbulence_ends_within_3_std(turb, ekf, augmented):
+    res = UKF(turb.model, augmented=augmented, **settings(turb)).fit(turb.segments)
+    assert res.method == ("ukf-aug" if augmented else "ukf")
+    within(res, turb.truth)
+    # EKF and UKF agree to a fraction of a std on this mildly nonlinear problem
+    d = (res.params[res.free_names] - ekf.params[res.free_names]).abs() / ekf.std[res.free_names]
+    assert d.max() < 0.3
+
+
+def test_result_holds_trajectories_innovations_and_settings(turb, ekf):
+    names = ekf.free_names
+    assert len(ekf.extra["trajectory"]) == 2
+    tr, sd = ekf.extra["trajectory"][1], ekf.extra["trajectory_std"][1]
+    assert isinstance(tr, pd.DataFrame) and list(tr.columns) == names
+    np.testing.assert_allclose(tr.iloc[-1].to_numpy(), ekf.params[names].to_numpy())
+    np.testing.assert_allclose(sd.iloc[-1].to_numpy(), ekf.std[names].to_numpy(), rtol=1e-6)
+    # the std shrinks as data arrive; segment 1 starts from segment 0's estimate
+    assert np.all(sd.iloc[-1] < ekf.extra["trajectory_std"][0].iloc[0])
+    tr0 = ekf.extra["trajectory"][0]
+    assert np.all(np.abs(tr.iloc[0] - tr0.iloc[-1]) <= 3 * sd.iloc[0])
+    # residuals are the innovations z - g(x_k|k-1)
+    seg = turb.segments[0]
+    np.testing.assert_allclose(ekf.residuals[0].to_numpy(), seg.z - ekf.predicted[0].to_numpy())
+    assert ekf.extra["residuals_are"] == "innovations"
+    # innovations are near the measurement noise (plus prediction uncertainty), not the
+    # turbulence-driven output-error residuals
+    assert np.all(np.sqrt(np.diag(ekf.R)) < 2.0 * turb.noise_std)
+    # a-posteriori states follow the true (turbulent) states
+    xs = ekf.extra["states"][0].to_numpy()
+    assert np.sqrt(np.mean((xs[:, 1] - turb.states[0][:, 1]) ** 2)) < 2 * turb.noise_std[1]
+    np.testing.assert_allclose(ekf.extra["measurement_noise"], np.diag(turb.noise_std ** 2))
+    assert ekf.extra["gain"].shape == (4 + len(names), 7)
+    assert "EKF" in ekf.summary(truth=turb.truth)
+    assert list(ekf.history["segment"]) == [0, 1]
+
+
+def test_missing_samples_and_defaults(turb):
+    seg = turb.segments[0]
+    z = seg.z.copy()
+    z[100:150, 0] = np.nan                    # airspeed drop-out
+    from estimators import Segment
+    s2 = Segment(t=seg.t, u=seg.u, z=z, x0=seg.x0)
+    res = EKF(turb.model, process_noise={"alpha": 0.005, "q": 0.01}).fit(s2)
+    # default measurement noise comes from the data (first differences): finite, positive
+    Rm = res.extra["measurement_noise"]
+    assert np.all(np.diag(Rm) > 0) and np.all(np.isfinite(Rm))
+    assert np.isnan(res.residuals[0]["V"].iloc[120])
+    assert np.all(np.isfinite(res.params[res.free_names]))
+    with pytest.raises(ModelDefinitionError, match="process_noise"):
+        EKF(turb.model, process_noise={"nope": 1.0}).fit(s2)
