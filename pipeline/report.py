@@ -186,6 +186,28 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
     return L
 
 
+def _checks_md(checks: Any) -> list[str]:
+    """The data-checks section: the checks.json summary counts and every finding that is
+    not a pass (status, check, channel, message); other mappings show their scalar items."""
+    if not isinstance(checks, Mapping) or not checks:
+        return []
+    L = ["## Data checks", ""]
+    summary = checks.get("summary")
+    if isinstance(summary, Mapping):
+        L += [", ".join(f"{k}: {x}" for k, x in summary.items()), ""]
+    findings = checks.get("findings")
+    if isinstance(findings, list):
+        bad = [f for f in findings if isinstance(f, Mapping) and f.get("status") != "pass"]
+        if bad:
+            L += _table(["status", "check", "channel", "message"],
+                        [[str(f.get("status")), str(f.get("check")), str(f.get("channel") or "-"),
+                          str(f.get("message")).replace("|", "/")] for f in bad])
+    for k, x in checks.items():
+        if k not in ("summary", "findings") and isinstance(x, (str, int, float, bool)):
+            L.append(f"- {k}: {x}")
+    return L + [""]
+
+
 def report_markdown(rep: Mapping[str, Any]) -> str:
     """report.md text from the report dict of :func:`report_dict`."""
     meta = rep.get("meta") or {}
@@ -208,13 +230,7 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
                          _g(max(tics) if tics else None, ".4f"),
                          "-" if not pm else ("pass" if pm["all_pass"] else "FAIL")])
         L += _table(["method", "verdict", "converged", "det(R)", "max TIC", "proof of match"], rows)
-    checks = rep.get("checks")
-    if isinstance(checks, Mapping) and checks:
-        L += ["## Data checks", ""]
-        for k, x in checks.items():
-            if isinstance(x, (str, int, float, bool)):
-                L.append(f"- {k}: {x}")
-        L.append("")
+    L += _checks_md(rep.get("checks"))
     for m, mj in rep["methods"].items():
         L += _method_md(m, mj, with_truth)
     return "\n".join(L).rstrip() + "\n"
@@ -228,10 +244,13 @@ def write_report(out_dir: str | Path, results: Mapping[str, EstimationResult],
 
     results: method name -> result; validations: method name -> :func:`pipeline.validate.
     validate` output (missing ones are fine); truth: true parameter values; meta: flat
-    facts shown at the top (scenario, log, seed, ...); checks: data-quality summary
-    (JSON-ready). Returns (md path, json path).
+    facts shown at the top (scenario, log, seed, ...); checks: the checks.json document
+    (dict or its JSON text from :func:`pipeline.checks.findings_to_json`): its ``summary``
+    and non-pass ``findings`` are listed in report.md, the whole is kept in report.json. Returns (md path, json path).
     """
     out = Path(out_dir)
+    if isinstance(checks, (str, bytes)):
+        checks = json.loads(checks)
     rep = report_dict(results, validations, truth=truth, meta=meta, checks=checks)
     pj = atomic_write_text(out / "report.json", json.dumps(rep, indent=2, allow_nan=False) + "\n")
     pm = atomic_write_text(out / "report.md", report_markdown(rep))

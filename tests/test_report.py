@@ -142,3 +142,17 @@ def test_report_without_truth_or_validation(fitted, tmp_path):
     assert all(p["truth"] is None for p in rep["methods"]["oem"]["parameters"].values())
     assert "truth" not in md.read_text().split("### Parameters")[1].split("\n")[2]
     assert not math.isnan(rep["methods"]["oem"]["det_R"])
+
+
+def test_report_lists_data_check_findings(fitted, tmp_path):
+    ex, res, v = fitted
+    checks = json.dumps({"summary": {"pass": 3, "warn": 1, "fail": 0},
+                         "findings": [{"status": "pass", "check": "rate", "channel": "q", "message": "ok"},
+                                      {"status": "warn", "check": "excitation", "channel": "da",
+                                       "message": "aileron barely moves"}]})
+    md, js = write_report(tmp_path, {"oem": res}, {"oem": v}, checks=checks)
+    text = md.read_text()
+    assert "## Data checks" in text and "pass: 3, warn: 1, fail: 0" in text
+    assert "| warn | excitation | da | aileron barely moves |" in text
+    assert "| pass | rate |" not in text
+    assert json.loads(js.read_text())["checks"]["summary"]["warn"] == 1
