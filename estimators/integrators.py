@@ -24,7 +24,22 @@ except ImportError:  # pragma: no cover - numba is a dependency; keep numpy-only
         return fn
 
 INTEGRATORS = ("euler", "rk2", "rk3", "rk4", "rkf45")
+#: how inputs vary inside a sample interval [t_k, t_k+1]: "average" holds (U[k] + U[k+1]) / 2
+#: (Jategaonkar's convention, default), "linear" interpolates at each stage time (for
+#: sampled continuous signals), "hold" keeps U[k] (zero-order hold: step inputs that switch
+#: exactly at samples, e.g. a flight computer's commands)
+INPUT_MODES = {"average": 0, "linear": 1, "hold": 2}
 ORDER = {"euler": 1, "rk2": 2, "rk3": 3, "rk4": 4, "rkf45": 5}
+
+
+@register_jitable
+def _u_at(U, i, s, mode):
+    """Inputs at fraction s in [0, 1] of interval i (see INPUT_MODES)."""
+    if mode == 0:
+        return 0.5 * (U[i] + U[i + 1])
+    if mode == 1:
+        return U[i] + s * (U[i + 1] - U[i])
+    return U[i].copy()
 
 
 @register_jitable
@@ -35,7 +50,7 @@ def _finite(x):
     return True
 
 
-def euler(rhs, x0, U, t, P, c, rtol, atol):
+def euler(rhs, x0, U, t, P, c, rtol, atol, mode):
     N = t.size
     n, B = x0.shape
     X = np.full((N, n, B), np.nan)
@@ -44,8 +59,7 @@ def euler(rhs, x0, U, t, P, c, rtol, atol):
     k1 = np.empty((n, B))
     for i in range(N - 1):
         h = t[i + 1] - t[i]
-        ua = 0.5 * (U[i] + U[i + 1])
-        rhs(x, ua, P, c, k1)
+        rhs(x, _u_at(U, i, 0.5 if mode == 1 else 0.0, mode), P, c, k1)
         x = x + h * k1
         if not _finite(x):
             break
@@ -53,7 +67,7 @@ def euler(rhs, x0, U, t, P, c, rtol, atol):
     return X
 
 
-def rk2(rhs, x0, U, t, P, c, rtol, atol):
+def rk2(rhs, x0, U, t, P, c, rtol, atol, mode):
     """Heun's method (trapezoidal predictor-corrector), order 2."""
     N = t.size
     n, B = x0.shape
@@ -64,9 +78,8 @@ def rk2(rhs, x0, U, t, P, c, rtol, atol):
     k2 = np.empty((n, B))
     for i in range(N - 1):
         h = t[i + 1] - t[i]
-        ua = 0.5 * (U[i] + U[i + 1])
-        rhs(x, ua, P, c, k1)
-        rhs(x + h * k1, ua, P, c, k2)
+        rhs(x, _u_at(U, i, 0.0, mode), P, c, k1)
+        rhs(x + h * k1, _u_at(U, i, 1.0, mode), P, c, k2)
         x = x + 0.5 * h * (k1 + k2)
         if not _finite(x):
             break
@@ -74,7 +87,7 @@ def rk2(rhs, x0, U, t, P, c, rtol, atol):
     return X
 
 
-def rk3(rhs, x0, U, t, P, c, rtol, atol):
+def rk3(rhs, x0, U, t, P, c, rtol, atol, mode):
     """Kutta's third-order method."""
     N = t.size
     n, B = x0.shape
@@ -86,10 +99,11 @@ def rk3(rhs, x0, U, t, P, c, rtol, atol):
     k3 = np.empty((n, B))
     for i in range(N - 1):
         h = t[i + 1] - t[i]
-        ua = 0.5 * (U[i] + U[i + 1])
-        rhs(x, ua, P, c, k1)
-        rhs(x + 0.5 * h * k1, ua, P, c, k2)
-        rhs(x + h * (2.0 * k2 - k1), ua, P, c, k3)
+        u0 = _u_at(U, i, 0.0, mode)
+        um = _u_at(U, i, 0.5, mode)
+        rhs(x, u0, P, c, k1)
+        rhs(x + 0.5 * h * k1, um, P, c, k2)
+        rhs(x + h * (2.0 * k2 - k1), _u_at(U, i, 1.0, mode), P, c, k3)
         x = x + h / 6.0 * (k1 + 4.0 * k2 + k3)
         if not _finite(x):
             break
@@ -97,7 +111,7 @@ def rk3(rhs, x0, U, t, P, c, rtol, atol):
     return X
 
 
-def rk4(rhs, x0, U, t, P, c, rtol, atol):
+def rk4(rhs, x0, U, t, P, c, rtol, atol, mode):
     """Classical fourth-order Runge-Kutta."""
     N = t.size
     n, B = x0.shape
@@ -110,11 +124,11 @@ def rk4(rhs, x0, U, t, P, c, rtol, atol):
     k4 = np.empty((n, B))
     for i in range(N - 1):
         h = t[i + 1] - t[i]
-        ua = 0.5 * (U[i] + U[i + 1])
-        rhs(x, ua, P, c, k1)
-        rhs(x + 0.5 * h * k1, ua, P, c, k2)
-        rhs(x + 0.5 * h * k2, ua, P, c, k3)
-        rhs(x + h * k3, ua, P, c, k4)
+        um = _u_at(U, i, 0.5, mode)
+        rhs(x, _u_at(U, i, 0.0, mode), P, c, k1)
+        rhs(x + 0.5 * h * k1, um, P, c, k2)
+        rhs(x + 0.5 * h * k2, um, P, c, k3)
+        rhs(x + h * k3, _u_at(U, i, 1.0, mode), P, c, k4)
         x = x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         if not _finite(x):
             break
@@ -122,7 +136,7 @@ def rk4(rhs, x0, U, t, P, c, rtol, atol):
     return X
 
 
-def rkf45(rhs, x0, U, t, P, c, rtol, atol):
+def rkf45(rhs, x0, U, t, P, c, rtol, atol, mode):
     """Runge-Kutta-Fehlberg 4(5) with step-size control inside each sample interval
     (local extrapolation: the 5th-order solution is kept). The error norm is the largest
     scaled error over all states and all trajectories of the batch, so the batch shares
@@ -141,22 +155,25 @@ def rkf45(rhs, x0, U, t, P, c, rtol, atol):
     h = t[1] - t[0]
     ok = True
     for i in range(N - 1):
-        ua = 0.5 * (U[i] + U[i + 1])
         tau = t[i]
         t_end = t[i + 1]
         n_sub = 0
         while tau < t_end and ok:
             if tau + h > t_end:
                 h = t_end - tau
-            rhs(x, ua, P, c, k1)
-            rhs(x + h * (0.25 * k1), ua, P, c, k2)
-            rhs(x + h * (3.0 / 32.0 * k1 + 9.0 / 32.0 * k2), ua, P, c, k3)
+            s0 = (tau - t[i]) / (t_end - t[i])
+            ds = h / (t_end - t[i])
+            rhs(x, _u_at(U, i, s0, mode), P, c, k1)
+            rhs(x + h * (0.25 * k1), _u_at(U, i, s0 + 0.25 * ds, mode), P, c, k2)
+            rhs(x + h * (3.0 / 32.0 * k1 + 9.0 / 32.0 * k2), _u_at(U, i, s0 + 0.375 * ds, mode),
+                P, c, k3)
             rhs(x + h * (1932.0 / 2197.0 * k1 - 7200.0 / 2197.0 * k2 + 7296.0 / 2197.0 * k3),
-                ua, P, c, k4)
+                _u_at(U, i, s0 + 12.0 / 13.0 * ds, mode), P, c, k4)
             rhs(x + h * (439.0 / 216.0 * k1 - 8.0 * k2 + 3680.0 / 513.0 * k3
-                         - 845.0 / 4104.0 * k4), ua, P, c, k5)
+                         - 845.0 / 4104.0 * k4), _u_at(U, i, s0 + ds, mode), P, c, k5)
             rhs(x + h * (-8.0 / 27.0 * k1 + 2.0 * k2 - 3544.0 / 2565.0 * k3
-                         + 1859.0 / 4104.0 * k4 - 11.0 / 40.0 * k5), ua, P, c, k6)
+                         + 1859.0 / 4104.0 * k4 - 11.0 / 40.0 * k5), _u_at(U, i, s0 + 0.5 * ds, mode),
+                P, c, k6)
             x5 = x + h * (16.0 / 135.0 * k1 + 6656.0 / 12825.0 * k3 + 28561.0 / 56430.0 * k4
                           - 9.0 / 50.0 * k5 + 2.0 / 55.0 * k6)
             err = h * (1.0 / 360.0 * k1 - 128.0 / 4275.0 * k3 - 2197.0 / 75240.0 * k4

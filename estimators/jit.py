@@ -47,8 +47,8 @@ def _tuple_src(items: Sequence[str]) -> str:
 class RhsKernel:
     """The model's state equations in the form the integrators call.
 
-    ``integrate(scheme, x0 (n, B), U (N, n_in), t (N,), P (n_p, B), constants)`` returns
-    X (N, n, B).
+    ``integrate(scheme, x0 (n, B), U (N, n_in), t (N,), P (n_p, B), constants, inputs=...)``
+    returns X (N, n, B); ``inputs`` is "average", "linear" or "hold" (integrators.INPUT_MODES).
     """
 
     def __init__(self, model: Model) -> None:
@@ -125,10 +125,14 @@ class RhsKernel:
 
     def integrate(self, scheme: str, x0: np.ndarray, U: np.ndarray, t: np.ndarray,
                   P: np.ndarray, constants: Mapping[str, float], *,
-                  rtol: float = 1e-8, atol: float = 1e-10) -> np.ndarray:
+                  rtol: float = 1e-8, atol: float = 1e-10, inputs: str = "average") -> np.ndarray:
         if scheme not in _integ.PY_SCHEMES:
             raise ModelDefinitionError(
                 f"unknown integrator {scheme!r}: choose one of {', '.join(_integ.INTEGRATORS)}")
+        if inputs not in _integ.INPUT_MODES:
+            raise ModelDefinitionError(
+                f"unknown input interpolation {inputs!r}: choose one of {', '.join(_integ.INPUT_MODES)}")
+        mode = _integ.INPUT_MODES[inputs]
         x0 = np.ascontiguousarray(x0, dtype=float)
         U = np.ascontiguousarray(U, dtype=float)
         if U.ndim == 1:
@@ -139,10 +143,10 @@ class RhsKernel:
             self._try_jit(x0, U, P, constants)
         if self._jit_state == "on":
             return _jit_scheme(scheme)(self.rhs_jit, x0, U, t, P, self._c_jit(constants),
-                                       float(rtol), float(atol))
+                                       float(rtol), float(atol), mode)
         with np.errstate(all="ignore"):
             return _integ.PY_SCHEMES[scheme](self.rhs_py, x0, U, t, P, Namespace(constants),
-                                             rtol, atol)
+                                             rtol, atol, mode)
 
 
 def kernel_for(model: Model) -> RhsKernel:

@@ -105,14 +105,15 @@ class Layout:
 
 def simulate_batch(model: Model, seg: Segment, Theta: np.ndarray, layout: Layout, k: int,
                    integrator: str = "rk4", rtol: float = 1e-8, atol: float = 1e-10,
-                   return_states: bool = False):
+                   return_states: bool = False, inputs: str = "average"):
     """Outputs Y (N, n_outputs, B) of segment ``k`` for parameter vectors Theta (B, n_all).
     Diverged trajectories carry NaN from the first non-finite sample on."""
     Theta = np.atleast_2d(Theta)
     P = np.ascontiguousarray(Theta[:, layout.pidx[k]].T)
     X0 = np.ascontiguousarray(Theta[:, layout.x0idx[k]].T)
     c = model.constants_for(seg)
-    X = kernel_for(model).integrate(integrator, X0, seg.u, seg.t, P, c, rtol=rtol, atol=atol)
+    X = kernel_for(model).integrate(integrator, X0, seg.u, seg.t, P, c, rtol=rtol, atol=atol,
+                                    inputs=inputs)
     with np.errstate(all="ignore"):
         Y = model.eval_g(X.transpose(1, 0, 2), seg.u.T[:, :, None], P, c)
     Y = Y.transpose(1, 0, 2)
@@ -135,7 +136,8 @@ def divergence_error(model: Model, seg: Segment, X: np.ndarray, k: int, what: st
 def simulate_outputs(model: Model, segment: Segment, params: Mapping[str, float] | None = None,
                      integrator: str = "rk4", *, states: bool = False, **kw) -> pd.DataFrame:
     """Simulate one segment; a DataFrame of outputs (and states when ``states``) on t.
-    ``params`` may hold model parameter names or expanded names (``bias_az[0]``)."""
+    ``params`` may hold model parameter names or expanded names (``bias_az[0]``); keywords
+    go to :func:`simulate_batch` (rtol, atol, inputs="average"|"linear"|"hold")."""
     lay = Layout.build(model, [segment], values=params)
     if params:
         for p in model.parameters:

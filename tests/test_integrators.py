@@ -104,3 +104,21 @@ def test_divergence_fills_nan_and_stops():
     finite = np.isfinite(X[:, 0, 0])
     assert finite[:90].all() and not finite[-1]
     assert not finite[np.argmin(finite):].any()      # once non-finite, stays NaN
+
+
+@pytest.mark.parametrize("scheme", ["euler", "rk2", "rk3", "rk4", "rkf45"])
+def test_input_interpolation_modes(scheme):
+    # x' = u: 'hold' integrates a zero-order-held input exactly, 'linear' and 'average'
+    # integrate a sampled ramp exactly (trapezoid)
+    m = Model(states=["x"], inputs=["u"], outputs=["x"], parameters=[Parameter("a", 1.0)],
+              f=lambda x, u, p, c: (p.a * u[0],), g=lambda x, u, p, c: (x[0],), name="integrator")
+    t = np.linspace(0, 1, 11)
+    u = np.where(t >= 0.5, 1.0, 0.0)
+    k = kernel_for(m)
+    X = k.integrate(scheme, np.zeros((1, 1)), u[:, None], t, np.ones((1, 1)), {}, inputs="hold")
+    np.testing.assert_allclose(X[:, 0, 0], np.concatenate([[0], np.cumsum(u[:-1] * 0.1)]), atol=1e-9)
+    for mode in ("linear", "average"):
+        X = k.integrate(scheme, np.zeros((1, 1)), t[:, None], t, np.ones((1, 1)), {}, inputs=mode)
+        np.testing.assert_allclose(X[:, 0, 0], t ** 2 / 2, atol=1e-9)
+    with pytest.raises(Exception, match="unknown input interpolation"):
+        k.integrate(scheme, np.zeros((1, 1)), t[:, None], t, np.ones((1, 1)), {}, inputs="cubic")
