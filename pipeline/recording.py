@@ -19,7 +19,7 @@ keys of ``results`` such as ``oem``, ``<name>`` a parameter name with any charac
     /match/<out>/<method>                 held-fixed model simulation of the held-out data
     /match/<out>/upper, /match/<out>/lower   measured +/- tolerance (judged channels only)
     /params/<name>/<method>               estimate per iteration (timeline ``iteration``) or,
-                                          for filters, per step (timeline ``t``)
+                                          for filters, per sample (timelines t, segment)
     /params/<name>/<method>/upper|lower   estimate +/- std (final Cramer-Rao std for
                                           iterations; the step's std for filters)
     /params/<name>/truth                  true value on every iteration index of the
@@ -44,9 +44,10 @@ each starts at 0) they are laid end to end, fitted then held-out, each starting 
 (:data:`SEGMENT_GAP`) after the previous one ends; so a series' sample count is the sum of
 its segments' finite samples.
 
-Filter methods (EKF/UKF/FEM) that keep a parameter trajectory put it in ``result.extra``
-as ``"param_trajectory"`` (DataFrame on t, one column per parameter) and optionally
-``"param_std_trajectory"`` (same shape); it is recorded instead of the iteration history.
+Filter methods (EKF/UKF) keep their parameter trajectory in ``result.extra["trajectory"]``
+(per segment, DataFrames on t, one column per free parameter) and its std in
+``result.extra["trajectory_std"]``; it is recorded on ``t``/``segment`` (same segment
+layout as the outputs) instead of the iteration history.
 """
 from __future__ import annotations
 
@@ -103,6 +104,14 @@ def segment_starts(t_list: Sequence[np.ndarray], gap: float = SEGMENT_GAP) -> li
     return offs
 
 
+def _offs_for(frames: Sequence[Any], offs: Sequence[float]) -> list[float]:
+    """Offsets for a result whose segment count may differ from the first result's
+    (its own layout then)."""
+    if len(frames) == len(offs):
+        return list(offs)
+    return segment_starts([np.asarray(f.index, dtype=float) for f in frames])
+
+
 class _Writer:
     """Thin helper around one RecordingStream: series and their static styles."""
 
@@ -148,26 +157,40 @@ def _cat(frames: Sequence[pd.DataFrame], offs: Sequence[float], seg_ids: Sequenc
     return np.concatenate(ts), np.concatenate(sg), vals
 
 
-def _time_histories(w: _Writer, results: Mapping[str, EstimationResult],
-                    validations: Mapping[str, Mapping[str, Any]],
-                    inputs: Sequence[pd.DataFrame] | None) -> None:
+def _match_arrays(validations: Mapping[str, Mapping[str, Any]]) -> list[dict[str, Any]]:
+    return next((v["arrays"]["match"] for v in validations.values()
+                 if v and (v.get("arrays") or {}).get("match")), [])
+
+
+def _offsets(results: Mapping[str, EstimationResult],
+             validations: Mapping[str, Mapping[str, Any]]) -> tuple[list[float], list[float]]:
+    """Offsets (s) on ``t`` of the fitted segments (from the first result) and of the
+    held-out segments (from the first validation with a proof of match)."""
     first = next(iter(results.values()))
     fit_t = [p.index.to_numpy(float) for p in first.predicted]
-    match_arrays = next((v["arrays"]["match"] for v in validations.values()
-                         if v and v.get("arrays", {}).get("match")), [])
-    held_t = [np.asarray(a["t"], dtype=float) for a in match_arrays]
+    held_t = [np.asarray(a["t"], dtype=float) for a in _match_arrays(validations)]
     offs = segment_starts(fit_t + held_t)
-    n_fit = len(fit_t)
-    fit_offs, held_offs = offs[:n_fit], offs[n_fit:]
+    return offs[:len(fit_t)], offs[len(fit_t):]
+
+
+def _time_histories(w: _Writer, results: Mapping[str, EstimationResult],
+                    validations: Mapping[str, Mapping[str, Any]],
+                    inputs: Sequence[pd.DataFrame] | None,
+                    fit_offs: Sequence[float], held_offs: Sequence[float]) -> None:
+    first = next(iter(results.values()))
+    match_arrays = _match_arrays(validations)
+    n_fit = len(fit_offs)
     fit_ids = list(range(n_fit))
 
     # measured outputs: from the first result that has the output (z = y + e)
     done: set[str] = set()
     for m, r in results.items():
         meas = [p + e for p, e in zip(r.predicted, r.residuals)]
-        t, sg, z = _cat(meas, fit_offs, fit_ids)
-        _, _, y = _cat(r.predicted, fit_offs, fit_ids)
-        _, _, e = _cat(r.residuals, fit_offs, fit_ids)
+        offs_r = _offs_for(r.predicted, fit_offs)
+        ids = list(range(len(r.predicted)))
+        t, sg, z = _cat(meas, offs_r, ids)
+        _, _, y = _cat(r.predicted, offs_r, ids)
+        _, _, e = _cat(r.residuals, offs_r, ids)
         for o in r.outputs:
             po, unit = entity_part(o), _si_unit(o)
             if o not in done:
@@ -184,7 +207,8 @@ def _time_histories(w: _Writer, results: Mapping[str, EstimationResult],
         inputs = [pd.DataFrame(s.u, index=pd.Index(s.t, name="t"), columns=first.model.inputs)
                   for s in first.segments]
     if inputs:
-        t, sg, u = _cat(list(inputs), fit_offs[:len(inputs)], fit_ids[:len(inputs)])
+        inputs = list(inputs)
+        t, sg, u = _cat(inputs, _offs_for(inputs, fit_offs), list(range(len(inputs))))
         for i in u.columns:
             w.series(f"/inputs/{entity_part(i)}", u[i], t=t, segment=sg,
                      name=f"{i} [{_si_unit(i)}]", color=(90, 90, 90))
@@ -214,32 +238,50 @@ def _time_histories(w: _Writer, results: Mapping[str, EstimationResult],
                          color=_color(m, w.methods))
 
 
+def _trajectory(r: EstimationResult) -> tuple[list[pd.DataFrame], list[pd.DataFrame] | None] | None:
+    """The filter's parameter trajectory per segment (``extra["trajectory"]`` and
+    ``extra["trajectory_std"]``: a DataFrame on t or a list of them), or None."""
+    ex = r.extra if isinstance(r.extra, Mapping) else {}
+    traj = ex.get("trajectory", ex.get("param_trajectory"))
+    std = ex.get("trajectory_std", ex.get("param_std_trajectory"))
+    as_list = lambda x: [x] if isinstance(x, pd.DataFrame) else (  # noqa: E731
+        [f for f in x if isinstance(f, pd.DataFrame)] if isinstance(x, (list, tuple)) else [])
+    traj = [f for f in as_list(traj) if len(f)]
+    if not traj:
+        return None
+    std = as_list(std)
+    return traj, (std if len(std) == len(traj) else None)
+
+
 def _params(w: _Writer, results: Mapping[str, EstimationResult],
-            truth: Mapping[str, float] | None) -> None:
+            truth: Mapping[str, float] | None, fit_offs: Sequence[float]) -> None:
     n_iter = 0
-    traj_t: dict[str, tuple[float, float]] = {}
+    t_span: list[float] = []
     for m, r in results.items():
         pm, col = entity_part(m), _color(m, w.methods)
-        std = r.std
-        traj = r.extra.get("param_trajectory") if isinstance(r.extra, Mapping) else None
-        if isinstance(traj, pd.DataFrame) and len(traj):
-            tstd = r.extra.get("param_std_trajectory")
-            t = traj.index.to_numpy(float)
-            traj_t[m] = (float(t[0]), float(t[-1]))
-            for name in traj.columns:
+        tr = _trajectory(r)
+        if tr is not None:
+            traj, tstd = tr
+            offs = _offs_for(traj, fit_offs)
+            ids = list(range(len(traj)))
+            t, sg, x = _cat(traj, offs, ids)
+            sd = _cat(tstd, offs, ids)[2] if tstd is not None else None
+            t_span += [float(t[0]), float(t[-1])]
+            for name in x.columns:
                 base = f"/params/{entity_part(name)}/{pm}"
-                x = traj[name].to_numpy(float)
-                w.series(base, x, t=t, name=f"{name} {m}", color=col)
-                if isinstance(tstd, pd.DataFrame) and name in tstd:
-                    s = tstd[name].to_numpy(float)
-                    w.series(f"{base}/upper", x + s, t=t, name=f"{name} {m} + std", color=col)
-                    w.series(f"{base}/lower", x - s, t=t, name=f"{name} {m} - std", color=col)
+                w.series(base, x[name], t=t, segment=sg, name=f"{name} {m}", color=col)
+                if sd is not None and name in sd:
+                    w.series(f"{base}/upper", x[name] + sd[name], t=t, segment=sg,
+                             name=f"{name} {m} + std", color=col)
+                    w.series(f"{base}/lower", x[name] - sd[name], t=t, segment=sg,
+                             name=f"{name} {m} - std", color=col)
             continue
         h = r.history
         if h is None or not len(h):
             continue
         it = h["iteration"].to_numpy() if "iteration" in h else np.arange(len(h))
         n_iter = max(n_iter, int(np.max(it)) + 1)
+        std = r.std
         for name in r.free_names:
             if name not in h:
                 continue
@@ -257,11 +299,9 @@ def _params(w: _Writer, results: Mapping[str, EstimationResult],
             if n_iter:
                 w.series(path, np.full(n_iter, float(truth[name])), sequence=np.arange(n_iter),
                          name=f"{name} truth", color=COLORS["truth"])
-            if traj_t:
-                t0 = min(a for a, _ in traj_t.values())
-                t1 = max(b for _, b in traj_t.values())
-                w.series(path, [truth[name]] * 2, t=[t0, t1], name=f"{name} truth",
-                         color=COLORS["truth"])
+            if t_span:
+                w.series(path, [truth[name]] * 2, t=[min(t_span), max(t_span)],
+                         name=f"{name} truth", color=COLORS["truth"])
 
 
 def _spectra(w: _Writer, results: Mapping[str, EstimationResult],
@@ -376,8 +416,9 @@ def write_recording(path: str | Path, results: Mapping[str, EstimationResult],
             for m, r in results.items():
                 w.text(f"/summary/{entity_part(m)}", "```\n" + r.summary(dict(truth) if truth else None)
                        + "\n```")
-            _time_histories(w, results, validations, inputs)
-            _params(w, results, truth)
+            fit_offs, held_offs = _offsets(results, validations)
+            _time_histories(w, results, validations, inputs, fit_offs, held_offs)
+            _params(w, results, truth, fit_offs)
             _spectra(w, results, validations)
             if data is not None:
                 _extra_data(w, data)

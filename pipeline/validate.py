@@ -19,7 +19,7 @@ Keys of the returned dict
     (Q, threshold, p_value, white, frac_outside), ``max_lag``, ``all_white``.
 ``uncertainty``: per free parameter ``crb_std``, ``mk_std`` (Morelli-Klein corrected),
     ``ratio``; ``None`` when the result kept no sensitivities.
-``modes``: ``trim`` (x0 per state, u0 per input), ``table`` per mode (``real imag wn zeta
+``modes``: ``None`` for a model without states/segments (a regression); else ``trim`` (x0 per state, u0 per input), ``table`` per mode (``real imag wn zeta
     period t_half t_double stable axis``), ``eigenvalues`` (list of [real, imag]).
 ``proof_of_match``: ``None`` without ``held_out``; else ``segments`` (per held-out segment:
     ``name``, ``channels`` per output with ``tolerance max_abs_error rms_error
@@ -34,7 +34,7 @@ Keys of the returned dict
 ``verdict``: ``ok`` (bool) and ``reasons`` (list of short sentences), see :func:`verdict`.
 ``arrays``: ``psd`` (``f`` (n_f,) Hz, ``Pxx`` (n_f, n_out) units^2/Hz),
     ``freq`` (``f`` (n_f,) Hz; complex ``H_data`` (spectral estimate from the data),
-    ``H_model`` (the same estimator on the model's simulated outputs), ``H_analytic`` (G(jw)
+    ``H_model`` (the same estimator on the fixed model's simulated outputs), ``H_analytic`` (G(jw)
     of the linearised model), real ``coherence`` and bool ``used``, all (n_f, n_out, n_in_used);
     ``inputs``, ``outputs``), ``match`` (list per held-out segment of
     ``t`` (N,), ``measured``/``predicted`` (N, n_out) DataFrames, ``tolerance`` (n_out,)).
@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+import estimators
 from estimators import EstimationResult, Segment, simulate_outputs
 from estimators import validation as V
 from estimators.model import Namespace
@@ -183,14 +184,16 @@ def _modes(result: EstimationResult, lin) -> dict[str, Any]:
 
 
 def _frequency(result: EstimationResult, lin, *, mag_bound_db: float, phase_bound_deg: float,
-               min_coherence: float, input_power_fraction: float
+               min_coherence: float, input_power_fraction: float, integrator: str
                ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
     """Model vs data in the frequency domain on the longest fitted segment.
 
     The data's response H_data is a Welch spectral estimate from the measured inputs and
     outputs. The model is put through the SAME estimator (its simulated outputs with the same
     inputs), so window leakage, the short record and the maneuver's transient affect both
-    alike and the mismatch shows the model alone; the analytic G(jw) = C (jwI - A)^-1 B + D of
+    alike and the mismatch shows the model alone. The model's outputs are a fresh simulation
+    of the identified model held fixed (not a filter's one-step predictions, which lean on
+    the data). The analytic G(jw) = C (jwI - A)^-1 B + D of
     the model linearised at the first sample is kept alongside for the plots."""
     A, B, C, D, _, _ = lin
     k = int(np.argmax([s.t.size for s in result.segments]))
@@ -207,7 +210,8 @@ def _frequency(result: EstimationResult, lin, *, mag_bound_db: float, phase_boun
     fs = 1.0 / float(np.median(dt))
     u = seg.u[:, excited]
     se = V.spectral_estimate(u, z[:, keep], fs)
-    sm = V.spectral_estimate(u, result.predicted[k].to_numpy()[:, keep], fs)
+    y_sim = simulate_outputs(result.model_with_estimates(), seg, integrator=integrator)
+    sm = V.spectral_estimate(u, y_sim.to_numpy()[:, keep], fs)
     w = se.w[1:]                                            # drop DC
     Hd, coh = se.H[1:], se.coherence[1:]
     Hm = sm.H[1:]
@@ -345,18 +349,21 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
     out["residuals"], arrays["psd"] = _residuals(result)
     out["uncertainty"] = _uncertainty(result)
     lin = None
-    try:
-        lin = linear_model(result)
-        out["modes"] = _modes(result, lin)
-    except Exception as exc:                      # noqa: BLE001 - reported, not fatal
-        out["modes"] = {"error": f"{type(exc).__name__}: {exc}"}
+    out["modes"] = None                           # not applicable: no states or no segments
+    if result.segments and result.model.states:
+        try:
+            lin = linear_model(result)
+            out["modes"] = _modes(result, lin)
+        except Exception as exc:                  # noqa: BLE001 - reported, not fatal
+            out["modes"] = {"error": f"{type(exc).__name__}: {exc}"}
     out["frequency"], arrays["freq"] = (None, None)
     if lin is not None:
         try:
             out["frequency"], arrays["freq"] = _frequency(
                 result, lin, mag_bound_db=mag_bound_db, phase_bound_deg=phase_bound_deg,
-                min_coherence=min_coherence, input_power_fraction=input_power_fraction)
-        except (ValueError, np.linalg.LinAlgError) as exc:
+                min_coherence=min_coherence, input_power_fraction=input_power_fraction,
+                integrator=integ)
+        except (ValueError, np.linalg.LinAlgError, estimators.EstimationError) as exc:
             out["frequency"] = {"error": f"{type(exc).__name__}: {exc}"}
     out["proof_of_match"], arrays["match"] = None, []
     if held_out:

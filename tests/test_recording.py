@@ -196,3 +196,36 @@ def test_view_serves_web_viewer_without_display(run):
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
     assert proc.returncode == 0
+
+
+def test_several_methods_and_filter_trajectories(run, tmp_path):
+    """OEM + EKF + a regression: measured once, one entity per method, the EKF parameter
+    trajectory on t with +/- std, truth on both iteration and t."""
+    from estimators.equation_error import LeastSquares
+    from estimators.kalman import EKF
+
+    ex, res, v, _ = run
+    segs = ex.segments[:2]
+    ekf = EKF(ex.model, measurement_noise=dict(zip(ex.model.outputs, ex.noise_std))).fit(segs)
+    X = pd.DataFrame({"alpha": segs[0].z[:, 1], "q": segs[0].z[:, 3], "de": segs[0].u[:, 0]},
+                     index=pd.Index(segs[0].t, name="t"))
+    ls = LeastSquares(intercept=True, response="qdot").fit(X, segs[0].z[:, 4])
+    results = {"oem": res, "ekf": ekf, "ls": ls}
+    vals = {"oem": v, "ekf": validate(ekf, held_out=ex.segments[2:], truth=ex.truth), "ls": validate(ls)}
+    assert vals["ls"]["modes"] is None and vals["ekf"]["proof_of_match"] is not None
+    path = write_recording(tmp_path / "run.rrd", results, vals, truth=ex.truth)
+    p = subprocess.run([_rerun_cli(), "rrd", "verify", str(path)], capture_output=True, text=True,
+                       timeout=60)
+    assert p.returncode == 0, p.stderr
+    counts, batches, _ = _read(path)
+    assert counts["/outputs/q/measured"] == counts["/outputs/q/ekf"] == 2 * N
+    assert counts["/outputs/qdot/ls"] == N and "/outputs/q/ls" not in counts
+    assert counts["/match/q/oem"] == counts["/match/q/ekf"] == N
+    assert counts["/params/Cmq/ekf"] == counts["/params/Cmq/ekf/upper"] == 2 * N
+    assert counts["/params/Cmq/oem"] == len(res.history)
+    assert counts["/params/Cmq/truth"] == len(res.history) + 2
+    assert counts["/params/q/ls"] == len(ls.history) if len(ls.history) else "/params/q/ls" not in counts
+    (b,) = batches["/params/Cmq/ekf"]
+    last = np.concatenate(b.column("Scalars:scalars").to_pylist())[-1]
+    assert last == pytest.approx(ekf.params["Cmq"])
+    assert set(b.column("segment").to_numpy()) == {0, 1}
