@@ -108,6 +108,7 @@ class Problem:
     specs: list[SegmentSpec]
     held_specs: list[SegmentSpec]
     estimate_x0: bool | Sequence[str] = True
+    inputs: str = "average"
     notes: list[str] = field(default_factory=list)
 
 

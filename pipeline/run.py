@@ -45,13 +45,24 @@ class Progress:
 def fit_problem(problem: Problem, method: str) -> Any:
     """Run one estimation method on a problem."""
     if method == "oem":
-        return OutputError(problem.model).fit(problem.fit, estimate_x0=problem.estimate_x0)
+        return OutputError(problem.model, inputs=problem.inputs).fit(problem.fit, estimate_x0=problem.estimate_x0)
     raise FsidError(f"method {method!r} is not available in the run yet; use one of {METHODS}")
 
 
+def input_mode(scenario: Any) -> str:
+    """How surface deflections vary between log samples for a simulated flight: the
+    flight computer switches steps exactly at sample instants and, without actuator lag,
+    holds them (zero-order hold); anything smoother is interpolated linearly."""
+    steps = {"doublet", "3211", "multistep"}
+    if scenario.actuator_lag == 0 and all(m.shape in steps for m in scenario.maneuvers):
+        return "hold"
+    return "linear"
+
+
 def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[str, float] | None,
-             progress: Progress) -> tuple[dict, dict, list[Problem]]:
-    """Estimate and validate every axis the log excites. Returns (results, validations,
+             progress: Progress, inputs: str = "linear") -> tuple[dict, dict, list[Problem]]:
+    """Estimate and validate every axis the log excites; ``inputs`` is how the inputs vary
+    between samples (estimators.integrators.INPUT_MODES). Returns (results, validations,
     problems); keys are the method names ("<axis>-<method>" once several axes are fitted)."""
     from pipeline.validate import validate
 
@@ -61,6 +72,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
         raise FsidError("no elevator maneuvers found in the log (automatic segmentation looks for "
                         "control-input activity): fly doublets/3-2-1-1s or give segments")
     problem = longitudinal_problem(fd, ac)
+    problem.inputs = inputs
     problems.append(problem)
     for m in methods:
         progress.stage(f"estimate longitudinal derivatives ({m.upper()}, "
@@ -94,7 +106,7 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     result = sim.fly(scenario, seed=seed, workdir=out / ".jsbsim")
     pr.done(f"{len(result.maneuvers)} maneuvers")
     pr.stage("write flight.bin, flight.mcap, truth.json")
-    write_dataflash(out / "flight.bin", result)
+    write_dataflash(out / "flight.bin", result, airspeed="eas")   # ArduPilot semantics
     write_mcap(out / "flight.mcap", result)
     write_truth_json(out / "truth.json", result)
     truth_doc = json.loads((out / "truth.json").read_text())
@@ -112,14 +124,16 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     pr.done(", ".join(f"{k}: {v}" for k, v in summary.items()))
     ac = AircraftConstants.from_truth(truth_doc)
     truth = {k: float(v) for k, v in truth_doc["derivatives"].items()}
-    results, validations, problems = identify(fd_bin, ac, methods, truth, pr)
+    results, validations, problems = identify(fd_bin, ac, methods, truth, pr,
+                                              inputs=input_mode(scenario))
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary,
                           meta={"scenario": scenario.name, "log": "flight.bin", "seed": result.meta["seed"],
                                 "aircraft": result.aircraft.name})
 
 
 def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path, map_path: str | None = None,
-                 methods: Sequence[str] = ("oem",), quiet: bool = False) -> dict[str, Path]:
+                 methods: Sequence[str] = ("oem",), inputs: str = "linear",
+                 quiet: bool = False) -> dict[str, Path]:
     """``fsid estimate``: a real log and an aircraft TOML -> report and recording."""
     import sim
     from pipeline.checks import run_checks, summarize
@@ -139,7 +153,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path, map_path: 
     pr.stage("data-quality checks")
     summary = summarize(run_checks(fd))
     pr.done(str(summary))
-    results, validations, problems = identify(fd, ac, methods, None, pr)
+    results, validations, problems = identify(fd, ac, methods, None, pr, inputs=inputs)
     return _write_outputs(out, results, validations, problems, None, pr, checks=summary,
                           meta={"log": str(log), "aircraft": ac_obj.name})
 

@@ -16,6 +16,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="built-in model (default: longitudinal)")
     p.add_argument("--method", action="append", choices=["oem"], help="estimation method(s)")
     p.add_argument("--map", help="channel map TOML extending the built-in one")
+    p.add_argument("--inputs", default="linear", choices=["linear", "average", "hold"],
+                   help="how control inputs vary between log samples (default: linear)")
     p.add_argument("--out", help="output folder (default: a new folder under ./runs/)")
     p.add_argument("--quiet", action="store_true")
 
@@ -26,6 +28,6 @@ def run(args: argparse.Namespace) -> int:
 
     out = new_run_dir("estimate", args.out)
     paths = estimate_log(args.log, out, aircraft=args.aircraft, map_path=args.map,
-                         methods=args.method or ["oem"], quiet=args.quiet)
+                         methods=args.method or ["oem"], inputs=args.inputs, quiet=args.quiet)
     print_outputs(out, paths)
     return 0
