@@ -32,6 +32,8 @@ keys of ``results`` such as ``oem``, ``<name>`` a parameter name with any charac
     /freq_response/<out>/<in>/mag_db/<method>_linear G(jw) of the linearised model
     /freq_response/<out>/<in>/phase_deg/...          same three, phase in deg
     /freq_response/<out>/<in>/coherence              coherence of the data estimate [0, 1]
+    /inverse/<method>/<in>                inverse simulation: residual input (needed - flown)
+                                          on the first fitted segment, timelines t, segment
     /data/<channel>                       optional extra channels (``data=``), timeline t
 
 Values are SI (rad, rad/s, m/s, m/s^2, N ...) as in the data contract, not degrees.
@@ -212,6 +214,17 @@ def _time_histories(w: _Writer, results: Mapping[str, EstimationResult],
         for i in u.columns:
             w.series(f"/inputs/{entity_part(i)}", u[i], t=t, segment=sg,
                      name=f"{i} [{_si_unit(i)}]", color=(90, 90, 90))
+
+    # inverse simulation (first fitted segment)
+    for m, v in validations.items():
+        inv = ((v or {}).get("arrays") or {}).get("inverse")
+        if not inv or not fit_offs:
+            continue
+        t = np.asarray(inv["t"], dtype=float) + fit_offs[0]
+        for j, i in enumerate(inv["inputs"]):
+            w.series(f"/inverse/{entity_part(m)}/{entity_part(i)}", inv["residual_inputs"][:, j],
+                     t=t, segment=np.zeros(t.size, dtype=np.int64),
+                     name=f"{i} residual input {m} [{_si_unit(i)}]", color=_color(m, w.methods))
 
     # proof of match on held-out segments
     if match_arrays:

@@ -177,6 +177,16 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
                 for k, d in fr["table"].items()]
         L += _table(["output/input", "max abs mag (dB)", "max abs phase (deg)", "points", "result"],
                     rows)
+    inv = v.get("inverse_simulation")
+    if inv and inv.get("per_input"):
+        L += ["### Inverse simulation", "",
+              f"Inputs the linearised model needs beyond the flown ones to follow "
+              f"{', '.join(inv.get('tracked', []))} on segment {inv['segment']} (feedback "
+              f"bandwidth {_g(inv.get('bandwidth'))} rad/s; small residual inputs: the model "
+              "explains the response).", ""]
+        rows = [[i, d["unit"], _g(d["rms_residual_display"]), _g(d["ratio"], ".3f")]
+                for i, d in inv["per_input"].items()]
+        L += _table(["input", "unit", "rms residual input", "rms residual / rms flown input"], rows)
     ap = (v.get("plausibility") or {}).get("apriori")
     if ap:
         L += ["### Plausibility against a-priori values", ""]

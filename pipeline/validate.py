@@ -29,6 +29,11 @@ Keys of the returned dict
     ``"<output>/<input>"`` (``max_mag_db max_phase_deg n_used pass``), ``bounds``: the
     model's response (through the same Welch estimator as the data, see :func:`_frequency`)
     against the data's.
+``inverse_simulation``: ``None`` without excited inputs; else ``segment``, ``tracked``
+    outputs, loop ``bandwidth`` (rad/s) and per input
+    ``rms_residual``, ``max_abs_residual``, ``rms_input`` (SI), ``ratio`` (residual over
+    flown input, rms), ``unit``/``rms_residual_display`` (deg for surfaces): the inputs the
+    linearised model needs beyond the flown ones to follow the first fitted segment.
 ``plausibility``: ``truth`` (per parameter: ``truth error error_in_std within``) and
     ``apriori`` (per parameter: columns of :func:`estimators.validation.plausibility`).
 ``verdict``: ``ok`` (bool) and ``reasons`` (list of short sentences), see :func:`verdict`.
@@ -37,7 +42,8 @@ Keys of the returned dict
     ``H_model`` (the same estimator on the fixed model's simulated outputs), ``H_analytic`` (G(jw)
     of the linearised model), real ``coherence`` and bool ``used``, all (n_f, n_out, n_in_used);
     ``inputs``, ``outputs``), ``match`` (list per held-out segment of
-    ``t`` (N,), ``measured``/``predicted`` (N, n_out) DataFrames, ``tolerance`` (n_out,)).
+    ``t`` (N,), ``measured``/``predicted`` (N, n_out) DataFrames, ``tolerance`` (n_out,)),
+    ``inverse`` (``t`` (N,), ``inputs``, ``residual_inputs`` (N, n_in_used) SI).
 """
 from __future__ import annotations
 
@@ -238,6 +244,54 @@ def _frequency(result: EstimationResult, lin, *, mag_bound_db: float, phase_boun
     return out, arrays
 
 
+def _inverse(result: EstimationResult, lin, bandwidth: float
+             ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
+    """Inverse simulation on the first fitted segment: the inputs the linearised model needs
+    to follow the measured outputs, and the residual inputs (needed minus flown) per excited
+    input, in perturbations about the first sample (trim). The loop tracks the outputs that
+    are also states (falling back to all outputs) at ``bandwidth`` rad/s, halved up to three
+    times while the sampled loop is unstable. A higher bandwidth feeds more measurement
+    noise into the residual inputs; compare methods at the same bandwidth."""
+    A, B, C, D, x0, u0 = lin
+    seg = result.segments[0]
+    excited = [i for i in range(seg.u.shape[1]) if np.std(seg.u[:, i]) > 1e-12]
+    finite = np.all(np.isfinite(seg.z), axis=0)
+    keep = finite & np.array([o in result.model.states for o in result.outputs])
+    if not keep.any():
+        keep = finite
+    if not excited or not keep.any():
+        return None, None
+    model = result.model_with_estimates()
+    p = Namespace({pp.name: float(pp.value) for pp in model.parameters})
+    rows = model.g(x0[:, None], u0[:, None], p, Namespace(model.constants_for(seg)))
+    y0 = np.array([float(np.asarray(r, dtype=float).ravel()[0]) for r in rows])
+    du = seg.u[:, excited] - u0[excited]
+    bw = bandwidth
+    for attempt in range(4):
+        try:
+            inv = V.inverse_simulation(A, B[:, excited], C[keep], D[keep][:, excited], seg.t,
+                                       seg.z[:, keep] - y0[keep], u_ref=du, bandwidth=bw)
+            break
+        except ValueError as exc:
+            if "unstable" not in str(exc) or attempt == 3:
+                raise
+            bw /= 2.0
+    per = {}
+    for j, i in enumerate(excited):
+        name = result.model.inputs[i]
+        fac, unit = display_unit(name)
+        r = inv.residual_inputs[:, j]
+        rms_r, rms_u = float(np.sqrt(np.mean(r ** 2))), float(np.sqrt(np.mean(du[:, j] ** 2)))
+        per[name] = num({"rms_residual": rms_r, "max_abs_residual": float(np.max(np.abs(r))),
+                         "rms_input": rms_u, "ratio": rms_r / rms_u if rms_u > 0 else math.nan,
+                         "unit": unit, "rms_residual_display": rms_r * fac})
+    ins = [result.model.inputs[i] for i in excited]
+    tracked = [o for o, k in zip(result.outputs, keep) if k]
+    return ({"segment": seg.name or "segment 0", "tracked": tracked, "bandwidth": bw,
+             "per_input": per},
+            {"t": seg.t, "inputs": ins, "residual_inputs": inv.residual_inputs})
+
+
 def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
                     tolerances: Mapping[str, float] | None,
                     allowed_bias: Mapping[str, float] | None, integrator: str
@@ -324,7 +378,8 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
              truth: Mapping[str, float] | None = None, allowed_bias: Mapping[str, float] | None = None,
              tic_limit: float = TIC_LIMIT, truth_k: float = TRUTH_K, mag_bound_db: float = 3.0,
              phase_bound_deg: float = 20.0, min_coherence: float = 0.6,
-             input_power_fraction: float = 0.1, integrator: str | None = None) -> dict[str, Any]:
+             input_power_fraction: float = 0.1, inverse_bandwidth: float = 5.0,
+             integrator: str | None = None) -> dict[str, Any]:
     """Run the validation of :mod:`estimators.validation` on one result (see module doc).
 
     held_out: segments NOT used in the fit (same model input/output columns); the
@@ -338,6 +393,7 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
     mag_bound_db, phase_bound_deg, min_coherence: frequency-response mismatch bounds; only
         frequencies where an input's auto-spectrum reaches input_power_fraction of its peak
         and the coherence reaches min_coherence are judged.
+    inverse_bandwidth: loop bandwidth (rad/s) of the inverse simulation.
     integrator: for the proof-of-match simulation (default: the one used in the fit).
     """
     integ = integrator or result.settings.get("integrator", "rk4")
@@ -365,6 +421,12 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
                 integrator=integ)
         except (ValueError, np.linalg.LinAlgError, estimators.EstimationError) as exc:
             out["frequency"] = {"error": f"{type(exc).__name__}: {exc}"}
+    out["inverse_simulation"], arrays["inverse"] = None, None
+    if lin is not None:
+        try:
+            out["inverse_simulation"], arrays["inverse"] = _inverse(result, lin, inverse_bandwidth)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            out["inverse_simulation"] = {"error": f"{type(exc).__name__}: {exc}"}
     out["proof_of_match"], arrays["match"] = None, []
     if held_out:
         out["proof_of_match"], arrays["match"] = _proof_of_match(

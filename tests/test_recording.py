@@ -102,6 +102,7 @@ def test_entity_paths_and_sample_counts(run):
             for k in ("data", "oem", "oem_linear"):
                 assert counts[f"{base}/{q}/{k}"] == n_w
     assert counts["/data/h"] == N
+    assert counts["/inverse/oem/de"] == N and "/inverse/oem/thrust" not in counts   # excited only
     assert {"/README", "/summary/oem", "/outputs/q/measured"} <= static   # docs + series styles
     assert rc.RrdReader(path).blueprints()                               # default layout sent
 

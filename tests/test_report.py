@@ -55,6 +55,9 @@ def test_wrong_model_fails_proof_of_match(fitted):
     assert v["proof_of_match"]["segments"][0]["channels"]["q"]["pass"] is False
     assert not v["verdict"]["ok"]
     assert any("proof of match failed" in r for r in v["verdict"]["reasons"])
+    # inverse simulation: the wrong model needs larger extra elevator to follow the data
+    good = fitted[2]["inverse_simulation"]["per_input"]["de"]["ratio"]
+    assert v["inverse_simulation"]["per_input"]["de"]["ratio"] > 1.5 * good
 
 
 def test_validation_contents(fitted):
@@ -132,6 +135,7 @@ def test_report_md_has_table_rows_and_verdict(fitted, tmp_path):
     assert "| oem | PASS | yes |" in text and "| wrong | CHECK | yes |" in text
     assert "| short period |" in text and "Held-out segment **3211-1**: PASS" in text
     assert "| q | deg/s | 1.5 |" in text
+    assert "### Inverse simulation" in text and "| de | deg |" in text
 
 
 def test_report_without_truth_or_validation(fitted, tmp_path):
