@@ -35,7 +35,7 @@ import numpy as np
 
 from estimators import EstimationResult
 from pipeline.paths import atomic_write_text
-from pipeline.validate import json_ready, num, verdict
+from pipeline.validate import display_unit, json_ready, num, verdict
 
 SCHEMA = "fsid-report/1"
 
@@ -128,15 +128,18 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
     if fit:
         L += ["### Fit and residuals", "",
               "TIC: Theil inequality coefficient with bias (UM), variance (US) and covariance "
-              "(UC) proportions; RMS and residual mean in SI output units; Ljung-Box "
-              "whiteness of the residuals.", ""]
+              "(UC) proportions; residual RMS and mean in the unit shown (report.json: SI); "
+              "Ljung-Box whiteness of the residuals and its p-value.", ""]
         rows = []
         for o, f in fit.items():
             w = white.get(o, {})
-            rows.append([o, _g(f["TIC"], ".4f"), _g(f["UM"], ".3f"), _g(f["US"], ".3f"),
-                         _g(f["UC"], ".3f"), _g(f["R2"], ".4f"), _g(f["RMS"]), _g(f["mean"]),
-                         _g(w.get("white")), _g(w.get("p_value"), ".3f")])
-        L += _table(["output", "TIC", "UM", "US", "UC", "R2", "RMS", "mean", "white", "p"], rows)
+            fac, unit = display_unit(o)
+            scale = (lambda x: None if x is None else x * fac)  # noqa: E731
+            rows.append([o, unit, _g(f["TIC"], ".4f"), _g(f["UM"], ".3f"), _g(f["US"], ".3f"),
+                         _g(f["UC"], ".3f"), _g(f["R2"], ".4f"), _g(scale(f["RMS"])),
+                         _g(scale(f["mean"])), _g(w.get("white")), _g(w.get("p_value"), ".3f")])
+        L += _table(["output", "unit", "TIC", "UM", "US", "UC", "R2", "RMS", "mean", "white", "p"],
+                    rows)
     modes = v.get("modes") or {}
     if modes.get("table"):
         L += ["### Modes (model linearised at the first sample)", ""]

@@ -135,6 +135,8 @@ def test_report_md_has_table_rows_and_verdict(fitted, tmp_path):
     assert "| oem | PASS | yes |" in text and "| wrong | CHECK | yes |" in text
     assert "| short period |" in text and "Held-out segment **3211-1**: PASS" in text
     assert "| q | deg/s | 1.5 |" in text
+    tic_q = v["fit"]["per_output"]["q"]["TIC"]
+    assert f"| q | deg/s | {tic_q:.4f} |" in text                  # fit table, display unit
     assert "### Inverse simulation" in text and "| de | deg |" in text
 
 
