@@ -199,12 +199,8 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
     return L
 
 
-def _checks_md(checks: Any) -> list[str]:
-    """The data-checks section: the checks.json summary counts and every finding that is
-    not a pass (status, check, channel, message); other mappings show their scalar items."""
-    if not isinstance(checks, Mapping) or not checks:
-        return []
-    L = ["## Data checks", ""]
+def _checks_body(checks: Mapping[str, Any]) -> list[str]:
+    L: list[str] = []
     summary = checks.get("summary")
     if isinstance(summary, Mapping):
         L += [", ".join(f"{k}: {x}" for k, x in summary.items()), ""]
@@ -216,9 +212,24 @@ def _checks_md(checks: Any) -> list[str]:
                         [[str(f.get("status")), str(f.get("check")), str(f.get("channel") or "-"),
                           str(f.get("message")).replace("|", "/")] for f in bad])
     for k, x in checks.items():
-        if k not in ("summary", "findings") and isinstance(x, (str, int, float, bool)):
+        if k in ("summary", "findings"):
+            continue
+        if isinstance(x, (str, int, float, bool)):
             L.append(f"- {k}: {x}")
-    return L + [""]
+        elif isinstance(x, Mapping) and ("summary" in x or "findings" in x):
+            L += ["", f"**{k}**: "] + _checks_body(x)
+        elif isinstance(x, Mapping) and all(isinstance(y, (str, int, float, bool)) for y in x.values()):
+            L.append(f"- {k}: " + ", ".join(f"{a}: {b}" for a, b in x.items()))
+    return L
+
+
+def _checks_md(checks: Any) -> list[str]:
+    """The data-checks section: a checks.json document's summary counts and every finding
+    that is not a pass (status, check, channel, message); several such documents (or
+    summaries) keyed by log name are listed one after another; scalars as they are."""
+    if not isinstance(checks, Mapping) or not checks:
+        return []
+    return ["## Data checks", ""] + _checks_body(checks) + [""]
 
 
 def report_markdown(rep: Mapping[str, Any]) -> str:

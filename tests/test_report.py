@@ -162,3 +162,12 @@ def test_report_lists_data_check_findings(fitted, tmp_path):
     assert "| warn | excitation | da | aileron barely moves |" in text
     assert "| pass | rate |" not in text
     assert json.loads(js.read_text())["checks"]["summary"]["warn"] == 1
+
+
+def test_report_lists_check_summaries_per_log(fitted, tmp_path):
+    ex, res, v = fitted
+    checks = {"flight.bin": {"pass": 9, "warn": 2, "fail": 0}, "flight.mcap": {"pass": 11, "warn": 0, "fail": 0}}
+    md, _ = write_report(tmp_path, {"oem": res}, {"oem": v}, checks=checks)
+    text = md.read_text()
+    assert "- flight.bin: pass: 9, warn: 2, fail: 0" in text
+    assert "- flight.mcap: pass: 11, warn: 0, fail: 0" in text
