@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from estimators import Segment
-from estimators.models import longitudinal
+from estimators.models import lateral_directional, longitudinal
 from pipeline.errors import FsidError
 from pipeline.flightdata import FlightData, SegmentSpec
 
@@ -29,6 +29,11 @@ LONG_FREE = ("CD0", "CDalpha", "CDalpha2", "CL0", "CLalpha", "CLq", "CLde",
              "Cm0", "Cmalpha", "Cmq", "Cmde")
 LONG_OUTPUTS = ("V", "alpha", "theta", "q", "ax", "az")
 LONG_CHANNELS = ("V", "alpha", "theta", "q", "ax", "az", "de")
+#: derivatives estimated by default for the lateral-directional axes
+LAT_FREE = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
+            "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
+LAT_OUTPUTS = ("beta", "p", "r", "phi", "ay")
+LAT_CHANNELS = ("V", "alpha", "theta", "beta", "p", "r", "phi", "ay", "da", "dr")
 G0 = 9.80665
 
 
@@ -213,4 +218,89 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
              f"thrust from {'thrust channel' if 'thrust' in df else 'throttle x max_thrust'}",
              f"start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())]
     return Problem("longitudinal", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
+                   fit_specs, held, estimate_x0=True, notes=notes)
+
+
+def lateral_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float]) -> dict[str, float]:
+    """Equation-error start values: least squares of CY (from ay), Cl and Cn (from the
+    differentiated roll and yaw rates with the inertia coupling) on the maneuver windows."""
+    X, Y = [], {"CY": [], "Cl": [], "Cn": []}
+    for df in frames:
+        t = df["t"].to_numpy()
+        beta, p, r, da, dr = (df[k].to_numpy() for k in ("beta", "p", "r", "da", "dr"))
+        qbar = 0.5 * c["rho"] * c["V"] ** 2
+        pdot, rdot = np.gradient(p, t), np.gradient(r, t)
+        L = c["Ixx"] * pdot - c["Ixz"] * rdot
+        N = c["Izz"] * rdot - c["Ixz"] * pdot
+        k = c["b"] / (2 * c["V"])
+        X.append(np.column_stack([np.ones_like(p), beta, p * k, r * k, da, dr]))
+        Y["CY"].append(c["m"] * df["ay"].to_numpy() / (qbar * c["S"]))
+        Y["Cl"].append(L / (qbar * c["S"] * c["b"]))
+        Y["Cn"].append(N / (qbar * c["S"] * c["b"]))
+    A = np.vstack(X)
+    out: dict[str, float] = {}
+    for coef, ys in Y.items():
+        y = np.concatenate(ys)
+        ok = np.all(np.isfinite(A), axis=1) & np.isfinite(y)
+        sol = np.linalg.lstsq(A[ok], y[ok], rcond=None)[0]
+        for name, v in zip(("beta", "p", "r", "da", "dr"), sol[1:]):
+            out[f"{coef}{name}"] = float(v)
+    # flyable start: directional stability, roll and yaw damping of the usual sign
+    out["Cnbeta"] = max(out["Cnbeta"], 0.01)
+    out["Clp"] = min(out["Clp"], -0.05)
+    out["Cnr"] = min(out["Cnr"], -0.01)
+    return out
+
+
+def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float = 50.0,
+                    segments: Sequence[SegmentSpec] | None = None, hold_out: int = 1,
+                    free: Sequence[str] = LAT_FREE,
+                    biases: Sequence[str] = ("beta", "p", "r", "ay")) -> Problem:
+    """Build the lateral-directional problem (linear model about the flight's mean
+    airspeed, angle of attack and pitch attitude) from the aileron and rudder maneuvers;
+    control inputs are taken relative to their value at the start of each window."""
+    missing = fd.missing(LAT_CHANNELS)
+    if missing:
+        raise FsidError(f"lateral identification needs channels {missing} that the log does not "
+                        f"provide ({fd.meta.get('source', 'log')}); add them to the channel map")
+    specs = list(segments if segments is not None else
+                 [s for s in fd.segments if s.axis in ("da", "dr")])
+    if len(specs) < 1 + hold_out:
+        raise FsidError(f"found {len(specs)} aileron/rudder maneuver segment(s) but need at least "
+                        f"{1 + hold_out}: fly more doublets or give segments by time range")
+    chans = list(LAT_CHANNELS) + [c for c in ("rho", "h") if c in fd]
+    df = fd.resample(rate_hz, chans)
+    rho = float(np.nanmean(df["rho"])) if "rho" in df else float(np.nanmean(isa_density(df["h"]))) \
+        if "h" in df else 1.225
+    frames = {id(s): _window(df, s) for s in specs}
+    for s in specs:
+        w = frames[id(s)]
+        if len(w) < 10 or w[list(LAT_CHANNELS)].isna().any().any():
+            raise FsidError(f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in "
+                            f"{[k for k in LAT_CHANNELS if w[k].isna().any()]}: cut it or fix the log")
+    allw = pd.concat(frames.values())
+    c = {"m": ac.mass, "Ixx": ac.Ixx, "Izz": ac.Izz, "Ixz": ac.Ixz, "S": ac.S, "b": ac.b,
+         "rho": rho, "V": float(allw["V"].mean()), "alpha0": float(allw["alpha"].mean()),
+         "theta0": float(allw["theta"].mean()), "x_vane": ac.airdata[0], "z_vane": ac.airdata[2],
+         "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
+    for s in specs:
+        w = frames[id(s)]
+        w[["da", "dr"]] = w[["da", "dr"]] - w[["da", "dr"]].iloc[0]
+    both = [s for s in specs]
+    held = both[-hold_out:] if hold_out else []
+    fit_specs = [s for s in specs if s not in held]
+    start = lateral_starts([frames[id(s)] for s in fit_specs], c)
+    model = lateral_directional(c, values=start, free=free, output_biases=biases,
+                                name="lateral").select_outputs(LAT_OUTPUTS)
+
+    def seg(s):
+        w = frames[id(s)]
+        return Segment(t=w["t"].to_numpy(), u=w[["da", "dr"]].to_numpy(),
+                       z=w[list(LAT_OUTPUTS)].to_numpy(),
+                       x0=w[["beta", "p", "r", "phi"]].iloc[0].to_numpy(), name=s.name)
+
+    notes = [f"linear model about V={c['V']:.2f} m/s, alpha0={np.degrees(c['alpha0']):.2f} deg, "
+             f"theta0={np.degrees(c['theta0']):.2f} deg, density {rho:.4f} kg/m^3",
+             "start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())]
+    return Problem("lateral", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
                    fit_specs, held, estimate_x0=True, notes=notes)

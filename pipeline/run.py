@@ -15,7 +15,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 from estimators import OutputError
 from pipeline.errors import FsidError
-from pipeline.identify import AircraftConstants, Problem, longitudinal_problem
+from pipeline.identify import AircraftConstants, Problem, lateral_problem, longitudinal_problem
 from pipeline.paths import atomic_write_text
 
 #: methods the run knows; the scenario or the command line picks among them
@@ -68,22 +68,36 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
 
     results, validations, problems = {}, {}, []
     axes = {s.axis for s in fd.segments}
-    if "de" not in axes:
-        raise FsidError("no elevator maneuvers found in the log (automatic segmentation looks for "
-                        "control-input activity): fly doublets/3-2-1-1s or give segments")
-    problem = longitudinal_problem(fd, ac)
-    problem.inputs = inputs
-    problems.append(problem)
-    for m in methods:
-        progress.stage(f"estimate longitudinal derivatives ({m.upper()}, "
-                       f"{len(problem.fit)} maneuvers, {len(problem.held_out)} held out)")
-        res = fit_problem(problem, m)
-        progress.done(f"{'converged' if res.converged else 'NOT converged'} in {res.iterations} iterations")
-        progress.stage(f"validate {m.upper()} (fit, residuals, modes, proof of match)")
-        key = m if len(problems) == 1 else f"{problem.axis}-{m}"
-        results[key] = res
-        validations[key] = validate(res, held_out=problem.held_out, truth=truth)
-        progress.done()
+    builders = [("de" in axes, longitudinal_problem), (bool({"da", "dr"} & axes), lateral_problem)]
+    skipped = []
+    for wanted, build in builders:
+        if not wanted:
+            continue
+        try:
+            problem = build(fd, ac)
+        except FsidError as exc:        # e.g. one maneuver only: say so, fit the other axis
+            skipped.append(str(exc))
+            continue
+        problem.inputs = inputs
+        problems.append(problem)
+    if not problems:
+        raise FsidError("no axis can be identified from this log: " + ("; ".join(skipped) or
+                        "no control-input activity found (fly doublets/3-2-1-1s on the "
+                        "elevator, aileron or rudder, or give segments)"))
+    for msg in skipped:
+        print(f"note: {msg}", file=progress.stream)
+    for problem in problems:
+        for m in methods:
+            progress.stage(f"estimate {problem.axis} derivatives ({m.upper()}, "
+                           f"{len(problem.fit)} maneuvers, {len(problem.held_out)} held out)")
+            res = fit_problem(problem, m)
+            progress.done(f"{'converged' if res.converged else 'NOT converged'} in "
+                          f"{res.iterations} iterations")
+            progress.stage(f"validate {problem.axis} {m.upper()} (fit, residuals, modes, proof of match)")
+            key = m if len(problems) == 1 else f"{problem.axis}-{m}"
+            results[key] = res
+            validations[key] = validate(res, held_out=problem.held_out, truth=truth)
+            progress.done()
     return results, validations, problems
 
 
@@ -95,7 +109,7 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     from pipeline.readers import read_log
     from pipeline.writers import write_dataflash, write_mcap, write_truth_json
 
-    pr = Progress(5 + 2 * len(methods) + 1, quiet=quiet)
+    pr = Progress(5 + 4 * len(methods) + 1, quiet=quiet)
     pr.stage(f"load scenario {scenario_path}")
     try:
         scenario = sim.load_scenario(scenario_path)
@@ -139,7 +153,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path, map_path: 
     from pipeline.checks import run_checks, summarize
     from pipeline.readers import read_log
 
-    pr = Progress(3 + 2 * len(methods) + 1, quiet=quiet)
+    pr = Progress(3 + 4 * len(methods) + 1, quiet=quiet)
     pr.stage(f"read aircraft {aircraft}")
     try:
         ac_obj = sim.load_aircraft(aircraft)
