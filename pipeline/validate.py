@@ -266,10 +266,16 @@ def _inverse(result: EstimationResult, lin, bandwidth: float
     rows = model.g(x0[:, None], u0[:, None], p, Namespace(model.constants_for(seg)))
     y0 = np.array([float(np.asarray(r, dtype=float).ravel()[0]) for r in rows])
     du = seg.u[:, excited] - u0[excited]
+    # scipy.signal.dlsim (inside inverse_simulation) takes floor(t[-1] / dt) + 1 samples, one
+    # short when rounding leaves t[-1] a hair below (N-1) dt (seen on resampled log times):
+    # march on an exact grid kept just above (N-1) dt
+    dt = float(np.median(np.diff(seg.t)))
+    t_loop = np.arange(seg.t.size) * dt
+    t_loop[-1] += 1e-9 * dt
     bw = bandwidth
     for attempt in range(4):
         try:
-            inv = V.inverse_simulation(A, B[:, excited], C[keep], D[keep][:, excited], seg.t,
+            inv = V.inverse_simulation(A, B[:, excited], C[keep], D[keep][:, excited], t_loop,
                                        seg.z[:, keep] - y0[keep], u_ref=du, bandwidth=bw)
             break
         except ValueError as exc:
