@@ -10,6 +10,7 @@ from estimators.errors import (BoundsError, ConvergenceError, EstimationError,
                                IdentifiabilityError, ModelDefinitionError,
                                SimulationDivergedError)
 from estimators.equation_error import FourierRegression, LeastSquares, RecursiveLeastSquares
+from estimators.fem import FilterError
 from estimators.kalman import EKF, UKF
 from estimators.model import Model, Parameter, Segment
 from estimators.oem import OutputError
@@ -21,4 +22,5 @@ __all__ = [
     "EstimationError", "ModelDefinitionError", "BoundsError", "SimulationDivergedError",
     "IdentifiabilityError", "ConvergenceError",
     "LeastSquares", "RecursiveLeastSquares", "FourierRegression", "EKF", "UKF",
+    "FilterError",
 ]

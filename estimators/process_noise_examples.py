@@ -141,3 +141,35 @@ def unstable_short_period_example(seed: int = 0, n: int = 1000, dt: float = 0.02
              for nm, s in zip(UNSTABLE_SP_FREE, signs)}
     model = short_period(SP_CONSTANTS, values={**UNSTABLE_SP_TRUTH, **start}, free=UNSTABLE_SP_FREE)
     return NoisyExample(model, truth_model, segs, dict(UNSTABLE_SP_TRUTH), F, sd, states)
+
+
+STABLE_SP_TRUTH = {"CLalpha": 4.8, "CLq": 0.0, "CLde": 0.38, "Cmalpha": -0.75, "Cmq": -16.0,
+                   "Cmde": -1.6}
+
+
+def turbulent_short_period_example(seed: int = 0, n: int = 800, dt: float = 0.02, *,
+                                   sigma_alpha: float = 0.004, sigma_q: float = 0.008,
+                                   segments: int = 2, biases=(0.3, 0.6),
+                                   start_offset: float = 0.2) -> NoisyExample:
+    """The (stable) linear short period in turbulence: process noise on alpha and q,
+    3-2-1-1 elevator inputs of different widths per segment, a per-segment az bias
+    (truth ``bias_az[k]`` = biases[k]); all start values 1 + start_offset times the truth."""
+    truth_model = short_period(SP_CONSTANTS, values=STABLE_SP_TRUTH, output_biases=["az"])
+    rng = np.random.default_rng(seed)
+    sd = np.array([SP_NOISE[o] for o in truth_model.outputs])
+    F = np.diag([sigma_alpha, sigma_q])
+    t = np.arange(n) * dt
+    segs, states = [], []
+    truth = dict(STABLE_SP_TRUTH)
+    for k in range(segments):
+        de = multistep(t, 1.0, 0.5 + 0.2 * k, amplitude=np.radians(2.0) * (-1) ** k)
+        seg = Segment(t=t, u=de[:, None], z=np.zeros((n, 4)), x0=np.zeros(2), name=f"turb-sp-{k}")
+        X, Z, _ = simulate_with_process_noise(truth_model, seg, F, rng, sd)
+        Z[:, 3] += biases[k]
+        truth[f"bias_az[{k}]"] = biases[k]
+        seg.z = Z
+        segs.append(seg)
+        states.append(X)
+    model = short_period(SP_CONSTANTS, values={k: v * (1 + start_offset) for k, v in STABLE_SP_TRUTH.items()},
+                         output_biases=["az"])
+    return NoisyExample(model, truth_model, segs, truth, F, sd, states)

@@ -1,0 +1,676 @@
+"""Filter-error method (FEM): maximum likelihood with process and measurement noise.
+
+Model (DESIGN.md section 8): x' = f(x, u, theta) + F w, y = g(x, u, theta),
+z_k = y_k + G v_k with w, v unit white noise; F (diagonal, states listed in
+``process_noise``) and G (diagonal, every output; R = G G^T) are estimated with theta.
+
+Filter (steady-state Kalman filter, one per parameter set):
+
+* Linearisation: A = df/dx, B = df/du, C = dg/dx, D = dg/du by central differences about
+  each segment's initial state and first input (the trim point), re-evaluated for every
+  parameter set; the affine parts f(x_r, u_r) - A x_r - B u_r and g(...) - C x_r - D u_r
+  are kept, so linear models with trim offsets and output biases are represented
+  exactly.
+* Discretisation over the sample interval h: Phi = e^{A h}, Gamma = int_0^h e^{A s} ds,
+  Qd = int_0^h e^{A s} F F^T e^{A^T s} ds (van Loan), inputs averaged over the step as in
+  output error.
+* Gain: P from the discrete algebraic Riccati equation
+  P = Phi P Phi^T - Phi P C^T (C P C^T + R)^-1 C P Phi^T + Qd (scipy solve_discrete_are),
+  innovation covariance B = C P C^T + R, K = P C^T B^-1.
+* ``form="linear"``: prediction x~_{k+1} = Phi x^_k + Gamma (B u_k + f_0);
+  ``form="nonlinear"``: prediction by one integrator step of the nonlinear f from x^_k
+  (the package integrators, default RK4), outputs g(x~_k) of the nonlinear g, and the
+  steady-state gain of the linearisation at the trim point (a constant gain; state it
+  when reporting: the linearisation is about x0 and u[0] of each segment).
+* Correction x^_k = x~_k + K (z_k - y~_k); missing samples (NaN) get no correction.
+
+Estimation: the negative log-likelihood of the innovations
+J = 1/2 sum (nu^T B^-1 nu + log det B) over all samples and segments, minimised by
+Gauss-Newton (Fisher scoring) over phi = [theta, F_i, G_j]:
+
+    M = sum S^T B^-1 S + N/2 tr(B^-1 B_i B^-1 B_j),  S = d y~/d phi (filtered outputs),
+    g = sum S^T B^-1 nu + 1/2 tr(B^-1 B_i B^-1 (sum nu nu^T - N B)),
+
+with the sensitivities of the filtered outputs (they include the gain's gradients
+dK/dphi) from forward differences, all perturbed parameter sets filtered in one batch.
+Step halving on J; F_i >= 0 and G_j > 0 by bounds. The Cramér-Rao bounds M^-1 cover
+theta, F and G together.
+
+F-R compensation: Maine and Iliff's relaxation estimates the innovation covariance in
+closed form and afterwards rescales F so that the implied measurement-noise covariance
+B - C P C^T stays positive definite. Here the measurement noise G is itself a
+parameter of the likelihood and B = C P C^T + G G^T comes from the Riccati solution, so
+every Gauss-Newton step moves F and R consistently and the measurement-noise part stays
+positive by construction; no separate compensation step is needed.
+
+Result: an :class:`~estimators.EstimationResult`; ``predicted`` are the one-step
+predictions y~_k, ``residuals`` the innovations, ``R`` their sample covariance;
+``extra`` holds ``gain`` (K per segment), ``F`` (n, n), ``measurement_noise`` (G G^T),
+``innovation_cov`` (B per segment), ``P`` (a-priori state covariance), ``A/B/C/D``
+(linearisation per segment) and ``filtered_states``.
+"""
+from __future__ import annotations
+
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+from scipy import linalg
+
+from estimators.errors import ModelDefinitionError, SimulationDivergedError
+from estimators.integrators import INTEGRATORS
+from estimators.jit import kernel_for
+from estimators.model import Model, Segment
+from estimators.results import EstimationResult, frames
+from estimators.simulation import Layout
+from estimators import statistics as st
+
+try:
+    import numba
+except ImportError:  # pragma: no cover
+    numba = None
+
+
+def _kf_loop(Phi, K, C, drive, offset, Z, x0):
+    """Steady-state Kalman filter over a batch of linear systems.
+
+    Phi (B, n, n), K (B, n, m), C (B, m, n), drive (B, N, n) = Gamma (B u + f0),
+    offset (B, N, m) = D u + y0, Z (N, m) with NaN = missing, x0 (B, n).
+    Returns predicted outputs Y (B, N, m) and a-posteriori states X (B, N, n).
+    """
+    Bn, n, _ = Phi.shape
+    N, m = Z.shape
+    Y = np.empty((Bn, N, m))
+    X = np.empty((Bn, N, n))
+    nu = np.empty(m)
+    xh = np.empty(n)
+    for b in range(Bn):
+        x = x0[b].copy()
+        for k in range(N):
+            for j in range(m):
+                y = offset[b, k, j]
+                for i in range(n):
+                    y += C[b, j, i] * x[i]
+                Y[b, k, j] = y
+                d = Z[k, j] - y
+                nu[j] = d if np.isfinite(d) else 0.0
+            for i in range(n):
+                v = x[i]
+                for j in range(m):
+                    v += K[b, i, j] * nu[j]
+                xh[i] = v
+                X[b, k, i] = v
+            if k + 1 < N:
+                for i in range(n):
+                    v = drive[b, k, i]
+                    for j in range(n):
+                        v += Phi[b, i, j] * xh[j]
+                    x[i] = v
+    return Y, X
+
+
+if numba is not None:
+    _kf_loop_jit = numba.njit(cache=True)(_kf_loop)
+else:  # pragma: no cover
+    _kf_loop_jit = _kf_loop
+
+
+def linearize_batch(model: Model, P: np.ndarray, xr: np.ndarray, ur: np.ndarray,
+                    constants: Mapping[str, float], rel_step: float = 1e-5):
+    """A (B, n, n), Bu (B, n, ni), C (B, m, n), D (B, m, ni), f0 (B, n), y0 (B, m) of the
+    affine approximation f ~ A x + Bu u + f0, g ~ C x + D u + y0 about (xr (n, B), ur (ni,))
+    for the parameter columns P (n_p, B); central differences, all columns in one call."""
+    n, Bc = xr.shape
+    ni = ur.size
+    L = n + ni
+    v0 = np.concatenate([xr, np.repeat(ur[:, None], Bc, axis=1)], axis=0)     # (L, B)
+    h = rel_step * np.maximum(np.abs(v0), 1.0)                                  # (L, B)
+    V = np.repeat(v0[:, :, None], 1 + 2 * L, axis=2)                            # (L, B, E)
+    idx = np.arange(L)
+    V[idx, :, 1 + idx] += h
+    V[idx, :, 1 + L + idx] -= h
+    Vf = V.reshape(L, -1)
+    Pf = np.repeat(P[:, :, None], 1 + 2 * L, axis=2).reshape(P.shape[0], -1)
+    with np.errstate(all="ignore"):
+        fv = model.eval_f(Vf[:n], Vf[n:], Pf, constants).reshape(n, Bc, -1)
+        gv = model.eval_g(Vf[:n][:, None, :], Vf[n:][:, None, :], Pf, constants)[:, 0, :]
+    gv = gv.reshape(len(model.outputs), Bc, -1)
+    Jf = (fv[:, :, 1:1 + L] - fv[:, :, 1 + L:]) / (2 * h.T[None, :, :])        # (n, B, L)
+    Jg = (gv[:, :, 1:1 + L] - gv[:, :, 1 + L:]) / (2 * h.T[None, :, :])
+    Jf = Jf.transpose(1, 0, 2)
+    Jg = Jg.transpose(1, 0, 2)
+    A, Bu = Jf[:, :, :n], Jf[:, :, n:]
+    C, D = Jg[:, :, :n], Jg[:, :, n:]
+    x_r = xr.T
+    f0 = fv[:, :, 0].T - np.einsum("bij,bj->bi", A, x_r) - Bu @ ur
+    y0 = gv[:, :, 0].T - np.einsum("bij,bj->bi", C, x_r) - D @ ur
+    return A, Bu, C, D, f0, y0
+
+
+def _expm_small(M):
+    """e^M by scaling and squaring with a degree-16 Taylor polynomial, written as plain
+    loops so that small matrices (n <= ~20) do not go through threaded BLAS/LAPACK (whose
+    start-up cost dominates, and which stalls when the cores are busy)."""
+    n = M.shape[0]
+    norm = 0.0
+    for i in range(n):
+        r = 0.0
+        for j in range(n):
+            r += abs(M[i, j])
+        norm = max(norm, r)
+    s = 0
+    while norm > 0.25:
+        norm *= 0.5
+        s += 1
+    A = M / (2.0 ** s)
+    E = np.eye(n)
+    T = np.eye(n)
+    for k in range(1, 17):
+        T2 = np.zeros((n, n))
+        for i in range(n):
+            for l in range(n):
+                t = T[i, l]
+                if t != 0.0:
+                    for j in range(n):
+                        T2[i, j] += t * A[l, j]
+        T = T2 / k
+        E += T
+    for _ in range(s):
+        E2 = np.zeros((n, n))
+        for i in range(n):
+            for l in range(n):
+                e = E[i, l]
+                for j in range(n):
+                    E2[i, j] += e * E[l, j]
+        E = E2
+    return E
+
+
+if numba is not None:
+    _expm_small = numba.njit(cache=True)(_expm_small)
+
+
+def expm(M: np.ndarray) -> np.ndarray:
+    """Matrix exponential: compiled Taylor scaling-and-squaring for small matrices,
+    scipy.linalg.expm otherwise (and for non-finite input)."""
+    if M.shape[0] <= 24 and np.all(np.isfinite(M)):
+        return _expm_small(np.ascontiguousarray(M, dtype=float))
+    return linalg.expm(M)
+
+
+def discretize(A: np.ndarray, FFt: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Phi = e^{A h}, Gamma = int_0^h e^{As} ds, Qd (van Loan) for one system."""
+    n = A.shape[0]
+    M = np.zeros((2 * n, 2 * n))
+    M[:n, :n] = A
+    M[:n, n:] = np.eye(n)
+    E = expm(M * h)
+    Phi, Gam = E[:n, :n], E[:n, n:]
+    if not np.any(FFt):
+        return Phi, Gam, np.zeros((n, n))
+    V = np.zeros((2 * n, 2 * n))
+    V[:n, :n] = -A
+    V[:n, n:] = FFt
+    V[n:, n:] = A.T
+    W = expm(V * h)
+    Qd = Phi @ W[:n, n:]
+    return Phi, Gam, 0.5 * (Qd + Qd.T)
+
+
+def _mm(A, B):
+    n, k = A.shape
+    m = B.shape[1]
+    out = np.zeros((n, m))
+    for i in range(n):
+        for l in range(k):
+            a = A[i, l]
+            if a != 0.0:
+                for j in range(m):
+                    out[i, j] += a * B[l, j]
+    return out
+
+
+def _inv(M):
+    """Gauss-Jordan inverse with partial pivoting (small matrices); NaN if singular."""
+    n = M.shape[0]
+    A = M.copy()
+    I = np.eye(n)
+    for c in range(n):
+        p = c
+        for r in range(c + 1, n):
+            if abs(A[r, c]) > abs(A[p, c]):
+                p = r
+        if A[p, c] == 0.0 or not np.isfinite(A[p, c]):
+            return np.full((n, n), np.nan)
+        if p != c:
+            for j in range(n):
+                A[c, j], A[p, j] = A[p, j], A[c, j]
+                I[c, j], I[p, j] = I[p, j], I[c, j]
+        d = A[c, c]
+        for j in range(n):
+            A[c, j] /= d
+            I[c, j] /= d
+        for r in range(n):
+            if r != c:
+                f = A[r, c]
+                if f != 0.0:
+                    for j in range(n):
+                        A[r, j] -= f * A[c, j]
+                        I[r, j] -= f * I[c, j]
+    return I
+
+
+def _dare_sda(A, G, H, max_iter, tol):
+    """Structure-preserving doubling for X = A^T X A - A^T X B (R + B^T X B)^-1 B^T X A + H
+    with G = B R^-1 B^T:  W = I + G_k H_k,  A_{k+1} = A_k W^-1 A_k,
+    G_{k+1} = G_k + A_k W^-1 G_k A_k^T,  H_{k+1} = H_k + A_k^T H_k W^-1 A_k  ->  H_k -> X."""
+    n = A.shape[0]
+    Ak, Gk, Hk = A.copy(), G.copy(), H.copy()
+    for _ in range(max_iter):
+        Wi = _inv(np.eye(n) + _mm(Gk, Hk))
+        if not np.all(np.isfinite(Wi)):
+            return np.full((n, n), np.nan)
+        AW = _mm(Ak, Wi)
+        Gn = Gk + _mm(_mm(AW, Gk), Ak.T.copy())
+        Hn = Hk + _mm(_mm(Ak.T.copy(), Hk), _mm(Wi, Ak))
+        An = _mm(AW, Ak)
+        num = 0.0
+        den = 0.0
+        for i in range(n):
+            for j in range(n):
+                num = max(num, abs(Hn[i, j] - Hk[i, j]))
+                den = max(den, abs(Hn[i, j]))
+        Ak, Gk, Hk = An, Gn, Hn
+        if num <= tol * max(den, 1e-300):
+            return 0.5 * (Hk + Hk.T)
+        if not np.all(np.isfinite(Hk)):
+            break
+    return np.full((n, n), np.nan)
+
+
+def _gain(Phi, C, Qd, R):
+    """P (a-priori), B = C P C^T + R, K = P C^T B^-1 (all compiled, small matrices)."""
+    Ri = _inv(R)
+    G = _mm(_mm(C.T.copy(), Ri), C)
+    P = _dare_sda(Phi.T.copy(), G, Qd, 60, 1e-13)
+    PCt = _mm(P, C.T.copy())
+    Bm = _mm(C, PCt) + R
+    Bm = 0.5 * (Bm + Bm.T)
+    K = _mm(PCt, _inv(Bm))
+    return P, Bm, K
+
+
+if numba is not None:
+    _mm = numba.njit(cache=True)(_mm)
+    _inv = numba.njit(cache=True)(_inv)
+    _dare_sda = numba.njit(cache=True)(_dare_sda)
+    _gain = numba.njit(cache=True)(_gain)
+
+
+def steady_state_gain(Phi: np.ndarray, C: np.ndarray, Qd: np.ndarray, R: np.ndarray):
+    """(P a-priori, B = C P C^T + R, K = P C^T B^-1) from the discrete algebraic Riccati
+    equation P = Phi P Phi^T - Phi P C^T (C P C^T + R)^-1 C P Phi^T + Qd, solved by the
+    structure-preserving doubling algorithm (compiled; same solution as
+    scipy.linalg.solve_discrete_are, which the tests check). Raises LinAlgError when there
+    is no stabilising solution."""
+    P, Bm, K = _gain(np.ascontiguousarray(Phi, dtype=float), np.ascontiguousarray(C, dtype=float),
+                     np.ascontiguousarray(Qd, dtype=float), np.ascontiguousarray(R, dtype=float))
+    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(K))):
+        raise np.linalg.LinAlgError("the Riccati equation has no stabilising solution")
+    return P, Bm, K
+
+
+class FilterError:
+    """Filter-error method (see module docstring for the equations).
+
+    Parameters
+    ----------
+    model : the :class:`~estimators.Model`.
+    process_noise : states with process noise and their start F (std of the continuous
+        white noise, state unit per sqrt(s)): {state: start} or a (n,) vector (0 = no noise
+        on that state). Default: every state that is a measured output, started at
+        0.5 sqrt(var(diff z)/h) (an upper bound from the sample-to-sample variation).
+    estimate_F : estimate the F entries (True) or hold them at their start values.
+    measurement_noise : start of G (std per output): {output: std} or (n_out,); default
+        from the innovations of the start model.
+    form : "linear" (transition matrix) or "nonlinear" (integrator prediction, gain of
+        the linearisation at the trim point).
+    integrator : the one-step predictor of the nonlinear form.
+    max_iter, tol : Gauss-Newton iterations; stop when the relative change of J is < tol.
+    fd_step : relative forward-difference step of the sensitivities.
+    step_halvings : maximum halvings of a step that does not lower J.
+    """
+
+    method = "fem"
+
+    def __init__(self, model: Model, *, process_noise: Any = None, estimate_F: bool = True,
+                 measurement_noise: Any = None, form: str = "linear", integrator: str = "rk4",
+                 max_iter: int = 30, tol: float = 1e-7, fd_step: float = 1e-6,
+                 step_halvings: int = 10, callback=None) -> None:
+        if form not in ("linear", "nonlinear"):
+            raise ModelDefinitionError(f"form must be 'linear' or 'nonlinear', not {form!r}")
+        if integrator not in INTEGRATORS:
+            raise ModelDefinitionError(f"unknown integrator {integrator!r}: use one of {INTEGRATORS}")
+        self.model = model
+        self.process_noise = process_noise
+        self.estimate_F = estimate_F
+        self.measurement_noise = measurement_noise
+        self.form = form
+        self.integrator = integrator
+        self.max_iter = max_iter
+        self.tol = tol
+        self.fd_step = fd_step
+        self.step_halvings = step_halvings
+        self.callback = callback
+        if form == "nonlinear":
+            self.method = "fem-nl"
+
+    # -- parameter vector phi = [layout free, F_i, G_j] ---------------------------------------
+    def _noise_setup(self, segments: Sequence[Segment]) -> tuple[list[int], np.ndarray]:
+        m = self.model
+        n = len(m.states)
+        h = float(np.median(np.concatenate([np.diff(s.t) for s in segments])))
+        default = np.zeros(n)
+        for i, s in enumerate(m.states):
+            if s in m.outputs:
+                d = np.concatenate([np.diff(seg.z[:, m.outputs.index(s)]) for seg in segments])
+                default[i] = 0.5 * np.sqrt(np.nanvar(d) / h)
+        spec = self.process_noise
+        if spec is None:
+            f0 = default
+        elif isinstance(spec, Mapping):
+            bad = sorted(set(spec) - set(m.states))
+            if bad:
+                raise ModelDefinitionError(f"process_noise: {bad} are not states {m.states}")
+            f0 = np.array([float(spec.get(s, 0.0)) for s in m.states])
+        else:
+            f0 = np.asarray(spec, dtype=float).ravel()
+            if f0.size != n:
+                raise ModelDefinitionError(f"process_noise needs {n} entries (states {m.states})")
+        noisy = [i for i in range(n) if f0[i] > 0]
+        return noisy, f0
+
+    def _unpack(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """theta (n_all,), F (n, n), R (m, m) from phi (free vector)."""
+        theta = self._lay.values.copy()
+        nf = self._lay.free_idx.size
+        theta[self._lay.free_idx] = phi[:nf]
+        fvec = self._f_fixed.copy()
+        if self.estimate_F:
+            fvec[self._noisy] = phi[nf:nf + len(self._noisy)]
+        g = phi[-len(self.model.outputs):]
+        return theta, np.diag(fvec), np.diag(g ** 2)
+
+    # -- filtering a batch of parameter vectors ------------------------------------------------
+    def _filter(self, Phis: np.ndarray, want_states: bool = False):
+        """For parameter columns Phis (Bc, n_phi): per segment predicted outputs
+        (Bc, N, m), innovation covariances (Bc, m, m) and details of column 0."""
+        model = self.model
+        n, m = len(model.states), len(model.outputs)
+        Bc = Phis.shape[0]
+        unpacked = [self._unpack(p) for p in Phis]
+        Theta = np.stack([u[0] for u in unpacked])
+        out = []
+        for k, seg in enumerate(self._segments):
+            lay = self._lay
+            P = np.ascontiguousarray(Theta[:, lay.pidx[k]].T)
+            X0 = np.ascontiguousarray(Theta[:, lay.x0idx[k]].T)
+            c = model.constants_for(seg)
+            A, Bu, C, D, f0, y0 = linearize_batch(model, P, X0, seg.u[0], c)
+            h = float(np.median(np.diff(seg.t)))
+            if not np.allclose(np.diff(seg.t), h, rtol=1e-6, atol=1e-9):
+                raise ModelDefinitionError(
+                    f"segment {seg.name or k}: the filter-error method needs a constant sample "
+                    "interval (resample the data)")
+            Phi = np.empty((Bc, n, n)); Gam = np.empty((Bc, n, n))
+            Kg = np.empty((Bc, n, m)); Binn = np.empty((Bc, m, m)); Pp = np.empty((Bc, n, n))
+            for b in range(Bc):
+                F, R = unpacked[b][1], unpacked[b][2]
+                Phi[b], Gam[b], Qd = discretize(A[b], F @ F.T, h)
+                try:
+                    Pp[b], Binn[b], Kg[b] = steady_state_gain(Phi[b], C[b], Qd, R)
+                except np.linalg.LinAlgError:
+                    Pp[b] = np.nan; Binn[b] = np.nan; Kg[b] = np.nan
+            ua = np.vstack([0.5 * (seg.u[:-1] + seg.u[1:]), seg.u[-1:]])        # (N, ni)
+            offset = np.einsum("bij,nj->bni", D, seg.u) + y0[:, None, :]
+            Z = np.ascontiguousarray(seg.z)
+            if self.form == "linear":
+                drive = np.einsum("bij,bnj->bni", Gam,
+                                  np.einsum("bij,nj->bni", Bu, ua) + f0[:, None, :])
+                ok = np.all(np.isfinite(Kg.reshape(Bc, -1)), axis=1)
+                Y = np.full((Bc, seg.n, m), np.nan)
+                Xf = np.full((Bc, seg.n, n), np.nan)
+                if np.any(ok):
+                    Y[ok], Xf[ok] = _kf_loop_jit(np.ascontiguousarray(Phi[ok]), np.ascontiguousarray(Kg[ok]),
+                                                 np.ascontiguousarray(C[ok]), np.ascontiguousarray(drive[ok]),
+                                                 np.ascontiguousarray(offset[ok]), Z,
+                                                 np.ascontiguousarray(X0.T[ok]))
+            else:
+                Y, Xf = self._nonlinear_loop(seg, k, P, X0, Kg, c)
+            out.append({"Y": Y, "B": Binn, "K": Kg, "P": Pp, "X": Xf,
+                        "lin": (A[0], Bu[0], C[0], D[0])})
+        return out
+
+    def _nonlinear_loop(self, seg: Segment, k: int, P: np.ndarray, X0: np.ndarray,
+                        Kg: np.ndarray, c: Mapping[str, float]):
+        """Integrator prediction and nonlinear outputs, constant gain, batched over columns."""
+        model = self.model
+        kern = kernel_for(model)
+        N, m = seg.n, len(model.outputs)
+        n, Bc = X0.shape
+        Y = np.full((Bc, N, m), np.nan)
+        Xf = np.full((Bc, N, n), np.nan)
+        x = X0.copy()
+        Kt = np.nan_to_num(Kg)
+        for i in range(N):
+            with np.errstate(all="ignore"):
+                y = model.eval_g(x[:, None, :], seg.u[i][:, None, None], P, c)[:, 0, :]   # (m, Bc)
+            nu = seg.z[i][:, None] - y
+            nu = np.where(np.isfinite(nu), nu, 0.0)
+            xh = x + np.einsum("bij,jb->ib", Kt, nu)
+            Y[:, i, :] = y.T
+            Xf[:, i, :] = xh.T
+            if i + 1 < N:
+                x = kern.integrate(self.integrator, xh, seg.u[i:i + 2], seg.t[i:i + 2], P, c)[1]
+                if not np.all(np.isfinite(x[:, 0])):
+                    raise SimulationDivergedError(
+                        f"the nonlinear filter prediction of segment {seg.name or k} became "
+                        f"non-finite at t={seg.t[i + 1]:.4g} s", segment=k, time=float(seg.t[i + 1]))
+        bad = ~np.all(np.isfinite(Kg.reshape(Bc, -1)), axis=1)
+        Y[bad] = np.nan
+        return Y, Xf
+
+    # -- likelihood pieces ----------------------------------------------------------------------
+    def _nll(self, res) -> float:
+        J = 0.0
+        for seg, r in zip(self._segments, res):
+            Y, Bm = r["Y"][0], r["B"][0]
+            if not np.all(np.isfinite(Bm)):
+                return np.inf
+            E = seg.z - Y
+            J += self._seg_nll(E, Bm)
+        return J
+
+    @staticmethod
+    def _seg_nll(E: np.ndarray, Bm: np.ndarray) -> float:
+        ok = np.all(np.isfinite(E), axis=1)
+        if not np.all(np.isfinite(E[ok])):
+            return np.inf
+        sign, logdet = np.linalg.slogdet(Bm)
+        if sign <= 0:
+            return np.inf
+        Ei = E[ok]
+        W = np.linalg.solve(Bm, Ei.T)
+        val = 0.5 * float(np.sum(Ei.T * W)) + 0.5 * ok.sum() * logdet
+        return val if np.isfinite(val) else np.inf
+
+    def _scoring(self, res, hsteps: np.ndarray):
+        """Fisher information M, gradient g (of -J) and J from a batch (column 0 = base)."""
+        nphi = hsteps.size
+        M = np.zeros((nphi, nphi))
+        g = np.zeros(nphi)
+        J = 0.0
+        for seg, r in zip(self._segments, res):
+            Y, Bs = r["Y"], r["B"]
+            E = seg.z - Y[0]
+            ok = np.all(np.isfinite(E), axis=1)
+            Bm = Bs[0]
+            Binv = np.linalg.inv(Bm)
+            Lw = np.linalg.cholesky(Binv)
+            S = (Y[1:] - Y[:1]) / hsteps[:, None, None]              # (nphi, N, m)
+            S = np.where(np.isfinite(S), S, 0.0)
+            Sw = np.einsum("pnm,mk->pnk", S[:, ok], Lw).reshape(nphi, -1)
+            Ew = (E[ok] @ Lw).ravel()
+            M += Sw @ Sw.T
+            g += Sw @ Ew
+            dB = (Bs[1:] - Bs[:1]) / hsteps[:, None, None]           # (nphi, m, m)
+            dB = np.where(np.isfinite(dB), dB, 0.0)
+            Nk = ok.sum()
+            T = np.einsum("ij,pjk->pik", Binv, dB)                   # B^-1 B_i
+            M += 0.5 * Nk * np.einsum("pij,qji->pq", T, T)
+            Sum = E[ok].T @ E[ok]
+            g += 0.5 * np.einsum("pij,jk,kl->pil", T, Binv, Sum - Nk * Bm).trace(axis1=1, axis2=2)
+            J += self._seg_nll(E, Bm)
+        return M, g, J
+
+    def _batch(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        hsteps = self.fd_step * np.maximum(np.abs(phi), self._floor)
+        up_ok = phi + hsteps <= self._hi
+        hsteps = np.where(up_ok, hsteps, -hsteps)
+        Phis = np.repeat(phi[None, :], phi.size + 1, axis=0)
+        Phis[1 + np.arange(phi.size), np.arange(phi.size)] += hsteps
+        return Phis, hsteps
+
+    # -- the fit --------------------------------------------------------------------------------
+    def fit(self, segments: Segment | Sequence[Segment], estimate_x0: bool | Sequence[str] = False,
+            start: Mapping[str, float] | None = None) -> EstimationResult:
+        segments = [segments] if isinstance(segments, Segment) else list(segments)
+        if not segments:
+            raise ModelDefinitionError("fit() needs at least one segment")
+        model = self.model
+        self._segments = segments
+        lay = self._lay = Layout.build(model, segments, estimate_x0, values=start)
+        n, m = len(model.states), len(model.outputs)
+        self._noisy, f0 = self._noise_setup(segments)
+        self._f_fixed = f0.copy()
+        fi = lay.free_idx
+        names = list(lay.free_names)
+        lo = list(lay.lower[fi]); hi = list(lay.upper[fi])
+        phi = list(lay.values[fi])
+        if self.estimate_F:
+            for i in self._noisy:
+                names.append(f"F_{model.states[i]}"); phi.append(f0[i]); lo.append(0.0); hi.append(np.inf)
+        gnames = [f"G_{o}" for o in model.outputs]
+        # measurement-noise start: from the innovations of the start model
+        phi_arr = np.array(phi + [1.0] * m)
+        if self.measurement_noise is not None:
+            from estimators.kalman import _vector
+            g0 = _vector(self.measurement_noise, model.outputs, "measurement_noise", np.ones(m))
+        else:
+            g0 = np.ones(m)
+            phi_arr[-m:] = g0
+            for _ in range(3):            # fixed point: G^2 ~ var(innovations) - C P C^T
+                r0 = self._filter(phi_arr[None, :])
+                E = [seg.z - r["Y"][0] for seg, r in zip(segments, r0)]
+                V = np.diag(st.residual_covariance(E))
+                CPC = np.diag(r0[0]["B"][0]) - phi_arr[-m:] ** 2
+                if not np.all(np.isfinite(V)) or not np.all(np.isfinite(CPC)):
+                    break
+                g0 = np.sqrt(np.maximum(V - CPC, 0.1 * V))
+                phi_arr[-m:] = g0
+        phi_arr[-m:] = g0
+        names += gnames
+        lo += [0.0] * m; hi += [np.inf] * m
+        self._lo, self._hi = np.array(lo, float), np.array(hi, float)
+        self._scale = np.maximum(np.abs(phi_arr), 1e-12)
+        # finite-difference floor: 1 for model parameters (as OEM), the start for noise std
+        self._floor = np.concatenate([np.ones(fi.size), self._scale[fi.size:]])
+        phi = phi_arr
+        nphi = phi.size
+        history = []
+        converged = False
+        message = ""
+        J_old = np.inf
+        it = 0
+        for it in range(1, self.max_iter + 1):
+            Phis, hsteps = self._batch(phi)
+            res = self._filter(Phis)
+            if not np.all(np.isfinite(res[0]["B"][0])):
+                raise SimulationDivergedError(
+                    "the filter-error Riccati equation has no stabilising solution at the "
+                    "current parameters (system not detectable from the outputs?)")
+            M, g, J = self._scoring(res, hsteps)
+            if it == 1:
+                st.check_identifiable(M, names, " at the start values")
+            history.append({"iteration": it - 1, "J": J, "det_R": float(np.linalg.det(res[0]["B"][0])),
+                            "step": np.nan, **dict(zip(names, phi))})
+            if self.callback:
+                self.callback(it - 1, J, pd.Series(phi, index=names))
+            if np.isfinite(J_old) and abs(J_old - J) <= self.tol * max(abs(J), 1.0):
+                converged = True
+                break
+            J_old = J
+            span = np.maximum(1.0, np.abs(phi))
+            at_lo = phi <= self._lo + 1e-12 * span
+            at_hi = phi >= self._hi - 1e-12 * span
+            active = ~((at_lo & (g < 0)) | (at_hi & (g > 0)))
+            a = np.flatnonzero(active)
+            delta = np.zeros(nphi)
+            delta[a] = st.solve_step(M[np.ix_(a, a)], g[a])
+            alpha = 1.0
+            accepted = False
+            for _ in range(self.step_halvings + 1):
+                trial = np.clip(phi + alpha * delta, self._lo, self._hi)
+                # keep noise std off exactly zero from above (G > 0 needed for R > 0)
+                trial[-m:] = np.maximum(trial[-m:], 1e-9 * self._scale[-m:])
+                Jt = self._nll(self._filter(trial[None, :]))
+                if Jt < J:
+                    phi = trial
+                    accepted = True
+                    break
+                alpha *= 0.5
+            history[-1]["step"] = alpha
+            if not accepted:
+                if 0.5 * float(g[a] @ delta[a]) <= 1e-9 * max(abs(J), 1.0):
+                    converged = True
+                    break
+                message = "no step lowered the negative log-likelihood (line search failed)"
+                break
+        else:
+            message = f"stopped at max_iter={self.max_iter} before J settled"
+        # information at the final estimate
+        Phis, hsteps = self._batch(phi)
+        res = self._filter(Phis)
+        M, g, J = self._scoring(res, hsteps)
+        span = np.maximum(1.0, np.abs(phi))
+        on_bound = (phi <= self._lo + 1e-9 * span) | (phi >= self._hi - 1e-9 * span)
+        inner = np.flatnonzero(~on_bound)
+        cov = np.full((nphi, nphi), np.nan)
+        if inner.size:
+            st.check_identifiable(M[np.ix_(inner, inner)], [names[i] for i in inner], " at the estimates")
+            cov[np.ix_(inner, inner)] = st.covariance(M[np.ix_(inner, inner)])
+        theta, F, R = self._unpack(phi)
+        E = [seg.z - r["Y"][0] for seg, r in zip(segments, res)]
+        Ys = [r["Y"][0] for r in res]
+        all_names = list(lay.names) + names[fi.size:]
+        values = np.concatenate([theta, phi[fi.size:]])
+        free = np.concatenate([lay.free, np.ones(nphi - fi.size, dtype=bool)])
+        if not converged and not message:
+            message = "did not converge"
+        return EstimationResult(
+            method=self.method, model=model, names=all_names, values=values, free=free, cov=cov,
+            R=st.residual_covariance(E, full=True), converged=converged, iterations=it,
+            history=pd.DataFrame(history), segments=segments,
+            predicted=frames([s.t for s in segments], Ys, model.outputs),
+            residuals=frames([s.t for s in segments], E, model.outputs),
+            at_bounds=[names[i] for i in np.flatnonzero(on_bound)], message=message,
+            information=M,
+            settings={"form": self.form, "integrator": self.integrator if self.form == "nonlinear" else "transition matrix",
+                      "optimizer": "gauss-newton", "estimate_F": self.estimate_F,
+                      "linearisation": "about x0 and u[0] of each segment"},
+            extra={"gain": [r["K"][0] for r in res], "F": F, "measurement_noise": R,
+                   "innovation_cov": [r["B"][0] for r in res], "P": [r["P"][0] for r in res],
+                   "linearisation": [dict(zip("ABCD", r["lin"])) for r in res],
+                   "filtered_states": [pd.DataFrame(r["X"][0], index=pd.Index(s.t, name="t"),
+                                                    columns=model.states) for s, r in zip(segments, res)],
+                   "nll": J, "residuals_are": "innovations"})

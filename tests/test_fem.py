@@ -1,0 +1,103 @@
+"""Filter-error method: linear and nonlinear forms in turbulence, Riccati/discretisation
+pieces against scipy, reduction to output error in calm air."""
+import numpy as np
+import pytest
+from scipy import integrate, linalg
+
+from estimators import EstimationResult, FilterError, OutputError
+from estimators.fem import discretize, expm, steady_state_gain
+from estimators.process_noise_examples import (turbulent_longitudinal_example,
+                                               turbulent_short_period_example)
+
+
+def within(res, truth, k=3.0):
+    err = {n: abs(res.params[n] - v) / res.std[n] for n, v in truth.items() if n in res.free_names}
+    bad = {n: round(e, 2) for n, e in err.items() if not e < k}
+    assert not bad, f"estimates outside {k} std of truth: {bad}"
+    return err
+
+
+@pytest.fixture(scope="module")
+def sp():
+    return turbulent_short_period_example(seed=2)
+
+
+@pytest.fixture(scope="module")
+def fem(sp):
+    return FilterError(sp.model, process_noise={"alpha": 0.01, "q": 0.01}).fit(sp.segments)
+
+
+def noise_truth(ex):
+    d = {f"F_{s}": ex.process_noise[i, i] for i, s in enumerate(ex.model.states)}
+    d.update({f"G_{o}": v for o, v in zip(ex.model.outputs, ex.noise_std)})
+    return d
+
+
+def test_linear_fem_in_turbulence_recovers_parameters_and_noise(sp, fem):
+    assert isinstance(fem, EstimationResult) and fem.method == "fem"
+    assert fem.converged and fem.iterations <= 15
+    within(fem, {**sp.truth, **noise_truth(sp)})
+    # output error on the same data: std too small for its errors
+    oem = OutputError(sp.model).fit(sp.segments)
+    worst = max(abs(oem.params[n] - sp.truth[n]) / oem.std[n] for n in oem.free_names)
+    assert worst > 3
+    # the likelihood fell monotonically
+    assert np.all(np.diff(fem.history["J"].to_numpy()) <= 1e-9)
+
+
+def test_fem_result_contents(sp, fem):
+    assert fem.free_names[-6:] == ["F_alpha", "F_q", "G_alpha", "G_q", "G_qdot", "G_az"]
+    K = fem.extra["gain"][0]
+    assert K.shape == (2, 4) and np.all(np.isfinite(K))
+    seg = sp.segments[1]
+    np.testing.assert_allclose(fem.residuals[1].to_numpy(), seg.z - fem.predicted[1].to_numpy())
+    # innovation covariance of the model ~ sample covariance of the innovations
+    Bm = fem.extra["innovation_cov"][0]
+    np.testing.assert_allclose(np.diag(fem.R), np.diag(Bm), rtol=0.15)
+    # measurement noise = G G^T, F from the estimates
+    np.testing.assert_allclose(np.sqrt(np.diag(fem.extra["measurement_noise"])),
+                               fem.params[["G_alpha", "G_q", "G_qdot", "G_az"]].to_numpy())
+    assert fem.extra["F"][0, 0] == pytest.approx(fem.params["F_alpha"])
+    text = fem.summary(truth=sp.truth)
+    assert "FEM" in text and "F_alpha" in text
+
+
+def test_riccati_and_discretisation_match_scipy():
+    rng = np.random.default_rng(0)
+    n, m, h = 3, 2, 0.05
+    A = rng.standard_normal((n, n))
+    A[0, 0] = 1.5                                    # unstable is fine
+    FF = np.diag([0.1, 0.0, 0.3]) ** 2
+    Phi, Gam, Qd = discretize(A, FF, h)
+    np.testing.assert_allclose(Phi, linalg.expm(A * h), rtol=1e-12)
+    np.testing.assert_allclose(expm(A * 3.0), linalg.expm(A * 3.0), rtol=1e-10)
+    ts = np.linspace(0, h, 2001)
+    E = np.array([linalg.expm(A * s) for s in ts])
+    np.testing.assert_allclose(Gam, integrate.simpson(E, x=ts, axis=0), rtol=1e-8)
+    np.testing.assert_allclose(Qd, integrate.simpson(E @ FF @ E.transpose(0, 2, 1), x=ts, axis=0),
+                               rtol=1e-7, atol=1e-14)
+    C = rng.standard_normal((m, n))
+    R = np.diag([1e-3, 4e-3])
+    P, Bm, K = steady_state_gain(Phi, C, Qd, R)
+    np.testing.assert_allclose(P, linalg.solve_discrete_are(Phi.T, C.T, Qd, R), rtol=1e-9)
+    np.testing.assert_allclose(Bm, C @ P @ C.T + R, rtol=1e-12)
+    np.testing.assert_allclose(K, P @ C.T @ np.linalg.inv(Bm), rtol=1e-9)
+
+
+def test_without_process_noise_fem_is_output_error():
+    calm = turbulent_short_period_example(seed=4, sigma_alpha=0.0, sigma_q=0.0)
+    fem = FilterError(calm.model, process_noise={"alpha": 0.0, "q": 0.0}, estimate_F=False).fit(calm.segments)
+    oem = OutputError(calm.model).fit(calm.segments)
+    names = oem.free_names
+    d = (fem.params[names] - oem.params[names]).abs() / oem.std[names]
+    assert d.max() < 0.05
+    np.testing.assert_allclose(fem.std[names], oem.std[names], rtol=0.02)
+    np.testing.assert_allclose(fem.extra["gain"][0], 0.0, atol=1e-12)
+
+
+def test_nonlinear_fem_in_turbulence():
+    ex = turbulent_longitudinal_example(seed=5, n=500)
+    res = FilterError(ex.model, process_noise={"alpha": 0.01, "q": 0.01}, form="nonlinear").fit(ex.segments)
+    assert res.method == "fem-nl" and res.converged
+    within(res, {**ex.truth, "F_alpha": 0.005, "F_q": 0.01})
+    assert res.settings["linearisation"].startswith("about x0")
