@@ -89,11 +89,20 @@ def _table(head: list[str], rows: list[list[str]]) -> list[str]:
     return out + [""]
 
 
-def param_rows(mj: Mapping[str, Any], with_truth: bool) -> list[list[str]]:
+def is_segment_parameter(name: str) -> bool:
+    """Per-segment parameters (``bias_az[0]``, ``x0_V[1]``): biases and initial states."""
+    return name.endswith("]") and "[" in name
+
+
+def param_rows(mj: Mapping[str, Any], with_truth: bool, *, segment: bool | None = False
+               ) -> list[list[str]]:
     """Rows of the parameter table: name, estimate, std, rel std %, (truth, |error|/std),
-    Morelli-Klein std, note."""
+    Morelli-Klein std, note. segment: False system parameters only, True per-segment
+    ones only, None all."""
     rows = []
     for name, p in mj["parameters"].items():
+        if segment is not None and is_segment_parameter(name) != segment:
+            continue
         r = [name, _g(p["estimate"], ".6g"), _g(p["std"]), _g(p["rel_std_pct"], ".2f")]
         if with_truth:
             r += [_g(p.get("truth"), ".6g"), _g(p.get("error_in_std"), ".2f")]
@@ -118,6 +127,11 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
         head += ["truth", "abs(error)/std"]
     head += ["std (Morelli-Klein)", ""]
     L += _table(head, param_rows(mj, with_truth))
+    seg_rows = param_rows(mj, False, segment=True)
+    if seg_rows:
+        L += ["Per-segment parameters (biases, initial states; `[k]` is the segment):", ""]
+        L += _table(["parameter", "estimate", "std (CRB)", "rel std %", "std (Morelli-Klein)", ""],
+                    seg_rows)
     if mj.get("fixed"):
         L += ["Fixed: " + ", ".join(f"{n} = {_g(x)}" for n, x in mj["fixed"].items()), ""]
     if mj.get("correlations_flagged"):
