@@ -1,0 +1,452 @@
+"""Data compatibility: flight path reconstruction (DESIGN.md section 8).
+
+The kinematic model integrates the measured specific forces and body rates (corrected by
+biases and scale factors) into the body velocity, attitude and altitude, and predicts what
+the air-data boom, attitude reference, barometer and GPS should have measured. The output
+error method (``estimators.OutputError``) then estimates the sensor errors with
+Cramér-Rao bounds, over several segments sharing the sensor errors, with per-segment
+initial states.
+
+States   x = u v w [m/s, body axes, air-relative = inertial in calm air], phi theta psi [rad], h [m]
+Inputs   ax ay az [m/s^2] (IMU, moved to the CG with the known IMU position), p q r [rad/s]
+Outputs  V alpha beta (at the boom position, delayed by ``delay_air``), phi theta psi, h, vn ve vd
+
+Sensor model (as in the simulator's sensors): measured = (1 + scale_X) * true(t - delay)
++ bias_X. Parameters (free ones chosen with ``estimate``):
+
+* ``bias_ax bias_ay bias_az`` [m/s^2], ``bias_p bias_q bias_r`` [rad/s],
+  ``scale_ax`` ... ``scale_r`` [-] of the IMU;
+* ``bias_V`` [m/s], ``scale_V``, ``bias_alpha`` ``bias_beta`` [rad], ``scale_alpha``
+  ``scale_beta`` [-] of the air data; ``delay_air`` [s], the air-data time delay (first
+  order: y(t - tau) = y(t) - tau dy/dt with dy/dt from the state equations).
+
+The barometric altitude bias is not separable from the per-segment initial altitude and
+is absorbed by it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from pipeline.errors import FsidError
+from pipeline.flightdata import FlightData, SegmentSpec
+
+G0 = 9.80665
+STATES = ["u", "v", "w", "phi", "theta", "psi", "h"]
+INPUTS = ["ax", "ay", "az", "p", "q", "r"]
+#: model inputs: the IMU channels plus angular accelerations [rad/s^2] differentiated from the
+#: gyros (used only for the boom velocity derivative in the delay term)
+MODEL_INPUTS = INPUTS + ["pdot", "qdot", "rdot"]
+ALL_OUTPUTS = ["V", "alpha", "beta", "phi", "theta", "psi", "h", "vn", "ve", "vd"]
+IMU_PARAMS = [f"bias_{c}" for c in INPUTS] + [f"scale_{c}" for c in INPUTS]
+AIR_PARAMS = ["bias_V", "scale_V", "bias_alpha", "scale_alpha", "bias_beta", "scale_beta",
+              "delay_air"]
+#: estimated by default: IMU biases, air-data biases and scale factors, air-data delay
+DEFAULT_ESTIMATE = tuple([f"bias_{c}" for c in INPUTS] + AIR_PARAMS)
+#: parameter -> its unit (for reports)
+UNITS = {**{f"bias_{c}": "m/s^2" for c in ("ax", "ay", "az")},
+         **{f"bias_{c}": "rad/s" for c in ("p", "q", "r")},
+         **{f"scale_{c}": "-" for c in INPUTS + ["V", "alpha", "beta"]},
+         "bias_V": "m/s", "bias_alpha": "rad", "bias_beta": "rad", "delay_air": "s"}
+
+
+def _f(x, u, p, c):
+    uu, vv, ww, phi, theta, psi, h = x
+    axm, aym, azm, pm, qm, rm, pd, qd, rd = u
+    ax = (axm - p.bias_ax) / (1.0 + p.scale_ax)
+    ay = (aym - p.bias_ay) / (1.0 + p.scale_ay)
+    az = (azm - p.bias_az) / (1.0 + p.scale_az)
+    pr = (pm - p.bias_p) / (1.0 + p.scale_p)
+    qr = (qm - p.bias_q) / (1.0 + p.scale_q)
+    rr = (rm - p.bias_r) / (1.0 + p.scale_r)
+    sph, cph = np.sin(phi), np.cos(phi)
+    sth, cth = np.sin(theta), np.cos(theta)
+    udot = rr * vv - qr * ww - c.g * sth + ax
+    vdot = pr * ww - rr * uu + c.g * cth * sph + ay
+    wdot = qr * uu - pr * vv + c.g * cth * cph + az
+    phidot = pr + np.tan(theta) * (qr * sph + rr * cph)
+    thetadot = qr * cph - rr * sph
+    psidot = (qr * sph + rr * cph) / cth
+    hdot = uu * sth - vv * sph * cth - ww * cph * cth
+    return udot, vdot, wdot, phidot, thetadot, psidot, hdot
+
+
+def _g(x, u, p, c):
+    uu, vv, ww, phi, theta, psi, h = x
+    axm, aym, azm, pm, qm, rm, pd, qd, rd = u
+    ax = (axm - p.bias_ax) / (1.0 + p.scale_ax)
+    ay = (aym - p.bias_ay) / (1.0 + p.scale_ay)
+    az = (azm - p.bias_az) / (1.0 + p.scale_az)
+    pr = (pm - p.bias_p) / (1.0 + p.scale_p)
+    qr = (qm - p.bias_q) / (1.0 + p.scale_q)
+    rr = (rm - p.bias_r) / (1.0 + p.scale_r)
+    sph, cph = np.sin(phi), np.cos(phi)
+    sth, cth = np.sin(theta), np.cos(theta)
+    sps, cps = np.sin(psi), np.cos(psi)
+    udot = rr * vv - qr * ww - c.g * sth + ax
+    vdot = pr * ww - rr * uu + c.g * cth * sph + ay
+    wdot = qr * uu - pr * vv + c.g * cth * cph + az
+    # velocity at the boom: v + omega x r_boom
+    ub = uu + qr * c.zb - rr * c.yb
+    vb = vv + rr * c.xb - pr * c.zb
+    wb = ww + pr * c.yb - qr * c.xb
+    ubd = udot + qd * c.zb - rd * c.yb
+    vbd = vdot + rd * c.xb - pd * c.zb
+    wbd = wdot + pd * c.yb - qd * c.xb
+    V = np.sqrt(ub * ub + vb * vb + wb * wb)
+    alpha = np.arctan2(wb, ub)
+    beta = np.arcsin(vb / V)
+    Vdot = (ub * ubd + vb * vbd + wb * wbd) / V
+    alphadot = (ub * wbd - wb * ubd) / (ub * ub + wb * wb)
+    betadot = (vbd * V - vb * Vdot) / (V * np.sqrt(ub * ub + wb * wb))
+    Vm = (1.0 + p.scale_V) * (V - p.delay_air * Vdot) + p.bias_V
+    am = (1.0 + p.scale_alpha) * (alpha - p.delay_air * alphadot) + p.bias_alpha
+    bm = (1.0 + p.scale_beta) * (beta - p.delay_air * betadot) + p.bias_beta
+    # NED inertial velocity (calm air)
+    vn = cth * cps * uu + (sph * sth * cps - cph * sps) * vv + (cph * sth * cps + sph * sps) * ww
+    ve = cth * sps * uu + (sph * sth * sps + cph * cps) * vv + (cph * sth * sps - sph * cps) * ww
+    vd = -sth * uu + sph * cth * vv + cph * cth * ww
+    return Vm, am, bm, phi, theta, psi, h, vn, ve, vd
+
+
+def kinematic_model(outputs: Sequence[str] = ALL_OUTPUTS, estimate: Sequence[str] = DEFAULT_ESTIMATE,
+                    boom_position: Sequence[float] = (0.0, 0.0, 0.0), start: Mapping[str, float] | None = None):
+    """The flight-path-reconstruction model as an ``estimators.Model``.
+
+    outputs : subset of ALL_OUTPUTS the data have; estimate : free parameter names;
+    boom_position : air-data boom position from the CG, body axes [m].
+    """
+    from estimators import Model, Parameter
+
+    names = IMU_PARAMS + AIR_PARAMS
+    bad = [e for e in estimate if e not in names]
+    if bad:
+        raise FsidError(f"unknown compatibility parameter(s) {bad}; choose from {names}")
+    start = dict(start or {})
+    params = []
+    for n in names:
+        lo, hi = (-0.5, 0.5) if n.startswith("scale") else (-0.2, 0.5) if n == "delay_air" else (-np.inf, np.inf)
+        params.append(Parameter(n, float(start.get(n, 0.0)), free=n in estimate, bounds=(lo, hi),
+                                unit=UNITS.get(n, "")))
+    xb, yb, zb = (float(v) for v in boom_position)
+    model = Model(states=STATES, inputs=MODEL_INPUTS, outputs=list(ALL_OUTPUTS), parameters=params,
+                  constants={"g": G0, "xb": xb, "yb": yb, "zb": zb}, f=_f, g=_g,
+                  name="flight_path_reconstruction")
+    if list(outputs) != list(ALL_OUTPUTS):
+        model = model.select_outputs(list(outputs))
+    return model
+
+
+@dataclass
+class CompatibilityResult:
+    """Estimated sensor errors with Cramér-Rao bounds, and the fit behind them.
+
+    result : the ``estimators.EstimationResult``; params/std : Series by parameter name
+    (sensor-error parameters only, SI units, see ``UNITS``); segments : the segments used.
+    """
+
+    result: object
+    params: pd.Series
+    std: pd.Series
+    segments: list[SegmentSpec] = field(default_factory=list)
+    outputs: list[str] = field(default_factory=list)
+    settings: dict = field(default_factory=dict)
+    crb_std: pd.Series | None = None  #: conventional Cramér-Rao std (white-residual assumption)
+
+    def table(self, truth: Mapping[str, float] | None = None) -> pd.DataFrame:
+        """estimate, std, unit (and truth, error in std units when ``truth`` is given)."""
+        df = pd.DataFrame({"estimate": self.params, "std": self.std,
+                           "crb_std": self.crb_std if self.crb_std is not None else self.std,
+                           "unit": [UNITS.get(n, "") for n in self.params.index]})
+        if truth is not None:
+            df["truth"] = [truth.get(n, np.nan) for n in df.index]
+            df["error_std"] = (df["estimate"] - df["truth"]) / df["std"]
+        return df
+
+    def to_dict(self, truth: Mapping[str, float] | None = None) -> dict:
+        tab = self.table(truth)
+        res = self.result
+        return {
+            "status": "ok" if getattr(res, "converged", False) else "not converged",
+            "method": "oem",
+            "parameters": {n: {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
+                               for k, v in row.items()} for n, row in tab.to_dict("index").items()},
+            "segments": [s.as_dict() for s in self.segments],
+            "outputs": self.outputs,
+            "iterations": int(getattr(res, "iterations", 0)),
+            "cost": float(getattr(res, "cost", np.nan)),
+            "settings": self.settings,
+        }
+
+    def corrected(self, fd: FlightData) -> FlightData:
+        """A copy of ``fd`` with the estimated errors removed from the measured channels
+        (IMU: (x - bias) / (1 + scale); air data also shifted earlier by the delay)."""
+        from pipeline.flightdata import Channel
+
+        v = self.params
+        out = FlightData(dict(fd.channels), dict(fd.meta), list(fd.segments))
+        for ch in INPUTS:
+            if ch in fd.channels:
+                c = fd.channels[ch]
+                vals = (c.values - v.get(f"bias_{ch}", 0.0)) / (1.0 + v.get(f"scale_{ch}", 0.0))
+                out.channels[ch] = Channel(c.t, vals, c.unit, c.source + " (compatibility-corrected)")
+        tau = float(v.get("delay_air", 0.0))
+        for ch in ("V", "alpha", "beta"):
+            if ch in fd.channels:
+                c = fd.channels[ch]
+                vals = (c.values - v.get(f"bias_{ch}", 0.0)) / (1.0 + v.get(f"scale_{ch}", 0.0))
+                out.channels[ch] = Channel(c.t - tau, vals, c.unit, c.source + " (compatibility-corrected)")
+        out.meta["compatibility"] = {k: float(x) for k, x in v.items()}
+        return out
+
+
+def _lever(t: np.ndarray, rates: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """omega_dot x r + omega x (omega x r) for rates (N, 3) [rad/s]; returns (N, 3) [m/s^2]."""
+    wd = np.gradient(rates, t, axis=0)
+    return np.cross(wd, r) + np.cross(rates, np.cross(rates, r))
+
+
+def _shifted(fd: FlightData, channels: Sequence[str], tau: float) -> FlightData:
+    """``fd`` with the times of ``channels`` moved earlier by ``tau`` [s] (undoing a delay)."""
+    from pipeline.flightdata import Channel
+
+    if tau == 0.0:
+        return fd
+    chans = dict(fd.channels)
+    for c in channels:
+        if c in chans:
+            ch = chans[c]
+            chans[c] = Channel(ch.t - tau, ch.values, ch.unit, ch.source)
+    return FlightData(chans, fd.meta, fd.segments)
+
+
+def _segment_frames(fd: FlightData, segs: Sequence[SegmentSpec], rate_hz: float, outputs: list[str],
+                    imu_position: np.ndarray, mask_from: FlightData | None = None
+                    ) -> list[tuple[SegmentSpec, pd.DataFrame]]:
+    """Resampled segments; slow outputs are thinned to one grid point per native sample of
+    ``mask_from`` (default ``fd``), so a time shift of ``fd`` changes values smoothly."""
+    mask_from = mask_from or fd
+    frames = []
+    tp = fd.channels["p"].t
+    for s in segs:
+        k = int(np.searchsorted(tp, s.t0))
+        if k >= tp.size:
+            continue
+        df = fd.resample(rate_hz, INPUTS + outputs, t0=float(tp[k]), t1=s.t1, unwrap=True)
+        if len(df) < 20:
+            continue
+        # slower channels: keep only the grid points nearest their own samples (NaN elsewhere),
+        # so interpolated values do not pose as independent measurements
+        for ch in outputs:
+            c = mask_from.channels[ch]
+            if c.rate_hz < 0.75 * rate_hz:
+                tc = c.t[(c.t >= df["t"].iloc[0]) & (c.t <= df["t"].iloc[-1])]
+                # one grid point per native sample; its value is interpolated at the grid time
+                keep = np.zeros(len(df), bool)
+                idx = np.clip(np.round((tc - df["t"].iloc[0]) * rate_hz).astype(int), 0, len(df) - 1)
+                keep[idx] = True
+                df.loc[~keep, ch] = np.nan
+        inp = df[INPUTS].to_numpy()
+        ok = np.all(np.isfinite(inp), axis=1)
+        df = df[ok].reset_index(drop=True)
+        if len(df) < 20:
+            continue
+        rates = df[["p", "q", "r"]].to_numpy()
+        acc = np.gradient(rates, df["t"].to_numpy(), axis=0)
+        df[["pdot", "qdot", "rdot"]] = acc
+        if np.any(imu_position != 0):
+            lev = _lever(df["t"].to_numpy(), rates, imu_position)
+            df[["ax", "ay", "az"]] = df[["ax", "ay", "az"]].to_numpy() - lev
+        frames.append((s, df))
+    return frames
+
+
+def _x0(df: pd.DataFrame) -> np.ndarray:
+    def first(c, default=0.0):
+        if c not in df:
+            return default
+        v = df[c].to_numpy()
+        v = v[np.isfinite(v)]
+        return float(v[0]) if v.size else default
+
+    V, a, b = first("V", 20.0), first("alpha"), first("beta")
+    return np.array([V * np.cos(a) * np.cos(b), V * np.sin(b), V * np.sin(a) * np.cos(b),
+                     first("phi"), first("theta"), first("psi"), first("h")])
+
+
+def reconstruct(data: FlightData, *, segments: Sequence[SegmentSpec] | None = None,
+                rate_hz: float | None = None, estimate: Sequence[str] = DEFAULT_ESTIMATE,
+                imu_position: Sequence[float] = (0.0, 0.0, 0.0),
+                boom_position: Sequence[float] = (0.0, 0.0, 0.0), max_segments: int = 8,
+                integrator: str = "rk4", max_iter: int = 50, delay: str = "profile",
+                delay_channels: Sequence[str] = ("V", "alpha", "beta"),
+                delay_bounds: tuple[float, float] = (-0.05, 0.25)) -> CompatibilityResult:
+    """Flight path reconstruction on ``data`` with the estimators' output-error method.
+
+    Parameters
+    ----------
+    data : FlightData with at least ax ay az p q r and some of V alpha beta phi theta psi h vn ve vd
+    segments : spans to use (default: ``data.segments`` of kind "auto", else "mode", else the
+        whole log in 20 s pieces); at most ``max_segments`` of them
+    rate_hz : common rate (default: the IMU rate, at most 100 Hz)
+    estimate : names of the free sensor-error parameters (module docstring)
+    imu_position, boom_position : sensor positions from the CG, body axes [m]
+    delay : how ``delay_air`` (when in ``estimate``) is estimated: "profile" (default) shifts
+        the ``delay_channels`` by whole grid steps (exact, no interpolation) and leaves the
+        fraction of a step to the model's first-order term y(t - tau) = y - tau dy/dt (its
+        Cramér-Rao bound is the delay's); "taylor" uses the first-order term alone (one
+        fit, biased for delays that are long against the input's time scale)
+
+    Returns
+    -------
+    CompatibilityResult (estimates with Cramér-Rao std; ``.corrected(fd)`` applies them).
+    """
+    from estimators import OutputError, Segment
+
+    miss = data.missing(INPUTS)
+    if miss:
+        raise FsidError(f"compatibility needs the IMU channels; missing {miss} "
+                        f"({data.explain_missing(miss)})")
+    outputs = [c for c in ALL_OUTPUTS if c in data.channels and len(data.channels[c]) > 1]
+    if not {"phi", "theta"} <= set(outputs):
+        raise FsidError("compatibility needs phi and theta to reconstruct the flight path")
+    air = {"V": ["bias_V", "scale_V"], "alpha": ["bias_alpha", "scale_alpha"],
+           "beta": ["bias_beta", "scale_beta"]}
+    est = [e for e in estimate if not any(e in ps and ch not in outputs for ch, ps in air.items())]
+    if not any(c in outputs for c in ("V", "alpha", "beta")):
+        est = [e for e in est if e != "delay_air"]
+    if segments is None:
+        segs = [s for s in data.segments if s.kind == "auto"] or \
+               [s for s in data.segments if s.kind == "mode" and s.duration >= 5] or []
+        if not segs:
+            lo, hi = data.span
+            edges = np.arange(lo, hi, 20.0)
+            segs = [SegmentSpec(f"span_{k}", a, min(a + 20.0, hi)) for k, a in enumerate(edges)
+                    if min(a + 20.0, hi) - a >= 5.0]
+    else:
+        segs = list(segments)
+    segs = segs[:max_segments]
+    if rate_hz is None:
+        rate_hz = min(data.channels["p"].rate_hz, 100.0)
+    imu_pos = np.asarray(imu_position, float)
+    profile = delay == "profile" and "delay_air" in est
+    model_est = list(est)
+    model = kinematic_model(outputs, model_est, boom_position)
+    dch = [c for c in delay_channels if c in outputs]
+
+    def fit(tau: float, start: Mapping[str, float] | None = None):
+        shifted = _shifted(data, dch, tau)
+        frames = _segment_frames(shifted, segs, rate_hz, outputs, imu_pos, mask_from=shifted)
+        if not frames:
+            raise FsidError("compatibility: no segment with enough IMU data (>= 20 samples)")
+        eseg = [Segment(t=df["t"].to_numpy(), u=df[MODEL_INPUTS].to_numpy(),
+                        z=df[outputs].to_numpy(), x0=_x0(df), name=s.name) for s, df in frames]
+        res = OutputError(model, integrator=integrator, max_iter=max_iter).fit(
+            eseg, estimate_x0=True, start=start)
+        return res, frames, _nll(res)
+
+    if not profile:
+        res, frames, _ = fit(0.0)
+        names = [n for n in est if n in res.params.index]
+        params, std = res.params[names].astype(float), res.std[names].astype(float)
+        tau_info: dict = {"method": delay if "delay_air" in est else "none"}
+    else:
+        # whole grid steps by shifting the data (exact: samples stay on the grid), the
+        # remaining fraction of a step by the first-order term of the model
+        shift = 0
+        res, frames, _ = fit(0.0)
+        for _ in range(4):
+            frac = float(res.params["delay_air"])
+            step = int(round(frac * rate_hz))
+            if step == 0:
+                break
+            shift += step
+            res, frames, _ = fit(shift / rate_hz, {n: float(v) for n, v in zip(res.names, res.values)
+                                                   if n != "delay_air"})
+        names = [n for n in est if n in res.params.index]
+        params = res.params[names].astype(float)
+        std = res.std[names].astype(float)
+        params["delay_air"] = shift / rate_hz + float(res.params["delay_air"])
+        tau_info = {"method": "grid shift + first-order fraction", "shift_s": shift / rate_hz,
+                    "fraction_s": float(res.params["delay_air"]), "channels": dch}
+    crb_std = std.copy()
+    mk = None  # Morelli-Klein needs gap-free residuals; slow outputs here have NaN gaps
+    return CompatibilityResult(res, params, std, [s for s, _ in frames], outputs,
+                               {"rate_hz": rate_hz, "imu_position": list(map(float, imu_position)),
+                                "boom_position": list(map(float, boom_position)),
+                                "estimate": list(est), "integrator": integrator, "delay": tau_info,
+                                "std": "Cramér-Rao, Morelli-Klein corrected for coloured residuals"
+                                       if mk is not None else "Cramér-Rao"},
+                               crb_std=crb_std)
+
+
+def _morelli_klein(res) -> dict[str, float] | None:
+    """Morelli-Klein corrected std of the free parameters (None when unavailable).
+    Samples without a measurement (NaN) get zero residual and zero sensitivity."""
+    try:
+        from estimators.validation.uncertainty import morelli_klein
+    except ImportError:  # pragma: no cover
+        return None
+    Ss = getattr(res, "sensitivities", None)
+    if not Ss:
+        return None
+    vs, S2 = [], []
+    for S, e in zip(Ss, res.residuals):
+        v = e.to_numpy(dtype=float).copy()
+        bad = ~np.isfinite(v)
+        v[bad] = 0.0
+        S = np.array(S, dtype=float)
+        S[bad] = 0.0
+        vs.append(v)
+        S2.append(S)
+    try:
+        out = morelli_klein(S2, vs, R=res.R, info=res.information, names=res.free_names)
+    except Exception:  # numerical trouble: keep the conventional bounds
+        return None
+    return dict(zip(out.names, out.std))
+
+
+def _nll(res) -> float:
+    """Negative log-likelihood (up to a constant) of an OEM fit with diagonal R:
+    sum over outputs of N_j/2 ln(mean squared residual_j), NaN samples excluded."""
+    e = pd.concat(res.residuals, ignore_index=True)
+    total = 0.0
+    for c in e.columns:
+        v = e[c].to_numpy()
+        v = v[np.isfinite(v)]
+        if v.size:
+            total += 0.5 * v.size * np.log(np.mean(v * v))
+    return float(total)
+
+
+def truth_errors(truth: Mapping) -> dict[str, float]:
+    """Injected sensor errors of a ``truth.json`` document in this module's parameter names."""
+    s = truth.get("sensors", {})
+    out: dict[str, float] = {}
+    imu, air = s.get("imu", {}), s.get("airdata", {})
+    for ch in INPUTS:
+        out[f"bias_{ch}"] = float(imu.get("bias", {}).get(ch, 0.0))
+        out[f"scale_{ch}"] = float(imu.get("scale_factor", {}).get(ch, 0.0))
+    for ch in ("V", "alpha", "beta"):
+        out[f"bias_{ch}"] = float(air.get("bias", {}).get(ch, 0.0))
+        out[f"scale_{ch}"] = float(air.get("scale_factor", {}).get(ch, 0.0))
+    out["delay_air"] = float(air.get("delay_s", 0.0))
+    return out
+
+
+def compatibility_report(fd: FlightData, **kw) -> dict:
+    """``reconstruct`` for ``fsid check``: a JSON-ready dict, or why it was skipped."""
+    try:
+        res = reconstruct(fd, **kw)
+    except FsidError as exc:
+        return {"status": "skipped", "reason": str(exc)}
+    except Exception as exc:  # estimator failures are findings, not crashes
+        from estimators.errors import EstimationError
+
+        if isinstance(exc, EstimationError):
+            return {"status": "failed", "reason": f"{type(exc).__name__}: {exc}"}
+        raise
+    return res.to_dict()
