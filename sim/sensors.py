@@ -42,7 +42,7 @@ _SENSORS: dict[str, tuple[float | None, bool, dict[str, Group]]] = {
                              "vane": Group(("alpha", "beta"), "deg", D2R, 0.2, 0.0)}),
     "attitude": (50.0, False, {"angle": Group(("phi", "theta", "psi"), "deg", D2R, 0.1, 0.0)}),
     "baro": (20.0, False, {"alt": Group(("h",), "m", 1.0, 0.3, 0.01)}),
-    "surfaces": (50.0, False, {"defl": Group(("de", "da", "dr"), "deg", D2R, 0.05, 0.0),
+    "surfaces": (None, False, {"defl": Group(("de", "da", "dr"), "deg", D2R, 0.05, 0.0),
                                "throttle": Group(("throttle",), "frac", 1.0, 0.0, 0.0)}),
     "gps": (10.0, False, {"vel": Group(("vn", "ve", "vd"), "mps", 1.0, 0.1, 0.0),
                           "alt": Group(("h",), "m", 1.0, 1.0, 0.0)}),

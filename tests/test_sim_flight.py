@@ -138,7 +138,7 @@ def test_sensor_tables_have_their_rates_and_columns():
     r = flown("default")
     want = {"imu": (100.0, ["ax", "ay", "az", "p", "q", "r"]), "airdata": (50.0, ["V", "alpha", "beta"]),
             "attitude": (50.0, ["phi", "theta", "psi"]), "baro": (20.0, ["h"]),
-            "surfaces": (50.0, ["de", "da", "dr", "throttle"]), "gps": (10.0, ["vn", "ve", "vd", "h"])}
+            "surfaces": (100.0, ["de", "da", "dr", "throttle"]), "gps": (10.0, ["vn", "ve", "vd", "h"])}
     assert set(r.sensors) == set(want)
     for k, (rate, cols) in want.items():
         df = r.sensors[k]

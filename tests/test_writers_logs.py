@@ -38,6 +38,7 @@ def bin_messages():
         if m is None:
             break
         msgs[m.get_type()].append(m.to_dict())
+    log.close()
     return msgs
 
 
@@ -241,7 +242,8 @@ def test_bin_can_carry_equivalent_airspeed(tmp_path):
             arsp.append(m.Airspeed)
         elif m.get_type() == "CTUN":
             ctun.append(m.E2T)
-    tas = np.array(arsp) * np.array(ctun)            # same rate (50 Hz) in the default scenario
+    log.close()
+    tas = np.array(arsp) * np.array(ctun)            # same rate (50 Hz): airdata and attitude
     np.testing.assert_allclose(tas, r.sensors["airdata"]["V"], rtol=2e-5)
     with pytest.raises(ValueError, match="airspeed"):
         write_dataflash(tmp_path / "x.bin", r, airspeed="ias")
