@@ -38,13 +38,16 @@ keys of ``results`` such as ``oem``, ``<name>`` a parameter name with any charac
 
 Values are SI (rad, rad/s, m/s, m/s^2, N ...) as in the data contract, not degrees.
 
-Timelines: ``t`` (duration, s); ``segment`` (sequence) the segment index of each sample:
-fitted segments 0..n-1, then held-out segments n..; ``iteration`` (sequence) the optimiser
-iteration; ``frequency`` (sequence, mHz). Several segments share ``t``: when they are
-disjoint in time (pieces of one log) they keep their own times; when they overlap (e.g.
-each starts at 0) they are laid end to end, fitted then held-out, each starting 1 s
-(:data:`SEGMENT_GAP`) after the previous one ends; so a series' sample count is the sum of
-its segments' finite samples.
+Timelines: ``t`` (duration, s); ``segment`` (sequence) the index of the segment a sample
+belongs to; ``iteration`` (sequence) the optimiser iteration; ``frequency`` (sequence, mHz).
+Segments are told apart by name (``Segment.name``, or ``#k`` by position when unnamed) and
+their own times, so a maneuver fitted by several methods is one segment; they are numbered in order of first appearance: the first result's fitted
+segments, its held-out ones, then those of the next result not seen yet (another axis).
+When all segments are disjoint in time (pieces of one log) they keep their own times on
+``t``; when any overlap (e.g. each starts at 0) they are laid end to end in that order,
+each starting 1 s (:data:`SEGMENT_GAP`) after the previous one ends. A series' sample
+count is the sum of its segments' finite samples; measured data (outputs, inputs, held-out
+outputs) is written once per segment.
 
 Filter methods (EKF/UKF) keep their parameter trajectory in ``result.extra["trajectory"]``
 (per segment, DataFrames on t, one column per free parameter) and its std in
@@ -95,9 +98,11 @@ def _si_unit(channel: str) -> str:
 
 def segment_starts(t_list: Sequence[np.ndarray], gap: float = SEGMENT_GAP) -> list[float]:
     """Offset in s to add to each segment's own times (t, (N_k,)) on the shared ``t`` line:
-    0 for all when the segments are disjoint and in order, else end to end with ``gap``."""
+    0 for all when the segments are pairwise disjoint in time (pieces of one log), else end
+    to end in the given order, each ``gap`` s after the previous one ends."""
     t_list = [np.asarray(t, dtype=float) for t in t_list]
-    if all(a[-1] < b[0] for a, b in zip(t_list, t_list[1:])):
+    spans = sorted((float(t[0]), float(t[-1])) for t in t_list)
+    if all(a1 < b0 for (_, a1), (b0, _) in zip(spans, spans[1:])):
         return [0.0] * len(t_list)
     offs, start = [], 0.0
     for t in t_list:
@@ -106,12 +111,65 @@ def segment_starts(t_list: Sequence[np.ndarray], gap: float = SEGMENT_GAP) -> li
     return offs
 
 
-def _offs_for(frames: Sequence[Any], offs: Sequence[float]) -> list[float]:
-    """Offsets for a result whose segment count may differ from the first result's
-    (its own layout then)."""
-    if len(frames) == len(offs):
-        return list(offs)
-    return segment_starts([np.asarray(f.index, dtype=float) for f in frames])
+def _sig(t, name: str) -> tuple[float, float, int, str]:
+    """Identity of a segment: its name and its own times (first, last, count)."""
+    t = np.asarray(t, dtype=float)
+    return (round(float(t[0]), 9), round(float(t[-1]), 9), int(t.size), str(name))
+
+
+def segment_names(r: EstimationResult) -> list[str]:
+    """Names of a result's fitted segments: ``Segment.name``, or ``#k`` when unnamed or when
+    the result keeps no Segment objects (a regression)."""
+    segs = r.segments if len(r.segments) == len(r.predicted) else [None] * len(r.predicted)
+    return [(s.name if s is not None and s.name else f"#{k}") for k, s in enumerate(segs)]
+
+
+class SegmentLayout:
+    """Where every distinct segment sits on ``t`` and its ``segment`` index.
+
+    Segments are told apart by name and times (:func:`_sig`); the same maneuver fitted by
+    several methods is one segment. Order of first appearance: for each result its fitted
+    segments, then its held-out ones. Offsets from :func:`segment_starts` over that order."""
+
+    def __init__(self, results: Mapping[str, EstimationResult],
+                 validations: Mapping[str, Mapping[str, Any]]) -> None:
+        times: dict[tuple, np.ndarray] = {}
+        for m, r in results.items():
+            for p, name in zip(r.predicted, segment_names(r)):
+                times.setdefault(_sig(p.index, name), np.asarray(p.index, dtype=float))
+            for a in _match(validations.get(m)):
+                times.setdefault(_sig(a["t"], a["name"]), np.asarray(a["t"], dtype=float))
+        offs = segment_starts(list(times.values())) if times else []
+        self.index = {k: i for i, k in enumerate(times)}
+        self.offset = dict(zip(times, offs))
+
+    def place(self, t, name: str) -> tuple[float, int]:
+        """(offset s, segment index) of segment ``name`` with own times t; unseen ones are
+        appended."""
+        k = _sig(t, name)
+        if k not in self.index:
+            end = max((s[1] + o for s, o in self.offset.items()), default=-SEGMENT_GAP)
+            self.index[k] = len(self.index)
+            overlap = any(not (k[1] < s[0] or s[1] < k[0]) for s in self.offset)
+            self.offset[k] = (end + SEGMENT_GAP - k[0]) if overlap or any(self.offset.values()) else 0.0
+        return self.offset[k], self.index[k]
+
+    def cat(self, frames: Sequence[pd.DataFrame], names: Sequence[str],
+            times: Sequence[Any] | None = None) -> tuple[np.ndarray, np.ndarray, pd.DataFrame]:
+        """Concatenate per-segment DataFrames on t (or with explicit own ``times``) of the
+        named segments into (t_run (N,), segment (N,), values)."""
+        times = [df.index for df in frames] if times is None else times
+        ts, sg = [], []
+        for df, t, name in zip(frames, times, names):
+            o, k = self.place(t, name)
+            ts.append(np.asarray(t, dtype=float) + o)
+            sg.append(np.full(len(df), k, dtype=np.int64))
+        vals = pd.concat([df.reset_index(drop=True) for df in frames], ignore_index=True)
+        return np.concatenate(ts), np.concatenate(sg), vals
+
+
+def _match(v: Mapping[str, Any] | None) -> list[dict[str, Any]]:
+    return list(((v or {}).get("arrays") or {}).get("match") or [])
 
 
 class _Writer:
@@ -150,105 +208,84 @@ class _Writer:
         self.rec.log(path, self.rr.TextDocument(body, media_type=media_type), static=True)
 
 
-def _cat(frames: Sequence[pd.DataFrame], offs: Sequence[float], seg_ids: Sequence[int]
-         ) -> tuple[np.ndarray, np.ndarray, pd.DataFrame]:
-    """Concatenate per-segment DataFrames on t into (t_run (N,), segment (N,), values)."""
-    ts = [df.index.to_numpy(float) + o for df, o in zip(frames, offs)]
-    sg = [np.full(len(df), k, dtype=np.int64) for df, k in zip(frames, seg_ids)]
-    vals = pd.concat([df.reset_index(drop=True) for df in frames], ignore_index=True)
-    return np.concatenate(ts), np.concatenate(sg), vals
-
-
-def _match_arrays(validations: Mapping[str, Mapping[str, Any]]) -> list[dict[str, Any]]:
-    return next((v["arrays"]["match"] for v in validations.values()
-                 if v and (v.get("arrays") or {}).get("match")), [])
-
-
-def _offsets(results: Mapping[str, EstimationResult],
-             validations: Mapping[str, Mapping[str, Any]]) -> tuple[list[float], list[float]]:
-    """Offsets (s) on ``t`` of the fitted segments (from the first result) and of the
-    held-out segments (from the first validation with a proof of match)."""
-    first = next(iter(results.values()))
-    fit_t = [p.index.to_numpy(float) for p in first.predicted]
-    held_t = [np.asarray(a["t"], dtype=float) for a in _match_arrays(validations)]
-    offs = segment_starts(fit_t + held_t)
-    return offs[:len(fit_t)], offs[len(fit_t):]
-
-
 def _time_histories(w: _Writer, results: Mapping[str, EstimationResult],
                     validations: Mapping[str, Mapping[str, Any]],
-                    inputs: Sequence[pd.DataFrame] | None,
-                    fit_offs: Sequence[float], held_offs: Sequence[float]) -> None:
-    first = next(iter(results.values()))
-    match_arrays = _match_arrays(validations)
-    n_fit = len(fit_offs)
-    fit_ids = list(range(n_fit))
+                    inputs: Sequence[pd.DataFrame] | None, lay: SegmentLayout) -> None:
+    done: dict[str, set[int]] = {}          # entity -> segment indices already written
 
-    # measured outputs: from the first result that has the output (z = y + e)
-    done: set[str] = set()
-    for m, r in results.items():
+    def fresh(path: str, sg: np.ndarray) -> np.ndarray:
+        """Rows of segments not yet written to ``path`` (measured data is written once)."""
+        seen = done.setdefault(path, set())
+        mask = ~np.isin(sg, list(seen))
+        seen.update(np.unique(sg[mask]).tolist())
+        return mask
+
+    for n, (m, r) in enumerate(results.items()):
+        pm, col = entity_part(m), _color(m, w.methods)
+        names = segment_names(r)
         meas = [p + e for p, e in zip(r.predicted, r.residuals)]
-        offs_r = _offs_for(r.predicted, fit_offs)
-        ids = list(range(len(r.predicted)))
-        t, sg, z = _cat(meas, offs_r, ids)
-        _, _, y = _cat(r.predicted, offs_r, ids)
-        _, _, e = _cat(r.residuals, offs_r, ids)
+        t, sg, z = lay.cat(meas, names)
+        _, _, y = lay.cat(r.predicted, names)
+        _, _, e = lay.cat(r.residuals, names)
         for o in r.outputs:
             po, unit = entity_part(o), _si_unit(o)
-            if o not in done:
-                w.series(f"/outputs/{po}/measured", z[o], t=t, segment=sg,
+            k = fresh(f"/outputs/{po}/measured", sg)
+            if k.any():
+                w.series(f"/outputs/{po}/measured", z[o][k], t=t[k], segment=sg[k],
                          name=f"{o} measured [{unit}]", color=COLORS["measured"])
-                done.add(o)
-            w.series(f"/outputs/{po}/{entity_part(m)}", y[o], t=t, segment=sg,
-                     name=f"{o} {m} [{unit}]", color=_color(m, w.methods))
-            w.series(f"/residuals/{entity_part(m)}/{po}", e[o], t=t, segment=sg,
-                     name=f"{o} residual {m} [{unit}]", color=_color(m, w.methods))
+            w.series(f"/outputs/{po}/{pm}", y[o], t=t, segment=sg, name=f"{o} {m} [{unit}]",
+                     color=col)
+            w.series(f"/residuals/{pm}/{po}", e[o], t=t, segment=sg,
+                     name=f"{o} residual {m} [{unit}]", color=col)
 
-    # inputs
-    if inputs is None:
-        inputs = [pd.DataFrame(s.u, index=pd.Index(s.t, name="t"), columns=first.model.inputs)
-                  for s in first.segments]
-    if inputs:
-        inputs = list(inputs)
-        t, sg, u = _cat(inputs, _offs_for(inputs, fit_offs), list(range(len(inputs))))
-        for i in u.columns:
-            w.series(f"/inputs/{entity_part(i)}", u[i], t=t, segment=sg,
-                     name=f"{i} [{_si_unit(i)}]", color=(90, 90, 90))
+        # inputs: the result's segments (or the caller's tables for the first result)
+        if n == 0 and inputs is not None:
+            frames = list(inputs)
+            in_names = names[:len(frames)] + [f"inputs #{k}" for k in range(len(names), len(frames))]
+        else:
+            frames = [pd.DataFrame(s_.u, index=pd.Index(s_.t, name="t"), columns=r.model.inputs)
+                      for s_ in r.segments]
+            in_names = names
+        if frames:
+            t, sg, u = lay.cat(frames, in_names)
+            for i in u.columns:
+                k = fresh(f"/inputs/{entity_part(i)}", sg)
+                if k.any():
+                    w.series(f"/inputs/{entity_part(i)}", u[i][k], t=t[k], segment=sg[k],
+                             name=f"{i} [{_si_unit(i)}]", color=(90, 90, 90))
 
-    # inverse simulation (first fitted segment)
-    for m, v in validations.items():
-        inv = ((v or {}).get("arrays") or {}).get("inverse")
-        if not inv or not fit_offs:
-            continue
-        t = np.asarray(inv["t"], dtype=float) + fit_offs[0]
-        for j, i in enumerate(inv["inputs"]):
-            w.series(f"/inverse/{entity_part(m)}/{entity_part(i)}", inv["residual_inputs"][:, j],
-                     t=t, segment=np.zeros(t.size, dtype=np.int64),
-                     name=f"{i} residual input {m} [{_si_unit(i)}]", color=_color(m, w.methods))
+        v = validations.get(m) or {}
+        # inverse simulation (on the result's first fitted segment)
+        inv = (v.get("arrays") or {}).get("inverse")
+        if inv:
+            o_, k_ = lay.place(inv["t"], inv.get("name") or names[0])
+            t = np.asarray(inv["t"], dtype=float) + o_
+            for j, i in enumerate(inv["inputs"]):
+                w.series(f"/inverse/{pm}/{entity_part(i)}", inv["residual_inputs"][:, j], t=t,
+                         segment=np.full(t.size, k_, dtype=np.int64),
+                         name=f"{i} residual input {m} [{_si_unit(i)}]", color=col)
 
-    # proof of match on held-out segments
-    if match_arrays:
-        ids = list(range(n_fit, n_fit + len(match_arrays)))
-        t, sg, z = _cat([a["measured"] for a in match_arrays], held_offs, ids)
-        tol = match_arrays[0]["tolerance"]
-        for j, o in enumerate(z.columns):
-            po, unit = entity_part(o), _si_unit(o)
-            w.series(f"/match/{po}/measured", z[o], t=t, segment=sg,
-                     name=f"{o} measured (held out) [{unit}]", color=COLORS["measured"])
-            if np.isfinite(tol[j]):
-                w.series(f"/match/{po}/upper", z[o] + tol[j], t=t, segment=sg,
-                         name=f"{o} + tolerance", color=(170, 170, 170))
-                w.series(f"/match/{po}/lower", z[o] - tol[j], t=t, segment=sg,
-                         name=f"{o} - tolerance", color=(170, 170, 170))
-        for m, v in validations.items():
-            arr = (v or {}).get("arrays", {}).get("match") or []
-            if not arr:
-                continue
-            t, sg, y = _cat([a["predicted"] for a in arr], held_offs, ids)
-            for o in y.columns:
-                w.series(f"/match/{entity_part(o)}/{entity_part(m)}", y[o], t=t, segment=sg,
-                         name=f"{o} {m} (held-fixed model) [{_si_unit(o)}]",
-                         color=_color(m, w.methods))
+        # proof of match on held-out segments
+        arr = _match(v)
+        if arr:
+            times, hnames = [a["t"] for a in arr], [a["name"] for a in arr]
+            t, sg, z = lay.cat([a["measured"] for a in arr], hnames, times)
+            _, _, y = lay.cat([a["predicted"] for a in arr], hnames, times)
+            tol = arr[0]["tolerance"]
+            for j, o in enumerate(z.columns):
+                po, unit = entity_part(o), _si_unit(o)
+                k = fresh(f"/match/{po}/measured", sg)
+                if k.any():
+                    zk = z[o][k]
+                    w.series(f"/match/{po}/measured", zk, t=t[k], segment=sg[k],
+                             name=f"{o} measured (held out) [{unit}]", color=COLORS["measured"])
+                    if np.isfinite(tol[j]):
+                        w.series(f"/match/{po}/upper", zk + tol[j], t=t[k], segment=sg[k],
+                                 name=f"{o} + tolerance", color=(170, 170, 170))
+                        w.series(f"/match/{po}/lower", zk - tol[j], t=t[k], segment=sg[k],
+                                 name=f"{o} - tolerance", color=(170, 170, 170))
+                w.series(f"/match/{po}/{pm}", y[o], t=t, segment=sg,
+                         name=f"{o} {m} (held-fixed model) [{unit}]", color=col)
 
 
 def _trajectory(r: EstimationResult) -> tuple[list[pd.DataFrame], list[pd.DataFrame] | None] | None:
@@ -267,7 +304,7 @@ def _trajectory(r: EstimationResult) -> tuple[list[pd.DataFrame], list[pd.DataFr
 
 
 def _params(w: _Writer, results: Mapping[str, EstimationResult],
-            truth: Mapping[str, float] | None, fit_offs: Sequence[float]) -> None:
+            truth: Mapping[str, float] | None, lay: SegmentLayout) -> None:
     n_iter = 0
     t_span: list[float] = []
     for m, r in results.items():
@@ -275,10 +312,10 @@ def _params(w: _Writer, results: Mapping[str, EstimationResult],
         tr = _trajectory(r)
         if tr is not None:
             traj, tstd = tr
-            offs = _offs_for(traj, fit_offs)
-            ids = list(range(len(traj)))
-            t, sg, x = _cat(traj, offs, ids)
-            sd = _cat(tstd, offs, ids)[2] if tstd is not None else None
+            tn = segment_names(r)
+            tn = tn if len(tn) == len(traj) else [f"#{k}" for k in range(len(traj))]
+            t, sg, x = lay.cat(traj, tn)
+            sd = lay.cat(tstd, tn, [f.index for f in traj])[2] if tstd is not None else None
             t_span += [float(t[0]), float(t[-1])]
             for name in x.columns:
                 base = f"/params/{entity_part(name)}/{pm}"
@@ -359,8 +396,7 @@ def _extra_data(w: _Writer, data: pd.DataFrame | Sequence[pd.DataFrame]) -> None
     frames = [data] if isinstance(data, pd.DataFrame) else list(data)
     if not frames:
         return
-    offs = segment_starts([f.index.to_numpy(float) for f in frames])
-    t, sg, d = _cat(frames, offs, list(range(len(frames))))
+    t, sg, d = SegmentLayout({}, {}).cat(frames, [f"data #{k}" for k in range(len(frames))])
     for c in d.columns:
         if pd.api.types.is_numeric_dtype(d[c]):
             w.series(f"/data/{entity_part(c)}", d[c].to_numpy(float), t=t, segment=sg,
@@ -429,9 +465,9 @@ def write_recording(path: str | Path, results: Mapping[str, EstimationResult],
             for m, r in results.items():
                 w.text(f"/summary/{entity_part(m)}", "```\n" + r.summary(dict(truth) if truth else None)
                        + "\n```")
-            fit_offs, held_offs = _offsets(results, validations)
-            _time_histories(w, results, validations, inputs, fit_offs, held_offs)
-            _params(w, results, truth, fit_offs)
+            lay = SegmentLayout(results, validations)
+            _time_histories(w, results, validations, inputs, lay)
+            _params(w, results, truth, lay)
             _spectra(w, results, validations)
             if data is not None:
                 _extra_data(w, data)

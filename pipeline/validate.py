@@ -295,7 +295,8 @@ def _inverse(result: EstimationResult, lin, bandwidth: float
     tracked = [o for o, k in zip(result.outputs, keep) if k]
     return ({"segment": seg.name or "segment 0", "tracked": tracked, "bandwidth": bw,
              "per_input": per},
-            {"t": seg.t, "inputs": ins, "residual_inputs": inv.residual_inputs})
+            {"t": seg.t, "name": seg.name or "#0", "inputs": ins,
+             "residual_inputs": inv.residual_inputs})
 
 
 def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],

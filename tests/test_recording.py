@@ -221,6 +221,8 @@ def test_several_methods_and_filter_trajectories(run, tmp_path):
     counts, batches, _ = _read(path)
     assert counts["/outputs/q/measured"] == counts["/outputs/q/ekf"] == 2 * N
     assert counts["/outputs/qdot/ls"] == N and "/outputs/q/ls" not in counts
+    # the regression keeps no Segment objects: its data is a segment of its own ("#0")
+    assert counts["/outputs/qdot/measured"] == 3 * N
     assert counts["/match/q/oem"] == counts["/match/q/ekf"] == N
     assert counts["/params/Cmq/ekf"] == counts["/params/Cmq/ekf/upper"] == 2 * N
     assert counts["/params/Cmq/oem"] == len(res.history)
@@ -230,3 +232,30 @@ def test_several_methods_and_filter_trajectories(run, tmp_path):
     last = np.concatenate(b.column("Scalars:scalars").to_pylist())[-1]
     assert last == pytest.approx(ekf.params["Cmq"])
     assert set(b.column("segment").to_numpy()) == {0, 1}
+
+
+def test_segment_layout_across_axes():
+    """Segments of several results (axes) from one log keep log time and one index each;
+    overlapping ones (synthetic, all from t = 0) are laid end to end."""
+    from types import SimpleNamespace
+
+    from pipeline.recording import SegmentLayout
+
+    def seg(t0, n, name):
+        t = t0 + np.arange(n) * 0.1
+        return pd.DataFrame({"y": np.zeros(n)}, index=pd.Index(t, name="t")), SimpleNamespace(name=name)
+
+    (p1, s1), (p2, s2), (p3, s3) = seg(10, 101, "de_0"), seg(40, 101, "de_1"), seg(25, 51, "da_0")
+    results = {"lon": SimpleNamespace(predicted=[p1], segments=[s1]),
+               "lat": SimpleNamespace(predicted=[p3], segments=[s3])}
+    vals = {"lon": {"arrays": {"match": [{"t": p2.index.to_numpy(), "name": "de_1"}]}}}
+    lay = SegmentLayout(results, vals)
+    assert [lay.place(p.index, n) for p, n in ((p1, "de_0"), (p2, "de_1"), (p3, "da_0"))] == \
+        [(0.0, 0), (0.0, 1), (0.0, 2)]
+    # synthetic maneuvers all starting at 0: end to end in order of appearance, 1 s apart
+    (q1, r1), (q2, r2) = seg(0, 101, "a"), seg(0, 51, "b")
+    lay = SegmentLayout({"m": SimpleNamespace(predicted=[q1, q2], segments=[r1, r2])}, {})
+    assert lay.place(q1.index, "a") == (0.0, 0)
+    assert lay.place(q2.index, "b") == (pytest.approx(10.0 + SEGMENT_GAP), 1)
+    o, k = lay.place(q2.index, "late")                      # unseen: appended after the end
+    assert k == 2 and o == pytest.approx(10.0 + SEGMENT_GAP + 5.0 + SEGMENT_GAP)
