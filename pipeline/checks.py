@@ -29,6 +29,8 @@ DYNAMIC = ("ax", "ay", "az", "p", "q", "r", "phi", "theta", "psi", "alpha", "bet
 MIN_RATE_HZ = 20.0
 ANGLES = ("phi", "theta", "psi", "alpha", "beta", "de", "da", "dr")
 MIN_EXCITATION_RAD = np.radians(1.0)
+#: commands/actuators: held values and full-deflection plateaus are normal, not faults
+COMMANDS = ("de", "da", "dr", "throttle", "thrust")
 
 
 @dataclass
@@ -120,7 +122,7 @@ def check_channel(name: str, t: np.ndarray, v: np.ndarray) -> list[Finding]:
         return out
     lo, hi = float(fin.min()), float(fin.max())
     # saturation / clipping: many samples pinned at the extreme with a run of >= 3
-    if hi > lo:
+    if hi > lo and name not in COMMANDS:
         for edge, label in ((lo, "minimum"), (hi, "maximum")):
             at = np.isfinite(v) & (v == edge)
             frac = float(at.mean())
@@ -135,7 +137,9 @@ def check_channel(name: str, t: np.ndarray, v: np.ndarray) -> list[Finding]:
     # stuck: long run of identical values while the channel moves elsewhere
     same = np.r_[False, np.diff(v) == 0]
     runs = _runs(same)
-    if runs.size and hi > lo:
+    if name in COMMANDS:
+        pass
+    elif runs.size and hi > lo:
         lens = runs[:, 1] - runs[:, 0]
         k = int(np.argmax(lens))
         s0, s1 = max(runs[k, 0] - 1, 0), runs[k, 1] - 1
@@ -218,21 +222,27 @@ def check_segment(fd: FlightData, seg: SegmentSpec, *, min_duration: float = 5.0
     if ground:
         out.append(Finding(WARN, "ground", None, f"{label} has no forward flight ({why}): "
                            "on the ground or hovering; it holds no aircraft flight dynamics", seg.t0, seg.t1))
+    stds = {}
     for ax in inputs:
-        if ax not in fd.channels:
-            continue
-        x = _window(fd, ax, seg)
-        if x.size < 3:
-            continue
-        s = float(np.std(x))
-        if s < MIN_EXCITATION_RAD:
-            out.append(Finding(WARN, "excitation", ax, f"{label}: {ax} hardly moves (std "
-                               f"{np.degrees(s):.2f} deg, want >= {np.degrees(MIN_EXCITATION_RAD):.0f} "
-                               f"deg); derivatives of {ax} will be poorly identified", seg.t0,
-                               seg.t1, s))
+        if ax in fd.channels:
+            x = _window(fd, ax, seg)
+            if x.size >= 3:
+                stds[ax] = float(np.std(x))
+    if stds:
+        moved = {k: v for k, v in stds.items() if v >= MIN_EXCITATION_RAD}
+        if moved:
+            out.append(Finding(PASS, "excitation", ",".join(moved), f"{label}: excited " + ", ".join(
+                f"{k} (std {np.degrees(v):.2f} deg)" for k, v in moved.items()), seg.t0, seg.t1,
+                max(moved.values())))
         else:
-            out.append(Finding(PASS, "excitation", ax, f"{label}: {ax} excited (std "
-                               f"{np.degrees(s):.2f} deg)", seg.t0, seg.t1, s))
+            out.append(Finding(WARN, "excitation", None, f"{label}: no control axis is moved "
+                               f"(largest std {np.degrees(max(stds.values())):.2f} deg, want >= "
+                               f"{np.degrees(MIN_EXCITATION_RAD):.0f} deg); nothing to identify here",
+                               seg.t0, seg.t1, max(stds.values())))
+        if seg.axis and seg.axis in stds and stds[seg.axis] < MIN_EXCITATION_RAD:
+            out.append(Finding(WARN, "excitation", seg.axis, f"{label}: its own axis {seg.axis} "
+                               f"hardly moves (std {np.degrees(stds[seg.axis]):.2f} deg)", seg.t0, seg.t1,
+                               stds[seg.axis]))
     return out
 
 
@@ -249,6 +259,13 @@ def run_checks(fd: FlightData, segments: Sequence[SegmentSpec] | None = None,
             segs = [SegmentSpec("whole_log", lo, hi, "time")]
     for s in segs:
         out.extend(check_segment(fd, s))
+    excited = {f.channel for f in out if f.check == "excitation" and f.status == PASS}
+    excited = {a for c in excited for a in (c or "").split(",")}
+    for ax in CONTROL_INPUTS:
+        if ax in fd.channels and ax not in excited:
+            out.append(Finding(WARN, "excitation", ax, f"{ax} is never moved enough in any segment "
+                               f"(std >= {np.degrees(MIN_EXCITATION_RAD):.0f} deg); the derivatives "
+                               f"of {ax} cannot be identified from this log"))
     return out
 
 

@@ -23,6 +23,40 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--segments", default=None,
                         help="'mode', 'auto' or time ranges 't0:t1,t0:t1' in s on the log's time base")
     parser.add_argument("--no-compat", action="store_true", help="skip the sensor-compatibility fit")
+    parser.add_argument("--imu-pos", default=None, metavar="X,Y,Z",
+                        help="IMU position from the CG, body axes, m (default: from a truth.json "
+                             "next to the log, else 0,0,0)")
+    parser.add_argument("--boom-pos", default=None, metavar="X,Y,Z",
+                        help="air-data boom position from the CG, body axes, m (default as --imu-pos)")
+
+
+def _vec(text: str | None, name: str):
+    if text is None:
+        return None
+    try:
+        v = [float(x) for x in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 3:
+        raise FsidError(f"{name} '{text}' is not three numbers x,y,z in metres; e.g. {name} 0.8,0,0.05")
+    return v
+
+
+def _positions(log: Path, args) -> tuple[list[float], list[float], str]:
+    imu, boom = _vec(args.imu_pos, "--imu-pos"), _vec(args.boom_pos, "--boom-pos")
+    origin = "command line" if imu or boom else "default 0,0,0"
+    tj = log.parent / "truth.json"
+    if (imu is None or boom is None) and tj.is_file():
+        import json
+
+        try:
+            sens = json.loads(tj.read_text()).get("sensors", {})
+            imu = imu or sens.get("imu", {}).get("position_m")
+            boom = boom or sens.get("airdata", {}).get("position_m")
+            origin = f"{tj} (sensor positions)"
+        except (ValueError, AttributeError):
+            pass
+    return list(imu or [0.0, 0.0, 0.0]), list(boom or [0.0, 0.0, 0.0]), origin
 
 
 def _segments(spec: str | None):
@@ -53,7 +87,10 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_compat:
         try:
             from pipeline.compatibility import compatibility_report
-            extra["compatibility"] = compatibility_report(fd)
+            imu, boom, origin = _positions(log, args)
+            print("sensor compatibility (flight path reconstruction) ...")
+            extra["compatibility"] = compatibility_report(fd, imu_position=imu, boom_position=boom)
+            extra["compatibility"]["positions_from"] = origin
         except ImportError:
             extra["compatibility"] = {"status": "skipped", "reason": "compatibility stage not available"}
         except FsidError as exc:
@@ -68,6 +105,13 @@ def run(args: argparse.Namespace) -> int:
     buf = io.StringIO()
     df.to_csv(buf, index=False, float_format="%.9g")
     atomic_write_text(out / "canonical.csv", buf.getvalue())
+    comp = extra.get("compatibility", {})
+    if comp.get("status") in ("ok", "not converged"):
+        print(f"compatibility: {comp['status']}, {len(comp['parameters'])} sensor errors estimated")
+        for n, row in comp["parameters"].items():
+            print(f"  {n:12s} {row['estimate']: .5g} +- {row['std']:.2g} {row['unit']}")
+    elif comp:
+        print(f"compatibility: {comp.get('status')}: {comp.get('reason', '')}")
     c = summarize(findings)
     print(f"checks: {c['pass']} pass, {c['warn']} warn, {c['fail']} fail")
     for f in findings:

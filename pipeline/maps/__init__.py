@@ -96,6 +96,8 @@ class ChannelRule:
     pwm: dict | None = None
     transform: str | None = None
     component: str | None = None
+    scale_param: str | None = None      #: multiply by this log parameter (missing -> no channel)
+    unless_param: str | None = None     #: product transform: skip the 2nd factor if param != 0
 
 
 @dataclass
@@ -146,7 +148,8 @@ def _parse(doc: dict, origin: str) -> ChannelMap:
                                 f"unknown unit '{parts[1]}'")
         rules[name] = ChannelRule(name, sources, unit, float(spec.get("scale", 1.0)),
                                   float(spec.get("offset", 0.0)), float(spec.get("sign", 1.0)),
-                                  spec.get("pwm"), spec.get("transform"), spec.get("component"))
+                                  spec.get("pwm"), spec.get("transform"), spec.get("component"),
+                                  spec.get("scale_param"), spec.get("unless_param"))
     return ChannelMap(str(head.get("name", Path(origin).stem)), rules,
                       list(head.get("formats", [])), dict(head), origin)
 
@@ -284,6 +287,18 @@ def _quat_euler(w, x, y, z, comp: str) -> np.ndarray:
 
 def apply_rule(raw: RawLog, rule: ChannelRule) -> Channel | str:
     """Fill one channel from the raw tables, or return why it cannot be filled."""
+    if rule.scale_param:
+        if rule.scale_param not in raw.params:
+            return f"no parameter {rule.scale_param} in the log"
+        got = _apply_rule(raw, rule)
+        if isinstance(got, str):
+            return got
+        k = float(raw.params[rule.scale_param])
+        return Channel(got.t, got.values * k, got.unit, f"{got.source} x {rule.scale_param} ({k:g})")
+    return _apply_rule(raw, rule)
+
+
+def _apply_rule(raw: RawLog, rule: ChannelRule) -> Channel | str:
     if rule.transform in ("quat_wxyz", "quat_xyzw"):
         if len(rule.sources) != 4:
             return "quaternion transform needs 4 sources"
@@ -309,6 +324,8 @@ def apply_rule(raw: RawLog, rule: ChannelRule) -> Channel | str:
             return "product transform needs 2 sources"
         b = _lookup(raw, rule.sources[1])
         tab, va = a
+        if rule.unless_param and float(raw.params.get(rule.unless_param, 0.0)) != 0.0:
+            b = f"log parameter {rule.unless_param} says {rule.sources[0]} needs no factor"
         if isinstance(b, str):  # keep the first factor alone and say so
             vals = (va * rule.scale + rule.offset) * UNIT_FACTORS.get(rule.unit, 1.0) * rule.sign
             return Channel(np.asarray(tab.t, float), vals, CANONICAL_UNITS.get(rule.name, rule.unit),
