@@ -37,6 +37,9 @@ keys of ``results`` such as ``oem``, ``<name>`` a parameter name with any charac
     /data/<channel>                       optional extra channels (``data=``), timeline t
 
 Values are SI (rad, rad/s, m/s, m/s^2, N ...) as in the data contract, not degrees.
+A time-series view plots against the time line selected in the time panel: ``t`` (the
+default) for time histories, ``iteration`` for parameter convergence, ``frequency`` for
+spectra and frequency responses. The blueprint sent with the file has one tab per group.
 
 Timelines: ``t`` (duration, s); ``segment`` (sequence) the index of the segment a sample
 belongs to; ``iteration`` (sequence) the optimiser iteration; ``frequency`` (sequence, mHz).
@@ -406,7 +409,7 @@ def _extra_data(w: _Writer, data: pd.DataFrame | Sequence[pd.DataFrame]) -> None
 def _blueprint(results: Mapping[str, EstimationResult], validations, truth) -> Any:
     import rerun.blueprint as rrb
 
-    first = next(iter(results.values()))
+    ins = list(dict.fromkeys(i for r in results.values() for i in r.model.inputs))
     outs = list(dict.fromkeys(o for r in results.values() for o in r.outputs))
     params = list(dict.fromkeys(n for r in results.values() for n in r.free_names))
     tabs = [
@@ -415,7 +418,7 @@ def _blueprint(results: Mapping[str, EstimationResult], validations, truth) -> A
         rrb.Grid(*[rrb.TimeSeriesView(origin=f"/residuals/{entity_part(m)}", name=f"residuals {m}")
                    for m in results], name="residuals"),
         rrb.Grid(*[rrb.TimeSeriesView(origin=f"/inputs/{entity_part(i)}", name=i)
-                   for i in first.model.inputs], name="inputs"),
+                   for i in ins], name="inputs"),
         rrb.Grid(*[rrb.TimeSeriesView(origin=f"/params/{entity_part(p)}", name=p) for p in params],
                  name="parameters"),
     ]
@@ -424,13 +427,27 @@ def _blueprint(results: Mapping[str, EstimationResult], validations, truth) -> A
                                for o in outs], name="proof of match"))
     tabs.append(rrb.Grid(*[rrb.TimeSeriesView(origin=f"/spectra/{entity_part(m)}", name=f"PSD {m}")
                            for m in results], name="spectra"))
-    if any((v or {}).get("arrays", {}).get("freq") for v in validations.values()):
-        tabs.append(rrb.Grid(rrb.TimeSeriesView(origin="/freq_response", name="frequency response"),
-                             name="frequency response"))
+    pairs = list(dict.fromkeys(
+        (o, i) for v in validations.values() for fr in [((v or {}).get("arrays") or {}).get("freq")]
+        if fr for o in fr["outputs"] for i in fr["inputs"]))
+    if pairs:
+        views = []
+        for o, i in pairs:
+            base = f"/freq_response/{entity_part(o)}/{entity_part(i)}"
+            views.append(rrb.Vertical(
+                rrb.TimeSeriesView(origin=f"{base}/mag_db", name=f"{o}/{i} magnitude (dB)"),
+                rrb.TimeSeriesView(origin=f"{base}/phase_deg", name=f"{o}/{i} phase (deg)"),
+                rrb.TimeSeriesView(origin=f"{base}/coherence", name=f"{o}/{i} coherence"),
+                name=f"{o}/{i}"))
+        tabs.append(rrb.Grid(*views, name="frequency response"))
+    if any(((v or {}).get("arrays") or {}).get("inverse") for v in validations.values()):
+        tabs.append(rrb.Grid(*[rrb.TimeSeriesView(origin=f"/inverse/{entity_part(m)}",
+                                                  name=f"inverse simulation {m}")
+                               for m in results], name="inverse simulation"))
     tabs.append(rrb.Vertical(rrb.TextDocumentView(origin="/README", name="layout"),
                              *[rrb.TextDocumentView(origin=f"/summary/{entity_part(m)}", name=m)
                                for m in results], name="summary"))
-    return rrb.Blueprint(rrb.Tabs(*tabs), collapse_panels=False)
+    return rrb.Blueprint(rrb.Tabs(*tabs), rrb.TimePanel(timeline="t"), collapse_panels=False)
 
 
 def write_recording(path: str | Path, results: Mapping[str, EstimationResult],
