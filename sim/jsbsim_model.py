@@ -142,7 +142,12 @@ def _fcs_xml(aircraft: Aircraft, fcs: FcsConfig) -> str:
 
 
 def aircraft_xml(aircraft: Aircraft, fcs: FcsConfig) -> str:
-    """The complete JSBSim aircraft definition as XML text."""
+    """The complete JSBSim aircraft definition as XML text.
+
+    Ixz: the truth set holds the textbook product of inertia (int x z dm, body axes, the
+    tensor's off-diagonal is -Ixz). JSBSim 1.3 builds its tensor with the opposite sign of
+    the <ixz> element, so the element gets -Ixz (checked by the Euler-equation test in
+    tests/test_sim_flight.py)."""
     ac = aircraft
     loc0 = '<x>0</x><y>0</y><z>0</z>'
     return f"""<?xml version="1.0"?>
@@ -163,7 +168,7 @@ def aircraft_xml(aircraft: Aircraft, fcs: FcsConfig) -> str:
     <ixx unit="SLUG*FT2">{ac.Ixx * KGM2_2_SLUGFT2!r}</ixx>
     <iyy unit="SLUG*FT2">{ac.Iyy * KGM2_2_SLUGFT2!r}</iyy>
     <izz unit="SLUG*FT2">{ac.Izz * KGM2_2_SLUGFT2!r}</izz>
-    <ixz unit="SLUG*FT2">{ac.Ixz * KGM2_2_SLUGFT2!r}</ixz>
+    <ixz unit="SLUG*FT2">{-ac.Ixz * KGM2_2_SLUGFT2!r}</ixz>
     <emptywt unit="LBS">{ac.mass * KG2LB!r}</emptywt>
     <location name="CG" unit="M">{loc0}</location>
   </mass_balance>

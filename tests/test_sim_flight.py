@@ -249,3 +249,21 @@ def test_flight_matches_the_continuous_equations():
         ref = T[name].to_numpy()[keep]
         rel = np.sqrt(np.mean((y[:, j] - ref) ** 2)) / np.std(ref)
         assert rel < tol, (name, rel)
+
+
+def test_rigid_body_moments_use_the_truth_inertia_with_textbook_ixz():
+    """Euler's moment equations hold with the truth set's Ixz (textbook sign, int x z dm):
+    L = Ixx pdot - Ixz (rdot + p q) + (Izz - Iyy) q r, N = Izz rdot - Ixz (pdot - q r) + (Iyy - Ixx) p q."""
+    r = flown("lateral_doublets_calm")
+    T, ac = r.truth, r.aircraft
+    assert ac.Ixz > 0
+    qSb = T["qbar"] * ac.S * ac.b
+    p, q, rr, pd, rd = (T[c] for c in ("p", "q", "r", "pdot", "rdot"))
+    L = ac.Ixx * pd - ac.Ixz * (rd + p * q) + (ac.Izz - ac.Iyy) * q * rr
+    N = ac.Izz * rd - ac.Ixz * (pd - q * rr) + (ac.Iyy - ac.Ixx) * p * q
+    M = ac.Iyy * T["qdot"] - (ac.Izz - ac.Ixx) * p * rr - ac.Ixz * (rr ** 2 - p ** 2)
+    scale = np.max(np.abs(qSb * T["Cl"]))
+    assert scale > 5.0
+    assert np.max(np.abs(L - qSb * T["Cl"])) < 1e-5 * scale
+    assert np.max(np.abs(N - qSb * T["Cn"])) < 1e-5 * scale
+    assert np.max(np.abs(M - T["qbar"] * ac.S * ac.cbar * T["Cm"])) < 1e-5 * scale
