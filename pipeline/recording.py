@@ -34,7 +34,7 @@ keys of ``results`` such as ``oem``, ``<name>`` a parameter name with any charac
     /freq_response/<out>/<in>/coherence              coherence of the data estimate [0, 1]
     /inverse/<method>/<in>                inverse simulation: residual input (needed - flown)
                                           on the first fitted segment, timelines t, segment
-    /data/<channel>                       optional extra channels (``data=``), timeline t
+    /data/<channel>                       optional extra channels (``data=``), t, segment
 
 Values are SI (rad, rad/s, m/s, m/s^2, N ...) as in the data contract, not degrees.
 A time-series view plots against the time line selected in the time panel: ``t`` (the
@@ -44,8 +44,9 @@ spectra and frequency responses. The blueprint sent with the file has one tab pe
 Timelines: ``t`` (duration, s); ``segment`` (sequence) the index of the segment a sample
 belongs to; ``iteration`` (sequence) the optimiser iteration; ``frequency`` (sequence, mHz).
 Segments are told apart by name (``Segment.name``, or ``#k`` by position when unnamed) and
-their own times, so a maneuver fitted by several methods is one segment; they are numbered in order of first appearance: the first result's fitted
-segments, its held-out ones, then those of the next result not seen yet (another axis).
+their own times, so a maneuver fitted by several methods is one segment; they are numbered
+in order of first appearance: the first result's fitted segments, its held-out ones, then
+those of the next result not seen yet (another axis).
 When all segments are disjoint in time (pieces of one log) they keep their own times on
 ``t``; when any overlap (e.g. each starts at 0) they are laid end to end in that order,
 each starting 1 s (:data:`SEGMENT_GAP`) after the previous one ends. A series' sample
@@ -406,7 +407,7 @@ def _extra_data(w: _Writer, data: pd.DataFrame | Sequence[pd.DataFrame]) -> None
                      name=f"{c} [{_si_unit(str(c))}]", color=(90, 90, 90))
 
 
-def _blueprint(results: Mapping[str, EstimationResult], validations, truth) -> Any:
+def _blueprint(results: Mapping[str, EstimationResult], validations) -> Any:
     import rerun.blueprint as rrb
 
     ins = list(dict.fromkeys(i for r in results.values() for i in r.model.inputs))
@@ -489,7 +490,7 @@ def write_recording(path: str | Path, results: Mapping[str, EstimationResult],
             if data is not None:
                 _extra_data(w, data)
             if blueprint:
-                rec.send_blueprint(_blueprint(results, validations, truth))
+                rec.send_blueprint(_blueprint(results, validations))
         finally:
             rec.flush()
             rec.disconnect()
