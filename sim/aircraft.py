@@ -14,8 +14,10 @@ Aerodynamic model (exactly what the generated JSBSim aircraft evaluates)::
     Cl = Clbeta*beta + Clp*p_a*b/(2V) + Clr*r_a*b/(2V) + Clda*da + Cldr*dr
     Cn = Cnbeta*beta + Cnp*p_a*b/(2V) + Cnr*r_a*b/(2V) + Cnda*da + Cndr*dr
 
-CL, CD, CY act in wind axes (JSBSim LIFT/DRAG/SIDE); Cl, Cm, Cn are body-axis moments
-about the CG (the aerodynamic reference point is the CG). p_a, q_a, r_a are the
+CL, CD act in stability axes (lift normal to, drag against the projection of the airspeed
+on the symmetry plane; JSBSim ``<axis name="Z|X" frame="STABILITY">``), CY along body y;
+Cl, Cm, Cn are body-axis moments about the CG (the aerodynamic reference point is the
+CG). With beta = 0 stability and wind axes coincide. p_a, q_a, r_a are the
 aerodynamic rates (body rates minus turbulence rates). Thrust = throttle * max_thrust_N
 along body x through the CG, independent of airspeed and density.
 """

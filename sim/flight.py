@@ -308,8 +308,9 @@ def _truth_table(data: np.ndarray, props: list[str], coef_names: list[str], ac: 
         unit = LBF if coef in ("CL", "CD", "CY") else LBF * FT
         for n in names:
             if n in coef_names:
-                tot = tot + col[f"aero/coefficient/{n}"]
-                terms[n] = col[f"aero/coefficient/{n}"] * unit
+                term = col[f"aero/coefficient/{n}"]
+                tot = tot + term
+                terms[n] = term * unit
         with np.errstate(divide="ignore", invalid="ignore"):
             d[coef] = tot / ref[coef]
     truth = pd.DataFrame({c: d[c] for c in TRUTH_COLUMNS})

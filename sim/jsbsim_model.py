@@ -45,7 +45,14 @@ _REG_PROPS = {
     "da": ["fcs/da-pos-rad"],
     "dr": ["fcs/dr-pos-rad"],
 }
-_AXIS = {"CL": "LIFT", "CD": "DRAG", "CY": "SIDE", "Cl": "ROLL", "Cm": "PITCH", "Cn": "YAW"}
+#: coefficient -> (JSBSim axis, frame). Forces in stability axes (x along the projection
+#: of the airspeed on the symmetry plane, y = body y). JSBSim takes stability X as drag
+#: (positive aft) and Z as lift (positive up) and flips them itself (FGAerodynamics::Run),
+#: so every function is the plain positive term. Moments in body axes about the CG.
+_AXIS = {"CL": ("Z", "STABILITY"), "CD": ("X", "STABILITY"), "CY": ("Y", "STABILITY"),
+         "Cl": ("ROLL", "BODY"), "Cm": ("PITCH", "BODY"), "Cn": ("YAW", "BODY")}
+#: order of the axis elements (JSBSim wants one force axis system)
+_AXIS_ORDER = ("CD", "CY", "CL", "Cl", "Cm", "Cn")
 _REF = {"CL": None, "CD": None, "CY": None, "Cl": "metrics/bw-ft", "Cm": "metrics/cbarw-ft", "Cn": "metrics/bw-ft"}
 
 
@@ -70,8 +77,10 @@ def _active(aircraft: Aircraft) -> list[str]:
 
 def _aero_xml(aircraft: Aircraft) -> str:
     out = ["  <aerodynamics>"]
-    for coef, names in DERIVATIVES.items():
-        out.append(f'    <axis name="{_AXIS[coef]}">')
+    for coef in _AXIS_ORDER:
+        names = DERIVATIVES[coef]
+        axis, frame = _AXIS[coef]
+        out.append(f'    <axis name="{axis}" frame="{frame}">')
         for n in names:
             val = aircraft.derivatives[n]
             if val == 0.0:

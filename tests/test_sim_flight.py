@@ -267,3 +267,20 @@ def test_rigid_body_moments_use_the_truth_inertia_with_textbook_ixz():
     assert np.max(np.abs(L - qSb * T["Cl"])) < 1e-5 * scale
     assert np.max(np.abs(N - qSb * T["Cn"])) < 1e-5 * scale
     assert np.max(np.abs(M - T["qbar"] * ac.S * ac.cbar * T["Cm"])) < 1e-5 * scale
+
+
+@pytest.mark.parametrize("name", ["lateral_doublets_calm", "multiaxis_multisine_turbulence"])
+def test_aero_forces_act_in_stability_axes_and_thrust_along_body_x(name):
+    """m a = thrust x_b + L, D in stability axes (rotated by alpha only) + CY along body y,
+    also with sideslip."""
+    r = flown(name)
+    T, ac = r.truth, r.aircraft
+    qS = T["qbar"] * ac.S
+    L, D, Y = qS * T["CL"], qS * T["CD"], qS * T["CY"]
+    a = T["alpha"]
+    m = r.trim["jsbsim_mass_kg"]
+    assert np.max(np.abs(np.rad2deg(T["beta"]))) > 1.0
+    scale = np.max(np.abs(L))
+    np.testing.assert_allclose(m * T["ax"], T["thrust"] + L * np.sin(a) - D * np.cos(a), atol=1e-6 * scale)
+    np.testing.assert_allclose(m * T["ay"], Y, atol=1e-6 * scale)
+    np.testing.assert_allclose(m * T["az"], -L * np.cos(a) - D * np.sin(a), atol=1e-6 * scale)
