@@ -1,8 +1,10 @@
 """Ingest speed: our DataFlash reader vs pymavlink's DFReader message loop.
 
-Writes a >= 100 MB synthetic ArduPlane-layout .bin (the sim's ``write_dataflash`` when it
-is importable with a compatible signature, else ``pipeline.readers.synth`` vectorised
-here), reads it with ``pipeline.readers.dataflash.message_arrays`` (in a subprocess, to
+Writes a >= 100 MB synthetic ArduPlane .bin: the simulator flies ``scenarios/default.toml``,
+the sim's ``pipeline.writers.write_dataflash`` writes it (real ArduPlane layouts with
+FMT/FMTU/UNIT/MULT/PARM), and its data records are repeated with TimeUS shifted by the
+flight duration until the file reaches the size (a long flight made of repeated laps).
+Without the simulator, a generator of the same layouts here is used. Then reads it with ``pipeline.readers.dataflash.message_arrays`` (in a subprocess, to
 measure its peak memory) and with DFReader's ``recv_msg`` loop, checks identical values
 (exact per-type counts; every field of every 20th message of every type) and prints the
 speed ratio ours/DFReader last.
@@ -107,8 +109,16 @@ t = time.perf_counter()
 arrays, formats, damage = message_arrays({path!r})
 dt = time.perf_counter() - t
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-print(json.dumps({{"seconds": dt, "peak_kb": peak, "base_kb": base,
-                   "counts": {{k: int(v.shape[0]) for k, v in arrays.items()}}}}))
+counts = {{k: int(v.shape[0]) for k, v in arrays.items()}}
+del arrays
+from pipeline.readers import read_log
+t = time.perf_counter()
+fd = read_log({path!r})
+dt_fd = time.perf_counter() - t
+peak_fd = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(json.dumps({{"seconds": dt, "peak_kb": peak, "base_kb": base, "seconds_flightdata": dt_fd,
+                   "peak_kb_flightdata": peak_fd, "channels": len(fd.channels),
+                   "counts": counts}}))
 """
 
 
@@ -164,6 +174,48 @@ def verify(path: Path, every: int = 20) -> int:
     return checked
 
 
+def write_sim_bin(path: Path, target_mb: float) -> int | None:
+    """The sim's own writer, tiled to ``target_mb``; None when the simulator is unavailable."""
+    try:
+        from sim import fly, load_scenario
+
+        from pipeline.readers.dataflash import scan_file
+        from pipeline.writers import write_dataflash
+    except ImportError:
+        return None
+    scen = HERE / "scenarios" / "default.toml"
+    if not scen.is_file():
+        return None
+    res = fly(load_scenario(scen))
+    one = path.with_suffix(".one.bin")
+    write_dataflash(one, res)
+    buf, formats, offs, ids, damage = scan_file(one)
+    data = np.array(buf)
+    del buf
+    # the header: everything up to the first record with a TimeUS > 0 after the PARMs/FMTs
+    meta_names = {"FMT", "FMTU", "UNIT", "MULT", "PARM", "MSG"}
+    meta_ids = {k for k, f in formats.items() if f.name in meta_names}
+    first_data = int(np.flatnonzero(~np.isin(ids, list(meta_ids)))[0])
+    head_end = int(offs[first_data])
+    body = data[head_end:]
+    boffs = offs[first_data:] - head_end
+    bids = ids[first_data:]
+    # every data record here starts with TimeUS (uint64) right after the 3 header bytes
+    ok = np.array([formats[int(i)].fmt.startswith("Q") for i in bids])
+    tpos = (boffs[ok][:, None] + 3 + np.arange(8)).ravel()
+    t_us = body[tpos].reshape(-1, 8).copy().view("<u8").ravel()
+    span_us = int(t_us.max() - t_us.min()) + 10_000
+    reps = int(np.ceil(target_mb * 1e6 / body.size))
+    with open(path, "wb") as fh:
+        fh.write(data[:head_end].tobytes())
+        for k in range(reps):
+            chunk = body.copy()
+            chunk[tpos] = (t_us + np.uint64(k * span_us)).view(np.uint8)
+            fh.write(chunk.tobytes())
+    one.unlink()
+    return int(first_data + reps * (ids.size - first_data))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mb", type=float, default=100.0, help="file size in MB (default 100)")
@@ -172,12 +224,18 @@ def main() -> int:
     tmpdir = tempfile.mkdtemp(prefix="fsid-bench-")
     path = Path(args.keep) if args.keep else Path(tmpdir) / "synthetic.bin"
     t = time.perf_counter()
-    n = write_synthetic_bin(path, args.mb)
+    n = write_sim_bin(path, args.mb)
+    how = "sim flight (scenarios/default.toml) written by pipeline.writers.write_dataflash, tiled"
+    if n is None:
+        n = write_synthetic_bin(path, args.mb)
+        how = "generator of ArduPlane IMU/ATT/ARSP/AOA/BARO/RCOU/GPS layouts (no simulator)"
     size = path.stat().st_size
-    print(f"wrote {path}: {size / 1e6:.1f} MB, {n} records in {time.perf_counter() - t:.1f} s "
-          "(ArduPlane IMU/ATT/ARSP/AOA/BARO/RCOU/GPS layouts, pipeline.readers.synth FMT)")
+    print(f"wrote {path}: {size / 1e6:.1f} MB, {n} records in {time.perf_counter() - t:.1f} s ({how})")
     ours = run_ours(path)
-    print(f"ours     : {ours['seconds']:.2f} s  ({n / ours['seconds'] / 1e6:.2f} M records/s)")
+    print(f"ours     : {ours['seconds']:.2f} s  ({n / ours['seconds'] / 1e6:.2f} M records/s) all "
+          "message types decoded to numpy arrays")
+    print(f"ours read_log -> FlightData ({ours['channels']} canonical SI channels, segments): "
+          f"{ours['seconds_flightdata']:.2f} s, peak RSS {ours['peak_kb_flightdata'] * 1024 / 1e6:.0f} MB")
     peak = (ours["peak_kb"] - ours["base_kb"]) * 1024
     print(f"ours peak memory of the read: {peak / 1e6:.0f} MB = {peak / size:.2f} x file size "
           f"(peak RSS {ours['peak_kb'] * 1024 / 1e6:.0f} MB minus {ours['base_kb'] * 1024 / 1e6:.0f} MB "
@@ -193,6 +251,7 @@ def main() -> int:
           f"of {checked} sampled messages (every 20th of each type) equal")
     ok = peak < 3 * size
     print(f"peak memory < 3 x file size: {'yes' if ok else 'NO'}")
+    print(f"speed ratio read_log(FlightData)/DFReader: {tdf / ours['seconds_flightdata']:.1f}")
     print(f"speed ratio ours/DFReader: {tdf / ours['seconds']:.1f}")
     if not args.keep:
         path.unlink()
