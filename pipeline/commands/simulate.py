@@ -86,6 +86,8 @@ def simulate(scenario_path: str | Path, out: str | Path | None = None, seed: int
     except sim.ScenarioError as exc:
         raise FsidError(f"{exc} (fix the scenario's [trim] section)") from None
     prog.done()
+    if prog.enabled:
+        print(f"fsid simulate: {scenario.name}: writing flight.mcap, flight.bin, truth.json", file=sys.stderr)
     write_mcap(run_dir / "flight.mcap", result)
     write_dataflash(run_dir / "flight.bin", result)
     write_truth_json(run_dir / "truth.json", result)
