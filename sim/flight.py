@@ -87,8 +87,16 @@ TRUTH_UNITS: dict[str, str] = {
 class SimResult:
     """Everything one flight produced.
 
-    truth:     DataFrame on the JSBSim time grid (rate_hz), columns TRUTH_COLUMNS, SI units
-               (TRUTH_UNITS); noise-free.
+    truth:     DataFrame on the JSBSim time grid t = k / rate_hz, shape (N, len(TRUTH_COLUMNS)),
+               SI units (TRUTH_UNITS), noise-free. DESIGN.md section 3 channels (ax ay az:
+               specific force at the CG; p q r: inertial body rates; V alpha beta u v w:
+               air-relative; h above sea level; de da dr: surface positions; throttle,
+               thrust), then p_aero q_aero r_aero (body minus turbulence rates, what the
+               aerodynamics use), alphadot, p_turb q_turb r_turb, gust_n gust_e gust_d (NED)
+               and gust_u gust_v gust_w (body) air-mass velocities, the coefficients CL CD
+               (stability axes) CY (body y) Cl Cm Cn (body, about the CG) as JSBSim computed
+               them, de_cmd da_cmd dr_cmd (commands before actuator and limits), de_sas,
+               lat lon (deg).
     sensors:   sensor name -> DataFrame (column t at the sensor's own rate, then channels, SI).
     maneuvers: list of (name, axis, t_start, t_end); axis 'de', 'da', 'dr', 'throttle' or
                several joined with '+' (multisine).

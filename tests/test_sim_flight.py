@@ -149,9 +149,9 @@ def test_sensor_tables_have_their_rates_and_columns():
 
 
 def _expected(r, name):
-    spec = r.scenario.sensors[name]
-    src = sim.sensors.lever_arm_signals(r.truth, spec) if hasattr(sim, "sensors") else None
     from sim.sensors import lever_arm_signals
+
+    spec = r.scenario.sensors[name]
     src = lever_arm_signals(r.truth, spec)
     t = r.sensors[name]["t"].to_numpy()
     tt = r.truth["t"].to_numpy()
