@@ -287,7 +287,7 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
             "actuator_lag_s": s.actuator_lag, "versions": _versions(), "truth_units": TRUTH_UNITS,
             "jsbsim": {"dt_s": 1.0 / (s.rate_hz * SUBSTEPS), "integrators": dict(INTEGRATORS),
                        "input_hold": "each input sample is applied from its own time step on"}}
-    mans = [(m.name, m.axis_label, float(m.t_start), float(m.t_end)) for m in s.maneuvers]
+    mans = [(m.name, m.axis_label, round(float(m.t_start), 9), round(float(m.t_end), 9)) for m in s.maneuvers]
     return SimResult(scenario=s, aircraft=ac, truth=truth, sensors=sensors, maneuvers=mans, trim=trim,
                      meta=meta, aero_terms=terms)
 
