@@ -310,7 +310,13 @@ def reconstruct(data: FlightData, *, segments: Sequence[SegmentSpec] | None = No
     if miss:
         raise FsidError(f"compatibility needs the IMU channels; missing {miss} "
                         f"({data.explain_missing(miss)})")
-    outputs = [c for c in ALL_OUTPUTS if c in data.channels and len(data.channels[c]) > 1]
+    imu_rate = min(data.channels[c].rate_hz for c in INPUTS)
+    if imu_rate < 20.0:
+        raise FsidError(f"compatibility needs the IMU at >= 20 Hz; this log has it at {imu_rate:.1f} Hz "
+                        "(telemetry?) — use the onboard log")
+    # outputs with too few samples to say anything (< 20, or < 1 Hz) are left out
+    outputs = [c for c in ALL_OUTPUTS if c in data.channels and len(data.channels[c]) >= 20
+               and data.channels[c].rate_hz >= 1.0]
     if not {"phi", "theta"} <= set(outputs):
         raise FsidError("compatibility needs phi and theta to reconstruct the flight path")
     air = {"V": ["bias_V", "scale_V"], "alpha": ["bias_alpha", "scale_alpha"],
@@ -439,6 +445,9 @@ def truth_errors(truth: Mapping) -> dict[str, float]:
 
 def compatibility_report(fd: FlightData, **kw) -> dict:
     """``reconstruct`` for ``fsid check``: a JSON-ready dict, or why it was skipped."""
+    if "V" in fd.channels and len(fd["V"]) and np.nanmedian(fd["V"].values) < 5.0:
+        return {"status": "skipped", "reason": f"airspeed median {np.nanmedian(fd['V'].values):.1f} m/s: "
+                "no forward flight (on the ground or hovering), nothing to reconstruct"}
     try:
         res = reconstruct(fd, **kw)
     except FsidError as exc:

@@ -58,7 +58,8 @@ def read_ulog(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
         for k, v in d.data.items():
             a = np.asarray(v)
             if a.dtype.kind in "biuf":
-                cols[k] = a.astype(np.float64)
+                with np.errstate(invalid="ignore", over="ignore"):
+                    cols[k] = a.astype(np.float64)
         tables[name] = Table(name, t, cols)
     params: dict[str, float] = {}
     changes = [(k, v) for _t, k, v in getattr(ulog, "changed_parameters", [])]
