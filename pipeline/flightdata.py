@@ -46,6 +46,7 @@ class Channel:
     values: np.ndarray
     unit: str
     source: str = ""
+    notes: str = ""  #: e.g. the log's own unit metadata disagreeing with the map
 
     def __len__(self) -> int:
         return int(self.t.shape[0])

@@ -228,3 +228,32 @@ def test_resample_antialias_and_segments(binfile):
     assert 18.0 <= segs[0].t0 <= 20.5 and 25.5 <= segs[0].t1 <= 29.5
     ms = fd.mode_segments()
     assert [(s.mode, s.t0, s.t1) for s in ms] == [("FBWA", 0.0, 30.0), ("AUTO", 30.0, t[-1])]
+
+
+def test_px4_tlog_dialect(tmp_path):
+    from pipeline.readers.synth import encode_px4_tlog
+
+    p = tmp_path / "px4.tlog"
+    p.write_bytes(encode_px4_tlog(n=60))
+    fd = read_log(p)
+    assert fd.meta["map"] == "px4_tlog" and fd.meta["info"]["autopilot"] == "px4"
+    assert fd.params["SYS_AUTOSTART"] == 1234.0      # INT32 decoded bytewise
+    assert fd.params["FW_AIRSPD_TRIM"] == 15.0
+    assert fd.modes and fd.modes[0][1] == "POSCTL"
+    assert fd["az"].values[0] == pytest.approx(-9.81, rel=1e-6)   # HIGHRES_IMU in SI
+    assert fd["p"].values[10] == pytest.approx(0.1, rel=1e-6)
+    # ACTUATOR_CONTROL_TARGET: pitch -0.2 -> de = +0.2 * 30 deg (nose-up command = TE up)
+    assert fd["de"].values[0] == pytest.approx(np.radians(6.0), rel=1e-6)
+    assert fd["da"].values[0] == pytest.approx(np.radians(3.0), rel=1e-6)
+    assert fd["throttle"].values[0] == pytest.approx(0.6, rel=1e-6)
+
+
+def test_dataflash_fmtu_unit_conflict_is_reported(binfile, tmp_path):
+    from pipeline.checks import run_checks
+
+    m = tmp_path / "m.toml"
+    m.write_text('[map]\nextends = "ardupilot_bin"\n[channels.phi]\nsource = "ATT.Roll"\nunit = "rad"\n')
+    fd = read_log(binfile, map=m)
+    assert "FMTU" in fd["phi"].notes and "deg" in fd["phi"].notes
+    assert any(f.check == "units" and f.channel == "phi" and "FMTU" in f.message for f in run_checks(fd))
+    assert read_log(binfile)["phi"].notes == ""

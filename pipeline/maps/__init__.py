@@ -361,8 +361,15 @@ def _apply_rule(raw: RawLog, rule: ChannelRule) -> Channel | str:
             vals = vals * rule.sign
         else:
             vals = (raw_v * rule.scale + rule.offset) * UNIT_FACTORS.get(unit, 1.0) * rule.sign
+        notes = ""
+        msg, fld = _split(src)
+        logged = tab.units.get(fld)
+        if logged and unit in UNIT_FACTORS and logged in UNIT_FACTORS and \
+                UNIT_FACTORS[logged] != UNIT_FACTORS[unit] and rule.pwm is None:
+            notes = (f"the log's unit metadata (FMTU) gives {src} in {logged} but the map reads "
+                     f"it as {unit}")
         return Channel(np.asarray(tab.t, dtype=np.float64), vals,
-                       CANONICAL_UNITS.get(rule.name, rule.unit), src + note)
+                       CANONICAL_UNITS.get(rule.name, rule.unit), src + note, notes)
     return "; ".join(dict.fromkeys(reasons))
 
 

@@ -226,7 +226,14 @@ def _make_table(name: str, arr: np.ndarray, mf: MsgFormat, t: np.ndarray) -> Tab
     def loader(f: str, arr=arr, mf=mf) -> np.ndarray:
         return scaled(arr, mf, f)
 
-    units = {c: UNIT_LABELS.get(u, u) for c, u in mf.units.items()}
+    units = {}
+    chars = dict(zip(mf.columns, mf.fmt))
+    for c, u in mf.units.items():
+        m = mf.mults.get(c, 1.0)
+        # a multiplier other than 1 on a field the format does not scale: the stored number
+        # is in (multiplier x unit); only plain units are reported
+        if m in (0.0, 1.0) or chars.get(c, "") in SCALED_CHARS:
+            units[c] = UNIT_LABELS.get(u, u)
     for c, m in mf.mults.items():
         units[f"{c}.__mult__"] = str(m)
     return Table(name, t, {}, units, loader, fields)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from array import array
 from collections import defaultdict
 from pathlib import Path
 
@@ -109,7 +110,8 @@ def read_mcap(path: str | os.PathLike, *, strict: bool = False, time_base: str =
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     decoders: dict[int, object] = {}
-    cols: dict[str, dict[str, list]] = defaultdict(lambda: defaultdict(list))
+    # compact per-field buffers (8 bytes a value), never the decoded messages
+    cols: dict[str, dict[str, array]] = defaultdict(lambda: defaultdict(lambda: array("d")))
     log_t: dict[str, list] = defaultdict(list)
     hdr_t: dict[str, list] = defaultdict(list)
     counts: dict[str, int] = defaultdict(int)
@@ -153,6 +155,8 @@ def read_mcap(path: str | os.PathLike, *, strict: bool = False, time_base: str =
                     lst = tc[f]
                     if len(lst) < k:  # field absent in earlier messages
                         lst.extend([math.nan] * (k - len(lst)))
+                    if len(lst) > k:  # duplicate key after flattening: keep the first
+                        continue
                     lst.append(v)
                 counts[topic] = k + 1
                 log_t[topic].append(rec.log_time * 1e-9)
@@ -183,7 +187,7 @@ def read_mcap(path: str | os.PathLike, *, strict: bool = False, time_base: str =
         for f, lst in tc.items():
             if len(lst) < n:
                 lst.extend([math.nan] * (n - len(lst)))
-            arrs[f] = np.asarray(lst, dtype=np.float64)
+            arrs[f] = np.frombuffer(lst, dtype=np.float64).copy()
         lt = np.asarray(log_t[topic])
         ht = np.asarray(hdr_t[topic])
         use_hdr = time_base in ("auto", "header") and n > 0 and np.all(np.isfinite(ht)) and np.any(ht != 0)

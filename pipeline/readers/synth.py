@@ -194,3 +194,32 @@ def encode_ulog(n: int = 100, rate_hz: float = 100.0, seed: int = 0) -> bytes:
         if i % 20 == 0:
             out += msg(b"D", struct.pack("<HQB7x", 3, ts, 0 if i < n // 2 else 3))
     return bytes(out)
+
+
+def encode_px4_tlog(n: int = 60, rate_hz: float = 25.0, t0: float = 1.7e9) -> bytes:
+    """A small PX4 .tlog: HEARTBEAT (autopilot 12, custom_mode of POSCTL), HIGHRES_IMU,
+    ATTITUDE, ACTUATOR_CONTROL_TARGET, PARAM_VALUE (an INT32 parameter sent bytewise)."""
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink.dialects.v20 import ardupilotmega as mav
+
+    m = mav.MAVLink(None, srcSystem=1, srcComponent=1)
+    out = bytearray()
+
+    def put(t: float, msg) -> None:
+        out.extend(struct.pack(">Q", int(round(t * 1e6))))
+        out.extend(msg.pack(m))
+
+    as_float = struct.unpack("<f", struct.pack("<i", 1234))[0]  # PX4 sends int params bytewise
+    put(t0, m.param_value_encode(b"SYS_AUTOSTART", as_float, mav.MAV_PARAM_TYPE_INT32, 2, 0))
+    put(t0, m.param_value_encode(b"FW_AIRSPD_TRIM", 15.0, mav.MAV_PARAM_TYPE_REAL32, 2, 1))
+    posctl = 3 << 16  # PX4 main mode 3 = POSCTL
+    for i in range(n):
+        t = t0 + i / rate_hz
+        if i % 5 == 0:
+            put(t, m.heartbeat_encode(1, 12, 81, posctl, 4))
+        put(t, m.highres_imu_encode(int(i * 1e6 / rate_hz), 0.5, -0.25, -9.81, 0.01 * i, 0.02, -0.03,
+                                    0, 0, 0, 1013.0, 0, 0, 20.0, 0))
+        put(t, m.attitude_encode(int(i * 1000 / rate_hz), 0.1, 0.05, 1.0, 0.0, 0.0, 0.0))
+        put(t, m.actuator_control_target_encode(int(i * 1e6 / rate_hz), 0,
+                                                [0.1, -0.2, 0.05, 0.6, 0, 0, 0, 0]))
+    return bytes(out)
