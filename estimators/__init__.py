@@ -15,6 +15,8 @@ from estimators.kalman import EKF, UKF
 from estimators.model import Model, Parameter, Segment
 from estimators.oem import OutputError
 from estimators.results import EstimationResult
+from estimators.stabilized import (EigenvalueTransformation, EquationDecoupling,
+                                   StabilizedOutputError)
 from estimators.simulation import simulate_outputs
 
 __all__ = [
@@ -22,5 +24,5 @@ __all__ = [
     "EstimationError", "ModelDefinitionError", "BoundsError", "SimulationDivergedError",
     "IdentifiabilityError", "ConvergenceError",
     "LeastSquares", "RecursiveLeastSquares", "FourierRegression", "EKF", "UKF",
-    "FilterError",
+    "FilterError", "StabilizedOutputError", "EigenvalueTransformation", "EquationDecoupling",
 ]
