@@ -25,15 +25,13 @@ LBF = 4.4482216152605
 PSF = 47.880258980335840
 SLUGFT3 = 515.3788183931961
 
-#: JSBSim integration steps per recorded sample (inputs change only on recorded samples)
-SUBSTEPS = 1
 #: JSBSim integrators (FGPropagate enum: 1 rectangular Euler, 2 trapezoidal, 3/4/5
 #: Adams-Bashforth 2/3/4). JSBSim's default Euler for the body rates adds a numerical
 #: pitch damping of order omega^2 dt/2 at 100 Hz - as large as the aerodynamic Mq of a
-#: small UAV - so a fitted Cmq would be half the truth. With Adams-Bashforth 2 the flown
-#: states match an accurate integration of the continuous equations (inputs linearly
-#: interpolated between samples) to 0.3 % rms in alpha and 0.6 % in q (see
-#: tests/test_sim_flight.py::test_flight_matches_the_continuous_equations).
+#: small UAV - so a fitted Cmq would be half the truth. With Adams-Bashforth 2 and two
+#: substeps per sample (scenario key ``substeps``) an output-error fit of the
+#: continuous-time model to the noise-free truth lands within 0.15 % of every Cm/CL
+#: derivative (0.5 % with one substep); see tests/test_sim_flight.py.
 INTEGRATORS: dict[str, int] = {"rate/rotational": 3, "rate/translational": 3,
                                "position/rotational": 3, "position/translational": 4}
 
@@ -150,7 +148,7 @@ def _make_fdm(scenario: Scenario, root: Path):
     fdm.set_systems_path("systems")
     if not fdm.load_model(name):
         raise ScenarioError(f"{ac.path}: JSBSim could not load the generated aircraft; check the truth set values")
-    fdm.set_dt(1.0 / (scenario.rate_hz * SUBSTEPS))
+    fdm.set_dt(1.0 / (scenario.rate_hz * scenario.substeps))
     for kind, val in INTEGRATORS.items():
         fdm[f"simulation/integrator/{kind}"] = val
     return fdm
@@ -241,26 +239,31 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
     n_steps = int(round(s.duration * s.rate_hz))
     tgrid = np.arange(n_steps + 1) / s.rate_hz
     inputs = input_histories(list(s.maneuvers), tgrid)
-    # set an input property only on the steps where its value changes
+    # set an input property only on the steps where its value changes; between two samples
+    # an input moves linearly over the JSBSim substeps (first-order hold, what an
+    # estimator interpolating the sampled inputs assumes)
     changes: dict[int, list] = {}
     for ax, hist in inputs.items():
         hist = hist.copy()
         hist[0] = 0.0            # the property's value at the trim point; inputs act from step 1
         ks = np.flatnonzero(np.diff(hist) != 0.0) + 1
         setv = setters[ax].set_double_value
-        for k, v in zip(ks.tolist(), hist[ks].tolist()):
-            changes.setdefault(k, []).append((setv, v))
+        for k, a, b in zip(ks.tolist(), hist[ks - 1].tolist(), hist[ks].tolist()):
+            changes.setdefault(k, []).append((setv, a, b - a))
     rows = [[g() for g in getters]]
     every = max(1, n_steps // 20)
     run = fdm.run
-    sub = range(SUBSTEPS - 1)
+    fracs = [(j + 1) / s.substeps for j in range(s.substeps)]
     for k in range(1, n_steps + 1):
-        if k in changes:
-            for setv, v in changes[k]:
-                setv(v)
-        for _ in sub:
-            run()
-        run()
+        ch = changes.get(k)
+        if ch is None:
+            for _ in fracs:
+                run()
+        else:
+            for f in fracs:
+                for setv, a, d in ch:
+                    setv(a + d * f)
+                run()
         rows.append([g() for g in getters])
         if progress is not None and k % every == 0:
             progress(k / n_steps)
@@ -285,8 +288,9 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
             "sas": {"k_alpha": s.sas_k_alpha, "k_q_s": s.sas_k_q, "alpha_ref_rad": trim["alpha"],
                     "feedback": "truth alpha and body pitch rate"} if (s.sas_k_alpha or s.sas_k_q) else None,
             "actuator_lag_s": s.actuator_lag, "versions": _versions(), "truth_units": TRUTH_UNITS,
-            "jsbsim": {"dt_s": 1.0 / (s.rate_hz * SUBSTEPS), "integrators": dict(INTEGRATORS),
-                       "input_hold": "each input sample is applied from its own time step on"}}
+            "jsbsim": {"dt_s": 1.0 / (s.rate_hz * s.substeps), "substeps": s.substeps,
+                       "integrators": dict(INTEGRATORS),
+                       "input_hold": "linear between samples (first-order hold over the substeps)"}}
     mans = [(m.name, m.axis_label, round(float(m.t_start), 9), round(float(m.t_end), 9)) for m in s.maneuvers]
     return SimResult(scenario=s, aircraft=ac, truth=truth, sensors=sensors, maneuvers=mans, trim=trim,
                      meta=meta, aero_terms=terms)

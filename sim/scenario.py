@@ -9,7 +9,8 @@ Trimmability is checked when the scenario is flown (``sim.fly``), also as Scenar
 Layout (see ``scenarios/default.toml`` for a commented example)::
 
     name, description, aircraft (path relative to the scenario file), duration_s,
-    rate_hz (JSBSim and truth rate), seed
+    rate_hz (truth and input sample rate, default 100), substeps (JSBSim steps per sample,
+    default 2: inputs move linearly between samples), seed
     [trim]        altitude_m, airspeed_mps, flight_path_deg = 0, heading_deg = 0
     [schedule]    lead_s = 5, quiet_s = 10   (maneuvers without start_s are laid end to end)
     [[maneuver]]  name, axis (de|da|dr|throttle, or a list for multisine), shape
@@ -61,7 +62,7 @@ class Scenario:
     description: str
     aircraft: Aircraft
     duration: float              #: s
-    rate_hz: float               #: JSBSim integration and truth sample rate, Hz
+    rate_hz: float               #: truth sample rate, Hz (JSBSim integrates at rate_hz * substeps)
     seed: int
     altitude: float              #: trim altitude above sea level, m
     airspeed: float              #: trim true airspeed, m/s
@@ -73,6 +74,7 @@ class Scenario:
     sas_k_alpha: float           #: rad/rad
     sas_k_q: float               #: rad/(rad/s)
     sensors: dict[str, SensorSpec] = field(default_factory=dict)
+    substeps: int = 2            #: JSBSim integration steps per truth sample
     raw: dict = field(default_factory=dict, repr=False)
 
     def with_seed(self, seed: int) -> "Scenario":
@@ -149,7 +151,7 @@ class _Section:
         return int(v)
 
 
-_TOP = {"name", "description", "aircraft", "duration_s", "rate_hz", "seed", "trim", "schedule",
+_TOP = {"name", "description", "aircraft", "duration_s", "rate_hz", "substeps", "seed", "trim", "schedule",
         "maneuver", "turbulence", "actuators", "sas", "sensors"}
 _MAN = {"name", "axis", "shape", "amplitude_deg", "amplitude", "start_s", "pulse_s", "levels",
         "f0_hz", "f1_hz", "length_s", "sweep", "period_s", "cycles"}
@@ -244,6 +246,9 @@ def scenario_from_dict(raw: dict, path: Path) -> Scenario:
     aircraft = load_aircraft(ac_path)
     duration = top.num("duration_s", positive=True)
     rate = top.num("rate_hz", 100.0, lo=20.0, hi=1000.0)
+    substeps = top.integer("substeps", 2)
+    if not 1 <= substeps <= 20:
+        raise top.fail("substeps", f"must be between 1 and 20, got {substeps}")
     seed = top.integer("seed", 0)
     if "trim" not in raw:
         raise top.fail("trim", "missing section")
@@ -292,5 +297,6 @@ def scenario_from_dict(raw: dict, path: Path) -> Scenario:
         description=top.text("description", ""), aircraft=aircraft, duration=duration, rate_hz=rate,
         seed=seed, altitude=alt, airspeed=tas, flight_path=float(gam), heading=float(hdg),
         maneuvers=tuple(mans), turbulence=turb, actuator_lag=act.num("lag_s", 0.0, lo=0.0, hi=1.0),
-        sas_k_alpha=sas.num("k_alpha", 0.0), sas_k_q=sas.num("k_q_s", 0.0), sensors=sensors, raw=raw,
+        sas_k_alpha=sas.num("k_alpha", 0.0), sas_k_q=sas.num("k_q_s", 0.0), sensors=sensors,
+        substeps=substeps, raw=raw,
     )

@@ -113,9 +113,12 @@ def test_unstable_aircraft_is_held_by_the_sas_with_correlated_inputs():
     T, ac, s = r.truth, r.aircraft, r.scenario
     assert ac.derivatives["Cmalpha"] > 0
     a0 = r.trim["alpha"]
-    # JSBSim runs the FCS before it recomputes alpha: the SAS sees alpha one frame late
-    alpha_prev = np.concatenate([[a0], T["alpha"].to_numpy()[:-1]])
-    np.testing.assert_allclose(T["de_sas"], s.sas_k_alpha * (alpha_prev - a0) + s.sas_k_q * T["q"], atol=1e-12)
+    # JSBSim runs the FCS before it recomputes alpha: the SAS sees alpha one JSBSim step
+    # (half a sample) late, so the law holds to within half a sample's change of alpha
+    al = T["alpha"].to_numpy()
+    alpha_half_back = np.concatenate([[a0], 0.5 * (al[1:] + al[:-1])])
+    law = s.sas_k_alpha * (alpha_half_back - a0) + s.sas_k_q * T["q"]
+    assert np.max(np.abs(T["de_sas"] - law)) < 0.02 * np.max(np.abs(T["de_sas"]))
     u = input_histories(list(s.maneuvers), T["t"].to_numpy())["de"]
     np.testing.assert_allclose(T["de_cmd"], r.trim["de"] + u + T["de_sas"], atol=1e-12)
     # actuator lag: the position trails the command by about lag_s
@@ -212,7 +215,8 @@ def test_flight_matches_the_continuous_equations():
     """The flown longitudinal states equal an accurate (RK4, 5 ms) integration of the
     continuous point-mass-plus-pitch equations with the truth derivatives and the recorded
     inputs (linearly interpolated): what the estimators' longitudinal model will fit.
-    JSBSim's default Euler body-rate integrator fails this (alpha 5.6 % rms)."""
+    Measured: 0.07 % rms in alpha, 0.15 % in q with Adams-Bashforth 2 and two substeps;
+    JSBSim's default Euler body-rate integration at 100 Hz gives 5.6 % in alpha."""
     r = flown("longitudinal_3211_calm")
     T, ac = r.truth, r.aircraft
     d = ac.derivatives
@@ -245,7 +249,7 @@ def test_flight_matches_the_continuous_equations():
         out.append(x)
     y = np.array(out)[::2]                      # back on the 100 Hz grid
     keep = t <= 30.0 + 1e-9
-    for j, name, tol in ((0, "V", 0.005), (1, "alpha", 0.01), (2, "theta", 0.01), (3, "q", 0.015)):
+    for j, name, tol in ((0, "V", 0.003), (1, "alpha", 0.002), (2, "theta", 0.002), (3, "q", 0.003)):
         ref = T[name].to_numpy()[keep]
         rel = np.sqrt(np.mean((y[:, j] - ref) ** 2)) / np.std(ref)
         assert rel < tol, (name, rel)

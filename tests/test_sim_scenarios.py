@@ -58,6 +58,8 @@ def test_default_is_short_enough_for_the_demo():
     (lambda r: r.__setitem__("sensors", {"imu": {"gyro_noise_radps": 0.01}}), "sensors.imu.gyro_noise_radps",
      "wrong unit; write it as sensors.imu.gyro_noise_dps"),
     (lambda r: r.__setitem__("aircraft", "aircraft/nope.toml"), "aircraft", "not found"),
+    (lambda r: r.__setitem__("substeps", 0), "substeps", "between 1 and 20"),
+    (lambda r: r.__setitem__("rate_hz", "fast"), "rate_hz", "finite number"),
 ])
 def test_malformed_scenario_fails_with_one_line_naming_the_key(mutate, where, what):
     raw = _raw()

@@ -26,7 +26,8 @@ def test_dryden_parameters_follow_mil_f_8785c():
 def test_gust_variance_matches_the_scenario_intensity():
     """Sample variance over 10 min (about 75 correlation times of the 533 m scale length
     at 67 m/s): pooled over u, v, w (same sigma above 2000 ft) within 20 %; each
-    component within 30 % (its own sampling error is about 12 % rms)."""
+    component within 30 % (its own sampling error is about 12 % rms, so this part is a
+    2.5-sigma check)."""
     r = turbulence_10min()
     tu = r.meta["turbulence"]
     ratios = {c: np.mean(r.truth[g] ** 2) / tu[f"sigma_{c}"] ** 2 for c, g in COMP.items()}
@@ -37,15 +38,17 @@ def test_gust_variance_matches_the_scenario_intensity():
 
 
 def test_gust_spectra_follow_the_dryden_form():
-    """Welch spectra (2048-point segments, ~580 averages) integrated over octave bands
-    between 0.1 and 3.2 Hz against the analytic Dryden spectra: each band within 20 %."""
+    """Welch spectra (20 s segments, about 58 half-overlapping averages) integrated over
+    octave bands from 0.2 to 6.4 Hz (4 to 64 frequency bins each, sampling error < 8 %
+    rms) against the analytic Dryden spectra: each band within 20 %. Below 0.2 Hz a 10
+    minute record has too few averages; the variance test covers that part."""
     r = turbulence_10min()
     tu = r.meta["turbulence"]
     V = float(r.truth["V"].mean())
     for c, g in COMP.items():
         f, P = welch(r.truth[g].to_numpy(), fs=r.scenario.rate_hz, nperseg=2048)
         Pd = sim.dryden_psd(f, V, tu[f"sigma_{c}"], tu[f"L_{c}"], c)
-        for lo in (0.1, 0.2, 0.4, 0.8, 1.6):
+        for lo in (0.2, 0.4, 0.8, 1.6, 3.2):
             band = (f >= lo) & (f < 2 * lo)
             ratio = np.trapezoid(P[band], f[band]) / np.trapezoid(Pd[band], f[band])
             assert ratio == pytest.approx(1.0, abs=0.2), (c, lo, ratio)
