@@ -46,6 +46,11 @@ AIR_PARAMS = ["bias_V", "scale_V", "bias_alpha", "scale_alpha", "bias_beta", "sc
               "delay_air"]
 #: estimated by default: IMU biases, air-data biases and scale factors, air-data delay
 DEFAULT_ESTIMATE = tuple([f"bias_{c}" for c in INPUTS] + AIR_PARAMS)
+#: initial std of each parameter for the EKF (SI units)
+PARAM_STD = {**{f"bias_{c}": 0.5 for c in ("ax", "ay", "az")},
+             **{f"bias_{c}": 0.05 for c in ("p", "q", "r")},
+             **{f"scale_{c}": 0.1 for c in INPUTS + ["V", "alpha", "beta"]},
+             "bias_V": 2.0, "bias_alpha": 0.05, "bias_beta": 0.05, "delay_air": 0.02}
 #: parameter -> its unit (for reports)
 UNITS = {**{f"bias_{c}": "m/s^2" for c in ("ax", "ay", "az")},
          **{f"bias_{c}": "rad/s" for c in ("p", "q", "r")},
@@ -171,7 +176,7 @@ class CompatibilityResult:
         res = self.result
         return {
             "status": "ok" if getattr(res, "converged", False) else "not converged",
-            "method": "oem",
+            "method": self.settings.get("method", "oem"),
             "parameters": {n: {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
                                for k, v in row.items()} for n, row in tab.to_dict("index").items()},
             "segments": [s.as_dict() for s in self.segments],
@@ -283,7 +288,8 @@ def reconstruct(data: FlightData, *, segments: Sequence[SegmentSpec] | None = No
                 boom_position: Sequence[float] = (0.0, 0.0, 0.0), max_segments: int = 8,
                 integrator: str = "rk4", max_iter: int = 50, delay: str = "profile",
                 delay_channels: Sequence[str] = ("V", "alpha", "beta"),
-                delay_bounds: tuple[float, float] = (-0.05, 0.25)) -> CompatibilityResult:
+                delay_bounds: tuple[float, float] = (-0.05, 0.25), method: str = "oem",
+                filter_options: Mapping | None = None) -> CompatibilityResult:
     """Flight path reconstruction on ``data`` with the estimators' output-error method.
 
     Parameters
@@ -294,6 +300,9 @@ def reconstruct(data: FlightData, *, segments: Sequence[SegmentSpec] | None = No
     rate_hz : common rate (default: the IMU rate, at most 100 Hz)
     estimate : names of the free sensor-error parameters (module docstring)
     imu_position, boom_position : sensor positions from the CG, body axes [m]
+    method : "oem" (output error, per-segment initial states estimated) or "ekf" (extended
+        Kalman filter with the parameters in the state, run over the segments in order;
+        initial states from the first samples); ``filter_options`` go to ``estimators.EKF``
     delay : how ``delay_air`` (when in ``estimate``) is estimated: "profile" (default) shifts
         the ``delay_channels`` by whole grid steps (exact, no interpolation) and leaves the
         fraction of a step to the model's first-order term y(t - tau) = y - tau dy/dt (its
@@ -324,6 +333,8 @@ def reconstruct(data: FlightData, *, segments: Sequence[SegmentSpec] | None = No
     est = [e for e in estimate if not any(e in ps and ch not in outputs for ch, ps in air.items())]
     if not any(c in outputs for c in ("V", "alpha", "beta")):
         est = [e for e in est if e != "delay_air"]
+    if method not in ("oem", "ekf"):
+        raise FsidError(f"compatibility method '{method}' unknown; use oem or ekf")
     if segments is None:
         segs = [s for s in data.segments if s.kind == "auto"] or \
                [s for s in data.segments if s.kind == "mode" and s.duration >= 5] or []
@@ -350,8 +361,20 @@ def reconstruct(data: FlightData, *, segments: Sequence[SegmentSpec] | None = No
             raise FsidError("compatibility: no segment with enough IMU data (>= 20 samples)")
         eseg = [Segment(t=df["t"].to_numpy(), u=df[MODEL_INPUTS].to_numpy(),
                         z=df[outputs].to_numpy(), x0=_x0(df), name=s.name) for s, df in frames]
-        res = OutputError(model, integrator=integrator, max_iter=max_iter).fit(
-            eseg, estimate_x0=True, start=start)
+        if method == "ekf":
+            from estimators import EKF
+
+            opts = {"param_std": {n: PARAM_STD[n] for n in model_est},
+                    "measurement_noise": _noise_levels(frames, outputs),
+                    # initial states come from biased air data: do not trust them too much
+                    "state_std": {"u": 2.0, "v": 2.0, "w": 2.0, "phi": 0.02, "theta": 0.02,
+                                  "psi": 0.02, "h": 3.0},
+                    **dict(filter_options or {})}
+            st = {n: v for n, v in (start or {}).items() if not n.startswith("x0_")}
+            res = EKF(model, integrator=integrator, **opts).fit(eseg, start=st or None)
+        else:
+            res = OutputError(model, integrator=integrator, max_iter=max_iter).fit(
+                eseg, estimate_x0=True, start=start)
         return res, frames, _nll(res)
 
     if not profile:
@@ -384,6 +407,7 @@ def reconstruct(data: FlightData, *, segments: Sequence[SegmentSpec] | None = No
                                {"rate_hz": rate_hz, "imu_position": list(map(float, imu_position)),
                                 "boom_position": list(map(float, boom_position)),
                                 "estimate": list(est), "integrator": integrator, "delay": tau_info,
+                                "method": method,
                                 "std": "Cramér-Rao, Morelli-Klein corrected for coloured residuals"
                                        if mk is not None else "Cramér-Rao"},
                                crb_std=crb_std)
@@ -413,6 +437,23 @@ def _morelli_klein(res) -> dict[str, float] | None:
     except Exception:  # numerical trouble: keep the conventional bounds
         return None
     return dict(zip(out.names, out.std))
+
+
+def _noise_levels(frames, outputs: Sequence[str]) -> dict[str, float]:
+    """Measurement-noise std of each output from its own samples: std of second differences
+    / sqrt(6) (white noise on a smooth signal), pooled over segments."""
+    out = {}
+    for c in outputs:
+        d2 = []
+        for _, df in frames:
+            v = df[c].to_numpy()
+            v = v[np.isfinite(v)]
+            if v.size > 3:
+                d2.append(np.diff(v, 2))
+        x = np.concatenate(d2) if d2 else np.zeros(0)
+        out[c] = float(np.std(x) / np.sqrt(6.0)) if x.size else 1.0
+        out[c] = max(out[c], 1e-6)
+    return out
 
 
 def _nll(res) -> float:

@@ -73,3 +73,19 @@ def test_compatibility_recovers_injected_errors(flight, name):
     doc = res.to_dict(truth_errors(truth))
     assert doc["status"] == "ok" and set(doc["parameters"]) == set(ESTIMATE)
     json.dumps(doc)
+
+
+def test_compatibility_with_the_ekf_agrees(flight):
+    """The same reconstruction with the estimators' EKF (parameters in the state)."""
+    d, truth = flight
+    fd = read_log(d / "flight.bin")
+    sens = truth["sensors"]
+    res = reconstruct(fd, estimate=ESTIMATE, method="ekf", imu_position=sens["imu"]["position_m"],
+                      boom_position=sens["airdata"]["position_m"])
+    tab = res.table(truth_errors(truth))
+    assert res.settings["method"] == "ekf" and np.all(tab["std"] > 0)
+    err = (tab["estimate"] - tab["truth"]).abs()
+    others = tab.index.drop("delay_air")
+    bad = tab.loc[others][err[others] > 3 * tab.loc[others, "std"]]
+    assert bad.empty, f"outside 3 std:\n{bad}"
+    assert err["delay_air"] < 3 * tab.loc["delay_air", "std"] + SIM_TIMING_TOLERANCE_S
