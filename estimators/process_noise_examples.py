@@ -173,3 +173,80 @@ def turbulent_short_period_example(seed: int = 0, n: int = 800, dt: float = 0.02
     model = short_period(SP_CONSTANTS, values={k: v * (1 + start_offset) for k, v in STABLE_SP_TRUTH.items()},
                          output_biases=["az"])
     return NoisyExample(model, truth_model, segs, truth, F, sd, states)
+
+
+# -- Dryden gust case (benchmark) -----------------------------------------------------------------
+def _sp_gust_f(x, u, p, c):
+    alpha, q, g1, g2 = x
+    (de,) = u
+    qbar = 0.5 * c.rho * c.V * c.V
+    qhat = q * c.cbar / (2.0 * c.V)
+    ag = c.kg * (g1 + c.r3tau * g2) / c.V            # gust angle of attack w_g / V
+    CL = p.CLalpha * (alpha + ag) + p.CLq * qhat + p.CLde * de
+    Cm = p.Cmalpha * (alpha + ag) + p.Cmq * qhat + p.Cmde * de
+    return (q - qbar * c.S / (c.m * c.V) * CL, qbar * c.S * c.cbar / c.Iyy * Cm,
+            g2, (-g1 - 2.0 * c.tau * g2) / (c.tau * c.tau))
+
+
+def _sp_gust_g(x, u, p, c):
+    alpha, q, g1, g2 = x
+    (de,) = u
+    qbar = 0.5 * c.rho * c.V * c.V
+    qhat = q * c.cbar / (2.0 * c.V)
+    ag = c.kg * (g1 + c.r3tau * g2) / c.V
+    CL = p.CLalpha * (alpha + ag) + p.CLq * qhat + p.CLde * de
+    Cm = p.Cmalpha * (alpha + ag) + p.Cmq * qhat + p.Cmde * de
+    return alpha, q, qbar * c.S * c.cbar / c.Iyy * Cm, -qbar * c.S / c.m * CL
+
+
+def dryden_short_period_model(values=None, free=UNSTABLE_SP_FREE, *, sigma_w: float = 1.5,
+                              L: float = 150.0) -> tuple[Model, float]:
+    """The linear short period driven by a Dryden vertical gust w_g (std sigma_w m/s, scale
+    length L m): the shaping filter (1 + sqrt(3) tau s) / (1 + tau s)^2, tau = L / V, is
+    realised as states g1, g2 (g1' = g2, g2' = (-g1 - 2 tau g2)/tau^2 + F n) with
+    w_g = kg (g1 + sqrt(3) tau g2); the gust adds w_g/V to the angle of attack in the
+    aerodynamic coefficients. kg is set so that std(w_g) = sigma_w for the true noise
+    intensity F_g2 = 1/tau^2 (returned). States alpha, q, g1, g2; outputs alpha, q, qdot, az."""
+    from scipy import linalg as _la
+    c = dict(SP_CONSTANTS)
+    tau = L / c["V"]
+    A = np.array([[0.0, 1.0], [-1.0 / tau ** 2, -2.0 / tau]])
+    Fg = 1.0 / tau ** 2
+    Pg = _la.solve_continuous_lyapunov(A, -np.array([[0.0, 0.0], [0.0, Fg ** 2]]))
+    cvec = np.array([1.0, np.sqrt(3.0) * tau])
+    kg = sigma_w / np.sqrt(cvec @ Pg @ cvec)
+    c.update({"tau": tau, "r3tau": np.sqrt(3.0) * tau, "kg": kg})
+    vals = {**STABLE_SP_TRUTH, **(values or {})}
+    params = [Parameter(k, v, k in free) for k, v in vals.items()]
+    return Model(["alpha", "q", "g1", "g2"], ["de"], ["alpha", "q", "qdot", "az"], params,
+                 _sp_gust_f, _sp_gust_g, c, name="short_period+dryden"), Fg
+
+
+def dryden_short_period_example(seed: int = 0, n: int = 1000, dt: float = 0.02, *,
+                                sigma_w: float = 1.5, L: float = 150.0,
+                                start_offset: float = 0.2) -> NoisyExample:
+    """A stable short period (:data:`STABLE_SP_TRUTH`) flying a 3-2-1-1 and a doublet in
+    Dryden turbulence (see :func:`dryden_short_period_model`), sensor noise SP_NOISE.
+    The returned ``model`` is the same gust-augmented model with start values off by
+    +-start_offset; F_g2 (true value ``process_noise[3, 3]``) is what FEM estimates."""
+    truth_model, Fg = dryden_short_period_model(sigma_w=sigma_w, L=L)
+    rng = np.random.default_rng(seed)
+    sd = np.array([SP_NOISE[o] for o in truth_model.outputs])
+    F = np.diag([0.0, 0.0, 0.0, Fg])
+    t = np.arange(n) * dt
+    de = multistep(t, 1.0, 0.6, amplitude=np.radians(2.0)) + multistep(t, 12.0, 1.0, (1, -1), np.radians(1.5))
+    # start in a random stationary gust state (not in calm air)
+    from scipy import linalg as _la
+    tau = truth_model.constants["tau"]
+    Ag = np.array([[0.0, 1.0], [-1.0 / tau ** 2, -2.0 / tau]])
+    Pg = _la.solve_continuous_lyapunov(Ag, -np.array([[0.0, 0.0], [0.0, Fg ** 2]]))
+    g0 = np.linalg.cholesky(Pg) @ rng.standard_normal(2)
+    seg = Segment(t=t, u=de[:, None], z=np.zeros((n, 4)), x0=np.array([0.0, 0.0, *g0]), name="dryden")
+    X, Z, _ = simulate_with_process_noise(truth_model, seg, F, rng, sd)
+    seg.z = Z
+    seg.x0 = np.zeros(4)             # the estimators do not know the initial gust state
+    free = [p.name for p in truth_model.parameters if p.free]
+    signs = np.where(np.arange(len(free)) % 2 == 0, 1.0, -1.0)
+    start = {nm: STABLE_SP_TRUTH[nm] * (1.0 + s * start_offset) for nm, s in zip(free, signs)}
+    model, _ = dryden_short_period_model(values=start, sigma_w=sigma_w, L=L)
+    return NoisyExample(model, truth_model, [seg], dict(STABLE_SP_TRUTH), F, sd, [X])
