@@ -282,7 +282,34 @@ def _x0(df: pd.DataFrame) -> np.ndarray:
                      first("phi"), first("theta"), first("psi"), first("h")])
 
 
-def reconstruct(data: FlightData, *, segments: Sequence[SegmentSpec] | None = None,
+def frames_to_flightdata(frames: "pd.DataFrame | Sequence[pd.DataFrame]") -> tuple[FlightData, list[SegmentSpec]]:
+    """Segments given as DataFrames (column ``t`` [s] and canonical SI columns) -> one
+    FlightData with one segment each (later segments moved in time so none overlap)."""
+    from pipeline.flightdata import CANONICAL_UNITS, Channel
+
+    frames = [frames] if isinstance(frames, pd.DataFrame) else list(frames)
+    chans: dict[str, list] = {}
+    segs: list[SegmentSpec] = []
+    end = -np.inf
+    for k, df in enumerate(frames):
+        if "t" not in df:
+            raise FsidError(f"segment DataFrame {k} has no 't' column (time in s)")
+        t = df["t"].to_numpy(dtype=float)
+        shift = 0.0 if t[0] > end else end - t[0] + 1.0
+        t = t + shift
+        segs.append(SegmentSpec(f"segment_{k}", float(t[0]), float(t[-1]), "time"))
+        end = t[-1]
+        for c in df.columns:
+            if c != "t":
+                v = df[c].to_numpy(dtype=float)
+                ok = np.isfinite(v)
+                chans.setdefault(c, []).append((t[ok], v[ok]))
+    ch = {c: Channel(np.concatenate([a for a, _ in parts]), np.concatenate([b for _, b in parts]),
+                     CANONICAL_UNITS.get(c, "")) for c, parts in chans.items()}
+    return FlightData(ch, {"source": "DataFrame segments"}, segs), segs
+
+
+def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, segments: Sequence[SegmentSpec] | None = None,
                 rate_hz: float | None = None, estimate: Sequence[str] = DEFAULT_ESTIMATE,
                 imu_position: Sequence[float] = (0.0, 0.0, 0.0),
                 boom_position: Sequence[float] = (0.0, 0.0, 0.0), max_segments: int = 8,
@@ -294,7 +321,8 @@ def reconstruct(data: FlightData, *, segments: Sequence[SegmentSpec] | None = No
 
     Parameters
     ----------
-    data : FlightData with at least ax ay az p q r and some of V alpha beta phi theta psi h vn ve vd
+    data : FlightData with at least ax ay az p q r and some of V alpha beta phi theta psi h vn ve vd,
+        or DataFrame segments with those columns and ``t`` [s] (one segment per DataFrame)
     segments : spans to use (default: ``data.segments`` of kind "auto", else "mode", else the
         whole log in 20 s pieces); at most ``max_segments`` of them
     rate_hz : common rate (default: the IMU rate, at most 100 Hz)
@@ -315,6 +343,9 @@ def reconstruct(data: FlightData, *, segments: Sequence[SegmentSpec] | None = No
     """
     from estimators import OutputError, Segment
 
+    if not isinstance(data, FlightData):
+        data, df_segs = frames_to_flightdata(data)
+        segments = df_segs if segments is None else segments
     miss = data.missing(INPUTS)
     if miss:
         raise FsidError(f"compatibility needs the IMU channels; missing {miss} "
@@ -346,8 +377,10 @@ def reconstruct(data: FlightData, *, segments: Sequence[SegmentSpec] | None = No
     else:
         segs = list(segments)
     segs = segs[:max_segments]
-    if rate_hz is None:
-        rate_hz = min(data.channels["p"].rate_hz, 100.0)
+    if rate_hz is None:  # the IMU's sample interval (median: robust to gaps between segments)
+        dt = np.diff(data.channels["p"].t)
+        dt = dt[dt > 0]
+        rate_hz = min(round(1.0 / float(np.median(dt)), 6), 100.0)
     imu_pos = np.asarray(imu_position, float)
     profile = delay == "profile" and "delay_air" in est
     model_est = list(est)
