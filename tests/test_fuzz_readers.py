@@ -97,12 +97,16 @@ def tmp(tmp_path_factory):
 
 @pytest.mark.parametrize("fmt", sorted(SEEDS))
 def test_fuzz_only_documented_error(fmt, tmp):
+    seen = []
+
     @FUZZ
     @given(mutated(fmt))
     def run(data):
+        seen.append(len(data))
         _read(tmp, fmt, data)
 
     run()
+    assert len(seen) >= N_EXAMPLES  # every mutated input was really read
 
 
 def _df_offsets(data: bytes) -> list[tuple[int, int, int]]:
