@@ -176,3 +176,14 @@ def test_ulg_resample_common_base(ulg_fd):
     assert np.isfinite(df[["p", "q", "phi", "de"]].to_numpy()).mean() > 0.99
     # anti-aliased, so the resampled gyro has smaller spread than the raw 200 Hz one
     assert df["p"].std() < np.std(ulg_fd["p"].values)
+
+
+def test_tlog_boot_time_base(tlog_fd):
+    fd = read_log(need(TLOG), time_base="boot")
+    assert "boot" in fd.meta["time_base"]
+    # ATTITUDE.time_boot_ms (mavutil): 608582, 608821, 609063, 609301, 609543, 611021 ms
+    assert np.allclose(np.diff(fd["phi"].t[:6]), [0.239, 0.242, 0.238, 0.242, 1.478], atol=1e-6)
+    jit = {c.channel: c.value for c in run_checks(fd) if c.check == "jitter"}
+    jit_log = {c.channel: c.value for c in run_checks(tlog_fd) if c.check == "jitter"}
+    assert jit["phi"] < jit_log["phi"]  # autopilot stamps are steadier than bursty arrivals
+    assert len(fd["phi"]) == 888

@@ -60,11 +60,19 @@ def _flatten(m, fields: list[str]) -> list:
     return out
 
 
-def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | None = None) -> RawLog:
+def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | None = None,
+              time_base: str = "log") -> RawLog:
     """Read a .tlog into one table per message type (fields flattened: ``controls[0]``).
 
     ``system``: MAVLink system id to keep (default: the autopilot's).
+    ``time_base``: "log" (default) the .tlog receive stamps (UTC s; telemetry arrives in
+    bursts, so intervals jitter); "boot" the autopilot's own ``time_boot_ms``/``time_usec``
+    stamps where a message has them (moved onto the receive clock by their median offset);
+    messages without such stamps keep their receive time.
     """
+    if time_base not in ("log", "boot"):
+        raise LogReadError(f"time_base must be 'log' or 'boot' (got {time_base!r})", path=str(path),
+                           where="options")
     path = Path(path)
     try:
         data = path.read_bytes()
@@ -151,6 +159,9 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
                 cols[col] = np.asarray([str(v) for v in vals], dtype=object)
         t = np.asarray([tt for tt, row in zip(times[(s, name)], r) if len(row) == width])
         tables[name] = Table(name, t, cols)
+    tb_text = "tlog receive timestamps (UTC, seconds since 1970)"
+    if time_base == "boot":
+        tb_text = _boot_times(tables)
     par: dict[str, float] = {}
     for pid, (val, ptype) in params.get(sysid, {}).items():
         if autopilot == MAV_AUTOPILOT_PX4 and ptype in _INT_TYPES:
@@ -179,8 +190,29 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
             "param_value_count": int(sum(len(r) for (s, nm), r in rows.items()
                                          if nm == "PARAM_VALUE" and s == sysid)),
             "map_hint": "px4_tlog" if ap == "px4" else "mavlink_tlog"}
-    return RawLog(tables, "tlog", par, modes,
-                  "tlog receive timestamps (UTC, seconds since 1970)", damage, info)
+    return RawLog(tables, "tlog", par, modes, tb_text, damage, info)
+
+
+def _boot_times(tables: dict[str, Table]) -> str:
+    """Replace receive times by autopilot boot stamps (see ``read_tlog``); returns the
+    time-base sentence."""
+    own: dict[str, np.ndarray] = {}
+    for name, tab in tables.items():
+        if "time_boot_ms" in tab:
+            own[name] = tab["time_boot_ms"] * 1e-3
+        elif "time_usec" in tab:
+            tu = tab["time_usec"] * 1e-6
+            if tu.size and np.nanmax(tu) < 1e8:  # since boot, not UNIX time
+                own[name] = tu
+    if not own:
+        return "tlog receive timestamps (UTC, seconds since 1970): no autopilot stamps found"
+    diffs = np.concatenate([tables[n].t - b for n, b in own.items()])
+    offset = float(np.nanmedian(diffs))
+    for name, tab in tables.items():
+        if name in own:
+            tab.t = own[name] + offset
+    return (f"autopilot boot stamps (time_boot_ms / time_usec) + {offset:.3f} s (median receive "
+            "offset), in s; messages without stamps at their receive time")
 
 
 def _expand_names(mav, name: str, proto: list[str], width: int) -> list[str]:
