@@ -257,3 +257,42 @@ def test_dataflash_fmtu_unit_conflict_is_reported(binfile, tmp_path):
     assert "FMTU" in fd["phi"].notes and "deg" in fd["phi"].notes
     assert any(f.check == "units" and f.channel == "phi" and "FMTU" in f.message for f in run_checks(fd))
     assert read_log(binfile)["phi"].notes == ""
+
+
+F64_ARRAY = """std_msgs/MultiArrayLayout layout
+float64[] data
+================================================================================
+MSG: std_msgs/MultiArrayLayout
+std_msgs/MultiArrayDimension[] dim
+uint32 data_offset
+================================================================================
+MSG: std_msgs/MultiArrayDimension
+string label
+uint32 size
+uint32 stride
+"""
+
+
+def test_mcap_ros2_std_msgs_array_with_user_map(tmp_path):
+    from mcap_ros2.writer import Writer
+
+    p = tmp_path / "arr.mcap"
+    with open(p, "wb") as fh:
+        w = Writer(fh)
+        s = w.register_msgdef("std_msgs/msg/Float64MultiArray", F64_ARRAY)
+        for i in range(25):
+            w.write_message(topic="/surfaces", schema=s, log_time=10**9 + i * 2 * 10**7,
+                            publish_time=0, message={"layout": {"dim": [], "data_offset": 0},
+                                                     "data": [0.5 * i, -1.0, 2.0]})
+        w.finish()
+    m = tmp_path / "m.toml"
+    m.write_text('[map]\nname = "surfaces"\nextends = "ros2"\n'
+                 '[channels.de]\nsource = "/surfaces.data[0]"\nunit = "deg"\n'
+                 '[channels.da]\nsource = "/surfaces.data[1]"\nunit = "deg"\nsign = -1\n')
+    fd = read_log(p, map=m)
+    assert fd.meta["time_base"].startswith("MCAP log_time")  # no header: log time, stated
+    assert fd["de"].t[1] == pytest.approx(1.02)
+    assert np.allclose(fd["de"].values, np.radians(0.5 * np.arange(25)))
+    assert np.allclose(fd["da"].values, np.radians(1.0))
+    assert set(fd.missing(["p", "phi"])) == {"p", "phi"}
+    assert "no @sensor_msgs/msg/Imu" in fd.explain_missing(["p"])["p"]
