@@ -187,3 +187,20 @@ def test_tlog_boot_time_base(tlog_fd):
     jit_log = {c.channel: c.value for c in run_checks(tlog_fd) if c.check == "jitter"}
     assert jit["phi"] < jit_log["phi"]  # autopilot stamps are steadier than bursty arrivals
     assert len(fd["phi"]) == 888
+
+
+@pytest.mark.parametrize("name", [BIN.name, TLOG.name, ULG.name])
+def test_fsid_check_on_real_logs_does_not_fail_the_run(name, tmp_path):
+    import json
+
+    from pipeline.cli import main
+
+    log = need(LOGS / name)
+    assert main(["check", str(log), "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "checks.json").read_text())
+    assert doc["summary"]["fail"] == 0 and doc["summary"]["warn"] > 0
+    # compatibility is attempted and says why it cannot run on these logs
+    assert doc["compatibility"]["status"] == "skipped" and doc["compatibility"]["reason"]
+    assert (tmp_path / "canonical.csv").stat().st_size > 0
+    if name == BIN.name:
+        assert doc["source"]["damage"]["offset"] == 65512
