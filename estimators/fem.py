@@ -33,7 +33,8 @@ Gauss-Newton (Fisher scoring) over phi = [theta, F_i, G_j]:
 
 with the sensitivities of the filtered outputs (they include the gain's gradients
 dK/dphi) from forward differences, all perturbed parameter sets filtered in one batch.
-Step halving on J; F_i >= 0 and G_j > 0 by bounds. The Cramér-Rao bounds M^-1 cover
+Step halving on J, then Levenberg-Marquardt damping when halving fails; F_i >= 0 and
+G_j > 0 by bounds. The Cramér-Rao bounds M^-1 cover
 theta, F and G together.
 
 F-R compensation: Maine and Iliff's relaxation estimates the innovation covariance in
@@ -320,6 +321,91 @@ def steady_state_gain(Phi: np.ndarray, C: np.ndarray, Qd: np.ndarray, R: np.ndar
     return P, Bm, K
 
 
+# -- compiled nonlinear filter loop ----------------------------------------------------------
+_OUT_KERNELS: dict = {}
+
+
+def output_kernel(model: Model):
+    """g of the model compiled with numba in the integrators' calling convention
+    ``gout(x (n, B), u (n_in,), P (n_p, B), c, out (n_out, B))`` (output biases added), or
+    None when it does not compile or disagrees with the numpy evaluation."""
+    from collections import namedtuple
+    key = (model.g, tuple(model.states), tuple(model.inputs), tuple(model.parameter_names),
+           tuple(model.outputs), tuple(model.output_biases), tuple(sorted(model.constants)))
+    if key in _OUT_KERNELS:
+        return _OUT_KERNELS[key]
+    gout = None
+    kern = kernel_for(model)
+    if numba is not None and kern.compiled:
+        try:
+            n, ni, m = len(model.states), len(model.inputs), len(model.outputs)
+            names = model.parameter_names
+            bias = [(model.outputs.index(o), names.index(f"bias_{o}")) for o in model.output_biases]
+            src = "\n".join([
+                "def gout(x2d, u1d, P, c, out):",
+                "    x = (" + "".join(f"x2d[{i}], " for i in range(n)) + ")",
+                "    u = (" + "".join(f"u1d[{i}], " for i in range(ni)) + ")",
+                f"    p = _PT({', '.join(f'P[{i}]' for i in range(len(names)))})",
+                "    r = _g(x, u, p, c)",
+                *[f"    out[{j}, :] = r[{j}]" for j in range(m)],
+                *[f"    out[{j}, :] += P[{i}]" for j, i in bias],
+            ])
+            ns = {"_PT": namedtuple("Params", names), "_g": numba.njit(error_model="numpy")(model.g)}
+            exec(compile(src, f"<fsid output adapter for {model.name}>", "exec"), ns)
+            cand = numba.njit(error_model="numpy")(ns["gout"])
+            # check once against numpy
+            rng = np.random.default_rng(0)
+            x = rng.standard_normal((n, 2)) * 0.1 + 1.0
+            u = rng.standard_normal(ni) * 0.1
+            P = np.repeat(np.array([[p.value] for p in model.parameters]), 2, axis=1)
+            a = np.empty((m, 2))
+            cand(x, u, P, kern._c_jit(model.constants), a)
+            with np.errstate(all="ignore"):
+                b = model.eval_g(x[:, None, :], u[:, None, None], P, model.constants)[:, 0, :]
+            if np.allclose(a, b, rtol=1e-9, atol=1e-12, equal_nan=True):
+                gout = cand
+        except Exception:  # the numpy loop is used instead
+            gout = None
+    _OUT_KERNELS[key] = gout
+    return gout
+
+
+def _nl_loop(scheme, rhs, gout, x0, U, t, P, c, K, Z, rtol, atol, mode):
+    """Constant-gain filter with integrator prediction, batched over parameter columns:
+    x0 (n, B), P (n_p, B), K (B, n, m), Z (N, m). Returns Y (B, N, m), X (B, N, n)."""
+    n, Bc = x0.shape
+    N, m = Z.shape
+    Y = np.full((Bc, N, m), np.nan)
+    X = np.full((Bc, N, n), np.nan)
+    x = x0.copy()
+    y = np.empty((m, Bc))
+    xh = np.empty((n, Bc))
+    nu = np.empty(m)
+    for i in range(N):
+        gout(x, U[i], P, c, y)
+        for b in range(Bc):
+            for j in range(m):
+                d = Z[i, j] - y[j, b]
+                nu[j] = d if np.isfinite(d) else 0.0
+                Y[b, i, j] = y[j, b]
+            for r in range(n):
+                v = x[r, b]
+                for j in range(m):
+                    v += K[b, r, j] * nu[j]
+                xh[r, b] = v
+                X[b, i, r] = v
+        if i + 1 < N:
+            Xs = scheme(rhs, xh, U[i:i + 2], t[i:i + 2], P, c, rtol, atol, mode)
+            for r in range(n):
+                for b in range(Bc):
+                    x[r, b] = Xs[1, r, b]
+    return Y, X
+
+
+if numba is not None:
+    _nl_loop_jit = numba.njit(error_model="numpy")(_nl_loop)
+
+
 class FilterError:
     """Filter-error method (see module docstring for the equations).
 
@@ -329,7 +415,8 @@ class FilterError:
     process_noise : states with process noise and their start F (std of the continuous
         white noise, state unit per sqrt(s)): {state: start} or a (n,) vector (0 = no noise
         on that state). Default: every state that is a measured output, started at
-        0.5 sqrt(var(diff z)/h) (an upper bound from the sample-to-sample variation).
+        0.05 sqrt(var(diff z)/h) (a twentieth of the bound the sample-to-sample variation
+        gives). Starting from output-error estimates (``start=oem.params``) helps.
     estimate_F : estimate the F entries (True) or hold them at their start values.
     measurement_noise : start of G (std per output): {output: std} or (n_out,); default
         from the innovations of the start model.
@@ -339,6 +426,10 @@ class FilterError:
     max_iter, tol : Gauss-Newton iterations; stop when the relative change of J is < tol.
     fd_step : relative forward-difference step of the sensitivities.
     step_halvings : maximum halvings of a step that does not lower J.
+    inputs : input variation over a sample interval, as OutputError: "average" (default),
+        "hold" (zero-order hold) or "linear" (nonlinear form only).
+    compiled : run the nonlinear filter loop compiled with numba (f and g compiled; falls
+        back to the numpy loop when the model does not compile).
     """
 
     method = "fem"
@@ -346,7 +437,8 @@ class FilterError:
     def __init__(self, model: Model, *, process_noise: Any = None, estimate_F: bool = True,
                  measurement_noise: Any = None, form: str = "linear", integrator: str = "rk4",
                  max_iter: int = 30, tol: float = 1e-7, fd_step: float = 1e-6,
-                 step_halvings: int = 10, callback=None) -> None:
+                 step_halvings: int = 10, inputs: str = "average", compiled: bool = True,
+                 callback=None) -> None:
         if form not in ("linear", "nonlinear"):
             raise ModelDefinitionError(f"form must be 'linear' or 'nonlinear', not {form!r}")
         if integrator not in INTEGRATORS:
@@ -362,6 +454,14 @@ class FilterError:
         self.fd_step = fd_step
         self.step_halvings = step_halvings
         self.callback = callback
+        from estimators.integrators import INPUT_MODES
+        if inputs not in INPUT_MODES:
+            raise ModelDefinitionError(f"inputs must be one of {list(INPUT_MODES)}, not {inputs!r}")
+        if form == "linear" and inputs == "linear":
+            raise ModelDefinitionError("the linear form supports inputs='average' or 'hold'; use "
+                                       "form='nonlinear' for linearly interpolated inputs")
+        self.inputs = inputs
+        self.compiled = compiled
         if form == "nonlinear":
             self.method = "fem-nl"
 
@@ -374,7 +474,7 @@ class FilterError:
         for i, s in enumerate(m.states):
             if s in m.outputs:
                 d = np.concatenate([np.diff(seg.z[:, m.outputs.index(s)]) for seg in segments])
-                default[i] = 0.5 * np.sqrt(np.nanvar(d) / h)
+                default[i] = 0.05 * np.sqrt(np.nanvar(d) / h)
         spec = self.process_noise
         if spec is None:
             f0 = default
@@ -431,7 +531,10 @@ class FilterError:
                     Pp[b], Binn[b], Kg[b] = steady_state_gain(Phi[b], C[b], Qd, R)
                 except np.linalg.LinAlgError:
                     Pp[b] = np.nan; Binn[b] = np.nan; Kg[b] = np.nan
-            ua = np.vstack([0.5 * (seg.u[:-1] + seg.u[1:]), seg.u[-1:]])        # (N, ni)
+            if self.inputs == "hold":
+                ua = seg.u
+            else:
+                ua = np.vstack([0.5 * (seg.u[:-1] + seg.u[1:]), seg.u[-1:]])    # (N, ni)
             offset = np.einsum("bij,nj->bni", D, seg.u) + y0[:, None, :]
             Z = np.ascontiguousarray(seg.z)
             if self.form == "linear":
@@ -458,6 +561,24 @@ class FilterError:
         kern = kernel_for(model)
         N, m = seg.n, len(model.outputs)
         n, Bc = X0.shape
+        gout = output_kernel(model) if self.compiled else None
+        if gout is not None:
+            from estimators import integrators as _integ
+            from estimators.jit import _jit_scheme
+            Kc = np.ascontiguousarray(np.nan_to_num(Kg))
+            Y, Xf = _nl_loop_jit(_jit_scheme(self.integrator), kern.rhs_jit, gout,
+                                 np.ascontiguousarray(X0, dtype=float), np.ascontiguousarray(seg.u),
+                                 seg.t, np.ascontiguousarray(P, dtype=float), kern._c_jit(c), Kc,
+                                 np.ascontiguousarray(seg.z), float(1e-8), float(1e-10),
+                                 _integ.INPUT_MODES[self.inputs])
+            if not np.all(np.isfinite(Xf[0])):
+                i = int(np.argmax(~np.all(np.isfinite(Xf[0]), axis=1)))
+                raise SimulationDivergedError(
+                    f"the nonlinear filter prediction of segment {seg.name or k} became "
+                    f"non-finite at t={seg.t[i]:.4g} s", segment=k, time=float(seg.t[i]))
+            bad = ~np.all(np.isfinite(Kg.reshape(Bc, -1)), axis=1)
+            Y[bad] = np.nan
+            return Y, Xf
         Y = np.full((Bc, N, m), np.nan)
         Xf = np.full((Bc, N, n), np.nan)
         x = X0.copy()
@@ -471,7 +592,8 @@ class FilterError:
             Y[:, i, :] = y.T
             Xf[:, i, :] = xh.T
             if i + 1 < N:
-                x = kern.integrate(self.integrator, xh, seg.u[i:i + 2], seg.t[i:i + 2], P, c)[1]
+                x = kern.integrate(self.integrator, xh, seg.u[i:i + 2], seg.t[i:i + 2], P, c,
+                                   inputs=self.inputs)[1]
                 if not np.all(np.isfinite(x[:, 0])):
                     raise SimulationDivergedError(
                         f"the nonlinear filter prediction of segment {seg.name or k} became "
@@ -629,6 +751,19 @@ class FilterError:
                     accepted = True
                     break
                 alpha *= 0.5
+            if not accepted:
+                # Levenberg-Marquardt damping: bends the step towards the gradient
+                for lam in (1e-2, 1e-1, 1.0, 10.0, 1e2, 1e3, 1e4):
+                    d_lm = np.zeros(nphi)
+                    d_lm[a] = st.solve_step(M[np.ix_(a, a)], g[a], lam)
+                    trial = np.clip(phi + d_lm, self._lo, self._hi)
+                    trial[-m:] = np.maximum(trial[-m:], 1e-9 * self._scale[-m:])
+                    Jt = self._nll(self._filter(trial[None, :]))
+                    if Jt < J:
+                        phi = trial
+                        accepted = True
+                        alpha = -lam          # recorded as a negative step: LM with lambda
+                        break
             history[-1]["step"] = alpha
             if not accepted:
                 if 0.5 * float(g[a] @ delta[a]) <= 1e-9 * max(abs(J), 1.0):

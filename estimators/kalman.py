@@ -123,7 +123,7 @@ class AugmentedModel:
     """
 
     def __init__(self, model: Model, layout: Layout, seg: Segment, k: int, integrator: str,
-                 rtol: float = 1e-8, atol: float = 1e-10) -> None:
+                 rtol: float = 1e-8, atol: float = 1e-10, inputs: str = "average") -> None:
         self.model, self.lay, self.seg, self.k = model, layout, seg, k
         self.integrator = integrator
         self.n = len(model.states)
@@ -131,6 +131,7 @@ class AugmentedModel:
         self.c = model.constants_for(seg)
         self.kernel = kernel_for(model)
         self.rtol, self.atol = rtol, atol
+        self.inputs = inputs
 
     def params(self, S: np.ndarray) -> np.ndarray:
         """Model parameter matrix P (n_params, B) for augmented columns S."""
@@ -143,7 +144,8 @@ class AugmentedModel:
         """x part of S advanced from sample i to i+1 (n, B); theta unchanged."""
         seg = self.seg
         X = self.kernel.integrate(self.integrator, S[:self.n], seg.u[i:i + 2], seg.t[i:i + 2],
-                                  self.params(S), self.c, rtol=self.rtol, atol=self.atol)
+                                  self.params(S), self.c, rtol=self.rtol, atol=self.atol,
+                                  inputs=self.inputs)
         return X[1]
 
     def outputs(self, S: np.ndarray, i: int) -> np.ndarray:
@@ -168,7 +170,12 @@ class _ParameterFilter:
 
     def __init__(self, model: Model, *, integrator: str = "rk4", process_noise: Any = None,
                  measurement_noise: Any = None, param_std: Any = None, state_std: Any = None,
-                 param_noise: Any = None, rtol: float = 1e-8, atol: float = 1e-10) -> None:
+                 param_noise: Any = None, rtol: float = 1e-8, atol: float = 1e-10,
+                 inputs: str = "average") -> None:
+        from estimators.integrators import INPUT_MODES
+        if inputs not in INPUT_MODES:
+            raise ModelDefinitionError(f"inputs must be one of {list(INPUT_MODES)}, not {inputs!r}")
+        self.inputs = inputs
         if integrator not in INTEGRATORS:
             raise ModelDefinitionError(f"unknown integrator {integrator!r}: use one of {INTEGRATORS}")
         self.model = model
@@ -241,7 +248,7 @@ class _ParameterFilter:
         history = []
         K = None
         for k, seg in enumerate(segments):
-            aug = AugmentedModel(model, lay, seg, k, self.integrator, self.rtol, self.atol)
+            aug = AugmentedModel(model, lay, seg, k, self.integrator, self.rtol, self.atol, self.inputs)
             x0 = lay.values[lay.x0idx[k]]
             s = np.concatenate([x0, theta])
             P = np.zeros((n + m, n + m))
@@ -299,7 +306,7 @@ class _ParameterFilter:
                    "measurement_noise": R, "process_noise": F, "residuals_are": "innovations"})
 
     def _settings(self) -> dict[str, Any]:
-        return {"integrator": self.integrator, "optimizer": "recursive"}
+        return {"integrator": self.integrator, "optimizer": "recursive", "inputs": self.inputs}
 
     # filter equations, per subclass
     def _predict(self, aug, s, P, Q, i):  # pragma: no cover - abstract
@@ -326,6 +333,8 @@ class EKF(_ParameterFilter):
     state_std : initial std of the states, {state: std} or (n,); default the measurement
         std of states that are outputs, 1e-3 max(|x0|, 1) otherwise.
     param_noise : random-walk std of the parameters per sqrt(s) (default 0: constant).
+    inputs : input variation over a sample interval in the prediction step, as
+        OutputError: "average" (default), "linear" or "hold".
     fd_step : relative forward-difference step of the Jacobians,
         h_j = fd_step * max(|s_j|, 1).
     """
