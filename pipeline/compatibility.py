@@ -328,9 +328,10 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
     rate_hz : common rate (default: the IMU rate, at most 100 Hz)
     estimate : names of the free sensor-error parameters (module docstring)
     imu_position, boom_position : sensor positions from the CG, body axes [m]
-    method : "oem" (output error, per-segment initial states estimated) or "ekf" (extended
-        Kalman filter with the parameters in the state, run over the segments in order;
-        initial states from the first samples); ``filter_options`` go to ``estimators.EKF``
+    method : "oem" (output error, per-segment initial states estimated), "ekf" or "ukf"
+        (extended / unscented Kalman filter with the parameters in the state, run over the
+        segments in order; initial states from the first samples); ``filter_options`` go to
+        ``estimators.EKF`` / ``estimators.UKF``
     delay : how ``delay_air`` (when in ``estimate``) is estimated: "profile" (default) shifts
         the ``delay_channels`` by whole grid steps (exact, no interpolation) and leaves the
         fraction of a step to the model's first-order term y(t - tau) = y - tau dy/dt (its
@@ -364,8 +365,8 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
     est = [e for e in estimate if not any(e in ps and ch not in outputs for ch, ps in air.items())]
     if not any(c in outputs for c in ("V", "alpha", "beta")):
         est = [e for e in est if e != "delay_air"]
-    if method not in ("oem", "ekf"):
-        raise FsidError(f"compatibility method '{method}' unknown; use oem or ekf")
+    if method not in ("oem", "ekf", "ukf"):
+        raise FsidError(f"compatibility method '{method}' unknown; use oem, ekf or ukf")
     if segments is None:
         segs = [s for s in data.segments if s.kind == "auto"] or \
                [s for s in data.segments if s.kind == "mode" and s.duration >= 5] or []
@@ -394,8 +395,8 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
             raise FsidError("compatibility: no segment with enough IMU data (>= 20 samples)")
         eseg = [Segment(t=df["t"].to_numpy(), u=df[MODEL_INPUTS].to_numpy(),
                         z=df[outputs].to_numpy(), x0=_x0(df), name=s.name) for s, df in frames]
-        if method == "ekf":
-            from estimators import EKF
+        if method in ("ekf", "ukf"):
+            from estimators import EKF, UKF
 
             opts = {"param_std": {n: PARAM_STD[n] for n in model_est},
                     "measurement_noise": _noise_levels(frames, outputs),
@@ -404,7 +405,8 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
                                   "psi": 0.02, "h": 3.0},
                     **dict(filter_options or {})}
             st = {n: v for n, v in (start or {}).items() if not n.startswith("x0_")}
-            res = EKF(model, integrator=integrator, **opts).fit(eseg, start=st or None)
+            cls = EKF if method == "ekf" else UKF
+            res = cls(model, integrator=integrator, **opts).fit(eseg, start=st or None)
         else:
             res = OutputError(model, integrator=integrator, max_iter=max_iter).fit(
                 eseg, estimate_x0=True, start=start)

@@ -75,15 +75,16 @@ def test_compatibility_recovers_injected_errors(flight, name):
     json.dumps(doc)
 
 
-def test_compatibility_with_the_ekf_agrees(flight):
-    """The same reconstruction with the estimators' EKF (parameters in the state)."""
+@pytest.mark.parametrize("method", ["ekf", "ukf"])
+def test_compatibility_with_the_filters_agrees(flight, method):
+    """The same reconstruction with the estimators' EKF / UKF (parameters in the state)."""
     d, truth = flight
     fd = read_log(d / "flight.bin")
     sens = truth["sensors"]
-    res = reconstruct(fd, estimate=ESTIMATE, method="ekf", imu_position=sens["imu"]["position_m"],
+    res = reconstruct(fd, estimate=ESTIMATE, method=method, imu_position=sens["imu"]["position_m"],
                       boom_position=sens["airdata"]["position_m"])
     tab = res.table(truth_errors(truth))
-    assert res.settings["method"] == "ekf" and np.all(tab["std"] > 0)
+    assert res.settings["method"] == method and np.all(tab["std"] > 0)
     err = (tab["estimate"] - tab["truth"]).abs()
     others = tab.index.drop("delay_air")
     bad = tab.loc[others][err[others] > 3 * tab.loc[others, "std"]]
