@@ -49,16 +49,6 @@ def fit_problem(problem: Problem, method: str) -> Any:
     raise FsidError(f"method {method!r} is not available in the run yet; use one of {METHODS}")
 
 
-def input_mode(scenario: Any) -> str:
-    """How surface deflections vary between log samples for a simulated flight: the
-    flight computer switches steps exactly at sample instants and, without actuator lag,
-    holds them (zero-order hold); anything smoother is interpolated linearly."""
-    steps = {"doublet", "3211", "multistep"}
-    if scenario.actuator_lag == 0 and all(m.shape in steps for m in scenario.maneuvers):
-        return "hold"
-    return "linear"
-
-
 def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[str, float] | None,
              progress: Progress, inputs: str = "linear") -> tuple[dict, dict, list[Problem]]:
     """Estimate and validate every axis the log excites; ``inputs`` is how the inputs vary
@@ -138,10 +128,12 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     pr.done(", ".join(f"{k}: {v}" for k, v in summary.items()))
     ac = AircraftConstants.from_truth(truth_doc)
     truth = {k: float(v) for k, v in truth_doc["derivatives"].items()}
-    results, validations, problems = identify(fd_bin, ac, methods, truth, pr,
-                                              inputs=input_mode(scenario))
+    # estimation reads the product's own MCAP (surface positions at full resolution; the
+    # .bin's RCOU carries whole-microsecond PWM, ~0.075 deg steps); the simulator moves
+    # inputs linearly between samples, hence linear input interpolation
+    results, validations, problems = identify(fd_mcap, ac, methods, truth, pr, inputs="linear")
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary,
-                          meta={"scenario": scenario.name, "log": "flight.bin", "seed": result.meta["seed"],
+                          meta={"scenario": scenario.name, "log": "flight.mcap", "seed": result.meta["seed"],
                                 "aircraft": result.aircraft.name})
 
 
