@@ -24,7 +24,8 @@ Filter (steady-state Kalman filter, one per parameter set):
   when reporting: the linearisation is about x0 and u[0] of each segment).
 * Correction x^_k = x~_k + K (z_k - y~_k); missing samples (NaN) get no correction.
 
-Estimation: the negative log-likelihood of the innovations
+Estimation (internally the process-noise unknowns are F_i^2, which enter Qd linearly;
+results report F_i and its std): the negative log-likelihood of the innovations
 J = 1/2 sum (nu^T B^-1 nu + log det B) over all samples and segments, minimised by
 Gauss-Newton (Fisher scoring) over phi = [theta, F_i, G_j]:
 
@@ -497,9 +498,27 @@ class FilterError:
         theta[self._lay.free_idx] = phi[:nf]
         fvec = self._f_fixed.copy()
         if self.estimate_F:
-            fvec[self._noisy] = phi[nf:nf + len(self._noisy)]
+            fvec[self._noisy] = np.sqrt(np.maximum(phi[nf:nf + len(self._noisy)], 0.0))
         g = phi[-len(self.model.outputs):]
         return theta, np.diag(fvec), np.diag(g ** 2)
+
+    def _fslice(self) -> slice:
+        nf = self._lay.free_idx.size
+        return slice(nf, nf + (len(self._noisy) if self.estimate_F else 0))
+
+    def _report(self, phi: np.ndarray) -> np.ndarray:
+        """phi with the process-noise entries as std F (internally F^2 is the unknown: it
+        enters Qd linearly, so its gradient does not vanish at F = 0 and the bound works)."""
+        out = np.array(phi, dtype=float)
+        sl = self._fslice()
+        out[sl] = np.sqrt(np.maximum(out[sl], 0.0))
+        return out
+
+    def _dphi(self, phi: np.ndarray) -> np.ndarray:
+        """d phi / d reported: 2 F for the process-noise entries, 1 otherwise."""
+        D = np.ones(phi.size)
+        D[self._fslice()] = 2.0 * self._report(phi)[self._fslice()]
+        return D
 
     # -- filtering a batch of parameter vectors ------------------------------------------------
     def _filter(self, Phis: np.ndarray, want_states: bool = False):
@@ -681,7 +700,7 @@ class FilterError:
         phi = list(lay.values[fi])
         if self.estimate_F:
             for i in self._noisy:
-                names.append(f"F_{model.states[i]}"); phi.append(f0[i]); lo.append(0.0); hi.append(np.inf)
+                names.append(f"F_{model.states[i]}"); phi.append(f0[i] ** 2); lo.append(0.0); hi.append(np.inf)
         gnames = [f"G_{o}" for o in model.outputs]
         # measurement-noise start: from the innovations of the start model
         phi_arr = np.array(phi + [1.0] * m)
@@ -723,11 +742,17 @@ class FilterError:
                     "current parameters (system not detectable from the outputs?)")
             M, g, J = self._scoring(res, hsteps)
             if it == 1:
-                st.check_identifiable(M, names, " at the start values")
+                # at the start only parameters without any effect are an error (a large start
+                # F lets the filter follow the data and makes others weak, not unidentifiable)
+                d = np.diag(M) * np.maximum(np.abs(phi), self._floor) ** 2    # scale-free
+                dead = d <= 1e-14 * max(float(d.max()), 1e-300)
+                if np.any(dead):
+                    st.check_identifiable(np.diag(np.where(dead, 0.0, 1.0)), names,
+                                          " at the start values")
             history.append({"iteration": it - 1, "J": J, "det_R": float(np.linalg.det(res[0]["B"][0])),
-                            "step": np.nan, **dict(zip(names, phi))})
+                            "step": np.nan, **dict(zip(names, self._report(phi)))})
             if self.callback:
-                self.callback(it - 1, J, pd.Series(phi, index=names))
+                self.callback(it - 1, J, pd.Series(self._report(phi), index=names))
             if np.isfinite(J_old) and abs(J_old - J) <= self.tol * max(abs(J), 1.0):
                 converged = True
                 break
@@ -784,11 +809,16 @@ class FilterError:
         if inner.size:
             st.check_identifiable(M[np.ix_(inner, inner)], [names[i] for i in inner], " at the estimates")
             cov[np.ix_(inner, inner)] = st.covariance(M[np.ix_(inner, inner)])
+        # report F as std: F = sqrt(phi_F); covariance and information by the chain rule
+        D = self._dphi(phi)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cov = cov / np.outer(D, D)
+        M = M * np.outer(D, D)
         theta, F, R = self._unpack(phi)
         E = [seg.z - r["Y"][0] for seg, r in zip(segments, res)]
         Ys = [r["Y"][0] for r in res]
         all_names = list(lay.names) + names[fi.size:]
-        values = np.concatenate([theta, phi[fi.size:]])
+        values = np.concatenate([theta, self._report(phi)[fi.size:]])
         free = np.concatenate([lay.free, np.ones(nphi - fi.size, dtype=bool)])
         if not converged and not message:
             message = "did not converge"
