@@ -126,6 +126,43 @@ def thrust_signal(df: pd.DataFrame, ac: AircraftConstants) -> np.ndarray:
                     "add [propulsion] max_thrust_N to the aircraft description")
 
 
+#: highest grid rate for estimation; faster channels are low-pass filtered down to it
+MAX_RATE_HZ = 200.0
+
+
+def multirate_frame(fd: FlightData, outputs: Sequence[str], others: Sequence[str],
+                    rate_hz: float | None = None) -> tuple[pd.DataFrame, float]:
+    """Measurements on one uniform grid without inventing samples.
+
+    The grid runs at the fastest output channel's rate (at most MAX_RATE_HZ, or
+    ``rate_hz``). Output channels at that rate are resampled as usual; slower output
+    channels keep only their native samples (each put on the nearest grid time) and are
+    NaN in between, so the likelihood counts every real measurement once and no
+    interpolated one (the estimators give NaN samples zero weight). ``others`` (inputs,
+    air density, ...) are interpolated to every grid time. Returns (frame, rate).
+    """
+    rates = {c: fd[c].rate_hz for c in outputs}
+    rate = float(rate_hz or min(MAX_RATE_HZ, max(rates.values())))
+    fast = [c for c in outputs if rates[c] >= 0.9 * rate]
+    df = fd.resample(rate, list(fast) + [c for c in others if c in fd])
+    t = df["t"].to_numpy()
+    for c in outputs:
+        if c in fast:
+            continue
+        ch = fd[c]
+        idx = np.rint((ch.t - t[0]) * rate).astype(np.int64)
+        ok = (idx >= 0) & (idx < t.size) & (np.abs(t[np.clip(idx, 0, t.size - 1)] - ch.t) < 0.26 / rate)
+        col = np.full(t.size, np.nan)
+        col[idx[ok]] = ch.values[ok]
+        df[c] = col
+    return df, rate
+
+
+def _first_valid(w: pd.DataFrame, cols: Sequence[str]) -> np.ndarray:
+    """First non-NaN value of each column (initial states from multi-rate data)."""
+    return np.array([w[c].dropna().iloc[0] for c in cols])
+
+
 def _window(df: pd.DataFrame, spec: SegmentSpec) -> pd.DataFrame:
     w = df[(df["t"] >= spec.t0) & (df["t"] <= spec.t1)]
     return w.reset_index(drop=True)
@@ -167,7 +204,7 @@ def longitudinal_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
     return {k: float(v) for k, v in sol.items()}
 
 
-def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float = 50.0,
+def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | None = None,
                          segments: Sequence[SegmentSpec] | None = None,
                          hold_out: int = 1, free: Sequence[str] = LONG_FREE,
                          biases: Sequence[str] = ("q", "ax", "az")) -> Problem:
@@ -187,8 +224,7 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
         raise FsidError(f"found {len(specs)} longitudinal maneuver segment(s) but need at least "
                         f"{1 + hold_out} (one to fit, {hold_out} to hold out): fly more elevator "
                         "maneuvers or give segments by time range")
-    chans = list(LONG_CHANNELS) + [c for c in ("throttle", "thrust", "rho", "h") if c in fd]
-    df = fd.resample(rate_hz, chans)
+    df, rate_hz = multirate_frame(fd, LONG_OUTPUTS, ["de", "throttle", "thrust", "rho", "h"], rate_hz)
     rho = float(np.nanmean(df["rho"])) if "rho" in df else float(np.nanmean(isa_density(df["h"]))) \
         if "h" in df else 1.225
     c = {"m": ac.mass, "Iyy": ac.Iyy, "S": ac.S, "cbar": ac.cbar, "rho": rho,
@@ -199,9 +235,11 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
     frames = {id(s): _window(df, s) for s in specs}
     for s in specs:
         w = frames[id(s)]
-        if len(w) < 10 or w[list(LONG_CHANNELS)].isna().any().any():
+        bad = [k for k in LONG_CHANNELS if w[k].notna().sum() < 10 or
+               (k not in LONG_OUTPUTS and w[k].isna().any())]
+        if len(w) < 10 or bad:
             raise FsidError(f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in "
-                            f"{[k for k in LONG_CHANNELS if w[k].isna().any()]}: cut it or fix the log")
+                            f"{bad}: cut it or fix the log")
     thrust = {id(s): thrust_signal(frames[id(s)], ac) for s in specs}
     start = longitudinal_starts([frames[id(s)] for s in fit_specs], c,
                                 [thrust[id(s)] for s in fit_specs])
@@ -210,11 +248,12 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
 
     def seg(s):
         w = frames[id(s)]
-        x0 = np.array([w["V"].iloc[0], w["alpha"].iloc[0], w["theta"].iloc[0], w["q"].iloc[0]])
+        x0 = _first_valid(w, ["V", "alpha", "theta", "q"])
         return Segment(t=w["t"].to_numpy(), u=np.column_stack([w["de"], thrust[id(s)]]),
                        z=w[list(LONG_OUTPUTS)].to_numpy(), x0=x0, name=s.name)
 
-    notes = [f"density {rho:.4f} kg/m^3 (mean over the flight)",
+    notes = [f"grid {rate_hz:g} Hz; slower channels at their own samples only",
+             f"density {rho:.4f} kg/m^3 (mean over the flight)",
              f"thrust from {'thrust channel' if 'thrust' in df else 'throttle x max_thrust'}",
              f"start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())]
     return Problem("longitudinal", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
@@ -252,7 +291,7 @@ def lateral_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float]) -> di
     return out
 
 
-def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float = 50.0,
+def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | None = None,
                     segments: Sequence[SegmentSpec] | None = None, hold_out: int = 1,
                     free: Sequence[str] = LAT_FREE,
                     biases: Sequence[str] = ("beta", "p", "r", "ay")) -> Problem:
@@ -268,16 +307,18 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float = 5
     if len(specs) < 1 + hold_out:
         raise FsidError(f"found {len(specs)} aileron/rudder maneuver segment(s) but need at least "
                         f"{1 + hold_out}: fly more doublets or give segments by time range")
-    chans = list(LAT_CHANNELS) + [c for c in ("rho", "h") if c in fd]
-    df = fd.resample(rate_hz, chans)
+    df, rate_hz = multirate_frame(fd, LAT_OUTPUTS, ["V", "alpha", "theta", "da", "dr", "rho", "h"],
+                                  rate_hz)
     rho = float(np.nanmean(df["rho"])) if "rho" in df else float(np.nanmean(isa_density(df["h"]))) \
         if "h" in df else 1.225
     frames = {id(s): _window(df, s) for s in specs}
     for s in specs:
         w = frames[id(s)]
-        if len(w) < 10 or w[list(LAT_CHANNELS)].isna().any().any():
+        bad = [k for k in LAT_CHANNELS if w[k].notna().sum() < 10 or
+               (k not in LAT_OUTPUTS and w[k].isna().any())]
+        if len(w) < 10 or bad:
             raise FsidError(f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in "
-                            f"{[k for k in LAT_CHANNELS if w[k].isna().any()]}: cut it or fix the log")
+                            f"{bad}: cut it or fix the log")
     allw = pd.concat(frames.values())
     c = {"m": ac.mass, "Ixx": ac.Ixx, "Izz": ac.Izz, "Ixz": ac.Ixz, "S": ac.S, "b": ac.b,
          "rho": rho, "V": float(allw["V"].mean()), "alpha0": float(allw["alpha"].mean()),
@@ -297,7 +338,7 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float = 5
         w = frames[id(s)]
         return Segment(t=w["t"].to_numpy(), u=w[["da", "dr"]].to_numpy(),
                        z=w[list(LAT_OUTPUTS)].to_numpy(),
-                       x0=w[["beta", "p", "r", "phi"]].iloc[0].to_numpy(), name=s.name)
+                       x0=_first_valid(w, ["beta", "p", "r", "phi"]), name=s.name)
 
     notes = [f"linear model about V={c['V']:.2f} m/s, alpha0={np.degrees(c['alpha0']):.2f} deg, "
              f"theta0={np.degrees(c['theta0']):.2f} deg, density {rho:.4f} kg/m^3",

@@ -45,3 +45,18 @@ def output_names(names: Sequence[str] | None, n: int, *arrays) -> list[str]:
         if isinstance(a, pd.Series) and a.name is not None:
             return [str(a.name)]
     return [f"y{i}" for i in range(n)]
+
+
+def fill_missing(x: np.ndarray) -> np.ndarray:
+    """Columns of x (N, n) with NaN samples (multi-rate channels) filled by linear
+    interpolation over the present ones (nearest at the ends): for spectral estimates,
+    which need a uniform record. All-NaN columns stay NaN."""
+    x = np.array(x, dtype=float, copy=True)
+    if not np.isnan(x).any():
+        return x
+    i = np.arange(x.shape[0])
+    for k in range(x.shape[1]):
+        ok = np.isfinite(x[:, k])
+        if ok.any() and not ok.all():
+            x[~ok, k] = np.interp(i[~ok], i[ok], x[ok, k])
+    return x

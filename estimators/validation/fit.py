@@ -25,6 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from estimators.statistics import residual_covariance as _residual_covariance
+
 from ._util import as_2d, output_names
 
 __all__ = ["TheilResult", "theil", "residual_covariance", "det_r", "r_squared", "rms",
@@ -51,7 +53,8 @@ def _pair(z, y) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"z {z2.shape} and y {y2.shape} must have the same shape")
     if z2.shape[0] < 2:
         raise ValueError("need at least 2 samples")
-    return z2, y2
+    # a missing measurement (NaN, e.g. a slower channel on a common grid) drops the pair
+    return z2, np.where(np.isnan(z2), np.nan, y2)
 
 
 def theil(z, y) -> TheilResult:
@@ -62,12 +65,12 @@ def theil(z, y) -> TheilResult:
     """
     z, y = _pair(z, y)
     e = z - y
-    mse = np.mean(e * e, axis=0)
+    mse = np.nanmean(e * e, axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        U = np.sqrt(mse) / (np.sqrt(np.mean(z * z, axis=0)) + np.sqrt(np.mean(y * y, axis=0)))
-        zm, ym = z.mean(axis=0), y.mean(axis=0)
-        sz, sy = z.std(axis=0), y.std(axis=0)
-        cov = np.mean((z - zm) * (y - ym), axis=0)        # = rho s_z s_y
+        U = np.sqrt(mse) / (np.sqrt(np.nanmean(z * z, axis=0)) + np.sqrt(np.nanmean(y * y, axis=0)))
+        zm, ym = np.nanmean(z, axis=0), np.nanmean(y, axis=0)
+        sz, sy = np.nanstd(z, axis=0), np.nanstd(y, axis=0)
+        cov = np.nanmean((z - zm) * (y - ym), axis=0)     # = rho s_z s_y
         UM = (zm - ym) ** 2 / mse
         US = (sz - sy) ** 2 / mse
         UC = 2.0 * (sz * sy - cov) / mse
@@ -76,9 +79,8 @@ def theil(z, y) -> TheilResult:
 
 def residual_covariance(residuals) -> np.ndarray:
     """R = (1/N) sum_k e_k e_k^T, shape (n_out, n_out), of residuals (N, n_out)
-    (the output-error estimate; not mean-removed)."""
-    e = as_2d(residuals, "residuals")
-    return e.T @ e / e.shape[0]
+    (the output-error estimate; not mean-removed; NaN samples left out pairwise)."""
+    return _residual_covariance([as_2d(residuals, "residuals")], full=True)
 
 
 def det_r(residuals) -> float:
@@ -91,13 +93,14 @@ def r_squared(z, y) -> np.ndarray:
     shape (n_out,) (NaN for a constant measured output)."""
     z, y = _pair(z, y)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return 1.0 - np.sum((z - y) ** 2, axis=0) / np.sum((z - z.mean(axis=0)) ** 2, axis=0)
+        return 1.0 - np.nansum((z - y) ** 2, axis=0) / np.nansum((z - np.nanmean(z, axis=0)) ** 2,
+                                                                 axis=0)
 
 
 def rms(x) -> np.ndarray:
     """Root mean square per column of x (N, n_out), shape (n_out,), units of x."""
     x = as_2d(x)
-    return np.sqrt(np.mean(x * x, axis=0))
+    return np.sqrt(np.nanmean(x * x, axis=0))
 
 
 def fit_metrics(z, y, names: Sequence[str] | None = None) -> pd.DataFrame:
@@ -114,10 +117,10 @@ def fit_metrics(z, y, names: Sequence[str] | None = None) -> pd.DataFrame:
     e = z2 - y2
     r = rms(e)
     with np.errstate(invalid="ignore", divide="ignore"):
-        nrms = r / np.ptp(z2, axis=0)
+        nrms = r / (np.nanmax(z2, axis=0) - np.nanmin(z2, axis=0))
     df = pd.DataFrame({"TIC": t.U, "UM": t.UM, "US": t.US, "UC": t.UC,
                        "R2": r_squared(z2, y2), "RMS": r, "NRMS": nrms,
-                       "mean": e.mean(axis=0), "std": e.std(axis=0)},
+                       "mean": np.nanmean(e, axis=0), "std": np.nanstd(e, axis=0)},
                       index=pd.Index(names, name="output"))
     df.attrs["det_R"] = det_r(e)
     return df

@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 from scipy import signal
 
-from ._util import as_2d
+from ._util import as_2d, fill_missing
 
 __all__ = ["freq_response", "bode", "SpectralEstimate", "spectral_estimate",
            "MismatchResult", "mismatch"]
@@ -84,7 +84,7 @@ def spectral_estimate(u, y, fs: float, nperseg: int | None = None,
     inputs they must not be fully correlated (S_uu invertible at each frequency).
     Returns a :class:`SpectralEstimate`.
     """
-    u, y = as_2d(u, "u"), as_2d(y, "y")
+    u, y = fill_missing(as_2d(u, "u")), fill_missing(as_2d(y, "y"))
     if u.shape[0] != y.shape[0]:
         raise ValueError(f"u has {u.shape[0]} samples, y {y.shape[0]}")
     n = u.shape[0]

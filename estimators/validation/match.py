@@ -62,12 +62,14 @@ def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
     bias = np.clip(np.nanmean(e, axis=0), -bmax, bmax)
     e = e - bias
     ae = np.abs(e)
-    frac = np.mean(ae <= tol, axis=0)
+    present = np.isfinite(e)                      # NaN: no measurement at this sample
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.sum((ae <= tol) & present, axis=0) / present.sum(axis=0)
     judged = np.isfinite(tol)
     passed = pd.array(np.where(judged, frac >= required_fraction, False), dtype="boolean")
     passed[~judged] = pd.NA
-    df = pd.DataFrame({"tolerance": tol, "bias_removed": bias, "max_abs_error": ae.max(axis=0),
-                       "rms_error": np.sqrt(np.mean(e * e, axis=0)),
+    df = pd.DataFrame({"tolerance": tol, "bias_removed": bias, "max_abs_error": np.nanmax(ae, axis=0),
+                       "rms_error": np.sqrt(np.nanmean(e * e, axis=0)),
                        "fraction_within": np.where(judged, frac, np.nan), "pass": passed},
                       index=pd.Index(names, name="channel"))
     df.attrs["all_pass"] = bool(judged.any() and df["pass"][judged].all())

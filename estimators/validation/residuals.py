@@ -13,7 +13,7 @@ import pandas as pd
 from scipy import fft as sfft
 from scipy import signal, stats
 
-from ._util import as_2d, output_names
+from ._util import as_2d, fill_missing, output_names
 
 __all__ = ["residual_stats", "autocovariance", "autocorrelation", "WhitenessResult",
            "whiteness", "psd"]
@@ -24,11 +24,11 @@ def residual_stats(residuals, names: Sequence[str] | None = None) -> pd.DataFram
     ``mean_over_std`` (a bias indicator, dimensionless) and ``N``. Index: output names."""
     e = as_2d(residuals, "residuals")
     names = output_names(names, e.shape[1], residuals)
-    m, s = e.mean(axis=0), e.std(axis=0)
+    m, s = np.nanmean(e, axis=0), np.nanstd(e, axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = m / s
-    return pd.DataFrame({"mean": m, "std": s, "rms": np.sqrt(np.mean(e * e, axis=0)),
-                         "mean_over_std": ratio, "N": e.shape[0]},
+    return pd.DataFrame({"mean": m, "std": s, "rms": np.sqrt(np.nanmean(e * e, axis=0)),
+                         "mean_over_std": ratio, "N": np.isfinite(e).sum(axis=0)},
                         index=pd.Index(names, name="output"))
 
 
@@ -98,6 +98,19 @@ def whiteness(residuals, max_lag: int | None = None, alpha: float = 0.05,
     """
     segs = ([as_2d(r, "residuals") for r in residuals] if isinstance(residuals, (list, tuple))
             else [as_2d(residuals, "residuals")])
+    if any(np.isnan(s).any() for s in segs):
+        # multi-rate data: each output is tested on its own samples (NaN = not measured),
+        # lags counted in that output's sample intervals
+        cols = [_column_whiteness([s[np.isfinite(s[:, j]), j] for s in segs], max_lag, alpha)
+                for j in range(segs[0].shape[1])]
+        first = residuals[0] if isinstance(residuals, (list, tuple)) else residuals
+        m = min(c[4] for c in cols)
+        return WhitenessResult(
+            names=output_names(names, segs[0].shape[1], first),
+            statistic=np.array([c[0] for c in cols]), threshold=float(stats.chi2.ppf(1 - alpha, m)),
+            p_value=np.array([c[1] for c in cols]), white=np.array([c[2] for c in cols]),
+            max_lag=m, alpha=alpha, acf=np.column_stack([c[3][: m + 1] for c in cols]),
+            band=float(max(c[5] for c in cols)), frac_outside=np.array([c[6] for c in cols]))
     n = sum(s.shape[0] for s in segs)
     if n < 10:
         raise ValueError("whiteness test needs at least 10 samples")
@@ -116,6 +129,25 @@ def whiteness(residuals, max_lag: int | None = None, alpha: float = 0.05,
                            threshold=thr, p_value=stats.chi2.sf(q, m), white=q <= thr,
                            max_lag=m, alpha=alpha, acf=rho, band=band,
                            frac_outside=np.mean(np.abs(rho[1:]) > band, axis=0))
+
+
+def _column_whiteness(segs: list[np.ndarray], max_lag: int | None, alpha: float):
+    """Ljung-Box on one output given as per-segment 1-D arrays of its present samples:
+    (Q, p, white, acf, max_lag, band, frac_outside)."""
+    segs = [s for s in segs if s.size > 2]
+    n = sum(s.size for s in segs)
+    if n < 10:
+        raise ValueError("whiteness test needs at least 10 samples per output")
+    m = int(min(20, n // 5) if max_lag is None else max_lag)
+    m = max(1, min(m, min(s.size for s in segs) - 1))
+    c = sum(autocovariance(s, m)[:, 0] * s.size for s in segs)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho = c / c[0]
+    k = np.arange(1, m + 1)
+    q = float(n * (n + 2) * np.sum(rho[1:] ** 2 / (n - k)))
+    thr = float(stats.chi2.ppf(1.0 - alpha, m))
+    band = float(stats.norm.ppf(1.0 - alpha / 2) / np.sqrt(n))
+    return q, float(stats.chi2.sf(q, m)), q <= thr, rho, m, band, float(np.mean(np.abs(rho[1:]) > band))
 
 
 def psd(x, fs: float, nperseg: int | None = None, *, method: str = "welch"

@@ -20,6 +20,8 @@ import pandas as pd
 from scipy import fft as sfft
 from scipy import stats
 
+from estimators.statistics import residual_covariance as _residual_covariance
+
 __all__ = ["UncertaintyResult", "crb", "morelli_klein", "correlation", "correlation_flags"]
 
 
@@ -97,8 +99,10 @@ def _auto_lag(v: np.ndarray) -> int:
 
 
 def _middle(S: np.ndarray, v: np.ndarray, Rinv: np.ndarray, max_lag: int,
-            window: str, unbiased: bool) -> np.ndarray:
-    """sum_i sum_j W_i^T r(j-i) W_j for one segment, r windowed and truncated at max_lag."""
+            window: str, unbiased: bool, present: np.ndarray | None = None) -> np.ndarray:
+    """sum_i sum_j W_i^T r(j-i) W_j for one segment, r windowed and truncated at max_lag.
+    ``present`` (N, n_out) marks measured samples (v and S are zero elsewhere); each r(k)
+    is then averaged over the pairs actually measured."""
     n, n_out, _ = S.shape
     L = int(max_lag)
     W = np.einsum("ab,nbp->nap", Rinv, S)                         # (N, n_out, n_p)
@@ -107,7 +111,15 @@ def _middle(S: np.ndarray, v: np.ndarray, Rinv: np.ndarray, max_lag: int,
     V = sfft.rfft(v, nfft, axis=0)
     r = sfft.irfft(np.conj(V)[:, :, None] * V[:, None, :], nfft, axis=0)[: L + 1]
     k = np.arange(L + 1)
-    r /= (n - k)[:, None, None] if unbiased else n
+    if present is not None and not present.all():
+        Mk = sfft.rfft(present.astype(float), nfft, axis=0)
+        cnt = np.rint(sfft.irfft(np.conj(Mk)[:, :, None] * Mk[:, None, :], nfft, axis=0)[: L + 1])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r = np.where(cnt > 0, r / np.maximum(cnt, 1.0), 0.0)
+        if not unbiased:
+            r *= ((n - k) / n)[:, None, None]
+    else:
+        r /= (n - k)[:, None, None] if unbiased else n
     if window == "bartlett":
         r *= (1.0 - k / (L + 1.0))[:, None, None]
     elif window != "none":
@@ -147,8 +159,11 @@ def morelli_klein(S, residuals, R=None, info=None, *, names: Sequence[str] | Non
     Ss, vs = _segments(S, residuals)
     n_p = Ss[0].shape[2]
     if R is None:
-        allv = np.concatenate(vs, axis=0)
-        R = allv.T @ allv / allv.shape[0]
+        R = _residual_covariance(vs, full=True)
+    # missing measurements (NaN): no residual and no sensitivity there
+    present = [np.isfinite(v) for v in vs]
+    Ss = [np.where(ok[:, :, None], s, 0.0) for s, ok in zip(Ss, present)]
+    vs = [np.where(ok, v, 0.0) for v, ok in zip(vs, present)]
     Rinv = np.linalg.inv(np.atleast_2d(np.asarray(R, dtype=float)))
     if info is None:
         info = sum(np.einsum("nap,ab,nbq->pq", s, Rinv, s) for s in Ss)
@@ -166,7 +181,7 @@ def morelli_klein(S, residuals, R=None, info=None, *, names: Sequence[str] | Non
         else:
             L = int(min(max(int(max_lag), 0), n - 1))
         lags.append(L)
-        mid += _middle(s, v, Rinv, L, window, unbiased)
+        mid += _middle(s, v, Rinv, L, window, unbiased, present[len(lags) - 1])
     cov = Minv @ mid @ Minv
     cov = 0.5 * (cov + cov.T)
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
