@@ -4,10 +4,10 @@ FEM, EKF and UKF recover every free derivative within 3 std."""
 import numpy as np
 import pytest
 
-from estimators import (EKF, UKF, FilterError, OutputError, SimulationDivergedError)
+from estimators import (EKF, UKF, EigenvalueTransformation, EquationDecoupling, FilterError,
+                        OutputError, SimulationDivergedError, StabilizedOutputError)
 from estimators.process_noise_examples import UNSTABLE_SP_FREE, unstable_short_period_example
-from estimators.stabilized import (EigenvalueTransformation, EquationDecoupling,
-                                   StabilizedOutputError, _linearisation)
+from estimators.stabilized import _linearisation
 
 
 @pytest.fixture(scope="module")
