@@ -95,8 +95,13 @@ def default_measurement_noise(model: Model, segments: Sequence[Segment]) -> np.n
     first differences, pooled over segments. It is an upper bound (signal change between
     samples counts as noise); pass ``measurement_noise`` when the sensor noise is known."""
     D = np.concatenate([np.diff(s.z, axis=0) for s in segments], axis=0)
-    v = 0.5 * np.nanvar(D, axis=0)
-    return np.where(v > 0, v, 1e-12)
+    ok = np.isfinite(D)
+    cnt = ok.sum(axis=0)
+    D0 = np.where(ok, D, 0.0)
+    mean = D0.sum(axis=0) / np.maximum(cnt, 1)
+    v = 0.5 * (np.where(ok, D - mean, 0.0) ** 2).sum(axis=0) / np.maximum(cnt, 1)
+    # an output never measured twice in a row gets 1 (it is never used for an update)
+    return np.where(cnt < 2, 1.0, np.where(v > 0, v, 1e-12))
 
 
 def measurement_noise_matrix(model: Model, spec: Any, segments: Sequence[Segment]) -> np.ndarray:
