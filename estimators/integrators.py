@@ -50,90 +50,71 @@ def _finite(x):
     return True
 
 
-def euler(rhs, x0, U, t, P, c, rtol, atol, mode):
+@register_jitable
+def _explicit_rk(rhs, x0, U, t, P, c, mode, A, b, cu):
+    """One explicit Runge-Kutta scheme given by its tableau: stage j evaluates the
+    right-hand side at x + h sum_l A[j, l] k_l with the inputs at fraction cu[j] of the
+    interval; the step is x + h sum_j b[j] k_j."""
     N = t.size
     n, B = x0.shape
+    s = b.size
     X = np.full((N, n, B), np.nan)
     x = x0.copy()
     X[0] = x
-    k1 = np.empty((n, B))
+    K = np.empty((s, n, B))
     for i in range(N - 1):
         h = t[i + 1] - t[i]
-        rhs(x, _u_at(U, i, 0.5 if mode == 1 else 0.0, mode), P, c, k1)
-        x = x + h * k1
+        for j in range(s):
+            xs = x.copy()
+            for m in range(j):
+                if A[j, m] != 0.0:
+                    xs += (h * A[j, m]) * K[m]
+            rhs(xs, _u_at(U, i, cu[j], mode), P, c, K[j])
+        for j in range(s):
+            if b[j] != 0.0:
+                x = x + (h * b[j]) * K[j]
         if not _finite(x):
             break
         X[i + 1] = x
     return X
+
+
+# Butcher tableaux (A, b) and the interval fraction at which each stage reads the inputs.
+# Euler reads them mid-interval, so "linear" inputs integrate a sampled ramp exactly.
+_EULER = (np.zeros((1, 1)), np.array([1.0]), np.array([0.5]))
+#: Heun's method (trapezoidal predictor-corrector), order 2
+_RK2 = (np.array([[0.0, 0.0], [1.0, 0.0]]), np.array([0.5, 0.5]), np.array([0.0, 1.0]))
+#: Kutta's third-order method
+_RK3 = (np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [-1.0, 2.0, 0.0]]),
+        np.array([1.0, 4.0, 1.0]) / 6.0, np.array([0.0, 0.5, 1.0]))
+#: classical fourth-order Runge-Kutta
+_RK4 = (np.array([[0.0, 0.0, 0.0, 0.0], [0.5, 0.0, 0.0, 0.0], [0.0, 0.5, 0.0, 0.0],
+                  [0.0, 0.0, 1.0, 0.0]]),
+        np.array([1.0, 2.0, 2.0, 1.0]) / 6.0, np.array([0.0, 0.5, 0.5, 1.0]))
+_EULER_A, _EULER_B, _EULER_C = _EULER
+_RK2_A, _RK2_B, _RK2_C = _RK2
+_RK3_A, _RK3_B, _RK3_C = _RK3
+_RK4_A, _RK4_B, _RK4_C = _RK4
+
+
+def euler(rhs, x0, U, t, P, c, rtol, atol, mode):
+    """Explicit Euler, order 1."""
+    return _explicit_rk(rhs, x0, U, t, P, c, mode, _EULER_A, _EULER_B, _EULER_C)
 
 
 def rk2(rhs, x0, U, t, P, c, rtol, atol, mode):
-    """Heun's method (trapezoidal predictor-corrector), order 2."""
-    N = t.size
-    n, B = x0.shape
-    X = np.full((N, n, B), np.nan)
-    x = x0.copy()
-    X[0] = x
-    k1 = np.empty((n, B))
-    k2 = np.empty((n, B))
-    for i in range(N - 1):
-        h = t[i + 1] - t[i]
-        rhs(x, _u_at(U, i, 0.0, mode), P, c, k1)
-        rhs(x + h * k1, _u_at(U, i, 1.0, mode), P, c, k2)
-        x = x + 0.5 * h * (k1 + k2)
-        if not _finite(x):
-            break
-        X[i + 1] = x
-    return X
+    """Heun's method, order 2."""
+    return _explicit_rk(rhs, x0, U, t, P, c, mode, _RK2_A, _RK2_B, _RK2_C)
 
 
 def rk3(rhs, x0, U, t, P, c, rtol, atol, mode):
     """Kutta's third-order method."""
-    N = t.size
-    n, B = x0.shape
-    X = np.full((N, n, B), np.nan)
-    x = x0.copy()
-    X[0] = x
-    k1 = np.empty((n, B))
-    k2 = np.empty((n, B))
-    k3 = np.empty((n, B))
-    for i in range(N - 1):
-        h = t[i + 1] - t[i]
-        u0 = _u_at(U, i, 0.0, mode)
-        um = _u_at(U, i, 0.5, mode)
-        rhs(x, u0, P, c, k1)
-        rhs(x + 0.5 * h * k1, um, P, c, k2)
-        rhs(x + h * (2.0 * k2 - k1), _u_at(U, i, 1.0, mode), P, c, k3)
-        x = x + h / 6.0 * (k1 + 4.0 * k2 + k3)
-        if not _finite(x):
-            break
-        X[i + 1] = x
-    return X
+    return _explicit_rk(rhs, x0, U, t, P, c, mode, _RK3_A, _RK3_B, _RK3_C)
 
 
 def rk4(rhs, x0, U, t, P, c, rtol, atol, mode):
     """Classical fourth-order Runge-Kutta."""
-    N = t.size
-    n, B = x0.shape
-    X = np.full((N, n, B), np.nan)
-    x = x0.copy()
-    X[0] = x
-    k1 = np.empty((n, B))
-    k2 = np.empty((n, B))
-    k3 = np.empty((n, B))
-    k4 = np.empty((n, B))
-    for i in range(N - 1):
-        h = t[i + 1] - t[i]
-        um = _u_at(U, i, 0.5, mode)
-        rhs(x, _u_at(U, i, 0.0, mode), P, c, k1)
-        rhs(x + 0.5 * h * k1, um, P, c, k2)
-        rhs(x + 0.5 * h * k2, um, P, c, k3)
-        rhs(x + h * k3, _u_at(U, i, 1.0, mode), P, c, k4)
-        x = x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
-        if not _finite(x):
-            break
-        X[i + 1] = x
-    return X
+    return _explicit_rk(rhs, x0, U, t, P, c, mode, _RK4_A, _RK4_B, _RK4_C)
 
 
 def rkf45(rhs, x0, U, t, P, c, rtol, atol, mode):

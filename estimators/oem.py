@@ -194,6 +194,18 @@ class OutputError:
             Ys.append(Y); Ss.append(S)
         return Ys, Ss
 
+    def _linearise(self, theta: np.ndarray):
+        """Everything a Gauss-Newton step needs at theta: outputs Ys, sensitivities Ss,
+        residuals E, R (estimated unless fixed), its whitener L, and the information
+        matrix F, gradient G and cost J, a-priori terms included."""
+        Ys, Ss = self._sensitivities(theta)
+        E = [seg.z - Y for seg, Y in zip(self._segments, Ys)]
+        R = self._R(E)
+        L = st.whitener(R)
+        F, G, J = st.information_and_gradient(Ss, E, L)
+        W, gp, Jp = self._prior_terms(theta[self._lay.free_idx])
+        return Ys, Ss, E, R, L, F + W, G + gp, J + Jp
+
     # -- a-priori penalty -----------------------------------------------------------------
     def _prior_terms(self, theta_free: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """W (n_free, n_free), W (theta* - theta), and 1/2 (theta-theta*)^T W (theta-theta*)."""
@@ -300,13 +312,7 @@ class OutputError:
         it = 0
         R_cur = None
         for it in range(1, self.max_iter + 1):
-            Ys, Ss = self._sensitivities(theta)
-            E = [seg.z - Y for seg, Y in zip(segments, Ys)]
-            R_cur = self._R(E)
-            L = st.whitener(R_cur)
-            F, G, J = st.information_and_gradient(Ss, E, L)
-            W, gp, Jp = self._prior_terms(theta[fi])
-            F = F + W; G = G + gp; J = J + Jp
+            Ys, Ss, E, R_cur, L, F, G, J = self._linearise(theta)
             cost = float(np.linalg.det(R_cur))
             watched = cost if self._R_fixed is None else J   # det(R), or J when R is given
             if it == 1:
@@ -375,13 +381,7 @@ class OutputError:
         if not converged and not message:
             message = "did not converge"
         # final information matrix at the final parameters
-        Ys, Ss = self._sensitivities(theta)
-        E = [seg.z - Y for seg, Y in zip(segments, Ys)]
-        R_cur = self._R(E)
-        L = st.whitener(R_cur)
-        F, G, J = st.information_and_gradient(Ss, E, L)
-        W, _, _ = self._prior_terms(theta[fi])
-        F = F + W
+        Ys, Ss, E, R_cur, L, F, G, J = self._linearise(theta)
         tf = theta[fi]
         span = np.maximum(1.0, np.abs(tf))
         on_bound = (tf <= lo + 1e-9 * span) | (tf >= hi - 1e-9 * span)

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 from typing import Iterable, Mapping
 
+from numba.extending import register_jitable
+
 from estimators.model import Model
 from estimators.models._build import make_parameters, require_constants
 
@@ -21,24 +23,28 @@ DEFAULTS = {"CLalpha": 5.0, "CLq": 0.0, "CLde": 0.4, "Cmalpha": -0.8, "Cmq": -15
 DEFAULT_FREE = ("CLalpha", "CLde", "Cmalpha", "Cmq", "Cmde")
 
 
-def f(x, u, p, c):
-    alpha, q = x
-    (de,) = u
+@register_jitable
+def _accels(alpha, q, de, p, c):
+    """Perturbation normal specific force az = Z/m (m/s^2) and pitch acceleration (rad/s^2)."""
     qbar = 0.5 * c.rho * c.V * c.V
     qhat = q * c.cbar / (2.0 * c.V)
     CL = p.CLalpha * alpha + p.CLq * qhat + p.CLde * de
     Cm = p.Cmalpha * alpha + p.Cmq * qhat + p.Cmde * de
-    return q - qbar * c.S / (c.m * c.V) * CL, qbar * c.S * c.cbar / c.Iyy * Cm
+    return -qbar * c.S / c.m * CL, qbar * c.S * c.cbar / c.Iyy * Cm
+
+
+def f(x, u, p, c):
+    alpha, q = x
+    (de,) = u
+    az, qdot = _accels(alpha, q, de, p, c)
+    return q + az / c.V, qdot
 
 
 def g(x, u, p, c):
     alpha, q = x
     (de,) = u
-    qbar = 0.5 * c.rho * c.V * c.V
-    qhat = q * c.cbar / (2.0 * c.V)
-    CL = p.CLalpha * alpha + p.CLq * qhat + p.CLde * de
-    Cm = p.Cmalpha * alpha + p.Cmq * qhat + p.Cmde * de
-    return alpha, q, qbar * c.S * c.cbar / c.Iyy * Cm, -qbar * c.S / c.m * CL
+    az, qdot = _accels(alpha, q, de, p, c)
+    return alpha, q, qdot, az
 
 
 def short_period(constants: Mapping[str, float], values: Mapping[str, float] | None = None,
