@@ -7,5 +7,7 @@ arguments. The model functions are written so that numba compiles them.
 from estimators.models.longitudinal import LONGITUDINAL_DEFAULTS, longitudinal
 from estimators.models.short_period import short_period
 from estimators.models.lateral import lateral_directional
+from estimators.models.sixdof import SIXDOF_DEFAULTS, sixdof
 
-__all__ = ["longitudinal", "short_period", "lateral_directional", "LONGITUDINAL_DEFAULTS"]
+__all__ = ["longitudinal", "short_period", "lateral_directional", "sixdof",
+           "LONGITUDINAL_DEFAULTS", "SIXDOF_DEFAULTS"]
