@@ -382,6 +382,7 @@ def _nl_loop(scheme, rhs, gout, x0, U, t, P, c, K, Z, rtol, atol, mode):
     y = np.empty((m, Bc))
     xh = np.empty((n, Bc))
     nu = np.empty(m)
+    alive = np.ones(Bc, dtype=np.bool_)
     for i in range(N):
         gout(x, U[i], P, c, y)
         for b in range(Bc):
@@ -396,10 +397,38 @@ def _nl_loop(scheme, rhs, gout, x0, U, t, P, c, K, Z, rtol, atol, mode):
                 xh[r, b] = v
                 X[b, i, r] = v
         if i + 1 < N:
-            Xs = scheme(rhs, xh, U[i:i + 2], t[i:i + 2], P, c, rtol, atol, mode)
+            # the integrators stop a whole batch when any column becomes non-finite; a
+            # diverging perturbed or trial column must not take the others with it, so
+            # only live columns are stepped and a failed batch step is redone per column
+            idx = np.flatnonzero(alive)
+            if idx.size == 0:
+                break
+            Xs = scheme(rhs, xh[:, idx], U[i:i + 2], t[i:i + 2], P[:, idx], c, rtol, atol, mode)
+            ok_all = True
             for r in range(n):
-                for b in range(Bc):
-                    x[r, b] = Xs[1, r, b]
+                for jj in range(idx.size):
+                    if not np.isfinite(Xs[1, r, jj]):
+                        ok_all = False
+            if ok_all:
+                for r in range(n):
+                    for jj in range(idx.size):
+                        x[r, idx[jj]] = Xs[1, r, jj]
+            else:
+                for jj in range(idx.size):
+                    b = idx[jj]
+                    Xb = scheme(rhs, xh[:, b:b + 1].copy(), U[i:i + 2], t[i:i + 2],
+                                P[:, b:b + 1].copy(), c, rtol, atol, mode)
+                    fin = True
+                    for r in range(n):
+                        if not np.isfinite(Xb[1, r, 0]):
+                            fin = False
+                    if fin:
+                        for r in range(n):
+                            x[r, b] = Xb[1, r, 0]
+                    else:
+                        alive[b] = False
+                        for r in range(n):
+                            x[r, b] = np.nan
     return Y, X
 
 
@@ -421,6 +450,12 @@ class FilterError:
     estimate_F : estimate the F entries (True) or hold them at their start values.
     measurement_noise : start of G (std per output): {output: std} or (n_out,); default
         from the innovations of the start model.
+    estimate_G : estimate G (True, default) or hold it at ``measurement_noise`` (False;
+        then ``measurement_noise`` is required). Holding G at an independent measurement-
+        noise estimate helps when the process noise is a white-noise stand-in for coloured
+        turbulence: the likelihood can then trade G of an output that also measures the
+        gust-driven state (e.g. az for alpha) down towards 0, where the information matrix
+        becomes singular. Held entries are reported with no std.
     form : "linear" (transition matrix) or "nonlinear" (integrator prediction, gain of
         the linearisation at the trim point).
     integrator : the one-step predictor of the nonlinear form.
@@ -436,7 +471,7 @@ class FilterError:
     method = "fem"
 
     def __init__(self, model: Model, *, process_noise: Any = None, estimate_F: bool = True,
-                 measurement_noise: Any = None, form: str = "linear", integrator: str = "rk4",
+                 measurement_noise: Any = None, estimate_G: bool = True, form: str = "linear", integrator: str = "rk4",
                  max_iter: int = 30, tol: float = 1e-7, fd_step: float = 1e-6,
                  step_halvings: int = 10, inputs: str = "average", compiled: bool = True,
                  callback=None) -> None:
@@ -447,6 +482,9 @@ class FilterError:
         self.model = model
         self.process_noise = process_noise
         self.estimate_F = estimate_F
+        self.estimate_G = estimate_G
+        if not estimate_G and measurement_noise is None:
+            raise ModelDefinitionError("estimate_G=False needs measurement_noise (std per output)")
         self.measurement_noise = measurement_noise
         self.form = form
         self.integrator = integrator
@@ -590,11 +628,9 @@ class FilterError:
                                  seg.t, np.ascontiguousarray(P, dtype=float), kern._c_jit(c), Kc,
                                  np.ascontiguousarray(seg.z), float(1e-8), float(1e-10),
                                  _integ.INPUT_MODES[self.inputs])
-            if not np.all(np.isfinite(Xf[0])):
-                i = int(np.argmax(~np.all(np.isfinite(Xf[0]), axis=1)))
-                raise SimulationDivergedError(
-                    f"the nonlinear filter prediction of segment {seg.name or k} became "
-                    f"non-finite at t={seg.t[i]:.4g} s", segment=k, time=float(seg.t[i]))
+            # a diverging column is not an error here: its non-finite predictions make the
+            # likelihood infinite, so a trial step that causes it is rejected (see _seg_nll);
+            # fit() raises SimulationDivergedError when the accepted parameters diverge
             bad = ~np.all(np.isfinite(Kg.reshape(Bc, -1)), axis=1)
             Y[bad] = np.nan
             return Y, Xf
@@ -602,6 +638,7 @@ class FilterError:
         Xf = np.full((Bc, N, n), np.nan)
         x = X0.copy()
         Kt = np.nan_to_num(Kg)
+        alive = np.ones(Bc, dtype=bool)
         for i in range(N):
             with np.errstate(all="ignore"):
                 y = model.eval_g(x[:, None, :], seg.u[i][:, None, None], P, c)[:, 0, :]   # (m, Bc)
@@ -611,12 +648,26 @@ class FilterError:
             Y[:, i, :] = y.T
             Xf[:, i, :] = xh.T
             if i + 1 < N:
-                x = kern.integrate(self.integrator, xh, seg.u[i:i + 2], seg.t[i:i + 2], P, c,
-                                   inputs=self.inputs)[1]
-                if not np.all(np.isfinite(x[:, 0])):
-                    raise SimulationDivergedError(
-                        f"the nonlinear filter prediction of segment {seg.name or k} became "
-                        f"non-finite at t={seg.t[i + 1]:.4g} s", segment=k, time=float(seg.t[i + 1]))
+                # the integrators stop a whole batch when any column becomes non-finite; a
+                # diverging perturbed or trial column must not take the others with it
+                idx = np.flatnonzero(alive)
+                if idx.size == 0:
+                    break                     # every column diverged: the rest stays NaN
+                x = np.full_like(xh, np.nan)
+                with np.errstate(all="ignore"):
+                    xs = kern.integrate(self.integrator, xh[:, idx], seg.u[i:i + 2], seg.t[i:i + 2],
+                                        P[:, idx], c, inputs=self.inputs)[1]
+                    if np.all(np.isfinite(xs)):
+                        x[:, idx] = xs
+                    else:
+                        for b in idx:
+                            xb = kern.integrate(self.integrator, xh[:, b:b + 1], seg.u[i:i + 2],
+                                                seg.t[i:i + 2], P[:, b:b + 1], c,
+                                                inputs=self.inputs)[1]
+                            if np.all(np.isfinite(xb)):
+                                x[:, b] = xb[:, 0]
+                            else:
+                                alive[b] = False
         bad = ~np.all(np.isfinite(Kg.reshape(Bc, -1)), axis=1)
         Y[bad] = np.nan
         return Y, Xf
@@ -629,12 +680,15 @@ class FilterError:
             if not np.all(np.isfinite(Bm)):
                 return np.inf
             E = seg.z - Y
-            J += self._seg_nll(E, Bm)
+            J += self._seg_nll(E, Bm, seg.z)
         return J
 
     @staticmethod
-    def _seg_nll(E: np.ndarray, Bm: np.ndarray) -> float:
-        ok = np.all(np.isfinite(E), axis=1)
+    def _seg_nll(E: np.ndarray, Bm: np.ndarray, Z: np.ndarray) -> float:
+        """Innovation likelihood over the samples where every output is measured. A
+        non-finite prediction at such a sample (a filter that diverged) makes J infinite:
+        it must not shorten the sum (fewer samples would look like a better fit)."""
+        ok = np.all(np.isfinite(Z), axis=1)
         if not np.all(np.isfinite(E[ok])):
             return np.inf
         sign, logdet = np.linalg.slogdet(Bm)
@@ -654,7 +708,7 @@ class FilterError:
         for seg, r in zip(self._segments, res):
             Y, Bs = r["Y"], r["B"]
             E = seg.z - Y[0]
-            ok = np.all(np.isfinite(E), axis=1)
+            ok = np.all(np.isfinite(seg.z), axis=1) & np.all(np.isfinite(E), axis=1)
             Bm = Bs[0]
             Binv = np.linalg.inv(Bm)
             Lw = np.linalg.cholesky(Binv)
@@ -671,8 +725,21 @@ class FilterError:
             M += 0.5 * Nk * np.einsum("pij,qji->pq", T, T)
             Sum = E[ok].T @ E[ok]
             g += 0.5 * np.einsum("pij,jk,kl->pil", T, Binv, Sum - Nk * Bm).trace(axis1=1, axis2=2)
-            J += self._seg_nll(E, Bm)
+            J += self._seg_nll(E, Bm, seg.z)
         return M, g, J
+
+    def _raise_diverged(self, res) -> None:
+        for k, (seg, r) in enumerate(zip(self._segments, res)):
+            bad = np.isfinite(seg.z) & ~np.isfinite(r["Y"][0])
+            if np.any(bad):
+                i = int(np.argmax(np.any(bad, axis=1)))
+                raise SimulationDivergedError(
+                    f"the {'nonlinear ' if self.form == 'nonlinear' else ''}filter prediction of "
+                    f"segment {seg.name or k} became non-finite at t={seg.t[i]:.4g} s (start "
+                    "closer, e.g. from output-error or equation-error estimates, or give a "
+                    "larger process-noise start)", segment=k, time=float(seg.t[i]))
+        raise SimulationDivergedError("the filter-error likelihood is not finite at the "
+                                      "current parameters")
 
     def _batch(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         hsteps = self.fd_step * np.maximum(np.abs(phi), self._floor)
@@ -724,6 +791,9 @@ class FilterError:
         lo += [0.0] * m; hi += [np.inf] * m
         self._lo, self._hi = np.array(lo, float), np.array(hi, float)
         self._scale = np.maximum(np.abs(phi_arr), 1e-12)
+        self._held = np.zeros(phi_arr.size, dtype=bool)
+        if not self.estimate_G:
+            self._held[-m:] = True
         # finite-difference floor: 1 for model parameters (as OEM), the start for noise std
         self._floor = np.concatenate([np.ones(fi.size), self._scale[fi.size:]])
         phi = phi_arr
@@ -741,6 +811,8 @@ class FilterError:
                     "the filter-error Riccati equation has no stabilising solution at the "
                     "current parameters (system not detectable from the outputs?)")
             M, g, J = self._scoring(res, hsteps)
+            if not np.isfinite(J):
+                self._raise_diverged(res)
             if it == 1:
                 # at the start only parameters without any effect are an error (a large start
                 # F lets the filter follow the data and makes others weak, not unidentifiable)
@@ -760,7 +832,7 @@ class FilterError:
             span = np.maximum(1.0, np.abs(phi))
             at_lo = phi <= self._lo + 1e-12 * span
             at_hi = phi >= self._hi - 1e-12 * span
-            active = ~((at_lo & (g < 0)) | (at_hi & (g > 0)))
+            active = ~((at_lo & (g < 0)) | (at_hi & (g > 0))) & ~self._held
             a = np.flatnonzero(active)
             delta = np.zeros(nphi)
             delta[a] = st.solve_step(M[np.ix_(a, a)], g[a])
@@ -804,7 +876,8 @@ class FilterError:
         M, g, J = self._scoring(res, hsteps)
         span = np.maximum(1.0, np.abs(phi))
         on_bound = (phi <= self._lo + 1e-9 * span) | (phi >= self._hi - 1e-9 * span)
-        inner = np.flatnonzero(~on_bound)
+        inner = np.flatnonzero(~on_bound & ~self._held)
+        on_bound &= ~self._held
         cov = np.full((nphi, nphi), np.nan)
         if inner.size:
             st.check_identifiable(M[np.ix_(inner, inner)], [names[i] for i in inner], " at the estimates")
@@ -814,12 +887,14 @@ class FilterError:
         with np.errstate(divide="ignore", invalid="ignore"):
             cov = cov / np.outer(D, D)
         M = M * np.outer(D, D)
+        keep = ~self._held
+        cov, M = cov[np.ix_(keep, keep)], M[np.ix_(keep, keep)]
         theta, F, R = self._unpack(phi)
         E = [seg.z - r["Y"][0] for seg, r in zip(segments, res)]
         Ys = [r["Y"][0] for r in res]
         all_names = list(lay.names) + names[fi.size:]
         values = np.concatenate([theta, self._report(phi)[fi.size:]])
-        free = np.concatenate([lay.free, np.ones(nphi - fi.size, dtype=bool)])
+        free = np.concatenate([lay.free, ~self._held[fi.size:]])
         if not converged and not message:
             message = "did not converge"
         return EstimationResult(
@@ -832,6 +907,7 @@ class FilterError:
             information=M,
             settings={"form": self.form, "integrator": self.integrator if self.form == "nonlinear" else "transition matrix",
                       "optimizer": "gauss-newton", "estimate_F": self.estimate_F,
+                      "estimate_G": self.estimate_G,
                       "linearisation": "about x0 and u[0] of each segment"},
             extra={"gain": [r["K"][0] for r in res], "F": F, "measurement_noise": R,
                    "innovation_cov": [r["B"][0] for r in res], "P": [r["P"][0] for r in res],
