@@ -141,8 +141,20 @@ class StabilizedOutputError(_TransformedOEM):
         z = np.concatenate([s.z[:, meas] for s in segments])
         Rm = np.diag(np.maximum(0.5 * np.nanvar(np.diff(z, axis=0), axis=0), 1e-12))
         n = A.shape[0]
-        Q = 1e-9 * np.eye(n) * max(float(np.max(np.abs(Rm))), 1e-12)
-        P = linalg.solve_continuous_are(A.T, Cm.T, Q, Rm)
+        # vanishing process noise; when the Riccati solver reports the pencil too
+        # ill-conditioned for so small a Q (seen with a phugoid near the imaginary axis next
+        # to an unstable short period), raise Q by decades until it solves
+        P = None
+        for scale in (1e-9, 1e-7, 1e-5, 1e-3):
+            Q = scale * np.eye(n) * max(float(np.max(np.abs(Rm))), 1e-12)
+            try:
+                P = linalg.solve_continuous_are(A.T, Cm.T, Q, Rm)
+                break
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+        if P is None:
+            raise ModelDefinitionError("no stabilising S from the linearised start model (the "
+                                       "Riccati equation has no solution): give S explicitly")
         S = np.zeros((n, len(m.outputs)))
         S[:, meas] = P @ Cm.T @ np.linalg.inv(Rm)
         return S
@@ -296,6 +308,11 @@ class EquationDecoupling(_TransformedOEM):
         noise in a pseudo-input acts like process noise on the other equations and biases
         the estimates (errors in variables); a cut-off a few times above the fastest mode
         removes most of it. Default None (the measurements as recorded).
+    pseudo : None (the measurements, as recorded) or a callable ``pseudo(segment, states)``
+        returning the pseudo-input values (N, len(states)) - e.g. the measured angle of
+        attack moved from the nose-boom vane to the CG (alpha_vane differs by about
+        q x_vane / V, which a decoupled pitch equation would otherwise book on Cmq).
+        Missing samples are filled and ``smooth`` is applied afterwards as usual.
     std : "morelli-klein" (default) reports std corrected for coloured residuals
         (:func:`estimators.validation.uncertainty.morelli_klein`, all lags, Bartlett
         window): the measurement noise of a pseudo-input passes through the dynamics of
@@ -310,13 +327,15 @@ class EquationDecoupling(_TransformedOEM):
     method = "oem-decoupled"
 
     def __init__(self, model: Model, states: Sequence[str] | None = None, integrator: str = "rk4",
-                 smooth: float | None = None, std: str = "morelli-klein", **oem_options) -> None:
+                 smooth: float | None = None, std: str = "morelli-klein", pseudo=None,
+                 **oem_options) -> None:
         super().__init__(model, integrator, **oem_options)
         if std not in ("morelli-klein", "crb"):
             raise ModelDefinitionError(f"std must be 'morelli-klein' or 'crb', not {std!r}")
         self.states = None if states is None else list(states)
         self.smooth = smooth
         self.std_method = std
+        self.pseudo = pseudo
 
     def _finish(self, res: EstimationResult) -> EstimationResult:
         inner = np.flatnonzero(np.isfinite(np.diag(res.cov)))
@@ -335,7 +354,12 @@ class EquationDecoupling(_TransformedOEM):
         return res
 
     def _pseudo(self, seg: Segment, cols: Sequence[int]) -> np.ndarray:
-        z = _fill(seg.z[:, cols], seg.t)
+        if self.pseudo is not None:
+            states = [self.model.outputs[j] for j in cols]
+            z = np.asarray(self.pseudo(seg, states), dtype=float).reshape(seg.n, len(cols))
+            z = _fill(z, seg.t)
+        else:
+            z = _fill(seg.z[:, cols], seg.t)
         if self.smooth is None:
             return z
         fs = 1.0 / float(np.median(np.diff(seg.t)))

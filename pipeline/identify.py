@@ -115,6 +115,11 @@ class Problem:
     estimate_x0: bool | Sequence[str] = True
     inputs: str = "average"
     notes: list[str] = field(default_factory=list)
+    #: equation-error regressions on the fitted windows: (coefficient, parameter names of
+    #: the columns (None = an intercept that is no model parameter), X, y)
+    regressions: list[tuple[str, list, np.ndarray, np.ndarray]] = field(default_factory=list)
+    #: grid rate of the segments (Hz)
+    rate_hz: float = 0.0
 
 
 def thrust_signal(df: pd.DataFrame, ac: AircraftConstants) -> np.ndarray:
@@ -168,10 +173,12 @@ def _window(df: pd.DataFrame, spec: SegmentSpec) -> pd.DataFrame:
     return w.reset_index(drop=True)
 
 
-def longitudinal_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
-                        thrusts: Sequence[np.ndarray]) -> dict[str, float]:
-    """Equation-error start values: least squares of CL, CD, Cm computed from the measured
-    specific forces and the differentiated pitch rate on the maneuver windows."""
+def longitudinal_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
+                             thrusts: Sequence[np.ndarray]) -> list[tuple[str, list[str], np.ndarray, np.ndarray]]:
+    """Equation-error regressions of the longitudinal coefficients on the maneuver windows:
+    CL, CD, Cm computed from the measured specific forces and the differentiated pitch rate,
+    regressed on [1, alpha, q cbar/2V, de] (CL, Cm) and [1, alpha, alpha^2] (CD). Returns
+    (coefficient, parameter names of the columns, X (N, k), y (N,)) with NaN rows removed."""
     rows = {"L": [], "D": [], "M": []}
     yL, yD, yM = [], [], []
     for df, T in zip(frames, thrusts):
@@ -189,13 +196,23 @@ def longitudinal_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
         rows["L"].append(np.column_stack([one, a, qh, de])); yL.append(CL)
         rows["D"].append(np.column_stack([one, a, a * a])); yD.append(CD)
         rows["M"].append(np.column_stack([one, a, qh, de])); yM.append(Cm)
-    sol = {}
-    for key, y, names in (("L", yL, ("CL0", "CLalpha", "CLq", "CLde")),
-                          ("D", yD, ("CD0", "CDalpha", "CDalpha2")),
-                          ("M", yM, ("Cm0", "Cmalpha", "Cmq", "Cmde"))):
+    out = []
+    for key, y, names in (("L", yL, ["CL0", "CLalpha", "CLq", "CLde"]),
+                          ("D", yD, ["CD0", "CDalpha", "CDalpha2"]),
+                          ("M", yM, ["Cm0", "Cmalpha", "Cmq", "Cmde"])):
         X = np.vstack(rows[key]); Y = np.concatenate(y)
         ok = np.all(np.isfinite(X), axis=1) & np.isfinite(Y)
-        beta = np.linalg.lstsq(X[ok], Y[ok], rcond=None)[0]
+        out.append(("C" + key, names, X[ok], Y[ok]))
+    return out
+
+
+def longitudinal_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
+                        thrusts: Sequence[np.ndarray]) -> dict[str, float]:
+    """Equation-error start values: least squares of CL, CD, Cm computed from the measured
+    specific forces and the differentiated pitch rate on the maneuver windows."""
+    sol = {}
+    for _, names, X, Y in longitudinal_regressions(frames, c, thrusts):
+        beta = np.linalg.lstsq(X, Y, rcond=None)[0]
         sol.update(zip(names, beta))
     # keep the signs that make a flyable start (stable pitch damping, positive lift slope)
     sol["Cmq"] = min(sol["Cmq"], -1.0)
@@ -241,6 +258,8 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
             raise FsidError(f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in "
                             f"{bad}: cut it or fix the log")
     thrust = {id(s): thrust_signal(frames[id(s)], ac) for s in specs}
+    regs = longitudinal_regressions([frames[id(s)] for s in fit_specs], c,
+                                    [thrust[id(s)] for s in fit_specs])
     start = longitudinal_starts([frames[id(s)] for s in fit_specs], c,
                                 [thrust[id(s)] for s in fit_specs])
     model = longitudinal(c, values=start, free=free, output_biases=biases,
@@ -257,12 +276,15 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
              f"thrust from {'thrust channel' if 'thrust' in df else 'throttle x max_thrust'}",
              f"start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())]
     return Problem("longitudinal", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
-                   fit_specs, held, estimate_x0=True, notes=notes)
+                   fit_specs, held, estimate_x0=True, notes=notes, regressions=regs,
+                   rate_hz=rate_hz)
 
 
-def lateral_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float]) -> dict[str, float]:
-    """Equation-error start values: least squares of CY (from ay), Cl and Cn (from the
-    differentiated roll and yaw rates with the inertia coupling) on the maneuver windows."""
+def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]
+                        ) -> list[tuple[str, list, np.ndarray, np.ndarray]]:
+    """Equation-error regressions: CY (from ay), Cl and Cn (from the differentiated roll and
+    yaw rates with the inertia coupling) on [1, beta, p b/2V, r b/2V, da, dr]; the intercept
+    column is named None (no model parameter)."""
     X, Y = [], {"CY": [], "Cl": [], "Cn": []}
     for df in frames:
         t = df["t"].to_numpy()
@@ -277,13 +299,23 @@ def lateral_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float]) -> di
         Y["Cl"].append(L / (qbar * c["S"] * c["b"]))
         Y["Cn"].append(N / (qbar * c["S"] * c["b"]))
     A = np.vstack(X)
-    out: dict[str, float] = {}
+    out = []
     for coef, ys in Y.items():
         y = np.concatenate(ys)
         ok = np.all(np.isfinite(A), axis=1) & np.isfinite(y)
-        sol = np.linalg.lstsq(A[ok], y[ok], rcond=None)[0]
-        for name, v in zip(("beta", "p", "r", "da", "dr"), sol[1:]):
-            out[f"{coef}{name}"] = float(v)
+        names = [None] + [f"{coef}{n}" for n in ("beta", "p", "r", "da", "dr")]
+        out.append((coef, names, A[ok], y[ok]))
+    return out
+
+
+def lateral_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float]) -> dict[str, float]:
+    """Equation-error start values: least squares of CY (from ay), Cl and Cn (from the
+    differentiated roll and yaw rates with the inertia coupling) on the maneuver windows."""
+    out: dict[str, float] = {}
+    for _, names, A, y in lateral_regressions(frames, c):
+        sol = np.linalg.lstsq(A, y, rcond=None)[0]
+        for name, v in zip(names[1:], sol[1:]):
+            out[name] = float(v)
     # flyable start: directional stability, roll and yaw damping of the usual sign
     out["Cnbeta"] = max(out["Cnbeta"], 0.01)
     out["Clp"] = min(out["Clp"], -0.05)
@@ -331,6 +363,7 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     held = both[-hold_out:] if hold_out else []
     fit_specs = [s for s in specs if s not in held]
     start = lateral_starts([frames[id(s)] for s in fit_specs], c)
+    regs = lateral_regressions([frames[id(s)] for s in fit_specs], c)
     model = lateral_directional(c, values=start, free=free, output_biases=biases,
                                 name="lateral").select_outputs(LAT_OUTPUTS)
 
@@ -344,4 +377,5 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
              f"theta0={np.degrees(c['theta0']):.2f} deg, density {rho:.4f} kg/m^3",
              "start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())]
     return Problem("lateral", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
-                   fit_specs, held, estimate_x0=True, notes=notes)
+                   fit_specs, held, estimate_x0=True, notes=notes, regressions=regs,
+                   rate_hz=rate_hz)

@@ -13,13 +13,44 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
+import numpy as np
+
 from estimators import OutputError
 from pipeline.errors import FsidError
-from pipeline.identify import AircraftConstants, Problem, lateral_problem, longitudinal_problem
+from pipeline.identify import (LAT_OUTPUTS, LONG_OUTPUTS, AircraftConstants, Problem, lateral_problem,
+                               longitudinal_problem)
 from pipeline.paths import atomic_write_text
 
 #: methods the run knows; the scenario or the command line picks among them
-METHODS = ("oem",)
+METHODS = ("oem", "ls", "fem", "ekf", "ukf", "soem", "eigen", "decouple")
+#: what each name runs (for --help and the report)
+METHOD_HELP = {
+    "oem": "output error (calm air)",
+    "ls": "equation error: least squares on the coefficients from measured accelerations",
+    "fem": "filter error (process and measurement noise; turbulence)",
+    "ekf": "extended Kalman filter with the parameters in the state",
+    "ukf": "unscented Kalman filter with the parameters in the state",
+    "soem": "stabilised output error (unstable aircraft)",
+    "eigen": "output error with eigenvalue transformation (unstable aircraft)",
+    "decouple": "output error with equation decoupling (unstable aircraft)",
+}
+#: methods that need every output at every sample: their problem is built on the grid of
+#: the slowest output channel (FEM drops samples with any output missing; the Kalman
+#: filters would update on some outputs only)
+COMMON_GRID = frozenset({"fem", "ekf", "ukf"})
+
+
+def scenario_methods(truth: Mapping[str, Any] | None) -> list[str]:
+    """The methods that suit a flight: a statically unstable aircraft flown with a SAS
+    (truth ``sas``) -> stabilised output error, eigenvalue transformation, equation
+    decoupling, FEM, EKF, UKF; turbulence -> OEM (kept to show its bias), FEM, EKF, UKF;
+    calm air -> OEM and equation error."""
+    truth = truth or {}
+    if truth.get("sas"):
+        return ["soem", "eigen", "decouple", "fem", "ekf", "ukf"]
+    if (truth.get("turbulence") or {}).get("model", "off") not in ("off", None, ""):
+        return ["oem", "fem", "ekf", "ukf"]
+    return ["oem", "ls"]
 
 
 class Progress:
@@ -42,25 +73,222 @@ class Progress:
             print(f" {dt:.1f} s{(' - ' + extra) if extra else ''}", file=self.stream, flush=True)
 
 
-def fit_problem(problem: Problem, method: str) -> Any:
-    """Run one estimation method on a problem."""
+def measurement_noise_std(problem: Problem) -> np.ndarray:
+    """Measurement-noise std per output from the fitted segments: sqrt(var(second
+    differences) / 6), which is exact for white noise on a signal that is locally linear
+    over two samples (the signal's own curvature adds little at log rates)."""
+    d2 = np.concatenate([np.diff(s.z, 2, axis=0) for s in problem.fit])
+    v = np.nanvar(d2, axis=0) / 6.0
+    return np.sqrt(np.where(np.isfinite(v) & (v > 0), v, 1e-12))
+
+
+def process_noise_std(problem: Problem, turbulence: Mapping[str, Any] | None = None,
+                      scale: float = 1.0) -> dict[str, float]:
+    """Process-noise std F (state unit per sqrt(s)) for the filters.
+
+    From a Dryden turbulence level (``sigma_u``, ``sigma_w`` m/s, scale lengths ``L_u``,
+    ``L_w`` m, as truth.json holds them) when known: a first-order gust of std sigma and
+    time constant L/V has the white-noise intensity sigma sqrt(2 V / L), so
+    F_V = sigma_u sqrt(2V/L_u), F_alpha = sigma_w/V sqrt(2V/L_w), and F_q = 0.3 F_alpha
+    for what the alpha noise does not carry into the pitch rate (FEM estimated 0.33 on
+    the turbulence scenario). Otherwise (a real log, calm air) the FilterError default:
+    0.05 sqrt(var(diff z)/h) per measured state. Lateral: beta, p, r likewise from
+    sigma_v (F_p = F_r = 0.3 F_beta). Everything times ``scale``."""
+    m = problem.model
+    turb = turbulence or {}
+    if turb.get("model", "off") not in ("off", None, "") and turb.get("sigma_w"):
+        V = float(np.nanmean(np.concatenate([s.z[:, m.outputs.index("V")] for s in problem.fit]))) \
+            if "V" in m.outputs else float(m.constants.get("V", 30.0))
+        su, sv, sw = (float(turb.get(k, turb["sigma_w"])) for k in ("sigma_u", "sigma_v", "sigma_w"))
+        Lu, Lv, Lw = (float(turb.get(k, 300.0)) for k in ("L_u", "L_v", "L_w"))
+        if problem.axis == "longitudinal":
+            fa = sw / V * np.sqrt(2 * V / Lw)
+            return {"V": scale * su * np.sqrt(2 * V / Lu), "alpha": scale * fa, "q": scale * 0.3 * fa}
+        fb = sv / V * np.sqrt(2 * V / Lv)
+        return {"beta": scale * fb, "p": scale * 0.3 * fb, "r": scale * 0.3 * fb}
+    h = float(np.median(np.concatenate([np.diff(s.t) for s in problem.fit])))
+    out = {}
+    for st in m.states:
+        if st in m.outputs:
+            d = np.concatenate([np.diff(s.z[:, m.outputs.index(st)]) for s in problem.fit])
+            out[st] = float(scale * 0.05 * np.sqrt(np.nanvar(d) / h))
+    return out
+
+
+def _filter_param_std(model: Any) -> dict[str, float]:
+    """Initial parameter std of the Kalman filters: loose for derivatives, twice the start
+    value and at least 0.3 (the initial covariance acts as a prior centred on the
+    equation-error start: at the EKF default of half the start it held the weakly excited
+    drag polar, CDalpha2, at 5 std from the truth on longitudinal_3211_turbulence), and a
+    sensor-bias scale for the per-segment output biases (0.02 rad/s, 0.3 m/s^2, 0.01 rad,
+    1 m/s)."""
+    out = {}
+    for p in model.parameters:
+        if not p.free:
+            continue
+        if p.name.startswith("bias_"):
+            o = p.name[5:]
+            out[p.name] = (0.02 if o in ("p", "q", "r") else 0.3 if o in ("ax", "ay", "az")
+                           else 1.0 if o == "V" else 0.01)
+        else:
+            out[p.name] = max(2.0 * abs(p.value), 0.3)
+    return out
+
+
+def equation_error(problem: Problem) -> Any:
+    """``ls``: ordinary least squares of the problem's coefficient regressions, returned on
+    the problem's dynamic model so that validation, report and recording treat it as any
+    other method: the derivatives (free, with their OLS std s^2 (X^T X)^-1) are the
+    regression estimates; per-segment initial states and output biases are then fitted by
+    output error with every derivative held (they are not part of the regression), and the
+    predictions and residuals are that simulation's."""
+    from estimators import EstimationResult, LeastSquares, OutputError
+
+    model = problem.model
+    est, var, regs = {}, {}, []
+    for coef, names, X, y in problem.regressions:
+        keep = [i for i, n in enumerate(names) if n is not None]
+        cols = [n if n is not None else "bias" for n in names]
+        res = LeastSquares(cols if names[0] is not None else cols[1:],
+                           intercept=names[0] is None, response=coef).fit(
+            X if names[0] is not None else X[:, 1:], y)
+        regs.append(res)
+        for i in keep:
+            n = names[i]
+            est[n] = float(res.params[n])
+            var[n] = float(res.std[n]) ** 2
+    free = [p.name for p in model.parameters if p.free and not p.per_segment and p.name in est]
+    held = model.with_values({n: est[n] for n in free}).fixed(free)
+    sim = OutputError(held, inputs=problem.inputs, fallback="never").fit(
+        problem.fit, estimate_x0=problem.estimate_x0)
+    names = list(sim.names)
+    is_free = np.array([n in free for n in names])
+    cov = np.diag([var[n] for n in names if n in free])
+    # each regression's covariance block (CL0~CLalpha ...) instead of the diagonal only
+    idx = {n: i for i, n in enumerate([n for n in names if n in free])}
+    for res in regs:
+        rn = [n for n in res.free_names if n in idx]
+        sub = res.cov[np.ix_([res.free_names.index(n) for n in rn], [res.free_names.index(n) for n in rn])]
+        for a, na in enumerate(rn):
+            for b, nb in enumerate(rn):
+                cov[idx[na], idx[nb]] = sub[a, b]
+    n_samples = sum(len(r.residuals[0]) for r in regs)
+    return EstimationResult(
+        method="ls", model=model, names=names, values=np.asarray(sim.values, dtype=float),
+        free=is_free, cov=cov, R=sim.R, converged=True, iterations=1,
+        history=sim.history, predicted=sim.predicted, residuals=sim.residuals,
+        segments=list(problem.fit),
+        message=(f"equation error (OLS) on {', '.join(r.outputs[0] for r in regs)} from "
+                 f"{n_samples // max(len(regs), 1)} samples; predictions: the model with these "
+                 "derivatives, initial states and biases fitted"),
+        settings={"integrator": sim.settings.get("integrator", "rk4"), "optimizer": "ols",
+                  "inputs": problem.inputs},
+        extra={"regressions": regs, "x0_and_biases": sim})
+
+
+def raw_starts(problem: Problem) -> dict[str, float]:
+    """The equation-error estimates without the 'flyable' sign clamps of the problem's
+    start values (stable Cmalpha, Cmq; positive lift slope). The clamps protect plain
+    output error, whose simulation must not diverge; the stabilised methods and the
+    filters keep their predictions bounded and need the unstable sign where the data
+    show it (an unstable aircraft's Cmalpha > 0, which the clamp would flip)."""
+    out = {}
+    free = {p.name for p in problem.model.parameters if p.free}
+    for _, names, X, y in problem.regressions:
+        sol = np.linalg.lstsq(X, y, rcond=None)[0]
+        out.update({n: float(v) for n, v in zip(names, sol) if n is not None and n in free})
+    return out
+
+
+def _states_at_cg(model: Any):
+    """Pseudo-inputs for equation decoupling: the vane's V and alpha moved to the CG with
+    the measured pitch rate (u = V_v cos a_v - q z_vane, w = V_v sin a_v + q x_vane), other
+    states as measured. Without it the vane's q x_vane / V in alpha enters the decoupled
+    pitch equation as Cmalpha x_vane / V q and biases Cmq (by +1.3 on
+    unstable_short_period: -2.6 for a truth of -3.6)."""
+    c, outs = model.constants, model.outputs
+    xv, zv = float(c.get("x_vane", 0.0)), float(c.get("z_vane", 0.0))
+    if not ({"V", "alpha", "q"} <= set(outs)) or (xv == 0.0 and zv == 0.0):
+        return None
+
+    def pseudo(seg, states):
+        V, a, q = (seg.z[:, outs.index(k)] for k in ("V", "alpha", "q"))
+        V = np.interp(seg.t, seg.t[np.isfinite(V)], V[np.isfinite(V)])
+        a_ok = np.isfinite(a)
+        a = np.interp(seg.t, seg.t[a_ok], a[a_ok])
+        q = np.interp(seg.t, seg.t[np.isfinite(q)], q[np.isfinite(q)])
+        u, w = V * np.cos(a) - q * zv, V * np.sin(a) + q * xv
+        cg = {"V": np.hypot(u, w), "alpha": np.arctan2(w, u)}
+        return np.column_stack([cg[s] if s in cg else seg.z[:, outs.index(s)] for s in states])
+    return pseudo
+
+
+def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] | None = None) -> Any:
+    """Run one estimation method on a problem (names in METHODS). ``turbulence``: the
+    Dryden level when known (truth.json), for the filters' process noise."""
+    import estimators as E
+
+    model, inputs, x0 = problem.model, problem.inputs, problem.estimate_x0
+    if method not in ("oem", "ls") and problem.regressions:
+        model = model.with_values(raw_starts(problem))
     if method == "oem":
-        return OutputError(problem.model, inputs=problem.inputs).fit(problem.fit, estimate_x0=problem.estimate_x0)
-    raise FsidError(f"method {method!r} is not available in the run yet; use one of {METHODS}")
+        return E.OutputError(model, inputs=inputs).fit(problem.fit, estimate_x0=x0)
+    if method == "ls":
+        return equation_error(problem)
+    if method == "fem":
+        # nonlinear form (integrator prediction, gain of the linearisation at each
+        # segment's start); process noise started from the turbulence level and
+        # estimated; measurement noise held at the second-difference estimate (estimating
+        # it too lets the likelihood drive G of an output that also measures the gust-
+        # driven state to 0 - see FilterError's estimate_G)
+        return E.FilterError(model, form="nonlinear", inputs=inputs,
+                             process_noise=process_noise_std(problem, turbulence),
+                             measurement_noise=measurement_noise_std(problem),
+                             estimate_G=False).fit(problem.fit, estimate_x0=x0)
+    if method in ("ekf", "ukf"):
+        cls = E.EKF if method == "ekf" else E.UKF
+        # twice the gust intensity: the filters' process noise also has to carry what the
+        # white-noise stand-in for coloured (Dryden) gusts misses while the parameters are
+        # still uncertain; at 1x Cmalpha ended 4.5 std and Cmq 3.5 std from the truth on
+        # longitudinal_3211_turbulence, at 2x all derivatives within 2.4 std (FEM, which
+        # estimates F, lands at 0.8-1.2x)
+        return cls(model, inputs=inputs, process_noise=process_noise_std(problem, turbulence, 2.0),
+                   measurement_noise=measurement_noise_std(problem),
+                   param_std=_filter_param_std(model)).fit(problem.fit)
+    if method == "soem":
+        return E.StabilizedOutputError(model, inputs=inputs).fit(problem.fit, estimate_x0=x0)
+    if method == "eigen":
+        return E.EigenvalueTransformation(model, inputs=inputs).fit(problem.fit, estimate_x0=x0)
+    if method == "decouple":
+        # decouple only the destabilising coupling where the model has it (alpha in the
+        # pitch equation of the longitudinal model); every measured state otherwise
+        states = ["alpha"] if "alpha" in model.states else None
+        return E.EquationDecoupling(model, states=states, inputs=inputs,
+                                    pseudo=_states_at_cg(model)).fit(problem.fit, estimate_x0=x0)
+    raise FsidError(f"unknown method {method!r}: use one of {', '.join(METHODS)}")
 
 
 def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[str, float] | None,
-             progress: Progress, inputs: str = "linear") -> tuple[dict, dict, list[Problem]]:
+             progress: Progress, inputs: str = "linear",
+             turbulence: Mapping[str, Any] | None = None) -> tuple[dict, dict, list[Problem]]:
     """Estimate and validate every axis the log excites; ``inputs`` is how the inputs vary
-    between samples (estimators.integrators.INPUT_MODES). Returns (results, validations,
-    problems); keys are the method names ("<axis>-<method>" once several axes are fitted)."""
+    between samples (estimators.integrators.INPUT_MODES). Methods in COMMON_GRID get the
+    axis problem on the grid of its slowest output channel (every output at every sample).
+    Returns (results, validations, problems); keys are the method names
+    ("<axis>-<method>" once several axes are fitted)."""
+    from estimators import EstimationError
     from pipeline.validate import validate
 
+    bad = [m for m in methods if m not in METHODS]
+    if bad:
+        raise FsidError(f"unknown method(s) {bad}: use some of {', '.join(METHODS)}")
     results, validations, problems = {}, {}, []
     axes = {s.axis for s in fd.segments}
-    builders = [("de" in axes, longitudinal_problem), (bool({"da", "dr"} & axes), lateral_problem)]
+    builders = [("de" in axes, longitudinal_problem, LONG_OUTPUTS),
+                (bool({"da", "dr"} & axes), lateral_problem, LAT_OUTPUTS)]
     skipped = []
-    for wanted, build in builders:
+    plans = []                       # (axis problem at the default grid, builder, outputs)
+    for wanted, build, outs in builders:
         if not wanted:
             continue
         try:
@@ -70,36 +298,58 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
             continue
         problem.inputs = inputs
         problems.append(problem)
+        plans.append((problem, build, outs))
     if not problems:
         raise FsidError("no axis can be identified from this log: " + ("; ".join(skipped) or
                         "no control-input activity found (fly doublets/3-2-1-1s on the "
                         "elevator, aileron or rudder, or give segments)"))
     for msg in skipped:
         print(f"note: {msg}", file=progress.stream)
-    for problem in problems:
+    for problem, build, outs in plans:
+        common = None
         for m in methods:
-            progress.stage(f"estimate {problem.axis} derivatives ({m.upper()}, "
-                           f"{len(problem.fit)} maneuvers, {len(problem.held_out)} held out)")
-            res = fit_problem(problem, m)
+            pb = problem
+            if m in COMMON_GRID:
+                rate = min(fd[c].rate_hz for c in outs)
+                if rate < 0.9 * problem.rate_hz:
+                    if common is None:
+                        common = build(fd, ac, rate_hz=rate)
+                        common.inputs = inputs
+                    pb = common
+            progress.stage(f"estimate {pb.axis} derivatives ({m.upper()}, "
+                           f"{len(pb.fit)} maneuvers, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
+            try:
+                res = fit_problem(pb, m, turbulence=turbulence)
+            except EstimationError as exc:
+                # one method failing (e.g. plain OEM diverging on an unstable aircraft) must
+                # not cost the others: say so and go on
+                progress.done(f"FAILED: {exc}")
+                print(f"note: {m.upper()} on the {pb.axis} axis failed: {exc}", file=progress.stream)
+                progress.stage(f"validate {pb.axis} {m.upper()} (skipped)")
+                progress.done()
+                continue
             progress.done(f"{'converged' if res.converged else 'NOT converged'} in "
                           f"{res.iterations} iterations")
-            progress.stage(f"validate {problem.axis} {m.upper()} (fit, residuals, modes, proof of match)")
-            key = m if len(problems) == 1 else f"{problem.axis}-{m}"
+            progress.stage(f"validate {pb.axis} {m.upper()} (fit, residuals, modes, proof of match)")
+            key = m if len(problems) == 1 else f"{pb.axis}-{m}"
             results[key] = res
-            validations[key] = validate(res, held_out=problem.held_out, truth=truth)
+            validations[key] = validate(res, held_out=pb.held_out, truth=truth)
             progress.done()
+    if not results:
+        raise FsidError("every estimation method failed on this log (see the notes above)")
     return results, validations, problems
 
 
 def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = None,
-                 methods: Sequence[str] = ("oem",), quiet: bool = False) -> dict[str, Path]:
-    """``fsid run``: everything of DESIGN.md section 5 into ``out``."""
+                 methods: Sequence[str] | None = None, quiet: bool = False) -> dict[str, Path]:
+    """``fsid run``: everything of DESIGN.md section 5 into ``out``. ``methods`` default:
+    the ones that suit the flight (:func:`scenario_methods`)."""
     import sim
     from pipeline.checks import findings_to_json, run_checks, summarize
     from pipeline.readers import read_log
     from pipeline.writers import write_dataflash, write_mcap, write_truth_json
 
-    pr = Progress(5 + 4 * len(methods) + 1, quiet=quiet)
+    pr = Progress(5 + 4 * len(methods or ("oem", "ls")) + 1, quiet=quiet)   # updated below
     pr.stage(f"load scenario {scenario_path}")
     try:
         scenario = sim.load_scenario(scenario_path)
@@ -131,7 +381,12 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     # estimation reads the product's own MCAP (surface positions at full resolution; the
     # .bin's RCOU carries whole-microsecond PWM, ~0.075 deg steps); the simulator moves
     # inputs linearly between samples, hence linear input interpolation
-    results, validations, problems = identify(fd_mcap, ac, methods, truth, pr, inputs="linear")
+    if not methods:
+        methods = scenario_methods(truth_doc)
+    n_axes = sum(1 for ax in (("de",), ("da", "dr")) if {s.axis for s in fd_mcap.segments} & set(ax))
+    pr.total = pr.n + 2 * max(n_axes, 1) * len(methods) + 1
+    results, validations, problems = identify(fd_mcap, ac, methods, truth, pr, inputs="linear",
+                                              turbulence=truth_doc.get("turbulence"))
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary,
                           meta={"scenario": scenario.name, "log": "flight.mcap", "seed": result.meta["seed"],
                                 "aircraft": result.aircraft.name})
@@ -140,7 +395,8 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
 def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path, map_path: str | None = None,
                  methods: Sequence[str] = ("oem",), inputs: str = "linear",
                  quiet: bool = False) -> dict[str, Path]:
-    """``fsid estimate``: a real log and an aircraft TOML -> report and recording."""
+    """``fsid estimate``: a real log and an aircraft TOML -> report and recording. The
+    filters' process noise starts from the data (no turbulence level is known)."""
     import sim
     from pipeline.checks import run_checks, summarize
     from pipeline.readers import read_log

@@ -5,6 +5,8 @@ import argparse
 
 from pipeline.paths import new_run_dir
 
+from pipeline.commands.run import METHOD_LIST, METHODS
+
 HELP = "identify derivatives from a real log with a built-in model and an aircraft description"
 
 
@@ -14,7 +16,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="aircraft TOML (geometry, mass, inertia, propulsion; see scenarios/aircraft/)")
     p.add_argument("--model", default="longitudinal", choices=["longitudinal"],
                    help="built-in model (default: longitudinal)")
-    p.add_argument("--method", action="append", choices=["oem"], help="estimation method(s)")
+    p.add_argument("--method", action="append", choices=list(METHODS),
+                   help="estimation method (repeat for several; default: oem). " + METHOD_LIST)
     p.add_argument("--map", help="channel map TOML extending the built-in one")
     p.add_argument("--inputs", default="linear", choices=["linear", "average", "hold"],
                    help="how control inputs vary between log samples (default: linear)")

@@ -1,0 +1,108 @@
+"""Closed loop of the methods for turbulence and for unstable aircraft through the real-log
+path (issue 6): scenario -> JSBSim -> flight.mcap/.bin -> ingest -> estimation -> validation,
+truth known. Each scenario is flown once per module.
+
+What is asserted is what was measured to hold; what does not hold is stated, not hidden:
+
+* longitudinal_3211_turbulence, FEM / EKF / UKF: every free derivative within 3 std of the
+  truth and the Theil coefficient of each output < 0.1. Proof of match on the held-out
+  doublet is NOT met by any model: validation's proof of match simulates the model without
+  the gusts, and the flown response to the gusts alone exceeds the bands - the TRUE
+  derivatives (x0 and biases fitted) miss by 3.9 deg/s on q (band 1.5), 1.6 deg on theta,
+  0.118 g on az. Kept as a strict xfail so that it shows up when validation learns a
+  turbulence-aware proof of match.
+* unstable_short_period, FEM / EKF / UKF: every derivative within 3 std, TIC < 0.1. Proof of match
+  (an open-loop simulation of a statically unstable model through the SAS-flown surface
+  positions) is not met (see the xfail). The other unstable methods are left out of this
+  module; their measured numbers are in the issue notes.
+"""
+import json
+from pathlib import Path
+
+import pytest
+
+from pipeline.cli import build_parser
+from pipeline.run import run_scenario, scenario_methods
+
+SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
+TURBULENCE_METHODS = ("fem", "ekf", "ukf")
+UNSTABLE_METHODS = ("fem", "ekf", "ukf")
+
+
+def _run(tmp_path_factory, name, methods):
+    out = tmp_path_factory.mktemp(name)
+    run_scenario(SCENARIOS / f"{name}.toml", out, methods=list(methods), quiet=True)
+    return json.loads((out / "report.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def turbulence(tmp_path_factory):
+    return _run(tmp_path_factory, "longitudinal_3211_turbulence", TURBULENCE_METHODS)
+
+
+@pytest.fixture(scope="module")
+def unstable(tmp_path_factory):
+    return _run(tmp_path_factory, "unstable_short_period", UNSTABLE_METHODS)
+
+
+def _derivatives_within_3_std(rep, method):
+    m = rep["methods"][method]
+    derivs = {k: v for k, v in m["parameters"].items() if v.get("truth") is not None}
+    assert len(derivs) == 11, sorted(derivs)
+    errs = {k: round(v["error_in_std"], 2) for k, v in derivs.items()}
+    assert all(e <= 3.0 for e in errs.values()), f"{method}: |error|/std per derivative {errs}"
+    tic = {k: d["TIC"] for k, d in m["validation"]["fit"]["per_output"].items()}
+    assert set(tic) == {"V", "alpha", "theta", "q", "ax", "az"}
+    assert max(tic.values()) < 0.1, f"{method}: TIC {tic}"
+    return m
+
+
+@pytest.mark.parametrize("method", TURBULENCE_METHODS)
+def test_turbulence_derivatives_within_3_std_and_tic(turbulence, method):
+    m = _derivatives_within_3_std(turbulence, method)
+    assert turbulence["meta"]["log"] == "flight.mcap"
+    if method == "fem":
+        assert m["converged"]
+        # the process noise is estimated, on the gust-driven states
+        assert {"F_V", "F_alpha", "F_q"} <= set(m["parameters"])
+        assert m["parameters"]["F_alpha"]["estimate"] > 0
+
+
+@pytest.mark.xfail(strict=True, reason="proof of match simulates without the gusts: even the "
+                   "true derivatives miss the held-out doublet by 3.9 deg/s on q")
+@pytest.mark.parametrize("method", TURBULENCE_METHODS)
+def test_turbulence_proof_of_match(turbulence, method):
+    assert turbulence["methods"][method]["validation"]["proof_of_match"]["all_pass"]
+
+
+@pytest.mark.parametrize("method", UNSTABLE_METHODS)
+def test_unstable_derivatives_within_3_std_and_tic(unstable, method):
+    m = _derivatives_within_3_std(unstable, method)
+    assert m["converged"]
+    # the identified model is statically unstable, as the truth (Cmalpha > 0)
+    assert m["parameters"]["Cmalpha"]["estimate"] > 0
+
+
+@pytest.mark.xfail(strict=True, reason="open-loop simulation of the unstable model through the "
+                   "SAS-flown surface positions drifts out of the bands on the held-out maneuver")
+@pytest.mark.parametrize("method", UNSTABLE_METHODS)
+def test_unstable_proof_of_match(unstable, method):
+    assert unstable["methods"][method]["validation"]["proof_of_match"]["all_pass"]
+
+
+def test_methods_that_suit_the_scenario():
+    assert scenario_methods({"turbulence": {"model": "off"}}) == ["oem", "ls"]
+    assert scenario_methods({"turbulence": {"model": "milspec", "sigma_w": 0.5}}) == \
+        ["oem", "fem", "ekf", "ukf"]
+    assert scenario_methods({"sas": {"k_alpha": 1.0}, "turbulence": {"model": "off"}}) == \
+        ["soem", "eigen", "decouple", "fem", "ekf", "ukf"]
+
+
+def test_command_line_accepts_every_method():
+    p = build_parser()
+    names = ["oem", "ls", "fem", "ekf", "ukf", "soem", "eigen", "decouple"]
+    args = p.parse_args(["run", "s.toml", *sum((["--method", n] for n in names), [])])
+    assert args.method == names
+    args = p.parse_args(["estimate", "log.bin", "--aircraft", "a.toml", "--method", "ukf"])
+    assert args.method == ["ukf"]
+    assert p.parse_args(["run", "s.toml"]).method is None       # the scenario decides
