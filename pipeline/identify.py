@@ -181,15 +181,25 @@ def longitudinal_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, flo
     (coefficient, parameter names of the columns, X (N, k), y (N,)) with NaN rows removed."""
     rows = {"L": [], "D": [], "M": []}
     yL, yD, yM = [], [], []
+    xv, zv = c.get("x_vane", 0.0), c.get("z_vane", 0.0)
+    xi, zi = c.get("x_imu", 0.0), c.get("z_imu", 0.0)
     for df, T in zip(frames, thrusts):
         t = df["t"].to_numpy()
-        V, a, q, de = (df[k].to_numpy() for k in ("V", "alpha", "q", "de"))
+        Vv, av, q, de = (df[k].to_numpy() for k in ("V", "alpha", "q", "de"))
+        qdot = np.gradient(q, t)
+        # air data and accelerations moved from the sensors to the CG: the vane reads
+        # alpha - q x_vane / V, which a regression would book on CLq/Cmq (CLalpha x_vane
+        # 2/cbar: +29 on CLq of uav_small) - the inverse of the model's sensor terms
+        u = Vv * np.cos(av) - q * zv
+        w = Vv * np.sin(av) + q * xv
+        V, a = np.hypot(u, w), np.arctan2(w, u)
+        ax = df["ax"].to_numpy() - qdot * zi + q * q * xi
+        az = df["az"].to_numpy() + qdot * xi + q * q * zi
         qbar = 0.5 * c["rho"] * V ** 2
-        CX = (c["m"] * df["ax"].to_numpy() - T) / (qbar * c["S"])
-        CZ = c["m"] * df["az"].to_numpy() / (qbar * c["S"])
+        CX = (c["m"] * ax - T) / (qbar * c["S"])
+        CZ = c["m"] * az / (qbar * c["S"])
         CL = -CZ * np.cos(a) + CX * np.sin(a)
         CD = -CX * np.cos(a) - CZ * np.sin(a)
-        qdot = np.gradient(q, t)
         Cm = c["Iyy"] * qdot / (qbar * c["S"] * c["cbar"])
         qh = q * c["cbar"] / (2 * V)
         one = np.ones_like(a)
@@ -197,12 +207,12 @@ def longitudinal_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, flo
         rows["D"].append(np.column_stack([one, a, a * a])); yD.append(CD)
         rows["M"].append(np.column_stack([one, a, qh, de])); yM.append(Cm)
     out = []
-    for key, y, names in (("L", yL, ["CL0", "CLalpha", "CLq", "CLde"]),
-                          ("D", yD, ["CD0", "CDalpha", "CDalpha2"]),
-                          ("M", yM, ["Cm0", "Cmalpha", "Cmq", "Cmde"])):
+    for key, coef, y, names in (("L", "CL", yL, ["CL0", "CLalpha", "CLq", "CLde"]),
+                                ("D", "CD", yD, ["CD0", "CDalpha", "CDalpha2"]),
+                                ("M", "Cm", yM, ["Cm0", "Cmalpha", "Cmq", "Cmde"])):
         X = np.vstack(rows[key]); Y = np.concatenate(y)
         ok = np.all(np.isfinite(X), axis=1) & np.isfinite(Y)
-        out.append(("C" + key, names, X[ok], Y[ok]))
+        out.append((coef, names, X[ok], Y[ok]))
     return out
 
 
@@ -291,11 +301,14 @@ def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]
         beta, p, r, da, dr = (df[k].to_numpy() for k in ("beta", "p", "r", "da", "dr"))
         qbar = 0.5 * c["rho"] * c["V"] ** 2
         pdot, rdot = np.gradient(p, t), np.gradient(r, t)
+        # vane and IMU readings moved to the CG (inverse of the model's sensor terms)
+        beta = beta - (r * c.get("x_vane", 0.0) - p * c.get("z_vane", 0.0)) / c["V"]
+        ay = df["ay"].to_numpy() - rdot * c.get("x_imu", 0.0) + pdot * c.get("z_imu", 0.0)
         L = c["Ixx"] * pdot - c["Ixz"] * rdot
         N = c["Izz"] * rdot - c["Ixz"] * pdot
         k = c["b"] / (2 * c["V"])
         X.append(np.column_stack([np.ones_like(p), beta, p * k, r * k, da, dr]))
-        Y["CY"].append(c["m"] * df["ay"].to_numpy() / (qbar * c["S"]))
+        Y["CY"].append(c["m"] * ay / (qbar * c["S"]))
         Y["Cl"].append(L / (qbar * c["S"] * c["b"]))
         Y["Cn"].append(N / (qbar * c["S"] * c["b"]))
     A = np.vstack(X)
