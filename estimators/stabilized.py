@@ -127,14 +127,20 @@ class StabilizedOutputError(_TransformedOEM):
 
     method = "oem-stabilized"
 
-    def __init__(self, model: Model, S: Any = None, integrator: str = "rk4", **oem_options) -> None:
+    def __init__(self, model: Model, S: Any = None, integrator: str = "rk4",
+                 feedback: Sequence[str] | None = None, **oem_options) -> None:
         super().__init__(model, integrator, **oem_options)
         self.S = S
+        self.feedback = None if feedback is None else list(feedback)
 
     def default_S(self, segments: Sequence[Segment], start=None) -> np.ndarray:
+        """The default S; ``feedback`` (constructor) limits it to the measurements of those
+        states (e.g. alpha and q for a short-period instability: feeding back the noisy
+        airspeed and attitude too ties the drag and lift terms to the measurements)."""
         m = self.model
         A, C = _linearisation(m, segments, start)
-        meas = [j for j, o in enumerate(m.outputs) if o in m.states]
+        meas = [j for j, o in enumerate(m.outputs) if o in m.states and
+                (self.feedback is None or o in self.feedback)]
         if not meas:
             raise ModelDefinitionError("no output measures a state: give S explicitly")
         Cm = C[meas]

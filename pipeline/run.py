@@ -256,8 +256,18 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
                    measurement_noise=measurement_noise_std(problem),
                    param_std=_filter_param_std(model)).fit(problem.fit)
     if method == "soem":
-        return E.StabilizedOutputError(model, inputs=inputs).fit(problem.fit, estimate_x0=x0)
+        # feed back only the short-period measurements where the model has them: with V and
+        # theta fed back too, CL0/CLalpha/CLde ended 17-25 std off on unstable_short_period
+        fb = ["alpha", "q"] if {"alpha", "q"} <= set(model.states) else None
+        return E.StabilizedOutputError(model, inputs=inputs, feedback=fb).fit(problem.fit, estimate_x0=x0)
     if method == "eigen":
+        if problem.axis == "longitudinal":
+            # the transformation x~ = x e^{-sigma t} is exact for linear models only; in the
+            # nonlinear longitudinal model V~ -> 0 sits in denominators (qbar, q c/2V, L/mV)
+            # and the transformed simulation blows up within ~2 s
+            raise E.ModelDefinitionError(
+                "eigenvalue transformation needs a linear model; the longitudinal model is "
+                "nonlinear (use soem, decouple or the filters for this axis)")
         return E.EigenvalueTransformation(model, inputs=inputs).fit(problem.fit, estimate_x0=x0)
     if method == "decouple":
         # decouple only the destabilising coupling where the model has it (alpha in the
