@@ -17,6 +17,7 @@ import numpy as np
 
 from estimators import OutputError
 from pipeline.errors import FsidError
+from pipeline.sixdof_problem import sixdof_lateral_problem
 from pipeline.identify import (LAT_OUTPUTS, LONG_OUTPUTS, AircraftConstants, Problem, lateral_problem,
                                longitudinal_problem)
 from pipeline.paths import atomic_write_text
@@ -326,7 +327,19 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                         common = build(fd, ac, rate_hz=rate)
                         common.inputs = inputs
                     pb = common
-            progress.stage(f"estimate {pb.axis} derivatives ({m.upper()}, "
+            lon = results.get("longitudinal-oem")
+            if pb.axis == "lateral" and m == "oem" and lon is not None:
+                # output error on the lateral axis uses the nonlinear 6-DoF model with the
+                # longitudinal estimates held: the linear lateral model's frozen airspeed and
+                # small-angle kinematics bias the estimates by several std on a small UAV
+                try:
+                    pb = sixdof_lateral_problem(fd, ac, longitudinal={
+                        n: float(v) for n, v in lon.params.items() if "[" not in n})
+                    pb.inputs = inputs
+                except FsidError as exc:
+                    print(f"note: 6-DoF lateral model not set up ({exc}); linear model used",
+                          file=progress.stream)
+            progress.stage(f"estimate {pb.axis} derivatives ({m.upper()}, {pb.model.name} model, "
                            f"{len(pb.fit)} maneuvers, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
             try:
                 res = fit_problem(pb, m, turbulence=turbulence)
