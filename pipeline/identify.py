@@ -252,8 +252,7 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
                         f"{1 + hold_out} (one to fit, {hold_out} to hold out): fly more elevator "
                         "maneuvers or give segments by time range")
     df, rate_hz = multirate_frame(fd, LONG_OUTPUTS, ["de", "throttle", "thrust", "rho", "h"], rate_hz)
-    rho = float(np.nanmean(df["rho"])) if "rho" in df else float(np.nanmean(isa_density(df["h"]))) \
-        if "h" in df else 1.225
+    rho = mean_density(df)
     c = {"m": ac.mass, "Iyy": ac.Iyy, "S": ac.S, "cbar": ac.cbar, "rho": rho,
          "x_vane": ac.airdata[0], "z_vane": ac.airdata[2], "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
     elev = [s for s in specs if s.axis == "de"]
@@ -336,14 +335,12 @@ def lateral_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float]) -> di
     return out
 
 
-def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | None = None,
-                    segments: Sequence[SegmentSpec] | None = None, hold_out: int = 1,
-                    free: Sequence[str] = LAT_FREE,
-                    biases: Sequence[str] = ("beta", "p", "r", "ay")) -> Problem:
-    """Build the lateral-directional problem (linear model about the flight's mean
-    airspeed, angle of attack and pitch attitude) from the aileron and rudder maneuvers;
-    control inputs are taken relative to their value at the start of each window."""
-    missing = fd.missing(LAT_CHANNELS)
+def lateral_specs(fd: FlightData, channels: Sequence[str],
+                  segments: Sequence[SegmentSpec] | None, hold_out: int) -> list[SegmentSpec]:
+    """The aileron/rudder windows of a lateral problem (default: the log's 'da' and 'dr'
+    segments), after checking the log has ``channels`` and enough maneuvers to fit and
+    hold out ``hold_out``."""
+    missing = fd.missing(channels)
     if missing:
         raise FsidError(f"lateral identification needs channels {missing} that the log does not "
                         f"provide ({fd.meta.get('source', 'log')}); add them to the channel map")
@@ -352,10 +349,28 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     if len(specs) < 1 + hold_out:
         raise FsidError(f"found {len(specs)} aileron/rudder maneuver segment(s) but need at least "
                         f"{1 + hold_out}: fly more doublets or give segments by time range")
+    return specs
+
+
+def mean_density(df: pd.DataFrame) -> float:
+    """Mean air density (kg/m^3) of the flight: the rho channel, else ISA at the measured
+    altitude, else sea level."""
+    if "rho" in df:
+        return float(np.nanmean(df["rho"]))
+    return float(np.nanmean(isa_density(df["h"]))) if "h" in df else 1.225
+
+
+def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | None = None,
+                    segments: Sequence[SegmentSpec] | None = None, hold_out: int = 1,
+                    free: Sequence[str] = LAT_FREE,
+                    biases: Sequence[str] = ("beta", "p", "r", "ay")) -> Problem:
+    """Build the lateral-directional problem (linear model about the flight's mean
+    airspeed, angle of attack and pitch attitude) from the aileron and rudder maneuvers;
+    control inputs are taken relative to their value at the start of each window."""
+    specs = lateral_specs(fd, LAT_CHANNELS, segments, hold_out)
     df, rate_hz = multirate_frame(fd, LAT_OUTPUTS, ["V", "alpha", "theta", "da", "dr", "rho", "h"],
                                   rate_hz)
-    rho = float(np.nanmean(df["rho"])) if "rho" in df else float(np.nanmean(isa_density(df["h"]))) \
-        if "h" in df else 1.225
+    rho = mean_density(df)
     frames = {id(s): _window(df, s) for s in specs}
     for s in specs:
         w = frames[id(s)]

@@ -20,7 +20,7 @@ from estimators.models.sixdof import body_velocity
 from pipeline.errors import FsidError
 from pipeline.flightdata import FlightData, SegmentSpec
 from pipeline.identify import (LAT_FREE, AircraftConstants, Problem, _first_valid, _window,
-                               isa_density, lateral_starts, longitudinal_starts,
+                               lateral_specs, lateral_starts, longitudinal_starts, mean_density,
                                multirate_frame, thrust_signal)
 
 SIXDOF_OUTPUTS = ("V", "alpha", "beta", "p", "q", "r", "phi", "theta", "ax", "ay", "az")
@@ -40,19 +40,10 @@ def sixdof_lateral_problem(fd: FlightData, ac: AircraftConstants, *,
         same windows). segments default to the log's aileron and rudder windows; the last
         ``hold_out`` are kept for proof of match.
     """
-    missing = fd.missing(SIXDOF_OUTPUTS + SIXDOF_INPUTS)
-    if missing:
-        raise FsidError(f"lateral identification needs channels {missing} that the log does not "
-                        f"provide ({fd.meta.get('source', 'log')}); add them to the channel map")
-    specs = list(segments if segments is not None else
-                 [s for s in fd.segments if s.axis in ("da", "dr")])
-    if len(specs) < 1 + hold_out:
-        raise FsidError(f"found {len(specs)} aileron/rudder maneuver segment(s) but need at least "
-                        f"{1 + hold_out}: fly more doublets or give segments by time range")
+    specs = lateral_specs(fd, SIXDOF_OUTPUTS + SIXDOF_INPUTS, segments, hold_out)
     df, rate_hz = multirate_frame(fd, SIXDOF_OUTPUTS,
                                   list(SIXDOF_INPUTS) + ["throttle", "thrust", "rho", "h"], rate_hz)
-    rho = float(np.nanmean(df["rho"])) if "rho" in df else float(np.nanmean(isa_density(df["h"]))) \
-        if "h" in df else 1.225
+    rho = mean_density(df)
     c = {"m": ac.mass, "Ixx": ac.Ixx, "Iyy": ac.Iyy, "Izz": ac.Izz, "Ixz": ac.Ixz, "S": ac.S,
          "b": ac.b, "cbar": ac.cbar, "rho": rho, "x_vane": ac.airdata[0],
          "z_vane": ac.airdata[2], "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
