@@ -281,7 +281,8 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
 
 def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[str, float] | None,
              progress: Progress, inputs: str = "linear",
-             turbulence: Mapping[str, Any] | None = None) -> tuple[dict, dict, list[Problem]]:
+             turbulence: Mapping[str, Any] | None = None,
+             axes: Sequence[str] = ("longitudinal", "lateral")) -> tuple[dict, dict, list[Problem]]:
     """Estimate and validate every axis the log excites; ``inputs`` is how the inputs vary
     between samples (estimators.integrators.INPUT_MODES). Methods in COMMON_GRID get the
     axis problem on the grid of its slowest output channel (every output at every sample).
@@ -294,9 +295,9 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     if bad:
         raise FsidError(f"unknown method(s) {bad}: use some of {', '.join(METHODS)}")
     results, validations, problems = {}, {}, []
-    axes = {s.axis for s in fd.segments}
-    builders = [("de" in axes, longitudinal_problem, LONG_OUTPUTS),
-                (bool({"da", "dr"} & axes), lateral_problem, LAT_OUTPUTS)]
+    flown = {s.axis for s in fd.segments}
+    builders = [("longitudinal" in axes and "de" in flown, longitudinal_problem, LONG_OUTPUTS),
+                ("lateral" in axes and bool({"da", "dr"} & flown), lateral_problem, LAT_OUTPUTS)]
     skipped = []
     plans = []                       # (axis problem at the default grid, builder, outputs)
     for wanted, build, outs in builders:
@@ -417,7 +418,7 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
 
 def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path, map_path: str | None = None,
                  methods: Sequence[str] = ("oem",), inputs: str = "linear",
-                 quiet: bool = False) -> dict[str, Path]:
+                 model: str = "auto", quiet: bool = False) -> dict[str, Path]:
     """``fsid estimate``: a real log and an aircraft TOML -> report and recording. The
     filters' process noise starts from the data (no turbulence level is known)."""
     import sim
@@ -438,7 +439,8 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path, map_path: 
     pr.stage("data-quality checks")
     summary = summarize(run_checks(fd))
     pr.done(str(summary))
-    results, validations, problems = identify(fd, ac, methods, None, pr, inputs=inputs)
+    axes = ("longitudinal", "lateral") if model == "auto" else (model,)
+    results, validations, problems = identify(fd, ac, methods, None, pr, inputs=inputs, axes=axes)
     return _write_outputs(out, results, validations, problems, None, pr, checks=summary,
                           meta={"log": str(log), "aircraft": ac_obj.name})
 

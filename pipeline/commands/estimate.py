@@ -14,8 +14,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", help="flight log (.bin, .tlog, .ulg, .mcap, .csv)")
     p.add_argument("--aircraft", required=True,
                    help="aircraft TOML (geometry, mass, inertia, propulsion; see scenarios/aircraft/)")
-    p.add_argument("--model", default="longitudinal", choices=["longitudinal"],
-                   help="built-in model (default: longitudinal)")
+    p.add_argument("--model", default="auto", choices=["auto", "longitudinal", "lateral"],
+                   help="built-in model: longitudinal (nonlinear, stability axes), lateral "
+                        "(6-DoF with the longitudinal estimates held when the log also has "
+                        "elevator maneuvers, else linear), or auto = every axis the log's "
+                        "maneuvers excite (default)")
     p.add_argument("--method", action="append", choices=list(METHODS),
                    help="estimation method (repeat for several; default: oem). " + METHOD_LIST)
     p.add_argument("--map", help="channel map TOML extending the built-in one")
@@ -31,6 +34,7 @@ def run(args: argparse.Namespace) -> int:
 
     out = new_run_dir("estimate", args.out)
     paths = estimate_log(args.log, out, aircraft=args.aircraft, map_path=args.map,
-                         methods=args.method or ["oem"], inputs=args.inputs, quiet=args.quiet)
+                         methods=args.method or ["oem"], inputs=args.inputs, model=args.model,
+                         quiet=args.quiet)
     print_outputs(out, paths)
     return 0
