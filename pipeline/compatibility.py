@@ -30,6 +30,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
+from numba.extending import register_jitable
 
 from pipeline.errors import FsidError
 from pipeline.flightdata import FlightData, SegmentSpec
@@ -58,7 +59,10 @@ UNITS = {**{f"bias_{c}": "m/s^2" for c in ("ax", "ay", "az")},
          "bias_V": "m/s", "bias_alpha": "rad", "bias_beta": "rad", "delay_air": "s"}
 
 
-def _f(x, u, p, c):
+@register_jitable
+def _body_kinematics(x, u, p, c):
+    """Corrected IMU rates and the body-axis velocity derivatives (m/s^2): the measured
+    specific forces and rates with bias and scale factor removed drive u, v, w."""
     uu, vv, ww, phi, theta, psi, h = x
     axm, aym, azm, pm, qm, rm, pd, qd, rd = u
     ax = (axm - p.bias_ax) / (1.0 + p.scale_ax)
@@ -72,6 +76,14 @@ def _f(x, u, p, c):
     udot = rr * vv - qr * ww - c.g * sth + ax
     vdot = pr * ww - rr * uu + c.g * cth * sph + ay
     wdot = qr * uu - pr * vv + c.g * cth * cph + az
+    return pr, qr, rr, udot, vdot, wdot
+
+
+def _f(x, u, p, c):
+    uu, vv, ww, phi, theta, psi, h = x
+    pr, qr, rr, udot, vdot, wdot = _body_kinematics(x, u, p, c)
+    sph, cph = np.sin(phi), np.cos(phi)
+    sth, cth = np.sin(theta), np.cos(theta)
     phidot = pr + np.tan(theta) * (qr * sph + rr * cph)
     thetadot = qr * cph - rr * sph
     psidot = (qr * sph + rr * cph) / cth
@@ -82,18 +94,10 @@ def _f(x, u, p, c):
 def _g(x, u, p, c):
     uu, vv, ww, phi, theta, psi, h = x
     axm, aym, azm, pm, qm, rm, pd, qd, rd = u
-    ax = (axm - p.bias_ax) / (1.0 + p.scale_ax)
-    ay = (aym - p.bias_ay) / (1.0 + p.scale_ay)
-    az = (azm - p.bias_az) / (1.0 + p.scale_az)
-    pr = (pm - p.bias_p) / (1.0 + p.scale_p)
-    qr = (qm - p.bias_q) / (1.0 + p.scale_q)
-    rr = (rm - p.bias_r) / (1.0 + p.scale_r)
+    pr, qr, rr, udot, vdot, wdot = _body_kinematics(x, u, p, c)
     sph, cph = np.sin(phi), np.cos(phi)
     sth, cth = np.sin(theta), np.cos(theta)
     sps, cps = np.sin(psi), np.cos(psi)
-    udot = rr * vv - qr * ww - c.g * sth + ax
-    vdot = pr * ww - rr * uu + c.g * cth * sph + ay
-    wdot = qr * uu - pr * vv + c.g * cth * cph + az
     # velocity at the boom: v + omega x r_boom
     ub = uu + qr * c.zb - rr * c.yb
     vb = vv + rr * c.xb - pr * c.zb
