@@ -60,7 +60,7 @@ import pandas as pd
 from scipy import linalg
 
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
-from estimators.integrators import INTEGRATORS
+from estimators.integrators import check_options
 from estimators.jit import kernel_for
 from estimators.model import Model, Segment
 from estimators.results import EstimationResult, frames
@@ -477,8 +477,7 @@ class FilterError:
                  callback=None) -> None:
         if form not in ("linear", "nonlinear"):
             raise ModelDefinitionError(f"form must be 'linear' or 'nonlinear', not {form!r}")
-        if integrator not in INTEGRATORS:
-            raise ModelDefinitionError(f"unknown integrator {integrator!r}: use one of {INTEGRATORS}")
+        check_options(integrator, inputs)
         self.model = model
         self.process_noise = process_noise
         self.estimate_F = estimate_F
@@ -493,9 +492,6 @@ class FilterError:
         self.fd_step = fd_step
         self.step_halvings = step_halvings
         self.callback = callback
-        from estimators.integrators import INPUT_MODES
-        if inputs not in INPUT_MODES:
-            raise ModelDefinitionError(f"inputs must be one of {list(INPUT_MODES)}, not {inputs!r}")
         if form == "linear" and inputs == "linear":
             raise ModelDefinitionError("the linear form supports inputs='average' or 'hold'; use "
                                        "form='nonlinear' for linearly interpolated inputs")

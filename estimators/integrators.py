@@ -32,6 +32,17 @@ INPUT_MODES = {"average": 0, "linear": 1, "hold": 2}
 ORDER = {"euler": 1, "rk2": 2, "rk3": 3, "rk4": 4, "rkf45": 5}
 
 
+def check_options(integrator: str, inputs: str) -> None:
+    """Raise ModelDefinitionError naming the choices when ``integrator`` or ``inputs`` is
+    not one of INTEGRATORS / INPUT_MODES (shared by every estimator's constructor)."""
+    from estimators.errors import ModelDefinitionError
+
+    if integrator not in INTEGRATORS:
+        raise ModelDefinitionError(f"unknown integrator {integrator!r}: use one of {INTEGRATORS}")
+    if inputs not in INPUT_MODES:
+        raise ModelDefinitionError(f"inputs must be one of {list(INPUT_MODES)}, not {inputs!r}")
+
+
 @register_jitable
 def _u_at(U, i, s, mode):
     """Inputs at fraction s in [0, 1] of interval i (see INPUT_MODES)."""

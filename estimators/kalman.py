@@ -49,7 +49,7 @@ import numpy as np
 import pandas as pd
 
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
-from estimators.integrators import INTEGRATORS
+from estimators.integrators import check_options
 from estimators.jit import kernel_for
 from estimators.model import Model, Segment
 from estimators.results import EstimationResult, frames
@@ -177,12 +177,8 @@ class _ParameterFilter:
                  measurement_noise: Any = None, param_std: Any = None, state_std: Any = None,
                  param_noise: Any = None, rtol: float = 1e-8, atol: float = 1e-10,
                  inputs: str = "average") -> None:
-        from estimators.integrators import INPUT_MODES
-        if inputs not in INPUT_MODES:
-            raise ModelDefinitionError(f"inputs must be one of {list(INPUT_MODES)}, not {inputs!r}")
+        check_options(integrator, inputs)
         self.inputs = inputs
-        if integrator not in INTEGRATORS:
-            raise ModelDefinitionError(f"unknown integrator {integrator!r}: use one of {INTEGRATORS}")
         self.model = model
         self.integrator = integrator
         self.process_noise = process_noise

@@ -19,7 +19,7 @@ import pandas as pd
 from scipy import optimize
 
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
-from estimators.integrators import INPUT_MODES, INTEGRATORS
+from estimators.integrators import check_options
 from estimators.model import Model, Segment
 from estimators.results import EstimationResult, frames
 from estimators.simulation import Layout, divergence_error, simulate_batch
@@ -101,8 +101,7 @@ class OutputError:
                  step_halvings: int = 10, priors: Mapping[str, tuple[float, float]] | None = None,
                  fallback: str = "auto", rtol: float = 1e-8, atol: float = 1e-10,
                  inputs: str = "average", callback: Callable[[int, float, pd.Series], None] | None = None) -> None:
-        if integrator not in INTEGRATORS:
-            raise ModelDefinitionError(f"unknown integrator {integrator!r}: use one of {INTEGRATORS}")
+        check_options(integrator, inputs)
         if noise not in ("diagonal", "full"):
             raise ModelDefinitionError(f"noise must be 'diagonal' or 'full', not {noise!r}")
         aliases = {"gn": "gauss-newton", "lm": "levenberg-marquardt"}
@@ -124,8 +123,6 @@ class OutputError:
         self.step_halvings = step_halvings
         self.priors = dict(priors or {})
         self.fallback = fallback
-        if inputs not in INPUT_MODES:
-            raise ModelDefinitionError(f"inputs must be one of {list(INPUT_MODES)}, not {inputs!r}")
         self.rtol, self.atol = rtol, atol
         self.inputs = inputs
         self.callback = callback

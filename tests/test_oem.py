@@ -263,3 +263,12 @@ def test_missing_samples_get_zero_weight(example, fitted):
     free = list(HFB320_FREE)
     assert (res.std[free] >= fitted.std[free] * 0.999).all()
     assert res.std["CLalpha"] > 1.05 * fitted.std["CLalpha"]
+
+
+@pytest.mark.parametrize("kw,match", [({"integrator": "rk5"}, "unknown integrator"),
+                                      ({"inputs": "cubic"}, "inputs must be one of")])
+def test_every_estimator_rejects_unknown_integration_options(example, kw, match):
+    from estimators import EKF, UKF, FilterError
+    for cls in (OutputError, FilterError, EKF, UKF):
+        with pytest.raises(ModelDefinitionError, match=match):
+            cls(example.model, **kw)
