@@ -37,6 +37,12 @@ class LogReadError(FsidError):
         self.partial = partial
         self.internal = False  # True when raised by the safety net (a reader bug)
 
+    @classmethod
+    def cannot_open(cls, path, exc: OSError) -> "LogReadError":
+        """The error for a file the operating system will not open or read."""
+        return cls(f"cannot read {path}: {exc.strerror}; check the path and permissions",
+                   path=str(path), offset=0, where="open")
+
 
 @dataclass
 class Damage:

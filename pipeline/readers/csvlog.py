@@ -26,8 +26,7 @@ def read_csv(path: str | os.PathLike, *, strict: bool = False, time_column: str 
     try:
         text = path.read_bytes()
     except OSError as exc:
-        raise LogReadError(f"cannot read {path}: {exc.strerror}", path=str(path), offset=0,
-                           where="open") from None
+        raise LogReadError.cannot_open(path, exc) from None
     try:
         s = text.decode("utf-8")
     except UnicodeDecodeError as exc:

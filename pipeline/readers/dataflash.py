@@ -99,8 +99,7 @@ def scan_file(path: str | os.PathLike) -> tuple[np.ndarray, dict[int, MsgFormat]
     try:
         buf = _load_bytes(path)
     except OSError as exc:
-        raise LogReadError(f"cannot read {path}: {exc.strerror}; check the path and permissions",
-                           path=str(path), offset=0, where="open") from None
+        raise LogReadError.cannot_open(path, exc) from None
     lengths = np.zeros(256, dtype=np.int64)
     lengths[_scan.FMT_ID] = 89
     offs, ids, first_bad, skipped, truncated = _scan.walk(buf, lengths)

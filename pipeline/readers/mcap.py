@@ -105,8 +105,7 @@ def read_mcap(path: str | os.PathLike, *, strict: bool = False, time_base: str =
     try:
         fh = open(path, "rb")
     except OSError as exc:
-        raise LogReadError(f"cannot read {path}: {exc.strerror}", path=str(path), offset=0,
-                           where="open") from None
+        raise LogReadError.cannot_open(path, exc) from None
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     decoders: dict[int, object] = {}

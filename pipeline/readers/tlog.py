@@ -77,8 +77,7 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
     try:
         data = path.read_bytes()
     except OSError as exc:
-        raise LogReadError(f"cannot read {path}: {exc.strerror}", path=str(path), offset=0,
-                           where="open") from None
+        raise LogReadError.cannot_open(path, exc) from None
     mav = _mavlink()
     parser = mav.MAVLink(None)
     parser.robust_parsing = True

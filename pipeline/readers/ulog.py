@@ -33,8 +33,7 @@ def read_ulog(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
         with open(path, "rb") as fh:
             head = fh.read(16)
     except OSError as exc:
-        raise LogReadError(f"cannot read {path}: {exc.strerror}", path=str(path), offset=0,
-                           where="open") from None
+        raise LogReadError.cannot_open(path, exc) from None
     if not head.startswith(b"ULog"):
         raise LogReadError(f"{path}: not a ULog file (no 'ULog' magic at byte 0); is the "
                            "extension right?", path=str(path), offset=0, where="byte 0")
