@@ -416,33 +416,53 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
                                 "aircraft": result.aircraft.name})
 
 
-def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path, map_path: str | None = None,
-                 methods: Sequence[str] = ("oem",), inputs: str = "linear",
-                 model: str = "auto", quiet: bool = False) -> dict[str, Path]:
-    """``fsid estimate``: a real log and an aircraft TOML -> report and recording. The
-    filters' process noise starts from the data (no turbulence level is known)."""
-    import sim
+def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = None,
+                 map_path: str | None = None, methods: Sequence[str] = ("oem",),
+                 inputs: str = "linear", model: str = "auto", quiet: bool = False) -> dict[str, Path]:
+    """``fsid estimate``: a log -> report and recording. ``model``: a built-in model
+    (auto|longitudinal|lateral; needs ``aircraft``, or a truth.json next to the log) or a
+    user model ``path.py:name`` (:mod:`pipeline.user_model`). Aircraft and sensor positions:
+    :mod:`pipeline.aircraft_setup`. The filters' process noise starts from the data (no
+    turbulence level is known)."""
+    from pipeline.aircraft_setup import aircraft_for_log
     from pipeline.checks import run_checks, summarize
     from pipeline.readers import read_log
+    from pipeline.user_model import check_methods, identify_user_model, is_user_model, split_spec
 
-    pr = Progress(3 + 4 * len(methods) + 1, quiet=quiet)
-    pr.stage(f"read aircraft {aircraft}")
-    try:
-        ac_obj = sim.load_aircraft(aircraft)
-    except sim.ScenarioError as exc:
-        raise FsidError(str(exc)) from None
-    ac = AircraftConstants.from_aircraft(ac_obj, getattr(ac_obj, "sensors", None))
-    pr.done(ac_obj.name)
+    user = is_user_model(model)
+    if user:                         # cheap checks before the log is read
+        split_spec(model)
+        check_methods(methods)
+    pr = Progress(4 + 2 * len(methods) + 1, quiet=quiet)
     pr.stage(f"ingest {log}")
     fd = read_log(log, map=map_path)
     pr.done(f"{len(fd.channels)} channels, {len(fd.segments)} segments")
+    pr.stage("aircraft and sensor positions")
+    notes: list[str] = []
+    ac, ac_name, truth_doc = aircraft_for_log(log, aircraft, fd, required=not user, say=notes.append)
+    pr.done(ac_name or "none (user model)")
+    for n in notes if not quiet else ():
+        print(n, file=pr.stream)
+    truth = ({k: float(v) for k, v in truth_doc["derivatives"].items()}
+             if truth_doc and truth_doc.get("derivatives") else None)
     pr.stage("data-quality checks")
     summary = summarize(run_checks(fd))
     pr.done(str(summary))
-    axes = ("longitudinal", "lateral") if model == "auto" else (model,)
-    results, validations, problems = identify(fd, ac, methods, None, pr, inputs=inputs, axes=axes)
-    return _write_outputs(out, results, validations, problems, None, pr, checks=summary,
-                          meta={"log": str(log), "aircraft": ac_obj.name})
+    meta = {"log": str(log), "aircraft": ac_name}
+    if user:
+        pr.stage(f"load model {model}")
+        from pipeline.user_model import load_user_model
+        um = load_user_model(model, ac, fd)
+        pr.done(f"{um.name}: {len(um.states)} states, {len(um.inputs)} inputs, "
+                f"{len(um.outputs)} outputs, {sum(p.free for p in um.parameters)} free parameters")
+        results, validations, problems = identify_user_model(fd, um, methods, truth, pr, inputs=inputs)
+        meta["model"] = model
+    else:
+        axes = ("longitudinal", "lateral") if model == "auto" else (model,)
+        results, validations, problems = identify(fd, ac, methods, truth, pr, inputs=inputs, axes=axes)
+    if truth is not None:
+        meta["truth"] = "truth.json next to the log"
+    return _write_outputs(out, results, validations, problems, truth, pr, checks=summary, meta=meta)
 
 
 def _write_outputs(out: Path, results, validations, problems, truth, pr: Progress, *,

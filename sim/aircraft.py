@@ -89,6 +89,10 @@ class Aircraft:
     description: str = ""
     source: str = ""
     raw: dict = field(default_factory=dict, repr=False)
+    #: optional sensor positions from the CG, body axes, m: ``airdata`` (vane/boom), ``imu``
+    #: (``[sensors.<name>] position_m``; read by ``fsid estimate``, the simulator takes the
+    #: scenario's ``[sensors]``)
+    sensors: dict[str, tuple[float, float, float]] = field(default_factory=dict)
 
     def coefficients(self, d) -> dict[str, np.ndarray]:
         """Evaluate the truth formula on a table ``d`` (mapping of column -> array, shape (N,)).
@@ -127,7 +131,34 @@ _SECTIONS = {
     "propulsion": {"max_thrust_N"},
     "limits": {"de_deg", "da_deg", "dr_deg"},
 }
-_TOP = {"name", "description", "source", "derivatives"} | set(_SECTIONS)
+_TOP = {"name", "description", "source", "derivatives", "sensors"} | set(_SECTIONS)
+#: optional ``[sensors.<name>]`` tables of an aircraft file and their keys
+_SENSORS = {"airdata": {"position_m"}, "imu": {"position_m"}}
+
+
+def _sensor_positions(path: Path, raw) -> dict[str, tuple[float, float, float]]:
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict):
+        raise _fail(path, "sensors", "must be a table of [sensors.airdata] / [sensors.imu]")
+    out = {}
+    for name, tab in raw.items():
+        if name not in _SENSORS:
+            raise _fail(path, f"sensors.{name}", f"unknown sensor; allowed: {', '.join(sorted(_SENSORS))}")
+        if not isinstance(tab, dict):
+            raise _fail(path, f"sensors.{name}", "must be a table with position_m = [x, y, z]")
+        for k in tab:
+            if k not in _SENSORS[name]:
+                raise _fail(path, f"sensors.{name}.{k}", f"unknown key; allowed: {', '.join(sorted(_SENSORS[name]))}")
+        v = tab.get("position_m")
+        if v is None:
+            continue
+        if (not isinstance(v, list) or len(v) != 3 or
+                not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
+            raise _fail(path, f"sensors.{name}.position_m",
+                        f"must be [x, y, z] in m from the CG (body axes), got {v!r}")
+        out[name] = tuple(float(x) for x in v)
+    return out
 
 
 def _fail(path: Path, key: str, why: str) -> ScenarioError:
@@ -203,4 +234,5 @@ def load_aircraft(path: str | Path) -> Aircraft:
         limits={a: float(np.deg2rad(vals["limits"][f"{a}_deg"])) for a in ("de", "da", "dr")},
         derivatives=derivs, description=str(raw.get("description", "")),
         source=str(raw.get("source", "")), raw=raw,
+        sensors=_sensor_positions(path, raw.get("sensors")),
     )

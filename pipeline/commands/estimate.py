@@ -1,4 +1,5 @@
-"""``fsid estimate LOG --aircraft AIRCRAFT.toml [--method oem] [--map MAP] [--out DIR]``."""
+"""``fsid estimate LOG [--model auto|longitudinal|lateral|FILE.py:NAME] [--aircraft AIRCRAFT.toml]
+[--method oem] [--map MAP] [--out DIR]``."""
 from __future__ import annotations
 
 import argparse
@@ -7,18 +8,23 @@ from pipeline.paths import new_run_dir
 
 from pipeline.commands.run import METHOD_LIST, METHODS
 
-HELP = "identify derivatives from a real log with a built-in model and an aircraft description"
+HELP = "identify derivatives from a log with a built-in model (and an aircraft description) or your own model"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", help="flight log (.bin, .tlog, .ulg, .mcap, .csv)")
-    p.add_argument("--aircraft", required=True,
-                   help="aircraft TOML (geometry, mass, inertia, propulsion; see scenarios/aircraft/)")
-    p.add_argument("--model", default="auto", choices=["auto", "longitudinal", "lateral"],
+    p.add_argument("--aircraft",
+                   help="aircraft TOML (geometry, mass, inertia, propulsion, optional "
+                        "[sensors.airdata|imu] position_m; see scenarios/aircraft/): needed by "
+                        "the built-in models unless the log sits next to a truth.json from "
+                        "fsid run/simulate; offered to a user model's function")
+    p.add_argument("--model", default="auto", metavar="auto|longitudinal|lateral|FILE.py:NAME",
                    help="built-in model: longitudinal (nonlinear, stability axes), lateral "
                         "(6-DoF with the longitudinal estimates held when the log also has "
                         "elevator maneuvers, else linear), or auto = every axis the log's "
-                        "maneuvers excite (default)")
+                        "maneuvers excite (default); or your own: FILE.py:NAME, an "
+                        "estimators.Model or a function (aircraft=None, flight=None) returning "
+                        "one, its inputs/outputs named as the log's canonical channels")
     p.add_argument("--method", action="append", choices=list(METHODS),
                    help="estimation method (repeat for several; default: oem). " + METHOD_LIST)
     p.add_argument("--map", help="channel map TOML extending the built-in one")

@@ -220,6 +220,9 @@ def _header(result, travel_deg: float, airspeed: str) -> bytes:
     params.update({"SERVO3_MIN": 1000, "SERVO3_MAX": 2000, "SERVO3_TRIM": 1000, "SERVO3_REVERSED": 0,
                    "FSID_SRV_TRAVEL": travel_deg, "FSID_MAX_THRUST": result.aircraft.max_thrust,
                    "FSID_ARSP_TAS": 1.0 if airspeed == "tas" else 0.0, "AHRS_EKF_TYPE": 3})
+    imu = getattr(result.scenario, "sensors", {}).get("imu")
+    if imu is not None:     # ArduPilot's IMU position from the CG (body axes, m)
+        params.update(zip(("INS_POS1_X", "INS_POS1_Y", "INS_POS1_Z"), (float(v) for v in imu.position)))
     for k, v in params.items():
         out.append(_records("PARM", 1, TimeUS=0, Name=k.encode(), Value=float(v), Default=float(v)).tobytes())
     notes = [f"fsid sim: scenario {result.scenario.name} seed {result.meta['seed']}",
