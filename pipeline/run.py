@@ -445,16 +445,18 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         print(n, file=pr.stream)
     truth = ({k: float(v) for k, v in truth_doc["derivatives"].items()}
              if truth_doc and truth_doc.get("derivatives") else None)
+    if user:                         # before the slow stages: a bad model fails at once
+        pr.stage(f"load model {model}")
+        from pipeline.user_model import check_channels, load_user_model
+        um = load_user_model(model, ac, fd)
+        check_channels(fd, um)
+        pr.done(f"{um.name}: {len(um.states)} states, {len(um.inputs)} inputs, "
+                f"{len(um.outputs)} outputs, {sum(p.free for p in um.parameters)} free parameters")
     pr.stage("data-quality checks")
     summary = summarize(run_checks(fd))
     pr.done(str(summary))
     meta = {"log": str(log), "aircraft": ac_name}
     if user:
-        pr.stage(f"load model {model}")
-        from pipeline.user_model import load_user_model
-        um = load_user_model(model, ac, fd)
-        pr.done(f"{um.name}: {len(um.states)} states, {len(um.inputs)} inputs, "
-                f"{len(um.outputs)} outputs, {sum(p.free for p in um.parameters)} free parameters")
         results, validations, problems = identify_user_model(fd, um, methods, truth, pr, inputs=inputs)
         meta["model"] = model
     else:
