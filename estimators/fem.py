@@ -62,6 +62,7 @@ from scipy import linalg
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
 from estimators.integrators import check_options
 from estimators.jit import kernel_for
+from estimators.kalman import default_process_noise
 from estimators.model import Model, Segment
 from estimators.results import EstimationResult, frames
 from estimators.simulation import Layout
@@ -504,12 +505,7 @@ class FilterError:
     def _noise_setup(self, segments: Sequence[Segment]) -> tuple[list[int], np.ndarray]:
         m = self.model
         n = len(m.states)
-        h = float(np.median(np.concatenate([np.diff(s.t) for s in segments])))
-        default = np.zeros(n)
-        for i, s in enumerate(m.states):
-            if s in m.outputs:
-                d = np.concatenate([np.diff(seg.z[:, m.outputs.index(s)]) for seg in segments])
-                default[i] = 0.05 * np.sqrt(np.nanvar(d) / h)
+        default = default_process_noise(m, segments)
         spec = self.process_noise
         if spec is None:
             f0 = default

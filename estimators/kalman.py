@@ -90,6 +90,22 @@ def process_noise_matrix(model: Model, spec: Any) -> np.ndarray:
     return np.diag(_vector(spec, model.states, "process_noise", np.zeros(n)))
 
 
+def default_process_noise(model: Model, segments: Sequence[Segment], fraction: float = 0.05
+                          ) -> np.ndarray:
+    """Process-noise std per state (n,) from the data: ``fraction`` sqrt(var(diff z) / h)
+    for each state that is a measured output (a twentieth of the bound the sample-to-sample
+    variation puts on it), 0 for unmeasured states. Units: state unit per sqrt(s); h is
+    the median sample interval (s)."""
+    h = float(np.median(np.concatenate([np.diff(s.t) for s in segments])))
+    out = np.zeros(len(model.states))
+    for i, name in enumerate(model.states):
+        if name in model.outputs:
+            j = model.outputs.index(name)
+            d = np.concatenate([np.diff(seg.z[:, j]) for seg in segments])
+            out[i] = fraction * np.sqrt(np.nanvar(d) / h)
+    return out
+
+
 def default_measurement_noise(model: Model, segments: Sequence[Segment]) -> np.ndarray:
     """Measurement-noise variance per output from the data: half the variance of the
     first differences, pooled over segments. It is an upper bound (signal change between
@@ -228,6 +244,8 @@ class _ParameterFilter:
     def fit(self, segments: Segment | Sequence[Segment],
             start: Mapping[str, float] | None = None) -> EstimationResult:
         """Run the filter over the segments in order; returns the final estimates.
+        With no free parameter it is a state estimator (``extra["states"]``; the
+        proof of match of :func:`estimators.validation.predict_ahead` uses it so).
 
         start : start values by expanded name, overriding the model's.
         """
@@ -237,8 +255,6 @@ class _ParameterFilter:
         model = self.model
         lay = Layout.build(model, segments, False, values=start)
         fi = lay.free_idx
-        if fi.size == 0:
-            raise ModelDefinitionError("no free parameters: mark some Parameter(..., free=True)")
         n, m = len(model.states), fi.size
         F = process_noise_matrix(model, self.process_noise)
         R = measurement_noise_matrix(model, self.measurement_noise, segments)

@@ -300,16 +300,51 @@ def _inverse(result: EstimationResult, lin, bandwidth: float
              "residual_inputs": inv.residual_inputs})
 
 
+#: proof-of-match modes (see :func:`validate`)
+POM_MODES = ("auto", "simulation", "air-data")
+
+
+def _process_noise(result: EstimationResult) -> np.ndarray | None:
+    """The process noise F (n, n) a result identified or used (FEM, EKF, UKF); None for
+    methods without one (output error and its stabilised forms, equation error)."""
+    F = result.extra.get("F", result.extra.get("process_noise"))
+    return None if F is None else np.asarray(F, dtype=float)
+
+
+def pom_mode(result: EstimationResult, lin=None) -> str:
+    """The proof of match that suits a result: ``air-data`` (the model driven by its
+    measured air data, :func:`estimators.validation.air_data_prediction`) when the method
+    modelled process noise (it was chosen for turbulence: an open-loop simulation cannot
+    follow the gusts) or the identified model is unstable (its open-loop simulation
+    diverges from any error in the initial state), provided the model has an air-data
+    state to drive; ``simulation`` (open loop, the classic proof of match) otherwise."""
+    if not V.driving_states(result.model):
+        return "simulation"
+    F = _process_noise(result)
+    if F is not None and np.any(F != 0):
+        return "air-data"
+    if lin is not None and np.max(np.linalg.eigvals(lin[0]).real) > 1e-3:
+        return "air-data"
+    return "simulation"
+
+
 def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
                     tolerances: Mapping[str, float] | None,
-                    allowed_bias: Mapping[str, float] | None, integrator: str
+                    allowed_bias: Mapping[str, float] | None, integrator: str, mode: str
                     ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     model = result.model_with_estimates()
     segs, arrays = [], []
+    driven: list[str] = []
     for k, seg in enumerate(held_out):
-        y = _held_out_prediction(result, seg, integrator)
+        if mode == "air-data":
+            dp = _air_data_prediction(result, seg, integrator)
+            y, driven = dp.predicted, dp.driven
+        else:
+            y = _held_out_prediction(result, seg, integrator)
         z = pd.DataFrame(seg.z, index=y.index, columns=model.outputs)
-        pm = V.proof_of_match(z, y, tolerances=tolerances, allowed_bias=allowed_bias)
+        # the channels that drive the filter are its one-step predictions: not judged
+        tol = {**(tolerances or {}), **{c: math.nan for c in driven}}
+        pm = V.proof_of_match(z, y, tolerances=tol, allowed_bias=allowed_bias)
         tic = V.theil(z.to_numpy(), y.to_numpy()).U
         chans = {}
         for (name, row), u in zip(pm.iterrows(), tic):
@@ -317,13 +352,34 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
             d = num(row.to_dict())
             d.update(unit=unit, tolerance_display=num(row["tolerance"] * fac),
                      max_abs_error_display=num(row["max_abs_error"] * fac),
-                     rms_error_display=num(row["rms_error"] * fac), TIC=num(u))
+                     rms_error_display=num(row["rms_error"] * fac), TIC=num(u),
+                     role="drives the filter" if name in driven else "predicted")
             chans[name] = d
         name = seg.name or f"held-out {k}"
         segs.append({"name": name, "channels": chans, "all_pass": bool(pm.attrs["all_pass"])})
         arrays.append({"name": name, "t": seg.t, "measured": z, "predicted": y,
                        "tolerance": pm["tolerance"].to_numpy(float)})
-    return {"segments": segs, "all_pass": bool(segs) and all(s["all_pass"] for s in segs)}, arrays
+    return {"mode": mode, "driven": driven, "segments": segs,
+            "all_pass": bool(segs) and all(s["all_pass"] for s in segs)}, arrays
+
+
+def _air_data_prediction(result: EstimationResult, seg: Segment, integrator: str):
+    """The identified model driven by the held-out segment's air data: every derivative
+    held; per-segment parameters (output biases) at their mean over the fitted segments
+    (sensor biases persist through a flight); the filter's process noise on the air-data
+    states is the one the method identified or used (FEM, EKF, UKF), else the data
+    default; the measurement noise is the method's (its R)."""
+    vals = {n: v for n, v in zip(result.names, result.values) if "[" not in n}
+    per_seg: dict[str, list[float]] = {}
+    for n, v in zip(result.names, result.values):
+        if "[" in n and not n.startswith("x0_"):
+            per_seg.setdefault(n.split("[")[0], []).append(float(v))
+    vals.update({n: float(np.mean(v)) for n, v in per_seg.items()})
+    R = result.extra.get("measurement_noise", result.R)
+    return V.air_data_prediction(result.model.with_values(vals), seg,
+                                 process_noise=_process_noise(result), measurement_noise=R,
+                                 integrator=integrator,
+                                 inputs=result.settings.get("inputs", "average"))
 
 
 def _held_out_prediction(result: EstimationResult, seg: Segment, integrator: str) -> pd.DataFrame:
@@ -405,14 +461,20 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
              tic_limit: float = TIC_LIMIT, truth_k: float = TRUTH_K, mag_bound_db: float = 3.0,
              phase_bound_deg: float = 20.0, min_coherence: float = 0.6,
              input_power_fraction: float = 0.1, inverse_bandwidth: float = 5.0,
-             integrator: str | None = None) -> dict[str, Any]:
+             integrator: str | None = None, proof_of_match: str = "auto") -> dict[str, Any]:
     """Run the validation of :mod:`estimators.validation` on one result (see module doc).
 
     held_out: segments NOT used in the fit (same model input/output columns); the
-        identified model, all parameters held fixed, simulates each from its measured
+        identified model, all parameters held fixed, predicts each from its measured
         initial condition (``Segment.x0`` or the states read from z[0]) and is judged
         against ``tolerances`` (SI per channel, merged over the defaults: 1.5 deg/s on
         rates, 0.1 g on specific forces, 1.5 deg on angles).
+    proof_of_match: how the held-out prediction is made (:data:`POM_MODES`):
+        ``simulation`` - open loop, only the initial state and per-segment biases fitted
+        to the held-out data (the classic proof of match, for calm air and stable models);
+        ``air-data`` - the model driven by its measured air data through a Kalman filter
+        that sees only V/alpha/beta (see :mod:`estimators.validation.prediction`; those
+        channels are then not judged); ``auto`` (default) - :func:`pom_mode`.
     allowed_bias: largest constant offset per channel (SI) removed before judging.
     apriori: a-priori values (TOML path, mapping or DataFrame of
         :func:`estimators.validation.load_apriori`); truth: true parameter values by name.
@@ -454,9 +516,12 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
         except (ValueError, np.linalg.LinAlgError) as exc:
             out["inverse_simulation"] = {"error": f"{type(exc).__name__}: {exc}"}
     out["proof_of_match"], arrays["match"] = None, []
+    if proof_of_match not in POM_MODES:
+        raise ValueError(f"proof_of_match={proof_of_match!r}: use one of {', '.join(POM_MODES)}")
     if held_out:
+        mode = pom_mode(result, lin) if proof_of_match == "auto" else proof_of_match
         out["proof_of_match"], arrays["match"] = _proof_of_match(
-            result, list(held_out), tolerances, allowed_bias, integ)
+            result, list(held_out), tolerances, allowed_bias, integ, mode)
     plaus: dict[str, Any] = {}
     if truth:
         plaus["truth"] = _truth_check(result, truth, truth_k)

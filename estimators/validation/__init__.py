@@ -6,9 +6,10 @@ Modules: :mod:`.fit` (det R, Theil inequality coefficient and proportions, R^2, 
 :mod:`.uncertainty` (Cramér-Rao bounds, Morelli-Klein correction, correlation flags),
 :mod:`.modes` (named modes of a linearised model, numerical linearisation),
 :mod:`.frequency` (model frequency response, spectral estimates with coherence, mismatch),
-:mod:`.match` (proof of match against tolerance bands),
+:mod:`.match` (proof of match against tolerance bands), :mod:`.prediction` (the
+model driven by its measured air data: proof of match in turbulence, unstable aircraft),
 :mod:`.plausibility` (estimates vs a-priori values), :mod:`.inverse` (inverse simulation).
-Needs only numpy, scipy and pandas.
+Needs numpy, scipy and pandas (and the package's EKF for :mod:`.prediction`).
 """
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from .inverse import InverseSimResult, inverse_simulation
 from .match import DEFAULT_TOLERANCES, default_tolerances, proof_of_match
 from .modes import ModeAnalysis, linearize, mode_properties, modes
 from .plausibility import load_apriori, plausibility
+from .prediction import AIR_DATA, DrivenPrediction, air_data_prediction, driving_states
 from .residuals import (WhitenessResult, autocorrelation, autocovariance, psd,
                         residual_stats, whiteness)
 from .uncertainty import (UncertaintyResult, correlation, correlation_flags, crb,
@@ -34,4 +36,5 @@ __all__ = [
     "DEFAULT_TOLERANCES", "default_tolerances", "proof_of_match",
     "load_apriori", "plausibility",
     "InverseSimResult", "inverse_simulation",
+    "AIR_DATA", "DrivenPrediction", "air_data_prediction", "driving_states",
 ]
