@@ -21,6 +21,7 @@ import pandas as pd
 
 from estimators import Segment
 from estimators.models import lateral_directional, longitudinal
+from estimators.models.lateral import lateral_measured_longitudinal
 from pipeline.errors import FsidError
 from pipeline.flightdata import FlightData, SegmentSpec
 
@@ -335,6 +336,24 @@ def lateral_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float]) -> di
     return out
 
 
+def merge_overlapping(specs: Sequence[SegmentSpec]) -> list[SegmentSpec]:
+    """Windows that overlap in time merged into one (their union, axes joined with '+').
+    Aileron and rudder moved together (a cross-controlled sideslip, a multisine on both)
+    give one detected window per surface over the same span; fitting both would count
+    that data twice (Cramer-Rao bounds too small by sqrt(2)) and, when one of them is the
+    held-out window, fit the data the proof of match is run on."""
+    out: list[SegmentSpec] = []
+    for s in sorted(specs, key=lambda s: s.t0):
+        if out and s.t0 < out[-1].t1:
+            a = out[-1]
+            axes = "+".join(dict.fromkeys((a.axis or "").split("+") + [s.axis or ""]))
+            out[-1] = SegmentSpec(f"{a.name}+{s.name}", a.t0, max(a.t1, s.t1), a.kind,
+                                  a.mode, axes)
+        else:
+            out.append(s)
+    return out
+
+
 def lateral_specs(fd: FlightData, channels: Sequence[str],
                   segments: Sequence[SegmentSpec] | None, hold_out: int) -> list[SegmentSpec]:
     """The aileron/rudder windows of a lateral problem (default: the log's 'da' and 'dr'
@@ -345,7 +364,7 @@ def lateral_specs(fd: FlightData, channels: Sequence[str],
         raise FsidError(f"lateral identification needs channels {missing} that the log does not "
                         f"provide ({fd.meta.get('source', 'log')}); add them to the channel map")
     specs = list(segments if segments is not None else
-                 [s for s in fd.segments if s.axis in ("da", "dr")])
+                 merge_overlapping([s for s in fd.segments if s.axis in ("da", "dr")]))
     if len(specs) < 1 + hold_out:
         raise FsidError(f"found {len(specs)} aileron/rudder maneuver segment(s) but need at least "
                         f"{1 + hold_out}: fly more doublets or give segments by time range")
@@ -360,21 +379,48 @@ def mean_density(df: pd.DataFrame) -> float:
     return float(np.nanmean(isa_density(df["h"]))) if "h" in df else 1.225
 
 
+#: zero-phase low-pass corner (Hz) of the measured longitudinal variables that drive the
+#: lateral model as inputs: noise on an input is not in the output-error likelihood
+PSEUDO_INPUT_CORNER_HZ = {"V": 1.0, "alpha": 5.0, "theta": 5.0, "q": 5.0}
+
+
+def smooth_pseudo_inputs(w: pd.DataFrame, rate_hz: float) -> pd.DataFrame:
+    """V, alpha, theta, q of a window low-pass filtered forwards and backwards (second-order
+    Butterworth at PSEUDO_INPUT_CORNER_HZ) before they drive the lateral model."""
+    from scipy.signal import butter, filtfilt
+
+    w = w.copy()
+    for k, fc in PSEUDO_INPUT_CORNER_HZ.items():
+        x = w[k].to_numpy(dtype=float)
+        if x.size > 15 and fc < 0.45 * rate_hz:
+            b, a = butter(2, fc / (0.5 * rate_hz))
+            w[k] = filtfilt(b, a, x, padtype="even")
+    return w
+
+
 def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | None = None,
                     segments: Sequence[SegmentSpec] | None = None, hold_out: int = 1,
                     free: Sequence[str] = LAT_FREE,
-                    biases: Sequence[str] = ("beta", "p", "r", "ay")) -> Problem:
+                    biases: Sequence[str] = ("beta", "p", "r", "ay"),
+                    measured_longitudinal: bool = False) -> Problem:
     """Build the lateral-directional problem (linear model about the flight's mean
     airspeed, angle of attack and pitch attitude) from the aileron and rudder maneuvers;
-    control inputs are taken relative to their value at the start of each window."""
-    specs = lateral_specs(fd, LAT_CHANNELS, segments, hold_out)
-    df, rate_hz = multirate_frame(fd, LAT_OUTPUTS, ["V", "alpha", "theta", "da", "dr", "rho", "h"],
-                                  rate_hz)
+    control inputs are taken relative to their value at the start of each window.
+
+    measured_longitudinal : fit :func:`lateral_measured_longitudinal` instead, with the
+        measured V, alpha, theta, q as inputs (the linear model's frozen airspeed and
+        small bank angles put Clda, Cnda, Cnp, Cnbeta 5-18 std off on
+        lateral_doublets_calm, where the doublets bank the UAV by up to 30 deg)."""
+    channels = LAT_CHANNELS + (("q",) if measured_longitudinal else ())
+    specs = lateral_specs(fd, channels, segments, hold_out)
+    df, rate_hz = multirate_frame(fd, LAT_OUTPUTS, ["V", "alpha", "theta", "q", "da", "dr", "rho", "h"]
+                                  if measured_longitudinal else
+                                  ["V", "alpha", "theta", "da", "dr", "rho", "h"], rate_hz)
     rho = mean_density(df)
     frames = {id(s): _window(df, s) for s in specs}
     for s in specs:
         w = frames[id(s)]
-        bad = [k for k in LAT_CHANNELS if w[k].notna().sum() < 10 or
+        bad = [k for k in channels if w[k].notna().sum() < 10 or
                (k not in LAT_OUTPUTS and w[k].isna().any())]
         if len(w) < 10 or bad:
             raise FsidError(f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in "
@@ -392,17 +438,27 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     fit_specs = [s for s in specs if s not in held]
     start = lateral_starts([frames[id(s)] for s in fit_specs], c)
     regs = lateral_regressions([frames[id(s)] for s in fit_specs], c)
-    model = lateral_directional(c, values=start, free=free, output_biases=biases,
-                                name="lateral").select_outputs(LAT_OUTPUTS)
+    if measured_longitudinal:
+        model = lateral_measured_longitudinal({**c, "Iyy": ac.Iyy}, values=start, free=free,
+                                              output_biases=biases, name="lateral-measured")
+    else:
+        model = lateral_directional(c, values=start, free=free, output_biases=biases,
+                                    name="lateral").select_outputs(LAT_OUTPUTS)
+    ucols = ["da", "dr", "V", "alpha", "theta", "q"] if measured_longitudinal else ["da", "dr"]
+    if measured_longitudinal:
+        for s in specs:
+            frames[id(s)] = smooth_pseudo_inputs(frames[id(s)], rate_hz)
 
     def seg(s):
         w = frames[id(s)]
-        return Segment(t=w["t"].to_numpy(), u=w[["da", "dr"]].to_numpy(),
+        return Segment(t=w["t"].to_numpy(), u=w[ucols].to_numpy(),
                        z=w[list(LAT_OUTPUTS)].to_numpy(),
                        x0=_first_valid(w, ["beta", "p", "r", "phi"]), name=s.name)
 
-    notes = [f"linear model about V={c['V']:.2f} m/s, alpha0={np.degrees(c['alpha0']):.2f} deg, "
-             f"theta0={np.degrees(c['theta0']):.2f} deg, density {rho:.4f} kg/m^3",
+    notes = [(f"measured V, alpha, theta, q as inputs, density {rho:.4f} kg/m^3"
+              if measured_longitudinal else
+              f"linear model about V={c['V']:.2f} m/s, alpha0={np.degrees(c['alpha0']):.2f} deg, "
+              f"theta0={np.degrees(c['theta0']):.2f} deg, density {rho:.4f} kg/m^3"),
              "start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())]
     return Problem("lateral", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
                    fit_specs, held, estimate_x0=True, notes=notes, regressions=regs,

@@ -81,3 +81,78 @@ def lateral_directional(constants: Mapping[str, float], values: Mapping[str, flo
                  outputs=["beta", "p", "r", "phi", "ay", "pdot", "rdot"],
                  parameters=make_parameters(DEFAULTS, values, free, DEFAULT_FREE, bounds),
                  constants=c, f=f, g=g, output_biases=list(output_biases), name=name)
+
+
+# -- lateral-directional model driven by the measured longitudinal motion ---------------------
+@register_jitable
+def _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c):
+    """(betadot, pdot, rdot, phidot, fy) of the lateral-directional equations with the
+    longitudinal variables V, alpha, theta, q taken as measured."""
+    qbar = 0.5 * c.rho * V * V
+    ph = pr * c.b / (2.0 * V)
+    rh = rr * c.b / (2.0 * V)
+    CY = p.CYbeta * beta + p.CYp * ph + p.CYr * rh + p.CYda * da + p.CYdr * dr
+    Cl = p.Clbeta * beta + p.Clp * ph + p.Clr * rh + p.Clda * da + p.Cldr * dr
+    Cn = p.Cnbeta * beta + p.Cnp * ph + p.Cnr * rh + p.Cnda * da + p.Cndr * dr
+    qS = qbar * c.S
+    fy = qS * CY / c.m
+    Lm = qS * c.b * Cl
+    Nm = qS * c.b * Cn
+    gam = c.Ixx * c.Izz - c.Ixz * c.Ixz
+    # rigid-body moment equations with Ixz coupling and the gyroscopic terms in q
+    pdot = (c.Izz * Lm + c.Ixz * Nm + c.Ixz * (c.Ixx - c.Iyy + c.Izz) * pr * qr
+            - (c.Izz * (c.Izz - c.Iyy) + c.Ixz * c.Ixz) * qr * rr) / gam
+    rdot = (c.Ixz * Lm + c.Ixx * Nm + (c.Ixx * (c.Ixx - c.Iyy) + c.Ixz * c.Ixz) * pr * qr
+            - c.Ixz * (c.Ixx - c.Iyy + c.Izz) * qr * rr) / gam
+    # vdot = p w - r u + g cos(theta) sin(phi) + fy with v = V sin(beta), u = V cos(alpha)
+    # cos(beta), w = V sin(alpha) cos(beta); the term in Vdot sin(beta) is left out
+    betadot = (pr * np.sin(alpha) - rr * np.cos(alpha)
+               + (c.g * np.cos(theta) * np.sin(phi) + fy) / (V * np.cos(beta)))
+    phidot = pr + np.tan(theta) * (qr * np.sin(phi) + rr * np.cos(phi))
+    return betadot, pdot, rdot, phidot, fy
+
+
+def f_measured(x, u, p, c):
+    beta, pr, rr, phi = x
+    da, dr, V, alpha, theta, qr = u
+    bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c)
+    return bd, pd, rd, phid
+
+
+def g_measured(x, u, p, c):
+    beta, pr, rr, phi = x
+    da, dr, V, alpha, theta, qr = u
+    bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c)
+    # vane at (x_vane, z_vane): v + r x - p z over V; accelerometer at (x_imu, z_imu):
+    # fy + rdot x - pdot z + q (p x + r z)
+    beta_s = beta + (rr * c.x_vane - pr * c.z_vane) / V
+    ay_s = fy + rd * c.x_imu - pd * c.z_imu + qr * (pr * c.x_imu + rr * c.z_imu)
+    return beta_s, pr, rr, phi, ay_s
+
+
+def lateral_measured_longitudinal(constants: Mapping[str, float],
+                                  values: Mapping[str, float] | None = None,
+                                  free: Iterable[str] | None = None,
+                                  bounds: Mapping[str, tuple[float, float]] | None = None,
+                                  output_biases: Iterable[str] = (),
+                                  name: str = "lateral-measured") -> Model:
+    """Lateral-directional model with the longitudinal motion as measured inputs.
+
+    States beta, p, r, phi; inputs da, dr (rad), V (m/s), alpha, theta (rad), q (rad/s);
+    outputs beta, p, r, phi, ay. Unlike :func:`lateral_directional` the dynamic pressure,
+    the rate normalisation b/2V, the kinematic coupling (p sin alpha - r cos alpha, g
+    cos theta sin phi / V, tan theta (q sin phi + r cos phi)) and the gyroscopic moments
+    follow the measured airspeed, angle of attack, pitch attitude and pitch rate instead
+    of being frozen at trim, and bank angles are not small. No longitudinal derivative is
+    needed (the usual way to fit one axis of a flight whose other axis moves: the measured
+    variables of the other axis enter as pseudo-inputs). Constants: m, Ixx, Iyy, Izz, Ixz,
+    S, b, rho; optional g, x_vane, z_vane, x_imu, z_imu."""
+    c = require_constants(constants, ("m", "Ixx", "Iyy", "Izz", "Ixz", "S", "b", "rho"),
+                          "lateral-directional (measured longitudinal)")
+    for k, v in {"g": 9.80665, "x_vane": 0.0, "z_vane": 0.0, "x_imu": 0.0, "z_imu": 0.0}.items():
+        c.setdefault(k, v)
+    return Model(states=["beta", "p", "r", "phi"], inputs=["da", "dr", "V", "alpha", "theta", "q"],
+                 outputs=["beta", "p", "r", "phi", "ay"],
+                 parameters=make_parameters(DEFAULTS, values, free, DEFAULT_FREE, bounds),
+                 constants=c, f=f_measured, g=g_measured, output_biases=list(output_biases),
+                 name=name)
