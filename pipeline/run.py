@@ -340,6 +340,17 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                 except FsidError as exc:
                     print(f"note: 6-DoF lateral model not set up ({exc}); linear model used",
                           file=progress.stream)
+            elif pb.axis == "lateral" and m == "oem" and "q" in fd:
+                # no longitudinal estimates to hold (aileron/rudder maneuvers only): the
+                # lateral model driven by the measured V, alpha, theta, q (the linear
+                # model's frozen airspeed and small bank angles put Clda, Cnda, Cnp 8-18
+                # std off on lateral_doublets_calm)
+                try:
+                    pb = lateral_problem(fd, ac, measured_longitudinal=True)
+                    pb.inputs = inputs
+                except FsidError as exc:
+                    print(f"note: lateral model with measured longitudinal inputs not set up "
+                          f"({exc}); linear model used", file=progress.stream)
             progress.stage(f"estimate {pb.axis} derivatives ({m.upper()}, {pb.model.name} model, "
                            f"{len(pb.fit)} maneuvers, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
             try:
