@@ -190,9 +190,14 @@ class CompatibilityResult:
             "settings": self.settings,
         }
 
-    def corrected(self, fd: FlightData) -> FlightData:
+    def corrected(self, fd: FlightData, keep_times: bool = False) -> FlightData:
         """A copy of ``fd`` with the estimated errors removed from the measured channels
-        (IMU: (x - bias) / (1 + scale); air data also shifted earlier by the delay)."""
+        (IMU: (x - bias) / (1 + scale); air data also shifted earlier by the delay).
+
+        keep_times : undo the delay by interpolating each air-data channel at t + delay on
+            its own sample times (samples whose t + delay lies past the channel's end are
+            dropped) instead of moving the time stamps: the channel keeps its sample grid,
+            which the estimation's multi-rate frame places slow channels on."""
         from pipeline.flightdata import Channel
 
         v = self.params
@@ -207,6 +212,11 @@ class CompatibilityResult:
             if ch in fd.channels:
                 c = fd.channels[ch]
                 vals = (c.values - v.get(f"bias_{ch}", 0.0)) / (1.0 + v.get(f"scale_{ch}", 0.0))
+                if keep_times and tau != 0.0 and len(c.t) > 1:
+                    keep = (c.t + tau >= c.t[0]) & (c.t + tau <= c.t[-1])
+                    out.channels[ch] = Channel(c.t[keep], np.interp(c.t[keep] + tau, c.t, vals), c.unit,
+                                               c.source + " (compatibility-corrected)")
+                    continue
                 out.channels[ch] = Channel(c.t - tau, vals, c.unit, c.source + " (compatibility-corrected)")
         out.meta["compatibility"] = {k: float(x) for k, x in v.items()}
         return out
@@ -539,3 +549,89 @@ def compatibility_report(fd: FlightData, **kw) -> dict:
             return {"status": "failed", "reason": f"{type(exc).__name__}: {exc}"}
         raise
     return res.to_dict()
+
+
+#: what the main run estimates: every IMU bias and scale factor and every air-data error
+#: (the default set without the IMU scale factors booked sensor_errors_calm's 1 % az
+#: scale factor on bias_az, 82 std off)
+RUN_ESTIMATE = tuple(IMU_PARAMS + AIR_PARAMS)
+#: a sensor error is applied to the data only when |estimate| >= SIGNIFICANCE * std
+SIGNIFICANCE = 3.0
+
+
+def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0.0, 0.0, 0.0),
+                           boom_position: Sequence[float] = (0.0, 0.0, 0.0),
+                           estimate: Sequence[str] = RUN_ESTIMATE, threshold: float = SIGNIFICANCE,
+                           truth: Mapping[str, float] | None = None, **kw) -> tuple[dict, FlightData]:
+    """The compatibility stage of a run: estimate the sensor errors, correct the data that
+    estimation will see by the significant ones, and say exactly what was done.
+
+    Rule (what a flight-test engineer does with a compatibility check):
+
+    1. Reconstruct with every sensor error of ``estimate`` free (default: all IMU biases
+       and scale factors, air-data biases, scale factors and delay).
+    2. A sensor error counts as present when ``|estimate| >= threshold * std`` (Cramér-Rao,
+       default 3): an estimate indistinguishable from zero is not applied, since applying
+       it would only add its estimation noise to the data.
+    3. When some are present, reconstruct again with only those free and the others held
+       at zero, so that correlated errors take up what the held ones carried (over the
+       narrow airspeed range of a flight, bias_V and scale_V are nearly one parameter: with
+       bias_V held, scale_V carries the whole airspeed error), and apply that refit's
+       estimates: IMU (x - bias) / (1 + scale), air data likewise and read ``delay_air``
+       earlier on their own sample times (``CompatibilityResult.corrected(keep_times=True)``).
+    4. Nothing present, the fit not converged, or the stage impossible (no forward flight,
+       missing channels): the data go to estimation as logged, and the document says why.
+
+    Returns (JSON-ready document, flight data for estimation). The document is the full
+    fit's ``to_dict`` (every estimate with std, and truth / error_std when ``truth``, in
+    this module's parameter names, is given) plus ``applied`` (name -> value removed from
+    the data, with its std and the full fit's significance), ``refit`` (the second fit's
+    parameters), ``rule``, ``data_for_estimation`` and ``seconds``.
+    """
+    import time
+
+    t0 = time.perf_counter()
+    rule = (f"a sensor error is applied when |estimate| >= {threshold:g} std in the fit with all "
+            f"errors free; the applied values come from a refit with only those free")
+    kw = {"imu_position": imu_position, "boom_position": boom_position, **kw}
+    doc = compatibility_report(fd, estimate=list(estimate), **kw)
+    doc["rule"] = rule
+    doc["applied"] = {}
+    doc["data_for_estimation"] = "as logged"
+    if doc.get("status") != "ok":
+        if doc.get("status") == "not converged":
+            doc["note"] = "reconstruction did not converge: no correction applied"
+        doc["seconds"] = time.perf_counter() - t0
+        return doc, fd
+    if truth is not None:   # the parameter table with the injected values
+        for n, row in doc["parameters"].items():
+            tv = truth.get(n)
+            row["truth"] = None if tv is None else float(tv)
+            row["error_std"] = (None if tv is None or not row.get("std")
+                                else (row["estimate"] - float(tv)) / row["std"])
+    sig = {n: abs(row["estimate"]) / row["std"] for n, row in doc["parameters"].items()
+           if row.get("std") and np.isfinite(row["std"]) and row["std"] > 0
+           and abs(row["estimate"]) >= threshold * row["std"]}
+    for n, row in doc["parameters"].items():
+        row["applied"] = n in sig
+    if not sig:
+        doc["note"] = f"no sensor error distinguishable from zero (all |estimate| < {threshold:g} std)"
+        doc["seconds"] = time.perf_counter() - t0
+        return doc, fd
+    try:
+        refit = reconstruct(fd, estimate=list(sig), **kw)
+    except Exception as exc:  # noqa: BLE001 - a failed refit must not cost the run
+        doc["note"] = f"refit with the significant errors failed ({type(exc).__name__}: {exc}): no correction applied"
+        doc["seconds"] = time.perf_counter() - t0
+        return doc, fd
+    if not getattr(refit.result, "converged", False):
+        doc["note"] = "refit with the significant errors did not converge: no correction applied"
+        doc["seconds"] = time.perf_counter() - t0
+        return doc, fd
+    doc["refit"] = {k: v for k, v in refit.to_dict(truth).items() if k in ("status", "parameters", "iterations", "cost")}
+    doc["applied"] = {n: {"estimate": float(refit.params[n]), "std": float(refit.std[n]),
+                          "unit": UNITS.get(n, ""), "significance_std": float(sig[n])}
+                      for n in refit.params.index}
+    doc["data_for_estimation"] = "compatibility-corrected"
+    doc["seconds"] = time.perf_counter() - t0
+    return doc, refit.corrected(fd, keep_times=True)

@@ -5,6 +5,8 @@
     {"schema": "fsid-report/1",
      "meta": {...},                      # as given (scenario, log, seed, versions, ...)
      "checks": {...} | null,             # data-quality summary, as given
+     "compatibility": {...} | null,      # sensor-compatibility stage (pipeline.compatibility.
+                                         # correct_for_estimation): status, parameters, applied
      "truth": {name: value} | null,
      "methods": {
        "<method>": {
@@ -65,9 +67,10 @@ def method_json(result: EstimationResult, validation: Mapping[str, Any] | None,
 
 def report_dict(results: Mapping[str, EstimationResult], validations: Mapping[str, Mapping[str, Any]],
                 *, truth: Mapping[str, float] | None = None, meta: Mapping[str, Any] | None = None,
-                checks: Any = None) -> dict[str, Any]:
+                checks: Any = None, compatibility: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The full report.json content (see module doc)."""
     return {"schema": SCHEMA, "meta": num(dict(meta or {})), "checks": num(checks),
+            "compatibility": num(dict(compatibility)) if compatibility is not None else None,
             "truth": num(dict(truth)) if truth else None,
             "methods": {m: method_json(r, validations.get(m), truth) for m, r in results.items()}}
 
@@ -246,6 +249,40 @@ def _checks_md(checks: Any) -> list[str]:
     return ["## Data checks", ""] + _checks_body(checks) + [""]
 
 
+def _compat_md(comp: Any) -> list[str]:
+    """The sensor-compatibility section: status, the estimated sensor errors with std (and
+    truth) and which were removed from the data estimation saw."""
+    if not isinstance(comp, Mapping) or not comp:
+        return []
+    L = ["## Sensor compatibility", ""]
+    st = comp.get("status")
+    if st in ("skipped", "failed"):
+        return L + [f"{st}: {comp.get('reason', '')}. Estimation used the data as logged.", ""]
+    params = comp.get("parameters") or {}
+    applied = comp.get("applied") or {}
+    L += [f"Flight path reconstruction ({comp.get('method', 'oem')}): {st}, "
+          f"{comp.get('iterations', '-')} iterations, {len(comp.get('segments') or [])} segments"
+          + (f", {_g(comp.get('seconds'), '.1f')} s" if comp.get("seconds") is not None else "")
+          + f". Data for estimation: {comp.get('data_for_estimation', '-')}.", ""]
+    if comp.get("rule"):
+        L += [f"Rule: {comp['rule']}." + (f" Note: {comp['note']}." if comp.get("note") else ""), ""]
+    with_truth = any(p.get("truth") is not None for p in params.values())
+    head = ["sensor error", "unit", "estimate", "std", "abs(estimate)/std"]
+    head += ["truth", "abs(error)/std"] if with_truth else []
+    head += ["applied"]
+    rows = []
+    for n, p in params.items():
+        est, sd = p.get("estimate"), p.get("std")
+        r = [n, str(p.get("unit") or "-"), _g(est, ".5g"), _g(sd, ".3g"),
+             _g(abs(est) / sd if est is not None and sd else None, ".1f")]
+        if with_truth:
+            e = p.get("error_std")
+            r += [_g(p.get("truth"), ".5g"), _g(abs(e) if e is not None else None, ".2f")]
+        r.append(_g(applied[n]["estimate"], ".5g") if n in applied else "no")
+        rows.append(r)
+    return L + _table(head, rows)
+
+
 def report_markdown(rep: Mapping[str, Any]) -> str:
     """report.md text from the report dict of :func:`report_dict`."""
     meta = rep.get("meta") or {}
@@ -269,6 +306,7 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
                          "-" if not pm else ("pass" if pm["all_pass"] else "FAIL")])
         L += _table(["method", "verdict", "converged", "det(R)", "max TIC", "proof of match"], rows)
     L += _checks_md(rep.get("checks"))
+    L += _compat_md(rep.get("compatibility"))
     for m, mj in rep["methods"].items():
         L += _method_md(m, mj, with_truth)
     return "\n".join(L).rstrip() + "\n"
@@ -277,19 +315,22 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
 def write_report(out_dir: str | Path, results: Mapping[str, EstimationResult],
                  validations: Mapping[str, Mapping[str, Any]], *,
                  truth: Mapping[str, float] | None = None, meta: Mapping[str, Any] | None = None,
-                 checks: Any = None) -> tuple[Path, Path]:
+                 checks: Any = None, compatibility: Mapping[str, Any] | None = None) -> tuple[Path, Path]:
     """Write ``out_dir/report.md`` and ``out_dir/report.json`` atomically.
 
     results: method name -> result; validations: method name -> :func:`pipeline.validate.
     validate` output (missing ones are fine); truth: true parameter values; meta: flat
     facts shown at the top (scenario, log, seed, ...); checks: the checks.json document
     (dict or its JSON text from :func:`pipeline.checks.findings_to_json`): its ``summary``
-    and non-pass ``findings`` are listed in report.md, the whole is kept in report.json. Returns (md path, json path).
+    and non-pass ``findings`` are listed in report.md, the whole is kept in report.json;
+    compatibility: the sensor-compatibility stage's document (a "Sensor compatibility"
+    section in report.md, key ``compatibility`` in report.json). Returns (md path, json path).
     """
     out = Path(out_dir)
     if isinstance(checks, (str, bytes)):
         checks = json.loads(checks)
-    rep = report_dict(results, validations, truth=truth, meta=meta, checks=checks)
+    rep = report_dict(results, validations, truth=truth, meta=meta, checks=checks,
+                      compatibility=compatibility)
     pj = atomic_write_text(out / "report.json", json.dumps(rep, indent=2, allow_nan=False) + "\n")
     pm = atomic_write_text(out / "report.md", report_markdown(rep))
     return pm, pj

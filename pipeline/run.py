@@ -375,16 +375,57 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     return results, validations, problems
 
 
+def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabled: bool = True,
+                        truth: Mapping[str, float] | None = None) -> tuple[Any, dict]:
+    """The sensor-compatibility stage of a run (flight path reconstruction,
+    :func:`pipeline.compatibility.correct_for_estimation`): returns (flight data for
+    estimation, JSON-ready document). Sensor errors distinguishable from zero (|estimate|
+    >= 3 std) are removed from the data estimation sees; the others are reported and not
+    applied. Sensor positions from ``ac`` (0,0,0 without one). Never ends the run: a log
+    the reconstruction cannot use (no forward flight, missing channels) or a failed fit is
+    reported as skipped / failed and estimation gets the data as logged. ``enabled=False``
+    (``--no-compat``): skipped."""
+    pr.stage("sensor compatibility (flight path reconstruction)")
+    if not enabled:
+        doc = {"status": "skipped", "reason": "switched off (--no-compat)", "applied": {},
+               "data_for_estimation": "as logged"}
+        pr.done("skipped (--no-compat)")
+        return fd, doc
+    from pipeline.compatibility import correct_for_estimation
+
+    imu = tuple(ac.imu) if ac is not None else (0.0, 0.0, 0.0)
+    boom = tuple(ac.airdata) if ac is not None else (0.0, 0.0, 0.0)
+    try:
+        doc, out = correct_for_estimation(fd, imu_position=imu, boom_position=boom, truth=truth)
+    except Exception as exc:  # noqa: BLE001 - the compatibility check must not cost the run
+        doc, out = {"status": "failed", "reason": f"{type(exc).__name__}: {exc}", "applied": {},
+                    "data_for_estimation": "as logged"}, fd
+    doc["positions"] = {"imu_m": list(map(float, imu)), "boom_m": list(map(float, boom))}
+    st = doc.get("status")
+    if st in ("skipped", "failed"):
+        pr.done(f"{st}: {doc.get('reason', '')}")
+    elif doc["applied"]:
+        pr.done(f"{len(doc['applied'])} of {len(doc.get('parameters', {}))} sensor errors significant, "
+                "removed from the data for estimation")
+    else:
+        pr.done(f"{st}: {doc.get('note', 'no correction applied')}")
+    return out, doc
+
+
 def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = None,
-                 methods: Sequence[str] | None = None, quiet: bool = False) -> dict[str, Path]:
+                 methods: Sequence[str] | None = None, quiet: bool = False,
+                 compat: bool = True) -> dict[str, Path]:
     """``fsid run``: everything of DESIGN.md section 5 into ``out``. ``methods`` default:
-    the ones that suit the flight (:func:`scenario_methods`)."""
+    the ones that suit the flight (:func:`scenario_methods`). ``compat``: run the
+    sensor-compatibility stage on the ingested MCAP and estimate from its corrected data
+    (:func:`compatibility_stage`; its document goes to checks.json under
+    ``flight.mcap.compatibility`` and to the report)."""
     import sim
     from pipeline.checks import findings_to_json, run_checks, summarize
     from pipeline.readers import read_log
     from pipeline.writers import write_dataflash, write_mcap, write_truth_json
 
-    pr = Progress(5 + 4 * len(methods or ("oem", "ls")) + 1, quiet=quiet)   # updated below
+    pr = Progress(6 + 4 * len(methods or ("oem", "ls")) + 1, quiet=quiet)   # updated below
     pr.stage(f"load scenario {scenario_path}")
     try:
         scenario = sim.load_scenario(scenario_path)
@@ -408,10 +449,13 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     findings = {"flight.bin": run_checks(fd_bin), "flight.mcap": run_checks(fd_mcap)}
     checks = {name: json.loads(findings_to_json(f, fd)) for (name, f), fd in
               zip(findings.items(), (fd_bin, fd_mcap))}
-    atomic_write_text(out / "checks.json", json.dumps(checks, indent=2, default=str) + "\n")
     summary = {name: summarize(f) for name, f in findings.items()}
     pr.done(", ".join(f"{k}: {v}" for k, v in summary.items()))
     ac = AircraftConstants.from_truth(truth_doc)
+    from pipeline.compatibility import truth_errors
+    fd_mcap, comp = compatibility_stage(fd_mcap, ac, pr, enabled=compat, truth=truth_errors(truth_doc))
+    checks["flight.mcap"]["compatibility"] = comp
+    atomic_write_text(out / "checks.json", json.dumps(checks, indent=2, default=str) + "\n")
     truth = {k: float(v) for k, v in truth_doc["derivatives"].items()}
     # estimation reads the product's own MCAP (surface positions at full resolution; the
     # .bin's RCOU carries whole-microsecond PWM, ~0.075 deg steps); the simulator moves
@@ -424,12 +468,15 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
                                               turbulence=truth_doc.get("turbulence"))
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary,
                           meta={"scenario": scenario.name, "log": "flight.mcap", "seed": result.meta["seed"],
-                                "aircraft": result.aircraft.name})
+                                "aircraft": result.aircraft.name,
+                                "data": f"flight.mcap, {comp['data_for_estimation']}"},
+                          compatibility=comp)
 
 
 def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = None,
                  map_path: str | None = None, methods: Sequence[str] = ("oem",),
-                 inputs: str = "linear", model: str = "auto", quiet: bool = False) -> dict[str, Path]:
+                 inputs: str = "linear", model: str = "auto", quiet: bool = False,
+                 compat: bool = True) -> dict[str, Path]:
     """``fsid estimate``: a log -> report and recording. ``model``: a built-in model
     (auto|longitudinal|lateral; needs ``aircraft``, or a truth.json next to the log) or a
     user model ``path.py:name`` (:mod:`pipeline.user_model`). Aircraft and sensor positions:
@@ -467,6 +514,11 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     summary = summarize(run_checks(fd))
     pr.done(str(summary))
     meta = {"log": str(log), "aircraft": ac_name}
+    pr.total += 1                    # sensor compatibility; corrected data go to estimation
+    from pipeline.compatibility import truth_errors
+    fd, comp = compatibility_stage(fd, ac, pr, enabled=compat,
+                                   truth=truth_errors(truth_doc) if truth_doc else None)
+    meta["data"] = f"{Path(log).name}, {comp['data_for_estimation']}"
     if user:
         results, validations, problems = identify_user_model(fd, um, methods, truth, pr, inputs=inputs)
         meta["model"] = model
@@ -475,16 +527,19 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         results, validations, problems = identify(fd, ac, methods, truth, pr, inputs=inputs, axes=axes)
     if truth is not None:
         meta["truth"] = "truth.json next to the log"
-    return _write_outputs(out, results, validations, problems, truth, pr, checks=summary, meta=meta)
+    return _write_outputs(out, results, validations, problems, truth, pr, checks=summary, meta=meta,
+                          compatibility=comp)
 
 
 def _write_outputs(out: Path, results, validations, problems, truth, pr: Progress, *,
-                   checks: Any, meta: Mapping[str, Any]) -> dict[str, Path]:
+                   checks: Any, meta: Mapping[str, Any],
+                   compatibility: Mapping[str, Any] | None = None) -> dict[str, Path]:
     from pipeline.recording import write_recording
     from pipeline.report import write_report
 
     pr.stage("write report.md, report.json, run.rrd")
-    md, js = write_report(out, results, validations, truth=truth, meta=meta, checks=checks)
+    md, js = write_report(out, results, validations, truth=truth, meta=meta, checks=checks,
+                          compatibility=compatibility)
     rrd = write_recording(out / "run.rrd", results, validations, truth=truth)
     pr.done()
     return {"report.md": md, "report.json": js, "run.rrd": rrd}

@@ -31,6 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--inputs", default="linear", choices=["linear", "average", "hold"],
                    help="how control inputs vary between log samples (default: linear)")
     p.add_argument("--out", help="output folder (default: a new folder under ./runs/)")
+    p.add_argument("--no-compat", action="store_true", help="skip the sensor-compatibility stage")
     p.add_argument("--quiet", action="store_true")
 
 
@@ -41,6 +42,6 @@ def run(args: argparse.Namespace) -> int:
     out = new_run_dir("estimate", args.out)
     paths = estimate_log(args.log, out, aircraft=args.aircraft, map_path=args.map,
                          methods=args.method or ["oem"], inputs=args.inputs, model=args.model,
-                         quiet=args.quiet)
+                         quiet=args.quiet, compat=not args.no_compat)
     print_outputs(out, paths)
     return 0

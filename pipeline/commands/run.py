@@ -22,6 +22,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="estimation method (repeat for several; default: the ones that suit the "
                         "scenario - calm: oem ls; turbulence: oem fem ekf ukf; unstable with a "
                         "SAS: soem eigen decouple fem ekf ukf). " + METHOD_LIST)
+    p.add_argument("--no-compat", action="store_true",
+                   help="skip the sensor-compatibility stage (flight path reconstruction); by "
+                        "default sensor errors estimated at >= 3 std are removed from the data "
+                        "before estimation")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
@@ -36,6 +40,6 @@ def run(args: argparse.Namespace) -> int:
 
     out = new_run_dir("run", args.out)
     paths = run_scenario(args.scenario, out, seed=args.seed, methods=args.method,
-                         quiet=args.quiet)
+                         quiet=args.quiet, compat=not args.no_compat)
     print_outputs(out, paths)
     return 0

@@ -1,0 +1,127 @@
+"""Closed loop through the main run with sensor errors: scenario sensor_errors_calm (IMU
+biases and scale factors, air-data biases and scale factors, 40 ms air-data delay, nose-boom
+lever arm) -> ``run_scenario`` -> its sensor-compatibility stage recovers the injected
+errors and removes the significant ones -> longitudinal output error on the corrected data.
+
+Measured (seed 51): the compatibility fit with all 19 sensor errors free lands every one
+within 2.7 std of the injected value (scale_q -2.7, bias_beta -2.3, bias_ay -2.0); 13 are
+significant and applied; the derivatives from the corrected data fit with TIC < 0.04 and
+pass proof of match, while the same fit on the data as logged puts CL0, Cm0, Cmalpha, Cmde
+50-60 std off. Cm0 and Cmde stay 4-5 std off after the correction, as they do on data
+corrected with the injected (true) errors and on the same flight flown with no sensor
+errors at all (-3.3 / -4.4 std): a limit of this flight (one 3-2-1-1 fitted), not of the
+compatibility stage (strict xfail below).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+pytest.importorskip("jsbsim")
+from pipeline.compatibility import CompatibilityResult, truth_errors  # noqa: E402
+from pipeline.identify import AircraftConstants  # noqa: E402
+from pipeline.readers import read_log  # noqa: E402
+from pipeline.run import Progress, identify, run_scenario  # noqa: E402
+
+SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "sensor_errors_calm.toml"
+#: the simulator's truth timing (module doc of test_compat_closed_loop): up to one 5 ms
+#: substep of apparent extra air-data delay
+SIM_TIMING_TOLERANCE_S = 0.005
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("se_run")
+    run_scenario(SCENARIO, out, methods=["oem"], quiet=True)
+    truth = json.loads((out / "truth.json").read_text())
+    return (out, truth, json.loads((out / "report.json").read_text()),
+            json.loads((out / "checks.json").read_text()))
+
+
+def _errors_in_std(mj):
+    """|estimate - truth| / std per derivative (report.json's error_in_std)."""
+    return {k: v["error_in_std"] for k, v in mj["parameters"].items()
+            if v.get("error_in_std") is not None and "[" not in k}
+
+
+def _fit_longitudinal(fd, truth):
+    ac = AircraftConstants.from_truth(truth)
+    tr = {k: float(v) for k, v in truth["derivatives"].items()}
+    res, val, _ = identify(fd, ac, ["oem"], tr, Progress(10, quiet=True), axes=("longitudinal",))
+    r = res["oem"]
+    err = {n: float((r.params[n] - tr[n]) / r.std[n]) for n in r.params.index
+           if n in tr and np.isfinite(r.std[n]) and r.std[n] > 0}
+    tic = {o: d["TIC"] for o, d in val["oem"]["fit"]["per_output"].items()}
+    return err, tic, val["oem"]
+
+
+def test_compatibility_stage_recovers_the_injected_errors(run):
+    out, truth, rep, checks = run
+    comp = checks["flight.mcap"]["compatibility"]
+    assert set(checks) == {"flight.bin", "flight.mcap"}          # existing keys kept
+    assert comp["status"] == "ok" and comp["data_for_estimation"] == "compatibility-corrected"
+    assert rep["compatibility"]["applied"] == json.loads(json.dumps(comp["applied"]))
+    assert "Sensor compatibility" in (out / "report.md").read_text()
+    te = truth_errors(truth)
+    tab = pd.DataFrame(comp["parameters"]).T
+    assert len(tab) == 19 and (tab["std"] > 0).all()
+    err = (tab["estimate"] - pd.Series(te)).abs()
+    others = tab.index.drop("delay_air")
+    bad = (err[others] / tab.loc[others, "std"]).loc[lambda s: s > 3.0]
+    assert bad.empty, f"sensor errors more than 3 std from the injected ones: {bad.round(2).to_dict()}"
+    assert err["delay_air"] < 3 * tab.loc["delay_air", "std"] + SIM_TIMING_TOLERANCE_S
+    # every injected error the flight can show is significant and applied; bias_V is not
+    # separable from scale_V at one airspeed: the refit's scale_V carries both
+    applied = comp["applied"]
+    injected = {n for n, v in te.items() if v != 0.0} - {"bias_V"}
+    assert injected <= set(applied), injected - set(applied)
+    assert not {n for n in applied if te[n] == 0.0}, "a zero sensor error was applied"
+    V = 30.0
+    want = te["scale_V"] * V + te["bias_V"]
+    got = applied["scale_V"]["estimate"] * V + applied.get("bias_V", {}).get("estimate", 0.0)
+    assert abs(got - want) < 3 * applied["scale_V"]["std"] * V + 0.02, (got, want)
+
+
+def test_longitudinal_fit_on_corrected_data(run):
+    _, _, rep, _ = run
+    m = rep["methods"]["longitudinal-oem"]
+    assert m["converged"]
+    tic = {o: d["TIC"] for o, d in m["fit"].items()}
+    assert max(tic.values()) < 0.1, tic
+    assert m["validation"]["proof_of_match"]["all_pass"]
+    err = _errors_in_std(m)
+    assert len(err) == 11
+    # what holds: every derivative within 6 std, lift slope and pitch stiffness/damping within 3
+    assert max(abs(e) for e in err.values()) < 6.0, err
+    assert all(abs(err[n]) < 3.0 for n in ("CLalpha", "CLq", "CLde", "Cmalpha", "Cmq")), err
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "Cm0 and Cmde end -4.1 and -5.3 std from the truth on the compatibility-corrected data "
+    "(measured, seed 51); on data corrected with the injected errors themselves they end "
+    "-3.4 / -4.6 std off, and on the same flight without any sensor errors -3.3 / -4.4: the "
+    "flight (one 3-2-1-1 fitted, one held out), not the correction, limits them"))
+def test_longitudinal_derivatives_within_3_std(run):
+    err = _errors_in_std(run[2]["methods"]["longitudinal-oem"])
+    assert max(abs(e) for e in err.values()) < 3.0, err
+
+
+def test_correction_matters_and_matches_the_true_correction(run):
+    """Without the compatibility stage the derivatives are far off; with it they are as
+    good as with the injected errors removed exactly."""
+    out, truth, rep, _ = run
+    fd = read_log(out / "flight.mcap")
+    raw_err, raw_tic, raw_val = _fit_longitudinal(fd, truth)
+    cor_err = _errors_in_std(rep["methods"]["longitudinal-oem"])
+    worse = {n: round(raw_err[n], 1) for n in cor_err if abs(raw_err[n]) > 10.0 and abs(cor_err[n]) < 6.0}
+    assert len(worse) >= 3, (raw_err, cor_err)          # measured: CL0, CLalpha, CLde, Cm0, Cmalpha, Cmde
+    assert max(abs(e) for e in raw_err.values()) > 5 * max(abs(e) for e in cor_err.values())
+    te = pd.Series(truth_errors(truth))
+    exact = CompatibilityResult(None, te, te * 0 + 1.0).corrected(fd, keep_times=True)
+    true_err, true_tic, _ = _fit_longitudinal(exact, truth)
+    for n, e in cor_err.items():   # |error|/std (report.json) within 1.5 of the exact correction's
+        assert abs(e - abs(true_err[n])) < 1.5, (n, e, true_err[n])
