@@ -16,7 +16,8 @@ keys of ``results`` such as ``oem``, ``<name>`` a parameter name with any charac
     /residuals/<method>/<out>             z - y        t, segment
     /inputs/<in>                          u            t, segment
     /match/<out>/measured                 held-out z   t, segment
-    /match/<out>/<method>                 held-fixed model simulation of the held-out data
+    /match/<out>/<method>                 held-fixed model prediction of the held-out data
+                                          (simulation, or air-data driven: report.json mode)
     /match/<out>/upper, /match/<out>/lower   measured +/- tolerance (judged channels only)
     /params/<name>/<method>               estimate per iteration (timeline ``iteration``) or,
                                           for filters, per sample (timelines t, segment)

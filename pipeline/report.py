@@ -175,6 +175,15 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
     if not pm:
         L += ["No held-out maneuver: not run.", ""]
     else:
+        if pm.get("mode") == "air-data":
+            L += [f"Mode **air-data**: the identified model, every parameter held, is driven by "
+                  f"the measured {', '.join(pm['driven'])} through a Kalman filter that sees only "
+                  "those channels (the gusts enter where the air data measure them; an unstable "
+                  "model stays anchored); the other channels are the model's prediction and are "
+                  "judged. Driving channels are not judged.", ""]
+        else:
+            L += ["Mode **simulation**: open-loop simulation of the held-out maneuver, every "
+                  "derivative held, initial state and output biases fitted.", ""]
         for s in pm["segments"]:
             L += [f"Held-out segment **{s['name']}**: {'PASS' if s['all_pass'] else 'FAIL'}", ""]
             rows = []
@@ -183,6 +192,7 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
                 rows.append([c, d["unit"], _g(d.get("tolerance_display")),
                              _g(d.get("max_abs_error_display")), _g(d.get("rms_error_display")),
                              _g(d.get("fraction_within"), ".3f"), _g(d.get("TIC"), ".4f"),
+                             "driving" if d.get("role") == "drives the filter" else
                              "-" if judged is None else ("pass" if judged else "FAIL")])
             L += _table(["channel", "unit", "tolerance", "max abs error", "rms error",
                          "fraction within", "TIC", "result"], rows)

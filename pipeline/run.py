@@ -107,13 +107,10 @@ def process_noise_std(problem: Problem, turbulence: Mapping[str, Any] | None = N
             return {"V": scale * su * np.sqrt(2 * V / Lu), "alpha": scale * fa, "q": scale * 0.3 * fa}
         fb = sv / V * np.sqrt(2 * V / Lv)
         return {"beta": scale * fb, "p": scale * 0.3 * fb, "r": scale * 0.3 * fb}
-    h = float(np.median(np.concatenate([np.diff(s.t) for s in problem.fit])))
-    out = {}
-    for st in m.states:
-        if st in m.outputs:
-            d = np.concatenate([np.diff(s.z[:, m.outputs.index(st)]) for s in problem.fit])
-            out[st] = float(scale * 0.05 * np.sqrt(np.nanvar(d) / h))
-    return out
+    from estimators.kalman import default_process_noise
+
+    f = default_process_noise(m, problem.fit)
+    return {st: float(scale * v) for st, v in zip(m.states, f) if st in m.outputs}
 
 
 def _filter_param_std(model: Any) -> dict[str, float]:
@@ -282,9 +279,11 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
 def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[str, float] | None,
              progress: Progress, inputs: str = "linear",
              turbulence: Mapping[str, Any] | None = None,
-             axes: Sequence[str] = ("longitudinal", "lateral")) -> tuple[dict, dict, list[Problem]]:
+             axes: Sequence[str] = ("longitudinal", "lateral"),
+             tolerances: Mapping[str, float] | None = None) -> tuple[dict, dict, list[Problem]]:
     """Estimate and validate every axis the log excites; ``inputs`` is how the inputs vary
-    between samples (estimators.integrators.INPUT_MODES). Methods in COMMON_GRID get the
+    between samples (estimators.integrators.INPUT_MODES); ``tolerances``: proof-of-match
+    bands per channel (SI; default those of DESIGN.md section 8). Methods in COMMON_GRID get the
     axis problem on the grid of its slowest output channel (every output at every sample).
     Returns (results, validations, problems); keys are the method names
     ("<axis>-<method>" once several axes are fitted)."""
@@ -368,7 +367,8 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
             progress.stage(f"validate {pb.axis} {m.upper()} (fit, residuals, modes, proof of match)")
             key = m if len(problems) == 1 else f"{pb.axis}-{m}"
             results[key] = res
-            validations[key] = validate(res, held_out=pb.held_out, truth=truth)
+            validations[key] = validate(res, held_out=pb.held_out, truth=truth,
+                                        tolerances=tolerances)
             progress.done()
     if not results:
         raise FsidError("every estimation method failed on this log (see the notes above)")
@@ -464,8 +464,10 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
         methods = scenario_methods(truth_doc)
     n_axes = sum(1 for ax in (("de",), ("da", "dr")) if {s.axis for s in fd_mcap.segments} & set(ax))
     pr.total = pr.n + 2 * max(n_axes, 1) * len(methods) + 1
+    from estimators.validation import default_tolerances
     results, validations, problems = identify(fd_mcap, ac, methods, truth, pr, inputs="linear",
-                                              turbulence=truth_doc.get("turbulence"))
+                                              turbulence=truth_doc.get("turbulence"),
+                                              tolerances=default_tolerances(**scenario.pom_bands))
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary,
                           meta={"scenario": scenario.name, "log": "flight.mcap", "seed": result.meta["seed"],
                                 "aircraft": result.aircraft.name,

@@ -75,6 +75,9 @@ class Scenario:
     sas_k_q: float               #: rad/(rad/s)
     sensors: dict[str, SensorSpec] = field(default_factory=dict)
     substeps: int = 2            #: JSBSim integration steps per truth sample
+    #: proof-of-match bands of the [validation] table: rate_deg_s (deg/s), accel_g (g),
+    #: angle_deg (deg); defaults 1.5, 0.1, 1.5 (DESIGN.md section 8)
+    pom_bands: dict = field(default_factory=lambda: {"rate_deg_s": 1.5, "accel_g": 0.1, "angle_deg": 1.5})
     raw: dict = field(default_factory=dict, repr=False)
 
     def with_seed(self, seed: int) -> "Scenario":
@@ -152,7 +155,7 @@ class _Section:
 
 
 _TOP = {"name", "description", "aircraft", "duration_s", "rate_hz", "substeps", "seed", "trim", "schedule",
-        "maneuver", "turbulence", "actuators", "sas", "sensors"}
+        "maneuver", "turbulence", "actuators", "sas", "sensors", "validation"}
 _MAN = {"name", "axis", "shape", "amplitude_deg", "amplitude", "start_s", "pulse_s", "levels",
         "f0_hz", "f1_hz", "length_s", "sweep", "period_s", "cycles"}
 
@@ -292,11 +295,15 @@ def scenario_from_dict(raw: dict, path: Path) -> Scenario:
     for name in SENSOR_SCHEMA:
         tab = sens_sec.t.get(name, {})
         sensors[name] = sensor_spec(name, _Section(path, f"sensors.{name}", tab, SENSOR_SCHEMA[name].keys()), rate)
+    val = _Section(path, "validation", raw.get("validation", {}), {"rate_deg_s", "accel_g", "angle_deg"})
+    bands = {"rate_deg_s": val.num("rate_deg_s", 1.5, positive=True, hi=90.0),
+             "accel_g": val.num("accel_g", 0.1, positive=True, hi=10.0),
+             "angle_deg": val.num("angle_deg", 1.5, positive=True, hi=90.0)}
     return Scenario(
         name=top.text("name", path.stem), path=path.resolve() if path.exists() else path,
         description=top.text("description", ""), aircraft=aircraft, duration=duration, rate_hz=rate,
         seed=seed, altitude=alt, airspeed=tas, flight_path=float(gam), heading=float(hdg),
         maneuvers=tuple(mans), turbulence=turb, actuator_lag=act.num("lag_s", 0.0, lo=0.0, hi=1.0),
         sas_k_alpha=sas.num("k_alpha", 0.0), sas_k_q=sas.num("k_q_s", 0.0), sensors=sensors,
-        substeps=substeps, raw=raw,
+        substeps=substeps, pom_bands=bands, raw=raw,
     )

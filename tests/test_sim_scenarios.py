@@ -60,6 +60,8 @@ def test_default_is_short_enough_for_the_demo():
     (lambda r: r.__setitem__("aircraft", "aircraft/nope.toml"), "aircraft", "not found"),
     (lambda r: r.__setitem__("substeps", 0), "substeps", "between 1 and 20"),
     (lambda r: r.__setitem__("rate_hz", "fast"), "rate_hz", "finite number"),
+    (lambda r: r.__setitem__("validation", {"rate_dps": 2.0}), "validation.rate_dps", "unknown key"),
+    (lambda r: r.__setitem__("validation", {"accel_g": -0.1}), "validation.accel_g", "> 0"),
 ])
 def test_malformed_scenario_fails_with_one_line_naming_the_key(mutate, where, what):
     raw = _raw()
@@ -69,6 +71,13 @@ def test_malformed_scenario_fails_with_one_line_naming_the_key(mutate, where, wh
     msg = str(err.value)
     assert "\n" not in msg
     assert where in msg and what in msg, msg
+
+
+def test_validation_bands_default_and_from_the_scenario():
+    assert scenario("default").pom_bands == {"rate_deg_s": 1.5, "accel_g": 0.1, "angle_deg": 1.5}
+    raw = _raw()
+    raw["validation"] = {"rate_deg_s": 2.0}
+    assert custom(raw).pom_bands == {"rate_deg_s": 2.0, "accel_g": 0.1, "angle_deg": 1.5}
 
 
 def test_missing_file_and_bad_toml_are_one_line(tmp_path):
