@@ -125,3 +125,30 @@ def test_correction_matters_and_matches_the_true_correction(run):
     true_err, true_tic, _ = _fit_longitudinal(exact, truth)
     for n, e in cor_err.items():   # |error|/std (report.json) within 1.5 of the exact correction's
         assert abs(e - abs(true_err[n])) < 1.5, (n, e, true_err[n])
+
+
+def test_stage_reports_instead_of_ending_the_run():
+    """No IMU, no forward flight, switched off: the stage says why and hands the data on."""
+    from pipeline.flightdata import Channel, FlightData
+    from pipeline.run import compatibility_stage
+
+    t = np.arange(0.0, 30.0, 0.01)
+    pr = Progress(3, quiet=True)
+    no_imu = FlightData({"V": Channel(t, np.full_like(t, 30.0), "m/s")}, {}, [])
+    out, doc = compatibility_stage(no_imu, None, pr)
+    assert out is no_imu and doc["status"] == "skipped" and "IMU" in doc["reason"]
+    assert doc["data_for_estimation"] == "as logged" and doc["applied"] == {}
+    ground = FlightData({"V": Channel(t, np.zeros_like(t), "m/s")}, {}, [])
+    out, doc = compatibility_stage(ground, None, pr)
+    assert out is ground and doc["status"] == "skipped" and "no forward flight" in doc["reason"]
+    out, doc = compatibility_stage(no_imu, None, pr, enabled=False)
+    assert out is no_imu and doc["status"] == "skipped" and "--no-compat" in doc["reason"]
+
+
+def test_no_compat_flag():
+    from pipeline.cli import build_parser
+
+    p = build_parser()
+    assert p.parse_args(["run", "x.toml", "--no-compat"]).no_compat
+    assert not p.parse_args(["run", "x.toml"]).no_compat
+    assert p.parse_args(["estimate", "x.bin", "--no-compat"]).no_compat
