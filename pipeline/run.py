@@ -493,7 +493,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     if user:                         # cheap checks before the log is read
         split_spec(model)
         check_methods(methods)
-    pr = Progress(4 + 2 * len(methods) + 1, quiet=quiet)
+    pr = Progress(5 + 2 * len(methods) + 1, quiet=quiet)   # 5: with sensor compatibility
     pr.stage(f"ingest {log}")
     fd = read_log(log, map=map_path)
     pr.done(f"{len(fd.channels)} channels, {len(fd.segments)} segments")
@@ -516,7 +516,6 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     summary = summarize(run_checks(fd))
     pr.done(str(summary))
     meta = {"log": str(log), "aircraft": ac_name}
-    pr.total += 1                    # sensor compatibility; corrected data go to estimation
     from pipeline.compatibility import truth_errors
     fd, comp = compatibility_stage(fd, ac, pr, enabled=compat,
                                    truth=truth_errors(truth_doc) if truth_doc else None)
