@@ -276,6 +276,10 @@ def _compat_md(comp: Any) -> list[str]:
           + f". Data for estimation: {comp.get('data_for_estimation', '-')}.", ""]
     if comp.get("rule"):
         L += [f"Rule: {comp['rule']}." + (f" Note: {comp['note']}." if comp.get("note") else ""), ""]
+    rn = comp.get("residual_to_noise") or {}
+    if rn:
+        L += ["Residual std / noise std per output (about 1: the kinematic model explains the "
+              "data): " + ", ".join(f"{c} {_g(x, '.2f')}" for c, x in rn.items()) + ".", ""]
     with_truth = any(p.get("truth") is not None for p in params.values())
     head = ["sensor error", "unit", "estimate", "std", "abs(estimate)/std"]
     head += ["truth", "abs(error)/std"] if with_truth else []
