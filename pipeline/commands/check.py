@@ -86,10 +86,12 @@ def run(args: argparse.Namespace) -> int:
     extra: dict = {}
     if not args.no_compat:
         try:
-            from pipeline.compatibility import compatibility_report
+            # the same estimates and rule as the compatibility stage of fsid run / estimate
+            # (which errors that stage would remove: "applied")
+            from pipeline.compatibility import correct_for_estimation
             imu, boom, origin = _positions(log, args)
             print("sensor compatibility (flight path reconstruction) ...")
-            extra["compatibility"] = compatibility_report(fd, imu_position=imu, boom_position=boom)
+            extra["compatibility"], _ = correct_for_estimation(fd, imu_position=imu, boom_position=boom)
             extra["compatibility"]["positions_from"] = origin
         except ImportError:
             extra["compatibility"] = {"status": "skipped", "reason": "compatibility stage not available"}
@@ -109,7 +111,10 @@ def run(args: argparse.Namespace) -> int:
     if comp.get("status") in ("ok", "not converged"):
         print(f"compatibility: {comp['status']}, {len(comp['parameters'])} sensor errors estimated")
         for n, row in comp["parameters"].items():
-            print(f"  {n:12s} {row['estimate']: .5g} +- {row['std']:.2g} {row['unit']}")
+            print(f"  {n:12s} {row['estimate']: .5g} +- {row['std']:.2g} {row['unit']}"
+                  f"{'  (significant)' if row.get('applied') else ''}")
+        if comp.get("note"):
+            print(f"  note: {comp['note']}")
     elif comp:
         print(f"compatibility: {comp.get('status')}: {comp.get('reason', '')}")
     c = summarize(findings)
