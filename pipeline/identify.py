@@ -294,19 +294,25 @@ def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]
                         ) -> list[tuple[str, list, np.ndarray, np.ndarray]]:
     """Equation-error regressions: CY (from ay), Cl and Cn (from the differentiated roll and
     yaw rates with the inertia coupling) on [1, beta, p b/2V, r b/2V, da, dr]; the intercept
-    column is named None (no model parameter)."""
+    column is named None (no model parameter). The dynamic pressure and b/2V follow the
+    measured airspeed sample by sample (column ``V`` when the frames have it, else the
+    constant ``c["V"]``), as the airspeed wanders during cross-controlled sideslips."""
     X, Y = [], {"CY": [], "Cl": [], "Cn": []}
     for df in frames:
         t = df["t"].to_numpy()
         beta, p, r, da, dr = (df[k].to_numpy() for k in ("beta", "p", "r", "da", "dr"))
-        qbar = 0.5 * c["rho"] * c["V"] ** 2
+        V = df["V"].to_numpy(dtype=float) if "V" in df else np.full(t.size, c["V"])
+        if not np.all(np.isfinite(V)):
+            ok = np.isfinite(V)
+            V = np.interp(t, t[ok], V[ok]) if ok.sum() >= 2 else np.full(t.size, c["V"])
+        qbar = 0.5 * c["rho"] * V ** 2
         pdot, rdot = np.gradient(p, t), np.gradient(r, t)
         # vane and IMU readings moved to the CG (inverse of the model's sensor terms)
-        beta = beta - (r * c.get("x_vane", 0.0) - p * c.get("z_vane", 0.0)) / c["V"]
+        beta = beta - (r * c.get("x_vane", 0.0) - p * c.get("z_vane", 0.0)) / V
         ay = df["ay"].to_numpy() - rdot * c.get("x_imu", 0.0) + pdot * c.get("z_imu", 0.0)
         L = c["Ixx"] * pdot - c["Ixz"] * rdot
         N = c["Izz"] * rdot - c["Ixz"] * pdot
-        k = c["b"] / (2 * c["V"])
+        k = c["b"] / (2 * V)
         X.append(np.column_stack([np.ones_like(p), beta, p * k, r * k, da, dr]))
         Y["CY"].append(c["m"] * ay / (qbar * c["S"]))
         Y["Cl"].append(L / (qbar * c["S"] * c["b"]))
