@@ -96,28 +96,38 @@ def default_process_noise(model: Model, segments: Sequence[Segment], fraction: f
     for each state that is a measured output (a twentieth of the bound the sample-to-sample
     variation puts on it), 0 for unmeasured states. Units: state unit per sqrt(s); h is
     the median sample interval (s)."""
-    h = float(np.median(np.concatenate([np.diff(s.t) for s in segments])))
     out = np.zeros(len(model.states))
     for i, name in enumerate(model.states):
         if name in model.outputs:
-            j = model.outputs.index(name)
-            d = np.concatenate([np.diff(seg.z[:, j]) for seg in segments])
-            out[i] = fraction * np.sqrt(np.nanvar(d) / h)
+            d, dt = _sample_differences(segments, model.outputs.index(name))
+            if d.size >= 2:
+                out[i] = fraction * np.sqrt(np.var(d) / np.median(dt))
     return out
+
+
+def _sample_differences(segments: Sequence[Segment], j: int) -> tuple[np.ndarray, np.ndarray]:
+    """Differences of output j between its consecutive measured samples and their time steps,
+    pooled over segments ((n_d,), (n_d,)): a slower channel on a faster grid is NaN between
+    its samples, so plain np.diff would hold no finite value."""
+    d, dt = [], []
+    for seg in segments:
+        ok = np.isfinite(seg.z[:, j])
+        d.append(np.diff(seg.z[ok, j]))
+        dt.append(np.diff(seg.t[ok]))
+    return np.concatenate(d), np.concatenate(dt)
 
 
 def default_measurement_noise(model: Model, segments: Sequence[Segment]) -> np.ndarray:
     """Measurement-noise variance per output from the data: half the variance of the
     first differences, pooled over segments. It is an upper bound (signal change between
     samples counts as noise); pass ``measurement_noise`` when the sensor noise is known."""
-    D = np.concatenate([np.diff(s.z, axis=0) for s in segments], axis=0)
-    ok = np.isfinite(D)
-    cnt = ok.sum(axis=0)
-    D0 = np.where(ok, D, 0.0)
-    mean = D0.sum(axis=0) / np.maximum(cnt, 1)
-    v = 0.5 * (np.where(ok, D - mean, 0.0) ** 2).sum(axis=0) / np.maximum(cnt, 1)
-    # an output never measured twice in a row gets 1 (it is never used for an update)
-    return np.where(cnt < 2, 1.0, np.where(v > 0, v, 1e-12))
+    out = np.ones(len(model.outputs))
+    for j in range(len(model.outputs)):
+        d, _ = _sample_differences(segments, j)
+        if d.size >= 2:          # else 1: never measured twice, never used for an update
+            v = 0.5 * np.var(d)
+            out[j] = v if v > 0 else 1e-12
+    return out
 
 
 def measurement_noise_matrix(model: Model, spec: Any, segments: Sequence[Segment]) -> np.ndarray:

@@ -184,6 +184,7 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
         else:
             L += ["Mode **simulation**: open-loop simulation of the held-out maneuver, every "
                   "derivative held, initial state and output biases fitted.", ""]
+        L += [f"Note: {n}." for n in pm.get("notes") or ()] + ([""] if pm.get("notes") else [])
         for s in pm["segments"]:
             L += [f"Held-out segment **{s['name']}**: {'PASS' if s['all_pass'] else 'FAIL'}", ""]
             rows = []

@@ -280,10 +280,12 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
              progress: Progress, inputs: str = "linear",
              turbulence: Mapping[str, Any] | None = None,
              axes: Sequence[str] = ("longitudinal", "lateral"),
-             tolerances: Mapping[str, float] | None = None) -> tuple[dict, dict, list[Problem]]:
+             tolerances: Mapping[str, float] | None = None,
+             pom: str = "auto") -> tuple[dict, dict, list[Problem]]:
     """Estimate and validate every axis the log excites; ``inputs`` is how the inputs vary
     between samples (estimators.integrators.INPUT_MODES); ``tolerances``: proof-of-match
-    bands per channel (SI; default those of DESIGN.md section 8). Methods in COMMON_GRID get the
+    bands per channel (SI; default those of DESIGN.md section 8); ``pom``: the proof-of-match
+    mode (pipeline.validate.POM_MODES: auto, simulation, air-data). Methods in COMMON_GRID get the
     axis problem on the grid of its slowest output channel (every output at every sample).
     Returns (results, validations, problems); keys are the method names
     ("<axis>-<method>" once several axes are fitted)."""
@@ -368,7 +370,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
             key = m if len(problems) == 1 else f"{pb.axis}-{m}"
             results[key] = res
             validations[key] = validate(res, held_out=pb.held_out, truth=truth,
-                                        tolerances=tolerances)
+                                        tolerances=tolerances, proof_of_match=pom)
             progress.done()
     if not results:
         raise FsidError("every estimation method failed on this log (see the notes above)")
@@ -414,12 +416,15 @@ def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabl
 
 def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = None,
                  methods: Sequence[str] | None = None, quiet: bool = False,
-                 compat: bool = True) -> dict[str, Path]:
+                 compat: bool = True, bands: Mapping[str, float] | None = None,
+                 pom: str = "auto") -> dict[str, Path]:
     """``fsid run``: everything of DESIGN.md section 5 into ``out``. ``methods`` default:
     the ones that suit the flight (:func:`scenario_methods`). ``compat``: run the
     sensor-compatibility stage on the ingested MCAP and estimate from its corrected data
     (:func:`compatibility_stage`; its document goes to checks.json under
-    ``flight.mcap.compatibility`` and to the report)."""
+    ``flight.mcap.compatibility`` and to the report). ``bands``: proof-of-match bands
+    (``rate_deg_s``, ``accel_g``, ``angle_deg``) over the scenario's ``[validation]``;
+    ``pom``: proof-of-match mode (auto, simulation, air-data)."""
     import sim
     from pipeline.checks import findings_to_json, run_checks, summarize
     from pipeline.readers import read_log
@@ -467,7 +472,9 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     from estimators.validation import default_tolerances
     results, validations, problems = identify(fd_mcap, ac, methods, truth, pr, inputs="linear",
                                               turbulence=truth_doc.get("turbulence"),
-                                              tolerances=default_tolerances(**scenario.pom_bands))
+                                              tolerances=default_tolerances(
+                                                  **{**scenario.pom_bands, **(bands or {})}),
+                                              pom=pom)
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary,
                           meta={"scenario": scenario.name, "log": "flight.mcap", "seed": result.meta["seed"],
                                 "aircraft": result.aircraft.name,
@@ -478,12 +485,17 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
 def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = None,
                  map_path: str | None = None, methods: Sequence[str] = ("oem",),
                  inputs: str = "linear", model: str = "auto", quiet: bool = False,
-                 compat: bool = True) -> dict[str, Path]:
+                 compat: bool = True, bands: Mapping[str, float] | None = None,
+                 pom: str = "auto") -> dict[str, Path]:
     """``fsid estimate``: a log -> report and recording. ``model``: a built-in model
     (auto|longitudinal|lateral; needs ``aircraft``, or a truth.json next to the log) or a
     user model ``path.py:name`` (:mod:`pipeline.user_model`). Aircraft and sensor positions:
     :mod:`pipeline.aircraft_setup`. The filters' process noise starts from the data (no
-    turbulence level is known)."""
+    turbulence level is known). ``bands`` (``rate_deg_s``, ``accel_g``, ``angle_deg``) and
+    ``pom`` set the proof of match (defaults 1.5 deg/s, 0.1 g, 1.5 deg; auto mode)."""
+    from estimators.validation import default_tolerances
+
+    tol = default_tolerances(**(bands or {}))
     from pipeline.aircraft_setup import aircraft_for_log
     from pipeline.checks import run_checks, summarize
     from pipeline.readers import read_log
@@ -521,11 +533,13 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                                    truth=truth_errors(truth_doc) if truth_doc else None)
     meta["data"] = f"{Path(log).name}, {comp['data_for_estimation']}"
     if user:
-        results, validations, problems = identify_user_model(fd, um, methods, truth, pr, inputs=inputs)
+        results, validations, problems = identify_user_model(fd, um, methods, truth, pr, inputs=inputs,
+                                                             tolerances=tol, pom=pom)
         meta["model"] = model
     else:
         axes = ("longitudinal", "lateral") if model == "auto" else (model,)
-        results, validations, problems = identify(fd, ac, methods, truth, pr, inputs=inputs, axes=axes)
+        results, validations, problems = identify(fd, ac, methods, truth, pr, inputs=inputs, axes=axes,
+                                                  tolerances=tol, pom=pom)
     if truth is not None:
         meta["truth"] = "truth.json next to the log"
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary, meta=meta,

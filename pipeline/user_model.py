@@ -191,9 +191,11 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
 
 def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
                         truth: Mapping[str, float] | None, progress: Any,
-                        inputs: str = "linear") -> tuple[dict, dict, list]:
+                        inputs: str = "linear", tolerances: Mapping[str, float] | None = None,
+                        pom: str = "auto") -> tuple[dict, dict, list]:
     """Fit and validate a user model with each method; same return as
-    :func:`pipeline.run.identify` (results, validations, problems), keyed by method."""
+    :func:`pipeline.run.identify` (results, validations, problems), keyed by method;
+    ``tolerances`` and ``pom`` as there."""
     from estimators import EstimationError
     from pipeline.run import COMMON_GRID, METHODS, fit_problem
     from pipeline.validate import validate
@@ -234,7 +236,8 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
                       f"{res.iterations} iterations")
         progress.stage(f"validate {m.upper()} (fit, residuals, modes, proof of match)")
         results[m] = res
-        validations[m] = validate(res, held_out=pb.held_out, truth=truth)
+        validations[m] = validate(res, held_out=pb.held_out, truth=truth, tolerances=tolerances,
+                                  proof_of_match=pom)
         progress.done()
     if not results:
         raise FsidError(f"every estimation method failed on the model {model.name!r} (see the "

@@ -335,11 +335,20 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
     model = result.model_with_estimates()
     segs, arrays = [], []
     driven: list[str] = []
+    notes: list[str] = []
     for k, seg in enumerate(held_out):
+        y = None
         if mode == "air-data":
-            dp = _air_data_prediction(result, seg, integrator)
-            y, driven = dp.predicted, dp.driven
-        else:
+            try:
+                dp = _air_data_prediction(result, seg, integrator)
+                y, driven = dp.predicted, dp.driven
+            except (estimators.EstimationError, np.linalg.LinAlgError) as exc:
+                # reported, and the classic proof of match run instead of none
+                notes.append(f"air-data prediction of {seg.name or k} failed ({exc}); "
+                             "open-loop simulation instead")
+                driven = []
+        seg_mode = "air-data" if y is not None else "simulation"
+        if y is None:
             y = _held_out_prediction(result, seg, integrator)
         z = pd.DataFrame(seg.z, index=y.index, columns=model.outputs)
         # the channels that drive the filter are its one-step predictions: not judged
@@ -356,10 +365,13 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
                      role="drives the filter" if name in driven else "predicted")
             chans[name] = d
         name = seg.name or f"held-out {k}"
-        segs.append({"name": name, "channels": chans, "all_pass": bool(pm.attrs["all_pass"])})
+        segs.append({"name": name, "mode": seg_mode, "channels": chans,
+                     "all_pass": bool(pm.attrs["all_pass"])})
         arrays.append({"name": name, "t": seg.t, "measured": z, "predicted": y,
                        "tolerance": pm["tolerance"].to_numpy(float)})
-    return {"mode": mode, "driven": driven, "segments": segs,
+    if segs and all(sg["mode"] == "simulation" for sg in segs):
+        mode = "simulation"
+    return {"mode": mode, "driven": driven, "segments": segs, "notes": notes,
             "all_pass": bool(segs) and all(s["all_pass"] for s in segs)}, arrays
 
 

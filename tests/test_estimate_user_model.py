@@ -201,3 +201,28 @@ def test_aircraft_sensor_table_is_checked(tmp_path):
         """)
     with pytest.raises(FsidError, match=r"sensors\.airdata\.position_m: must be \[x, y, z\]"):
         aircraft_for_log(tmp_path / "x.mcap", bad, None, required=True)
+
+
+def test_proof_of_match_options_reach_the_report(flight, tmp_path, capsys):
+    out = tmp_path / "o"
+    code, err = _estimate(capsys, flight / "flight.mcap", "--model",
+                          f"{flight / 'sp_user.py'}:short_period_user", "--method", "oem",
+                          "--no-compat", "--band-rate", "0.05", "--band-accel", "0.2",
+                          "--proof-of-match", "air-data", "--out", out)
+    assert code == 0, err
+    pm = json.loads((out / "report.json").read_text())["methods"]["oem"]["validation"]["proof_of_match"]
+    assert pm["mode"] == "air-data" and pm["driven"] == ["alpha"]
+    ch = pm["segments"][0]["channels"]
+    assert ch["q"]["tolerance_display"] == pytest.approx(0.05)
+    assert ch["az"]["tolerance_display"] == pytest.approx(0.2)
+    assert ch["alpha"]["pass"] is None and ch["alpha"]["role"] == "drives the filter"
+    # no model follows a pitch rate to 0.05 deg/s: the band is applied, not the default
+    assert ch["q"]["pass"] is False and not pm["all_pass"]
+    assert "Mode **air-data**" in (out / "report.md").read_text()
+
+
+def test_a_non_positive_band_is_one_line(flight, tmp_path, capsys):
+    code, err = _estimate(capsys, flight / "flight.mcap", "--model", "longitudinal",
+                          "--band-rate", "-1", "--out", tmp_path / "o")
+    assert code != 0 and len(err) == 1 and err[0].startswith("fsid: error:")
+    assert "band rate_deg_s must be > 0" in err[0]

@@ -26,7 +26,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="skip the sensor-compatibility stage (flight path reconstruction); by "
                         "default sensor errors estimated at >= 3 std are removed from the data "
                         "before estimation")
+    add_validation_arguments(p)
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def add_validation_arguments(p: argparse.ArgumentParser) -> None:
+    """Proof-of-match options shared by fsid run and fsid estimate."""
+    p.add_argument("--band-rate", type=float, metavar="DEG_S",
+                   help="proof-of-match band on p, q, r in deg/s (default 1.5, or the scenario's)")
+    p.add_argument("--band-accel", type=float, metavar="G",
+                   help="proof-of-match band on ax, ay, az in g (default 0.1)")
+    p.add_argument("--band-angle", type=float, metavar="DEG",
+                   help="proof-of-match band on alpha, beta, phi, theta, psi in deg (default 1.5)")
+    p.add_argument("--proof-of-match", default="auto", choices=["auto", "simulation", "air-data"],
+                   help="held-out prediction: open-loop simulation, or the model driven by its "
+                        "measured air data (turbulence, unstable aircraft); auto picks air-data "
+                        "for fem/ekf/ukf and unstable models (default)")
+
+
+def validation_options(args: argparse.Namespace) -> dict:
+    """bands and pom keywords for run_scenario / estimate_log from the parsed options."""
+    bands = {k: v for k, v in (("rate_deg_s", args.band_rate), ("accel_g", args.band_accel),
+                               ("angle_deg", args.band_angle)) if v is not None}
+    bad = [k for k, v in bands.items() if not v > 0]
+    if bad:
+        from pipeline.errors import FsidError
+        raise FsidError(f"proof-of-match band {bad[0]} must be > 0: give a positive number")
+    return {"bands": bands, "pom": args.proof_of_match}
 
 
 def print_outputs(out, paths) -> None:
@@ -40,6 +66,6 @@ def run(args: argparse.Namespace) -> int:
 
     out = new_run_dir("run", args.out)
     paths = run_scenario(args.scenario, out, seed=args.seed, methods=args.method,
-                         quiet=args.quiet, compat=not args.no_compat)
+                         quiet=args.quiet, compat=not args.no_compat, **validation_options(args))
     print_outputs(out, paths)
     return 0
