@@ -7,7 +7,7 @@ dr and r, biases every derivative (errors in variables: CYbeta -10 %, CYdr +15 %
 lateral_doublets_calm). The blended sideslip is within 0.01-0.03 deg of the truth there.
 
 Not used for the pseudo-input V of output error: the pitot noise drives the remaining
-output-error bias on lateral_doublets_calm (noise-free V: every derivative within 2.1
+output-error bias on lateral_doublets_calm (noise-free V: every derivative within 1.9
 std on seeds 5, 7, 11, 21; the measured V low-passed at 1 Hz: up to 7.8 std), but the
 part that matters is below 0.1 Hz, where this blend is the pitot as well (0.02 m/s rms
 left; up to 5.5 std, better on two seeds and worse on one of four).

@@ -57,11 +57,15 @@ def test_lateral_oem_derivatives_close_to_the_truth(lateral_run):
 
 @pytest.mark.xfail(strict=True, reason=(
     "measured on seed 21: Clda 3.8, Cldr 3.2, Cnp 4.3, Cnda 4.1, Cndr 4.2 std from the truth "
-    "(0.3-1 % relative; 4.6 % on Cnp); CY*, Clbeta, Clp, Clr, Cnbeta, Cnr within 2.2 std. A "
-    "noise-free flight of the same maneuvers fits every derivative within 0.1 % (0.3 % on "
-    "Cndr), seed 5 lands all within 3.0 std with the same signs, and Morelli-Klein bounds "
-    "are 1.3x the Cramer-Rao ones: a ~1 % noise-driven bias on the aileron/rudder yaw "
-    "derivatives that is not explained yet"))
+    "(0.1-0.9 %; 4.6 % on Cnp); seeds 5, 7, 11: up to 2.9, 1.5, 7.8 std (Cnbeta on 11). Cause: "
+    "noise on the pseudo-input V (pitot 0.3 m/s, low-passed at 1 Hz: 0.02-0.03 m/s segment "
+    "means, 0.1-0.2 % in dynamic pressure against Cramer-Rao bounds of 0.05-0.1 %), which "
+    "the output-error likelihood treats as exact: with the noise-free V (noisy outputs, "
+    "noisy alpha/theta/q) every derivative is within 1.4-1.9 std on all four seeds; "
+    "noise-free outputs with the noisy V reproduce the errors; alpha, theta, q and the "
+    "low-pass itself do not matter. The pitot's noise below 0.1 Hz cannot be filtered out "
+    "(a kinematic blend with the IMU leaves 0.02 m/s: up to 5.5 std); what is missing is "
+    "the airspeed uncertainty in the bounds"))
 def test_lateral_oem_derivatives_within_3_std(lateral_run):
     d = _derivs(lateral_run["methods"]["oem"])
     worst = {k: round(v["error_in_std"], 2) for k, v in d.items() if v["error_in_std"] > 3.0}
@@ -70,18 +74,19 @@ def test_lateral_oem_derivatives_within_3_std(lateral_run):
 
 def test_lateral_ls_fits_the_outputs(lateral_run):
     """Equation error: the outputs are fitted (TIC < 0.1 with the initial states and biases
-    fitted), but see the two gaps below."""
+    fitted)."""
     m = lateral_run["methods"]["ls"]
     tic = _tic(m)
     assert max(tic.values()) < 0.1, tic
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "measured: equation error (OLS on the linear-model regressions at the mean airspeed, "
-    "rates differentiated) puts every Cl and Cn derivative 12-18 % below the truth "
-    "(Clbeta 24, Cldr 20, Cnbeta 22, Clp 18 std; CYbeta 15 std) and misses the held-out "
-    "maneuver on p and r by 4.3 and 4.1 deg/s (tolerance 1.5)"))
 def test_lateral_ls_derivatives_and_proof_of_match(lateral_run):
+    """Equation error within 3 std of every lateral derivative (0.02-1.2 % on seed 21) and
+    the held-out maneuver matched. Was 12-18 % low: np.gradient of the raw rates smeared
+    the roll response at the surface steps (5-7 % on the noise-free truth) and vane noise
+    on the nearly collinear beta regressor (errors in variables, CYbeta -10 %, CYdr
+    +15 %); see pipeline.identify.lateral_regressions. Seed 5 lands Clr, Cnr at 3.1, 3.6
+    std (0.7 %)."""
     m = lateral_run["methods"]["ls"]
     d = _derivs(m)
     worst = {k: round(v["error_in_std"], 2) for k, v in d.items() if v["error_in_std"] > 3.0}
