@@ -22,6 +22,7 @@ import pandas as pd
 from estimators import Segment
 from estimators.models import lateral_directional, longitudinal
 from estimators.models.lateral import lateral_measured_longitudinal
+from estimators.models.longitudinal import longitudinal_measured_lateral
 from pipeline.errors import FsidError
 from pipeline.flightdata import FlightData, SegmentSpec
 
@@ -30,6 +31,9 @@ LONG_FREE = ("CD0", "CDalpha", "CDalpha2", "CL0", "CLalpha", "CLq", "CLde",
              "Cm0", "Cmalpha", "Cmq", "Cmde")
 LONG_OUTPUTS = ("V", "alpha", "theta", "q", "ax", "az")
 LONG_CHANNELS = ("V", "alpha", "theta", "q", "ax", "az", "de")
+#: measured lateral-directional variables that drive the longitudinal model of multi-axis
+#: maneuvers (longitudinal_problem(measured_lateral=True))
+LONG_PSEUDO_LATERAL = ("beta", "p", "r", "phi", "ay")
 #: derivatives estimated by default for the lateral-directional axes
 LAT_FREE = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
             "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
@@ -183,6 +187,7 @@ def longitudinal_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, flo
     rows = {"L": [], "D": [], "M": []}
     yL, yD, yM = [], [], []
     xv, zv = c.get("x_vane", 0.0), c.get("z_vane", 0.0)
+    yv = c.get("y_vane", 0.0)
     xi, zi = c.get("x_imu", 0.0), c.get("z_imu", 0.0)
     for df, T in zip(frames, thrusts):
         t = df["t"].to_numpy()
@@ -193,6 +198,9 @@ def longitudinal_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, flo
         # 2/cbar: +29 on CLq of uav_small) - the inverse of the model's sensor terms
         u = Vv * np.cos(av) - q * zv
         w = Vv * np.sin(av) + q * xv
+        if yv and "p" in df and "r" in df:      # wing-tip boom: + p y_vane in w, - r y_vane in u
+            u = u + df["r"].to_numpy() * yv
+            w = w - df["p"].to_numpy() * yv
         V, a = np.hypot(u, w), np.arctan2(w, u)
         ax = df["ax"].to_numpy() - qdot * zi + q * q * xi
         az = df["az"].to_numpy() + qdot * xi + q * q * zi
@@ -235,13 +243,25 @@ def longitudinal_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
 def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | None = None,
                          segments: Sequence[SegmentSpec] | None = None,
                          hold_out: int = 1, free: Sequence[str] = LONG_FREE,
-                         biases: Sequence[str] = ("q", "ax", "az")) -> Problem:
+                         biases: Sequence[str] = ("q", "ax", "az"),
+                         measured_lateral: bool = False, rotary_gust: bool = False,
+                         values: Mapping[str, float] | None = None) -> Problem:
     """Build the longitudinal problem from flight data.
 
     segments : windows to use (default: the log's segments whose axis is 'de' or
         'throttle'); the last ``hold_out`` elevator windows are kept for proof of match.
+    measured_lateral : fit :func:`longitudinal_measured_lateral` instead, with the
+        measured beta, p, r, phi, ay as inputs (low-pass filtered like the lateral
+        model's pseudo-inputs) and the air data at the boom's full (x, y, z) position:
+        for maneuvers that move all three axes at once.
+    rotary_gust : with ``measured_lateral``: the model's gust states (the rotary gust
+        q_g from the vertical gust and its own Markov part in the pitch damping; for the
+        filters, whose process noise drives them).
+    values : derivative values that override the equation-error starts (held ones stay
+        at them: e.g. a-priori CLalphadot, Cmalphadot).
     """
-    missing = fd.missing(LONG_CHANNELS)
+    channels = LONG_CHANNELS + (LONG_PSEUDO_LATERAL if measured_lateral else ())
+    missing = fd.missing(channels)
     if missing:
         raise FsidError(f"longitudinal identification needs channels {missing} that the log "
                         f"does not provide ({fd.meta.get('source', 'log')}); add them to the "
@@ -252,17 +272,23 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
         raise FsidError(f"found {len(specs)} longitudinal maneuver segment(s) but need at least "
                         f"{1 + hold_out} (one to fit, {hold_out} to hold out): fly more elevator "
                         "maneuvers or give segments by time range")
-    df, rate_hz = multirate_frame(fd, LONG_OUTPUTS, ["de", "throttle", "thrust", "rho", "h"], rate_hz)
+    df, rate_hz = multirate_frame(fd, LONG_OUTPUTS, ["de", "throttle", "thrust", "rho", "h"]
+                                  + (list(LONG_PSEUDO_LATERAL) if measured_lateral else []),
+                                  rate_hz)
     rho = mean_density(df)
     c = {"m": ac.mass, "Iyy": ac.Iyy, "S": ac.S, "cbar": ac.cbar, "rho": rho,
          "x_vane": ac.airdata[0], "z_vane": ac.airdata[2], "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
+    if measured_lateral:
+        c.update({"Ixx": ac.Ixx, "Izz": ac.Izz, "Ixz": ac.Ixz, "y_vane": ac.airdata[1],
+                  "b": ac.b})
+    rotary_gust = rotary_gust and measured_lateral
     elev = [s for s in specs if s.axis == "de"]
     held = elev[-hold_out:] if hold_out else []
     fit_specs = [s for s in specs if s not in held]
     frames = {id(s): _window(df, s) for s in specs}
     for s in specs:
         w = frames[id(s)]
-        bad = [k for k in LONG_CHANNELS if w[k].notna().sum() < 10 or
+        bad = [k for k in channels if w[k].notna().sum() < 10 or
                (k not in LONG_OUTPUTS and w[k].isna().any())]
         if len(w) < 10 or bad:
             raise FsidError(f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in "
@@ -272,21 +298,42 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
                                     [thrust[id(s)] for s in fit_specs])
     start = longitudinal_starts([frames[id(s)] for s in fit_specs], c,
                                 [thrust[id(s)] for s in fit_specs])
-    model = longitudinal(c, values=start, free=free, output_biases=biases,
-                         name="longitudinal").select_outputs(LONG_OUTPUTS)
+    start.update(values or {})
+    if measured_lateral:
+        model = longitudinal_measured_lateral(c, values=start, free=free, output_biases=biases,
+                                              name="longitudinal-measured",
+                                              rotary_gust=rotary_gust
+                                              ).select_outputs(LONG_OUTPUTS)
+        for s in specs:
+            frames[id(s)] = smooth_pseudo_inputs(frames[id(s)], rate_hz, LONG_PSEUDO_CORNER_HZ)
+    else:
+        model = longitudinal(c, values=start, free=free, output_biases=biases,
+                             name="longitudinal").select_outputs(LONG_OUTPUTS)
+    ucols = ["de"] + (list(LONG_PSEUDO_LATERAL) if measured_lateral else [])
 
     def seg(s):
         w = frames[id(s)]
-        x0 = _first_valid(w, ["V", "alpha", "theta", "q"])
-        return Segment(t=w["t"].to_numpy(), u=np.column_stack([w["de"], thrust[id(s)]]),
+        x0 = list(_first_valid(w, ["V", "alpha", "theta", "q"]))
+        if rotary_gust:                 # alpha_k = alpha (no gust at the start), lags 0
+            x0 += [x0[1], 0.0, 0.0]
+        u = np.column_stack([w["de"], thrust[id(s)]] + [w[k] for k in ucols[1:]])
+        return Segment(t=w["t"].to_numpy(), u=u,
                        z=w[list(LONG_OUTPUTS)].to_numpy(), x0=x0, name=s.name)
 
-    notes = [f"grid {rate_hz:g} Hz; slower channels at their own samples only",
+    notes = ([f"measured beta, p, r, phi, ay as inputs (multi-axis maneuvers); air data at "
+              f"({ac.airdata[0]:g}, {ac.airdata[1]:g}, {ac.airdata[2]:g}) m"]
+             if measured_lateral else []) + [
+             f"grid {rate_hz:g} Hz; slower channels at their own samples only",
              f"density {rho:.4f} kg/m^3 (mean over the flight)",
              f"thrust from {'thrust channel' if 'thrust' in df else 'throttle x max_thrust'}",
              f"start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())]
     return Problem("longitudinal", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
-                   fit_specs, held, estimate_x0=True, notes=notes, regressions=regs,
+                   fit_specs, held,
+                   estimate_x0=["V", "alpha", "theta", "q"] if rotary_gust else True,
+                   notes=notes + (["vertical gust in the states (Dryden shaping filters): "
+                                   "rotary gust q_g = -s/(1 + tau s) alpha_g + q_gi in the pitch "
+                                   "damping"] if rotary_gust else []),
+                   regressions=regs,
                    rate_hz=rate_hz)
 
 
@@ -426,6 +473,35 @@ def lateral_specs(fd: FlightData, channels: Sequence[str],
     return specs
 
 
+def multi_axis(fd: FlightData) -> bool:
+    """Whether the log's elevator windows overlap aileron or rudder windows in time
+    (maneuvers on all axes at once, e.g. 3-axis multisines)."""
+    lon = [s for s in fd.segments if s.axis == "de"]
+    lat = [s for s in fd.segments if s.axis in ("da", "dr")]
+    return any(a.t0 < b.t1 and b.t0 < a.t1 for a in lon for b in lat)
+
+
+#: derivatives freed in addition on multi-axis flights for the filters (gust-state models)
+MULTIAXIS_FILTER_FREE = {"longitudinal": ("CLalphadot", "Cmalphadot"), "lateral": ("tau_pg",)}
+
+
+def multiaxis_problem(fd: FlightData, ac: AircraftConstants, axis: str, *, gust_states: bool,
+                      rate_hz: float | None = None) -> Problem:
+    """The axis problem for maneuvers that move all axes at once: the model of that axis
+    driven by the other axis' measured variables (longitudinal_measured_lateral /
+    lateral_measured_longitudinal), air data at the boom's full position. ``gust_states``
+    (the filters, in turbulence): the Dryden gust states of the models (rotary gusts q_g,
+    p_g in the damping terms), with CLalphadot, Cmalphadot (longitudinal; identifiable once
+    the gust angle of attack separates alphadot from q: |corr(Cmq, Cmalphadot)| 0.33 on
+    multiaxis_multisine_turbulence) and the roll-gust time constant tau_pg (lateral) free."""
+    extra = MULTIAXIS_FILTER_FREE[axis] if gust_states else ()
+    if axis == "longitudinal":
+        return longitudinal_problem(fd, ac, rate_hz=rate_hz, measured_lateral=True,
+                                    rotary_gust=gust_states, free=LONG_FREE + extra)
+    return lateral_problem(fd, ac, rate_hz=rate_hz, measured_longitudinal=True,
+                           rotary_gust=gust_states, free=LAT_FREE + extra)
+
+
 def mean_density(df: pd.DataFrame) -> float:
     """Mean air density (kg/m^3) of the flight: the rho channel, else ISA at the measured
     altitude, else sea level."""
@@ -437,15 +513,19 @@ def mean_density(df: pd.DataFrame) -> float:
 #: zero-phase low-pass corner (Hz) of the measured longitudinal variables that drive the
 #: lateral model as inputs: noise on an input is not in the output-error likelihood
 PSEUDO_INPUT_CORNER_HZ = {"V": 1.0, "alpha": 5.0, "theta": 5.0, "q": 5.0}
+#: likewise for the measured lateral variables that drive the longitudinal model
+LONG_PSEUDO_CORNER_HZ = {"beta": 5.0, "p": 5.0, "r": 5.0, "phi": 5.0, "ay": 2.0}
 
 
-def smooth_pseudo_inputs(w: pd.DataFrame, rate_hz: float) -> pd.DataFrame:
-    """V, alpha, theta, q of a window low-pass filtered forwards and backwards (second-order
-    Butterworth at PSEUDO_INPUT_CORNER_HZ) before they drive the lateral model."""
+def smooth_pseudo_inputs(w: pd.DataFrame, rate_hz: float,
+                         corners: Mapping[str, float] | None = None) -> pd.DataFrame:
+    """V, alpha, theta, q of a window (or the channels of ``corners``) low-pass filtered
+    forwards and backwards (second-order Butterworth at PSEUDO_INPUT_CORNER_HZ) before
+    they drive the lateral model."""
     from scipy.signal import butter, filtfilt
 
     w = w.copy()
-    for k, fc in PSEUDO_INPUT_CORNER_HZ.items():
+    for k, fc in (corners or PSEUDO_INPUT_CORNER_HZ).items():
         x = w[k].to_numpy(dtype=float)
         if x.size > 15 and fc < 0.45 * rate_hz:
             b, a = butter(2, fc / (0.5 * rate_hz))
@@ -457,7 +537,7 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
                     segments: Sequence[SegmentSpec] | None = None, hold_out: int = 1,
                     free: Sequence[str] = LAT_FREE,
                     biases: Sequence[str] = ("beta", "p", "r", "ay"),
-                    measured_longitudinal: bool = False) -> Problem:
+                    measured_longitudinal: bool = False, rotary_gust: bool = False) -> Problem:
     """Build the lateral-directional problem (linear model about the flight's mean
     airspeed, angle of attack and pitch attitude) from the aileron and rudder maneuvers;
     control inputs are taken relative to their value at the start of each window.
@@ -465,7 +545,10 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     measured_longitudinal : fit :func:`lateral_measured_longitudinal` instead, with the
         measured V, alpha, theta, q as inputs (the linear model's frozen airspeed and
         small bank angles put Clda, Cnda, Cnp, Cnbeta 5-18 std off on
-        lateral_doublets_calm, where the doublets bank the UAV by up to 30 deg)."""
+        lateral_doublets_calm, where the doublets bank the UAV by up to 30 deg).
+    rotary_gust : with ``measured_longitudinal``: the model's roll-gust state p_g (the
+        aerodynamics see p - p_g; for the filters, whose process noise drives it)."""
+    rotary_gust = rotary_gust and measured_longitudinal
     channels = LAT_CHANNELS + (("q",) if measured_longitudinal else ())
     specs = lateral_specs(fd, channels, segments, hold_out)
     df, rate_hz = multirate_frame(fd, LAT_OUTPUTS, ["V", "alpha", "theta", "q", "da", "dr", "rho", "h"]
@@ -505,9 +588,12 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     fit_specs = [s for s in specs if s not in held]
     start = lateral_starts([frames[id(s)] for s in fit_specs], c)
     regs = lateral_regressions([frames[id(s)] for s in fit_specs], c)
+    if rotary_gust:                     # Dryden roll-gust time constant 4 b / (pi V)
+        start["tau_pg"] = 4.0 * ac.b / (np.pi * c["V"])
     if measured_longitudinal:
         model = lateral_measured_longitudinal({**c, "Iyy": ac.Iyy}, values=start, free=free,
-                                              output_biases=biases, name="lateral-measured")
+                                              output_biases=biases, name="lateral-measured",
+                                              rotary_gust=rotary_gust)
     else:
         model = lateral_directional(c, values=start, free=free, output_biases=biases,
                                     name="lateral").select_outputs(LAT_OUTPUTS)
@@ -520,13 +606,17 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
         w = frames[id(s)]
         return Segment(t=w["t"].to_numpy(), u=w[ucols].to_numpy(),
                        z=w[list(LAT_OUTPUTS)].to_numpy(),
-                       x0=_first_valid(w, ["beta", "p", "r", "phi"]), name=s.name)
+                       x0=list(_first_valid(w, ["beta", "p", "r", "phi"])) + ([0.0] if rotary_gust else []),
+                       name=s.name)
 
     notes = [(f"measured V, alpha, theta, q as inputs, density {rho:.4f} kg/m^3"
               if measured_longitudinal else
               f"linear model about V={c['V']:.2f} m/s, alpha0={np.degrees(c['alpha0']):.2f} deg, "
               f"theta0={np.degrees(c['theta0']):.2f} deg, density {rho:.4f} kg/m^3"),
              "start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())]
+    if rotary_gust:
+        notes.append("roll-gust state p_g (Dryden, time constant 4b/(pi V)) in the roll damping")
     return Problem("lateral", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
-                   fit_specs, held, estimate_x0=True, notes=notes, regressions=regs,
-                   rate_hz=rate_hz)
+                   fit_specs, held,
+                   estimate_x0=["beta", "p", "r", "phi"] if rotary_gust else True,
+                   notes=notes, regressions=regs, rate_hz=rate_hz)

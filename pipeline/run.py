@@ -18,6 +18,7 @@ import numpy as np
 from estimators import OutputError
 from pipeline.errors import FsidError
 from pipeline.sixdof_problem import sixdof_lateral_problem
+from pipeline.identify import multi_axis, multiaxis_problem
 from pipeline.identify import (LAT_OUTPUTS, LONG_OUTPUTS, AircraftConstants, Problem, lateral_problem,
                                longitudinal_problem)
 from pipeline.paths import atomic_write_text
@@ -102,11 +103,24 @@ def process_noise_std(problem: Problem, turbulence: Mapping[str, Any] | None = N
             if "V" in m.outputs else float(m.constants.get("V", 30.0))
         su, sv, sw = (float(turb.get(k, turb["sigma_w"])) for k in ("sigma_u", "sigma_v", "sigma_w"))
         Lu, Lv, Lw = (float(turb.get(k, 300.0)) for k in ("L_u", "L_v", "L_w"))
+        # rotary gust states (p_g, q_gi: first-order Markov, time constant 4b/(pi V)): the
+        # MIL-F-8785C roll-gust level sigma_w sqrt(0.8 / (L_w b)) (pi L_w / 4b)^(1/6)
+        # (0.052 rad/s on multiaxis_multisine_turbulence; JSBSim flew p_g 0.049, q_g 0.041
+        # rad/s); q_gi, the part of the pitch gust not coherent with w_g, at half of it (FEM
+        # estimated F_q_gi 0.078 there, 0.48 x). Not times ``scale``: these states are
+        # coloured already (the filters' 2x is for white noise standing in for Dryden gusts)
+        rot = {}
+        for st, k in (("p_g", 1.0), ("q_gi", 0.5)):
+            if st in m.states:
+                b = float(m.constants["b"])
+                sg = sw * np.sqrt(0.8 / (Lw * b)) * (np.pi * Lw / (4 * b)) ** (1 / 6)
+                rot[st] = k * sg * np.sqrt(2 * np.pi * V / (4 * b))
         if problem.axis == "longitudinal":
             fa = sw / V * np.sqrt(2 * V / Lw)
-            return {"V": scale * su * np.sqrt(2 * V / Lu), "alpha": scale * fa, "q": scale * 0.3 * fa}
+            return {"V": scale * su * np.sqrt(2 * V / Lu), "alpha": scale * fa, "q": scale * 0.3 * fa,
+                    **rot}
         fb = sv / V * np.sqrt(2 * V / Lv)
-        return {"beta": scale * fb, "p": scale * 0.3 * fb, "r": scale * 0.3 * fb}
+        return {"beta": scale * fb, "p": scale * 0.3 * fb, "r": scale * 0.3 * fb, **rot}
     from estimators.kalman import default_process_noise
 
     f = default_process_noise(m, problem.fit)
@@ -128,6 +142,10 @@ def _filter_param_std(model: Any) -> dict[str, float]:
             o = p.name[5:]
             out[p.name] = (0.02 if o in ("p", "q", "r") else 0.3 if o in ("ax", "ay", "az")
                            else 1.0 if o == "V" else 0.01)
+        elif p.name.endswith("alphadot"):
+            out[p.name] = 10.0           # CLalphadot, Cmalphadot start at 0: no prior pull
+        elif p.name == "tau_pg":
+            out[p.name] = 0.5 * p.value
         else:
             out[p.name] = max(2.0 * abs(p.value), 0.3)
     return out
@@ -318,6 +336,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                         "elevator, aileron or rudder, or give segments)"))
     for msg in skipped:
         print(f"note: {msg}", file=progress.stream)
+    multiaxis = multi_axis(fd)
     for problem, build, outs in plans:
         common = None
         for m in methods:
@@ -330,7 +349,20 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                         common.inputs = inputs
                     pb = common
             lon = results.get("longitudinal-oem")
-            if pb.axis == "lateral" and m == "oem" and lon is not None:
+            if multiaxis and m != "ls" and (pb.axis == "longitudinal" or m in COMMON_GRID):
+                # all axes move at once: each axis' model driven by the other axis' measured
+                # variables (the wings-level longitudinal model booked bank angle and yaw
+                # rate on the derivatives), the filters with the Dryden gust states (the
+                # rotary gusts in the damping terms; multiaxis_multisine_turbulence: FEM
+                # Cmde 9.5 -> 0.6 std, Clp 49 -> 7 std from the truth)
+                try:
+                    pb = multiaxis_problem(fd, ac, pb.axis, gust_states=m in COMMON_GRID,
+                                           rate_hz=pb.rate_hz)
+                    pb.inputs = inputs
+                except FsidError as exc:
+                    print(f"note: multi-axis {pb.axis} model not set up ({exc}); "
+                          f"{pb.model.name} model used", file=progress.stream)
+            elif pb.axis == "lateral" and m == "oem" and lon is not None:
                 # output error on the lateral axis uses the nonlinear 6-DoF model with the
                 # longitudinal estimates held: the linear lateral model's frozen airspeed and
                 # small-angle kinematics bias the estimates by several std on a small UAV

@@ -46,7 +46,7 @@ def sixdof_lateral_problem(fd: FlightData, ac: AircraftConstants, *,
     rho = mean_density(df)
     c = {"m": ac.mass, "Ixx": ac.Ixx, "Iyy": ac.Iyy, "Izz": ac.Izz, "Ixz": ac.Ixz, "S": ac.S,
          "b": ac.b, "cbar": ac.cbar, "rho": rho, "x_vane": ac.airdata[0],
-         "z_vane": ac.airdata[2], "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
+         "y_vane": ac.airdata[1], "z_vane": ac.airdata[2], "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
     frames = {id(s): _window(df, s) for s in specs}
     for s in specs:
         w = frames[id(s)]

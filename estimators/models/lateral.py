@@ -85,11 +85,12 @@ def lateral_directional(constants: Mapping[str, float], values: Mapping[str, flo
 
 # -- lateral-directional model driven by the measured longitudinal motion ---------------------
 @register_jitable
-def _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c):
+def _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pa):
     """(betadot, pdot, rdot, phidot, fy) of the lateral-directional equations with the
-    longitudinal variables V, alpha, theta, q taken as measured."""
+    longitudinal variables V, alpha, theta, q taken as measured; ``pa`` the roll rate the
+    aerodynamics see (p minus the rotary gust)."""
     qbar = 0.5 * c.rho * V * V
-    ph = pr * c.b / (2.0 * V)
+    ph = pa * c.b / (2.0 * V)
     rh = rr * c.b / (2.0 * V)
     CY = p.CYbeta * beta + p.CYp * ph + p.CYr * rh + p.CYda * da + p.CYdr * dr
     Cl = p.Clbeta * beta + p.Clp * ph + p.Clr * rh + p.Clda * da + p.Cldr * dr
@@ -115,14 +116,26 @@ def _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c):
 def f_measured(x, u, p, c):
     beta, pr, rr, phi = x
     da, dr, V, alpha, theta, qr = u
-    bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c)
+    bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p,
+                                              c, pr)
     return bd, pd, rd, phid
 
 
-def g_measured(x, u, p, c):
-    beta, pr, rr, phi = x
+def f_measured_gust(x, u, p, c):
+    beta, pr, rr, phi, pg = x
     da, dr, V, alpha, theta, qr = u
-    bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c)
+    bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p,
+                                              c, pr - pg)
+    # rotary (roll) gust: first-order Markov, time constant tau_pg (s; Dryden 4 b / (pi V))
+    return bd, pd, rd, phid, -pg / p.tau_pg
+
+
+def g_measured(x, u, p, c):
+    beta, pr, rr, phi = x[0], x[1], x[2], x[3]
+    da, dr, V, alpha, theta, qr = u
+    pa = pr - x[4] if x.shape[0] > 4 else pr
+    bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p,
+                                              c, pa)
     # vane at (x_vane, z_vane): v + r x - p z over V; accelerometer at (x_imu, z_imu):
     # fy + rdot x - pdot z + q (p x + r z)
     beta_s = beta + (rr * c.x_vane - pr * c.z_vane) / V
@@ -135,7 +148,8 @@ def lateral_measured_longitudinal(constants: Mapping[str, float],
                                   free: Iterable[str] | None = None,
                                   bounds: Mapping[str, tuple[float, float]] | None = None,
                                   output_biases: Iterable[str] = (),
-                                  name: str = "lateral-measured") -> Model:
+                                  name: str = "lateral-measured",
+                                  rotary_gust: bool = False) -> Model:
     """Lateral-directional model with the longitudinal motion as measured inputs.
 
     States beta, p, r, phi; inputs da, dr (rad), V (m/s), alpha, theta (rad), q (rad/s);
@@ -146,13 +160,34 @@ def lateral_measured_longitudinal(constants: Mapping[str, float],
     of being frozen at trim, and bank angles are not small. No longitudinal derivative is
     needed (the usual way to fit one axis of a flight whose other axis moves: the measured
     variables of the other axis enter as pseudo-inputs). Constants: m, Ixx, Iyy, Izz, Ixz,
-    S, b, rho; optional g, x_vane, z_vane, x_imu, z_imu."""
+    S, b, rho; optional g, x_vane, z_vane, x_imu, z_imu.
+
+    rotary_gust : add the state ``p_g`` (rad/s), the roll rate of the air mass (Dryden
+        rotary turbulence, the spanwise gradient of the vertical gust), a first-order
+        Markov process with time constant ``tau_pg`` (s, a parameter: start 4 b / (pi V),
+        the Dryden value, or ``values["tau_pg"]``; free when named in ``free``), to be
+        driven by process noise (the filters); the aerodynamics see p - p_g (CYp, Clp,
+        Cnp), the gyro p. Without it the roll damping of the gyro rate books the gust on
+        the roll derivatives: regressing
+        JSBSim's own Cl on the gyro p, r instead of p - p_g, r - r_g gives Clbeta -0.028,
+        Clp -0.088, Clda 0.079 for a truth of -0.092, -0.484, 0.229 on
+        multiaxis_multisine_turbulence (p_g 2.8 deg/s rms)."""
     c = require_constants(constants, ("m", "Ixx", "Iyy", "Izz", "Ixz", "S", "b", "rho"),
                           "lateral-directional (measured longitudinal)")
     for k, v in {"g": 9.80665, "x_vane": 0.0, "z_vane": 0.0, "x_imu": 0.0, "z_imu": 0.0}.items():
         c.setdefault(k, v)
-    return Model(states=["beta", "p", "r", "phi"], inputs=["da", "dr", "V", "alpha", "theta", "q"],
+    gust_free = rotary_gust and "tau_pg" in set(free or ())
+    tau0 = dict(values or {}).get("tau_pg", 4.0 * c["b"] / (np.pi * 30.0))
+    params = make_parameters(DEFAULTS, {k: v for k, v in (values or {}).items() if k != "tau_pg"},
+                             None if free is None else [f for f in free if f != "tau_pg"],
+                             DEFAULT_FREE, bounds)
+    if rotary_gust:
+        from estimators.model import Parameter
+        params.append(Parameter("tau_pg", float(tau0), gust_free, (0.02, 5.0)))
+    return Model(states=["beta", "p", "r", "phi"] + (["p_g"] if rotary_gust else []),
+                 inputs=["da", "dr", "V", "alpha", "theta", "q"],
                  outputs=["beta", "p", "r", "phi", "ay"],
-                 parameters=make_parameters(DEFAULTS, values, free, DEFAULT_FREE, bounds),
-                 constants=c, f=f_measured, g=g_measured, output_biases=list(output_biases),
+                 parameters=params,
+                 constants=c, f=f_measured_gust if rotary_gust else f_measured, g=g_measured,
+                 output_biases=list(output_biases),
                  name=name)

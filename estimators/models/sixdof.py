@@ -14,12 +14,14 @@ body y:
     Cl, Cn like CY;  Cm = Cm0 + Cmalpha a + Cmq qhat + Cmde de
 
 Thrust acts along body x with its line ``zT`` (m) below the CG. The moment equations keep
-Ixz coupling and the gyroscopic terms. Sensors away from the CG (m, body axes): the air
-data at (x_vane, 0, z_vane) and the accelerometer at (x_imu, 0, z_imu), with the full
+Ixz coupling and the gyroscopic terms. Optional CLalphadot, Cmalphadot (alphadot
+cbar/(2V); default 0 and held), alphadot solved algebraically for the lift's own
+alphadot term. Sensors away from the CG (m, body axes): the air
+data at (x_vane, y_vane, z_vane) and the accelerometer at (x_imu, 0, z_imu), with the full
 lever-arm terms.
 
 Constants: m, Ixx, Iyy, Izz, Ixz (kg m^2), S (m^2), b, cbar (m), rho (kg/m^3); optional
-g (9.80665), zT, x_vane, z_vane, x_imu, z_imu (0).
+g (9.80665), zT, x_vane, y_vane, z_vane, x_imu, z_imu (0).
 """
 from __future__ import annotations
 
@@ -58,14 +60,26 @@ def _dynamics(u, v, w, pr, qr, rr, phi, theta, de, da, dr, thrust, p, c):
     Cn = p.Cnbeta * b + p.Cnp * ph + p.Cnr * rh + p.Cnda * da + p.Cndr * dr
     qS = qbar * c.S
     ca, sa = np.cos(a), np.sin(a)
+    st, ct = np.sin(theta), np.cos(theta)
+    sp, cp = np.sin(phi), np.cos(phi)
+    # CLalphadot, Cmalphadot (default 0): alphadot = (u wdot - w udot) / (u^2 + w^2) is
+    # solved for the lift's own alphadot term, alphadot_0 / (1 + qS CLalphadot cbar/(2V) /
+    # (m sqrt(u^2 + w^2)))
+    fx0 = (qS * (CL * sa - CD * ca) + thrust) / c.m
+    fz0 = qS * (-CL * ca - CD * sa) / c.m
+    uw2 = u * u + w * w
+    a0 = (u * (qr * u - pr * v + c.g * ct * cp + fz0)
+          - w * (rr * v - qr * w - c.g * st + fx0)) / uw2
+    adot = a0 / (1.0 + qS * p.CLalphadot * c.cbar / (2.0 * V) / (c.m * np.sqrt(uw2)))
+    ah = adot * c.cbar / (2.0 * V)
+    CL = CL + p.CLalphadot * ah
+    Cm = Cm + p.Cmalphadot * ah
     fx = (qS * (CL * sa - CD * ca) + thrust) / c.m
     fy = qS * CY / c.m
     fz = qS * (-CL * ca - CD * sa) / c.m
     Lm = qS * c.b * Cl
     Mm = qS * c.cbar * Cm + c.zT * thrust
     Nm = qS * c.b * Cn
-    st, ct = np.sin(theta), np.cos(theta)
-    sp, cp = np.sin(phi), np.cos(phi)
     udot = rr * v - qr * w - c.g * st + fx
     vdot = pr * w - rr * u + c.g * ct * sp + fy
     wdot = qr * u - pr * v + c.g * ct * cp + fz
@@ -93,10 +107,10 @@ def g(x, u_in, p, c):
     de, da, dr, thrust = u_in
     ud, vd, wd, pd, qd, rd, fx, fy, fz = _dynamics(u, v, w, pr, qr, rr, phi, theta,
                                                    de, da, dr, thrust, p, c)
-    # air data at (xv, 0, zv): velocity + omega x r
-    ub = u + qr * c.z_vane
+    # air data at (xv, yv, zv): velocity + omega x r
+    ub = u + qr * c.z_vane - rr * c.y_vane
     vb = v + rr * c.x_vane - pr * c.z_vane
-    wb = w - qr * c.x_vane
+    wb = w + pr * c.y_vane - qr * c.x_vane
     Vb = np.sqrt(ub * ub + vb * vb + wb * wb)
     # accelerometer at (xi, 0, zi): f + omegadot x r + omega x (omega x r)
     xi, zi = c.x_imu, c.z_imu
@@ -114,8 +128,8 @@ def sixdof(constants: Mapping[str, float], values: Mapping[str, float] | None = 
     derivatives the longitudinal and lateral builders estimate by default."""
     c = require_constants(constants, ("m", "Ixx", "Iyy", "Izz", "Ixz", "S", "b", "cbar", "rho"),
                           "six-degree-of-freedom")
-    for k, v in {"g": 9.80665, "zT": 0.0, "x_vane": 0.0, "z_vane": 0.0, "x_imu": 0.0,
-                 "z_imu": 0.0}.items():
+    for k, v in {"g": 9.80665, "zT": 0.0, "x_vane": 0.0, "y_vane": 0.0, "z_vane": 0.0,
+                 "x_imu": 0.0, "z_imu": 0.0}.items():
         c.setdefault(k, v)
     from estimators.models.lateral import DEFAULT_FREE as LAT_FREE
     from estimators.models.longitudinal import DEFAULT_FREE as LONG_FREE

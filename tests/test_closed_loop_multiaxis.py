@@ -1,0 +1,131 @@
+"""Closed loop on multiaxis_multisine_turbulence (issue 6): light aircraft at 67 m/s in light
+Tustin turbulence, three simultaneous 3-axis multisines and an elevator sweep, air data on a
+wing-tip boom (y = 3 m). scenario -> JSBSim -> flight.mcap/.bin -> ingest -> FEM / EKF / UKF
+-> validation, truth known; flown once per module (~50 s).
+
+The sensor-compatibility stage is skipped (``compat=False``, it takes ~2 min on this
+flight): it applies no correction here anyway (air-data residuals 5-6 x their noise level in
+the turbulence, so its estimates are not trusted and the data go to estimation as logged).
+
+Both axes are fitted with the multi-axis models (pipeline.identify.multiaxis_problem): each
+axis driven by the other axis' measured variables, air data at the boom's (x, y, z), and
+for the filters the Dryden gust states - JSBSim's aerodynamics see p - p_turb, q - q_turb
+(rotary turbulence 2.8 / 2.4 deg/s rms here), which a model of the gyro rates books on the
+derivatives (JSBSim's own Cm regressed on the gyro q: Cmde -0.76, truth -1.122) - with
+CLalphadot, Cmalphadot free (truth 1.7, -7.27; corr(Cmq, Cmalphadot) -0.33 in the FEM fit).
+
+Measured before this model (wings-level longitudinal model, linear lateral model): FEM
+CL0 9.3, Cmde 9.5, Cm0 7.9, CLq 7.0 std off, EKF/UKF Cm0/Cmalpha/Cmde 30-40 std, lateral
+FEM Clp 49, Clda 31, Clbeta 30 std, EKF/UKF Clp 330 std. Now (seed 31) asserted below;
+what still does not hold is a strict xfail with the measured numbers.
+"""
+import json
+from pathlib import Path
+
+import pytest
+
+from pipeline.run import run_scenario
+
+SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "multiaxis_multisine_turbulence.toml"
+METHODS = ("fem", "ekf", "ukf")
+LONG = ("CD0", "CDalpha", "CDalpha2", "CL0", "CLalpha", "CLq", "CLde", "Cm0", "Cmalpha", "Cmq",
+        "Cmde", "CLalphadot", "Cmalphadot")
+LAT = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
+       "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
+#: longitudinal derivatives measured more than 3 std from the truth (|error|/std, seed 31)
+LONG_OFF = {"fem": {"CD0": 9.6, "CLalpha": 3.6},
+            "ekf": {"CD0": 6.8, "CLq": 4.7},
+            "ukf": {"CD0": 6.7, "CLq": 4.7, "Cmalpha": 3.2}}
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("multiaxis")
+    run_scenario(SCENARIO, out, methods=list(METHODS), quiet=True, compat=False)
+    return json.loads((out / "report.json").read_text())
+
+
+def _errors(rep, key, names):
+    ps = rep["methods"][key]["parameters"]
+    assert set(names) <= set(ps), sorted(set(names) - set(ps))
+    return {n: round(abs(ps[n]["error_in_std"]), 2) for n in names}
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_longitudinal_multiaxis_model(report, method):
+    m = report["methods"][f"longitudinal-{method}"]
+    assert m["model"] == "longitudinal-measured" and m["converged"]
+    errs = _errors(report, f"longitudinal-{method}", LONG)
+    held = {n: e for n, e in errs.items() if n not in LONG_OFF[method]}
+    assert max(held.values()) <= 3.0, f"{method}: |error|/std {errs}"
+    # the moment derivatives, the aim of the multisines, all within 3 std except UKF Cmalpha
+    assert all(errs[n] <= 3.0 for n in ("Cm0", "Cmq", "Cmde", "Cmalphadot")), errs
+    if method == "fem":
+        ps = m["parameters"]
+        assert {"F_V", "F_alpha", "F_q_gi"} <= set(ps) and ps["F_q_gi"]["estimate"] > 0
+
+
+@pytest.mark.xfail(strict=True, reason="measured |error|/std > 3: FEM CD0 9.6 (0.0302 for "
+                   "0.029), CLalpha 3.6; EKF CD0 6.8, CLq 4.7; UKF CD0 6.7, CLq 4.7, Cmalpha 3.2")
+@pytest.mark.parametrize("method", METHODS)
+def test_longitudinal_all_within_3_std(report, method):
+    errs = _errors(report, f"longitudinal-{method}", LONG)
+    assert max(errs.values()) <= 3.0, errs
+
+
+def _tic(rep, key):
+    return {k: d["TIC"] for k, d in rep["methods"][key]["validation"]["fit"]["per_output"].items()}
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_tic_below_0_1_except_air_data_angles(report, method):
+    lon, lat = _tic(report, f"longitudinal-{method}"), _tic(report, f"lateral-{method}")
+    assert set(lon) == {"V", "alpha", "theta", "q", "ax", "az"}
+    assert set(lat) == {"beta", "p", "r", "phi", "ay"}
+    assert max(v for k, v in lon.items() if k != "alpha") < 0.1, lon
+    assert max(v for k, v in lat.items() if k not in ("beta", "ay")) < 0.1, lat
+
+
+@pytest.mark.xfail(strict=True, reason="TIC alpha 0.143, beta 0.129, ay 0.131 (all methods): "
+                   "residuals at the sensor noise (FEM alpha residual std 0.0043 rad, vane "
+                   "noise 0.0038 rad) on signals only ~4x the noise (alpha std 0.015 rad)")
+@pytest.mark.parametrize("method", METHODS)
+def test_tic_below_0_1_every_output(report, method):
+    tic = {**_tic(report, f"longitudinal-{method}"), **_tic(report, f"lateral-{method}")}
+    assert max(tic.values()) < 0.1, tic
+
+
+def test_lateral_fem_within_10_std(report):
+    """The lateral FEM with the roll-gust state: every derivative within 10 std (was up to
+    49); within 3 std: CYda, CYdr, Clr, Cldr, Cnr, Cndr."""
+    m = report["methods"]["lateral-fem"]
+    assert m["model"] == "lateral-measured" and m["converged"]
+    errs = _errors(report, "lateral-fem", LAT)
+    assert max(errs.values()) < 10.0, errs
+    assert all(errs[n] <= 3.0 for n in ("CYda", "CYdr", "Clr", "Cldr", "Cnr", "Cndr")), errs
+    assert 0.05 < m["parameters"]["tau_pg"]["estimate"] < 1.0
+
+
+@pytest.mark.xfail(strict=True, reason="lateral |error|/std > 3 (seed 31): FEM CYbeta 8.1, "
+                   "Clbeta 8.2, Clp 7.1 (-0.306 for -0.484), Clda 6.6, Cnbeta 5.3; EKF Clp 48, "
+                   "Clda 24; UKF Clp 45, Clda 45 - the roll gust (p_turb 2.8 deg/s rms, "
+                   "autocorrelation time ~0.5 s, not the Dryden 0.21 s) and the roll response "
+                   "to it are barely separable (corr(Clp, F_p_g) 0.96 in the FEM)")
+@pytest.mark.parametrize("method", METHODS)
+def test_lateral_all_within_3_std(report, method):
+    errs = _errors(report, f"lateral-{method}", LAT)
+    assert max(errs.values()) <= 3.0, errs
+
+
+@pytest.mark.xfail(strict=True, reason="proof of match on the held-out multisine_c fails for "
+                   "every method: FEM theta 10.0 deg, q 5.8 deg/s (bands 1.5), p 6.5 deg/s, phi "
+                   "9.8 deg - the air-data prediction drives V, alpha (beta) only, the rotary "
+                   "gusts (2.4-2.8 deg/s rms) stay out of the predicted rates; before this model: "
+                   "theta 5.1 deg, q 4.2 deg/s")
+@pytest.mark.parametrize("method", METHODS)
+def test_proof_of_match(report, method):
+    for axis in ("longitudinal", "lateral"):
+        pm = report["methods"][f"{axis}-{method}"]["validation"]["proof_of_match"]
+        errs = {c: round(d["max_abs_error_display"], 2)
+                for c, d in pm["segments"][0]["channels"].items()}
+        assert pm["all_pass"], f"{axis} {method}: {errs}"
