@@ -21,6 +21,7 @@ from pipeline.sixdof_problem import sixdof_lateral_problem
 from pipeline.identify import multi_axis, multiaxis_problem
 from pipeline.identify import (LAT_OUTPUTS, LONG_OUTPUTS, AircraftConstants, Problem, lateral_problem,
                                longitudinal_problem)
+from pipeline.identify import with_airspeed_offsets
 from pipeline.paths import atomic_write_text
 
 #: methods the run knows; the scenario or the command line picks among them
@@ -248,7 +249,8 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
     if method not in ("oem", "ls") and problem.regressions:
         model = model.with_values(raw_starts(problem))
     if method == "oem":
-        return E.OutputError(model, inputs=inputs).fit(problem.fit, estimate_x0=x0)
+        return E.OutputError(model, inputs=inputs, priors=problem.priors or None).fit(
+            problem.fit, estimate_x0=x0)
     if method == "ls":
         return equation_error(problem)
     if method == "fem":
@@ -377,9 +379,10 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                 # no longitudinal estimates to hold (aileron/rudder maneuvers only): the
                 # lateral model driven by the measured V, alpha, theta, q (the linear
                 # model's frozen airspeed and small bank angles put Clda, Cnda, Cnp 8-18
-                # std off on lateral_doublets_calm)
+                # std off on lateral_doublets_calm), with a per-maneuver airspeed correction
+                # under an a-priori penalty for the pitot noise of that input V
                 try:
-                    pb = lateral_problem(fd, ac, measured_longitudinal=True)
+                    pb = with_airspeed_offsets(lateral_problem(fd, ac, measured_longitudinal=True), fd)
                     pb.inputs = inputs
                 except FsidError as exc:
                     print(f"note: lateral model with measured longitudinal inputs not set up "

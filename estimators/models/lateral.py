@@ -191,3 +191,56 @@ def lateral_measured_longitudinal(constants: Mapping[str, float],
                  constants=c, f=f_measured_gust if rotary_gust else f_measured, g=g_measured,
                  output_biases=list(output_biases),
                  name=name)
+
+
+# -- per-segment airspeed correction of the pseudo-input V ------------------------------------
+#: input order of the lateral-measured model (the wrappers below rebuild this tuple)
+_MEASURED_INPUTS = ["da", "dr", "V", "alpha", "theta", "q"]
+_OFFSET_FG: dict = {}
+
+
+def _offset_fg(f0, g0):
+    """(f, g) of a lateral-measured model with V + p.dV in place of the input V; cached per
+    (f0, g0) so that models built again share one compiled kernel."""
+    key = (f0, g0)
+    if key not in _OFFSET_FG:
+        fj = register_jitable(f0)
+
+        def f_dv(x, u, p, c):
+            da, dr, V, alpha, theta, qr = u
+            return fj(x, (da, dr, V + p.dV, alpha, theta, qr), p, c)
+
+        def g_dv(x, u, p, c):
+            da, dr, V, alpha, theta, qr = u
+            return g0(x, (da, dr, V + p.dV, alpha, theta, qr), p, c)
+
+        _OFFSET_FG[key] = (f_dv, g_dv)
+    return _OFFSET_FG[key]
+
+
+def with_airspeed_offset(model: Model) -> Model:
+    """The model of :func:`lateral_measured_longitudinal` with a per-segment airspeed
+    correction ``dV[k]`` (m/s, start 0, free): the dynamics see V + dV[k] wherever the
+    pseudo-input V enters (dynamic pressure, b/2V, g/V, the vane's lever arm).
+
+    What it is for: the measured airspeed is an input, and output error takes inputs as
+    exact. The pitot noise that survives the pseudo-input low-pass moves each window's mean
+    airspeed by sigma_V / sqrt(n) (n pitot samples in the window: 0.02 m/s, 0.1 % in
+    dynamic pressure, on lateral_doublets_calm), which scales every moment of that window
+    and moves the derivatives by several of their Cramer-Rao bounds. With dV[k] free and an
+    a-priori penalty N(0, that std) on it (OutputError(priors=...); see
+    pipeline.identify.airspeed_offset_priors) the bounds carry that uncertainty through
+    the correlations. The data alone hardly determine dV (a common change of all dV[k] is
+    nearly a common scale of all derivatives): fit it with the priors."""
+    if list(model.inputs) != _MEASURED_INPUTS:
+        from estimators.errors import ModelDefinitionError
+        raise ModelDefinitionError(f"with_airspeed_offset needs the inputs {_MEASURED_INPUTS}, "
+                         f"not {model.inputs}")
+    from estimators.model import Parameter
+    f_dv, g_dv = _offset_fg(model.f, model.g)
+    return Model(states=list(model.states), inputs=list(model.inputs),
+                 outputs=list(model.outputs),
+                 parameters=list(model.parameters) + [Parameter("dV", 0.0, True, per_segment=True,
+                                                                  unit="m/s")],
+                 constants=dict(model.constants), f=f_dv, g=g_dv,
+                 output_biases=list(model.output_biases), name=model.name)
