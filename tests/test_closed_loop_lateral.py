@@ -62,7 +62,9 @@ def test_lateral_oem_derivatives_within_3_std(lateral_run):
     Cldr, Cnp, Cnda, Cndr were 3.2-4.3 std off on seed 21 (Cnbeta 7.8 on seed 11). The
     model now has a per-maneuver correction dV[k] with the a-priori std sigma_V / sqrt(n)
     (pipeline.identify.with_airspeed_offsets), so the bounds include it: worst 2.55 std
-    on seed 21 (Cndr), 1.9, 1.9, 2.8, 3.2 on seeds 5, 7, 11, 3 (was 2.95, 1.45, 7.8, ...)."""
+    on seed 21 (Cndr; was 4.3); seeds 5, 7, 11, 3, 13, 17: 1.9, 1.9, 2.8, 3.2, 3.5, 2.3 (were
+    3.0, 1.5, 7.8, 3.7, 7.0, 2.4): a constant dV[k] leaves the noise's fluctuation inside a
+    window, so seeds 3 and 13 still exceed 3 std."""
     d = _derivs(lateral_run["methods"]["oem"])
     worst = {k: round(v["error_in_std"], 2) for k, v in d.items() if v["error_in_std"] > 3.0}
     assert not worst, f"derivatives more than 3 std from the truth: {worst}"
