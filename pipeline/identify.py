@@ -313,12 +313,21 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
                              name="longitudinal").select_outputs(LONG_OUTPUTS)
     ucols = ["de"] + (list(LONG_PSEUDO_LATERAL) if measured_lateral else [])
 
+    def density(w):
+        """Air density along the window (the measured-lateral model's input rho): the
+        log's rho channel, else ISA at the measured altitude, else the flight mean."""
+        for col, fn in (("rho", lambda x: x), ("h", isa_density)):
+            if col in w and w[col].notna().all():
+                return fn(w[col].to_numpy(dtype=float))
+        return np.full(len(w), rho)
+
     def seg(s):
         w = frames[id(s)]
         x0 = list(_first_valid(w, ["V", "alpha", "theta", "q"]))
         if rotary_gust:                 # alpha_k = alpha (no gust at the start), lags 0
             x0 += [x0[1], 0.0, 0.0]
-        u = np.column_stack([w["de"], thrust[id(s)]] + [w[k] for k in ucols[1:]])
+        u = np.column_stack([w["de"], thrust[id(s)]] + [w[k] for k in ucols[1:]]
+                            + ([density(w)] if measured_lateral else []))
         return Segment(t=w["t"].to_numpy(), u=u,
                        z=w[list(LONG_OUTPUTS)].to_numpy(), x0=x0, name=s.name)
 

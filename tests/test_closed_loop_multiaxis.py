@@ -12,12 +12,17 @@ axis driven by the other axis' measured variables, air data at the boom's (x, y,
 for the filters the Dryden gust states - JSBSim's aerodynamics see p - p_turb, q - q_turb
 (rotary turbulence 2.8 / 2.4 deg/s rms here), which a model of the gyro rates books on the
 derivatives (JSBSim's own Cm regressed on the gyro q: Cmde -0.76, truth -1.122) - with
-CLalphadot, Cmalphadot free (truth 1.7, -7.27; corr(Cmq, Cmalphadot) -0.33 in the FEM fit).
+CLalphadot, Cmalphadot free (truth 1.7, -7.27; FEM 1.81 +- 0.64, -7.83 +- 0.54;
+corr(Cmq, Cmalphadot) -0.32, corr(CLq, CLalphadot) -0.16, corr(Cmalpha, Cmalphadot) 0.69),
+and the air density along the flight as an input (ISA at the measured altitude: the
+phugoid moves it +-1.2 %; with the flight's mean density FEM CD0 was 9.6, CLalpha 3.6 std off).
 
 Measured before this model (wings-level longitudinal model, linear lateral model): FEM
 CL0 9.3, Cmde 9.5, Cm0 7.9, CLq 7.0 std off, EKF/UKF Cm0/Cmalpha/Cmde 30-40 std, lateral
-FEM Clp 49, Clda 31, Clbeta 30 std, EKF/UKF Clp 330 std. Now (seed 31) asserted below;
-what still does not hold is a strict xfail with the measured numbers.
+FEM Clp 49, Clda 31, Clbeta 30 std, EKF/UKF Clp 330 std. Now (seed 31): longitudinal FEM
+every derivative within 2.5 std; EKF/UKF all but CLq (4.2 std) within 3 (UKF Cmalpha 2.98,
+not asserted); lateral FEM within 8.2 std. What does not hold is a strict xfail with the
+measured numbers.
 """
 import json
 from pathlib import Path
@@ -33,9 +38,9 @@ LONG = ("CD0", "CDalpha", "CDalpha2", "CL0", "CLalpha", "CLq", "CLde", "Cm0", "C
 LAT = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
        "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
 #: longitudinal derivatives measured more than 3 std from the truth (|error|/std, seed 31)
-LONG_OFF = {"fem": {"CD0": 9.6, "CLalpha": 3.6},
-            "ekf": {"CD0": 6.8, "CLq": 4.7},
-            "ukf": {"CD0": 6.7, "CLq": 4.7, "Cmalpha": 3.2}}
+LONG_OFF = {"fem": {},
+            "ekf": {"CLq": 4.2},
+            "ukf": {"CLq": 4.2, "Cmalpha": 2.98}}
 
 
 @pytest.fixture(scope="module")
@@ -65,9 +70,10 @@ def test_longitudinal_multiaxis_model(report, method):
         assert {"F_V", "F_alpha", "F_q_gi"} <= set(ps) and ps["F_q_gi"]["estimate"] > 0
 
 
-@pytest.mark.xfail(strict=True, reason="measured |error|/std > 3: FEM CD0 9.6 (0.0302 for "
-                   "0.029), CLalpha 3.6; EKF CD0 6.8, CLq 4.7; UKF CD0 6.7, CLq 4.7, Cmalpha 3.2")
-@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("method", [
+    "fem", *(pytest.param(m, marks=pytest.mark.xfail(strict=True, reason=(
+        "measured CLq 6.6-6.8 for 3.9, 4.2 std (EKF, UKF: process noise fixed at the "
+        "turbulence level, not estimated as in FEM)"))) for m in ("ekf", "ukf"))])
 def test_longitudinal_all_within_3_std(report, method):
     errs = _errors(report, f"longitudinal-{method}", LONG)
     assert max(errs.values()) <= 3.0, errs
@@ -118,7 +124,7 @@ def test_lateral_all_within_3_std(report, method):
 
 
 @pytest.mark.xfail(strict=True, reason="proof of match on the held-out multisine_c fails for "
-                   "every method: FEM theta 10.0 deg, q 5.8 deg/s (bands 1.5), p 6.5 deg/s, phi "
+                   "every method: FEM theta 10.2 deg, q 5.8 deg/s (bands 1.5), p 6.5 deg/s, phi "
                    "9.8 deg - the air-data prediction drives V, alpha (beta) only, the rotary "
                    "gusts (2.4-2.8 deg/s rms) stay out of the predicted rates; before this model: "
                    "theta 5.1 deg, q 4.2 deg/s")

@@ -108,7 +108,8 @@ def test_report_json_equals_result_numbers(fitted, tmp_path):
         assert p["error_in_std"] == pytest.approx(abs(res.params[name] - ex.truth[name]) / res.std[name])
         assert p["mk_std"] == pytest.approx(v["uncertainty"]["per_parameter"][name]["mk_std"])
     assert m["det_R"] == res.cost and m["converged"] is True
-    assert m["fixed"] == {"CDalpha2": 0.0}
+    # the held derivatives, the alphadot terms among them (default 0)
+    assert m["fixed"] == {"CDalpha2": 0.0, "CLalphadot": 0.0, "Cmalphadot": 0.0}
     for o in res.outputs:
         assert m["fit"][o]["TIC"] == v["fit"]["per_output"][o]["TIC"]
         assert m["fit"][o]["RMS"] == pytest.approx(float(np.sqrt(np.mean(res.residuals[0][o] ** 2))))
