@@ -670,7 +670,8 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
         w = frames[id(s)]
         return Segment(t=w["t"].to_numpy(), u=w[ucols].to_numpy(),
                        z=w[list(LAT_OUTPUTS)].to_numpy(),
-                       x0=list(_first_valid(w, ["beta", "p", "r", "phi"])) + ([0.0] if rotary_gust else []),
+                       x0=list(_first_valid(w, ["beta", "p", "r", "phi"])) + (
+                           [0.0, float(_first_valid(w, ["beta"])[0]), 0.0] if rotary_gust else []),
                        name=s.name)
 
     notes = [(f"measured V, alpha, theta, q as inputs, density {rho:.4f} kg/m^3"

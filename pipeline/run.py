@@ -146,7 +146,7 @@ def _filter_param_std(model: Any) -> dict[str, float]:
         elif p.name.endswith("alphadot"):
             out[p.name] = 10.0           # CLalphadot, Cmalphadot start at 0: no prior pull
         elif p.name == "tau_pg":
-            out[p.name] = 0.5 * p.value
+            out[p.name] = 0.1 * p.value   # a time constant: UKF sigma points must stay > 0
         else:
             out[p.name] = max(2.0 * abs(p.value), 0.3)
     return out

@@ -21,8 +21,9 @@ Measured before this model (wings-level longitudinal model, linear lateral model
 CL0 9.3, Cmde 9.5, Cm0 7.9, CLq 7.0 std off, EKF/UKF Cm0/Cmalpha/Cmde 30-40 std, lateral
 FEM Clp 49, Clda 31, Clbeta 30 std, EKF/UKF Clp 330 std. Now (seed 31): longitudinal FEM
 every derivative within 2.5 std; EKF/UKF all but CLq (4.2 std) within 3 (UKF Cmalpha 2.98,
-not asserted); lateral FEM within 8.2 std. What does not hold is a strict xfail with the
-measured numbers.
+not asserted); lateral FEM 11 of 15 within 3 std, Clp 5.9, Clda 5.6, Cnp 4.1, Cnda 3.5;
+EKF/UKF Clp 31-32, Clda 17-18 std. What does not hold is a strict xfail with the measured
+numbers.
 """
 import json
 from pathlib import Path
@@ -101,22 +102,24 @@ def test_tic_below_0_1_every_output(report, method):
     assert max(tic.values()) < 0.1, tic
 
 
-def test_lateral_fem_within_10_std(report):
-    """The lateral FEM with the roll-gust state: every derivative within 10 std (was up to
-    49); within 3 std: CYda, CYdr, Clr, Cldr, Cnr, Cndr."""
+def test_lateral_fem_gust_model(report):
+    """The lateral FEM with the gust states: every derivative within 8 std (was up to 49),
+    all but Clp, Clda, Cnp, Cnda within 3 std."""
     m = report["methods"]["lateral-fem"]
     assert m["model"] == "lateral-measured" and m["converged"]
     errs = _errors(report, "lateral-fem", LAT)
-    assert max(errs.values()) < 10.0, errs
-    assert all(errs[n] <= 3.0 for n in ("CYda", "CYdr", "Clr", "Cldr", "Cnr", "Cndr")), errs
+    assert max(errs.values()) < 8.0, errs
+    held = {n: e for n, e in errs.items() if n not in ("Clp", "Clda", "Cnp", "Cnda")}
+    assert max(held.values()) <= 3.0, errs
     assert 0.05 < m["parameters"]["tau_pg"]["estimate"] < 1.0
 
 
-@pytest.mark.xfail(strict=True, reason="lateral |error|/std > 3 (seed 31): FEM CYbeta 8.1, "
-                   "Clbeta 8.2, Clp 7.1 (-0.306 for -0.484), Clda 6.6, Cnbeta 5.3; EKF Clp 48, "
-                   "Clda 24; UKF Clp 45, Clda 45 - the roll gust (p_turb 2.8 deg/s rms, "
-                   "autocorrelation time ~0.5 s, not the Dryden 0.21 s) and the roll response "
-                   "to it are barely separable (corr(Clp, F_p_g) 0.96 in the FEM)")
+@pytest.mark.xfail(strict=True, reason="lateral |error|/std > 3 (seed 31): FEM Clp 5.9 (-0.338 "
+                   "for -0.484), Clda 5.6 (0.170 for 0.229), Cnp 4.1, Cnda 3.5; EKF Clp 32, Clda "
+                   "18, Clbeta 9.7; UKF Clp 31, Clda 17, Clbeta 9.6 - the roll derivatives 30 % "
+                   "low together: the roll gust (p_turb 2.8 deg/s rms; its spectrum is not the "
+                   "first-order Dryden one, autocorrelation time ~0.5 s, estimated tau_pg 0.33 s) "
+                   "and the roll response to it are barely separable (corr(Clp, F_p_g) 0.94)")
 @pytest.mark.parametrize("method", METHODS)
 def test_lateral_all_within_3_std(report, method):
     errs = _errors(report, f"lateral-{method}", LAT)
@@ -124,8 +127,8 @@ def test_lateral_all_within_3_std(report, method):
 
 
 @pytest.mark.xfail(strict=True, reason="proof of match on the held-out multisine_c fails for "
-                   "every method: FEM theta 10.2 deg, q 5.8 deg/s (bands 1.5), p 6.5 deg/s, phi "
-                   "9.8 deg - the air-data prediction drives V, alpha (beta) only, the rotary "
+                   "every method: FEM theta 10.2 deg, q 5.8 deg/s (bands 1.5), p 6.4 deg/s, phi "
+                   "8.2 deg - the air-data prediction drives V, alpha (beta) only, the rotary "
                    "gusts (2.4-2.8 deg/s rms) stay out of the predicted rates; before this model: "
                    "theta 5.1 deg, q 4.2 deg/s")
 @pytest.mark.parametrize("method", METHODS)

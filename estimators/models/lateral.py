@@ -85,13 +85,13 @@ def lateral_directional(constants: Mapping[str, float], values: Mapping[str, flo
 
 # -- lateral-directional model driven by the measured longitudinal motion ---------------------
 @register_jitable
-def _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pa):
+def _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pa, ra):
     """(betadot, pdot, rdot, phidot, fy) of the lateral-directional equations with the
-    longitudinal variables V, alpha, theta, q taken as measured; ``pa`` the roll rate the
-    aerodynamics see (p minus the rotary gust)."""
+    longitudinal variables V, alpha, theta, q taken as measured; ``pa``, ``ra`` the roll
+    and yaw rates the aerodynamics see (p, r minus the rotary gusts)."""
     qbar = 0.5 * c.rho * V * V
     ph = pa * c.b / (2.0 * V)
-    rh = rr * c.b / (2.0 * V)
+    rh = ra * c.b / (2.0 * V)
     CY = p.CYbeta * beta + p.CYp * ph + p.CYr * rh + p.CYda * da + p.CYdr * dr
     Cl = p.Clbeta * beta + p.Clp * ph + p.Clr * rh + p.Clda * da + p.Cldr * dr
     Cn = p.Cnbeta * beta + p.Cnp * ph + p.Cnr * rh + p.Cnda * da + p.Cndr * dr
@@ -117,25 +117,41 @@ def f_measured(x, u, p, c):
     beta, pr, rr, phi = x
     da, dr, V, alpha, theta, qr = u
     bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p,
-                                              c, pr)
+                                              c, pr, rr)
     return bd, pd, rd, phid
 
 
 def f_measured_gust(x, u, p, c):
-    beta, pr, rr, phi, pg = x
+    beta, pr, rr, phi, pg, beta_k, bgf = x
     da, dr, V, alpha, theta, qr = u
+    bg = beta - beta_k                    # gust sideslip, -v_g / V
+    dgf = (bg - bgf) * np.pi * V / (4.0 * c.b)
     bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p,
-                                              c, pr - pg)
-    # rotary (roll) gust: first-order Markov, time constant tau_pg (s; Dryden 4 b / (pi V))
-    return bd, pd, rd, phid, -pg / p.tau_pg
+                                              c, pr - pg, rr + dgf)
+    # roll gust: first-order Markov, time constant tau_pg (s; Dryden 4 b / (pi V)); beta
+    # (air-relative, driven by process noise) = beta_k (the rigid body's) + beta_g, beta_g
+    # decaying with L_v / V, beta_gf lagging it by 4 b / (pi V): yaw gust r_g = -dgf
+    return bd - bg * V / c.L_v, pd, rd, phid, -pg / p.tau_pg, bd, dgf
+
+
+def g_measured_gust(x, u, p, c):
+    beta, pr, rr, phi, pg, beta_k, bgf = x
+    da, dr, V, alpha, theta, qr = u
+    dgf = (beta - beta_k - bgf) * np.pi * V / (4.0 * c.b)
+    return _measured_outputs(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pr - pg,
+                             rr + dgf)
 
 
 def g_measured(x, u, p, c):
-    beta, pr, rr, phi = x[0], x[1], x[2], x[3]
+    beta, pr, rr, phi = x
     da, dr, V, alpha, theta, qr = u
-    pa = pr - x[4] if x.shape[0] > 4 else pr
+    return _measured_outputs(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pr, rr)
+
+
+@register_jitable
+def _measured_outputs(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pa, ra):
     bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p,
-                                              c, pa)
+                                              c, pa, ra)
     # vane at (x_vane, z_vane): v + r x - p z over V; accelerometer at (x_imu, z_imu):
     # fy + rdot x - pdot z + q (p x + r z)
     beta_s = beta + (rr * c.x_vane - pr * c.z_vane) / V
@@ -171,10 +187,17 @@ def lateral_measured_longitudinal(constants: Mapping[str, float],
         the roll derivatives: regressing
         JSBSim's own Cl on the gyro p, r instead of p - p_g, r - r_g gives Clbeta -0.028,
         Clp -0.088, Clda 0.079 for a truth of -0.092, -0.484, 0.229 on
-        multiaxis_multisine_turbulence (p_g 2.8 deg/s rms)."""
+        multiaxis_multisine_turbulence (p_g 2.8 deg/s rms). Also the lateral gust in the
+        states (states beta_k, beta_gf): ``beta`` stays the air-relative sideslip (the
+        state process noise drives), beta_k the rigid body's part, beta_g = beta - beta_k
+        = -v_g / V decays with L_v / V (constant ``L_v``, default 533.4 m), and the yaw
+        rate of the air mass r_g = -s / (1 + tau s) beta_g (tau = 4 b / (pi V); JSBSim's
+        r_turb follows v_g'/V lagged, correlation 0.75) enters the aerodynamics as r - r_g
+        (CYr, Clr, Cnr)."""
     c = require_constants(constants, ("m", "Ixx", "Iyy", "Izz", "Ixz", "S", "b", "rho"),
                           "lateral-directional (measured longitudinal)")
-    for k, v in {"g": 9.80665, "x_vane": 0.0, "z_vane": 0.0, "x_imu": 0.0, "z_imu": 0.0}.items():
+    for k, v in {"g": 9.80665, "x_vane": 0.0, "z_vane": 0.0, "x_imu": 0.0, "z_imu": 0.0,
+                 "L_v": 533.4}.items():
         c.setdefault(k, v)
     gust_free = rotary_gust and "tau_pg" in set(free or ())
     tau0 = dict(values or {}).get("tau_pg", 4.0 * c["b"] / (np.pi * 30.0))
@@ -184,11 +207,13 @@ def lateral_measured_longitudinal(constants: Mapping[str, float],
     if rotary_gust:
         from estimators.model import Parameter
         params.append(Parameter("tau_pg", float(tau0), gust_free, (0.02, 5.0)))
-    return Model(states=["beta", "p", "r", "phi"] + (["p_g"] if rotary_gust else []),
+    return Model(states=["beta", "p", "r", "phi"] + (["p_g", "beta_k", "beta_gf"] if rotary_gust
+                                                     else []),
                  inputs=["da", "dr", "V", "alpha", "theta", "q"],
                  outputs=["beta", "p", "r", "phi", "ay"],
                  parameters=params,
-                 constants=c, f=f_measured_gust if rotary_gust else f_measured, g=g_measured,
+                 constants=c, f=f_measured_gust if rotary_gust else f_measured,
+                 g=g_measured_gust if rotary_gust else g_measured,
                  output_biases=list(output_biases),
                  name=name)
 
