@@ -11,7 +11,8 @@ beta and the pitot's V are the AIR-RELATIVE states, gust included, and the aerod
 forces and moments depend on them. :func:`air_data_prediction` runs the identified model,
 every parameter held fixed, as an extended Kalman filter that sees ONLY the air-data
 outputs (V, alpha, beta among the model's measured states) with process noise on those
-states only. The filter keeps the model's air-relative states on the measured ones (that
+states and on the model's unmeasured states (disturbance states such as gust-filter
+states, which only the process noise drives), none on the other measured states. The filter keeps the model's air-relative states on the measured ones (that
 is where the gusts enter, and it anchors an unstable short period), while the inertial
 responses - rates, attitudes, specific forces - are the model's own prediction: the
 filter never sees them, and an error in any moment or force derivative shows there in
@@ -69,7 +70,7 @@ def air_data_prediction(model: Model, segment: Segment, *, process_noise: Any = 
         (per-segment ones, e.g. output biases, at their values: pass the fitted segments'
         mean, as sensor biases persist through a flight).
     process_noise: F of the identification ({state: std}, (n,) or (n, n); state unit per
-        sqrt(s)); only its rows/columns of the driving states are kept. None, or zero on
+        sqrt(s)); only its rows/columns of the driving and the unmeasured states are kept. None, or zero on
         every driving state: the data default of :func:`estimators.kalman.default_process_noise`.
     measurement_noise: R as :class:`~estimators.EKF` takes it ({output: std}, (n_out,) std
         or (n_out, n_out)); None: the data default (only the driving outputs' entries matter).
@@ -85,11 +86,12 @@ def air_data_prediction(model: Model, segment: Segment, *, process_noise: Any = 
             f"no air-data state to drive the prediction (states {model.states}, outputs "
             f"{model.outputs}; air data: {', '.join(AIR_DATA)}): use the simulation proof of match")
     n = len(model.states)
-    keep = np.array([s in drive for s in model.states])
+    air = np.array([s in drive for s in model.states])
+    keep = air | np.array([s not in model.outputs for s in model.states])
     F = process_noise_matrix(model, process_noise) if process_noise is not None else np.zeros((n, n))
     F = np.where(np.outer(keep, keep), F, 0.0)
-    if not np.any(F[keep][:, keep]):
-        F = np.diag(np.where(keep, default_process_noise(model, [segment]), 0.0))
+    if not np.any(F[air][:, air]):
+        F = np.diag(np.where(air, default_process_noise(model, [segment]), 0.0))
     z = np.where([o in drive for o in model.outputs], segment.z, np.nan)
     hidden = Segment(t=segment.t, u=segment.u, z=z, x0=segment.initial_state(model),
                      name=segment.name)
