@@ -11,11 +11,10 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from estimators import OutputError
 from pipeline.errors import FsidError
 from pipeline.sixdof_problem import sixdof_lateral_problem
 from pipeline.identify import multi_axis, multiaxis_problem
@@ -296,6 +295,35 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
     raise FsidError(f"unknown method {method!r}: use one of {', '.join(METHODS)}")
 
 
+def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, float] | None,
+                     progress: Progress, *, turbulence: Mapping[str, Any] | None = None,
+                     tolerances: Mapping[str, float] | None = None, pom: str = "auto"
+                     ) -> tuple[Any, dict[str, Any]] | None:
+    """Fit ``method`` on ``pb`` and validate the result on its held-out segments, with a
+    progress stage each; ``what`` names the fit in messages ("lateral axis", "model 'x'").
+    A method that fails - an EstimationError (plain OEM diverging on an unstable aircraft)
+    or a singular matrix inside a method on a model it cannot handle - is reported and
+    gives None: one method failing must not cost the others. Returns (result, validation)."""
+    from estimators import EstimationError
+    from pipeline.validate import validate
+
+    progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, {len(pb.fit)} "
+                   f"maneuvers, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
+    try:
+        res = fit_problem(pb, method, turbulence=turbulence)
+    except (EstimationError, np.linalg.LinAlgError) as exc:
+        progress.done(f"FAILED: {exc}")
+        print(f"note: {method.upper()} on the {what} failed: {exc}", file=progress.stream)
+        progress.stage(f"validate {what} {method.upper()} (skipped)")
+        progress.done()
+        return None
+    progress.done(f"{'converged' if res.converged else 'NOT converged'} in {res.iterations} iterations")
+    progress.stage(f"validate {what} {method.upper()} (fit, residuals, modes, proof of match)")
+    v = validate(res, held_out=pb.held_out, truth=truth, tolerances=tolerances, proof_of_match=pom)
+    progress.done()
+    return res, v
+
+
 def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[str, float] | None,
              progress: Progress, inputs: str = "linear",
              turbulence: Mapping[str, Any] | None = None,
@@ -309,9 +337,6 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     axis problem on the grid of its slowest output channel (every output at every sample).
     Returns (results, validations, problems); keys are the method names
     ("<axis>-<method>" once several axes are fitted)."""
-    from estimators import EstimationError
-    from pipeline.validate import validate
-
     bad = [m for m in methods if m not in METHODS]
     if bad:
         raise FsidError(f"unknown method(s) {bad}: use some of {', '.join(METHODS)}")
@@ -387,26 +412,11 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                 except FsidError as exc:
                     print(f"note: lateral model with measured longitudinal inputs not set up "
                           f"({exc}); linear model used", file=progress.stream)
-            progress.stage(f"estimate {pb.axis} derivatives ({m.upper()}, {pb.model.name} model, "
-                           f"{len(pb.fit)} maneuvers, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
-            try:
-                res = fit_problem(pb, m, turbulence=turbulence)
-            except EstimationError as exc:
-                # one method failing (e.g. plain OEM diverging on an unstable aircraft) must
-                # not cost the others: say so and go on
-                progress.done(f"FAILED: {exc}")
-                print(f"note: {m.upper()} on the {pb.axis} axis failed: {exc}", file=progress.stream)
-                progress.stage(f"validate {pb.axis} {m.upper()} (skipped)")
-                progress.done()
-                continue
-            progress.done(f"{'converged' if res.converged else 'NOT converged'} in "
-                          f"{res.iterations} iterations")
-            progress.stage(f"validate {pb.axis} {m.upper()} (fit, residuals, modes, proof of match)")
-            key = m if len(problems) == 1 else f"{pb.axis}-{m}"
-            results[key] = res
-            validations[key] = validate(res, held_out=pb.held_out, truth=truth,
-                                        tolerances=tolerances, proof_of_match=pom)
-            progress.done()
+            done = fit_and_validate(pb, m, f"{pb.axis} axis", truth, progress, turbulence=turbulence,
+                                    tolerances=tolerances, pom=pom)
+            if done is not None:
+                key = m if len(problems) == 1 else f"{pb.axis}-{m}"
+                results[key], validations[key] = done
     if not results:
         raise FsidError("every estimation method failed on this log (see the notes above)")
     return results, validations, problems

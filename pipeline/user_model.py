@@ -196,9 +196,7 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
     """Fit and validate a user model with each method; same return as
     :func:`pipeline.run.identify` (results, validations, problems), keyed by method;
     ``tolerances`` and ``pom`` as there."""
-    from estimators import EstimationError
-    from pipeline.run import COMMON_GRID, METHODS, fit_problem
-    from pipeline.validate import validate
+    from pipeline.run import COMMON_GRID, METHODS, fit_and_validate
 
     bad = [m for m in methods if m not in METHODS]
     if bad:
@@ -220,25 +218,10 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
                     common = user_model_problem(fd, model, rate_hz=rate)
                     common.inputs = inputs
                 pb = common
-        progress.stage(f"estimate {model.name} ({m.upper()}, user model, {len(pb.fit)} maneuvers, "
-                       f"{len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
-        try:
-            res = fit_problem(pb, m)
-        except (EstimationError, np.linalg.LinAlgError) as exc:
-            # one method failing must not cost the others (a singular matrix inside a
-            # method on a model it cannot handle counts as that method failing)
-            progress.done(f"FAILED: {exc}")
-            print(f"note: {m.upper()} on the model {model.name!r} failed: {exc}", file=progress.stream)
-            progress.stage(f"validate {m.upper()} (skipped)")
-            progress.done()
-            continue
-        progress.done(f"{'converged' if res.converged else 'NOT converged'} in "
-                      f"{res.iterations} iterations")
-        progress.stage(f"validate {m.upper()} (fit, residuals, modes, proof of match)")
-        results[m] = res
-        validations[m] = validate(res, held_out=pb.held_out, truth=truth, tolerances=tolerances,
-                                  proof_of_match=pom)
-        progress.done()
+        done = fit_and_validate(pb, m, f"user model {model.name!r}", truth, progress,
+                                tolerances=tolerances, pom=pom)
+        if done is not None:
+            results[m], validations[m] = done
     if not results:
         raise FsidError(f"every estimation method failed on the model {model.name!r} (see the "
                         "notes above)")
