@@ -21,10 +21,13 @@ Keys of the returned dict
     ``ratio``; ``None`` when the result kept no sensitivities.
 ``modes``: ``None`` for a model without states/segments (a regression); else ``trim`` (x0 per state, u0 per input), ``table`` per mode (``real imag wn zeta
     period t_half t_double stable axis``), ``eigenvalues`` (list of [real, imag]).
-``proof_of_match``: ``None`` without ``held_out``; else ``segments`` (per held-out segment:
-    ``name``, ``channels`` per output with ``tolerance max_abs_error rms_error
-    fraction_within pass`` (SI) and the same in display units ``*_display`` with ``unit``,
-    ``TIC``, ``all_pass``) and ``all_pass`` over all segments.
+``proof_of_match``: ``None`` without ``held_out``; else ``mode`` (``simulation`` or
+    ``air-data``, see :func:`pom_mode`), ``driven`` (the air-data outputs that drive the
+    filter in air-data mode: reported, not judged), ``notes``, ``segments`` (per held-out
+    segment: ``name``, ``mode``, ``channels`` per output with ``tolerance max_abs_error
+    rms_error fraction_within pass`` (SI) and the same in display units ``*_display`` with
+    ``unit``, ``TIC``, ``role`` (predicted / drives the filter), ``all_pass``) and
+    ``all_pass`` over all segments.
 ``frequency``: ``None`` when no input is excited; else ``inputs`` used, ``table`` per
     ``"<output>/<input>"`` (``max_mag_db max_phase_deg n_used pass``), ``bounds``: the
     model's response (through the same Welch estimator as the data, see :func:`_frequency`)
