@@ -180,6 +180,21 @@ def _window(df: pd.DataFrame, spec: SegmentSpec) -> pd.DataFrame:
     return w.reset_index(drop=True)
 
 
+def checked_windows(df: pd.DataFrame, specs: Sequence[SegmentSpec], outputs: Sequence[str],
+                    others: Sequence[str]) -> dict[int, pd.DataFrame]:
+    """The rows of ``df`` in each segment window, by ``id(spec)``; one clear error when a
+    window has fewer than 10 rows, an output fewer than 10 samples (outputs may be slower
+    than the grid: NaN between their samples), or another channel (an input) any NaN."""
+    frames = {id(s): _window(df, s) for s in specs}
+    for s in specs:
+        w = frames[id(s)]
+        bad = [k for k in outputs if w[k].notna().sum() < 10] + [k for k in others if w[k].isna().any()]
+        if len(w) < 10 or bad:
+            raise FsidError(f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in "
+                            f"{bad}: cut it or fix the log")
+    return frames
+
+
 def longitudinal_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
                              thrusts: Sequence[np.ndarray]) -> list[tuple[str, list[str], np.ndarray, np.ndarray]]:
     """Equation-error regressions of the longitudinal coefficients on the maneuver windows:
@@ -287,14 +302,8 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
     elev = [s for s in specs if s.axis == "de"]
     held = elev[-hold_out:] if hold_out else []
     fit_specs = [s for s in specs if s not in held]
-    frames = {id(s): _window(df, s) for s in specs}
-    for s in specs:
-        w = frames[id(s)]
-        bad = [k for k in channels if w[k].notna().sum() < 10 or
-               (k not in LONG_OUTPUTS and w[k].isna().any())]
-        if len(w) < 10 or bad:
-            raise FsidError(f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in "
-                            f"{bad}: cut it or fix the log")
+    frames = checked_windows(df, specs, [k for k in channels if k in LONG_OUTPUTS],
+                             [k for k in channels if k not in LONG_OUTPUTS])
     thrust = {id(s): thrust_signal(frames[id(s)], ac) for s in specs}
     regs = longitudinal_regressions([frames[id(s)] for s in fit_specs], c,
                                     [thrust[id(s)] for s in fit_specs])
@@ -619,14 +628,8 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
                                   if measured_longitudinal else
                                   ["V", "alpha", "theta", "da", "dr", "rho", "h"], rate_hz)
     rho = mean_density(df)
-    frames = {id(s): _window(df, s) for s in specs}
-    for s in specs:
-        w = frames[id(s)]
-        bad = [k for k in channels if w[k].notna().sum() < 10 or
-               (k not in LAT_OUTPUTS and w[k].isna().any())]
-        if len(w) < 10 or bad:
-            raise FsidError(f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in "
-                            f"{bad}: cut it or fix the log")
+    frames = checked_windows(df, specs, [k for k in channels if k in LAT_OUTPUTS],
+                             [k for k in channels if k not in LAT_OUTPUTS])
     allw = pd.concat(frames.values())
     c = {"m": ac.mass, "Ixx": ac.Ixx, "Izz": ac.Izz, "Ixz": ac.Ixz, "S": ac.S, "b": ac.b,
          "rho": rho, "V": float(allw["V"].mean()), "alpha0": float(allw["alpha"].mean()),

@@ -17,9 +17,8 @@ import numpy as np
 from estimators import Segment
 from estimators.models import sixdof
 from estimators.models.sixdof import body_velocity
-from pipeline.errors import FsidError
 from pipeline.flightdata import FlightData, SegmentSpec
-from pipeline.identify import (LAT_FREE, AircraftConstants, Problem, _first_valid, _window,
+from pipeline.identify import (LAT_FREE, AircraftConstants, Problem, _first_valid, checked_windows,
                                lateral_specs, lateral_starts, longitudinal_starts, mean_density,
                                multirate_frame, thrust_signal)
 
@@ -47,14 +46,7 @@ def sixdof_lateral_problem(fd: FlightData, ac: AircraftConstants, *,
     c = {"m": ac.mass, "Ixx": ac.Ixx, "Iyy": ac.Iyy, "Izz": ac.Izz, "Ixz": ac.Ixz, "S": ac.S,
          "b": ac.b, "cbar": ac.cbar, "rho": rho, "x_vane": ac.airdata[0],
          "y_vane": ac.airdata[1], "z_vane": ac.airdata[2], "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
-    frames = {id(s): _window(df, s) for s in specs}
-    for s in specs:
-        w = frames[id(s)]
-        bad = [k for k in SIXDOF_OUTPUTS if w[k].notna().sum() < 10] + \
-              [k for k in SIXDOF_INPUTS if w[k].isna().any()]
-        if len(w) < 10 or bad:
-            raise FsidError(f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in "
-                            f"{bad}: cut it or fix the log")
+    frames = checked_windows(df, specs, SIXDOF_OUTPUTS, SIXDOF_INPUTS)
     held = specs[-hold_out:] if hold_out else []
     fit_specs = [s for s in specs if s not in held]
     thrust = {id(s): thrust_signal(frames[id(s)], ac) for s in specs}

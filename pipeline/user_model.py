@@ -151,7 +151,7 @@ def check_methods(methods: Sequence[str]) -> None:
 def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = None,
                        hold_out: int = 1) -> Any:
     """A :class:`pipeline.identify.Problem` for a user model on the log's maneuvers."""
-    from pipeline.identify import Problem, _first_valid, _window, multirate_frame
+    from pipeline.identify import Problem, _first_valid, checked_windows, multirate_frame
 
     check_channels(fd, model)
     on_inputs = [s for s in fd.segments if s.axis in model.inputs]
@@ -164,14 +164,7 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
     held = specs[len(specs) - hold:] if hold else []
     fit_specs = [s for s in specs if s not in held]
     df, rate = multirate_frame(fd, list(model.outputs), list(model.inputs), rate_hz)
-    frames = {id(s): _window(df, s) for s in specs}
-    for s in specs:
-        w = frames[id(s)]
-        bad = [k for k in model.outputs if w[k].notna().sum() < 10] + \
-              [k for k in model.inputs if w[k].isna().any()]
-        if len(w) < 10 or bad:
-            raise FsidError(f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in "
-                            f"{bad}: cut it or fix the log")
+    frames = checked_windows(df, specs, model.outputs, model.inputs)
 
     def seg(s):
         w = frames[id(s)]
