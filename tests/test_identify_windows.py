@@ -1,0 +1,32 @@
+"""pipeline.identify.checked_windows: the one place that cuts segment windows out of the
+multi-rate frame and refuses gaps with one clear message."""
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline.errors import FsidError
+from pipeline.flightdata import SegmentSpec
+from pipeline.identify import checked_windows
+
+
+def _frame():
+    t = np.arange(0.0, 10.0, 0.01)
+    q = np.where(np.arange(t.size) % 4 == 0, np.sin(t), np.nan)      # a 25 Hz output
+    return pd.DataFrame({"t": t, "q": q, "de": np.cos(t)})
+
+
+def test_windows_keep_sparse_outputs_and_span_the_segment():
+    spec = SegmentSpec("a", 2.0, 3.0)
+    frames = checked_windows(_frame(), [spec], ["q"], ["de"])
+    w = frames[id(spec)]
+    assert w["t"].iloc[0] == pytest.approx(2.0) and w["t"].iloc[-1] == pytest.approx(3.0)
+    assert w["q"].notna().sum() == 26 and not w["de"].isna().any()
+
+
+def test_a_nan_input_or_too_few_output_samples_is_one_line():
+    df = _frame()
+    df.loc[250, "de"] = np.nan
+    with pytest.raises(FsidError, match=r"segment b \(2.00-3.00 s\) has gaps or NaN in \['de'\]"):
+        checked_windows(df, [SegmentSpec("b", 2.0, 3.0)], ["q"], ["de"])
+    with pytest.raises(FsidError, match=r"\['q'\]: cut it or fix the log"):
+        checked_windows(_frame(), [SegmentSpec("c", 2.0, 2.3)], ["q"], ["de"])
