@@ -169,23 +169,10 @@ def _expm_small(M):
     E = np.eye(n)
     T = np.eye(n)
     for k in range(1, 17):
-        T2 = np.zeros((n, n))
-        for i in range(n):
-            for l in range(n):
-                t = T[i, l]
-                if t != 0.0:
-                    for j in range(n):
-                        T2[i, j] += t * A[l, j]
-        T = T2 / k
+        T = _mm(T, A) / k
         E += T
     for _ in range(s):
-        E2 = np.zeros((n, n))
-        for i in range(n):
-            for l in range(n):
-                e = E[i, l]
-                for j in range(n):
-                    E2[i, j] += e * E[l, j]
-        E = E2
+        E = _mm(E, E)
     return E
 
 
