@@ -26,18 +26,12 @@ ESTIMATE = [f"bias_{c}" for c in ("ax", "ay", "az", "p", "q", "r")] + ["scale_az
 
 
 @pytest.fixture(scope="module")
-def flight(tmp_path_factory):
+def flight():
     if not SCENARIO.is_file():
         pytest.skip("scenario sensor_errors_calm not available")
-    from sim import fly, load_scenario
+    from tests._simdata import written
 
-    from pipeline.writers import write_dataflash, write_mcap, write_truth_json
-
-    d = tmp_path_factory.mktemp("se")
-    res = fly(load_scenario(SCENARIO))
-    write_dataflash(d / "flight.bin", res)
-    write_mcap(d / "flight.mcap", res)
-    write_truth_json(d / "truth.json", res)
+    d = written(SCENARIO.stem)          # flown and written once per session (shared, read only)
     return d, json.loads((d / "truth.json").read_text())
 
 

@@ -16,19 +16,14 @@ SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "sensor_errors_ca
 
 
 @pytest.fixture(scope="module")
-def files(tmp_path_factory):
+def files():
     if not SCENARIO.is_file():
         pytest.skip("scenario not available")
-    from sim import fly, load_scenario
+    from tests._simdata import flown, written
 
-    from pipeline.writers import write_dataflash, write_mcap, write_truth_json
-
-    d = tmp_path_factory.mktemp("sim")
-    res = fly(load_scenario(SCENARIO))
-    write_dataflash(d / "flight.bin", res)
-    write_mcap(d / "flight.mcap", res)
-    write_truth_json(d / "truth.json", res)
-    return read_log(d / "flight.bin"), read_log(d / "flight.mcap"), json.loads((d / "truth.json").read_text()), res
+    d = written(SCENARIO.stem)          # flown and written once per session (shared)
+    return (read_log(d / "flight.bin"), read_log(d / "flight.mcap"),
+            json.loads((d / "truth.json").read_text()), flown(SCENARIO.stem))
 
 
 def _at(a, b, name):
