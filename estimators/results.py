@@ -35,6 +35,11 @@ class EstimationResult:
     information : (n_free, n_free) Fisher information matrix at the optimum.
     sensitivities : per segment (N, n_outputs, n_free) output sensitivities, when kept.
     extra : method-specific details (filter gain, process noise, parameter trajectories).
+    consider_cov : (n_free, n_free) covariance added to ``cov`` by uncertain quantities the
+        fit held as exact ("consider" parameters in the sense of Schmidt: e.g. the sensor
+        corrections applied to the data before the fit), in ``free_names`` order; None
+        when there are none. ``std`` stays the Cramér-Rao bound; ``total_std`` includes it.
+    consider_source : what ``consider_cov`` accounts for (one line, for reports).
     """
 
     method: str
@@ -56,6 +61,8 @@ class EstimationResult:
     sensitivities: list[np.ndarray] | None = None
     settings: dict[str, Any] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
+    consider_cov: np.ndarray | None = None
+    consider_source: str = ""
 
     # -- parameter tables -----------------------------------------------------------------
     @property
@@ -74,6 +81,23 @@ class EstimationResult:
         d = np.diag(self.cov)
         s.loc[self.free_names] = np.sqrt(np.where(d >= 0, d, np.nan))
         return s
+
+    @property
+    def consider_std(self) -> pd.Series | None:
+        """Standard deviations from ``consider_cov`` alone (None without one)."""
+        if self.consider_cov is None:
+            return None
+        s = pd.Series(np.nan, index=self.names, name="consider_std")
+        s.loc[self.free_names] = np.sqrt(np.clip(np.diag(self.consider_cov), 0.0, None))
+        return s
+
+    @property
+    def total_std(self) -> pd.Series:
+        """sqrt(CRB variance + consider variance): the uncertainty to judge an estimate by
+        (equal to ``std`` when nothing was held as exact)."""
+        if self.consider_cov is None:
+            return self.std.rename("total_std")
+        return np.sqrt(self.std**2 + self.consider_std**2).rename("total_std")
 
     @property
     def rel_std(self) -> pd.Series:
@@ -112,14 +136,18 @@ class EstimationResult:
         return int(sum(len(r) for r in self.residuals))
 
     def table(self, truth: dict[str, float] | None = None) -> pd.DataFrame:
-        """Free parameters: estimate, std, rel. std %, and with ``truth`` the error in std."""
+        """Free parameters: estimate, std (CRB), rel. std %, with a ``consider_cov`` also
+        consider_std and total_std, and with ``truth`` the error in (total) std."""
         names = self.free_names
         df = pd.DataFrame({"estimate": self.params[names], "std": self.std[names],
                            "rel_std_pct": self.rel_std[names]})
+        if self.consider_cov is not None:
+            df["consider_std"] = self.consider_std[names]
+            df["total_std"] = self.total_std[names]
         df["at_bound"] = [n in self.at_bounds for n in names]
         if truth:
             df["truth"] = [truth.get(n, np.nan) for n in names]
-            df["error_in_std"] = (df["estimate"] - df["truth"]).abs() / df["std"]
+            df["error_in_std"] = (df["estimate"] - df["truth"]).abs() / self.total_std[names]
         return df
 
     def model_with_estimates(self) -> Model:
@@ -146,6 +174,9 @@ class EstimationResult:
             head.append(f"Note: {self.message}")
         head.append("-" * width)
         cols = f"{'parameter':<16}{'estimate':>13}{'std (CRB)':>13}{'rel std %':>11}"
+        consider = self.consider_cov is not None
+        if consider:
+            cols += f"{'std (total)':>13}"
         if truth:
             cols += f"{'truth':>12}{'|err|/std':>10}"
         head.append(cols)
@@ -155,6 +186,8 @@ class EstimationResult:
             line = f"{name:<16}{row['estimate']:>13.5g}"
             line += f"{row['std']:>13.4g}" if np.isfinite(row["std"]) else f"{'-':>13}"
             line += f"{row['rel_std_pct']:>11.2f}" if np.isfinite(row["rel_std_pct"]) else f"{'-':>11}"
+            if consider:
+                line += f"{row['total_std']:>13.4g}" if np.isfinite(row["total_std"]) else f"{'-':>13}"
             if truth:
                 line += f"{row['truth']:>12.5g}" if np.isfinite(row["truth"]) else f"{'':>12}"
                 line += f"{row['error_in_std']:>10.2f}" if np.isfinite(row["error_in_std"]) else f"{'':>10}"
@@ -166,6 +199,8 @@ class EstimationResult:
             head.append("-" * width)
             head.append("fixed: " + ", ".join(f"{n}={v:.4g}" for n, v in
                                                zip(self.names, self.values) if n in fixed))
+        if consider:
+            head.append("std (total) = sqrt(CRB^2 + consider^2), consider: " + self.consider_source)
         head.append("-" * width)
         sd = np.sqrt(np.diag(self.R))
         head.append("residual std: " + "  ".join(f"{o}={v:.3g}" for o, v in zip(self.outputs, sd)))

@@ -518,6 +518,21 @@ def _nll(res) -> float:
     return float(total)
 
 
+def applied_correlation(res: CompatibilityResult) -> dict:
+    """Correlation matrix of a reconstruction's sensor-error estimates (JSON-ready:
+    ``names``, ``matrix``), from its fit's Cramér-Rao covariance; the identity for names
+    the fit does not carry."""
+    names = list(res.params.index)
+    corr = getattr(res.result, "corr", None)
+    m = np.eye(len(names))
+    if corr is not None:
+        have = [n for n in names if n in corr.index]
+        idx = [names.index(n) for n in have]
+        sub = corr.loc[have, have].to_numpy(dtype=float)
+        m[np.ix_(idx, idx)] = np.where(np.isfinite(sub), sub, np.eye(len(have)))
+    return {"names": names, "matrix": m.tolist()}
+
+
 def truth_errors(truth: Mapping) -> dict[str, float]:
     """Injected sensor errors of a ``truth.json`` document in this module's parameter names."""
     s = truth.get("sensors", {})
@@ -689,6 +704,7 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
     doc["applied"] = {n: {"estimate": float(refit.params[n]), "std": float(refit.std[n]),
                           "unit": UNITS.get(n, ""), "significance_std": float(sig[n])}
                       for n in refit.params.index}
+    doc["applied_correlation"] = applied_correlation(refit)
     doc["data_for_estimation"] = "compatibility-corrected"
     doc["seconds"] = time.perf_counter() - t0
     return doc, refit.corrected(fd, keep_times=True)

@@ -13,7 +13,8 @@
          "model", "converged", "iterations", "message", "det_R", "n_samples",
          "outputs": [...], "R": [[...]],
          "parameters": {"<name>": {"estimate", "std", "rel_std_pct", "truth",
-                                   "error_in_std", "mk_std", "at_bound"}},
+                                   "error_in_std", "mk_std", "at_bound",
+                                   "consider_std", "total_std"}},   # last two: see below
          "fixed": {"<name>": value},
          "correlations_flagged": [[a, b, rho], ...],
          "fit": {"<output>": {"TIC", "UM", "US", "UC", "R2", "RMS", ...}},
@@ -22,7 +23,10 @@
 
 Numbers are SI (per radian for derivatives) with NaN written as ``null``. ``estimate`` and
 ``std`` are exactly the result's ``params``/``std`` (Cramér-Rao); ``mk_std`` the
-Morelli-Klein corrected std. ``report.md`` shows the same numbers, angles in degrees where a
+Morelli-Klein corrected std. When sensor corrections were applied before the fit,
+``consider_std`` is their uncertainty carried to the parameter and ``total_std`` =
+sqrt(std^2 + consider_std^2), which ``error_in_std`` then uses
+(:mod:`pipeline.correction_uncertainty`; ``compatibility.propagation`` says what was done). ``report.md`` shows the same numbers, angles in degrees where a
 person reads them (proof-of-match bands and errors). Both files are written atomically.
 """
 from __future__ import annotations
@@ -97,16 +101,24 @@ def is_segment_parameter(name: str) -> bool:
     return name.endswith("]") and "[" in name
 
 
+def has_total_std(mj: Mapping[str, Any]) -> bool:
+    """Whether the method's std has a consider part (sensor-correction uncertainty)."""
+    return any(p.get("total_std") is not None for p in mj["parameters"].values())
+
+
 def param_rows(mj: Mapping[str, Any], with_truth: bool, *, segment: bool | None = False
                ) -> list[list[str]]:
-    """Rows of the parameter table: name, estimate, std, rel std %, (truth, |error|/std),
-    Morelli-Klein std, note. segment: False system parameters only, True per-segment
-    ones only, None all."""
+    """Rows of the parameter table: name, estimate, std, rel std %, (std total when the
+    result has a consider part), (truth, |error|/std), Morelli-Klein std, note. segment:
+    False system parameters only, True per-segment ones only, None all."""
     rows = []
+    total = has_total_std(mj)
     for name, p in mj["parameters"].items():
         if segment is not None and is_segment_parameter(name) != segment:
             continue
         r = [name, _g(p["estimate"], ".6g"), _g(p["std"]), _g(p["rel_std_pct"], ".2f")]
+        if total:
+            r.append(_g(p.get("total_std")))
         if with_truth:
             r += [_g(p.get("truth"), ".6g"), _g(p.get("error_in_std"), ".2f")]
         r += [_g(p.get("mk_std")), "at bound" if p.get("at_bound") else ""]
@@ -126,15 +138,21 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
           + (f" {mj['message']}" if mj.get("message") else ""), ""]
     L += ["### Parameters", ""]
     head = ["parameter", "estimate", "std (CRB)", "rel std %"]
+    total = ["std (total)"] if has_total_std(mj) else []
+    head += total
     if with_truth:
         head += ["truth", "abs(error)/std"]
     head += ["std (Morelli-Klein)", ""]
     L += _table(head, param_rows(mj, with_truth))
+    if total:
+        L += ["std (total) = sqrt(CRB^2 + consider^2): the consider part is the uncertainty of "
+              "the sensor corrections applied before the fit (each moved by one std, the fit "
+              "repeated); abs(error)/std uses it.", ""]
     seg_rows = param_rows(mj, False, segment=True)
     if seg_rows:
         L += ["Per-segment parameters (biases, initial states; `[k]` is the segment):", ""]
-        L += _table(["parameter", "estimate", "std (CRB)", "rel std %", "std (Morelli-Klein)", ""],
-                    seg_rows)
+        L += _table(["parameter", "estimate", "std (CRB)", "rel std %", *total,
+                     "std (Morelli-Klein)", ""], seg_rows)
     if mj.get("fixed"):
         L += ["Fixed: " + ", ".join(f"{n} = {_g(x)}" for n, x in mj["fixed"].items()), ""]
     if mj.get("correlations_flagged"):

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -295,18 +296,35 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
     raise FsidError(f"unknown method {method!r}: use one of {', '.join(METHODS)}")
 
 
+#: methods whose estimate does not depend on the start values once converged (maximum
+#: likelihood / least squares): a refit may start from an earlier estimate
+START_FREE = ("oem", "ls", "fem", "soem", "eigen", "decouple")
+
+
 def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, float] | None,
                      progress: Progress, *, turbulence: Mapping[str, Any] | None = None,
-                     tolerances: Mapping[str, float] | None = None, pom: str = "auto"
-                     ) -> tuple[Any, dict[str, Any]] | None:
+                     tolerances: Mapping[str, float] | None = None, pom: str = "auto",
+                     start: Mapping[str, float] | None = None
+                     ) -> tuple[Any, dict[str, Any] | None] | None:
     """Fit ``method`` on ``pb`` and validate the result on its held-out segments, with a
     progress stage each; ``what`` names the fit in messages ("lateral axis", "model 'x'").
     A method that fails - an EstimationError (plain OEM diverging on an unstable aircraft)
     or a singular matrix inside a method on a model it cannot handle - is reported and
-    gives None: one method failing must not cost the others. Returns (result, validation)."""
+    gives None: one method failing must not cost the others. Returns (result, validation).
+
+    start : a refit (:mod:`pipeline.correction_uncertainty`): fit only, no validation
+        (returns (result, None)), starting from these values for the methods of
+        ``START_FREE`` (the EKF/UKF estimate depends on its start: they start as before)."""
     from estimators import EstimationError
     from pipeline.validate import validate
 
+    if start is not None:
+        if method in START_FREE:
+            pb = replace(pb, model=pb.model.with_values(start))
+        try:
+            return fit_problem(pb, method, turbulence=turbulence), None
+        except (EstimationError, np.linalg.LinAlgError):
+            return None
     progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, {len(pb.fit)} "
                    f"maneuvers, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
     try:
@@ -329,14 +347,17 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
              turbulence: Mapping[str, Any] | None = None,
              axes: Sequence[str] = ("longitudinal", "lateral"),
              tolerances: Mapping[str, float] | None = None,
-             pom: str = "auto") -> tuple[dict, dict, list[Problem]]:
+             pom: str = "auto", starts: Mapping[str, Any] | None = None
+             ) -> tuple[dict, dict, list[Problem]]:
     """Estimate and validate every axis the log excites; ``inputs`` is how the inputs vary
     between samples (estimators.integrators.INPUT_MODES); ``tolerances``: proof-of-match
     bands per channel (SI; default those of DESIGN.md section 8); ``pom``: the proof-of-match
     mode (pipeline.validate.POM_MODES: auto, simulation, air-data). Methods in COMMON_GRID get the
     axis problem on the grid of its slowest output channel (every output at every sample).
     Returns (results, validations, problems); keys are the method names
-    ("<axis>-<method>" once several axes are fitted)."""
+    ("<axis>-<method>" once several axes are fitted). ``starts`` (key -> parameter values):
+    refit only, each fit starting there (see :func:`fit_and_validate`), no validation and
+    no progress."""
     bad = [m for m in methods if m not in METHODS]
     if bad:
         raise FsidError(f"unknown method(s) {bad}: use some of {', '.join(METHODS)}")
@@ -412,14 +433,33 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                 except FsidError as exc:
                     print(f"note: lateral model with measured longitudinal inputs not set up "
                           f"({exc}); linear model used", file=progress.stream)
+            key = m if len(problems) == 1 else f"{pb.axis}-{m}"
             done = fit_and_validate(pb, m, f"{pb.axis} axis", truth, progress, turbulence=turbulence,
-                                    tolerances=tolerances, pom=pom)
+                                    tolerances=tolerances, pom=pom,
+                                    start=None if starts is None else starts.get(key, {}))
             if done is not None:
-                key = m if len(problems) == 1 else f"{pb.axis}-{m}"
                 results[key], validations[key] = done
     if not results:
         raise FsidError("every estimation method failed on this log (see the notes above)")
     return results, validations, problems
+
+
+def propagate_corrections(fd_raw, comp: dict[str, Any], results: dict, validations: dict,
+                          truth: Mapping[str, float] | None, progress: Progress,
+                          refit) -> None:
+    """After the fits on compatibility-corrected data: add the sensor corrections'
+    uncertainty to every result (``consider_cov``, :mod:`pipeline.correction_uncertainty`),
+    redo the truth checks and verdicts with the total std, and record what was done in
+    ``comp["propagation"]``. ``refit(fd, starts)`` repeats the fits (results only)."""
+    if not comp.get("applied"):
+        return
+    from pipeline.correction_uncertainty import propagate
+    from pipeline.validate import refresh_truth_check
+
+    comp["propagation"] = propagate(fd_raw, comp, results, refit, progress)
+    for key, res in results.items():
+        if key in validations:
+            refresh_truth_check(validations[key], res, truth)
 
 
 def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabled: bool = True,
@@ -503,6 +543,7 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     pr.done(", ".join(f"{k}: {v}" for k, v in summary.items()))
     ac = AircraftConstants.from_truth(truth_doc)
     from pipeline.compatibility import truth_errors
+    fd_logged = fd_mcap
     fd_mcap, comp = compatibility_stage(fd_mcap, ac, pr, enabled=compat, truth=truth_errors(truth_doc))
     checks["flight.mcap"]["compatibility"] = comp
     atomic_write_text(out / "checks.json", json.dumps(checks, indent=2, default=str) + "\n")
@@ -513,13 +554,17 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     if not methods:
         methods = scenario_methods(truth_doc)
     n_axes = sum(1 for ax in (("de",), ("da", "dr")) if {s.axis for s in fd_mcap.segments} & set(ax))
-    pr.total = pr.n + 2 * max(n_axes, 1) * len(methods) + 1
+    pr.total = pr.n + 2 * max(n_axes, 1) * len(methods) + 1 + bool(comp.get("applied"))
     from estimators.validation import default_tolerances
+    from pipeline.correction_uncertainty import quiet_progress
     results, validations, problems = identify(fd_mcap, ac, methods, truth, pr, inputs="linear",
                                               turbulence=truth_doc.get("turbulence"),
                                               tolerances=default_tolerances(
                                                   **{**scenario.pom_bands, **(bands or {})}),
                                               pom=pom)
+    propagate_corrections(fd_logged, comp, results, validations, truth, pr, lambda fd, starts: identify(
+        fd, ac, methods, truth, quiet_progress(), inputs="linear",
+        turbulence=truth_doc.get("turbulence"), starts=starts)[0])
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary,
                           meta={"scenario": scenario.name, "log": "flight.mcap", "seed": result.meta["seed"],
                                 "aircraft": result.aircraft.name,
@@ -574,17 +619,29 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     pr.done(str(summary))
     meta = {"log": str(log), "aircraft": ac_name}
     from pipeline.compatibility import truth_errors
+    fd_logged = fd
     fd, comp = compatibility_stage(fd, ac, pr, enabled=compat,
                                    truth=truth_errors(truth_doc) if truth_doc else None)
     meta["data"] = f"{Path(log).name}, {comp['data_for_estimation']}"
+    pr.total += bool(comp.get("applied"))
+    from pipeline.correction_uncertainty import quiet_progress
     if user:
         results, validations, problems = identify_user_model(fd, um, methods, truth, pr, inputs=inputs,
                                                              tolerances=tol, pom=pom)
         meta["model"] = model
+
+        def refit(fd_j, starts):
+            return identify_user_model(fd_j, um, methods, truth, quiet_progress(), inputs=inputs,
+                                       starts=starts)[0]
     else:
         axes = ("longitudinal", "lateral") if model == "auto" else (model,)
         results, validations, problems = identify(fd, ac, methods, truth, pr, inputs=inputs, axes=axes,
                                                   tolerances=tol, pom=pom)
+
+        def refit(fd_j, starts):
+            return identify(fd_j, ac, methods, truth, quiet_progress(), inputs=inputs, axes=axes,
+                            starts=starts)[0]
+    propagate_corrections(fd_logged, comp, results, validations, truth, pr, refit)
     if truth is not None:
         meta["truth"] = "truth.json next to the log"
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary, meta=meta,

@@ -185,10 +185,11 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
 def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
                         truth: Mapping[str, float] | None, progress: Any,
                         inputs: str = "linear", tolerances: Mapping[str, float] | None = None,
-                        pom: str = "auto") -> tuple[dict, dict, list]:
+                        pom: str = "auto", starts: Mapping[str, Any] | None = None
+                        ) -> tuple[dict, dict, list]:
     """Fit and validate a user model with each method; same return as
     :func:`pipeline.run.identify` (results, validations, problems), keyed by method;
-    ``tolerances`` and ``pom`` as there."""
+    ``tolerances``, ``pom`` and ``starts`` (refit only) as there."""
     from pipeline.run import COMMON_GRID, METHODS, fit_and_validate
 
     bad = [m for m in methods if m not in METHODS]
@@ -212,7 +213,8 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
                     common.inputs = inputs
                 pb = common
         done = fit_and_validate(pb, m, f"user model {model.name!r}", truth, progress,
-                                tolerances=tolerances, pom=pom)
+                                tolerances=tolerances, pom=pom,
+                                start=None if starts is None else starts.get(m, {}))
         if done is not None:
             results[m], validations[m] = done
     if not results:

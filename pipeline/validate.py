@@ -416,8 +416,10 @@ def _held_out_prediction(result: EstimationResult, seg: Segment, integrator: str
 
 
 def _truth_check(result: EstimationResult, truth: Mapping[str, float], k: float) -> dict[str, Any]:
+    """Each free parameter with a truth: |error| against k x its total std (the Cramér-Rao
+    bound plus what the result's ``consider_cov`` adds, e.g. the sensor corrections)."""
     out = {}
-    std = result.std
+    std = result.total_std
     for name in result.free_names:
         if name not in truth:
             continue
@@ -467,6 +469,16 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
         bad = [k for k, d in fr["table"].items() if d["n_used"] and not d["pass"]]
         notes.append(f"frequency-response mismatch beyond bounds on {', '.join(bad)}")
     return {"ok": not reasons, "reasons": reasons, "notes": notes}
+
+
+def refresh_truth_check(validation: dict[str, Any], result: EstimationResult,
+                        truth: Mapping[str, float] | None, truth_k: float = TRUTH_K) -> None:
+    """Redo the truth check and the verdict of ``validation`` (in place) after the result's
+    uncertainty changed (a ``consider_cov`` set after validation)."""
+    if not truth:
+        return
+    validation.setdefault("plausibility", {})["truth"] = _truth_check(result, truth, truth_k)
+    validation["verdict"] = verdict(validation)
 
 
 # -- entry point ------------------------------------------------------------------------------

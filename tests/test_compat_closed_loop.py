@@ -40,9 +40,11 @@ def test_compatibility_recovers_injected_errors(flight, name):
     d, truth = flight
     fd = read_log(d / name)
     assert fd.meta["damage"] is None and not fd.missing(["ax", "p", "V", "alpha", "beta", "phi", "h"])
-    # segments found automatically from control activity, one per maneuver
+    # segments found automatically from control activity, one per maneuver and axis (the
+    # cross-controlled rudder doublets move aileron and rudder over the same window)
     auto = [s for s in fd.segments if s.kind == "auto"]
-    assert [s.axis for s in auto] == ["de", "da", "dr", "de", "da", "dr"]
+    assert [s.axis for s in auto] == ["de", "da", "da", "dr", "de", "da", "da", "dr"]
+    assert [(a.t0, a.t1) for a in auto[2:4]] == [(auto[3].t0, auto[3].t1)] * 2
     sens = truth["sensors"]
     res = reconstruct(fd, estimate=ESTIMATE, imu_position=sens["imu"]["position_m"],
                       boom_position=sens["airdata"]["position_m"])

@@ -1,0 +1,57 @@
+"""Consider covariance: uncertainty a fit held as exact (the sensor corrections applied
+before it) added to the Cramér-Rao bound - EstimationResult.total_std, the table's
+error in std, and the compatibility document's correction covariance."""
+import numpy as np
+import pandas as pd
+import pytest
+
+from estimators import EstimationResult, Model, Parameter
+from pipeline.correction_uncertainty import correction_covariance
+
+
+def _result(consider=None):
+    model = Model(states=["x"], inputs=["u"], outputs=["x"],
+                  parameters=[Parameter("a", -1.0), Parameter("b", 2.0), Parameter("c", 0.5, free=False)],
+                  f=lambda x, u, p, c: (p.a * x[0] + p.b * u[0],), g=lambda x, u, p, c: (x[0],))
+    cov = np.array([[0.04, 0.01], [0.01, 0.09]])        # std 0.2, 0.3
+    return EstimationResult("oem", model, ["a", "b", "c"], np.array([-1.5, 2.0, 0.5]),
+                            np.array([True, True, False]), cov, np.eye(1), True, 3,
+                            pd.DataFrame(), [], [], consider_cov=consider,
+                            consider_source="test")
+
+
+def test_without_consider_total_std_is_the_crb():
+    r = _result()
+    assert r.consider_std is None
+    pd.testing.assert_series_equal(r.total_std, r.std.rename("total_std"))
+    tab = r.table({"a": -1.0, "b": 2.6})
+    assert "total_std" not in tab and tab.loc["a", "error_in_std"] == pytest.approx(0.5 / 0.2)
+    assert "std (total)" not in r.summary()
+
+
+def test_consider_widens_the_std_and_the_error_uses_it():
+    r = _result(np.array([[0.09, 0.0], [0.0, 0.16]]))    # consider std 0.3, 0.4
+    assert r.consider_std["a"] == pytest.approx(0.3) and np.isnan(r.consider_std["c"])
+    assert r.total_std["a"] == pytest.approx(np.hypot(0.2, 0.3))
+    assert r.total_std["b"] == pytest.approx(0.5)
+    assert r.std["b"] == pytest.approx(0.3)              # the CRB itself unchanged
+    tab = r.table({"a": -1.0, "b": 2.6})
+    assert tab.loc["b", "error_in_std"] == pytest.approx(0.6 / 0.5)
+    assert tab.loc["a", "consider_std"] == pytest.approx(0.3)
+    d = r.to_dict({"a": -1.0})
+    assert d["parameters"]["a"]["total_std"] == pytest.approx(np.hypot(0.2, 0.3))
+    assert "std (total)" in r.summary() and "consider: test" in r.summary()
+
+
+def test_correction_covariance_from_the_document():
+    doc = {"applied": {"bias_q": {"estimate": 0.01, "std": 0.002},
+                       "scale_alpha": {"estimate": 0.08, "std": 0.005}},
+           "applied_correlation": {"names": ["scale_alpha", "bias_q"],
+                                   "matrix": [[1.0, -0.5], [-0.5, 1.0]]}}
+    names, est, C = correction_covariance(doc)
+    assert names == ["bias_q", "scale_alpha"] and list(est) == [0.01, 0.08]
+    np.testing.assert_allclose(C, [[4e-6, -0.5 * 0.002 * 0.005], [-0.5 * 0.002 * 0.005, 2.5e-5]])
+    # no correlation given: independent
+    _, _, C = correction_covariance({"applied": doc["applied"]})
+    np.testing.assert_allclose(C, np.diag([4e-6, 2.5e-5]))
+    assert correction_covariance({"applied": {}})[0] == []
