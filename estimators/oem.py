@@ -86,7 +86,10 @@ class OutputError:
     step_halvings : maximum halvings of a step that does not lower the cost.
     priors : {name: (value, std)} a-priori values; adds (theta-theta*)^2 / (2 std^2) to J.
     fallback : "auto" runs Nelder-Mead when Gauss-Newton cannot lower the cost from the
-        start, "always" runs it first, "never" does not.
+        start (no step accepted yet; a line search that fails after accepted steps is near
+        the optimum, where the simplex over every free parameter only costs time - minutes
+        on the numpy path of the stabilised models), "always" runs it first, "never" does
+        not.
     rtol, atol : tolerances of the adaptive integrator.
     inputs : input variation inside a sample interval: "average" (default), "linear" or
         "hold" (see :data:`estimators.integrators.INPUT_MODES`).
@@ -308,6 +311,7 @@ class OutputError:
         cost_old = np.inf
         it = 0
         R_cur = None
+        n_accepted = 0
         for it in range(1, self.max_iter + 1):
             Ys, Ss, E, R_cur, L, F, G, J = self._linearise(theta)
             cost = float(np.linalg.det(R_cur))
@@ -353,6 +357,7 @@ class OutputError:
                 Jt += self._prior_terms(trial[fi])[2]
                 if Jt < J:
                     accepted = True
+                    n_accepted += 1
                     theta = trial
                     lam = max(lam / 10.0, 1e-10)
                     break
@@ -364,13 +369,16 @@ class OutputError:
                 if predicted <= 1e-10 * max(J, 1.0):
                     converged = True        # no descent left: at the minimum to round-off
                     break
-                if self.fallback == "auto" and not used_simplex:
+                if self.fallback == "auto" and not used_simplex and not n_accepted:
                     theta = self._simplex(theta)
                     used_simplex = True
                     cost_old = np.inf
                     continue
                 message = ("no step lowered the cost (line search failed) - the start may be "
-                           "poor or the model may not describe the data")
+                           "poor or the model may not describe the data" if not n_accepted else
+                           f"no step lowered the cost after {n_accepted} accepted steps (line "
+                           "search failed near the optimum: the finite-difference gradient is "
+                           "too coarse there; jacobian='central' refines it)")
                 break
         else:
             message = f"stopped at max_iter={self.max_iter} before det(R) settled"

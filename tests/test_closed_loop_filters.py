@@ -11,12 +11,17 @@ What is asserted is what was measured to hold; what does not hold is stated, not
   derivatives (x0 and biases fitted) miss by 3.9 deg/s on q (band 1.5), 1.6 deg on theta,
   0.118 g on az. Kept as a strict xfail so that it shows up when validation learns a
   turbulence-aware proof of match.
-* unstable_short_period, FEM / EKF / UKF: every derivative within 3 std, TIC < 0.1. Proof of match
-  (an open-loop simulation of a statically unstable model through the SAS-flown surface
-  positions) is not met by any model: the TRUE derivatives miss by 18.6 deg/s on q and
-  9.2 deg on theta (see the xfail). Stabilised OEM (moment derivatives within 2.6 std, drag
-  polar 4.7-5.7 std off), equation decoupling (Cmq 3.6 std) and the eigenvalue
-  transformation (not applicable to the nonlinear model) are left out of this module.
+* unstable_short_period, FEM / EKF / UKF / equation decoupling: every derivative within 3 std,
+  TIC < 0.1, proof of match (air-data driven: an open-loop simulation of a statically
+  unstable model through the SAS-flown surface positions misses by 18.6 deg/s on q even
+  with the TRUE derivatives) passes. Decoupling (measured: worst 1.1 std) needs the surface
+  positions as commanded: with 0.05 deg of surface noise its Cm0/Cmalpha/Cmq/Cmde were
+  2.2-3.6 std off. Stabilised OEM fits (TIC < 0.1, proof of match passes) but its drag polar
+  (CDalpha, CDalpha2 5.2-5.3 std), CLalpha 3.4 and Cmalpha 5.4 std are off - the feedback of
+  the measured alpha into every state equation (S from the Riccati equation of the start
+  model, -34 m/s^2 per rad into Vdot) ties the estimates to the measurement noise; strict
+  xfail. The eigenvalue transformation is exact for linear models only (the built-in
+  longitudinal model is nonlinear) and is not among the scenario's methods.
 """
 import json
 from pathlib import Path
@@ -28,7 +33,9 @@ from pipeline.run import run_scenario, scenario_methods
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 TURBULENCE_METHODS = ("fem", "ekf", "ukf")
-UNSTABLE_METHODS = ("fem", "ekf", "ukf")
+UNSTABLE_METHODS = ("fem", "ekf", "ukf", "decouple", "soem")
+#: measured |error|/std of stabilised OEM on unstable_short_period (strict xfail below)
+SOEM_OFF = "CDalpha 5.3, CDalpha2 5.2, Cmalpha 5.4, CLalpha 3.4, CD0 3.4, Cmq 3.1 std"
 
 
 def _run(tmp_path_factory, name, methods):
@@ -87,7 +94,8 @@ def test_turbulence_proof_of_match(turbulence, method):
     assert set(chans) == {"V", "alpha", "theta", "q", "ax", "az"}
 
 
-@pytest.mark.parametrize("method", UNSTABLE_METHODS)
+@pytest.mark.parametrize("method", [*UNSTABLE_METHODS[:-1], pytest.param("soem", marks=pytest.mark.xfail(
+    strict=True, reason=f"stabilised OEM: {SOEM_OFF} (see the module doc)"))])
 def test_unstable_derivatives_within_3_std_and_tic(unstable, method):
     m = _derivatives_within_3_std(unstable, method)
     assert m["converged"]
@@ -100,12 +108,24 @@ def test_unstable_proof_of_match(unstable, method):
     _air_data_proof_of_match(unstable, method)
 
 
+def test_stabilised_oem_fits_and_converges(unstable):
+    """What holds for stabilised OEM: converged (central differences), TIC < 0.1, the
+    moment derivatives that set the instability within 3 std except Cmalpha (measured
+    5.4), the model unstable as the truth."""
+    m = unstable["methods"]["soem"]
+    assert m["converged"], m["message"]
+    assert max(d["TIC"] for d in m["validation"]["fit"]["per_output"].values()) < 0.1
+    errs = {k: v["error_in_std"] for k, v in m["parameters"].items() if v.get("truth") is not None}
+    assert all(errs[n] <= 3.0 for n in ("Cm0", "Cmde", "CLde", "CL0")), errs
+    assert m["parameters"]["Cmalpha"]["estimate"] > 0
+
+
 def test_methods_that_suit_the_scenario():
     assert scenario_methods({"turbulence": {"model": "off"}}) == ["oem", "ls"]
     assert scenario_methods({"turbulence": {"model": "milspec", "sigma_w": 0.5}}) == \
         ["oem", "fem", "ekf", "ukf"]
     assert scenario_methods({"sas": {"k_alpha": 1.0}, "turbulence": {"model": "off"}}) == \
-        ["soem", "eigen", "decouple", "fem", "ekf", "ukf"]
+        ["soem", "decouple", "fem", "ekf", "ukf"]
 
 
 def test_command_line_accepts_every_method():

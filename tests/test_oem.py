@@ -272,3 +272,43 @@ def test_every_estimator_rejects_unknown_integration_options(example, kw, match)
     for cls in (OutputError, FilterError, EKF, UKF):
         with pytest.raises(ModelDefinitionError, match=match):
             cls(example.model, **kw)
+
+
+def _wrong_after(n_good: int):
+    """A first-order model x' = -a x + b w, its noisy data, and a sensitivity hook that is
+    right for its first ``n_good`` calls and sign-flipped afterwards (a gradient that stops
+    pointing downhill)."""
+    model = Model(states=["x"], inputs=["w"], outputs=["x"],
+                  parameters=[Parameter("a", 1.5), Parameter("b", 0.5)],
+                  f=lambda x, u, p, c: (-p.a * x[0] + p.b * u[0],), g=lambda x, u, p, c: (x[0],),
+                  name="first-order")
+    t = np.linspace(0, 10, 501)
+    seg = Segment(t=t, u=np.sign(np.sin(1.3 * t))[:, None], z=np.zeros((501, 1)), x0=[0.0])
+    seg.z = (simulate_outputs(model, seg, {"a": 2.0, "b": 1.2}).to_numpy()
+             + 0.01 * np.random.default_rng(3).standard_normal((501, 1)))
+    calls = []
+
+    def hook(model_, seg_, k, layout, theta):
+        vals = dict(zip(layout.names, theta))
+        y = simulate_outputs(model_, seg_, vals).to_numpy()
+        S = np.empty((seg_.n, 1, 2))
+        for j, n in enumerate(("a", "b")):
+            h = 1e-6 * max(abs(vals[n]), 1.0)
+            S[:, 0, j] = (simulate_outputs(model_, seg_, {**vals, n: vals[n] + h}).to_numpy()[:, 0]
+                          - y[:, 0]) / h
+        calls.append(k)
+        return y, (S if len(calls) <= n_good else -S)
+    return model, seg, hook
+
+
+def test_simplex_fallback_only_when_no_step_was_accepted():
+    """'auto' runs Nelder-Mead when Gauss-Newton cannot move from the start; once steps
+    were accepted, a failing line search ends the fit with a message instead of a simplex
+    over every parameter (minutes on the stabilised models' numpy path)."""
+    model, seg, hook = _wrong_after(0)
+    res = OutputError(model, jacobian=hook).fit(seg)
+    assert "Nelder-Mead" in res.message
+    model, seg, hook = _wrong_after(1)
+    res = OutputError(model, jacobian=hook).fit(seg)
+    assert not res.converged and res.iterations == 2
+    assert "Nelder-Mead" not in res.message and "after 1 accepted steps" in res.message
