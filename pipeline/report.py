@@ -313,7 +313,17 @@ def _compat_md(comp: Any) -> list[str]:
             r += [_g(p.get("truth"), ".5g"), _g(abs(e) if e is not None else None, ".2f")]
         r.append(_g(applied[n]["estimate"], ".5g") if n in applied else "no")
         rows.append(r)
-    return L + _table(head, rows)
+    L += _table(head, rows)
+    prop = comp.get("propagation") or {}
+    if prop:
+        done = [k for k, v in prop.get("methods", {}).items() if v == "propagated"]
+        left = {k: v for k, v in prop.get("methods", {}).items() if v != "propagated"}
+        L += [f"Uncertainty of the applied corrections carried to the estimates: "
+              f"{prop.get('refits')} refits ({prop.get('perturbation')}), "
+              f"{_g(prop.get('seconds'), '.1f')} s; 'std (total)' in the parameter tables of "
+              f"{', '.join(done) or 'no method'}."
+              + "".join(f" {k}: {v}." for k, v in left.items()), ""]
+    return L
 
 
 def report_markdown(rep: Mapping[str, Any]) -> str:

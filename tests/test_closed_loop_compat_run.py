@@ -141,7 +141,8 @@ def test_sensor_correction_uncertainty_reaches_the_derivatives(run):
                 assert p["error_in_std"] == pytest.approx(abs(p["estimate"] - p["truth"]) / p["total_std"])
     cla = rep["methods"]["longitudinal-oem"]["parameters"]["CLalpha"]
     assert cla["consider_std"] > 0.3 * cla["std"], cla
-    assert "std (total)" in (run[0] / "report.md").read_text()
+    md = (run[0] / "report.md").read_text()
+    assert "std (total)" in md and "Uncertainty of the applied corrections carried" in md
 
 
 def test_correction_matters_and_matches_the_true_correction(run):
