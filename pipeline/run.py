@@ -324,8 +324,9 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
     from pipeline.validate import validate
 
     if start is not None:
-        if method in START_FREE:
-            pb = replace(pb, model=pb.model.with_values(start))
+        if method in START_FREE and len(start):    # (then fit_problem's equation-error starts off)
+            pb = replace(pb, model=pb.model.with_values(start),
+                         regressions=pb.regressions if method == "ls" else [])
         try:
             return fit_problem(pb, method, turbulence=turbulence), None
         except (EstimationError, np.linalg.LinAlgError):
