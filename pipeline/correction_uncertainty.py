@@ -78,7 +78,7 @@ def propagate(fd_raw: FlightData, doc: Mapping[str, Any], results: Mapping[str, 
         progress.stage(f"sensor-correction uncertainty ({len(names)} refits, one per applied correction)")
     for j, n in enumerate(names):
         if progress is not None and not progress.quiet:
-            print(f" {j + 1}", end="", file=progress.stream, flush=True)
+            print(f" {j + 1}/{len(names)}", end="", file=progress.stream, flush=True)
         v = pd.Series(est, index=names)
         v[n] += sd[j]
         fd_j = CompatibilityResult(None, v, pd.Series(sd, index=names)).corrected(fd_raw, keep_times=True)

@@ -456,8 +456,11 @@ def propagate_corrections(fd_raw, comp: dict[str, Any], results: dict, validatio
     """After the fits on compatibility-corrected data: add the sensor corrections'
     uncertainty to every result (``consider_cov``, :mod:`pipeline.correction_uncertainty`),
     redo the truth checks and verdicts with the total std, and record what was done in
-    ``comp["propagation"]``. ``refit(fd, starts)`` repeats the fits (results only)."""
+    ``comp["propagation"]``. ``refit(fd, starts)`` repeats the fits (results only). A
+    progress stage either way (nothing applied: nothing to carry)."""
     if not comp.get("applied"):
+        progress.stage("sensor-correction uncertainty")
+        progress.done("no correction applied: nothing to carry")
         return
     from pipeline.correction_uncertainty import propagate
     from pipeline.validate import refresh_truth_check
@@ -521,7 +524,7 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     from pipeline.readers import read_log
     from pipeline.writers import write_dataflash, write_mcap, write_truth_json
 
-    pr = Progress(6 + 4 * len(methods or ("oem", "ls")) + 1, quiet=quiet)   # updated below
+    pr = Progress(7 + 4 * len(methods or ("oem", "ls")) + 1, quiet=quiet)   # updated below
     pr.stage(f"load scenario {scenario_path}")
     try:
         scenario = sim.load_scenario(scenario_path)
@@ -560,7 +563,7 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     if not methods:
         methods = scenario_methods(truth_doc)
     n_axes = sum(1 for ax in (("de",), ("da", "dr")) if {s.axis for s in fd_mcap.segments} & set(ax))
-    pr.total = pr.n + 2 * max(n_axes, 1) * len(methods) + 1 + bool(comp.get("applied"))
+    pr.total = pr.n + 2 * max(n_axes, 1) * len(methods) + 2   # + correction uncertainty, outputs
     from estimators.validation import default_tolerances
     from pipeline.correction_uncertainty import quiet_progress
     results, validations, problems = identify(fd_mcap, ac, methods, truth, pr, inputs="linear",
@@ -601,7 +604,8 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     if user:                         # cheap checks before the log is read
         split_spec(model)
         check_methods(methods)
-    pr = Progress(5 + 2 * len(methods) + 1, quiet=quiet)   # 5: with sensor compatibility
+    pr = Progress(6 + 2 * len(methods) + 1, quiet=quiet)   # 6: with sensor compatibility and
+    #                                                         its uncertainty
     pr.stage(f"ingest {log}")
     fd = read_log(log, map=map_path)
     pr.done(f"{len(fd.channels)} channels, {len(fd.segments)} segments")
@@ -629,7 +633,6 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     fd, comp = compatibility_stage(fd, ac, pr, enabled=compat,
                                    truth=truth_errors(truth_doc) if truth_doc else None)
     meta["data"] = f"{Path(log).name}, {comp['data_for_estimation']}"
-    pr.total += bool(comp.get("applied"))
     from pipeline.correction_uncertainty import quiet_progress
     if user:
         results, validations, problems = identify_user_model(fd, um, methods, truth, pr, inputs=inputs,

@@ -226,3 +226,21 @@ def test_a_non_positive_band_is_one_line(flight, tmp_path, capsys):
                           "--band-rate", "-1", "--out", tmp_path / "o")
     assert code != 0 and len(err) == 1 and err[0].startswith("fsid: error:")
     assert "band rate_deg_s must be > 0" in err[0]
+
+
+def test_progress_counts_every_stage_once(flight, tmp_path, capsys):
+    """Without --quiet every stage prints '[n/N]': one total from the first line to the
+    last (the sensor-correction uncertainty stage included, whatever the compatibility
+    stage applies), n running 1..N."""
+    import re
+
+    code = main(["estimate", str(flight / "flight.mcap"), "--model",
+                 f"{flight / 'sp_user.py'}:short_period_user", "--method", "oem",
+                 "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    stages = [(int(a), int(b)) for a, b in re.findall(r"^\[(\d+)/(\d+)\]", err, flags=re.M)]
+    assert len(stages) >= 7, err
+    assert {b for _, b in stages} == {len(stages)}, err
+    assert [a for a, _ in stages] == list(range(1, len(stages) + 1)), err
+    assert "sensor-correction uncertainty" in err
