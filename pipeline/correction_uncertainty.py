@@ -77,6 +77,8 @@ def propagate(fd_raw: FlightData, doc: Mapping[str, Any], results: Mapping[str, 
     if progress is not None:
         progress.stage(f"sensor-correction uncertainty ({len(names)} refits, one per applied correction)")
     for j, n in enumerate(names):
+        if not any(v == "propagated" for v in status.values()):
+            break                                   # every fit already failed a refit
         if progress is not None and not progress.quiet:
             print(f" {j + 1}/{len(names)}", end="", file=progress.stream, flush=True)
         v = pd.Series(est, index=names)

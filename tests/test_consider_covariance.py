@@ -55,3 +55,52 @@ def test_correction_covariance_from_the_document():
     _, _, C = correction_covariance({"applied": doc["applied"]})
     np.testing.assert_allclose(C, np.diag([4e-6, 2.5e-5]))
     assert correction_covariance({"applied": {}})[0] == []
+
+
+def _doc():
+    return {"applied": {"bias_q": {"estimate": 0.01, "std": 0.002},
+                        "scale_alpha": {"estimate": 0.08, "std": 0.005}},
+            "applied_correlation": {"names": ["bias_q", "scale_alpha"],
+                                    "matrix": [[1.0, 0.3], [0.3, 1.0]]}}
+
+
+def test_propagate_builds_j_c_jt_from_the_refits():
+    """The refit sees the data corrected with one correction moved by its std; a fit whose
+    estimates move linearly with the corrections gets exactly J C J^T."""
+    from pipeline.correction_uncertainty import propagate
+    from pipeline.flightdata import Channel, FlightData
+
+    t = np.arange(0.0, 1.0, 0.01)
+    fd = FlightData({"q": Channel(t, np.zeros_like(t), "rad/s")}, {}, [])
+    res = _result()
+    Jtrue = np.array([[2.0, -1.0], [0.5, 4.0]])        # d(a, b) / d(bias_q, scale_alpha)
+    est0 = np.array([0.01, 0.08])
+
+    def refit(fd_j, starts):
+        assert starts["m"] is not None
+        c = np.array([fd_j.meta["compatibility"]["bias_q"], fd_j.meta["compatibility"]["scale_alpha"]])
+        r = _result()
+        r.values = r.values.copy()
+        r.values[:2] += Jtrue @ (c - est0)
+        return {"m": r}
+
+    doc = propagate(fd, _doc(), {"m": res}, refit)
+    assert doc["methods"] == {"m": "propagated"} and doc["refits"] == 2
+    _, _, C = correction_covariance(_doc())
+    np.testing.assert_allclose(res.consider_cov, Jtrue @ C @ Jtrue.T, rtol=1e-6)
+    assert res.consider_source
+
+
+def test_propagate_keeps_the_crb_when_a_refit_fails():
+    from pipeline.correction_uncertainty import propagate
+    from pipeline.flightdata import FlightData
+
+    res = _result()
+
+    def refit(fd_j, starts):
+        raise RuntimeError("diverged")
+
+    doc = propagate(FlightData({}, {}, []), _doc(), {"m": res}, refit)
+    assert doc["methods"]["m"].startswith("not propagated") and "diverged" in doc["methods"]["m"]
+    assert res.consider_cov is None
+    assert propagate(FlightData({}, {}, []), {"applied": {}}, {"m": res}, refit) == {}
