@@ -32,6 +32,7 @@ import pandas as pd
 from pipeline.flightdata import FlightData
 
 SOURCE = "the uncertainty of the sensor corrections applied before the fit"
+HELD_SOURCE = "the uncertainty of the other axis' estimates the fit held"
 
 
 def correction_covariance(doc: Mapping[str, Any]) -> tuple[list[str], np.ndarray, np.ndarray]:
@@ -55,61 +56,100 @@ def correction_covariance(doc: Mapping[str, Any]) -> tuple[list[str], np.ndarray
     return names, est, corr * np.outer(sd, sd)
 
 
+def consider_by_refits(results: Mapping[str, Any], names: list[str], C: np.ndarray,
+                       refit_j: Callable[[int], Mapping[str, Any]], what: str,
+                       source: str, progress: Any = None) -> dict[str, str]:
+    """Add J C J^T to ``consider_cov`` of every result in ``results`` (key -> result), with
+    J[:, j] = (refit_j(j)[key] - result) / std_j: ``refit_j(j)`` repeats the fits with the
+    j-th of ``names`` (covariance ``C``) moved by its std. ``what`` names the j-th
+    perturbation in messages ("{name} + 1 std"); ``source`` is appended to
+    ``consider_source``. Returns key -> "propagated" or why not (that result keeps what it
+    had)."""
+    sd = np.sqrt(np.diag(C))
+    free = {key: list(res.free_names) for key, res in results.items()}
+    J = {key: np.zeros((len(free[key]), len(names))) for key in results}
+    status: dict[str, str] = {key: "propagated" for key in results}
+    for j, n in enumerate(names):
+        if not any(v == "propagated" for v in status.values()):
+            break                                   # every fit already failed a refit
+        if progress is not None and not progress.quiet:
+            print(f" {j + 1}/{len(names)}", end="", file=progress.stream, flush=True)
+        try:
+            new = refit_j(j)
+        except Exception as exc:  # noqa: BLE001 - a failed refit must not cost the run
+            new = {}
+            for key in results:
+                status[key] = f"not propagated: the refit with {what.format(name=n)} failed ({type(exc).__name__}: {exc})"
+        for key, res in results.items():
+            r = new.get(key)
+            if not status[key].startswith("propagated"):
+                continue
+            if r is None or list(r.free_names) != free[key]:
+                status[key] = f"not propagated: the refit with {what.format(name=n)} failed or changed the parameters"
+                continue
+            J[key][:, j] = (r.params[free[key]].to_numpy(float)
+                            - res.params[free[key]].to_numpy(float)) / sd[j]
+    for key, res in results.items():
+        if status[key] == "propagated":
+            add = J[key] @ C @ J[key].T
+            res.consider_cov = add if res.consider_cov is None else res.consider_cov + add
+            res.consider_source = "; ".join(x for x in (res.consider_source, source) if x)
+    return status
+
+
 def propagate(fd_raw: FlightData, doc: Mapping[str, Any], results: Mapping[str, Any],
               refit: Callable[[FlightData, dict[str, pd.Series]], Mapping[str, Any]],
               progress: Any = None) -> dict[str, Any]:
-    """Set ``consider_cov`` on every result in ``results`` from the applied corrections of
-    ``doc`` (module doc). ``fd_raw``: the data as logged; ``refit(fd, starts)`` repeats the
-    run's fits on other flight data (``starts``: key -> the run's estimates) and returns
-    key -> result. Returns a JSON-ready document: refits, perturbation, per-key status,
-    seconds. Nothing applied: an empty document."""
+    """Add to ``consider_cov`` of every result in ``results`` the part of the applied
+    corrections of ``doc`` (module doc). ``fd_raw``: the data as logged; ``refit(fd,
+    starts)`` repeats the run's fits on other flight data (``starts``: key -> the run's
+    estimates) and returns key -> result. Returns a JSON-ready document: refits,
+    perturbation, per-key status, seconds. Nothing applied: an empty document."""
     from pipeline.compatibility import CompatibilityResult
 
     names, est, C = correction_covariance(doc)
     if not names or not results:
         return {}
     t0 = time.perf_counter()
-    sd = np.sqrt(np.diag(C))
+    sd = pd.Series(np.sqrt(np.diag(C)), index=names)
     starts = {key: res.params for key, res in results.items()}
-    free = {key: list(res.free_names) for key, res in results.items()}
-    J = {key: np.zeros((len(free[key]), len(names))) for key in results}
-    status: dict[str, str] = {key: "propagated" for key in results}
-    if progress is not None:
-        progress.stage(f"sensor-correction uncertainty ({len(names)} refits, one per applied correction)")
-    for j, n in enumerate(names):
-        if not any(v == "propagated" for v in status.values()):
-            break                                   # every fit already failed a refit
-        if progress is not None and not progress.quiet:
-            print(f" {j + 1}/{len(names)}", end="", file=progress.stream, flush=True)
+
+    def refit_j(j: int) -> Mapping[str, Any]:
         v = pd.Series(est, index=names)
-        v[n] += sd[j]
-        fd_j = CompatibilityResult(None, v, pd.Series(sd, index=names)).corrected(fd_raw, keep_times=True)
-        try:
-            new = refit(fd_j, starts)
-        except Exception as exc:  # noqa: BLE001 - a failed refit must not cost the run
-            new = {}
-            for key in results:
-                status[key] = f"not propagated: the refit with {n} + 1 std failed ({type(exc).__name__}: {exc})"
-        for key, res in results.items():
-            r = new.get(key)
-            if not status[key].startswith("propagated"):
-                continue
-            if r is None or list(r.free_names) != free[key]:
-                status[key] = f"not propagated: the refit with {n} + 1 std failed or changed the parameters"
-                continue
-            J[key][:, j] = (r.params[free[key]].to_numpy(float)
-                            - res.params[free[key]].to_numpy(float)) / sd[j]
-    for key, res in results.items():
-        if status[key] == "propagated":
-            res.consider_cov = J[key] @ C @ J[key].T
-            res.consider_source = SOURCE
-    seconds = time.perf_counter() - t0
-    if progress is not None:
-        progress.done(f"{sum(s == 'propagated' for s in status.values())} of {len(status)} fits")
+        v.iloc[j] += sd.iloc[j]
+        return refit(CompatibilityResult(None, v, sd).corrected(fd_raw, keep_times=True), starts)
+
+    status = consider_by_refits(results, names, C, refit_j, "{name} + 1 std", SOURCE, progress)
     return {"corrections": names, "refits": len(names),
             "perturbation": "each applied correction moved by +1 std (its Cramér-Rao std), "
                             "all fits repeated; total std = sqrt(CRB^2 + consider^2)",
-            "methods": status, "seconds": seconds}
+            "methods": status, "seconds": time.perf_counter() - t0}
+
+
+def held_estimates(result: Any, refit: Callable[[dict[str, float]], Any],
+                   progress: Any = None) -> dict[str, Any]:
+    """Add to ``consider_cov`` of ``result`` the uncertainty of another fit's estimates it
+    held fixed (``result.extra["held"]``: that fit's result, e.g. the longitudinal output
+    error whose derivatives the 6-DoF lateral fit holds): each held estimate with a
+    Cramér-Rao std is moved by one std and ``refit(values)`` (the held values -> the refit
+    result) repeats the fit. Returns a JSON-ready document (empty when nothing is held)."""
+    held = (result.extra or {}).get("held")
+    if held is None:
+        return {}
+    t0 = time.perf_counter()
+    names = [n for n in held.free_names if "[" not in n and np.isfinite(held.std[n])]
+    idx = [held.free_names.index(n) for n in names]
+    C = np.asarray(held.cov, dtype=float)[np.ix_(idx, idx)]
+    base = {n: float(v) for n, v in held.params.items() if "[" not in n}
+    sd = np.sqrt(np.diag(C))
+
+    def refit_j(j: int) -> Mapping[str, Any]:
+        return {"r": refit({**base, names[j]: base[names[j]] + sd[j]})}
+
+    status = consider_by_refits({"r": result}, names, C, refit_j, "the held {name} + 1 std",
+                                HELD_SOURCE, progress)["r"]
+    return {"held": names, "refits": len(names), "status": status,
+            "seconds": time.perf_counter() - t0}
 
 
 def quiet_progress() -> Any:

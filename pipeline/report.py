@@ -17,16 +17,18 @@
                                    "consider_std", "total_std"}},   # last two: see below
          "fixed": {"<name>": value},
          "correlations_flagged": [[a, b, rho], ...],
+         "consider_source": str | null,   # what consider_std accounts for
          "fit": {"<output>": {"TIC", "UM", "US", "UC", "R2", "RMS", ...}},
          "validation": {...}            # pipeline.validate.validate() minus "arrays"
          "verdict": {"ok", "reasons", "notes"}}}}
 
 Numbers are SI (per radian for derivatives) with NaN written as ``null``. ``estimate`` and
 ``std`` are exactly the result's ``params``/``std`` (Cramér-Rao); ``mk_std`` the
-Morelli-Klein corrected std. When sensor corrections were applied before the fit,
-``consider_std`` is their uncertainty carried to the parameter and ``total_std`` =
-sqrt(std^2 + consider_std^2), which ``error_in_std`` then uses
-(:mod:`pipeline.correction_uncertainty`; ``compatibility.propagation`` says what was done). ``report.md`` shows the same numbers, angles in degrees where a
+Morelli-Klein corrected std. When the fit held something uncertain as exact (sensor
+corrections applied before it, another axis' estimates), ``consider_std`` is that
+uncertainty carried to the parameter and ``total_std`` = sqrt(std^2 + consider_std^2),
+which ``error_in_std`` then uses (:mod:`pipeline.correction_uncertainty`;
+``compatibility.propagation`` and the validation's ``held_estimates`` say what was done). ``report.md`` shows the same numbers, angles in degrees where a
 person reads them (proof-of-match bands and errors). Both files are written atomically.
 """
 from __future__ import annotations
@@ -63,6 +65,7 @@ def method_json(result: EstimationResult, validation: Mapping[str, Any] | None,
     d["parameters"] = params
     d["fixed"] = num({n: v for n, v, f in zip(result.names, result.values, result.free)
                       if not f and not n.startswith("x0_")})
+    d["consider_source"] = result.consider_source or None
     d["fit"] = (val.get("fit") or {}).get("per_output", {})
     d["validation"] = val
     d["verdict"] = val.get("verdict") or verdict({"converged": result.converged})
@@ -145,9 +148,9 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
     head += ["std (Morelli-Klein)", ""]
     L += _table(head, param_rows(mj, with_truth))
     if total:
-        L += ["std (total) = sqrt(CRB^2 + consider^2): the consider part is the uncertainty of "
-              "the sensor corrections applied before the fit (each moved by one std, the fit "
-              "repeated); abs(error)/std uses it.", ""]
+        L += ["std (total) = sqrt(CRB^2 + consider^2), the consider part from what the fit "
+              f"held as exact ({mj.get('consider_source') or '-'}; each moved by one std, the "
+              "fit repeated); abs(error)/std uses it.", ""]
     seg_rows = param_rows(mj, False, segment=True)
     if seg_rows:
         L += ["Per-segment parameters (biases, initial states; `[k]` is the segment):", ""]

@@ -325,7 +325,8 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
 
     if start is not None:
         if method in START_FREE and len(start):    # (then fit_problem's equation-error starts off)
-            pb = replace(pb, model=pb.model.with_values(start),
+            free = {p.name for p in pb.model.parameters if p.free}   # held values stay the problem's
+            pb = replace(pb, model=pb.model.with_values({n: v for n, v in start.items() if n in free}),
                          regressions=pb.regressions if method == "ls" else [])
         try:
             return fit_problem(pb, method, turbulence=turbulence), None
@@ -346,6 +347,18 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
     v = validate(res, held_out=pb.held_out, truth=truth, tolerances=tolerances, proof_of_match=pom)
     progress.done()
     return res, v
+
+
+def _held_refit(fd, ac: AircraftConstants, inputs: str, res):
+    """values -> the 6-DoF lateral output error refitted with those longitudinal values
+    held, started from ``res``."""
+    def refit(values: Mapping[str, float]):
+        pb = sixdof_lateral_problem(fd, ac, longitudinal=values)
+        pb.inputs = inputs
+        done = fit_and_validate(pb, "oem", "lateral axis", None, Progress(1, quiet=True),
+                                start=res.params)
+        return None if done is None else done[0]
+    return refit
 
 
 def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[str, float] | None,
@@ -445,6 +458,11 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                                     start=None if starts is None else starts.get(key, {}))
             if done is not None:
                 results[key], validations[key] = done
+                if starts is None and pb.model.name.startswith("sixdof") and lon is not None:
+                    # the longitudinal estimates this fit holds: their uncertainty is
+                    # carried to it after the fits (propagate_corrections)
+                    results[key].extra["held"] = lon
+                    results[key].extra["held_refit"] = _held_refit(fd, ac, inputs, results[key])
     if not results:
         raise FsidError("every estimation method failed on this log (see the notes above)")
     return results, validations, problems
@@ -453,22 +471,35 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
 def propagate_corrections(fd_raw, comp: dict[str, Any], results: dict, validations: dict,
                           truth: Mapping[str, float] | None, progress: Progress,
                           refit) -> None:
-    """After the fits on compatibility-corrected data: add the sensor corrections'
-    uncertainty to every result (``consider_cov``, :mod:`pipeline.correction_uncertainty`),
-    redo the truth checks and verdicts with the total std, and record what was done in
-    ``comp["propagation"]``. ``refit(fd, starts)`` repeats the fits (results only). A
-    progress stage either way (nothing applied: nothing to carry)."""
-    if not comp.get("applied"):
-        progress.stage("sensor-correction uncertainty")
-        progress.done("no correction applied: nothing to carry")
-        return
-    from pipeline.correction_uncertainty import propagate
+    """One stage after the fits: what each fit held as exact gets its uncertainty into the
+    result's ``consider_cov`` (:mod:`pipeline.correction_uncertainty`) - the other axis'
+    estimates a fit held (``result.extra["held"]``, the 6-DoF lateral output error holding
+    the longitudinal derivatives; the doc goes to the validation's ``held_estimates``) and
+    the sensor corrections applied before estimation (``comp["propagation"]``; ``refit(fd,
+    starts)`` repeats the fits, results only). Then the truth checks and verdicts are
+    redone with the total std."""
+    from pipeline.correction_uncertainty import held_estimates, propagate
     from pipeline.validate import refresh_truth_check
 
-    comp["propagation"] = propagate(fd_raw, comp, results, refit, progress)
+    held = [k for k, r in results.items() if (r.extra or {}).get("held") is not None]
+    progress.stage("uncertainty of what the fits held as exact ("
+                   + ", ".join([f"{k}: held estimates" for k in held]
+                               + [f"{len(comp['applied'])} sensor corrections"] * bool(comp.get("applied")))
+                   + ")" if held or comp.get("applied") else "uncertainty of what the fits held as exact")
+    for k in held:
+        r = results[k]
+        doc = held_estimates(r, r.extra["held_refit"], progress)
+        r.extra.pop("held_refit", None)
+        if k in validations:
+            validations[k]["held_estimates"] = doc
+    if comp.get("applied"):
+        comp["propagation"] = propagate(fd_raw, comp, results, refit, progress)
     for key, res in results.items():
         if key in validations:
             refresh_truth_check(validations[key], res, truth)
+    progress.done("nothing held" if not held and not comp.get("applied") else
+                  f"{sum(r.consider_cov is not None for r in results.values())} of {len(results)} "
+                  "fits with a consider part")
 
 
 def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabled: bool = True,
