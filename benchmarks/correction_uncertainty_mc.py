@@ -11,6 +11,12 @@ part), and the bias (mean estimate - truth) in empirical std. Honest bounds have
 (the 95 % band of a std ratio from n seeds is about +-1.4/sqrt(n)). Last line: the largest
 total ratio.
 
+Measured (seeds 500-511, 2026-11-24): empirical std / total std 0.62-1.41 over the 29
+derivatives of both axes, against 0.66-5.99 for the Cramér-Rao std alone - the lateral
+fit's trim CD0, CL0, Cm0 scattered 6.0, 1.6, 2.2x their CRB (conditional on the held
+longitudinal estimates) and 1.13, 0.81, 0.94x their total std; longitudinal CLalpha 1.36 ->
+1.10, Cmq 1.31 -> 1.13 with the sensor corrections' part; |bias| <= 1.6 empirical std.
+
     python benchmarks/correction_uncertainty_mc.py [--seeds 10] [--seed-base 500] [--jobs 2]
 """
 from __future__ import annotations
