@@ -105,7 +105,7 @@ def is_segment_parameter(name: str) -> bool:
 
 
 def has_total_std(mj: Mapping[str, Any]) -> bool:
-    """Whether the method's std has a consider part (sensor-correction uncertainty)."""
+    """Whether the method's std has a consider part (sensor corrections, held estimates)."""
     return any(p.get("total_std") is not None for p in mj["parameters"].values())
 
 

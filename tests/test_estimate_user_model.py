@@ -230,7 +230,7 @@ def test_a_non_positive_band_is_one_line(flight, tmp_path, capsys):
 
 def test_progress_counts_every_stage_once(flight, tmp_path, capsys):
     """Without --quiet every stage prints '[n/N]': one total from the first line to the
-    last (the sensor-correction uncertainty stage included, whatever the compatibility
+    last (the stage of what the fits held as exact included, whatever the compatibility
     stage applies), n running 1..N."""
     import re
 
@@ -243,4 +243,4 @@ def test_progress_counts_every_stage_once(flight, tmp_path, capsys):
     assert len(stages) >= 7, err
     assert {b for _, b in stages} == {len(stages)}, err
     assert [a for a, _ in stages] == list(range(1, len(stages) + 1)), err
-    assert "sensor-correction uncertainty" in err
+    assert "uncertainty of what the fits held as exact" in err
