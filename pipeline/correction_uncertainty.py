@@ -1,4 +1,7 @@
-"""How the uncertainty of the sensor corrections reaches the estimated derivatives.
+"""How the uncertainty of what a fit holds as exact reaches its estimates: the sensor
+corrections applied before estimation (:func:`propagate`) and another fit's estimates
+held in the model (:func:`held_estimates`: the 6-DoF lateral output error holds the
+longitudinal derivatives), both by refits (:func:`consider_by_refits`).
 
 The compatibility stage (:func:`pipeline.compatibility.correct_for_estimation`) removes the
 significant sensor errors from the data before estimation, with estimates c (k values)

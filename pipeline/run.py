@@ -460,7 +460,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                 results[key], validations[key] = done
                 if starts is None and pb.model.name.startswith("sixdof") and lon is not None:
                     # the longitudinal estimates this fit holds: their uncertainty is
-                    # carried to it after the fits (propagate_corrections)
+                    # carried to it after the fits (carry_consider_uncertainty)
                     results[key].extra["held"] = lon
                     results[key].extra["held_refit"] = _held_refit(fd, ac, inputs, results[key])
     if not results:
@@ -468,7 +468,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     return results, validations, problems
 
 
-def propagate_corrections(fd_raw, comp: dict[str, Any], results: dict, validations: dict,
+def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, validations: dict,
                           truth: Mapping[str, float] | None, progress: Progress,
                           refit) -> None:
     """One stage after the fits: what each fit held as exact gets its uncertainty into the
@@ -482,10 +482,9 @@ def propagate_corrections(fd_raw, comp: dict[str, Any], results: dict, validatio
     from pipeline.validate import refresh_truth_check
 
     held = [k for k, r in results.items() if (r.extra or {}).get("held") is not None]
-    progress.stage("uncertainty of what the fits held as exact ("
-                   + ", ".join([f"{k}: held estimates" for k in held]
-                               + [f"{len(comp['applied'])} sensor corrections"] * bool(comp.get("applied")))
-                   + ")" if held or comp.get("applied") else "uncertainty of what the fits held as exact")
+    parts = [f"{k}: held estimates" for k in held]
+    parts += [f"{len(comp['applied'])} sensor corrections"] if comp.get("applied") else []
+    progress.stage("uncertainty of what the fits held as exact" + (f" ({', '.join(parts)})" if parts else ""))
     for k in held:
         r = results[k]
         doc = held_estimates(r, r.extra["held_refit"], progress)
@@ -602,7 +601,7 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
                                               tolerances=default_tolerances(
                                                   **{**scenario.pom_bands, **(bands or {})}),
                                               pom=pom)
-    propagate_corrections(fd_logged, comp, results, validations, truth, pr, lambda fd, starts: identify(
+    carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, lambda fd, starts: identify(
         fd, ac, methods, truth, quiet_progress(), inputs="linear",
         turbulence=truth_doc.get("turbulence"), starts=starts)[0])
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary,
@@ -681,7 +680,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         def refit(fd_j, starts):
             return identify(fd_j, ac, methods, truth, quiet_progress(), inputs=inputs, axes=axes,
                             starts=starts)[0]
-    propagate_corrections(fd_logged, comp, results, validations, truth, pr, refit)
+    carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit)
     if truth is not None:
         meta["truth"] = "truth.json next to the log"
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary, meta=meta,
