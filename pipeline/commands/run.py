@@ -21,7 +21,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", action="append", choices=list(METHODS),
                    help="estimation method (repeat for several; default: the ones that suit the "
                         "scenario - calm: oem ls; turbulence: oem fem ekf ukf; unstable with a "
-                        "SAS: soem eigen decouple fem ekf ukf). " + METHOD_LIST)
+                        "SAS: soem decouple fem ekf ukf; eigen needs a linear model). " + METHOD_LIST)
     p.add_argument("--no-compat", action="store_true",
                    help="skip the sensor-compatibility stage (flight path reconstruction); by "
                         "default sensor errors estimated at >= 3 std are removed from the data "
