@@ -49,13 +49,10 @@ def correction_covariance(doc: Mapping[str, Any]) -> tuple[list[str], np.ndarray
     corr = np.eye(len(names))
     ac = doc.get("applied_correlation") or {}
     if ac.get("names"):
-        m = np.asarray(ac["matrix"], dtype=float)
         pos = {n: i for i, n in enumerate(ac["names"])}
-        idx = [pos.get(n) for n in names]
-        for a, ia in enumerate(idx):
-            for b, ib in enumerate(idx):
-                if ia is not None and ib is not None:
-                    corr[a, b] = m[ia, ib]
+        mine = [a for a, n in enumerate(names) if n in pos]       # names the matrix carries
+        theirs = [pos[names[a]] for a in mine]
+        corr[np.ix_(mine, mine)] = np.asarray(ac["matrix"], dtype=float)[np.ix_(theirs, theirs)]
     return names, est, corr * np.outer(sd, sd)
 
 

@@ -323,25 +323,26 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
     from estimators import EstimationError
     from pipeline.validate import validate
 
-    if start is not None:
-        if method in START_FREE and len(start):    # (then fit_problem's equation-error starts off)
-            free = {p.name for p in pb.model.parameters if p.free}   # held values stay the problem's
-            pb = replace(pb, model=pb.model.with_values({n: v for n, v in start.items() if n in free}),
-                         regressions=pb.regressions if method == "ls" else [])
-        try:
-            return fit_problem(pb, method, turbulence=turbulence), None
-        except (EstimationError, np.linalg.LinAlgError):
-            return None
-    progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, {len(pb.fit)} "
-                   f"maneuvers, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
+    refit = start is not None
+    if refit and method in START_FREE and len(start):   # (then fit_problem's equation-error starts off)
+        free = {p.name for p in pb.model.parameters if p.free}   # held values stay the problem's
+        pb = replace(pb, model=pb.model.with_values({n: v for n, v in start.items() if n in free}),
+                     regressions=pb.regressions if method == "ls" else [])
+    if not refit:
+        progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, {len(pb.fit)} "
+                       f"maneuvers, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
     try:
         res = fit_problem(pb, method, turbulence=turbulence)
     except (EstimationError, np.linalg.LinAlgError) as exc:
+        if refit:
+            return None
         progress.done(f"FAILED: {exc}")
         print(f"note: {method.upper()} on the {what} failed: {exc}", file=progress.stream)
         progress.stage(f"validate {what} {method.upper()} (skipped)")
         progress.done()
         return None
+    if refit:
+        return res, None
     progress.done(f"{'converged' if res.converged else 'NOT converged'} in {res.iterations} iterations")
     progress.stage(f"validate {what} {method.upper()} (fit, residuals, modes, proof of match)")
     v = validate(res, held_out=pb.held_out, truth=truth, tolerances=tolerances, proof_of_match=pom)
@@ -352,11 +353,12 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
 def _held_refit(fd, ac: AircraftConstants, inputs: str, res):
     """values -> the 6-DoF lateral output error refitted with those longitudinal values
     held, started from ``res``."""
+    from pipeline.correction_uncertainty import quiet_progress
+
     def refit(values: Mapping[str, float]):
         pb = sixdof_lateral_problem(fd, ac, longitudinal=values)
         pb.inputs = inputs
-        done = fit_and_validate(pb, "oem", "lateral axis", None, Progress(1, quiet=True),
-                                start=res.params)
+        done = fit_and_validate(pb, "oem", "lateral axis", None, quiet_progress(), start=res.params)
         return None if done is None else done[0]
     return refit
 
