@@ -44,6 +44,7 @@ from estimators.fem import linearize_batch
 from estimators.jit import kernel_for
 from estimators.model import Model, Namespace, Segment
 from estimators.oem import OutputError
+from estimators.pseudo_input_noise import PropagationError, propagated_covariance
 from estimators.results import EstimationResult
 from estimators.simulation import Layout
 from estimators import statistics as st
@@ -84,12 +85,19 @@ def _linearisation(model: Model, segments: Sequence[Segment], start: Mapping[str
     return A[0], C[0]
 
 
+STD_METHODS = ("propagated", "morelli-klein", "crb")
+
+
 class _TransformedOEM:
     method = "oem"
 
-    def __init__(self, model: Model, integrator: str = "rk4", **oem_options) -> None:
+    def __init__(self, model: Model, integrator: str = "rk4", std: str = "propagated",
+                 **oem_options) -> None:
+        if std not in STD_METHODS:
+            raise ModelDefinitionError(f"std must be one of {', '.join(STD_METHODS)}, not {std!r}")
         self.model = model
         self.integrator = integrator
+        self.std_method = std
         self.oem_options = oem_options
 
     def _transform(self, segments: list[Segment], start) -> tuple[Model, list[Segment], dict]:
@@ -106,15 +114,53 @@ class _TransformedOEM:
         model_t, segs_t, info = self._transform(segments, start)
         res = OutputError(model_t, self.integrator, **self.oem_options).fit(
             segs_t, estimate_x0=estimate_x0, R=R, start=start)
+        if info.get("pseudo_outputs"):
+            self._fed_measurement_std(res, model_t, segs_t, info)
         res.method = self.method
         res.model = self.model
         res.segments = segments
         res.settings.update({k: v for k, v in info.items() if isinstance(v, (str, int, float, bool))})
-        res.extra.update(info)
+        res.extra.update({k: v for k, v in info.items() if k != "pseudo"})
         return self._finish(res)
 
     def _finish(self, res: EstimationResult) -> EstimationResult:
         return res
+
+    def _fed_measurement_std(self, res: EstimationResult, model_t: Model, segs_t: list[Segment],
+                             info: dict) -> None:
+        """Replace the Cramér-Rao covariance, which assumes white residuals, by one that
+        carries the measurement noise fed back through the pseudo-inputs: ``std`` =
+        "propagated" (:mod:`estimators.pseudo_input_noise`; falls back to Morelli-Klein when
+        the pseudo-inputs are smoothed or the fed model diverges over a segment),
+        "morelli-klein" (coloured residuals, all lags, Bartlett window) or "crb" (kept).
+        The Cramér-Rao covariance stays in ``extra["crb_cov"]``."""
+        inner = np.flatnonzero(np.isfinite(np.diag(res.cov)))
+        if self.std_method == "crb" or res.sensitivities is None or not inner.size:
+            return
+        S = [s[:, :, inner] for s in res.sensitivities]
+        E = [r.to_numpy() for r in res.residuals]
+        M = res.information[np.ix_(inner, inner)]
+        how, why = self.std_method, ""
+        if how == "propagated" and info.get("smooth_hz"):
+            how, why = "morelli-klein", " (smoothed pseudo-inputs are not propagated)"
+        if how == "propagated":
+            try:
+                C, s2 = propagated_covariance(model_t, segs_t, res.params.to_dict(), S, E, res.R, M,
+                                              info["pseudo_outputs"], info.get("pseudo"))
+                res.extra["noise_std"] = dict(zip(model_t.outputs, np.sqrt(s2).tolist()))
+                note = "std: measurement noise propagated through the fed-back measurements"
+            except PropagationError as exc:
+                how, why = "morelli-klein", f" ({exc})"
+        if how == "morelli-klein":
+            from estimators.validation.uncertainty import morelli_klein
+            C = morelli_klein(S, E, R=res.R, info=M, max_lag=None).cov
+            note = "std: Morelli-Klein (coloured residuals from the fed-back measurements)" + why
+        cov = np.full_like(res.cov, np.nan)
+        cov[np.ix_(inner, inner)] = C
+        res.extra["crb_cov"] = res.cov
+        res.extra["std_method"] = how
+        res.cov = cov
+        res.message = (res.message + "; " if res.message else "") + note
 
 
 class StabilizedOutputError(_TransformedOEM):
@@ -122,14 +168,22 @@ class StabilizedOutputError(_TransformedOEM):
 
     S : (n_states, n_outputs) stabilisation matrix in 1/s, {state: {output: gain}}, or None
         for the default (see module docstring). Outputs without a gain are not fed back.
+    std : the reported covariance (the Cramér-Rao one stays in ``extra["crb_cov"]``):
+        "propagated" (default) carries the measurement noise fed back into the model
+        (:mod:`estimators.pseudo_input_noise`; the noise std it finds per output in
+        ``extra["noise_std"]``), falling back to "morelli-klein" (coloured residuals,
+        all lags) when the fed model diverges over a segment; "crb" keeps the
+        Cramér-Rao bounds, which assume white residuals and are several times too small
+        here (Cmalpha 6x on scenarios/unstable_short_period.toml).
     integrator, **oem_options : as :class:`~estimators.OutputError`.
     """
 
     method = "oem-stabilized"
 
     def __init__(self, model: Model, S: Any = None, integrator: str = "rk4",
-                 feedback: Sequence[str] | None = None, **oem_options) -> None:
-        super().__init__(model, integrator, **oem_options)
+                 feedback: Sequence[str] | None = None, std: str = "propagated",
+                 **oem_options) -> None:
+        super().__init__(model, integrator, std, **oem_options)
         self.S = S
         self.feedback = None if feedback is None else list(feedback)
 
@@ -208,7 +262,7 @@ class StabilizedOutputError(_TransformedOEM):
                                m.name + " (stabilised)"))
         segs = [Segment(t=s.t, u=np.column_stack([s.u, _fill(s.z[:, used], s.t)]), z=s.z, x0=s.x0,
                         constants=s.constants, name=s.name) for s in segments]
-        return mt, segs, {"S": S}
+        return mt, segs, {"S": S, "pseudo_outputs": [m.outputs[j] for j in used]}
 
 
 def _g_of(m: Model, ni: int):
@@ -280,6 +334,7 @@ class EigenvalueTransformation(_TransformedOEM):
             cov[np.ix_(inner, inner)] = sandwich_covariance(
                 S, E, res.R, res.information[np.ix_(inner, inner)])
             res.extra["crb_cov"] = res.cov
+            res.extra["std_method"] = "sandwich"
             res.cov = cov
             res.message = (res.message + "; " if res.message else "") + \
                 "std: heteroscedasticity-consistent (sandwich) covariance of the weighted residuals"
@@ -319,11 +374,10 @@ class EquationDecoupling(_TransformedOEM):
         attack moved from the nose-boom vane to the CG (alpha_vane differs by about
         q x_vane / V, which a decoupled pitch equation would otherwise book on Cmq).
         Missing samples are filled and ``smooth`` is applied afterwards as usual.
-    std : "morelli-klein" (default) reports std corrected for coloured residuals
-        (:func:`estimators.validation.uncertainty.morelli_klein`, all lags, Bartlett
-        window): the measurement noise of a pseudo-input passes through the dynamics of
-        the other equations like process noise and colours the residuals, so the plain
-        Cramér-Rao bounds (kept in ``extra["crb_cov"]``) are too small; "crb" keeps them.
+    std : as :class:`StabilizedOutputError`: the measurement noise of a pseudo-input
+        passes through the dynamics of the other equations like process noise and colours
+        the residuals, so the plain Cramér-Rao bounds are too small. Smoothed pseudo-inputs
+        (``smooth``) get the Morelli-Klein std.
 
     Decouple as little as needed: replacing only the destabilising coupling (for a
     statically unstable short period, alpha in the pitch equation: ``states=["alpha"]``)
@@ -333,31 +387,12 @@ class EquationDecoupling(_TransformedOEM):
     method = "oem-decoupled"
 
     def __init__(self, model: Model, states: Sequence[str] | None = None, integrator: str = "rk4",
-                 smooth: float | None = None, std: str = "morelli-klein", pseudo=None,
+                 smooth: float | None = None, std: str = "propagated", pseudo=None,
                  **oem_options) -> None:
-        super().__init__(model, integrator, **oem_options)
-        if std not in ("morelli-klein", "crb"):
-            raise ModelDefinitionError(f"std must be 'morelli-klein' or 'crb', not {std!r}")
+        super().__init__(model, integrator, std, **oem_options)
         self.states = None if states is None else list(states)
         self.smooth = smooth
-        self.std_method = std
         self.pseudo = pseudo
-
-    def _finish(self, res: EstimationResult) -> EstimationResult:
-        inner = np.flatnonzero(np.isfinite(np.diag(res.cov)))
-        if self.std_method == "crb" or res.sensitivities is None or not inner.size:
-            return res
-        from estimators.validation.uncertainty import morelli_klein
-        u = morelli_klein([s[:, :, inner] for s in res.sensitivities],
-                          [r.to_numpy() for r in res.residuals], R=res.R,
-                          info=res.information[np.ix_(inner, inner)], max_lag=None)
-        cov = np.full_like(res.cov, np.nan)
-        cov[np.ix_(inner, inner)] = u.cov
-        res.extra["crb_cov"] = res.cov
-        res.cov = cov
-        res.message = (res.message + "; " if res.message else "") + \
-            "std: Morelli-Klein (coloured residuals from noisy pseudo-inputs)"
-        return res
 
     def _pseudo(self, seg: Segment, cols: Sequence[int]) -> np.ndarray:
         if self.pseudo is not None:
@@ -404,4 +439,5 @@ class EquationDecoupling(_TransformedOEM):
                                m.name + " (decoupled)"))
         segs = [Segment(t=s.t, u=np.column_stack([s.u, self._pseudo(s, oi)]), z=s.z, x0=s.x0,
                         constants=s.constants, name=s.name) for s in segments]
-        return mt, segs, {"decoupled_states": dec, "smooth_hz": self.smooth or 0.0}
+        return mt, segs, {"decoupled_states": dec, "smooth_hz": self.smooth or 0.0,
+                          "pseudo_outputs": dec, "pseudo": self.pseudo}

@@ -32,6 +32,7 @@ import numpy as np
 import pandas as pd
 from numba.extending import register_jitable
 
+from estimators import statistics as st
 from pipeline.errors import FsidError
 from pipeline.flightdata import FlightData, SegmentSpec
 
@@ -491,18 +492,9 @@ def _morelli_klein(res) -> dict[str, float] | None:
 def _noise_levels(frames, outputs: Sequence[str]) -> dict[str, float]:
     """Measurement-noise std of each output from its own samples: std of second differences
     / sqrt(6) (white noise on a smooth signal), pooled over segments."""
-    out = {}
-    for c in outputs:
-        d2 = []
-        for _, df in frames:
-            v = df[c].to_numpy()
-            v = v[np.isfinite(v)]
-            if v.size > 3:
-                d2.append(np.diff(v, 2))
-        x = np.concatenate(d2) if d2 else np.zeros(0)
-        out[c] = float(np.std(x) / np.sqrt(6.0)) if x.size else 1.0
-        out[c] = max(out[c], 1e-6)
-    return out
+    sd = st.difference_noise_std([np.column_stack([df[c].to_numpy(dtype=float) for c in outputs])
+                                  for _, df in frames])
+    return {c: max(float(v), 1e-6) if np.isfinite(v) else 1.0 for c, v in zip(outputs, sd)}
 
 
 def _nll(res) -> float:

@@ -18,12 +18,16 @@
          "fixed": {"<name>": value},
          "correlations_flagged": [[a, b, rho], ...],
          "consider_source": str | null,   # what consider_std accounts for
+         "std_method": "crb" | "propagated" | "morelli-klein" | ...,  # how std was computed
+         "noise_std": {"<output>": float} | null,   # noise fed back (soem, decouple)
          "fit": {"<output>": {"TIC", "UM", "US", "UC", "R2", "RMS", ...}},
          "validation": {...}            # pipeline.validate.validate() minus "arrays"
          "verdict": {"ok", "reasons", "notes"}}}}
 
 Numbers are SI (per radian for derivatives) with NaN written as ``null``. ``estimate`` and
-``std`` are exactly the result's ``params``/``std`` (Cramér-Rao); ``mk_std`` the
+``std`` are exactly the result's ``params``/``std`` (Cramér-Rao, unless ``std_method``
+says otherwise: stabilised OEM and equation decoupling carry the measurement noise they
+feed back into the model, :mod:`estimators.pseudo_input_noise`); ``mk_std`` the
 Morelli-Klein corrected std. When the fit held something uncertain as exact (sensor
 corrections applied before it, another axis' estimates), ``consider_std`` is that
 uncertainty carried to the parameter and ``total_std`` = sqrt(std^2 + consider_std^2),
@@ -66,6 +70,10 @@ def method_json(result: EstimationResult, validation: Mapping[str, Any] | None,
     d["fixed"] = num({n: v for n, v, f in zip(result.names, result.values, result.free)
                       if not f and not n.startswith("x0_")})
     d["consider_source"] = result.consider_source or None
+    # how std was computed when it is not the Cramér-Rao bound (estimators.stabilized), and
+    # the measurement noise std a fed-back-measurement method inferred per output
+    d["std_method"] = result.extra.get("std_method", "crb")
+    d["noise_std"] = result.extra.get("noise_std")
     d["fit"] = (val.get("fit") or {}).get("per_output", {})
     d["validation"] = val
     d["verdict"] = val.get("verdict") or verdict({"converged": result.converged})

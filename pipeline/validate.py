@@ -158,8 +158,11 @@ def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
                             R=result.R, info=result.information, names=names)
     except (ValueError, np.linalg.LinAlgError) as exc:
         return {"error": str(exc)}
-    df = pd.DataFrame({"crb_std": result.std[names].to_numpy(), "mk_std": u.std,
-                       "ratio": u.std / result.std[names].to_numpy()},
+    crb = result.std[names].to_numpy()
+    if "crb_cov" in result.extra:      # std is not the Cramér-Rao bound (estimators.stabilized)
+        crb = np.sqrt(np.clip(np.diag(result.extra["crb_cov"]), 0.0, None))[
+            [result.free_names.index(n) for n in names]]
+    df = pd.DataFrame({"crb_std": crb, "mk_std": u.std, "ratio": u.std / crb},
                       index=pd.Index(names, name="parameter"))
     return {"per_parameter": frame_dict(df), "max_lag": u.max_lag}
 

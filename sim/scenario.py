@@ -15,7 +15,8 @@ Layout (see ``scenarios/default.toml`` for a commented example)::
     [schedule]    lead_s = 5, quiet_s = 10   (maneuvers without start_s are laid end to end)
     [[maneuver]]  name, axis (de|da|dr|throttle, or a list for multisine), shape
                   (doublet|3211|multistep|sweep|multisine), amplitude_deg (or amplitude
-                  for throttle, fraction), start_s, pulse_s, levels, f0_hz, f1_hz,
+                  for throttle, fraction; a multisine takes one value or a list, one
+                  per axis), start_s, pulse_s, levels, f0_hz, f1_hz,
                   length_s, sweep (linear|log), period_s, cycles
     [turbulence]  model (off|milspec|tustin), severity (light|moderate|severe),
                   windspeed_20ft_mps (optional override), seed (default: scenario seed)
@@ -131,6 +132,15 @@ class _Section:
             raise self.fail(key, f"must be <= {hi}, got {v}")
         return float(v)
 
+    def pick(self, key: str, k: int, n: int, **limits) -> float:
+        """Element k of a per-axis list of n numbers, or the one number given for all axes."""
+        v = self.t.get(key)
+        if not isinstance(v, list):
+            return self.num(key, **limits)
+        if len(v) != n:
+            raise self.fail(key, f"a list needs one value per axis ({n}), got {len(v)}")
+        return _Section(self.path, f"{self._key(key)}[{k}]", {"": v[k]}, {""}).num("", **limits)
+
     def text(self, key: str, default: str | None = None, choices: tuple[str, ...] | None = None) -> str:
         if key not in self.t:
             if default is None:
@@ -174,15 +184,15 @@ def _maneuver(path: Path, i: int, tab: Any, t_next: float) -> Maneuver:
     if len(axes) != len(set(axes)) or (len(axes) > 1 and shape != "multisine"):
         raise s.fail("axis", "a list of distinct axes is allowed only for shape = 'multisine'")
     amps = []
-    for a in axes:
+    for k, a in enumerate(axes):
         if a == "throttle":
             if "amplitude_deg" in s.t and len(axes) == 1:
                 raise s.fail("amplitude_deg", "wrong unit; the throttle amplitude is a fraction: write amplitude")
-            amps.append(s.num("amplitude", lo=-1.0, hi=1.0))
+            amps.append(s.pick("amplitude", k, len(axes), lo=-1.0, hi=1.0))
         else:
             if "amplitude" in s.t and "amplitude_deg" not in s.t:
                 raise s.fail("amplitude", "wrong unit; surface amplitudes are in degrees: write amplitude_deg")
-            a = s.num("amplitude_deg", lo=-90.0, hi=90.0)
+            a = s.pick("amplitude_deg", k, len(axes), lo=-90.0, hi=90.0)
             if a == 0:
                 raise s.fail("amplitude_deg", "must not be zero")
             amps.append(float(np.deg2rad(a)))

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from estimators import (EKF, UKF, EigenvalueTransformation, EquationDecoupling, FilterError,
-                        OutputError, SimulationDivergedError, StabilizedOutputError)
+                        ModelDefinitionError, OutputError, SimulationDivergedError, StabilizedOutputError)
 from estimators.process_noise_examples import UNSTABLE_SP_FREE, unstable_short_period_example
 from estimators.stabilized import _linearisation
 
@@ -72,8 +72,13 @@ def test_equation_decoupling(calm):
     assert res.method == "oem-decoupled" and res.converged
     assert res.extra["decoupled_states"] == ["alpha"]
     within(res, calm.truth)
-    # std corrected for the coloured residuals; the plain Cramér-Rao bounds are kept
-    assert res.extra["crb_cov"].shape == (5, 5) and "Morelli-Klein" in res.message
+    # std carry the noise of the fed-back measurements; the plain Cramér-Rao bounds are kept
+    assert res.extra["crb_cov"].shape == (5, 5) and res.extra["std_method"] == "propagated"
+    assert "measurement noise propagated" in res.message
+    assert EquationDecoupling(calm.model, states=["alpha"], std="crb").fit(calm.segments).extra.get(
+        "std_method") is None
+    with pytest.raises(ModelDefinitionError, match="std must be one of"):
+        StabilizedOutputError(calm.model, std="white")
 
 
 def test_filter_error_on_unstable_aircraft_in_light_turbulence(gusty):
