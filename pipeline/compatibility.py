@@ -32,7 +32,7 @@ import numpy as np
 import pandas as pd
 from numba.extending import register_jitable
 
-from estimators import statistics as st
+from estimators.statistics import difference_noise_std
 from pipeline.errors import FsidError
 from pipeline.flightdata import FlightData, SegmentSpec
 
@@ -492,7 +492,7 @@ def _morelli_klein(res) -> dict[str, float] | None:
 def _noise_levels(frames, outputs: Sequence[str]) -> dict[str, float]:
     """Measurement-noise std of each output from its own samples: std of second differences
     / sqrt(6) (white noise on a smooth signal), pooled over segments."""
-    sd = st.difference_noise_std([np.column_stack([df[c].to_numpy(dtype=float) for c in outputs])
+    sd = difference_noise_std([np.column_stack([df[c].to_numpy(dtype=float) for c in outputs])
                                   for _, df in frames])
     return {c: max(float(v), 1e-6) if np.isfinite(v) else 1.0 for c, v in zip(outputs, sd)}
 
