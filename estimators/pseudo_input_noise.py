@@ -18,15 +18,14 @@ estimation error is theta_hat - theta = M^-1 sum_n T_n v_n with
 
     Cov(theta_hat) = M^-1 (sum_n T_n diag(s^2) T_n^T) M^-1.
 
-The anti-causal sum is one :func:`scipy.signal.lfilter` over the reversed sensitivities
-per (output, pseudo-input) pair, vectorised over time and parameters; it runs over the
-segment only, so a mildly unstable fed model (equation decoupling leaves the phugoid free)
+The anti-causal sum is a backward (adjoint) recursion over each segment
+(:func:`adjoint_sums`), vectorised over the parameters; it runs over the segment only, so a mildly unstable fed model (equation decoupling leaves the phugoid free)
 is handled as well as a stable one. G is the model linearised at the estimate at each
 segment's first sample and discretised with a zero-order hold. Where a channel has no
 measurement (a 50 Hz vane on a 100 Hz grid) the pseudo-input was filled by linear
 interpolation; its coefficients go back to the two measured samples it came from. The
 noise variances s^2 come from the measurements themselves
-(:func:`estimators.statistics.difference_noise_std`), not from the residuals, which also
+(:func:`estimators.statistics.difference_noise_std`, robust), not from the residuals, which also
 carry the noise's echo through the feedback.
 
 Measured: ``benchmarks/fed_measurement_std_mc.py`` (its docstring).
@@ -98,9 +97,9 @@ def onto_measured(c: np.ndarray, t: np.ndarray, measured: np.ndarray) -> np.ndar
     return out
 
 
-def _fed_transfer(model: Model, segment: Segment, values: Mapping[str, float],
-                  pseudo_cols: Sequence[int]) -> list[tuple[np.ndarray, np.ndarray]]:
-    """G per pseudo-input as discrete transfer functions (num (n_out, .), den): the fed
+def _fed_system(model: Model, segment: Segment, values: Mapping[str, float],
+                pseudo_cols: Sequence[int]) -> tuple[np.ndarray, ...]:
+    """G as a discrete system (Ad, Bd, Cd, Dd), inputs the columns ``pseudo_cols``: the fed
     model linearised at the segment's first sample, zero-order hold at its median step.
     Raises PropagationError when G grows more than 1000-fold over the segment."""
     lay = Layout.build(model, [segment], values=values)
@@ -116,15 +115,35 @@ def _fed_transfer(model: Model, segment: Segment, values: Mapping[str, float],
         raise PropagationError(f"the model fed with its measurements is not stable at the "
                                f"estimate: it grows {rho:.4f}x per sample, more than 1000x over "
                                f"segment {segment.name or ''} ({segment.n} samples)")
-    return [signal.ss2tf(Ad, Bd[:, [k]], Cd, Dd[:, [k]]) for k in range(Bd.shape[1])]
+    return Ad, Bd, Cd, Dd
+
+
+def adjoint_sums(Ad: np.ndarray, Bd: np.ndarray, Cd: np.ndarray, Dd: np.ndarray,
+                 a: np.ndarray) -> np.ndarray:
+    """back (N, n_in, n_p): back_m = sum_{l>=0} g_l^T a_{m+l} over the rest of the segment,
+    g_0 = Dd, g_l = Cd Ad^(l-1) Bd (the discrete system's impulse response), a (N, n_out,
+    n_p). The backward (adjoint) recursion mu_{m-1} = Cd^T a_m + Ad^T mu_m, back_m =
+    Dd^T a_m + Bd^T mu_m: one small matrix product per sample, vectorised over the
+    parameters, and exact for integrators and mildly unstable modes alike (a transfer
+    function of the same system loses the integrator chains of a kinematic model)."""
+    N, _, n_p = a.shape
+    back = np.empty((N, Bd.shape[1], n_p))
+    mu = np.zeros((Ad.shape[0], n_p))
+    AT, BT, CT, DT = Ad.T, Bd.T, Cd.T, Dd.T
+    for m in range(N - 1, -1, -1):
+        back[m] = DT @ a[m] + BT @ mu
+        mu = CT @ a[m] + AT @ mu
+    return back
 
 
 def propagated_covariance(model: Model, segments: Sequence[Segment], values: Mapping[str, float],
                           sensitivities: Sequence[np.ndarray], residuals: Sequence[np.ndarray],
                           R: np.ndarray, info: np.ndarray, pseudo_outputs: Sequence[str],
-                          pseudo: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(cov (n_p, n_p), s^2 (n_out,) the measurement-noise variances used) of the estimates of a model whose trailing inputs are
-    pseudo-inputs (see the module docstring).
+                          pseudo: Callable | None = None, noisy_inputs: Sequence[str] = ()
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """(cov (n_p, n_p), s^2) of the estimates of a model fed measurements (see the module
+    docstring); s^2 the measurement-noise variances used, (n_out + len(noisy_inputs),):
+    the outputs', then the noisy inputs'.
 
     model: the fed (transformed) model; its last len(pseudo_outputs) inputs are the
         pseudo-inputs, pseudo-input k derived from the measurement of pseudo_outputs[k].
@@ -132,30 +151,37 @@ def propagated_covariance(model: Model, segments: Sequence[Segment], values: Map
     sensitivities: per segment (N, n_out, n_p); residuals: per segment (N, n_out) (NaN =
         missing); R: the residual covariance the fit weighted with (n_out, n_out); info:
         M = sum S^T R^-1 S (n_p, n_p). pseudo: as :func:`pseudo_mixing`.
+    noisy_inputs: other inputs that are measurements with white noise of their own (the
+        IMU driving a kinematic model): their noise only echoes, through G.
     Raises PropagationError when the fed model diverges over a segment at the estimate.
     """
     outs = list(model.outputs)
     npse = len(pseudo_outputs)
     cols = list(range(len(model.inputs) - npse, len(model.inputs)))
+    icols = [model.inputs.index(n) for n in noisy_inputs]
     W = np.linalg.inv(np.atleast_2d(R))
-    tfs = [_fed_transfer(model, s, values, cols) for s in segments]
+    systems = [_fed_system(model, s, values, cols + icols) for s in segments]
     Js = [pseudo_mixing(s, outs, pseudo_outputs, pseudo) for s in segments]
     res = [np.asarray(e, dtype=float) for e in residuals]
-    s2 = st.difference_noise_std([s.z for s in segments]) ** 2
-    if not np.all(np.isfinite(s2)):
+    s2 = st.difference_noise_std([s.z for s in segments], robust=True) ** 2
+    s2_in = (st.difference_noise_std([s.u[:, icols] for s in segments], robust=True) ** 2 if icols
+             else np.zeros(0))
+    if not np.all(np.isfinite(s2)) or not np.all(np.isfinite(s2_in)):
         raise PropagationError("too few samples to estimate the measurement noise of "
-                               + ", ".join(o for o, v in zip(outs, s2) if not np.isfinite(v)))
+                               + ", ".join(o for o, v in zip(outs + list(noisy_inputs),
+                                                             np.r_[s2, s2_in]) if not np.isfinite(v)))
     mid = np.zeros_like(info, dtype=float)
-    for seg, S, e, J, tf in zip(segments, sensitivities, res, Js, tfs):
+    for seg, S, e, J, sys_ in zip(segments, sensitivities, res, Js, systems):
         ok = np.isfinite(e)
         a = np.einsum("ab,nbp->nap", W, np.where(ok[:, :, None], np.nan_to_num(S), 0.0))
         T = a.copy()                                         # (N, n_out noise channel, n_p)
-        for k, (num, den) in enumerate(tf):
-            back = sum(signal.lfilter(num[i], den, a[::-1, i, :], axis=0)
-                       for i in range(len(outs)))[::-1]      # (N, n_p)
+        back = adjoint_sums(*sys_, a)                        # (N, n_pseudo + n_noisy, n_p)
+        for k in range(npse):
             for j in np.flatnonzero(np.any(J[:, k, :] != 0, axis=0)):
-                T[:, j, :] -= onto_measured(J[:, k, j, None] * back, seg.t, ok[:, j])
+                T[:, j, :] -= onto_measured(J[:, k, j, None] * back[:, k], seg.t, ok[:, j])
+        # a noisy input's noise only echoes
+        mid += np.einsum("nkp,k,nkq->pq", back[:, npse:], s2_in, back[:, npse:])
         mid += np.einsum("njp,j,njq->pq", T, s2, T)
     Minv = st.covariance(info)
     cov = Minv @ mid @ Minv
-    return 0.5 * (cov + cov.T), s2
+    return 0.5 * (cov + cov.T), np.r_[s2, s2_in]

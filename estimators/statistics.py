@@ -125,17 +125,21 @@ def solve_step(F: np.ndarray, G: np.ndarray, lam: float = 0.0) -> np.ndarray:
     return x / d
 
 
-def difference_noise_std(segments: Sequence[np.ndarray]) -> np.ndarray:
+def difference_noise_std(segments: Sequence[np.ndarray], robust: bool = False) -> np.ndarray:
     """White measurement-noise std per column, (n_cols,), from second differences of each
     column's own samples (NaN = not measured, skipped, so a 50 Hz channel on a 100 Hz grid
     is differenced at 50 Hz), pooled over the segments (each (N, n_cols)): the second
     difference of white noise has variance 6 sigma^2, and a signal that is smooth over
-    two samples adds little. NaN for a column with fewer than 4 samples in every segment."""
+    two samples adds little. ``robust``: the spread from the median absolute deviation
+    (x 1.4826), which the few large second differences at control steps (a rate's kink
+    when a surface steps) do not inflate. NaN for a column with fewer than 4 samples in
+    every segment."""
     cols = np.atleast_2d(segments[0]).shape[1]
     out = np.full(cols, np.nan)
     for c in range(cols):
         d2 = [np.diff(v[np.isfinite(v)], 2) for v in (np.asarray(s, dtype=float)[:, c] for s in segments)]
         d2 = np.concatenate([d for d in d2 if d.size > 1] or [np.zeros(0)])
         if d2.size:
-            out[c] = float(np.std(d2) / np.sqrt(6.0))
+            spread = (1.4826 * np.median(np.abs(d2 - np.median(d2))) if robust else np.std(d2))
+            out[c] = float(spread / np.sqrt(6.0))
     return out

@@ -452,41 +452,43 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
         tau_info = {"method": "grid shift + first-order fraction", "shift_s": shift / rate_hz,
                     "fraction_s": float(res.params["delay_air"]), "channels": dch}
     crb_std = std.copy()
-    mk = None  # Morelli-Klein needs gap-free residuals; slow outputs here have NaN gaps
+    carried = method not in ("ekf", "ukf") and _carry_imu_noise(res)
+    if carried:
+        std = res.std[std.index].astype(float)
     return CompatibilityResult(res, params, std, [s for s, _ in frames], outputs,
                                {"rate_hz": rate_hz, "imu_position": list(map(float, imu_position)),
                                 "boom_position": list(map(float, boom_position)),
                                 "estimate": list(est), "integrator": integrator, "delay": tau_info,
                                 "method": method,
-                                "std": "Cramér-Rao, Morelli-Klein corrected for coloured residuals"
-                                       if mk is not None else "Cramér-Rao"},
+                                "std": "Cramér-Rao with the IMU noise carried through the kinematics"
+                                       if carried else "Cramér-Rao"},
                                crb_std=crb_std)
 
 
-def _morelli_klein(res) -> dict[str, float] | None:
-    """Morelli-Klein corrected std of the free parameters (None when unavailable).
-    Samples without a measurement (NaN) get zero residual and zero sensitivity."""
+def _carry_imu_noise(res) -> bool:
+    """Replace the output-error fit's Cramér-Rao covariance (kept in extra["crb_cov"]) by one
+    that carries the noise of the IMU signals driving the kinematic model
+    (:func:`estimators.pseudo_input_noise.propagated_covariance`): gyro noise integrates
+    into the attitude and accelerometer noise into the velocities, which the white-residual
+    bound ignores (scenarios/default.toml: gyro-bias std 2.3-2.7x the bound; bias_p had been
+    applied at 3.3 of those on an error-free flight, 1.2 std with the IMU noise carried).
+    False (the bound kept) when it cannot be computed."""
+    from estimators.pseudo_input_noise import PropagationError, propagated_covariance
+
+    if not getattr(res, "sensitivities", None) or res.information is None:
+        return False
     try:
-        from estimators.validation.uncertainty import morelli_klein
-    except ImportError:  # pragma: no cover
-        return None
-    Ss = getattr(res, "sensitivities", None)
-    if not Ss:
-        return None
-    vs, S2 = [], []
-    for S, e in zip(Ss, res.residuals):
-        v = e.to_numpy(dtype=float).copy()
-        bad = ~np.isfinite(v)
-        v[bad] = 0.0
-        S = np.array(S, dtype=float)
-        S[bad] = 0.0
-        vs.append(v)
-        S2.append(S)
-    try:
-        out = morelli_klein(S2, vs, R=res.R, info=res.information, names=res.free_names)
-    except Exception:  # numerical trouble: keep the conventional bounds
-        return None
-    return dict(zip(out.names, out.std))
+        cov, _ = propagated_covariance(res.model, res.segments, res.params.to_dict(), res.sensitivities,
+                                       [r.to_numpy(dtype=float) for r in res.residuals], res.R,
+                                       res.information, [], noisy_inputs=INPUTS)
+    except (PropagationError, ValueError, np.linalg.LinAlgError):
+        return False
+    if not np.all(np.isfinite(np.diag(cov))):
+        return False
+    res.extra["crb_cov"] = res.cov
+    res.extra["std_method"] = "propagated"
+    res.cov = cov
+    return True
 
 
 def _noise_levels(frames, outputs: Sequence[str]) -> dict[str, float]:
@@ -612,8 +614,9 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
 
     1. Reconstruct with every sensor error of ``estimate`` free (default: all IMU biases
        and scale factors, air-data biases, scale factors and delay).
-    2. A sensor error counts as present when ``|estimate| >= threshold * std`` (Cramér-Rao,
-       default 3): an estimate indistinguishable from zero is not applied, since applying
+    2. A sensor error counts as present when ``|estimate| >= threshold * std`` (default 3;
+       std the Cramér-Rao bound with the IMU noise carried through the kinematics,
+       :func:`_carry_imu_noise`): an estimate indistinguishable from zero is not applied, since applying
        it would only add its estimation noise to the data. None is applied when the fit
        does not explain the air data: an air-data output (V, alpha, beta) with residuals
        above ``ADEQUACY`` (1.5) times its noise level (turbulence or wind, which the
@@ -631,8 +634,9 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
     flight can show applied (bias_V is carried by scale_V), nothing else; default and
     unstable_short_period - nothing applied; the two turbulence scenarios - nothing applied
     (air-data residuals 2.2-6.2 x noise); false positives on error-free calm flights:
-    lateral_doublets_calm bias_az/scale_az (4.7 std each, cancelling to < 0.01 m/s^2 at
-    1 g), longitudinal_3211_calm bias_p (3.4 std, 0.008 deg/s).
+    lateral_doublets_calm bias_az/scale_az (nearly collinear at 1 g, cancelling to < 0.01
+    m/s^2). With the plain Cramér-Rao std longitudinal_3211_calm and default had bias_p
+    applied too (3.3-3.4 std, 0.008 deg/s); with the IMU noise carried it is 1.2 std.
 
     Returns (JSON-ready document, flight data for estimation). The document is the full
     fit's ``to_dict`` (every estimate with std, and truth / error_std when ``truth``, in

@@ -5,7 +5,8 @@ import pytest
 
 from estimators import Model, OutputError
 from estimators.model import Parameter, Segment
-from estimators.pseudo_input_noise import (PropagationError, onto_measured, propagated_covariance,
+from estimators.pseudo_input_noise import (PropagationError, adjoint_sums, onto_measured,
+                                           propagated_covariance,
                                            pseudo_mixing)
 from estimators.statistics import difference_noise_std
 
@@ -92,3 +93,13 @@ def test_coefficients_of_filled_samples_go_back_to_the_measured_ones():
     # before the first and after the last measurement the fill holds the nearest one
     out = onto_measured(c, t, np.array([False, True, True, True, False]))
     assert out[:, 0] == pytest.approx([0.0, 3.0, 3.0, 9.0, 0.0])
+
+
+def test_adjoint_sums_are_the_impulse_response_correlated_forward():
+    rng = np.random.default_rng(1)
+    Ad = np.array([[1.0, 0.01], [0.0, 0.98]])          # an integrator chain: a pole at 1
+    Bd, Cd, Dd = rng.standard_normal((2, 2)), rng.standard_normal((3, 2)), rng.standard_normal((3, 2))
+    a = rng.standard_normal((60, 3, 4))
+    g = [Dd] + [Cd @ np.linalg.matrix_power(Ad, l - 1) @ Bd for l in range(1, 60)]
+    want = np.stack([sum(g[l].T @ a[m + l] for l in range(60 - m)) for m in range(60)])
+    assert adjoint_sums(Ad, Bd, Cd, Dd, a) == pytest.approx(want, rel=1e-10, abs=1e-10)
