@@ -12,10 +12,10 @@ bounds have reported ~1 (the 95 % band of a std ratio from n seeds is about
 +-1.4/sqrt(n)).
 
 Measured (seeds 100-111, 2026-11-24):
-  soem: empirical std / reported std 0.77-1.32 over the 11 derivatives (Cramér-Rao alone
+  soem: empirical std / reported std 0.77-1.33 over the 11 derivatives (Cramér-Rao alone
         2.15-7.21: Cmalpha 7.2, Cm0 6.2, Cmde 5.9, Cmq 5.4; Morelli-Klein 1.11-1.72);
         |bias| <= 0.87 empirical std.
-  decouple: 0.50-0.99 - conservative (Cramér-Rao alone 1.57-18.3, Cmq 18.3; the
+  decouple: 0.51-1.00 - conservative (Cramér-Rao alone 1.57-18.3, Cmq 18.3; the
         Morelli-Klein std it reported before 0.90-3.47, Cmq 3.5); |bias| <= 1.33
         empirical std (CLde, Cmalpha, CLalpha: errors in variables, the noisy alpha
         in the pitch equation, second order in the noise and not in any std).

@@ -19,14 +19,17 @@ estimation error is theta_hat - theta = M^-1 sum_n T_n v_n with
     Cov(theta_hat) = M^-1 (sum_n T_n diag(s^2) T_n^T) M^-1.
 
 The anti-causal sum is a backward (adjoint) recursion over each segment
-(:func:`adjoint_sums`), vectorised over the parameters; it runs over the segment only, so a mildly unstable fed model (equation decoupling leaves the phugoid free)
-is handled as well as a stable one. G is the model linearised at the estimate at each
-segment's first sample and discretised with a zero-order hold. Where a channel has no
-measurement (a 50 Hz vane on a 100 Hz grid) the pseudo-input was filled by linear
-interpolation; its coefficients go back to the two measured samples it came from. The
-noise variances s^2 come from the measurements themselves
-(:func:`estimators.statistics.difference_noise_std`, robust), not from the residuals, which also
-carry the noise's echo through the feedback.
+(:func:`adjoint_sums`), vectorised over the parameters; it runs over the segment only, so
+a mildly unstable fed model (equation decoupling leaves the phugoid free) or a chain of
+integrators (a kinematic model driven by the IMU) is handled as well as a stable one. G
+is the model linearised at the estimate at each segment's first sample and discretised
+with a zero-order hold. Where a channel has no measurement (a 50 Hz vane on a 100 Hz
+grid) the pseudo-input was filled by linear interpolation; its coefficients go back to
+the two measured samples it came from. Inputs that are measurements themselves
+(``noisy_inputs``: the IMU of flight-path reconstruction) add their noise through G
+only. The noise variances s^2 come from the measurements themselves
+(:func:`estimators.statistics.difference_noise_std`, robust), not from the residuals,
+which also carry the noise's echo through the feedback.
 
 Measured: ``benchmarks/fed_measurement_std_mc.py`` (its docstring).
 """
@@ -44,8 +47,8 @@ from estimators import statistics as st
 
 
 class PropagationError(ValueError):
-    """The pseudo-input noise cannot be propagated (the fed model is not stable, no
-    pseudo-input measures an output, ...)."""
+    """The fed-back noise cannot be propagated (the fed model diverges over a segment, a
+    channel has too few samples to estimate its noise)."""
 
 
 def pseudo_mixing(segment: Segment, outputs: Sequence[str], pseudo_outputs: Sequence[str],

@@ -19,7 +19,7 @@ What is asserted is what was measured to hold; what does not hold is stated, not
   2.2-3.6 std off. Stabilised OEM and decoupling feed measured outputs back into the model;
   their std carry that measurement noise (estimators.pseudo_input_noise). With the
   Cramér-Rao bounds stabilised OEM was 5.4 std off on Cmalpha and 5.3 on CDalpha here, and
-  over 12 flights its estimates scattered 2.3-6.1x those bounds, 0.9-1.5x the propagated
+  over 12 flights its estimates scattered 2.2-7.2x those bounds, 0.8-1.3x the propagated
   std (benchmarks/fed_measurement_std_mc.py). The eigenvalue transformation is exact for
   linear models only (the built-in longitudinal model is nonlinear) and is not among the
   scenario's methods.
