@@ -15,7 +15,9 @@ Measured (seeds 500-511, 2026-11-24): empirical std / total std 0.62-1.41 over t
 derivatives of both axes, against 0.66-5.99 for the Cramér-Rao std alone - the lateral
 fit's trim CD0, CL0, Cm0 scattered 6.0, 1.6, 2.2x their CRB (conditional on the held
 longitudinal estimates) and 1.13, 0.81, 0.94x their total std; longitudinal CLalpha 1.36 ->
-1.10, Cmq 1.31 -> 1.13 with the sensor corrections' part; |bias| <= 1.6 empirical std.
+1.10, Cmq 1.31 -> 1.13 with the sensor corrections' part; |bias| <= 1.6 empirical std. Re-measured after
+the compatibility std started carrying the IMU noise (same seeds): 0.61-1.38 (CRB alone
+0.66-5.97).
 
     python benchmarks/correction_uncertainty_mc.py [--seeds 10] [--seed-base 500] [--jobs 2]
 """
