@@ -42,7 +42,7 @@ from scipy import linalg, signal
 from estimators.errors import ModelDefinitionError
 from estimators.fem import linearize_batch
 from estimators.jit import kernel_for
-from estimators.model import Model, Namespace, Segment
+from estimators.model import Model, Segment
 from estimators.oem import OutputError
 from estimators.pseudo_input_noise import PropagationError, propagated_covariance
 from estimators.results import EstimationResult
