@@ -471,7 +471,7 @@ def _carry_imu_noise(res) -> bool:
     (:func:`estimators.pseudo_input_noise.propagated_covariance`): gyro noise integrates
     into the attitude and accelerometer noise into the velocities, which the white-residual
     bound ignores (scenarios/default.toml: gyro-bias std 2.3-2.7x the bound; bias_p had been
-    applied at 3.3 of those on an error-free flight, 1.2 std with the IMU noise carried).
+    applied at 3.3 of those on an error-free flight, 1.8 std with the IMU noise carried, fsid demo).
     False (the bound kept) when it cannot be computed."""
     from estimators.pseudo_input_noise import PropagationError, propagated_covariance
 
@@ -636,7 +636,7 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
     (air-data residuals 2.2-6.2 x noise); false positives on error-free calm flights:
     lateral_doublets_calm bias_az/scale_az (nearly collinear at 1 g, cancelling to < 0.01
     m/s^2). With the plain Cramér-Rao std longitudinal_3211_calm and default had bias_p
-    applied too (3.3-3.4 std, 0.008 deg/s); with the IMU noise carried it is 1.2 std.
+    applied too (3.3-3.4 std, 0.008 deg/s); with the IMU noise carried it is 1.8 std (fsid demo).
 
     Returns (JSON-ready document, flight data for estimation). The document is the full
     fit's ``to_dict`` (every estimate with std, and truth / error_std when ``truth``, in
