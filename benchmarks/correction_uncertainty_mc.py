@@ -23,18 +23,16 @@ the compatibility std started carrying the IMU noise (same seeds): 0.61-1.38 (CR
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import tempfile
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from _montecarlo import fly, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
 SCENARIO = ROOT / "scenarios" / "sensor_errors_calm.toml"
 
 
@@ -57,23 +55,9 @@ def one_flight(seed: int) -> list[dict]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=10)
-    ap.add_argument("--seed-base", type=int, default=500)
-    ap.add_argument("--jobs", type=int, default=2)
-    args = ap.parse_args()
-    seeds = list(range(args.seed_base, args.seed_base + args.seeds))
-    with ProcessPoolExecutor(max_workers=args.jobs) as ex:
-        df = pd.DataFrame([r for rows in ex.map(one_flight, seeds) for r in rows])
-    g = df.groupby(["key", "parameter"], sort=False)
-    tab = pd.DataFrame({
-        "emp_std": g["estimate"].std(ddof=1),
-        "crb": g["estimate"].std(ddof=1) / g["std"].mean(),
-        "total": g["estimate"].std(ddof=1) / g["total_std"].mean(),
-        "bias": (g["estimate"].mean() - g["truth"].first()) / g["estimate"].std(ddof=1),
-        "n": g["estimate"].count()})
-    with pd.option_context("display.width", 120, "display.max_rows", 200):
-        print(tab.round(3).to_string())
+    seeds, jobs = seed_arguments(__doc__.splitlines()[0], seeds=10, seed_base=500)
+    tab = scatter_table(fly(one_flight, seeds, jobs), ["key", "parameter"],
+                        {"crb": "std", "total": "total_std"})
     print(f"seeds {seeds[0]}..{seeds[-1]}: empirical std / total std {tab['total'].min():.2f}-"
           f"{tab['total'].max():.2f} (CRB alone {tab['crb'].min():.2f}-{tab['crb'].max():.2f})")
     print(f"largest empirical/total std ratio: {tab['total'].max():.2f}")

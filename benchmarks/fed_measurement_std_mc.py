@@ -24,18 +24,16 @@ Measured (seeds 100-111, 2026-11-24):
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import tempfile
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from _montecarlo import fly, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
 SCENARIO = ROOT / "scenarios" / "unstable_short_period.toml"
 METHODS = ["soem", "decouple"]
 
@@ -60,22 +58,9 @@ def one_flight(seed: int) -> list[dict]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=12)
-    ap.add_argument("--seed-base", type=int, default=100)
-    ap.add_argument("--jobs", type=int, default=2)
-    args = ap.parse_args()
-    seeds = list(range(args.seed_base, args.seed_base + args.seeds))
-    with ProcessPoolExecutor(max_workers=args.jobs) as ex:
-        df = pd.DataFrame([r for rows in ex.map(one_flight, seeds) for r in rows])
-    g = df.groupby(["method", "parameter"], sort=False)
-    emp = g["estimate"].std(ddof=1)
-    tab = pd.DataFrame({"emp_std": emp, "reported": emp / g["std"].mean(),
-                        "crb": emp / g["crb_std"].mean(), "mk": emp / g["mk_std"].mean(),
-                        "bias": (g["estimate"].mean() - g["truth"].first()) / emp,
-                        "n": g["estimate"].count()})
-    with pd.option_context("display.width", 120, "display.max_rows", 200):
-        print(tab.round(3).to_string())
+    seeds, jobs = seed_arguments(__doc__.splitlines()[0], seeds=12, seed_base=100)
+    tab = scatter_table(fly(one_flight, seeds, jobs), ["method", "parameter"],
+                        {"reported": "std", "crb": "crb_std", "mk": "mk_std"})
     for m in METHODS:
         t = tab.loc[m]
         print(f"{m}: empirical std / reported std {t['reported'].min():.2f}-{t['reported'].max():.2f}"

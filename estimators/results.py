@@ -76,11 +76,23 @@ class EstimationResult:
 
     @property
     def std(self) -> pd.Series:
-        """Cramér-Rao standard deviations; NaN for fixed parameters and those at a bound."""
+        """Standard deviations from ``cov``: the Cramér-Rao bounds unless ``replace_cov`` put
+        another covariance there (``extra["std_method"]`` says which); NaN for fixed
+        parameters and those at a bound."""
         s = pd.Series(np.nan, index=self.names, name="std")
         d = np.diag(self.cov)
         s.loc[self.free_names] = np.sqrt(np.where(d >= 0, d, np.nan))
         return s
+
+    def replace_cov(self, cov: np.ndarray, how: str, note: str = "") -> None:
+        """Report ``cov`` (n_free, n_free) instead of the Cramér-Rao covariance, which is kept
+        in ``extra["crb_cov"]``; ``how`` names the method in ``extra["std_method"]``, ``note``
+        is appended to the message."""
+        self.extra["crb_cov"] = self.cov
+        self.extra["std_method"] = how
+        self.cov = cov
+        if note:
+            self.message = (self.message + "; " if self.message else "") + note
 
     @property
     def consider_std(self) -> pd.Series | None:

@@ -77,6 +77,14 @@ def _g_with_biases(model: Model, x, u, p, c) -> list:
     return rows
 
 
+def _on_free(cov: np.ndarray, inner: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """A covariance shaped as ``cov`` holding C on the rows/columns ``inner`` (the free
+    parameters with a finite bound), NaN elsewhere."""
+    out = np.full_like(cov, np.nan)
+    out[np.ix_(inner, inner)] = C
+    return out
+
+
 def _linearisation(model: Model, segments: Sequence[Segment], start: Mapping[str, float] | None):
     lay = Layout.build(model, segments[:1], values=start)
     P = lay.values[lay.pidx[0]][:, None]
@@ -155,12 +163,7 @@ class _TransformedOEM:
             from estimators.validation.uncertainty import morelli_klein
             C = morelli_klein(S, E, R=res.R, info=M, max_lag=None).cov
             note = "std: Morelli-Klein (coloured residuals from the fed-back measurements)" + why
-        cov = np.full_like(res.cov, np.nan)
-        cov[np.ix_(inner, inner)] = C
-        res.extra["crb_cov"] = res.cov
-        res.extra["std_method"] = how
-        res.cov = cov
-        res.message = (res.message + "; " if res.message else "") + note
+        res.replace_cov(_on_free(res.cov, inner, C), how, note)
 
 
 class StabilizedOutputError(_TransformedOEM):
@@ -330,14 +333,9 @@ class EigenvalueTransformation(_TransformedOEM):
         if res.sensitivities is not None and inner.size:
             S = [s[:, :, inner] for s in res.sensitivities]
             E = [r.to_numpy() for r in res.residuals]
-            cov = np.full_like(res.cov, np.nan)
-            cov[np.ix_(inner, inner)] = sandwich_covariance(
-                S, E, res.R, res.information[np.ix_(inner, inner)])
-            res.extra["crb_cov"] = res.cov
-            res.extra["std_method"] = "sandwich"
-            res.cov = cov
-            res.message = (res.message + "; " if res.message else "") + \
-                "std: heteroscedasticity-consistent (sandwich) covariance of the weighted residuals"
+            C = sandwich_covariance(S, E, res.R, res.information[np.ix_(inner, inner)])
+            res.replace_cov(_on_free(res.cov, inner, C), "sandwich", "std: heteroscedasticity-"
+                            "consistent (sandwich) covariance of the weighted residuals")
         return res
 
 

@@ -485,9 +485,7 @@ def _carry_imu_noise(res) -> bool:
         return False
     if not np.all(np.isfinite(np.diag(cov))):
         return False
-    res.extra["crb_cov"] = res.cov
-    res.extra["std_method"] = "propagated"
-    res.cov = cov
+    res.replace_cov(cov, "propagated")
     return True
 
 
@@ -514,8 +512,9 @@ def _nll(res) -> float:
 
 def applied_correlation(res: CompatibilityResult) -> dict:
     """Correlation matrix of a reconstruction's sensor-error estimates (JSON-ready:
-    ``names``, ``matrix``), from its fit's Cramér-Rao covariance; the identity for names
-    the fit does not carry."""
+    ``names``, ``matrix``), from its fit's covariance (with the IMU noise carried,
+    :func:`_carry_imu_noise`, when it could be); the identity for names the fit does not
+    carry."""
     names = list(res.params.index)
     corr = getattr(res.result, "corr", None)
     m = np.eye(len(names))

@@ -442,25 +442,19 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                 except FsidError as exc:
                     print(f"note: 6-DoF lateral model not set up ({exc}); linear model used",
                           file=progress.stream)
-            elif pb.axis == "lateral" and m == "oem" and "q" in fd:
-                # no longitudinal estimates to hold (aileron/rudder maneuvers only): the
-                # lateral model driven by the measured V, alpha, theta, q (the linear
-                # model's frozen airspeed and small bank angles put Clda, Cnda, Cnp 8-18
-                # std off on lateral_doublets_calm), with a per-maneuver airspeed correction
-                # under an a-priori penalty for the pitot noise of that input V
-                try:
-                    pb = with_airspeed_offsets(lateral_problem(fd, ac, measured_longitudinal=True), fd)
-                    pb.inputs = inputs
-                except FsidError as exc:
-                    print(f"note: lateral model with measured longitudinal inputs not set up "
-                          f"({exc}); linear model used", file=progress.stream)
-            elif pb.axis == "lateral" and m == "ls" and "q" in fd:
-                # the regression estimates do not depend on the dynamic model, but validation
-                # simulates it: with the TRUE derivatives the linear lateral model missed the
-                # held-out maneuver of scenarios/default.toml by 2.05 deg/s on p and 2.01 on
-                # r (band 1.5), the model driven by the measured V, alpha, theta, q by 0.38, 0.33
+            elif pb.axis == "lateral" and m in ("oem", "ls") and "q" in fd:
+                # the lateral model driven by the measured V, alpha, theta, q. Output error
+                # without longitudinal estimates to hold (aileron/rudder maneuvers only): the
+                # linear model's frozen airspeed and small bank angles put Clda, Cnda, Cnp
+                # 8-18 std off on lateral_doublets_calm; it adds a per-maneuver airspeed
+                # correction under an a-priori penalty for the pitot noise of that input V.
+                # Equation error: the regression estimates do not depend on the dynamic
+                # model, but validation simulates it: with the TRUE derivatives the linear
+                # lateral model missed the held-out maneuver of scenarios/default.toml by
+                # 2.05 deg/s on p and 2.01 on r (band 1.5), the driven one by 0.38, 0.33
                 try:
                     pb = lateral_problem(fd, ac, measured_longitudinal=True)
+                    pb = with_airspeed_offsets(pb, fd) if m == "oem" else pb
                     pb.inputs = inputs
                 except FsidError as exc:
                     print(f"note: lateral model with measured longitudinal inputs not set up "

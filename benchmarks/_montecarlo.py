@@ -1,0 +1,42 @@
+"""The Monte Carlo harness of the benchmarks that fly a scenario once per seed: the seed
+arguments, the flights in a process pool, and the table that compares the scatter of the
+estimates over the seeds with the std the product reported."""
+from __future__ import annotations
+
+import argparse
+from concurrent.futures import ProcessPoolExecutor
+from typing import Callable, Mapping, Sequence
+
+import pandas as pd
+
+
+def seed_arguments(description: str, seeds: int, seed_base: int) -> tuple[list[int], int]:
+    """(seeds, jobs) from ``--seeds N --seed-base B --jobs J`` (defaults: ``seeds``,
+    ``seed_base``, 2 jobs)."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--seeds", type=int, default=seeds)
+    ap.add_argument("--seed-base", type=int, default=seed_base)
+    ap.add_argument("--jobs", type=int, default=2)
+    args = ap.parse_args()
+    return list(range(args.seed_base, args.seed_base + args.seeds)), args.jobs
+
+
+def fly(one_flight: Callable[[int], list[dict]], seeds: Sequence[int], jobs: int) -> pd.DataFrame:
+    """The rows of ``one_flight(seed)`` for every seed, ``jobs`` flights at a time."""
+    with ProcessPoolExecutor(max_workers=jobs) as ex:
+        return pd.DataFrame([r for rows in ex.map(one_flight, seeds) for r in rows])
+
+
+def scatter_table(df: pd.DataFrame, by: Sequence[str], stds: Mapping[str, str]) -> pd.DataFrame:
+    """Per group ``by`` (of rows with ``estimate`` and ``truth``): ``emp_std`` (the
+    estimates' std over the seeds), for each ``column: std_column`` of ``stds`` the ratio
+    emp_std / mean of that std column (1 = honest), ``bias`` ((mean - truth) / emp_std)
+    and ``n``. Printed, and returned."""
+    g = df.groupby(list(by), sort=False)
+    emp = g["estimate"].std(ddof=1)
+    tab = pd.DataFrame({"emp_std": emp, **{k: emp / g[c].mean() for k, c in stds.items()},
+                        "bias": (g["estimate"].mean() - g["truth"].first()) / emp,
+                        "n": g["estimate"].count()})
+    with pd.option_context("display.width", 120, "display.max_rows", 200):
+        print(tab.round(3).to_string())
+    return tab
