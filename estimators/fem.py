@@ -74,6 +74,27 @@ except ImportError:  # pragma: no cover
     numba = None
 
 
+def _coloured_innovation_cov(M: np.ndarray, parts: list) -> tuple[np.ndarray, list[int]]:
+    """Covariance of the filter-error estimates when the innovations are not white
+    (Morelli-Klein on the innovations): M^-1 (M - M_S + M_S~) M^-1, where M_S = sum S^T
+    B^-1 S is the part of the information M carried by the innovation sensitivities S and
+    M_S~ the same sum with the innovations' own autocorrelation in place of B
+    (:func:`estimators.validation.uncertainty.coloured_information`). The part of M from
+    the innovation covariance's dependence on the parameters (dB/dtheta) is kept as it is.
+    White innovations give M^-1 back; a filter model that misses some of the process
+    (coloured innovations) gets wider bounds. parts: per segment (S (N, m, n_p), E (N, m),
+    B^-1 (m, m), rows used (N,)). Returns ((n_p, n_p), lag per segment)."""
+    from estimators.validation.uncertainty import coloured_information
+
+    Ss = [p[0] for p in parts]
+    M_S = sum(np.einsum("nap,ab,nbq->pq", S, Bi, S) for S, _, Bi, _ in parts)
+    mid, lags = coloured_information(Ss, [p[1] for p in parts], [p[2] for p in parts],
+                                     [np.repeat(p[3][:, None], p[1].shape[1], axis=1) for p in parts])
+    Minv = st.covariance(M)
+    cov = Minv @ (M - M_S + mid) @ Minv
+    return 0.5 * (cov + cov.T), lags
+
+
 def _kf_loop(Phi, K, C, drive, offset, Z, x0):
     """Steady-state Kalman filter over a batch of linear systems.
 
@@ -678,8 +699,11 @@ class FilterError:
         val = 0.5 * float(np.sum(Ei.T * W)) + 0.5 * ok.sum() * logdet
         return val if np.isfinite(val) else np.inf
 
-    def _scoring(self, res, hsteps: np.ndarray):
-        """Fisher information M, gradient g (of -J) and J from a batch (column 0 = base)."""
+    def _scoring(self, res, hsteps: np.ndarray, keep: list | None = None):
+        """Fisher information M, gradient g (of -J) and J from a batch (column 0 = base).
+        ``keep``: a list that receives, per segment, (S (N, m, nphi) innovation
+        sensitivities, E (N, m) innovations, B^-1, rows used) for the coloured-innovation
+        covariance."""
         nphi = hsteps.size
         M = np.zeros((nphi, nphi))
         g = np.zeros(nphi)
@@ -697,6 +721,9 @@ class FilterError:
             Ew = (E[ok] @ Lw).ravel()
             M += Sw @ Sw.T
             g += Sw @ Ew
+            if keep is not None:
+                keep.append((np.where(ok[:, None, None], np.moveaxis(S, 0, 2), 0.0),
+                             np.where(ok[:, None], E, 0.0), Binv, ok))
             dB = (Bs[1:] - Bs[:1]) / hsteps[:, None, None]           # (nphi, m, m)
             dB = np.where(np.isfinite(dB), dB, 0.0)
             Nk = ok.sum()
@@ -852,22 +879,29 @@ class FilterError:
         # information at the final estimate
         Phis, hsteps = self._batch(phi)
         res = self._filter(Phis)
-        M, g, J = self._scoring(res, hsteps)
+        parts: list = []
+        M, g, J = self._scoring(res, hsteps, keep=parts)
         span = np.maximum(1.0, np.abs(phi))
         on_bound = (phi <= self._lo + 1e-9 * span) | (phi >= self._hi - 1e-9 * span)
         inner = np.flatnonzero(~on_bound & ~self._held)
         on_bound &= ~self._held
         cov = np.full((nphi, nphi), np.nan)
+        cov_mk = np.full((nphi, nphi), np.nan)
+        mk_lags: list[int] = []
         if inner.size:
             st.check_identifiable(M[np.ix_(inner, inner)], [names[i] for i in inner], " at the estimates")
             cov[np.ix_(inner, inner)] = st.covariance(M[np.ix_(inner, inner)])
+            cov_mk[np.ix_(inner, inner)], mk_lags = _coloured_innovation_cov(
+                M[np.ix_(inner, inner)], [(S[:, :, inner], E, Bi, ok) for S, E, Bi, ok in parts])
         # report F as std: F = sqrt(phi_F); covariance and information by the chain rule
         D = self._dphi(phi)
         with np.errstate(divide="ignore", invalid="ignore"):
             cov = cov / np.outer(D, D)
+            cov_mk = cov_mk / np.outer(D, D)
         M = M * np.outer(D, D)
         keep = ~self._held
         cov, M = cov[np.ix_(keep, keep)], M[np.ix_(keep, keep)]
+        cov_mk = cov_mk[np.ix_(keep, keep)]
         theta, F, R = self._unpack(phi)
         E = [seg.z - r["Y"][0] for seg, r in zip(segments, res)]
         Ys = [r["Y"][0] for r in res]
@@ -893,4 +927,6 @@ class FilterError:
                    "linearisation": [dict(zip("ABCD", r["lin"])) for r in res],
                    "filtered_states": [pd.DataFrame(r["X"][0], index=pd.Index(s.t, name="t"),
                                                     columns=model.states) for s, r in zip(segments, res)],
-                   "nll": J, "residuals_are": "innovations"})
+                   "nll": J, "residuals_are": "innovations",
+                   "mk_cov": cov_mk, "mk_names": [nm for nm, k in zip(names, keep) if k],
+                   "mk_max_lag": mk_lags})

@@ -18,7 +18,8 @@ Keys of the returned dict
 ``residuals``: ``stats`` per output (mean, std, rms, mean_over_std), ``whiteness`` per output
     (Q, threshold, p_value, white, frac_outside), ``max_lag``, ``all_white``.
 ``uncertainty``: per free parameter ``crb_std``, ``mk_std`` (Morelli-Klein corrected),
-    ``ratio``; ``None`` when the result kept no sensitivities.
+    ``ratio``; for filter error the same on its innovations (``residuals``: ``innovations``,
+    estimators.fem); ``None`` when the result kept neither.
 ``modes``: ``None`` for a model without states/segments (a regression); else ``trim`` (x0 per state, u0 per input), ``table`` per mode (``real imag wn zeta
     period t_half t_double stable axis``), ``eigenvalues`` (list of [real, imag]).
 ``proof_of_match``: ``None`` without ``held_out``; else ``mode`` (``simulation`` or
@@ -151,7 +152,16 @@ def _residuals(result: EstimationResult) -> tuple[dict[str, Any], dict[str, np.n
 
 def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
     if not result.sensitivities:
-        return None
+        if "mk_cov" not in result.extra:
+            return None
+        # filter error: Morelli-Klein on the innovations, computed by the fit (estimators.fem)
+        names = list(result.extra["mk_names"])
+        mk = np.sqrt(np.clip(np.diag(result.extra["mk_cov"]), 0.0, None))
+        crb = result.std[names].to_numpy()
+        df = pd.DataFrame({"crb_std": crb, "mk_std": mk, "ratio": mk / crb},
+                          index=pd.Index(names, name="parameter"))
+        return {"per_parameter": frame_dict(df), "max_lag": result.extra.get("mk_max_lag"),
+                "residuals": "innovations"}
     names = result.free_names
     try:
         u = V.morelli_klein(result.sensitivities, [r.to_numpy() for r in result.residuals],

@@ -68,6 +68,39 @@ def _segments(S, residuals) -> tuple[list[np.ndarray], list[np.ndarray]]:
     return Ss, vs
 
 
+def coloured_information(S: Sequence[np.ndarray], v: Sequence[np.ndarray],
+                         Rinv: Sequence[np.ndarray], present: Sequence[np.ndarray] | None = None,
+                         *, max_lag: int | str | None = "auto", window: str = "bartlett",
+                         unbiased: bool = False) -> tuple[np.ndarray, list[int]]:
+    """The middle term of the Morelli-Klein sandwich, sum over segments of
+    sum_i sum_j S_i^T R^-1 r(j-i) R^-1 S_j with r the residual autocorrelation (windowed,
+    truncated at max_lag): the covariance of the score when the residuals are coloured.
+    It equals sum_i S_i^T R^-1 S_i (the information) for white residuals of covariance R.
+
+    S: per segment (N, n_out, n_p) sensitivities (zero where a measurement is missing);
+    v: per segment (N, n_out) residuals (zero where missing); Rinv: per segment (n_out,
+    n_out) inverse residual covariance the fit weighted with; present: per segment (N,
+    n_out) bool of the measured samples (default all). max_lag, window, unbiased: as in
+    :func:`morelli_klein`. Returns ((n_p, n_p), the lag used per segment)."""
+    n_p = S[0].shape[2]
+    mid = np.zeros((n_p, n_p))
+    lags = []
+    for k, (s, r) in enumerate(zip(S, v)):
+        n = r.shape[0]
+        if max_lag is None:
+            L = n - 1
+        elif isinstance(max_lag, str):
+            if max_lag != "auto":
+                raise ValueError(f"max_lag must be an int, 'auto' or None, got {max_lag!r}")
+            L = _auto_lag(r)
+        else:
+            L = int(min(max(int(max_lag), 0), n - 1))
+        lags.append(L)
+        mid += _middle(s, r, Rinv[k], L, window, unbiased,
+                       None if present is None else present[k])
+    return mid, lags
+
+
 def crb(S, R) -> np.ndarray:
     """Conventional Cramér-Rao covariance M^-1, M = sum_i S_i^T R^-1 S_i.
 
@@ -168,20 +201,8 @@ def morelli_klein(S, residuals, R=None, info=None, *, names: Sequence[str] | Non
     if info is None:
         info = sum(np.einsum("nap,ab,nbq->pq", s, Rinv, s) for s in Ss)
     Minv = np.linalg.pinv(np.asarray(info, dtype=float), hermitian=True)
-    mid = np.zeros((n_p, n_p))
-    lags = []
-    for s, v in zip(Ss, vs):
-        n = v.shape[0]
-        if max_lag is None:
-            L = n - 1
-        elif isinstance(max_lag, str):
-            if max_lag != "auto":
-                raise ValueError(f"max_lag must be an int, 'auto' or None, got {max_lag!r}")
-            L = _auto_lag(v)
-        else:
-            L = int(min(max(int(max_lag), 0), n - 1))
-        lags.append(L)
-        mid += _middle(s, v, Rinv, L, window, unbiased, present[len(lags) - 1])
+    mid, lags = coloured_information(Ss, vs, [Rinv] * len(Ss), present, max_lag=max_lag,
+                                     window=window, unbiased=unbiased)
     cov = Minv @ mid @ Minv
     cov = 0.5 * (cov + cov.T)
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
