@@ -127,6 +127,9 @@ class Problem:
     rate_hz: float = 0.0
     #: a-priori values {parameter: (value, std)} for output error (OutputError(priors=))
     priors: dict[str, tuple[float, float]] = field(default_factory=dict)
+    #: measurement-noise std per output on this grid, from the log's native samples
+    #: (pipeline.run.attach_logged_noise); outputs not in it use the grid's own estimate
+    noise_std: dict[str, float] = field(default_factory=dict)
 
 
 def thrust_signal(df: pd.DataFrame, ac: AircraftConstants) -> np.ndarray:

@@ -78,13 +78,34 @@ class Progress:
             print(f" {dt:.1f} s{(' - ' + extra) if extra else ''}", file=self.stream, flush=True)
 
 
-def measurement_noise_std(problem: Problem) -> np.ndarray:
-    """Measurement-noise std per output from the fitted segments: sqrt(var(second
-    differences) / 6), which is exact for white noise on a signal that is locally linear
-    over two samples (the signal's own curvature adds little at log rates)."""
+def measurement_noise_std(problem: Problem, logged: bool = True) -> np.ndarray:
+    """Measurement-noise std per output (the filters' R): with ``logged``,
+    ``problem.noise_std`` where it has the output (from the log's native samples,
+    :func:`attach_logged_noise`); else from the fitted segments: sqrt(var(second
+    differences) / 6), exact for white noise on a signal that is locally linear over two
+    samples."""
     from estimators.statistics import difference_noise_std
     sd = difference_noise_std([s.z for s in problem.fit])
+    logged = (problem.noise_std or {}) if logged else {}
+    sd = np.array([logged.get(o, v) for o, v in zip(problem.model.outputs, sd)], dtype=float)
     return np.where(np.isfinite(sd) & (sd > 0), sd, 1e-6)
+
+
+def attach_logged_noise(fd, problem: Problem) -> Problem:
+    """Set ``problem.noise_std`` for each output that is a logged channel: its white-noise
+    std from the native samples in the fitted windows, as it appears on the problem's grid
+    (FlightData.noise_std with the grid rate: the anti-alias filter of the resampling
+    lowers it). On the grid itself the second differences of a fast signal mistake its
+    curvature for noise, and the filtered noise is no longer white: on the 50 Hz grid of
+    multiaxis_multisine_turbulence they gave the gyro p 0.0018 rad/s, for a noise of
+    0.0017 at 100 Hz that the resampling brings to 0.0011; with that R the lateral FEM's
+    Clp/Clda moved from 5.9/5.6 to 4.9/4.9 std off the truth (seed 31), 2.5 to 2.1 at worst
+    on seed 33. Returns the problem."""
+    rate = problem.rate_hz or None
+    wins = [(s.t0, s.t1) for s in problem.specs]
+    problem.noise_std = {o: sd for o in problem.model.outputs if o in fd
+                         for sd in [fd.noise_std(o, wins, rate)] if np.isfinite(sd) and sd > 0}
+    return problem
 
 
 def process_noise_std(problem: Problem, turbulence: Mapping[str, Any] | None = None,
@@ -272,8 +293,12 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
         # still uncertain; at 1x Cmalpha ended 4.5 std and Cmq 3.5 std from the truth on
         # longitudinal_3211_turbulence, at 2x all derivatives within 2.4 std (FEM, which
         # estimates F, lands at 0.8-1.2x)
+        # R from the grid's own second differences, the level the 2x process noise was
+        # tuned with: with the log's native-rate noise (lower on the 100 Hz IMU channels, see
+        # attach_logged_noise) and the same Q, EKF/UKF CL0, CLde, CLq on
+        # multiaxis_multisine_turbulence went from within 3 to 3.7-5.7 std off the truth
         return cls(model, inputs=inputs, process_noise=process_noise_std(problem, turbulence, 2.0),
-                   measurement_noise=measurement_noise_std(problem),
+                   measurement_noise=measurement_noise_std(problem, logged=False),
                    param_std=_filter_param_std(model)).fit(problem.fit)
     if method == "soem":
         # feed back only the short-period measurements where the model has them: with V and
@@ -460,6 +485,8 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                     print(f"note: lateral model with measured longitudinal inputs not set up "
                           f"({exc}); linear model used", file=progress.stream)
             key = m if len(problems) == 1 else f"{pb.axis}-{m}"
+            if m in COMMON_GRID:
+                attach_logged_noise(fd, pb)
             done = fit_and_validate(pb, m, f"{pb.axis} axis", truth, progress, turbulence=turbulence,
                                     tolerances=tolerances, pom=pom,
                                     start=None if starts is None else starts.get(key, {}))

@@ -190,7 +190,7 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
     """Fit and validate a user model with each method; same return as
     :func:`pipeline.run.identify` (results, validations, problems), keyed by method;
     ``tolerances``, ``pom`` and ``starts`` (refit only) as there."""
-    from pipeline.run import COMMON_GRID, METHODS, fit_and_validate
+    from pipeline.run import COMMON_GRID, METHODS, attach_logged_noise, fit_and_validate
 
     bad = [m for m in methods if m not in METHODS]
     if bad:
@@ -212,6 +212,8 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
                     common = user_model_problem(fd, model, rate_hz=rate)
                     common.inputs = inputs
                 pb = common
+        if m in COMMON_GRID:
+            attach_logged_noise(fd, pb)
         done = fit_and_validate(pb, m, f"user model {model.name!r}", truth, progress,
                                 tolerances=tolerances, pom=pom,
                                 start=None if starts is None else starts.get(m, {}))
