@@ -36,6 +36,13 @@ Cnr: the yaw gust) and 2.1 (seed 33). JSBSim rotates its rotary gusts by the hea
 flight turns through 80 deg, so part of p_turb is the pitch gust); flying the turbulence in
 the aircraft's axes did not change Clp (5.8 std) and put seed 32's Cnr at 14.5 std, so the
 yaw-gust model (r_g from a first-order beta_g) is the next thing to mend.
+
+Larger multisines (all after the measurement-noise change): at 4 deg on every axis every TIC
+is below 0.1 (alpha 0.072, beta 0.061, ay 0.060) and the lateral FEM is within 2.6 std, but
+the longitudinal FEM's Cm0, Cmde, Cmalphadot go to 3.5-3.9 std (Cmalphadot -8.64 for
+-7.27) and EKF/UKF Clp stays ~31 std; at [3.5, 3, 3] deg, Clp 3.3 and Cm0/Cmalphadot
+3.4/3.7. The scenario keeps 1.5 deg until the longitudinal model holds at the larger
+amplitude.
 """
 import json
 from pathlib import Path
