@@ -81,6 +81,10 @@ TRUTH_UNITS: dict[str, str] = {
 }
 
 
+#: ft/s, the mean wind that carries the turbulence azimuth (Turbulence.axes)
+_AXES_WIND_FPS = 1e-9
+
+
 @dataclass
 class SimResult:
     """Everything one flight produced.
@@ -254,7 +258,19 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
     every = max(1, n_steps // 20)
     run = fdm.run
     fracs = [(j + 1) / s.substeps for j in range(s.substeps)]
+    heading_axes = s.turbulence.model != "off" and s.turbulence.axes == "aircraft"
+    if heading_axes:
+        # Turbulence.axes: FGWinds turns its gusts by -psiw (north = cos(psiw) xi_u +
+        # sin(psiw) xi_v) and takes psiw from the mean wind, so a wind towards -heading
+        # puts xi_u along the heading
+        psi_node = pm.get_node("attitude/psi-rad")
+        wind_n = pm.get_node("atmosphere/wind-north-fps").set_double_value
+        wind_e = pm.get_node("atmosphere/wind-east-fps").set_double_value
     for k in range(1, n_steps + 1):
+        if heading_axes:
+            psi = psi_node.get_double_value()
+            wind_n(_AXES_WIND_FPS * np.cos(psi))
+            wind_e(-_AXES_WIND_FPS * np.sin(psi))
         ch = changes.get(k)
         if ch is None:
             for _ in fracs:
@@ -280,7 +296,8 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
         sensors[name] = sample_sensor(truth, spec, np.random.default_rng(child), s.duration)
     turb = {"model": s.turbulence.model, "severity": s.turbulence.severity,
             "windspeed_20ft_mps": s.turbulence.windspeed_20ft, "poe_index": s.turbulence.poe_index,
-            "seed": s.turbulence.seed, "jsbsim_turb_type": {"off": 0, "milspec": 3, "tustin": 4}[s.turbulence.model]}
+            "seed": s.turbulence.seed, "jsbsim_turb_type": {"off": 0, "milspec": 3, "tustin": 4}[s.turbulence.model],
+            "axes": s.turbulence.axes}
     if s.turbulence.model != "off":
         turb.update(dryden_parameters(s.altitude, s.turbulence.windspeed_20ft, s.turbulence.poe_index))
     meta = {"seed": s.seed, "scenario": s.name, "rate_hz": s.rate_hz, "duration_s": s.duration,

@@ -19,7 +19,8 @@ Layout (see ``scenarios/default.toml`` for a commented example)::
                   per axis), start_s, pulse_s, levels, f0_hz, f1_hz,
                   length_s, sweep (linear|log), period_s, cycles
     [turbulence]  model (off|milspec|tustin), severity (light|moderate|severe),
-                  windspeed_20ft_mps (optional override), seed (default: scenario seed)
+                  windspeed_20ft_mps (optional override), seed (default: scenario seed),
+                  axes (wind|aircraft, default wind: see Turbulence)
     [actuators]   lag_s = 0
     [sas]         k_alpha = 0, k_q_s = 0   (pitch SAS: de += k_alpha*(alpha-alpha_trim) + k_q_s*q)
     [sensors.<imu|airdata|attitude|baro|surfaces|gps>]  see sim.sensors.SENSOR_SCHEMA
@@ -45,13 +46,26 @@ SEVERITY = {"light": (15 * 0.514444, 3), "moderate": (30 * 0.514444, 4), "severe
 @dataclass(frozen=True)
 class Turbulence:
     """Dryden turbulence settings. model: 'off', 'milspec' (JSBSim turb-type 3) or
-    'tustin' (turb-type 4); wind at 20 ft in m/s; JSBSim probability-of-exceedance index."""
+    'tustin' (turb-type 4); wind at 20 ft in m/s; JSBSim probability-of-exceedance index.
+
+    axes: how the gusts are oriented. 'wind' (default) is JSBSim's own: the gust components
+    u, v and the rotary p, q (xi_u, xi_v, xi_p, xi_q of FGWinds) turned about the vertical
+    by minus the mean-wind azimuth psiw (north-aligned when calm) into north-east-down,
+    then into the body. The rotary gusts are built from the gusts' time histories along
+    the flight path (q_g from w_g, r_g from v_g, p_g the spanwise one), so an aircraft not
+    heading north feels its pitch gust as roll turbulence and a lateral gust that r_g does
+    not follow. 'aircraft' keeps them in the aircraft's axes, as MIL-F-8785C defines them
+    above 2000 ft: u along the heading, v_g and r_g, p_g and q_g paired whatever the
+    heading. JSBSim has no switch for it and takes psiw from the mean wind, so the sim
+    holds a mean wind of 1e-9 ft/s towards minus the heading.
+    """
 
     model: str = "off"
     severity: str = "light"
     windspeed_20ft: float = 0.0
     poe_index: int = 0
     seed: int = 0
+    axes: str = "wind"
 
 
 @dataclass(frozen=True)
@@ -291,12 +305,14 @@ def scenario_from_dict(raw: dict, path: Path) -> Scenario:
         for j, o in enumerate(mans[:i]):
             if set(m.axes) & set(o.axes) and m.t_start < o.t_end - 1e-9 and o.t_start < m.t_end - 1e-9:
                 raise top.fail(f"maneuver[{i}]", f"{m.name!r} overlaps {o.name!r} on the same axis")
-    tu = _Section(path, "turbulence", raw.get("turbulence", {}), {"model", "severity", "windspeed_20ft_mps", "seed"})
+    tu = _Section(path, "turbulence", raw.get("turbulence", {}), {"model", "severity", "windspeed_20ft_mps", "seed",
+                                                                       "axes"})
     model = tu.text("model", "off", ("off", "milspec", "tustin"))
     sev = tu.text("severity", "light", tuple(SEVERITY))
     w20 = tu.num("windspeed_20ft_mps", SEVERITY[sev][0], lo=0.0, hi=60.0)
     turb = Turbulence(model=model, severity=sev, windspeed_20ft=w20 if model != "off" else 0.0,
-                      poe_index=SEVERITY[sev][1] if model != "off" else 0, seed=tu.integer("seed", seed))
+                      poe_index=SEVERITY[sev][1] if model != "off" else 0, seed=tu.integer("seed", seed),
+                      axes=tu.text("axes", "wind", ("wind", "aircraft")))
     act = _Section(path, "actuators", raw.get("actuators", {}), {"lag_s"})
     sas = _Section(path, "sas", raw.get("sas", {}), {"k_alpha", "k_q_s"})
     sens_raw = raw.get("sensors", {})

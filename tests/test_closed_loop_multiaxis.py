@@ -32,10 +32,17 @@ Clda at 0.233 (truth -0.484, 0.229). On data simulated by the model itself (a fi
 p_g, 8 seeds) Clp came out 0.5-2.4 std low (mean 1.2; 0.8-1.4 with the right R); with
 JSBSim's p_turb of this seed in that simulation 3.3 std low, with those of seeds 32 and 33
 1.5 and 1.4. Other seeds of this flight: worst lateral FEM derivative 6.4 std (seed 32,
-Cnr: the yaw gust) and 2.1 (seed 33). JSBSim rotates its rotary gusts by the heading (this
-flight turns through 80 deg, so part of p_turb is the pitch gust); flying the turbulence in
-the aircraft's axes did not change Clp (5.8 std) and put seed 32's Cnr at 14.5 std, so the
-yaw-gust model (r_g from a first-order beta_g) is the next thing to mend.
+Cnr: the yaw gust) and 2.1 (seed 33).
+
+JSBSim turns its gusts and rotary gusts by the mean-wind azimuth, not the heading, and this
+flight turns through 80 deg: part of p_turb is then the pitch gust, and the body v_g is
+partly JSBSim's u gust, which r_turb does not follow (corr(r_turb, r_g of the body v_g)
+0.75 here, -0.12 on seed 32). With the turbulence in the aircraft's axes ([turbulence]
+axes = "aircraft", tests/test_sim_turbulence_axes.py; corr 0.93): lateral FEM seed 31 Clp
+5.0, Clda 4.9, Cnp 4.0, Cnda 4.0 (no change), seed 32 worst 3.3 (Cnr; was 6.4), seed 33
+2.4; longitudinal FEM seed 31 within 1.8 std and its proof of match q 1.24 deg/s, theta
+0.77 deg (4.85, 4.12 now), seed 33 CLde 4.0; EKF longitudinal seed 31 Cmq 3.9, Cmalphadot
+5.3. The scenario keeps JSBSim's axes until those are sorted out.
 
 Larger multisines (all after the measurement-noise change): at 4 deg on every axis every TIC
 is below 0.1 (alpha 0.072, beta 0.061, ay 0.060) and the lateral FEM is within 2.6 std, but
