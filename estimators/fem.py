@@ -74,11 +74,13 @@ except ImportError:  # pragma: no cover
     numba = None
 
 
-def _coloured_innovation_cov(M: np.ndarray, parts: list) -> tuple[np.ndarray, list[int]]:
+def _coloured_innovation_cov(M: np.ndarray, M_S: np.ndarray, parts: list
+                             ) -> tuple[np.ndarray, list[int]]:
     """Covariance of the filter-error estimates when the innovations are not white
     (Morelli-Klein on the innovations): M^-1 (M - M_S + M_S~) M^-1, where M_S = sum S^T
-    B^-1 S is the part of the information M carried by the innovation sensitivities S and
-    M_S~ the same sum with the innovations' own autocorrelation in place of B
+    B^-1 S is the part of the information M carried by the innovation sensitivities S (as
+    FilterError._scoring summed it) and M_S~ the same sum with the innovations' own
+    autocorrelation in place of B
     (:func:`estimators.validation.uncertainty.coloured_information`). The part of M from
     the innovation covariance's dependence on the parameters (dB/dtheta) is kept as it is.
     White innovations give M^-1 back; a filter model that misses some of the process
@@ -86,9 +88,8 @@ def _coloured_innovation_cov(M: np.ndarray, parts: list) -> tuple[np.ndarray, li
     B^-1 (m, m), rows used (N,)). Returns ((n_p, n_p), lag per segment)."""
     from estimators.validation.uncertainty import coloured_information
 
-    Ss = [p[0] for p in parts]
-    M_S = sum(np.einsum("nap,ab,nbq->pq", S, Bi, S) for S, _, Bi, _ in parts)
-    mid, lags = coloured_information(Ss, [p[1] for p in parts], [p[2] for p in parts],
+    mid, lags = coloured_information([p[0] for p in parts], [p[1] for p in parts],
+                                     [p[2] for p in parts],
                                      [np.repeat(p[3][:, None], p[1].shape[1], axis=1) for p in parts])
     Minv = st.covariance(M)
     cov = Minv @ (M - M_S + mid) @ Minv
@@ -702,8 +703,8 @@ class FilterError:
     def _scoring(self, res, hsteps: np.ndarray, keep: list | None = None):
         """Fisher information M, gradient g (of -J) and J from a batch (column 0 = base).
         ``keep``: a list that receives, per segment, (S (N, m, nphi) innovation
-        sensitivities, E (N, m) innovations, B^-1, rows used) for the coloured-innovation
-        covariance."""
+        sensitivities, E (N, m) innovations, B^-1, rows used, S^T B^-1 S (nphi, nphi): its
+        part of M) for the coloured-innovation covariance."""
         nphi = hsteps.size
         M = np.zeros((nphi, nphi))
         g = np.zeros(nphi)
@@ -719,11 +720,12 @@ class FilterError:
             S = np.where(np.isfinite(S), S, 0.0)
             Sw = np.einsum("pnm,mk->pnk", S[:, ok], Lw).reshape(nphi, -1)
             Ew = (E[ok] @ Lw).ravel()
-            M += Sw @ Sw.T
+            M_S = Sw @ Sw.T
+            M += M_S
             g += Sw @ Ew
             if keep is not None:
                 keep.append((np.where(ok[:, None, None], np.moveaxis(S, 0, 2), 0.0),
-                             np.where(ok[:, None], E, 0.0), Binv, ok))
+                             np.where(ok[:, None], E, 0.0), Binv, ok, M_S))
             dB = (Bs[1:] - Bs[:1]) / hsteps[:, None, None]           # (nphi, m, m)
             dB = np.where(np.isfinite(dB), dB, 0.0)
             Nk = ok.sum()
@@ -892,7 +894,8 @@ class FilterError:
             st.check_identifiable(M[np.ix_(inner, inner)], [names[i] for i in inner], " at the estimates")
             cov[np.ix_(inner, inner)] = st.covariance(M[np.ix_(inner, inner)])
             cov_mk[np.ix_(inner, inner)], mk_lags = _coloured_innovation_cov(
-                M[np.ix_(inner, inner)], [(S[:, :, inner], E, Bi, ok) for S, E, Bi, ok in parts])
+                M[np.ix_(inner, inner)], sum(p[4] for p in parts)[np.ix_(inner, inner)],
+                [(S[:, :, inner], E, Bi, ok) for S, E, Bi, ok, _ in parts])
         # report F as std: F = sqrt(phi_F); covariance and information by the chain rule
         D = self._dphi(phi)
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -485,7 +485,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                     print(f"note: lateral model with measured longitudinal inputs not set up "
                           f"({exc}); linear model used", file=progress.stream)
             key = m if len(problems) == 1 else f"{pb.axis}-{m}"
-            if m in COMMON_GRID:
+            if m == "fem":          # its R; EKF/UKF keep the grid's (fit_problem)
                 attach_logged_noise(fd, pb)
             done = fit_and_validate(pb, m, f"{pb.axis} axis", truth, progress, turbulence=turbulence,
                                     tolerances=tolerances, pom=pom,

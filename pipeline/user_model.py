@@ -212,7 +212,7 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
                     common = user_model_problem(fd, model, rate_hz=rate)
                     common.inputs = inputs
                 pb = common
-        if m in COMMON_GRID:
+        if m == "fem":              # its R; EKF/UKF keep the grid's (fit_problem)
             attach_logged_noise(fd, pb)
         done = fit_and_validate(pb, m, f"user model {model.name!r}", truth, progress,
                                 tolerances=tolerances, pom=pom,

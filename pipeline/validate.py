@@ -151,30 +151,29 @@ def _residuals(result: EstimationResult) -> tuple[dict[str, Any], dict[str, np.n
 
 
 def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
-    if not result.sensitivities:
-        if "mk_cov" not in result.extra:
-            return None
+    extra: dict[str, Any] = {}
+    if result.sensitivities:
+        names = result.free_names
+        try:
+            u = V.morelli_klein(result.sensitivities, [r.to_numpy() for r in result.residuals],
+                                R=result.R, info=result.information, names=names)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            return {"error": str(exc)}
+        mk, max_lag = u.std, u.max_lag
+        crb = result.std[names].to_numpy()
+        if "crb_cov" in result.extra:  # std is not the Cramér-Rao bound (estimators.stabilized)
+            crb = np.sqrt(np.clip(np.diag(result.extra["crb_cov"]), 0.0, None))
+    elif "mk_cov" in result.extra:
         # filter error: Morelli-Klein on the innovations, computed by the fit (estimators.fem)
         names = list(result.extra["mk_names"])
         mk = np.sqrt(np.clip(np.diag(result.extra["mk_cov"]), 0.0, None))
+        max_lag, extra = result.extra.get("mk_max_lag"), {"residuals": "innovations"}
         crb = result.std[names].to_numpy()
-        df = pd.DataFrame({"crb_std": crb, "mk_std": mk, "ratio": mk / crb},
-                          index=pd.Index(names, name="parameter"))
-        return {"per_parameter": frame_dict(df), "max_lag": result.extra.get("mk_max_lag"),
-                "residuals": "innovations"}
-    names = result.free_names
-    try:
-        u = V.morelli_klein(result.sensitivities, [r.to_numpy() for r in result.residuals],
-                            R=result.R, info=result.information, names=names)
-    except (ValueError, np.linalg.LinAlgError) as exc:
-        return {"error": str(exc)}
-    crb = result.std[names].to_numpy()
-    if "crb_cov" in result.extra:      # std is not the Cramér-Rao bound (estimators.stabilized)
-        crb = np.sqrt(np.clip(np.diag(result.extra["crb_cov"]), 0.0, None))[
-            [result.free_names.index(n) for n in names]]
-    df = pd.DataFrame({"crb_std": crb, "mk_std": u.std, "ratio": u.std / crb},
+    else:
+        return None
+    df = pd.DataFrame({"crb_std": crb, "mk_std": mk, "ratio": mk / crb},
                       index=pd.Index(names, name="parameter"))
-    return {"per_parameter": frame_dict(df), "max_lag": u.max_lag}
+    return {"per_parameter": frame_dict(df), "max_lag": max_lag, **extra}
 
 
 def linear_model(result: EstimationResult, segment: Segment | None = None
