@@ -11,17 +11,13 @@ States   x = u v w [m/s, body axes, air-relative = inertial in calm air], phi th
 Inputs   ax ay az [m/s^2] (IMU, moved to the CG with the known IMU position), p q r [rad/s]
 Outputs  V alpha beta (at the boom position, delayed by ``delay_air``), phi theta psi, h, vn ve vd
 
-Sensor model (as in the simulator's sensors): measured = (1 + scale_X) * true(t - delay)
-+ bias_X. Parameters (free ones chosen with ``estimate``):
-
-* ``bias_ax bias_ay bias_az`` [m/s^2], ``bias_p bias_q bias_r`` [rad/s],
-  ``scale_ax`` ... ``scale_r`` [-] of the IMU;
-* ``bias_V`` [m/s], ``scale_V``, ``bias_alpha`` ``bias_beta`` [rad], ``scale_alpha``
-  ``scale_beta`` [-] of the air data; ``delay_air`` [s], the air-data time delay (first
-  order: y(t - tau) = y(t) - tau dy/dt with dy/dt from the state equations).
-
-The barometric altitude bias is not separable from the per-segment initial altitude and
-is absorbed by it.
+The states are air-relative; the inertial velocity the GPS / navigation filter logs is
+theirs plus a steady horizontal wind ``wind_n``, ``wind_e`` [m/s], one for the flight.
+:func:`correct_for_estimation` estimates it with the sensor errors and keeps it when it is
+significant (else calm air, as before): a calm-air model booked the 6.4 m/s wind of a
+windy longitudinal_3211_calm on the sensors (bias_az, scale_az, bias_V, bias_beta,
+scale_beta, delay_air "significant" and applied; Cmalpha then 44 std off;
+tests/test_flow_angles.py).
 """
 from __future__ import annotations
 
@@ -46,13 +42,16 @@ ALL_OUTPUTS = ["V", "alpha", "beta", "phi", "theta", "psi", "h", "vn", "ve", "vd
 IMU_PARAMS = [f"bias_{c}" for c in INPUTS] + [f"scale_{c}" for c in INPUTS]
 AIR_PARAMS = ["bias_V", "scale_V", "bias_alpha", "scale_alpha", "bias_beta", "scale_beta",
               "delay_air"]
+#: per-segment steady wind (m/s, NED) between the air-relative states and vn, ve
+WIND_PARAMS = ["wind_n", "wind_e"]
 #: estimated by default: IMU biases, air-data biases and scale factors, air-data delay
 DEFAULT_ESTIMATE = tuple([f"bias_{c}" for c in INPUTS] + AIR_PARAMS)
 #: initial std of each parameter for the EKF (SI units)
 PARAM_STD = {**{f"bias_{c}": 0.5 for c in ("ax", "ay", "az")},
              **{f"bias_{c}": 0.05 for c in ("p", "q", "r")},
              **{f"scale_{c}": 0.1 for c in INPUTS + ["V", "alpha", "beta"]},
-             "bias_V": 2.0, "bias_alpha": 0.05, "bias_beta": 0.05, "delay_air": 0.02}
+             "bias_V": 2.0, "bias_alpha": 0.05, "bias_beta": 0.05, "delay_air": 0.02,
+             "wind_n": 10.0, "wind_e": 10.0}
 #: parameter -> its unit (for reports)
 UNITS = {**{f"bias_{c}": "m/s^2" for c in ("ax", "ay", "az")},
          **{f"bias_{c}": "rad/s" for c in ("p", "q", "r")},
@@ -115,19 +114,22 @@ def _g(x, u, p, c):
     Vm = (1.0 + p.scale_V) * (V - p.delay_air * Vdot) + p.bias_V
     am = (1.0 + p.scale_alpha) * (alpha - p.delay_air * alphadot) + p.bias_alpha
     bm = (1.0 + p.scale_beta) * (beta - p.delay_air * betadot) + p.bias_beta
-    # NED inertial velocity (calm air)
-    vn = cth * cps * uu + (sph * sth * cps - cph * sps) * vv + (cph * sth * cps + sph * sps) * ww
-    ve = cth * sps * uu + (sph * sth * sps + cph * cps) * vv + (cph * sth * sps - sph * cps) * ww
+    # NED inertial velocity: air-relative plus the steady wind
+    vn = cth * cps * uu + (sph * sth * cps - cph * sps) * vv + (cph * sth * cps + sph * sps) * ww + p.wind_n
+    ve = cth * sps * uu + (sph * sth * sps + cph * cps) * vv + (cph * sth * sps - sph * cps) * ww + p.wind_e
     vd = -sth * uu + sph * cth * vv + cph * cth * ww
     return Vm, am, bm, phi, theta, psi, h, vn, ve, vd
 
 
 def kinematic_model(outputs: Sequence[str] = ALL_OUTPUTS, estimate: Sequence[str] = DEFAULT_ESTIMATE,
-                    boom_position: Sequence[float] = (0.0, 0.0, 0.0), start: Mapping[str, float] | None = None):
+                    boom_position: Sequence[float] = (0.0, 0.0, 0.0), start: Mapping[str, float] | None = None,
+                    wind: bool = False):
     """The flight-path-reconstruction model as an ``estimators.Model``.
 
     outputs : subset of ALL_OUTPUTS the data have; estimate : free parameter names;
-    boom_position : air-data boom position from the CG, body axes [m].
+    boom_position : air-data boom position from the CG, body axes [m]; wind : estimate the
+    steady wind (wind_n, wind_e, one for the flight) when vn/ve are among the outputs
+    (otherwise held at zero: calm air).
     """
     from estimators import Model, Parameter
 
@@ -141,6 +143,9 @@ def kinematic_model(outputs: Sequence[str] = ALL_OUTPUTS, estimate: Sequence[str
         lo, hi = (-0.5, 0.5) if n.startswith("scale") else (-0.2, 0.5) if n == "delay_air" else (-np.inf, np.inf)
         params.append(Parameter(n, float(start.get(n, 0.0)), free=n in estimate, bounds=(lo, hi),
                                 unit=UNITS.get(n, "")))
+    wind = wind and any(c in outputs for c in ("vn", "ve"))
+    params += [Parameter(n, float(start.get(n, 0.0)), free=wind, unit="m/s")
+               for n in WIND_PARAMS]
     xb, yb, zb = (float(v) for v in boom_position)
     model = Model(states=STATES, inputs=MODEL_INPUTS, outputs=list(ALL_OUTPUTS), parameters=params,
                   constants={"g": G0, "xb": xb, "yb": yb, "zb": zb}, f=_f, g=_g,
@@ -331,7 +336,7 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
                 integrator: str = "rk4", max_iter: int = 50, delay: str = "profile",
                 delay_channels: Sequence[str] = ("V", "alpha", "beta"),
                 delay_bounds: tuple[float, float] = (-0.05, 0.25), method: str = "oem",
-                filter_options: Mapping | None = None) -> CompatibilityResult:
+                filter_options: Mapping | None = None, wind: bool = False) -> CompatibilityResult:
     """Flight path reconstruction on ``data`` with the estimators' output-error method.
 
     Parameters
@@ -343,6 +348,8 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
     rate_hz : common rate (default: the IMU rate, at most 100 Hz)
     estimate : names of the free sensor-error parameters (module docstring)
     imu_position, boom_position : sensor positions from the CG, body axes [m]
+    wind : one steady wind between the air-relative states and vn, ve (default: calm air;
+        :func:`correct_for_estimation` keeps it when it is significant)
     method : "oem" (output error, per-segment initial states estimated), "ekf" or "ukf"
         (extended / unscented Kalman filter with the parameters in the state, run over the
         segments in order; initial states from the first samples); ``filter_options`` go to
@@ -400,7 +407,7 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
     imu_pos = np.asarray(imu_position, float)
     profile = delay == "profile" and "delay_air" in est
     model_est = list(est)
-    model = kinematic_model(outputs, model_est, boom_position)
+    model = kinematic_model(outputs, model_est, boom_position, wind=wind)
     dch = [c for c in delay_channels if c in outputs]
 
     def fit(tau: float, start: Mapping[str, float] | None = None):
@@ -413,7 +420,7 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
         if method in ("ekf", "ukf"):
             from estimators import EKF, UKF
 
-            opts = {"param_std": {n: PARAM_STD[n] for n in model_est},
+            opts = {"param_std": {n: PARAM_STD[n] for n in model_est + WIND_PARAMS},
                     "measurement_noise": _noise_levels(frames, outputs),
                     # initial states come from biased air data: do not trust them too much
                     "state_std": {"u": 2.0, "v": 2.0, "w": 2.0, "phi": 0.02, "theta": 0.02,
@@ -461,7 +468,9 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
                                 "estimate": list(est), "integrator": integrator, "delay": tau_info,
                                 "method": method,
                                 "std": "Cramér-Rao with the IMU noise carried through the kinematics"
-                                       if carried else "Cramér-Rao"},
+                                       if carried else "Cramér-Rao",
+                                "wind_mps": {n: [float(res.params[n]), float(res.std[n])]
+                                             for n in res.params.index if n.startswith("wind_")}},
                                crb_std=crb_std)
 
 
@@ -650,7 +659,20 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
             f"errors free and that fit leaves the air-data residuals within {ADEQUACY:g} x their "
             "noise level; the applied values come from a refit with only those free")
     kw = {"imu_position": imu_position, "boom_position": boom_position, **kw}
-    doc, full = _reconstruct_or_reason(fd, estimate=list(estimate), **kw)
+    # a steady wind is estimated first; indistinguishable from calm (every component within
+    # ``threshold`` std of zero), the calm-air fit is used: the same rule as the sensor errors
+    doc, full = _reconstruct_or_reason(fd, estimate=list(estimate), wind=True, **kw)
+    wind = (full.settings.get("wind_mps") or {}) if full is not None else {}
+    sig_wind = {n: round(v / s, 1) for n, (v, s) in wind.items()
+                if s and np.isfinite(s) and abs(v) >= threshold * s}
+    if full is not None and not sig_wind:
+        doc, full = _reconstruct_or_reason(fd, estimate=list(estimate), **kw)
+        doc["wind_note"] = (f"wind {({n: round(v, 2) for n, (v, _) in wind.items()})} m/s within "
+                            f"{threshold:g} std of zero: calm air assumed")
+    elif full is not None:
+        kw["wind"] = True
+        doc["wind_note"] = (f"steady wind estimated with the sensor errors: "
+                            f"{({n: round(v, 2) for n, (v, _) in wind.items()})} m/s ({sig_wind} std)")
     doc["rule"] = rule
     doc["applied"] = {}
     doc["data_for_estimation"] = "as logged"

@@ -535,6 +535,31 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
                   "fits with a consider part")
 
 
+def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress) -> tuple[Any, Any, dict]:
+    """The air-data-angle stage of ``fsid estimate``: alpha/beta the log lacks (no vane)
+    rebuilt from the flight path and a fitted wind (:mod:`pipeline.flow_angles`). Returns
+    (flight data, aircraft constants, document). Rebuilt angles are at the IMU, so the
+    constants' air-data position becomes the IMU's. A log that cannot give them (no
+    inertial velocity, no forward flight) goes on as it is: the document says why, and a
+    model that needs the angles stops later with the missing channels named."""
+    from pipeline.flow_angles import reconstruct_flow_angles, summary
+
+    pr.stage("air-data angles")
+    try:
+        out, doc = reconstruct_flow_angles(fd)
+    except FsidError as exc:
+        pr.done(f"not rebuilt: {exc}")
+        return fd, ac, {"status": "not possible", "reason": str(exc)}
+    if doc["status"] != "reconstructed":
+        pr.done("logged (vanes)")
+        return fd, ac, doc
+    if ac is not None and "alpha" in doc["channels"]:
+        ac = replace(ac, airdata=tuple(ac.imu))
+        doc["airdata_position_m"] = list(map(float, ac.imu))
+    pr.done(summary(doc))
+    return out, ac, doc
+
+
 def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabled: bool = True,
                         truth: Mapping[str, float] | None = None) -> tuple[Any, dict]:
     """The sensor-compatibility stage of a run (flight path reconstruction,
@@ -668,8 +693,8 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     if user:                         # cheap checks before the log is read
         split_spec(model)
         check_methods(methods)
-    pr = Progress(6 + 2 * len(methods) + 1, quiet=quiet)   # 6: with sensor compatibility and
-    #                                                         its uncertainty
+    pr = Progress(7 + 2 * len(methods) + 1, quiet=quiet)   # 7: with the air-data angles,
+    #                                                         sensor compatibility and its uncertainty
     pr.stage(f"ingest {log}")
     fd = read_log(log, map=map_path)
     pr.done(f"{len(fd.channels)} channels, {len(fd.segments)} segments")
@@ -681,6 +706,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         print(n, file=pr.stream)
     truth = ({k: float(v) for k, v in truth_doc["derivatives"].items()}
              if truth_doc and truth_doc.get("derivatives") else None)
+    fd, ac, flow = flow_angle_stage(fd, ac, pr)
     if user:                         # before the slow stages: a bad model fails at once
         pr.stage(f"load model {model}")
         from pipeline.user_model import check_channels, load_user_model
@@ -692,6 +718,10 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     summary = summarize(run_checks(fd))
     pr.done(str(summary))
     meta = {"log": str(log), "aircraft": ac_name}
+    if flow.get("status") == "reconstructed":
+        from pipeline.flow_angles import summary as flow_summary
+        meta["air-data angles"] = flow_summary(flow)
+        meta["flow_angles"] = flow
     from pipeline.compatibility import truth_errors
     fd_logged = fd
     fd, comp = compatibility_stage(fd, ac, pr, enabled=compat,

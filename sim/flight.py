@@ -171,6 +171,17 @@ def _trim(fdm, scenario: Scenario) -> dict[str, float]:
     fdm["ic/beta-deg"] = 0.0
     fdm["ic/phi-deg"] = 0.0
     fdm["atmosphere/turb-type"] = 0
+    if any(s.wind):
+        # a steady wind belongs to the initial condition (run_ic and the trim reset FGWinds
+        # to it). Setting it keeps the ground speed and changes vt, so the inertial NED
+        # velocity is set after it: the air velocity along the heading plus the wind
+        wn, we = s.wind
+        fdm["ic/vw-mag-fps"] = np.hypot(wn, we) / FT
+        fdm["ic/vw-dir-deg"] = np.rad2deg(np.arctan2(we, wn))   # the direction it blows to
+        ca = s.airspeed * np.cos(s.flight_path)
+        fdm["ic/vn-fps"] = (ca * np.cos(s.heading) + wn) / FT
+        fdm["ic/ve-fps"] = (ca * np.sin(s.heading) + we) / FT
+        fdm["ic/vd-fps"] = -s.airspeed * np.sin(s.flight_path) / FT
     fdm.run_ic()
     fdm["propulsion/set-running"] = -1
     where = f"{s.path}: trim"
@@ -302,6 +313,7 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
         turb.update(dryden_parameters(s.altitude, s.turbulence.windspeed_20ft, s.turbulence.poe_index))
     meta = {"seed": s.seed, "scenario": s.name, "rate_hz": s.rate_hz, "duration_s": s.duration,
             "sensors": {k: v.to_dict() for k, v in s.sensors.items()}, "turbulence": turb,
+            "wind": {"north_mps": s.wind[0], "east_mps": s.wind[1], "down_mps": 0.0},
             "sas": {"k_alpha": s.sas_k_alpha, "k_q_s": s.sas_k_q, "alpha_ref_rad": trim["alpha"],
                     "feedback": "truth alpha and body pitch rate"} if (s.sas_k_alpha or s.sas_k_q) else None,
             "actuator_lag_s": s.actuator_lag, "versions": _versions(), "truth_units": TRUTH_UNITS,

@@ -21,6 +21,8 @@ Layout (see ``scenarios/default.toml`` for a commented example)::
     [turbulence]  model (off|milspec|tustin), severity (light|moderate|severe),
                   windspeed_20ft_mps (optional override), seed (default: scenario seed),
                   axes (wind|aircraft, default wind: see Turbulence)
+    [wind]        north_mps = 0, east_mps = 0   (steady mean wind, the velocity the air mass
+                  moves with, NED; the trim airspeed is air-relative)
     [actuators]   lag_s = 0
     [sas]         k_alpha = 0, k_q_s = 0   (pitch SAS: de += k_alpha*(alpha-alpha_trim) + k_q_s*q)
     [sensors.<imu|airdata|attitude|baro|surfaces|gps>]  see sim.sensors.SENSOR_SCHEMA
@@ -93,6 +95,8 @@ class Scenario:
     #: proof-of-match bands of the [validation] table: rate_deg_s (deg/s), accel_g (g),
     #: angle_deg (deg); defaults 1.5, 0.1, 1.5 (DESIGN.md section 8)
     pom_bands: dict = field(default_factory=lambda: {"rate_deg_s": 1.5, "accel_g": 0.1, "angle_deg": 1.5})
+    #: steady mean wind (north, east) [m/s], the air mass's velocity over the ground
+    wind: tuple[float, float] = (0.0, 0.0)
     raw: dict = field(default_factory=dict, repr=False)
 
     def with_seed(self, seed: int) -> "Scenario":
@@ -179,7 +183,7 @@ class _Section:
 
 
 _TOP = {"name", "description", "aircraft", "duration_s", "rate_hz", "substeps", "seed", "trim", "schedule",
-        "maneuver", "turbulence", "actuators", "sas", "sensors", "validation"}
+        "maneuver", "turbulence", "wind", "actuators", "sas", "sensors", "validation"}
 _MAN = {"name", "axis", "shape", "amplitude_deg", "amplitude", "start_s", "pulse_s", "levels",
         "f0_hz", "f1_hz", "length_s", "sweep", "period_s", "cycles"}
 
@@ -313,6 +317,11 @@ def scenario_from_dict(raw: dict, path: Path) -> Scenario:
     turb = Turbulence(model=model, severity=sev, windspeed_20ft=w20 if model != "off" else 0.0,
                       poe_index=SEVERITY[sev][1] if model != "off" else 0, seed=tu.integer("seed", seed),
                       axes=tu.text("axes", "wind", ("wind", "aircraft")))
+    wsec = _Section(path, "wind", raw.get("wind", {}), {"north_mps", "east_mps"})
+    wind = (wsec.num("north_mps", 0.0, lo=-60.0, hi=60.0), wsec.num("east_mps", 0.0, lo=-60.0, hi=60.0))
+    if any(wind) and turb.model != "off" and turb.axes == "aircraft":
+        raise wsec.fail("", "a mean wind sets JSBSim's turbulence axes; it cannot go with "
+                        "[turbulence] axes = \"aircraft\" (drop one of them)")
     act = _Section(path, "actuators", raw.get("actuators", {}), {"lag_s"})
     sas = _Section(path, "sas", raw.get("sas", {}), {"k_alpha", "k_q_s"})
     sens_raw = raw.get("sensors", {})
@@ -331,5 +340,5 @@ def scenario_from_dict(raw: dict, path: Path) -> Scenario:
         seed=seed, altitude=alt, airspeed=tas, flight_path=float(gam), heading=float(hdg),
         maneuvers=tuple(mans), turbulence=turb, actuator_lag=act.num("lag_s", 0.0, lo=0.0, hi=1.0),
         sas_k_alpha=sas.num("k_alpha", 0.0), sas_k_q=sas.num("k_q_s", 0.0), sensors=sensors,
-        substeps=substeps, pom_bands=bands, raw=raw,
+        substeps=substeps, pom_bands=bands, wind=wind, raw=raw,
     )

@@ -28,7 +28,7 @@ def truth_dict(result) -> dict:
 
     Keys: scenario, seed, aircraft (geometry, mass, thrust model, derivatives), trim,
     maneuvers [{name, axis, t_start, t_end}], sensors (error parameters applied),
-    turbulence, sas, versions, units.
+    turbulence, wind (steady NED, m/s), sas, versions, units.
     """
     s = result.scenario
     m = result.meta
@@ -45,6 +45,7 @@ def truth_dict(result) -> dict:
         "maneuvers": [{"name": n, "axis": a, "t_start": t0, "t_end": t1} for n, a, t0, t1 in result.maneuvers],
         "sensors": m["sensors"],
         "turbulence": m["turbulence"],
+        "wind": m.get("wind"),
         "sas": m.get("sas"),
         "actuator_lag_s": m.get("actuator_lag_s"),
         "versions": m["versions"],

@@ -1,0 +1,219 @@
+"""Angle of attack and sideslip from the flight path, for logs without vanes.
+
+Most small aircraft fly without an alpha/beta vane; their logs carry the navigation
+filter's (or the GPS's) inertial velocity vn, ve, vd, the attitude and the true airspeed.
+The air velocity is the inertial velocity minus the wind, turned into body axes by the
+attitude:
+
+    (u, v, w) = T_bn(phi, theta, psi) (vn - W_n, ve - W_e, vd)
+    alpha = atan2(w, u),  beta = asin(v / |(u, v, w)|)
+
+The wind is horizontal (no vertical wind) and slowly varying: linear between knots every
+``window_s`` seconds (one constant wind for flights shorter than 1.5 windows). It is the
+least-squares solution of two conditions on every airborne sample:
+
+* the air velocity's magnitude is the measured true airspeed, |vg - W| = V (weight: the
+  airspeed residual level): this fixes the wind along the track;
+* the sideslip is zero on average, v = 0 (weight: ``beta_std`` x V): this fixes the wind
+  across the track when the heading does not change. Turns make both components visible
+  to the airspeed condition alone, and the sideslip condition then matters less.
+
+Assumptions, which the document names: no vertical wind (it would shift alpha by
+W_d / V), a mean sideslip of zero over each window (a steady sideslip, e.g. from
+asymmetric thrust, is booked on the cross-track wind), a correct airspeed (a pitot scale
+factor error is booked on the along-track wind), and the inertial velocity at the IMU
+(the reconstructed angles are those at the IMU position: the air-data position for them
+is the IMU's). The angles carry the velocity channel's noise and sample times (a 10 Hz GPS
+gives 10 Hz angles; the estimators count only those samples).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from pipeline.errors import FsidError
+from pipeline.flightdata import Channel, FlightData
+
+#: the channels the reconstruction reads
+NEEDS = ("vn", "ve", "vd", "phi", "theta", "psi", "V")
+#: sideslip spread allowed by the zero-mean-sideslip condition [rad]
+BETA_STD = np.deg2rad(2.0)
+#: knot spacing of the wind [s]
+WINDOW_S = 120.0
+
+
+@dataclass
+class WindFit:
+    """The wind of :func:`fit_wind`: knots (K,) [s], north/east (K,) [m/s] and their
+    std (K,) [m/s], airspeed residual rms [m/s], rms sideslip [rad], samples used."""
+
+    knots: np.ndarray
+    north: np.ndarray
+    east: np.ndarray
+    std_north: np.ndarray
+    std_east: np.ndarray
+    airspeed_rms: float
+    beta_rms: float
+    n: int
+
+    def at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(north, east) wind [m/s] at times t [s] (linear between knots, constant beyond)."""
+        if self.knots.size == 1:
+            return np.full(t.shape, self.north[0]), np.full(t.shape, self.east[0])
+        return np.interp(t, self.knots, self.north), np.interp(t, self.knots, self.east)
+
+
+def _hat_basis(t: np.ndarray, knots: np.ndarray) -> np.ndarray:
+    """(n, K) weights of the piecewise-linear interpolation between knots (rows sum to 1)."""
+    if knots.size == 1:
+        return np.ones((t.size, 1))
+    eye = np.eye(knots.size)
+    return np.stack([np.interp(t, knots, eye[k]) for k in range(knots.size)], axis=1)
+
+
+def _body_axes(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rows = body x, y, z axes in NED (T_bn per sample)."""
+    cf, sf, ct, st, cp, sp = (np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta),
+                              np.cos(psi), np.sin(psi))
+    return np.stack([
+        np.stack([ct * cp, ct * sp, -st], axis=-1),
+        np.stack([sf * st * cp - cf * sp, sf * st * sp + cf * cp, sf * ct], axis=-1),
+        np.stack([cf * st * cp + sf * sp, cf * st * sp - sf * cp, cf * ct], axis=-1)], axis=1)
+
+
+def _effective_n(r: np.ndarray) -> float:
+    """Sample count of a residual series shrunk for its lag-1 autocorrelation (AR(1))."""
+    if r.size < 3:
+        return float(r.size)
+    r = r - r.mean()
+    rho = float(np.dot(r[1:], r[:-1]) / max(np.dot(r, r), 1e-300))
+    rho = min(max(rho, 0.0), 0.999)
+    return float(r.size * (1.0 - rho) / (1.0 + rho))
+
+
+def fit_wind(t: np.ndarray, vg: np.ndarray, V: np.ndarray, axes: np.ndarray, *,
+             window_s: float = WINDOW_S, beta_std: float = BETA_STD,
+             iterations: int = 12) -> WindFit:
+    """Horizontal wind from inertial velocity and airspeed (module doc).
+
+    t (n,) [s]; vg (n, 3) inertial NED velocity [m/s]; V (n,) true airspeed [m/s];
+    axes (n, 3, 3) body axes in NED (:func:`_body_axes`). Gauss-Newton on the stacked
+    airspeed and zero-sideslip residuals, reweighted by each group's rms; the std come
+    from the normal matrix with each group's sample count shrunk for its autocorrelation.
+    """
+    span = float(t[-1] - t[0])
+    nk = 1 if span < 1.5 * window_s else int(np.ceil(span / window_s)) + 1
+    knots = np.array([0.5 * (t[0] + t[-1])]) if nk == 1 else np.linspace(t[0], t[-1], nk)
+    B = _hat_basis(t, knots)                               # (n, K)
+    ey = axes[:, 1, :2]                                    # body y axis, horizontal part
+    # start: zero sideslip and the airspeed along the body x axis's horizontal direction
+    ex = axes[:, 0, :2] / np.linalg.norm(axes[:, 0, :2], axis=1, keepdims=True)
+    Vh = np.sqrt(np.maximum(V * V - vg[:, 2] ** 2, 0.0))
+    w0 = np.linalg.lstsq(B, vg[:, :2] - Vh[:, None] * ex, rcond=None)[0]      # (K, 2)
+    x = w0.T.reshape(-1)                                   # (north knots, east knots)
+    s_v, s_b = 1.0, beta_std * float(np.median(V))
+    for it in range(iterations):
+        Wn, We = B @ x[:nk], B @ x[nk:]
+        va = vg - np.column_stack([Wn, We, np.zeros_like(Wn)])
+        mag = np.linalg.norm(va, axis=1)
+        r1 = mag - V
+        r2 = np.einsum("ij,ij->i", ey, va[:, :2]) + axes[:, 1, 2] * va[:, 2]
+        if it >= 2:                                        # reweight once the fit settled
+            s_v = max(float(np.sqrt(np.mean(r1 ** 2))), 1e-3)
+        J1 = np.hstack([-(va[:, :1] / mag[:, None]) * B, -(va[:, 1:2] / mag[:, None]) * B])
+        J2 = np.hstack([-ey[:, :1] * B, -ey[:, 1:2] * B])
+        J = np.vstack([J1 / s_v, J2 / s_b])
+        r = np.concatenate([r1 / s_v, r2 / s_b])
+        M = J.T @ J + 1e-9 * np.eye(2 * nk)
+        dx = -np.linalg.solve(M, J.T @ r)
+        x = x + dx
+        if np.max(np.abs(dx)) < 1e-6:
+            break
+    # the std: each group's information scaled by its effective/actual sample count
+    f1, f2 = _effective_n(r1) / r1.size, _effective_n(r2) / r2.size
+    M = f1 * (J1.T @ J1) / s_v ** 2 + f2 * (J2.T @ J2) / s_b ** 2
+    cov = np.linalg.pinv(M)
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    mag = np.maximum(mag, 1e-6)
+    return WindFit(knots=knots, north=x[:nk].copy(), east=x[nk:].copy(), std_north=sd[:nk],
+                   std_east=sd[nk:], airspeed_rms=float(np.sqrt(np.mean(r1 ** 2))),
+                   beta_rms=float(np.sqrt(np.mean((r2 / mag) ** 2))), n=int(t.size))
+
+
+def _at(fd: FlightData, name: str, t: np.ndarray, wrapped: bool = False) -> np.ndarray:
+    ch = fd[name]
+    v = np.unwrap(ch.values) if wrapped else ch.values
+    return np.interp(t, ch.t, v, left=np.nan, right=np.nan)
+
+
+def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
+                            beta_std: float = BETA_STD) -> tuple[FlightData, dict[str, Any]]:
+    """The flight with the missing ones of alpha, beta reconstructed from the flight path
+    (module doc), and a JSON-ready document of what was done. The input is not modified.
+
+    Nothing to do (both angles logged): the same object and ``{"status": "not needed"}``.
+    Raises FsidError naming the missing channels when an angle is missing and the flight
+    has no inertial velocity, attitude or airspeed to rebuild it from, or no forward flight.
+    """
+    todo = fd.missing(("alpha", "beta"))
+    if not todo:
+        return fd, {"status": "not needed"}
+    lacking = fd.missing(NEEDS)
+    if lacking:
+        raise FsidError(f"the log has no {'/'.join(todo)} vane and lacks {lacking} to rebuild "
+                        f"{'them' if len(todo) > 1 else 'it'} from the flight path "
+                        f"({fd.meta.get('source', 'log')}): add the channels to the map (--map) "
+                        "or use a model without air-data angles (--model path.py:name)")
+    t = np.asarray(fd["vn"].t, dtype=float)
+    vg = np.column_stack([_at(fd, c, t) for c in ("vn", "ve", "vd")])
+    V = _at(fd, "V", t)
+    phi, theta, psi = _at(fd, "phi", t, True), _at(fd, "theta", t), _at(fd, "psi", t, True)
+    ok = np.all(np.isfinite(vg), axis=1) & np.isfinite(V + phi + theta + psi)
+    vmin = max(3.0, 0.5 * float(np.percentile(V[ok], 95))) if ok.any() else np.inf
+    ok &= V >= vmin
+    if ok.sum() < 20:
+        raise FsidError(f"cannot rebuild {'/'.join(todo)} from the flight path: fewer than 20 "
+                        f"velocity samples in forward flight (airspeed >= {vmin:.1f} m/s) in "
+                        f"{fd.meta.get('source', 'log')}")
+    t, vg, V = t[ok], vg[ok], V[ok]
+    axes = _body_axes(phi[ok], theta[ok], psi[ok])
+    wind = fit_wind(t, vg, V, axes, window_s=window_s, beta_std=beta_std)
+    Wn, We = wind.at(t)
+    va = np.einsum("nij,nj->ni", axes, vg - np.column_stack([Wn, We, np.zeros_like(Wn)]))
+    speed = np.linalg.norm(va, axis=1)
+    angles = {"alpha": np.arctan2(va[:, 2], va[:, 0]),
+              "beta": np.arcsin(np.clip(va[:, 1] / speed, -1.0, 1.0))}
+    src = f"flight path ({fd['vn'].source or 'vn'}, attitude, V) minus the fitted wind"
+    channels = dict(fd.channels)
+    for k in todo:
+        channels[k] = Channel(t=t.copy(), values=angles[k], unit="rad", source=src,
+                              notes="reconstructed: no vane in the log (pipeline.flow_angles)")
+    out = FlightData(channels=channels, meta=dict(fd.meta), segments=list(fd.segments))
+    heading = np.unwrap(psi[ok])
+    doc = {"status": "reconstructed", "channels": todo,
+           "rate_hz": float(fd["vn"].rate_hz), "samples": int(t.size),
+           "airspeed_min_mps": vmin,
+           "wind": {"t_s": wind.knots.tolist(), "north_mps": wind.north.tolist(),
+                    "east_mps": wind.east.tolist(), "std_north_mps": wind.std_north.tolist(),
+                    "std_east_mps": wind.std_east.tolist()},
+           "airspeed_residual_rms_mps": wind.airspeed_rms,
+           "sideslip_rms_deg": float(np.rad2deg(wind.beta_rms)),
+           "heading_span_deg": float(np.rad2deg(np.ptp(heading))),
+           "assumptions": "no vertical wind; mean sideslip zero over each wind window; "
+                          "airspeed without scale error; angles at the IMU position"}
+    return out, doc
+
+
+def summary(doc: dict[str, Any]) -> str:
+    """One line for progress and report.md."""
+    if doc.get("status") != "reconstructed":
+        return str(doc.get("status"))
+    w = doc["wind"]
+    wn, we = np.mean(w["north_mps"]), np.mean(w["east_mps"])
+    return (f"{'/'.join(doc['channels'])} from the flight path at {doc['rate_hz']:.3g} Hz: wind "
+            f"{np.hypot(wn, we):.1f} m/s towards {np.rad2deg(np.arctan2(we, wn)) % 360:.0f} deg "
+            f"(+-{max(max(w['std_north_mps']), max(w['std_east_mps'])):.2f}, {len(w['t_s'])} knot(s)), "
+            f"airspeed residual {doc['airspeed_residual_rms_mps']:.2f} m/s rms, heading span "
+            f"{doc['heading_span_deg']:.0f} deg")
