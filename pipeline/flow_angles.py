@@ -24,7 +24,11 @@ asymmetric thrust, is booked on the cross-track wind), a correct airspeed (a pit
 factor error is booked on the along-track wind), and the inertial velocity at the IMU
 (the reconstructed angles are those at the IMU position: the air-data position for them
 is the IMU's). The angles carry the velocity channel's noise and sample times (a 10 Hz GPS
-gives 10 Hz angles; the estimators count only those samples).
+gives 10 Hz angles; the estimators count only those samples, and the filters' common grid
+drops to that rate). They hold no gusts: in turbulence they are the rigid body's angles,
+not the ones the aerodynamics see, and the airspeed departs from the steady-wind fit
+(:func:`steady`: 2.1 x the pitot noise in light turbulence), which ``fsid estimate`` takes
+as the sign that the calm-air sensor-compatibility model does not hold.
 """
 from __future__ import annotations
 
@@ -199,11 +203,19 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
                     "east_mps": wind.east.tolist(), "std_north_mps": wind.std_north.tolist(),
                     "std_east_mps": wind.std_east.tolist()},
            "airspeed_residual_rms_mps": wind.airspeed_rms,
+           "airspeed_noise_mps": float(fd.noise_std("V")),
            "sideslip_rms_deg": float(np.rad2deg(wind.beta_rms)),
            "heading_span_deg": float(np.rad2deg(np.ptp(heading))),
            "assumptions": "no vertical wind; mean sideslip zero over each wind window; "
                           "airspeed without scale error; angles at the IMU position"}
     return out, doc
+
+
+def steady(doc: dict[str, Any], limit: float = 1.5) -> bool:
+    """Whether the steady wind explains the airspeed: the fit's airspeed residual within
+    ``limit`` x the pitot's noise (1.07 on a windy calm flight, 2.0 in light turbulence)."""
+    noise = doc.get("airspeed_noise_mps") or float("nan")
+    return bool(doc["airspeed_residual_rms_mps"] <= limit * noise)
 
 
 def summary(doc: dict[str, Any]) -> str:

@@ -560,8 +560,31 @@ def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress) -> tuple[An
     return out, ac, doc
 
 
+def _gusty(flow: Mapping[str, Any]) -> str | None:
+    """Why the air-data-angle stage's steady wind does not explain the airspeed (None when
+    it does or nothing was rebuilt)."""
+    from pipeline.flow_angles import steady
+
+    if flow.get("status") != "reconstructed" or steady(flow):
+        return None
+    return (f"the airspeed departs from the steady-wind fit by {flow['airspeed_residual_rms_mps']:.2f} "
+            f"m/s rms, {flow['airspeed_residual_rms_mps'] / flow['airspeed_noise_mps']:.1f} x the "
+            "pitot noise (turbulence or a changing wind)")
+
+
+def with_flow_angles(fd, flow: Mapping[str, Any]):
+    """``fd`` with the air-data angles rebuilt as :func:`flow_angle_stage` rebuilt them
+    (``flow`` its document; unchanged when it rebuilt nothing)."""
+    if flow.get("status") != "reconstructed":
+        return fd
+    from pipeline.flow_angles import reconstruct_flow_angles
+
+    return reconstruct_flow_angles(fd)[0]
+
+
 def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabled: bool = True,
-                        truth: Mapping[str, float] | None = None) -> tuple[Any, dict]:
+                        truth: Mapping[str, float] | None = None,
+                        imu_only: bool = False, unsteady: str | None = None) -> tuple[Any, dict]:
     """The sensor-compatibility stage of a run (flight path reconstruction,
     :func:`pipeline.compatibility.correct_for_estimation`): returns (flight data for
     estimation, JSON-ready document). Sensor errors distinguishable from zero (|estimate|
@@ -569,7 +592,11 @@ def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabl
     applied. Sensor positions from ``ac`` (0,0,0 without one). Never ends the run: a log
     the reconstruction cannot use (no forward flight, missing channels) or a failed fit is
     reported as skipped / failed and estimation gets the data as logged. ``enabled=False``
-    (``--no-compat``): skipped."""
+    (``--no-compat``): skipped. ``imu_only``: estimate the IMU errors alone (a log without
+    vanes: the airspeed is then the only air data, and with a free wind its bias, scale
+    factor and delay are nearly one parameter - bias_V 21 m/s, delay 0.7 s "significant"
+    on a windy longitudinal_3211_turbulence). ``unsteady``: why the air is known not to be
+    steady (gusts), in which case nothing is applied."""
     pr.stage("sensor compatibility (flight path reconstruction)")
     if not enabled:
         doc = {"status": "skipped", "reason": "switched off (--no-compat)", "applied": {},
@@ -581,7 +608,20 @@ def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabl
     imu = tuple(ac.imu) if ac is not None else (0.0, 0.0, 0.0)
     boom = tuple(ac.airdata) if ac is not None else (0.0, 0.0, 0.0)
     try:
-        doc, out = correct_for_estimation(fd, imu_position=imu, boom_position=boom, truth=truth)
+        from pipeline.compatibility import IMU_PARAMS, RUN_ESTIMATE
+
+        doc, out = correct_for_estimation(fd, imu_position=imu, boom_position=boom, truth=truth,
+                                          estimate=IMU_PARAMS if imu_only else RUN_ESTIMATE)
+        if imu_only:
+            doc["scope"] = "IMU errors only: no air-data vanes in the log"
+        if unsteady and doc.get("applied"):
+            # the kinematic model has no gusts, and without vanes no air-data residual shows
+            # them: on a windy longitudinal_3211_turbulence it applied bias_ax and scale_ax
+            # (truth 0) and put the cross wind 3 m/s off with a 0.2 m/s std
+            doc["not_applied"], doc["applied"], out = doc["applied"], {}, fd
+            doc["data_for_estimation"] = "as logged"
+            doc["note"] = (f"no correction applied: {unsteady}; the calm-air kinematic model "
+                           "does not hold, so its sensor-error estimates are not trusted")
     except Exception as exc:  # noqa: BLE001 - the compatibility check must not cost the run
         doc, out = {"status": "failed", "reason": f"{type(exc).__name__}: {exc}", "applied": {},
                     "data_for_estimation": "as logged"}, fd
@@ -706,6 +746,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         print(n, file=pr.stream)
     truth = ({k: float(v) for k, v in truth_doc["derivatives"].items()}
              if truth_doc and truth_doc.get("derivatives") else None)
+    fd_logged, ac_sensors = fd, ac
     fd, ac, flow = flow_angle_stage(fd, ac, pr)
     if user:                         # before the slow stages: a bad model fails at once
         pr.stage(f"load model {model}")
@@ -718,14 +759,21 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     summary = summarize(run_checks(fd))
     pr.done(str(summary))
     meta = {"log": str(log), "aircraft": ac_name}
-    if flow.get("status") == "reconstructed":
-        from pipeline.flow_angles import summary as flow_summary
-        meta["air-data angles"] = flow_summary(flow)
-        meta["flow_angles"] = flow
     from pipeline.compatibility import truth_errors
-    fd_logged = fd
-    fd, comp = compatibility_stage(fd, ac, pr, enabled=compat,
-                                   truth=truth_errors(truth_doc) if truth_doc else None)
+    # the reconstruction sees the logged channels only: angles rebuilt from the GPS velocity
+    # and attitude are no independent air data (with them, 4 "significant" sensor errors
+    # were applied on a windy longitudinal_3211_turbulence); they are rebuilt afterwards
+    # from the corrected data, and again in every refit of the correction uncertainty
+    fd, comp = compatibility_stage(fd_logged, ac_sensors, pr, enabled=compat,
+                                   truth=truth_errors(truth_doc) if truth_doc else None,
+                                   imu_only=flow.get("status") == "reconstructed",
+                                   unsteady=_gusty(flow))
+    if flow.get("status") == "reconstructed":
+        from pipeline.flow_angles import reconstruct_flow_angles, summary as flow_summary
+
+        fd, flow = reconstruct_flow_angles(fd)
+        meta["air-data angles"] = flow_summary(flow)
+        meta["flow_angles"] = {**flow, "data": comp["data_for_estimation"]}
     meta["data"] = f"{Path(log).name}, {comp['data_for_estimation']}"
     from pipeline.correction_uncertainty import quiet_progress
     if user:
@@ -734,15 +782,16 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         meta["model"] = model
 
         def refit(fd_j, starts):
-            return identify_user_model(fd_j, um, methods, truth, quiet_progress(), inputs=inputs,
-                                       starts=starts)[0]
+            return identify_user_model(with_flow_angles(fd_j, flow), um, methods, truth,
+                                       quiet_progress(), inputs=inputs, starts=starts)[0]
     else:
         axes = ("longitudinal", "lateral") if model == "auto" else (model,)
         results, validations, problems = identify(fd, ac, methods, truth, pr, inputs=inputs, axes=axes,
                                                   tolerances=tol, pom=pom)
 
         def refit(fd_j, starts):
-            return identify(fd_j, ac, methods, truth, quiet_progress(), inputs=inputs, axes=axes,
+            return identify(with_flow_angles(fd_j, flow), ac, methods, truth, quiet_progress(),
+                            inputs=inputs, axes=axes,
                             starts=starts)[0]
     carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit)
     if truth is not None:
