@@ -665,14 +665,14 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
     wind = (full.settings.get("wind_mps") or {}) if full is not None else {}
     sig_wind = {n: round(v / s, 1) for n, (v, s) in wind.items()
                 if s and np.isfinite(s) and abs(v) >= threshold * s}
+    said = ", ".join(f"{'north' if n == 'wind_n' else 'east'} {v:.2f} +- {s:.2f} m/s"
+                     for n, (v, s) in wind.items() if s is not None)
     if full is not None and not sig_wind:
         doc, full = _reconstruct_or_reason(fd, estimate=list(estimate), **kw)
-        doc["wind_note"] = (f"wind {({n: round(v, 2) for n, (v, _) in wind.items()})} m/s within "
-                            f"{threshold:g} std of zero: calm air assumed")
+        doc["wind_note"] = f"wind {said}: within {threshold:g} std of zero, calm air assumed"
     elif full is not None:
         kw["wind"] = True
-        doc["wind_note"] = (f"steady wind estimated with the sensor errors: "
-                            f"{({n: round(v, 2) for n, (v, _) in wind.items()})} m/s ({sig_wind} std)")
+        doc["wind_note"] = f"steady wind estimated with the sensor errors: {said}"
     doc["rule"] = rule
     doc["applied"] = {}
     doc["data_for_estimation"] = "as logged"
