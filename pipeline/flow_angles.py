@@ -111,6 +111,10 @@ def fit_wind(t: np.ndarray, vg: np.ndarray, V: np.ndarray, axes: np.ndarray, *,
     nk = 1 if span < 1.5 * window_s else int(np.ceil(span / window_s)) + 1
     knots = np.array([0.5 * (t[0] + t[-1])]) if nk == 1 else np.linspace(t[0], t[-1], nk)
     B = _hat_basis(t, knots)                               # (n, K)
+    if nk > 1 and not np.all(B.sum(axis=0) > 0):           # knots in a gap of the data
+        knots = knots[B.sum(axis=0) > 0]
+        nk = knots.size
+        B = _hat_basis(t, knots) if nk > 1 else np.ones((t.size, 1))
     ey = axes[:, 1, :2]                                    # body y axis, horizontal part
     # start: zero sideslip and the airspeed along the body x axis's horizontal direction
     ex = axes[:, 0, :2] / np.linalg.norm(axes[:, 0, :2], axis=1, keepdims=True)

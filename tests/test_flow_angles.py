@@ -68,6 +68,18 @@ def test_wind_fit_follows_a_changing_wind():
     assert np.max(np.abs(wn - (3.0 + drift[:, 0]))) < 0.5 and np.max(np.abs(we + 6.0)) < 0.5
 
 
+def test_wind_fit_skips_knots_in_a_gap():
+    """Two flights 5 min apart in one log (landed in between): no knot without data."""
+    t, vg, V, axes, _ = _kinematics(7, 0.05, n=6000)
+    keep = (t < 200.0) | (t > 500.0)
+    w = fit_wind(t[keep], vg[keep], V[keep], axes[keep], window_s=60.0)
+    # 11 knots over 0-600 s, of which 3 (300, 360, 420 s) carry no sample: dropped
+    assert w.knots.size == 8 and not np.any((w.knots > 250.0) & (w.knots < 470.0)), w.knots
+    assert np.all(w.std_north > 0) and np.all(w.std_north < 0.5)
+    wn, we = w.at(t[keep])
+    assert np.max(np.abs(wn - 3.0)) < 0.5 and np.max(np.abs(we + 6.0)) < 0.5
+
+
 def _flight(t, vg, V, tr, with_vanes=False) -> FlightData:
     ch = {k: Channel(t=t, values=vg[:, i], unit="m/s") for i, k in enumerate(("vn", "ve", "vd"))}
     ch["V"] = Channel(t=t, values=V, unit="m/s")
