@@ -47,6 +47,9 @@ class Channel:
     unit: str
     source: str = ""
     notes: str = ""  #: e.g. the log's own unit metadata disagreeing with the map
+    #: why the channel is no independent measurement (an autopilot's estimate computed
+    #: from other channels, e.g. ArduPilot's AOA from the EKF velocity and wind); "" = a sensor
+    derived: str = ""
 
     def __len__(self) -> int:
         return int(self.t.shape[0])

@@ -197,7 +197,8 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
     channels = dict(fd.channels)
     for k in todo:
         channels[k] = Channel(t=t.copy(), values=angles[k], unit="rad", source=src,
-                              notes="reconstructed: no vane in the log (pipeline.flow_angles)")
+                              notes="reconstructed: no vane in the log (pipeline.flow_angles)",
+                              derived="rebuilt from the inertial velocity, attitude and airspeed")
     out = FlightData(channels=channels, meta=dict(fd.meta), segments=list(fd.segments))
     heading = np.unwrap(psi[ok])
     doc = {"status": "reconstructed", "channels": todo,

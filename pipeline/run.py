@@ -535,29 +535,41 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
                   "fits with a consider part")
 
 
-def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress) -> tuple[Any, Any, dict]:
-    """The air-data-angle stage of ``fsid estimate``: alpha/beta the log lacks (no vane)
-    rebuilt from the flight path and a fitted wind (:mod:`pipeline.flow_angles`). Returns
-    (flight data, aircraft constants, document). Rebuilt angles are at the IMU, so the
-    constants' air-data position becomes the IMU's. A log that cannot give them (no
-    inertial velocity, no forward flight) goes on as it is: the document says why, and a
-    model that needs the angles stops later with the missing channels named."""
+def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress) -> tuple[Any, Any, Any, dict]:
+    """The air-data-angle stage of ``fsid estimate``: alpha/beta the log lacks (no vane), or
+    holds only as an autopilot's estimate (``Channel.derived``: ArduPilot's AOA/SSA, from
+    its EKF velocity and wind), rebuilt from the flight path and a fitted wind
+    (:mod:`pipeline.flow_angles`), whose document names the assumptions and the wind. Returns
+    (flight data for estimation, aircraft constants, the logged data without derived
+    angles - what the sensor-compatibility stage may use -, document). Rebuilt angles are at
+    the IMU, so the constants' air-data position becomes the IMU's. A log that cannot give
+    them (no inertial velocity, no forward flight) goes on as it is: the document says why,
+    and a model that needs the angles stops later with the missing channels named."""
+    from pipeline.flightdata import FlightData
     from pipeline.flow_angles import reconstruct_flow_angles, summary
 
     pr.stage("air-data angles")
+    derived = {k: f"{fd[k].source}: {fd[k].derived}" for k in ("alpha", "beta")
+               if k in fd and fd[k].derived}
+    base = fd if not derived else FlightData(
+        channels={k: c for k, c in fd.channels.items() if k not in derived},
+        meta=dict(fd.meta), segments=list(fd.segments))
     try:
-        out, doc = reconstruct_flow_angles(fd)
+        out, doc = reconstruct_flow_angles(base)
     except FsidError as exc:
-        pr.done(f"not rebuilt: {exc}")
-        return fd, ac, {"status": "not possible", "reason": str(exc)}
+        kept = f"; the logged estimates kept ({', '.join(derived.values())})" if derived else ""
+        pr.done(f"not rebuilt: {exc}{kept}")
+        return fd, ac, fd, {"status": "not possible", "reason": str(exc) + kept}
     if doc["status"] != "reconstructed":
         pr.done("logged (vanes)")
-        return fd, ac, doc
+        return fd, ac, fd, doc
+    if derived:
+        doc["replaced"] = derived
     if ac is not None and "alpha" in doc["channels"]:
         ac = replace(ac, airdata=tuple(ac.imu))
         doc["airdata_position_m"] = list(map(float, ac.imu))
-    pr.done(summary(doc))
-    return out, ac, doc
+    pr.done(summary(doc) + (f" (instead of {', '.join(derived)}: autopilot estimates)" if derived else ""))
+    return out, ac, base, doc
 
 
 def _gusty(flow: Mapping[str, Any]) -> str | None:
@@ -746,8 +758,8 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         print(n, file=pr.stream)
     truth = ({k: float(v) for k, v in truth_doc["derivatives"].items()}
              if truth_doc and truth_doc.get("derivatives") else None)
-    fd_logged, ac_sensors = fd, ac
-    fd, ac, flow = flow_angle_stage(fd, ac, pr)
+    ac_sensors = ac
+    fd, ac, fd_logged, flow = flow_angle_stage(fd, ac, pr)
     if user:                         # before the slow stages: a bad model fails at once
         pr.stage(f"load model {model}")
         from pipeline.user_model import check_channels, load_user_model

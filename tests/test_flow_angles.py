@@ -199,3 +199,33 @@ def test_estimate_without_vanes_in_wind_and_turbulence(tmp_path):
     errs = {k: round(abs(v["error_in_std"]), 2) for k, v in m["parameters"].items()
             if v.get("error_in_std") is not None and "[" not in k}
     assert m["converged"] and len(errs) == 11 and max(errs.values()) < 4.0, errs
+
+
+def test_autopilot_angle_estimates_are_rebuilt(windy):
+    """ArduPilot's AOA/SSA are its AHRS's estimate from the EKF velocity and wind (the map
+    marks them ``derived``): fsid estimate rebuilds them like missing vanes, and the
+    sensor-compatibility stage does not see them as air data."""
+    from pipeline.readers import read_log
+    from pipeline.run import Progress, flow_angle_stage
+
+    _, run_dir, _ = windy
+    fd = read_log(run_dir / "flight.bin")
+    assert "AHRS estimate" in fd["alpha"].derived and "AHRS estimate" in fd["beta"].derived
+    out, _, base, doc = flow_angle_stage(fd, None, Progress(1, quiet=True))
+    assert set(doc["replaced"]) == {"alpha", "beta"} and doc["channels"] == ["alpha", "beta"]
+    assert "alpha" not in base and "alpha" in fd and out["alpha"].derived.startswith("rebuilt")
+
+
+def test_autopilot_angles_kept_when_they_cannot_be_rebuilt():
+    """A real ArduPilot log on the ground (no forward flight): its AOA stays, and says so."""
+    from pipeline.readers import read_log
+    from pipeline.run import Progress, flow_angle_stage
+
+    log = ROOT.parent / "shared" / "data" / "logs" / "ardupilot_plane_ground_truncated.BIN"
+    if not log.is_file():
+        pytest.skip("real logs not available")
+    fd = read_log(log)
+    assert fd["alpha"].derived
+    out, _, base, doc = flow_angle_stage(fd, None, Progress(1, quiet=True))
+    assert out is fd and base is fd and doc["status"] == "not possible"
+    assert "kept" in doc["reason"] and "AOA.AOA" in doc["reason"]

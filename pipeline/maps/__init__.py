@@ -20,6 +20,11 @@ Map file format (all keys but ``source`` optional)::
     unit = "pwm"
     pwm = { function = 19, channel = 2, travel_deg = 30.0 }
 
+    [channels.alpha]                         # an autopilot's estimate, not a sensor:
+    source = "AOA.AOA"                       # fsid estimate rebuilds it from the flight
+    unit = "deg"                             # path (pipeline.flow_angles) when it can
+    derived = "ArduPilot's AHRS estimate (EKF velocity minus its wind), not a vane"
+
     [channels.phi]                           # quaternion -> Euler angle (w, x, y, z order)
     source = ["vehicle_attitude.q[0]", "vehicle_attitude.q[1]", "vehicle_attitude.q[2]", "vehicle_attitude.q[3]"]
     transform = "quat_wxyz"
@@ -98,6 +103,7 @@ class ChannelRule:
     component: str | None = None
     scale_param: str | None = None      #: multiply by this log parameter (missing -> no channel)
     unless_param: str | None = None     #: product transform: skip the 2nd factor if param != 0
+    derived: str | None = None          #: why it is no independent measurement (Channel.derived)
 
 
 @dataclass
@@ -149,7 +155,8 @@ def _parse(doc: dict, origin: str) -> ChannelMap:
         rules[name] = ChannelRule(name, sources, unit, float(spec.get("scale", 1.0)),
                                   float(spec.get("offset", 0.0)), float(spec.get("sign", 1.0)),
                                   spec.get("pwm"), spec.get("transform"), spec.get("component"),
-                                  spec.get("scale_param"), spec.get("unless_param"))
+                                  spec.get("scale_param"), spec.get("unless_param"),
+                                  spec.get("derived"))
     return ChannelMap(str(head.get("name", Path(origin).stem)), rules,
                       list(head.get("formats", [])), dict(head), origin)
 
@@ -388,5 +395,6 @@ def apply_map(raw: RawLog, cmap: ChannelMap) -> tuple[dict[str, Channel], dict[s
         if isinstance(got, str):
             why[name] = got
         else:
+            got.derived = rule.derived or ""
             chans[name] = got
     return chans, why

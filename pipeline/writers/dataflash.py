@@ -13,7 +13,10 @@ What each message carries (sensor tables of the flight, see ``sim.sensors``):
   built-in ardupilot_bin channel map expects today). Real ArduPilot logs the *equivalent*
   airspeed there; ``airspeed="eas"`` writes EAS = V_meas * sqrt(rho/1.225) instead. Either
   way CTUN.E2T holds the EAS-to-TAS ratio, so TAS = EAS * CTUN.E2T.
-* AOA.AOA / AOA.SSA: the boom vanes' alpha and beta (deg).
+* AOA.AOA / AOA.SSA: the boom vanes' alpha and beta (deg). A real ArduPilot log holds its
+  AHRS estimate there (EKF velocity minus its wind); the built-in map marks them
+  ``derived``, so ``fsid estimate`` rebuilds the angles from the flight path instead
+  (pipeline.flow_angles) - read the vanes from flight.mcap.
 * BARO.Alt: the barometric altitude sensor (m above sea level, Offset 0); Press, Temp ISA.
 * RCOU: servo PWM of the *commanded* deflections (truth ``*_cmd``, the autopilot's output)
   at the surfaces-sensor rate, integer microseconds. Channels and PARM calibration:
