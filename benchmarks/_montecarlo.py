@@ -10,15 +10,22 @@ from typing import Callable, Mapping, Sequence
 import pandas as pd
 
 
-def seed_arguments(description: str, seeds: int, seed_base: int) -> tuple[list[int], int]:
+def seed_arguments(description: str, seeds: int, seed_base: int,
+                   options: Mapping[str, str] | None = None):
     """(seeds, jobs) from ``--seeds N --seed-base B --jobs J`` (defaults: ``seeds``,
-    ``seed_base``, 2 jobs)."""
+    ``seed_base``, 2 jobs); with ``options`` (``--name`` -> default text) also a dict of
+    those options' values: (seeds, jobs, options)."""
     ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--seeds", type=int, default=seeds)
     ap.add_argument("--seed-base", type=int, default=seed_base)
     ap.add_argument("--jobs", type=int, default=2)
+    for name, default in (options or {}).items():
+        ap.add_argument(f"--{name}", default=default)
     args = ap.parse_args()
-    return list(range(args.seed_base, args.seed_base + args.seeds)), args.jobs
+    out = list(range(args.seed_base, args.seed_base + args.seeds)), args.jobs
+    if options is None:
+        return out
+    return (*out, {name: getattr(args, name.replace("-", "_")) for name in options})
 
 
 def fly(one_flight: Callable[[int], list[dict]], seeds: Sequence[int], jobs: int) -> pd.DataFrame:

@@ -1,7 +1,7 @@
 """What do the air-data vanes buy? A Monte Carlo over windy flights: for each seed JSBSim
-flies scenarios/longitudinal_3211_calm.toml (or --scenario) in a steady (-4, 5) m/s wind,
-the product writes flight.mcap, and ``fsid estimate`` fits the longitudinal axis with
-output error twice - from the logged vanes, and through a channel map without them, the
+flies scenarios/longitudinal_3211_calm.toml (or --scenario NAME, fitting --model
+longitudinal|lateral) in a steady (-4, 5) m/s wind, the product writes flight.mcap, and
+``fsid estimate`` fits the axis with output error twice - from the logged vanes, and through a channel map without them, the
 angles rebuilt from the 10 Hz GPS velocity (pipeline.flow_angles). The compatibility stage
 is off in both, so only the angles differ.
 
@@ -17,6 +17,7 @@ rebuilt angles' reported std the same as the vanes' (ratio 1.00-1.08) but for CL
 comes from 10 Hz GPS samples instead of 50 Hz vane samples, while az pins it as well).
 
     python benchmarks/flow_angles_mc.py [--seeds 8] [--seed-base 200] [--jobs 2]
+        [--scenario longitudinal_3211_calm] [--model longitudinal]
 """
 from __future__ import annotations
 
@@ -31,12 +32,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from _montecarlo import fly, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
 
-SCENARIO = ROOT / "scenarios" / "longitudinal_3211_calm.toml"
+SCENARIOS = ROOT / "scenarios"
 WIND = "\n[wind]\nnorth_mps = -4.0\neast_mps = 5.0\n"
 
 
-def one_flight(seed: int) -> list[dict]:
-    """Rows (seed, source, parameter, estimate, std, truth) of one windy flight."""
+def one_flight(job: tuple[int, str, str]) -> list[dict]:
+    """Rows (seed, source, parameter, estimate, std, truth) of one windy flight; ``job`` is
+    (seed, scenario name, model)."""
+    seed, scenario, model = job
     from pipeline.commands.simulate import simulate
     from pipeline.readers import read_log
     from pipeline.run import estimate_log
@@ -44,8 +47,8 @@ def one_flight(seed: int) -> list[dict]:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
-        src = SCENARIO.read_text().replace('aircraft = "aircraft/',
-                                           f'aircraft = "{SCENARIO.parent}/aircraft/')
+        src = (SCENARIOS / f"{scenario}.toml").read_text().replace(
+            'aircraft = "aircraft/', f'aircraft = "{SCENARIOS}/aircraft/')
         (d / "windy.toml").write_text(src + WIND)
         run_dir, _ = simulate(d / "windy.toml", d / "run", seed=seed, progress=False)
         fd = read_log(run_dir / "flight.mcap")
@@ -56,7 +59,7 @@ def one_flight(seed: int) -> list[dict]:
         (d / "novane.toml").write_text("\n".join(lines))
         for source, mp in (("vanes", None), ("rebuilt", str(d / "novane.toml"))):
             estimate_log(run_dir / "flight.mcap", d / source, map_path=mp, methods=["oem"],
-                         model="longitudinal", quiet=True, compat=False)
+                         model=model, quiet=True, compat=False)
             rep = json.loads((d / source / "report.json").read_text())
             for n, p in rep["methods"]["oem"]["parameters"].items():
                 if p.get("truth") is not None and p.get("std") and "[" not in n:
@@ -66,8 +69,10 @@ def one_flight(seed: int) -> list[dict]:
 
 
 def main() -> None:
-    seeds, jobs = seed_arguments(__doc__.splitlines()[0], seeds=8, seed_base=200)
-    df = fly(one_flight, seeds, jobs)
+    seeds, jobs, opt = seed_arguments(__doc__.splitlines()[0], seeds=8, seed_base=200,
+                                      options={"scenario": "longitudinal_3211_calm",
+                                               "model": "longitudinal"})
+    df = fly(one_flight, [(s, opt["scenario"], opt["model"]) for s in seeds], jobs)
     tab = scatter_table(df, ["source", "parameter"], {"reported": "std"})
     sd = df.groupby(["source", "parameter"], sort=False)["std"].mean()
     ratio = (sd["rebuilt"] / sd["vanes"]).round(2)

@@ -21,9 +21,10 @@ least-squares solution of two conditions on every airborne sample:
 Assumptions, which the document names: no vertical wind (it would shift alpha by
 W_d / V), a mean sideslip of zero over each window (a steady sideslip, e.g. from
 asymmetric thrust, is booked on the cross-track wind), a correct airspeed (a pitot scale
-factor error is booked on the along-track wind), and the inertial velocity at the IMU
-(the reconstructed angles are those at the IMU position: the air-data position for them
-is the IMU's). The angles carry the velocity channel's noise and sample times (a 10 Hz GPS
+factor error is booked on the along-track wind), and the inertial velocity at the body
+origin, taken as the CG (the navigation filters, ArduPilot's EKF3 and PX4's EKF2, report
+it there, having moved the IMU's by its configured offset; the simulator's GPS sits at the
+CG): the rebuilt angles are the CG's, and the air-data position for them is (0, 0, 0). The angles carry the velocity channel's noise and sample times (a 10 Hz GPS
 gives 10 Hz angles; the estimators count only those samples, and the filters' common grid
 drops to that rate). They hold no gusts: in turbulence they are the rigid body's angles,
 not the ones the aerodynamics see, and the airspeed departs from the steady-wind fit
@@ -212,7 +213,7 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
            "sideslip_rms_deg": float(np.rad2deg(wind.beta_rms)),
            "heading_span_deg": float(np.rad2deg(np.ptp(heading))),
            "assumptions": "no vertical wind; mean sideslip zero over each wind window; "
-                          "airspeed without scale error; angles at the IMU position"}
+                          "airspeed without scale error; angles at the CG (the navigation filter's velocity)"}
     return out, doc
 
 

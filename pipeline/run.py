@@ -541,8 +541,9 @@ def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress) -> tuple[An
     its EKF velocity and wind), rebuilt from the flight path and a fitted wind
     (:mod:`pipeline.flow_angles`), whose document names the assumptions and the wind. Returns
     (flight data for estimation, aircraft constants, the logged data without derived
-    angles - what the sensor-compatibility stage may use -, document). Rebuilt angles are at
-    the IMU, so the constants' air-data position becomes the IMU's. A log that cannot give
+    angles - what the sensor-compatibility stage may use -, document). Rebuilt angles are
+    the CG's (the navigation filter's velocity is the body origin's), so the constants'
+    air-data position becomes (0, 0, 0). A log that cannot give
     them (no inertial velocity, no forward flight) goes on as it is: the document says why,
     and a model that needs the angles stops later with the missing channels named."""
     from pipeline.flightdata import FlightData
@@ -566,8 +567,8 @@ def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress) -> tuple[An
     if derived:
         doc["replaced"] = derived
     if ac is not None and "alpha" in doc["channels"]:
-        ac = replace(ac, airdata=tuple(ac.imu))
-        doc["airdata_position_m"] = list(map(float, ac.imu))
+        ac = replace(ac, airdata=(0.0, 0.0, 0.0))
+        doc["airdata_position_m"] = [0.0, 0.0, 0.0]
     pr.done(summary(doc) + (f" (instead of {', '.join(derived)}: autopilot estimates)" if derived else ""))
     return out, ac, base, doc
 
