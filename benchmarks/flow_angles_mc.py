@@ -10,11 +10,16 @@ seeds / mean reported std (``reported``, 1 = honest; the 95 % band from n seeds 
 +-1.4/sqrt(n)), bias in empirical std, and the ratio of the mean reported std without and
 with vanes (``std_ratio``: what losing the vanes costs).
 
-Measured (seeds 200-207, 2026-11-24): empirical / reported std 0.58-1.47 with the vanes,
-0.59-1.46 with the rebuilt angles; |bias| <= 1.44 empirical std in both (CLalpha); the
-rebuilt angles' reported std the same as the vanes' (ratio 1.00-1.08) but for CL0 and Cm0
-(1.78, 1.87: conservative there, empirical/reported 0.60 and 0.74 - the level of alpha
-comes from 10 Hz GPS samples instead of 50 Hz vane samples, while az pins it as well).
+Measured (seeds 200-207, 2026-11-24):
+  longitudinal_3211_calm: empirical / reported std 0.58-1.47 with the vanes, 0.60-1.47
+      with the rebuilt angles; |bias| <= 1.45 empirical std in both (CLalpha); reported
+      std the same (ratio 1.00-1.08) but for CL0 and Cm0 (1.78, 1.87: conservative there,
+      empirical/reported 0.60 and 0.75 - the level of alpha comes from 10 Hz GPS samples
+      instead of 50 Hz vane samples, while az pins it as well).
+  lateral_doublets_calm (--model lateral): 0.55-2.16 with the vanes, 0.55-2.69 rebuilt;
+      |bias| <= 1.23 / 1.19; reported std ratio 1.00-1.02. The lateral output error's
+      Cramér-Rao std are optimistic on the yaw derivatives with the vanes already (Cnp
+      2.16, Cndr 2.14, Cnda 1.81); the rebuilt sideslip adds to it (Cnda 2.69, Cndr 2.54).
 
     python benchmarks/flow_angles_mc.py [--seeds 8] [--seed-base 200] [--jobs 2]
         [--scenario longitudinal_3211_calm] [--model longitudinal]
