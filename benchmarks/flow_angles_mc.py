@@ -49,6 +49,7 @@ def one_flight(job: tuple[int, str, str, str]) -> list[dict]:
     seed, scenario, model, wind = job
     wn, we = (float(x) for x in wind.split(","))
     from pipeline.commands.simulate import simulate
+    from pipeline.maps import plain_map_toml
     from pipeline.readers import read_log
     from pipeline.run import estimate_log
 
@@ -60,11 +61,8 @@ def one_flight(job: tuple[int, str, str, str]) -> list[dict]:
         (d / "windy.toml").write_text(src + f"\n[wind]\nnorth_mps = {wn}\neast_mps = {we}\n")
         run_dir, _ = simulate(d / "windy.toml", d / "run", seed=seed, progress=False)
         fd = read_log(run_dir / "flight.mcap")
-        lines = ['[map]', 'name = "without_vanes"', 'formats = ["mcap"]', '']
-        for k in fd.names:
-            if k not in ("alpha", "beta"):
-                lines += [f"[channels.{k}]", f'source = ["{fd[k].source}"]', f'unit = "{fd[k].unit}"', ""]
-        (d / "novane.toml").write_text("\n".join(lines))
+        (d / "novane.toml").write_text(plain_map_toml(fd, "without_vanes", ["mcap"],
+                                                      drop=("alpha", "beta")))
         for source, mp in (("vanes", None), ("rebuilt", str(d / "novane.toml"))):
             estimate_log(run_dir / "flight.mcap", d / source, map_path=mp, methods=["oem"],
                          model=model, quiet=True, compat=False)

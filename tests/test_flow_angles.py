@@ -120,6 +120,7 @@ def _fly_in_wind(d: Path, scenario: str):
     MCAP without the vanes. Returns (run folder, SimResult)."""
     pytest.importorskip("jsbsim")
     from pipeline.commands.simulate import simulate
+    from pipeline.maps import plain_map_toml
     from pipeline.readers import read_log
 
     src = (ROOT / "scenarios" / f"{scenario}.toml").read_text()
@@ -127,11 +128,8 @@ def _fly_in_wind(d: Path, scenario: str):
     (d / "windy.toml").write_text(src + "\n[wind]\nnorth_mps = -4.0\neast_mps = 5.0\n")
     run_dir, result = simulate(d / "windy.toml", d / "run", progress=False)
     fd = read_log(run_dir / "flight.mcap")
-    lines = ['[map]', 'name = "fsid_mcap_without_vanes"', 'formats = ["mcap"]', '']
-    for k in fd.names:
-        if k not in ("alpha", "beta"):
-            lines += [f"[channels.{k}]", f'source = ["{fd[k].source}"]', f'unit = "{fd[k].unit}"', ""]
-    (d / "novane.toml").write_text("\n".join(lines))
+    (d / "novane.toml").write_text(plain_map_toml(fd, "fsid_mcap_without_vanes", ["mcap"],
+                                                  drop=("alpha", "beta")))
     return run_dir, result
 
 

@@ -58,6 +58,7 @@ import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -378,6 +379,18 @@ def _apply_rule(raw: RawLog, rule: ChannelRule) -> Channel | str:
         return Channel(np.asarray(tab.t, dtype=np.float64), vals,
                        CANONICAL_UNITS.get(rule.name, rule.unit), src + note, notes)
     return "; ".join(dict.fromkeys(reasons))
+
+
+def plain_map_toml(fd, name: str, formats: Sequence[str], drop: Sequence[str] = ()) -> str:
+    """The TOML of a map that reads ``fd``'s channels straight from the sources they came
+    from (one plain source each, in the channel's SI unit), without those in ``drop``: for
+    channels a reader fills by name (the product's own MCAP), e.g. the same log without its
+    vanes. Transforms, PWM and scale rules are not reproduced: use it on plain sources."""
+    lines = ["[map]", f'name = "{name}"', f"formats = {list(formats)!r}".replace("'", '"'), ""]
+    for k in fd.names:
+        if k not in drop:
+            lines += [f"[channels.{k}]", f'source = ["{fd[k].source}"]', f'unit = "{fd[k].unit}"', ""]
+    return "\n".join(lines)
 
 
 def apply_map(raw: RawLog, cmap: ChannelMap) -> tuple[dict[str, Channel], dict[str, str]]:
