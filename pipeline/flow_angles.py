@@ -28,7 +28,7 @@ CG): the rebuilt angles are the CG's, and the air-data position for them is (0, 
 gives 10 Hz angles; the estimators count only those samples, and the filters' common grid
 drops to that rate). They hold no gusts: in turbulence they are the rigid body's angles,
 not the ones the aerodynamics see, and the airspeed departs from the steady-wind fit
-(:func:`steady`: 2.1 x the pitot noise in light turbulence), which ``fsid estimate`` takes
+(:func:`unsteady`: 2.1 x the pitot noise in light turbulence), which ``fsid estimate`` takes
 as the sign that the calm-air sensor-compatibility model does not hold.
 """
 from __future__ import annotations
@@ -217,11 +217,17 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
     return out, doc
 
 
-def steady(doc: dict[str, Any], limit: float = 1.5) -> bool:
-    """Whether the steady wind explains the airspeed: the fit's airspeed residual within
-    ``limit`` x the pitot's noise (1.07 on a windy calm flight, 2.0 in light turbulence)."""
-    noise = doc.get("airspeed_noise_mps") or float("nan")
-    return bool(doc["airspeed_residual_rms_mps"] <= limit * noise)
+def unsteady(doc: dict[str, Any], limit: float = 1.5) -> str | None:
+    """Why the steady wind does not explain the airspeed - its residual above ``limit`` x
+    the pitot's noise (1.07 on a windy calm flight, 2.1 in light turbulence) - or None when
+    it does or nothing was rebuilt."""
+    if doc.get("status") != "reconstructed":
+        return None
+    res, noise = doc["airspeed_residual_rms_mps"], doc.get("airspeed_noise_mps") or float("nan")
+    if res <= limit * noise:
+        return None
+    return (f"the airspeed departs from the steady-wind fit by {res:.2f} m/s rms, "
+            f"{res / noise:.1f} x the pitot noise (turbulence or a changing wind)")
 
 
 def summary(doc: dict[str, Any]) -> str:

@@ -541,7 +541,8 @@ def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress) -> tuple[An
     its EKF velocity and wind), rebuilt from the flight path and a fitted wind
     (:mod:`pipeline.flow_angles`), whose document names the assumptions and the wind. Returns
     (flight data for estimation, aircraft constants, the logged data without derived
-    angles - what the sensor-compatibility stage may use -, document). Rebuilt angles are
+    angles - what the sensor-compatibility stage may use, also when they are kept for
+    estimation -, document). Rebuilt angles are
     the CG's (the navigation filter's velocity is the body origin's), so the constants'
     air-data position becomes (0, 0, 0). A log that cannot give
     them (no inertial velocity, no forward flight) goes on as it is: the document says why,
@@ -560,7 +561,7 @@ def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress) -> tuple[An
     except FsidError as exc:
         kept = f"; the logged estimates kept ({', '.join(derived.values())})" if derived else ""
         pr.done(f"not rebuilt: {exc}{kept}")
-        return fd, ac, fd, {"status": "not possible", "reason": str(exc) + kept}
+        return fd, ac, base, {"status": "not possible", "reason": str(exc) + kept}
     if doc["status"] != "reconstructed":
         pr.done("logged (vanes)")
         return fd, ac, fd, doc
@@ -573,26 +574,14 @@ def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress) -> tuple[An
     return out, ac, base, doc
 
 
-def _gusty(flow: Mapping[str, Any]) -> str | None:
-    """Why the air-data-angle stage's steady wind does not explain the airspeed (None when
-    it does or nothing was rebuilt)."""
-    from pipeline.flow_angles import steady
-
-    if flow.get("status") != "reconstructed" or steady(flow):
-        return None
-    return (f"the airspeed departs from the steady-wind fit by {flow['airspeed_residual_rms_mps']:.2f} "
-            f"m/s rms, {flow['airspeed_residual_rms_mps'] / flow['airspeed_noise_mps']:.1f} x the "
-            "pitot noise (turbulence or a changing wind)")
-
-
-def with_flow_angles(fd, flow: Mapping[str, Any]):
-    """``fd`` with the air-data angles rebuilt as :func:`flow_angle_stage` rebuilt them
-    (``flow`` its document; unchanged when it rebuilt nothing)."""
+def with_flow_angles(fd, flow: Mapping[str, Any]) -> tuple[Any, dict]:
+    """(``fd`` with the air-data angles rebuilt as :func:`flow_angle_stage` rebuilt them,
+    their document); ``fd`` and ``flow`` unchanged when that stage rebuilt nothing."""
     if flow.get("status") != "reconstructed":
-        return fd
+        return fd, dict(flow)
     from pipeline.flow_angles import reconstruct_flow_angles
 
-    return reconstruct_flow_angles(fd)[0]
+    return reconstruct_flow_angles(fd)
 
 
 def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabled: bool = True,
@@ -777,14 +766,17 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     # and attitude are no independent air data (with them, 4 "significant" sensor errors
     # were applied on a windy longitudinal_3211_turbulence); they are rebuilt afterwards
     # from the corrected data, and again in every refit of the correction uncertainty
-    fd, comp = compatibility_stage(fd_logged, ac_sensors, pr, enabled=compat,
-                                   truth=truth_errors(truth_doc) if truth_doc else None,
-                                   imu_only=flow.get("status") == "reconstructed",
-                                   unsteady=_gusty(flow))
+    from pipeline.flow_angles import summary as flow_summary, unsteady
+    fd_c, comp = compatibility_stage(fd_logged, ac_sensors, pr, enabled=compat,
+                                     truth=truth_errors(truth_doc) if truth_doc else None,
+                                     imu_only=not any(k in fd_logged for k in ("alpha", "beta")),
+                                     unsteady=unsteady(flow))
     if flow.get("status") == "reconstructed":
-        from pipeline.flow_angles import reconstruct_flow_angles, summary as flow_summary
-
-        fd, flow = reconstruct_flow_angles(fd)
+        fd, flow = with_flow_angles(fd_c, flow)     # rebuilt from the corrected data
+    else:                                           # derived angles not rebuilt: as logged
+        fd = replace(fd_c, channels={**fd_c.channels, **{
+            k: c for k, c in fd.channels.items() if k not in fd_c.channels}})
+    if flow.get("status") == "reconstructed":
         meta["air-data angles"] = flow_summary(flow)
         meta["flow_angles"] = {**flow, "data": comp["data_for_estimation"]}
     meta["data"] = f"{Path(log).name}, {comp['data_for_estimation']}"
@@ -795,7 +787,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         meta["model"] = model
 
         def refit(fd_j, starts):
-            return identify_user_model(with_flow_angles(fd_j, flow), um, methods, truth,
+            return identify_user_model(with_flow_angles(fd_j, flow)[0], um, methods, truth,
                                        quiet_progress(), inputs=inputs, starts=starts)[0]
     else:
         axes = ("longitudinal", "lateral") if model == "auto" else (model,)
@@ -803,7 +795,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                                                   tolerances=tol, pom=pom)
 
         def refit(fd_j, starts):
-            return identify(with_flow_angles(fd_j, flow), ac, methods, truth, quiet_progress(),
+            return identify(with_flow_angles(fd_j, flow)[0], ac, methods, truth, quiet_progress(),
                             inputs=inputs, axes=axes,
                             starts=starts)[0]
     carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit)
