@@ -42,7 +42,7 @@ ALL_OUTPUTS = ["V", "alpha", "beta", "phi", "theta", "psi", "h", "vn", "ve", "vd
 IMU_PARAMS = [f"bias_{c}" for c in INPUTS] + [f"scale_{c}" for c in INPUTS]
 AIR_PARAMS = ["bias_V", "scale_V", "bias_alpha", "scale_alpha", "bias_beta", "scale_beta",
               "delay_air"]
-#: per-segment steady wind (m/s, NED) between the air-relative states and vn, ve
+#: the steady wind (m/s, NED) between the air-relative states and vn, ve
 WIND_PARAMS = ["wind_n", "wind_e"]
 #: estimated by default: IMU biases, air-data biases and scale factors, air-data delay
 DEFAULT_ESTIMATE = tuple([f"bias_{c}" for c in INPUTS] + AIR_PARAMS)
@@ -123,13 +123,13 @@ def _g(x, u, p, c):
 
 def kinematic_model(outputs: Sequence[str] = ALL_OUTPUTS, estimate: Sequence[str] = DEFAULT_ESTIMATE,
                     boom_position: Sequence[float] = (0.0, 0.0, 0.0), start: Mapping[str, float] | None = None,
-                    wind: bool = False):
+                    wind: "bool | tuple[float, float]" = False):
     """The flight-path-reconstruction model as an ``estimators.Model``.
 
     outputs : subset of ALL_OUTPUTS the data have; estimate : free parameter names;
-    boom_position : air-data boom position from the CG, body axes [m]; wind : estimate the
-    steady wind (wind_n, wind_e, one for the flight) when vn/ve are among the outputs
-    (otherwise held at zero: calm air).
+    boom_position : air-data boom position from the CG, body axes [m]; wind : True: estimate
+    the steady wind (wind_n, wind_e, one for the flight) when vn/ve are among the outputs;
+    (north, east) m/s: hold it there; False: calm air.
     """
     from estimators import Model, Parameter
 
@@ -143,9 +143,10 @@ def kinematic_model(outputs: Sequence[str] = ALL_OUTPUTS, estimate: Sequence[str
         lo, hi = (-0.5, 0.5) if n.startswith("scale") else (-0.2, 0.5) if n == "delay_air" else (-np.inf, np.inf)
         params.append(Parameter(n, float(start.get(n, 0.0)), free=n in estimate, bounds=(lo, hi),
                                 unit=UNITS.get(n, "")))
-    wind = wind and any(c in outputs for c in ("vn", "ve"))
-    params += [Parameter(n, float(start.get(n, 0.0)), free=wind, unit="m/s")
-               for n in WIND_PARAMS]
+    held = tuple(wind) if isinstance(wind, (tuple, list)) else (0.0, 0.0)
+    free = wind is True and any(c in outputs for c in ("vn", "ve"))
+    params += [Parameter(n, float(start.get(n, w0)), free=free, unit="m/s")
+               for n, w0 in zip(WIND_PARAMS, held)]
     xb, yb, zb = (float(v) for v in boom_position)
     model = Model(states=STATES, inputs=MODEL_INPUTS, outputs=list(ALL_OUTPUTS), parameters=params,
                   constants={"g": G0, "xb": xb, "yb": yb, "zb": zb}, f=_f, g=_g,
@@ -336,7 +337,8 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
                 integrator: str = "rk4", max_iter: int = 50, delay: str = "profile",
                 delay_channels: Sequence[str] = ("V", "alpha", "beta"),
                 delay_bounds: tuple[float, float] = (-0.05, 0.25), method: str = "oem",
-                filter_options: Mapping | None = None, wind: bool = False) -> CompatibilityResult:
+                filter_options: Mapping | None = None,
+                wind: "bool | tuple[float, float]" = False) -> CompatibilityResult:
     """Flight path reconstruction on ``data`` with the estimators' output-error method.
 
     Parameters
@@ -348,8 +350,9 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
     rate_hz : common rate (default: the IMU rate, at most 100 Hz)
     estimate : names of the free sensor-error parameters (module docstring)
     imu_position, boom_position : sensor positions from the CG, body axes [m]
-    wind : one steady wind between the air-relative states and vn, ve (default: calm air;
-        :func:`correct_for_estimation` keeps it when it is significant)
+    wind : one steady wind between the air-relative states and vn, ve: True estimates it,
+        (north, east) m/s holds it, False (default) is calm air;
+        :func:`correct_for_estimation` keeps an estimated one when it is significant
     method : "oem" (output error, per-segment initial states estimated), "ekf" or "ukf"
         (extended / unscented Kalman filter with the parameters in the state, run over the
         segments in order; initial states from the first samples); ``filter_options`` go to
@@ -660,14 +663,21 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
             "noise level; the applied values come from a refit with only those free")
     kw = {"imu_position": imu_position, "boom_position": boom_position, **kw}
     # a steady wind is estimated first; indistinguishable from calm (every component within
-    # ``threshold`` std of zero), the calm-air fit is used: the same rule as the sensor errors
-    doc, full = _reconstruct_or_reason(fd, estimate=list(estimate), wind=True, **kw)
+    # ``threshold`` std of zero), the calm-air fit is used: the same rule as the sensor errors.
+    # A wind given (the air-data-angle stage's, for a log without vanes, where the cross wind
+    # of a straight flight is unobservable here: 5.7 +- 18 m/s, not converged) is held
+    held = kw.pop("wind", None)
+    doc, full = _reconstruct_or_reason(fd, estimate=list(estimate), wind=held or True, **kw)
     wind = (full.settings.get("wind_mps") or {}) if full is not None else {}
     sig_wind = {n: round(v / s, 1) for n, (v, s) in wind.items()
                 if s and np.isfinite(s) and abs(v) >= threshold * s}
     said = ", ".join(f"{'north' if n == 'wind_n' else 'east'} {v:.2f} +- {s:.2f} m/s"
                      for n, (v, s) in wind.items() if s is not None)
-    if full is not None and not sig_wind:
+    if held:
+        kw["wind"] = held
+        doc["wind_note"] = (f"wind held at north {held[0]:.2f}, east {held[1]:.2f} m/s "
+                            "(the air-data-angle stage's)")
+    elif full is not None and not sig_wind:
         doc, full = _reconstruct_or_reason(fd, estimate=list(estimate), **kw)
         doc["wind_note"] = f"wind {said}: within {threshold:g} std of zero, calm air assumed"
     elif full is not None:

@@ -230,12 +230,20 @@ def unsteady(doc: dict[str, Any], limit: float = 1.5) -> str | None:
             f"{res / noise:.1f} x the pitot noise (turbulence or a changing wind)")
 
 
+def mean_wind(doc: dict[str, Any]) -> tuple[float, float] | None:
+    """The rebuilt flight's mean wind (north, east) [m/s] over its knots, or None when
+    nothing was rebuilt."""
+    if doc.get("status") != "reconstructed":
+        return None
+    return float(np.mean(doc["wind"]["north_mps"])), float(np.mean(doc["wind"]["east_mps"]))
+
+
 def summary(doc: dict[str, Any]) -> str:
     """One line for progress and report.md."""
     if doc.get("status") != "reconstructed":
         return str(doc.get("status"))
     w = doc["wind"]
-    wn, we = np.mean(w["north_mps"]), np.mean(w["east_mps"])
+    wn, we = mean_wind(doc)
     return (f"{'/'.join(doc['channels'])} from the flight path at {doc['rate_hz']:.3g} Hz: wind "
             f"{np.hypot(wn, we):.1f} m/s towards {np.rad2deg(np.arctan2(we, wn)) % 360:.0f} deg "
             f"(+-{max(max(w['std_north_mps']), max(w['std_east_mps'])):.2f}, {len(w['t_s'])} knot(s)), "

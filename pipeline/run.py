@@ -586,7 +586,8 @@ def with_flow_angles(fd, flow: Mapping[str, Any]) -> tuple[Any, dict]:
 
 def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabled: bool = True,
                         truth: Mapping[str, float] | None = None,
-                        imu_only: bool = False, unsteady: str | None = None) -> tuple[Any, dict]:
+                        imu_only: bool = False, unsteady: str | None = None,
+                        wind: tuple[float, float] | None = None) -> tuple[Any, dict]:
     """The sensor-compatibility stage of a run (flight path reconstruction,
     :func:`pipeline.compatibility.correct_for_estimation`): returns (flight data for
     estimation, JSON-ready document). Sensor errors distinguishable from zero (|estimate|
@@ -598,7 +599,9 @@ def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabl
     vanes: the airspeed is then the only air data, and with a free wind its bias, scale
     factor and delay are nearly one parameter - bias_V 21 m/s, delay 0.7 s "significant"
     on a windy longitudinal_3211_turbulence). ``unsteady``: why the air is known not to be
-    steady (gusts), in which case nothing is applied."""
+    steady (gusts), in which case nothing is applied. ``wind`` (north, east) m/s: held, not
+    estimated (the air-data-angle stage's, which the zero-sideslip condition fixes across
+    the track)."""
     pr.stage("sensor compatibility (flight path reconstruction)")
     if not enabled:
         doc = {"status": "skipped", "reason": "switched off (--no-compat)", "applied": {},
@@ -613,7 +616,8 @@ def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabl
         from pipeline.compatibility import IMU_PARAMS, RUN_ESTIMATE
 
         doc, out = correct_for_estimation(fd, imu_position=imu, boom_position=boom, truth=truth,
-                                          estimate=IMU_PARAMS if imu_only else RUN_ESTIMATE)
+                                          estimate=IMU_PARAMS if imu_only else RUN_ESTIMATE,
+                                          **({"wind": tuple(wind)} if wind is not None else {}))
         if imu_only:
             doc["scope"] = "IMU errors only: no air-data vanes in the log"
         if unsteady and doc.get("applied"):
@@ -766,11 +770,11 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     # and attitude are no independent air data (with them, 4 "significant" sensor errors
     # were applied on a windy longitudinal_3211_turbulence); they are rebuilt afterwards
     # from the corrected data, and again in every refit of the correction uncertainty
-    from pipeline.flow_angles import summary as flow_summary, unsteady
+    from pipeline.flow_angles import mean_wind, summary as flow_summary, unsteady
     fd_c, comp = compatibility_stage(fd_logged, ac_sensors, pr, enabled=compat,
                                      truth=truth_errors(truth_doc) if truth_doc else None,
                                      imu_only=not any(k in fd_logged for k in ("alpha", "beta")),
-                                     unsteady=unsteady(flow))
+                                     unsteady=unsteady(flow), wind=mean_wind(flow))
     if flow.get("status") == "reconstructed":
         fd, flow = with_flow_angles(fd_c, flow)     # rebuilt from the corrected data
     else:                                           # derived angles not rebuilt: as logged

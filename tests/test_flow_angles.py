@@ -167,8 +167,10 @@ def test_estimate_without_vanes_in_wind(windy):
     # the compatibility stage sees the wind as wind, not as sensor errors
     comp = rep["compatibility"]
     assert comp["applied"] == {}, comp["applied"]
-    cw = comp["settings"]["wind_mps"]
-    assert abs(cw["wind_n"][0] + 4.0) < 3 * cw["wind_n"][1] and abs(cw["wind_e"][0] - 5.0) < 3 * cw["wind_e"][1]
+    # without vanes it holds the rebuilt flight's wind: estimated here its cross-track part
+    # came out 5.7 +- 18 m/s on this straight flight and the fit did not converge
+    assert comp["status"] == "ok" and comp["wind_note"].startswith("wind held at north -3.99, east 5.00")
+    assert comp["scope"].startswith("IMU errors only")
     m = rep["methods"]["oem"]
     errs = {k: round(abs(v["error_in_std"]), 2) for k, v in m["parameters"].items()
             if v.get("error_in_std") is not None and "[" not in k}
