@@ -617,7 +617,9 @@ ADEQUACY = 1.5
 def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0.0, 0.0, 0.0),
                            boom_position: Sequence[float] = (0.0, 0.0, 0.0),
                            estimate: Sequence[str] = RUN_ESTIMATE, threshold: float = SIGNIFICANCE,
-                           truth: Mapping[str, float] | None = None, **kw) -> tuple[dict, FlightData]:
+                           truth: Mapping[str, float] | None = None,
+                           wind: tuple[float, float] | None = None, unsteady: str | None = None,
+                           **kw) -> tuple[dict, FlightData]:
     """The compatibility stage of a run: estimate the sensor errors, correct the data that
     estimation will see by the significant ones, and say exactly what was done.
 
@@ -649,6 +651,11 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
     m/s^2). With the plain Cramér-Rao std longitudinal_3211_calm and default had bias_p
     applied too (3.3-3.4 std, 0.008 deg/s); with the IMU noise carried it is 1.8 std (fsid demo).
 
+    ``wind`` (north, east) m/s: held instead of estimated (a log without vanes: the air-data-
+    angle stage's wind). ``unsteady``: why the air is known not to be steady (the airspeed
+    off a steady-wind fit: gusts no air-data residual shows without vanes); then nothing is
+    applied, and the significant errors are listed under ``not_applied``.
+
     Returns (JSON-ready document, flight data for estimation). The document is the full
     fit's ``to_dict`` (every estimate with std, and truth / error_std when ``truth``, in
     this module's parameter names, is given) plus ``applied`` (name -> value removed from
@@ -666,7 +673,7 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
     # ``threshold`` std of zero), the calm-air fit is used: the same rule as the sensor errors.
     # A wind given (the air-data-angle stage's, for a log without vanes, where the cross wind
     # of a straight flight is unobservable here: 5.7 +- 18 m/s, not converged) is held
-    held = kw.pop("wind", None)
+    held = tuple(wind) if wind is not None else None
     doc, full = _reconstruct_or_reason(fd, estimate=list(estimate), wind=held or True, **kw)
     wind = (full.settings.get("wind_mps") or {}) if full is not None else {}
     sig_wind = {n: round(v / s, 1) for n, (v, s) in wind.items()
@@ -703,14 +710,24 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
     ratio = residual_to_noise(full)
     doc["residual_to_noise"] = ratio
     poor = {c: round(x, 2) for c, x in ratio.items() if c in ("V", "alpha", "beta") and x > ADEQUACY}
+    untrusted = None
     if poor:
+        untrusted = (f"air-data residuals {poor} times their noise level (> {ADEQUACY:g}): the "
+                     "calm-air kinematic model does not explain the air data (turbulence or wind?)")
+    elif unsteady and sig:
+        # the kinematic model has no gusts, and without vanes no air-data residual shows
+        # them: on a windy longitudinal_3211_turbulence it found bias_ax and scale_ax
+        # significant (truth 0) and put the cross wind 3 m/s off with a 0.2 m/s std
+        doc["not_applied"] = {n: {"estimate": doc["parameters"][n]["estimate"],
+                                  "std": doc["parameters"][n]["std"], "significance_std": float(x)}
+                              for n, x in sig.items()}
+        untrusted = f"{unsteady}; the calm-air kinematic model does not hold"
+    if untrusted:
         sig = {}
-        doc["note"] = (f"no correction applied: air-data residuals {poor} times their noise level "
-                       f"(> {ADEQUACY:g}): the calm-air kinematic model does not explain the air data "
-                       "(turbulence or wind?), so its sensor-error estimates are not trusted")
+        doc["note"] = f"no correction applied: {untrusted}, so its sensor-error estimates are not trusted"
     for n, row in doc["parameters"].items():
         row["applied"] = n in sig
-    if poor:
+    if untrusted:
         doc["seconds"] = time.perf_counter() - t0
         return doc, fd
     if not sig:

@@ -65,15 +65,12 @@ class WindFit:
 
     def at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(north, east) wind [m/s] at times t [s] (linear between knots, constant beyond)."""
-        if self.knots.size == 1:
-            return np.full(t.shape, self.north[0]), np.full(t.shape, self.east[0])
         return np.interp(t, self.knots, self.north), np.interp(t, self.knots, self.east)
 
 
 def _hat_basis(t: np.ndarray, knots: np.ndarray) -> np.ndarray:
-    """(n, K) weights of the piecewise-linear interpolation between knots (rows sum to 1)."""
-    if knots.size == 1:
-        return np.ones((t.size, 1))
+    """(n, K) weights of the piecewise-linear interpolation between knots (rows sum to 1;
+    one knot: all ones)."""
     eye = np.eye(knots.size)
     return np.stack([np.interp(t, knots, eye[k]) for k in range(knots.size)], axis=1)
 
@@ -112,10 +109,11 @@ def fit_wind(t: np.ndarray, vg: np.ndarray, V: np.ndarray, axes: np.ndarray, *,
     nk = 1 if span < 1.5 * window_s else int(np.ceil(span / window_s)) + 1
     knots = np.array([0.5 * (t[0] + t[-1])]) if nk == 1 else np.linspace(t[0], t[-1], nk)
     B = _hat_basis(t, knots)                               # (n, K)
-    if nk > 1 and not np.all(B.sum(axis=0) > 0):           # knots in a gap of the data
-        knots = knots[B.sum(axis=0) > 0]
+    used = B.sum(axis=0) > 0
+    if not used.all():                                     # knots in a gap of the data
+        knots = knots[used]
         nk = knots.size
-        B = _hat_basis(t, knots) if nk > 1 else np.ones((t.size, 1))
+        B = _hat_basis(t, knots)
     ey = axes[:, 1, :2]                                    # body y axis, horizontal part
     # start: zero sideslip and the airspeed along the body x axis's horizontal direction
     ex = axes[:, 0, :2] / np.linalg.norm(axes[:, 0, :2], axis=1, keepdims=True)

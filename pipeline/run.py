@@ -598,10 +598,9 @@ def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabl
     (``--no-compat``): skipped. ``imu_only``: estimate the IMU errors alone (a log without
     vanes: the airspeed is then the only air data, and with a free wind its bias, scale
     factor and delay are nearly one parameter - bias_V 21 m/s, delay 0.7 s "significant"
-    on a windy longitudinal_3211_turbulence). ``unsteady``: why the air is known not to be
-    steady (gusts), in which case nothing is applied. ``wind`` (north, east) m/s: held, not
-    estimated (the air-data-angle stage's, which the zero-sideslip condition fixes across
-    the track)."""
+    on a windy longitudinal_3211_turbulence). ``unsteady`` and ``wind`` (the air-data-angle
+    stage's, which its zero-sideslip condition fixes across the track) go to
+    :func:`~pipeline.compatibility.correct_for_estimation`."""
     pr.stage("sensor compatibility (flight path reconstruction)")
     if not enabled:
         doc = {"status": "skipped", "reason": "switched off (--no-compat)", "applied": {},
@@ -617,17 +616,9 @@ def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabl
 
         doc, out = correct_for_estimation(fd, imu_position=imu, boom_position=boom, truth=truth,
                                           estimate=IMU_PARAMS if imu_only else RUN_ESTIMATE,
-                                          **({"wind": tuple(wind)} if wind is not None else {}))
+                                          wind=wind, unsteady=unsteady)
         if imu_only:
             doc["scope"] = "IMU errors only: no air-data vanes in the log"
-        if unsteady and doc.get("applied"):
-            # the kinematic model has no gusts, and without vanes no air-data residual shows
-            # them: on a windy longitudinal_3211_turbulence it applied bias_ax and scale_ax
-            # (truth 0) and put the cross wind 3 m/s off with a 0.2 m/s std
-            doc["not_applied"], doc["applied"], out = doc["applied"], {}, fd
-            doc["data_for_estimation"] = "as logged"
-            doc["note"] = (f"no correction applied: {unsteady}; the calm-air kinematic model "
-                           "does not hold, so its sensor-error estimates are not trusted")
     except Exception as exc:  # noqa: BLE001 - the compatibility check must not cost the run
         doc, out = {"status": "failed", "reason": f"{type(exc).__name__}: {exc}", "applied": {},
                     "data_for_estimation": "as logged"}, fd
@@ -777,12 +768,11 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                                      unsteady=unsteady(flow), wind=mean_wind(flow))
     if flow.get("status") == "reconstructed":
         fd, flow = with_flow_angles(fd_c, flow)     # rebuilt from the corrected data
+        meta["air-data angles"] = flow_summary(flow)
+        meta["flow_angles"] = {**flow, "data": comp["data_for_estimation"]}
     else:                                           # derived angles not rebuilt: as logged
         fd = replace(fd_c, channels={**fd_c.channels, **{
             k: c for k, c in fd.channels.items() if k not in fd_c.channels}})
-    if flow.get("status") == "reconstructed":
-        meta["air-data angles"] = flow_summary(flow)
-        meta["flow_angles"] = {**flow, "data": comp["data_for_estimation"]}
     meta["data"] = f"{Path(log).name}, {comp['data_for_estimation']}"
     from pipeline.correction_uncertainty import quiet_progress
     if user:
