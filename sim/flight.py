@@ -16,7 +16,7 @@ from sim.aircraft import DERIVATIVES, Aircraft
 from sim.errors import ScenarioError
 from sim.jsbsim_model import FcsConfig, write_jsbsim_root
 from sim.maneuvers import input_histories
-from sim.scenario import Scenario
+from sim.scenario import SERVO_SPAN_US, THROTTLE_SPAN_US, Scenario
 from sim.sensors import sample_sensor
 from sim.turbulence import dryden_parameters
 
@@ -143,7 +143,8 @@ def _versions() -> dict[str, str]:
 def _make_fdm(scenario: Scenario, root: Path):
     import jsbsim
     ac = scenario.aircraft
-    name = write_jsbsim_root(ac, FcsConfig(scenario.actuator_lag, scenario.sas_k_alpha, scenario.sas_k_q), root)
+    name = write_jsbsim_root(ac, FcsConfig(scenario.actuator_lag, scenario.sas_k_alpha, scenario.sas_k_q,
+                                           *servo_steps(scenario)), root)
     jsbsim.FGJSBBase().debug_lvl = 0
     fdm = jsbsim.FGFDMExec(str(root), None)
     fdm.set_debug_level(0)
@@ -156,6 +157,14 @@ def _make_fdm(scenario: Scenario, root: Path):
     for kind, val in INTEGRATORS.items():
         fdm[f"simulation/integrator/{kind}"] = val
     return fdm
+
+
+def servo_steps(scenario: Scenario) -> tuple[float, float]:
+    """(surface command step [rad], throttle command step [fraction]) of the scenario's
+    servos: one microsecond of PWM (0, 0 for continuous commands)."""
+    if scenario.servo_travel <= 0.0:
+        return 0.0, 0.0
+    return scenario.servo_travel / SERVO_SPAN_US, 1.0 / THROTTLE_SPAN_US
 
 
 def _trim(fdm, scenario: Scenario) -> dict[str, float]:
@@ -233,6 +242,9 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
     with _quiet_stdout():        # JSBSim prints trim diagnostics on fd 1
         fdm = _make_fdm(s, root)
         trim = _trim(fdm, s)
+    # whole-microsecond servo commands from here on (the trim needs continuous ones): the
+    # trim deflections move to their nearest PWM step, a small start-up transient as in flight
+    fdm["fcs/servo-quantize"] = 1.0
     if s.sas_k_alpha or s.sas_k_q:
         fdm["fcs/sas-alpha-ref-rad"] = trim["alpha"]
         fdm["fcs/sas-on"] = 1.0
@@ -316,7 +328,10 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
             "wind": {"north_mps": s.wind[0], "east_mps": s.wind[1], "down_mps": 0.0},
             "sas": {"k_alpha": s.sas_k_alpha, "k_q_s": s.sas_k_q, "alpha_ref_rad": trim["alpha"],
                     "feedback": "truth alpha and body pitch rate"} if (s.sas_k_alpha or s.sas_k_q) else None,
-            "actuator_lag_s": s.actuator_lag, "versions": _versions(), "truth_units": TRUTH_UNITS,
+            "actuator_lag_s": s.actuator_lag,
+            "servo": {"travel_deg": round(float(np.rad2deg(s.servo_travel)), 9), "span_us": SERVO_SPAN_US,
+                      "step_deg": float(np.rad2deg(servo_steps(s)[0])), "throttle_step": servo_steps(s)[1]},
+            "versions": _versions(), "truth_units": TRUTH_UNITS,
             "jsbsim": {"dt_s": 1.0 / (s.rate_hz * s.substeps), "substeps": s.substeps,
                        "integrators": dict(INTEGRATORS),
                        "input_hold": "linear between samples (first-order hold over the substeps)"}}

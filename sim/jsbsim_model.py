@@ -12,6 +12,10 @@ FCS (all angles in rad): per axis ``fcs/<s>-cmd-rad = trim + fcs/<s>-maneuver-ra
 surface limit) writes ``fcs/<s>-pos-rad`` for s in de, da, dr. Elevator trim is
 ``fcs/pitch-trim-cmd-norm * de_limit`` (set by JSBSim's trim). Throttle:
 ``fcs/throttle-pos = clip(fcs/throttle-cmd-norm[0] + fcs/throttle-maneuver, 0, 1)``.
+Servo resolution (``FcsConfig.servo_step_rad``, ``throttle_step``; 0 = none): while
+``fcs/servo-quantize`` is 1 every command is rounded to the nearest multiple of its step,
+as an autopilot's whole-microsecond PWM does (the flight sets it after the trim, which
+needs continuous controls).
 Pitch SAS (optional): ``fcs/de-sas-rad = fcs/sas-on * (k_alpha*(alpha - fcs/sas-alpha-ref-rad)
 + k_q*q)`` with the truth alpha and body pitch rate.
 """
@@ -63,6 +67,8 @@ class FcsConfig:
     actuator_lag_s: float = 0.0     #: first-order actuator time constant, s (0 = none)
     sas_k_alpha: float = 0.0        #: pitch SAS gain on alpha error, rad/rad
     sas_k_q: float = 0.0            #: pitch SAS gain on pitch rate, rad/(rad/s)
+    servo_step_rad: float = 0.0     #: surface command resolution, rad (0 = continuous)
+    throttle_step: float = 0.0      #: throttle command resolution, fraction (0 = continuous)
 
 
 def coefficient_properties(aircraft: Aircraft) -> dict[str, str]:
@@ -104,8 +110,29 @@ def _actuator(axis: str, limit: float, lag: float) -> str:
             f"<output>fcs/{axis}-pos-rad</output></actuator>")
 
 
+def _quantized(terms: str, step: float) -> str:
+    """A function body: the sum of ``terms``, rounded to a multiple of ``step`` while
+    ``fcs/servo-quantize`` is 1 (x + on * (step * floor(x / step + 1/2) - x))."""
+    if step <= 0.0:
+        return f"<sum>{terms}</sum>"
+    x = f"<sum>{terms}</sum>"
+    rounded = (f"<product><value>{step!r}</value><floor><sum><product><value>{1.0 / step!r}</value>{x}"
+               f"</product><value>0.5</value></sum></floor></product>")
+    return (f"<sum>{x}<product><property>fcs/servo-quantize</property>"
+            f"<difference>{rounded}{x}</difference></product></sum>")
+
+
 def _fcs_xml(aircraft: Aircraft, fcs: FcsConfig) -> str:
     lim = aircraft.limits
+    q = fcs.servo_step_rad
+    trim = {a: f"<product><property>fcs/{n}-trim-cmd-norm</property><value>{lim[a]!r}</value></product>"
+            for a, n in (("de", "pitch"), ("da", "roll"), ("dr", "yaw"))}
+    de_cmd = _quantized(trim["de"] + "<property>fcs/elevator-cmd-norm</property>"
+                        "<property>fcs/de-maneuver-rad</property><property>fcs/de-sas-rad</property>", q)
+    da_cmd = _quantized(trim["da"] + "<property>fcs/da-maneuver-rad</property>", q)
+    dr_cmd = _quantized(trim["dr"] + "<property>fcs/dr-maneuver-rad</property>", q)
+    throttle = _quantized("<property>fcs/throttle-cmd-norm[0]</property>"
+                          "<property>fcs/throttle-maneuver</property>", fcs.throttle_step)
     tmax_lbf = aircraft.max_thrust * N2LBF
     return f"""  <flight_control name="fsid">
     <property value="0">fcs/de-maneuver-rad</property>
@@ -114,36 +141,25 @@ def _fcs_xml(aircraft: Aircraft, fcs: FcsConfig) -> str:
     <property value="0">fcs/throttle-maneuver</property>
     <property value="0">fcs/sas-on</property>
     <property value="0">fcs/sas-alpha-ref-rad</property>
+    <property value="0">fcs/servo-quantize</property>
     <channel name="pitch">
       <fcs_function name="fcs/de-sas-rad"><function><product><property>fcs/sas-on</property><sum>
         <product><value>{fcs.sas_k_alpha!r}</value><difference><property>aero/alpha-rad</property><property>fcs/sas-alpha-ref-rad</property></difference></product>
         <product><value>{fcs.sas_k_q!r}</value><property>velocities/q-rad_sec</property></product>
       </sum></product></function></fcs_function>
-      <fcs_function name="fcs/de-cmd-rad"><function><sum>
-        <product><property>fcs/pitch-trim-cmd-norm</property><value>{lim['de']!r}</value></product>
-        <property>fcs/elevator-cmd-norm</property>
-        <property>fcs/de-maneuver-rad</property><property>fcs/de-sas-rad</property>
-      </sum></function></fcs_function>
+      <fcs_function name="fcs/de-cmd-rad"><function>{de_cmd}</function></fcs_function>
 {_actuator('de', lim['de'], fcs.actuator_lag_s)}
     </channel>
     <channel name="roll">
-      <fcs_function name="fcs/da-cmd-rad"><function><sum>
-        <product><property>fcs/roll-trim-cmd-norm</property><value>{lim['da']!r}</value></product>
-        <property>fcs/da-maneuver-rad</property>
-      </sum></function></fcs_function>
+      <fcs_function name="fcs/da-cmd-rad"><function>{da_cmd}</function></fcs_function>
 {_actuator('da', lim['da'], fcs.actuator_lag_s)}
     </channel>
     <channel name="yaw">
-      <fcs_function name="fcs/dr-cmd-rad"><function><sum>
-        <product><property>fcs/yaw-trim-cmd-norm</property><value>{lim['dr']!r}</value></product>
-        <property>fcs/dr-maneuver-rad</property>
-      </sum></function></fcs_function>
+      <fcs_function name="fcs/dr-cmd-rad"><function>{dr_cmd}</function></fcs_function>
 {_actuator('dr', lim['dr'], fcs.actuator_lag_s)}
     </channel>
     <channel name="thrust">
-      <fcs_function name="fcs/throttle-pos"><function><sum>
-        <property>fcs/throttle-cmd-norm[0]</property><property>fcs/throttle-maneuver</property>
-      </sum></function><clipto><min>0</min><max>1</max></clipto></fcs_function>
+      <fcs_function name="fcs/throttle-pos"><function>{throttle}</function><clipto><min>0</min><max>1</max></clipto></fcs_function>
       <pure_gain name="fcs/thrust-lbf"><input>fcs/throttle-pos</input><gain>{tmax_lbf!r}</gain>
         <output>external_reactions/thrust/magnitude</output></pure_gain>
     </channel>

@@ -58,6 +58,26 @@ def test_validation_on_the_held_out_maneuver(calm_run):
     assert ph["wn"] < 0.2 * sp["wn"]
 
 
+def test_estimate_from_the_written_ardupilot_bin(calm_run, tmp_path):
+    """The ArduPilot path of the same flight: ``fsid estimate flight.bin``. The .bin has no
+    vane (its AOA/SSA are marked derived), so alpha comes from the GPS velocity and the
+    attitude (pipeline.flow_angles); the elevator is RCOU's whole-microsecond PWM, which
+    is what the sim flew (with continuous deflections and RCOU rounding them, Cmde was 4.6
+    and CLalpha 4.3 std off on seed 11)."""
+    out = calm_run[0]
+    code = main(["estimate", str(out / "flight.bin"), "--model", "longitudinal",
+                 "--out", str(tmp_path / "bin"), "--quiet"])
+    assert code == 0
+    rep = json.loads((tmp_path / "bin" / "report.json").read_text())
+    assert rep["meta"]["flow_angles"]["status"] == "reconstructed"
+    m = rep["methods"]["oem"]
+    assert m["converged"]
+    errs = {k: round(v["error_in_std"], 2) for k, v in m["parameters"].items()
+            if v.get("truth") is not None}
+    assert len(errs) == 11 and max(errs.values()) <= 3.0, errs
+    assert m["validation"]["proof_of_match"]["all_pass"]
+
+
 def test_bad_scenario_is_one_line_and_nonzero(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
     bad.write_text((SCENARIOS / "default.toml").read_text().replace("duration_s", "duration_min"))

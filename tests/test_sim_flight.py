@@ -36,11 +36,23 @@ def test_jsbsim_coefficients_equal_the_truth_formula(name):
 
 @pytest.mark.parametrize("aircraft, h, V", [("uav_small", 150.0, 30.0), ("light_aircraft", 1500.0, 67.0)])
 def test_calm_trim_holds_for_30_s_without_input(aircraft, h, V):
-    r = quiet_flight(aircraft, h, V)
+    """JSBSim's trim, with continuous servo commands, holds; with the default PWM servos
+    (whole microseconds) the trim deflections and throttle move to their nearest step at
+    the start: a small transient, and every command on the step grid afterwards."""
+    r = quiet_flight(aircraft, h, V, servo_travel_deg=0.0)
     T = r.truth
     assert T["t"].iloc[-1] == pytest.approx(30.0)
     assert np.max(np.abs(np.rad2deg(T["alpha"] - T["alpha"].iloc[0]))) < 0.1
     assert np.max(np.abs(T["V"] - T["V"].iloc[0])) < 0.1
+    assert r.meta["servo"]["step_deg"] == 0.0
+    pwm = quiet_flight(aircraft, h, V)
+    P, step = pwm.truth, np.deg2rad(pwm.meta["servo"]["step_deg"])
+    assert step == pytest.approx(np.deg2rad(30.0 / 400))
+    de = P["de"].to_numpy()[1:]
+    assert np.max(np.abs(de / step - np.round(de / step))) < 1e-6
+    assert 0 < abs(de[0] - r.trim["de"]) <= step / 2 + 1e-12
+    assert np.max(np.abs(P["V"] - P["V"].iloc[0])) < 1.0
+    assert np.max(np.abs(np.rad2deg(P["alpha"] - P["alpha"].iloc[0]))) < 0.1
     assert T["V"].iloc[0] == pytest.approx(V, abs=1e-6) and T["h"].iloc[0] == pytest.approx(h, abs=1e-3)
     assert abs(r.trim["udot"]) < 1e-3 and abs(r.trim["wdot"]) < 1e-3 and abs(r.trim["qdot"]) < 1e-4
     # thrust model: throttle * max thrust
@@ -71,24 +83,37 @@ def test_specific_force_is_that_of_the_cg():
     assert np.std(meas[2]) > 0.5
 
 
+def _pwm_step(x, step: float):
+    """``x`` rounded to the nearest multiple of ``step`` as the sim's servos do (half up)."""
+    return step * np.floor(np.asarray(x) / step + 0.5)
+
+
 @pytest.mark.parametrize("name", ["longitudinal_3211_calm", "lateral_doublets_calm", "multiaxis_multisine_turbulence"])
 def test_surfaces_follow_the_designed_maneuvers(name):
     r = flown(name)
     T = r.truth
     u = input_histories(list(r.scenario.maneuvers), T["t"].to_numpy())
-    trim = {"de": r.trim["de"], "da": 0.0, "dr": 0.0, "throttle": r.trim["throttle"]}
+    steps = {"de": np.deg2rad(r.meta["servo"]["step_deg"]), "throttle": r.meta["servo"]["throttle_step"]}
+    steps["da"] = steps["dr"] = steps["de"]
+    trim0 = {"de": r.trim["de"], "da": 0.0, "dr": 0.0, "throttle": r.trim["throttle"]}
+    # the servos take whole-microsecond PWM commands (after t = 0, the trim point)
+    trim = {ax: _pwm_step(v, steps[ax]) for ax, v in trim0.items()}
+    flown_ = T["t"] > 0
     for ax in ("de", "da", "dr", "throttle"):
-        assert np.max(np.abs(T[ax] - trim[ax] - u[ax])) < 1e-12, ax
+        want = _pwm_step(trim0[ax] + u[ax], steps[ax])
+        assert np.max(np.abs(T[ax] - want)[flown_]) < 1e-12, ax
     for m in r.scenario.maneuvers:
         for ax, amp in zip(m.axes, m.amplitude):
             inside = (T["t"] >= m.t_start) & (T["t"] < m.t_end - 1e-9)
             x = (T[ax] - trim[ax])[inside]
-            assert np.max(np.abs(x)) == pytest.approx(abs(amp), rel=2e-3), (m.name, ax)
-            on = T["t"][inside & (np.abs(T[ax] - trim[ax]) > 1e-9)]
+            assert np.max(np.abs(x)) == pytest.approx(abs(amp), rel=2e-3, abs=steps[ax]), (m.name, ax)
+            # timing on the designed input (the surfaces are its PWM steps, checked above:
+            # a sweep starting from zero shows once it passes half a step)
+            on = T["t"][inside & (np.abs(u[ax]) > 1e-9)]
             assert on.iloc[0] == pytest.approx(m.t_start, abs=0.011)
             if m.shape in ("doublet", "3211"):
                 assert on.iloc[-1] == pytest.approx(m.t_end - 0.01, abs=1e-6)
-                assert np.sign(x.iloc[0]) == np.sign(amp)
+                assert np.sign(x[np.abs(x) > steps[ax]].iloc[0]) == np.sign(amp)
 
 
 def test_same_seed_is_bit_identical_and_other_seeds_differ():
@@ -120,7 +145,8 @@ def test_unstable_aircraft_is_held_by_the_sas_with_correlated_inputs():
     law = s.sas_k_alpha * (alpha_half_back - a0) + s.sas_k_q * T["q"]
     assert np.max(np.abs(T["de_sas"] - law)) < 0.02 * np.max(np.abs(T["de_sas"]))
     u = input_histories(list(s.maneuvers), T["t"].to_numpy())["de"]
-    np.testing.assert_allclose(T["de_cmd"], r.trim["de"] + u + T["de_sas"], atol=1e-12)
+    step = np.deg2rad(r.meta["servo"]["step_deg"])
+    np.testing.assert_allclose(T["de_cmd"][1:], _pwm_step(r.trim["de"] + u + T["de_sas"], step)[1:], atol=1e-12)
     # actuator lag: the position trails the command by about lag_s
     lag = np.argmax(np.correlate(np.diff(T["de"]), np.diff(T["de_cmd"]), "full")) - (len(T) - 2)
     assert 1 <= lag <= 3

@@ -62,6 +62,10 @@ def test_default_is_short_enough_for_the_demo():
     (lambda r: r.__setitem__("rate_hz", "fast"), "rate_hz", "finite number"),
     (lambda r: r.__setitem__("validation", {"rate_dps": 2.0}), "validation.rate_dps", "unknown key"),
     (lambda r: r.__setitem__("validation", {"accel_g": -0.1}), "validation.accel_g", "> 0"),
+    (lambda r: r.__setitem__("actuators", {"servo_travel_deg": 10.0}), "actuators.servo_travel_deg",
+     "less than the widest surface limit"),
+    (lambda r: r.__setitem__("actuators", {"servo_travel_rad": 0.5}), "actuators.servo_travel_rad",
+     "wrong unit; write it as actuators.servo_travel_deg"),
 ])
 def test_malformed_scenario_fails_with_one_line_naming_the_key(mutate, where, what):
     raw = _raw()
@@ -71,6 +75,13 @@ def test_malformed_scenario_fails_with_one_line_naming_the_key(mutate, where, wh
     msg = str(err.value)
     assert "\n" not in msg
     assert where in msg and what in msg, msg
+
+
+def test_servo_travel_default_and_continuous():
+    assert scenario("default").servo_travel == pytest.approx(np.deg2rad(30.0))
+    raw = _raw()
+    raw["actuators"] = {"servo_travel_deg": 0}
+    assert custom(raw).servo_travel == 0.0
 
 
 def test_validation_bands_default_and_from_the_scenario():

@@ -21,8 +21,11 @@ What each message carries (sensor tables of the flight, see ``sim.sensors``):
 * RCOU: servo PWM of the *commanded* deflections (truth ``*_cmd``, the autopilot's output)
   at the surfaces-sensor rate, integer microseconds. Channels and PARM calibration:
   C1 aileron (SERVO1_FUNCTION 4), C2 elevator (19), C3 throttle (70), C4 rudder (21);
-  surfaces MIN 1100 / TRIM 1500 / MAX 1900, REVERSED 0, full travel (MAX - TRIM) =
-  ``SERVO_TRAVEL_DEG`` degrees (also logged as PARM ``FSID_SRV_TRAVEL``). ArduPilot's
+  surfaces MIN 1100 / TRIM 1500 / MAX 1900, REVERSED 0, full travel (MAX - TRIM) = the
+  scenario's ``[actuators] servo_travel_deg`` (default ``SERVO_TRAVEL_DEG``; also logged as
+  PARM ``FSID_SRV_TRAVEL``). The sim flies whole-microsecond commands of that servo, so
+  RCOU holds exactly what was flown (with continuous commands, ``servo_travel_deg = 0``,
+  RCOU rounds them: 0.075 deg steps at 30 deg). ArduPilot's
   convention: PWM above trim = roll right / pitch up / yaw right, so
   da = +x*travel, de = -x*travel, dr = -x*travel with x = (PWM - TRIM)/(MAX - TRIM)
   (de > 0 trailing edge down, dr > 0 trailing edge left). Throttle: MIN 1000, MAX 2000,
@@ -42,8 +45,8 @@ import pandas as pd
 
 from pipeline.paths import atomic_write_bytes
 
-#: deflection at full servo travel (PWM MAX - TRIM), degrees, all surfaces
-SERVO_TRAVEL_DEG = 30.0
+from sim.scenario import SERVO_SPAN_US, SERVO_TRAVEL_DEG
+
 RHO0 = 1.225
 _DT = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "f": "<f4", "d": "<f8",
        "n": "S4", "N": "S16", "Z": "S64", "c": "<i2", "C": "<u2", "e": "<i4", "E": "<u4", "L": "<i4",
@@ -115,18 +118,19 @@ def _at(df: pd.DataFrame, col: str, t: np.ndarray) -> np.ndarray:
 
 
 def _pwm(defl: np.ndarray, sign: float, travel: float) -> np.ndarray:
-    return np.clip(np.round(1500.0 + sign * 400.0 * defl / travel), 1100, 1900)
+    return np.clip(np.round(1500.0 + sign * SERVO_SPAN_US * defl / travel), 1500 - SERVO_SPAN_US,
+                   1500 + SERVO_SPAN_US)
 
 
-def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas",
-                    travel_deg: float = SERVO_TRAVEL_DEG) -> None:
+def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas") -> None:
     """Write ``result`` (a :class:`sim.SimResult`) as an ArduPilot DataFlash log (atomic).
 
     airspeed: "tas" (default) or "eas" (ArduPilot's own semantics) for ARSP.Airspeed.
-    travel_deg: deflection at full servo travel, degrees (must exceed the surface limits).
+    The servo travel is the flight's (``result.meta["servo"]``).
     """
     if airspeed not in ("eas", "tas"):
         raise ValueError(f"airspeed must be 'eas' or 'tas', got {airspeed!r}")
+    travel_deg = result.meta.get("servo", {}).get("travel_deg") or SERVO_TRAVEL_DEG
     S, T = result.sensors, result.truth
     tt = T["t"].to_numpy()
     blocks: list[tuple[np.ndarray, np.ndarray]] = []   # (TimeUS, records)

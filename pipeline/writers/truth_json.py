@@ -48,6 +48,7 @@ def truth_dict(result) -> dict:
         "wind": m.get("wind"),
         "sas": m.get("sas"),
         "actuator_lag_s": m.get("actuator_lag_s"),
+        "servo": m.get("servo"),
         "versions": m["versions"],
         "units": {"angles": "rad", "rates": "rad/s", "lengths": "m", "speeds": "m/s", "mass": "kg",
                   "inertia": "kg m^2", "force": "N", "time": "s", "truth_columns": m.get("truth_units")},
