@@ -23,6 +23,8 @@ Measured (seeds 200-207, 2026-11-24):
       In calm air (--wind=0,0) the same: vanes 0.55-2.15 (Cnp 2.15, Cndr 2.13), rebuilt
       0.55-2.69 - the wind is not the cause; neither is the noise of the pseudo-inputs
       alpha, theta, q (propagated to first order it leaves the std within 0.57-1.03 x).
+      The cause was the pitot noise in the pseudo-input V (benchmarks/lateral_airspeed_mc.py);
+      these figures predate its blend with the integrated IMU.
 
     python benchmarks/flow_angles_mc.py [--seeds 8] [--seed-base 200] [--jobs 2]
         [--scenario longitudinal_3211_calm] [--model longitudinal] [--wind=-4,5]

@@ -6,11 +6,14 @@ dr and r, biases every derivative (errors in variables: CYbeta -10 %, CYdr +15 %
 -8 %, Cndr -20 % from 0.2 deg of noise alone on the noise-free truth of
 lateral_doublets_calm). The blended sideslip is within 0.01-0.03 deg of the truth there.
 
-Not used for the pseudo-input V of output error: the pitot noise drives the remaining
-output-error bias on lateral_doublets_calm (noise-free V: every derivative within 1.9
-std on seeds 5, 7, 11, 21; the measured V low-passed at 1 Hz: up to 7.8 std), but the
-part that matters is below 0.1 Hz, where this blend is the pitot as well (0.02 m/s rms
-left; up to 5.5 std, better on two seeds and worse on one of four).
+Also the pseudo-input V of the lateral output error in calm air
+(``pipeline.identify.lateral_problem(kinematic_V=True)``): the pitot noise between 0.1
+and 1 Hz, which the pitot low-passed at 1 Hz kept, scales every moment of a window, and
+output error takes its inputs as exact. On lateral_doublets_calm (16 + 16 seeds,
+benchmarks/lateral_airspeed_mc.py) the moment derivatives' empirical / Cramer-Rao std
+went from up to 2.09 / 1.91 to 1.43 / 1.67, the level of a noise-free pitot (1.44 /
+1.93). The part below 0.1 Hz is the pitot's either way (the per-maneuver correction dV
+with its prior covers its window mean).
 
 Both are complementary filters (zero-phase, second-order Butterworth at ``fc``): the air
 data below ``fc``, the integral of the kinematic rate above it.

@@ -613,7 +613,8 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
                     segments: Sequence[SegmentSpec] | None = None, hold_out: int = 1,
                     free: Sequence[str] = LAT_FREE,
                     biases: Sequence[str] = ("beta", "p", "r", "ay"),
-                    measured_longitudinal: bool = False, rotary_gust: bool = False) -> Problem:
+                    measured_longitudinal: bool = False, rotary_gust: bool = False,
+                    kinematic_V: bool = False) -> Problem:
     """Build the lateral-directional problem (linear model about the flight's mean
     airspeed, angle of attack and pitch attitude) from the aileron and rudder maneuvers;
     control inputs are taken relative to their value at the start of each window.
@@ -623,7 +624,15 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
         small bank angles put Clda, Cnda, Cnp, Cnbeta 5-18 std off on
         lateral_doublets_calm, where the doublets bank the UAV by up to 30 deg).
     rotary_gust : with ``measured_longitudinal``: the model's roll-gust state p_g (the
-        aerodynamics see p - p_g; for the filters, whose process noise drives it)."""
+        aerodynamics see p - p_g; for the filters, whose process noise drives it).
+    kinematic_V : with ``measured_longitudinal``: the pseudo-input V is the airspeed
+        blended with the integrated IMU (:mod:`pipeline.airdata_kinematics`: the pitot
+        below 0.1 Hz, the kinematic speed rate above), not the pitot low-passed at 1 Hz.
+        For calm-air output error: the pitot noise between 0.1 and 1 Hz scales every
+        moment of the window, which output error took as exact (lateral_doublets_calm,
+        16 + 16 seeds, benchmarks/lateral_airspeed_mc.py: empirical / Cramer-Rao std of
+        the derivatives up to 2.1 and 1.9, 1.4 and 1.7 with it; without any pitot noise
+        1.4 and 1.9). In turbulence the blend misses the gusts' airspeed above 0.1 Hz."""
     rotary_gust = rotary_gust and measured_longitudinal
     channels = LAT_CHANNELS + (("q",) if measured_longitudinal else ())
     specs = lateral_specs(fd, channels, segments, hold_out)
@@ -642,11 +651,10 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
         w = frames[id(s)]
         w[["da", "dr"]] = w[["da", "dr"]] - w[["da", "dr"]].iloc[0]
     # airspeed and sideslip at the CG blended with the integrated IMU (V_kin, beta_kin) for
-    # the equation-error regressors. Not the pseudo-input V of output error: its noise
-    # below 0.1 Hz is the pitot's either way, and that part (0.02 m/s) is what moves the
-    # derivatives by several Cramer-Rao bounds (tests/test_closed_loop_lateral.py)
-    from pipeline.airdata_kinematics import kinematic_air_data
+    # the equation-error regressors and, with kinematic_V, the pseudo-input V
+    from pipeline.airdata_kinematics import V_CORNER_HZ, kinematic_air_data
     kin = kinematic_air_data(fd, rate_hz, ac.imu, ac.airdata)
+    kinematic_V = kinematic_V and measured_longitudinal and kin is not None
     if kin is not None:
         for s in specs:
             w = frames[id(s)]
@@ -670,6 +678,8 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     ucols = ["da", "dr", "V", "alpha", "theta", "q"] if measured_longitudinal else ["da", "dr"]
     if measured_longitudinal:
         for s in specs:
+            if kinematic_V:
+                frames[id(s)]["V"] = frames[id(s)]["V_kin"]
             frames[id(s)] = smooth_pseudo_inputs(frames[id(s)], rate_hz)
 
     def seg(s):
@@ -681,6 +691,8 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
                        name=s.name)
 
     notes = [(f"measured V, alpha, theta, q as inputs, density {rho:.4f} kg/m^3"
+              + (" (V: the airspeed blended with the integrated IMU, the pitot below "
+                 f"{V_CORNER_HZ:g} Hz)" if kinematic_V else "")
               if measured_longitudinal else
               f"linear model about V={c['V']:.2f} m/s, alpha0={np.degrees(c['alpha0']):.2f} deg, "
               f"theta0={np.degrees(c['theta0']):.2f} deg, density {rho:.4f} kg/m^3"),

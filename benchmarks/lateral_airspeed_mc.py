@@ -1,0 +1,101 @@
+"""Which airspeed should drive the lateral output-error model? A Monte Carlo on
+scenarios/lateral_doublets_calm.toml (aileron and rudder doublets only, so output error
+fits the lateral model driven by the measured V, alpha, theta, q, with a per-maneuver
+airspeed correction dV under its a-priori std): per seed JSBSim flies the scenario twice
+(the pitot noise of the scenario, and none), the product writes flight.mcap, and the same
+problem is fitted three ways:
+
+* ``pitot``:     the pseudo-input V is the pitot low-passed at 1 Hz (the baseline);
+* ``kinematic``: the pitot below 0.1 Hz blended with the integrated IMU speed rate above
+                 (``lateral_problem(kinematic_V=True)``, what ``fsid`` uses);
+* ``no_noise``:  the pitot path on the flight whose pitot has no noise (the floor).
+
+Per derivative and source: empirical std of the estimates over the seeds / mean reported
+Cramér-Rao std (``reported``, 1 = honest; the 95 % band from n seeds is about
++-1.4/sqrt(n)), and the bias in empirical std. Then the ratio of the empirical std of
+``kinematic`` to ``pitot`` (what the blend buys, same flights).
+
+Measured (2026-11-24): seeds 200-215 | 216-231
+  pitot:     empirical / reported std 0.66-2.09 | 1.15-1.91 (Cnbeta 2.09 | 1.91, Cnp 2.04,
+             Cnda 1.92, Cndr 2.00 on the first set)
+  kinematic: 0.71-1.43 | 0.75-1.67;  no_noise: 0.72-1.44 | 0.74-1.93
+  The blend takes the moment derivatives to the floor of a noise-free pitot: their
+  empirical std fall by 1.2-2.3x | 0.95-1.8x (Clr, Cnbeta, Clbeta, Cldr most); the side-
+  force derivatives (from ay) barely move. |bias| <= 1.27 | 1.84 empirical std.
+
+    python benchmarks/lateral_airspeed_mc.py [--seeds 16] [--seed-base 200] [--jobs 2]
+"""
+from __future__ import annotations
+
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from _montecarlo import fly, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
+
+SCENARIO = ROOT / "scenarios" / "lateral_doublets_calm.toml"
+LATERAL = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
+           "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
+
+
+def _fit(fd, ac, kinematic_V: bool) -> tuple[dict, dict]:
+    from pipeline.identify import lateral_problem, with_airspeed_offsets
+    from pipeline.run import fit_problem
+
+    pb = lateral_problem(fd, ac, measured_longitudinal=True, kinematic_V=kinematic_V)
+    pb = with_airspeed_offsets(pb, fd)
+    pb.inputs = "linear"
+    res = fit_problem(pb, "oem")
+    return dict(res.params), dict(res.std)
+
+
+def one_flight(seed: int) -> list[dict]:
+    """Rows (seed, source, parameter, estimate, std, truth) of the three fits of one seed."""
+    from pipeline.commands.simulate import simulate
+    from pipeline.identify import AircraftConstants
+    from pipeline.readers import read_log
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        src = SCENARIO.read_text().replace('aircraft = "aircraft/',
+                                           f'aircraft = "{SCENARIO.parent}/aircraft/')
+        (d / "noisy.toml").write_text(src)
+        # the same flight with a noise-free pitot
+        quiet = src.replace("[sensors.airdata]", "[sensors.airdata]\nairspeed_noise_mps = 0.0", 1)
+        if quiet == src:
+            quiet = src + "\n[sensors.airdata]\nairspeed_noise_mps = 0.0\n"
+        (d / "quiet.toml").write_text(quiet)
+        for name, fits in (("noisy", (("pitot", False), ("kinematic", True))),
+                           ("quiet", (("no_noise", False),))):
+            run_dir, _ = simulate(d / f"{name}.toml", d / name, seed=seed, progress=False)
+            truth = json.loads((run_dir / "truth.json").read_text())
+            ac = AircraftConstants.from_truth(truth)
+            fd = read_log(run_dir / "flight.mcap")
+            for source, kin in fits:
+                params, std = _fit(fd, ac, kin)
+                rows += [{"seed": seed, "source": source, "parameter": n, "estimate": params[n],
+                          "std": std[n], "truth": truth["derivatives"][n]} for n in LATERAL]
+    return rows
+
+
+def main() -> None:
+    seeds, jobs = seed_arguments(__doc__.splitlines()[0], seeds=16, seed_base=200)
+    df = fly(one_flight, seeds, jobs)
+    tab = scatter_table(df, ["source", "parameter"], {"reported": "std"})
+    for s in ("pitot", "kinematic", "no_noise"):
+        t = tab.loc[s]
+        print(f"{s}: empirical std / reported std {t['reported'].min():.2f}-{t['reported'].max():.2f}; "
+              f"|bias| <= {t['bias'].abs().max():.2f} empirical std")
+    gain = (tab.loc["pitot"]["emp_std"] / tab.loc["kinematic"]["emp_std"]).round(2)
+    print("empirical std pitot / kinematic:", gain.to_dict())
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    main()
