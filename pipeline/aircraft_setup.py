@@ -12,6 +12,12 @@ first found wins:
 3. the log's autopilot parameters: ArduPilot ``INS_POS1_X/Y/Z``, PX4 ``EKF2_IMU_POS_X/Y/Z``
    (IMU only; neither autopilot records an air-data vane position);
 4. zeros, with a printed note (the vane assumed at the CG).
+
+Servo travel (the surface deflection at full servo travel, to decode servo PWM or PX4's
+normalised surface commands; :func:`servo_travel_for`): the aircraft TOML's ``[servos]``,
+else the ``truth.json`` next to the log, else the log (the simulator's ``FSID_TRAVEL_*``
+parameters), else 30 deg assumed, with a data-quality warning - the control derivatives
+scale with it.
 """
 from __future__ import annotations
 
@@ -85,6 +91,26 @@ def resolve_sensor_positions(ac: AircraftConstants, toml_sensors: Mapping[str, A
                 continue
         pos[name], src[name] = (0.0, 0.0, 0.0), "none"
     return dataclasses.replace(ac, **pos), src
+
+
+def servo_travel_for(log: str | Path, aircraft: str | Path | None) -> dict[str, tuple[float, str]]:
+    """Surface -> (deg at full servo travel, origin) from the aircraft TOML's ``[servos]``
+    or, without ``aircraft``, the truth.json next to the log; {} when neither gives it
+    (the channel map and the log decide, :func:`pipeline.maps.servo_travel`)."""
+    import numpy as np
+
+    if aircraft is not None:
+        import sim
+
+        try:
+            ac = sim.load_aircraft(aircraft)
+        except sim.ScenarioError as exc:
+            raise FsidError(str(exc)) from None
+        return {a: (round(float(np.rad2deg(v)), 9), f"aircraft TOML [servos] {a}_travel_deg")
+                for a, v in ac.servo_travel.items()}
+    truth = truth_next_to(log)
+    travel = ((truth[1].get("servo") or {}).get("travel_deg") or {}) if truth else {}
+    return {a: (float(v), f"{truth[0]}") for a, v in travel.items()} if isinstance(travel, dict) else {}
 
 
 def aircraft_for_log(log: str | Path, aircraft: str | Path | None, fd: Any, *, required: bool,

@@ -253,7 +253,7 @@ def run_checks(fd: FlightData, segments: Sequence[SegmentSpec] | None = None,
     for name, ch in fd.channels.items():
         out.extend(check_channel(name, np.asarray(ch.t, float), np.asarray(ch.values, float)))
         if getattr(ch, "notes", ""):
-            out.append(Finding(WARN, "units", name, f"{name}: {ch.notes}; check the channel map"))
+            out.append(Finding(WARN, "units", name, f"{name}: {ch.notes}"))
     segs = list(segments if segments is not None else fd.segments)
     if not segs:
         lo, hi = fd.span

@@ -734,7 +734,8 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     pr = Progress(7 + 2 * len(methods) + 1, quiet=quiet)   # 7: with the air-data angles,
     #                                                         sensor compatibility and its uncertainty
     pr.stage(f"ingest {log}")
-    fd = read_log(log, map=map_path)
+    from pipeline.aircraft_setup import servo_travel_for
+    fd = read_log(log, map=map_path, servo_travel=servo_travel_for(log, aircraft))
     pr.done(f"{len(fd.channels)} channels, {len(fd.segments)} segments")
     pr.stage("aircraft and sensor positions")
     notes: list[str] = []
@@ -757,6 +758,14 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     summary = summarize(run_checks(fd))
     pr.done(str(summary))
     meta = {"log": str(log), "aircraft": ac_name}
+    if fd.meta.get("servo_travel"):
+        meta["servo_travel"] = fd.meta["servo_travel"]
+        assumed = [k for k, v in fd.meta["servo_travel"].items() if v["from"] == "assumed"]
+        if assumed and not quiet:
+            print(f"note: {', '.join(assumed)} from servo commands with "
+                  f"{fd.meta['servo_travel'][assumed[0]]['deg']:g} deg at full travel assumed; the "
+                  f"control derivatives scale with it: give the aircraft TOML's [servos] "
+                  f"({', '.join(a + '_travel_deg' for a in assumed)})", file=pr.stream)
     from pipeline.compatibility import truth_errors
     # the reconstruction sees the logged channels only: angles rebuilt from the GPS velocity
     # and attitude are no independent air data (with them, 4 "significant" sensor errors

@@ -20,6 +20,13 @@ Cl, Cm, Cn are body-axis moments about the CG (the aerodynamic reference point i
 CG). With beta = 0 stability and wind axes coincide. p_a, q_a, r_a are the
 aerodynamic rates (body rates minus turbulence rates). Thrust = throttle * max_thrust_N
 along body x through the CG, independent of airspeed and density.
+
+Optional tables: ``[sensors.airdata|imu] position_m = [x, y, z]`` (m from the CG, body
+axes; read by ``fsid estimate``) and ``[servos] de_travel_deg, da_travel_deg,
+dr_travel_deg``: the surface deflection at full servo travel (PWM MAX - TRIM, and
+TRIM - MIN), default SERVO_TRAVEL_DEG. The simulator's servos take whole microseconds of
+it; ``fsid estimate`` decodes a log's servo PWM (ArduPilot RCOU, MAVLink
+SERVO_OUTPUT_RAW) with it, and the control derivatives scale with it.
 """
 from __future__ import annotations
 
@@ -93,6 +100,16 @@ class Aircraft:
     #: (``[sensors.<name>] position_m``; read by ``fsid estimate``, the simulator takes the
     #: scenario's ``[sensors]``)
     sensors: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    #: deflection at full servo travel (PWM MAX - TRIM and TRIM - MIN), rad, of the surfaces
+    #: the ``[servos]`` table gives (``de_travel_deg``...): how an autopilot's servo PWM maps
+    #: to the surface. The simulator's servos take whole microseconds of it (``travel``);
+    #: ``fsid estimate`` decodes a log's servo PWM with it
+    servo_travel: dict[str, float] = field(default_factory=dict)
+
+    def travel(self, axis: str) -> float:
+        """Deflection at full servo travel of surface ``axis`` (de, da, dr), rad: the
+        ``[servos]`` value, else SERVO_TRAVEL_DEG."""
+        return self.servo_travel.get(axis, float(np.deg2rad(SERVO_TRAVEL_DEG)))
 
     def coefficients(self, d) -> dict[str, np.ndarray]:
         """Evaluate the truth formula on a table ``d`` (mapping of column -> array, shape (N,)).
@@ -121,6 +138,7 @@ class Aircraft:
             "propulsion": {"max_thrust_N": self.max_thrust,
                            "model": "thrust = throttle * max_thrust_N, body x axis through the CG"},
             "limits_rad": dict(self.limits),
+            "servo_travel_rad": dict(self.servo_travel),
             "derivatives": dict(self.derivatives),
         }
 
@@ -131,7 +149,33 @@ _SECTIONS = {
     "propulsion": {"max_thrust_N"},
     "limits": {"de_deg", "da_deg", "dr_deg"},
 }
-_TOP = {"name", "description", "source", "derivatives", "sensors"} | set(_SECTIONS)
+_TOP = {"name", "description", "source", "derivatives", "sensors", "servos"} | set(_SECTIONS)
+#: default deflection (deg) at full servo travel, PWM MAX - TRIM = SERVO_SPAN_US microseconds
+SERVO_TRAVEL_DEG = 30.0
+SERVO_SPAN_US = 400
+#: optional ``[servos]`` keys (deg): the deflection at full servo travel per surface
+_SERVOS = {"de_travel_deg", "da_travel_deg", "dr_travel_deg"}
+
+
+def _servo_travel(path: Path, raw, limits: dict[str, float]) -> dict[str, float]:
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict):
+        raise _fail(path, "servos", "must be a table of de_travel_deg, da_travel_deg, dr_travel_deg")
+    out = {}
+    for k, v in raw.items():
+        if k not in _SERVOS:
+            hint = _unit_hint(_SERVOS, k)
+            raise _fail(path, f"servos.{k}", f"wrong unit; write it as servos.{hint}" if hint else
+                        f"unknown key; allowed: {', '.join(sorted(_SERVOS))}")
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not 0 < v <= 90:
+            raise _fail(path, f"servos.{k}", f"must be a deflection in deg, 0 < x <= 90, got {v!r}")
+        axis = k.split("_")[0]
+        if np.deg2rad(v) < limits[axis] - 1e-12:
+            raise _fail(path, f"servos.{k}", f"{v:g} deg is less than the surface limit limits.{axis}_deg "
+                        f"({np.rad2deg(limits[axis]):.3g} deg): full servo travel must reach it")
+        out[axis] = float(np.deg2rad(v))
+    return out
 #: optional ``[sensors.<name>]`` tables of an aircraft file and their keys
 _SENSORS = {"airdata": {"position_m"}, "imu": {"position_m"}}
 
@@ -226,13 +270,14 @@ def load_aircraft(path: str | Path) -> Aircraft:
             raise _fail(path, f"derivatives.{k}", "missing field")
     derivs = {k: float(der.get(k, 0.0)) for k in ALL_DERIVATIVES}
     g, m = vals["geometry"], vals["mass"]
+    limits = {a: float(np.deg2rad(vals["limits"][f"{a}_deg"])) for a in ("de", "da", "dr")}
     return Aircraft(
         name=str(raw.get("name", path.stem)), path=path.resolve(),
         S=g["S_m2"], b=g["b_m"], cbar=g["cbar_m"], mass=m["mass_kg"],
         Ixx=m["Ixx_kgm2"], Iyy=m["Iyy_kgm2"], Izz=m["Izz_kgm2"], Ixz=m["Ixz_kgm2"],
         max_thrust=vals["propulsion"]["max_thrust_N"],
-        limits={a: float(np.deg2rad(vals["limits"][f"{a}_deg"])) for a in ("de", "da", "dr")},
-        derivatives=derivs, description=str(raw.get("description", "")),
+        limits=limits, derivatives=derivs, description=str(raw.get("description", "")),
         source=str(raw.get("source", "")), raw=raw,
         sensors=_sensor_positions(path, raw.get("sensors")),
+        servo_travel=_servo_travel(path, raw.get("servos"), limits),
     )

@@ -12,11 +12,11 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from sim.aircraft import DERIVATIVES, Aircraft
+from sim.aircraft import DERIVATIVES, SERVO_SPAN_US, Aircraft
 from sim.errors import ScenarioError
 from sim.jsbsim_model import FcsConfig, write_jsbsim_root
 from sim.maneuvers import input_histories
-from sim.scenario import SERVO_SPAN_US, THROTTLE_SPAN_US, Scenario
+from sim.scenario import THROTTLE_SPAN_US, Scenario
 from sim.sensors import sample_sensor
 from sim.turbulence import dryden_parameters
 
@@ -143,8 +143,10 @@ def _versions() -> dict[str, str]:
 def _make_fdm(scenario: Scenario, root: Path):
     import jsbsim
     ac = scenario.aircraft
+    steps = servo_steps(scenario)
     name = write_jsbsim_root(ac, FcsConfig(scenario.actuator_lag, scenario.sas_k_alpha, scenario.sas_k_q,
-                                           *servo_steps(scenario)), root)
+                                           tuple(steps[a] for a in ("de", "da", "dr")),
+                                           steps["throttle"]), root)
     jsbsim.FGJSBBase().debug_lvl = 0
     fdm = jsbsim.FGFDMExec(str(root), None)
     fdm.set_debug_level(0)
@@ -159,12 +161,25 @@ def _make_fdm(scenario: Scenario, root: Path):
     return fdm
 
 
-def servo_steps(scenario: Scenario) -> tuple[float, float]:
-    """(surface command step [rad], throttle command step [fraction]) of the scenario's
-    servos: one microsecond of PWM (0, 0 for continuous commands)."""
-    if scenario.servo_travel <= 0.0:
-        return 0.0, 0.0
-    return scenario.servo_travel / SERVO_SPAN_US, 1.0 / THROTTLE_SPAN_US
+def servo_steps(scenario: Scenario) -> dict[str, float]:
+    """Command step of each servo, one microsecond of PWM: de, da, dr [rad] (the aircraft's
+    servo travel / SERVO_SPAN_US) and throttle [fraction]; all 0 for continuous commands."""
+    if not scenario.pwm_servos:
+        return {"de": 0.0, "da": 0.0, "dr": 0.0, "throttle": 0.0}
+    ac = scenario.aircraft
+    return {**{a: ac.travel(a) / SERVO_SPAN_US for a in ("de", "da", "dr")},
+            "throttle": 1.0 / THROTTLE_SPAN_US}
+
+
+def servo_meta(scenario: Scenario) -> dict:
+    """The flight's servos for SimResult.meta / truth.json: pwm (bool), travel_deg and
+    step_deg per surface, span_us, throttle_step."""
+    steps = servo_steps(scenario)
+    ac = scenario.aircraft
+    return {"pwm": scenario.pwm_servos, "span_us": SERVO_SPAN_US,
+            "travel_deg": {a: round(float(np.rad2deg(ac.travel(a))), 9) for a in ("de", "da", "dr")},
+            "step_deg": {a: float(np.rad2deg(steps[a])) for a in ("de", "da", "dr")},
+            "throttle_step": steps["throttle"]}
 
 
 def _trim(fdm, scenario: Scenario) -> dict[str, float]:
@@ -329,8 +344,7 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
             "sas": {"k_alpha": s.sas_k_alpha, "k_q_s": s.sas_k_q, "alpha_ref_rad": trim["alpha"],
                     "feedback": "truth alpha and body pitch rate"} if (s.sas_k_alpha or s.sas_k_q) else None,
             "actuator_lag_s": s.actuator_lag,
-            "servo": {"travel_deg": round(float(np.rad2deg(s.servo_travel)), 9), "span_us": SERVO_SPAN_US,
-                      "step_deg": float(np.rad2deg(servo_steps(s)[0])), "throttle_step": servo_steps(s)[1]},
+            "servo": servo_meta(s),
             "versions": _versions(), "truth_units": TRUTH_UNITS,
             "jsbsim": {"dt_s": 1.0 / (s.rate_hz * s.substeps), "substeps": s.substeps,
                        "integrators": dict(INTEGRATORS),

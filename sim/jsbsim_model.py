@@ -67,7 +67,7 @@ class FcsConfig:
     actuator_lag_s: float = 0.0     #: first-order actuator time constant, s (0 = none)
     sas_k_alpha: float = 0.0        #: pitch SAS gain on alpha error, rad/rad
     sas_k_q: float = 0.0            #: pitch SAS gain on pitch rate, rad/(rad/s)
-    servo_step_rad: float = 0.0     #: surface command resolution, rad (0 = continuous)
+    servo_step_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)   #: de, da, dr command resolution, rad (0 = continuous)
     throttle_step: float = 0.0      #: throttle command resolution, fraction (0 = continuous)
 
 
@@ -124,13 +124,13 @@ def _quantized(terms: str, step: float) -> str:
 
 def _fcs_xml(aircraft: Aircraft, fcs: FcsConfig) -> str:
     lim = aircraft.limits
-    q = fcs.servo_step_rad
+    q_de, q_da, q_dr = fcs.servo_step_rad
     trim = {a: f"<product><property>fcs/{n}-trim-cmd-norm</property><value>{lim[a]!r}</value></product>"
             for a, n in (("de", "pitch"), ("da", "roll"), ("dr", "yaw"))}
     de_cmd = _quantized(trim["de"] + "<property>fcs/elevator-cmd-norm</property>"
-                        "<property>fcs/de-maneuver-rad</property><property>fcs/de-sas-rad</property>", q)
-    da_cmd = _quantized(trim["da"] + "<property>fcs/da-maneuver-rad</property>", q)
-    dr_cmd = _quantized(trim["dr"] + "<property>fcs/dr-maneuver-rad</property>", q)
+                        "<property>fcs/de-maneuver-rad</property><property>fcs/de-sas-rad</property>", q_de)
+    da_cmd = _quantized(trim["da"] + "<property>fcs/da-maneuver-rad</property>", q_da)
+    dr_cmd = _quantized(trim["dr"] + "<property>fcs/dr-maneuver-rad</property>", q_dr)
     throttle = _quantized("<property>fcs/throttle-cmd-norm[0]</property>"
                           "<property>fcs/throttle-maneuver</property>", fcs.throttle_step)
     tmax_lbf = aircraft.max_thrust * N2LBF

@@ -23,10 +23,10 @@ Layout (see ``scenarios/default.toml`` for a commented example)::
                   axes (wind|aircraft, default wind: see Turbulence)
     [wind]        north_mps = 0, east_mps = 0   (steady mean wind, the velocity the air mass
                   moves with, NED; the trim airspeed is air-relative)
-    [actuators]   lag_s = 0, servo_travel_deg = 30 (deflection at full servo travel,
-                  PWM MAX - TRIM = 400 us; the autopilot commands whole microseconds, so
-                  every surface command is a multiple of servo_travel_deg / 400 and the
-                  throttle a multiple of 1/1000, as in an ArduPilot log's RCOU; 0 = continuous)
+    [actuators]   lag_s = 0, pwm_servos = true (the autopilot commands whole microseconds
+                  of servo PWM, as in an ArduPilot log's RCOU: every surface command is a
+                  multiple of the aircraft's [servos] travel / 400 us, the throttle a
+                  multiple of 1/1000; false = continuous commands)
     [sas]         k_alpha = 0, k_q_s = 0   (pitch SAS: de += k_alpha*(alpha-alpha_trim) + k_q_s*q)
     [sensors.<imu|airdata|attitude|baro|surfaces|gps>]  see sim.sensors.SENSOR_SCHEMA
 """
@@ -46,9 +46,6 @@ from sim.sensors import SENSOR_SCHEMA, SensorSpec, sensor_spec
 
 #: MIL-F-8785C: wind at 20 ft (m/s) and JSBSim probability-of-exceedance index per severity
 SEVERITY = {"light": (15 * 0.514444, 3), "moderate": (30 * 0.514444, 4), "severe": (45 * 0.514444, 6)}
-#: default servo: deflection (deg) at full travel, PWM MAX - TRIM = SERVO_SPAN_US microseconds
-SERVO_TRAVEL_DEG = 30.0
-SERVO_SPAN_US = 400
 #: throttle PWM span (MIN 1000 - MAX 2000 us): the throttle command's resolution is 1/1000
 THROTTLE_SPAN_US = 1000
 
@@ -105,10 +102,9 @@ class Scenario:
     pom_bands: dict = field(default_factory=lambda: {"rate_deg_s": 1.5, "accel_g": 0.1, "angle_deg": 1.5})
     #: steady mean wind (north, east) [m/s], the air mass's velocity over the ground
     wind: tuple[float, float] = (0.0, 0.0)
-    #: deflection at full servo travel (PWM MAX - TRIM = SERVO_SPAN_US), rad; the surface
-    #: commands are whole microseconds of it, the throttle whole 1/THROTTLE_SPAN_US;
-    #: 0 = continuous commands
-    servo_travel: float = float(np.deg2rad(SERVO_TRAVEL_DEG))
+    #: whole-microsecond servo PWM commands (surfaces: the aircraft's Aircraft.travel /
+    #: SERVO_SPAN_US; throttle: 1/THROTTLE_SPAN_US); False = continuous commands
+    pwm_servos: bool = True
     raw: dict = field(default_factory=dict, repr=False)
 
     def with_seed(self, seed: int) -> "Scenario":
@@ -334,13 +330,10 @@ def scenario_from_dict(raw: dict, path: Path) -> Scenario:
     if any(wind) and turb.model != "off" and turb.axes == "aircraft":
         raise wsec.fail("", "a mean wind sets JSBSim's turbulence axes; it cannot go with "
                         "[turbulence] axes = \"aircraft\" (drop one of them)")
-    act = _Section(path, "actuators", raw.get("actuators", {}), {"lag_s", "servo_travel_deg"})
-    travel = act.num("servo_travel_deg", SERVO_TRAVEL_DEG, lo=0.0, hi=90.0)
-    widest = max(aircraft.limits[s] for s in ("de", "da", "dr"))
-    if 0.0 < np.deg2rad(travel) < widest:
-        raise act.fail("servo_travel_deg", f"{travel:g} deg is less than the widest surface limit "
-                       f"({np.rad2deg(widest):.3g} deg): the PWM would clip; raise it (or 0 for "
-                       "continuous commands)")
+    act = _Section(path, "actuators", raw.get("actuators", {}), {"lag_s", "pwm_servos"})
+    pwm = act.t.get("pwm_servos", True)
+    if not isinstance(pwm, bool):
+        raise act.fail("pwm_servos", f"must be true or false, got {pwm!r}")
     sas = _Section(path, "sas", raw.get("sas", {}), {"k_alpha", "k_q_s"})
     sens_raw = raw.get("sensors", {})
     sens_sec = _Section(path, "sensors", sens_raw, set(SENSOR_SCHEMA))
@@ -358,5 +351,5 @@ def scenario_from_dict(raw: dict, path: Path) -> Scenario:
         seed=seed, altitude=alt, airspeed=tas, flight_path=float(gam), heading=float(hdg),
         maneuvers=tuple(mans), turbulence=turb, actuator_lag=act.num("lag_s", 0.0, lo=0.0, hi=1.0),
         sas_k_alpha=sas.num("k_alpha", 0.0), sas_k_q=sas.num("k_q_s", 0.0), sensors=sensors,
-        substeps=substeps, pom_bands=bands, wind=wind, servo_travel=float(np.deg2rad(travel)), raw=raw,
+        substeps=substeps, pom_bands=bands, wind=wind, pwm_servos=pwm, raw=raw,
     )

@@ -30,13 +30,13 @@ def flown(name: str, seed: int | None = None) -> "sim.SimResult":
 
 @functools.lru_cache(maxsize=None)
 def quiet_flight(aircraft: str, altitude: float, airspeed: float, duration: float = 30.0,
-                 servo_travel_deg: float | None = None) -> "sim.SimResult":
-    """Calm air, no inputs: for trim-hold checks. ``servo_travel_deg``: the scenario's
-    [actuators] servo_travel_deg (None: the default PWM servo, 0: continuous commands)."""
+                 pwm_servos: bool = True) -> "sim.SimResult":
+    """Calm air, no inputs: for trim-hold checks. ``pwm_servos``: the scenario's
+    [actuators] pwm_servos (False: continuous commands)."""
     raw = {"aircraft": f"aircraft/{aircraft}.toml", "duration_s": duration,
            "trim": {"altitude_m": altitude, "airspeed_mps": airspeed}}
-    if servo_travel_deg is not None:
-        raw["actuators"] = {"servo_travel_deg": servo_travel_deg}
+    if not pwm_servos:
+        raw["actuators"] = {"pwm_servos": False}
     return sim.fly(custom(raw))
 
 

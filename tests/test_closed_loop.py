@@ -63,12 +63,17 @@ def test_estimate_from_the_written_ardupilot_bin(calm_run, tmp_path):
     vane (its AOA/SSA are marked derived), so alpha comes from the GPS velocity and the
     attitude (pipeline.flow_angles); the elevator is RCOU's whole-microsecond PWM, which
     is what the sim flew (with continuous deflections and RCOU rounding them, Cmde was 4.6
-    and CLalpha 4.3 std off on seed 11)."""
+    and CLalpha 4.3 std off on seed 11). The aircraft file states its servo travel, as a
+    user's must (without it 30 deg is assumed, with a warning)."""
     out = calm_run[0]
-    code = main(["estimate", str(out / "flight.bin"), "--model", "longitudinal",
+    ac = tmp_path / "uav.toml"
+    ac.write_text((SCENARIOS / "aircraft" / "uav_small.toml").read_text()
+                  + "\n[servos]\nde_travel_deg = 30.0\nda_travel_deg = 30.0\ndr_travel_deg = 30.0\n")
+    code = main(["estimate", str(out / "flight.bin"), "--model", "longitudinal", "--aircraft", str(ac),
                  "--out", str(tmp_path / "bin"), "--quiet"])
     assert code == 0
     rep = json.loads((tmp_path / "bin" / "report.json").read_text())
+    assert rep["meta"]["servo_travel"]["de"] == {"deg": 30.0, "from": "aircraft TOML [servos] de_travel_deg"}
     assert rep["meta"]["flow_angles"]["status"] == "reconstructed"
     m = rep["methods"]["oem"]
     assert m["converged"]

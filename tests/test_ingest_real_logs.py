@@ -83,6 +83,22 @@ def test_bin_params_modes_servo_calibration(bin_fd):
     assert fd["de"].values[0] == pytest.approx(np.radians(30.0) / 599.0, rel=1e-9)
     # throttle on SERVO3 (function 70): pulse 1100 at min -> 0
     assert fd["throttle"].values[0] == 0.0
+    # a real log does not say how far the surfaces move at full servo travel: 30 deg is
+    # assumed, reported, and a data-quality warning names the aircraft TOML key to set
+    assert fd.meta["servo_travel"] == {a: {"deg": 30.0, "from": "assumed"} for a in ("de", "da", "dr")}
+    warn = [f.message for f in run_checks(fd) if f.channel == "de" and "servo" in f.message]
+    assert len(warn) == 1 and "[servos] de_travel_deg" in warn[0]
+
+
+def test_bin_servo_travel_given_by_the_caller():
+    """The aircraft TOML's [servos] (passed by fsid estimate) scales the decoded surface."""
+    if not BIN.is_file():
+        pytest.skip("shared real logs absent")
+    fd = read_log(BIN, servo_travel={"de": (20.0, "aircraft TOML [servos] de_travel_deg")})
+    assert fd["de"].values[0] == pytest.approx(np.radians(20.0) / 599.0, rel=1e-9)
+    assert fd.meta["servo_travel"]["de"] == {"deg": 20.0, "from": "aircraft TOML [servos] de_travel_deg"}
+    assert fd.meta["servo_travel"]["da"]["from"] == "assumed"
+    assert not fd["de"].notes and "servo" in fd["da"].notes
 
 
 def test_bin_truncated_last_record_is_reported_and_data_kept(bin_fd):

@@ -66,3 +66,35 @@ def test_auto_segments_cover_the_maneuvers(files):
             assert s.axis == m["axis"]
             assert s.t0 <= m["t_start"] and s.t1 >= m["t_end"]
             assert s.t1 - s.t0 < (m["t_end"] - m["t_start"]) + 6.0
+
+
+def test_aircraft_servo_travel_flies_and_decodes(tmp_path):
+    """An aircraft whose servos move the elevator 25 deg and the rudder 40 deg at full PWM
+    travel: the sim steps them by 25/400 and 40/400 deg, flight.bin logs FSID_TRAVEL_DE/DR,
+    and the built-in map decodes RCOU with them - the decoded deflections are what was
+    flown (after the trim point); a map default of 30 deg would put de 20 % off."""
+    import sim
+    from pipeline.writers import write_dataflash
+    from tests._simdata import SCENARIOS, custom
+
+    ac = (SCENARIOS / "aircraft" / "uav_small.toml").read_text()
+    (tmp_path / "ac.toml").write_text(ac + "\n[servos]\nde_travel_deg = 25.0\ndr_travel_deg = 40.0\n")
+    r = sim.fly(custom({"aircraft": str(tmp_path / "ac.toml"), "duration_s": 8.0,
+                        "trim": {"altitude_m": 150.0, "airspeed_mps": 30.0},
+                        "maneuver": [{"name": "d", "axis": "de", "shape": "doublet",
+                                      "amplitude_deg": 2.0, "pulse_s": 0.5, "start_s": 2.0},
+                                     {"name": "r", "axis": "dr", "shape": "doublet",
+                                      "amplitude_deg": 3.0, "pulse_s": 0.5, "start_s": 5.0}]}))
+    assert r.meta["servo"]["travel_deg"] == {"de": 25.0, "da": 30.0, "dr": 40.0}
+    write_dataflash(tmp_path / "flight.bin", r)
+    fd = read_log(tmp_path / "flight.bin")
+    assert fd.meta["servo_travel"]["de"] == {"deg": 25.0, "from": "log parameter FSID_TRAVEL_DE"}
+    assert fd.meta["servo_travel"]["dr"]["deg"] == 40.0
+    for axis, step_deg in (("de", 25.0 / 400), ("dr", 40.0 / 400)):
+        ch = fd[axis]
+        want = np.interp(ch.t, r.truth["t"], r.truth[f"{axis}_cmd"])
+        late = ch.t > 0
+        assert np.max(np.abs(ch.values - want)[late]) < 1e-6, axis
+        k = np.rad2deg(want[late]) / step_deg
+        assert np.max(np.abs(k - np.round(k))) < 1e-3, axis          # flown on the PWM steps
+        assert np.ptp(want) > np.radians(3.5), axis

@@ -39,14 +39,14 @@ def test_calm_trim_holds_for_30_s_without_input(aircraft, h, V):
     """JSBSim's trim, with continuous servo commands, holds; with the default PWM servos
     (whole microseconds) the trim deflections and throttle move to their nearest step at
     the start: a small transient, and every command on the step grid afterwards."""
-    r = quiet_flight(aircraft, h, V, servo_travel_deg=0.0)
+    r = quiet_flight(aircraft, h, V, pwm_servos=False)
     T = r.truth
     assert T["t"].iloc[-1] == pytest.approx(30.0)
     assert np.max(np.abs(np.rad2deg(T["alpha"] - T["alpha"].iloc[0]))) < 0.1
     assert np.max(np.abs(T["V"] - T["V"].iloc[0])) < 0.1
-    assert r.meta["servo"]["step_deg"] == 0.0
+    assert r.meta["servo"]["step_deg"] == {"de": 0.0, "da": 0.0, "dr": 0.0}
     pwm = quiet_flight(aircraft, h, V)
-    P, step = pwm.truth, np.deg2rad(pwm.meta["servo"]["step_deg"])
+    P, step = pwm.truth, np.deg2rad(pwm.meta["servo"]["step_deg"]["de"])
     assert step == pytest.approx(np.deg2rad(30.0 / 400))
     de = P["de"].to_numpy()[1:]
     assert np.max(np.abs(de / step - np.round(de / step))) < 1e-6
@@ -93,8 +93,8 @@ def test_surfaces_follow_the_designed_maneuvers(name):
     r = flown(name)
     T = r.truth
     u = input_histories(list(r.scenario.maneuvers), T["t"].to_numpy())
-    steps = {"de": np.deg2rad(r.meta["servo"]["step_deg"]), "throttle": r.meta["servo"]["throttle_step"]}
-    steps["da"] = steps["dr"] = steps["de"]
+    steps = {**{a: np.deg2rad(v) for a, v in r.meta["servo"]["step_deg"].items()},
+             "throttle": r.meta["servo"]["throttle_step"]}
     trim0 = {"de": r.trim["de"], "da": 0.0, "dr": 0.0, "throttle": r.trim["throttle"]}
     # the servos take whole-microsecond PWM commands (after t = 0, the trim point)
     trim = {ax: _pwm_step(v, steps[ax]) for ax, v in trim0.items()}
@@ -145,7 +145,7 @@ def test_unstable_aircraft_is_held_by_the_sas_with_correlated_inputs():
     law = s.sas_k_alpha * (alpha_half_back - a0) + s.sas_k_q * T["q"]
     assert np.max(np.abs(T["de_sas"] - law)) < 0.02 * np.max(np.abs(T["de_sas"]))
     u = input_histories(list(s.maneuvers), T["t"].to_numpy())["de"]
-    step = np.deg2rad(r.meta["servo"]["step_deg"])
+    step = np.deg2rad(r.meta["servo"]["step_deg"]["de"])
     np.testing.assert_allclose(T["de_cmd"][1:], _pwm_step(r.trim["de"] + u + T["de_sas"], step)[1:], atol=1e-12)
     # actuator lag: the position trails the command by about lag_s
     lag = np.argmax(np.correlate(np.diff(T["de"]), np.diff(T["de_cmd"]), "full")) - (len(T) - 2)

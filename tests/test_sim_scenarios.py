@@ -62,10 +62,7 @@ def test_default_is_short_enough_for_the_demo():
     (lambda r: r.__setitem__("rate_hz", "fast"), "rate_hz", "finite number"),
     (lambda r: r.__setitem__("validation", {"rate_dps": 2.0}), "validation.rate_dps", "unknown key"),
     (lambda r: r.__setitem__("validation", {"accel_g": -0.1}), "validation.accel_g", "> 0"),
-    (lambda r: r.__setitem__("actuators", {"servo_travel_deg": 10.0}), "actuators.servo_travel_deg",
-     "less than the widest surface limit"),
-    (lambda r: r.__setitem__("actuators", {"servo_travel_rad": 0.5}), "actuators.servo_travel_rad",
-     "wrong unit; write it as actuators.servo_travel_deg"),
+    (lambda r: r.__setitem__("actuators", {"pwm_servos": 1}), "actuators.pwm_servos", "true or false"),
 ])
 def test_malformed_scenario_fails_with_one_line_naming_the_key(mutate, where, what):
     raw = _raw()
@@ -77,11 +74,12 @@ def test_malformed_scenario_fails_with_one_line_naming_the_key(mutate, where, wh
     assert where in msg and what in msg, msg
 
 
-def test_servo_travel_default_and_continuous():
-    assert scenario("default").servo_travel == pytest.approx(np.deg2rad(30.0))
+def test_pwm_servos_default_and_continuous():
+    s = scenario("default")
+    assert s.pwm_servos and s.aircraft.travel("de") == pytest.approx(np.deg2rad(30.0))
     raw = _raw()
-    raw["actuators"] = {"servo_travel_deg": 0}
-    assert custom(raw).servo_travel == 0.0
+    raw["actuators"] = {"pwm_servos": False}
+    assert custom(raw).pwm_servos is False
 
 
 def test_validation_bands_default_and_from_the_scenario():
@@ -114,10 +112,17 @@ def test_aircraft_truth_set_validation(tmp_path):
     ac = sim.load_aircraft(SCENARIOS / "aircraft" / "uav_small.toml")
     assert ac.derivatives["Cmalpha"] == -0.38 and ac.S == 0.55 and ac.source
     assert set(ac.derivatives) == set(sim.ALL_DERIVATIVES)
+    assert ac.servo_travel == {} and ac.travel("de") == pytest.approx(np.radians(30.0))
     for old, new, expect in [("Cmq = -3.6", "Cmqq = -3.6", "derivatives.Cmqq: unknown derivative"),
                              ("S_m2 = 0.55", "S_ft2 = 5.9", "geometry.S_ft2: wrong unit"),
                              ("mass_kg = 13.5\n", "", "mass.mass_kg: missing field"),
-                             ("Clp = -0.26\n", "", "derivatives.Clp: missing field")]:
+                             ("Clp = -0.26\n", "", "derivatives.Clp: missing field"),
+                             ("[derivatives]", "[servos]\nde_travel_deg = 20.0\n[derivatives]",
+                              "servos.de_travel_deg: 20 deg is less than the surface limit"),
+                             ("[derivatives]", "[servos]\nde_travel_rad = 0.5\n[derivatives]",
+                              "servos.de_travel_rad: wrong unit; write it as servos.de_travel_deg"),
+                             ("[derivatives]", "[servos]\nflap_travel_deg = 30\n[derivatives]",
+                              "servos.flap_travel_deg: unknown key")]:
         p = tmp_path / "ac.toml"
         p.write_text(text.replace(old, new))
         with pytest.raises(sim.ScenarioError, match=expect.replace(".", r"\.")):

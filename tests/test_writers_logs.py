@@ -7,7 +7,7 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
-from pipeline.writers import SERVO_TRAVEL_DEG, write_dataflash, write_mcap, write_truth_json
+from pipeline.writers import write_dataflash, write_mcap, write_truth_json
 from sim.sensors import lever_arm_signals
 from tests._simdata import flown, written
 
@@ -123,7 +123,8 @@ def test_bin_has_the_ardupilot_layouts_units_and_params(bin_messages):
     params = {p["Name"]: p["Value"] for p in m["PARM"]}
     assert params["SERVO2_FUNCTION"] == 19 and params["SERVO1_FUNCTION"] == 4 and params["SERVO4_FUNCTION"] == 21
     assert params["SERVO2_MIN"] == 1100 and params["SERVO2_TRIM"] == 1500 and params["SERVO2_MAX"] == 1900
-    assert params["FSID_SRV_TRAVEL"] == SERVO_TRAVEL_DEG and params["FSID_ARSP_TAS"] == 1
+    assert all(params[f"FSID_TRAVEL_{a}"] == 30.0 for a in ("DE", "DA", "DR"))
+    assert params["FSID_ARSP_TAS"] == 1
     assert params["FSID_MAX_THRUST"] == flown(NAME).aircraft.max_thrust
     r = flown(NAME)
     for name, sensor in (("IMU", "imu"), ("ATT", "attitude"), ("ARSP", "airdata"), ("AOA", "airdata"),
@@ -173,11 +174,11 @@ def test_rcou_pwm_maps_back_to_the_commanded_deflections(bin_messages):
     m = bin_messages
     r = flown(NAME)
     p = {q["Name"]: q["Value"] for q in m["PARM"]}
-    travel = np.deg2rad(p["FSID_SRV_TRAVEL"])
     t = _col(m["RCOU"], "TimeUS") * 1e-6
-    step = travel / 400
-    assert r.meta["servo"]["step_deg"] == pytest.approx(np.rad2deg(step))
     for ch, axis, sign in ((1, "da", 1), (2, "de", -1), (4, "dr", -1)):
+        travel = np.deg2rad(p[f"FSID_TRAVEL_{axis.upper()}"])
+        step = travel / 400
+        assert r.meta["servo"]["step_deg"][axis] == pytest.approx(np.rad2deg(step))
         n = next(k for k in range(1, 17) if p.get(f"SERVO{k}_FUNCTION") == {1: 4, 2: 19, 4: 21}[ch])
         pwm = _col(m["RCOU"], f"C{n}")
         x = (pwm - p[f"SERVO{n}_TRIM"]) / (p[f"SERVO{n}_MAX"] - p[f"SERVO{n}_TRIM"])

@@ -42,8 +42,13 @@ parameter is F (ArduPilot: 4 aileron, 19 elevator, 21 rudder, 70 throttle), else
 ``channel``. The pulse is normalised with the ``SERVOn_MIN/MAX/TRIM/REVERSED`` parameters
 (or ``min``/``max``/``trim`` numbers in the map, default 1100/1900/1500): (pwm - trim) /
 (max - trim) above trim, (pwm - trim) / (trim - min) below, negated when reversed, and
-multiplied by ``travel_deg`` (deflection at full travel). ``throttle = true`` gives
-(pwm - min) / (max - min) instead.
+multiplied by the deflection at full travel: the caller's (``read_log(servo_travel=)``;
+``fsid estimate`` passes the aircraft TOML's ``[servos]``), else the map's ``travel_deg``
+(a number, or the name of a log parameter holding it, e.g. the simulator's
+``FSID_TRAVEL_DE``), else DEFAULT_TRAVEL_DEG, assumed - and said in the channel's notes:
+the control derivatives scale with it. ``throttle = true`` gives (pwm - min) / (max - min)
+instead; ``normalised = true`` takes the source as the normalised -1..1 surface command
+(PX4's actuator controls) and multiplies it by the same travel.
 
 Sign conventions: canonical body axes are x forward, y right, z down (FRD); ROS uses
 x forward, y left, z up (FLU) and ENU, which the ROS 2 map flips with ``sign = -1``.
@@ -58,7 +63,7 @@ import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -258,8 +263,32 @@ def _servo_number(rule: ChannelRule, params: dict) -> int | None:
     return int(n) if n is not None else None
 
 
-def _pwm(rule: ChannelRule, pwm: np.ndarray, params: dict, source: str) -> tuple[np.ndarray, str]:
+#: deflection (deg) at full servo travel assumed when neither the caller, the map nor the log
+#: gives it
+DEFAULT_TRAVEL_DEG = 30.0
+
+
+def servo_travel(rule: ChannelRule, params: Mapping[str, float],
+                 given: tuple[float, str] | None = None) -> tuple[float, str]:
+    """(deg, where it came from) of a PWM surface channel's deflection at full servo travel:
+    ``given`` (deg, origin), else the map's ``travel_deg`` (a number; or a log parameter's
+    name, used when the log has it), else DEFAULT_TRAVEL_DEG with origin "assumed"."""
+    if given is not None:
+        return float(given[0]), given[1]
+    v = dict(rule.pwm or {}).get("travel_deg")
+    if isinstance(v, str):
+        if v in params:
+            return float(params[v]), f"log parameter {v}"
+    elif v is not None:
+        return float(v), "channel map"
+    return DEFAULT_TRAVEL_DEG, "assumed"
+
+
+def _pwm(rule: ChannelRule, pwm: np.ndarray, params: dict, source: str,
+         travel_deg: float = DEFAULT_TRAVEL_DEG) -> tuple[np.ndarray, str]:
     cfg = dict(rule.pwm or {})
+    if cfg.get("normalised"):            # a -1..1 surface command (PX4 actuator controls)
+        return pwm * np.radians(travel_deg), ""
     n = _servo_number(rule, params)
     note = ""
     if n is not None:
@@ -280,7 +309,7 @@ def _pwm(rule: ChannelRule, pwm: np.ndarray, params: dict, source: str) -> tuple
     x = np.where(pwm >= tr, (pwm - tr) / up, (pwm - tr) / dn)
     if rev:
         x = -x
-    return x * np.radians(float(cfg.get("travel_deg", 30.0))), note
+    return x * np.radians(travel_deg), note
 
 
 def _quat_euler(w, x, y, z, comp: str) -> np.ndarray:
@@ -293,20 +322,21 @@ def _quat_euler(w, x, y, z, comp: str) -> np.ndarray:
     raise FsidError(f"quaternion component '{comp}' unknown; use phi, theta or psi")
 
 
-def apply_rule(raw: RawLog, rule: ChannelRule) -> Channel | str:
-    """Fill one channel from the raw tables, or return why it cannot be filled."""
+def apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAVEL_DEG) -> Channel | str:
+    """Fill one channel from the raw tables, or return why it cannot be filled.
+    ``travel_deg``: a PWM surface's deflection at full servo travel (:func:`servo_travel`)."""
     if rule.scale_param:
         if rule.scale_param not in raw.params:
             return f"no parameter {rule.scale_param} in the log"
-        got = _apply_rule(raw, rule)
+        got = _apply_rule(raw, rule, travel_deg)
         if isinstance(got, str):
             return got
         k = float(raw.params[rule.scale_param])
         return Channel(got.t, got.values * k, got.unit, f"{got.source} x {rule.scale_param} ({k:g})")
-    return _apply_rule(raw, rule)
+    return _apply_rule(raw, rule, travel_deg)
 
 
-def _apply_rule(raw: RawLog, rule: ChannelRule) -> Channel | str:
+def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAVEL_DEG) -> Channel | str:
     if rule.transform in ("quat_wxyz", "quat_xyzw"):
         if len(rule.sources) != 4:
             return "quaternion transform needs 4 sources"
@@ -365,7 +395,7 @@ def _apply_rule(raw: RawLog, rule: ChannelRule) -> Channel | str:
         tab, raw_v = got
         note = f" [{unit}]" if unit != rule.unit else ""
         if rule.pwm is not None:
-            vals, note = _pwm(rule, raw_v * rule.scale + rule.offset, raw.params, src)
+            vals, note = _pwm(rule, raw_v * rule.scale + rule.offset, raw.params, src, travel_deg)
             vals = vals * rule.sign
         else:
             vals = (raw_v * rule.scale + rule.offset) * UNIT_FACTORS.get(unit, 1.0) * rule.sign
@@ -375,7 +405,7 @@ def _apply_rule(raw: RawLog, rule: ChannelRule) -> Channel | str:
         if logged and unit in UNIT_FACTORS and logged in UNIT_FACTORS and \
                 UNIT_FACTORS[logged] != UNIT_FACTORS[unit] and rule.pwm is None:
             notes = (f"the log's unit metadata (FMTU) gives {src} in {logged} but the map reads "
-                     f"it as {unit}")
+                     f"it as {unit}; check the channel map")
         return Channel(np.asarray(tab.t, dtype=np.float64), vals,
                        CANONICAL_UNITS.get(rule.name, rule.unit), src + note, notes)
     return "; ".join(dict.fromkeys(reasons))
@@ -393,10 +423,16 @@ def plain_map_toml(fd, name: str, formats: Sequence[str], drop: Sequence[str] = 
     return "\n".join(lines)
 
 
-def apply_map(raw: RawLog, cmap: ChannelMap) -> tuple[dict[str, Channel], dict[str, str]]:
-    """All channels of ``cmap`` that the log can fill, and for the others the reason."""
+def apply_map(raw: RawLog, cmap: ChannelMap,
+              servo_travel_deg: Mapping[str, tuple[float, str]] | None = None
+              ) -> tuple[dict[str, Channel], dict[str, str], dict[str, dict]]:
+    """All channels of ``cmap`` that the log can fill, for the others the reason, and for
+    the surfaces decoded from servo PWM their deflection at full travel ({"deg", "from"}).
+    ``servo_travel_deg``: channel -> (deg, origin) given by the caller (:func:`servo_travel`);
+    an assumed travel is also in the channel's notes (a data-quality warning)."""
     chans: dict[str, Channel] = {}
     why: dict[str, str] = {}
+    travels: dict[str, dict] = {}
     rules = dict(cmap.rules)
     if cmap.header.get("canonical"):  # every canonical column of every table, SI units
         for tname, tab in raw.tables.items():
@@ -404,10 +440,20 @@ def apply_map(raw: RawLog, cmap: ChannelMap) -> tuple[dict[str, Channel], dict[s
                 if f in CANONICAL_UNITS and f != "t" and f not in rules:
                     rules[f] = ChannelRule(f, [f"{tname}.{f}"], CANONICAL_UNITS[f])
     for name, rule in rules.items():
-        got = apply_rule(raw, rule)
+        surface = rule.pwm is not None and not dict(rule.pwm).get("throttle")
+        deg, origin = (servo_travel(rule, raw.params, (servo_travel_deg or {}).get(name))
+                       if surface else (DEFAULT_TRAVEL_DEG, ""))
+        got = apply_rule(raw, rule, deg)
         if isinstance(got, str):
             why[name] = got
-        else:
-            got.derived = rule.derived or ""
-            chans[name] = got
-    return chans, why
+            continue
+        got.derived = rule.derived or ""
+        if surface:
+            travels[name] = {"deg": deg, "from": origin}
+            if origin == "assumed":
+                got.notes = "; ".join(filter(None, [got.notes, (
+                    f"deflection from servo PWM with {deg:g} deg at full servo travel assumed "
+                    f"(the control derivatives scale with it): give the aircraft TOML's "
+                    f"[servos] {name}_travel_deg")]))
+        chans[name] = got
+    return chans, why, travels

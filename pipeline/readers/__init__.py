@@ -112,7 +112,10 @@ def read_log(path: str | os.PathLike, map=None, **opts):
         ``[map] extends = "<builtin>"`` add to / override a built-in map
     opts : ``strict`` (raise on damage), ``time_base`` ("log" | "header", MCAP),
         ``segments`` ("mode" | "auto" | list of (t0, t1) [s]; default: mode segments when
-        the log has modes, then automatic ones from control activity)
+        the log has modes, then automatic ones from control activity), ``servo_travel``
+        (surface -> (deg, origin): the deflection at full servo travel for surfaces
+        decoded from servo PWM, e.g. an aircraft TOML's ``[servos]``; see
+        :func:`pipeline.maps.servo_travel`; what was used is ``meta["servo_travel"]``)
 
     Returns
     -------
@@ -122,16 +125,18 @@ def read_log(path: str | os.PathLike, map=None, **opts):
     from pipeline.maps import apply_map, load_map
 
     segments = opts.pop("segments", None)
+    travel = opts.pop("servo_travel", None)
     fmt = opts.pop("format", None) or detect_format(path)
     raw = read_raw(path, fmt, **opts)
     map_fmt = raw.info.get("map_hint", raw.format)
     cmap = load_map(map, raw.format) if map is not None else load_map(map_fmt if map_fmt in
                                                                        _builtin() else None, raw.format)
-    chans, why = apply_map(raw, cmap)
+    chans, why, travels = apply_map(raw, cmap, travel)
     meta = {
         "source": str(path), "format": raw.format, "map": cmap.name,
         "time_base": raw.time_base, "params": raw.params, "modes": raw.modes,
         "damage": raw.damage.as_dict() if raw.damage else None, "unmapped": why,
+        "servo_travel": travels,
         "info": raw.info, "tables": {k: len(v) for k, v in raw.tables.items()},
     }
     fd = FlightData(chans, meta, [])

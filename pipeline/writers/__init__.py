@@ -6,8 +6,8 @@
 
 All writes are atomic (temporary file + rename).
 """
-from pipeline.writers.dataflash import SERVO_TRAVEL_DEG, write_dataflash
+from pipeline.writers.dataflash import write_dataflash
 from pipeline.writers.mcap_json import TOPICS, write_mcap
 from pipeline.writers.truth_json import truth_dict, write_truth_json
 
-__all__ = ["SERVO_TRAVEL_DEG", "TOPICS", "truth_dict", "write_dataflash", "write_mcap", "write_truth_json"]
+__all__ = ["TOPICS", "truth_dict", "write_dataflash", "write_mcap", "write_truth_json"]

@@ -22,10 +22,11 @@ What each message carries (sensor tables of the flight, see ``sim.sensors``):
   at the surfaces-sensor rate, integer microseconds. Channels and PARM calibration:
   C1 aileron (SERVO1_FUNCTION 4), C2 elevator (19), C3 throttle (70), C4 rudder (21);
   surfaces MIN 1100 / TRIM 1500 / MAX 1900, REVERSED 0, full travel (MAX - TRIM) = the
-  scenario's ``[actuators] servo_travel_deg`` (default ``SERVO_TRAVEL_DEG``; also logged as
-  PARM ``FSID_SRV_TRAVEL``). The sim flies whole-microsecond commands of that servo, so
-  RCOU holds exactly what was flown (with continuous commands, ``servo_travel_deg = 0``,
-  RCOU rounds them: 0.075 deg steps at 30 deg). ArduPilot's
+  aircraft's ``[servos]`` travel of that surface (default 30 deg; also logged as PARM
+  ``FSID_TRAVEL_DE`` / ``_DA`` / ``_DR``, which the built-in map reads). The sim flies
+  whole-microsecond commands of those servos, so RCOU holds exactly what was flown (with
+  continuous commands, scenario ``[actuators] pwm_servos = false``, RCOU rounds them:
+  0.075 deg steps at 30 deg). ArduPilot's
   convention: PWM above trim = roll right / pitch up / yaw right, so
   da = +x*travel, de = -x*travel, dr = -x*travel with x = (PWM - TRIM)/(MAX - TRIM)
   (de > 0 trailing edge down, dr > 0 trailing edge left). Throttle: MIN 1000, MAX 2000,
@@ -45,7 +46,7 @@ import pandas as pd
 
 from pipeline.paths import atomic_write_bytes
 
-from sim.scenario import SERVO_SPAN_US, SERVO_TRAVEL_DEG
+from sim.aircraft import SERVO_SPAN_US
 
 RHO0 = 1.225
 _DT = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "f": "<f4", "d": "<f8",
@@ -126,11 +127,11 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas") -> N
     """Write ``result`` (a :class:`sim.SimResult`) as an ArduPilot DataFlash log (atomic).
 
     airspeed: "tas" (default) or "eas" (ArduPilot's own semantics) for ARSP.Airspeed.
-    The servo travel is the flight's (``result.meta["servo"]``).
+    The servo travel of each surface is the flight's (``result.aircraft.travel``).
     """
     if airspeed not in ("eas", "tas"):
         raise ValueError(f"airspeed must be 'eas' or 'tas', got {airspeed!r}")
-    travel_deg = result.meta.get("servo", {}).get("travel_deg") or SERVO_TRAVEL_DEG
+    travel = {a: result.aircraft.travel(a) for a in ("de", "da", "dr")}    # rad
     S, T = result.sensors, result.truth
     tt = T["t"].to_numpy()
     blocks: list[tuple[np.ndarray, np.ndarray]] = []   # (TimeUS, records)
@@ -168,15 +169,14 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas") -> N
         SMS=np.round(tb * 1000).astype(np.uint32), Offset=0.0, GndTemp=15.0, Health=1)
     su = S["surfaces"]
     ts = su["t"].to_numpy()
-    trav = np.deg2rad(travel_deg)
     lim = result.aircraft.limits
     de = np.clip(truth_at("de_cmd", ts), -lim["de"], lim["de"])
     da = np.clip(truth_at("da_cmd", ts), -lim["da"], lim["da"])
     dr = np.clip(truth_at("dr_cmd", ts), -lim["dr"], lim["dr"])
     thr = truth_at("throttle", ts)
     rc = {f"C{k}": 0 for k in range(5, 15)}
-    add("RCOU", ts, C1=_pwm(da, +1, trav), C2=_pwm(de, -1, trav), C3=np.clip(np.round(1000 + 1000 * thr), 1000, 2000),
-        C4=_pwm(dr, -1, trav), **rc)
+    add("RCOU", ts, C1=_pwm(da, +1, travel["da"]), C2=_pwm(de, -1, travel["de"]), C3=np.clip(np.round(1000 + 1000 * thr), 1000, 2000),
+        C4=_pwm(dr, -1, travel["dr"]), **rc)
     gp = S["gps"]
     tg = gp["t"].to_numpy()
     vn, ve, vd = (gp[c].to_numpy() for c in ("vn", "ve", "vd"))
@@ -194,10 +194,10 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas") -> N
     e2t_a = np.sqrt(RHO0 / truth_at("rho", ta))
     eas_a = np.interp(ta, td, ad["V"].to_numpy()) / e2t_a
     add("CTUN", ta, Roll=np.round(roll * 100), Pitch=np.round(pitch * 100),
-        ThO=100 * truth_at("throttle", ta), RdrOut=-4500 * truth_at("dr_cmd", ta) / trav,
+        ThO=100 * truth_at("throttle", ta), RdrOut=-4500 * truth_at("dr_cmd", ta) / travel["dr"],
         ThD=100 * truth_at("throttle", ta), As=eas_a, SAs=eas_a, E2T=e2t_a, GU=0)
 
-    head = _header(result, travel_deg, airspeed)
+    head = _header(result, travel, airspeed)
     times = np.concatenate([b[0] for b in blocks])
     which = np.concatenate([np.full(len(b[0]), i) for i, b in enumerate(blocks)])
     index = np.concatenate([np.arange(len(b[0])) for b in blocks])
@@ -208,7 +208,7 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas") -> N
     atomic_write_bytes(path, head + body)
 
 
-def _header(result, travel_deg: float, airspeed: str) -> bytes:
+def _header(result, travel: dict[str, float], airspeed: str) -> bytes:
     out = []
     for m in MSGS.values():
         length = m.dtype.itemsize
@@ -225,7 +225,8 @@ def _header(result, travel_deg: float, airspeed: str) -> bytes:
     for k in (1, 2, 4):
         params.update({f"SERVO{k}_MIN": 1100, f"SERVO{k}_MAX": 1900, f"SERVO{k}_TRIM": 1500, f"SERVO{k}_REVERSED": 0})
     params.update({"SERVO3_MIN": 1000, "SERVO3_MAX": 2000, "SERVO3_TRIM": 1000, "SERVO3_REVERSED": 0,
-                   "FSID_SRV_TRAVEL": travel_deg, "FSID_MAX_THRUST": result.aircraft.max_thrust,
+                   **{f"FSID_TRAVEL_{a.upper()}": float(np.rad2deg(v)) for a, v in travel.items()},
+                   "FSID_MAX_THRUST": result.aircraft.max_thrust,
                    "FSID_ARSP_TAS": 1.0 if airspeed == "tas" else 0.0, "AHRS_EKF_TYPE": 3})
     imu = getattr(result.scenario, "sensors", {}).get("imu")
     if imu is not None:     # ArduPilot's IMU position from the CG (body axes, m)
@@ -234,7 +235,8 @@ def _header(result, travel_deg: float, airspeed: str) -> bytes:
         out.append(_records("PARM", 1, TimeUS=0, Name=k.encode(), Value=float(v), Default=float(v)).tobytes())
     notes = [f"fsid sim: scenario {result.scenario.name} seed {result.meta['seed']}",
              f"fsid sim: aircraft {result.aircraft.name}",
-             f"fsid sim: servo travel {travel_deg:g} deg at PWM MAX-TRIM",
+             "fsid sim: servo travel (deg at PWM MAX-TRIM) " + " ".join(
+                 f"{a} {np.rad2deg(v):.4g}" for a, v in travel.items()),
              f"fsid sim: ARSP.Airspeed is {airspeed.upper()}; TAS = EAS * CTUN.E2T",
              "fsid sim: thrust = throttle * FSID_MAX_THRUST (N) along body x"]
     for n in notes:
