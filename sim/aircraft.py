@@ -176,6 +176,8 @@ def _servo_travel(path: Path, raw, limits: dict[str, float]) -> dict[str, float]
                         f"({np.rad2deg(limits[axis]):.3g} deg): full servo travel must reach it")
         out[axis] = float(np.deg2rad(v))
     return out
+
+
 #: optional ``[sensors.<name>]`` tables of an aircraft file and their keys
 _SENSORS = {"airdata": {"position_m"}, "imu": {"position_m"}}
 

@@ -452,7 +452,7 @@ def apply_map(raw: RawLog, cmap: ChannelMap,
             travels[name] = {"deg": deg, "from": origin}
             if origin == "assumed":
                 got.notes = "; ".join(filter(None, [got.notes, (
-                    f"deflection from servo PWM with {deg:g} deg at full servo travel assumed "
+                    f"deflection from the servo command with {deg:g} deg at full servo travel assumed "
                     f"(the control derivatives scale with it): give the aircraft TOML's "
                     f"[servos] {name}_travel_deg")]))
         chans[name] = got
