@@ -16,7 +16,10 @@ Measured (seeds 200-207, 2026-11-24):
       std the same (ratio 1.00-1.08) but for CL0 and Cm0 (1.78, 1.87: conservative there,
       empirical/reported 0.60 and 0.75 - the level of alpha comes from 10 Hz GPS samples
       instead of 50 Hz vane samples, while az pins it as well).
-  lateral_doublets_calm (--model lateral): 0.55-2.16 with the vanes, 0.55-2.69 rebuilt;
+  lateral_doublets_calm (--model lateral), since the lateral output error's V and alpha
+      are blended with the integrated IMU (pipeline.airdata_kinematics): 0.49-1.64 with
+      the vanes, 0.47-1.72 rebuilt (Cnda 1.64 / 1.72, Cndr 1.37 / 1.52); |bias| <= 1.68 /
+      1.41; reported std ratio 1.00. Before it: 0.55-2.16 with the vanes, 0.55-2.69 rebuilt;
       |bias| <= 1.23 / 1.19; reported std ratio 1.00-1.02. The lateral output error's
       Cramér-Rao std are optimistic on the yaw derivatives with the vanes already (Cnp
       2.16, Cndr 2.14, Cnda 1.81); the rebuilt sideslip adds to it (Cnda 2.69, Cndr 2.54).

@@ -614,7 +614,7 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
                     free: Sequence[str] = LAT_FREE,
                     biases: Sequence[str] = ("beta", "p", "r", "ay"),
                     measured_longitudinal: bool = False, rotary_gust: bool = False,
-                    kinematic_V: bool = False) -> Problem:
+                    kinematic: bool = False) -> Problem:
     """Build the lateral-directional problem (linear model about the flight's mean
     airspeed, angle of attack and pitch attitude) from the aileron and rudder maneuvers;
     control inputs are taken relative to their value at the start of each window.
@@ -625,14 +625,17 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
         lateral_doublets_calm, where the doublets bank the UAV by up to 30 deg).
     rotary_gust : with ``measured_longitudinal``: the model's roll-gust state p_g (the
         aerodynamics see p - p_g; for the filters, whose process noise drives it).
-    kinematic_V : with ``measured_longitudinal``: the pseudo-input V is the airspeed
-        blended with the integrated IMU (:mod:`pipeline.airdata_kinematics`: the pitot
-        below 0.1 Hz, the kinematic speed rate above), not the pitot low-passed at 1 Hz.
-        For calm-air output error: the pitot noise between 0.1 and 1 Hz scales every
-        moment of the window, which output error took as exact (lateral_doublets_calm,
+    kinematic : with ``measured_longitudinal``: the pseudo-inputs V and alpha are the air
+        data blended with the integrated IMU (:mod:`pipeline.airdata_kinematics`: pitot
+        and vane below 0.1 Hz, the kinematic rates above), not the air data low-passed at
+        1 and 5 Hz. For calm-air output error, which takes its inputs as exact: the pitot
+        noise between 0.1 and 1 Hz scales every moment of the window (lateral_doublets_calm,
         16 + 16 seeds, benchmarks/lateral_airspeed_mc.py: empirical / Cramer-Rao std of
-        the derivatives up to 2.1 and 1.9, 1.4 and 1.7 with it; without any pitot noise
-        1.4 and 1.9). In turbulence the blend misses the gusts' airspeed above 0.1 Hz."""
+        the derivatives up to 2.1 and 1.9 with the air data, 1.4 and 1.4 blended; without
+        any pitot noise 1.4 and 1.9), and an angle of attack rebuilt from the 10 Hz GPS
+        velocity (no vane) puts its noise into the kinematic coupling (8 seeds,
+        benchmarks/flow_angles_mc.py: up to 2.7, blended 1.7). In turbulence the blend
+        misses the gusts above 0.1 Hz."""
     rotary_gust = rotary_gust and measured_longitudinal
     channels = LAT_CHANNELS + (("q",) if measured_longitudinal else ())
     specs = lateral_specs(fd, channels, segments, hold_out)
@@ -651,16 +654,17 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
         w = frames[id(s)]
         w[["da", "dr"]] = w[["da", "dr"]] - w[["da", "dr"]].iloc[0]
     # airspeed and sideslip at the CG blended with the integrated IMU (V_kin, beta_kin) for
-    # the equation-error regressors and, with kinematic_V, the pseudo-input V
+    # the equation-error regressors and, with kinematic, the pseudo-inputs V and alpha
     from pipeline.airdata_kinematics import V_CORNER_HZ, kinematic_air_data
     kin = kinematic_air_data(fd, rate_hz, ac.imu, ac.airdata)
-    kinematic_V = kinematic_V and measured_longitudinal and kin is not None
+    kinematic = kinematic and measured_longitudinal and kin is not None
     if kin is not None:
         for s in specs:
             w = frames[id(s)]
             tw = w["t"].to_numpy()
             w["V_kin"] = np.interp(tw, kin["t"], kin["V"])
             w["beta_kin"] = np.interp(tw, kin["t"], kin["beta"])
+            w["alpha_kin"] = np.interp(tw, kin["t"], kin["alpha"])
     both = [s for s in specs]
     held = both[-hold_out:] if hold_out else []
     fit_specs = [s for s in specs if s not in held]
@@ -678,8 +682,9 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     ucols = ["da", "dr", "V", "alpha", "theta", "q"] if measured_longitudinal else ["da", "dr"]
     if measured_longitudinal:
         for s in specs:
-            if kinematic_V:
+            if kinematic:
                 frames[id(s)]["V"] = frames[id(s)]["V_kin"]
+                frames[id(s)]["alpha"] = frames[id(s)]["alpha_kin"]
             frames[id(s)] = smooth_pseudo_inputs(frames[id(s)], rate_hz)
 
     def seg(s):
@@ -691,8 +696,8 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
                        name=s.name)
 
     notes = [(f"measured V, alpha, theta, q as inputs, density {rho:.4f} kg/m^3"
-              + (" (V: the airspeed blended with the integrated IMU, the pitot below "
-                 f"{V_CORNER_HZ:g} Hz)" if kinematic_V else "")
+              + (" (V, alpha: the air data blended with the integrated IMU, the air data "
+                 f"below {V_CORNER_HZ:g} Hz)" if kinematic else "")
               if measured_longitudinal else
               f"linear model about V={c['V']:.2f} m/s, alpha0={np.degrees(c['alpha0']):.2f} deg, "
               f"theta0={np.degrees(c['theta0']):.2f} deg, density {rho:.4f} kg/m^3"),

@@ -471,15 +471,16 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                 # the lateral model driven by the measured V, alpha, theta, q. Output error
                 # without longitudinal estimates to hold (aileron/rudder maneuvers only): the
                 # linear model's frozen airspeed and small bank angles put Clda, Cnda, Cnp
-                # 8-18 std off on lateral_doublets_calm; its V is blended with the
-                # integrated IMU above 0.1 Hz (kinematic_V), and it adds a per-maneuver
-                # airspeed correction under an a-priori penalty for the pitot noise left.
+                # 8-18 std off on lateral_doublets_calm; its V and alpha are the air data
+                # blended with the integrated IMU above 0.1 Hz (kinematic), and it adds a
+                # per-maneuver airspeed correction under an a-priori penalty for the pitot
+                # noise left.
                 # Equation error: the regression estimates do not depend on the dynamic
                 # model, but validation simulates it: with the TRUE derivatives the linear
                 # lateral model missed the held-out maneuver of scenarios/default.toml by
                 # 2.05 deg/s on p and 2.01 on r (band 1.5), the driven one by 0.38, 0.33
                 try:
-                    pb = lateral_problem(fd, ac, measured_longitudinal=True, kinematic_V=True)
+                    pb = lateral_problem(fd, ac, measured_longitudinal=True, kinematic=True)
                     pb = with_airspeed_offsets(pb, fd) if m == "oem" else pb
                     pb.inputs = inputs
                 except FsidError as exc:

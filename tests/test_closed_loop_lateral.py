@@ -70,11 +70,12 @@ def test_lateral_oem_derivatives_within_3_std(lateral_run):
     (pipeline.identify.with_airspeed_offsets), so the bounds include it: worst 2.55 std
     on seed 21 (Cndr; was 4.3); seeds 5, 7, 11, 3, 13, 17: 1.9, 1.9, 2.8, 3.2, 3.5, 2.3 (were
     3.0, 1.5, 7.8, 3.7, 7.0, 2.4): a constant dV[k] leaves the noise's fluctuation inside a
-    window, so seeds 3 and 13 still exceed 3 std. The pseudo-input V is now the pitot below
-    0.1 Hz blended with the integrated IMU above (lateral_problem(kinematic_V=True)): worst
-    1.95 std on seed 21 (CYda; the moment derivatives within 1.43), and the empirical /
-    reported std of the moment derivatives over 16 seeds 0.83-1.43 against 1.36-2.09 with
-    the pitot alone (benchmarks/lateral_airspeed_mc.py)."""
+    window, so seeds 3 and 13 still exceed 3 std. The pseudo-inputs V and alpha are now the
+    air data below 0.1 Hz blended with the integrated IMU above
+    (lateral_problem(kinematic=True)): worst 1.99 std on seed 21 (CYda; the moment
+    derivatives within 1.0), and the empirical / reported std of the moment derivatives
+    over 16 seeds 0.84-1.44 against 1.36-2.09 with the air data alone
+    (benchmarks/lateral_airspeed_mc.py)."""
     d = _derivs(lateral_run["methods"]["oem"])
     worst = {k: round(v["error_in_std"], 2) for k, v in d.items() if v["error_in_std"] > 3.0}
     assert not worst, f"derivatives more than 3 std from the truth: {worst}"
@@ -105,7 +106,7 @@ def test_lateral_oem_from_the_written_ardupilot_bin(lateral_out, tmp_path):
     """The same flight through ``fsid estimate flight.bin``: no vane in an ArduPilot log, so
     beta is rebuilt from the GPS velocity, the attitude and a fitted wind (zero mean
     sideslip per window, pipeline.flow_angles); ailerons and rudder from RCOU PWM. Every
-    lateral derivative within 3 std (seed 21: worst CYda 1.89, with the vane 1.95) and the
+    lateral derivative within 3 std (seed 21: worst CYda 2.14, with the vane 1.99) and the
     held-out cross-controlled maneuver matched."""
     code = main(["estimate", str(lateral_out / "flight.bin"), "--model", "lateral",
                  "--out", str(tmp_path / "bin"), "--quiet"])
