@@ -47,3 +47,13 @@ def scatter_table(df: pd.DataFrame, by: Sequence[str], stds: Mapping[str, str]) 
     with pd.option_context("display.width", 120, "display.max_rows", 200):
         print(tab.round(3).to_string())
     return tab
+
+
+def range_line(tab: pd.DataFrame, group: str, extra: Mapping[str, str] | None = None) -> str:
+    """One group of :func:`scatter_table`: the range of its ``reported`` ratio over the
+    parameters, of each ``extra`` ratio column (column -> label) in brackets, and its
+    largest |bias|."""
+    t = tab.loc[group]
+    more = ", ".join(f"{label} {t[c].min():.2f}-{t[c].max():.2f}" for c, label in (extra or {}).items())
+    return (f"{group}: empirical std / reported std {t['reported'].min():.2f}-{t['reported'].max():.2f}"
+            + (f" ({more})" if more else "") + f"; |bias| <= {t['bias'].abs().max():.2f} empirical std")

@@ -33,7 +33,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from _montecarlo import fly, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
+from _montecarlo import fly, range_line, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
 SCENARIO = ROOT / "scenarios" / "unstable_short_period.toml"
 METHODS = ["soem", "decouple"]
 
@@ -62,11 +62,7 @@ def main() -> None:
     tab = scatter_table(fly(one_flight, seeds, jobs), ["method", "parameter"],
                         {"reported": "std", "crb": "crb_std", "mk": "mk_std"})
     for m in METHODS:
-        t = tab.loc[m]
-        print(f"{m}: empirical std / reported std {t['reported'].min():.2f}-{t['reported'].max():.2f}"
-              f" (Cramér-Rao {t['crb'].min():.2f}-{t['crb'].max():.2f}, Morelli-Klein "
-              f"{t['mk'].min():.2f}-{t['mk'].max():.2f}); |bias| <= {t['bias'].abs().max():.2f} "
-              f"empirical std")
+        print(range_line(tab, m, {"crb": "Cramér-Rao", "mk": "Morelli-Klein"}))
 
 
 if __name__ == "__main__":

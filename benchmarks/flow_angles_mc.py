@@ -43,7 +43,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from _montecarlo import fly, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
+from _montecarlo import fly, range_line, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
 
 SCENARIOS = ROOT / "scenarios"
 
@@ -89,9 +89,7 @@ def main() -> None:
     ratio = (sd["rebuilt"] / sd["vanes"]).round(2)
     print("mean reported std without / with vanes:", ratio.to_dict())
     for s in ("vanes", "rebuilt"):
-        t = tab.loc[s]
-        print(f"{s}: empirical std / reported std {t['reported'].min():.2f}-{t['reported'].max():.2f}; "
-              f"|bias| <= {t['bias'].abs().max():.2f} empirical std")
+        print(range_line(tab, s))
     print(f"std ratio rebuilt/vanes {ratio.min():.2f}-{ratio.max():.2f}")
 
 

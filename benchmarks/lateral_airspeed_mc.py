@@ -38,7 +38,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from _montecarlo import fly, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
+from _montecarlo import fly, range_line, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
 
 SCENARIO = ROOT / "scenarios" / "lateral_doublets_calm.toml"
 LATERAL = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
@@ -91,9 +91,7 @@ def main() -> None:
     df = fly(one_flight, seeds, jobs)
     tab = scatter_table(df, ["source", "parameter"], {"reported": "std"})
     for s in ("pitot", "kinematic", "no_noise"):
-        t = tab.loc[s]
-        print(f"{s}: empirical std / reported std {t['reported'].min():.2f}-{t['reported'].max():.2f}; "
-              f"|bias| <= {t['bias'].abs().max():.2f} empirical std")
+        print(range_line(tab, s))
     gain = (tab.loc["pitot"]["emp_std"] / tab.loc["kinematic"]["emp_std"]).round(2)
     print("empirical std pitot / kinematic:", gain.to_dict())
 

@@ -47,6 +47,12 @@ import pandas as pd
 from pipeline.paths import atomic_write_bytes
 
 from sim.aircraft import SERVO_SPAN_US
+from sim.scenario import THROTTLE_SPAN_US
+
+#: surface servo PWM: trim (neutral) and the ends of travel, microseconds; throttle PWM range
+SERVO_TRIM_US = 1500
+SERVO_MIN_US, SERVO_MAX_US = SERVO_TRIM_US - SERVO_SPAN_US, SERVO_TRIM_US + SERVO_SPAN_US
+THROTTLE_MIN_US, THROTTLE_MAX_US = 1000, 1000 + THROTTLE_SPAN_US
 
 RHO0 = 1.225
 _DT = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "f": "<f4", "d": "<f8",
@@ -119,8 +125,8 @@ def _at(df: pd.DataFrame, col: str, t: np.ndarray) -> np.ndarray:
 
 
 def _pwm(defl: np.ndarray, sign: float, travel: float) -> np.ndarray:
-    return np.clip(np.round(1500.0 + sign * SERVO_SPAN_US * defl / travel), 1500 - SERVO_SPAN_US,
-                   1500 + SERVO_SPAN_US)
+    return np.clip(np.round(SERVO_TRIM_US + sign * SERVO_SPAN_US * defl / travel), SERVO_MIN_US,
+                   SERVO_MAX_US)
 
 
 def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas") -> None:
@@ -175,7 +181,7 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas") -> N
     dr = np.clip(truth_at("dr_cmd", ts), -lim["dr"], lim["dr"])
     thr = truth_at("throttle", ts)
     rc = {f"C{k}": 0 for k in range(5, 15)}
-    add("RCOU", ts, C1=_pwm(da, +1, travel["da"]), C2=_pwm(de, -1, travel["de"]), C3=np.clip(np.round(1000 + 1000 * thr), 1000, 2000),
+    add("RCOU", ts, C1=_pwm(da, +1, travel["da"]), C2=_pwm(de, -1, travel["de"]), C3=np.clip(np.round(THROTTLE_MIN_US + THROTTLE_SPAN_US * thr), THROTTLE_MIN_US, THROTTLE_MAX_US),
         C4=_pwm(dr, -1, travel["dr"]), **rc)
     gp = S["gps"]
     tg = gp["t"].to_numpy()
@@ -223,8 +229,10 @@ def _header(result, travel: dict[str, float], airspeed: str) -> bytes:
                             MultIds=m.mults.encode()).tobytes())
     params = {"SERVO1_FUNCTION": 4, "SERVO2_FUNCTION": 19, "SERVO3_FUNCTION": 70, "SERVO4_FUNCTION": 21}
     for k in (1, 2, 4):
-        params.update({f"SERVO{k}_MIN": 1100, f"SERVO{k}_MAX": 1900, f"SERVO{k}_TRIM": 1500, f"SERVO{k}_REVERSED": 0})
-    params.update({"SERVO3_MIN": 1000, "SERVO3_MAX": 2000, "SERVO3_TRIM": 1000, "SERVO3_REVERSED": 0,
+        params.update({f"SERVO{k}_MIN": SERVO_MIN_US, f"SERVO{k}_MAX": SERVO_MAX_US,
+                       f"SERVO{k}_TRIM": SERVO_TRIM_US, f"SERVO{k}_REVERSED": 0})
+    params.update({"SERVO3_MIN": THROTTLE_MIN_US, "SERVO3_MAX": THROTTLE_MAX_US,
+                   "SERVO3_TRIM": THROTTLE_MIN_US, "SERVO3_REVERSED": 0,
                    **{f"FSID_TRAVEL_{a.upper()}": float(np.rad2deg(v)) for a, v in travel.items()},
                    "FSID_MAX_THRUST": result.aircraft.max_thrust,
                    "FSID_ARSP_TAS": 1.0 if airspeed == "tas" else 0.0, "AHRS_EKF_TYPE": 3})
