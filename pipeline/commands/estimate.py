@@ -15,7 +15,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", help="flight log (.bin, .tlog, .ulg, .mcap, .csv)")
     p.add_argument("--aircraft",
                    help="aircraft TOML (geometry, mass, inertia, propulsion, optional "
-                        "[sensors.airdata|imu] position_m; see scenarios/aircraft/): needed by "
+                        "[sensors.airdata|imu] position_m, optional [servos] de/da/dr_travel_deg "
+                        "to decode servo PWM, 30 deg assumed without; see scenarios/aircraft/): needed by "
                         "the built-in models unless the log sits next to a truth.json from "
                         "fsid run/simulate; offered to a user model's function")
     p.add_argument("--model", default="auto", metavar="auto|longitudinal|lateral|FILE.py:NAME",
