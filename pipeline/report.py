@@ -82,11 +82,13 @@ def method_json(result: EstimationResult, validation: Mapping[str, Any] | None,
 
 def report_dict(results: Mapping[str, EstimationResult], validations: Mapping[str, Mapping[str, Any]],
                 *, truth: Mapping[str, float] | None = None, meta: Mapping[str, Any] | None = None,
-                checks: Any = None, compatibility: Mapping[str, Any] | None = None) -> dict[str, Any]:
+                checks: Any = None, compatibility: Mapping[str, Any] | None = None,
+                agreement: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The full report.json content (see module doc)."""
     return {"schema": SCHEMA, "meta": num(dict(meta or {})), "checks": num(checks),
             "compatibility": num(dict(compatibility)) if compatibility is not None else None,
             "truth": num(dict(truth)) if truth else None,
+            "agreement": num(dict(agreement)) if agreement else None,
             "methods": {m: method_json(r, validations.get(m), truth) for m, r in results.items()}}
 
 
@@ -340,6 +342,37 @@ def _compat_md(comp: Any) -> list[str]:
     return L
 
 
+def _agreement_md(agreement: Mapping[str, Any] | None) -> list[str]:
+    """The "Method agreement" section: per axis, each parameter's estimate +- std by method
+    and the largest pairwise difference in combined std (see
+    :func:`pipeline.validate.cross_check_methods`)."""
+    L: list[str] = []
+    for axis, g in (agreement or {}).items():
+        L += [f"## Method agreement{f' ({axis})' if axis else ''}", "",
+              f"Each pair of methods on the parameters both estimate: |difference| / "
+              f"sqrt(std_a^2 + std_b^2), flagged above {g['k']:g} (conservative: the fits "
+              f"share the flight's noise). {g['n_flagged']} of {len(g['table'])} pairs flagged."
+              + (f" **{g['odd_one_out']}** disagrees with every other method, which agree among "
+                 f"themselves: its assumptions are the first to doubt."
+                 if g.get("odd_one_out") else ""), ""]
+        methods = list(g["methods"])
+        cells: dict[str, dict[str, str]] = {}
+        worst: dict[str, tuple[float, str]] = {}
+        for r in g["table"]:
+            n = r["parameter"]
+            for side in ("a", "b"):
+                cells.setdefault(n, {})[r[f"method_{side}"]] = (
+                    f"{_g(r[f'estimate_{side}'], '.5g')} +- {_g(r[f'std_{side}'], '.2g')}")
+            z = r["z"] if r["z"] is not None else math.nan
+            if n not in worst or z > worst[n][0]:
+                worst[n] = (z, f"{r['method_a']} / {r['method_b']}")
+        rows = [[n] + [cells[n].get(m, "-") for m in methods]
+                + [_g(worst[n][0], ".2f"), worst[n][1], "FLAG" if worst[n][0] > g["k"] else ""]
+                for n in cells]
+        L += _table(["parameter", *methods, "largest z", "pair", ""], rows)
+    return L
+
+
 def report_markdown(rep: Mapping[str, Any]) -> str:
     """report.md text from the report dict of :func:`report_dict`."""
     meta = rep.get("meta") or {}
@@ -362,6 +395,7 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
                          _g(max(tics) if tics else None, ".4f"),
                          "-" if not pm else ("pass" if pm["all_pass"] else "FAIL")])
         L += _table(["method", "verdict", "converged", "det(R)", "max TIC", "proof of match"], rows)
+    L += _agreement_md(rep.get("agreement"))
     L += _checks_md(rep.get("checks"))
     L += _compat_md(rep.get("compatibility"))
     for m, mj in rep["methods"].items():
@@ -372,7 +406,8 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
 def write_report(out_dir: str | Path, results: Mapping[str, EstimationResult],
                  validations: Mapping[str, Mapping[str, Any]], *,
                  truth: Mapping[str, float] | None = None, meta: Mapping[str, Any] | None = None,
-                 checks: Any = None, compatibility: Mapping[str, Any] | None = None) -> tuple[Path, Path]:
+                 checks: Any = None, compatibility: Mapping[str, Any] | None = None,
+                 agreement: Mapping[str, Any] | None = None) -> tuple[Path, Path]:
     """Write ``out_dir/report.md`` and ``out_dir/report.json`` atomically.
 
     results: method name -> result; validations: method name -> :func:`pipeline.validate.
@@ -381,13 +416,15 @@ def write_report(out_dir: str | Path, results: Mapping[str, EstimationResult],
     (dict or its JSON text from :func:`pipeline.checks.findings_to_json`): its ``summary``
     and non-pass ``findings`` are listed in report.md, the whole is kept in report.json;
     compatibility: the sensor-compatibility stage's document (a "Sensor compatibility"
-    section in report.md, key ``compatibility`` in report.json). Returns (md path, json path).
+    section in report.md, key ``compatibility`` in report.json); agreement: the methods'
+    cross-check (:func:`pipeline.validate.cross_check_methods`; a "Method agreement" section,
+    key ``agreement``). Returns (md path, json path).
     """
     out = Path(out_dir)
     if isinstance(checks, (str, bytes)):
         checks = json.loads(checks)
     rep = report_dict(results, validations, truth=truth, meta=meta, checks=checks,
-                      compatibility=compatibility)
+                      compatibility=compatibility, agreement=agreement)
     pj = atomic_write_text(out / "report.json", json.dumps(rep, indent=2, allow_nan=False) + "\n")
     pm = atomic_write_text(out / "report.md", report_markdown(rep))
     return pm, pj

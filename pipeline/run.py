@@ -813,12 +813,16 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
 def _write_outputs(out: Path, results, validations, problems, truth, pr: Progress, *,
                    checks: Any, meta: Mapping[str, Any],
                    compatibility: Mapping[str, Any] | None = None) -> dict[str, Path]:
+    """The methods' cross-check (their std final by now), then report.md, report.json and
+    run.rrd."""
     from pipeline.recording import write_recording
     from pipeline.report import write_report
+    from pipeline.validate import cross_check_methods
 
+    agreement = cross_check_methods(results, validations)
     pr.stage("write report.md, report.json, run.rrd")
     md, js = write_report(out, results, validations, truth=truth, meta=meta, checks=checks,
-                          compatibility=compatibility)
+                          compatibility=compatibility, agreement=agreement)
     rrd = write_recording(out / "run.rrd", results, validations, truth=truth)
     pr.done()
     return {"report.md": md, "report.json": js, "run.rrd": rrd}

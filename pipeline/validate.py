@@ -40,6 +40,9 @@ Keys of the returned dict
     linearised model needs beyond the flown ones to follow the first fitted segment.
 ``plausibility``: ``truth`` (per parameter: ``truth error error_in_std within``) and
     ``apriori`` (per parameter: columns of :func:`estimators.validation.plausibility`).
+``agreement``: set by :func:`cross_check_methods` once every method of the run has its
+    final std: ``k`` and ``flagged`` (per other method of the same axis, the parameters
+    where the two estimates differ by more than k combined std, with that z).
 ``verdict``: ``ok`` (bool) and ``reasons`` (list of short sentences), see :func:`verdict`.
 ``arrays``: ``psd`` (``f`` (n_f,) Hz, ``Pxx`` (n_f, n_out) units^2/Hz),
     ``freq`` (``f`` (n_f,) Hz; complex ``H_data`` (spectral estimate from the data),
@@ -470,6 +473,9 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
         flagged = [n for n, d in ap.items() if d.get("flag")]
         if flagged:
             notes.append(f"disagree with a-priori values: {', '.join(flagged)}")
+    for other, bad in ((v.get("agreement") or {}).get("flagged") or {}).items():
+        notes.append(f"disagrees with {other} by more than {v['agreement']['k']:g} combined std "
+                     f"on " + ", ".join(f"{n} ({z:.1f})" for n, z in bad.items()))
     res = v.get("residuals") or {}
     if res and not res.get("all_white", True):
         col = [o for o, d in res["whiteness"].items() if not d.get("white")]
@@ -491,6 +497,62 @@ def refresh_truth_check(validation: dict[str, Any], result: EstimationResult,
         return
     validation.setdefault("plausibility", {})["truth"] = _truth_check(result, truth, truth_k)
     validation["verdict"] = verdict(validation)
+
+
+def method_group(key: str) -> str:
+    """The axis a result key belongs to: "lateral" for "lateral-fem", "" for a bare method
+    name (one axis fitted, or a user model)."""
+    return key.rsplit("-", 1)[0] if "-" in key else ""
+
+
+def cross_check_methods(results: Mapping[str, EstimationResult],
+                        validations: dict[str, dict[str, Any]], k: float = TRUTH_K
+                        ) -> dict[str, Any]:
+    """Every pair of methods fitted to the same axis, compared on the parameters both
+    estimate (:func:`estimators.validation.agreement`, with each result's total std: the
+    Cramér-Rao bound plus its consider part). Run it once all uncertainties are final.
+    Without a truth this is the run's own check of its estimates: a flag means a method's
+    assumptions do not hold for the flight (e.g. output error in turbulence, or an EKF whose
+    process noise carries the response it should leave to the parameters).
+
+    Sets ``agreement`` in each compared method's validation and redoes its verdict (a note
+    per disagreeing method). Returns, per axis with at least two methods (key "" when the
+    keys carry no axis): ``methods``, ``k``, ``table`` (one record per parameter and pair,
+    the columns of :func:`~estimators.validation.agreement`), ``n_flagged`` and
+    ``odd_one_out``: the method that disagrees with every other one while those agree among
+    themselves (three methods or more; None otherwise) - the one whose assumptions to doubt
+    first (output error in turbulence: longitudinal_3211_turbulence)."""
+    groups: dict[str, list[str]] = {}
+    for key in results:
+        groups.setdefault(method_group(key), []).append(key)
+    out = {}
+    for axis, keys in groups.items():
+        if len(keys) < 2:
+            continue
+        est = {}
+        for key in keys:
+            r = results[key]
+            names = [n for n in r.free_names if not n.startswith("x0_") and not
+                     (n.endswith("]") and "[" in n)]
+            est[key] = (r.params[names], r.total_std[names])
+        table = V.agreement(est, k)
+        for key in keys:
+            flagged: dict[str, dict[str, float]] = {}
+            for row in table[table["flag"]].itertuples():
+                if key in (row.method_a, row.method_b):
+                    other = row.method_b if key == row.method_a else row.method_a
+                    flagged.setdefault(other, {})[row.parameter] = float(row.z)
+            if key in validations:
+                validations[key]["agreement"] = {"k": k, "flagged": flagged}
+                validations[key]["verdict"] = verdict(validations[key])
+        pairs = {frozenset((r.method_a, r.method_b)) for r in table[table["flag"]].itertuples()}
+        odd = [m for m in keys if len(keys) > 2 and
+               all(frozenset((m, o)) in pairs for o in keys if o != m) and
+               not any(m not in pr for pr in pairs)]
+        out[axis] = {"methods": keys, "k": k, "n_flagged": int(table["flag"].sum()),
+                     "odd_one_out": odd[0] if odd else None,
+                     "table": num(table.to_dict(orient="records"))}
+    return out
 
 
 # -- entry point ------------------------------------------------------------------------------

@@ -46,7 +46,8 @@ def _run(tmp_path_factory, name, methods):
 
 @pytest.fixture(scope="module")
 def turbulence(tmp_path_factory):
-    return _run(tmp_path_factory, "longitudinal_3211_turbulence", TURBULENCE_METHODS)
+    # output error too: the methods' cross-check has to find it out
+    return _run(tmp_path_factory, "longitudinal_3211_turbulence", ("oem",) + TURBULENCE_METHODS)
 
 
 @pytest.fixture(scope="module")
@@ -92,6 +93,22 @@ def _air_data_proof_of_match(rep, method):
 def test_turbulence_proof_of_match(turbulence, method):
     chans = _air_data_proof_of_match(turbulence, method)
     assert set(chans) == {"V", "alpha", "theta", "q", "ax", "az"}
+
+
+def test_methods_cross_check_singles_out_output_error_in_turbulence(turbulence):
+    """Without the truth, the methods check each other (pipeline.validate.
+    cross_check_methods): FEM, EKF and UKF agree within 3 combined std on every derivative,
+    and output error, which takes the air as calm, disagrees with each of them - on Cm0,
+    Cmq, Cmde, which the truth check puts 10-18 std off (seed of the scenario)."""
+    ag = turbulence["agreement"][""]
+    assert ag["methods"] == ["oem", *TURBULENCE_METHODS] and ag["odd_one_out"] == "oem"
+    flagged = [r for r in ag["table"] if r["flag"]]
+    assert flagged and all("oem" in (r["method_a"], r["method_b"]) for r in flagged)
+    oem = turbulence["methods"]["oem"]
+    assert set(oem["validation"]["agreement"]["flagged"]) == set(TURBULENCE_METHODS)
+    assert {"Cm0", "Cmq", "Cmde"} <= set(oem["validation"]["agreement"]["flagged"]["fem"])
+    assert all(oem["parameters"][n]["error_in_std"] > 3.0 for n in ("Cm0", "Cmq", "Cmde"))
+    assert sum("disagrees with" in n for n in oem["verdict"]["notes"]) == 3
 
 
 @pytest.mark.parametrize("method", UNSTABLE_METHODS)

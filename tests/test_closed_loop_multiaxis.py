@@ -153,6 +153,26 @@ def test_lateral_all_within_3_std(report, method):
     assert max(errs.values()) <= 3.0, errs
 
 
+def test_methods_cross_check_finds_what_the_truth_finds(report):
+    """Without the truth, the run's methods check each other (pipeline.validate.
+    cross_check_methods): the lateral EKF's roll derivatives disagree with FEM's by more
+    than 3 combined std (seed 31: Clbeta 5.8, Clp 3.8, Clda 3.1), and every pair flagged
+    holds a method that the truth check puts more than 3 std off. (Ad-hoc runs, not in the
+    repo: the EKF started at the true derivatives ends at the same Clp, -0.28 for -0.484,
+    and with FEM's estimated process noise at -0.28 too: a bias of the parameter-in-the-
+    state filter under this much process noise, not of its start or its Q.)"""
+    ag = report["agreement"]
+    flagged = {(r["parameter"], r["method_a"], r["method_b"])
+               for axis in ("longitudinal", "lateral") for r in ag[axis]["table"] if r["flag"]}
+    assert {("Clp", "lateral-fem", "lateral-ekf"), ("Clbeta", "lateral-fem", "lateral-ekf"),
+            ("Clbeta", "lateral-fem", "lateral-ukf")} <= flagged, flagged
+    for name, a, b in flagged:
+        errs = [report["methods"][k]["parameters"][name]["error_in_std"] for k in (a, b)]
+        assert max(abs(e) for e in errs) > 3.0, (name, a, b, errs)
+    notes = report["methods"]["lateral-ekf"]["verdict"]["notes"]
+    assert any(n.startswith("disagrees with lateral-fem") and "Clp" in n for n in notes), notes
+
+
 @pytest.mark.xfail(strict=True, reason="proof of match on the held-out multisine_c fails for "
                    "every method: FEM theta 4.1 deg, q 4.9 deg/s (bands 1.5), p 6.3 deg/s, phi "
                    "6.9 deg - and the TRUE derivatives miss by as much (q 4.9, theta 3.9, p 6.2, "

@@ -13,7 +13,7 @@ import pytest
 import estimators
 from estimators.datasets import longitudinal_example
 from pipeline.report import param_rows, write_report
-from pipeline.validate import json_ready, validate
+from pipeline.validate import cross_check_methods, json_ready, validate
 
 
 @pytest.fixture(scope="module")
@@ -139,6 +139,41 @@ def test_report_md_has_table_rows_and_verdict(fitted, tmp_path):
     tic_q = v["fit"]["per_output"]["q"]["TIC"]
     assert f"| q | deg/s | {tic_q:.4f} |" in text                  # fit table, display unit
     assert "### Inverse simulation" in text and "| de | deg |" in text
+
+
+def test_methods_cross_check_flags_the_wrong_model(fitted, tmp_path):
+    """Without a truth, the run's methods check each other: the fit of the other maneuver
+    (independent data) agrees with the first within 3 combined std; the model with Cmalpha
+    and Cmq halved disagrees with both, there and only there."""
+    ex, res, v = fitted
+    other = estimators.OutputError(ex.model).fit(ex.segments[1:])
+    results = {"oem": res, "oem_b": other, "wrong": _wrong(res)}
+    vals = {k: validate(r) for k, r in results.items()}
+    ag = cross_check_methods(results, vals)
+    assert list(ag) == [""] and ag[""]["methods"] == ["oem", "oem_b", "wrong"]
+    table = ag[""]["table"]
+    assert len(table) == 3 * len(res.free_names)
+    z = {(r["parameter"], r["method_a"], r["method_b"]): r["z"] for r in table}
+    name = "Cmq"
+    assert z[(name, "oem", "oem_b")] == pytest.approx(
+        abs(res.params[name] - other.params[name]) / math.hypot(res.std[name], other.std[name]))
+    assert max(z[(n, "oem", "oem_b")] for n in res.free_names) < 3.0
+    flagged = {k for k, d in z.items() if d > 3.0}
+    assert flagged == {(n, a, "wrong") for n in ("Cmalpha", "Cmq") for a in ("oem", "oem_b")}
+    assert vals["oem"]["agreement"]["flagged"] == {"wrong": {
+        "Cmalpha": pytest.approx(z[("Cmalpha", "oem", "wrong")]),
+        "Cmq": pytest.approx(z[("Cmq", "oem", "wrong")])}}
+    assert any(n.startswith("disagrees with wrong by more than 3 combined std on Cmalpha")
+               for n in vals["oem"]["verdict"]["notes"])
+    assert set(vals["wrong"]["agreement"]["flagged"]) == {"oem", "oem_b"}
+    assert not any("disagrees" in n for n in validate(res)["verdict"]["notes"])
+    md, js = write_report(tmp_path, results, vals, agreement=ag)
+    text = md.read_text()
+    assert "## Method agreement" in text and f"4 of {3 * len(res.free_names)} pairs flagged" in text
+    assert f"| Cmq | {res.params['Cmq']:.5g} +- {res.std['Cmq']:.2g} |" in text
+    assert json.loads(js.read_text())["agreement"][""]["n_flagged"] == 4
+    # one method per axis: nothing to compare
+    assert cross_check_methods({"longitudinal-oem": res, "lateral-oem": other}, {}) == {}
 
 
 def test_report_without_truth_or_validation(fitted, tmp_path):

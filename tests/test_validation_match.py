@@ -5,8 +5,8 @@ import pandas as pd
 import pytest
 from scipy import signal
 
-from estimators.validation import (default_tolerances, inverse_simulation, load_apriori,
-                                   plausibility, proof_of_match)
+from estimators.validation import (agreement, default_tolerances, inverse_simulation,
+                                   load_apriori, plausibility, proof_of_match)
 
 DEG = np.pi / 180
 
@@ -88,6 +88,22 @@ def test_plausibility_flags_hand_computed(tmp_path):
     assert df.loc["Clp", "z"] == pytest.approx(0.05 / np.sqrt(0.0125))
     assert df["flag"].tolist() == [False, True, False]
     assert plausibility(est, std, ap, k=4.0)["flag"].sum() == 0
+
+
+def test_method_agreement_hand_computed():
+    est = {"oem": ({"Cmq": -20.0, "Cmde": -1.0, "CL0": 0.3}, {"Cmq": 3.0, "Cmde": 0.03, "CL0": 0.01}),
+           "fem": ({"Cmq": -24.0, "Cmde": -1.2, "F_q": 0.1}, {"Cmq": 4.0, "Cmde": 0.04, "F_q": 0.01}),
+           "ekf": ({"Cmq": -21.0, "Cmde": -1.1}, {"Cmq": 1.0, "Cmde": np.nan})}
+    df = agreement(est, k=3.0)
+    # pairs in the order given; CL0 and F_q in one method only; ekf's Cmde has no std
+    assert [(r.parameter, r.method_a, r.method_b) for r in df.itertuples()] == [
+        ("Cmq", "oem", "fem"), ("Cmde", "oem", "fem"), ("Cmq", "oem", "ekf"), ("Cmq", "fem", "ekf")]
+    assert df["combined_std"].tolist() == pytest.approx([5.0, 0.05, np.sqrt(10.0), np.sqrt(17.0)])
+    assert df["diff"].tolist() == pytest.approx([4.0, 0.2, 1.0, -3.0])
+    assert df["z"].tolist() == pytest.approx([0.8, 4.0, 1 / np.sqrt(10), 3 / np.sqrt(17)])
+    assert df["flag"].tolist() == [False, True, False, False]
+    assert agreement(est, k=4.5)["flag"].sum() == 0
+    assert agreement({"oem": est["oem"]}).empty                    # nothing to compare
 
 
 def test_load_apriori_errors_and_section(tmp_path):

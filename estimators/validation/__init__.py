@@ -8,7 +8,7 @@ Modules: :mod:`.fit` (det R, Theil inequality coefficient and proportions, R^2, 
 :mod:`.frequency` (model frequency response, spectral estimates with coherence, mismatch),
 :mod:`.match` (proof of match against tolerance bands), :mod:`.prediction` (the
 model driven by its measured air data: proof of match in turbulence, unstable aircraft),
-:mod:`.plausibility` (estimates vs a-priori values), :mod:`.inverse` (inverse simulation).
+:mod:`.plausibility` (estimates vs a-priori values, and between methods), :mod:`.inverse` (inverse simulation).
 Needs numpy, scipy and pandas (and the package's EKF for :mod:`.prediction`).
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ from .frequency import (MismatchResult, SpectralEstimate, bode, freq_response, m
 from .inverse import InverseSimResult, inverse_simulation
 from .match import DEFAULT_TOLERANCES, default_tolerances, proof_of_match
 from .modes import ModeAnalysis, linearize, mode_properties, modes
-from .plausibility import load_apriori, plausibility
+from .plausibility import agreement, load_apriori, plausibility
 from .prediction import AIR_DATA, DrivenPrediction, air_data_prediction, driving_states
 from .residuals import (WhitenessResult, autocorrelation, autocovariance, psd,
                         residual_stats, whiteness)
@@ -34,7 +34,7 @@ __all__ = [
     "freq_response", "bode", "SpectralEstimate", "spectral_estimate", "MismatchResult",
     "mismatch",
     "DEFAULT_TOLERANCES", "default_tolerances", "proof_of_match",
-    "load_apriori", "plausibility",
+    "load_apriori", "plausibility", "agreement",
     "InverseSimResult", "inverse_simulation",
     "AIR_DATA", "DrivenPrediction", "air_data_prediction", "driving_states",
 ]

@@ -1,5 +1,7 @@
 """Plausibility: estimates against a-priori values (wind tunnel, handbook) that carry
 their own uncertainty; flagged where |estimate - a priori| > k * sqrt(std^2 + std_ap^2).
+:func:`agreement` applies the same test between methods: each pair of methods' estimates
+of the same parameters from the same flight.
 
 A-priori TOML, one table per parameter (values per radian as in DESIGN.md section 3):
 
@@ -15,11 +17,12 @@ from __future__ import annotations
 import tomllib
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
-__all__ = ["load_apriori", "plausibility"]
+__all__ = ["load_apriori", "plausibility", "agreement"]
 
 
 def load_apriori(source: str | Path | Mapping) -> pd.DataFrame:
@@ -76,3 +79,47 @@ def plausibility(estimates, std, apriori, k: float = 3.0) -> pd.DataFrame:
     return pd.DataFrame({"estimate": e, "std": s, "apriori": a, "apriori_std": sa,
                          "diff": diff, "combined_std": comb, "z": z, "flag": z > k},
                         index=pd.Index(names, name="parameter"))
+
+
+def agreement(estimates: Mapping[str, tuple[Any, Any]], k: float = 3.0) -> pd.DataFrame:
+    """Cross-check of several methods' estimates of the same parameters.
+
+    estimates: {method: (estimates, std)}, each a Series/dict by parameter name (std: the
+    method's own bound, e.g. the Cramér-Rao bound or a total std). Every pair of methods is
+    compared on the parameters both have, as :func:`plausibility` compares an estimate with
+    an a-priori value: z = |a - b| / sqrt(std_a^2 + std_b^2), flagged when z > k.
+
+    Two fits of one flight share its noise, so their errors are positively correlated and
+    the std of their difference is below sqrt(std_a^2 + std_b^2) (for an efficient method a
+    and a consistent one b it is sqrt(std_b^2 - std_a^2), Hausman's test): the test is
+    conservative, and a flag means at least one of the two methods' assumptions (model
+    structure, noise, process noise) does not hold for these data.
+
+    Returns a DataFrame, one row per parameter and pair (in the order given): ``parameter``,
+    ``method_a``, ``method_b``, ``estimate_a``, ``std_a``, ``estimate_b``, ``std_b``,
+    ``diff`` (a - b), ``combined_std``, ``z``, ``flag``. Parameters whose std is missing or
+    not finite in either method are left out.
+    """
+    cols = ["parameter", "method_a", "method_b", "estimate_a", "std_a", "estimate_b", "std_b",
+            "diff", "combined_std", "z", "flag"]
+    series = {m: (pd.Series(e, dtype=float), pd.Series(s, dtype=float))
+              for m, (e, s) in estimates.items()}
+    parts = []
+    names = list(series)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            (ea, sa), (eb, sb) = series[a], series[b]
+            ok = [n for n in ea.index if n in eb.index and np.isfinite(sa.get(n, np.nan))
+                  and np.isfinite(sb.get(n, np.nan))]
+            if not ok:
+                continue
+            ap = pd.DataFrame({"value": eb[ok], "std": sb[ok]})
+            pl = plausibility(ea[ok], sa[ok], ap, k).reset_index()
+            parts.append(pd.DataFrame({
+                "parameter": pl["parameter"], "method_a": a, "method_b": b,
+                "estimate_a": pl["estimate"], "std_a": pl["std"], "estimate_b": pl["apriori"],
+                "std_b": pl["apriori_std"], "diff": pl["diff"],
+                "combined_std": pl["combined_std"], "z": pl["z"], "flag": pl["flag"]}))
+    if not parts:
+        return pd.DataFrame(columns=cols)
+    return pd.concat(parts, ignore_index=True)[cols]
