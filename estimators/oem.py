@@ -407,6 +407,9 @@ class OutputError:
             residuals=frames([s.t for s in segments], E, self.model.outputs),
             at_bounds=[lay.free_names[i] for i in np.flatnonzero(on_bound)],
             message=message, information=F, sensitivities=Ss,
+            # the a-priori part of F (free-parameter order): the Morelli-Klein sandwich adds
+            # it to its middle term (estimators.validation.morelli_klein, prior_info)
+            extra={"prior_information": self._prior_terms(theta[lay.free_idx])[0]} if self.priors else {},
             settings={"integrator": self.integrator, "optimizer": self.optimizer,
                       "noise": self.noise, "inputs": self.inputs, "jacobian": self.jacobian if isinstance(self.jacobian, str)
                       else "analytic", "tol": self.tol, "max_iter": self.max_iter})

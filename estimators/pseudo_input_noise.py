@@ -142,8 +142,8 @@ def adjoint_sums(Ad: np.ndarray, Bd: np.ndarray, Cd: np.ndarray, Dd: np.ndarray,
 def propagated_covariance(model: Model, segments: Sequence[Segment], values: Mapping[str, float],
                           sensitivities: Sequence[np.ndarray], residuals: Sequence[np.ndarray],
                           R: np.ndarray, info: np.ndarray, pseudo_outputs: Sequence[str],
-                          pseudo: Callable | None = None, noisy_inputs: Sequence[str] = ()
-                          ) -> tuple[np.ndarray, np.ndarray]:
+                          pseudo: Callable | None = None, noisy_inputs: Sequence[str] = (),
+                          prior_info: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(cov (n_p, n_p), s^2) of the estimates of a model fed measurements (see the module
     docstring); s^2 the measurement-noise variances used, (n_out + len(noisy_inputs),):
     the outputs', then the noisy inputs'.
@@ -156,6 +156,8 @@ def propagated_covariance(model: Model, segments: Sequence[Segment], values: Map
         M = sum S^T R^-1 S (n_p, n_p). pseudo: as :func:`pseudo_mixing`.
     noisy_inputs: other inputs that are measurements with white noise of their own (the
         IMU driving a kinematic model): their noise only echoes, through G.
+    prior_info: the a-priori part of ``info`` (output error's priors), added to the middle
+        term as :func:`estimators.validation.morelli_klein` does.
     Raises PropagationError when the fed model diverges over a segment at the estimate.
     """
     outs = list(model.outputs)
@@ -185,6 +187,8 @@ def propagated_covariance(model: Model, segments: Sequence[Segment], values: Map
         # a noisy input's noise only echoes
         mid += np.einsum("nkp,k,nkq->pq", back[:, npse:], s2_in, back[:, npse:])
         mid += np.einsum("njp,j,njq->pq", T, s2, T)
+    if prior_info is not None:
+        mid += np.asarray(prior_info, dtype=float)
     Minv = st.covariance(info)
     cov = Minv @ mid @ Minv
     return 0.5 * (cov + cov.T), np.r_[s2, s2_in]

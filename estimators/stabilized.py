@@ -148,20 +148,23 @@ class _TransformedOEM:
         S = [s[:, :, inner] for s in res.sensitivities]
         E = [r.to_numpy() for r in res.residuals]
         M = res.information[np.ix_(inner, inner)]
+        W = res.extra.get("prior_information")
+        W = None if W is None else W[np.ix_(inner, inner)]
         how, why = self.std_method, ""
         if how == "propagated" and info.get("smooth_hz"):
             how, why = "morelli-klein", " (smoothed pseudo-inputs are not propagated)"
         if how == "propagated":
             try:
                 C, s2 = propagated_covariance(model_t, segs_t, res.params.to_dict(), S, E, res.R, M,
-                                              info["pseudo_outputs"], info.get("pseudo"))
+                                              info["pseudo_outputs"], info.get("pseudo"),
+                                              prior_info=W)
                 res.extra["noise_std"] = dict(zip(model_t.outputs, np.sqrt(s2).tolist()))
                 note = "std: measurement noise propagated through the fed-back measurements"
             except PropagationError as exc:
                 how, why = "morelli-klein", f" ({exc})"
         if how == "morelli-klein":
             from estimators.validation.uncertainty import morelli_klein
-            C = morelli_klein(S, E, R=res.R, info=M, max_lag=None).cov
+            C = morelli_klein(S, E, R=res.R, info=M, max_lag=None, prior_info=W).cov
             note = "std: Morelli-Klein (coloured residuals from the fed-back measurements)" + why
         res.replace_cov(_on_free(res.cov, inner, C), how, note)
 

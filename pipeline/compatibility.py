@@ -492,7 +492,8 @@ def _carry_imu_noise(res) -> bool:
     try:
         cov, _ = propagated_covariance(res.model, res.segments, res.params.to_dict(), res.sensitivities,
                                        [r.to_numpy(dtype=float) for r in res.residuals], res.R,
-                                       res.information, [], noisy_inputs=INPUTS)
+                                       res.information, [], noisy_inputs=INPUTS,
+                                       prior_info=(res.extra or {}).get("prior_information"))
     except (PropagationError, ValueError, np.linalg.LinAlgError):
         return False
     if not np.all(np.isfinite(np.diag(cov))):

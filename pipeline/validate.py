@@ -159,7 +159,8 @@ def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
         names = result.free_names
         try:
             u = V.morelli_klein(result.sensitivities, [r.to_numpy() for r in result.residuals],
-                                R=result.R, info=result.information, names=names)
+                                R=result.R, info=result.information, names=names,
+                                prior_info=(result.extra or {}).get("prior_information"))
         except (ValueError, np.linalg.LinAlgError) as exc:
             return {"error": str(exc)}
         mk, max_lag = u.std, u.max_lag

@@ -2,6 +2,8 @@
 import numpy as np
 import pytest
 
+from estimators.validation import morelli_klein
+
 from estimators import (BoundsError, IdentifiabilityError, Model, ModelDefinitionError,
                         OutputError, Parameter, Segment, SimulationDivergedError)
 from estimators.datasets import (HFB320_CONSTANTS, HFB320_FREE, HFB320_TRUTH,
@@ -80,6 +82,17 @@ def test_prior_pulls_estimate_and_shrinks_std(example, fitted):
     res = OutputError(example.model, priors=prior).fit(example.segments)
     assert abs(res.params["Cmq"] + 14.0) < 0.05 * fitted.std["Cmq"]
     assert res.std["Cmq"] < 0.02 * fitted.std["Cmq"]
+    # the prior's information is kept apart, so the Morelli-Klein sandwich carries it: at
+    # lag 0 it is the Cramér-Rao bound again (without it Cmq's fell to 0.015 x)
+    W = res.extra["prior_information"]
+    i = res.free_names.index("Cmq")
+    assert W[i, i] == pytest.approx(1.0 / prior["Cmq"][1] ** 2) and np.count_nonzero(W) == 1
+    mk = morelli_klein(res.sensitivities, [r.to_numpy() for r in res.residuals], R=res.R,
+                       info=res.information, max_lag=0, prior_info=W)
+    np.testing.assert_allclose(mk.ratio, 1.0, atol=0.1)    # v v^T is R on average only
+    bare = morelli_klein(res.sensitivities, [r.to_numpy() for r in res.residuals], R=res.R,
+                         info=res.information, max_lag=0)
+    assert bare.ratio[i] < 0.1
 
 
 def test_bounds_are_respected_and_reported(example):

@@ -171,7 +171,7 @@ def _middle(S: np.ndarray, v: np.ndarray, Rinv: np.ndarray, max_lag: int,
 
 def morelli_klein(S, residuals, R=None, info=None, *, names: Sequence[str] | None = None,
                   max_lag: int | str | None = "auto", window: str = "bartlett",
-                  unbiased: bool = False) -> UncertaintyResult:
+                  unbiased: bool = False, prior_info=None) -> UncertaintyResult:
     """Cramér-Rao bounds corrected for coloured residuals (Morelli-Klein).
 
     S: output sensitivities dy/dtheta at the estimate, (N, n_out, n_p) (units of output per
@@ -181,7 +181,13 @@ def morelli_klein(S, residuals, R=None, info=None, *, names: Sequence[str] | Non
     R: residual covariance (n_out, n_out) used in the fit; default (1/N) sum v v^T over all
        segments.
     info: information matrix M (n_p, n_p) used for the conventional bounds; default
-       sum S^T R^-1 S.
+       sum S^T R^-1 S (plus ``prior_info``).
+    prior_info: (n_p, n_p) information the fit took from a-priori values (output error's
+       ``priors``: ``result.extra["prior_information"]``), part of ``info``. It enters
+       the middle term as it is: the a-priori values' errors are independent of the
+       residuals. Without it the sandwich of a penalised fit, M^-1 (data part) M^-1, falls
+       below the Cramér-Rao bound even for white residuals (lateral OEM with its a-priori
+       airspeed corrections: 0.55 x on Cnbeta).
     max_lag: lags of r(k) kept: an int; "auto" (3 x the lag where every residual
        autocorrelation first falls inside the 95 % white band); None = all N-1 lags.
     window: "bartlett" (triangular taper, keeps the covariance positive semi-definite with
@@ -198,11 +204,13 @@ def morelli_klein(S, residuals, R=None, info=None, *, names: Sequence[str] | Non
     Ss = [np.where(ok[:, :, None], s, 0.0) for s, ok in zip(Ss, present)]
     vs = [np.where(ok, v, 0.0) for v, ok in zip(vs, present)]
     Rinv = np.linalg.inv(np.atleast_2d(np.asarray(R, dtype=float)))
+    W = np.zeros((n_p, n_p)) if prior_info is None else np.asarray(prior_info, dtype=float)
     if info is None:
-        info = sum(np.einsum("nap,ab,nbq->pq", s, Rinv, s) for s in Ss)
+        info = sum(np.einsum("nap,ab,nbq->pq", s, Rinv, s) for s in Ss) + W
     Minv = np.linalg.pinv(np.asarray(info, dtype=float), hermitian=True)
     mid, lags = coloured_information(Ss, vs, [Rinv] * len(Ss), present, max_lag=max_lag,
                                      window=window, unbiased=unbiased)
+    mid = mid + W
     cov = Minv @ mid @ Minv
     cov = 0.5 * (cov + cov.T)
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
