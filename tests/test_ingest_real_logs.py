@@ -151,6 +151,17 @@ def test_tlog_values_and_units(tlog_fd):
     assert fd["vn"].values[0] == pytest.approx(-1.88)
 
 
+def test_tlog_surfaces_follow_servo_functions(tlog_fd):
+    """A tilt-rotor quadplane: outputs 1/2 are aileron and elevator (SERVOn_FUNCTION 4, 19),
+    output 4 tilts a motor (76) and no output is a rudder (21) or a V-tail (79/80): no dr,
+    rather than the map's default output 4 (it had been read as the rudder)."""
+    fd = tlog_fd
+    assert fd.params["SERVO4_FUNCTION"] == 76.0
+    assert "servo1_raw" in fd["da"].source and "servo2_raw" in fd["de"].source
+    assert "dr" not in fd
+    assert fd.meta["unmapped"]["dr"] == "no servo output configured for dr (no SERVOn_FUNCTION = 21 or 79/80)"
+
+
 def test_tlog_checks_flag_low_rate_and_hover_segments(tlog_fd):
     fs = run_checks(tlog_fd)
     slow = [f for f in fs if f.check == "rate" and f.status == "warn"]

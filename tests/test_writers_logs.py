@@ -254,3 +254,28 @@ def test_bin_can_carry_equivalent_airspeed(tmp_path):
     np.testing.assert_allclose(tas, r.sensors["airdata"]["V"], rtol=2e-5)
     with pytest.raises(ValueError, match="airspeed"):
         write_dataflash(tmp_path / "x.bin", r, airspeed="ias")
+
+
+def test_mixed_tails_decode_to_the_same_deflections(tmp_path):
+    """A flying wing's elevons (SERVOn_FUNCTION 77/78) and a V-tail (79/80) carry the same
+    flight: the built-in map's ``mix`` takes the elevator as the mean of the two surfaces
+    and the aileron / rudder as half their difference, to within the whole-microsecond
+    rounding of each output (one PWM step, travel/400). Without the mix the elevator had
+    come from output 2, an elevon, because the map's default channel was used."""
+    from pipeline.readers import read_log
+
+    r = flown(NAME)
+    write_dataflash(tmp_path / "conv.bin", r)
+    ref = read_log(tmp_path / "conv.bin")
+    for tail, mixed in (("elevons", ("de", "da")), ("vtail", ("de", "dr"))):
+        write_dataflash(tmp_path / f"{tail}.bin", r, tail=tail)
+        fd = read_log(tmp_path / f"{tail}.bin")
+        for axis in ("de", "da", "dr"):
+            step = r.aircraft.travel(axis) / 400
+            np.testing.assert_array_equal(fd[axis].t, ref[axis].t)
+            assert np.max(np.abs(fd[axis].values - ref[axis].values)) <= step * (1.0 if axis in mixed else 1e-9), (tail, axis)
+            assert np.ptp(fd[axis].values) > np.deg2rad(3)
+            assert fd[axis].source.startswith("mix of SERVOn_FUNCTION") == (axis in mixed), fd[axis].source
+        assert fd.meta["servo_travel"][mixed[0]]["from"] == "log parameter FSID_TRAVEL_DE"
+    with pytest.raises(ValueError, match="tail"):
+        write_dataflash(tmp_path / "x.bin", r, tail="canard")

@@ -38,8 +38,13 @@ column files. The field after the dot may be nested (``angular_velocity.x``) or 
 (``q[0]``).
 
 PWM calibration: ``pwm = {function = F}`` finds the output n whose ``SERVOn_FUNCTION``
-parameter is F (ArduPilot: 4 aileron, 19 elevator, 21 rudder, 70 throttle), else uses
-``channel``. The pulse is normalised with the ``SERVOn_MIN/MAX/TRIM/REVERSED`` parameters
+parameter is F (ArduPilot: 4 aileron, 19 elevator, 21 rudder, 70 throttle); ``channel``
+only when the log has no SERVOn_FUNCTION parameters. Mixed surfaces: ``mix = [{functions
+= [77, 78], weights = [0.5, 0.5]}, ...]`` - when no output has F, the first entry whose
+functions all have an output gives the channel as the weighted sum of those outputs'
+deflections (ArduPilot elevons 77/78 = (elevator -/+ aileron) x MIXING_GAIN, V-tail 79/80
+= (elevator +/- rudder) x MIXING_GAIN: the elevator is their mean, the aileron or rudder
+half their difference). The pulse is normalised with the ``SERVOn_MIN/MAX/TRIM/REVERSED`` parameters
 (or ``min``/``max``/``trim`` numbers in the map, default 1100/1900/1500): (pwm - trim) /
 (max - trim) above trim, (pwm - trim) / (trim - min) below, negated when reversed, and
 multiplied by the deflection at full travel: the caller's (``read_log(servo_travel=)``;
@@ -252,15 +257,39 @@ def _param(params: dict, value, default: float) -> float:
     return float(value)
 
 
+def _function_output(params: Mapping[str, float], fn: float) -> int | None:
+    """The first servo output n with ``SERVOn_FUNCTION`` = fn, or None."""
+    for k in range(1, 33):
+        if params.get(f"SERVO{k}_FUNCTION") == float(fn):
+            return k
+    return None
+
+
 def _servo_number(rule: ChannelRule, params: dict) -> int | None:
+    """The servo output of a PWM rule: the one whose SERVOn_FUNCTION is the rule's
+    ``function``; the rule's default ``channel`` only when the log has no SERVOn_FUNCTION
+    parameters at all (with them, a missing function means no such output: on a tilt-rotor
+    output 4 is a motor tilt, on a flying wing output 2 an elevon)."""
     cfg = dict(rule.pwm or {})
     fn = cfg.get("function")
     if fn is not None:
-        for k in range(1, 33):
-            if params.get(f"SERVO{k}_FUNCTION") == float(fn):
-                return k
+        n = _function_output(params, fn)
+        if n is not None or any(k.startswith("SERVO") and k.endswith("_FUNCTION") for k in params):
+            return n
     n = cfg.get("channel")
     return int(n) if n is not None else None
+
+
+def _mixed_outputs(rule: ChannelRule, params: Mapping[str, float]
+                   ) -> tuple[list[int], list[float], list[float]] | None:
+    """(outputs, functions, weights) of the first of the rule's ``pwm.mix`` entries whose
+    every function is assigned to an output (SERVOn_FUNCTION), or None."""
+    for mix in dict(rule.pwm or {}).get("mix", ()):
+        fns, ws = list(mix.get("functions", ())), list(mix.get("weights", ()))
+        ns = [_function_output(params, f) for f in fns]
+        if fns and len(ws) == len(fns) and all(n is not None for n in ns):
+            return ns, fns, ws
+    return None
 
 
 #: deflection (deg) at full servo travel assumed when neither the caller, the map nor the log
@@ -284,12 +313,13 @@ def servo_travel(rule: ChannelRule, params: Mapping[str, float],
     return DEFAULT_TRAVEL_DEG, "assumed"
 
 
-def _pwm(rule: ChannelRule, pwm: np.ndarray, params: dict, source: str,
+def _pwm(rule: ChannelRule, pwm: np.ndarray, params: dict, n: int | None,
          travel_deg: float = DEFAULT_TRAVEL_DEG) -> tuple[np.ndarray, str]:
+    """Servo output n's pulses (us) -> deflection (rad) or throttle (0..1), and the note of
+    its calibration."""
     cfg = dict(rule.pwm or {})
     if cfg.get("normalised"):            # a -1..1 surface command (PX4 actuator controls)
         return pwm * np.radians(travel_deg), ""
-    n = _servo_number(rule, params)
     note = ""
     if n is not None:
         pre = f"SERVO{n}_"
@@ -379,10 +409,23 @@ def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAV
                        f"{rule.sources[0]} x {rule.sources[1]}")
     reasons = []
     for src in rule.sources:
-        if "{n}" in src:  # servo output number from the pwm block (function or channel)
-            n = _servo_number(rule, raw.params)
+        # the servo output whose calibration applies (function or channel of the pwm block)
+        n = _servo_number(rule, raw.params) if rule.pwm is not None else None
+        if "{n}" in src:  # the source is that output's field
             if n is None:
-                reasons.append(f"no servo output configured for {rule.name}")
+                mixed = _mixed_outputs(rule, raw.params)
+                if mixed is not None:
+                    got = _mixed_surface(raw, rule, src, *mixed, travel_deg)
+                    if isinstance(got, Channel):
+                        return got
+                    reasons.append(got)
+                    continue
+                fn = dict(rule.pwm or {}).get("function")
+                reasons.append(f"no servo output configured for {rule.name}" + (
+                    f" (no SERVOn_FUNCTION = {fn:g}" + "".join(
+                        f" or {'/'.join(f'{f:g}' for f in m.get('functions', ()))}"
+                        for m in dict(rule.pwm or {}).get("mix", ())) + ")"
+                    if fn is not None else ""))
                 continue
             src = src.replace("{n}", str(n))
         unit = rule.unit
@@ -395,7 +438,7 @@ def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAV
         tab, raw_v = got
         note = f" [{unit}]" if unit != rule.unit else ""
         if rule.pwm is not None:
-            vals, note = _pwm(rule, raw_v * rule.scale + rule.offset, raw.params, src, travel_deg)
+            vals, note = _pwm(rule, raw_v * rule.scale + rule.offset, raw.params, n, travel_deg)
             vals = vals * rule.sign
         else:
             vals = (raw_v * rule.scale + rule.offset) * UNIT_FACTORS.get(unit, 1.0) * rule.sign
@@ -409,6 +452,31 @@ def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAV
         return Channel(np.asarray(tab.t, dtype=np.float64), vals,
                        CANONICAL_UNITS.get(rule.name, rule.unit), src + note, notes)
     return "; ".join(dict.fromkeys(reasons))
+
+
+def _mixed_surface(raw: RawLog, rule: ChannelRule, src: str, outputs: Sequence[int],
+                   functions: Sequence[float], weights: Sequence[float],
+                   travel_deg: float) -> Channel | str:
+    """A surface channel from mixed servos (``pwm.mix``): sum of weight x deflection of each
+    output, each calibrated with its own SERVOn_MIN/MAX/TRIM/REVERSED and the channel's
+    travel, on the first output's time base; then the rule's sign."""
+    parts, notes, t0 = [], [], None
+    for n, w in zip(outputs, weights):
+        got = _lookup(raw, src.split()[0].replace("{n}", str(n)))
+        if isinstance(got, str):
+            return got
+        tab, raw_v = got
+        vals, note = _pwm(rule, raw_v * rule.scale + rule.offset, raw.params, n, travel_deg)
+        t = np.asarray(tab.t, dtype=np.float64)
+        if t0 is None:
+            t0 = t
+        elif t.shape != t0.shape or not np.array_equal(t, t0):
+            vals = np.interp(t0, t, vals)
+        parts.append(w * vals)
+        notes.append(f"{w:+g} x {src.split()[0].replace('{n}', str(n))}{note}")
+    fns = "/".join(f"{f:g}" for f in functions)
+    return Channel(t0, np.sum(parts, axis=0) * rule.sign, CANONICAL_UNITS.get(rule.name, "rad"),
+                   f"mix of SERVOn_FUNCTION {fns}: {' '.join(notes)}")
 
 
 def plain_map_toml(fd, name: str, formats: Sequence[str], drop: Sequence[str] = ()) -> str:

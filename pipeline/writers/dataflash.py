@@ -20,7 +20,9 @@ What each message carries (sensor tables of the flight, see ``sim.sensors``):
 * BARO.Alt: the barometric altitude sensor (m above sea level, Offset 0); Press, Temp ISA.
 * RCOU: servo PWM of the *commanded* deflections (truth ``*_cmd``, the autopilot's output)
   at the surfaces-sensor rate, integer microseconds. Channels and PARM calibration:
-  C1 aileron (SERVO1_FUNCTION 4), C2 elevator (19), C3 throttle (70), C4 rudder (21);
+  C1 aileron (SERVO1_FUNCTION 4), C2 elevator (19), C3 throttle (70), C4 rudder (21)
+  (``tail="elevons"``: C1/C2 elevon left/right (77/78); ``"vtail"``: C2/C4 V-tail left/right
+  (79/80), mixed as ArduPilot mixes them - the same flight for the reader's mixing);
   surfaces MIN 1100 / TRIM 1500 / MAX 1900, REVERSED 0, full travel (MAX - TRIM) = the
   aircraft's ``[servos]`` travel of that surface (default 30 deg; also logged as PARM
   ``FSID_TRAVEL_DE`` / ``_DA`` / ``_DR``, which the built-in map reads). The sim flies
@@ -40,6 +42,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from typing import Mapping
 
 import numpy as np
 import pandas as pd
@@ -124,19 +127,48 @@ def _at(df: pd.DataFrame, col: str, t: np.ndarray) -> np.ndarray:
     return np.interp(t, df["t"].to_numpy(), df[col].to_numpy())
 
 
-def _pwm(defl: np.ndarray, sign: float, travel: float) -> np.ndarray:
-    return np.clip(np.round(SERVO_TRIM_US + sign * SERVO_SPAN_US * defl / travel), SERVO_MIN_US,
-                   SERVO_MAX_US)
+def _pwm_of(x: np.ndarray) -> np.ndarray:
+    """Whole-microsecond servo pulses of normalised outputs x (-1..1 about trim)."""
+    return np.clip(np.round(SERVO_TRIM_US + SERVO_SPAN_US * x), SERVO_MIN_US, SERVO_MAX_US)
 
 
-def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas") -> None:
+#: servo outputs of the tail layouts: output -> SERVOn_FUNCTION (ArduPilot: 4 aileron,
+#: 19 elevator, 21 rudder, 70 throttle, 77/78 elevon left/right, 79/80 V-tail left/right)
+TAILS = {"conventional": {1: 4, 2: 19, 3: 70, 4: 21},
+         "elevons": {1: 77, 2: 78, 3: 70, 4: 21},
+         "vtail": {1: 4, 2: 79, 3: 70, 4: 80}}
+
+
+def _surface_outputs(tail: str, de: np.ndarray, da: np.ndarray, dr: np.ndarray,
+                     travel: Mapping[str, float]) -> dict[str, np.ndarray]:
+    """RCOU C1, C2, C4 pulses of the flown deflections (rad) in the tail layout. ArduPilot's
+    normalised commands: elevator e = -de / travel (pitch up, trailing edge up), aileron
+    a = da / travel, rudder r = -dr / travel; mixed outputs as its channel_function_mixer
+    with the surfaces' physical deflections: elevon left e - a, right e + a; V-tail left
+    e + r, right e - r (the reader's pipeline.maps ``mix`` inverts them)."""
+    e, a, r = -de / travel["de"], da / travel["da"], -dr / travel["dr"]
+    if tail == "elevons":
+        return {"C1": _pwm_of(e - a), "C2": _pwm_of(e + a), "C4": _pwm_of(r)}
+    if tail == "vtail":
+        return {"C1": _pwm_of(a), "C2": _pwm_of(e + r), "C4": _pwm_of(e - r)}
+    return {"C1": _pwm_of(a), "C2": _pwm_of(e), "C4": _pwm_of(r)}
+
+
+def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas",
+                    tail: str = "conventional") -> None:
     """Write ``result`` (a :class:`sim.SimResult`) as an ArduPilot DataFlash log (atomic).
 
     airspeed: "tas" (default) or "eas" (ArduPilot's own semantics) for ARSP.Airspeed.
     The servo travel of each surface is the flight's (``result.aircraft.travel``).
+    tail: the servo layout the same deflections are written in (:data:`TAILS`):
+    "conventional" (aileron, elevator, throttle, rudder on outputs 1-4), "elevons" (the
+    elevator and aileron mixed on outputs 1/2, a flying wing's) or "vtail" (elevator and
+    rudder mixed on outputs 2/4).
     """
     if airspeed not in ("eas", "tas"):
         raise ValueError(f"airspeed must be 'eas' or 'tas', got {airspeed!r}")
+    if tail not in TAILS:
+        raise ValueError(f"tail must be one of {', '.join(TAILS)}, got {tail!r}")
     travel = {a: result.aircraft.travel(a) for a in ("de", "da", "dr")}    # rad
     S, T = result.sensors, result.truth
     tt = T["t"].to_numpy()
@@ -181,8 +213,9 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas") -> N
     dr = np.clip(truth_at("dr_cmd", ts), -lim["dr"], lim["dr"])
     thr = truth_at("throttle", ts)
     rc = {f"C{k}": 0 for k in range(5, 15)}
-    add("RCOU", ts, C1=_pwm(da, +1, travel["da"]), C2=_pwm(de, -1, travel["de"]), C3=np.clip(np.round(THROTTLE_MIN_US + THROTTLE_SPAN_US * thr), THROTTLE_MIN_US, THROTTLE_MAX_US),
-        C4=_pwm(dr, -1, travel["dr"]), **rc)
+    add("RCOU", ts, **_surface_outputs(tail, de, da, dr, travel),
+        C3=np.clip(np.round(THROTTLE_MIN_US + THROTTLE_SPAN_US * thr), THROTTLE_MIN_US, THROTTLE_MAX_US),
+        **rc)
     gp = S["gps"]
     tg = gp["t"].to_numpy()
     vn, ve, vd = (gp[c].to_numpy() for c in ("vn", "ve", "vd"))
@@ -203,7 +236,7 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas") -> N
         ThO=100 * truth_at("throttle", ta), RdrOut=-4500 * truth_at("dr_cmd", ta) / travel["dr"],
         ThD=100 * truth_at("throttle", ta), As=eas_a, SAs=eas_a, E2T=e2t_a, GU=0)
 
-    head = _header(result, travel, airspeed)
+    head = _header(result, travel, airspeed, tail)
     times = np.concatenate([b[0] for b in blocks])
     which = np.concatenate([np.full(len(b[0]), i) for i, b in enumerate(blocks)])
     index = np.concatenate([np.arange(len(b[0])) for b in blocks])
@@ -214,7 +247,7 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas") -> N
     atomic_write_bytes(path, head + body)
 
 
-def _header(result, travel: dict[str, float], airspeed: str) -> bytes:
+def _header(result, travel: dict[str, float], airspeed: str, tail: str = "conventional") -> bytes:
     out = []
     for m in MSGS.values():
         length = m.dtype.itemsize
@@ -227,7 +260,7 @@ def _header(result, travel: dict[str, float], airspeed: str) -> bytes:
     for m in MSGS.values():
         out.append(_records("FMTU", 1, TimeUS=0, FmtType=m.id, UnitIds=m.units.encode(),
                             MultIds=m.mults.encode()).tobytes())
-    params = {"SERVO1_FUNCTION": 4, "SERVO2_FUNCTION": 19, "SERVO3_FUNCTION": 70, "SERVO4_FUNCTION": 21}
+    params = {f"SERVO{k}_FUNCTION": fn for k, fn in TAILS[tail].items()}
     for k in (1, 2, 4):
         params.update({f"SERVO{k}_MIN": SERVO_MIN_US, f"SERVO{k}_MAX": SERVO_MAX_US,
                        f"SERVO{k}_TRIM": SERVO_TRIM_US, f"SERVO{k}_REVERSED": 0})
