@@ -7,7 +7,8 @@ import pytest
 from pipeline.errors import FsidError
 from pipeline.readers import LogReadError, detect_format, read_log
 from pipeline.readers.dataflash import message_arrays, read_dataflash, scaled
-from pipeline.readers.synth import demo_dataflash, encode_tlog, write_json_mcap
+from pipeline.readers.synth import (demo_dataflash, encode_tlog, encode_ulog,
+                                    px4_surface_commands, write_json_mcap)
 
 
 @pytest.fixture(scope="module")
@@ -296,3 +297,28 @@ def test_mcap_ros2_std_msgs_array_with_user_map(tmp_path):
     assert np.allclose(fd["da"].values, np.radians(1.0))
     assert set(fd.missing(["p", "phi"])) == {"p", "phi"}
     assert "no @sensor_msgs/msg/Imu" in fd.explain_missing(["p"])["p"]
+
+
+@pytest.mark.parametrize("allocation", ["conventional", "elevons"])
+def test_px4_control_allocation_surfaces(tmp_path, allocation):
+    """PX4 1.14+ logs the allocated surface commands (actuator_servos) instead of
+    actuator_controls_0: each of da, de, dr is the surfaces' commands weighted by their
+    CA_SV_CS*_TRQ_R/P/Y over the coefficients' magnitudes, i.e. the roll, pitch and yaw
+    commands the allocation served (here 0.1, -0.2 sin(i/5), 0.3 cos(i/7)) times the
+    travel (30 deg assumed). A flying wing's elevons have no yaw torque: no dr, and why."""
+    p = tmp_path / f"{allocation}.ulg"
+    p.write_bytes(encode_ulog(n=60, allocation=allocation))
+    fd = read_log(p)
+    cmd = np.array([px4_surface_commands(i) for i in range(60)])
+    travel = np.radians(30.0)
+    np.testing.assert_allclose(fd["da"].values, cmd[:, 0] * travel, atol=1e-6)
+    np.testing.assert_allclose(fd["de"].values, -cmd[:, 1] * travel, atol=1e-6)
+    assert fd["da"].source == "actuator_servos by CA_SV_CS*_TRQ_R: -0.5 x control[0] +0.5 x control[1]"
+    if allocation == "conventional":
+        np.testing.assert_allclose(fd["dr"].values, -cmd[:, 2] * travel, atol=1e-6)
+        assert fd["de"].source.endswith("+1 x control[2]")
+    else:
+        assert "dr" not in fd
+        assert "CA_SV_CS*_TRQ_Y all 0" in fd.meta["unmapped"]["dr"]
+        assert fd["de"].source.endswith("+0.5 x control[0] +0.5 x control[1]")
+    assert fd.meta["servo_travel"]["de"] == {"deg": 30.0, "from": "assumed"}

@@ -53,7 +53,11 @@ multiplied by the deflection at full travel: the caller's (``read_log(servo_trav
 ``FSID_TRAVEL_DE``), else DEFAULT_TRAVEL_DEG, assumed - and said in the channel's notes:
 the control derivatives scale with it. ``throttle = true`` gives (pwm - min) / (max - min)
 instead; ``normalised = true`` takes the source as the normalised -1..1 surface command
-(PX4's actuator controls) and multiplies it by the same travel.
+(PX4's actuator controls) and multiplies it by the same travel. PX4 1.14+ logs the
+allocated surface commands instead (``actuator_servos.control[k]``): a source with ``{k}``
+and ``torque = "R"|"P"|"Y"`` sums the control surfaces weighted by their
+``CA_SV_CS{k}_TRQ_*`` coefficients over the coefficients' magnitudes (one elevator: its
+command; elevons: their mean; ailerons: half their difference).
 
 Sign conventions: canonical body axes are x forward, y right, z down (FRD); ROS uses
 x forward, y left, z up (FLU) and ENU, which the ROS 2 map flips with ``sign = -1``.
@@ -411,6 +415,12 @@ def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAV
     for src in rule.sources:
         # the servo output whose calibration applies (function or channel of the pwm block)
         n = _servo_number(rule, raw.params) if rule.pwm is not None else None
+        if "{k}" in src:  # PX4 control surfaces k, weighted by their torque coefficients
+            got = _torque_surface(raw, rule, src, travel_deg)
+            if isinstance(got, Channel):
+                return got
+            reasons.append(got)
+            continue
         if "{n}" in src:  # the source is that output's field
             if n is None:
                 mixed = _mixed_outputs(rule, raw.params)
@@ -452,6 +462,49 @@ def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAV
         return Channel(np.asarray(tab.t, dtype=np.float64), vals,
                        CANONICAL_UNITS.get(rule.name, rule.unit), src + note, notes)
     return "; ".join(dict.fromkeys(reasons))
+
+
+#: PX4 control-allocation torque axes of a surface channel (``pwm.torque``)
+TORQUE_AXES = ("R", "P", "Y")
+
+
+def _torque_surface(raw: RawLog, rule: ChannelRule, src: str, travel_deg: float) -> Channel | str:
+    """A surface channel from PX4's allocated servo commands (``actuator_servos.control[k]``,
+    -1..1, source written with ``{k}``): the control surfaces k = 0..CA_SV_CS_COUNT-1
+    weighted by their torque coefficients on the rule's axis (``pwm.torque``:
+    CA_SV_CS{k}_TRQ_R / _P / _Y) over the sum of the coefficients' magnitudes - one
+    elevator gives its own command, two elevons their mean, two ailerons half their
+    difference, as the torque the allocation meant - times the travel, then the sign."""
+    axis = str(dict(rule.pwm or {}).get("torque", "")).upper()
+    if axis not in TORQUE_AXES:
+        return f"pwm.torque must be one of {', '.join(TORQUE_AXES)}, not {axis!r}"
+    params = raw.params
+    if "CA_SV_CS_COUNT" not in params:
+        return "no CA_SV_CS_COUNT parameter (no PX4 control allocation)"
+    ks = range(int(params["CA_SV_CS_COUNT"]))
+    trq = np.array([float(params.get(f"CA_SV_CS{k}_TRQ_{axis}", 0.0)) for k in ks])
+    if not np.any(trq != 0.0):
+        return f"no control surface with a torque on {axis} (CA_SV_CS*_TRQ_{axis} all 0)"
+    w = trq / np.sum(np.abs(trq))
+    total, used, t0 = None, [], None
+    for k, wk in zip(ks, w):
+        if wk == 0.0:
+            continue
+        got = _lookup(raw, src.replace("{k}", str(k)))
+        if isinstance(got, str):
+            return got
+        tab, vals = got
+        t = np.asarray(tab.t, dtype=np.float64)
+        if t0 is None:
+            t0, total = t, np.zeros(len(t))
+        elif t.shape != t0.shape or not np.array_equal(t, t0):
+            vals = np.interp(t0, t, vals)
+        total = total + wk * (vals * rule.scale + rule.offset)
+        used.append(f"{wk:+.3g} x control[{k}]")
+    name = src.split(".")[0]
+    return Channel(t0, total * np.radians(travel_deg) * rule.sign,
+                   CANONICAL_UNITS.get(rule.name, "rad"),
+                   f"{name} by CA_SV_CS*_TRQ_{axis}: {' '.join(used)}")
 
 
 def _mixed_surface(raw: RawLog, rule: ChannelRule, src: str, outputs: Sequence[int],

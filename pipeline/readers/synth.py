@@ -159,10 +159,29 @@ def write_json_mcap(path: str | os.PathLike, topics: dict[str, Iterable[dict]]) 
         w.finish()
 
 
-def encode_ulog(n: int = 100, rate_hz: float = 100.0, seed: int = 0) -> bytes:
+#: PX4 control surfaces (CA_SV_CS{k}_TYPE, _TRQ_R, _TRQ_P, _TRQ_Y; QGroundControl's defaults)
+#: of the allocation layouts :func:`encode_ulog` can write
+PX4_SURFACES = {
+    "conventional": [(1, -0.5, 0.0, 0.0), (2, 0.5, 0.0, 0.0), (3, 0.0, 1.0, 0.0), (4, 0.0, 0.0, 1.0)],
+    "elevons": [(5, -0.5, 0.5, 0.0), (6, 0.5, 0.5, 0.0)],
+}
+
+
+def px4_surface_commands(i: int) -> tuple[float, float, float]:
+    """The normalised roll, pitch and yaw commands of sample i in :func:`encode_ulog`."""
+    return 0.1, -0.2 * np.sin(i / 5), 0.3 * np.cos(i / 7)
+
+
+def encode_ulog(n: int = 100, rate_hz: float = 100.0, seed: int = 0,
+                allocation: str | None = None) -> bytes:
     """A minimal valid PX4 ULog: sensor_combined, vehicle_attitude, actuator_controls_0,
-    vehicle_status; one parameter and sys_name info."""
+    vehicle_status; one parameter and sys_name info. ``allocation`` ("conventional" or
+    "elevons", :data:`PX4_SURFACES`): PX4 1.14+ instead - no actuator_controls_0, the
+    allocated surface commands in actuator_servos (control[k] = the surfaces' torque
+    coefficients times :func:`px4_surface_commands`, the inverse of their allocation) and
+    the CA_SV_CS* parameters."""
     rng = np.random.default_rng(seed)
+    surfaces = PX4_SURFACES[allocation] if allocation else None
 
     def msg(kind: bytes, payload: bytes) -> bytes:
         return struct.pack("<HB", len(payload), kind[0]) + payload
@@ -174,13 +193,24 @@ def encode_ulog(n: int = 100, rate_hz: float = 100.0, seed: int = 0) -> bytes:
     formats = {
         "sensor_combined": "uint64_t timestamp;float[3] gyro_rad;float[3] accelerometer_m_s2;",
         "vehicle_attitude": "uint64_t timestamp;float[4] q;",
-        "actuator_controls_0": "uint64_t timestamp;float[8] control;",
+        ("actuator_servos" if surfaces else "actuator_controls_0"): "uint64_t timestamp;float[8] control;",
         "vehicle_status": "uint64_t timestamp;uint8_t nav_state;uint8_t[7] _padding0;",
     }
     for name, f in formats.items():
         out += msg(b"F", f"{name}:{f}".encode())
-    pkey = b"float FW_AIRSPD_TRIM"
-    out += msg(b"P", bytes([len(pkey)]) + pkey + struct.pack("<f", 15.0))
+    params = {"FW_AIRSPD_TRIM": 15.0}
+    if surfaces:
+        params["CA_SV_CS_COUNT"] = len(surfaces)
+        for k, (typ, *trq) in enumerate(surfaces):
+            params[f"CA_SV_CS{k}_TYPE"] = typ
+            params.update({f"CA_SV_CS{k}_TRQ_{a}": v for a, v in zip("RPY", trq)})
+    for name, v in params.items():
+        if isinstance(v, int):
+            key = f"int32_t {name}".encode()
+            out += msg(b"P", bytes([len(key)]) + key + struct.pack("<i", v))
+        else:
+            key = f"float {name}".encode()
+            out += msg(b"P", bytes([len(key)]) + key + struct.pack("<f", v))
     for k, name in enumerate(formats):
         out += msg(b"A", struct.pack("<BH", 0, k) + name.encode())
     for i in range(n):
@@ -190,7 +220,14 @@ def encode_ulog(n: int = 100, rate_hz: float = 100.0, seed: int = 0) -> bytes:
         out += msg(b"D", struct.pack("<HQ6f", 0, ts, *g, *a))
         yaw = 0.01 * i
         out += msg(b"D", struct.pack("<HQ4f", 1, ts, np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)))
-        out += msg(b"D", struct.pack("<HQ8f", 2, ts, 0.1, -0.2 * np.sin(i / 5), 0.0, 0.5, 0, 0, 0, 0))
+        cmd = px4_surface_commands(i)
+        if surfaces:
+            # the surfaces' commands whose torque is cmd: u = B^+ cmd, B the coefficients
+            B = np.array([trq for _, *trq in surfaces]).T          # (3, n_surfaces)
+            u = np.linalg.pinv(B) @ np.array(cmd)
+            out += msg(b"D", struct.pack("<HQ8f", 2, ts, *u, *np.zeros(8 - len(u))))
+        else:
+            out += msg(b"D", struct.pack("<HQ8f", 2, ts, cmd[0], cmd[1], 0.0, 0.5, 0, 0, 0, 0))
         if i % 20 == 0:
             out += msg(b"D", struct.pack("<HQB7x", 3, ts, 0 if i < n // 2 else 3))
     return bytes(out)
