@@ -322,3 +322,5 @@ def test_px4_control_allocation_surfaces(tmp_path, allocation):
         assert "CA_SV_CS*_TRQ_Y all 0" in fd.meta["unmapped"]["dr"]
         assert fd["de"].source.endswith("+0.5 x control[0] +0.5 x control[1]")
     assert fd.meta["servo_travel"]["de"] == {"deg": 30.0, "from": "assumed"}
+    np.testing.assert_allclose(fd["throttle"].values, 0.5)            # actuator_motors
+    assert fd["throttle"].source == "actuator_motors.control[0]"

@@ -178,8 +178,8 @@ def encode_ulog(n: int = 100, rate_hz: float = 100.0, seed: int = 0,
     vehicle_status; one parameter and sys_name info. ``allocation`` ("conventional" or
     "elevons", :data:`PX4_SURFACES`): PX4 1.14+ instead - no actuator_controls_0, the
     allocated surface commands in actuator_servos (control[k] = the surfaces' torque
-    coefficients times :func:`px4_surface_commands`, the inverse of their allocation) and
-    the CA_SV_CS* parameters."""
+    coefficients times :func:`px4_surface_commands`, the inverse of their allocation),
+    the motor in actuator_motors (0.5) and the CA_SV_CS* parameters."""
     rng = np.random.default_rng(seed)
     surfaces = PX4_SURFACES[allocation] if allocation else None
 
@@ -196,6 +196,8 @@ def encode_ulog(n: int = 100, rate_hz: float = 100.0, seed: int = 0,
         ("actuator_servos" if surfaces else "actuator_controls_0"): "uint64_t timestamp;float[8] control;",
         "vehicle_status": "uint64_t timestamp;uint8_t nav_state;uint8_t[7] _padding0;",
     }
+    if surfaces:
+        formats["actuator_motors"] = "uint64_t timestamp;float[4] control;"
     for name, f in formats.items():
         out += msg(b"F", f"{name}:{f}".encode())
     params = {"FW_AIRSPD_TRIM": 15.0}
@@ -226,6 +228,7 @@ def encode_ulog(n: int = 100, rate_hz: float = 100.0, seed: int = 0,
             B = np.array([trq for _, *trq in surfaces]).T          # (3, n_surfaces)
             u = np.linalg.pinv(B) @ np.array(cmd)
             out += msg(b"D", struct.pack("<HQ8f", 2, ts, *u, *np.zeros(8 - len(u))))
+            out += msg(b"D", struct.pack("<HQ4f", 4, ts, 0.5, 0, 0, 0))      # motor 1 at half
         else:
             out += msg(b"D", struct.pack("<HQ8f", 2, ts, cmd[0], cmd[1], 0.0, 0.5, 0, 0, 0, 0))
         if i % 20 == 0:
