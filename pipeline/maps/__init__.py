@@ -284,6 +284,16 @@ def _servo_number(rule: ChannelRule, params: dict) -> int | None:
     return int(n) if n is not None else None
 
 
+def _no_output(rule: ChannelRule) -> str:
+    """Why a PWM rule has no servo output: the functions the log's SERVOn_FUNCTION lacks."""
+    cfg = dict(rule.pwm or {})
+    if cfg.get("function") is None:
+        return f"no servo output configured for {rule.name}"
+    wanted = [f"{cfg['function']:g}"] + ["/".join(f"{f:g}" for f in m.get("functions", ()))
+                                         for m in cfg.get("mix", ())]
+    return f"no servo output configured for {rule.name} (no SERVOn_FUNCTION = {' or '.join(wanted)})"
+
+
 def _mixed_outputs(rule: ChannelRule, params: Mapping[str, float]
                    ) -> tuple[list[int], list[float], list[float]] | None:
     """(outputs, functions, weights) of the first of the rule's ``pwm.mix`` entries whose
@@ -430,12 +440,7 @@ def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAV
                         return got
                     reasons.append(got)
                     continue
-                fn = dict(rule.pwm or {}).get("function")
-                reasons.append(f"no servo output configured for {rule.name}" + (
-                    f" (no SERVOn_FUNCTION = {fn:g}" + "".join(
-                        f" or {'/'.join(f'{f:g}' for f in m.get('functions', ()))}"
-                        for m in dict(rule.pwm or {}).get("mix", ())) + ")"
-                    if fn is not None else ""))
+                reasons.append(_no_output(rule))
                 continue
             src = src.replace("{n}", str(n))
         unit = rule.unit
