@@ -73,6 +73,15 @@ def test_user_map_overrides_builtin(binfile, tmp_path):
     bad.write_text('[channels.p]\nsource = "IMU.GyrX"\nunit = "furlong"\n')
     with pytest.raises(FsidError, match="furlong"):
         read_log(binfile, map=bad)
+    # a source that applies when the log has a parameter (SERVO2_TRIM is in this log)
+    cond = tmp_path / "cond.toml"
+    cond.write_text('[map]\nname = "cond"\nextends = "ardupilot_bin"\n'
+                    '[channels.p]\nsource = "IMU.GyrX"\nunit = "rad/s"\n'
+                    'source_if = { SERVO2_TRIM = ["IMU[1].GyrX"], NO_SUCH_PARAM = "IMU[2].GyrX" }\n')
+    assert np.allclose(read_log(binfile, map=cond)["p"].values, imu["GyrX"][imu["I"] == 1].astype(float))
+    bad.write_text('[channels.p]\nsource = "IMU.GyrX"\nsource_if = ["IMU[1].GyrX"]\n')
+    with pytest.raises(FsidError, match="source_if must be a table"):
+        read_log(binfile, map=bad)
 
 
 def test_tlog_synthetic(tmp_path):

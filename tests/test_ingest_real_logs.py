@@ -179,6 +179,15 @@ def test_tlog_mode_segments(tlog_fd):
 
 
 # ------------------------------------------------------------------ PX4 .ulg
+def test_ulg_vtol_surfaces_are_the_fixed_wing_controls(ulg_fd):
+    """A standard VTOL (VT_TYPE 2): its surfaces and pusher are PX4's actuator group 1; group
+    0 is the multicopter's attitude control (it had been read as the surfaces)."""
+    fd = ulg_fd
+    assert fd.params["VT_TYPE"] == 2.0
+    for ch, k in (("da", 0), ("de", 1), ("dr", 2), ("throttle", 3)):
+        assert fd[ch].source == f"actuator_controls_1.control[{k}]", (ch, fd[ch].source)
+
+
 def test_ulg_values_quaternion_params(ulg_fd):
     fd = ulg_fd
     assert len(fd["p"]) == 1298

@@ -25,6 +25,10 @@ Map file format (all keys but ``source`` optional)::
     unit = "deg"                             # path (pipeline.flow_angles) when it can
     derived = "ArduPilot's AHRS estimate (EKF velocity minus its wind), not a vane"
 
+    [channels.da]                            # a VTOL (the log has VT_TYPE): its fixed-wing
+    source = "actuator_controls_0.control[0]"  # controls are group 1
+    source_if = { VT_TYPE = ["actuator_controls_1.control[0]"] }
+
     [channels.phi]                           # quaternion -> Euler angle (w, x, y, z order)
     source = ["vehicle_attitude.q[0]", "vehicle_attitude.q[1]", "vehicle_attitude.q[2]", "vehicle_attitude.q[3]"]
     transform = "quat_wxyz"
@@ -119,6 +123,15 @@ class ChannelRule:
     scale_param: str | None = None      #: multiply by this log parameter (missing -> no channel)
     unless_param: str | None = None     #: product transform: skip the 2nd factor if param != 0
     derived: str | None = None          #: why it is no independent measurement (Channel.derived)
+    #: {parameter: sources}: when the log has that parameter, those sources replace ``sources``
+    source_if: dict[str, list[str]] = field(default_factory=dict)
+
+    def sources_for(self, params: Mapping[str, float]) -> list[str]:
+        """The sources to try for a log with these parameters (``source_if``)."""
+        for name, srcs in self.source_if.items():
+            if name in params:
+                return list(srcs)
+        return list(self.sources)
 
 
 @dataclass
@@ -146,6 +159,15 @@ def builtin_names() -> list[str]:
                   if p.name.endswith(".toml"))
 
 
+def _source_if(spec, origin: str, name: str) -> dict[str, list[str]]:
+    if spec is None:
+        return {}
+    if not isinstance(spec, dict) or not all(isinstance(v, (str, list)) for v in spec.values()):
+        raise FsidError(f"channel map {origin}: [channels.{name}] source_if must be a table "
+                        "{PARAMETER = [\"MESSAGE.field\", ...]}")
+    return {str(k): [v] if isinstance(v, str) else [str(x) for x in v] for k, v in spec.items()}
+
+
 def _parse(doc: dict, origin: str) -> ChannelMap:
     head = doc.get("map", {})
     chans = doc.get("channels", {})
@@ -171,7 +193,7 @@ def _parse(doc: dict, origin: str) -> ChannelMap:
                                   float(spec.get("offset", 0.0)), float(spec.get("sign", 1.0)),
                                   spec.get("pwm"), spec.get("transform"), spec.get("component"),
                                   spec.get("scale_param"), spec.get("unless_param"),
-                                  spec.get("derived"))
+                                  spec.get("derived"), _source_if(spec.get("source_if"), origin, name))
     return ChannelMap(str(head.get("name", Path(origin).stem)), rules,
                       list(head.get("formats", [])), dict(head), origin)
 
@@ -422,7 +444,7 @@ def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAV
         return Channel(np.asarray(tab.t, float), vals, CANONICAL_UNITS.get(rule.name, rule.unit),
                        f"{rule.sources[0]} x {rule.sources[1]}")
     reasons = []
-    for src in rule.sources:
+    for src in rule.sources_for(raw.params):
         # the servo output whose calibration applies (function or channel of the pwm block)
         n = _servo_number(rule, raw.params) if rule.pwm is not None else None
         if "{k}" in src:  # PX4 control surfaces k, weighted by their torque coefficients
