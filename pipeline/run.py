@@ -122,7 +122,7 @@ def process_noise_std(problem: Problem, turbulence: Mapping[str, Any] | None = N
     sigma_v (F_p = F_r = 0.3 F_beta). Everything times ``scale``."""
     m = problem.model
     turb = turbulence or {}
-    if turb.get("model", "off") not in ("off", None, "") and turb.get("sigma_w"):
+    if dryden_known(turb):
         V = float(np.nanmean(np.concatenate([s.z[:, m.outputs.index("V")] for s in problem.fit]))) \
             if "V" in m.outputs else float(m.constants.get("V", 30.0))
         su, sv, sw = (float(turb.get(k, turb["sigma_w"])) for k in ("sigma_u", "sigma_v", "sigma_w"))
@@ -149,6 +149,32 @@ def process_noise_std(problem: Problem, turbulence: Mapping[str, Any] | None = N
 
     f = default_process_noise(m, problem.fit)
     return {st: float(scale * v) for st, v in zip(m.states, f) if st in m.outputs}
+
+
+def dryden_known(turbulence: Mapping[str, Any] | None) -> bool:
+    """Whether a Dryden turbulence level is given (truth.json of a simulated flight)."""
+    turb = turbulence or {}
+    return turb.get("model", "off") not in ("off", None, "") and bool(turb.get("sigma_w"))
+
+
+#: states of the gust models that are coloured already (first-order Markov): the filters
+#: take FEM's F for them as it is, not doubled (see process_noise_std)
+COLOURED_STATES = ("p_g", "q_gi")
+
+
+def filter_process_noise(fem: Any, scale: float = 2.0) -> dict[str, float]:
+    """EKF/UKF process noise (state -> F, state unit per sqrt(s)) from a filter-error fit of
+    the same model: FEM's maximum-likelihood F times ``scale`` (the filters' 2x for white
+    noise standing in for coloured gusts, as with the Dryden level), gust states x1. Used
+    when no turbulence level is known (a real log): with the 0.05 sqrt(var(diff z)/h)
+    default, EKF CLalpha ended 5.3 std and Cmalpha 4.5 std off the truth on
+    longitudinal_3211_turbulence through ``fsid estimate``."""
+    out = {}
+    for name, v in fem.params.items():
+        if name.startswith("F_"):
+            st = name[2:]
+            out[st] = float(v) * (1.0 if st in COLOURED_STATES else scale)
+    return out
 
 
 def _filter_param_std(model: Any) -> dict[str, float]:
@@ -263,9 +289,12 @@ def _states_at_cg(model: Any):
     return pseudo
 
 
-def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] | None = None) -> Any:
+def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] | None = None,
+                process_noise: Mapping[str, float] | None = None) -> Any:
     """Run one estimation method on a problem (names in METHODS). ``turbulence``: the
-    Dryden level when known (truth.json), for the filters' process noise."""
+    Dryden level when known (truth.json), for the filters' process noise; else
+    ``process_noise`` (EKF/UKF: state -> F, e.g. :func:`filter_process_noise`), else the
+    data's default."""
     import estimators as E
 
     model, inputs, x0 = problem.model, problem.inputs, problem.estimate_x0
@@ -297,7 +326,10 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
         # tuned with: with the log's native-rate noise (lower on the 100 Hz IMU channels, see
         # attach_logged_noise) and the same Q, EKF/UKF CL0, CLde, CLq on
         # multiaxis_multisine_turbulence went from within 3 to 3.7-5.7 std off the truth
-        return cls(model, inputs=inputs, process_noise=process_noise_std(problem, turbulence, 2.0),
+        Q = (process_noise_std(problem, turbulence, 2.0)
+             if dryden_known(turbulence) or process_noise is None else
+             {k: v for k, v in process_noise.items() if k in model.states})
+        return cls(model, inputs=inputs, process_noise=Q,
                    measurement_noise=measurement_noise_std(problem, logged=False),
                    param_std=_filter_param_std(model)).fit(problem.fit)
     if method == "soem":
@@ -334,7 +366,8 @@ START_FREE = ("oem", "ls", "fem", "soem", "eigen", "decouple")
 def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, float] | None,
                      progress: Progress, *, turbulence: Mapping[str, Any] | None = None,
                      tolerances: Mapping[str, float] | None = None, pom: str = "auto",
-                     start: Mapping[str, float] | None = None
+                     start: Mapping[str, float] | None = None,
+                     process_noise: Mapping[str, float] | None = None
                      ) -> tuple[Any, dict[str, Any] | None] | None:
     """Fit ``method`` on ``pb`` and validate the result on its held-out segments, with a
     progress stage each; ``what`` names the fit in messages ("lateral axis", "model 'x'").
@@ -357,7 +390,7 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
         progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, {len(pb.fit)} "
                        f"maneuvers, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
     try:
-        res = fit_problem(pb, method, turbulence=turbulence)
+        res = fit_problem(pb, method, turbulence=turbulence, process_noise=process_noise)
     except (EstimationError, np.linalg.LinAlgError) as exc:
         if refit:
             return None
@@ -431,6 +464,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     for msg in skipped:
         print(f"note: {msg}", file=progress.stream)
     multiaxis = multi_axis(fd)
+    filter_q: dict[str, dict[str, float] | None] = {}   # axis -> EKF/UKF process noise
     for problem, build, outs in plans:
         common = None
         for m in methods:
@@ -489,9 +523,12 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
             key = m if len(problems) == 1 else f"{pb.axis}-{m}"
             if m == "fem":          # its R; EKF/UKF keep the grid's (fit_problem)
                 attach_logged_noise(fd, pb)
+            q = filters_process_noise(fd, pb, m, results.get(key[:-3] + "fem"), filter_q, progress,
+                                      turbulence=turbulence, quiet=starts is not None)
             done = fit_and_validate(pb, m, f"{pb.axis} axis", truth, progress, turbulence=turbulence,
                                     tolerances=tolerances, pom=pom,
-                                    start=None if starts is None else starts.get(key, {}))
+                                    start=None if starts is None else starts.get(key, {}),
+                                    process_noise=q)
             if done is not None:
                 results[key], validations[key] = done
                 if starts is None and pb.model.name.startswith("sixdof") and lon is not None:
@@ -502,6 +539,38 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     if not results:
         raise FsidError("every estimation method failed on this log (see the notes above)")
     return results, validations, problems
+
+
+def filters_process_noise(fd, pb: Problem, method: str, fem: Any, cache: dict, progress: Progress,
+                          *, turbulence: Mapping[str, Any] | None = None, quiet: bool = False
+                          ) -> dict[str, float] | None:
+    """The process noise of an EKF/UKF fit (None for other methods, and when the Dryden
+    level is known: fit_problem takes it from there): from this run's FEM of the problem
+    (``fem``), else from a filter-error fit made for it, once per axis (``cache``: axis ->
+    noise); None (the filters' default) when that fit fails."""
+    if method not in ("ekf", "ukf") or dryden_known(turbulence):
+        return None
+    if pb.axis not in cache:
+        cache[pb.axis] = _fem_process_noise(fd, pb, fem, progress, quiet)
+    return cache[pb.axis]
+
+
+def _fem_process_noise(fd, pb: Problem, fem: Any, progress: Progress, quiet: bool = False
+                       ) -> dict[str, float] | None:
+    from estimators import EstimationError
+
+    if fem is None:
+        try:
+            fem = fit_problem(attach_logged_noise(fd, replace(pb)), "fem")
+        except (EstimationError, np.linalg.LinAlgError) as exc:
+            if not quiet:
+                print(f"note: process noise for the {pb.axis} filters: the filter-error fit "
+                      f"failed ({exc}); the data's default used", file=progress.stream)
+            return None
+        if not quiet:
+            print(f"note: process noise for the {pb.axis} filters from a filter-error fit "
+                  f"(no turbulence level known)", file=progress.stream)
+    return filter_process_noise(fem)
 
 
 def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, validations: dict,
@@ -717,8 +786,8 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     """``fsid estimate``: a log -> report and recording. ``model``: a built-in model
     (auto|longitudinal|lateral; needs ``aircraft``, or a truth.json next to the log) or a
     user model ``path.py:name`` (:mod:`pipeline.user_model`). Aircraft and sensor positions:
-    :mod:`pipeline.aircraft_setup`. The filters' process noise starts from the data (no
-    turbulence level is known). ``bands`` (``rate_deg_s``, ``accel_g``, ``angle_deg``) and
+    :mod:`pipeline.aircraft_setup`. No turbulence level is known: the EKF/UKF process noise
+    is the filter-error method's estimate (:func:`filters_process_noise`). ``bands`` (``rate_deg_s``, ``accel_g``, ``angle_deg``) and
     ``pom`` set the proof of match (defaults 1.5 deg/s, 0.1 g, 1.5 deg; auto mode)."""
     from estimators.validation import default_tolerances
 

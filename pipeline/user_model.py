@@ -190,7 +190,8 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
     """Fit and validate a user model with each method; same return as
     :func:`pipeline.run.identify` (results, validations, problems), keyed by method;
     ``tolerances``, ``pom`` and ``starts`` (refit only) as there."""
-    from pipeline.run import COMMON_GRID, METHODS, attach_logged_noise, fit_and_validate
+    from pipeline.run import (COMMON_GRID, METHODS, attach_logged_noise, filters_process_noise,
+                              fit_and_validate)
 
     bad = [m for m in methods if m not in METHODS]
     if bad:
@@ -203,6 +204,7 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
             print(f"note: {n}", file=progress.stream)
     common = None
     results, validations = {}, {}
+    filter_q: dict = {}
     for m in methods:
         pb = problem
         if m in COMMON_GRID:
@@ -214,9 +216,12 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
                 pb = common
         if m == "fem":              # its R; EKF/UKF keep the grid's (fit_problem)
             attach_logged_noise(fd, pb)
+        q = filters_process_noise(fd, pb, m, results.get("fem"), filter_q, progress,
+                                  quiet=starts is not None)
         done = fit_and_validate(pb, m, f"user model {model.name!r}", truth, progress,
                                 tolerances=tolerances, pom=pom,
-                                start=None if starts is None else starts.get(m, {}))
+                                start=None if starts is None else starts.get(m, {}),
+                                process_noise=q)
         if done is not None:
             results[m], validations[m] = done
     if not results:

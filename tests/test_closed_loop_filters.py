@@ -41,7 +41,9 @@ UNSTABLE_METHODS = ("fem", "ekf", "ukf", "decouple", "soem")
 def _run(tmp_path_factory, name, methods):
     out = tmp_path_factory.mktemp(name)
     run_scenario(SCENARIOS / f"{name}.toml", out, methods=list(methods), quiet=True)
-    return json.loads((out / "report.json").read_text())
+    rep = json.loads((out / "report.json").read_text())
+    rep["_out"] = out
+    return rep
 
 
 @pytest.fixture(scope="module")
@@ -109,6 +111,21 @@ def test_methods_cross_check_singles_out_output_error_in_turbulence(turbulence):
     assert {"Cm0", "Cmq", "Cmde"} <= set(oem["validation"]["agreement"]["flagged"]["fem"])
     assert all(oem["parameters"][n]["error_in_std"] > 3.0 for n in ("Cm0", "Cmq", "Cmde"))
     assert sum("disagrees with" in n for n in oem["verdict"]["notes"]) == 3
+
+
+def test_filters_on_a_log_take_the_process_noise_from_filter_error(turbulence, tmp_path, capsys):
+    """fsid estimate on the same flight.mcap knows no turbulence level: EKF's process noise
+    is then twice FEM's maximum-likelihood estimate (pipeline.run.filters_process_noise),
+    and every derivative stays within 3 std (with the data's default, 0.05 sqrt(var(diff
+    z)/h), CLalpha ended 5.3 and Cmalpha 4.5 std off)."""
+    from pipeline.run import estimate_log
+
+    out = tmp_path / "est"
+    estimate_log(turbulence["_out"] / "flight.mcap", out, methods=["ekf"], compat=False)
+    assert "process noise for the longitudinal filters from a filter-error fit" in capsys.readouterr().err
+    rep = json.loads((out / "report.json").read_text())
+    assert "turbulence" not in rep["meta"]
+    _derivatives_within_3_std(rep, "ekf")
 
 
 @pytest.mark.parametrize("method", UNSTABLE_METHODS)
