@@ -787,8 +787,9 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     (auto|longitudinal|lateral; needs ``aircraft``, or a truth.json next to the log) or a
     user model ``path.py:name`` (:mod:`pipeline.user_model`). Aircraft and sensor positions:
     :mod:`pipeline.aircraft_setup`. No turbulence level is known: the EKF/UKF process noise
-    is the filter-error method's estimate (:func:`filters_process_noise`). ``bands`` (``rate_deg_s``, ``accel_g``, ``angle_deg``) and
-    ``pom`` set the proof of match (defaults 1.5 deg/s, 0.1 g, 1.5 deg; auto mode)."""
+    is the filter-error method's estimate (:func:`filters_process_noise`). ``bands``
+    (``rate_deg_s``, ``accel_g``, ``angle_deg``) and ``pom`` set the proof of match
+    (defaults 1.5 deg/s, 0.1 g, 1.5 deg; auto mode)."""
     from estimators.validation import default_tolerances
 
     tol = default_tolerances(**(bands or {}))
