@@ -47,7 +47,7 @@ import numpy as np
 
 from estimators import EstimationResult
 from pipeline.paths import atomic_write_text
-from pipeline.validate import display_unit, json_ready, num, verdict
+from pipeline.validate import display_unit, is_segment_parameter, json_ready, num, verdict
 
 SCHEMA = "fsid-report/1"
 
@@ -107,11 +107,6 @@ def _table(head: list[str], rows: list[list[str]]) -> list[str]:
     out = ["| " + " | ".join(head) + " |", "|" + "|".join("---" for _ in head) + "|"]
     out += ["| " + " | ".join(r) + " |" for r in rows]
     return out + [""]
-
-
-def is_segment_parameter(name: str) -> bool:
-    """Per-segment parameters (``bias_az[0]``, ``x0_V[1]``): biases and initial states."""
-    return name.endswith("]") and "[" in name
 
 
 def has_total_std(mj: Mapping[str, Any]) -> bool:

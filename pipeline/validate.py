@@ -500,6 +500,11 @@ def refresh_truth_check(validation: dict[str, Any], result: EstimationResult,
     validation["verdict"] = verdict(validation)
 
 
+def is_segment_parameter(name: str) -> bool:
+    """Per-segment parameters (``bias_az[0]``, ``x0_V[1]``): biases and initial states."""
+    return name.endswith("]") and "[" in name
+
+
 def method_group(key: str) -> str:
     """The axis a result key belongs to: "lateral" for "lateral-fem", "" for a bare method
     name (one axis fitted, or a user model)."""
@@ -533,8 +538,8 @@ def cross_check_methods(results: Mapping[str, EstimationResult],
         est = {}
         for key in keys:
             r = results[key]
-            names = [n for n in r.free_names if not n.startswith("x0_") and not
-                     (n.endswith("]") and "[" in n)]
+            names = [n for n in r.free_names
+                     if not n.startswith("x0_") and not is_segment_parameter(n)]
             est[key] = (r.params[names], r.total_std[names])
         table = V.agreement(est, k)
         for key in keys:

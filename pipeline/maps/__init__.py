@@ -513,25 +513,17 @@ def _torque_surface(raw: RawLog, rule: ChannelRule, src: str, travel_deg: float)
     if not np.any(trq != 0.0):
         return f"no control surface with a torque on {axis} (CA_SV_CS*_TRQ_{axis} all 0)"
     w = trq / np.sum(np.abs(trq))
-    total, used, t0 = None, [], None
-    for k, wk in zip(ks, w):
-        if wk == 0.0:
-            continue
-        got = _lookup(raw, src.replace("{k}", str(k)))
-        if isinstance(got, str):
-            return got
-        tab, vals = got
-        t = np.asarray(tab.t, dtype=np.float64)
-        if t0 is None:
-            t0, total = t, np.zeros(len(t))
-        elif t.shape != t0.shape or not np.array_equal(t, t0):
-            vals = np.interp(t0, t, vals)
-        total = total + wk * (vals * rule.scale + rule.offset)
-        used.append(f"{wk:+.3g} x control[{k}]")
+    used = [(k, wk) for k, wk in zip(ks, w) if wk != 0.0]
+    got = _weighted_sum(raw, [(src.replace("{k}", str(k)), wk, k) for k, wk in used],
+                        lambda k, v: (v * rule.scale + rule.offset, ""))
+    if isinstance(got, str):
+        return got
+    t0, total, _ = got
     name = src.split(".")[0]
     return Channel(t0, total * np.radians(travel_deg) * rule.sign,
                    CANONICAL_UNITS.get(rule.name, "rad"),
-                   f"{name} by CA_SV_CS*_TRQ_{axis}: {' '.join(used)}")
+                   f"{name} by CA_SV_CS*_TRQ_{axis}: "
+                   + " ".join(f"{wk:+.3g} x control[{k}]" for k, wk in used))
 
 
 def _mixed_surface(raw: RawLog, rule: ChannelRule, src: str, outputs: Sequence[int],
@@ -540,23 +532,38 @@ def _mixed_surface(raw: RawLog, rule: ChannelRule, src: str, outputs: Sequence[i
     """A surface channel from mixed servos (``pwm.mix``): sum of weight x deflection of each
     output, each calibrated with its own SERVOn_MIN/MAX/TRIM/REVERSED and the channel's
     travel, on the first output's time base; then the rule's sign."""
-    parts, notes, t0 = [], [], None
-    for n, w in zip(outputs, weights):
-        got = _lookup(raw, src.split()[0].replace("{n}", str(n)))
+    srcs = [src.split()[0].replace("{n}", str(n)) for n in outputs]
+    got = _weighted_sum(raw, list(zip(srcs, weights, outputs)), lambda n, v: _pwm(
+        rule, v * rule.scale + rule.offset, raw.params, n, travel_deg))
+    if isinstance(got, str):
+        return got
+    t0, total, notes = got
+    fns = "/".join(f"{f:g}" for f in functions)
+    return Channel(t0, total * rule.sign, CANONICAL_UNITS.get(rule.name, "rad"),
+                   f"mix of SERVOn_FUNCTION {fns}: " + " ".join(
+                       f"{w:+g} x {s_}{note}" for s_, w, note in zip(srcs, weights, notes)))
+
+
+def _weighted_sum(raw: RawLog, terms: Sequence[tuple[str, float, object]], convert
+                  ) -> tuple[np.ndarray, np.ndarray, list[str]] | str:
+    """(t, sum of weight x values, notes) over ``terms`` (source, weight, key), each
+    source's values passed through ``convert(key, values) -> (values, note)``, on the first
+    source's time base (the others interpolated onto it); or why a source is missing."""
+    total, notes, t0 = None, [], None
+    for source, w, key in terms:
+        got = _lookup(raw, source)
         if isinstance(got, str):
             return got
         tab, raw_v = got
-        vals, note = _pwm(rule, raw_v * rule.scale + rule.offset, raw.params, n, travel_deg)
+        vals, note = convert(key, raw_v)
         t = np.asarray(tab.t, dtype=np.float64)
         if t0 is None:
-            t0 = t
+            t0, total = t, np.zeros(len(t))
         elif t.shape != t0.shape or not np.array_equal(t, t0):
             vals = np.interp(t0, t, vals)
-        parts.append(w * vals)
-        notes.append(f"{w:+g} x {src.split()[0].replace('{n}', str(n))}{note}")
-    fns = "/".join(f"{f:g}" for f in functions)
-    return Channel(t0, np.sum(parts, axis=0) * rule.sign, CANONICAL_UNITS.get(rule.name, "rad"),
-                   f"mix of SERVOn_FUNCTION {fns}: {' '.join(notes)}")
+        total = total + w * vals
+        notes.append(note)
+    return t0, total, notes
 
 
 def plain_map_toml(fd, name: str, formats: Sequence[str], drop: Sequence[str] = ()) -> str:
