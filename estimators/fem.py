@@ -61,8 +61,8 @@ from scipy import linalg
 
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
 from estimators.integrators import check_options
-from estimators.jit import kernel_for
-from estimators.kalman import default_process_noise
+from estimators.jit import compile_user_function, kernel_for
+from estimators.kalman import _is_names, default_process_noise, named_process_noise
 from estimators.model import Model, Segment
 from estimators.results import EstimationResult, frames
 from estimators.simulation import Layout
@@ -170,6 +170,32 @@ def linearize_batch(model: Model, P: np.ndarray, xr: np.ndarray, ur: np.ndarray,
     f0 = fv[:, :, 0].T - np.einsum("bij,bj->bi", A, x_r) - Bu @ ur
     y0 = gv[:, :, 0].T - np.einsum("bij,bj->bi", C, x_r) - D @ ur
     return A, Bu, C, D, f0, y0
+
+
+def is_affine(model: Model, segments: Sequence[Segment], values: np.ndarray,
+              layout: Layout, rtol: float = 1e-6) -> bool:
+    """Whether f and g are affine in (x, u) over the data: the linearisation (A, B, C, D)
+    about each segment's start equals the one about a point moved by the data's range
+    (measured states by their range in z, the others by 10 % of |x0| + 0.1, inputs by
+    their range in u), within ``rtol`` of the largest entry."""
+    for k, seg in enumerate(segments):
+        P = values[layout.pidx[k]][:, None]
+        x0 = values[layout.x0idx[k]]
+        dx = np.array([np.nanmax(seg.z[:, model.outputs.index(s)]) - np.nanmin(seg.z[:, model.outputs.index(s)])
+                       if s in model.outputs and np.any(np.isfinite(seg.z[:, model.outputs.index(s)]))
+                       else 0.1 * abs(x0[i]) + 0.1 for i, s in enumerate(model.states)])
+        dx = np.where(np.isfinite(dx) & (dx > 0), dx, 0.1 * np.abs(x0) + 0.1)
+        du = np.ptp(seg.u, axis=0)
+        du = np.where(du > 0, du, 0.1 * np.abs(seg.u[0]) + 0.1)
+        c = model.constants_for(seg)
+        a = linearize_batch(model, P, x0[:, None], seg.u[0], c)[:4]
+        b = linearize_batch(model, P, (x0 + 0.5 * dx)[:, None], seg.u[0] + 0.5 * du, c)[:4]
+        for ma, mb in zip(a, b):
+            scale = max(np.max(np.abs(ma)), np.max(np.abs(mb)), 1e-12)
+            if not np.all(np.isfinite(ma)) or not np.all(np.isfinite(mb)) \
+                    or np.max(np.abs(ma - mb)) > rtol * scale:
+                return False
+    return True
 
 
 def _expm_small(M):
@@ -361,7 +387,7 @@ def output_kernel(model: Model):
                 *[f"    out[{j}, :] = r[{j}]" for j in range(m)],
                 *[f"    out[{j}, :] += P[{i}]" for j, i in bias],
             ])
-            ns = {"_PT": namedtuple("Params", names), "_g": numba.njit(error_model="numpy")(model.g)}
+            ns = {"_PT": namedtuple("Params", names), "_g": compile_user_function(model.g)}
             exec(compile(src, f"<fsid output adapter for {model.name}>", "exec"), ns)
             cand = numba.njit(error_model="numpy")(ns["gout"])
             # check once against numpy
@@ -453,8 +479,9 @@ class FilterError:
     ----------
     model : the :class:`~estimators.Model`.
     process_noise : states with process noise and their start F (std of the continuous
-        white noise, state unit per sqrt(s)): {state: start} or a (n,) vector (0 = no noise
-        on that state). Default: every state that is a measured output, started at
+        white noise, state unit per sqrt(s)): {state: start}, a (n,) vector (0 = no noise
+        on that state) or a list of measured states (started at the default below).
+        Default: every state that is a measured output, started at
         0.05 sqrt(var(diff z)/h) (a twentieth of the bound the sample-to-sample variation
         gives). Starting from output-error estimates (``start=oem.params``) helps.
     estimate_F : estimate the F entries (True) or hold them at their start values.
@@ -466,8 +493,12 @@ class FilterError:
         turbulence: the likelihood can then trade G of an output that also measures the
         gust-driven state (e.g. az for alpha) down towards 0, where the information matrix
         becomes singular. Held entries are reported with no std.
-    form : "linear" (transition matrix) or "nonlinear" (integrator prediction, gain of
-        the linearisation at the trim point).
+    form : "auto" (default: "linear" when f and g are affine in x and u over the data,
+        :func:`is_affine`, else "nonlinear"), "linear" (transition matrix of the
+        linearisation at each segment's start: exact for linear models only - on the
+        nonlinear HFB-320 class model of an 18 m/s speed change it put the derivatives
+        up to 44 std off) or "nonlinear" (integrator prediction, gain of the
+        linearisation at the trim point).
     integrator : the one-step predictor of the nonlinear form.
     max_iter, tol : Gauss-Newton iterations; stop when the relative change of J is < tol.
     fd_step : relative forward-difference step of the sensitivities.
@@ -481,12 +512,12 @@ class FilterError:
     method = "fem"
 
     def __init__(self, model: Model, *, process_noise: Any = None, estimate_F: bool = True,
-                 measurement_noise: Any = None, estimate_G: bool = True, form: str = "linear", integrator: str = "rk4",
+                 measurement_noise: Any = None, estimate_G: bool = True, form: str = "auto", integrator: str = "rk4",
                  max_iter: int = 30, tol: float = 1e-7, fd_step: float = 1e-6,
                  step_halvings: int = 10, inputs: str = "average", compiled: bool = True,
                  callback=None) -> None:
-        if form not in ("linear", "nonlinear"):
-            raise ModelDefinitionError(f"form must be 'linear' or 'nonlinear', not {form!r}")
+        if form not in ("auto", "linear", "nonlinear"):
+            raise ModelDefinitionError(f"form must be 'auto', 'linear' or 'nonlinear', not {form!r}")
         check_options(integrator, inputs)
         self.model = model
         self.process_noise = process_noise
@@ -495,6 +526,7 @@ class FilterError:
         if not estimate_G and measurement_noise is None:
             raise ModelDefinitionError("estimate_G=False needs measurement_noise (std per output)")
         self.measurement_noise = measurement_noise
+        self.form_requested = form
         self.form = form
         self.integrator = integrator
         self.max_iter = max_iter
@@ -507,8 +539,11 @@ class FilterError:
                                        "form='nonlinear' for linearly interpolated inputs")
         self.inputs = inputs
         self.compiled = compiled
-        if form == "nonlinear":
-            self.method = "fem-nl"
+        self._set_form(form)
+
+    def _set_form(self, form: str) -> None:
+        self.form = form
+        self.method = "fem-nl" if form == "nonlinear" else "fem"
 
     # -- parameter vector phi = [layout free, F_i, G_j] ---------------------------------------
     def _noise_setup(self, segments: Sequence[Segment]) -> tuple[list[int], np.ndarray]:
@@ -518,6 +553,8 @@ class FilterError:
         spec = self.process_noise
         if spec is None:
             f0 = default
+        elif _is_names(spec):
+            f0 = named_process_noise(m, spec, segments)
         elif isinstance(spec, Mapping):
             bad = sorted(set(spec) - set(m.states))
             if bad:
@@ -766,6 +803,9 @@ class FilterError:
         model = self.model
         self._segments = segments
         lay = self._lay = Layout.build(model, segments, estimate_x0, values=start)
+        if self.form_requested == "auto":
+            linear = self.inputs != "linear" and is_affine(model, segments, lay.values, lay)
+            self._set_form("linear" if linear else "nonlinear")
         n, m = len(model.states), len(model.outputs)
         self._noisy, f0 = self._noise_setup(segments)
         self._f_fixed = f0.copy()

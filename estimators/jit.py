@@ -15,6 +15,7 @@ numpy path is used and a warning says so. ``FSID_JIT=0`` switches compilation of
 from __future__ import annotations
 
 import os
+import types
 import warnings
 from collections import namedtuple
 from typing import Any, Callable, Mapping, Sequence
@@ -38,6 +39,29 @@ def _jit_scheme(name: str) -> Callable:
     if name not in _JIT_SCHEMES:
         _JIT_SCHEMES[name] = numba.njit(error_model="numpy", cache=False)(_integ.PY_SCHEMES[name])
     return _JIT_SCHEMES[name]
+
+
+def compile_user_function(fn: Callable, _done: dict | None = None) -> Callable:
+    """``fn`` compiled with numba, together with the plain Python functions it calls by a
+    global name (a helper such as ``coefs(x, u, p, c)`` shared by f and g, recursively):
+    each is recompiled in a copy of its globals where those names are compiled too, so
+    numba's nopython mode can call them. The user's function objects are not changed."""
+    done = {} if _done is None else _done
+    if fn in done:
+        return done[fn]
+    if not isinstance(fn, types.FunctionType):          # already compiled, or a builtin
+        return fn
+    done[fn] = None                                    # recursion guard
+    key, glb = fn, fn.__globals__
+    helpers = {name: glb[name] for name in fn.__code__.co_names
+               if isinstance(glb.get(name), types.FunctionType) and glb[name] is not fn}
+    if helpers:
+        env = dict(glb)
+        for name, h in helpers.items():
+            env[name] = compile_user_function(h, done) or h
+        fn = types.FunctionType(fn.__code__, env, fn.__name__, fn.__defaults__, fn.__closure__)
+    done[key] = out = numba.njit(error_model="numpy")(fn)
+    return out
 
 
 def _tuple_src(items: Sequence[str]) -> str:
@@ -75,7 +99,7 @@ class RhsKernel:
     def _build_jit(self) -> None:
         m = self.model
         PT = namedtuple("Params", self.names)
-        fj = numba.njit(error_model="numpy")(m.f)
+        fj = compile_user_function(m.f)
         src = "\n".join([
             "def rhs(x2d, u1d, P, c, out):",
             f"    x = {_tuple_src([f'x2d[{i}]' for i in range(self.n)])}",

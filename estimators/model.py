@@ -71,12 +71,16 @@ def check_in_bounds(name: str, value: float, lo: float, hi: float) -> None:
 
 
 class Namespace:
-    """Attribute access to a mapping of arrays or floats (``p.CD0``, ``c.rho``)."""
+    """Attribute access to a mapping of arrays or floats (``p.CD0``, ``c.rho``); item
+    access (``c["rho"]``) works too, on the numpy path."""
 
     __slots__ = ("__dict__",)
 
     def __init__(self, values: Mapping[str, Any]) -> None:
         self.__dict__.update(values)
+
+    def __getitem__(self, name: str) -> Any:
+        return self.__dict__[name]
 
     def __repr__(self) -> str:
         return f"Namespace({', '.join(self.__dict__)})"

@@ -70,7 +70,12 @@ def test_result_holds_trajectories_innovations_and_settings(turb, ekf):
     np.testing.assert_allclose(ekf.extra["measurement_noise"], np.diag(turb.noise_std ** 2))
     assert ekf.extra["gain"].shape == (4 + len(names), 7)
     assert "EKF" in ekf.summary(truth=turb.truth)
-    assert list(ekf.history["segment"]) == [0, 1]
+    # one history row per segment and pass; passes repeat until the estimates settle
+    h = ekf.history
+    assert list(h["pass"].unique()) == list(range(1, ekf.iterations + 1))
+    assert list(h.loc[h["pass"] == ekf.iterations, "segment"]) == [0, 1]
+    moves = ekf.extra["pass_moves"]
+    assert len(moves) == ekf.iterations and ekf.converged == (moves[-1] <= 0.2)
 
 
 def test_missing_samples_and_defaults(turb):
