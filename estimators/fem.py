@@ -806,7 +806,7 @@ class FilterError:
         if self.form_requested == "auto":
             linear = self.inputs != "linear" and is_affine(model, segments, lay.values, lay)
             self._set_form("linear" if linear else "nonlinear")
-        n, m = len(model.states), len(model.outputs)
+        m = len(model.outputs)
         self._noisy, f0 = self._noise_setup(segments)
         self._f_fixed = f0.copy()
         fi = lay.free_idx

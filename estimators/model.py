@@ -246,7 +246,8 @@ class Segment:
     u : (N, n_inputs) measured inputs, columns in the model's input order.
     z : (N, n_outputs) measured outputs, columns in the model's output order
         (NaN marks a missing sample; it gets zero weight).
-    x0 : (n_states,) initial state; None takes states that are also outputs from z[0].
+    x0 : (n_states,) initial state; None takes states that are also outputs from their
+        first measured (finite) sample.
     constants : per-segment overrides of the model constants (e.g. rho, mass).
     name : label used in results.
     """
@@ -304,16 +305,19 @@ class Segment:
                 f"{where}: x0 has {self.x0.size} entries, model states are {model.states}")
 
     def initial_state(self, model: Model) -> np.ndarray:
-        """x0 as given, or taken from the first measured sample of each state that is also
-        an output."""
+        """x0 as given, or taken from the first measured (finite) sample of each state that
+        is also an output."""
         if self.x0 is not None:
             return self.x0.copy()
         missing = [s for s in model.states if s not in model.outputs]
-        if missing:
+        cols = [self.z[:, model.outputs.index(s)] for s in model.states if s not in missing]
+        never = [s for s, c in zip([s for s in model.states if s not in missing], cols)
+                 if not np.any(np.isfinite(c))]
+        if missing or never:
             raise ModelDefinitionError(
-                f"segment {self.name!r} has no x0 and states {missing} are not measured outputs: "
-                "pass Segment(..., x0=...)")
-        return np.array([self.z[0, model.outputs.index(s)] for s in model.states])
+                f"segment {self.name!r} has no x0 and states {missing + never} are not measured "
+                "(not outputs, or no finite sample): pass Segment(..., x0=...)")
+        return np.array([c[np.isfinite(c)][0] for c in cols])
 
     @classmethod
     def from_frame(cls, df: Any, model: Model, *, x0: Mapping[str, float] | None = None,

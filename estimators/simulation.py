@@ -41,10 +41,18 @@ class Layout:
 
     @classmethod
     def build(cls, model: Model, segments: Sequence[Segment],
-              estimate_x0: bool | Sequence[str] = False,
+              estimate_x0: bool | str | Sequence[str] = False,
               values: Mapping[str, float] | None = None) -> "Layout":
+        """``estimate_x0``: False, True, state names, or "auto" (the measured states of
+        the segments that have no ``x0`` of their own; see OutputError.fit)."""
         nseg = len(segments)
-        if estimate_x0 is True:
+        auto = isinstance(estimate_x0, str) and estimate_x0 == "auto"
+        if auto:
+            est = {s for s in model.states if s in model.outputs}
+        elif isinstance(estimate_x0, str):
+            raise ModelDefinitionError(
+                f"estimate_x0={estimate_x0!r}: use True, False, 'auto' or a list of states")
+        elif estimate_x0 is True:
             est = set(model.states)
         elif not estimate_x0:
             est = set()
@@ -75,7 +83,8 @@ class Layout:
                     row.append(shared[p.name])
             pidx.append(np.array(row, dtype=int))
             x0 = seg.initial_state(model)
-            x0idx.append(np.array([add(f"x0_{s}[{k}]", x0[i], s in est, (-np.inf, np.inf), "x0")
+            est_k = est if not auto or seg.x0 is None else set()
+            x0idx.append(np.array([add(f"x0_{s}[{k}]", x0[i], s in est_k, (-np.inf, np.inf), "x0")
                                    for i, s in enumerate(model.states)], dtype=int))
         values_arr = np.array(vals, dtype=float)
         if values:

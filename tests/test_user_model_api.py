@@ -145,3 +145,28 @@ def test_constants_by_item_work_on_the_numpy_path(seg):
         y = simulate_outputs(model(TRUTH, f=f_items), seg)
     np.testing.assert_allclose(y.to_numpy(), simulate_outputs(model(TRUTH), seg).to_numpy(),
                                rtol=1e-12, atol=1e-12)
+
+
+def test_segments_without_x0_get_their_initial_state_estimated(seg):
+    """Two maneuvers cut from the flight, no x0 given: held at the noisy first sample the
+    initial state biases the derivatives; the default ("auto") estimates it."""
+    halves = [Segment(t=seg.t[sl], u=seg.u[sl], z=seg.z[sl]) for sl in (slice(0, 300), slice(300, None))]
+    held = OutputError(model(START)).fit(halves, estimate_x0=False)
+    assert max(_off(held).values()) > 5.0, _off(held)
+    res = OutputError(model(START)).fit(halves)
+    assert {"x0_V[0]", "x0_q[1]"} <= set(res.free_names)
+    assert res.converged and max(_off(res).values()) < 3.0, _off(res)
+    # a given x0 is held
+    given = OutputError(model(START)).fit([seg])
+    assert not any(n.startswith("x0_") for n in given.free_names)
+
+
+def test_initial_state_from_the_first_finite_sample(seg):
+    z = seg.z.copy()
+    z[:3, 0] = np.nan                                      # airspeed starts late
+    s = Segment(t=seg.t, u=seg.u, z=z)
+    m = model(START)
+    np.testing.assert_allclose(s.initial_state(m), [z[3, 0], *z[0, 1:4]])
+    z[:, 2] = np.nan                                       # theta never measured
+    with pytest.raises(ModelDefinitionError, match=r"\['theta'\] are not measured"):
+        Segment(t=seg.t, u=seg.u, z=z).initial_state(m)
