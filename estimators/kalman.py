@@ -228,7 +228,7 @@ class _ParameterFilter:
     def __init__(self, model: Model, *, integrator: str = "rk4", process_noise: Any = None,
                  measurement_noise: Any = None, param_std: Any = None, state_std: Any = None,
                  param_noise: Any = None, rtol: float = 1e-8, atol: float = 1e-10,
-                 inputs: str = "average", passes: int | str = "auto", max_passes: int = 5,
+                 inputs: str = "average", passes: int | str = "auto", max_passes: int = 8,
                  pass_tol: float = 0.2) -> None:
         check_options(integrator, inputs)
         if not (passes == "auto" or (isinstance(passes, int) and passes >= 1)):
@@ -438,7 +438,7 @@ class EKF(_ParameterFilter):
         OutputError: "average" (default), "linear" or "hold".
     passes : "auto" (default: repeat the pass from the last estimates until no free
         parameter moves by more than ``pass_tol`` (0.2) of its std, at most ``max_passes``
-        (5)) or a fixed number of passes (see :meth:`fit`).
+        (8)) or a fixed number of passes (see :meth:`fit`).
     fd_step : relative forward-difference step of the Jacobians,
         h_j = fd_step * max(|s_j|, 1).
     """

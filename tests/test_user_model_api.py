@@ -110,7 +110,7 @@ def test_filters_pass_until_settled(seg, cls):
     one = cls(model(START), passes=1).fit([seg])
     assert max(_off(one).values()) > 3.0, _off(one)        # one pass from this start is not enough
     res = cls(model(START)).fit([seg])
-    assert res.converged and 2 <= res.iterations <= 5
+    assert res.converged and 2 <= res.iterations <= 8
     assert res.extra["pass_moves"][-1] <= 0.2 < res.extra["pass_moves"][0]
     assert max(_off(res).values()) < 3.0, _off(res)
     assert "filter passes" in res.message
@@ -170,3 +170,46 @@ def test_initial_state_from_the_first_finite_sample(seg):
     z[:, 2] = np.nan                                       # theta never measured
     with pytest.raises(ModelDefinitionError, match=r"\['theta'\] are not measured"):
         Segment(t=seg.t, u=seg.u, z=z).initial_state(m)
+
+
+def _gusty_flight(seed: int, F_alpha: float = 0.004, F_q: float = 0.006) -> Segment:
+    """The same flight with white process noise on alpha and q (rad/sqrt(s)): Euler-Maruyama
+    at 200 Hz, sampled at 10 Hz."""
+    from estimators.model import Namespace
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 60.0, 0.1)
+    sub, h = 20, 0.1 / 20
+    de = np.full_like(t, -0.026)
+    for t0, a in ((2.0, 0.03), (20.0, -0.03)):
+        for w, s in ((3, 1), (2, -1), (1, 1), (1, -1)):
+            de[(t >= t0) & (t < t0 + w)] += a * s
+            t0 += w
+    Fe = np.where(t > 40.0, 11200.0, 9700.0)
+    p, c = Namespace(TRUTH), Namespace(CONSTANTS)
+    x = np.array([106.0, 0.1117, 0.1049, -0.0033])
+    kick = np.sqrt(h) * np.array([0.0, F_alpha, 0.0, F_q]) * rng.standard_normal((t.size, sub, 4))
+    X = np.empty((t.size, 4))
+    for k in range(t.size):
+        X[k] = x
+        for i in range(sub):
+            x = x + h * np.array(f(x, (de[k], Fe[k]), p, c)) + kick[k, i]
+    Y = np.array(g(X.T, (de, Fe), p, c)).T
+    return Segment(t=t, u=np.c_[de, Fe], z=Y + rng.standard_normal(Y.shape) * NOISE, x0=X[0])
+
+
+def test_filter_error_in_process_noise():
+    """With process noise (F 0.004, 0.006): output error is 14-38 std off, filter error
+    recovers the derivatives and the noise. Measured with an ad-hoc script (the same flight,
+    other noise draws, seeds 0-7): FEM
+    worst derivative 1.4-3.5 std, F_alpha 0.0035-0.0038, F_q 0.0072-0.0081; EKF/UKF with the
+    true F settle in 2-7 passes but are biased (Cmq 4.3-4.6 std on two seeds, CmV 7.5 on
+    one: the parameter-in-the-state filter's known bias under process noise)."""
+    seg = _gusty_flight(3)
+    oem = OutputError(model(START)).fit([seg])
+    assert max(_off(oem).values()) > 10.0
+    fem = FilterError(model(START), process_noise=["alpha", "q"]).fit([seg])
+    assert fem.converged and max(_off(fem).values()) < 3.0, _off(fem)
+    assert fem.params["F_alpha"] == pytest.approx(0.004, rel=0.2)
+    assert fem.params["F_q"] == pytest.approx(0.006, rel=0.4)
+    ekf = EKF(model(START), process_noise={"alpha": 0.004, "q": 0.006}).fit([seg])
+    assert ekf.converged and ekf.iterations > 2
