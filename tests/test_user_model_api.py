@@ -200,8 +200,7 @@ def _gusty_flight(seed: int, F_alpha: float = 0.004, F_q: float = 0.006) -> Segm
 def test_filter_error_in_process_noise():
     """With process noise (F 0.004, 0.006): output error is 14-38 std off, filter error
     recovers the derivatives and the noise. Measured with an ad-hoc script (the same flight,
-    other noise draws, seeds 0-7): FEM
-    worst derivative 1.4-3.5 std, F_alpha 0.0035-0.0038, F_q 0.0072-0.0081; EKF/UKF with the
+    other noise draws, seeds 0-7): FEM worst derivative 1.4-3.5 std, F_alpha 0.0035-0.0038, F_q 0.0072-0.0081; EKF/UKF with the
     true F settle in 2-7 passes but are biased (Cmq 4.3-4.6 std on two seeds, CmV 7.5 on
     one: the parameter-in-the-state filter's known bias under process noise)."""
     seg = _gusty_flight(3)
