@@ -181,10 +181,11 @@ def is_affine(model: Model, segments: Sequence[Segment], values: np.ndarray,
     for k, seg in enumerate(segments):
         P = values[layout.pidx[k]][:, None]
         x0 = values[layout.x0idx[k]]
-        dx = np.array([np.nanmax(seg.z[:, model.outputs.index(s)]) - np.nanmin(seg.z[:, model.outputs.index(s)])
-                       if s in model.outputs and np.any(np.isfinite(seg.z[:, model.outputs.index(s)]))
-                       else 0.1 * abs(x0[i]) + 0.1 for i, s in enumerate(model.states)])
-        dx = np.where(np.isfinite(dx) & (dx > 0), dx, 0.1 * np.abs(x0) + 0.1)
+        dx = 0.1 * np.abs(x0) + 0.1
+        for i, s in enumerate(model.states):
+            z = seg.z[:, model.outputs.index(s)] if s in model.outputs else np.array([np.nan])
+            if np.any(np.isfinite(z)) and np.nanmax(z) > np.nanmin(z):
+                dx[i] = np.nanmax(z) - np.nanmin(z)
         du = np.ptp(seg.u, axis=0)
         du = np.where(du > 0, du, 0.1 * np.abs(seg.u[0]) + 0.1)
         c = model.constants_for(seg)

@@ -16,6 +16,7 @@ import pytest
 
 from estimators import EKF, UKF, FilterError, Model, ModelDefinitionError, OutputError, Parameter, Segment
 from estimators import simulate_outputs
+from estimators.datasets import multistep
 from estimators.jit import kernel_for
 
 CONSTANTS = dict(g0=9.80665, Sbym=4.028e-3, Scbyiy=8.0027e-4, Feiylt=-7.0153e-6, v0=104.67,
@@ -72,15 +73,17 @@ def model(values, f=f):
                  constants=CONSTANTS, f=f, g=g, name="hfb320-tc04")
 
 
+def _inputs() -> tuple[np.ndarray, np.ndarray]:
+    """t (600,) at 10 Hz and U (600, 2): two elevator 3-2-1-1s (rad) about trim, thrust
+    (N) stepped up at 40 s."""
+    t = np.arange(0.0, 60.0, 0.1)
+    de = -0.026 + multistep(t, 2.0, 1.0, amplitude=0.03) + multistep(t, 20.0, 1.0, amplitude=-0.03)
+    return t, np.c_[de, np.where(t > 40.0, 11200.0, 9700.0)]
+
+
 @pytest.fixture(scope="module")
 def seg():
-    t = np.arange(0.0, 60.0, 0.1)
-    de = np.full_like(t, -0.026)
-    for t0, a in ((2.0, 0.03), (20.0, -0.03)):
-        for w, s in ((3, 1), (2, -1), (1, 1), (1, -1)):
-            de[(t >= t0) & (t < t0 + w)] += a * s
-            t0 += w
-    U = np.c_[de, np.where(t > 40.0, 11200.0, 9700.0)]
+    t, U = _inputs()
     s = Segment(t=t, u=U, z=np.zeros((t.size, 7)), x0=np.array([106.0, 0.1117, 0.1049, -0.0033]))
     y = simulate_outputs(model(TRUTH), s).to_numpy()
     s.z = y + np.random.default_rng(0).standard_normal(y.shape) * NOISE
@@ -177,14 +180,9 @@ def _gusty_flight(seed: int, F_alpha: float = 0.004, F_q: float = 0.006) -> Segm
     at 200 Hz, sampled at 10 Hz."""
     from estimators.model import Namespace
     rng = np.random.default_rng(seed)
-    t = np.arange(0.0, 60.0, 0.1)
+    t, U = _inputs()
+    de, Fe = U.T
     sub, h = 20, 0.1 / 20
-    de = np.full_like(t, -0.026)
-    for t0, a in ((2.0, 0.03), (20.0, -0.03)):
-        for w, s in ((3, 1), (2, -1), (1, 1), (1, -1)):
-            de[(t >= t0) & (t < t0 + w)] += a * s
-            t0 += w
-    Fe = np.where(t > 40.0, 11200.0, 9700.0)
     p, c = Namespace(TRUTH), Namespace(CONSTANTS)
     x = np.array([106.0, 0.1117, 0.1049, -0.0033])
     kick = np.sqrt(h) * np.array([0.0, F_alpha, 0.0, F_q]) * rng.standard_normal((t.size, sub, 4))
@@ -194,7 +192,7 @@ def _gusty_flight(seed: int, F_alpha: float = 0.004, F_q: float = 0.006) -> Segm
         for i in range(sub):
             x = x + h * np.array(f(x, (de[k], Fe[k]), p, c)) + kick[k, i]
     Y = np.array(g(X.T, (de, Fe), p, c)).T
-    return Segment(t=t, u=np.c_[de, Fe], z=Y + rng.standard_normal(Y.shape) * NOISE, x0=X[0])
+    return Segment(t=t, u=U, z=Y + rng.standard_normal(Y.shape) * NOISE, x0=X[0])
 
 
 def test_filter_error_in_process_noise():
