@@ -367,44 +367,55 @@ def output_kernel(model: Model):
     """g of the model compiled with numba in the integrators' calling convention
     ``gout(x (n, B), u (n_in,), P (n_p, B), c, out (n_out, B))`` (output biases added), or
     None when it does not compile or disagrees with the numpy evaluation."""
-    from collections import namedtuple
     key = (model.g, tuple(model.states), tuple(model.inputs), tuple(model.parameter_names),
            tuple(model.outputs), tuple(model.output_biases), tuple(sorted(model.constants)))
     if key in _OUT_KERNELS:
         return _OUT_KERNELS[key]
     gout = None
     kern = kernel_for(model)
-    if numba is not None and kern.compiled:
-        try:
-            n, ni, m = len(model.states), len(model.inputs), len(model.outputs)
-            names = model.parameter_names
-            bias = [(model.outputs.index(o), names.index(f"bias_{o}")) for o in model.output_biases]
-            src = "\n".join([
-                "def gout(x2d, u1d, P, c, out):",
-                "    x = (" + "".join(f"x2d[{i}], " for i in range(n)) + ")",
-                "    u = (" + "".join(f"u1d[{i}], " for i in range(ni)) + ")",
-                f"    p = _PT({', '.join(f'P[{i}]' for i in range(len(names)))})",
-                "    r = _g(x, u, p, c)",
-                *[f"    out[{j}, :] = r[{j}]" for j in range(m)],
-                *[f"    out[{j}, :] += P[{i}]" for j, i in bias],
-            ])
-            ns = {"_PT": namedtuple("Params", names), "_g": compile_user_function(model.g)}
-            exec(compile(src, f"<fsid output adapter for {model.name}>", "exec"), ns)
-            cand = numba.njit(error_model="numpy")(ns["gout"])
-            # check once against numpy
-            rng = np.random.default_rng(0)
-            x = rng.standard_normal((n, 2)) * 0.1 + 1.0
-            u = rng.standard_normal(ni) * 0.1
-            P = np.repeat(np.array([[p.value] for p in model.parameters]), 2, axis=1)
-            a = np.empty((m, 2))
-            cand(x, u, P, kern._c_jit(model.constants), a)
-            with np.errstate(all="ignore"):
-                b = model.eval_g(x[:, None, :], u[:, None, None], P, model.constants)[:, 0, :]
-            if np.allclose(a, b, rtol=1e-9, atol=1e-12, equal_nan=True):
-                gout = cand
-        except Exception:  # the numpy loop is used instead
-            gout = None
+    for helpers in ((False, True) if numba is not None and kern.compiled else ()):
+        gout = _output_kernel(model, kern, helpers)
+        if gout is not None:
+            break
     _OUT_KERNELS[key] = gout
+    return gout
+
+
+def _output_kernel(model: Model, kern, helpers: bool):
+    """The compiled gout of :func:`output_kernel`, g as written (``helpers`` False) or with
+    the plain helper functions it calls compiled too; None when it fails or disagrees."""
+    from collections import namedtuple
+    gout = None
+    try:
+        n, ni, m = len(model.states), len(model.inputs), len(model.outputs)
+        names = model.parameter_names
+        bias = [(model.outputs.index(o), names.index(f"bias_{o}")) for o in model.output_biases]
+        src = "\n".join([
+            "def gout(x2d, u1d, P, c, out):",
+            "    x = (" + "".join(f"x2d[{i}], " for i in range(n)) + ")",
+            "    u = (" + "".join(f"u1d[{i}], " for i in range(ni)) + ")",
+            f"    p = _PT({', '.join(f'P[{i}]' for i in range(len(names)))})",
+            "    r = _g(x, u, p, c)",
+            *[f"    out[{j}, :] = r[{j}]" for j in range(m)],
+            *[f"    out[{j}, :] += P[{i}]" for j, i in bias],
+        ])
+        ns = {"_PT": namedtuple("Params", names), "_g": compile_user_function(model.g) if helpers
+              else numba.njit(error_model="numpy")(model.g)}
+        exec(compile(src, f"<fsid output adapter for {model.name}>", "exec"), ns)
+        cand = numba.njit(error_model="numpy")(ns["gout"])
+        # check once against numpy
+        rng = np.random.default_rng(0)
+        x = rng.standard_normal((n, 2)) * 0.1 + 1.0
+        u = rng.standard_normal(ni) * 0.1
+        P = np.repeat(np.array([[p.value] for p in model.parameters]), 2, axis=1)
+        a = np.empty((m, 2))
+        cand(x, u, P, kern._c_jit(model.constants), a)
+        with np.errstate(all="ignore"):
+            b = model.eval_g(x[:, None, :], u[:, None, None], P, model.constants)[:, 0, :]
+        if np.allclose(a, b, rtol=1e-9, atol=1e-12, equal_nan=True):
+            gout = cand
+    except Exception:  # the numpy loop is used instead
+        gout = None
     return gout
 
 

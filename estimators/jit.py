@@ -96,10 +96,10 @@ class RhsKernel:
         self._ConstT = None
 
     # -- compiled path -------------------------------------------------------------------
-    def _build_jit(self) -> None:
+    def _build_jit(self, helpers: bool = False) -> None:
         m = self.model
         PT = namedtuple("Params", self.names)
-        fj = compile_user_function(m.f)
+        fj = compile_user_function(m.f) if helpers else numba.njit(error_model="numpy")(m.f)
         src = "\n".join([
             "def rhs(x2d, u1d, P, c, out):",
             f"    x = {_tuple_src([f'x2d[{i}]' for i in range(self.n)])}",
@@ -121,27 +121,33 @@ class RhsKernel:
 
     def _try_jit(self, x0: np.ndarray, U: np.ndarray, P: np.ndarray,
                  constants: Mapping[str, float]) -> None:
-        """Compile and check the kernel once against the numpy evaluation."""
-        try:
-            self._build_jit()
-            c = self._c_jit(constants)
-            u = np.ascontiguousarray(U[0], dtype=float)
-            a = np.empty_like(x0)
-            self.rhs_jit(np.ascontiguousarray(x0), u, np.ascontiguousarray(P), c, a)
-            b = np.empty_like(x0)
-            self.rhs_py(x0, u, P, Namespace(constants), b)
-            if not np.allclose(a, b, rtol=1e-9, atol=1e-12, equal_nan=True):
-                raise ValueError("compiled and numpy state derivatives differ")
-            self._jit_state = "on"
-        except Exception as exc:  # any failure -> numpy path, said once
-            self.rhs_jit = None
-            self._jit_state = "failed"
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            warnings.warn(
-                f"model {self.model.name!r}: f could not be compiled with numba ({first}); "
-                "integrating with numpy, which is slower. Write f with numpy functions and "
-                "arithmetic on the unpacked rows to get the compiled path.",
-                RuntimeWarning, stacklevel=4)
+        """Compile and check the kernel once against the numpy evaluation: f as written
+        (helpers decorated for numba, as in :mod:`estimators.models`, are inlined), else with
+        the plain helper functions it calls compiled too (:func:`compile_user_function`)."""
+        exc: Exception | None = None
+        for helpers in (False, True):
+            try:
+                self._build_jit(helpers)
+                c = self._c_jit(constants)
+                u = np.ascontiguousarray(U[0], dtype=float)
+                a = np.empty_like(x0)
+                self.rhs_jit(np.ascontiguousarray(x0), u, np.ascontiguousarray(P), c, a)
+                b = np.empty_like(x0)
+                self.rhs_py(x0, u, P, Namespace(constants), b)
+                if not np.allclose(a, b, rtol=1e-9, atol=1e-12, equal_nan=True):
+                    raise ValueError("compiled and numpy state derivatives differ")
+                self._jit_state = "on"
+                return
+            except Exception as e:  # any failure -> next way, then the numpy path, said once
+                exc = e
+        self.rhs_jit = None
+        self._jit_state = "failed"
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        warnings.warn(
+            f"model {self.model.name!r}: f could not be compiled with numba ({first}); "
+            "integrating with numpy, which is slower. Write f with numpy functions and "
+            "arithmetic on the unpacked rows to get the compiled path.",
+            RuntimeWarning, stacklevel=4)
 
     @property
     def compiled(self) -> bool:
