@@ -62,7 +62,7 @@ from scipy import linalg
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
 from estimators.integrators import check_options
 from estimators.jit import compile_user_function, kernel_for
-from estimators.kalman import _is_names, default_process_noise, named_process_noise
+from estimators.kalman import default_process_noise, is_name_list, named_process_noise
 from estimators.model import Model, Segment
 from estimators.results import EstimationResult, frames
 from estimators.simulation import Layout
@@ -565,7 +565,7 @@ class FilterError:
         spec = self.process_noise
         if spec is None:
             f0 = default
-        elif _is_names(spec):
+        elif is_name_list(spec):
             f0 = named_process_noise(m, spec, segments)
         elif isinstance(spec, Mapping):
             bad = sorted(set(spec) - set(m.states))

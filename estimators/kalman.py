@@ -96,7 +96,8 @@ def named_process_noise(model: Model, names: Sequence[str], segments: Sequence[S
     return np.array([default[i] if s in names else 0.0 for i, s in enumerate(model.states)])
 
 
-def _is_names(spec: Any) -> bool:
+def is_name_list(spec: Any) -> bool:
+    """Whether a noise setting is a non-empty list of state names."""
     return (isinstance(spec, (list, tuple)) and len(spec) > 0
             and all(isinstance(v, str) for v in spec))
 
@@ -106,7 +107,7 @@ def process_noise_matrix(model: Model, spec: Any, segments: Sequence[Segment] = 
     (n, n) matrix, or a list of state names (their data default, :func:`named_process_noise`;
     needs ``segments``). Units: state unit per sqrt(s) (std of the continuous white noise)."""
     n = len(model.states)
-    if _is_names(spec):
+    if is_name_list(spec):
         return np.diag(named_process_noise(model, spec, segments))
     if spec is not None and np.ndim(spec) == 2:
         F = np.asarray(spec, dtype=float)
@@ -298,7 +299,7 @@ class _ParameterFilter:
         the estimates where the shrinking covariance froze them (the HFB-320 test-case-4
         model of tests/test_user_model_api.py from 2-80 % off: Cm0, CmV 4.3-4.6 std off
         after one pass, within 0.5 after four). ``extra["pass_moves"]`` holds the largest
-        move per pass in std.
+        move per pass in std, ``extra["not_settled"]`` the reason when they did not settle.
         """
         segments = [segments] if isinstance(segments, Segment) else list(segments)
         if not segments:
@@ -327,9 +328,10 @@ class _ParameterFilter:
         res.extra["pass_moves"] = moves
         what = f"{n_done} filter pass{'es' if n_done > 1 else ''}"
         if not settled:
-            what += (f"; not settled: the last pass still moved a parameter by {moves[-1]:.2g} "
-                     f"std (> {self.pass_tol:g}) - raise max_passes, start closer or check "
-                     "the model")
+            res.extra["not_settled"] = (
+                f"the last of {n_done} passes still moved a parameter by {moves[-1]:.2g} std "
+                f"(> {self.pass_tol:g}): raise max_passes, start closer or check the model")
+            what += "; not settled: " + res.extra["not_settled"]
         res.message = what + "; residuals are the innovations (a-priori)"
         return res
 

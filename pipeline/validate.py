@@ -454,9 +454,8 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
     residual colour, correlation flags and frequency mismatch are listed as notes only."""
     reasons, notes = [], []
     if not v.get("converged", True):
-        why = next((p.strip() for p in (v.get("message") or "").split(";")
-                    if p.strip().startswith("not settled")), "")
-        reasons.append(f"the filter passes did not settle ({why})" if why
+        why = v.get("not_settled")
+        reasons.append(f"the filter passes did not settle: {why}" if why
                        else "the optimiser did not converge")
     fit = v.get("fit") or {}
     if fit and not fit.get("tic_ok", True):
@@ -596,7 +595,7 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
     """
     integ = integrator or result.settings.get("integrator", "rk4")
     out: dict[str, Any] = {"method": result.method, "converged": bool(result.converged),
-                           "message": result.message,
+                           "not_settled": result.extra.get("not_settled"),
                            "det_R": num(result.cost),
                            "correlations_flagged": num([list(f) for f in result.flagged_correlations])}
     arrays: dict[str, Any] = {}

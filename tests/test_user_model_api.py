@@ -116,7 +116,13 @@ def test_filters_pass_until_settled(seg, cls):
     assert res.converged and 2 <= res.iterations <= 8
     assert res.extra["pass_moves"][-1] <= 0.2 < res.extra["pass_moves"][0]
     assert max(_off(res).values()) < 3.0, _off(res)
-    assert "filter passes" in res.message
+    assert "filter passes" in res.message and "not_settled" not in res.extra
+    capped = cls(model(START), max_passes=2).fit([seg])     # not enough passes: said so
+    assert not capped.converged and capped.iterations == 2
+    assert "still moved a parameter by" in capped.extra["not_settled"]
+    from pipeline.validate import verdict
+    v = verdict({"converged": capped.converged, "not_settled": capped.extra["not_settled"]})
+    assert not v["ok"] and v["reasons"][0].startswith("the filter passes did not settle: the last of 2")
 
 
 def test_filter_error_default_form_is_nonlinear_for_this_model(seg):
