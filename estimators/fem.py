@@ -172,12 +172,14 @@ def linearize_batch(model: Model, P: np.ndarray, xr: np.ndarray, ur: np.ndarray,
     return A, Bu, C, D, f0, y0
 
 
-def is_affine(model: Model, segments: Sequence[Segment], values: np.ndarray,
-              layout: Layout, rtol: float = 1e-6) -> bool:
+def is_affine(model: Model, segments: Sequence[Segment], layout: Layout,
+              rtol: float = 1e-6) -> bool:
     """Whether f and g are affine in (x, u) over the data: the linearisation (A, B, C, D)
     about each segment's start equals the one about a point moved by the data's range
     (measured states by their range in z, the others by 10 % of |x0| + 0.1, inputs by
-    their range in u), within ``rtol`` of the largest entry."""
+    their range in u), within ``rtol`` of the largest entry; parameters and initial
+    states are the layout's values."""
+    values = layout.values
     for k, seg in enumerate(segments):
         P = values[layout.pidx[k]][:, None]
         x0 = values[layout.x0idx[k]]
@@ -539,7 +541,6 @@ class FilterError:
             raise ModelDefinitionError("estimate_G=False needs measurement_noise (std per output)")
         self.measurement_noise = measurement_noise
         self.form_requested = form
-        self.form = form
         self.integrator = integrator
         self.max_iter = max_iter
         self.tol = tol
@@ -816,7 +817,7 @@ class FilterError:
         self._segments = segments
         lay = self._lay = Layout.build(model, segments, estimate_x0, values=start)
         if self.form_requested == "auto":
-            linear = self.inputs != "linear" and is_affine(model, segments, lay.values, lay)
+            linear = self.inputs != "linear" and is_affine(model, segments, lay)
             self._set_form("linear" if linear else "nonlinear")
         m = len(model.outputs)
         self._noisy, f0 = self._noise_setup(segments)

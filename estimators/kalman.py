@@ -309,9 +309,11 @@ class _ParameterFilter:
         n_max = self.max_passes if self.passes == "auto" else self.passes
         moves: list[float] = []
         history: list[dict] = []
+        F = process_noise_matrix(self.model, self.process_noise, segments)
+        R = measurement_noise_matrix(self.model, self.measurement_noise, segments)
         for k in range(n_max):
             before = lay.values[fi].copy()
-            res = self._one_pass(segments, lay)
+            res = self._one_pass(segments, lay, F, R)
             after = res.values[fi]
             std = np.sqrt(np.maximum(np.diag(res.cov), 0.0))
             move = np.abs(after - before) / np.where(std > 0, std, np.inf)
@@ -336,13 +338,13 @@ class _ParameterFilter:
         return res
 
     # one filter pass -----------------------------------------------------------------------
-    def _one_pass(self, segments: list[Segment], lay: Layout) -> EstimationResult:
-        """One pass of the filter over the segments from the start values in ``lay``."""
+    def _one_pass(self, segments: list[Segment], lay: Layout, F: np.ndarray, R: np.ndarray
+                  ) -> EstimationResult:
+        """One pass of the filter over the segments from the start values in ``lay``, with
+        process noise F (n, n) and measurement-noise covariance R (n_out, n_out)."""
         model = self.model
         fi = lay.free_idx
         n, m = len(model.states), fi.size
-        F = process_noise_matrix(model, self.process_noise, segments)
-        R = measurement_noise_matrix(model, self.measurement_noise, segments)
         theta = lay.values[fi].copy()
         Pth = self._initial_param_cov(lay)
         qth = self._param_noise(lay) ** 2

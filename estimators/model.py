@@ -309,15 +309,13 @@ class Segment:
         is also an output."""
         if self.x0 is not None:
             return self.x0.copy()
-        missing = [s for s in model.states if s not in model.outputs]
-        cols = [self.z[:, model.outputs.index(s)] for s in model.states if s not in missing]
-        never = [s for s, c in zip([s for s in model.states if s not in missing], cols)
-                 if not np.any(np.isfinite(c))]
-        if missing or never:
+        cols = {s: self.z[:, model.outputs.index(s)] for s in model.states if s in model.outputs}
+        bad = [s for s in model.states if s not in cols or not np.any(np.isfinite(cols[s]))]
+        if bad:
             raise ModelDefinitionError(
-                f"segment {self.name!r} has no x0 and states {missing + never} are not measured "
+                f"segment {self.name!r} has no x0 and states {bad} are not measured "
                 "(not outputs, or no finite sample): pass Segment(..., x0=...)")
-        return np.array([c[np.isfinite(c)][0] for c in cols])
+        return np.array([cols[s][np.isfinite(cols[s])][0] for s in model.states])
 
     @classmethod
     def from_frame(cls, df: Any, model: Model, *, x0: Mapping[str, float] | None = None,
