@@ -23,7 +23,7 @@ demo: $(STAMP)
 	$(VENV)/bin/fsid demo
 
 test: $(TEST_STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 --dist loadfile
 
 bench: $(STAMP)
 	$(PY) benchmarks/oem_speed.py
