@@ -85,7 +85,8 @@ def test_missing_samples_and_defaults(turb):
     from estimators import Segment
     s2 = Segment(t=seg.t, u=seg.u, z=z, x0=seg.x0)
     res = EKF(turb.model, process_noise={"alpha": 0.005, "q": 0.01}).fit(s2)
-    # default measurement noise comes from the data (first differences): finite, positive
+    # default measurement noise comes from the data (second differences, adapted over the
+    # passes), the airspeed gap skipped: finite, positive
     Rm = res.extra["measurement_noise"]
     assert np.all(np.diag(Rm) > 0) and np.all(np.isfinite(Rm))
     assert np.isnan(res.residuals[0]["V"].iloc[120])
