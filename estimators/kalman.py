@@ -382,7 +382,7 @@ class _ParameterFilter:
         noise_moves: list[float] = []
         for k in range(n_max):
             before = lay.values[fi].copy()
-            res = self._one_pass(segments, lay, F, R)
+            res, match = self._one_pass(segments, lay, F, R)
             after = res.values[fi]
             std = np.sqrt(np.maximum(np.diag(res.cov), 0.0))
             move = np.abs(after - before) / np.where(std > 0, std, np.inf)
@@ -390,7 +390,7 @@ class _ParameterFilter:
             history += [{"pass": k + 1, **row} for row in res.history.to_dict("records")]
             lay.values[fi] = after
             if adapt_r or adapt_q:
-                F, R, nm = _adapt(F, R, res.extra.pop("noise_match"), adapt_r, adapt_q)
+                F, R, nm = _adapt(F, R, match, adapt_r, adapt_q)
                 noise_moves.append(nm)
             if self.passes == "auto" and moves[-1] <= self.pass_tol:
                 break
@@ -416,9 +416,10 @@ class _ParameterFilter:
 
     # one filter pass -----------------------------------------------------------------------
     def _one_pass(self, segments: list[Segment], lay: Layout, F: np.ndarray, R: np.ndarray
-                  ) -> EstimationResult:
+                  ) -> tuple[EstimationResult, _NoiseMatch]:
         """One pass of the filter over the segments from the start values in ``lay``, with
-        process noise F (n, n) and measurement-noise covariance R (n_out, n_out)."""
+        process noise F (n, n) and measurement-noise covariance R (n_out, n_out): the
+        pass's result and its covariance-matching sums."""
         model = self.model
         fi = lay.free_idx
         n, m = len(model.states), fi.size
@@ -487,8 +488,7 @@ class _ParameterFilter:
             settings=self._settings(),
             extra={"trajectory": out["traj"], "trajectory_std": out["traj_std"],
                    "states": out["states"], "posterior_outputs": out["post"], "gain": K,
-                   "measurement_noise": R, "process_noise": F, "residuals_are": "innovations",
-                   "noise_match": match})
+                   "measurement_noise": R, "process_noise": F, "residuals_are": "innovations"}), match
 
     def _settings(self) -> dict[str, Any]:
         return {"integrator": self.integrator, "optimizer": "recursive", "inputs": self.inputs,
