@@ -544,7 +544,11 @@ class EKF(_ParameterFilter):
         benchmarks/filter_noise_adaptation_mc.py, 16 noise draws): R held at the
         second-difference default biased Cmal 6.9 empirical std and put a derivative 8.6
         std off; adapted, every derivative within 3.0 std and the std honest
-        (empirical/reported 0.76-1.26), as with the true R given (0.82-1.20).
+        (empirical/reported 0.76-1.26), as with the true R given (0.82-1.20). Adapting F
+        suits process noise that is white; where it stands in for coloured gusts it finds
+        too little (ad-hoc, the pipeline's EKF on longitudinal_3211_turbulence from the
+        Dryden level: Cmalpha 4.8 std off the truth held, 6.8 adapted; at twice the level,
+        held, the pipeline's setting, within 2.5 std).
     param_std : initial std of the parameters: {name: std}, a fraction of |start| (float),
         default 0.5 |start| (1.0 where the start is 0 - give biases explicitly).
     state_std : initial std of the states, {state: std} or (n,); default the measurement
