@@ -382,7 +382,7 @@ class _ParameterFilter:
         noise_moves: list[float] = []
         for k in range(n_max):
             before = lay.values[fi].copy()
-            res, match = self._one_pass(segments, lay, F, R)
+            res, match = self._one_pass(segments, lay, F, R, adapt_r or adapt_q)
             after = res.values[fi]
             std = np.sqrt(np.maximum(np.diag(res.cov), 0.0))
             move = np.abs(after - before) / np.where(std > 0, std, np.inf)
@@ -415,11 +415,11 @@ class _ParameterFilter:
         return res
 
     # one filter pass -----------------------------------------------------------------------
-    def _one_pass(self, segments: list[Segment], lay: Layout, F: np.ndarray, R: np.ndarray
-                  ) -> tuple[EstimationResult, _NoiseMatch]:
+    def _one_pass(self, segments: list[Segment], lay: Layout, F: np.ndarray, R: np.ndarray,
+                  matching: bool = False) -> tuple[EstimationResult, _NoiseMatch | None]:
         """One pass of the filter over the segments from the start values in ``lay``, with
         process noise F (n, n) and measurement-noise covariance R (n_out, n_out): the
-        pass's result and its covariance-matching sums."""
+        pass's result and, with ``matching``, its covariance-matching sums (else None)."""
         model = self.model
         fi = lay.free_idx
         n, m = len(model.states), fi.size
@@ -429,7 +429,7 @@ class _ParameterFilter:
         out = {"pred": [], "innov": [], "traj": [], "traj_std": [], "states": [], "post": []}
         history = []
         K = None
-        match = _NoiseMatch(n, R.shape[0])
+        match = _NoiseMatch(n, R.shape[0]) if matching else None
         for k, seg in enumerate(segments):
             aug = AugmentedModel(model, lay, seg, k, self.integrator, self.rtol, self.atol, self.inputs)
             x0 = lay.values[lay.x0idx[k]]
@@ -457,7 +457,7 @@ class _ParameterFilter:
                 z = seg.z[i]
                 ok = np.isfinite(z)
                 s, P, yp, K, Sinn = self._update(aug, s, P, z, ok, R, i)
-                if K is not None:
+                if match is not None and K is not None:
                     match.add(z[ok] - yp[ok], Sinn, K[:n], R, ok, seg.t[i] - seg.t[i - 1] if i else 0.0)
                 Ypred[i] = yp
                 Spost[i] = s
