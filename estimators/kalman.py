@@ -185,16 +185,19 @@ class AugmentedModel:
         self.integrator = integrator
         self.n = len(model.states)
         self.fi = layout.free_idx
+        self.lo, self.hi = layout.lower[self.fi][:, None], layout.upper[self.fi][:, None]
         self.c = model.constants_for(seg)
         self.kernel = kernel_for(model)
         self.rtol, self.atol = rtol, atol
         self.inputs = inputs
 
     def params(self, S: np.ndarray) -> np.ndarray:
-        """Model parameter matrix P (n_params, B) for augmented columns S."""
+        """Model parameter matrix P (n_params, B) for augmented columns S, the free
+        parameters held to their bounds (a sigma point or a difference step beyond a bound
+        sees the model at the bound)."""
         B = S.shape[1]
         Theta = np.repeat(self.lay.values[:, None], B, axis=1)
-        Theta[self.fi] = S[self.n:]
+        Theta[self.fi] = np.clip(S[self.n:], self.lo, self.hi)
         return Theta[self.lay.pidx[self.k]]
 
     def step(self, S: np.ndarray, i: int) -> np.ndarray:
@@ -396,6 +399,7 @@ class _ParameterFilter:
                 break
         settled = self.passes != "auto" or moves[-1] <= self.pass_tol
         n_done = len(moves)
+        self._mark_bounds(res, lay)
         res.history = pd.DataFrame(history)
         res.iterations = n_done
         res.converged = settled
@@ -411,6 +415,8 @@ class _ParameterFilter:
                 f"the last of {n_done} passes still moved a parameter by {moves[-1]:.2g} std "
                 f"(> {self.pass_tol:g}): raise max_passes, start closer or check the model")
             what += "; not settled: " + res.extra["not_settled"]
+        if res.at_bounds:
+            what += f"; at a bound (std NaN): {', '.join(res.at_bounds)}"
         res.message = what + "; residuals are the innovations (a-priori)"
         return res
 
@@ -430,6 +436,8 @@ class _ParameterFilter:
         history = []
         K = None
         match = _NoiseMatch(n, R.shape[0]) if matching else None
+        lo, hi = lay.lower[fi], lay.upper[fi]
+        hits = np.zeros(m, dtype=int)
         for k, seg in enumerate(segments):
             aug = AugmentedModel(model, lay, seg, k, self.integrator, self.rtol, self.atol, self.inputs)
             x0 = lay.values[lay.x0idx[k]]
@@ -457,6 +465,9 @@ class _ParameterFilter:
                 z = seg.z[i]
                 ok = np.isfinite(z)
                 s, P, yp, K, Sinn = self._update(aug, s, P, z, ok, R, i)
+                th = np.clip(s[n:], lo, hi)             # bounds: the estimate projected on them
+                hits += th != s[n:]
+                s[n:] = th
                 if match is not None and K is not None:
                     match.add(z[ok] - yp[ok], Sinn, K[:n], R, ok, seg.t[i] - seg.t[i - 1] if i else 0.0)
                 Ypred[i] = yp
@@ -488,7 +499,8 @@ class _ParameterFilter:
             settings=self._settings(),
             extra={"trajectory": out["traj"], "trajectory_std": out["traj_std"],
                    "states": out["states"], "posterior_outputs": out["post"], "gain": K,
-                   "measurement_noise": R, "process_noise": F, "residuals_are": "innovations"}), match
+                   "measurement_noise": R, "process_noise": F, "residuals_are": "innovations",
+                   "bound_hits": {lay.free_names[j]: int(hits[j]) for j in np.flatnonzero(hits)}}), match
 
     def _settings(self) -> dict[str, Any]:
         return {"integrator": self.integrator, "optimizer": "recursive", "inputs": self.inputs,
@@ -503,6 +515,23 @@ class _ParameterFilter:
         """Measurement update at sample i: (s, P, predicted outputs, gain K (n+m, n_ok),
         innovation covariance (n_ok, n_ok)); K and S None when no output is finite."""
         raise NotImplementedError
+
+    @staticmethod
+    def _mark_bounds(res: EstimationResult, lay: Layout) -> None:
+        """Free parameters held by a bound: projected onto it during the last pass
+        (``extra["bound_hits"]``: updates per parameter) and ending within 3 std of it.
+        They go to ``res.at_bounds`` with their std NaN, as in output error: the bound, not
+        the data, holds them there."""
+        fi = lay.free_idx
+        v, lo, hi = res.values[fi], lay.lower[fi], lay.upper[fi]
+        sd = np.sqrt(np.maximum(np.diag(res.cov), 0.0))
+        hit = np.array([n in res.extra.get("bound_hits", {}) for n in lay.free_names], dtype=bool)
+        on = hit & ((v - lo <= 3.0 * sd) | (hi - v <= 3.0 * sd))
+        if np.any(on):
+            res.at_bounds = [lay.free_names[i] for i in np.flatnonzero(on)]
+            res.cov = res.cov.copy()
+            res.cov[on, :] = np.nan
+            res.cov[:, on] = np.nan
 
     def _adapted(self, F: np.ndarray) -> tuple[bool, bool]:
         """(adapt R, adapt Q) for this fit, from ``adapt_noise``."""
@@ -559,6 +588,12 @@ class EKF(_ParameterFilter):
     passes : "auto" (default: repeat the pass from the last estimates until no free
         parameter moves by more than ``pass_tol`` (0.2) of its std, at most ``max_passes``
         (8)) or a fixed number of passes (see :meth:`fit`).
+
+    Parameter bounds (``Parameter(bounds=...)``) hold: every update is projected onto
+    them, and a sigma point or difference step beyond a bound evaluates the model at the
+    bound. A parameter projected in the last pass and ending within 3 std of its bound is
+    reported in ``at_bounds`` with its std NaN (``extra["bound_hits"]``: projections per
+    parameter in the last pass).
     fd_step : relative forward-difference step of the Jacobians,
         h_j = fd_step * max(|s_j|, 1).
     """

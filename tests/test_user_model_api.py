@@ -260,3 +260,27 @@ def test_filters_adapt_the_process_noise_from_a_wrong_start():
         EKF(model(START), adapt_noise=True).fit([seg])
     with pytest.raises(ModelDefinitionError, match="adapt_noise must be one of"):
         EKF(model(START), adapt_noise="yes")
+
+
+@pytest.mark.parametrize("cls", [EKF, UKF])
+def test_filters_keep_the_parameters_within_their_bounds(seg, cls):
+    """Bounds hold in the filters too: with Cmq bounded to [-40, 0] (truth -54.5) the
+    estimate never leaves them over the passes (each update is projected onto them) and
+    ends pressed against the bound (-39.9, -39.8: the last updates move it back by 1.5
+    std), reported as at the bound with no std, as output error reports it; an
+    unbounded fit of the same data does not stop there."""
+    values = {**START, "Cmq": -35.0}
+    m = Model(states=model(START).states, inputs=model(START).inputs, outputs=model(START).outputs,
+              parameters=[Parameter(k, v, bounds=(-40.0, 0.0) if k == "Cmq" else (-np.inf, np.inf))
+                          for k, v in values.items()], constants=CONSTANTS, f=f, g=g)
+    res = cls(m, measurement_noise=NOISE, max_passes=3).fit([seg])
+    traj = res.extra["trajectory"][0]["Cmq"]
+    assert traj.min() >= -40.0 and traj.max() <= 0.0
+    assert -40.0 <= res.params["Cmq"] < -39.0 and res.at_bounds == ["Cmq"]
+    assert res.extra["bound_hits"]["Cmq"] > 0 and set(res.extra["bound_hits"]) == {"Cmq"}
+    assert np.isnan(res.std["Cmq"]) and np.isfinite(res.std["Cmal"])
+    assert "at a bound (std NaN): Cmq" in res.message
+    oem = OutputError(m).fit([seg])
+    assert oem.at_bounds == ["Cmq"]
+    free = cls(model(values), measurement_noise=NOISE, max_passes=3).fit([seg])
+    assert free.params["Cmq"] < -45.0 and not free.at_bounds
