@@ -415,6 +415,8 @@ class _ParameterFilter:
                 f"the last of {n_done} passes still moved a parameter by {moves[-1]:.2g} std "
                 f"(> {self.pass_tol:g}): raise max_passes, start closer or check the model")
             what += "; not settled: " + res.extra["not_settled"]
+        if adapt_r or adapt_q:
+            what += f"; {' and '.join(w.replace('_', ' ') for w in res.extra['adapted'])} adapted"
         if res.at_bounds:
             what += f"; at a bound (std NaN): {', '.join(res.at_bounds)}"
         res.message = what + "; residuals are the innovations (a-priori)"
