@@ -486,6 +486,29 @@ if numba is not None:
     _nl_loop_jit = numba.njit(error_model="numpy")(_nl_loop)
 
 
+#: largest deviation of a sample interval from the segment's median interval (relative)
+#: that the filter-error method accepts: the steady-state gain, and in the linear form the
+#: transition matrices, are those of the median interval
+JITTER_TOL = 0.05
+
+
+def sample_interval(seg: Segment, k: int = 0) -> float:
+    """The segment's sample interval h (s): the median of its intervals, which may deviate
+    from it by up to JITTER_TOL (timestamp jitter of a logger); larger deviations (gaps,
+    rate changes, time going backwards) raise ModelDefinitionError saying where."""
+    dt = np.diff(seg.t)
+    h = float(np.median(dt))
+    dev = np.abs(dt - h) / h if h > 0 else np.full(dt.shape, np.inf)
+    if dt.size and dev.max() > JITTER_TOL:
+        i = int(np.argmax(dev))
+        raise ModelDefinitionError(
+            f"segment {seg.name or k}: the filter-error method needs a constant sample interval; "
+            f"at t={seg.t[i]:.6g} s the step is {dt[i]:.6g} s against a median of {h:.6g} s "
+            f"({dev[i]:.0%} off, {JITTER_TOL:.0%} accepted): resample the data to a constant "
+            "rate or split the segment at the gap")
+    return h
+
+
 class FilterError:
     """Filter-error method (see module docstring for the equations).
 
@@ -625,11 +648,7 @@ class FilterError:
             X0 = np.ascontiguousarray(Theta[:, lay.x0idx[k]].T)
             c = model.constants_for(seg)
             A, Bu, C, D, f0, y0 = linearize_batch(model, P, X0, seg.u[0], c)
-            h = float(np.median(np.diff(seg.t)))
-            if not np.allclose(np.diff(seg.t), h, rtol=1e-6, atol=1e-9):
-                raise ModelDefinitionError(
-                    f"segment {seg.name or k}: the filter-error method needs a constant sample "
-                    "interval (resample the data)")
+            h = sample_interval(seg, k)
             Phi = np.empty((Bc, n, n)); Gam = np.empty((Bc, n, n))
             Kg = np.empty((Bc, n, m)); Binn = np.empty((Bc, m, m)); Pp = np.empty((Bc, n, n))
             for b in range(Bc):

@@ -285,3 +285,18 @@ def test_filters_keep_the_parameters_within_their_bounds(seg, cls):
     assert oem.at_bounds == ["Cmq"]
     free = cls(model(values), measurement_noise=NOISE, max_passes=3).fit([seg])
     assert free.params["Cmq"] < -45.0 and not free.at_bounds
+
+
+def test_filter_error_takes_jittered_timestamps_and_names_a_gap(seg):
+    """Logged timestamps jitter: intervals within 5 % of the median are accepted (the
+    filter-error method uses the median interval for its gain), and the fit recovers
+    the derivatives as on the exact grid; a gap is refused with where it is."""
+    rng = np.random.default_rng(5)
+    t = seg.t + rng.uniform(-0.002, 0.002, seg.t.size)         # +-2 % of the 0.1 s step
+    jit = Segment(t=t, u=seg.u, z=seg.z, x0=seg.x0)
+    res = FilterError(model(START), process_noise=["alpha", "q"]).fit([jit])
+    assert res.converged and max(_off(res).values()) < 3.0, _off(res)
+    t_gap = seg.t.copy()
+    t_gap[300:] += 0.05                                        # one interval 50 % long
+    with pytest.raises(ModelDefinitionError, match=r"at t=29\.9 s the step is 0\.15 s .* split the segment"):
+        FilterError(model(START)).fit([Segment(t=t_gap, u=seg.u, z=seg.z, x0=seg.x0)])
