@@ -63,7 +63,7 @@ from estimators.errors import ModelDefinitionError, SimulationDivergedError
 from estimators.integrators import check_options
 from estimators.jit import compile_user_function, kernel_for
 from estimators.kalman import default_process_noise, is_name_list, named_process_noise
-from estimators.model import Model, Segment
+from estimators.model import Model, Segment, check_outputs_measured
 from estimators.results import EstimationResult, frames
 from estimators.simulation import Layout
 from estimators import statistics as st
@@ -835,6 +835,7 @@ class FilterError:
         model = self.model
         self._segments = segments
         lay = self._lay = Layout.build(model, segments, estimate_x0, values=start)
+        check_outputs_measured(self.model, segments, "filter error")
         if self.form_requested == "auto":
             linear = self.inputs != "linear" and is_affine(model, segments, lay)
             self._set_form("linear" if linear else "nonlinear")

@@ -70,6 +70,19 @@ def check_in_bounds(name: str, value: float, lo: float, hi: float) -> None:
             f"[{lo:g}, {hi:g}]: move the start inside the bounds or widen them")
 
 
+def check_outputs_measured(model: Model, segments: Sequence["Segment"], method: str) -> None:
+    """Raise ModelDefinitionError naming the outputs with no finite sample in any segment:
+    a likelihood with a per-output noise variance cannot weigh an output never measured
+    (the Kalman filters skip such outputs sample by sample and need no check)."""
+    never = [o for j, o in enumerate(model.outputs)
+             if not any(np.any(np.isfinite(seg.z[:, j])) for seg in segments)]
+    if never:
+        raise ModelDefinitionError(
+            f"{method}: output{'s' if len(never) > 1 else ''} {never} "
+            f"{'have' if len(never) > 1 else 'has'} no finite sample in any segment: drop "
+            "{} from the model's outputs (g) or give the data".format("them" if len(never) > 1 else "it"))
+
+
 class Namespace:
     """Attribute access to a mapping of arrays or floats (``p.CD0``, ``c.rho``); item
     access (``c["rho"]``) works too, on the numpy path."""

@@ -20,7 +20,7 @@ from scipy import optimize
 
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
 from estimators.integrators import check_options
-from estimators.model import Model, Segment
+from estimators.model import Model, Segment, check_outputs_measured
 from estimators.results import EstimationResult, frames
 from estimators.simulation import Layout, divergence_error, simulate_batch
 from estimators import statistics as st
@@ -285,6 +285,7 @@ class OutputError:
             raise ModelDefinitionError("fit() needs at least one segment")
         self._segments = segments
         lay = self._lay = Layout.build(self.model, segments, estimate_x0, values=start)
+        check_outputs_measured(self.model, segments, "output error")
         fi = lay.free_idx
         if fi.size == 0:
             raise ModelDefinitionError("no free parameters: mark some Parameter(..., free=True)")

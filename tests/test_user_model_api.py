@@ -300,3 +300,17 @@ def test_filter_error_takes_jittered_timestamps_and_names_a_gap(seg):
     t_gap[300:] += 0.05                                        # one interval 50 % long
     with pytest.raises(ModelDefinitionError, match=r"at t=29\.9 s the step is 0\.15 s .* split the segment"):
         FilterError(model(START)).fit([Segment(t=t_gap, u=seg.u, z=seg.z, x0=seg.x0)])
+
+
+@pytest.mark.parametrize("cls", [OutputError, FilterError])
+def test_an_output_never_measured_is_named(seg, cls):
+    """An output with no finite sample (a channel missing from the log) gets one message
+    naming it (output error had raised numpy's LinAlgError, filter error a singular
+    information matrix naming every parameter); the Kalman filters skip it."""
+    z = seg.z.copy()
+    z[:, 4] = np.nan                                           # qdot not logged
+    bad = Segment(t=seg.t, u=seg.u, z=z, x0=seg.x0)
+    with pytest.raises(ModelDefinitionError, match=r"output \['qdot'\] has no finite sample in any segment"):
+        cls(model(START)).fit([bad])
+    res = EKF(model(START), measurement_noise=NOISE, passes=1).fit([bad])
+    assert np.isnan(res.residuals[0]["qdot"]).all() and np.isfinite(res.params["Cmq"])
