@@ -8,7 +8,7 @@ Public API (DESIGN.md section 4)::
 """
 from estimators.errors import (BoundsError, ConvergenceError, EstimationError,
                                IdentifiabilityError, ModelDefinitionError,
-                               SimulationDivergedError)
+                               SimulationDivergedError, UnknownNameError)
 from estimators.equation_error import FourierRegression, LeastSquares, RecursiveLeastSquares
 from estimators.fem import FilterError
 from estimators.kalman import EKF, UKF
@@ -22,7 +22,7 @@ from estimators.simulation import simulate_outputs
 __all__ = [
     "Model", "Parameter", "Segment", "OutputError", "EstimationResult", "simulate_outputs",
     "EstimationError", "ModelDefinitionError", "BoundsError", "SimulationDivergedError",
-    "IdentifiabilityError", "ConvergenceError",
+    "IdentifiabilityError", "ConvergenceError", "UnknownNameError",
     "LeastSquares", "RecursiveLeastSquares", "FourierRegression", "EKF", "UKF",
     "FilterError", "StabilizedOutputError", "EigenvalueTransformation", "EquationDecoupling",
 ]

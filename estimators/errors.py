@@ -12,6 +12,11 @@ class ModelDefinitionError(EstimationError, ValueError):
     """The model, its parameters or a segment are inconsistent (shapes, names, bounds)."""
 
 
+class UnknownNameError(ModelDefinitionError, AttributeError):
+    """f or g asked for a parameter or constant the model does not have (``p.CDx``); an
+    AttributeError too, so ``hasattr`` and ``getattr(p, name, default)`` work."""
+
+
 class BoundsError(ModelDefinitionError):
     """A start value lies outside its parameter's bounds."""
 

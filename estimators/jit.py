@@ -24,7 +24,7 @@ import numpy as np
 
 from estimators import integrators as _integ
 from estimators.errors import ModelDefinitionError
-from estimators.model import Model, Namespace
+from estimators.model import Model, Namespace, stack_rows
 
 try:
     import numba
@@ -84,10 +84,11 @@ class RhsKernel:
         names = self.names
         n = self.n
 
+        states = model.states
+
         def rhs_py(x2d, u1d, P, c, out):
             r = f(x2d, u1d, Namespace(dict(zip(names, P))), c)
-            for i in range(n):
-                out[i] = r[i]
+            out[:] = stack_rows(r, n, out.shape[1:], "f", states)
 
         self.rhs_py = rhs_py
         self.rhs_jit = None

@@ -19,7 +19,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from estimators.errors import BoundsError, ModelDefinitionError
+from estimators.errors import BoundsError, ModelDefinitionError, UnknownNameError
 
 ModelFunction = Callable[[Any, Any, Any, Any], Any]
 
@@ -93,7 +93,22 @@ class Namespace:
         self.__dict__.update(values)
 
     def __getitem__(self, name: str) -> Any:
-        return self.__dict__[name]
+        try:
+            return self.__dict__[name]
+        except KeyError:
+            raise self._unknown(name) from None
+
+    def __getattr__(self, name: str) -> Any:
+        # only called for names not in __dict__: a misspelt p.<parameter> or c.<constant>
+        if name.startswith("__"):
+            raise AttributeError(name)
+        raise self._unknown(name)
+
+    def _unknown(self, name: str) -> UnknownNameError:
+        return UnknownNameError(
+            f"f or g uses {name!r}, which is not among the names here ({', '.join(self.__dict__)}): "
+            "check its spelling, or add it to the model's parameters (p.<name>) or "
+            "constants (c.<name>)")
 
     def __repr__(self) -> str:
         return f"Namespace({', '.join(self.__dict__)})"
@@ -213,7 +228,7 @@ class Model:
         p = Namespace(dict(zip(self.parameter_names, P)))
         out = self.g(X, U, p, Namespace(constants))
         shape = X.shape[1:]
-        Y = _stack_rows(out, len(self.outputs), shape, "g", self.outputs)
+        Y = stack_rows(out, len(self.outputs), shape, "g", self.outputs)
         if self.output_biases:
             idx = {n: i for i, n in enumerate(self.parameter_names)}
             for o in self.output_biases:
@@ -225,7 +240,7 @@ class Model:
         """State derivatives for x (n_states, ...), u (n_inputs, ...), P (n_params, ...)."""
         p = Namespace(dict(zip(self.parameter_names, P)))
         out = self.f(x, u, p, Namespace(constants))
-        return _stack_rows(out, len(self.states), np.broadcast_shapes(x.shape[1:], P.shape[1:]),
+        return stack_rows(out, len(self.states), np.broadcast_shapes(x.shape[1:], P.shape[1:]),
                            "f", self.states)
 
     def simulate(self, segment: "Segment", params: Mapping[str, float] | None = None,
@@ -236,7 +251,7 @@ class Model:
         return simulate_outputs(self, segment, params, integrator=integrator, **kw)
 
 
-def _stack_rows(out: Any, n: int, shape: tuple[int, ...], which: str,
+def stack_rows(out: Any, n: int, shape: tuple[int, ...], which: str,
                 names: Sequence[str]) -> np.ndarray:
     rows = list(out) if isinstance(out, (tuple, list)) else list(np.asarray(out))
     if len(rows) != n:

@@ -314,3 +314,34 @@ def test_an_output_never_measured_is_named(seg, cls):
         cls(model(START)).fit([bad])
     res = EKF(model(START), measurement_noise=NOISE, passes=1).fit([bad])
     assert np.isnan(res.residuals[0]["qdot"]).all() and np.isfinite(res.params["Cmq"])
+
+
+def _broken(f_bad):
+    base = model(START)
+    return Model(states=base.states, inputs=base.inputs, outputs=base.outputs,
+                 parameters=base.parameters, constants=CONSTANTS, f=f_bad, g=g)
+
+
+def f_typo(x, u, p, c):
+    V, alpha, theta, q = x
+    return -p.CDx * V, alpha, theta, q
+
+
+def f_three(x, u, p, c):
+    V, alpha, theta, q = x
+    return V, alpha, theta
+
+
+@pytest.mark.filterwarnings("ignore:model .* could not be compiled")
+@pytest.mark.parametrize("cls", [OutputError, FilterError, EKF, UKF])
+def test_mistakes_in_f_get_one_message(seg, cls):
+    """A misspelt parameter and a missing state derivative each give one message that
+    says what to fix, for every estimator (a bare AttributeError on Namespace and an
+    IndexError from the integrator before)."""
+    from estimators import UnknownNameError
+    with pytest.raises(UnknownNameError, match=r"f or g uses 'CDx', which is not among the names here \(CD0, CDV"):
+        cls(_broken(f_typo)).fit([seg])
+    with pytest.raises(ModelDefinitionError, match=r"f\(\) returned 3 rows but the model has 4"):
+        cls(_broken(f_three)).fit([seg])
+    from estimators.model import Namespace
+    assert getattr(Namespace({"a": 1.0}), "b", None) is None       # still an AttributeError
