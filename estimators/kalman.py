@@ -354,11 +354,16 @@ class _ParameterFilter:
         return np.diag(sd ** 2)
 
     def fit(self, segments: Segment | Sequence[Segment],
+            estimate_x0: bool | str | Sequence[str] = "auto",
             start: Mapping[str, float] | None = None) -> EstimationResult:
         """Run the filter over the segments in order, in passes; returns the final estimates.
         With no free parameter it is a state estimator (``extra["states"]``; the
         proof of match of :func:`estimators.validation.predict_ahead` uses it so).
 
+        estimate_x0 : taken so that the call reads as OutputError's and FilterError's
+            (every method interchangeable); the filter estimates every state at every
+            sample, the first included, from the segment's x0 (or first finite sample) and
+            ``state_std``, whatever it says. State names are checked.
         start : start values by expanded name, overriding the model's.
 
         Passes: each pass starts from the previous pass's estimates, with the initial
@@ -374,6 +379,10 @@ class _ParameterFilter:
         segments = [segments] if isinstance(segments, Segment) else list(segments)
         if not segments:
             raise ModelDefinitionError("fit() needs at least one segment")
+        if not isinstance(estimate_x0, (bool, str)):
+            bad = sorted(set(estimate_x0) - set(self.model.states))
+            if bad:
+                raise ModelDefinitionError(f"estimate_x0 names {bad} are not states {self.model.states}")
         lay = Layout.build(self.model, segments, False, values=start)
         fi = lay.free_idx
         n_max = self.max_passes if self.passes == "auto" else self.passes

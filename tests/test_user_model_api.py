@@ -345,3 +345,14 @@ def test_mistakes_in_f_get_one_message(seg, cls):
         cls(_broken(f_three)).fit([seg])
     from estimators.model import Namespace
     assert getattr(Namespace({"a": 1.0}), "b", None) is None       # still an AttributeError
+
+
+@pytest.mark.parametrize("cls", [OutputError, FilterError, EKF, UKF])
+def test_every_method_takes_the_same_fit_call(seg, cls):
+    """DESIGN section 4: the methods are interchangeable - the call written for output error,
+    ``fit([segments], estimate_x0=False)``, runs unchanged on each (the filters had no
+    estimate_x0 and raised TypeError)."""
+    res = cls(model(START)).fit([seg], estimate_x0=False)
+    assert max(_off(res).values()) < 3.0, _off(res)
+    with pytest.raises(ModelDefinitionError, match="are not states"):
+        cls(model(START)).fit([seg], estimate_x0=["w"])
