@@ -413,6 +413,7 @@ class _ParameterFilter:
         res.iterations = n_done
         res.converged = settled
         res.extra["pass_moves"] = moves
+        res.extra["std_method"] = "filter-covariance"
         if adapt_r or adapt_q:
             # the noise the last pass ran with, and the adaptation's relative moves per pass
             res.extra["noise_moves"] = noise_moves

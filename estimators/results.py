@@ -13,6 +13,17 @@ from estimators.model import Model, Segment
 CORR_FLAG = 0.9
 
 
+#: column label of ``std`` per ``EstimationResult.std_method`` (summary, report.md)
+STD_LABELS = {"crb": "std (CRB)", "filter-covariance": "std (filter P)",
+              "propagated": "std (propagated)", "morelli-klein": "std (M-K)",
+              "sandwich": "std (sandwich)"}
+
+
+def std_label(method: str) -> str:
+    """The column label of the std for ``std_method`` (unknown methods: "std (<method>)")."""
+    return STD_LABELS.get(method, f"std ({method})")
+
+
 @dataclass
 class EstimationResult:
     """Estimates, Cramér-Rao bounds and fit of one estimation run.
@@ -83,6 +94,12 @@ class EstimationResult:
         d = np.diag(self.cov)
         s.loc[self.free_names] = np.sqrt(np.where(d >= 0, d, np.nan))
         return s
+
+    @property
+    def std_method(self) -> str:
+        """How ``std`` was computed: "crb" (Cramér-Rao, the default), "filter-covariance"
+        (EKF/UKF: the parameter block of P), or what :meth:`replace_cov` named."""
+        return self.extra.get("std_method", "crb")
 
     def replace_cov(self, cov: np.ndarray, how: str, note: str = "") -> None:
         """Report ``cov`` (n_free, n_free) instead of the Cramér-Rao covariance, which is kept
@@ -185,7 +202,7 @@ class EstimationResult:
         if self.message:
             head.append(f"Note: {self.message}")
         head.append("-" * width)
-        cols = f"{'parameter':<16}{'estimate':>13}{'std (CRB)':>13}{'rel std %':>11}"
+        cols = f"{'parameter':<16}{'estimate':>13}{std_label(self.std_method):>13}{'rel std %':>11}"
         consider = self.consider_cov is not None
         if consider:
             cols += f"{'std (total)':>13}"

@@ -18,7 +18,7 @@
          "fixed": {"<name>": value},
          "correlations_flagged": [[a, b, rho], ...],
          "consider_source": str | null,   # what consider_std accounts for
-         "std_method": "crb" | "propagated" | "morelli-klein" | ...,  # how std was computed
+         "std_method": "crb" | "filter-covariance" | "propagated" | "morelli-klein" | ...,  # how std was computed
          "noise_std": {"<output>": float} | null,   # noise fed back (soem, decouple)
          "fit": {"<output>": {"TIC", "UM", "US", "UC", "R2", "RMS", ...}},
          "validation": {...}            # pipeline.validate.validate() minus "arrays"
@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from estimators import EstimationResult
+from estimators.results import std_label
 from pipeline.paths import atomic_write_text
 from pipeline.validate import display_unit, is_segment_parameter, json_ready, num, verdict
 
@@ -72,7 +73,7 @@ def method_json(result: EstimationResult, validation: Mapping[str, Any] | None,
     d["consider_source"] = result.consider_source or None
     # how std was computed when it is not the Cramér-Rao bound (estimators.stabilized), and
     # the measurement noise std a fed-back-measurement method inferred per output
-    d["std_method"] = result.extra.get("std_method", "crb")
+    d["std_method"] = result.std_method
     d["noise_std"] = result.extra.get("noise_std")
     d["fit"] = (val.get("fit") or {}).get("per_output", {})
     d["validation"] = val
@@ -145,7 +146,8 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
           f"iterations; det(R) = {_g(mj['det_R'], '.4e')}; {mj['n_samples']} samples."
           + (f" {mj['message']}" if mj.get("message") else ""), ""]
     L += ["### Parameters", ""]
-    head = ["parameter", "estimate", "std (CRB)", "rel std %"]
+    std_col = std_label(mj.get("std_method") or "crb")
+    head = ["parameter", "estimate", std_col, "rel std %"]
     total = ["std (total)"] if has_total_std(mj) else []
     head += total
     if with_truth:
@@ -159,7 +161,7 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
     seg_rows = param_rows(mj, False, segment=True)
     if seg_rows:
         L += ["Per-segment parameters (biases, initial states; `[k]` is the segment):", ""]
-        L += _table(["parameter", "estimate", "std (CRB)", "rel std %", *total,
+        L += _table(["parameter", "estimate", std_col, "rel std %", *total,
                      "std (Morelli-Klein)", ""], seg_rows)
     if mj.get("fixed"):
         L += ["Fixed: " + ", ".join(f"{n} = {_g(x)}" for n, x in mj["fixed"].items()), ""]

@@ -160,6 +160,18 @@ def test_fed_back_measurements_widen_the_bounds(unstable, method):
     assert noise["q"] == pytest.approx(np.radians(0.1), rel=0.25)
 
 
+def test_report_names_how_each_std_was_computed(unstable):
+    """report.json's std_method and report.md's std column say what the std is: the
+    Cramér-Rao bound, the fed-back noise propagated (soem), the filters' covariance P."""
+    ms = unstable["methods"]
+    assert ms["soem"]["std_method"] == "propagated" and ms["fem"]["std_method"] == "crb"
+    assert ms["ekf"]["std_method"] == ms["ukf"]["std_method"] == "filter-covariance"
+    md = (unstable["_out"] / "report.md").read_text()
+    for method, label in (("soem", "std (propagated)"), ("fem", "std (CRB)"), ("ekf", "std (filter P)")):
+        section = md.split(f"## {method.upper()} (")[1].split("\n## ")[0]
+        assert f"| {label} |" in section, (method, section[:600])
+
+
 def test_methods_that_suit_the_scenario():
     assert scenario_methods({"turbulence": {"model": "off"}}) == ["oem", "ls"]
     assert scenario_methods({"turbulence": {"model": "milspec", "sigma_w": 0.5}}) == \

@@ -234,6 +234,7 @@ def test_filters_adapt_the_measurement_noise(cls, kw):
     res = cls(model(START), process_noise=Q, **kw).fit([seg])
     assert res.converged and res.extra["adapted"] == ["measurement_noise"]
     assert "measurement noise adapted" in res.message and "measurement noise adapted" in res.summary()
+    assert res.std_method == "filter-covariance" and "std (filter P)" in res.summary()
     assert res.settings["adapt_noise"] == "auto" and len(res.extra["noise_moves"]) == res.iterations
     sd = np.sqrt(np.diag(res.extra["measurement_noise"]))
     keep = [0, 1, 2, 4, 5, 6]
