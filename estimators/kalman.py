@@ -414,19 +414,19 @@ class _ParameterFilter:
         res.converged = settled
         res.extra["pass_moves"] = moves
         res.extra["std_method"] = "filter-covariance"
-        if adapt_r or adapt_q:
-            # the noise the last pass ran with, and the adaptation's relative moves per pass
-            res.extra["noise_moves"] = noise_moves
-            res.extra["adapted"] = [w for w, on in (("measurement_noise", adapt_r),
-                                                     ("process_noise", adapt_q)) if on]
+        adapted = [w for w, on in (("measurement_noise", adapt_r), ("process_noise", adapt_q)) if on]
         what = f"{n_done} filter pass{'es' if n_done > 1 else ''}"
+        if adapted:
+            # extra's noise is the one the last pass ran with; the adaptation's relative
+            # moves per pass
+            res.extra["noise_moves"] = noise_moves
+            res.extra["adapted"] = adapted
+            what += f"; {' and '.join(w.replace('_', ' ') for w in adapted)} adapted"
         if not settled:
             res.extra["not_settled"] = (
                 f"the last of {n_done} passes still moved a parameter by {moves[-1]:.2g} std "
                 f"(> {self.pass_tol:g}): raise max_passes, start closer or check the model")
             what += "; not settled: " + res.extra["not_settled"]
-        if adapt_r or adapt_q:
-            what += f"; {' and '.join(w.replace('_', ' ') for w in res.extra['adapted'])} adapted"
         if res.at_bounds:
             what += f"; at a bound (std NaN): {', '.join(res.at_bounds)}"
         res.message = what + "; residuals are the innovations (a-priori)"
