@@ -96,11 +96,13 @@ def _coloured_innovation_cov(M: np.ndarray, M_S: np.ndarray, parts: list
     return 0.5 * (cov + cov.T), lags
 
 
-def _kf_loop(Phi, K, C, drive, offset, Z, x0):
+def _kf_loop(Phi, K, pat, C, drive, offset, Z, x0):
     """Steady-state Kalman filter over a batch of linear systems.
 
-    Phi (B, n, n), K (B, n, m), C (B, m, n), drive (B, N, n) = Gamma (B u + f0),
-    offset (B, N, m) = D u + y0, Z (N, m) with NaN = missing, x0 (B, n).
+    Phi (B, n, n), K (B, n_pat, n, m) the gain per pattern of measured outputs (zero
+    columns for the missing ones, :func:`pattern_gains`), pat (N,) the pattern of each
+    sample, C (B, m, n), drive (B, N, n) = Gamma (B u + f0), offset (B, N, m) = D u + y0,
+    Z (N, m) with NaN = missing, x0 (B, n).
     Returns predicted outputs Y (B, N, m) and a-posteriori states X (B, N, n).
     """
     Bn, n, _ = Phi.shape
@@ -119,10 +121,11 @@ def _kf_loop(Phi, K, C, drive, offset, Z, x0):
                 Y[b, k, j] = y
                 d = Z[k, j] - y
                 nu[j] = d if np.isfinite(d) else 0.0
+            pk = pat[k]
             for i in range(n):
                 v = x[i]
                 for j in range(m):
-                    v += K[b, i, j] * nu[j]
+                    v += K[b, pk, i, j] * nu[j]
                 xh[i] = v
                 X[b, k, i] = v
             if k + 1 < N:
@@ -421,9 +424,10 @@ def _output_kernel(model: Model, kern, helpers: bool):
     return gout
 
 
-def _nl_loop(scheme, rhs, gout, x0, U, t, P, c, K, Z, rtol, atol, mode):
+def _nl_loop(scheme, rhs, gout, x0, U, t, P, c, K, pat, Z, rtol, atol, mode):
     """Constant-gain filter with integrator prediction, batched over parameter columns:
-    x0 (n, B), P (n_p, B), K (B, n, m), Z (N, m). Returns Y (B, N, m), X (B, N, n)."""
+    x0 (n, B), P (n_p, B), K (B, n_pat, n, m) per pattern of measured outputs, pat (N,),
+    Z (N, m). Returns Y (B, N, m), X (B, N, n)."""
     n, Bc = x0.shape
     N, m = Z.shape
     Y = np.full((Bc, N, m), np.nan)
@@ -443,7 +447,7 @@ def _nl_loop(scheme, rhs, gout, x0, U, t, P, c, K, Z, rtol, atol, mode):
             for r in range(n):
                 v = x[r, b]
                 for j in range(m):
-                    v += K[b, r, j] * nu[j]
+                    v += K[b, pat[i], r, j] * nu[j]
                 xh[r, b] = v
                 X[b, i, r] = v
         if i + 1 < N:
@@ -484,6 +488,33 @@ def _nl_loop(scheme, rhs, gout, x0, U, t, P, c, K, Z, rtol, atol, mode):
 
 if numba is not None:
     _nl_loop_jit = numba.njit(error_model="numpy")(_nl_loop)
+
+
+def output_patterns(Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The patterns of measured (finite) outputs in Z (N, m): (masks (n_pat, m) bool, the
+    pattern index of each sample (N,)). One pattern when every output is measured at
+    every sample; multi-rate data (a 10 Hz airspeed on a 50 Hz grid) have several."""
+    masks, pat = np.unique(np.isfinite(Z), axis=0, return_inverse=True)
+    return masks, np.ascontiguousarray(pat.reshape(-1), dtype=np.int64)
+
+
+def pattern_gains(Pp: np.ndarray, C: np.ndarray, B: np.ndarray, K: np.ndarray,
+                  masks: np.ndarray) -> np.ndarray:
+    """Steady-state gains per pattern of measured outputs, (Bc, n_pat, n, m): for the
+    outputs o measured, K_o = P C_o^T B_oo^-1 (P the a-priori covariance, B = C P C^T + R)
+    in their columns, zero in the others; the full gain K where every output is measured.
+    (The full K's columns are not the subset's gain: B^-1 couples the outputs.)"""
+    Bc, n, m = K.shape
+    out = np.zeros((Bc, masks.shape[0], n, m))
+    for p, o in enumerate(masks):
+        if o.all():
+            out[:, p] = K
+        elif o.any():
+            PCt = np.einsum("bij,bkj->bik", Pp, C[:, o, :])                 # (Bc, n, m_o)
+            with np.errstate(all="ignore"):
+                out[:, p][:, :, o] = np.linalg.solve(B[:, o][:, :, o], PCt.transpose(0, 2, 1)
+                                                     ).transpose(0, 2, 1)
+    return np.nan_to_num(out)
 
 
 #: largest deviation of a sample interval from the segment's median interval (relative)
@@ -664,6 +695,8 @@ class FilterError:
                 ua = np.vstack([0.5 * (seg.u[:-1] + seg.u[1:]), seg.u[-1:]])    # (N, ni)
             offset = np.einsum("bij,nj->bni", D, seg.u) + y0[:, None, :]
             Z = np.ascontiguousarray(seg.z)
+            masks, pat = output_patterns(Z)
+            Kp = pattern_gains(Pp, C, Binn, Kg, masks)
             if self.form == "linear":
                 drive = np.einsum("bij,bnj->bni", Gam,
                                   np.einsum("bij,nj->bni", Bu, ua) + f0[:, None, :])
@@ -671,19 +704,21 @@ class FilterError:
                 Y = np.full((Bc, seg.n, m), np.nan)
                 Xf = np.full((Bc, seg.n, n), np.nan)
                 if np.any(ok):
-                    Y[ok], Xf[ok] = _kf_loop_jit(np.ascontiguousarray(Phi[ok]), np.ascontiguousarray(Kg[ok]),
-                                                 np.ascontiguousarray(C[ok]), np.ascontiguousarray(drive[ok]),
+                    Y[ok], Xf[ok] = _kf_loop_jit(np.ascontiguousarray(Phi[ok]), np.ascontiguousarray(Kp[ok]),
+                                                 pat, np.ascontiguousarray(C[ok]), np.ascontiguousarray(drive[ok]),
                                                  np.ascontiguousarray(offset[ok]), Z,
                                                  np.ascontiguousarray(X0.T[ok]))
             else:
-                Y, Xf = self._nonlinear_loop(seg, k, P, X0, Kg, c)
+                Y, Xf = self._nonlinear_loop(seg, k, P, X0, Kg, Kp, pat, c)
             out.append({"Y": Y, "B": Binn, "K": Kg, "P": Pp, "X": Xf,
                         "lin": (A[0], Bu[0], C[0], D[0])})
         return out
 
     def _nonlinear_loop(self, seg: Segment, k: int, P: np.ndarray, X0: np.ndarray,
-                        Kg: np.ndarray, c: Mapping[str, float]):
-        """Integrator prediction and nonlinear outputs, constant gain, batched over columns."""
+                        Kg: np.ndarray, Kp: np.ndarray, pat: np.ndarray, c: Mapping[str, float]):
+        """Integrator prediction and nonlinear outputs, constant gain per pattern of measured
+        outputs (Kp (Bc, n_pat, n, m), pat (N,); Kg the full gain, NaN where the Riccati
+        equation failed), batched over columns."""
         model = self.model
         kern = kernel_for(model)
         N, m = seg.n, len(model.outputs)
@@ -692,10 +727,10 @@ class FilterError:
         if gout is not None:
             from estimators import integrators as _integ
             from estimators.jit import _jit_scheme
-            Kc = np.ascontiguousarray(np.nan_to_num(Kg))
             Y, Xf = _nl_loop_jit(_jit_scheme(self.integrator), kern.rhs_jit, gout,
                                  np.ascontiguousarray(X0, dtype=float), np.ascontiguousarray(seg.u),
-                                 seg.t, np.ascontiguousarray(P, dtype=float), kern._c_jit(c), Kc,
+                                 seg.t, np.ascontiguousarray(P, dtype=float), kern._c_jit(c),
+                                 np.ascontiguousarray(Kp), pat,
                                  np.ascontiguousarray(seg.z), float(1e-8), float(1e-10),
                                  _integ.INPUT_MODES[self.inputs])
             # a diverging column is not an error here: its non-finite predictions make the
@@ -707,14 +742,13 @@ class FilterError:
         Y = np.full((Bc, N, m), np.nan)
         Xf = np.full((Bc, N, n), np.nan)
         x = X0.copy()
-        Kt = np.nan_to_num(Kg)
         alive = np.ones(Bc, dtype=bool)
         for i in range(N):
             with np.errstate(all="ignore"):
                 y = model.eval_g(x[:, None, :], seg.u[i][:, None, None], P, c)[:, 0, :]   # (m, Bc)
             nu = seg.z[i][:, None] - y
             nu = np.where(np.isfinite(nu), nu, 0.0)
-            xh = x + np.einsum("bij,jb->ib", Kt, nu)
+            xh = x + np.einsum("bij,jb->ib", Kp[:, pat[i]], nu)
             Y[:, i, :] = y.T
             Xf[:, i, :] = xh.T
             if i + 1 < N:
@@ -755,25 +789,33 @@ class FilterError:
 
     @staticmethod
     def _seg_nll(E: np.ndarray, Bm: np.ndarray, Z: np.ndarray) -> float:
-        """Innovation likelihood over the samples where every output is measured. A
-        non-finite prediction at such a sample (a filter that diverged) makes J infinite:
-        it must not shorten the sum (fewer samples would look like a better fit)."""
-        ok = np.all(np.isfinite(Z), axis=1)
-        if not np.all(np.isfinite(E[ok])):
-            return np.inf
-        sign, logdet = np.linalg.slogdet(Bm)
-        if sign <= 0:
-            return np.inf
-        Ei = E[ok]
-        W = np.linalg.solve(Bm, Ei.T)
-        val = 0.5 * float(np.sum(Ei.T * W)) + 0.5 * ok.sum() * logdet
+        """Innovation likelihood over every sample, each on the outputs measured there
+        (the block of B for them). A non-finite prediction of a measured output (a filter
+        that diverged) makes J infinite: it must not shorten the sum (fewer samples would
+        look like a better fit)."""
+        masks, pat = output_patterns(Z)
+        val = 0.0
+        for p, o in enumerate(masks):
+            if not o.any():
+                continue
+            Ei = E[pat == p][:, o]
+            if not np.all(np.isfinite(Ei)):
+                return np.inf
+            sign, logdet = np.linalg.slogdet(Bm[np.ix_(o, o)])
+            if sign <= 0:
+                return np.inf
+            W = np.linalg.solve(Bm[np.ix_(o, o)], Ei.T)
+            val += 0.5 * float(np.sum(Ei.T * W)) + 0.5 * Ei.shape[0] * logdet
         return val if np.isfinite(val) else np.inf
 
     def _scoring(self, res, hsteps: np.ndarray, keep: list | None = None):
-        """Fisher information M, gradient g (of -J) and J from a batch (column 0 = base).
-        ``keep``: a list that receives, per segment, (S (N, m, nphi) innovation
+        """Fisher information M, gradient g (of -J) and J from a batch (column 0 = base),
+        each sample on the outputs measured there (per pattern of measured outputs, the
+        block of B for them; samples whose measured outputs have a non-finite prediction
+        left out). ``keep``: a list that receives, per segment, (S (N, m, nphi) innovation
         sensitivities, E (N, m) innovations, B^-1, rows used, S^T B^-1 S (nphi, nphi): its
-        part of M) for the coloured-innovation covariance."""
+        part of M) for the coloured-innovation covariance - the samples where every output
+        is measured (the others stay in M as white)."""
         nphi = hsteps.size
         M = np.zeros((nphi, nphi))
         g = np.zeros(nphi)
@@ -781,27 +823,35 @@ class FilterError:
         for seg, r in zip(self._segments, res):
             Y, Bs = r["Y"], r["B"]
             E = seg.z - Y[0]
-            ok = np.all(np.isfinite(seg.z), axis=1) & np.all(np.isfinite(E), axis=1)
             Bm = Bs[0]
-            Binv = np.linalg.inv(Bm)
-            Lw = np.linalg.cholesky(Binv)
             S = (Y[1:] - Y[:1]) / hsteps[:, None, None]              # (nphi, N, m)
             S = np.where(np.isfinite(S), S, 0.0)
-            Sw = np.einsum("pnm,mk->pnk", S[:, ok], Lw).reshape(nphi, -1)
-            Ew = (E[ok] @ Lw).ravel()
-            M_S = Sw @ Sw.T
-            M += M_S
-            g += Sw @ Ew
-            if keep is not None:
-                keep.append((np.where(ok[:, None, None], np.moveaxis(S, 0, 2), 0.0),
-                             np.where(ok[:, None], E, 0.0), Binv, ok, M_S))
             dB = (Bs[1:] - Bs[:1]) / hsteps[:, None, None]           # (nphi, m, m)
             dB = np.where(np.isfinite(dB), dB, 0.0)
-            Nk = ok.sum()
-            T = np.einsum("ij,pjk->pik", Binv, dB)                   # B^-1 B_i
-            M += 0.5 * Nk * np.einsum("pij,qji->pq", T, T)
-            Sum = E[ok].T @ E[ok]
-            g += 0.5 * np.einsum("pij,jk,kl->pil", T, Binv, Sum - Nk * Bm).trace(axis1=1, axis2=2)
+            masks, pat = output_patterns(seg.z)
+            full = np.zeros(seg.n, dtype=bool)
+            M_full = np.zeros((nphi, nphi))
+            for p, o in enumerate(masks):
+                rows = (pat == p) & np.all(np.isfinite(np.where(o, E, 0.0)), axis=1)
+                if not (o.any() and rows.any()):
+                    continue
+                Bo = Bm[np.ix_(o, o)]
+                Binv = np.linalg.inv(Bo)
+                Lw = np.linalg.cholesky(Binv)
+                Eo = E[rows][:, o]
+                Sw = np.einsum("pnm,mk->pnk", S[:, rows][:, :, o], Lw).reshape(nphi, -1)
+                M_S = Sw @ Sw.T
+                M += M_S
+                g += Sw @ (Eo @ Lw).ravel()
+                Nk = rows.sum()
+                T = np.einsum("ij,pjk->pik", Binv, dB[:, o][:, :, o])   # B^-1 B_i
+                M += 0.5 * Nk * np.einsum("pij,qji->pq", T, T)
+                g += 0.5 * np.einsum("pij,jk,kl->pil", T, Binv, Eo.T @ Eo - Nk * Bo).trace(axis1=1, axis2=2)
+                if o.all():
+                    full, M_full = rows, M_S
+            if keep is not None:
+                keep.append((np.where(full[:, None, None], np.moveaxis(S, 0, 2), 0.0),
+                             np.where(full[:, None], E, 0.0), np.linalg.inv(Bm), full, M_full))
             J += self._seg_nll(E, Bm, seg.z)
         return M, g, J
 
