@@ -22,7 +22,11 @@ Filter (steady-state Kalman filter, one per parameter set):
   (the package integrators, default RK4), outputs g(x~_k) of the nonlinear g, and the
   steady-state gain of the linearisation at the trim point (a constant gain; state it
   when reporting: the linearisation is about x0 and u[0] of each segment).
-* Correction x^_k = x~_k + K (z_k - y~_k); missing samples (NaN) get no correction.
+* Correction x^_k = x~_k + K (z_k - y~_k). A sample where only the outputs o are measured
+  (NaN = missing: multi-rate data) is corrected with the gain of those outputs,
+  K_o = P C_o^T B_oo^-1, and enters the likelihood and information below with the block
+  B_oo (``output_patterns``, ``pattern_gains``; P stays the steady state of the full
+  output set).
 
 Estimation (internally the process-noise unknowns are F_i^2, which enter Qd linearly;
 results report F_i and its std): the negative log-likelihood of the innovations
