@@ -699,7 +699,7 @@ class FilterError:
                 ua = np.vstack([0.5 * (seg.u[:-1] + seg.u[1:]), seg.u[-1:]])    # (N, ni)
             offset = np.einsum("bij,nj->bni", D, seg.u) + y0[:, None, :]
             Z = np.ascontiguousarray(seg.z)
-            masks, pat = output_patterns(Z)
+            masks, pat = self._patterns[k]
             Kp = pattern_gains(Pp, C, Binn, Kg, masks)
             if self.form == "linear":
                 drive = np.einsum("bij,bnj->bni", Gam,
@@ -783,21 +783,20 @@ class FilterError:
     # -- likelihood pieces ----------------------------------------------------------------------
     def _nll(self, res) -> float:
         J = 0.0
-        for seg, r in zip(self._segments, res):
+        for k, (seg, r) in enumerate(zip(self._segments, res)):
             Y, Bm = r["Y"][0], r["B"][0]
             if not np.all(np.isfinite(Bm)):
                 return np.inf
             E = seg.z - Y
-            J += self._seg_nll(E, Bm, seg.z)
+            J += self._seg_nll(E, Bm, *self._patterns[k])
         return J
 
     @staticmethod
-    def _seg_nll(E: np.ndarray, Bm: np.ndarray, Z: np.ndarray) -> float:
+    def _seg_nll(E: np.ndarray, Bm: np.ndarray, masks: np.ndarray, pat: np.ndarray) -> float:
         """Innovation likelihood over every sample, each on the outputs measured there
         (the block of B for them). A non-finite prediction of a measured output (a filter
         that diverged) makes J infinite: it must not shorten the sum (fewer samples would
         look like a better fit)."""
-        masks, pat = output_patterns(Z)
         val = 0.0
         for p, o in enumerate(masks):
             if not o.any():
@@ -824,7 +823,7 @@ class FilterError:
         M = np.zeros((nphi, nphi))
         g = np.zeros(nphi)
         J = 0.0
-        for seg, r in zip(self._segments, res):
+        for k, (seg, r) in enumerate(zip(self._segments, res)):
             Y, Bs = r["Y"], r["B"]
             E = seg.z - Y[0]
             Bm = Bs[0]
@@ -832,7 +831,7 @@ class FilterError:
             S = np.where(np.isfinite(S), S, 0.0)
             dB = (Bs[1:] - Bs[:1]) / hsteps[:, None, None]           # (nphi, m, m)
             dB = np.where(np.isfinite(dB), dB, 0.0)
-            masks, pat = output_patterns(seg.z)
+            masks, pat = self._patterns[k]
             full = np.zeros(seg.n, dtype=bool)
             M_full = np.zeros((nphi, nphi))
             for p, o in enumerate(masks):
@@ -856,7 +855,7 @@ class FilterError:
             if keep is not None:
                 keep.append((np.where(full[:, None, None], np.moveaxis(S, 0, 2), 0.0),
                              np.where(full[:, None], E, 0.0), np.linalg.inv(Bm), full, M_full))
-            J += self._seg_nll(E, Bm, seg.z)
+            J += self._seg_nll(E, Bm, masks, pat)
         return M, g, J
 
     def _raise_diverged(self, res) -> None:
@@ -888,6 +887,7 @@ class FilterError:
             raise ModelDefinitionError("fit() needs at least one segment")
         model = self.model
         self._segments = segments
+        self._patterns = [output_patterns(seg.z) for seg in segments]
         lay = self._lay = Layout.build(model, segments, estimate_x0, values=start)
         check_outputs_measured(self.model, segments, "filter error")
         if self.form_requested == "auto":
