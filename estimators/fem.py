@@ -683,7 +683,7 @@ class FilterError:
             X0 = np.ascontiguousarray(Theta[:, lay.x0idx[k]].T)
             c = model.constants_for(seg)
             A, Bu, C, D, f0, y0 = linearize_batch(model, P, X0, seg.u[0], c)
-            h = sample_interval(seg, k)
+            h = self._h[k]
             Phi = np.empty((Bc, n, n)); Gam = np.empty((Bc, n, n))
             Kg = np.empty((Bc, n, m)); Binn = np.empty((Bc, m, m)); Pp = np.empty((Bc, n, n))
             for b in range(Bc):
@@ -887,6 +887,9 @@ class FilterError:
             raise ModelDefinitionError("fit() needs at least one segment")
         model = self.model
         self._segments = segments
+        # per segment, once: the sample interval (jitter checked) and the patterns of
+        # measured outputs
+        self._h = [sample_interval(seg, k) for k, seg in enumerate(segments)]
         self._patterns = [output_patterns(seg.z) for seg in segments]
         lay = self._lay = Layout.build(model, segments, estimate_x0, values=start)
         check_outputs_measured(self.model, segments, "filter error")
