@@ -22,10 +22,14 @@ CL0 9.3, Cmde 9.5, Cm0 7.9, CLq 7.0 std off, EKF/UKF Cm0/Cmalpha/Cmde 30-40 std,
 FEM Clp 49, Clda 31, Clbeta 30 std, EKF/UKF Clp 330 std. Now (seed 31): longitudinal FEM
 every derivative within 1.3 std (2.5 before FEM's R came from the log's native samples,
 pipeline.run.attach_logged_noise); EKF/UKF, their passes repeated until the estimates
-settle (estimators.EKF passes="auto"), all but CLq 4.8-5.0, CL0 3.6, CLde 3.1-3.3 std (UKF
-Cmalpha 3.2) within 3 - one pass from the equation-error start had left only CLq (4.2) off,
-a start-dependent result; lateral FEM 11 of 15 within 3 std, Clp 4.7, Clda 4.7, Cnp 3.6, Cnda
-3.3 (5.9, 5.6, 4.1, 3.5 with the grid's R); EKF/UKF Clp 24-32, Clda 14-20 std (8 passes each; the EKF still moving 0.3 std). What does
+settle (estimators.EKF passes="auto"), all but CLq 4.8-5.0, CL0 3.3-3.4, CLde 3.3-3.5 std
+(EKF Cmalphadot 3.3) within 3 - one pass from the equation-error start had left only CLq
+(4.2) off, a start-dependent result; lateral FEM 11 of 15 within 3 std, Clp 4.7, Clda 4.7,
+Cnp 3.6, Cnda 3.3 (5.9, 5.6, 4.1, 3.5 with the grid's R); UKF all but Clp 6.5, Clda 3.6
+within 3 std, EKF Clp 18.7, Clda 10.4, Clbeta 8.0 (8 passes each). The filters' roll gust
+starts each segment with its stationary spread (estimators.EKF state_std default; at
+1e-3 rad/s, as before, UKF Clp 24, Clda 14, Clbeta 11, EKF Clp 32, Clda 20, Clbeta 18; seed
+33: EKF 8.0 -> 7.1, UKF 6.6 -> 6.8 worst, longitudinal unchanged within 0.1). What does
 not hold is a strict xfail with the measured numbers.
 
 What limits the lateral FEM (measured with scripts not kept in the repo): the roll gust.
@@ -59,7 +63,7 @@ Clp 15/9 std off, as here.
 Larger multisines (all after the measurement-noise change): at 4 deg on every axis every TIC
 is below 0.1 (alpha 0.072, beta 0.061, ay 0.060) and the lateral FEM is within 2.6 std, but
 the longitudinal FEM's Cm0, Cmde, Cmalphadot go to 3.5-3.9 std (Cmalphadot -8.64 for
--7.27) and EKF/UKF Clp stays ~31 std; at [3.5, 3, 3] deg, Clp 3.3 and Cm0/Cmalphadot
+-7.27) and EKF/UKF Clp stayed ~31 std (gust state started at 1e-3 rad/s); at [3.5, 3, 3] deg, Clp 3.3 and Cm0/Cmalphadot
 3.4/3.7. The scenario keeps 1.5 deg until the longitudinal model holds at the larger
 amplitude.
 """
@@ -78,8 +82,8 @@ LAT = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "
        "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
 #: longitudinal derivatives measured more than 3 std from the truth (|error|/std, seed 31)
 LONG_OFF = {"fem": {},
-            "ekf": {"CLq": 4.78, "CL0": 3.55, "CLde": 3.11},
-            "ukf": {"CLq": 4.98, "CL0": 3.6, "CLde": 3.31, "Cmalpha": 3.2}}
+            "ekf": {"CLq": 4.84, "CL0": 3.3, "CLde": 3.3, "Cmalphadot": 3.28},
+            "ukf": {"CLq": 5.0, "CL0": 3.42, "CLde": 3.51}}
 
 
 @pytest.fixture(scope="module")
@@ -102,8 +106,10 @@ def test_longitudinal_multiaxis_model(report, method):
     errs = _errors(report, f"longitudinal-{method}", LONG)
     held = {n: e for n, e in errs.items() if n not in LONG_OFF[method]}
     assert max(held.values()) <= 3.0, f"{method}: |error|/std {errs}"
-    # the moment derivatives, the aim of the multisines, all within 3 std except UKF Cmalpha
-    assert all(errs[n] <= 3.0 for n in ("Cm0", "Cmq", "Cmde", "Cmalphadot")), errs
+    # those measured beyond 3 std have not grown
+    assert all(errs[n] <= 1.2 * v for n, v in LONG_OFF[method].items()), errs
+    # the moment derivatives, the aim of the multisines, within 3 std (EKF Cmalphadot 3.3)
+    assert all(errs[n] <= 3.0 for n in ("Cm0", "Cmq", "Cmde")), errs
     if method == "fem":
         ps = m["parameters"]
         assert {"F_V", "F_alpha", "F_q_gi"} <= set(ps) and ps["F_q_gi"]["estimate"] > 0
@@ -111,7 +117,7 @@ def test_longitudinal_multiaxis_model(report, method):
 
 @pytest.mark.parametrize("method", [
     "fem", *(pytest.param(m, marks=pytest.mark.xfail(strict=True, reason=(
-        "measured (seed 31) CLq 4.8, 5.0, CL0 3.6, CLde 3.1, 3.3 std, UKF Cmalpha 3.2 (EKF, "
+        "measured (seed 31) CLq 4.8, 5.0, CL0 3.3, 3.4, CLde 3.3, 3.5 std, EKF Cmalphadot 3.3 (EKF, "
         "UKF: process noise fixed at twice the turbulence level, not estimated as in FEM)"))) for m in ("ekf", "ukf"))])
 def test_longitudinal_all_within_3_std(report, method):
     errs = _errors(report, f"longitudinal-{method}", LONG)
@@ -153,9 +159,9 @@ def test_lateral_fem_gust_model(report):
 
 
 @pytest.mark.xfail(strict=True, reason="lateral |error|/std > 3 (seed 31): FEM Clp 4.7 (-0.369 "
-                   "for -0.484), Clda 4.7 (0.179 for 0.229), Cnp 3.6, Cnda 3.3; EKF Clp 32, Clda "
-                   "20, Clbeta 18; UKF Clp 24, Clda 14, Clbeta 11 (8 passes; the EKF started at the truth "
-                   "ends there too; the methods' cross-check flags them) - the roll derivatives low "
+                   "for -0.484), Clda 4.7 (0.179 for 0.229), Cnp 3.6, Cnda 3.3; EKF Clp 18.7, "
+                   "Clda 10.4, Clbeta 8.0; UKF Clp 6.5, Clda 3.6 (8 passes; the methods' "
+                   "cross-check flags the EKF) - the roll derivatives low "
                    "together: the roll gust (p_turb 2.8 deg/s rms, time constant ~0.44 s, "
                    "estimated tau_pg 0.36 s) and the roll response to it are barely separable "
                    "(corr(Clp, F_p_g) 0.94); with JSBSim's p_turb given, Clp -0.494, Clda 0.233; "
@@ -169,22 +175,22 @@ def test_lateral_all_within_3_std(report, method):
 
 def test_methods_cross_check_finds_what_the_truth_finds(report):
     """Without the truth, the run's methods check each other (pipeline.validate.
-    cross_check_methods): the lateral EKF's roll derivatives disagree with FEM's by more
-    than 3 combined std (seed 31: Clbeta 6.6, Clp 3.4, Clda 3.4), and every pair flagged
-    holds a method that the truth check puts more than 3 std off. (Ad-hoc runs, not in the
-    repo: the EKF started at the true derivatives ends at the same Clp, -0.28 for -0.484,
-    and with FEM's estimated process noise at -0.28 too: a bias of the parameter-in-the-
-    state filter under this much process noise, not of its start or its Q.)"""
+    cross_check_methods): the lateral EKF disagrees with FEM by more than 3 combined std
+    (seed 31: CYbeta, CYp, CYda, Clbeta, Clr 3.1-3.2) and with the UKF (Clbeta 4.5, Clp 4.6,
+    Clr 4.4), and every pair flagged holds a method that the truth check puts more than 3
+    std off (benchmarks/lateral_gust_filters_mc.py: the parameter-in-the-state filters
+    are biased on this model even on data it makes itself)."""
     ag = report["agreement"]
     flagged = {(r["parameter"], r["method_a"], r["method_b"])
                for axis in ("longitudinal", "lateral") for r in ag[axis]["table"] if r["flag"]}
-    assert {("Clp", "lateral-fem", "lateral-ekf"), ("Clbeta", "lateral-fem", "lateral-ekf"),
-            ("Clbeta", "lateral-fem", "lateral-ukf")} <= flagged, flagged
+    assert {("Clbeta", "lateral-fem", "lateral-ekf"), ("Clp", "lateral-ekf", "lateral-ukf"),
+            ("Clbeta", "lateral-ekf", "lateral-ukf")} <= flagged, flagged
     for name, a, b in flagged:
         errs = [report["methods"][k]["parameters"][name]["error_in_std"] for k in (a, b)]
         assert max(abs(e) for e in errs) > 3.0, (name, a, b, errs)
     notes = report["methods"]["lateral-ekf"]["verdict"]["notes"]
-    assert any(n.startswith("disagrees with lateral-fem") and "Clp" in n for n in notes), notes
+    assert any(n.startswith("disagrees with lateral-fem") and "Clbeta" in n for n in notes), notes
+    assert any(n.startswith("disagrees with lateral-ukf") and "Clp" in n for n in notes), notes
 
 
 @pytest.mark.xfail(strict=True, reason="proof of match on the held-out multisine_c fails for "
