@@ -131,6 +131,9 @@ def simulate(pb, truth: dict, gust: str, fl: dict, rng: np.random.Generator) -> 
             if st in m.outputs and np.isfinite(s.z[0, m.outputs.index(st)]):
                 x[i] = s.z[0, m.outputs.index(st)]
         x[m.states.index("beta_k")] = x[m.states.index("beta")]
+        # the gust at the segment start: JSBSim's, or a draw from the stationary spread
+        x[ig] = (np.interp(s.t[0], fl["t"], fl["p_turb"]) if gust == "flight"
+                 else fl["rms"] * rng.standard_normal())
         X = np.empty((n, x.size))
         X[0] = x
         w = rng.standard_normal((n, SUBSTEPS, x.size)) * F * np.sqrt(dt)
