@@ -19,35 +19,34 @@ Per variant, method and derivative: empirical std over the draws / mean reported
 (1 = honest; with ``flight`` the gust is the same in every draw, so the scatter is only
 the sensor noise's and this ratio and the bias say little), the bias in empirical std, and
 the mean |error| / reported std (what the closed-loop tests hold below 3). A method name
-with ``-trueQ`` (ekf-trueQ, ukf-trueQ) gives the filter the draws' own process noise
-instead of the pipeline's; with ``-ljung`` (ekf-ljung, ekf-ljung-trueQ) the EKF adds
-Ljung's gain-derivative term (``EKF(gain_derivative=True)``).
+ending in ``-trueQ`` (ekf-trueQ, ukf-trueQ) gives the filter the draws' own process noise
+instead of the pipeline's.
 
 Measured (2026-11-25, flight seed 31: p_turb rms 0.049 rad/s, time constant 0.418 s;
 draws 0-7; empirical/reported std, largest |bias| in empirical std, worst mean
 |error|/std):
-  markov fem        0.37-1.16, 1.06, 0.93 (Cnda)
-  markov ekf        0.43-3.61, 3.26, 3.80 (Clp)
-  markov ukf        0.59-2.76, 3.43, 3.50 (Clp)
-  markov ekf-trueQ  0.63-4.20, 2.70, 4.10 (Clr)
-  markov ukf-trueQ  0.63-3.40, 1.96, 3.71 (Clr)
-  flight fem        mean |error|/std worst 1.96 (Cldr)
-  flight ekf        15.2 (Clp)
-  flight ukf        8.7 (Clp)
-  with Ljung's term (EKF gain_derivative):
-  markov ekf-ljung-trueQ  0.69-2.04, 1.80, 2.25 (CYp)
-  markov ekf-ljung        0.49-1.30, 6.83, 6.35 (Clp)
-  flight ekf-ljung        53.5 (Clp)
+  markov fem        0.50-1.47, 0.76, 1.13 (CYda)
+  markov ekf        0.43-1.25, 3.67, 2.38 (Clp)
+  markov ukf        0.42-1.46, 4.00, 2.53 (Clp)
+  markov ekf-trueQ  0.64-9.97, 6.36, 8.23 (Clbeta)
+  markov ukf-trueQ  0.72-2.49, 2.99, 3.78 (Clp)
+  flight fem        mean |error|/std worst 1.97 (Cldr)
+  flight ekf        6.69 (Clbeta)
+  flight ukf        4.83 (Clbeta)
+Before the filters started the gust state at its stationary spread (at 1e-3 rad/s; the
+draws' gust then started at 0): markov ekf 0.43-3.61, 3.26, 3.80 (Clp); ukf 0.59-2.76,
+3.43, 3.50 (Clp); ekf-trueQ 0.63-4.20, 2.70, 4.10 (Clr); ukf-trueQ 0.63-3.40, 1.96, 3.71
+(Clr); flight ekf 15.2, ukf 8.7 (Clp).
 Filter error is honest and unbiased on this model, and stays within 2 std with the
-flight's own roll gust. The parameter-in-the-state filters are not, even with the true
-process noise and on data their own model made: their std of the roll derivatives is up
-to 4x too small, Clp is biased by 2-3 of its empirical std, and with the flight's gust
-Clp ends 15 (EKF) / 9 (UKF) reported std off - as on the JSBSim flight itself
-(tests/test_closed_loop_multiaxis.py). JSBSim's p_turb is the first-order Markov process
-the model assumes (JSBSim's Tustin form with tau_p = L_p / V, L_p = sqrt(L_w b) / 2.6:
-0.44 s here; ad-hoc, its autocorrelation gives 0.41-0.43 s at every lag from 0.1 to
-0.6 s), so what fails there is the filters, not the gust model. Ljung's term makes the
-EKF honest given the true process noise, and worse with any other.
+flight's own roll gust. The parameter-in-the-state filters are not, on data their own
+model made: Clp is biased by 3.7-4 of its empirical std, and with the flight's gust the
+roll derivatives end 5-7 reported std off (on the JSBSim flight itself,
+tests/test_closed_loop_multiaxis.py: UKF 6.5, EKF 18.7). Given the true process noise the
+EKF is worse still (up to 10x too small a std; some draws wander off from the start of a
+segment where the gust is uncertain and the linearisation poor). JSBSim's p_turb is the
+first-order Markov process the model assumes (JSBSim's Tustin form with tau_p = L_p / V,
+L_p = sqrt(L_w b) / 2.6: 0.44 s here; ad-hoc, its autocorrelation gives 0.41-0.43 s at
+every lag from 0.1 to 0.6 s), so what fails there is the filters, not the gust model.
 
     python benchmarks/lateral_gust_filters_mc.py [--seeds 8] [--seed-base 0] [--jobs 2]
         [--flight-seed 31] [--methods fem,ekf,ukf,ekf-trueQ,ukf-trueQ] [--variants markov,flight]
@@ -173,14 +172,10 @@ def one_draw(seed: int, *, workdir: Path, methods: list[str], variants: list[str
         pb = copy.copy(fl["problem"])
         pb.fit = simulate(fl["problem"], fl["truth"], gust, fl, np.random.default_rng(1000 + seed))
         for method in methods:
-            base, *flags = method.split("-")
-            opts = {"gain_derivative": True} if "ljung" in flags else {}
-            if "trueQ" in flags:     # the filter given the draws' own process noise
-                res = fit_problem(pb, base, process_noise=true_process_noise(pb, gust, fl),
-                                  filter_options=opts)
+            if method.endswith("-trueQ"):     # the filter given the draws' own process noise
+                res = fit_problem(pb, method[:-6], process_noise=true_process_noise(pb, gust, fl))
             else:
-                res = fit_problem(pb, base, turbulence=fl["truth"]["turbulence"],
-                                  filter_options=opts)
+                res = fit_problem(pb, method, turbulence=fl["truth"]["turbulence"])
             rows += [{"variant": gust, "method": method, "name": n,
                       "estimate": float(res.params[n]), "std": float(res.std[n]),
                       "truth": float(fl["truth"]["derivatives"][n])} for n in NAMES]

@@ -290,13 +290,11 @@ def _states_at_cg(model: Any):
 
 
 def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] | None = None,
-                process_noise: Mapping[str, float] | None = None,
-                filter_options: Mapping[str, Any] | None = None) -> Any:
+                process_noise: Mapping[str, float] | None = None) -> Any:
     """Run one estimation method on a problem (names in METHODS). ``turbulence``: the
     Dryden level when known (truth.json), for the filters' process noise; else
     ``process_noise`` (EKF/UKF: state -> F, e.g. :func:`filter_process_noise`), else the
-    data's default. ``filter_options``: further keywords of the EKF/UKF (e.g. the EKF's
-    ``gain_derivative``)."""
+    data's default."""
     import estimators as E
 
     model, inputs, x0 = problem.model, problem.inputs, problem.estimate_x0
@@ -333,7 +331,7 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
              {k: v for k, v in process_noise.items() if k in model.states})
         return cls(model, inputs=inputs, process_noise=Q,
                    measurement_noise=measurement_noise_std(problem, logged=False),
-                   param_std=_filter_param_std(model), **(filter_options or {})).fit(problem.fit)
+                   param_std=_filter_param_std(model)).fit(problem.fit)
     if method == "soem":
         # feed back only the short-period measurements where the model has them: with V and
         # theta fed back too, CL0/CLalpha/CLde ended 17-25 std off on unstable_short_period

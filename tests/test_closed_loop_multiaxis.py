@@ -54,11 +54,10 @@ axes = "aircraft", tests/test_sim_turbulence_axes.py; corr 0.93): lateral FEM se
 What limits the lateral EKF/UKF is the parameter-in-the-state filter itself
 (benchmarks/lateral_gust_filters_mc.py: data the lateral gust model makes on this flight's
 inputs, 8 draws). With the model's own first-order roll gust, FEM is honest (empirical /
-reported std 0.37-1.16, worst mean |error|/std 0.93) while EKF/UKF report roll-derivative
-std up to 4.2x too small and put Clp 3.5-4.1 std off on average, with the pipeline's
-process noise or the true one; with JSBSim's p_turb of seed 31 as the gust (a first-order
-process, time constant 0.42 s, like the model's) FEM stays within 2 std and EKF/UKF end
-Clp 15/9 std off, as here.
+reported std 0.50-1.47, worst mean |error|/std 1.13) while EKF/UKF put Clp 2.4-2.5 std off
+on average (bias 3.7-4 empirical std), the EKF given the true process noise 8.2 (Clbeta);
+with JSBSim's p_turb of seed 31 as the gust (a first-order process, time constant 0.42 s,
+like the model's) FEM stays within 2 std and EKF/UKF end Clbeta 6.7/4.8 std off.
 
 Larger multisines (all after the measurement-noise change): at 4 deg on every axis every TIC
 is below 0.1 (alpha 0.072, beta 0.061, ay 0.060) and the lateral FEM is within 2.6 std, but
@@ -165,7 +164,7 @@ def test_lateral_fem_gust_model(report):
                    "together: the roll gust (p_turb 2.8 deg/s rms, time constant ~0.44 s, "
                    "estimated tau_pg 0.36 s) and the roll response to it are barely separable "
                    "(corr(Clp, F_p_g) 0.94); with JSBSim's p_turb given, Clp -0.494, Clda 0.233; "
-                   "EKF/UKF miss Clp by 15/9 std on data their own model makes with that "
+                   "EKF/UKF miss Clbeta by 6.7/4.8 std on data their own model makes with that "
                    "p_turb (benchmarks/lateral_gust_filters_mc.py; see the module docstring)")
 @pytest.mark.parametrize("method", METHODS)
 def test_lateral_all_within_3_std(report, method):

@@ -109,45 +109,28 @@ def test_per_segment_biases_in_the_state():
     assert np.ptp(tr[1]["bias_az[0]"].to_numpy()) < 0.3 * res.std["bias_az[0]"]
 
 
-def _scalar_gain(a: float, h: float, q: float, r: float) -> float:
-    """Steady-state filter gain of x_{k+1} = e^{a h} x_k + w, y = x + v (var w = q,
-    var v = r): the positive root of the scalar discrete Riccati equation."""
-    phi2 = np.exp(2 * a * h)
-    b = r * (1 - phi2) - q
-    P = 0.5 * (-b + np.sqrt(b * b + 4 * q * r))
-    return P / (P + r)
-
-
-def test_gain_derivative_is_that_of_the_riccati_solution():
-    """Ljung's term (EKF gain_derivative): dK/da of x' = a x + w, y = x against the
-    closed-form steady-state gain of the scalar Riccati equation."""
+def test_gust_state_starts_with_its_stationary_spread():
+    """An unmeasured state with process noise (a first-order gust, time constant tau)
+    starts each segment with its stationary std, F^2 h / (1 - e^{-2h/tau}) ~ F sqrt(tau/2)
+    - not 1e-3; a measured state with the sensor's std, an unmeasured one without noise
+    with 1e-3, and ``state_std`` overrides."""
     from estimators import Model, Parameter, Segment
     from estimators.kalman import AugmentedModel
     from estimators.simulation import Layout
 
-    m = Model(states=["x"], inputs=["u"], outputs=["x"],
-              parameters=[Parameter("a", -1.5), Parameter("b", 2.0)],
-              f=lambda x, u, p, c: (p.a * x[0] + p.b * u[0],), g=lambda x, u, p, c: (x[0],))
+    m = Model(states=["p", "g", "phi"], inputs=["u"], outputs=["p"],
+              parameters=[Parameter("Lp", -8.0), Parameter("tau", 0.4)],
+              f=lambda x, u, p, c: (p.Lp * (x[0] - x[1]) + u[0], -x[1] / p.tau, x[0]),
+              g=lambda x, u, p, c: (x[0],))
     t = np.arange(0, 1, 0.02)
-    seg = Segment(t=t, u=np.zeros((t.size, 1)), z=np.zeros((t.size, 1)), x0=[0.1])
-    F, R = np.array([[0.3]]), np.array([[0.05 ** 2]])
+    seg = Segment(t=t, u=np.zeros((t.size, 1)), z=np.zeros((t.size, 1)), x0=[0.0, 0.0, 0.0])
     lay = Layout.build(m, [seg], False)
     aug = AugmentedModel(m, lay, seg, 0, "rk4")
     s = np.concatenate([lay.values[lay.x0idx[0]], lay.values[lay.free_idx]])
-    dK = EKF(m, gain_derivative=True)._gain_sensitivity(aug, s, F, R)
-    assert dK.shape == (2, 1, 1)
-    q, r, h = 0.3 ** 2 * 0.02, 0.05 ** 2, 0.02
-    exact = (_scalar_gain(-1.5 + 1e-6, h, q, r) - _scalar_gain(-1.5 - 1e-6, h, q, r)) / 2e-6
-    assert dK[0, 0, 0] == pytest.approx(exact, rel=2e-3) and abs(exact) > 1e-3
-    assert abs(dK[1, 0, 0]) < 1e-6                # the input gain does not move K
-    assert EKF(m)._gain_sensitivity(aug, s, F, R) is None        # off by default
-
-
-def test_gain_derivative_on_the_turbulent_example(turb, ekf):
-    """With Ljung's term on the turbulent longitudinal example (true noise given): every
-    derivative within 3 std, the setting recorded, and the estimate moved by the term."""
-    res = EKF(turb.model, gain_derivative=True, **settings(turb)).fit(turb.segments)
-    within(res, turb.truth)
-    assert res.settings["gain_derivative"] and "gain_derivative_skipped" not in res.extra
-    moved = (res.params[res.free_names] - ekf.params[res.free_names]).abs() / ekf.std[res.free_names]
-    assert moved.max() > 0.01, moved
+    F, R = np.diag([0.0, 0.1, 0.0]), np.array([[0.003 ** 2]])
+    sd = np.sqrt(np.diag(EKF(m)._initial_state_cov(R, aug, s, F)))
+    exact = 0.1 * np.sqrt(0.02 / (1 - np.exp(-2 * 0.02 / 0.4)))
+    assert sd[1] == pytest.approx(exact, rel=1e-4) and sd[1] == pytest.approx(0.1 * np.sqrt(0.2), rel=0.03)
+    assert sd[0] == pytest.approx(0.003) and sd[2] == pytest.approx(1e-3)
+    sd = np.sqrt(np.diag(EKF(m, state_std={"g": 0.5})._initial_state_cov(R, aug, s, F)))
+    assert sd[1] == pytest.approx(0.5)
