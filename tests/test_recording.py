@@ -168,14 +168,27 @@ def test_view_command_lines(tmp_path):
     assert web_url(1234, 5678) == "http://127.0.0.1:1234/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A5678%2Fproxy"
 
 
-def test_view_serves_web_viewer_without_display(run):
+def _ignore_sigint():
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _block_sigint():
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+
+
+@pytest.mark.parametrize("launcher", [None, _ignore_sigint, _block_sigint],
+                         ids=["plain", "sigint-ignored", "sigint-blocked"])
+def test_view_serves_web_viewer_without_display(run, launcher):
+    """fsid view serves the web viewer and stops on Ctrl-C - also when started with SIGINT
+    ignored or blocked (inherited across exec from a script's background job or a test
+    runner's worker: it had then never stopped, and was killed after 30 s)."""
     *_, path = run
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     root = Path(__file__).resolve().parents[1]
     proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "view", str(path.parent),
                              "--web-port", "0", "--grpc-port", "0"], cwd=root, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=launcher)
     try:
         line = proc.stdout.readline()
         m = re.search(r"(http://127\.0\.0\.1:(\d+)/\?url=\S+)", line)
@@ -192,7 +205,7 @@ def test_view_serves_web_viewer_without_display(run):
     finally:
         proc.send_signal(signal.SIGINT)            # fsid view stops its rerun child on Ctrl-C
         try:
-            proc.wait(timeout=30)  # slower to stop on a loaded machine (xdist workers)
+            proc.wait(timeout=30)
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -94,7 +95,18 @@ def command(rrd: Path, *, web: bool, bind: str = "127.0.0.1", web_port: int = 90
             "--port", str(grpc_port)]
 
 
+def sigint_stops() -> None:
+    """Let Ctrl-C (SIGINT) reach this process even when whatever started it left SIGINT
+    ignored (a background job of a script) or blocked (a test runner's worker thread):
+    both are inherited across exec, and the viewer would then never stop. Its rerun
+    child inherits the restored state."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def run(args: argparse.Namespace) -> int:
+    sigint_stops()
     rrd = rrd_path(args.run_dir)
     web = bool(args.web) or not has_display()
     web_port = args.web_port or free_port(args.bind)
