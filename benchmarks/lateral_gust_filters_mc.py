@@ -63,7 +63,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from _montecarlo import fly, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
+from _montecarlo import fly, range_line, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
 
 SCENARIO = ROOT / "scenarios" / "multiaxis_multisine_turbulence.toml"
 NAMES = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
@@ -196,11 +196,9 @@ def main() -> None:
     df["err_std"] = (df["estimate"] - df["truth"]).abs() / df["std"]
     tab = scatter_table(df, ["variant", "method", "name"], {"reported": "std"})
     tab["mean_err_std"] = df.groupby(["variant", "method", "name"], sort=False)["err_std"].mean()
-    for (variant, method), t in tab.groupby(level=[0, 1], sort=False):
-        worst = t["mean_err_std"].idxmax()[2]
-        print(f"{variant:6s} {method}: empirical/reported std {t['reported'].min():.2f}-"
-              f"{t['reported'].max():.2f}; |bias| <= {t['bias'].abs().max():.2f} empirical std; "
-              f"mean |error|/std worst {t['mean_err_std'].max():.2f} ({worst})")
+    for group, t in tab.groupby(level=[0, 1], sort=False):
+        print(range_line(tab, group) + f"; mean |error|/std worst "
+              f"{t['mean_err_std'].max():.2f} ({t['mean_err_std'].idxmax()[2]})")
 
 
 if __name__ == "__main__":

@@ -628,14 +628,14 @@ class EKF(_ParameterFilter):
     passes : "auto" (default: repeat the pass from the last estimates until no free
         parameter moves by more than ``pass_tol`` (0.2) of its std, at most ``max_passes``
         (8)) or a fixed number of passes (see :meth:`fit`).
+    fd_step : relative forward-difference step of the Jacobians,
+        h_j = fd_step * max(|s_j|, 1).
 
     Parameter bounds (``Parameter(bounds=...)``) hold: every update is projected onto
     them, and a sigma point or difference step beyond a bound evaluates the model at the
     bound. A parameter projected in the last pass and ending within 3 std of its bound is
     reported in ``at_bounds`` with its std NaN (``extra["bound_hits"]``: projections per
     parameter in the last pass).
-    fd_step : relative forward-difference step of the Jacobians,
-        h_j = fd_step * max(|s_j|, 1).
     """
 
     method = "ekf"
