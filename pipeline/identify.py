@@ -25,6 +25,7 @@ from estimators.models.lateral import lateral_measured_longitudinal
 from estimators.models.longitudinal import longitudinal_measured_lateral
 from pipeline.errors import FsidError
 from pipeline.flightdata import FlightData, SegmentSpec
+from pipeline.input_smoothing import smooth_columns, smoothed_control_inputs, zero_phase
 
 #: derivatives estimated by default for the longitudinal axis
 LONG_FREE = ("CD0", "CDalpha", "CDalpha2", "CL0", "CLalpha", "CLq", "CLde",
@@ -295,6 +296,7 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
     df, rate_hz = multirate_frame(fd, LONG_OUTPUTS, ["de", "throttle", "thrust", "rho", "h"]
                                   + (list(LONG_PSEUDO_LATERAL) if measured_lateral else []),
                                   rate_hz)
+    df, input_note = smoothed_control_inputs(fd, df, rate_hz, ("de",))
     rho = mean_density(df)
     c = {"m": ac.mass, "Iyy": ac.Iyy, "S": ac.S, "cbar": ac.cbar, "rho": rho,
          "x_vane": ac.airdata[0], "z_vane": ac.airdata[2], "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
@@ -349,7 +351,8 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
              f"grid {rate_hz:g} Hz; slower channels at their own samples only",
              f"density {rho:.4f} kg/m^3 (mean over the flight)",
              f"thrust from {'thrust channel' if 'thrust' in df else 'throttle x max_thrust'}",
-             f"start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())]
+             "start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())
+             ] + ([input_note] if input_note else [])
     return Problem("longitudinal", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
                    fit_specs, held,
                    estimate_x0=["V", "alpha", "theta", "q"] if rotary_gust else True,
@@ -374,20 +377,6 @@ def _filled(df: pd.DataFrame, k: str) -> np.ndarray:
     return np.interp(t, t[ok], x[ok])
 
 
-def _zero_phase(x: np.ndarray, t: np.ndarray, fc: float) -> np.ndarray:
-    """Second-order Butterworth forwards and backwards at fc (Hz) on a uniform grid t;
-    x unchanged when it is too short, has NaN, or fc is near the Nyquist frequency."""
-    from scipy.signal import butter, filtfilt
-
-    if x.size < 16 or not np.all(np.isfinite(x)):
-        return x
-    rate = (x.size - 1) / (t[-1] - t[0])
-    if fc >= 0.45 * rate:
-        return x
-    b, a = butter(2, fc / (0.5 * rate))
-    return filtfilt(b, a, x, padtype="even")
-
-
 def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]
                         ) -> list[tuple[str, list, np.ndarray, np.ndarray]]:
     """Equation-error regressions: CY (from ay), Cl and Cn (from the differentiated roll and
@@ -406,17 +395,18 @@ def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]
         kin = "beta_kin" in df and "V_kin" in df
         beta, p, r, da, dr, ay = (_filled(df, k) for k in ("beta_kin" if kin else "beta", "p", "r",
                                                              "da", "dr", "ay"))
+        rate = (t.size - 1) / (t[-1] - t[0])
         V = _filled(df, "V_kin" if kin else "V") if "V" in df else np.full(t.size, c["V"])
         if not np.all(np.isfinite(V)):
             V = np.full(t.size, c["V"])
         elif not kin:
-            V = _zero_phase(V, t, PSEUDO_INPUT_CORNER_HZ["V"])
+            V = zero_phase(V, rate, PSEUDO_INPUT_CORNER_HZ["V"])
         # one zero-phase low-pass on every signal of the linear relation (the response
         # differentiated after it): np.gradient of the raw rates averages the fast roll
         # response at each surface step over two samples while the steps in da, dr stay
         # sharp (Cl, Cn 5-7 % low, Cnp 16 %, on the noise-free truth of
         # lateral_doublets_calm; 0.2-0.4 % with the common filter)
-        beta, p, r, da, dr, ay = (_zero_phase(x, t, LATERAL_LS_CORNER_HZ)
+        beta, p, r, da, dr, ay = (zero_phase(x, rate, LATERAL_LS_CORNER_HZ)
                                   for x in (beta, p, r, da, dr, ay))
         qbar = 0.5 * c["rho"] * V ** 2
         pdot, rdot = np.gradient(p, t), np.gradient(r, t)
@@ -545,15 +535,7 @@ def smooth_pseudo_inputs(w: pd.DataFrame, rate_hz: float,
     """V, alpha, theta, q of a window (or the channels of ``corners``) low-pass filtered
     forwards and backwards (second-order Butterworth at PSEUDO_INPUT_CORNER_HZ) before
     they drive the lateral model."""
-    from scipy.signal import butter, filtfilt
-
-    w = w.copy()
-    for k, fc in (corners or PSEUDO_INPUT_CORNER_HZ).items():
-        x = w[k].to_numpy(dtype=float)
-        if x.size > 15 and fc < 0.45 * rate_hz:
-            b, a = butter(2, fc / (0.5 * rate_hz))
-            w[k] = filtfilt(b, a, x, padtype="even")
-    return w
+    return smooth_columns(w, rate_hz, corners or PSEUDO_INPUT_CORNER_HZ)
 
 
 def airspeed_window_std(fd: FlightData, segments: Sequence[Segment]) -> tuple[float, list[float]]:
@@ -642,6 +624,7 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     df, rate_hz = multirate_frame(fd, LAT_OUTPUTS, ["V", "alpha", "theta", "q", "da", "dr", "rho", "h"]
                                   if measured_longitudinal else
                                   ["V", "alpha", "theta", "da", "dr", "rho", "h"], rate_hz)
+    df, input_note = smoothed_control_inputs(fd, df, rate_hz, ("da", "dr"))
     rho = mean_density(df)
     frames = checked_windows(df, specs, [k for k in channels if k in LAT_OUTPUTS],
                              [k for k in channels if k not in LAT_OUTPUTS])
@@ -704,6 +687,8 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
              "start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())]
     if rotary_gust:
         notes.append("roll-gust state p_g (Dryden, time constant 4b/(pi V)) in the roll damping")
+    if input_note:
+        notes.append(input_note)
     return Problem("lateral", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
                    fit_specs, held,
                    estimate_x0=["beta", "p", "r", "phi"] if rotary_gust else True,

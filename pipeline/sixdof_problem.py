@@ -18,6 +18,7 @@ from estimators import Segment
 from estimators.models import sixdof
 from estimators.models.sixdof import body_velocity
 from pipeline.flightdata import FlightData, SegmentSpec
+from pipeline.input_smoothing import smoothed_control_inputs
 from pipeline.identify import (LAT_FREE, AircraftConstants, Problem, _first_valid, checked_windows,
                                lateral_specs, lateral_starts, longitudinal_starts, mean_density,
                                multirate_frame, thrust_signal)
@@ -42,6 +43,7 @@ def sixdof_lateral_problem(fd: FlightData, ac: AircraftConstants, *,
     specs = lateral_specs(fd, SIXDOF_OUTPUTS + SIXDOF_INPUTS, segments, hold_out)
     df, rate_hz = multirate_frame(fd, SIXDOF_OUTPUTS,
                                   list(SIXDOF_INPUTS) + ["throttle", "thrust", "rho", "h"], rate_hz)
+    df, input_note = smoothed_control_inputs(fd, df, rate_hz, SIXDOF_INPUTS)
     rho = mean_density(df)
     c = {"m": ac.mass, "Ixx": ac.Ixx, "Iyy": ac.Iyy, "Izz": ac.Izz, "Ixz": ac.Ixz, "S": ac.S,
          "b": ac.b, "cbar": ac.cbar, "rho": rho, "x_vane": ac.airdata[0],
@@ -76,6 +78,6 @@ def sixdof_lateral_problem(fd: FlightData, ac: AircraftConstants, *,
     notes = [f"nonlinear 6-DoF model on a {rate_hz:g} Hz grid, density {rho:.4f} kg/m^3",
              "longitudinal derivatives held at " + ("the longitudinal estimates" if longitudinal
                                                     else "equation-error values")
-             + f" except {', '.join(TRIM_FREE)}"]
+             + f" except {', '.join(TRIM_FREE)}"] + ([input_note] if input_note else [])
     return Problem("lateral", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
                    fit_specs, held, estimate_x0=True, notes=notes, rate_hz=rate_hz)

@@ -151,7 +151,9 @@ def check_methods(methods: Sequence[str]) -> None:
 def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = None,
                        hold_out: int = 1) -> Any:
     """A :class:`pipeline.identify.Problem` for a user model on the log's maneuvers."""
+    from pipeline.flightdata import CONTROL_INPUTS
     from pipeline.identify import Problem, _first_valid, checked_windows, multirate_frame
+    from pipeline.input_smoothing import smoothed_control_inputs
 
     check_channels(fd, model)
     on_inputs = [s for s in fd.segments if s.axis in model.inputs]
@@ -164,6 +166,8 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
     held = specs[len(specs) - hold:] if hold else []
     fit_specs = [s for s in specs if s not in held]
     df, rate = multirate_frame(fd, list(model.outputs), list(model.inputs), rate_hz)
+    df, input_note = smoothed_control_inputs(fd, df, rate, [c for c in model.inputs
+                                                            if c in CONTROL_INPUTS])
     frames = checked_windows(df, specs, model.outputs, model.inputs)
 
     def seg(s):
@@ -177,7 +181,8 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
              f"{', '.join(model.outputs)} from the log's channels",
              f"grid {rate:g} Hz; slower channels at their own samples only",
              f"segments: {'maneuvers on ' + '/'.join(sorted({s.axis for s in specs})) if on_inputs else 'all maneuvers of the log'}"
-             f"; {'held out for proof of match: ' + held[0].name if held else 'none held out (one maneuver only)'}"]
+             f"; {'held out for proof of match: ' + held[0].name if held else 'none held out (one maneuver only)'}"
+             ] + ([input_note] if input_note else [])
     return Problem(model.name, model, [seg(s) for s in fit_specs], [seg(s) for s in held],
                    fit_specs, held, estimate_x0=True, notes=notes, rate_hz=rate)
 

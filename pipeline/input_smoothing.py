@@ -1,0 +1,134 @@
+"""Zero-phase smoothing of measured model inputs.
+
+Output error and filter error take a model's inputs as exact. A measured control-surface
+position is not: its sensor noise drives the model's fast modes (the roll mode, the short
+period) in a way the aircraft never saw, and the fit answers by shrinking the control
+derivative and the damping together. On multiaxis_multisine_turbulence (surface noise
+0.05 deg at 100 Hz on 0.73 deg rms multisines) the lateral filter-error fit put Clp 4.7
+and Clda 4.7 std off, both about 23 % low; with the aileron and rudder positions
+low-passed at their noise floor (5 Hz there) 2.6 and 1.6.
+
+The corner of each control input comes from its own spectrum at its native rate
+(:func:`input_corner_hz`): the white-noise floor is the upper half of the native band, and
+the corner is 1.5 times the top of the highest band where the measured power is still
+twice that floor (signal above the noise: a Wiener filter's crossover). Inputs without a measurable
+noise floor (commands, servo outputs, data whose signal reaches the Nyquist frequency)
+keep their samples.
+"""
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from pipeline.flightdata import CONTROL_INPUTS, FlightData
+
+#: the lowest corner (Hz) an input is ever smoothed at: below it a maneuver's own band
+MIN_CORNER_HZ = 2.0
+#: measured power over the noise floor that counts as signal (2: signal = noise)
+SIGNAL_OVER_FLOOR = 2.0
+#: Butterworth order of the control-input filter: gain 0.996 at half the corner (second
+#: order: 0.94), so a maneuver's band below the corner passes unchanged
+INPUT_FILTER_ORDER = 4
+#: the corner over the top of the signal's band: gain 0.96 at that top (where the signal
+#: is down at the noise), above 0.996 below two thirds of it
+CORNER_MARGIN = 1.5
+#: relative width of the frequency bands the spectrum is averaged over (third octaves)
+BAND_RATIO = 2.0 ** (1.0 / 3.0)
+
+
+def zero_phase(x: np.ndarray, rate_hz: float, fc: float, order: int = 2) -> np.ndarray:
+    """Butterworth of ``order`` forwards and backwards at fc (Hz) on samples at rate_hz
+    (gain 1 / (1 + (f / fc)^(2 order)), no phase); x unchanged when it is too short, has
+    NaN, or fc is near the Nyquist frequency."""
+    from scipy.signal import butter, sosfiltfilt
+
+    if x.size < 16 or not np.all(np.isfinite(x)) or fc >= 0.45 * rate_hz:
+        return x
+    return sosfiltfilt(butter(order, fc / (0.5 * rate_hz), output="sos"), x, padtype="even")
+
+
+def input_corner_hz(t: np.ndarray, x: np.ndarray) -> float | None:
+    """Low-pass corner (Hz) that removes the white noise of one measured input.
+
+    t, x : (n,) native sample times (s) and values. The samples are put on a uniform grid
+    at their mean rate; the periodogram (linear trend between the ends removed, Hann
+    window) is averaged over third-octave bands. The noise floor is the mean power of the
+    upper half of the band (the median over ln 2, robust to a few tones there), and must be
+    flat there (its two quarters within a factor 2: white noise, not a signal's roll-off
+    or an anti-aliasing filter's); the corner
+    is the upper edge of the highest band whose mean power exceeds SIGNAL_OVER_FLOOR times
+    the floor, times CORNER_MARGIN, at least MIN_CORNER_HZ. None when the input has no noise floor to remove:
+    fewer than 64 finite samples, a floor of zero or not flat (noise-free commands, a
+    constant, a resampled channel), or a corner above 0.4 times the native rate (signal up
+    to the Nyquist frequency)."""
+    ok = np.isfinite(t) & np.isfinite(x)
+    t, x = t[ok], x[ok]
+    if t.size < 64 or t[-1] <= t[0]:
+        return None
+    rate = (t.size - 1) / (t[-1] - t[0])
+    tu = t[0] + np.arange(t.size) / rate
+    xu = np.interp(tu, t, x)
+    xu = xu - np.linspace(xu[0], xu[-1], xu.size)
+    power = np.abs(np.fft.rfft(xu * np.hanning(xu.size))) ** 2
+    f = np.fft.rfftfreq(xu.size, 1.0 / rate)
+    upper, top = power[(f > 0.25 * rate) & (f <= 0.375 * rate)], power[f > 0.375 * rate]
+    floor = np.median(power[f > 0.25 * rate]) / np.log(2.0)
+    if not floor > 0 or not 0.5 < np.mean(top) / np.mean(upper) < 2.0:
+        return None                     # no white floor: nothing or signal up there
+    n_bands = int(np.ceil(np.log(rate / 1.0) / np.log(BAND_RATIO)))
+    edges = 0.5 * BAND_RATIO ** np.arange(n_bands + 1)                  # 0.5 Hz upwards
+    corner = MIN_CORNER_HZ
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = (f >= lo) & (f < hi)
+        if m.sum() >= 4 and power[m].mean() > SIGNAL_OVER_FLOOR * floor:
+            corner = max(corner, CORNER_MARGIN * float(hi))
+    return None if corner > 0.4 * rate else corner
+
+
+def control_input_corners(fd: FlightData, channels: Sequence[str] = CONTROL_INPUTS
+                          ) -> dict[str, float]:
+    """{channel: corner Hz} of the control inputs of ``fd`` that have noise to remove
+    (:func:`input_corner_hz` on each channel's native samples)."""
+    out = {}
+    for c in channels:
+        if c in fd:
+            fc = input_corner_hz(np.asarray(fd[c].t, float), np.asarray(fd[c].values, float))
+            if fc is not None:
+                out[c] = fc
+    return out
+
+
+def smooth_columns(df: pd.DataFrame, rate_hz: float, corners: Mapping[str, float],
+                   order: int = 2) -> pd.DataFrame:
+    """A copy of ``df`` (uniform grid at rate_hz) with each column of ``corners`` low-pass
+    filtered forwards and backwards (:func:`zero_phase`, Butterworth of ``order``); a
+    column with NaN (a gap) is filtered through its gaps' linear interpolation and keeps
+    its NaN."""
+    df = df.copy()
+    for k, fc in corners.items():
+        if k not in df:
+            continue
+        x = df[k].to_numpy(dtype=float)
+        ok = np.isfinite(x)
+        if ok.sum() < 16:
+            continue
+        idx = np.arange(x.size)
+        y = zero_phase(np.interp(idx, idx[ok], x[ok]), rate_hz, fc, order)
+        df[k] = np.where(ok, y, np.nan)
+    return df
+
+
+def smoothed_control_inputs(fd: FlightData, df: pd.DataFrame, rate_hz: float,
+                            channels: Sequence[str] = CONTROL_INPUTS
+                            ) -> tuple[pd.DataFrame, str | None]:
+    """``df`` (the identification grid) with its measured control inputs smoothed at their
+    noise floors, and the note saying so for the problem (None when none was)."""
+    corners = {c: fc for c, fc in control_input_corners(fd, channels).items() if c in df}
+    if not corners:
+        return df, None
+    note = (f"control inputs low-passed zero-phase (Butterworth order {INPUT_FILTER_ORDER}) "
+            "where their measured noise floor begins: "
+            + ", ".join(f"{c} {fc:.1f} Hz" for c, fc in corners.items()))
+    return smooth_columns(df, rate_hz, corners, INPUT_FILTER_ORDER), note
