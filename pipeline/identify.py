@@ -199,6 +199,21 @@ def checked_windows(df: pd.DataFrame, specs: Sequence[SegmentSpec], outputs: Seq
     return frames
 
 
+def with_smoothed_inputs(frames: Mapping[int, pd.DataFrame], specs: Sequence[SegmentSpec],
+                         smoothed: pd.DataFrame, cols: Sequence[str], *,
+                         relative: bool = False) -> None:
+    """Put the columns ``cols`` of ``smoothed`` (the flight's grid with its control inputs
+    low-passed, :func:`pipeline.input_smoothing.smoothed_control_inputs`) into each window
+    of ``frames`` in place, relative to the window's first sample when ``relative``. The
+    equation-error regressions and starts are built before, from the logged samples: they
+    filter every signal of their linear relation alike."""
+    if not cols:
+        return
+    for s in specs:
+        w, sm = frames[id(s)], _window(smoothed, s)[list(cols)]
+        w[list(cols)] = (sm - sm.iloc[0] if relative else sm).to_numpy()
+
+
 def longitudinal_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
                              thrusts: Sequence[np.ndarray]) -> list[tuple[str, list[str], np.ndarray, np.ndarray]]:
     """Equation-error regressions of the longitudinal coefficients on the maneuver windows:
@@ -296,7 +311,7 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
     df, rate_hz = multirate_frame(fd, LONG_OUTPUTS, ["de", "throttle", "thrust", "rho", "h"]
                                   + (list(LONG_PSEUDO_LATERAL) if measured_lateral else []),
                                   rate_hz)
-    df, input_note = smoothed_control_inputs(fd, df, rate_hz, ("de",))
+    smoothed, input_note = smoothed_control_inputs(fd, df, rate_hz, ("de",))
     rho = mean_density(df)
     c = {"m": ac.mass, "Iyy": ac.Iyy, "S": ac.S, "cbar": ac.cbar, "rho": rho,
          "x_vane": ac.airdata[0], "z_vane": ac.airdata[2], "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
@@ -315,6 +330,7 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
     start = longitudinal_starts([frames[id(s)] for s in fit_specs], c,
                                 [thrust[id(s)] for s in fit_specs])
     start.update(values or {})
+    with_smoothed_inputs(frames, specs, smoothed, ["de"])
     if measured_lateral:
         model = longitudinal_measured_lateral(c, values=start, free=free, output_biases=biases,
                                               name="longitudinal-measured",
@@ -624,7 +640,7 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     df, rate_hz = multirate_frame(fd, LAT_OUTPUTS, ["V", "alpha", "theta", "q", "da", "dr", "rho", "h"]
                                   if measured_longitudinal else
                                   ["V", "alpha", "theta", "da", "dr", "rho", "h"], rate_hz)
-    df, input_note = smoothed_control_inputs(fd, df, rate_hz, ("da", "dr"))
+    smoothed, input_note = smoothed_control_inputs(fd, df, rate_hz, ("da", "dr"))
     rho = mean_density(df)
     frames = checked_windows(df, specs, [k for k in channels if k in LAT_OUTPUTS],
                              [k for k in channels if k not in LAT_OUTPUTS])
@@ -663,6 +679,7 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
         model = lateral_directional(c, values=start, free=free, output_biases=biases,
                                     name="lateral").select_outputs(LAT_OUTPUTS)
     ucols = ["da", "dr", "V", "alpha", "theta", "q"] if measured_longitudinal else ["da", "dr"]
+    with_smoothed_inputs(frames, specs, smoothed, ["da", "dr"], relative=True)
     if measured_longitudinal:
         for s in specs:
             if kinematic:

@@ -21,7 +21,9 @@
          "std_method": "crb" | "filter-covariance" | "propagated" | "morelli-klein" | ...,  # how std was computed
          "noise_std": {"<output>": float} | null,   # noise fed back (soem, decouple)
          "fit": {"<output>": {"TIC", "UM", "US", "UC", "R2", "RMS", ...}},
-         "validation": {...}            # pipeline.validate.validate() minus "arrays"
+         "validation": {...}            # pipeline.validate.validate() minus "arrays", plus
+                                        # "problem": {"notes"} (how the data were prepared:
+                                        # grid, pseudo-inputs, input smoothing corners, ...)
          "verdict": {"ok", "reasons", "notes"}}}}
 
 Numbers are SI (per radian for derivatives) with NaN written as ``null``. ``estimate`` and
@@ -145,6 +147,8 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
     L += ["", f"Converged: {'yes' if mj['converged'] else 'NO'} after {mj['iterations']} "
           f"iterations; det(R) = {_g(mj['det_R'], '.4e')}; {mj['n_samples']} samples."
           + (f" {mj['message']}" if mj.get("message") else ""), ""]
+    notes = (v.get("problem") or {}).get("notes") or []
+    L += ["Data preparation:", ""] + [f"- {n}" for n in notes] + [""] if notes else []
     L += ["### Parameters", ""]
     std_col = std_label(mj.get("std_method") or "crb")
     head = ["parameter", "estimate", std_col, "rel std %"]

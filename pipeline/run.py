@@ -404,6 +404,7 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
     progress.done(f"{'converged' if res.converged else 'NOT converged'} in {res.iterations} iterations")
     progress.stage(f"validate {what} {method.upper()} (fit, residuals, modes, proof of match)")
     v = validate(res, held_out=pb.held_out, truth=truth, tolerances=tolerances, proof_of_match=pom)
+    v["problem"] = {"notes": list(pb.notes)}
     progress.done()
     return res, v
 

@@ -20,6 +20,7 @@ from estimators.models.sixdof import body_velocity
 from pipeline.flightdata import FlightData, SegmentSpec
 from pipeline.input_smoothing import smoothed_control_inputs
 from pipeline.identify import (LAT_FREE, AircraftConstants, Problem, _first_valid, checked_windows,
+                               with_smoothed_inputs,
                                lateral_specs, lateral_starts, longitudinal_starts, mean_density,
                                multirate_frame, thrust_signal)
 
@@ -43,7 +44,7 @@ def sixdof_lateral_problem(fd: FlightData, ac: AircraftConstants, *,
     specs = lateral_specs(fd, SIXDOF_OUTPUTS + SIXDOF_INPUTS, segments, hold_out)
     df, rate_hz = multirate_frame(fd, SIXDOF_OUTPUTS,
                                   list(SIXDOF_INPUTS) + ["throttle", "thrust", "rho", "h"], rate_hz)
-    df, input_note = smoothed_control_inputs(fd, df, rate_hz, SIXDOF_INPUTS)
+    smoothed, input_note = smoothed_control_inputs(fd, df, rate_hz, SIXDOF_INPUTS)
     rho = mean_density(df)
     c = {"m": ac.mass, "Ixx": ac.Ixx, "Iyy": ac.Iyy, "Izz": ac.Izz, "Ixz": ac.Ixz, "S": ac.S,
          "b": ac.b, "cbar": ac.cbar, "rho": rho, "x_vane": ac.airdata[0],
@@ -65,6 +66,7 @@ def sixdof_lateral_problem(fd: FlightData, ac: AircraftConstants, *,
              **lateral_starts(lat_frames, lat_c)}
     model = sixdof(c, values=start, free=list(free) + list(TRIM_FREE), output_biases=biases,
                    name="sixdof-lateral")
+    with_smoothed_inputs(frames, specs, smoothed, SIXDOF_INPUTS)
 
     def seg(s):
         w = frames[id(s)]

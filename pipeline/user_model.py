@@ -152,7 +152,8 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
                        hold_out: int = 1) -> Any:
     """A :class:`pipeline.identify.Problem` for a user model on the log's maneuvers."""
     from pipeline.flightdata import CONTROL_INPUTS
-    from pipeline.identify import Problem, _first_valid, checked_windows, multirate_frame
+    from pipeline.identify import (Problem, _first_valid, checked_windows, multirate_frame,
+                                   with_smoothed_inputs)
     from pipeline.input_smoothing import smoothed_control_inputs
 
     check_channels(fd, model)
@@ -166,9 +167,10 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
     held = specs[len(specs) - hold:] if hold else []
     fit_specs = [s for s in specs if s not in held]
     df, rate = multirate_frame(fd, list(model.outputs), list(model.inputs), rate_hz)
-    df, input_note = smoothed_control_inputs(fd, df, rate, [c for c in model.inputs
-                                                            if c in CONTROL_INPUTS])
+    controls = [c for c in model.inputs if c in CONTROL_INPUTS]
+    smoothed, input_note = smoothed_control_inputs(fd, df, rate, controls)
     frames = checked_windows(df, specs, model.outputs, model.inputs)
+    with_smoothed_inputs(frames, specs, smoothed, controls)
 
     def seg(s):
         w = frames[id(s)]
