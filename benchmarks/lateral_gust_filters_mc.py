@@ -22,8 +22,9 @@ the mean |error| / reported std (what the closed-loop tests hold below 3). A met
 ending in ``-trueQ`` (ekf-trueQ, ukf-trueQ) gives the filter the draws' own process noise
 instead of the pipeline's.
 
-Measured (2026-11-25, flight seed 31: p_turb rms 0.049 rad/s, time constant 0.418 s;
-draws 0-7; empirical/reported std, largest |bias| in empirical std, worst mean
+Measured (2026-11-25, before the pipeline smoothed the surface inputs - the draws are
+simulated and fitted on the same inputs, so that changes only their content; flight seed
+31: p_turb rms 0.049 rad/s, time constant 0.418 s; draws 0-7; empirical/reported std, largest |bias| in empirical std, worst mean
 |error|/std):
   markov fem        0.50-1.47, 0.76, 1.13 (CYda)
   markov ekf        0.43-1.25, 3.67, 2.38 (Clp)
@@ -41,7 +42,8 @@ Filter error is honest and unbiased on this model, and stays within 2 std with t
 flight's own roll gust. The parameter-in-the-state filters are not, on data their own
 model made: Clp is biased by 3.7-4 of its empirical std, and with the flight's gust the
 roll derivatives end 5-7 reported std off (on the JSBSim flight itself,
-tests/test_closed_loop_multiaxis.py: UKF 6.5, EKF 18.7). Given the true process noise the
+tests/test_closed_loop_multiaxis.py: UKF 6.5, EKF 18.7; 6.0, 6.2 once the pipeline
+smoothed the surface inputs, benchmarks/input_noise_mc.py). Given the true process noise the
 EKF is worse still (up to 10x too small a std; some draws wander off from the start of a
 segment where the gust is uncertain and the linearisation poor). JSBSim's p_turb is the
 first-order Markov process the model assumes (JSBSim's Tustin form with tau_p = L_p / V,
@@ -75,8 +77,9 @@ SUBSTEPS = 10
 
 
 def fly_once(workdir: Path, seed: int) -> None:
-    """Fly the scenario once into ``workdir``: flight.mcap, truth.json and JSBSim's roll
-    gust (p_turb.npy: rows t, p_turb)."""
+    """Fly the scenario once into ``workdir``: flight.mcap, truth.json, JSBSim's roll
+    gust (p_turb.npy: rows t, p_turb) and true surface positions (surfaces.npy: rows t,
+    da, dr; rad)."""
     import sim
     from pipeline.writers import write_mcap, write_truth_json
 
@@ -84,6 +87,7 @@ def fly_once(workdir: Path, seed: int) -> None:
     write_mcap(workdir / "flight.mcap", res)
     write_truth_json(workdir / "truth.json", res)
     np.save(workdir / "p_turb.npy", res.truth[["t", "p_turb"]].to_numpy().T)
+    np.save(workdir / "surfaces.npy", res.truth[["t", "da", "dr"]].to_numpy().T)
 
 
 @lru_cache(maxsize=1)
@@ -108,8 +112,11 @@ def flight(workdir: Path) -> dict:
             "tau": float(-0.2 / np.log(rho)), "rms": float(pt.std())}
 
 
-def simulate(pb, truth: dict, gust: str, fl: dict, rng: np.random.Generator) -> list:
-    """New segments of ``pb`` with outputs simulated by its model at the true derivatives."""
+def simulate(pb, truth: dict, gust: str, fl: dict, rng: np.random.Generator,
+             u_sim: list[np.ndarray] | None = None) -> list:
+    """New segments of ``pb`` with outputs simulated by its model at the true derivatives,
+    driven by each segment's inputs or by ``u_sim`` (one (n, n_u) array per segment: the
+    inputs the simulated aircraft saw, when those are not the ones the fit is given)."""
     from estimators.model import Namespace, Segment
     from pipeline.run import measurement_noise_std
 
@@ -122,7 +129,8 @@ def simulate(pb, truth: dict, gust: str, fl: dict, rng: np.random.Generator) -> 
     ig = m.states.index("p_g")
     G = measurement_noise_std(pb)
     segs = []
-    for s in pb.fit:
+    for i_seg, s in enumerate(pb.fit):
+        us = s.u if u_sim is None else u_sim[i_seg]
         n, h = s.t.size, float(np.median(np.diff(s.t)))
         dt = h / SUBSTEPS
         x = np.zeros(len(m.states))
@@ -141,10 +149,10 @@ def simulate(pb, truth: dict, gust: str, fl: dict, rng: np.random.Generator) -> 
                 a = (j + 0.5) / SUBSTEPS
                 if gust == "flight":
                     x[ig] = np.interp(s.t[k - 1] + a * h, fl["t"], fl["p_turb"])
-                u = (1 - a) * s.u[k - 1] + a * s.u[k]
+                u = (1 - a) * us[k - 1] + a * us[k]
                 x = x + np.asarray(m.f(x, u, p, c), dtype=float) * dt + w[k, j]
             X[k] = x
-        Y = np.array([np.asarray(m.g(X[k], s.u[k], p, c), dtype=float) for k in range(n)])
+        Y = np.array([np.asarray(m.g(X[k], us[k], p, c), dtype=float) for k in range(n)])
         Z = Y + G * rng.standard_normal(Y.shape)
         Z[np.isnan(s.z)] = np.nan
         segs.append(Segment(t=s.t, u=s.u, z=Z, x0=s.x0, constants=s.constants, name=s.name))

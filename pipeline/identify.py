@@ -281,7 +281,8 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
                          hold_out: int = 1, free: Sequence[str] = LONG_FREE,
                          biases: Sequence[str] = ("q", "ax", "az"),
                          measured_lateral: bool = False, rotary_gust: bool = False,
-                         values: Mapping[str, float] | None = None) -> Problem:
+                         values: Mapping[str, float] | None = None,
+                         smooth_inputs: bool = True) -> Problem:
     """Build the longitudinal problem from flight data.
 
     segments : windows to use (default: the log's segments whose axis is 'de' or
@@ -295,6 +296,8 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
         filters, whose process noise drives them).
     values : derivative values that override the equation-error starts (held ones stay
         at them: e.g. a-priori CLalphadot, Cmalphadot).
+    smooth_inputs : the segments' elevator low-passed where its noise floor begins
+        (:mod:`pipeline.input_smoothing`); False: as logged.
     """
     channels = LONG_CHANNELS + (LONG_PSEUDO_LATERAL if measured_lateral else ())
     missing = fd.missing(channels)
@@ -311,7 +314,8 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
     df, rate_hz = multirate_frame(fd, LONG_OUTPUTS, ["de", "throttle", "thrust", "rho", "h"]
                                   + (list(LONG_PSEUDO_LATERAL) if measured_lateral else []),
                                   rate_hz)
-    smoothed, input_note = smoothed_control_inputs(fd, df, rate_hz, ("de",))
+    smoothed, input_note = (smoothed_control_inputs(fd, df, rate_hz, ("de",)) if smooth_inputs
+                            else (df, None))
     rho = mean_density(df)
     c = {"m": ac.mass, "Iyy": ac.Iyy, "S": ac.S, "cbar": ac.cbar, "rho": rho,
          "x_vane": ac.airdata[0], "z_vane": ac.airdata[2], "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
@@ -515,7 +519,7 @@ MULTIAXIS_FILTER_FREE = {"longitudinal": ("CLalphadot", "Cmalphadot"), "lateral"
 
 
 def multiaxis_problem(fd: FlightData, ac: AircraftConstants, axis: str, *, gust_states: bool,
-                      rate_hz: float | None = None) -> Problem:
+                      rate_hz: float | None = None, smooth_inputs: bool = True) -> Problem:
     """The axis problem for maneuvers that move all axes at once: the model of that axis
     driven by the other axis' measured variables (longitudinal_measured_lateral /
     lateral_measured_longitudinal), air data at the boom's full position. ``gust_states``
@@ -526,9 +530,11 @@ def multiaxis_problem(fd: FlightData, ac: AircraftConstants, axis: str, *, gust_
     extra = MULTIAXIS_FILTER_FREE[axis] if gust_states else ()
     if axis == "longitudinal":
         return longitudinal_problem(fd, ac, rate_hz=rate_hz, measured_lateral=True,
-                                    rotary_gust=gust_states, free=LONG_FREE + extra)
+                                    rotary_gust=gust_states, free=LONG_FREE + extra,
+                                    smooth_inputs=smooth_inputs)
     return lateral_problem(fd, ac, rate_hz=rate_hz, measured_longitudinal=True,
-                           rotary_gust=gust_states, free=LAT_FREE + extra)
+                           rotary_gust=gust_states, free=LAT_FREE + extra,
+                           smooth_inputs=smooth_inputs)
 
 
 def mean_density(df: pd.DataFrame) -> float:
@@ -612,7 +618,7 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
                     free: Sequence[str] = LAT_FREE,
                     biases: Sequence[str] = ("beta", "p", "r", "ay"),
                     measured_longitudinal: bool = False, rotary_gust: bool = False,
-                    kinematic: bool = False) -> Problem:
+                    kinematic: bool = False, smooth_inputs: bool = True) -> Problem:
     """Build the lateral-directional problem (linear model about the flight's mean
     airspeed, angle of attack and pitch attitude) from the aileron and rudder maneuvers;
     control inputs are taken relative to their value at the start of each window.
@@ -633,14 +639,17 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
         any pitot noise 1.4 and 1.9), and an angle of attack rebuilt from the 10 Hz GPS
         velocity (no vane) puts its noise into the kinematic coupling (8 seeds,
         benchmarks/flow_angles_mc.py: up to 2.7, blended 1.7). In turbulence the blend
-        misses the gusts above 0.1 Hz."""
+        misses the gusts above 0.1 Hz.
+    smooth_inputs : the segments' aileron and rudder low-passed where their noise floor
+        begins (:mod:`pipeline.input_smoothing`); False: as logged."""
     rotary_gust = rotary_gust and measured_longitudinal
     channels = LAT_CHANNELS + (("q",) if measured_longitudinal else ())
     specs = lateral_specs(fd, channels, segments, hold_out)
     df, rate_hz = multirate_frame(fd, LAT_OUTPUTS, ["V", "alpha", "theta", "q", "da", "dr", "rho", "h"]
                                   if measured_longitudinal else
                                   ["V", "alpha", "theta", "da", "dr", "rho", "h"], rate_hz)
-    smoothed, input_note = smoothed_control_inputs(fd, df, rate_hz, ("da", "dr"))
+    smoothed, input_note = (smoothed_control_inputs(fd, df, rate_hz, ("da", "dr")) if smooth_inputs
+                            else (df, None))
     rho = mean_density(df)
     frames = checked_windows(df, specs, [k for k in channels if k in LAT_OUTPUTS],
                              [k for k in channels if k not in LAT_OUTPUTS])
