@@ -314,8 +314,7 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
     df, rate_hz = multirate_frame(fd, LONG_OUTPUTS, ["de", "throttle", "thrust", "rho", "h"]
                                   + (list(LONG_PSEUDO_LATERAL) if measured_lateral else []),
                                   rate_hz)
-    smoothed, input_note = (smoothed_control_inputs(fd, df, rate_hz, ("de",)) if smooth_inputs
-                            else (df, None))
+    smoothed, input_note = smoothed_control_inputs(fd, df, rate_hz, ("de",) if smooth_inputs else ())
     rho = mean_density(df)
     c = {"m": ac.mass, "Iyy": ac.Iyy, "S": ac.S, "cbar": ac.cbar, "rho": rho,
          "x_vane": ac.airdata[0], "z_vane": ac.airdata[2], "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
@@ -648,8 +647,8 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     df, rate_hz = multirate_frame(fd, LAT_OUTPUTS, ["V", "alpha", "theta", "q", "da", "dr", "rho", "h"]
                                   if measured_longitudinal else
                                   ["V", "alpha", "theta", "da", "dr", "rho", "h"], rate_hz)
-    smoothed, input_note = (smoothed_control_inputs(fd, df, rate_hz, ("da", "dr")) if smooth_inputs
-                            else (df, None))
+    smoothed, input_note = smoothed_control_inputs(fd, df, rate_hz,
+                                                   ("da", "dr") if smooth_inputs else ())
     rho = mean_density(df)
     frames = checked_windows(df, specs, [k for k in channels if k in LAT_OUTPUTS],
                              [k for k in channels if k not in LAT_OUTPUTS])

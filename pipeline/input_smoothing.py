@@ -6,7 +6,9 @@ period) in a way the aircraft never saw, and the fit answers by shrinking the co
 derivative and the damping together. On multiaxis_multisine_turbulence (surface noise
 0.05 deg at 100 Hz on 0.73 deg rms multisines) the lateral filter-error fit put Clp 4.7
 and Clda 4.7 std off, both about 23 % low; with the aileron and rudder positions
-low-passed at their noise floor (5 Hz there) 2.6 and 1.6.
+low-passed where their noise floor begins (6.0 and 7.6 Hz there) 2.8 and 1.8
+(benchmarks/input_noise_mc.py: the roll derivatives' bias from the logged surfaces, 4-5 of
+their empirical std, gone with the smoothed ones).
 
 The corner of each control input comes from its own spectrum at its native rate
 (:func:`input_corner_hz`): the white-noise floor is the upper half of the native band, and
@@ -123,8 +125,9 @@ def smooth_columns(df: pd.DataFrame, rate_hz: float, corners: Mapping[str, float
 def smoothed_control_inputs(fd: FlightData, df: pd.DataFrame, rate_hz: float,
                             channels: Sequence[str] = CONTROL_INPUTS
                             ) -> tuple[pd.DataFrame, str | None]:
-    """``df`` (the identification grid) with its measured control inputs smoothed at their
-    noise floors, and the note saying so for the problem (None when none was)."""
+    """``df`` (the identification grid) with its measured control inputs ``channels``
+    smoothed at their noise floors, and the note saying so for the problem (``df`` itself
+    and None when none was: no channels, or none with a noise floor)."""
     corners = {c: fc for c, fc in control_input_corners(fd, channels).items() if c in df}
     if not corners:
         return df, None
