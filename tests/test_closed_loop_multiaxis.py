@@ -38,6 +38,12 @@ The filters' roll gust starts each segment with its stationary spread (estimator
 state_std default; at 1e-3 rad/s the lateral UKF had Clp 24, the EKF 32, before the input
 smoothing). What does not hold is a strict xfail with the measured numbers.
 
+Other seeds with the input smoothing (ad-hoc runs of this scenario, FEM worst |error|/std
+longitudinal / lateral): seed 32 9.0 (Cmalphadot; Cmq 8.8) / 6.6 (Cnr), seed 33 4.5 (Cmde)
+/ 1.8, seed 34 2.2 / 2.5. With the turbulence in the aircraft's axes (below): 3.6 / 3.6,
+3.95 / 1.8, 2.6 / 2.3 and seed 31 2.0 / 2.7 - but the lateral EKF diverged at seeds 31 and
+34 (Clp 139, 165 std).
+
 The roll gust (measured with scripts not kept in the repo, before the input smoothing):
 given JSBSim's own p_turb and r_turb as known inputs, the same FEM put Clp at -0.494 and
 Clda at 0.233 (truth -0.484, 0.229). On data simulated by the model itself (a first-order
