@@ -139,6 +139,16 @@ def test_report_md_has_table_rows_and_verdict(fitted, tmp_path):
     tic_q = v["fit"]["per_output"]["q"]["TIC"]
     assert f"| q | deg/s | {tic_q:.4f} |" in text                  # fit table, display unit
     assert "### Inverse simulation" in text and "| de | deg |" in text
+    assert "Data preparation" not in text          # no problem notes given
+
+
+def test_report_shows_how_the_data_were_prepared(fitted, tmp_path):
+    ex, res, v = fitted
+    notes = ["grid 50 Hz", "control inputs low-passed zero-phase: de 9.5 Hz"]
+    md, js = write_report(tmp_path, {"oem": res}, {"oem": {**v, "problem": {"notes": notes}}})
+    text = md.read_text()
+    assert "Data preparation:\n\n- grid 50 Hz\n- control inputs low-passed zero-phase: de 9.5 Hz\n" in text
+    assert json.loads(js.read_text())["methods"]["oem"]["validation"]["problem"]["notes"] == notes
 
 
 def test_methods_cross_check_flags_the_wrong_model(fitted, tmp_path):
