@@ -33,6 +33,13 @@ SIGNAL_OVER_FLOOR = 2.0
 #: Butterworth order of the control-input filter: gain 0.996 at half the corner (second
 #: order: 0.94), so a maneuver's band below the corner passes unchanged
 INPUT_FILTER_ORDER = 4
+#: the two upper quarters of the band's mean power, top over lower, of a white floor: 1
+#: +- 0.05 with MIN_SAMPLES; noise-free steps (3211s, doublets through an actuator, servo
+#: PWM steps) fall off as 1/f^2 and give 0.66-0.77 on the built-in scenarios, noisy
+#: multisines 0.94-1.11
+FLAT = (0.85, 1.2)
+#: samples an input needs for its floor to be judged (200 periodogram bins per quarter)
+MIN_SAMPLES = 1600
 #: the corner over the top of the signal's band: gain 0.96 at that top (where the signal
 #: is down at the noise), above 0.996 below two thirds of it
 CORNER_MARGIN = 1.5
@@ -58,16 +65,16 @@ def input_corner_hz(t: np.ndarray, x: np.ndarray) -> float | None:
     at their mean rate; the periodogram (linear trend between the ends removed, Hann
     window) is averaged over third-octave bands. The noise floor is the mean power of the
     upper half of the band (the median over ln 2, robust to a few tones there), and must be
-    flat there (its two quarters within a factor 2: white noise, not a signal's roll-off
-    or an anti-aliasing filter's); the corner
+    flat there (the mean power of its upper quarter over its lower one within FLAT: white
+    noise, not a signal's 1/f^2 roll-off or an anti-aliasing filter's); the corner
     is the upper edge of the highest band whose mean power exceeds SIGNAL_OVER_FLOOR times
     the floor, times CORNER_MARGIN, at least MIN_CORNER_HZ. None when the input has no noise floor to remove:
-    fewer than 64 finite samples, a floor of zero or not flat (noise-free commands, a
-    constant, a resampled channel), or a corner above 0.4 times the native rate (signal up
-    to the Nyquist frequency)."""
+    fewer than MIN_SAMPLES finite samples, a floor of zero or not flat (noise-free commands
+    or steps, a constant, a resampled channel), or a corner above 0.4 times the native rate
+    (signal up to the Nyquist frequency)."""
     ok = np.isfinite(t) & np.isfinite(x)
     t, x = t[ok], x[ok]
-    if t.size < 64 or t[-1] <= t[0]:
+    if t.size < MIN_SAMPLES or t[-1] <= t[0]:
         return None
     rate = (t.size - 1) / (t[-1] - t[0])
     tu = t[0] + np.arange(t.size) / rate
@@ -77,7 +84,7 @@ def input_corner_hz(t: np.ndarray, x: np.ndarray) -> float | None:
     f = np.fft.rfftfreq(xu.size, 1.0 / rate)
     upper, top = power[(f > 0.25 * rate) & (f <= 0.375 * rate)], power[f > 0.375 * rate]
     floor = np.median(power[f > 0.25 * rate]) / np.log(2.0)
-    if not floor > 0 or not 0.5 < np.mean(top) / np.mean(upper) < 2.0:
+    if not floor > 0 or not FLAT[0] < np.mean(top) / np.mean(upper) < FLAT[1]:
         return None                     # no white floor: nothing or signal up there
     n_bands = int(np.ceil(np.log(rate / 1.0) / np.log(BAND_RATIO)))
     edges = 0.5 * BAND_RATIO ** np.arange(n_bands + 1)                  # 0.5 Hz upwards
