@@ -409,13 +409,13 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
     return res, v
 
 
-def _held_refit(fd, ac: AircraftConstants, inputs: str, res):
+def _held_refit(fd, ac: AircraftConstants, inputs: str, res, smooth_inputs: bool = True):
     """values -> the 6-DoF lateral output error refitted with those longitudinal values
     held, started from ``res``."""
     from pipeline.correction_uncertainty import quiet_progress
 
     def refit(values: Mapping[str, float]):
-        pb = sixdof_lateral_problem(fd, ac, longitudinal=values)
+        pb = sixdof_lateral_problem(fd, ac, longitudinal=values, smooth_inputs=smooth_inputs)
         pb.inputs = inputs
         done = fit_and_validate(pb, "oem", "lateral axis", None, quiet_progress(), start=res.params)
         return None if done is None else done[0]
@@ -427,8 +427,8 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
              turbulence: Mapping[str, Any] | None = None,
              axes: Sequence[str] = ("longitudinal", "lateral"),
              tolerances: Mapping[str, float] | None = None,
-             pom: str = "auto", starts: Mapping[str, Any] | None = None
-             ) -> tuple[dict, dict, list[Problem]]:
+             pom: str = "auto", starts: Mapping[str, Any] | None = None,
+             smooth_inputs: bool = True) -> tuple[dict, dict, list[Problem]]:
     """Estimate and validate every axis the log excites; ``inputs`` is how the inputs vary
     between samples (estimators.integrators.INPUT_MODES); ``tolerances``: proof-of-match
     bands per channel (SI; default those of DESIGN.md section 8); ``pom``: the proof-of-match
@@ -437,7 +437,8 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     Returns (results, validations, problems); keys are the method names
     ("<axis>-<method>" once several axes are fitted). ``starts`` (key -> parameter values):
     refit only, each fit starting there (see :func:`fit_and_validate`), no validation and
-    no progress."""
+    no progress. ``smooth_inputs``: the measured surface positions low-passed where a flat
+    noise floor begins (:mod:`pipeline.input_smoothing`), else as logged."""
     bad = [m for m in methods if m not in METHODS]
     if bad:
         raise FsidError(f"unknown method(s) {bad}: use some of {', '.join(METHODS)}")
@@ -451,7 +452,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
         if not wanted:
             continue
         try:
-            problem = build(fd, ac)
+            problem = build(fd, ac, smooth_inputs=smooth_inputs)
         except FsidError as exc:        # e.g. one maneuver only: say so, fit the other axis
             skipped.append(str(exc))
             continue
@@ -474,7 +475,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                 rate = min(fd[c].rate_hz for c in outs)
                 if rate < 0.9 * problem.rate_hz:
                     if common is None:
-                        common = build(fd, ac, rate_hz=rate)
+                        common = build(fd, ac, rate_hz=rate, smooth_inputs=smooth_inputs)
                         common.inputs = inputs
                     pb = common
             lon = results.get("longitudinal-oem")
@@ -486,7 +487,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                 # Cmde 9.5 -> 0.6 std, Clp 49 -> 7 std from the truth)
                 try:
                     pb = multiaxis_problem(fd, ac, pb.axis, gust_states=m in COMMON_GRID,
-                                           rate_hz=pb.rate_hz)
+                                           rate_hz=pb.rate_hz, smooth_inputs=smooth_inputs)
                     pb.inputs = inputs
                 except FsidError as exc:
                     print(f"note: multi-axis {pb.axis} model not set up ({exc}); "
@@ -497,7 +498,8 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                 # small-angle kinematics bias the estimates by several std on a small UAV
                 try:
                     pb = sixdof_lateral_problem(fd, ac, longitudinal={
-                        n: float(v) for n, v in lon.params.items() if "[" not in n})
+                        n: float(v) for n, v in lon.params.items() if "[" not in n},
+                        smooth_inputs=smooth_inputs)
                     pb.inputs = inputs
                 except FsidError as exc:
                     print(f"note: 6-DoF lateral model not set up ({exc}); linear model used",
@@ -515,7 +517,8 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                 # lateral model missed the held-out maneuver of scenarios/default.toml by
                 # 2.05 deg/s on p and 2.01 on r (band 1.5), the driven one by 0.38, 0.33
                 try:
-                    pb = lateral_problem(fd, ac, measured_longitudinal=True, kinematic=True)
+                    pb = lateral_problem(fd, ac, measured_longitudinal=True, kinematic=True,
+                                         smooth_inputs=smooth_inputs)
                     pb = with_airspeed_offsets(pb, fd) if m == "oem" else pb
                     pb.inputs = inputs
                 except FsidError as exc:
@@ -536,7 +539,8 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                     # the longitudinal estimates this fit holds: their uncertainty is
                     # carried to it after the fits (carry_consider_uncertainty)
                     results[key].extra["held"] = lon
-                    results[key].extra["held_refit"] = _held_refit(fd, ac, inputs, results[key])
+                    results[key].extra["held_refit"] = _held_refit(fd, ac, inputs, results[key],
+                                                                   smooth_inputs)
     if not results:
         raise FsidError("every estimation method failed on this log (see the notes above)")
     return results, validations, problems
@@ -709,14 +713,15 @@ def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabl
 def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = None,
                  methods: Sequence[str] | None = None, quiet: bool = False,
                  compat: bool = True, bands: Mapping[str, float] | None = None,
-                 pom: str = "auto") -> dict[str, Path]:
+                 pom: str = "auto", smooth_inputs: bool = True) -> dict[str, Path]:
     """``fsid run``: everything of DESIGN.md section 5 into ``out``. ``methods`` default:
     the ones that suit the flight (:func:`scenario_methods`). ``compat``: run the
     sensor-compatibility stage on the ingested MCAP and estimate from its corrected data
     (:func:`compatibility_stage`; its document goes to checks.json under
     ``flight.mcap.compatibility`` and to the report). ``bands``: proof-of-match bands
     (``rate_deg_s``, ``accel_g``, ``angle_deg``) over the scenario's ``[validation]``;
-    ``pom``: proof-of-match mode (auto, simulation, air-data)."""
+    ``pom``: proof-of-match mode (auto, simulation, air-data); ``smooth_inputs``: see
+    :func:`identify`."""
     import sim
     from pipeline.checks import findings_to_json, run_checks, summarize
     from pipeline.readers import read_log
@@ -768,10 +773,10 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
                                               turbulence=truth_doc.get("turbulence"),
                                               tolerances=default_tolerances(
                                                   **{**scenario.pom_bands, **(bands or {})}),
-                                              pom=pom)
+                                              pom=pom, smooth_inputs=smooth_inputs)
     carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, lambda fd, starts: identify(
         fd, ac, methods, truth, quiet_progress(), inputs="linear",
-        turbulence=truth_doc.get("turbulence"), starts=starts)[0])
+        turbulence=truth_doc.get("turbulence"), starts=starts, smooth_inputs=smooth_inputs)[0])
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary,
                           meta={"scenario": scenario.name, "log": "flight.mcap", "seed": result.meta["seed"],
                                 "aircraft": result.aircraft.name,
@@ -783,14 +788,14 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                  map_path: str | None = None, methods: Sequence[str] = ("oem",),
                  inputs: str = "linear", model: str = "auto", quiet: bool = False,
                  compat: bool = True, bands: Mapping[str, float] | None = None,
-                 pom: str = "auto") -> dict[str, Path]:
+                 pom: str = "auto", smooth_inputs: bool = True) -> dict[str, Path]:
     """``fsid estimate``: a log -> report and recording. ``model``: a built-in model
     (auto|longitudinal|lateral; needs ``aircraft``, or a truth.json next to the log) or a
     user model ``path.py:name`` (:mod:`pipeline.user_model`). Aircraft and sensor positions:
     :mod:`pipeline.aircraft_setup`. No turbulence level is known: the EKF/UKF process noise
     is the filter-error method's estimate (:func:`filters_process_noise`). ``bands``
     (``rate_deg_s``, ``accel_g``, ``angle_deg``) and ``pom`` set the proof of match
-    (defaults 1.5 deg/s, 0.1 g, 1.5 deg; auto mode)."""
+    (defaults 1.5 deg/s, 0.1 g, 1.5 deg; auto mode); ``smooth_inputs``: see :func:`identify`."""
     from estimators.validation import default_tolerances
 
     tol = default_tolerances(**(bands or {}))
@@ -859,21 +864,23 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     from pipeline.correction_uncertainty import quiet_progress
     if user:
         results, validations, problems = identify_user_model(fd, um, methods, truth, pr, inputs=inputs,
-                                                             tolerances=tol, pom=pom)
+                                                             tolerances=tol, pom=pom,
+                                                             smooth_inputs=smooth_inputs)
         meta["model"] = model
 
         def refit(fd_j, starts):
             return identify_user_model(with_flow_angles(fd_j, flow)[0], um, methods, truth,
-                                       quiet_progress(), inputs=inputs, starts=starts)[0]
+                                       quiet_progress(), inputs=inputs, starts=starts,
+                                       smooth_inputs=smooth_inputs)[0]
     else:
         axes = ("longitudinal", "lateral") if model == "auto" else (model,)
         results, validations, problems = identify(fd, ac, methods, truth, pr, inputs=inputs, axes=axes,
-                                                  tolerances=tol, pom=pom)
+                                                  tolerances=tol, pom=pom, smooth_inputs=smooth_inputs)
 
         def refit(fd_j, starts):
             return identify(with_flow_angles(fd_j, flow)[0], ac, methods, truth, quiet_progress(),
                             inputs=inputs, axes=axes,
-                            starts=starts)[0]
+                            starts=starts, smooth_inputs=smooth_inputs)[0]
     carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit)
     if truth is not None:
         meta["truth"] = "truth.json next to the log"

@@ -34,17 +34,21 @@ def sixdof_lateral_problem(fd: FlightData, ac: AircraftConstants, *,
                            rate_hz: float | None = None,
                            segments: Sequence[SegmentSpec] | None = None, hold_out: int = 1,
                            free: Sequence[str] = LAT_FREE,
-                           biases: Sequence[str] = ("p", "q", "r", "ay")) -> Problem:
+                           biases: Sequence[str] = ("p", "q", "r", "ay"),
+                           smooth_inputs: bool = True) -> Problem:
     """The lateral-directional problem on the 6-DoF model.
 
     longitudinal : CL*, CD*, Cm* values to hold (default: equation-error values from the
         same windows). segments default to the log's aileron and rudder windows; the last
         ``hold_out`` are kept for proof of match.
+    smooth_inputs : the segments' surface positions low-passed where their noise floor
+        begins (:mod:`pipeline.input_smoothing`); False: as logged.
     """
     specs = lateral_specs(fd, SIXDOF_OUTPUTS + SIXDOF_INPUTS, segments, hold_out)
     df, rate_hz = multirate_frame(fd, SIXDOF_OUTPUTS,
                                   list(SIXDOF_INPUTS) + ["throttle", "thrust", "rho", "h"], rate_hz)
-    smoothed, input_note = smoothed_control_inputs(fd, df, rate_hz, SIXDOF_INPUTS)
+    smoothed, input_note = smoothed_control_inputs(fd, df, rate_hz,
+                                                   SIXDOF_INPUTS if smooth_inputs else ())
     rho = mean_density(df)
     c = {"m": ac.mass, "Ixx": ac.Ixx, "Iyy": ac.Iyy, "Izz": ac.Izz, "Ixz": ac.Ixz, "S": ac.S,
          "b": ac.b, "cbar": ac.cbar, "rho": rho, "x_vane": ac.airdata[0],

@@ -149,8 +149,10 @@ def check_methods(methods: Sequence[str]) -> None:
 
 
 def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = None,
-                       hold_out: int = 1) -> Any:
-    """A :class:`pipeline.identify.Problem` for a user model on the log's maneuvers."""
+                       hold_out: int = 1, smooth_inputs: bool = True) -> Any:
+    """A :class:`pipeline.identify.Problem` for a user model on the log's maneuvers; the
+    model's inputs among the surface positions (de, da, dr) low-passed where their noise
+    floor begins unless ``smooth_inputs`` is False (:mod:`pipeline.input_smoothing`)."""
     from pipeline.flightdata import CONTROL_INPUTS
     from pipeline.identify import (Problem, _first_valid, checked_windows, multirate_frame,
                                    with_smoothed_inputs)
@@ -167,7 +169,7 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
     held = specs[len(specs) - hold:] if hold else []
     fit_specs = [s for s in specs if s not in held]
     df, rate = multirate_frame(fd, list(model.outputs), list(model.inputs), rate_hz)
-    controls = [c for c in model.inputs if c in CONTROL_INPUTS]
+    controls = [c for c in model.inputs if c in CONTROL_INPUTS] if smooth_inputs else []
     smoothed, input_note = smoothed_control_inputs(fd, df, rate, controls)
     frames = checked_windows(df, specs, model.outputs, model.inputs)
     with_smoothed_inputs(frames, specs, smoothed, controls)
@@ -192,11 +194,11 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
 def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
                         truth: Mapping[str, float] | None, progress: Any,
                         inputs: str = "linear", tolerances: Mapping[str, float] | None = None,
-                        pom: str = "auto", starts: Mapping[str, Any] | None = None
-                        ) -> tuple[dict, dict, list]:
+                        pom: str = "auto", starts: Mapping[str, Any] | None = None,
+                        smooth_inputs: bool = True) -> tuple[dict, dict, list]:
     """Fit and validate a user model with each method; same return as
     :func:`pipeline.run.identify` (results, validations, problems), keyed by method;
-    ``tolerances``, ``pom`` and ``starts`` (refit only) as there."""
+    ``tolerances``, ``pom``, ``starts`` (refit only) and ``smooth_inputs`` as there."""
     from pipeline.run import (COMMON_GRID, METHODS, attach_logged_noise, filters_process_noise,
                               fit_and_validate)
 
@@ -204,7 +206,7 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
     if bad:
         raise FsidError(f"unknown method(s) {bad}: use some of {', '.join(METHODS)}")
     check_methods(methods)
-    problem = user_model_problem(fd, model)
+    problem = user_model_problem(fd, model, smooth_inputs=smooth_inputs)
     problem.inputs = inputs
     for n in problem.notes:
         if not progress.quiet:
@@ -218,7 +220,7 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
             rate = min(fd[c].rate_hz for c in model.outputs)
             if rate < 0.9 * problem.rate_hz:
                 if common is None:
-                    common = user_model_problem(fd, model, rate_hz=rate)
+                    common = user_model_problem(fd, model, rate_hz=rate, smooth_inputs=smooth_inputs)
                     common.inputs = inputs
                 pb = common
         if m == "fem":              # its R; EKF/UKF keep the grid's (fit_problem)

@@ -101,10 +101,15 @@ LONG_OFF = {"fem": {},
 
 
 @pytest.fixture(scope="module")
-def report(tmp_path_factory):
+def run_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("multiaxis")
     run_scenario(SCENARIO, out, methods=list(METHODS), quiet=True, compat=False)
-    return json.loads((out / "report.json").read_text())
+    return out
+
+
+@pytest.fixture(scope="module")
+def report(run_dir):
+    return json.loads((run_dir / "report.json").read_text())
 
 
 def _errors(rep, key, names):
@@ -222,3 +227,31 @@ def test_proof_of_match(report, method):
         errs = {c: round(d["max_abs_error_display"], 2)
                 for c, d in pm["segments"][0]["channels"].items()}
         assert pm["all_pass"], f"{axis} {method}: {errs}"
+
+
+def _lateral_ls_notes(log: Path, out: Path, *extra: str) -> list[str]:
+    from pipeline.cli import main
+
+    assert main(["estimate", str(log), "--model", "lateral", "--method", "ls", "--no-compat",
+                 "--quiet", "--out", str(out), *extra]) == 0
+    return json.loads((out / "report.json").read_text())["methods"]["ls"]["validation"][
+        "problem"]["notes"]
+
+
+def test_raw_inputs_keep_the_logged_surfaces(run_dir, tmp_path):
+    """``fsid estimate --raw-inputs`` on the written flight: no surface smoothing (the
+    default run of the same log lists its corners), the same equation-error estimates
+    (the regressions always use the logged surfaces), and the held-out simulation driven
+    by other inputs (its error moves)."""
+    log = run_dir / "flight.mcap"
+    smooth = _lateral_ls_notes(log, tmp_path / "smooth")
+    raw = _lateral_ls_notes(log, tmp_path / "raw", "--raw-inputs")
+    assert any(n.startswith("control inputs low-passed") for n in smooth), smooth
+    assert not any(n.startswith("control inputs") for n in raw), raw
+    reps = [json.loads((tmp_path / k / "report.json").read_text())["methods"]["ls"]
+            for k in ("smooth", "raw")]
+    est = [{n: p["estimate"] for n, p in r["parameters"].items()} for r in reps]
+    assert est[0] == est[1]
+    pom = [r["validation"]["proof_of_match"]["segments"][0]["channels"]["p"]["max_abs_error_display"]
+           for r in reps]
+    assert pom[0] != pom[1]

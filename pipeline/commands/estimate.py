@@ -6,7 +6,8 @@ import argparse
 
 from pipeline.paths import new_run_dir
 
-from pipeline.commands.run import METHOD_LIST, METHODS, add_validation_arguments, validation_options
+from pipeline.commands.run import (METHOD_LIST, METHODS, add_input_arguments,
+                                   add_validation_arguments, validation_options)
 
 HELP = "identify derivatives from a log with a built-in model (and an aircraft description) or your own model"
 
@@ -33,6 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="how control inputs vary between log samples (default: linear)")
     p.add_argument("--out", help="output folder (default: a new folder under ./runs/)")
     p.add_argument("--no-compat", action="store_true", help="skip the sensor-compatibility stage")
+    add_input_arguments(p)
     add_validation_arguments(p)
     p.add_argument("--quiet", action="store_true")
 
@@ -44,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
     out = new_run_dir("estimate", args.out)
     paths = estimate_log(args.log, out, aircraft=args.aircraft, map_path=args.map,
                          methods=args.method or ["oem"], inputs=args.inputs, model=args.model,
-                         quiet=args.quiet, compat=not args.no_compat, **validation_options(args))
+                         quiet=args.quiet, compat=not args.no_compat,
+                         smooth_inputs=not args.raw_inputs, **validation_options(args))
     print_outputs(out, paths)
     return 0

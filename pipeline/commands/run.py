@@ -26,8 +26,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="skip the sensor-compatibility stage (flight path reconstruction); by "
                         "default sensor errors estimated at >= 3 std are removed from the data "
                         "before estimation")
+    add_input_arguments(p)
     add_validation_arguments(p)
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def add_input_arguments(p: argparse.ArgumentParser) -> None:
+    """Data-preparation options shared by fsid run and fsid estimate."""
+    p.add_argument("--raw-inputs", action="store_true",
+                   help="use the logged surface positions (de, da, dr) as they are; by default "
+                        "those with a flat white noise floor are low-passed zero-phase where it "
+                        "begins (the corners are in the report's data preparation notes)")
 
 
 def add_validation_arguments(p: argparse.ArgumentParser) -> None:
@@ -66,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
 
     out = new_run_dir("run", args.out)
     paths = run_scenario(args.scenario, out, seed=args.seed, methods=args.method,
-                         quiet=args.quiet, compat=not args.no_compat, **validation_options(args))
+                         quiet=args.quiet, compat=not args.no_compat,
+                         smooth_inputs=not args.raw_inputs, **validation_options(args))
     print_outputs(out, paths)
     return 0
