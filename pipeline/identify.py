@@ -200,14 +200,15 @@ def checked_windows(df: pd.DataFrame, specs: Sequence[SegmentSpec], outputs: Seq
 
 
 def with_smoothed_inputs(frames: Mapping[int, pd.DataFrame], specs: Sequence[SegmentSpec],
-                         smoothed: pd.DataFrame, cols: Sequence[str], *,
+                         smoothed: pd.DataFrame | None, cols: Sequence[str], *,
                          relative: bool = False) -> None:
     """Put the columns ``cols`` of ``smoothed`` (the flight's grid with its control inputs
     low-passed, :func:`pipeline.input_smoothing.smoothed_control_inputs`) into each window
     of ``frames`` in place, relative to the window's first sample when ``relative``. The
     equation-error regressions and starts are built before, from the logged samples: they
-    filter every signal of their linear relation alike."""
-    if not cols:
+    filter every signal of their linear relation alike. Nothing to do when ``smoothed``
+    is None (no input had a noise floor to remove)."""
+    if smoothed is None or not cols:
         return
     for s in specs:
         w, sm = frames[id(s)], _window(smoothed, s)[list(cols)]

@@ -11,11 +11,11 @@ low-passed where their noise floor begins (6.0 and 7.6 Hz there) 2.8 and 1.8
 their empirical std, gone with the smoothed ones).
 
 The corner of each control input comes from its own spectrum at its native rate
-(:func:`input_corner_hz`): the white-noise floor is the upper half of the native band, and
-the corner is 1.5 times the top of the highest band where the measured power is still
-twice that floor (signal above the noise: a Wiener filter's crossover). Inputs without a measurable
-noise floor (commands, servo outputs, data whose signal reaches the Nyquist frequency)
-keep their samples.
+(:func:`input_corner_hz`): the white-noise floor is the upper half of the native band,
+which must be flat, and the corner is 1.5 times the top of the highest band where the
+measured power is still twice that floor (signal above the noise: a Wiener filter's
+crossover). Inputs without a flat noise floor (commands, servo outputs, noise-free steps,
+data whose signal reaches the Nyquist frequency) keep their samples.
 """
 from __future__ import annotations
 
@@ -66,9 +66,10 @@ def input_corner_hz(t: np.ndarray, x: np.ndarray) -> float | None:
     window) is averaged over third-octave bands. The noise floor is the mean power of the
     upper half of the band (the median over ln 2, robust to a few tones there), and must be
     flat there (the mean power of its upper quarter over its lower one within FLAT: white
-    noise, not a signal's 1/f^2 roll-off or an anti-aliasing filter's); the corner
-    is the upper edge of the highest band whose mean power exceeds SIGNAL_OVER_FLOOR times
-    the floor, times CORNER_MARGIN, at least MIN_CORNER_HZ. None when the input has no noise floor to remove:
+    noise, not a signal's 1/f^2 roll-off or an anti-aliasing filter's); the corner is
+    the upper edge of the highest band whose mean power exceeds SIGNAL_OVER_FLOOR times
+    the floor, times CORNER_MARGIN, at least MIN_CORNER_HZ. None when the input has no
+    noise floor to remove:
     fewer than MIN_SAMPLES finite samples, a floor of zero or not flat (noise-free commands
     or steps, a constant, a resampled channel), or a corner above 0.4 times the native rate
     (signal up to the Nyquist frequency)."""
@@ -86,8 +87,9 @@ def input_corner_hz(t: np.ndarray, x: np.ndarray) -> float | None:
     floor = np.median(power[f > 0.25 * rate]) / np.log(2.0)
     if not floor > 0 or not FLAT[0] < np.mean(top) / np.mean(upper) < FLAT[1]:
         return None                     # no white floor: nothing or signal up there
-    n_bands = int(np.ceil(np.log(rate / 1.0) / np.log(BAND_RATIO)))
-    edges = 0.5 * BAND_RATIO ** np.arange(n_bands + 1)                  # 0.5 Hz upwards
+    # third-octave bands from 0.5 Hz up to the Nyquist frequency 0.5 rate
+    n_bands = int(np.ceil(np.log(rate) / np.log(BAND_RATIO)))
+    edges = 0.5 * BAND_RATIO ** np.arange(n_bands + 1)
     corner = MIN_CORNER_HZ
     for lo, hi in zip(edges[:-1], edges[1:]):
         m = (f >= lo) & (f < hi)
@@ -131,13 +133,13 @@ def smooth_columns(df: pd.DataFrame, rate_hz: float, corners: Mapping[str, float
 
 def smoothed_control_inputs(fd: FlightData, df: pd.DataFrame, rate_hz: float,
                             channels: Sequence[str] = CONTROL_INPUTS
-                            ) -> tuple[pd.DataFrame, str | None]:
-    """``df`` (the identification grid) with its measured control inputs ``channels``
-    smoothed at their noise floors, and the note saying so for the problem (``df`` itself
-    and None when none was: no channels, or none with a noise floor)."""
+                            ) -> tuple[pd.DataFrame | None, str | None]:
+    """A copy of ``df`` (the identification grid) with its measured control inputs
+    ``channels`` smoothed at their noise floors, and the note saying so for the problem;
+    (None, None) when none was (no channels, or none with a noise floor)."""
     corners = {c: fc for c, fc in control_input_corners(fd, channels).items() if c in df}
     if not corners:
-        return df, None
+        return None, None
     note = (f"control inputs low-passed zero-phase (Butterworth order {INPUT_FILTER_ORDER}) "
             "where their measured noise floor begins: "
             + ", ".join(f"{c} {fc:.1f} Hz" for c, fc in corners.items()))
