@@ -11,13 +11,30 @@ parameter rows into a namedtuple (so ``p.CD0`` works); constants become a namedt
 floats. The compiled kernel is checked once against the numpy evaluation; when ``f``
 does not compile (e.g. it uses Python objects numba does not know) or disagrees, the
 numpy path is used and a warning says so. ``FSID_JIT=0`` switches compilation off.
+
+Compiled code is kept on disk between runs (:func:`load_kernels`): compiling a model with
+its integrator loops takes 5-15 s (most of a short ``fsid`` run), loading it back well
+under a second. The adapters and the loops that call them are written as a small module
+into ``$FSID_CACHE_DIR`` (default ``~/.cache/fsid``) under ``kernels/``, named by a hash
+of everything the compiled code depends on: that generated source, the source files of
+``f`` and ``g`` and of every function they call, the values of the module globals and
+closure cells they read, the integrators' and filter loops' source files, and the numba
+and Python versions. Any edit there gives a new name, so a stale kernel is never loaded;
+the folder may be deleted at any time. ``FSID_JIT_CACHE=0`` keeps everything in memory.
+A model whose functions have no source file (typed at a prompt, built with ``exec``) or
+read globals that cannot be fingerprinted is compiled in memory every run, as before.
 """
 from __future__ import annotations
 
+import hashlib
+import importlib.util
+import inspect
 import os
+import sys
+import textwrap
 import types
 import warnings
-from collections import namedtuple
+from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -31,14 +48,9 @@ try:
 except ImportError:  # pragma: no cover
     numba = None
 
-_JIT_SCHEMES: dict[str, Callable] = {}
 _KERNELS: dict[tuple, "RhsKernel"] = {}
-
-
-def _jit_scheme(name: str) -> Callable:
-    if name not in _JIT_SCHEMES:
-        _JIT_SCHEMES[name] = numba.njit(error_model="numpy", cache=False)(_integ.PY_SCHEMES[name])
-    return _JIT_SCHEMES[name]
+#: the package's source files that generated kernel modules run (their bytes enter the hash)
+_PACKAGE_SOURCES = ("integrators.py", "fem.py", "jit.py")
 
 
 def compile_user_function(fn: Callable, _done: dict | None = None) -> Callable:
@@ -64,8 +76,175 @@ def compile_user_function(fn: Callable, _done: dict | None = None) -> Callable:
     return out
 
 
-def _tuple_src(items: Sequence[str]) -> str:
+def tuple_source(items: Sequence[str]) -> str:
+    """``(a, b, )``: a tuple display of the given expressions (one element included)."""
     return "(" + "".join(f"{s}, " for s in items) + ")"
+
+
+# -- kernels kept on disk -------------------------------------------------------------------
+def cache_dir() -> Path | None:
+    """The folder of generated kernel modules, created when missing; None when caching is
+    off (``FSID_JIT_CACHE=0``) or the folder cannot be written."""
+    if os.environ.get("FSID_JIT_CACHE", "1") == "0":
+        return None
+    base = os.environ.get("FSID_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "fsid")
+    d = Path(base) / "kernels"
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    return d if os.access(d, os.W_OK) else None
+
+
+_SCALARS = (bool, int, float, complex, str, bytes, type(None))
+
+
+def _value_bytes(v: Any) -> bytes | None:
+    """A fingerprint of a global or closure value that numba freezes into compiled code;
+    None when it cannot be had."""
+    if isinstance(v, _SCALARS) or isinstance(v, np.generic):
+        return repr(v).encode()
+    if isinstance(v, np.ndarray):
+        return str((v.dtype, v.shape)).encode() + np.ascontiguousarray(v).tobytes()
+    if isinstance(v, tuple):
+        parts = [_value_bytes(x) for x in v]
+        return None if any(p is None for p in parts) else b"(" + b",".join(parts) + b")"
+    return None
+
+
+def _code_names(code: types.CodeType) -> set[str]:
+    """Global names a code object and the code objects nested in it read."""
+    names = set(code.co_names)
+    for const in code.co_consts:
+        if isinstance(const, types.CodeType):
+            names |= _code_names(const)
+    return names
+
+
+def _fingerprint_function(fn: Any, h: "hashlib._Hash", seen: set, files: set) -> bool:
+    """Feed ``fn``'s source file, name, closure values and the globals it reads (functions
+    recursively) into ``h``; False when something it depends on cannot be fingerprinted."""
+    fn = getattr(fn, "py_func", fn)                     # a numba dispatcher: its Python function
+    if id(fn) in seen:
+        return True
+    seen.add(id(fn))
+    if not isinstance(fn, types.FunctionType):
+        return isinstance(fn, (types.BuiltinFunctionType, np.ufunc))
+    path = fn.__code__.co_filename
+    if not os.path.isfile(path):
+        return False
+    if path not in files:
+        files.add(path)
+        h.update(Path(path).read_bytes())
+    h.update(f"{fn.__module__}.{fn.__qualname__}".encode())
+    for cell in fn.__closure__ or ():
+        v = cell.cell_contents
+        if isinstance(v, types.FunctionType) or hasattr(v, "py_func"):
+            if not _fingerprint_function(v, h, seen, files):
+                return False
+        elif (b := _value_bytes(v)) is not None:
+            h.update(b)
+        else:
+            return False
+    glb = fn.__globals__
+    for name in sorted(_code_names(fn.__code__)):
+        if name not in glb:
+            continue                                   # a builtin or an attribute name
+        v = glb[name]
+        if isinstance(v, types.ModuleType) or isinstance(v, type):
+            h.update(f"{name}={getattr(v, '__name__', '')}".encode())
+        elif isinstance(v, types.FunctionType) or hasattr(v, "py_func"):
+            if not _fingerprint_function(v, h, seen, files):
+                return False
+        elif (b := _value_bytes(v)) is not None:
+            h.update(name.encode() + b"=" + b)
+        elif callable(v):
+            h.update(f"{name}={type(v).__name__}".encode())   # a ufunc or builtin: by name
+        else:
+            return False
+    return True
+
+
+def kernel_key(source: str, functions: Sequence[Callable]) -> str | None:
+    """The hash naming a generated kernel module (hex), or None when one of ``functions``
+    cannot be fingerprinted (no source file, unknown global values)."""
+    h = hashlib.sha256(source.encode())
+    h.update(f"{numba.__version__ if numba else ''} {sys.version}".encode())
+    here = Path(__file__).parent
+    for name in _PACKAGE_SOURCES:
+        h.update((here / name).read_bytes())
+    seen: set = set()
+    files: set = set()
+    for fn in functions:
+        if not _fingerprint_function(fn, h, seen, files):
+            return None
+    return h.hexdigest()[:32]
+
+
+def load_kernels(source: str, inject: Mapping[str, Any], functions: Sequence[Callable],
+                 prefix: str) -> types.ModuleType | types.SimpleNamespace:
+    """Run a generated kernel ``source`` whose numba functions read ``CACHE`` for their
+    ``cache=`` option, with the names in ``inject`` (compiled user functions, other
+    kernels) set first. Kept on disk as ``<cache_dir>/<prefix>_<hash>.py`` and imported,
+    so numba loads its compiled functions back in the next process; run in memory
+    (``CACHE`` False) when caching is off or ``functions`` cannot be fingerprinted."""
+    root = cache_dir() if numba is not None else None
+    key = kernel_key(source, functions) if root is not None else None
+    if key is None:
+        ns: dict[str, Any] = {**inject, "CACHE": False}
+        exec(compile(source, f"<fsid {prefix}>", "exec"), ns)
+        return types.SimpleNamespace(**{k: v for k, v in ns.items() if not k.startswith("__")})
+    name = f"{prefix}_{key}"
+    mod = sys.modules.get(name)
+    if mod is not None:
+        return mod
+    path = root / f"{name}.py"
+    if not path.is_file():
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(source)
+        os.replace(tmp, path)                          # another process may race: same text
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    mod.__dict__.update(inject, CACHE=True)
+    sys.modules[name] = mod                            # numba's cache index pickles its types
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", getattr(numba, "NumbaWarning", Warning))
+            spec.loader.exec_module(mod)
+    except BaseException:
+        sys.modules.pop(name, None)
+        raise
+    return mod
+
+
+def bound_source(fn: Callable, drop: str, replace: Mapping[str, str] = {}) -> str:
+    """The source of one of the package's loop functions with the callable arguments named
+    in ``drop`` (e.g. ``"rhs, "``) taken out of its signature and calls, and the other
+    ``replace`` substitutions made, for a generated kernel module where those callables
+    are module globals. Passed as arguments, numba holds them as Python object pointers,
+    and a function holding one cannot be cached; called as globals they can."""
+    src = textwrap.dedent(inspect.getsource(fn)).replace(drop, "")
+    for a, b in replace.items():
+        src = src.replace(a, b)
+    names = {d.strip(" ,") for d in drop.split(",") if d.strip()}
+    code = compile(src, "<bound>", "exec").co_consts
+    fcode = next(c for c in code if isinstance(c, types.CodeType))
+    left = names & set(fcode.co_varnames)
+    if left:   # the package's loop was edited in a way this substitution misses
+        raise RuntimeError(f"{fn.__name__}: {sorted(left)} still passed as arguments")
+    return src
+
+
+def _scheme_source() -> str:
+    """The integrators of a kernel module: every scheme of :mod:`estimators.integrators`
+    with ``rhs`` the module's global, compiled (and cached) as ``integrate_<scheme>(x0, U,
+    t, P, c, rtol, atol, mode)``."""
+    parts = [bound_source(_integ._explicit_rk, "rhs, ")]
+    for s in _integ.INTEGRATORS:
+        parts += [bound_source(_integ.PY_SCHEMES[s], "rhs, "),
+                  f"integrate_{s} = numba.njit(error_model='numpy', cache=CACHE)({s})"]
+    return "\n".join(parts)
 
 
 class RhsKernel:
@@ -73,6 +252,7 @@ class RhsKernel:
 
     ``integrate(scheme, x0 (n, B), U (N, n_in), t (N,), P (n_p, B), constants, inputs=...)``
     returns X (N, n, B); ``inputs`` is "average", "linear" or "hold" (integrators.INPUT_MODES).
+    ``module`` holds the compiled ``rhs`` and ``integrate_<scheme>`` once compiled.
     """
 
     def __init__(self, model: Model) -> None:
@@ -91,34 +271,47 @@ class RhsKernel:
             out[:] = stack_rows(r, n, out.shape[1:], "f", states)
 
         self.rhs_py = rhs_py
-        self.rhs_jit = None
+        self.module = None
         self._jit_state = "untried" if (numba is not None and os.environ.get("FSID_JIT", "1") != "0") \
             else "off"
-        self._ConstT = None
 
     # -- compiled path -------------------------------------------------------------------
-    def _build_jit(self, helpers: bool = False) -> None:
+    @property
+    def rhs_jit(self):
+        return None if self.module is None else self.module.rhs
+
+    def source(self, helpers: bool) -> str:
+        """The kernel module's source: the rhs adapter and the integrator entry points."""
         m = self.model
-        PT = namedtuple("Params", self.names)
-        fj = compile_user_function(m.f) if helpers else numba.njit(error_model="numpy")(m.f)
-        src = "\n".join([
+        return "\n".join([
+            f"# fsid compiled kernels of model {m.name!r} (generated by estimators.jit; "
+            "safe to delete)",
+            f"# f: {getattr(m.f, '__module__', '?')}.{getattr(m.f, '__qualname__', '?')}, "
+            f"helpers compiled: {helpers}",
+            "from collections import namedtuple",
+            "import numba",
+            "from estimators import integrators as _I",
+            "globals().update({k: v for k, v in vars(_I).items() if not k.startswith('__')})",
+            f"Params = namedtuple('Params', {list(self.names)!r})",
+            f"Constants = namedtuple('Constants', {list(self.const_names)!r})",
+            "@numba.njit(error_model='numpy', cache=CACHE)",
             "def rhs(x2d, u1d, P, c, out):",
-            f"    x = {_tuple_src([f'x2d[{i}]' for i in range(self.n)])}",
-            f"    u = {_tuple_src([f'u1d[{i}]' for i in range(len(m.inputs))])}",
-            f"    p = _PT({', '.join(f'P[{i}]' for i in range(len(self.names)))})",
+            f"    x = {tuple_source([f'x2d[{i}]' for i in range(self.n)])}",
+            f"    u = {tuple_source([f'u1d[{i}]' for i in range(len(m.inputs))])}",
+            f"    p = Params({', '.join(f'P[{i}]' for i in range(len(self.names)))})",
             "    r = _f(x, u, p, c)",
             *[f"    out[{i}, :] = r[{i}]" for i in range(self.n)],
-        ])
-        ns: dict[str, Any] = {"_PT": PT, "_f": fj}
-        exec(compile(src, f"<fsid rhs adapter for {m.name}>", "exec"), ns)
-        self.rhs_jit = numba.njit(error_model="numpy")(ns["rhs"])
-        if self.const_names:
-            self._ConstT = namedtuple("Constants", self.const_names)
+            _scheme_source(), ""])
+
+    def _build_jit(self, helpers: bool = False) -> None:
+        m = self.model
+        fj = compile_user_function(m.f) if helpers else numba.njit(error_model="numpy")(m.f)
+        self.module = load_kernels(self.source(helpers), {"_f": fj}, [m.f], "fsid_rhs")
 
     def _c_jit(self, constants: Mapping[str, float]):
-        if self._ConstT is None:
+        if not self.const_names:
             return ()
-        return self._ConstT(*[float(constants[k]) for k in self.const_names])
+        return self.module.Constants(*[float(constants[k]) for k in self.const_names])
 
     def _try_jit(self, x0: np.ndarray, U: np.ndarray, P: np.ndarray,
                  constants: Mapping[str, float]) -> None:
@@ -132,7 +325,7 @@ class RhsKernel:
                 c = self._c_jit(constants)
                 u = np.ascontiguousarray(U[0], dtype=float)
                 a = np.empty_like(x0)
-                self.rhs_jit(np.ascontiguousarray(x0), u, np.ascontiguousarray(P), c, a)
+                self.module.rhs(np.ascontiguousarray(x0), u, np.ascontiguousarray(P), c, a)
                 b = np.empty_like(x0)
                 self.rhs_py(x0, u, P, Namespace(constants), b)
                 if not np.allclose(a, b, rtol=1e-9, atol=1e-12, equal_nan=True):
@@ -141,7 +334,7 @@ class RhsKernel:
                 return
             except Exception as e:  # any failure -> next way, then the numpy path, said once
                 exc = e
-        self.rhs_jit = None
+        self.module = None
         self._jit_state = "failed"
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         warnings.warn(
@@ -153,6 +346,19 @@ class RhsKernel:
     @property
     def compiled(self) -> bool:
         return self._jit_state == "on"
+
+    def prepare(self) -> bool:
+        """Compile (or load) the kernel now if that was not tried yet, checked at a
+        made-up state (1 + 0.1 N(0, 1) per state, small inputs, the model's parameter
+        values); True when the compiled path is on."""
+        if self._jit_state == "untried":
+            m = self.model
+            rng = np.random.default_rng(0)
+            x0 = rng.standard_normal((self.n, 2)) * 0.1 + 1.0
+            U = rng.standard_normal((2, len(m.inputs))) * 0.1
+            P = np.repeat(np.array([[p.value] for p in m.parameters], dtype=float), 2, axis=1)
+            self._try_jit(x0, U, P, m.constants)
+        return self.compiled
 
     def integrate(self, scheme: str, x0: np.ndarray, U: np.ndarray, t: np.ndarray,
                   P: np.ndarray, constants: Mapping[str, float], *,
@@ -173,8 +379,8 @@ class RhsKernel:
         if self._jit_state == "untried":
             self._try_jit(x0, U, P, constants)
         if self._jit_state == "on":
-            return _jit_scheme(scheme)(self.rhs_jit, x0, U, t, P, self._c_jit(constants),
-                                       float(rtol), float(atol), mode)
+            return getattr(self.module, f"integrate_{scheme}")(
+                x0, U, t, P, self._c_jit(constants), float(rtol), float(atol), mode)
         with np.errstate(all="ignore"):
             return _integ.PY_SCHEMES[scheme](self.rhs_py, x0, U, t, P, Namespace(constants),
                                              rtol, atol, mode)

@@ -1,0 +1,156 @@
+"""Compiled kernels kept on disk between runs (estimators.jit.load_kernels).
+
+Each case runs a fit in a fresh Python process, as ``fsid`` does, with its own
+FSID_CACHE_DIR: a two-state model written to a file, fitted by output error and by the
+filter-error method (nonlinear form: the compiled filter loop). numba's own counters say
+whether the compiled functions were loaded from the cache or compiled.
+"""
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from estimators import Model, OutputError, Parameter, Segment, simulate_outputs
+from estimators.jit import kernel_for
+
+ROOT = Path(__file__).resolve().parents[1]
+
+MODEL = '''
+"""Two-state short-period model for the kernel-cache test."""
+GAIN = {gain}
+
+
+def f(x, u, p, c):
+    alpha, q = x
+    (de,) = u
+    return (p.Za * alpha + q + p.Zde * de,
+            GAIN * (p.Ma * alpha + p.Mq * q + p.Mde * de))
+
+
+def g(x, u, p, c):
+    alpha, q = x
+    return alpha, q
+'''
+
+FIT = '''
+import json, sys
+import numpy as np
+sys.path[:0] = [sys.argv[1], sys.argv[2]]
+from estimators import FilterError, Model, OutputError, Parameter, Segment, simulate_outputs
+from estimators.jit import kernel_for
+from estimators.fem import output_kernel
+import sp_model as mod
+truth = dict(Za=-1.2, Zde=-0.15, Ma=-6.0, Mq=-2.5, Mde=-9.0)
+m = Model(states=["alpha", "q"], inputs=["de"], outputs=["alpha", "q"],
+          parameters=[Parameter(k, 0.8 * v) for k, v in truth.items()], constants={"V": 30.0},
+          f=mod.f, g=mod.g, name="sp")
+t = np.arange(0, 10, 0.02)
+de = np.where((t > 1) & (t < 2), 0.05, 0.0) - np.where((t > 2) & (t < 3), 0.05, 0.0)
+seg = Segment(t=t, u=de[:, None], z=np.zeros((t.size, 2)), x0=np.zeros(2))
+seg.z = (simulate_outputs(m.with_values(truth), seg).to_numpy()
+         + 1e-3 * np.random.default_rng(1).standard_normal((t.size, 2)))
+out = {"oem": OutputError(m).fit(seg, estimate_x0=False).params.to_dict(),
+       "q_peak": float(np.abs(seg.z[:, 1]).max())}
+k = kernel_for(m)
+found = [("rhs", k.module.rhs), ("rk4", k.module.integrate_rk4)]
+if sys.argv[3] == "fem":
+    fem = FilterError(m, form="nonlinear", process_noise={"q": 0.01}).fit(seg, estimate_x0=False)
+    out["fem"] = fem.params.to_dict()
+    found.append(("loop", output_kernel(m).nl_loop_rk4))
+out["hits"] = {n: sum(d.stats.cache_hits.values()) for n, d in found}
+out["misses"] = {n: sum(d.stats.cache_misses.values()) for n, d in found}
+out["module"] = getattr(k.module, "__name__", None)
+print(json.dumps(out))
+'''
+
+
+def _fit(tmp: Path, cache: Path, methods: str = "fem", **env) -> dict:
+    e = {**os.environ, "FSID_CACHE_DIR": str(cache), **env}
+    e.pop("FSID_JIT", None)
+    r = subprocess.run([sys.executable, str(tmp / "fit.py"), str(ROOT), str(tmp), methods],
+                       capture_output=True, text=True, env=e, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("jitcache")
+    (tmp / "sp_model.py").write_text(MODEL.format(gain=1.0))
+    (tmp / "fit.py").write_text(FIT)
+    return tmp
+
+
+@pytest.fixture(scope="module")
+def first_and_second(work):
+    cache = work / "cache"
+    return cache, _fit(work, cache), _fit(work, cache)
+
+
+def test_second_run_loads_what_the_first_compiled(first_and_second):
+    cache, first, second = first_and_second
+    assert first["hits"] == {"rhs": 0, "rk4": 0, "loop": 0}, first
+    assert min(first["misses"].values()) >= 1, first
+    assert second["misses"] == {"rhs": 0, "rk4": 0, "loop": 0}, second
+    assert min(second["hits"].values()) >= 1, second
+    # the same numbers, bit for bit, and the estimates where they belong
+    assert first["oem"] == second["oem"] and first["fem"] == second["fem"]
+    assert first["oem"]["Ma"] == pytest.approx(-6.0, rel=0.01)
+    names = sorted(p.name for p in (cache / "kernels").glob("*.py"))
+    assert [n.split("_")[1] for n in names] == ["filter", "rhs"], names
+    assert second["module"] + ".py" in names
+
+
+def test_an_edited_model_gets_new_kernels(work, first_and_second):
+    cache, first, _ = first_and_second
+    (work / "sp_model.py").write_text(MODEL.format(gain=1.1))
+    try:
+        edited = _fit(work, cache, "oem")
+    finally:
+        (work / "sp_model.py").write_text(MODEL.format(gain=1.0))
+    assert edited["module"] != first["module"]
+    assert edited["hits"]["rk4"] == 0 and edited["misses"]["rk4"] >= 1
+    # the edited f is what runs: its 10 % stronger pitching moment moves the simulated
+    # response (the data are simulated with it), and the fit still finds the truth
+    assert abs(edited["q_peak"] / first["q_peak"] - 1.0) > 0.01, (edited, first)
+    assert edited["oem"]["Ma"] == pytest.approx(-6.0, rel=0.01)
+
+
+def test_cache_off_writes_nothing_and_gives_the_same_numbers(work, first_and_second):
+    _, first, _ = first_and_second
+    off = work / "off"
+    r = _fit(work, off, "oem", FSID_JIT_CACHE="0")
+    assert r["module"] is None and r["hits"]["rk4"] == 0
+    assert not (off / "kernels").exists() or not any((off / "kernels").iterdir())
+    assert r["oem"] == first["oem"]
+
+
+def test_a_model_without_a_source_file_compiles_in_memory(tmp_path, monkeypatch):
+    monkeypatch.setenv("FSID_CACHE_DIR", str(tmp_path))
+    ns: dict = {}
+    exec(textwrap.dedent('''
+        def f(x, u, p, c):
+            (v,) = x
+            (w,) = u
+            return (p.a * v + w,)
+
+        def g(x, u, p, c):
+            (v,) = x
+            return (v,)
+    '''), ns)
+    m = Model(states=["v"], inputs=["w"], outputs=["v"], parameters=[Parameter("a", -1.0)],
+              f=ns["f"], g=ns["g"], name="typed")
+    t = np.arange(0, 5, 0.05)
+    seg = Segment(t=t, u=np.sin(t)[:, None], z=np.zeros((t.size, 1)), x0=np.zeros(1))
+    seg.z = (simulate_outputs(m.with_values({"a": -2.0}), seg).to_numpy()
+             + 1e-3 * np.random.default_rng(2).standard_normal((t.size, 1)))
+    res = OutputError(m).fit(seg, estimate_x0=False)
+    assert abs(res.params["a"] + 2.0) < 3 * res.std["a"]
+    k = kernel_for(m)
+    assert k.compiled and not hasattr(k.module, "__file__")
+    assert not (tmp_path / "kernels").exists() or not any((tmp_path / "kernels").glob("*.py"))
