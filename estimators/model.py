@@ -195,10 +195,17 @@ class Model:
             raise ModelDefinitionError(f"{missing} are not outputs of {self.name!r} ({self.outputs})")
         idx = [self.outputs.index(n) for n in names]
         g0 = self.g
+        if hasattr(g0, "selects"):                     # a selection of a selection
+            g0, rows = g0.selects
+            idx = [rows[i] for i in idx]
 
         def g(x, u, p, c):
             out = g0(x, u, p, c)
             return tuple(out[i] for i in idx)
+
+        # the compiled filter loop (estimators.fem.output_kernel) calls g0 and picks these
+        # rows itself: numba cannot build a tuple with a generator
+        g.selects = (g0, tuple(idx))
 
         params = [p for p in self.parameters
                   if not (p.name.startswith("bias_") and p.name[5:] in self.output_biases
