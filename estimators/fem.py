@@ -57,6 +57,7 @@ predictions y~_k, ``residuals`` the innovations, ``R`` their sample covariance;
 """
 from __future__ import annotations
 
+import warnings
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -383,20 +384,27 @@ def output_kernel(model: Model):
            tuple(model.outputs), tuple(model.output_biases), tuple(sorted(model.constants)))
     if key in _OUT_KERNELS:
         return _OUT_KERNELS[key]
-    mod = None
+    mod, why = None, ""
     kern = kernel_for(model)
     for helpers in ((False, True) if numba is not None and kern.prepare() else ()):
-        mod = _output_kernel(model, kern, helpers)
+        mod, why = _output_kernel(model, kern, helpers)
         if mod is not None:
             break
+    if mod is None and why:
+        # f compiled (else it has said so itself) but g did not
+        warnings.warn(
+            f"model {model.name!r}: g could not be compiled with numba ({why}); the filter "
+            "loop runs with numpy, which is slower. Write g with numpy functions and "
+            "arithmetic on the unpacked rows to get the compiled path.",
+            RuntimeWarning, stacklevel=3)
     _OUT_KERNELS[key] = mod
     return mod
 
 
 def _output_kernel(model: Model, kern, helpers: bool):
     """The compiled output kernel module of :func:`output_kernel`, g as written (``helpers``
-    False) or with the plain helper functions it calls compiled too; None when it fails or
-    disagrees with the numpy evaluation."""
+    False) or with the plain helper functions it calls compiled too, and "" - or None and
+    why, when it fails or disagrees with the numpy evaluation."""
     try:
         n, ni, m = len(model.states), len(model.inputs), len(model.outputs)
         names = model.parameter_names
@@ -441,10 +449,11 @@ def _output_kernel(model: Model, kern, helpers: bool):
         with np.errstate(all="ignore"):
             b = model.eval_g(x[:, None, :], u[:, None, None], P, model.constants)[:, 0, :]
         if np.allclose(a, b, rtol=1e-9, atol=1e-12, equal_nan=True):
-            return mod
-    except Exception:  # the numpy loop is used instead
-        pass
-    return None
+            return mod, ""
+        return None, "compiled and numpy outputs differ"
+    except Exception as exc:  # the numpy loop is used instead
+        text = str(exc).strip()
+        return None, text.splitlines()[0] if text else type(exc).__name__
 
 
 def _nl_loop(scheme, rhs, gout, x0, U, t, P, c, K, pat, Z, rtol, atol, mode):
