@@ -438,7 +438,8 @@ def _output_kernel(model: Model, kern, helpers: bool):
             *loops, ""])
         gj = compile_user_function(g_full) if helpers else numba.njit(error_model="numpy")(g_full)
         steps = {f"_integrate_{s}": getattr(kern.module, f"integrate_{s}") for s in INTEGRATORS}
-        mod = load_kernels(src, {"_g": gj, **steps}, [g_full, model.f], "fsid_filter")
+        mod = load_kernels(src, {"_g": gj, **steps}, [g_full, model.f], "fsid_filter",
+                           package=("fem.py",))
         # check once against numpy
         rng = np.random.default_rng(0)
         x = rng.standard_normal((n, 2)) * 0.1 + 1.0

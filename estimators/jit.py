@@ -18,11 +18,12 @@ under a second. The adapters and the loops that call them are written as a small
 into ``$FSID_CACHE_DIR`` (default ``~/.cache/fsid``) under ``kernels/``, named by a hash
 of everything the compiled code depends on: that generated source, the source files of
 ``f`` and ``g`` and of every function they call, the values of the module globals and
-closure cells they read, the integrators' and filter loops' source files, and the numba
-and Python versions. Any edit there gives a new name, so a stale kernel is never loaded;
-the folder may be deleted at any time. ``FSID_JIT_CACHE=0`` keeps everything in memory.
-A model whose functions have no source file (typed at a prompt, built with ``exec``) or
-read globals that cannot be fingerprinted is compiled in memory every run, as before.
+closure cells they read, the package files with the loops they run (integrators.py,
+jit.py, fem.py for the filter loop), and the numba and Python versions. Any edit there
+gives a new name, so a stale kernel is never loaded; the folder may be deleted at any
+time. ``FSID_JIT_CACHE=0`` keeps everything in memory. A model whose functions have no
+source file (typed at a prompt, built with ``exec``) or read globals that cannot be
+fingerprinted is compiled in memory every run, as before.
 """
 from __future__ import annotations
 
@@ -49,8 +50,8 @@ except ImportError:  # pragma: no cover
     numba = None
 
 _KERNELS: dict[tuple, "RhsKernel"] = {}
-#: the package's source files that generated kernel modules run (their bytes enter the hash)
-_PACKAGE_SOURCES = ("integrators.py", "fem.py", "jit.py")
+#: the package's source files every generated kernel module runs (their bytes enter the hash)
+_PACKAGE_SOURCES = ("integrators.py", "jit.py")
 
 
 def compile_user_function(fn: Callable, _done: dict | None = None) -> Callable:
@@ -166,13 +167,14 @@ def _fingerprint_function(fn: Any, h: "hashlib._Hash", seen: set, files: set) ->
     return True
 
 
-def kernel_key(source: str, functions: Sequence[Callable]) -> str | None:
+def kernel_key(source: str, functions: Sequence[Callable], package: Sequence[str] = ()) -> str | None:
     """The hash naming a generated kernel module (hex), or None when one of ``functions``
-    cannot be fingerprinted (no source file, unknown global values)."""
+    cannot be fingerprinted (no source file, unknown global values). ``package``: more of
+    the package's source files (names in this folder) the module runs."""
     h = hashlib.sha256(source.encode())
     h.update(f"{numba.__version__ if numba else ''} {sys.version}".encode())
     here = Path(__file__).parent
-    for name in _PACKAGE_SOURCES:
+    for name in (*_PACKAGE_SOURCES, *package):
         h.update((here / name).read_bytes())
     seen: set = set()
     files: set = set()
@@ -183,14 +185,16 @@ def kernel_key(source: str, functions: Sequence[Callable]) -> str | None:
 
 
 def load_kernels(source: str, inject: Mapping[str, Any], functions: Sequence[Callable],
-                 prefix: str) -> types.ModuleType | types.SimpleNamespace:
+                 prefix: str, package: Sequence[str] = ()) -> types.ModuleType | types.SimpleNamespace:
     """Run a generated kernel ``source`` whose numba functions read ``CACHE`` for their
     ``cache=`` option, with the names in ``inject`` (compiled user functions, other
     kernels) set first. Kept on disk as ``<cache_dir>/<prefix>_<hash>.py`` and imported,
     so numba loads its compiled functions back in the next process; run in memory
-    (``CACHE`` False) when caching is off or ``functions`` cannot be fingerprinted."""
+    (``CACHE`` False) when caching is off or ``functions`` cannot be fingerprinted.
+    ``package``: the package's source files the module runs beyond integrators.py and
+    jit.py (e.g. ``("fem.py",)``)."""
     root = cache_dir() if numba is not None else None
-    key = kernel_key(source, functions) if root is not None else None
+    key = kernel_key(source, functions, package) if root is not None else None
     if key is None:
         ns: dict[str, Any] = {**inject, "CACHE": False}
         exec(compile(source, f"<fsid {prefix}>", "exec"), ns)
