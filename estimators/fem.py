@@ -380,7 +380,8 @@ def output_kernel(model: Model):
     ``nl_loop_<integrator>(x0, U, t, P, c, K, pat, Z, rtol, atol, mode)``, :func:`_nl_loop`
     with the model's rhs and gout; None when g does not compile or disagrees with the numpy
     evaluation."""
-    key = (model.g, tuple(model.states), tuple(model.inputs), tuple(model.parameter_names),
+    # f too: the module's filter loops call the model's rhs
+    key = (model.f, model.g, tuple(model.states), tuple(model.inputs), tuple(model.parameter_names),
            tuple(model.outputs), tuple(model.output_biases), tuple(sorted(model.constants)))
     if key in _OUT_KERNELS:
         return _OUT_KERNELS[key]

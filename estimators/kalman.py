@@ -190,6 +190,12 @@ class AugmentedModel:
         self.kernel = kernel_for(model)
         self.rtol, self.atol = rtol, atol
         self.inputs = inputs
+        # g compiled when the model allows (the filter-error kernels' gout), else numpy
+        from estimators.fem import output_kernel    # fem imports this module
+        gk = output_kernel(model) if self.kernel.prepare() else None
+        self._gout = None if gk is None else gk.gout
+        self._cj = None if gk is None else self.kernel._c_jit(self.c)
+        self._u = np.ascontiguousarray(seg.u, dtype=float)
 
     def params(self, S: np.ndarray) -> np.ndarray:
         """Model parameter matrix P (n_params, B) for augmented columns S, the free
@@ -210,6 +216,10 @@ class AugmentedModel:
 
     def outputs(self, S: np.ndarray, i: int) -> np.ndarray:
         """g at sample i for the augmented columns S: (n_out, B)."""
+        if self._gout is not None:
+            Y = np.empty((len(self.model.outputs), S.shape[1]))
+            self._gout(np.ascontiguousarray(S[:self.n]), self._u[i], self.params(S), self._cj, Y)
+            return Y
         u = self.seg.u[i][:, None, None]
         with np.errstate(all="ignore"):
             Y = self.model.eval_g(S[:self.n, None, :], u, self.params(S), self.c)

@@ -154,3 +154,45 @@ def test_a_model_without_a_source_file_compiles_in_memory(tmp_path, monkeypatch)
     k = kernel_for(m)
     assert k.compiled and not hasattr(k.module, "__file__")
     assert not (tmp_path / "kernels").exists() or not any((tmp_path / "kernels").glob("*.py"))
+
+
+def test_models_sharing_g_get_their_own_filter_loop(tmp_path, monkeypatch):
+    """Two models with the same g and names but different f: the filter-error kernels
+    (which call the model's rhs) are not shared - the second fit sees its own f (input
+    gain 2: the estimated b halves)."""
+    from estimators import FilterError
+    from estimators.fem import output_kernel
+
+    monkeypatch.setenv("FSID_CACHE_DIR", str(tmp_path))
+    ns: dict = {}
+    exec(textwrap.dedent('''
+        def f1(x, u, p, c):
+            (v,) = x
+            (w,) = u
+            return (p.a * v + p.b * w,)
+
+        def f2(x, u, p, c):
+            (v,) = x
+            (w,) = u
+            return (p.a * v + 2.0 * p.b * w,)
+
+        def g(x, u, p, c):
+            (v,) = x
+            return (v,)
+    '''), ns)
+    t = np.arange(0, 20, 0.05)
+    w = np.sign(np.sin(0.7 * t))[:, None]
+    fits = []
+    for f in (ns["f1"], ns["f2"]):
+        m = Model(states=["v"], inputs=["w"], outputs=["v"],
+                  parameters=[Parameter("a", -1.0), Parameter("b", 0.5)], f=f, g=ns["g"], name="shared-g")
+        seg = Segment(t=t, u=w, z=np.zeros((t.size, 1)), x0=np.zeros(1))
+        truth = Model(states=["v"], inputs=["w"], outputs=["v"],
+                      parameters=[Parameter("a", -2.0), Parameter("b", 1.0)], f=ns["f1"], g=ns["g"])
+        seg.z = (simulate_outputs(truth, seg).to_numpy()
+                 + 1e-3 * np.random.default_rng(3).standard_normal((t.size, 1)))
+        fits.append((m, FilterError(m, form="nonlinear", process_noise={"v": 1e-3}).fit(seg, estimate_x0=False)))
+    (m1, r1), (m2, r2) = fits
+    assert output_kernel(m1) is not output_kernel(m2)
+    assert r1.params["b"] == pytest.approx(1.0, rel=0.02)
+    assert r2.params["b"] == pytest.approx(0.5, rel=0.02)
