@@ -234,6 +234,14 @@ class AugmentedModel:
             return self.model.eval_g(X, U, P, self.c)[:, 0, :].T
 
 
+def _innovation_nll(nu: np.ndarray, S: np.ndarray) -> float:
+    """0.5 (nu^T S^-1 nu + ln det S) of one update's innovations nu (m,), covariance S."""
+    sign, logdet = np.linalg.slogdet(S)
+    if sign <= 0:
+        return np.inf
+    return 0.5 * (nu @ np.linalg.solve(S, nu) + logdet)
+
+
 # -- noise adaptation (covariance matching) -----------------------------------------------------
 #: adapt_noise values: "auto" adapts R when measurement_noise is not given
 ADAPT_CHOICES = ("auto", True, False, "R", "Q")
@@ -421,21 +429,43 @@ class _ParameterFilter:
         R = measurement_noise_matrix(self.model, self.measurement_noise, segments)
         adapt_r, adapt_q = self._adapted(F)
         noise_moves: list[float] = []
+        best: tuple[float, int, EstimationResult, np.ndarray] | None = None
+        left = ""
         for k in range(n_max):
             before = lay.values[fi].copy()
             res, match = self._one_pass(segments, lay, F, R, adapt_r or adapt_q)
+            nll, n_obs = res.extra["innovation_nll"], res.extra["innovation_count"]
+            # passes are compared by their innovations' likelihood unless the noise is
+            # adapted (R and Q move between passes) or a parameter was projected onto a
+            # bound (the projection leaves the filter's covariance inconsistent)
+            comparable = not (adapt_r or adapt_q or res.extra["bound_hits"])
+            if comparable and best is not None and nll > best[0] + 3.0 * np.sqrt(n_obs / 2):
+                # the filter left the estimates: this pass's innovations are less likely than
+                # the best pass's by more than 3 std of their negative log-likelihood (sum of
+                # chi-square halves: std sqrt(n_obs / 2) when the filter is consistent); the
+                # best pass is kept
+                left = (f"pass {k + 1} raised the innovations' negative log-likelihood by "
+                        f"{nll - best[0]:.4g} (> 3 std = {3.0 * np.sqrt(n_obs / 2):.4g}): the filter "
+                        f"wandered off, the estimates of pass {best[1]} (the most likely) are kept; "
+                        "check the process noise and the start values")
+                moves.append(np.inf)
+                _, _, res, kept = best
+                lay.values[fi] = kept
+                break
             after = res.values[fi]
             std = np.sqrt(np.maximum(np.diag(res.cov), 0.0))
             move = np.abs(after - before) / np.where(std > 0, std, np.inf)
             moves.append(float(move.max(initial=0.0)))
             history += [{"pass": k + 1, **row} for row in res.history.to_dict("records")]
             lay.values[fi] = after
+            if comparable and (best is None or nll < best[0]):
+                best = (nll, k + 1, res, after.copy())
             if adapt_r or adapt_q:
                 F, R, nm = _adapt(F, R, match, adapt_r, adapt_q)
                 noise_moves.append(nm)
             if self.passes == "auto" and moves[-1] <= self.pass_tol:
                 break
-        settled = self.passes != "auto" or moves[-1] <= self.pass_tol
+        settled = not left and (self.passes != "auto" or moves[-1] <= self.pass_tol)
         n_done = len(moves)
         self._mark_bounds(res, lay)
         res.history = pd.DataFrame(history)
@@ -451,7 +481,10 @@ class _ParameterFilter:
             res.extra["noise_moves"] = noise_moves
             res.extra["adapted"] = adapted
             what += f"; {' and '.join(w.replace('_', ' ') for w in adapted)} adapted"
-        if not settled:
+        if left:
+            res.extra["not_settled"] = left
+            what += "; not settled: " + left
+        elif not settled:
             res.extra["not_settled"] = (
                 f"the last of {n_done} passes still moved a parameter by {moves[-1]:.2g} std "
                 f"(> {self.pass_tol:g}): raise max_passes, start closer or check the model")
@@ -479,6 +512,7 @@ class _ParameterFilter:
         match = _NoiseMatch(n, R.shape[0]) if matching else None
         lo, hi = lay.lower[fi], lay.upper[fi]
         hits = np.zeros(m, dtype=int)
+        nll, n_obs = 0.0, 0                 # innovations' negative log-likelihood (+ const)
         for k, seg in enumerate(segments):
             aug = AugmentedModel(model, lay, seg, k, self.integrator, self.rtol, self.atol, self.inputs)
             x0 = lay.values[lay.x0idx[k]]
@@ -509,6 +543,9 @@ class _ParameterFilter:
                 th = np.clip(s[n:], lo, hi)             # bounds: the estimate projected on them
                 hits += th != s[n:]
                 s[n:] = th
+                if Sinn is not None:
+                    nll += _innovation_nll(z[ok] - yp[ok], Sinn)
+                    n_obs += int(ok.sum())
                 if match is not None and K is not None:
                     match.add(z[ok] - yp[ok], Sinn, K[:n], R, ok, seg.t[i] - seg.t[i - 1] if i else 0.0)
                 Ypred[i] = yp
@@ -541,6 +578,7 @@ class _ParameterFilter:
             extra={"trajectory": out["traj"], "trajectory_std": out["traj_std"],
                    "states": out["states"], "posterior_outputs": out["post"], "gain": K,
                    "measurement_noise": R, "process_noise": F, "residuals_are": "innovations",
+                   "innovation_nll": nll, "innovation_count": n_obs,
                    "bound_hits": {lay.free_names[j]: int(hits[j]) for j in np.flatnonzero(hits)}}), match
 
     def _settings(self) -> dict[str, Any]:
@@ -637,7 +675,13 @@ class EKF(_ParameterFilter):
         OutputError: "average" (default), "linear" or "hold".
     passes : "auto" (default: repeat the pass from the last estimates until no free
         parameter moves by more than ``pass_tol`` (0.2) of its std, at most ``max_passes``
-        (8)) or a fixed number of passes (see :meth:`fit`).
+        (8)) or a fixed number of passes (see :meth:`fit`). A pass whose innovations'
+        negative log-likelihood (``extra["innovation_nll"]``) is more than 3 std of it,
+        sqrt(n_obs / 2), above the best pass's ends the passes: the best pass's result is
+        kept and ``converged`` is False (``extra["not_settled"]`` says so). Not checked
+        while the noise is adapted or in a pass that projected a parameter onto a bound.
+        (The lateral multiaxis EKF with the turbulence in the aircraft's axes had flipped
+        Clp's sign in its 6th pass and ended 139 std off; now pass 5 is kept, 15 std.)
     fd_step : relative forward-difference step of the Jacobians,
         h_j = fd_step * max(|s_j|, 1).
 
