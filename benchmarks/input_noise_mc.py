@@ -17,7 +17,8 @@ The roll mode here has a time constant of ~0.08 s. Per variant and derivative: e
 empirical std and the mean |error| / reported std (what the closed-loop tests hold below
 3).
 
-Measured (2026-11-25, flight seed 31, draws 0-7; empirical/reported std, largest |bias|
+Measured (2026-11-25, flight seed 31 with the turbulence in JSBSim's frame - the scenario
+has since put it in the aircraft's axes - draws 0-7; empirical/reported std, largest |bias|
 in empirical std, worst mean |error|/std, mean error/std of Clp and Clda):
   true      0.38-1.47, 0.88, 1.21 (CYbeta); Clp +0.35, Clda -0.27
   logged    0.57-1.51, 4.57, 2.91 (Clda);   Clp +2.13, Clda -2.91

@@ -22,7 +22,8 @@ the mean |error| / reported std (what the closed-loop tests hold below 3). A met
 ending in ``-trueQ`` (ekf-trueQ, ukf-trueQ) gives the filter the draws' own process noise
 instead of the pipeline's.
 
-Measured (2026-11-25, before the pipeline smoothed the surface inputs - the draws are
+Measured (2026-11-25, with the scenario's turbulence in JSBSim's frame - it has since
+put it in the aircraft's axes - and before the pipeline smoothed the surface inputs - the draws are
 simulated and fitted on the same inputs, so that changes only their content; flight seed
 31: p_turb rms 0.049 rad/s, time constant 0.418 s; draws 0-7; empirical/reported std, largest |bias| in empirical std, worst mean
 |error|/std):

@@ -11,7 +11,8 @@ identified and of the true model (display units: deg, deg/s, g) and their ratio.
 near 1 with both outside the band says the band is below what the flight allows (the
 turbulence the air data cannot see), not that the model is wrong.
 
-Measured on multiaxis_multisine_turbulence (seed 31, FEM): longitudinal identified/true
+Measured on multiaxis_multisine_turbulence (seed 31, FEM; its turbulence then in JSBSim's
+frame, since in the aircraft's axes): longitudinal identified/true
 q 4.73/4.95 deg/s, theta 3.88/3.89 deg, az 0.21/0.21 g; lateral p 6.33/6.20 deg/s, phi
 7.21/6.80 deg (ratios 0.96-1.06): the rotary turbulence (p_turb 2.8, q_turb 2.4 deg/s rms),
 which no air-data sensor sees, sets the floor, not the derivatives. Last line: the largest
