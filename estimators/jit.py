@@ -222,14 +222,14 @@ def load_kernels(source: str, inject: Mapping[str, Any], functions: Sequence[Cal
     return mod
 
 
-def bound_source(fn: Callable, drop: str, replace: Mapping[str, str] = {}) -> str:
+def bound_source(fn: Callable, drop: str, replace: Mapping[str, str] | None = None) -> str:
     """The source of one of the package's loop functions with the callable arguments named
     in ``drop`` (e.g. ``"rhs, "``) taken out of its signature and calls, and the other
     ``replace`` substitutions made, for a generated kernel module where those callables
     are module globals. Passed as arguments, numba holds them as Python object pointers,
     and a function holding one cannot be cached; called as globals they can."""
     src = textwrap.dedent(inspect.getsource(fn)).replace(drop, "")
-    for a, b in replace.items():
+    for a, b in (replace or {}).items():
         src = src.replace(a, b)
     names = {d.strip(" ,") for d in drop.split(",") if d.strip()}
     code = compile(src, "<bound>", "exec").co_consts

@@ -130,21 +130,36 @@ def test_cache_off_writes_nothing_and_gives_the_same_numbers(work, first_and_sec
     assert r["oem"] == first["oem"]
 
 
+#: one-state models typed in (built with exec: no source file): f2 doubles f1's input gain
+TYPED = textwrap.dedent('''
+    def f1(x, u, p, c):
+        (v,) = x
+        (w,) = u
+        return (p.a * v + p.b * w,)
+
+    def f2(x, u, p, c):
+        (v,) = x
+        (w,) = u
+        return (p.a * v + 2.0 * p.b * w,)
+
+    def g(x, u, p, c):
+        (v,) = x
+        return (v,)
+''')
+
+
+def _typed() -> dict:
+    ns: dict = {}
+    exec(TYPED, ns)
+    return ns
+
+
 def test_a_model_without_a_source_file_compiles_in_memory(tmp_path, monkeypatch):
     monkeypatch.setenv("FSID_CACHE_DIR", str(tmp_path))
-    ns: dict = {}
-    exec(textwrap.dedent('''
-        def f(x, u, p, c):
-            (v,) = x
-            (w,) = u
-            return (p.a * v + w,)
-
-        def g(x, u, p, c):
-            (v,) = x
-            return (v,)
-    '''), ns)
-    m = Model(states=["v"], inputs=["w"], outputs=["v"], parameters=[Parameter("a", -1.0)],
-              f=ns["f"], g=ns["g"], name="typed")
+    ns = _typed()
+    m = Model(states=["v"], inputs=["w"], outputs=["v"],
+              parameters=[Parameter("a", -1.0), Parameter("b", 1.0, free=False)],
+              f=ns["f1"], g=ns["g"], name="typed")
     t = np.arange(0, 5, 0.05)
     seg = Segment(t=t, u=np.sin(t)[:, None], z=np.zeros((t.size, 1)), x0=np.zeros(1))
     seg.z = (simulate_outputs(m.with_values({"a": -2.0}), seg).to_numpy()
@@ -164,22 +179,7 @@ def test_models_sharing_g_get_their_own_filter_loop(tmp_path, monkeypatch):
     from estimators.fem import output_kernel
 
     monkeypatch.setenv("FSID_CACHE_DIR", str(tmp_path))
-    ns: dict = {}
-    exec(textwrap.dedent('''
-        def f1(x, u, p, c):
-            (v,) = x
-            (w,) = u
-            return (p.a * v + p.b * w,)
-
-        def f2(x, u, p, c):
-            (v,) = x
-            (w,) = u
-            return (p.a * v + 2.0 * p.b * w,)
-
-        def g(x, u, p, c):
-            (v,) = x
-            return (v,)
-    '''), ns)
+    ns = _typed()
     t = np.arange(0, 20, 0.05)
     w = np.sign(np.sin(0.7 * t))[:, None]
     fits = []
