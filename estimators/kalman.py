@@ -45,7 +45,7 @@ filter used is ``extra["measurement_noise"]``); ``cov`` the final parameter bloc
 """
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -315,8 +315,10 @@ class _ParameterFilter:
                  measurement_noise: Any = None, param_std: Any = None, state_std: Any = None,
                  param_noise: Any = None, rtol: float = 1e-8, atol: float = 1e-10,
                  inputs: str = "average", passes: int | str = "auto", max_passes: int = 8,
-                 pass_tol: float = 0.2, adapt_noise: bool | str = "auto") -> None:
+                 pass_tol: float = 0.2, adapt_noise: bool | str = "auto",
+                 callback: Callable[[int, float, pd.Series], None] | None = None) -> None:
         check_options(integrator, inputs)
+        self.callback = callback
         if adapt_noise not in ADAPT_CHOICES:
             raise ModelDefinitionError(f"adapt_noise must be one of {ADAPT_CHOICES}, got {adapt_noise!r}")
         self.adapt_noise = adapt_noise
@@ -435,6 +437,8 @@ class _ParameterFilter:
             before = lay.values[fi].copy()
             res, match = self._one_pass(segments, lay, F, R, adapt_r or adapt_q)
             nll, n_obs = res.extra["innovation_nll"], res.extra["innovation_count"]
+            if self.callback:
+                self.callback(k, nll, pd.Series(res.values[fi], index=lay.free_names))
             # passes are compared by their innovations' likelihood unless the noise is
             # adapted (R and Q move between passes) or a parameter was projected onto a
             # bound (the projection leaves the filter's covariance inconsistent)
@@ -684,6 +688,8 @@ class EKF(_ParameterFilter):
         Clp's sign in its 6th pass and ended 139 std off; now pass 5 is kept, 15 std.)
     fd_step : relative forward-difference step of the Jacobians,
         h_j = fd_step * max(|s_j|, 1).
+    callback : called as callback(pass, innovations' negative log-likelihood, params
+        Series) after each pass (pass counts from 0), as OutputError's after each iteration.
 
     Parameter bounds (``Parameter(bounds=...)``) hold: every update is projected onto
     them, and a sigma point or difference step beyond a bound evaluates the model at the

@@ -72,8 +72,8 @@ def consider_by_refits(results: Mapping[str, Any], names: list[str], C: np.ndarr
     for j, n in enumerate(names):
         if not any(v == "propagated" for v in status.values()):
             break                                   # every fit already failed a refit
-        if progress is not None and not progress.quiet:
-            print(f" {j + 1}/{len(names)}", end="", file=progress.stream, flush=True)
+        if progress is not None:
+            progress.tick(f"{j + 1}/{len(names)}")
         try:
             new = refit_j(j)
         except Exception as exc:  # noqa: BLE001 - a failed refit must not cost the run

@@ -12,7 +12,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -71,6 +71,11 @@ class Progress:
         if not self.quiet:
             print(f"[{self.n}/{self.total}] {text} ...", end="", file=self.stream, flush=True)
         return self
+
+    def tick(self, text: str) -> None:
+        """A step within the current stage, on its line (an iteration, a refit)."""
+        if not self.quiet:
+            print(f" {text}", end="", file=self.stream, flush=True)
 
     def done(self, extra: str = "") -> None:
         if not self.quiet:
@@ -290,19 +295,21 @@ def _states_at_cg(model: Any):
 
 
 def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] | None = None,
-                process_noise: Mapping[str, float] | None = None) -> Any:
+                process_noise: Mapping[str, float] | None = None,
+                callback: Callable[[int, float, Any], None] | None = None) -> Any:
     """Run one estimation method on a problem (names in METHODS). ``turbulence``: the
     Dryden level when known (truth.json), for the filters' process noise; else
     ``process_noise`` (EKF/UKF: state -> F, e.g. :func:`filter_process_noise`), else the
-    data's default."""
+    data's default. ``callback``: called after each iteration (OEM, FEM) or pass (EKF,
+    UKF) as callback(iteration, cost, params)."""
     import estimators as E
 
     model, inputs, x0 = problem.model, problem.inputs, problem.estimate_x0
     if method not in ("oem", "ls") and problem.regressions:
         model = model.with_values(raw_starts(problem))
     if method == "oem":
-        return E.OutputError(model, inputs=inputs, priors=problem.priors or None).fit(
-            problem.fit, estimate_x0=x0)
+        return E.OutputError(model, inputs=inputs, priors=problem.priors or None,
+                             callback=callback).fit(problem.fit, estimate_x0=x0)
     if method == "ls":
         return equation_error(problem)
     if method == "fem":
@@ -314,7 +321,7 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
         return E.FilterError(model, form="nonlinear", inputs=inputs,
                              process_noise=process_noise_std(problem, turbulence),
                              measurement_noise=measurement_noise_std(problem),
-                             estimate_G=False).fit(problem.fit, estimate_x0=x0)
+                             estimate_G=False, callback=callback).fit(problem.fit, estimate_x0=x0)
     if method in ("ekf", "ukf"):
         cls = E.EKF if method == "ekf" else E.UKF
         # twice the gust intensity: the filters' process noise also has to carry what the
@@ -331,7 +338,7 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
              {k: v for k, v in process_noise.items() if k in model.states})
         return cls(model, inputs=inputs, process_noise=Q,
                    measurement_noise=measurement_noise_std(problem, logged=False),
-                   param_std=_filter_param_std(model)).fit(problem.fit)
+                   param_std=_filter_param_std(model), callback=callback).fit(problem.fit)
     if method == "soem":
         # feed back only the short-period measurements where the model has them: with V and
         # theta fed back too, CL0/CLalpha/CLde ended 17-25 std off on unstable_short_period
@@ -390,7 +397,8 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
         progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, {len(pb.fit)} "
                        f"maneuvers, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
     try:
-        res = fit_problem(pb, method, turbulence=turbulence, process_noise=process_noise)
+        res = fit_problem(pb, method, turbulence=turbulence, process_noise=process_noise,
+                          callback=None if refit else lambda it, cost, p: progress.tick(str(it + 1)))
     except (EstimationError, np.linalg.LinAlgError) as exc:
         if refit:
             return None

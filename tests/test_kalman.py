@@ -165,8 +165,13 @@ def test_a_pass_that_wanders_off_is_not_kept(turb, ekf):
     nu, S = np.array([0.3, -0.1]), np.array([[0.5, 0.1], [0.1, 0.2]])
     assert _innovation_nll(nu, S) == pytest.approx(
         0.5 * (nu @ np.linalg.inv(S) @ nu + np.log(0.5 * 0.2 - 0.01)))
-    res = _KnockedOff(turb.model, passes=5, **settings(turb)).fit(turb.segments)
+    seen = []
+    res = _KnockedOff(turb.model, passes=5, callback=lambda k, nll, p: seen.append((k, nll, p["Cmalpha"])),
+                      **settings(turb)).fit(turb.segments)
     assert not res.converged and res.iterations == 3
+    # every pass run is reported, the dropped one with its higher cost and flipped Cmalpha
+    assert [k for k, _, _ in seen] == [0, 1, 2] and seen[2][1] > max(seen[0][1], seen[1][1])
+    assert seen[2][2] > 0 > seen[1][2]
     assert res.extra["not_settled"].startswith("pass 3 raised the innovations' negative log-likelihood")
     assert res.params["Cmalpha"] < 0                     # the knocked-off pass was dropped
     within(res, turb.truth)
