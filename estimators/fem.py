@@ -66,7 +66,8 @@ from scipy import linalg
 
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
 from estimators.integrators import INTEGRATORS, check_options
-from estimators.jit import bound_source, compile_user_function, kernel_for, load_kernels, tuple_source
+from estimators.jit import (adapter_source, bound_source, compile_user_function, first_line,
+                           kernel_for, load_kernels, probe_point)
 from estimators.kalman import default_process_noise, is_name_list, named_process_noise
 from estimators.model import Model, Segment, check_outputs_measured
 from estimators.results import EstimationResult, frames
@@ -428,24 +429,15 @@ def _output_kernel(model: Model, kern, helpers: bool):
             "import numba",
             "import numpy as np",
             f"Params = namedtuple('Params', {list(names)!r})",
-            "@numba.njit(error_model='numpy', cache=CACHE)",
-            "def gout(x2d, u1d, P, c, out):",
-            f"    x = {tuple_source([f'x2d[{i}]' for i in range(n)])}",
-            f"    u = {tuple_source([f'u1d[{i}]' for i in range(ni)])}",
-            f"    p = Params({', '.join(f'P[{i}]' for i in range(len(names)))})",
-            "    r = _g(x, u, p, c)",
-            *[f"    out[{j}, :] = r[{rows[j]}]" for j in range(m)],
-            *[f"    out[{j}, :] += P[{i}]" for j, i in bias],
+            *adapter_source("gout", "_g", n, ni, len(names), rows,
+                            [f"    out[{j}, :] += P[{i}]" for j, i in bias]),
             *loops, ""])
         gj = compile_user_function(g_full) if helpers else numba.njit(error_model="numpy")(g_full)
         steps = {f"_integrate_{s}": getattr(kern.module, f"integrate_{s}") for s in INTEGRATORS}
         mod = load_kernels(src, {"_g": gj, **steps}, [g_full, model.f], "fsid_filter",
                            package=("fem.py",))
         # check once against numpy
-        rng = np.random.default_rng(0)
-        x = rng.standard_normal((n, 2)) * 0.1 + 1.0
-        u = rng.standard_normal(ni) * 0.1
-        P = np.repeat(np.array([[p.value] for p in model.parameters]), 2, axis=1)
+        x, u, P = probe_point(model)
         a = np.empty((m, 2))
         mod.gout(x, u, P, kern._c_jit(model.constants), a)
         with np.errstate(all="ignore"):
@@ -454,8 +446,7 @@ def _output_kernel(model: Model, kern, helpers: bool):
             return mod, ""
         return None, "compiled and numpy outputs differ"
     except Exception as exc:  # the numpy loop is used instead
-        text = str(exc).strip()
-        return None, text.splitlines()[0] if text else type(exc).__name__
+        return None, first_line(exc)
 
 
 def _nl_loop(scheme, rhs, gout, x0, U, t, P, c, K, pat, Z, rtol, atol, mode):

@@ -77,9 +77,42 @@ def compile_user_function(fn: Callable, _done: dict | None = None) -> Callable:
     return out
 
 
-def tuple_source(items: Sequence[str]) -> str:
+def _tuple_source(items: Sequence[str]) -> str:
     """``(a, b, )``: a tuple display of the given expressions (one element included)."""
     return "(" + "".join(f"{s}, " for s in items) + ")"
+
+
+def adapter_source(name: str, call: str, n_states: int, n_inputs: int, n_params: int,
+                   rows: Sequence[int], extra: Sequence[str] = ()) -> list[str]:
+    """Lines of a compiled adapter ``name(x2d, u1d, P, c, out)`` in the integrators'
+    calling convention: the state rows unpacked into a tuple, the inputs into a tuple of
+    floats, the parameter rows into the module's ``Params`` namedtuple, ``call(x, u, p, c)``
+    and row ``rows[j]`` of its result into ``out[j]``; ``extra`` lines after that."""
+    return ["@numba.njit(error_model='numpy', cache=CACHE)",
+            f"def {name}(x2d, u1d, P, c, out):",
+            f"    x = {_tuple_source([f'x2d[{i}]' for i in range(n_states)])}",
+            f"    u = {_tuple_source([f'u1d[{i}]' for i in range(n_inputs)])}",
+            f"    p = Params({', '.join(f'P[{i}]' for i in range(n_params))})",
+            f"    r = {call}(x, u, p, c)",
+            *[f"    out[{j}, :] = r[{r}]" for j, r in enumerate(rows)],
+            *extra]
+
+
+def probe_point(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A made-up point at which a compiled kernel is checked against the numpy
+    evaluation: states x (n, 2) 1 + 0.1 N(0, 1), inputs u (n_in,) 0.1 N(0, 1), the
+    parameter matrix P (n_p, 2) at the model's values."""
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((len(model.states), 2)) * 0.1 + 1.0
+    u = rng.standard_normal(len(model.inputs)) * 0.1
+    P = np.repeat(np.array([[p.value] for p in model.parameters], dtype=float), 2, axis=1)
+    return x, u, P
+
+
+def first_line(exc: BaseException) -> str:
+    """The first line of an exception's message (numba's run on), else its type's name."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 # -- kernels kept on disk -------------------------------------------------------------------
@@ -280,10 +313,6 @@ class RhsKernel:
             else "off"
 
     # -- compiled path -------------------------------------------------------------------
-    @property
-    def rhs_jit(self):
-        return None if self.module is None else self.module.rhs
-
     def source(self, helpers: bool) -> str:
         """The kernel module's source: the rhs adapter and the integrator entry points."""
         m = self.model
@@ -298,13 +327,7 @@ class RhsKernel:
             "globals().update({k: v for k, v in vars(_I).items() if not k.startswith('__')})",
             f"Params = namedtuple('Params', {list(self.names)!r})",
             f"Constants = namedtuple('Constants', {list(self.const_names)!r})",
-            "@numba.njit(error_model='numpy', cache=CACHE)",
-            "def rhs(x2d, u1d, P, c, out):",
-            f"    x = {tuple_source([f'x2d[{i}]' for i in range(self.n)])}",
-            f"    u = {tuple_source([f'u1d[{i}]' for i in range(len(m.inputs))])}",
-            f"    p = Params({', '.join(f'P[{i}]' for i in range(len(self.names)))})",
-            "    r = _f(x, u, p, c)",
-            *[f"    out[{i}, :] = r[{i}]" for i in range(self.n)],
+            *adapter_source("rhs", "_f", self.n, len(m.inputs), len(self.names), range(self.n)),
             _scheme_source(), ""])
 
     def _build_jit(self, helpers: bool = False) -> None:
@@ -340,9 +363,8 @@ class RhsKernel:
                 exc = e
         self.module = None
         self._jit_state = "failed"
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         warnings.warn(
-            f"model {self.model.name!r}: f could not be compiled with numba ({first}); "
+            f"model {self.model.name!r}: f could not be compiled with numba ({first_line(exc)}); "
             "integrating with numpy, which is slower. Write f with numpy functions and "
             "arithmetic on the unpacked rows to get the compiled path.",
             RuntimeWarning, stacklevel=4)
@@ -352,16 +374,11 @@ class RhsKernel:
         return self._jit_state == "on"
 
     def prepare(self) -> bool:
-        """Compile (or load) the kernel now if that was not tried yet, checked at a
-        made-up state (1 + 0.1 N(0, 1) per state, small inputs, the model's parameter
-        values); True when the compiled path is on."""
+        """Compile (or load) the kernel now if that was not tried yet, checked at
+        :func:`probe_point`; True when the compiled path is on."""
         if self._jit_state == "untried":
-            m = self.model
-            rng = np.random.default_rng(0)
-            x0 = rng.standard_normal((self.n, 2)) * 0.1 + 1.0
-            U = rng.standard_normal((2, len(m.inputs))) * 0.1
-            P = np.repeat(np.array([[p.value] for p in m.parameters], dtype=float), 2, axis=1)
-            self._try_jit(x0, U, P, m.constants)
+            x0, u, P = probe_point(self.model)
+            self._try_jit(x0, u[None, :], P, self.model.constants)
         return self.compiled
 
     def integrate(self, scheme: str, x0: np.ndarray, U: np.ndarray, t: np.ndarray,

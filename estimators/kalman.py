@@ -443,13 +443,14 @@ class _ParameterFilter:
             # adapted (R and Q move between passes) or a parameter was projected onto a
             # bound (the projection leaves the filter's covariance inconsistent)
             comparable = not (adapt_r or adapt_q or res.extra["bound_hits"])
-            if comparable and best is not None and nll > best[0] + 3.0 * np.sqrt(n_obs / 2):
+            band = 3.0 * np.sqrt(n_obs / 2)
+            if comparable and best is not None and nll > best[0] + band:
                 # the filter left the estimates: this pass's innovations are less likely than
                 # the best pass's by more than 3 std of their negative log-likelihood (sum of
                 # chi-square halves: std sqrt(n_obs / 2) when the filter is consistent); the
                 # best pass is kept
                 left = (f"pass {k + 1} raised the innovations' negative log-likelihood by "
-                        f"{nll - best[0]:.4g} (> 3 std = {3.0 * np.sqrt(n_obs / 2):.4g}): the filter "
+                        f"{nll - best[0]:.4g} (> 3 std = {band:.4g}): the filter "
                         f"wandered off, the estimates of pass {best[1]} (the most likely) are kept; "
                         "check the process noise and the start values")
                 moves.append(np.inf)
@@ -547,11 +548,12 @@ class _ParameterFilter:
                 th = np.clip(s[n:], lo, hi)             # bounds: the estimate projected on them
                 hits += th != s[n:]
                 s[n:] = th
-                if Sinn is not None:
-                    nll += _innovation_nll(z[ok] - yp[ok], Sinn)
-                    n_obs += int(ok.sum())
-                if match is not None and K is not None:
-                    match.add(z[ok] - yp[ok], Sinn, K[:n], R, ok, seg.t[i] - seg.t[i - 1] if i else 0.0)
+                if Sinn is not None:                    # some output measured (K too)
+                    nu = z[ok] - yp[ok]
+                    nll += _innovation_nll(nu, Sinn)
+                    n_obs += nu.size
+                    if match is not None:
+                        match.add(nu, Sinn, K[:n], R, ok, seg.t[i] - seg.t[i - 1] if i else 0.0)
                 Ypred[i] = yp
                 Spost[i] = s
                 Pdiag[i] = np.diag(P)
