@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 from concurrent.futures import ProcessPoolExecutor
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Iterator, Mapping, Sequence
 
 import pandas as pd
 
@@ -26,6 +26,15 @@ def seed_arguments(description: str, seeds: int, seed_base: int,
     if options is None:
         return out
     return (*out, {name: getattr(args, name.replace("-", "_")) for name in options})
+
+
+def judged_parameters(report: Mapping) -> Iterator[tuple[str, str, dict, dict]]:
+    """(method key, parameter name, parameter entry, method entry) of a report.json for
+    every parameter with a truth and a std (what a Monte Carlo over seeds compares)."""
+    for key, m in report["methods"].items():
+        for name, p in m["parameters"].items():
+            if p.get("truth") is not None and p.get("std") is not None:
+                yield key, name, p, m
 
 
 def fly(one_flight: Callable[[int], list[dict]], seeds: Sequence[int], jobs: int) -> pd.DataFrame:

@@ -32,7 +32,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from _montecarlo import fly, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
+from _montecarlo import fly, judged_parameters, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
 SCENARIO = ROOT / "scenarios" / "sensor_errors_calm.toml"
 
 
@@ -43,15 +43,9 @@ def one_flight(seed: int) -> list[dict]:
     with tempfile.TemporaryDirectory() as tmp:
         run_scenario(SCENARIO, Path(tmp), seed=seed, methods=["oem"], quiet=True)
         rep = json.loads((Path(tmp) / "report.json").read_text())
-    rows = []
-    for key, m in rep["methods"].items():
-        for n, p in m["parameters"].items():
-            if p.get("truth") is None or p.get("std") is None:
-                continue
-            rows.append({"seed": seed, "key": key, "parameter": n, "estimate": p["estimate"],
-                         "std": p["std"], "total_std": p.get("total_std") or p["std"],
-                         "truth": p["truth"]})
-    return rows
+    return [{"seed": seed, "key": key, "parameter": n, "estimate": p["estimate"], "std": p["std"],
+             "total_std": p.get("total_std") or p["std"], "truth": p["truth"]}
+            for key, n, p, _ in judged_parameters(rep)]
 
 
 def main() -> None:

@@ -33,7 +33,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from _montecarlo import fly, range_line, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
+from _montecarlo import fly, judged_parameters, range_line, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
 SCENARIO = ROOT / "scenarios" / "unstable_short_period.toml"
 METHODS = ["soem", "decouple"]
 
@@ -46,14 +46,11 @@ def one_flight(seed: int) -> list[dict]:
         run_scenario(SCENARIO, Path(tmp), seed=seed, methods=METHODS, quiet=True, compat=False)
         rep = json.loads((Path(tmp) / "report.json").read_text())
     rows = []
-    for key, m in rep["methods"].items():
-        unc = (m["validation"].get("uncertainty") or {}).get("per_parameter", {})
-        for n, p in m["parameters"].items():
-            if p.get("truth") is None or p.get("std") is None:
-                continue
-            rows.append({"seed": seed, "method": key, "parameter": n, "estimate": p["estimate"],
-                         "std": p["std"], "crb_std": (unc.get(n) or {}).get("crb_std", np.nan),
-                         "mk_std": (unc.get(n) or {}).get("mk_std", np.nan), "truth": p["truth"]})
+    for key, n, p, m in judged_parameters(rep):
+        unc = ((m["validation"].get("uncertainty") or {}).get("per_parameter", {}).get(n) or {})
+        rows.append({"seed": seed, "method": key, "parameter": n, "estimate": p["estimate"],
+                     "std": p["std"], "crb_std": unc.get("crb_std", np.nan),
+                     "mk_std": unc.get("mk_std", np.nan), "truth": p["truth"]})
     return rows
 
 

@@ -50,7 +50,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _montecarlo import fly, scatter_table, seed_arguments  # noqa: E402
+from _montecarlo import fly, judged_parameters, scatter_table, seed_arguments  # noqa: E402
 
 SCENARIO = ROOT / "scenarios" / "multiaxis_multisine_turbulence.toml"
 METHODS = "fem,ekf,ukf"
@@ -63,15 +63,9 @@ def one_seed(seed: int, methods: str = METHODS, scenario: str = str(SCENARIO)) -
         out = Path(tmp)
         run_scenario(scenario, out, seed=seed, methods=methods.split(","), quiet=True, compat=False)
         rep = json.loads((out / "report.json").read_text())
-    rows = []
-    for key, m in rep["methods"].items():
-        for name, p in m["parameters"].items():
-            if p.get("truth") is None or p.get("std") is None:
-                continue
-            rows.append({"seed": seed, "method": key, "parameter": name, "estimate": p["estimate"],
-                         "truth": p["truth"], "reported": p["std"],
-                         "err": abs(p["error_in_std"]), "converged": m["converged"]})
-    return rows
+    return [{"seed": seed, "method": key, "parameter": name, "estimate": p["estimate"],
+             "truth": p["truth"], "reported": p["std"], "err": abs(p["error_in_std"]),
+             "converged": m["converged"]} for key, name, p, m in judged_parameters(rep)]
 
 
 def with_axes(scenario: Path, axes: str, folder: Path) -> Path:
