@@ -21,7 +21,10 @@ of everything the compiled code depends on: that generated source, the source fi
 closure cells they read, the package files with the loops they run (integrators.py,
 jit.py, fem.py for the filter loop), and the numba and Python versions. Any edit there
 gives a new name, so a stale kernel is never loaded; the folder may be deleted at any
-time. ``FSID_JIT_CACHE=0`` keeps everything in memory. A model whose functions have no
+time. Each process that writes a new module first prunes the folder (:func:`prune_kernels`):
+modules unused for ``FSID_CACHE_DAYS`` days (default 30) go, then the least recently used
+until the folder is below ``FSID_CACHE_MB`` (default 500). ``FSID_JIT_CACHE=0`` keeps
+everything in memory. A model whose functions have no
 source file (typed at a prompt, built with ``exec``) or read globals that cannot be
 fingerprinted is compiled in memory every run, as before.
 """
@@ -33,6 +36,7 @@ import inspect
 import os
 import sys
 import textwrap
+import time
 import types
 import warnings
 from pathlib import Path
@@ -132,6 +136,83 @@ def cache_dir() -> Path | None:
 
 
 _SCALARS = (bool, int, float, complex, str, bytes, type(None))
+
+
+#: days a kernel module may go unused, and the folder's size in MB, before pruning removes it
+CACHE_DAYS, CACHE_MB = 30.0, 500.0
+_PRUNED: set[str] = set()                              # folders pruned by this process
+
+
+def _env_number(name: str, default: float) -> float:
+    try:
+        v = float(os.environ.get(name, default))
+    except ValueError:
+        warnings.warn(f"{name}={os.environ[name]!r} is not a number: using {default:g}",
+                      RuntimeWarning, stacklevel=3)
+        return default
+    return v if v >= 0 else default
+
+
+def _module_of(fname: str) -> str | None:
+    """The kernel module a cache file belongs to: ``fsid_rhs_<hash>`` for its ``.py``, its
+    ``.used`` stamp, a ``.<pid>.tmp`` being written and numba's ``.<fn>-<line>.py311.nbi/nbc``."""
+    head = fname.split(".", 1)[0]
+    return head if head.startswith("fsid_") and "_" in head[5:] else None
+
+
+def prune_kernels(root: Path, max_age_days: float | None = None, max_mb: float | None = None,
+                  keep: Sequence[str] = (), now: float | None = None) -> list[str]:
+    """Delete the kernel modules in ``root`` (a :func:`cache_dir`) not used for
+    ``max_age_days`` (default ``FSID_CACHE_DAYS`` or 30), then the least recently used until
+    the folder holds at most ``max_mb`` megabytes (``FSID_CACHE_MB`` or 500): each module
+    with its numba index and object files. A module's last use is the time of its ``.used``
+    stamp (set on every load; the ``.py`` itself keeps its time, which numba's index
+    checks), else of its newest file. ``keep``: module names never removed (those this
+    process loaded). Files of other programs are left alone. Returns the removed names,
+    oldest first; a file another process removed meanwhile is no error."""
+    days = _env_number("FSID_CACHE_DAYS", CACHE_DAYS) if max_age_days is None else max_age_days
+    mb = _env_number("FSID_CACHE_MB", CACHE_MB) if max_mb is None else max_mb
+    now = time.time() if now is None else now
+    files: dict[str, list[Path]] = {}
+    for folder in (root, root / "__pycache__"):
+        try:
+            entries = list(folder.iterdir())
+        except OSError:
+            continue
+        for p in entries:
+            name = _module_of(p.name)
+            if name is not None and p.is_file():
+                files.setdefault(name, []).append(p)
+    used: dict[str, float] = {}
+    size: dict[str, int] = {}
+    for name, paths in files.items():
+        stamps = {}
+        for p in paths:
+            try:
+                st = p.stat()
+            except OSError:
+                continue
+            stamps[p] = st.st_mtime
+            size[name] = size.get(name, 0) + st.st_size
+        stamp = root / f"{name}.used"
+        used[name] = stamps.get(stamp, max(stamps.values(), default=now))
+    order = sorted((n for n in files if n not in keep), key=used.__getitem__)
+    total = sum(size.values())
+    removed = []
+    for name in order:
+        if now - used[name] <= days * 86400.0 and total <= mb * 1e6:
+            continue
+        for p in files[name]:
+            try:
+                p.unlink()
+            except FileNotFoundError:
+                pass
+            except OSError:
+                break
+        else:
+            total -= size.get(name, 0)
+            removed.append(name)
+    return removed
 
 
 def _value_bytes(v: Any) -> bytes | None:
@@ -238,21 +319,40 @@ def load_kernels(source: str, inject: Mapping[str, Any], functions: Sequence[Cal
         return mod
     path = root / f"{name}.py"
     if not path.is_file():
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(source)
-        os.replace(tmp, path)                          # another process may race: same text
-    spec = importlib.util.spec_from_file_location(name, path)
-    mod = importlib.util.module_from_spec(spec)
-    mod.__dict__.update(inject, CACHE=True)
-    sys.modules[name] = mod                            # numba's cache index pickles its types
+        if str(root) not in _PRUNED:                   # the folder grows: once per process
+            _PRUNED.add(str(root))
+            prune_kernels(root, keep=[n for n in sys.modules if _module_of(n) == n])
+        _write_module(path, source)
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", getattr(numba, "NumbaWarning", Warning))
-            spec.loader.exec_module(mod)
-    except BaseException:
-        sys.modules.pop(name, None)
-        raise
-    return mod
+        (root / f"{name}.used").touch()                # last use, for prune_kernels
+    except OSError:
+        pass
+    for attempt in (0, 1):
+        spec = importlib.util.spec_from_file_location(name, path)
+        mod = importlib.util.module_from_spec(spec)
+        mod.__dict__.update(inject, CACHE=True)
+        sys.modules[name] = mod                        # numba's cache index pickles its types
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", getattr(numba, "NumbaWarning", Warning))
+                spec.loader.exec_module(mod)
+            return mod
+        except FileNotFoundError:                      # pruned by another process meanwhile
+            sys.modules.pop(name, None)
+            if attempt:
+                raise
+            _write_module(path, source)
+        except BaseException:
+            sys.modules.pop(name, None)
+            raise
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
+def _write_module(path: Path, source: str) -> None:
+    """Write a generated module atomically (another process may race: same text)."""
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_text(source)
+    os.replace(tmp, path)
 
 
 def bound_source(fn: Callable, drop: str, replace: Mapping[str, str] | None = None) -> str:

@@ -196,3 +196,64 @@ def test_models_sharing_g_get_their_own_filter_loop(tmp_path, monkeypatch):
     assert output_kernel(m1) is not output_kernel(m2)
     assert r1.params["b"] == pytest.approx(1.0, rel=0.02)
     assert r2.params["b"] == pytest.approx(0.5, rel=0.02)
+
+
+def _module_files(root: Path, name: str, mb: float, age_days: float, now: float) -> None:
+    """A fake kernel module in a cache folder: its .py, numba's index and object file (``mb``
+    megabytes), last used ``age_days`` ago (its ``.used`` stamp)."""
+    (root / "__pycache__").mkdir(parents=True, exist_ok=True)
+    files = [root / f"{name}.py", root / "__pycache__" / f"{name}.rhs-7.py311.nbi",
+             root / "__pycache__" / f"{name}.rhs-7.py311.1.nbc", root / f"{name}.used"]
+    for p in files:
+        p.write_bytes(b"x" * (int(mb * 1e6) if p.suffix == ".nbc" else 10))
+        t = now - age_days * 86400.0
+        os.utime(p, (t, t))
+
+
+def test_prune_removes_unused_then_least_recently_used_modules(tmp_path):
+    from estimators.jit import prune_kernels
+
+    now = 2.0e9
+    _module_files(tmp_path, "fsid_rhs_old", 0.1, 40.0, now)      # unused for 40 days
+    _module_files(tmp_path, "fsid_filter_mid", 2.0, 10.0, now)   # 2 MB, used 10 days ago
+    _module_files(tmp_path, "fsid_rhs_new", 2.0, 1.0, now)       # 2 MB, used yesterday
+    _module_files(tmp_path, "fsid_rhs_live", 2.0, 50.0, now)     # old, but loaded by this process
+    (tmp_path / "notes.txt").write_text("not ours")
+    (tmp_path / "fsid.py").write_text("not a kernel")
+    os.utime(tmp_path / "notes.txt", (0, 0))
+
+    def names():
+        return sorted({p.name.split(".")[0] for p in tmp_path.rglob("*") if p.is_file()})
+
+    # within both limits nothing goes
+    assert prune_kernels(tmp_path, max_age_days=60, max_mb=100, now=now) == []
+    # 30 days: the old module goes with its numba files, the one in use stays
+    assert prune_kernels(tmp_path, max_age_days=30, max_mb=100, keep=["fsid_rhs_live"],
+                         now=now) == ["fsid_rhs_old"]
+    assert names() == ["fsid", "fsid_filter_mid", "fsid_rhs_live", "fsid_rhs_new", "notes"]
+    # 5 MB for 6 MB of kernels: the least recently used goes first, then no more than needed
+    assert prune_kernels(tmp_path, max_age_days=30, max_mb=5, keep=["fsid_rhs_live"],
+                         now=now) == ["fsid_filter_mid"]
+    assert names() == ["fsid", "fsid_rhs_live", "fsid_rhs_new", "notes"]
+
+
+def test_a_new_kernel_prunes_stale_ones_and_keeps_its_own(work, tmp_path):
+    """A process writing a new module prunes the folder first (FSID_CACHE_DAYS=0: every
+    module it did not load is stale); a load stamps ``.used`` and leaves the .py's time,
+    which numba's index checks, as it was."""
+    cache = tmp_path / "cache"
+    first = _fit(work, cache, "oem")
+    kernels = cache / "kernels"
+    py = kernels / f"{first['module']}.py"
+    mtime = py.stat().st_mtime
+    assert (kernels / f"{first['module']}.used").is_file()
+    again = _fit(work, cache, "oem", FSID_CACHE_DAYS="0")     # nothing new written: no pruning
+    assert again["misses"]["rk4"] == 0 and py.stat().st_mtime == mtime
+    (work / "sp_model.py").write_text(MODEL.format(gain=1.1))
+    try:
+        edited = _fit(work, cache, "oem", FSID_CACHE_DAYS="0")
+    finally:
+        (work / "sp_model.py").write_text(MODEL.format(gain=1.0))
+    left = {p.name.split(".")[0] for p in kernels.rglob("*") if p.is_file()}
+    assert left == {edited["module"]}, left
+    assert edited["oem"]["Ma"] == pytest.approx(-6.0, rel=0.01)
