@@ -43,6 +43,10 @@ METHOD_HELP = {
 COMMON_GRID = frozenset({"fem", "ekf", "ukf"})
 
 
+def _count(n: int, noun: str) -> str:
+    """``"1 maneuver"``, ``"3 maneuvers"``."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
 def scenario_methods(truth: Mapping[str, Any] | None) -> list[str]:
     """The methods that suit a flight: a statically unstable aircraft flown with a SAS
     (truth ``sas``) -> stabilised output error, equation decoupling, FEM, EKF, UKF (the
@@ -394,8 +398,8 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
         pb = replace(pb, model=pb.model.with_values({n: v for n, v in start.items() if n in free}),
                      regressions=pb.regressions if method == "ls" else [])
     if not refit:
-        progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, {len(pb.fit)} "
-                       f"maneuvers, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
+        progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, "
+                       f"{_count(len(pb.fit), 'maneuver')}, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
     try:
         res = fit_problem(pb, method, turbulence=turbulence, process_noise=process_noise,
                           callback=None if refit else lambda it, cost, p: progress.tick(str(it + 1)))
@@ -409,7 +413,7 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
         return None
     if refit:
         return res, None
-    progress.done(f"{'converged' if res.converged else 'NOT converged'} in {res.iterations} iterations")
+    progress.done(f"{'converged' if res.converged else 'NOT converged'} in {_count(res.iterations, 'iteration')}")
     progress.stage(f"validate {what} {method.upper()} (fit, residuals, modes, proof of match)")
     v = validate(res, held_out=pb.held_out, truth=truth, tolerances=tolerances, proof_of_match=pom)
     v["problem"] = {"notes": list(pb.notes)}
