@@ -833,12 +833,14 @@ class FilterError:
         left out). ``keep``: a list that receives, per segment, (S (N, m, nphi) innovation
         sensitivities, E (N, m) innovations, B^-1, rows used, S^T B^-1 S (nphi, nphi): its
         part of M) for the coloured-innovation covariance - the samples where every output
-        is measured (the others stay in M as white)."""
+        is measured (the others stay in M as white) - then the segment's whole part of M
+        and of g (for the maneuver cluster covariance)."""
         nphi = hsteps.size
         M = np.zeros((nphi, nphi))
         g = np.zeros(nphi)
         J = 0.0
         for k, (seg, r) in enumerate(zip(self._segments, res)):
+            M0, g0 = M.copy(), g.copy()
             Y, Bs = r["Y"], r["B"]
             E = seg.z - Y[0]
             Bm = Bs[0]
@@ -869,7 +871,8 @@ class FilterError:
                     full, M_full = rows, M_S
             if keep is not None:
                 keep.append((np.where(full[:, None, None], np.moveaxis(S, 0, 2), 0.0),
-                             np.where(full[:, None], E, 0.0), np.linalg.inv(Bm), full, M_full))
+                             np.where(full[:, None], E, 0.0), np.linalg.inv(Bm), full, M_full,
+                             M - M0, g - g0))
             J += self._seg_nll(E, Bm, masks, pat)
         return M, g, J
 
@@ -1028,28 +1031,45 @@ class FilterError:
         res = self._filter(Phis)
         parts: list = []
         M, g, J = self._scoring(res, hsteps, keep=parts)
+        from estimators.validation.cluster import ClusterResult, cluster_covariance
         span = np.maximum(1.0, np.abs(phi))
         on_bound = (phi <= self._lo + 1e-9 * span) | (phi >= self._hi - 1e-9 * span)
         inner = np.flatnonzero(~on_bound & ~self._held)
         on_bound &= ~self._held
         cov = np.full((nphi, nphi), np.nan)
         cov_mk = np.full((nphi, nphi), np.nan)
+        cov_cl = np.full((nphi, nphi), np.nan)
+        share = np.full((len(parts), nphi), np.nan)
         mk_lags: list[int] = []
         if inner.size:
             st.check_identifiable(M[np.ix_(inner, inner)], [names[i] for i in inner], " at the estimates")
             cov[np.ix_(inner, inner)] = st.covariance(M[np.ix_(inner, inner)])
             cov_mk[np.ix_(inner, inner)], mk_lags = _coloured_innovation_cov(
                 M[np.ix_(inner, inner)], sum(p[4] for p in parts)[np.ix_(inner, inner)],
-                [(S[:, :, inner], E, Bi, ok) for S, E, Bi, ok, _ in parts])
+                [(S[:, :, inner], E, Bi, ok) for S, E, Bi, ok, *_ in parts])
+            if len(parts) >= 2:
+                # the maneuvers' scatter (estimators.validation.cluster), each segment a cluster
+                try:
+                    cl = cluster_covariance([p[5][np.ix_(inner, inner)] for p in parts],
+                                            [p[6][inner] for p in parts], M[np.ix_(inner, inner)])
+                    cov_cl[np.ix_(inner, inner)], share[:, inner] = cl.cov, cl.share
+                except np.linalg.LinAlgError:
+                    pass
         # report F as std: F = sqrt(phi_F); covariance and information by the chain rule
         D = self._dphi(phi)
         with np.errstate(divide="ignore", invalid="ignore"):
             cov = cov / np.outer(D, D)
             cov_mk = cov_mk / np.outer(D, D)
+            cov_cl = cov_cl / np.outer(D, D)
         M = M * np.outer(D, D)
         keep = ~self._held
         cov, M = cov[np.ix_(keep, keep)], M[np.ix_(keep, keep)]
         cov_mk = cov_mk[np.ix_(keep, keep)]
+        cov_cl = cov_cl[np.ix_(keep, keep)]
+        kept_names = [nm for nm, k in zip(names, keep) if k]
+        cluster = (None if len(parts) < 2 or not np.any(np.isfinite(share)) else ClusterResult(
+            names=kept_names, cov=cov_cl, std=np.sqrt(np.clip(np.diag(cov_cl), 0.0, None)),
+            crb_std=np.sqrt(np.clip(np.diag(cov), 0.0, None)), share=share[:, keep], limit=0.95))
         theta, F, R = self._unpack(phi)
         E = [seg.z - r["Y"][0] for seg, r in zip(segments, res)]
         Ys = [r["Y"][0] for r in res]
@@ -1076,5 +1096,5 @@ class FilterError:
                    "filtered_states": [pd.DataFrame(r["X"][0], index=pd.Index(s.t, name="t"),
                                                     columns=model.states) for s, r in zip(segments, res)],
                    "nll": J, "residuals_are": "innovations",
-                   "mk_cov": cov_mk, "mk_names": [nm for nm, k in zip(names, keep) if k],
-                   "mk_max_lag": mk_lags})
+                   "mk_cov": cov_mk, "mk_names": kept_names,
+                   "mk_max_lag": mk_lags, "cluster": cluster})

@@ -13,7 +13,7 @@
          "model", "converged", "iterations", "message", "det_R", "n_samples",
          "outputs": [...], "R": [[...]],
          "parameters": {"<name>": {"estimate", "std", "rel_std_pct", "truth",
-                                   "error_in_std", "mk_std", "at_bound",
+                                   "error_in_std", "mk_std", "cluster_std", "at_bound",
                                    "consider_std", "total_std"}},   # last two: see below
          "fixed": {"<name>": value},
          "correlations_flagged": [[a, b, rho], ...],
@@ -30,7 +30,9 @@ Numbers are SI (per radian for derivatives) with NaN written as ``null``. ``esti
 ``std`` are exactly the result's ``params``/``std`` (Cramér-Rao, unless ``std_method``
 says otherwise: stabilised OEM and equation decoupling carry the measurement noise they
 feed back into the model, :mod:`estimators.pseudo_input_noise`); ``mk_std`` the
-Morelli-Klein corrected std. When the fit held something uncertain as exact (sensor
+Morelli-Klein corrected std; ``cluster_std`` the maneuver-to-maneuver scatter (each
+maneuver a cluster, :mod:`estimators.validation.cluster`; null with fewer than 3 maneuvers,
+for EKF/UKF and equation error, or where one maneuver carries the parameter). When the fit held something uncertain as exact (sensor
 corrections applied before it, another axis' estimates), ``consider_std`` is that
 uncertainty carried to the parameter and ``total_std`` = sqrt(std^2 + consider_std^2),
 which ``error_in_std`` then uses (:mod:`pipeline.correction_uncertainty`;
@@ -68,6 +70,7 @@ def method_json(result: EstimationResult, validation: Mapping[str, Any] | None,
         p.setdefault("truth", (truth or {}).get(name) if truth else None)
         p.setdefault("error_in_std", None)
         p["mk_std"] = (mk.get(name) or {}).get("mk_std")
+        p["cluster_std"] = (mk.get(name) or {}).get("cluster_std")
         params[name] = p
     d["parameters"] = params
     d["fixed"] = num({n: v for n, v, f in zip(result.names, result.values, result.free)
@@ -117,13 +120,20 @@ def has_total_std(mj: Mapping[str, Any]) -> bool:
     return any(p.get("total_std") is not None for p in mj["parameters"].values())
 
 
+def has_cluster_std(mj: Mapping[str, Any]) -> bool:
+    """Whether the method's validation has the maneuver-scatter std."""
+    return bool(((mj.get("validation") or {}).get("uncertainty") or {}).get("cluster"))
+
+
 def param_rows(mj: Mapping[str, Any], with_truth: bool, *, segment: bool | None = False
                ) -> list[list[str]]:
     """Rows of the parameter table: name, estimate, std, rel std %, (std total when the
-    result has a consider part), (truth, |error|/std), Morelli-Klein std, note. segment:
-    False system parameters only, True per-segment ones only, None all."""
+    result has a consider part), (truth, |error|/std), Morelli-Klein std, (maneuver-scatter
+    std, system parameters, when the validation has it), note. segment: False system
+    parameters only, True per-segment ones only, None all."""
     rows = []
     total = has_total_std(mj)
+    scatter = has_cluster_std(mj) and segment is False
     for name, p in mj["parameters"].items():
         if segment is not None and is_segment_parameter(name) != segment:
             continue
@@ -132,7 +142,8 @@ def param_rows(mj: Mapping[str, Any], with_truth: bool, *, segment: bool | None 
             r.append(_g(p.get("total_std")))
         if with_truth:
             r += [_g(p.get("truth"), ".6g"), _g(p.get("error_in_std"), ".2f")]
-        r += [_g(p.get("mk_std")), "at bound" if p.get("at_bound") else ""]
+        r += [_g(p.get("mk_std"))] + ([_g(p.get("cluster_std"))] if scatter else [])
+        r += ["at bound" if p.get("at_bound") else ""]
         rows.append(r)
     return rows
 
@@ -156,8 +167,17 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
     head += total
     if with_truth:
         head += ["truth", "abs(error)/std"]
-    head += ["std (Morelli-Klein)", ""]
+    head += ["std (Morelli-Klein)"] + (["std (maneuver scatter)"] if has_cluster_std(mj) else []) + [""]
     L += _table(head, param_rows(mj, with_truth))
+    cl = (v.get("uncertainty") or {}).get("cluster") or {}
+    if cl:
+        L += [f"std (maneuver scatter): how much the {cl['n_segments']} maneuvers disagree, each "
+              "maneuver a cluster of the fit (estimators.validation.cluster; about "
+              f"{cl['n_segments'] - 1} degrees of freedom: a rough figure per parameter; '-' where "
+              f"one maneuver carries more than {cl['limit']:.0%} of the parameter). Scatter / "
+              f"Cramér-Rao: median {_g(cl.get('median_ratio'), '.2f')}, largest "
+              f"{_g(cl.get('max_ratio'), '.2f')} ({cl.get('max_parameter')}); above "
+              f"{_g(cl.get('flag_ratio'))} the bound understates the uncertainty.", ""]
     if total:
         L += ["std (total) = sqrt(CRB^2 + consider^2), the consider part from what the fit "
               f"held as exact ({mj.get('consider_source') or '-'}; each moved by one std, the "

@@ -19,7 +19,12 @@ Keys of the returned dict
     (Q, threshold, p_value, white, frac_outside), ``max_lag``, ``all_white``.
 ``uncertainty``: per free parameter ``crb_std``, ``mk_std`` (Morelli-Klein corrected),
     ``ratio``; for filter error the same on its innovations (``residuals``: ``innovations``,
-    estimators.fem); ``None`` when the result kept neither.
+    estimators.fem); ``None`` when the result kept neither. With 3 or more maneuvers
+    also ``cluster_std`` (the maneuver-to-maneuver scatter, estimators.validation.cluster;
+    NaN where one maneuver carries more than ``limit`` of the parameter, ``max_share``),
+    ``cluster_ratio`` (/ crb_std) per parameter, and ``cluster``: ``n_segments``,
+    ``limit``, ``median_ratio``, ``max_ratio``, ``max_parameter`` (over the system
+    parameters), ``flagged`` (ratio above ``flag_ratio``).
 ``modes``: ``None`` for a model without states/segments (a regression); else ``trim`` (x0 per state, u0 per input), ``table`` per mode (``real imag wn zeta
     period t_half t_double stable axis``), ``eigenvalues`` (list of [real, imag]).
 ``proof_of_match``: ``None`` without ``held_out``; else ``mode`` (``simulation`` or
@@ -153,6 +158,27 @@ def _residuals(result: EstimationResult) -> tuple[dict[str, Any], dict[str, np.n
             {"f": f, "Pxx": P})
 
 
+def _cluster(result: EstimationResult, names: Sequence[str]):
+    """The maneuver cluster covariance of ``result`` (estimators.validation.cluster): kept
+    by filter error, else from the output-error sensitivities; None with fewer than
+    MIN_SEGMENTS segments or when the information is singular."""
+    from estimators.validation.cluster import MIN_SEGMENTS
+    if len(result.segments or []) < MIN_SEGMENTS:
+        return None
+    if "cluster" in result.extra:
+        return result.extra["cluster"]
+    if not result.sensitivities or len(result.sensitivities) != len(result.segments):
+        return None
+    Rinv = np.linalg.pinv(np.atleast_2d(np.asarray(result.R, dtype=float)))
+    parts = [V.segment_parts(S, e.to_numpy(), Rinv)
+             for S, e in zip(result.sensitivities, result.residuals)]
+    try:
+        return V.cluster_covariance([p[0] for p in parts], [p[1] for p in parts],
+                                    result.information, names=names)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+
+
 def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
     extra: dict[str, Any] = {}
     if result.sensitivities:
@@ -177,7 +203,21 @@ def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
         return None
     df = pd.DataFrame({"crb_std": crb, "mk_std": mk, "ratio": mk / crb},
                       index=pd.Index(names, name="parameter"))
-    return {"per_parameter": frame_dict(df), "max_lag": max_lag, **extra}
+    cl = _cluster(result, names)
+    if cl is not None:
+        c = cl.to_frame().reindex(names)
+        df["cluster_std"] = c["cluster_std"].to_numpy()
+        df["cluster_ratio"] = df["cluster_std"] / df["crb_std"]
+        df["max_share"] = c["max_share"].to_numpy()
+        r = df["cluster_ratio"][[not is_segment_parameter(n) for n in names]].dropna()
+        extra["cluster"] = {"n_segments": cl.n_segments, "limit": cl.limit,
+                            "flag_ratio": V.cluster_flag_ratio,
+                            "median_ratio": float(r.median()) if len(r) else None,
+                            "max_ratio": float(r.max()) if len(r) else None,
+                            "max_parameter": str(r.idxmax()) if len(r) else None,
+                            "flagged": {n: float(v) for n, v in
+                                        r[r > V.cluster_flag_ratio].sort_values(ascending=False).items()}}
+    return num({"per_parameter": frame_dict(df), "max_lag": max_lag, **extra})
 
 
 def linear_model(result: EstimationResult, segment: Segment | None = None
@@ -483,6 +523,12 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
     if res and not res.get("all_white", True):
         col = [o for o, d in res["whiteness"].items() if not d.get("white")]
         notes.append(f"coloured residuals on {', '.join(col)} (see Morelli-Klein std)")
+    cl = (v.get("uncertainty") or {}).get("cluster") or {}
+    if cl.get("flagged"):
+        notes.append(f"the {cl['n_segments']} maneuvers scatter more than {cl['flag_ratio']:g}x "
+                     "the Cramér-Rao bound on " + ", ".join(f"{n} ({r:.1f}x)" for n, r in
+                                                          cl["flagged"].items())
+                     + ": the bound understates their uncertainty (see the maneuver-scatter std)")
     if v.get("correlations_flagged"):
         notes.append("highly correlated: " + ", ".join(f"{a}~{b}" for a, b, _ in v["correlations_flagged"]))
     fr = v.get("frequency")

@@ -126,6 +126,12 @@ def test_longitudinal_multiaxis_model(report, method):
     if method == "fem":
         ps = m["parameters"]
         assert {"F_V", "F_alpha", "F_q_gi"} <= set(ps) and ps["F_q_gi"]["estimate"] > 0
+        # the 3 fitted maneuvers' scatter (estimators.validation.cluster, from FEM's own
+        # per-maneuver information; seed 31: median 1.17 of the Cramér-Rao bound, largest
+        # 2.87 on CLq)
+        cl = m["validation"]["uncertainty"]["cluster"]
+        assert cl["n_segments"] == 3 and 0.5 < cl["median_ratio"] < 2.5, cl
+        assert all(ps[n]["cluster_std"] is not None for n in LONG), {n: ps[n]["cluster_std"] for n in LONG}
 
 
 @pytest.mark.parametrize("method", [

@@ -4,6 +4,7 @@ result of any method (OEM, FEM, EKF, UKF, equation error).
 Modules: :mod:`.fit` (det R, Theil inequality coefficient and proportions, R^2, RMS),
 :mod:`.residuals` (statistics, autocorrelation, whiteness test, PSD),
 :mod:`.uncertainty` (Cramér-Rao bounds, Morelli-Klein correction, correlation flags),
+:mod:`.cluster` (maneuver-to-maneuver scatter: the covariance with each maneuver a cluster),
 :mod:`.modes` (named modes of a linearised model, numerical linearisation),
 :mod:`.frequency` (model frequency response, spectral estimates with coherence, mismatch),
 :mod:`.match` (proof of match against tolerance bands), :mod:`.prediction` (the
@@ -13,6 +14,8 @@ Needs numpy, scipy and pandas (and the package's EKF for :mod:`.prediction`).
 """
 from __future__ import annotations
 
+from .cluster import FLAG_RATIO as cluster_flag_ratio
+from .cluster import ClusterResult, cluster_covariance, segment_parts
 from .fit import TheilResult, det_r, fit_metrics, r_squared, residual_covariance, rms, theil
 from .frequency import (MismatchResult, SpectralEstimate, bode, freq_response, mismatch,
                         spectral_estimate)
@@ -30,6 +33,7 @@ __all__ = [
     "TheilResult", "theil", "fit_metrics", "det_r", "r_squared", "rms", "residual_covariance",
     "residual_stats", "autocovariance", "autocorrelation", "WhitenessResult", "whiteness", "psd",
     "UncertaintyResult", "crb", "morelli_klein", "correlation", "correlation_flags",
+    "ClusterResult", "cluster_covariance", "segment_parts", "cluster_flag_ratio",
     "ModeAnalysis", "modes", "mode_properties", "linearize",
     "freq_response", "bode", "SpectralEstimate", "spectral_estimate", "MismatchResult",
     "mismatch",
