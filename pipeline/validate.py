@@ -21,7 +21,8 @@ Keys of the returned dict
     ``ratio``; for filter error the same on its innovations (``residuals``: ``innovations``,
     estimators.fem); ``None`` when the result kept neither. With 3 or more maneuvers
     also ``cluster_std`` (the maneuver-to-maneuver scatter, estimators.validation.cluster;
-    NaN where one maneuver carries more than ``limit`` of the parameter, ``max_share``),
+    NaN where one maneuver carries more than ``limit`` of the parameter's information,
+    ``max_share``: 1 where the other maneuvers cannot identify it),
     ``cluster_ratio`` (/ crb_std) per parameter, and ``cluster``: ``n_segments``,
     ``limit``, ``median_ratio``, ``max_ratio``, ``max_parameter`` (over the system
     parameters), ``flagged`` (ratio above ``flag_ratio``).

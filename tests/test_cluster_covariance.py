@@ -50,8 +50,9 @@ def test_exact_model_gives_the_cramer_rao_bound_on_average():
     # unbiased (mean of 2000 draws: ~2 % Monte Carlo spread), where the plain sandwich is low
     assert np.mean(cr2, axis=0) / crb == pytest.approx(np.ones(3), abs=0.07)
     assert np.all(np.mean(cr0, axis=0) / crb < 0.85)
-    # each maneuver's share of each parameter's variance; the four sum to 1
-    assert np.allclose(r.share.sum(axis=0), 1.0) and r.share.max() < 0.95
+    # each maneuver's share of each parameter's information: less than what the others
+    # leave, and below the limit
+    assert np.all((r.share > 0) & (r.share < 0.95)), r.share
 
 
 def test_parameters_that_differ_between_maneuvers_widen_it_to_their_scatter():

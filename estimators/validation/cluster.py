@@ -26,9 +26,9 @@ parameter, 47 % where one carries 78 % - a maneuver's own offset sits in its est
 more than in its residuals).
 
 What it cannot do:
-- a parameter that one maneuver alone identifies (leverage share above ``limit``, 0.95:
-  a per-maneuver bias or initial state, a derivative only one maneuver excites) has no
-  scatter to measure: NaN;
+- a parameter that one maneuver alone identifies (that maneuver carries more than
+  ``limit``, 0.95, of its information: a per-maneuver bias or initial state, a derivative
+  only one maneuver excites) has no scatter to measure: NaN;
 - it has about G - 1 degrees of freedom (G maneuvers): with 3, one parameter's value is a
   rough figure (for an exact bound the ratio Cov / CRB std lies within 0.23-1.73 in 90 %
   of cases and exceeds 3 with probability ~1e-4). The median over parameters pools them.
@@ -53,8 +53,8 @@ MIN_SEGMENTS = 3
 class ClusterResult:
     """Cluster-robust covariance (n_p, n_p) with std (NaN where not estimable), the
     Cramér-Rao std sqrt(diag M^-1), ``ratio`` = std / crb_std, and ``share`` (G, n_p): the
-    part of each parameter's Cramér-Rao variance that maneuver j carries
-    ((M^-1 M_j M^-1)_kk / (M^-1)_kk; rows sum to 1 less any prior's part)."""
+    part of each parameter's information that maneuver j alone carries,
+    1 - (M^-1)_kk / ((M - M_j)^-1)_kk - 1 where the other maneuvers cannot identify it."""
 
     names: list[str]
     cov: np.ndarray
@@ -102,6 +102,15 @@ def _sym_power(A: np.ndarray, power: float) -> np.ndarray:
     return (V * np.clip(w, 0.0, None) ** power) @ V.T
 
 
+def _inverse_diagonal(A: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
+    """diag(A^-1) of a symmetric positive semi-definite A, +inf for a parameter with a part
+    in A's null space (not identifiable from the information A)."""
+    w, V = np.linalg.eigh(0.5 * (A + A.T))
+    null = w <= rtol * max(w.max(initial=0.0), 1e-300)
+    d = (V[:, ~null] ** 2 / w[~null]).sum(axis=1)
+    return np.where((V[:, null] ** 2).sum(axis=1) > 1e-8, np.inf, d)
+
+
 def cluster_covariance(M_parts: Sequence[np.ndarray], scores: Sequence[np.ndarray],
                        M: np.ndarray | None = None, *, names: Sequence[str] | None = None,
                        limit: float = 0.95) -> ClusterResult:
@@ -110,8 +119,8 @@ def cluster_covariance(M_parts: Sequence[np.ndarray], scores: Sequence[np.ndarra
     M_parts : per maneuver its information M_j (n_p, n_p) (:func:`segment_parts`).
     scores : per maneuver its gradient part s_j (n_p,) at the estimate.
     M : the whole information (default sum M_j; give it when a prior adds to it).
-    limit : a parameter whose Cramér-Rao variance one maneuver carries more than this
-        share of is not estimable here (NaN).
+    limit : a parameter whose information one maneuver carries more than this share of
+        (``share``) is not estimable here (NaN).
     """
     G = len(M_parts)
     if G < 2 or len(scores) != G:
@@ -121,14 +130,20 @@ def cluster_covariance(M_parts: Sequence[np.ndarray], scores: Sequence[np.ndarra
     sj = np.stack([np.asarray(s, float) for s in scores])
     M = Mj.sum(axis=0) if M is None else 0.5 * (np.asarray(M, float) + np.asarray(M, float).T)
     p = M.shape[0]
+    # worked in parameters scaled to unit information (derivatives, noise std and biases
+    # differ by orders of magnitude); the result does not depend on the scaling
+    d = np.diag(M)
+    if np.any(~(d > 0)):
+        raise np.linalg.LinAlgError("the information matrix is singular: no covariance")
+    D = 1.0 / np.sqrt(d)
+    M, Mj, sj = M * np.outer(D, D), Mj * np.outer(D, D), sj * D
     w, V = np.linalg.eigh(M)
     if w.min(initial=np.inf) <= 1e-12 * max(w.max(initial=0.0), 1e-300):
         raise np.linalg.LinAlgError("the information matrix is singular: no covariance")
     W = (V / np.sqrt(w)) @ V.T                   # M^-1/2
     Wi = (V * np.sqrt(w)) @ V.T                  # M^1/2
     Minv = W @ W
-    crb = np.sqrt(np.diag(Minv))
-    share = np.einsum("kp,jpq,qk->jk", Minv, Mj, Minv) / np.diag(Minv)
+    share = np.stack([1.0 - np.diag(Minv) / _inverse_diagonal(M - Mj[j]) for j in range(G)])
     C = np.zeros((p, p))
     for j in range(G):
         B = W @ Mj[j] @ W
@@ -136,12 +151,13 @@ def cluster_covariance(M_parts: Sequence[np.ndarray], scores: Sequence[np.ndarra
         lam = np.clip(lam, 0.0, limit)
         st = Wi @ (U * (1.0 - lam) ** -0.5) @ U.T @ W @ sj[j]
         C += np.outer(st, st)
-    cov = Minv @ C @ Minv
+    cov = (Minv @ C @ Minv) * np.outer(D, D)
     cov = 0.5 * (cov + cov.T)
     bad = share.max(axis=0) > limit
     cov[bad, :] = np.nan
     cov[:, bad] = np.nan
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     std[bad] = np.nan
+    crb = np.sqrt(np.diag(Minv)) * D
     names = list(names) if names is not None else [f"p{k}" for k in range(p)]
     return ClusterResult(names=names, cov=cov, std=std, crb_std=crb, share=share, limit=limit)
