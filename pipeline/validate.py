@@ -170,14 +170,16 @@ def _cluster(result: EstimationResult, names: Sequence[str]):
         return result.extra["cluster"]
     if not result.sensitivities or len(result.sensitivities) != len(result.segments):
         return None
-    Rinv = np.linalg.pinv(np.atleast_2d(np.asarray(result.R, dtype=float)))
-    parts = [V.segment_parts(S, e.to_numpy(), Rinv)
-             for S, e in zip(result.sensitivities, result.residuals)]
     try:
-        return V.cluster_covariance([p[0] for p in parts], [p[1] for p in parts],
-                                    result.information, names=names)
-    except (ValueError, np.linalg.LinAlgError):
-        return None
+        Rinv = np.linalg.pinv(np.atleast_2d(np.asarray(result.R, dtype=float)))
+        parts = [V.segment_parts(S, e.to_numpy(), Rinv)
+                 for S, e in zip(result.sensitivities, result.residuals)]
+        M = result.information
+        if M is None or np.shape(M) != parts[0][0].shape:
+            M = None                          # the sensitivities' own information
+        return V.cluster_covariance([p[0] for p in parts], [p[1] for p in parts], M, names=names)
+    except (ValueError, IndexError, np.linalg.LinAlgError):
+        return None                           # a diagnostic: never the reason a run fails
 
 
 def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
