@@ -14,7 +14,7 @@ else from ``throttle * max_thrust``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping, NamedTuple, Sequence
 
 import numpy as np
 import pandas as pd
@@ -121,9 +121,8 @@ class Problem:
     estimate_x0: bool | Sequence[str] = True
     inputs: str = "average"
     notes: list[str] = field(default_factory=list)
-    #: equation-error regressions on the fitted windows: (coefficient, parameter names of
-    #: the columns (None = an intercept that is no model parameter), X, y)
-    regressions: list[tuple[str, list, np.ndarray, np.ndarray]] = field(default_factory=list)
+    #: equation-error regressions on the fitted windows (:class:`Regression`)
+    regressions: list[Regression] = field(default_factory=list)
     #: grid rate of the segments (Hz)
     rate_hz: float = 0.0
     #: a-priori values {parameter: (value, std)} for output error (OutputError(priors=))
@@ -215,12 +214,30 @@ def with_smoothed_inputs(frames: Mapping[int, pd.DataFrame], specs: Sequence[Seg
         w[list(cols)] = (sm - sm.iloc[0] if relative else sm).to_numpy()
 
 
+class Regression(NamedTuple):
+    """One equation-error regression on the maneuver windows: the coefficient, the
+    parameter names of X's columns (None: an intercept that is no model parameter), X
+    (N, k), y (N,) and the window (N,) each row comes from (0, 1, ... in the order given:
+    the maneuver clusters of estimators.validation.cluster)."""
+
+    coef: str
+    names: list
+    X: np.ndarray
+    y: np.ndarray
+    window: np.ndarray
+
+
+def _window_rows(parts: Sequence[np.ndarray]) -> np.ndarray:
+    """The window index of each row of the stacked ``parts``."""
+    return np.concatenate([np.full(len(a), k) for k, a in enumerate(parts)]) if parts else np.zeros(0, int)
+
+
 def longitudinal_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
-                             thrusts: Sequence[np.ndarray]) -> list[tuple[str, list[str], np.ndarray, np.ndarray]]:
+                             thrusts: Sequence[np.ndarray]) -> list[Regression]:
     """Equation-error regressions of the longitudinal coefficients on the maneuver windows:
     CL, CD, Cm computed from the measured specific forces and the differentiated pitch rate,
-    regressed on [1, alpha, q cbar/2V, de] (CL, Cm) and [1, alpha, alpha^2] (CD). Returns
-    (coefficient, parameter names of the columns, X (N, k), y (N,)) with NaN rows removed."""
+    regressed on [1, alpha, q cbar/2V, de] (CL, Cm) and [1, alpha, alpha^2] (CD), NaN rows
+    removed."""
     rows = {"L": [], "D": [], "M": []}
     yL, yD, yM = [], [], []
     xv, zv = c.get("x_vane", 0.0), c.get("z_vane", 0.0)
@@ -258,7 +275,7 @@ def longitudinal_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, flo
                                 ("M", "Cm", yM, ["Cm0", "Cmalpha", "Cmq", "Cmde"])):
         X = np.vstack(rows[key]); Y = np.concatenate(y)
         ok = np.all(np.isfinite(X), axis=1) & np.isfinite(Y)
-        out.append((coef, names, X[ok], Y[ok]))
+        out.append(Regression(coef, names, X[ok], Y[ok], _window_rows(rows[key])[ok]))
     return out
 
 
@@ -267,7 +284,7 @@ def longitudinal_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
     """Equation-error start values: least squares of CL, CD, Cm computed from the measured
     specific forces and the differentiated pitch rate on the maneuver windows."""
     sol = {}
-    for _, names, X, Y in longitudinal_regressions(frames, c, thrusts):
+    for _, names, X, Y, _ in longitudinal_regressions(frames, c, thrusts):
         beta = np.linalg.lstsq(X, Y, rcond=None)[0]
         sol.update(zip(names, beta))
     # keep the signs that make a flyable start (stable pitch damping, positive lift slope)
@@ -398,7 +415,7 @@ def _filled(df: pd.DataFrame, k: str) -> np.ndarray:
 
 
 def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]
-                        ) -> list[tuple[str, list, np.ndarray, np.ndarray]]:
+                        ) -> list[Regression]:
     """Equation-error regressions: CY (from ay), Cl and Cn (from the differentiated roll and
     yaw rates with the inertia coupling) on [1, beta, p b/2V, r b/2V, da, dr]; the intercept
     column is named None (no model parameter). The dynamic pressure and b/2V follow the
@@ -447,12 +464,13 @@ def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]
         Y["Cl"].append((L / (qbar * c["S"] * c["b"]))[keep])
         Y["Cn"].append((N / (qbar * c["S"] * c["b"]))[keep])
     A = np.vstack(X)
+    window = _window_rows(X)
     out = []
     for coef, ys in Y.items():
         y = np.concatenate(ys)
         ok = np.all(np.isfinite(A), axis=1) & np.isfinite(y)
         names = [None] + [f"{coef}{n}" for n in ("beta", "p", "r", "da", "dr")]
-        out.append((coef, names, A[ok], y[ok]))
+        out.append(Regression(coef, names, A[ok], y[ok], window[ok]))
     return out
 
 
@@ -460,7 +478,7 @@ def lateral_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float]) -> di
     """Equation-error start values: least squares of CY (from ay), Cl and Cn (from the
     differentiated roll and yaw rates with the inertia coupling) on the maneuver windows."""
     out: dict[str, float] = {}
-    for _, names, A, y in lateral_regressions(frames, c):
+    for _, names, A, y, _ in lateral_regressions(frames, c):
         sol = np.linalg.lstsq(A, y, rcond=None)[0]
         for name, v in zip(names[1:], sol[1:]):
             out[name] = float(v)

@@ -220,8 +220,8 @@ def equation_error(problem: Problem) -> Any:
     from estimators import EstimationResult, LeastSquares, OutputError
 
     model = problem.model
-    est, var, regs = {}, {}, []
-    for coef, names, X, y in problem.regressions:
+    est, var, regs, clusters = {}, {}, [], []
+    for coef, names, X, y, window in problem.regressions:
         keep = [i for i, n in enumerate(names) if n is not None]
         cols = [n if n is not None else "bias" for n in names]
         res = LeastSquares(cols if names[0] is not None else cols[1:],
@@ -232,6 +232,7 @@ def equation_error(problem: Problem) -> Any:
             n = names[i]
             est[n] = float(res.params[n])
             var[n] = float(res.std[n]) ** 2
+        clusters.append(_regression_clusters(X, y, window, cols, res))
     free = [p.name for p in model.parameters if p.free and not p.per_segment and p.name in est]
     held = model.with_values({n: est[n] for n in free}).fixed(free)
     sim = OutputError(held, inputs=problem.inputs, fallback="never").fit(
@@ -258,7 +259,52 @@ def equation_error(problem: Problem) -> Any:
                  "derivatives, initial states and biases fitted"),
         settings={"integrator": sim.settings.get("integrator", "rk4"), "optimizer": "ols",
                   "inputs": problem.inputs},
-        extra={"regressions": regs, "x0_and_biases": sim})
+        extra={"regressions": regs, "x0_and_biases": sim,
+               **({"cluster": _joined_clusters(clusters, [n for n in names if n in free])}
+                  if clusters and all(c is not None for c in clusters) else {})})
+
+
+def _regression_clusters(X: np.ndarray, y: np.ndarray, window: np.ndarray, cols: list[str], res):
+    """The maneuver scatter of one regression (estimators.validation.cluster): each
+    window's X_j^T X_j / s^2 and X_j^T e_j / s^2 at the OLS estimate; None with fewer than
+    MIN_SEGMENTS windows or a singular X."""
+    from estimators.validation import cluster_covariance
+    from estimators.validation.cluster import MIN_SEGMENTS
+
+    wins = np.unique(window)
+    if wins.size < MIN_SEGMENTS:
+        return None
+    beta = np.array([float(res.params[c]) for c in cols])
+    e = y - X @ beta
+    s2 = float(e @ e) / max(len(y) - len(cols), 1)
+    parts = [(X[window == k].T @ X[window == k] / s2, X[window == k].T @ e[window == k] / s2)
+             for k in wins]
+    try:
+        return cluster_covariance([p[0] for p in parts], [p[1] for p in parts], names=cols)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+
+
+def _joined_clusters(clusters: list, names: list[str]):
+    """One ClusterResult over ``names`` from the regressions' (independent fits: block
+    diagonal)."""
+    from estimators.validation import ClusterResult
+
+    p = len(names)
+    cov = np.zeros((p, p))
+    crb = np.full(p, np.nan)
+    share = np.zeros((max(c.n_segments for c in clusters), p))
+    for c in clusters:
+        mine = [(names.index(n), k) for k, n in enumerate(c.names) if n in names]
+        rows, cols = [a for a, _ in mine], [k for _, k in mine]
+        cov[np.ix_(rows, rows)] = c.cov[np.ix_(cols, cols)]
+        crb[rows] = c.crb_std[cols]
+        share[:c.n_segments, rows] = c.share[:, cols]
+    bad = ~np.isfinite(np.diag(cov))
+    cov[bad, :] = np.nan
+    cov[:, bad] = np.nan
+    return ClusterResult(names=list(names), cov=cov, std=np.sqrt(np.clip(np.diag(cov), 0.0, None)),
+                         crb_std=crb, share=share, limit=clusters[0].limit)
 
 
 def raw_starts(problem: Problem) -> dict[str, float]:
@@ -269,7 +315,7 @@ def raw_starts(problem: Problem) -> dict[str, float]:
     show it (an unstable aircraft's Cmalpha > 0, which the clamp would flip)."""
     out = {}
     free = {p.name for p in problem.model.parameters if p.free}
-    for _, names, X, y in problem.regressions:
+    for _, names, X, y, _ in problem.regressions:
         sol = np.linalg.lstsq(X, y, rcond=None)[0]
         out.update({n: float(v) for n, v in zip(names, sol) if n is not None and n in free})
     return out

@@ -166,7 +166,7 @@ def _cluster(result: EstimationResult, names: Sequence[str]):
     from estimators.validation.cluster import MIN_SEGMENTS
     if len(result.segments or []) < MIN_SEGMENTS:
         return None
-    if "cluster" in result.extra:
+    if "cluster" in result.extra:          # kept by the fit (filter error, equation error)
         return result.extra["cluster"]
     if not result.sensitivities or len(result.sensitivities) != len(result.segments):
         return None
@@ -202,6 +202,11 @@ def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
         mk = np.sqrt(np.clip(np.diag(result.extra["mk_cov"]), 0.0, None))
         max_lag, extra = result.extra.get("mk_max_lag"), {"residuals": "innovations"}
         crb = result.std[names].to_numpy()
+    elif result.extra.get("cluster") is not None:
+        # equation error: its regressions' window scatter, no Morelli-Klein
+        names = list(result.extra["cluster"].names)
+        crb = result.std[names].to_numpy()
+        mk, max_lag = np.full(len(names), np.nan), None
     else:
         return None
     df = pd.DataFrame({"crb_std": crb, "mk_std": mk, "ratio": mk / crb},
