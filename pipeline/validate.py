@@ -159,29 +159,6 @@ def _residuals(result: EstimationResult) -> tuple[dict[str, Any], dict[str, np.n
             {"f": f, "Pxx": P})
 
 
-def _cluster(result: EstimationResult, names: Sequence[str]):
-    """The maneuver cluster covariance of ``result`` (estimators.validation.cluster): kept
-    by filter error, else from the output-error sensitivities; None with fewer than
-    MIN_SEGMENTS segments or when the information is singular."""
-    from estimators.validation.cluster import MIN_SEGMENTS
-    if len(result.segments or []) < MIN_SEGMENTS:
-        return None
-    if "cluster" in result.extra:          # kept by the fit (filter error, equation error)
-        return result.extra["cluster"]
-    if not result.sensitivities or len(result.sensitivities) != len(result.segments):
-        return None
-    try:
-        Rinv = np.linalg.pinv(np.atleast_2d(np.asarray(result.R, dtype=float)))
-        parts = [V.segment_parts(S, e.to_numpy(), Rinv)
-                 for S, e in zip(result.sensitivities, result.residuals)]
-        M = result.information
-        if M is None or np.shape(M) != parts[0][0].shape:
-            M = None                          # the sensitivities' own information
-        return V.cluster_covariance([p[0] for p in parts], [p[1] for p in parts], M, names=names)
-    except (ValueError, IndexError, np.linalg.LinAlgError):
-        return None                           # a diagnostic: never the reason a run fails
-
-
 def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
     extra: dict[str, Any] = {}
     if result.sensitivities:
@@ -211,7 +188,7 @@ def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
         return None
     df = pd.DataFrame({"crb_std": crb, "mk_std": mk, "ratio": mk / crb},
                       index=pd.Index(names, name="parameter"))
-    cl = _cluster(result, names)
+    cl = V.maneuver_scatter(result)
     if cl is not None:
         c = cl.to_frame().reindex(names)
         df["cluster_std"] = c["cluster_std"].to_numpy()

@@ -5,7 +5,7 @@ maneuvers, and silent on a parameter one maneuver alone identifies."""
 import numpy as np
 import pytest
 
-from estimators.validation.cluster import cluster_covariance, segment_parts
+from estimators.validation.cluster import cluster_covariance, maneuver_scatter, segment_parts
 
 SIGMA = 0.1
 SIZES = (30, 60, 120, 240)
@@ -114,6 +114,10 @@ def test_the_maneuvers_expose_output_error_in_turbulence():
         fem = FilterError(ex.model, process_noise={"alpha": 0.01, "q": 0.01}).fit(ex.segments)
         oem = OutputError(ex.model).fit(ex.segments)
         vf, vo = validate(fem), validate(oem)
+        # on the results themselves: FEM keeps its own, output error's from its sensitivities
+        assert maneuver_scatter(fem) is fem.extra["cluster"]
+        assert maneuver_scatter(oem).names == oem.free_names
+        assert maneuver_scatter(oem, min_segments=5) is None
         for v in (vf, vo):
             assert v["uncertainty"]["cluster"]["n_segments"] == 4
         fem_ratio += [vf["uncertainty"]["per_parameter"][n]["cluster_ratio"] ** 2 for n in names]

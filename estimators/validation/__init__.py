@@ -15,7 +15,7 @@ Needs numpy, scipy and pandas (and the package's EKF for :mod:`.prediction`).
 from __future__ import annotations
 
 from .cluster import FLAG_RATIO as cluster_flag_ratio
-from .cluster import ClusterResult, cluster_covariance, segment_parts
+from .cluster import ClusterResult, cluster_covariance, maneuver_scatter, segment_parts
 from .fit import TheilResult, det_r, fit_metrics, r_squared, residual_covariance, rms, theil
 from .frequency import (MismatchResult, SpectralEstimate, bode, freq_response, mismatch,
                         spectral_estimate)
@@ -33,7 +33,8 @@ __all__ = [
     "TheilResult", "theil", "fit_metrics", "det_r", "r_squared", "rms", "residual_covariance",
     "residual_stats", "autocovariance", "autocorrelation", "WhitenessResult", "whiteness", "psd",
     "UncertaintyResult", "crb", "morelli_klein", "correlation", "correlation_flags",
-    "ClusterResult", "cluster_covariance", "segment_parts", "cluster_flag_ratio",
+    "ClusterResult", "cluster_covariance", "maneuver_scatter", "segment_parts",
+    "cluster_flag_ratio",
     "ModeAnalysis", "modes", "mode_properties", "linearize",
     "freq_response", "bode", "SpectralEstimate", "spectral_estimate", "MismatchResult",
     "mismatch",

@@ -25,6 +25,10 @@ it finds 78-93 % of that variance where no maneuver carries more than 55 % of th
 parameter, 47 % where one carries 78 % - a maneuver's own offset sits in its estimate
 more than in its residuals).
 
+:func:`maneuver_scatter` gives it for a fit's result (output error from its sensitivities;
+filter error and the pipeline's equation error keep their own); the pipeline reports it
+beside the Cramér-Rao and Morelli-Klein std (``cluster_std``).
+
 What it cannot do:
 - a parameter that one maneuver alone identifies (that maneuver carries more than
   ``limit``, 0.95, of its information: a per-maneuver bias or initial state, a derivative
@@ -41,7 +45,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-__all__ = ["ClusterResult", "cluster_covariance", "segment_parts", "FLAG_RATIO", "MIN_SEGMENTS"]
+__all__ = ["ClusterResult", "cluster_covariance", "maneuver_scatter", "segment_parts",
+           "FLAG_RATIO", "MIN_SEGMENTS"]
 
 #: robust std / Cramér-Rao bound above which a parameter is flagged
 FLAG_RATIO = 3.0
@@ -161,3 +166,28 @@ def cluster_covariance(M_parts: Sequence[np.ndarray], scores: Sequence[np.ndarra
     crb = np.sqrt(np.diag(Minv)) * D
     names = list(names) if names is not None else [f"p{k}" for k in range(p)]
     return ClusterResult(names=names, cov=cov, std=std, crb_std=crb, share=share, limit=limit)
+
+
+def maneuver_scatter(result, min_segments: int = MIN_SEGMENTS) -> ClusterResult | None:
+    """The maneuver cluster covariance of an :class:`~estimators.EstimationResult`: the one
+    the fit kept (``extra["cluster"]``: filter error from its own per-segment information,
+    the pipeline's equation error from its regression windows), else from output error's
+    sensitivities, residuals and R; None with fewer than ``min_segments`` segments, for a
+    method that keeps neither (EKF, UKF), or when the information is singular."""
+    if len(result.segments or []) < min_segments:
+        return None
+    if "cluster" in (result.extra or {}):
+        return result.extra["cluster"]
+    if not result.sensitivities or len(result.sensitivities) != len(result.segments):
+        return None
+    try:
+        Rinv = np.linalg.pinv(np.atleast_2d(np.asarray(result.R, dtype=float)))
+        parts = [segment_parts(S, e.to_numpy(), Rinv)
+                 for S, e in zip(result.sensitivities, result.residuals)]
+        M = result.information
+        if M is None or np.shape(M) != parts[0][0].shape:
+            M = None                          # the sensitivities' own information
+        return cluster_covariance([p[0] for p in parts], [p[1] for p in parts], M,
+                                  names=result.free_names)
+    except (ValueError, IndexError, np.linalg.LinAlgError):
+        return None                           # a diagnostic: never the reason a fit fails
