@@ -237,8 +237,29 @@ class EstimationResult:
         if flags:
             head.append(f"|correlation| > {CORR_FLAG}: " + ", ".join(
                 f"{a}~{b} ({r:+.3f})" for a, b, r in flags))
+        head += self._scatter_lines()
         head.append("=" * width)
         return "\n".join(head)
+
+    def _scatter_lines(self) -> list[str]:
+        """The maneuver-to-maneuver scatter against the Cramér-Rao bounds (3+ segments,
+        estimators.validation.maneuver_scatter), for summary()."""
+        from estimators.validation.cluster import FLAG_RATIO, maneuver_scatter
+
+        cl = maneuver_scatter(self)
+        if cl is None:
+            return []
+        r = pd.Series(cl.ratio, index=cl.names)
+        r = r[[("[" not in n) for n in r.index]].dropna()
+        if r.empty:
+            return []
+        out = [f"maneuver scatter / CRB ({cl.n_segments} segments): median {r.median():.2f}, "
+               f"largest {r.max():.2f} ({r.idxmax()})"]
+        big = r[r > FLAG_RATIO]
+        if len(big):
+            out.append(f"  above {FLAG_RATIO:g}x (the bound understates them): "
+                       + ", ".join(f"{n} {v:.1f}x" for n, v in big.sort_values(ascending=False).items()))
+        return out
 
     def __repr__(self) -> str:  # pragma: no cover - convenience
         return self.summary()

@@ -118,6 +118,9 @@ def test_the_maneuvers_expose_output_error_in_turbulence():
         assert maneuver_scatter(fem) is fem.extra["cluster"]
         assert maneuver_scatter(oem).names == oem.free_names
         assert maneuver_scatter(oem, min_segments=5) is None
+        # and the results' summary() says it
+        assert "maneuver scatter / CRB (4 segments)" in oem.summary()
+        assert "above 3x (the bound understates them): " in oem.summary()
         for v in (vf, vo):
             assert v["uncertainty"]["cluster"]["n_segments"] == 4
         fem_ratio += [vf["uncertainty"]["per_parameter"][n]["cluster_ratio"] ** 2 for n in names]
