@@ -242,7 +242,7 @@ class EstimationResult:
         return "\n".join(head)
 
     def _scatter_lines(self) -> list[str]:
-        """The maneuver-to-maneuver scatter against the Cramér-Rao bounds (3+ segments,
+        """The maneuver-to-maneuver scatter against the Cramér-Rao bounds (2+ segments,
         estimators.validation.maneuver_scatter), for summary()."""
         from estimators.validation.cluster import FLAG_RATIO, maneuver_scatter
 

@@ -31,7 +31,7 @@ Numbers are SI (per radian for derivatives) with NaN written as ``null``. ``esti
 says otherwise: stabilised OEM and equation decoupling carry the measurement noise they
 feed back into the model, :mod:`estimators.pseudo_input_noise`); ``mk_std`` the
 Morelli-Klein corrected std; ``cluster_std`` the maneuver-to-maneuver scatter (each
-maneuver a cluster, :mod:`estimators.validation.cluster`; null with fewer than 3 maneuvers,
+maneuver a cluster, :mod:`estimators.validation.cluster`; null with one maneuver,
 for EKF/UKF, or where one maneuver carries the parameter). When the fit held something uncertain as exact (sensor
 corrections applied before it, another axis' estimates), ``consider_std`` is that
 uncertainty carried to the parameter and ``total_std`` = sqrt(std^2 + consider_std^2),

@@ -19,7 +19,7 @@ Keys of the returned dict
     (Q, threshold, p_value, white, frac_outside), ``max_lag``, ``all_white``.
 ``uncertainty``: per free parameter ``crb_std``, ``mk_std`` (Morelli-Klein corrected),
     ``ratio``; for filter error the same on its innovations (``residuals``: ``innovations``,
-    estimators.fem); ``None`` when the result kept neither. With 3 or more maneuvers
+    estimators.fem); ``None`` when the result kept neither. With 2 or more maneuvers
     also ``cluster_std`` (the maneuver-to-maneuver scatter, estimators.validation.cluster;
     NaN where one maneuver carries more than ``limit`` of the parameter's information,
     ``max_share``: 1 where the other maneuvers cannot identify it),
