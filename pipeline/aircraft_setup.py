@@ -50,14 +50,19 @@ def truth_next_to(log: str | Path) -> tuple[Path, dict] | None:
     return p, doc
 
 
-def load_aircraft_toml(path: str | Path) -> tuple[AircraftConstants, str, dict]:
-    """(constants without sensor positions, aircraft name, sensor positions the TOML gives)."""
+def _aircraft(path: str | Path):
+    """The aircraft of a TOML (sim.load_aircraft); a bad file is one FsidError."""
     import sim
 
     try:
-        ac_obj = sim.load_aircraft(path)
+        return sim.load_aircraft(path)
     except sim.ScenarioError as exc:
         raise FsidError(str(exc)) from None
+
+
+def load_aircraft_toml(path: str | Path) -> tuple[AircraftConstants, str, dict]:
+    """(constants without sensor positions, aircraft name, sensor positions the TOML gives)."""
+    ac_obj = _aircraft(path)
     sensors = dict(getattr(ac_obj, "sensors", None) or {})
     return AircraftConstants.from_aircraft(ac_obj), ac_obj.name, sensors
 
@@ -100,12 +105,7 @@ def servo_travel_for(log: str | Path, aircraft: str | Path | None) -> dict[str, 
     import numpy as np
 
     if aircraft is not None:
-        import sim
-
-        try:
-            ac = sim.load_aircraft(aircraft)
-        except sim.ScenarioError as exc:
-            raise FsidError(str(exc)) from None
+        ac = _aircraft(aircraft)
         return {a: (round(float(np.rad2deg(v)), 9), f"aircraft TOML [servos] {a}_travel_deg")
                 for a, v in ac.servo_travel.items()}
     truth = truth_next_to(log)
