@@ -51,7 +51,7 @@ import numpy as np
 import pandas as pd
 
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
-from estimators.integrators import check_options
+from estimators.integrators import INPUT_MODES, check_options
 from estimators.jit import kernel_for
 from estimators.model import Model, Segment
 from estimators.results import EstimationResult, frames
@@ -242,6 +242,144 @@ def _innovation_nll(nu: np.ndarray, S: np.ndarray) -> float:
     return 0.5 * (nu @ np.linalg.solve(S, nu) + logdet)
 
 
+def _ekf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo, hi, c,
+                 fd_step, rtol, atol, mode, n):
+    """The EKF over one segment, compiled with the model's rhs and g (the kernel module of
+    :func:`estimators.fem.output_kernel` binds ``scheme`` and ``gout``): the same
+    equations as :meth:`EKF._predict` / :meth:`EKF._update` and the pass loop of
+    :meth:`_ParameterFilter._one_pass` (bounds, innovations' likelihood, covariance-matching
+    sums), without Python's per-sample overhead. s (L,) = [x0; theta], P (L, L); t (N,),
+    U (N, n_in), Z (N, n_out) with NaN = not measured; R (n_out, n_out); FFt (n, n) and
+    qth (m,) the process noise per second; values, fi, pidx, lo, hi the layout's values,
+    free indices, the segment's parameter rows and the free parameters' bounds.
+    Returns (s, P, Ypred (N, n_out), Spost (N, L), Pdiag (N, L), gain (L, n_out) of the
+    last update (zero columns: not measured), its measured mask, nll, n_obs, hits (m,),
+    matching sums (r, r_post, nr (n_out,), q_obs, q_exp (n,)), the sample where the
+    prediction became non-finite or -1)."""
+    N = t.shape[0]
+    L = s.shape[0]
+    m = L - n
+    n_out = Z.shape[1]
+    n_p = pidx.shape[0]
+    Ypred = np.full((N, n_out), np.nan)
+    Spost = np.empty((N, L))
+    Pdiag = np.empty((N, L))
+    gain = np.zeros((L, n_out))
+    last_ok = np.zeros(n_out, dtype=np.bool_)
+    hits = np.zeros(m, dtype=np.int64)
+    r_sum = np.zeros(n_out)
+    r_post = np.zeros(n_out)
+    nr = np.zeros(n_out)
+    q_obs = np.zeros(n)
+    q_exp = np.zeros(n)
+    nll = 0.0
+    n_obs = 0
+    S = np.empty((L, L + 1))
+    Pm = np.empty((n_p, L + 1))
+    th = values.copy()
+    Y = np.empty((n_out, L + 1))
+    h = np.empty(L)
+    eye = np.eye(L)
+    for i in range(N):
+        dt = 0.0
+        for pred in range(2 if i > 0 else 1):
+            # the difference columns s + h_j e_j and their model parameters (bounds held)
+            for j in range(L):
+                h[j] = fd_step * max(abs(s[j]), 1.0)
+                for b in range(L + 1):
+                    S[j, b] = s[j]
+                S[j, j + 1] += h[j]
+            for b in range(L + 1):
+                for j in range(m):
+                    th[fi[j]] = min(max(S[n + j, b], lo[j]), hi[j])
+                for r in range(n_p):
+                    Pm[r, b] = th[pidx[r]]
+            if i > 0 and pred == 0:
+                # prediction over [t_(i-1), t_i]
+                dt = t[i] - t[i - 1]
+                X = scheme(S[:n].copy(), U[i - 1:i + 1], t[i - 1:i + 1], Pm, c, rtol, atol, mode)
+                Phi = eye.copy()
+                for r in range(n):
+                    for j in range(L):
+                        Phi[r, j] = (X[1, r, j + 1] - X[1, r, 0]) / h[j]
+                    s[r] = X[1, r, 0]
+                P = Phi @ P @ Phi.T
+                P[:n, :n] += FFt * dt
+                for j in range(m):
+                    P[n + j, n + j] += qth[j] * dt
+                P = 0.5 * (P + P.T)
+                if not (np.all(np.isfinite(s)) and np.all(np.isfinite(P))):
+                    return (s, P, Ypred, Spost, Pdiag, gain, last_ok, nll, n_obs, hits,
+                            r_sum, r_post, nr, q_obs, q_exp, i)
+        # measurement update at t_i (the columns set again about the predicted s)
+        gout(S[:n].copy(), U[i], Pm, c, Y)
+        k = 0
+        for a in range(n_out):
+            Ypred[i, a] = Y[a, 0]
+            if np.isfinite(Z[i, a]):
+                k += 1
+        if k > 0:
+            idx = np.empty(k, dtype=np.int64)
+            k = 0
+            for a in range(n_out):
+                if np.isfinite(Z[i, a]):
+                    idx[k] = a
+                    k += 1
+            H = np.empty((k, L))
+            nu = np.empty(k)
+            Rk = np.empty((k, k))
+            for a in range(k):
+                nu[a] = Z[i, idx[a]] - Y[idx[a], 0]
+                for j in range(L):
+                    H[a, j] = (Y[idx[a], j + 1] - Y[idx[a], 0]) / h[j]
+                for b in range(k):
+                    Rk[a, b] = R[idx[a], idx[b]]
+            Sinn = H @ P @ H.T + Rk
+            K = np.linalg.solve(Sinn, H @ P).T
+            s = s + K @ nu
+            IKH = eye - K @ H
+            P = IKH @ P @ IKH.T + K @ Rk @ K.T
+            P = 0.5 * (P + P.T)
+            sign, logdet = np.linalg.slogdet(Sinn)
+            nll += np.inf if sign <= 0 else 0.5 * (nu @ np.linalg.solve(Sinn, nu) + logdet)
+            n_obs += k
+            gain[:, :] = 0.0
+            last_ok[:] = False
+            for a in range(k):
+                gain[:, idx[a]] = K[:, a]
+                last_ok[idx[a]] = True
+            # covariance-matching sums (_NoiseMatch.add)
+            RSi = np.linalg.solve(Sinn, Rk).T
+            rp = RSi @ nu
+            for a in range(k):
+                r_sum[idx[a]] += nu[a] ** 2 - Sinn[a, a] + Rk[a, a]
+                v = 0.0
+                for b in range(k):
+                    v += RSi[a, b] * Rk[b, a]
+                r_post[idx[a]] += rp[a] ** 2 + Rk[a, a] - v
+                nr[idx[a]] += 1.0
+            if dt > 0:
+                Kx = K[:n]
+                kn = Kx @ nu
+                KS = Kx @ Sinn
+                for r in range(n):
+                    q_obs[r] += kn[r] ** 2 / dt
+                    v = 0.0
+                    for a in range(k):
+                        v += KS[r, a] * Kx[r, a]
+                    q_exp[r] += v / dt
+        for j in range(m):
+            v = min(max(s[n + j], lo[j]), hi[j])
+            if v != s[n + j]:
+                hits[j] += 1
+            s[n + j] = v
+        Spost[i] = s
+        for j in range(L):
+            Pdiag[i, j] = P[j, j]
+    return (s, P, Ypred, Spost, Pdiag, gain, last_ok, nll, n_obs, hits,
+            r_sum, r_post, nr, q_obs, q_exp, -1)
+
+
 # -- noise adaptation (covariance matching) -----------------------------------------------------
 #: adapt_noise values: "auto" adapts R when measurement_noise is not given
 ADAPT_CHOICES = ("auto", True, False, "R", "Q")
@@ -281,6 +419,14 @@ class _NoiseMatch:
             self.q_obs += (Kx @ nu) ** 2 / h
             self.q_exp += np.einsum("ij,jk,ik->i", Kx, S, Kx) / h
 
+    def add_sums(self, r, r_post, nr, q_obs, q_exp) -> None:
+        """A segment's sums, as the compiled EKF loop summed them (:func:`_ekf_segment`)."""
+        self.r += r
+        self.r_post += r_post
+        self.nr += nr
+        self.q_obs += q_obs
+        self.q_exp += q_exp
+
 
 def _adapt(F: np.ndarray, R: np.ndarray, match: _NoiseMatch, adapt_r: bool, adapt_q: bool
            ) -> tuple[np.ndarray, np.ndarray, float]:
@@ -316,9 +462,11 @@ class _ParameterFilter:
                  param_noise: Any = None, rtol: float = 1e-8, atol: float = 1e-10,
                  inputs: str = "average", passes: int | str = "auto", max_passes: int = 8,
                  pass_tol: float = 0.2, adapt_noise: bool | str = "auto",
-                 callback: Callable[[int, float, pd.Series], None] | None = None) -> None:
+                 callback: Callable[[int, float, pd.Series], None] | None = None,
+                 compiled: bool = True) -> None:
         check_options(integrator, inputs)
         self.callback = callback
+        self.compiled = compiled
         if adapt_noise not in ADAPT_CHOICES:
             raise ModelDefinitionError(f"adapt_noise must be one of {ADAPT_CHOICES}, got {adapt_noise!r}")
         self.adapt_noise = adapt_noise
@@ -526,9 +674,26 @@ class _ParameterFilter:
             P[:n, :n] = self._initial_state_cov(R, aug, s, F)
             P[n:, n:] = Pth
             N = seg.n
-            Ypred = np.full((N, len(model.outputs)), np.nan)
-            Spost = np.empty((N, n + m))
-            Pdiag = np.empty((N, n + m))
+            run = self._compiled_segment(aug, s, P, F, R, qth, lay, k) if self.compiled else None
+            if run is not None:
+                (s, P, Ypred, Spost, Pdiag, gain, last_ok, nll_k, n_k, hits_k,
+                 *sums, fail) = run
+                if fail >= 0:
+                    raise SimulationDivergedError(
+                        f"the {self.method.upper()} prediction of segment {seg.name or k} became "
+                        f"non-finite at t={seg.t[fail]:.4g} s: reduce param_std/state_std, "
+                        "start closer, or use a smaller sample interval",
+                        segment=k, time=float(seg.t[fail]))
+                nll, n_obs, hits = nll + nll_k, n_obs + int(n_k), hits + hits_k
+                if np.any(last_ok):
+                    K = gain[:, last_ok]
+                if match is not None:
+                    match.add_sums(*sums)
+            N = 0 if run is not None else N
+            if run is None:
+                Ypred = np.full((N, len(model.outputs)), np.nan)
+                Spost = np.empty((N, n + m))
+                Pdiag = np.empty((N, n + m))
             for i in range(N):
                 if i > 0:
                     h = seg.t[i] - seg.t[i - 1]
@@ -593,6 +758,11 @@ class _ParameterFilter:
                 "adapt_noise": self.adapt_noise}
 
     # filter equations, per subclass
+    def _compiled_segment(self, aug, s, P, F, R, qth, lay, k):
+        """A whole segment's pass in compiled code (see :func:`_ekf_segment`), or None: the
+        per-sample loop of :meth:`_one_pass` runs."""
+        return None
+
     def _predict(self, aug, s, P, Q, i):  # pragma: no cover - abstract
         raise NotImplementedError
 
@@ -705,6 +875,21 @@ class EKF(_ParameterFilter):
     def __init__(self, model: Model, *, fd_step: float = 1e-6, **kw) -> None:
         super().__init__(model, **kw)
         self.fd_step = fd_step
+
+    def _compiled_segment(self, aug, s, P, F, R, qth, lay, k):
+        if aug._gout is None:                       # g (or f) did not compile
+            return None
+        from estimators.fem import output_kernel    # fem imports this module
+        fn = getattr(output_kernel(self.model), f"ekf_segment_{self.integrator}", None)
+        if fn is None:
+            return None
+        seg = aug.seg
+        f64 = lambda a: np.ascontiguousarray(a, dtype=float)   # noqa: E731
+        return fn(f64(s).copy(), f64(P).copy(), f64(seg.t), aug._u, f64(seg.z), f64(R),
+                  f64(F @ F.T), f64(qth), f64(lay.values), np.ascontiguousarray(lay.free_idx, dtype=np.int64),
+                  np.ascontiguousarray(lay.pidx[k], dtype=np.int64), f64(aug.lo[:, 0]), f64(aug.hi[:, 0]),
+                  aug._cj, float(self.fd_step), float(self.rtol), float(self.atol),
+                  INPUT_MODES[self.inputs], aug.n)
 
     def _columns(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         h = self.fd_step * np.maximum(np.abs(s), 1.0)

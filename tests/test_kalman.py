@@ -1,4 +1,6 @@
 """EKF and UKF parameter estimation: turbulent longitudinal case, segments, result contents."""
+import dataclasses
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -178,3 +180,45 @@ def test_a_pass_that_wanders_off_is_not_kept(turb, ekf):
     # a healthy run: every pass within the band, the last pass kept
     assert ekf.converged and "not_settled" not in ekf.extra
     assert ekf.extra["innovation_count"] == sum(int(np.isfinite(s.z).sum()) for s in turb.segments)
+
+
+@pytest.mark.parametrize("case", ["adapted noise, a gap, a bound", "given noise, rkf45"])
+def test_compiled_segment_loop_is_the_python_loop(turb, case):
+    """The EKF's compiled segment loop (estimators.kalman._ekf_segment, in the model's
+    filter kernel module) gives what the per-sample Python loop gives: estimates, std,
+    innovations' likelihood, adapted noise, gain, bound projections, trajectories - with
+    samples missing, a parameter held by its bound and the noise adapted between passes
+    (covariance matching), or with the adaptive integrator."""
+    from estimators import Segment
+    from estimators.fem import output_kernel
+
+    if case.startswith("adapted"):
+        seg = turb.segments[0]
+        z = seg.z.copy()
+        z[100:150, 0] = np.nan                # airspeed drop-out
+        z[300:310, :] = np.nan                # nothing measured
+        segs = [Segment(t=seg.t, u=seg.u, z=z, x0=seg.x0), turb.segments[1]]
+        # Cmq (truth -16, start -12.8) held above -14.5: projected onto the bound
+        params = [dataclasses.replace(p, bounds=(-14.5, -9.0)) if p.name == "Cmq" else p
+                  for p in turb.model.parameters]
+        model = dataclasses.replace(turb.model, parameters=params)
+        kw = dict(process_noise={"alpha": 0.005, "q": 0.01}, adapt_noise=True, passes=3)
+    else:
+        segs, model = turb.segments, turb.model
+        kw = dict(settings(turb), integrator="rkf45", passes=2)
+    a = EKF(model, **kw).fit(segs)
+    b = EKF(model, compiled=False, **kw).fit(segs)
+    assert hasattr(output_kernel(model), "ekf_segment_rk4")
+    np.testing.assert_allclose(a.params.to_numpy(), b.params.to_numpy(), rtol=1e-7, atol=1e-10)
+    np.testing.assert_allclose(a.std.to_numpy(), b.std.to_numpy(), rtol=1e-6, atol=1e-12)
+    assert a.extra["innovation_nll"] == pytest.approx(b.extra["innovation_nll"], rel=1e-9)
+    assert a.extra["innovation_count"] == b.extra["innovation_count"]
+    assert a.extra["bound_hits"] == b.extra["bound_hits"] and a.at_bounds == b.at_bounds
+    np.testing.assert_allclose(a.extra["measurement_noise"], b.extra["measurement_noise"], rtol=1e-7)
+    np.testing.assert_allclose(a.extra["process_noise"], b.extra["process_noise"], rtol=1e-7)
+    np.testing.assert_allclose(a.extra["gain"], b.extra["gain"], rtol=1e-3, atol=1e-7)
+    for x, y in zip(a.predicted, b.predicted):
+        np.testing.assert_allclose(x.to_numpy(), y.to_numpy(), rtol=1e-6, atol=1e-9)
+    if case.startswith("adapted"):
+        assert a.extra["bound_hits"].get("Cmq", 0) > 0, a.extra["bound_hits"]
+        assert np.isnan(a.residuals[0]["V"].iloc[120]) and np.isfinite(a.predicted[0]["V"].iloc[120])
