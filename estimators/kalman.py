@@ -242,40 +242,108 @@ def _innovation_nll(nu: np.ndarray, S: np.ndarray) -> float:
     return 0.5 * (nu @ np.linalg.solve(S, nu) + logdet)
 
 
+def _column_params(S, values, fi, pidx, lo, hi, n, th, Pm):
+    """Model parameters Pm (n_p, B) of augmented columns S (L, B): the layout's values with
+    the free ones from S's parameter rows, held to their bounds (AugmentedModel.params);
+    ``th`` a work copy of the values."""
+    m = fi.shape[0]
+    for b in range(S.shape[1]):
+        for j in range(m):
+            th[fi[j]] = min(max(S[n + j, b], lo[j]), hi[j])
+        for r in range(pidx.shape[0]):
+            Pm[r, b] = th[pidx[r]]
+
+
+def _measured(z):
+    """Indices of the finite entries of z."""
+    k = 0
+    for a in range(z.shape[0]):
+        if np.isfinite(z[a]):
+            k += 1
+    idx = np.empty(k, dtype=np.int64)
+    k = 0
+    for a in range(z.shape[0]):
+        if np.isfinite(z[a]):
+            idx[k] = a
+            k += 1
+    return idx
+
+
+def _book_update(K, Sinn, Rk, nu, idx, n, dt, acc, gain, last_ok):
+    """After an update on the outputs ``idx``: the innovations' negative log-likelihood
+    added to acc[0], their count to acc[1], the gain kept in ``gain`` (L, n_out) /
+    ``last_ok``, and the covariance-matching sums of _NoiseMatch.add added to acc's rows
+    r (2 + 0..), r_post, nr (per output) and q_obs, q_exp (per state) - acc is one flat
+    work array: [nll, n_obs, r (n_out), r_post (n_out), nr (n_out), q_obs (n), q_exp (n)]."""
+    k = idx.shape[0]
+    n_out = gain.shape[1]
+    sign, logdet = np.linalg.slogdet(Sinn)
+    acc[0] += np.inf if sign <= 0 else 0.5 * (nu @ np.linalg.solve(Sinn, nu) + logdet)
+    acc[1] += k
+    gain[:, :] = 0.0
+    last_ok[:] = False
+    for a in range(k):
+        gain[:, idx[a]] = K[:, a]
+        last_ok[idx[a]] = True
+    RSi = np.linalg.solve(Sinn, Rk).T
+    rp = RSi @ nu
+    for a in range(k):
+        o = idx[a]
+        acc[2 + o] += nu[a] ** 2 - Sinn[a, a] + Rk[a, a]
+        v = 0.0
+        for b in range(k):
+            v += RSi[a, b] * Rk[b, a]
+        acc[2 + n_out + o] += rp[a] ** 2 + Rk[a, a] - v
+        acc[2 + 2 * n_out + o] += 1.0
+    if dt > 0:
+        Kx = K[:n]
+        kn = Kx @ nu
+        KS = Kx @ Sinn
+        base = 2 + 3 * n_out
+        for r in range(n):
+            acc[base + r] += kn[r] ** 2 / dt
+            v = 0.0
+            for a in range(k):
+                v += KS[r, a] * Kx[r, a]
+            acc[base + n + r] += v / dt
+
+
+def _project(s, lo, hi, n, hits):
+    """The parameter rows of s held to their bounds; projections counted in hits."""
+    for j in range(hits.shape[0]):
+        v = min(max(s[n + j], lo[j]), hi[j])
+        if v != s[n + j]:
+            hits[j] += 1
+        s[n + j] = v
+
+
 def _ekf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo, hi, c,
                  fd_step, rtol, atol, mode, n):
     """The EKF over one segment, compiled with the model's rhs and g (the kernel module of
-    :func:`estimators.fem.output_kernel` binds ``scheme`` and ``gout``): the same
-    equations as :meth:`EKF._predict` / :meth:`EKF._update` and the pass loop of
-    :meth:`_ParameterFilter._one_pass` (bounds, innovations' likelihood, covariance-matching
-    sums), without Python's per-sample overhead. s (L,) = [x0; theta], P (L, L); t (N,),
-    U (N, n_in), Z (N, n_out) with NaN = not measured; R (n_out, n_out); FFt (n, n) and
-    qth (m,) the process noise per second; values, fi, pidx, lo, hi the layout's values,
-    free indices, the segment's parameter rows and the free parameters' bounds.
+    :func:`estimators.fem.output_kernel` binds ``scheme`` and ``gout``; the helpers above
+    are compiled into it too): the same equations as :meth:`EKF._predict` /
+    :meth:`EKF._update` and the pass loop of :meth:`_ParameterFilter._one_pass` (bounds,
+    innovations' likelihood, covariance-matching sums), without Python's per-sample
+    overhead. s (L,) = [x0; theta], P (L, L); t (N,), U (N, n_in), Z (N, n_out) with NaN =
+    not measured; R (n_out, n_out); FFt (n, n) and qth (m,) the process noise per second;
+    values, fi, pidx, lo, hi the layout's values, free indices, the segment's parameter
+    rows and the free parameters' bounds.
     Returns (s, P, Ypred (N, n_out), Spost (N, L), Pdiag (N, L), gain (L, n_out) of the
-    last update (zero columns: not measured), its measured mask, nll, n_obs, hits (m,),
-    matching sums (r, r_post, nr (n_out,), q_obs, q_exp (n,)), the sample where the
-    prediction became non-finite or -1)."""
+    last update (zero columns: not measured), its measured mask, hits (m,), acc (see
+    :func:`_book_update`), the sample where the prediction became non-finite or -1)."""
     N = t.shape[0]
     L = s.shape[0]
     m = L - n
     n_out = Z.shape[1]
-    n_p = pidx.shape[0]
     Ypred = np.full((N, n_out), np.nan)
     Spost = np.empty((N, L))
     Pdiag = np.empty((N, L))
     gain = np.zeros((L, n_out))
     last_ok = np.zeros(n_out, dtype=np.bool_)
     hits = np.zeros(m, dtype=np.int64)
-    r_sum = np.zeros(n_out)
-    r_post = np.zeros(n_out)
-    nr = np.zeros(n_out)
-    q_obs = np.zeros(n)
-    q_exp = np.zeros(n)
-    nll = 0.0
-    n_obs = 0
+    acc = np.zeros(2 + 3 * n_out + 2 * n)
     S = np.empty((L, L + 1))
-    Pm = np.empty((n_p, L + 1))
+    Pm = np.empty((pidx.shape[0], L + 1))
     th = values.copy()
     Y = np.empty((n_out, L + 1))
     h = np.empty(L)
@@ -283,18 +351,14 @@ def _ekf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo,
     for i in range(N):
         dt = 0.0
         for pred in range(2 if i > 0 else 1):
-            # the difference columns s + h_j e_j and their model parameters (bounds held)
+            # the difference columns s + h_j e_j and their model parameters
             for j in range(L):
                 h[j] = fd_step * max(abs(s[j]), 1.0)
                 for b in range(L + 1):
                     S[j, b] = s[j]
                 S[j, j + 1] += h[j]
-            for b in range(L + 1):
-                for j in range(m):
-                    th[fi[j]] = min(max(S[n + j, b], lo[j]), hi[j])
-                for r in range(n_p):
-                    Pm[r, b] = th[pidx[r]]
-            if i > 0 and pred == 0:
+            _column_params(S, values, fi, pidx, lo, hi, n, th, Pm)
+            if pred == 0 and i > 0:
                 # prediction over [t_(i-1), t_i]
                 dt = t[i] - t[i - 1]
                 X = scheme(S[:n].copy(), U[i - 1:i + 1], t[i - 1:i + 1], Pm, c, rtol, atol, mode)
@@ -309,22 +373,14 @@ def _ekf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo,
                     P[n + j, n + j] += qth[j] * dt
                 P = 0.5 * (P + P.T)
                 if not (np.all(np.isfinite(s)) and np.all(np.isfinite(P))):
-                    return (s, P, Ypred, Spost, Pdiag, gain, last_ok, nll, n_obs, hits,
-                            r_sum, r_post, nr, q_obs, q_exp, i)
+                    return s, P, Ypred, Spost, Pdiag, gain, last_ok, hits, acc, i
         # measurement update at t_i (the columns set again about the predicted s)
         gout(S[:n].copy(), U[i], Pm, c, Y)
-        k = 0
         for a in range(n_out):
             Ypred[i, a] = Y[a, 0]
-            if np.isfinite(Z[i, a]):
-                k += 1
+        idx = _measured(Z[i])
+        k = idx.shape[0]
         if k > 0:
-            idx = np.empty(k, dtype=np.int64)
-            k = 0
-            for a in range(n_out):
-                if np.isfinite(Z[i, a]):
-                    idx[k] = a
-                    k += 1
             H = np.empty((k, L))
             nu = np.empty(k)
             Rk = np.empty((k, k))
@@ -340,44 +396,111 @@ def _ekf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo,
             IKH = eye - K @ H
             P = IKH @ P @ IKH.T + K @ Rk @ K.T
             P = 0.5 * (P + P.T)
-            sign, logdet = np.linalg.slogdet(Sinn)
-            nll += np.inf if sign <= 0 else 0.5 * (nu @ np.linalg.solve(Sinn, nu) + logdet)
-            n_obs += k
-            gain[:, :] = 0.0
-            last_ok[:] = False
-            for a in range(k):
-                gain[:, idx[a]] = K[:, a]
-                last_ok[idx[a]] = True
-            # covariance-matching sums (_NoiseMatch.add)
-            RSi = np.linalg.solve(Sinn, Rk).T
-            rp = RSi @ nu
-            for a in range(k):
-                r_sum[idx[a]] += nu[a] ** 2 - Sinn[a, a] + Rk[a, a]
-                v = 0.0
-                for b in range(k):
-                    v += RSi[a, b] * Rk[b, a]
-                r_post[idx[a]] += rp[a] ** 2 + Rk[a, a] - v
-                nr[idx[a]] += 1.0
-            if dt > 0:
-                Kx = K[:n]
-                kn = Kx @ nu
-                KS = Kx @ Sinn
-                for r in range(n):
-                    q_obs[r] += kn[r] ** 2 / dt
-                    v = 0.0
-                    for a in range(k):
-                        v += KS[r, a] * Kx[r, a]
-                    q_exp[r] += v / dt
-        for j in range(m):
-            v = min(max(s[n + j], lo[j]), hi[j])
-            if v != s[n + j]:
-                hits[j] += 1
-            s[n + j] = v
+            _book_update(K, Sinn, Rk, nu, idx, n, dt, acc, gain, last_ok)
+        _project(s, lo, hi, n, hits)
         Spost[i] = s
         for j in range(L):
             Pdiag[i, j] = P[j, j]
-    return (s, P, Ypred, Spost, Pdiag, gain, last_ok, nll, n_obs, hits,
-            r_sum, r_post, nr, q_obs, q_exp, -1)
+    return s, P, Ypred, Spost, Pdiag, gain, last_ok, hits, acc, -1
+
+
+def _sigma_points(s, P, cfac):
+    """The UKF's 2L + 1 sigma points (L, 2L + 1): s, s +- columns of sqrt(cfac P)
+    (Cholesky, else the symmetric square root of the eigen-decomposition: _sqrt_psd)."""
+    L = s.shape[0]
+    A = cfac * P
+    try:
+        F = np.linalg.cholesky(A)
+    except Exception:  # noqa: BLE001 - numba raises a plain LinAlgError
+        w, V = np.linalg.eigh(0.5 * (A + A.T))
+        F = V * np.sqrt(np.maximum(w, 0.0))
+    S = np.empty((L, 2 * L + 1))
+    for j in range(L):
+        S[j, 0] = s[j]
+        for b in range(L):
+            S[j, 1 + b] = s[j] + F[j, b]
+            S[j, 1 + L + b] = s[j] - F[j, b]
+    return S
+
+
+def _ukf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo, hi, c,
+                 Wm, Wc, cfac, rtol, atol, mode, n):
+    """The UKF (sigma points not noise-augmented) over one segment, compiled as
+    :func:`_ekf_segment` is, with the equations of :meth:`UKF._predict` /
+    :meth:`UKF._update`; Wm, Wc (2L + 1,) the weights and cfac = L + lambda. Returns what
+    :func:`_ekf_segment` returns."""
+    N = t.shape[0]
+    L = s.shape[0]
+    m = L - n
+    n_out = Z.shape[1]
+    B = 2 * L + 1
+    Ypred = np.full((N, n_out), np.nan)
+    Spost = np.empty((N, L))
+    Pdiag = np.empty((N, L))
+    gain = np.zeros((L, n_out))
+    last_ok = np.zeros(n_out, dtype=np.bool_)
+    hits = np.zeros(m, dtype=np.int64)
+    acc = np.zeros(2 + 3 * n_out + 2 * n)
+    Pm = np.empty((pidx.shape[0], B))
+    th = values.copy()
+    Y = np.empty((n_out, B))
+    Q = np.zeros((L, L))
+    for i in range(N):
+        dt = 0.0
+        if i > 0:
+            dt = t[i] - t[i - 1]
+            S = _sigma_points(s, P, cfac)
+            _column_params(S, values, fi, pidx, lo, hi, n, th, Pm)
+            X = scheme(S[:n].copy(), U[i - 1:i + 1], t[i - 1:i + 1], Pm, c, rtol, atol, mode)
+            S[:n] = X[1]
+            mean = S @ Wm
+            D = S - mean.reshape(L, 1)
+            Q[:n, :n] = FFt * dt
+            for j in range(m):
+                Q[n + j, n + j] = qth[j] * dt
+            P = (D * Wc) @ D.T + Q
+            P = 0.5 * (P + P.T)
+            s = mean
+            if not (np.all(np.isfinite(s)) and np.all(np.isfinite(P))):
+                return s, P, Ypred, Spost, Pdiag, gain, last_ok, hits, acc, i
+        S = _sigma_points(s, P, cfac)
+        _column_params(S, values, fi, pidx, lo, hi, n, th, Pm)
+        gout(S[:n].copy(), U[i], Pm, c, Y)
+        y = Y @ Wm
+        for a in range(n_out):
+            Ypred[i, a] = y[a]
+        idx = _measured(Z[i])
+        k = idx.shape[0]
+        if k > 0:
+            Dy = Y - y.reshape(n_out, 1)
+            Ds = S - s.reshape(L, 1)
+            Syy_all = (Dy * Wc) @ Dy.T + R
+            Ssy_all = (Ds * Wc) @ Dy.T
+            Syy = np.empty((k, k))
+            Ssy = np.empty((L, k))
+            Rk = np.empty((k, k))
+            nu = np.empty(k)
+            for a in range(k):
+                nu[a] = Z[i, idx[a]] - y[idx[a]]
+                for b in range(k):
+                    Syy[a, b] = Syy_all[idx[a], idx[b]]
+                    Rk[a, b] = R[idx[a], idx[b]]
+                for j in range(L):
+                    Ssy[j, a] = Ssy_all[j, idx[a]]
+            K = np.linalg.solve(Syy, Ssy.T).T
+            s = s + K @ nu
+            P = P - K @ Syy @ K.T
+            P = 0.5 * (P + P.T)
+            _book_update(K, Syy, Rk, nu, idx, n, dt, acc, gain, last_ok)
+        _project(s, lo, hi, n, hits)
+        Spost[i] = s
+        for j in range(L):
+            Pdiag[i, j] = P[j, j]
+    return s, P, Ypred, Spost, Pdiag, gain, last_ok, hits, acc, -1
+
+
+#: the compiled helpers of the segment loops (source copied into the kernel module)
+SEGMENT_HELPERS = (_column_params, _measured, _book_update, _project, _sigma_points)
 
 
 # -- noise adaptation (covariance matching) -----------------------------------------------------
@@ -419,8 +542,11 @@ class _NoiseMatch:
             self.q_obs += (Kx @ nu) ** 2 / h
             self.q_exp += np.einsum("ij,jk,ik->i", Kx, S, Kx) / h
 
-    def add_sums(self, r, r_post, nr, q_obs, q_exp) -> None:
-        """A segment's sums, as the compiled EKF loop summed them (:func:`_ekf_segment`)."""
+    def add_sums(self, acc: np.ndarray, n_out: int) -> None:
+        """A segment's sums as a compiled segment loop summed them: acc = [r, r_post, nr
+        (n_out each), q_obs, q_exp (n each)] (:func:`_book_update`)."""
+        r, r_post, nr, rest = np.split(acc, [n_out, 2 * n_out, 3 * n_out])
+        q_obs, q_exp = np.split(rest, 2)
         self.r += r
         self.r_post += r_post
         self.nr += nr
@@ -676,19 +802,18 @@ class _ParameterFilter:
             N = seg.n
             run = self._compiled_segment(aug, s, P, F, R, qth, lay, k) if self.compiled else None
             if run is not None:
-                (s, P, Ypred, Spost, Pdiag, gain, last_ok, nll_k, n_k, hits_k,
-                 *sums, fail) = run
+                s, P, Ypred, Spost, Pdiag, gain, last_ok, hits_k, acc, fail = run
                 if fail >= 0:
                     raise SimulationDivergedError(
                         f"the {self.method.upper()} prediction of segment {seg.name or k} became "
                         f"non-finite at t={seg.t[fail]:.4g} s: reduce param_std/state_std, "
                         "start closer, or use a smaller sample interval",
                         segment=k, time=float(seg.t[fail]))
-                nll, n_obs, hits = nll + nll_k, n_obs + int(n_k), hits + hits_k
+                nll, n_obs, hits = nll + acc[0], n_obs + int(acc[1]), hits + hits_k
                 if np.any(last_ok):
                     K = gain[:, last_ok]
                 if match is not None:
-                    match.add_sums(*sums)
+                    match.add_sums(acc[2:], len(model.outputs))
             N = 0 if run is not None else N
             if run is None:
                 Ypred = np.full((N, len(model.outputs)), np.nan)
@@ -762,6 +887,23 @@ class _ParameterFilter:
         """A whole segment's pass in compiled code (see :func:`_ekf_segment`), or None: the
         per-sample loop of :meth:`_one_pass` runs."""
         return None
+
+    def _run_compiled(self, which: str, aug, s, P, F, R, qth, lay, k, *extra):
+        """Run ``<which>_segment_<integrator>`` of the model's filter kernel module (None
+        when g or f did not compile): the segment's arguments, then ``extra`` before rtol."""
+        if aug._gout is None:                       # g (or f) did not compile
+            return None
+        from estimators.fem import output_kernel    # fem imports this module
+        fn = getattr(output_kernel(self.model), f"{which}_segment_{self.integrator}", None)
+        if fn is None:
+            return None
+        seg = aug.seg
+        f64 = lambda a: np.ascontiguousarray(a, dtype=float)   # noqa: E731
+        i64 = lambda a: np.ascontiguousarray(a, dtype=np.int64)  # noqa: E731
+        return fn(f64(s).copy(), f64(P).copy(), f64(seg.t), aug._u, f64(seg.z), f64(R),
+                  f64(F @ F.T), f64(qth), f64(lay.values), i64(lay.free_idx), i64(lay.pidx[k]),
+                  f64(aug.lo[:, 0]), f64(aug.hi[:, 0]), aug._cj, *extra, float(self.rtol),
+                  float(self.atol), INPUT_MODES[self.inputs], aug.n)
 
     def _predict(self, aug, s, P, Q, i):  # pragma: no cover - abstract
         raise NotImplementedError
@@ -877,19 +1019,7 @@ class EKF(_ParameterFilter):
         self.fd_step = fd_step
 
     def _compiled_segment(self, aug, s, P, F, R, qth, lay, k):
-        if aug._gout is None:                       # g (or f) did not compile
-            return None
-        from estimators.fem import output_kernel    # fem imports this module
-        fn = getattr(output_kernel(self.model), f"ekf_segment_{self.integrator}", None)
-        if fn is None:
-            return None
-        seg = aug.seg
-        f64 = lambda a: np.ascontiguousarray(a, dtype=float)   # noqa: E731
-        return fn(f64(s).copy(), f64(P).copy(), f64(seg.t), aug._u, f64(seg.z), f64(R),
-                  f64(F @ F.T), f64(qth), f64(lay.values), np.ascontiguousarray(lay.free_idx, dtype=np.int64),
-                  np.ascontiguousarray(lay.pidx[k], dtype=np.int64), f64(aug.lo[:, 0]), f64(aug.hi[:, 0]),
-                  aug._cj, float(self.fd_step), float(self.rtol), float(self.atol),
-                  INPUT_MODES[self.inputs], aug.n)
+        return self._run_compiled("ekf", aug, s, P, F, R, qth, lay, k, float(self.fd_step))
 
     def _columns(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         h = self.fd_step * np.maximum(np.abs(s), 1.0)
@@ -967,6 +1097,12 @@ class UKF(_ParameterFilter):
         Wm[0] = lam / (L + lam)
         Wc[0] = Wm[0] + 1.0 - self.alpha ** 2 + self.beta
         return Wm, Wc, L + lam
+
+    def _compiled_segment(self, aug, s, P, F, R, qth, lay, k):
+        if self.augmented:                          # noise-augmented sigma points: Python
+            return None
+        Wm, Wc, cfac = self._weights(s.size)
+        return self._run_compiled("ukf", aug, s, P, F, R, qth, lay, k, Wm, Wc, float(cfac))
 
     def _sigmas(self, s: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         L = s.size

@@ -182,11 +182,12 @@ def test_a_pass_that_wanders_off_is_not_kept(turb, ekf):
     assert ekf.extra["innovation_count"] == sum(int(np.isfinite(s.z).sum()) for s in turb.segments)
 
 
+@pytest.mark.parametrize("cls", [EKF, UKF])
 @pytest.mark.parametrize("case", ["adapted noise, a gap, a bound", "given noise, rkf45"])
-def test_compiled_segment_loop_is_the_python_loop(turb, case):
-    """The EKF's compiled segment loop (estimators.kalman._ekf_segment, in the model's
-    filter kernel module) gives what the per-sample Python loop gives: estimates, std,
-    innovations' likelihood, adapted noise, gain, bound projections, trajectories - with
+def test_compiled_segment_loop_is_the_python_loop(turb, case, cls):
+    """The compiled segment loops (estimators.kalman._ekf_segment, _ukf_segment, in the
+    model's filter kernel module) give what the per-sample Python loop gives: estimates,
+    std, innovations' likelihood, adapted noise, gain, bound projections, predictions - with
     samples missing, a parameter held by its bound and the noise adapted between passes
     (covariance matching), or with the adaptive integrator."""
     from estimators import Segment
@@ -206,9 +207,9 @@ def test_compiled_segment_loop_is_the_python_loop(turb, case):
     else:
         segs, model = turb.segments, turb.model
         kw = dict(settings(turb), integrator="rkf45", passes=2)
-    a = EKF(model, **kw).fit(segs)
-    b = EKF(model, compiled=False, **kw).fit(segs)
-    assert hasattr(output_kernel(model), "ekf_segment_rk4")
+    a = cls(model, **kw).fit(segs)
+    b = cls(model, compiled=False, **kw).fit(segs)
+    assert hasattr(output_kernel(model), f"{a.method}_segment_rk4")
     np.testing.assert_allclose(a.params.to_numpy(), b.params.to_numpy(), rtol=1e-7, atol=1e-10)
     np.testing.assert_allclose(a.std.to_numpy(), b.std.to_numpy(), rtol=1e-6, atol=1e-12)
     assert a.extra["innovation_nll"] == pytest.approx(b.extra["innovation_nll"], rel=1e-9)
