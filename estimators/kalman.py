@@ -270,11 +270,12 @@ def _measured(z):
 
 
 def _book_update(K, Sinn, Rk, nu, idx, n, dt, acc, gain, last_ok):
-    """After an update on the outputs ``idx``: the innovations' negative log-likelihood
-    added to acc[0], their count to acc[1], the gain kept in ``gain`` (L, n_out) /
-    ``last_ok``, and the covariance-matching sums of _NoiseMatch.add added to acc's rows
-    r (2 + 0..), r_post, nr (per output) and q_obs, q_exp (per state) - acc is one flat
-    work array: [nll, n_obs, r (n_out), r_post (n_out), nr (n_out), q_obs (n), q_exp (n)]."""
+    """The bookkeeping of an update on the outputs ``idx`` (gain K (L, k), innovations nu
+    (k,) with covariance Sinn, the filter's Rk on them, step dt s, 0 at a segment start):
+    the gain kept in ``gain`` (L, n_out) / ``last_ok``, and added into the flat work array
+    acc = [nll, n_obs, r (n_out), r_post (n_out), nr (n_out), q_obs (n), q_exp (n)]: the
+    innovations' negative log-likelihood and count (_innovation_nll) and the
+    covariance-matching sums (_NoiseMatch.add)."""
     k = idx.shape[0]
     n_out = gain.shape[1]
     sign, logdet = np.linalg.slogdet(Sinn)
