@@ -309,13 +309,25 @@ def _book_update(K, Sinn, Rk, nu, idx, n, dt, acc, gain, last_ok):
             acc[base + n + r] += v / dt
 
 
-def _project(s, lo, hi, n, hits):
-    """The parameter rows of s held to their bounds; projections counted in hits."""
+def _project(s, lo, hi, n, hits, i, P, Spost, Pdiag):
+    """The end of sample i: the parameter rows of s held to their bounds (projections
+    counted in hits), s and diag(P) kept in row i of Spost, Pdiag."""
     for j in range(hits.shape[0]):
         v = min(max(s[n + j], lo[j]), hi[j])
         if v != s[n + j]:
             hits[j] += 1
         s[n + j] = v
+    Spost[i] = s
+    for j in range(s.shape[0]):
+        Pdiag[i, j] = P[j, j]
+
+
+def _segment_arrays(N, L, n_out, n):
+    """The outputs of a segment loop: Ypred (N, n_out) NaN, Spost and Pdiag (N, L), gain
+    (L, n_out), last_ok (n_out,), hits (L - n,), acc (see :func:`_book_update`)."""
+    return (np.full((N, n_out), np.nan), np.empty((N, L)), np.empty((N, L)),
+            np.zeros((L, n_out)), np.zeros(n_out, dtype=np.bool_),
+            np.zeros(L - n, dtype=np.int64), np.zeros(2 + 3 * n_out + 2 * n))
 
 
 def _ekf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo, hi, c,
@@ -336,13 +348,7 @@ def _ekf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo,
     L = s.shape[0]
     m = L - n
     n_out = Z.shape[1]
-    Ypred = np.full((N, n_out), np.nan)
-    Spost = np.empty((N, L))
-    Pdiag = np.empty((N, L))
-    gain = np.zeros((L, n_out))
-    last_ok = np.zeros(n_out, dtype=np.bool_)
-    hits = np.zeros(m, dtype=np.int64)
-    acc = np.zeros(2 + 3 * n_out + 2 * n)
+    Ypred, Spost, Pdiag, gain, last_ok, hits, acc = _segment_arrays(N, L, n_out, n)
     S = np.empty((L, L + 1))
     Pm = np.empty((pidx.shape[0], L + 1))
     th = values.copy()
@@ -398,10 +404,7 @@ def _ekf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo,
             P = IKH @ P @ IKH.T + K @ Rk @ K.T
             P = 0.5 * (P + P.T)
             _book_update(K, Sinn, Rk, nu, idx, n, dt, acc, gain, last_ok)
-        _project(s, lo, hi, n, hits)
-        Spost[i] = s
-        for j in range(L):
-            Pdiag[i, j] = P[j, j]
+        _project(s, lo, hi, n, hits, i, P, Spost, Pdiag)
     return s, P, Ypred, Spost, Pdiag, gain, last_ok, hits, acc, -1
 
 
@@ -435,13 +438,7 @@ def _ukf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo,
     m = L - n
     n_out = Z.shape[1]
     B = 2 * L + 1
-    Ypred = np.full((N, n_out), np.nan)
-    Spost = np.empty((N, L))
-    Pdiag = np.empty((N, L))
-    gain = np.zeros((L, n_out))
-    last_ok = np.zeros(n_out, dtype=np.bool_)
-    hits = np.zeros(m, dtype=np.int64)
-    acc = np.zeros(2 + 3 * n_out + 2 * n)
+    Ypred, Spost, Pdiag, gain, last_ok, hits, acc = _segment_arrays(N, L, n_out, n)
     Pm = np.empty((pidx.shape[0], B))
     th = values.copy()
     Y = np.empty((n_out, B))
@@ -493,15 +490,13 @@ def _ukf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo,
             P = P - K @ Syy @ K.T
             P = 0.5 * (P + P.T)
             _book_update(K, Syy, Rk, nu, idx, n, dt, acc, gain, last_ok)
-        _project(s, lo, hi, n, hits)
-        Spost[i] = s
-        for j in range(L):
-            Pdiag[i, j] = P[j, j]
+        _project(s, lo, hi, n, hits, i, P, Spost, Pdiag)
     return s, P, Ypred, Spost, Pdiag, gain, last_ok, hits, acc, -1
 
 
 #: the compiled helpers of the segment loops (source copied into the kernel module)
-SEGMENT_HELPERS = (_column_params, _measured, _book_update, _project, _sigma_points)
+SEGMENT_HELPERS = (_column_params, _measured, _book_update, _project, _segment_arrays,
+                   _sigma_points)
 
 
 # -- noise adaptation (covariance matching) -----------------------------------------------------
