@@ -52,9 +52,9 @@ __all__ = ["ClusterResult", "cluster_covariance", "maneuver_scatter", "segment_p
 #: robust std / Cramér-Rao bound above which a parameter is flagged
 FLAG_RATIO = 3.0
 #: fewest maneuvers for which the covariance is reported: with 2 it has one degree of
-#: freedom, but still tells an honest bound from a 5-10x optimistic one (the linear short
-#: period in turbulence, 2 maneuvers, 12 seeds, ad hoc: filter error's largest ratio per fit
-#: 1.2-2.7, output error's 2.5-31, above 3 in 11 of 12)
+#: freedom, but still tells an honest bound from a 2-14x optimistic one (the linear short
+#: period in turbulence, benchmarks/maneuver_scatter_mc.py: with 2 maneuvers filter error
+#: flagged in 0 of 12 fits, output error in 11 of 12)
 MIN_SEGMENTS = 2
 
 
