@@ -795,54 +795,18 @@ class _ParameterFilter:
             P = np.zeros((n + m, n + m))
             P[:n, :n] = self._initial_state_cov(R, aug, s, F)
             P[n:, n:] = Pth
-            N = seg.n
-            run = self._compiled_segment(aug, s, P, F, R, qth, lay, k) if self.compiled else None
-            if run is not None:
-                s, P, Ypred, Spost, Pdiag, gain, last_ok, hits_k, acc, fail = run
-                if fail >= 0:
-                    raise SimulationDivergedError(
-                        f"the {self.method.upper()} prediction of segment {seg.name or k} became "
-                        f"non-finite at t={seg.t[fail]:.4g} s: reduce param_std/state_std, "
-                        "start closer, or use a smaller sample interval",
-                        segment=k, time=float(seg.t[fail]))
-                nll, n_obs, hits = nll + acc[0], n_obs + int(acc[1]), hits + hits_k
-                if np.any(last_ok):
-                    K = gain[:, last_ok]
-                if match is not None:
-                    match.add_sums(acc[2:], len(model.outputs))
-            N = 0 if run is not None else N
+            run = self._compiled_segment(aug, s, P, F, R, qth, lay, k, match) if self.compiled else None
             if run is None:
-                Ypred = np.full((N, len(model.outputs)), np.nan)
-                Spost = np.empty((N, n + m))
-                Pdiag = np.empty((N, n + m))
-            for i in range(N):
-                if i > 0:
-                    h = seg.t[i] - seg.t[i - 1]
-                    Q = np.zeros((n + m, n + m))
-                    Q[:n, :n] = F @ F.T * h
-                    Q[n:, n:] = np.diag(qth * h)
-                    s, P = self._predict(aug, s, P, Q, i - 1)
-                    if not np.all(np.isfinite(s)) or not np.all(np.isfinite(P)):
-                        raise SimulationDivergedError(
-                            f"the {self.method.upper()} prediction of segment {seg.name or k} became "
-                            f"non-finite at t={seg.t[i]:.4g} s: reduce param_std/state_std, "
-                            "start closer, or use a smaller sample interval",
-                            segment=k, time=float(seg.t[i]))
-                z = seg.z[i]
-                ok = np.isfinite(z)
-                s, P, yp, K, Sinn = self._update(aug, s, P, z, ok, R, i)
-                th = np.clip(s[n:], lo, hi)             # bounds: the estimate projected on them
-                hits += th != s[n:]
-                s[n:] = th
-                if Sinn is not None:                    # some output measured (K too)
-                    nu = z[ok] - yp[ok]
-                    nll += _innovation_nll(nu, Sinn)
-                    n_obs += nu.size
-                    if match is not None:
-                        match.add(nu, Sinn, K[:n], R, ok, seg.t[i] - seg.t[i - 1] if i else 0.0)
-                Ypred[i] = yp
-                Spost[i] = s
-                Pdiag[i] = np.diag(P)
+                run = self._python_segment(aug, s, P, F, R, qth, lo, hi, match)
+            s, P, Ypred, Spost, Pdiag, K_seg, nll_k, n_k, hits_k, fail = run
+            if fail >= 0:
+                raise SimulationDivergedError(
+                    f"the {self.method.upper()} prediction of segment {seg.name or k} became "
+                    f"non-finite at t={seg.t[fail]:.4g} s: reduce param_std/state_std, "
+                    "start closer, or use a smaller sample interval",
+                    segment=k, time=float(seg.t[fail]))
+            nll, n_obs, hits = nll + nll_k, n_obs + n_k, hits + hits_k
+            K = K if K_seg is None else K_seg
             theta = s[n:].copy()
             Pth = P[n:, n:].copy()
             idx = pd.Index(seg.t, name="t")
@@ -878,15 +842,56 @@ class _ParameterFilter:
                 "passes": self.passes, "max_passes": self.max_passes, "pass_tol": self.pass_tol,
                 "adapt_noise": self.adapt_noise}
 
-    # filter equations, per subclass
-    def _compiled_segment(self, aug, s, P, F, R, qth, lay, k):
-        """A whole segment's pass in compiled code (see :func:`_ekf_segment`), or None: the
-        per-sample loop of :meth:`_one_pass` runs."""
+    # one segment of a pass -----------------------------------------------------------------
+    def _python_segment(self, aug, s, P, F, R, qth, lo, hi, match):
+        """One segment's pass, sample by sample with :meth:`_predict` / :meth:`_update`:
+        (s, P, Ypred (N, n_out), Spost (N, L), Pdiag (N, L), the last gain (L, n_ok) or None,
+        the innovations' negative log-likelihood and count, bound projections (m,), the
+        sample where the prediction became non-finite or -1); the covariance-matching sums
+        go into ``match``."""
+        n, seg = aug.n, aug.seg
+        L, N = s.size, seg.n
+        Ypred = np.full((N, len(self.model.outputs)), np.nan)
+        Spost = np.empty((N, L))
+        Pdiag = np.empty((N, L))
+        hits = np.zeros(L - n, dtype=int)
+        K, nll, n_obs = None, 0.0, 0
+        for i in range(N):
+            if i > 0:
+                h = seg.t[i] - seg.t[i - 1]
+                Q = np.zeros((L, L))
+                Q[:n, :n] = F @ F.T * h
+                Q[n:, n:] = np.diag(qth * h)
+                s, P = self._predict(aug, s, P, Q, i - 1)
+                if not np.all(np.isfinite(s)) or not np.all(np.isfinite(P)):
+                    return s, P, Ypred, Spost, Pdiag, K, nll, n_obs, hits, i
+            z = seg.z[i]
+            ok = np.isfinite(z)
+            s, P, yp, Ki, Sinn = self._update(aug, s, P, z, ok, R, i)
+            th = np.clip(s[n:], lo, hi)             # bounds: the estimate projected on them
+            hits += th != s[n:]
+            s[n:] = th
+            if Sinn is not None:                    # some output measured (K too)
+                K = Ki
+                nu = z[ok] - yp[ok]
+                nll += _innovation_nll(nu, Sinn)
+                n_obs += nu.size
+                if match is not None:
+                    match.add(nu, Sinn, Ki[:n], R, ok, seg.t[i] - seg.t[i - 1] if i else 0.0)
+            Ypred[i] = yp
+            Spost[i] = s
+            Pdiag[i] = np.diag(P)
+        return s, P, Ypred, Spost, Pdiag, K, nll, n_obs, hits, -1
+
+    def _compiled_segment(self, aug, s, P, F, R, qth, lay, k, match):
+        """:meth:`_python_segment` in compiled code (:func:`_ekf_segment`,
+        :func:`_ukf_segment`), or None where there is none: the Python loop runs."""
         return None
 
-    def _run_compiled(self, which: str, aug, s, P, F, R, qth, lay, k, *extra):
+    def _run_compiled(self, which: str, aug, s, P, F, R, qth, lay, k, match, *extra):
         """Run ``<which>_segment_<integrator>`` of the model's filter kernel module (None
-        when g or f did not compile): the segment's arguments, then ``extra`` before rtol."""
+        when g or f did not compile) with the segment's arguments, ``extra`` before rtol;
+        its result as :meth:`_python_segment` gives it."""
         if aug._gout is None:                       # g (or f) did not compile
             return None
         from estimators.fem import output_kernel    # fem imports this module
@@ -896,10 +901,17 @@ class _ParameterFilter:
         seg = aug.seg
         f64 = lambda a: np.ascontiguousarray(a, dtype=float)   # noqa: E731
         i64 = lambda a: np.ascontiguousarray(a, dtype=np.int64)  # noqa: E731
-        return fn(f64(s).copy(), f64(P).copy(), f64(seg.t), aug._u, f64(seg.z), f64(R),
-                  f64(F @ F.T), f64(qth), f64(lay.values), i64(lay.free_idx), i64(lay.pidx[k]),
-                  f64(aug.lo[:, 0]), f64(aug.hi[:, 0]), aug._cj, *extra, float(self.rtol),
-                  float(self.atol), INPUT_MODES[self.inputs], aug.n)
+        s, P, Ypred, Spost, Pdiag, gain, last_ok, hits, acc, fail = fn(
+            f64(s).copy(), f64(P).copy(), f64(seg.t), aug._u, f64(seg.z), f64(R),
+            f64(F @ F.T), f64(qth), f64(lay.values), i64(lay.free_idx), i64(lay.pidx[k]),
+            f64(aug.lo[:, 0]), f64(aug.hi[:, 0]), aug._cj, *extra, float(self.rtol),
+            float(self.atol), INPUT_MODES[self.inputs], aug.n)
+        if match is not None:
+            match.add_sums(acc[2:], len(self.model.outputs))
+        K = gain[:, last_ok] if np.any(last_ok) else None
+        return s, P, Ypred, Spost, Pdiag, K, float(acc[0]), int(acc[1]), hits, int(fail)
+
+    # filter equations, per subclass
 
     def _predict(self, aug, s, P, Q, i):  # pragma: no cover - abstract
         raise NotImplementedError
@@ -1014,8 +1026,8 @@ class EKF(_ParameterFilter):
         super().__init__(model, **kw)
         self.fd_step = fd_step
 
-    def _compiled_segment(self, aug, s, P, F, R, qth, lay, k):
-        return self._run_compiled("ekf", aug, s, P, F, R, qth, lay, k, float(self.fd_step))
+    def _compiled_segment(self, aug, s, P, F, R, qth, lay, k, match):
+        return self._run_compiled("ekf", aug, s, P, F, R, qth, lay, k, match, float(self.fd_step))
 
     def _columns(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         h = self.fd_step * np.maximum(np.abs(s), 1.0)
@@ -1094,11 +1106,11 @@ class UKF(_ParameterFilter):
         Wc[0] = Wm[0] + 1.0 - self.alpha ** 2 + self.beta
         return Wm, Wc, L + lam
 
-    def _compiled_segment(self, aug, s, P, F, R, qth, lay, k):
+    def _compiled_segment(self, aug, s, P, F, R, qth, lay, k, match):
         if self.augmented:                          # noise-augmented sigma points: Python
             return None
         Wm, Wc, cfac = self._weights(s.size)
-        return self._run_compiled("ukf", aug, s, P, F, R, qth, lay, k, Wm, Wc, float(cfac))
+        return self._run_compiled("ukf", aug, s, P, F, R, qth, lay, k, match, Wm, Wc, float(cfac))
 
     def _sigmas(self, s: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         L = s.size
