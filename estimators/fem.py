@@ -848,7 +848,7 @@ class FilterError:
         g = np.zeros(nphi)
         J = 0.0
         for k, (seg, r) in enumerate(zip(self._segments, res)):
-            M0, g0 = M.copy(), g.copy()
+            M0, g0 = (M.copy(), g.copy()) if keep is not None else (None, None)
             Y, Bs = r["Y"], r["B"]
             E = seg.z - Y[0]
             Bm = Bs[0]
@@ -1076,8 +1076,8 @@ class FilterError:
         cov_cl = cov_cl[np.ix_(keep, keep)]
         kept_names = [nm for nm, k in zip(names, keep) if k]
         cluster = (None if len(parts) < 2 or not np.any(np.isfinite(share)) else ClusterResult(
-            names=kept_names, cov=cov_cl, std=np.sqrt(np.clip(np.diag(cov_cl), 0.0, None)),
-            crb_std=np.sqrt(np.clip(np.diag(cov), 0.0, None)), share=share[:, keep], limit=0.95))
+            names=kept_names, cov=cov_cl, crb_std=np.sqrt(np.clip(np.diag(cov), 0.0, None)),
+            share=share[:, keep]))
         theta, F, R = self._unpack(phi)
         E = [seg.z - r["Y"][0] for seg, r in zip(segments, res)]
         Ys = [r["Y"][0] for r in res]

@@ -322,6 +322,21 @@ def _project(s, lo, hi, n, hits, i, P, Spost, Pdiag):
         Pdiag[i, j] = P[j, j]
 
 
+def _add_process_noise(P, FFt, qth, dt, n):
+    """P (L, L) + the process noise of a step of dt s (FFt dt on the states, qth dt on the
+    parameters), made symmetric, in place."""
+    for r in range(n):
+        for j in range(n):
+            P[r, j] += FFt[r, j] * dt
+    for j in range(qth.shape[0]):
+        P[n + j, n + j] += qth[j] * dt
+    for r in range(P.shape[0]):
+        for j in range(r + 1, P.shape[0]):
+            v = 0.5 * (P[r, j] + P[j, r])
+            P[r, j] = v
+            P[j, r] = v
+
+
 def _segment_arrays(N, L, n_out, n):
     """The outputs of a segment loop: Ypred (N, n_out) NaN, Spost and Pdiag (N, L), gain
     (L, n_out), last_ok (n_out,), hits (L - n,), acc (see :func:`_book_update`)."""
@@ -346,7 +361,6 @@ def _ekf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo,
     :func:`_book_update`), the sample where the prediction became non-finite or -1)."""
     N = t.shape[0]
     L = s.shape[0]
-    m = L - n
     n_out = Z.shape[1]
     Ypred, Spost, Pdiag, gain, last_ok, hits, acc = _segment_arrays(N, L, n_out, n)
     S = np.empty((L, L + 1))
@@ -375,10 +389,7 @@ def _ekf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo,
                         Phi[r, j] = (X[1, r, j + 1] - X[1, r, 0]) / h[j]
                     s[r] = X[1, r, 0]
                 P = Phi @ P @ Phi.T
-                P[:n, :n] += FFt * dt
-                for j in range(m):
-                    P[n + j, n + j] += qth[j] * dt
-                P = 0.5 * (P + P.T)
+                _add_process_noise(P, FFt, qth, dt, n)
                 if not (np.all(np.isfinite(s)) and np.all(np.isfinite(P))):
                     return s, P, Ypred, Spost, Pdiag, gain, last_ok, hits, acc, i
         # measurement update at t_i (the columns set again about the predicted s)
@@ -435,14 +446,12 @@ def _ukf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo,
     :func:`_ekf_segment` returns."""
     N = t.shape[0]
     L = s.shape[0]
-    m = L - n
     n_out = Z.shape[1]
     B = 2 * L + 1
     Ypred, Spost, Pdiag, gain, last_ok, hits, acc = _segment_arrays(N, L, n_out, n)
     Pm = np.empty((pidx.shape[0], B))
     th = values.copy()
     Y = np.empty((n_out, B))
-    Q = np.zeros((L, L))
     for i in range(N):
         dt = 0.0
         if i > 0:
@@ -453,11 +462,8 @@ def _ukf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo,
             S[:n] = X[1]
             mean = S @ Wm
             D = S - mean.reshape(L, 1)
-            Q[:n, :n] = FFt * dt
-            for j in range(m):
-                Q[n + j, n + j] = qth[j] * dt
-            P = (D * Wc) @ D.T + Q
-            P = 0.5 * (P + P.T)
+            P = (D * Wc) @ D.T
+            _add_process_noise(P, FFt, qth, dt, n)
             s = mean
             if not (np.all(np.isfinite(s)) and np.all(np.isfinite(P))):
                 return s, P, Ypred, Spost, Pdiag, gain, last_ok, hits, acc, i
@@ -496,7 +502,7 @@ def _ukf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo,
 
 #: the compiled helpers of the segment loops (source copied into the kernel module)
 SEGMENT_HELPERS = (_column_params, _measured, _book_update, _project, _segment_arrays,
-                   _sigma_points)
+                   _add_process_noise, _sigma_points)
 
 
 # -- noise adaptation (covariance matching) -----------------------------------------------------
@@ -912,7 +918,6 @@ class _ParameterFilter:
         return s, P, Ypred, Spost, Pdiag, K, float(acc[0]), int(acc[1]), hits, int(fail)
 
     # filter equations, per subclass
-
     def _predict(self, aug, s, P, Q, i):  # pragma: no cover - abstract
         raise NotImplementedError
 

@@ -247,18 +247,14 @@ class EstimationResult:
         from estimators.validation.cluster import FLAG_RATIO, maneuver_scatter
 
         cl = maneuver_scatter(self)
-        if cl is None:
+        r = cl.ratio_summary() if cl is not None else {}
+        if r.get("max_ratio") is None:
             return []
-        r = pd.Series(cl.ratio, index=cl.names)
-        r = r[[("[" not in n) for n in r.index]].dropna()
-        if r.empty:
-            return []
-        out = [f"maneuver scatter / CRB ({cl.n_segments} segments): median {r.median():.2f}, "
-               f"largest {r.max():.2f} ({r.idxmax()})"]
-        big = r[r > FLAG_RATIO]
-        if len(big):
+        out = [f"maneuver scatter / CRB ({cl.n_segments} segments): median {r['median_ratio']:.2f}, "
+               f"largest {r['max_ratio']:.2f} ({r['max_parameter']})"]
+        if r["flagged"]:
             out.append(f"  above {FLAG_RATIO:g}x (the bound understates them): "
-                       + ", ".join(f"{n} {v:.1f}x" for n, v in big.sort_values(ascending=False).items()))
+                       + ", ".join(f"{n} {v:.1f}x" for n, v in r["flagged"].items()))
         return out
 
     def __repr__(self) -> str:  # pragma: no cover - convenience

@@ -47,6 +47,7 @@ def _count(n: int, noun: str) -> str:
     """``"1 maneuver"``, ``"3 maneuvers"``."""
     return f"{n} {noun}{'' if n == 1 else 's'}"
 
+
 def scenario_methods(truth: Mapping[str, Any] | None) -> list[str]:
     """The methods that suit a flight: a statically unstable aircraft flown with a SAS
     (truth ``sas``) -> stabilised output error, equation decoupling, FEM, EKF, UKF (the
@@ -303,8 +304,8 @@ def _joined_clusters(clusters: list, names: list[str]):
     bad = ~np.isfinite(np.diag(cov))
     cov[bad, :] = np.nan
     cov[:, bad] = np.nan
-    return ClusterResult(names=list(names), cov=cov, std=np.sqrt(np.clip(np.diag(cov), 0.0, None)),
-                         crb_std=crb, share=share, limit=clusters[0].limit)
+    return ClusterResult(names=list(names), cov=cov, crb_std=crb, share=share,
+                         limit=clusters[0].limit)
 
 
 def raw_starts(problem: Problem) -> dict[str, float]:

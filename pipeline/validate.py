@@ -23,7 +23,7 @@ Keys of the returned dict
     also ``cluster_std`` (the maneuver-to-maneuver scatter, estimators.validation.cluster;
     NaN where one maneuver carries more than ``limit`` of the parameter's information,
     ``max_share``: 1 where the other maneuvers cannot identify it),
-    ``cluster_ratio`` (/ crb_std) per parameter, and ``cluster``: ``n_segments``,
+    ``cluster_ratio`` (/ its Cramér-Rao std) per parameter, and ``cluster``: ``n_segments``,
     ``limit``, ``median_ratio``, ``max_ratio``, ``max_parameter`` (over the system
     parameters), ``flagged`` (ratio above ``flag_ratio``).
 ``modes``: ``None`` for a model without states/segments (a regression); else ``trim`` (x0 per state, u0 per input), ``table`` per mode (``real imag wn zeta
@@ -192,16 +192,10 @@ def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
     if cl is not None:
         c = cl.to_frame().reindex(names)
         df["cluster_std"] = c["cluster_std"].to_numpy()
-        df["cluster_ratio"] = df["cluster_std"] / df["crb_std"]
+        df["cluster_ratio"] = c["ratio"].to_numpy()
         df["max_share"] = c["max_share"].to_numpy()
-        r = df["cluster_ratio"][[not is_segment_parameter(n) for n in names]].dropna()
         extra["cluster"] = {"n_segments": cl.n_segments, "limit": cl.limit,
-                            "flag_ratio": V.cluster_flag_ratio,
-                            "median_ratio": float(r.median()) if len(r) else None,
-                            "max_ratio": float(r.max()) if len(r) else None,
-                            "max_parameter": str(r.idxmax()) if len(r) else None,
-                            "flagged": {n: float(v) for n, v in
-                                        r[r > V.cluster_flag_ratio].sort_values(ascending=False).items()}}
+                            "flag_ratio": V.cluster_flag_ratio, **cl.ratio_summary()}
     return num({"per_parameter": frame_dict(df), "max_lag": max_lag, **extra})
 
 

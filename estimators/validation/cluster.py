@@ -47,7 +47,7 @@ import numpy as np
 import pandas as pd
 
 __all__ = ["ClusterResult", "cluster_covariance", "maneuver_scatter", "segment_parts",
-           "FLAG_RATIO", "MIN_SEGMENTS"]
+           "FLAG_RATIO", "MIN_SEGMENTS", "SHARE_LIMIT"]
 
 #: robust std / Cramér-Rao bound above which a parameter is flagged
 FLAG_RATIO = 3.0
@@ -56,21 +56,28 @@ FLAG_RATIO = 3.0
 #: period in turbulence, benchmarks/maneuver_scatter_mc.py: with 2 maneuvers filter error
 #: flagged in 0 of 12 fits, output error in 11 of 12)
 MIN_SEGMENTS = 2
+#: a parameter whose information one maneuver carries more than this share of has no
+#: maneuver scatter to measure
+SHARE_LIMIT = 0.95
 
 
 @dataclass(frozen=True)
 class ClusterResult:
-    """Cluster-robust covariance (n_p, n_p) with std (NaN where not estimable), the
-    Cramér-Rao std sqrt(diag M^-1), ``ratio`` = std / crb_std, and ``share`` (G, n_p): the
-    part of each parameter's information that maneuver j alone carries,
-    1 - (M^-1)_kk / ((M - M_j)^-1)_kk - 1 where the other maneuvers cannot identify it."""
+    """Cluster-robust covariance (n_p, n_p) (NaN rows and columns where not estimable),
+    the Cramér-Rao std sqrt(diag M^-1), and ``share`` (G, n_p): the part of each
+    parameter's information that maneuver j alone carries, 1 - (M^-1)_kk /
+    ((M - M_j)^-1)_kk (1 where the other maneuvers cannot identify it); ``std`` and
+    ``ratio`` = std / crb_std follow from them."""
 
     names: list[str]
     cov: np.ndarray
-    std: np.ndarray
     crb_std: np.ndarray
     share: np.ndarray
-    limit: float
+    limit: float = SHARE_LIMIT
+
+    @property
+    def std(self) -> np.ndarray:
+        return np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
 
     @property
     def ratio(self) -> np.ndarray:
@@ -80,6 +87,18 @@ class ClusterResult:
     @property
     def n_segments(self) -> int:
         return self.share.shape[0]
+
+    def ratio_summary(self, flag: float = FLAG_RATIO) -> dict:
+        """Over the system parameters (not the per-segment ``name[k]``) with a ratio:
+        ``median_ratio``, ``max_ratio``, ``max_parameter`` (None without any) and
+        ``flagged`` ({name: ratio} above ``flag``, largest first)."""
+        r = pd.Series(self.ratio, index=self.names)
+        r = r[[not (n.endswith("]") and "[" in n) for n in r.index]].dropna()
+        if r.empty:
+            return {"median_ratio": None, "max_ratio": None, "max_parameter": None, "flagged": {}}
+        return {"median_ratio": float(r.median()), "max_ratio": float(r.max()),
+                "max_parameter": str(r.idxmax()),
+                "flagged": {n: float(v) for n, v in r[r > flag].sort_values(ascending=False).items()}}
 
     def to_frame(self) -> pd.DataFrame:
         """Rows per parameter: ``crb_std``, ``cluster_std``, ``ratio``, ``max_share``."""
@@ -106,11 +125,6 @@ def segment_parts(S: np.ndarray, e: np.ndarray, Winv: np.ndarray) -> tuple[np.nd
     return np.einsum("nip,niq->pq", S0, WS), np.einsum("nip,ni->p", WS, e0)
 
 
-def _sym_power(A: np.ndarray, power: float) -> np.ndarray:
-    w, V = np.linalg.eigh(0.5 * (A + A.T))
-    return (V * np.clip(w, 0.0, None) ** power) @ V.T
-
-
 def _inverse_diagonal(A: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
     """diag(A^-1) of a symmetric positive semi-definite A, +inf for a parameter with a part
     in A's null space (not identifiable from the information A)."""
@@ -122,7 +136,7 @@ def _inverse_diagonal(A: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
 
 def cluster_covariance(M_parts: Sequence[np.ndarray], scores: Sequence[np.ndarray],
                        M: np.ndarray | None = None, *, names: Sequence[str] | None = None,
-                       limit: float = 0.95) -> ClusterResult:
+                       limit: float = SHARE_LIMIT) -> ClusterResult:
     """The cluster-robust covariance of the module doc, each maneuver a cluster.
 
     M_parts : per maneuver its information M_j (n_p, n_p) (:func:`segment_parts`).
@@ -165,11 +179,9 @@ def cluster_covariance(M_parts: Sequence[np.ndarray], scores: Sequence[np.ndarra
     bad = share.max(axis=0) > limit
     cov[bad, :] = np.nan
     cov[:, bad] = np.nan
-    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    std[bad] = np.nan
     crb = np.sqrt(np.diag(Minv)) * D
     names = list(names) if names is not None else [f"p{k}" for k in range(p)]
-    return ClusterResult(names=names, cov=cov, std=std, crb_std=crb, share=share, limit=limit)
+    return ClusterResult(names=names, cov=cov, crb_std=crb, share=share, limit=limit)
 
 
 def maneuver_scatter(result, min_segments: int = MIN_SEGMENTS) -> ClusterResult | None:
