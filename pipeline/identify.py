@@ -537,7 +537,8 @@ MULTIAXIS_FILTER_FREE = {"longitudinal": ("CLalphadot", "Cmalphadot"), "lateral"
 
 
 def multiaxis_problem(fd: FlightData, ac: AircraftConstants, axis: str, *, gust_states: bool,
-                      rate_hz: float | None = None, smooth_inputs: bool = True) -> Problem:
+                      rate_hz: float | None = None, smooth_inputs: bool = True,
+                      hold_out: int = 1) -> Problem:
     """The axis problem for maneuvers that move all axes at once: the model of that axis
     driven by the other axis' measured variables (longitudinal_measured_lateral /
     lateral_measured_longitudinal), air data at the boom's full position. ``gust_states``
@@ -549,10 +550,10 @@ def multiaxis_problem(fd: FlightData, ac: AircraftConstants, axis: str, *, gust_
     if axis == "longitudinal":
         return longitudinal_problem(fd, ac, rate_hz=rate_hz, measured_lateral=True,
                                     rotary_gust=gust_states, free=LONG_FREE + extra,
-                                    smooth_inputs=smooth_inputs)
+                                    smooth_inputs=smooth_inputs, hold_out=hold_out)
     return lateral_problem(fd, ac, rate_hz=rate_hz, measured_longitudinal=True,
                            rotary_gust=gust_states, free=LAT_FREE + extra,
-                           smooth_inputs=smooth_inputs)
+                           smooth_inputs=smooth_inputs, hold_out=hold_out)
 
 
 def mean_density(df: pd.DataFrame) -> float:

@@ -425,8 +425,8 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
                      progress: Progress, *, turbulence: Mapping[str, Any] | None = None,
                      tolerances: Mapping[str, float] | None = None, pom: str = "auto",
                      start: Mapping[str, float] | None = None,
-                     process_noise: Mapping[str, float] | None = None
-                     ) -> tuple[Any, dict[str, Any] | None] | None:
+                     process_noise: Mapping[str, float] | None = None,
+                     calm_air: bool = False) -> tuple[Any, dict[str, Any] | None] | None:
     """Fit ``method`` on ``pb`` and validate the result on its held-out segments, with a
     progress stage each; ``what`` names the fit in messages ("lateral axis", "model 'x'").
     A method that fails - an EstimationError (plain OEM diverging on an unstable aircraft)
@@ -435,7 +435,9 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
 
     start : a refit (:mod:`pipeline.correction_uncertainty`): fit only, no validation
         (returns (result, None)), starting from these values for the methods of
-        ``START_FREE`` (the EKF/UKF estimate depends on its start: they start as before)."""
+        ``START_FREE`` (the EKF/UKF estimate depends on its start: they start as before).
+    calm_air: the held-out maneuvers are known to be flown in calm air (see
+        :func:`pipeline.validate.validate`)."""
     from estimators import EstimationError
     from pipeline.validate import validate
 
@@ -462,23 +464,105 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
         return res, None
     progress.done(f"{'converged' if res.converged else 'NOT converged'} in {_count(res.iterations, 'iteration')}")
     progress.stage(f"validate {what} {method.upper()} (fit, residuals, modes, proof of match)")
-    v = validate(res, held_out=pb.held_out, truth=truth, tolerances=tolerances, proof_of_match=pom)
+    v = validate(res, held_out=pb.held_out, truth=truth, tolerances=tolerances, proof_of_match=pom,
+                 calm_air=calm_air)
     v["problem"] = {"notes": list(pb.notes)}
     progress.done()
     return res, v
 
 
-def _held_refit(fd, ac: AircraftConstants, inputs: str, res, smooth_inputs: bool = True):
+def _held_refit(fd, ac: AircraftConstants, inputs: str, res, smooth_inputs: bool = True,
+                hold_out: int = 1):
     """values -> the 6-DoF lateral output error refitted with those longitudinal values
-    held, started from ``res``."""
+    held, started from ``res`` (on the same maneuvers: ``hold_out`` as in the fit)."""
     from pipeline.correction_uncertainty import quiet_progress
 
     def refit(values: Mapping[str, float]):
-        pb = sixdof_lateral_problem(fd, ac, longitudinal=values, smooth_inputs=smooth_inputs)
+        pb = sixdof_lateral_problem(fd, ac, longitudinal=values, smooth_inputs=smooth_inputs,
+                                    hold_out=hold_out)
         pb.inputs = inputs
         done = fit_and_validate(pb, "oem", "lateral axis", None, quiet_progress(), start=res.params)
         return None if done is None else done[0]
     return refit
+
+
+#: prefix of the proof-of-match segments taken from a validation flight
+VALIDATION_PREFIX = "validation flight: "
+
+
+def _method_problem(fd, ac: AircraftConstants, base: Problem, build, outs: Sequence[str], m: str,
+                    *, lon, multiaxis: bool, say: Callable[[str], None], cache: dict,
+                    inputs: str, smooth_inputs: bool, hold_out: int) -> Problem:
+    """The problem method ``m`` is fitted on for the axis of ``base`` (built by ``build``
+    on ``fd``; ``outs`` its outputs): ``base`` itself, or the same axis on the grid of its
+    slowest output (COMMON_GRID methods; built once into ``cache``), or a richer model of
+    the axis (below). ``lon``: the longitudinal output-error result, if any; ``multiaxis``:
+    the flight moves all axes at once; ``say`` reports a model that could not be set up;
+    ``hold_out``: maneuvers per axis kept for the proof of match."""
+    pb = base
+    if m in COMMON_GRID:
+        rate = min(fd[c].rate_hz for c in outs)
+        if rate < 0.9 * base.rate_hz:
+            if "common" not in cache:
+                cache["common"] = build(fd, ac, rate_hz=rate, smooth_inputs=smooth_inputs,
+                                        hold_out=hold_out)
+                cache["common"].inputs = inputs
+            pb = cache["common"]
+    if multiaxis and m != "ls" and (pb.axis == "longitudinal" or m in COMMON_GRID):
+        # all axes move at once: each axis' model driven by the other axis' measured
+        # variables (the wings-level longitudinal model booked bank angle and yaw
+        # rate on the derivatives), the filters with the Dryden gust states (the
+        # rotary gusts in the damping terms; multiaxis_multisine_turbulence: FEM
+        # Cmde 9.5 -> 0.6 std, Clp 49 -> 7 std from the truth)
+        try:
+            pb = multiaxis_problem(fd, ac, pb.axis, gust_states=m in COMMON_GRID,
+                                   rate_hz=pb.rate_hz, smooth_inputs=smooth_inputs,
+                                   hold_out=hold_out)
+        except FsidError as exc:
+            say(f"multi-axis {pb.axis} model not set up ({exc}); {pb.model.name} model used")
+    elif pb.axis == "lateral" and m == "oem" and lon is not None:
+        # output error on the lateral axis uses the nonlinear 6-DoF model with the
+        # longitudinal estimates held: the linear lateral model's frozen airspeed and
+        # small-angle kinematics bias the estimates by several std on a small UAV
+        try:
+            pb = sixdof_lateral_problem(fd, ac, longitudinal={
+                n: float(v) for n, v in lon.params.items() if "[" not in n},
+                smooth_inputs=smooth_inputs, hold_out=hold_out)
+        except FsidError as exc:
+            say(f"6-DoF lateral model not set up ({exc}); linear model used")
+    elif pb.axis == "lateral" and m in ("oem", "ls") and "q" in fd:
+        # the lateral model driven by the measured V, alpha, theta, q. Output error
+        # without longitudinal estimates to hold (aileron/rudder maneuvers only): the
+        # linear model's frozen airspeed and small bank angles put Clda, Cnda, Cnp
+        # 8-18 std off on lateral_doublets_calm; its V and alpha are the air data
+        # blended with the integrated IMU above 0.1 Hz (kinematic), and it adds a
+        # per-maneuver airspeed correction under an a-priori penalty for the pitot
+        # noise left.
+        # Equation error: the regression estimates do not depend on the dynamic
+        # model, but validation simulates it: with the TRUE derivatives the linear
+        # lateral model missed the held-out maneuver of scenarios/default.toml by
+        # 2.05 deg/s on p and 2.01 on r (band 1.5), the driven one by 0.38, 0.33
+        try:
+            pb = lateral_problem(fd, ac, measured_longitudinal=True, kinematic=True,
+                                 smooth_inputs=smooth_inputs, hold_out=hold_out)
+            pb = with_airspeed_offsets(pb, fd) if m == "oem" else pb
+        except FsidError as exc:
+            say(f"lateral model with measured longitudinal inputs not set up ({exc}); "
+                "linear model used")
+    pb.inputs = inputs
+    return pb
+
+
+def with_validation_flight(pb: Problem, val: Problem, calm: bool) -> Problem:
+    """``pb`` with the maneuvers of ``val`` (the same axis and model built on a validation
+    flight, nothing held out there) as its held-out segments, named VALIDATION_PREFIX +
+    maneuver; ``calm``: that flight is known to be in calm air (a simulated one)."""
+    segs = [replace(s, name=VALIDATION_PREFIX + s.name) for s in val.fit + val.held_out]
+    note = (f"proof of match on the validation flight's {_count(len(segs), 'maneuver')} "
+            f"({', '.join(s.name[len(VALIDATION_PREFIX):] for s in segs)})"
+            + ("; flown in calm air" if calm else "") + "; every maneuver of this flight fitted")
+    return replace(pb, held_out=segs, held_specs=list(val.specs) + list(val.held_specs),
+                   notes=list(pb.notes) + [note])
 
 
 def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[str, float] | None,
@@ -487,7 +571,9 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
              axes: Sequence[str] = ("longitudinal", "lateral"),
              tolerances: Mapping[str, float] | None = None,
              pom: str = "auto", starts: Mapping[str, Any] | None = None,
-             smooth_inputs: bool = True) -> tuple[dict, dict, list[Problem]]:
+             smooth_inputs: bool = True, validation: Any = None,
+             validation_calm: bool = False, fit_all: bool | None = None
+             ) -> tuple[dict, dict, list[Problem]]:
     """Estimate and validate every axis the log excites; ``inputs`` is how the inputs vary
     between samples (estimators.integrators.INPUT_MODES); ``tolerances``: proof-of-match
     bands per channel (SI; default those of DESIGN.md section 8); ``pom``: the proof-of-match
@@ -497,92 +583,77 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     ("<axis>-<method>" once several axes are fitted). ``starts`` (key -> parameter values):
     refit only, each fit starting there (see :func:`fit_and_validate`), no validation and
     no progress. ``smooth_inputs``: the measured surface positions low-passed where a flat
-    noise floor begins (:mod:`pipeline.input_smoothing`), else as logged."""
+    noise floor begins (:mod:`pipeline.input_smoothing`), else as logged.
+
+    validation: a second flight (FlightData) for the proof of match: each axis' model is
+    fitted to every maneuver of ``fd`` and proved on every maneuver of ``validation`` on
+    that axis (built the same way), instead of on the last maneuver of ``fd``;
+    ``validation_calm``: it is known to be flown in calm air (a simulated flight), so the
+    automatic proof-of-match mode is the open-loop simulation whatever the method
+    (:func:`pipeline.validate.pom_mode`). ``fit_all`` (default: with a validation flight):
+    hold nothing out of ``fd`` - refits of a run with a validation flight pass it."""
     bad = [m for m in methods if m not in METHODS]
     if bad:
         raise FsidError(f"unknown method(s) {bad}: use some of {', '.join(METHODS)}")
+    hold = 0 if (validation is not None if fit_all is None else fit_all) else 1
     results, validations, problems = {}, {}, []
     flown = {s.axis for s in fd.segments}
     builders = [("longitudinal" in axes and "de" in flown, longitudinal_problem, LONG_OUTPUTS),
                 ("lateral" in axes and bool({"da", "dr"} & flown), lateral_problem, LAT_OUTPUTS)]
     skipped = []
-    plans = []                       # (axis problem at the default grid, builder, outputs)
+    plans = []                 # (axis problem at the default grid, builder, outputs, on validation)
+
+    def note(msg: str) -> None:
+        print(f"note: {msg}", file=progress.stream)
+
+    def val_note(msg: str) -> None:
+        note(f"validation flight: {msg}")
+
     for wanted, build, outs in builders:
         if not wanted:
             continue
         try:
-            problem = build(fd, ac, smooth_inputs=smooth_inputs)
+            problem = build(fd, ac, smooth_inputs=smooth_inputs, hold_out=hold)
         except FsidError as exc:        # e.g. one maneuver only: say so, fit the other axis
             skipped.append(str(exc))
             continue
+        vbase = None
+        if validation is not None:
+            try:
+                vbase = build(validation, ac, smooth_inputs=smooth_inputs, hold_out=0)
+                vbase.inputs = inputs
+            except FsidError as exc:
+                val_note(f"no {problem.axis} maneuvers to prove the model on ({exc}); "
+                         "that axis has no proof of match")
         problem.inputs = inputs
         problems.append(problem)
-        plans.append((problem, build, outs))
+        plans.append((problem, build, outs, vbase))
     if not problems:
         raise FsidError("no axis can be identified from this log: " + ("; ".join(skipped) or
                         "no control-input activity found (fly doublets/3-2-1-1s on the "
                         "elevator, aileron or rudder, or give segments)"))
     for msg in skipped:
-        print(f"note: {msg}", file=progress.stream)
+        note(msg)
     multiaxis = multi_axis(fd)
     filter_q: dict[str, dict[str, float] | None] = {}   # axis -> EKF/UKF process noise
-    for problem, build, outs in plans:
-        common = None
+    for problem, build, outs, vbase in plans:
+        cache: dict = {}
+        vcache: dict = {}
         for m in methods:
-            pb = problem
-            if m in COMMON_GRID:
-                rate = min(fd[c].rate_hz for c in outs)
-                if rate < 0.9 * problem.rate_hz:
-                    if common is None:
-                        common = build(fd, ac, rate_hz=rate, smooth_inputs=smooth_inputs)
-                        common.inputs = inputs
-                    pb = common
             lon = results.get("longitudinal-oem")
-            if multiaxis and m != "ls" and (pb.axis == "longitudinal" or m in COMMON_GRID):
-                # all axes move at once: each axis' model driven by the other axis' measured
-                # variables (the wings-level longitudinal model booked bank angle and yaw
-                # rate on the derivatives), the filters with the Dryden gust states (the
-                # rotary gusts in the damping terms; multiaxis_multisine_turbulence: FEM
-                # Cmde 9.5 -> 0.6 std, Clp 49 -> 7 std from the truth)
-                try:
-                    pb = multiaxis_problem(fd, ac, pb.axis, gust_states=m in COMMON_GRID,
-                                           rate_hz=pb.rate_hz, smooth_inputs=smooth_inputs)
-                    pb.inputs = inputs
-                except FsidError as exc:
-                    print(f"note: multi-axis {pb.axis} model not set up ({exc}); "
-                          f"{pb.model.name} model used", file=progress.stream)
-            elif pb.axis == "lateral" and m == "oem" and lon is not None:
-                # output error on the lateral axis uses the nonlinear 6-DoF model with the
-                # longitudinal estimates held: the linear lateral model's frozen airspeed and
-                # small-angle kinematics bias the estimates by several std on a small UAV
-                try:
-                    pb = sixdof_lateral_problem(fd, ac, longitudinal={
-                        n: float(v) for n, v in lon.params.items() if "[" not in n},
-                        smooth_inputs=smooth_inputs)
-                    pb.inputs = inputs
-                except FsidError as exc:
-                    print(f"note: 6-DoF lateral model not set up ({exc}); linear model used",
-                          file=progress.stream)
-            elif pb.axis == "lateral" and m in ("oem", "ls") and "q" in fd:
-                # the lateral model driven by the measured V, alpha, theta, q. Output error
-                # without longitudinal estimates to hold (aileron/rudder maneuvers only): the
-                # linear model's frozen airspeed and small bank angles put Clda, Cnda, Cnp
-                # 8-18 std off on lateral_doublets_calm; its V and alpha are the air data
-                # blended with the integrated IMU above 0.1 Hz (kinematic), and it adds a
-                # per-maneuver airspeed correction under an a-priori penalty for the pitot
-                # noise left.
-                # Equation error: the regression estimates do not depend on the dynamic
-                # model, but validation simulates it: with the TRUE derivatives the linear
-                # lateral model missed the held-out maneuver of scenarios/default.toml by
-                # 2.05 deg/s on p and 2.01 on r (band 1.5), the driven one by 0.38, 0.33
-                try:
-                    pb = lateral_problem(fd, ac, measured_longitudinal=True, kinematic=True,
-                                         smooth_inputs=smooth_inputs)
-                    pb = with_airspeed_offsets(pb, fd) if m == "oem" else pb
-                    pb.inputs = inputs
-                except FsidError as exc:
-                    print(f"note: lateral model with measured longitudinal inputs not set up "
-                          f"({exc}); linear model used", file=progress.stream)
+            pb = _method_problem(fd, ac, problem, build, outs, m, lon=lon, multiaxis=multiaxis,
+                                 say=note, cache=cache, inputs=inputs,
+                                 smooth_inputs=smooth_inputs, hold_out=hold)
+            if vbase is not None and starts is None:
+                vpb = _method_problem(validation, ac, vbase, build, outs, m, lon=lon,
+                                      multiaxis=multiaxis, say=val_note, cache=vcache,
+                                      inputs=inputs, smooth_inputs=smooth_inputs, hold_out=0)
+                if vpb.model.name == pb.model.name:
+                    pb = with_validation_flight(pb, vpb, validation_calm)
+                else:
+                    val_note(f"{pb.model.name} model not set up there; {m.upper()} on the "
+                             f"{pb.axis} axis has no proof of match")
+                    pb = replace(pb, held_out=[], held_specs=[])
             key = m if len(problems) == 1 else f"{pb.axis}-{m}"
             if m == "fem":          # its R; EKF/UKF keep the grid's (fit_problem)
                 attach_logged_noise(fd, pb)
@@ -591,7 +662,8 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
             done = fit_and_validate(pb, m, f"{pb.axis} axis", truth, progress, turbulence=turbulence,
                                     tolerances=tolerances, pom=pom,
                                     start=None if starts is None else starts.get(key, {}),
-                                    process_noise=q)
+                                    process_noise=q,
+                                    calm_air=validation_calm and vbase is not None)
             if done is not None:
                 results[key], validations[key] = done
                 if starts is None and pb.model.name.startswith("sixdof") and lon is not None:
@@ -599,7 +671,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                     # carried to it after the fits (carry_consider_uncertainty)
                     results[key].extra["held"] = lon
                     results[key].extra["held_refit"] = _held_refit(fd, ac, inputs, results[key],
-                                                                   smooth_inputs)
+                                                                   smooth_inputs, hold)
     if not results:
         raise FsidError("every estimation method failed on this log (see the notes above)")
     return results, validations, problems
@@ -792,9 +864,13 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
         scenario = sim.load_scenario(scenario_path)
     except sim.ScenarioError as exc:
         raise FsidError(str(exc)) from None
+    if seed is not None:
+        scenario = scenario.with_seed(seed)
+    val = scenario.validation
+    calm = val is not None and val.turbulence.model == "off"
     pr.done(scenario.name)
     pr.stage(f"fly {scenario.duration:.0f} s in JSBSim")
-    result = sim.fly(scenario, seed=seed, workdir=out / ".jsbsim")
+    result = sim.fly(scenario, workdir=out / ".jsbsim")
     pr.done(f"{len(result.maneuvers)} maneuvers")
     pr.stage("write flight.bin, flight.mcap, truth.json")
     write_dataflash(out / "flight.bin", result, airspeed="eas")   # ArduPilot semantics
@@ -802,14 +878,23 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     write_truth_json(out / "truth.json", result)
     truth_doc = json.loads((out / "truth.json").read_text())
     pr.done()
+    fd_val = None
+    if val is not None:             # the proof-of-match flight: its own log, read back
+        pr.stage(f"fly the validation flight ({val.duration:.0f} s"
+                 f"{', calm air' if calm else ''}) and write validation.mcap")
+        vres = sim.fly(val, workdir=out / ".jsbsim")
+        write_mcap(out / "validation.mcap", vres)
+        fd_val = read_log(out / "validation.mcap")
+        pr.done(f"{len(vres.maneuvers)} maneuvers")
     pr.stage("ingest flight.bin and flight.mcap")
     fd_bin = read_log(out / "flight.bin")
     fd_mcap = read_log(out / "flight.mcap")
     pr.done(f"{len(fd_bin.channels)} channels, {len(fd_bin.segments)} maneuver segments")
     pr.stage("data-quality checks")
-    findings = {"flight.bin": run_checks(fd_bin), "flight.mcap": run_checks(fd_mcap)}
-    checks = {name: json.loads(findings_to_json(f, fd)) for (name, f), fd in
-              zip(findings.items(), (fd_bin, fd_mcap))}
+    logs = {"flight.bin": fd_bin, "flight.mcap": fd_mcap,
+            **({"validation.mcap": fd_val} if fd_val is not None else {})}
+    findings = {name: run_checks(fd) for name, fd in logs.items()}
+    checks = {name: json.loads(findings_to_json(f, logs[name])) for name, f in findings.items()}
     summary = {name: summarize(f) for name, f in findings.items()}
     pr.done(", ".join(f"{k}: {v}" for k, v in summary.items()))
     ac = AircraftConstants.from_truth(truth_doc)
@@ -832,15 +917,20 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
                                               turbulence=truth_doc.get("turbulence"),
                                               tolerances=default_tolerances(
                                                   **{**scenario.pom_bands, **(bands or {})}),
-                                              pom=pom, smooth_inputs=smooth_inputs)
+                                              pom=pom, smooth_inputs=smooth_inputs,
+                                              validation=fd_val, validation_calm=calm)
     carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, lambda fd, starts: identify(
         fd, ac, methods, truth, quiet_progress(), inputs="linear",
-        turbulence=truth_doc.get("turbulence"), starts=starts, smooth_inputs=smooth_inputs)[0])
+        turbulence=truth_doc.get("turbulence"), starts=starts, smooth_inputs=smooth_inputs,
+        fit_all=fd_val is not None)[0])
+    meta = {"scenario": scenario.name, "log": "flight.mcap", "seed": result.meta["seed"],
+            "aircraft": result.aircraft.name, "data": f"flight.mcap, {comp['data_for_estimation']}"}
+    if val is not None:
+        meta["validation flight"] = (f"validation.mcap (seed {vres.meta['seed']}, "
+                                     f"{'calm air' if calm else 'turbulence as the flight'}): "
+                                     "the proof of match; every maneuver of flight.mcap fitted")
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary,
-                          meta={"scenario": scenario.name, "log": "flight.mcap", "seed": result.meta["seed"],
-                                "aircraft": result.aircraft.name,
-                                "data": f"flight.mcap, {comp['data_for_estimation']}"},
-                          compatibility=comp)
+                          meta=meta, compatibility=comp)
 
 
 def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = None,

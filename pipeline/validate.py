@@ -349,17 +349,18 @@ def _process_noise(result: EstimationResult) -> np.ndarray | None:
     return None if F is None else np.asarray(F, dtype=float)
 
 
-def pom_mode(result: EstimationResult, lin=None) -> str:
+def pom_mode(result: EstimationResult, lin=None, calm_air: bool = False) -> str:
     """The proof of match that suits a result: ``air-data`` (the model driven by its
     measured air data, :func:`estimators.validation.air_data_prediction`) when the method
     modelled process noise (it was chosen for turbulence: an open-loop simulation cannot
-    follow the gusts) or the identified model is unstable (its open-loop simulation
+    follow the gusts) unless the held-out maneuvers are known to be flown in calm air
+    (``calm_air``), or when the identified model is unstable (its open-loop simulation
     diverges from any error in the initial state), provided the model has an air-data
     state to drive; ``simulation`` (open loop, the classic proof of match) otherwise."""
     if not V.driving_states(result.model):
         return "simulation"
     F = _process_noise(result)
-    if F is not None and np.any(F != 0):
+    if F is not None and np.any(F != 0) and not calm_air:
         return "air-data"
     if lin is not None and np.max(np.linalg.eigvals(lin[0]).real) > 1e-3:
         return "air-data"
@@ -595,7 +596,8 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
              tic_limit: float = TIC_LIMIT, truth_k: float = TRUTH_K, mag_bound_db: float = 3.0,
              phase_bound_deg: float = 20.0, min_coherence: float = 0.6,
              input_power_fraction: float = 0.1, inverse_bandwidth: float = 5.0,
-             integrator: str | None = None, proof_of_match: str = "auto") -> dict[str, Any]:
+             integrator: str | None = None, proof_of_match: str = "auto",
+             calm_air: bool = False) -> dict[str, Any]:
     """Run the validation of :mod:`estimators.validation` on one result (see module doc).
 
     held_out: segments NOT used in the fit (same model input/output columns); the
@@ -609,6 +611,8 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
         ``air-data`` - the model driven by its measured air data through a Kalman filter
         that sees only V/alpha/beta (see :mod:`estimators.validation.prediction`; those
         channels are then not judged); ``auto`` (default) - :func:`pom_mode`.
+    calm_air: the held-out maneuvers are known to be flown in calm air (a simulated
+        validation flight): ``auto`` then picks the simulation for every stable model.
     allowed_bias: largest constant offset per channel (SI) removed before judging.
     apriori: a-priori values (TOML path, mapping or DataFrame of
         :func:`estimators.validation.load_apriori`); truth: true parameter values by name.
@@ -654,7 +658,7 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
     if proof_of_match not in POM_MODES:
         raise ValueError(f"proof_of_match={proof_of_match!r}: use one of {', '.join(POM_MODES)}")
     if held_out:
-        mode = pom_mode(result, lin) if proof_of_match == "auto" else proof_of_match
+        mode = pom_mode(result, lin, calm_air) if proof_of_match == "auto" else proof_of_match
         out["proof_of_match"], arrays["match"] = _proof_of_match(
             result, list(held_out), tolerances, allowed_bias, integ, mode)
     plaus: dict[str, Any] = {}

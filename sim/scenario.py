@@ -29,6 +29,12 @@ Layout (see ``scenarios/default.toml`` for a commented example)::
                   multiple of 1/1000; false = continuous commands)
     [sas]         k_alpha = 0, k_q_s = 0   (pitch SAS: de += k_alpha*(alpha-alpha_trim) + k_q_s*q)
     [sensors.<imu|airdata|attitude|baro|surfaces|gps>]  see sim.sensors.SENSOR_SCHEMA
+    [validation]  rate_deg_s, accel_g, angle_deg   (proof-of-match bands)
+    [validation_flight]  a second flight for the proof of match (:attr:`Scenario.validation`):
+                  duration_s, turbulence ("off": calm air, the default, as proof-of-match
+                  flights are flown; "same": this scenario's turbulence), seed (default:
+                  the scenario's + 1), and its own [[validation_flight.maneuver]] tables;
+                  trim, schedule, aircraft, sensors, actuators as above
 """
 from __future__ import annotations
 
@@ -106,14 +112,22 @@ class Scenario:
     #: SERVO_SPAN_US; throttle: 1/THROTTLE_SPAN_US); False = continuous commands
     pwm_servos: bool = True
     raw: dict = field(default_factory=dict, repr=False)
+    #: the [validation_flight]: a second flight (same aircraft, trim and sensors, its own
+    #: maneuvers) whose maneuvers the proof of match is run on; the model is then fitted
+    #: to every maneuver of this flight. None without the table.
+    validation: "Scenario | None" = None
 
     def with_seed(self, seed: int) -> "Scenario":
-        """The same scenario with another seed (turbulence seed follows unless set apart)."""
+        """The same scenario with another seed (turbulence seed follows unless set apart;
+        the validation flight keeps its offset from the scenario's seed)."""
         from dataclasses import replace
         turb = self.turbulence
         if self.raw.get("turbulence", {}).get("seed") is None:
             turb = replace(turb, seed=int(seed))
-        return replace(self, seed=int(seed), turbulence=turb)
+        val = self.validation
+        if val is not None:
+            val = val.with_seed(val.seed - self.seed + int(seed))
+        return replace(self, seed=int(seed), turbulence=turb, validation=val)
 
 
 def _base(key: str) -> str:
@@ -191,7 +205,8 @@ class _Section:
 
 
 _TOP = {"name", "description", "aircraft", "duration_s", "rate_hz", "substeps", "seed", "trim", "schedule",
-        "maneuver", "turbulence", "wind", "actuators", "sas", "sensors", "validation"}
+        "maneuver", "turbulence", "wind", "actuators", "sas", "sensors", "validation",
+        "validation_flight"}
 _MAN = {"name", "axis", "shape", "amplitude_deg", "amplitude", "start_s", "pulse_s", "levels",
         "f0_hz", "f1_hz", "length_s", "sweep", "period_s", "cycles"}
 
@@ -345,6 +360,7 @@ def scenario_from_dict(raw: dict, path: Path) -> Scenario:
     bands = {"rate_deg_s": val.num("rate_deg_s", 1.5, positive=True, hi=90.0),
              "accel_g": val.num("accel_g", 0.1, positive=True, hi=10.0),
              "angle_deg": val.num("angle_deg", 1.5, positive=True, hi=90.0)}
+    validation = _validation_flight(path, raw, seed) if "validation_flight" in raw else None
     return Scenario(
         name=top.text("name", path.stem), path=path.resolve() if path.exists() else path,
         description=top.text("description", ""), aircraft=aircraft, duration=duration, rate_hz=rate,
@@ -352,4 +368,35 @@ def scenario_from_dict(raw: dict, path: Path) -> Scenario:
         maneuvers=tuple(mans), turbulence=turb, actuator_lag=act.num("lag_s", 0.0, lo=0.0, hi=1.0),
         sas_k_alpha=sas.num("k_alpha", 0.0), sas_k_q=sas.num("k_q_s", 0.0), sensors=sensors,
         substeps=substeps, pom_bands=bands, wind=wind, pwm_servos=pwm, raw=raw,
+        validation=validation,
     )
+
+
+#: turbulence of a validation flight: "off" (calm air) or "same" (the scenario's)
+VALIDATION_TURBULENCE = ("off", "same")
+
+
+def _validation_flight(path: Path, raw: dict, seed: int) -> Scenario:
+    """The [validation_flight] table as a scenario of its own: the parent's aircraft, trim,
+    schedule, wind, actuators, SAS, sensors and bands; its own duration, maneuvers, seed
+    and turbulence. Errors name the table (``validation_flight.maneuver[0]...``)."""
+    sec = _Section(path, "validation_flight", raw["validation_flight"],
+                   {"duration_s", "turbulence", "seed", "maneuver"})
+    turb = sec.text("turbulence", "off", VALIDATION_TURBULENCE)
+    if not sec.t.get("maneuver"):
+        raise sec.fail("maneuver", "a validation flight needs maneuvers: add "
+                       "[[validation_flight.maneuver]] tables")
+    sub = {k: v for k, v in raw.items()
+           if k not in ("validation_flight", "maneuver", "turbulence", "duration_s", "seed", "name")}
+    sub.update(name=f"{raw.get('name', path.stem)}-validation",
+               duration_s=sec.num("duration_s", positive=True),
+               seed=sec.integer("seed", seed + 1), maneuver=sec.t["maneuver"])
+    if turb == "same" and "turbulence" in raw:
+        sub["turbulence"] = {k: v for k, v in raw["turbulence"].items() if k != "seed"}
+    try:
+        return scenario_from_dict(sub, path)
+    except ScenarioError as exc:
+        msg = str(exc)
+        head = f"{path}: "
+        raise ScenarioError(head + "validation_flight." + msg[len(head):] if msg.startswith(head)
+                            else msg) from None
