@@ -937,14 +937,20 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                  map_path: str | None = None, methods: Sequence[str] = ("oem",),
                  inputs: str = "linear", model: str = "auto", quiet: bool = False,
                  compat: bool = True, bands: Mapping[str, float] | None = None,
-                 pom: str = "auto", smooth_inputs: bool = True) -> dict[str, Path]:
+                 pom: str = "auto", smooth_inputs: bool = True,
+                 validation_log: str | Path | None = None) -> dict[str, Path]:
     """``fsid estimate``: a log -> report and recording. ``model``: a built-in model
     (auto|longitudinal|lateral; needs ``aircraft``, or a truth.json next to the log) or a
     user model ``path.py:name`` (:mod:`pipeline.user_model`). Aircraft and sensor positions:
     :mod:`pipeline.aircraft_setup`. No turbulence level is known: the EKF/UKF process noise
     is the filter-error method's estimate (:func:`filters_process_noise`). ``bands``
     (``rate_deg_s``, ``accel_g``, ``angle_deg``) and ``pom`` set the proof of match
-    (defaults 1.5 deg/s, 0.1 g, 1.5 deg; auto mode); ``smooth_inputs``: see :func:`identify`."""
+    (defaults 1.5 deg/s, 0.1 g, 1.5 deg; auto mode); ``smooth_inputs``: see :func:`identify`.
+    ``validation_log``: a second flight for the proof of match (read with the same map and
+    servo travel, its air-data angles rebuilt the same way, no sensor corrections of its
+    own): every maneuver of ``log`` is fitted and the model proved on its maneuvers
+    (:func:`identify`'s ``validation``; the air-data proof of match in auto mode for the
+    filter methods, since its turbulence is not known)."""
     from estimators.validation import default_tolerances
 
     tol = default_tolerances(**(bands or {}))
@@ -957,8 +963,11 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     if user:                         # cheap checks before the log is read
         split_spec(model)
         check_methods(methods)
-    pr = Progress(7 + 2 * len(methods) + 1, quiet=quiet)   # 7: with the air-data angles,
-    #                                                         sensor compatibility and its uncertainty
+    # ingest, aircraft, air-data angles, checks, compatibility, its uncertainty, outputs (7),
+    # the user model's loading, the validation flight's ingest and angles, a fit and its
+    # validation per method and axis (both axes for auto: recounted once the log is read)
+    pr = Progress(7 + user + 2 * (validation_log is not None)
+                  + 2 * len(methods) * (2 if model == "auto" else 1), quiet=quiet)
     pr.stage(f"ingest {log}")
     from pipeline.aircraft_setup import servo_travel_for
     fd = read_log(log, map=map_path, servo_travel=servo_travel_for(log, aircraft))
@@ -973,6 +982,16 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
              if truth_doc and truth_doc.get("derivatives") else None)
     ac_sensors = ac
     fd, ac, fd_logged, flow = flow_angle_stage(fd, ac, pr)
+    fd_val = None
+    if validation_log is not None:
+        if Path(validation_log).resolve() == Path(log).resolve():
+            raise FsidError(f"--validate-with {validation_log}: that is the log being fitted; "
+                            "give a second flight (or leave it out to hold out the last maneuver)")
+        pr.stage(f"ingest the validation flight {validation_log}")
+        fd_val = read_log(validation_log, map=map_path,
+                          servo_travel=servo_travel_for(validation_log, aircraft))
+        pr.done(f"{len(fd_val.channels)} channels, {len(fd_val.segments)} segments")
+        fd_val = flow_angle_stage(fd_val, ac_sensors, pr)[0]
     if user:                         # before the slow stages: a bad model fails at once
         pr.stage(f"load model {model}")
         from pipeline.user_model import check_channels, load_user_model
@@ -984,6 +1003,9 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     summary = summarize(run_checks(fd))
     pr.done(str(summary))
     meta = {"log": str(log), "aircraft": ac_name}
+    if fd_val is not None:
+        meta["validation flight"] = (f"{validation_log}: the proof of match; every maneuver of "
+                                     f"{Path(log).name} fitted")
     if fd.meta.get("servo_travel"):
         meta["servo_travel"] = fd.meta["servo_travel"]
         assumed = [k for k, v in fd.meta["servo_travel"].items() if v["from"] == "assumed"]
@@ -992,6 +1014,10 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                   f"{fd.meta['servo_travel'][assumed[0]]['deg']:g} deg at full travel assumed; the "
                   f"control derivatives scale with it: give the aircraft TOML's [servos] "
                   f"({', '.join(a + '_travel_deg' for a in assumed)})", file=pr.stream)
+    flown = {sg.axis for sg in fd.segments}
+    n_axes = 1 if user else sum(1 for name, ax in (("longitudinal", {"de"}), ("lateral", {"da", "dr"}))
+                                if model in ("auto", name) and flown & ax)
+    pr.total = pr.n + 1 + 2 * max(n_axes, 1) * len(methods) + 2   # compatibility, fits, uncertainty, outputs
     from pipeline.compatibility import truth_errors
     # the reconstruction sees the logged channels only: angles rebuilt from the GPS velocity
     # and attitude are no independent air data (with them, 4 "significant" sensor errors
@@ -1014,22 +1040,24 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     if user:
         results, validations, problems = identify_user_model(fd, um, methods, truth, pr, inputs=inputs,
                                                              tolerances=tol, pom=pom,
-                                                             smooth_inputs=smooth_inputs)
+                                                             smooth_inputs=smooth_inputs,
+                                                             validation=fd_val)
         meta["model"] = model
 
         def refit(fd_j, starts):
             return identify_user_model(with_flow_angles(fd_j, flow)[0], um, methods, truth,
                                        quiet_progress(), inputs=inputs, starts=starts,
-                                       smooth_inputs=smooth_inputs)[0]
+                                       smooth_inputs=smooth_inputs, fit_all=fd_val is not None)[0]
     else:
         axes = ("longitudinal", "lateral") if model == "auto" else (model,)
         results, validations, problems = identify(fd, ac, methods, truth, pr, inputs=inputs, axes=axes,
-                                                  tolerances=tol, pom=pom, smooth_inputs=smooth_inputs)
+                                                  tolerances=tol, pom=pom, smooth_inputs=smooth_inputs,
+                                                  validation=fd_val)
 
         def refit(fd_j, starts):
             return identify(with_flow_angles(fd_j, flow)[0], ac, methods, truth, quiet_progress(),
-                            inputs=inputs, axes=axes,
-                            starts=starts, smooth_inputs=smooth_inputs)[0]
+                            inputs=inputs, axes=axes, starts=starts, smooth_inputs=smooth_inputs,
+                            fit_all=fd_val is not None)[0]
     carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit)
     if truth is not None:
         meta["truth"] = "truth.json next to the log"

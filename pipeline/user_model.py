@@ -185,7 +185,7 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
              f"{', '.join(model.outputs)} from the log's channels",
              f"grid {rate:g} Hz; slower channels at their own samples only",
              f"segments: {'maneuvers on ' + '/'.join(sorted({s.axis for s in specs})) if on_inputs else 'all maneuvers of the log'}"
-             f"; {'held out for proof of match: ' + held[0].name if held else 'none held out (one maneuver only)'}"
+             f"; {'held out for proof of match: ' + held[0].name if held else 'none held out' + (' (one maneuver only)' if hold_out else '')}"
              ] + ([input_note] if input_note else [])
     return Problem(model.name, model, [seg(s) for s in fit_specs], [seg(s) for s in held],
                    fit_specs, held, estimate_x0=True, notes=notes, rate_hz=rate)
@@ -195,19 +195,30 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
                         truth: Mapping[str, float] | None, progress: Any,
                         inputs: str = "linear", tolerances: Mapping[str, float] | None = None,
                         pom: str = "auto", starts: Mapping[str, Any] | None = None,
-                        smooth_inputs: bool = True) -> tuple[dict, dict, list]:
+                        smooth_inputs: bool = True, validation: FlightData | None = None,
+                        fit_all: bool | None = None) -> tuple[dict, dict, list]:
     """Fit and validate a user model with each method; same return as
     :func:`pipeline.run.identify` (results, validations, problems), keyed by method;
-    ``tolerances``, ``pom``, ``starts`` (refit only) and ``smooth_inputs`` as there."""
+    ``tolerances``, ``pom``, ``starts`` (refit only), ``smooth_inputs``, ``validation``
+    (a second flight for the proof of match) and ``fit_all`` as there."""
     from pipeline.run import (COMMON_GRID, METHODS, attach_logged_noise, filters_process_noise,
-                              fit_and_validate)
+                              fit_and_validate, with_validation_flight)
 
     bad = [m for m in methods if m not in METHODS]
     if bad:
         raise FsidError(f"unknown method(s) {bad}: use some of {', '.join(METHODS)}")
     check_methods(methods)
-    problem = user_model_problem(fd, model, smooth_inputs=smooth_inputs)
+    hold = 0 if (validation is not None if fit_all is None else fit_all) else 1
+    problem = user_model_problem(fd, model, smooth_inputs=smooth_inputs, hold_out=hold)
     problem.inputs = inputs
+    vproblem = None
+    if validation is not None and starts is None:
+        try:
+            vproblem = user_model_problem(validation, model, smooth_inputs=smooth_inputs,
+                                          hold_out=0, rate_hz=problem.rate_hz)
+        except FsidError as exc:
+            raise FsidError(f"validation flight: {exc}") from None
+        problem = with_validation_flight(problem, vproblem, calm=False)
     for n in problem.notes:
         if not progress.quiet:
             print(f"note: {n}", file=progress.stream)
@@ -220,8 +231,13 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
             rate = min(fd[c].rate_hz for c in model.outputs)
             if rate < 0.9 * problem.rate_hz:
                 if common is None:
-                    common = user_model_problem(fd, model, rate_hz=rate, smooth_inputs=smooth_inputs)
+                    common = user_model_problem(fd, model, rate_hz=rate, smooth_inputs=smooth_inputs,
+                                                hold_out=hold)
                     common.inputs = inputs
+                    if vproblem is not None:
+                        common = with_validation_flight(common, user_model_problem(
+                            validation, model, rate_hz=rate, smooth_inputs=smooth_inputs,
+                            hold_out=0), calm=False)
                 pb = common
         if m == "fem":              # its R; EKF/UKF keep the grid's (fit_problem)
             attach_logged_noise(fd, pb)

@@ -34,6 +34,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="how control inputs vary between log samples (default: linear)")
     p.add_argument("--out", help="output folder (default: a new folder under ./runs/)")
     p.add_argument("--no-compat", action="store_true", help="skip the sensor-compatibility stage")
+    p.add_argument("--validate-with", metavar="LOG2",
+                   help="a second flight log (same aircraft, channel map and sensors) for the "
+                        "proof of match: every maneuver of LOG is then fitted and the model "
+                        "is proved on LOG2's maneuvers (default: the last maneuver of each "
+                        "axis of LOG is held out)")
     add_input_arguments(p)
     add_validation_arguments(p)
     p.add_argument("--quiet", action="store_true")
@@ -47,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
     paths = estimate_log(args.log, out, aircraft=args.aircraft, map_path=args.map,
                          methods=args.method or ["oem"], inputs=args.inputs, model=args.model,
                          quiet=args.quiet, compat=not args.no_compat,
-                         smooth_inputs=not args.raw_inputs, **validation_options(args))
+                         smooth_inputs=not args.raw_inputs, validation_log=args.validate_with,
+                         **validation_options(args))
     print_outputs(out, paths)
     return 0

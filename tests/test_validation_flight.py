@@ -1,0 +1,145 @@
+"""The proof of match on a second flight: a scenario's [validation_flight] (sim.scenario) and
+``fsid estimate LOG --validate-with LOG2`` (pipeline.run.identify(validation=...)): every
+maneuver of the first log fitted, the model proved on the second's. Real JSBSim flights
+written by the product's writers and read back."""
+import copy
+import json
+import re
+
+import pytest
+
+import sim
+from pipeline.cli import main
+from pipeline.readers import read_log
+
+from tests._simdata import SCENARIOS, custom, scenario
+
+VALIDATION = {"duration_s": 20.0,
+              "maneuver": [{"name": "check_3211", "axis": "de", "shape": "3211",
+                            "amplitude_deg": 1.5, "pulse_s": 0.4}]}
+
+
+def _with_validation(name: str, **extra) -> dict:
+    raw = copy.deepcopy(scenario(name).raw)
+    raw["validation_flight"] = {**copy.deepcopy(VALIDATION), **extra}
+    return raw
+
+
+def test_validation_flight_is_a_scenario_of_its_own():
+    s = custom(_with_validation("longitudinal_3211_turbulence"), "with_validation")
+    v = s.validation
+    assert v is not None and v.validation is None
+    assert v.name == f"{s.name}-validation" and v.seed == s.seed + 1
+    assert v.duration == 20.0 and [m.name for m in v.maneuvers] == ["check_3211"]
+    assert s.turbulence.model != "off" and v.turbulence.model == "off"   # calm by default
+    # what it shares with the flight
+    assert (v.altitude, v.airspeed, v.aircraft.name) == (s.altitude, s.airspeed, s.aircraft.name)
+    assert v.raw["sensors"] == s.raw["sensors"] and set(v.sensors) == set(s.sensors)
+    # another seed moves both flights, the validation flight keeping its offset
+    assert s.with_seed(40).validation.seed == 41
+    same = custom(_with_validation("longitudinal_3211_turbulence", turbulence="same", seed=7))
+    assert same.validation.seed == 7
+    assert same.validation.turbulence.model == s.turbulence.model
+    assert same.validation.turbulence.severity == s.turbulence.severity
+    assert scenario("default").validation is None
+
+
+@pytest.mark.parametrize("extra, words", [
+    ({"turbulence": "calm"}, "validation_flight.turbulence: must be one of off, same"),
+    ({"maneuver": []}, "validation_flight.maneuver: a validation flight needs maneuvers"),
+    ({"duration_s": 2.0}, "validation_flight.maneuver[0]: 'check_3211' ends at"),
+    ({"maneuver": [{"name": "x", "axis": "de", "shape": "3211", "amplitude_rad": 0.1}]},
+     "validation_flight.maneuver[0].amplitude_rad: wrong unit"),
+    ({"lenght_s": 3.0}, "validation_flight.lenght_s: unknown key"),
+])
+def test_validation_flight_errors_name_the_table(extra, words):
+    with pytest.raises(sim.ScenarioError) as exc:
+        custom(_with_validation("longitudinal_3211_calm", **extra))
+    assert words in str(exc.value) and "\n" not in str(exc.value)
+
+
+@pytest.fixture(scope="module")
+def two_flights(tmp_path_factory):
+    """longitudinal_3211_calm flown twice (seeds 4 and 5): flight.mcap with truth.json, and
+    second.mcap in the same folder (the validation flight: same aircraft and sensors)."""
+    from pipeline.writers import write_mcap, write_truth_json
+
+    out = tmp_path_factory.mktemp("two")
+    s = sim.load_scenario(SCENARIOS / "longitudinal_3211_calm.toml")
+    first = sim.fly(s, seed=4, workdir=out / ".jsbsim")
+    write_mcap(out / "flight.mcap", first)
+    write_truth_json(out / "truth.json", first)
+    write_mcap(out / "second.mcap", sim.fly(s, seed=5, workdir=out / ".jsbsim"))
+    return out
+
+
+def _report(out):
+    return json.loads((out / "report.json").read_text())
+
+
+def test_estimate_validate_with_a_second_flight(two_flights, tmp_path, capsys):
+    """Built-in longitudinal model, output error: every elevator maneuver of flight.mcap
+    fitted (3), the proof of match on each of second.mcap's (3), the open-loop simulation;
+    the default run holds the last one out of the fit instead. Every stage counted once."""
+    log, second = two_flights / "flight.mcap", two_flights / "second.mcap"
+    n_elev = sum(s.axis == "de" for s in read_log(log).segments)
+    n_val = sum(s.axis == "de" for s in read_log(second).segments)
+    assert n_elev >= 2 and n_val >= 2
+    code = main(["estimate", str(log), "--model", "longitudinal", "--no-compat",
+                 "--validate-with", str(second), "--out", str(tmp_path / "v")])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    stages = [(int(a), int(b)) for a, b in re.findall(r"^\[(\d+)/(\d+)\]", err, flags=re.M)]
+    assert {b for _, b in stages} == {len(stages)}, err
+    assert "ingest the validation flight" in err
+    rep = _report(tmp_path / "v")
+    assert rep["meta"]["validation flight"].startswith(str(second))
+    m = rep["methods"]["oem"]
+    pm = m["validation"]["proof_of_match"]
+    assert pm["mode"] == "simulation" and len(pm["segments"]) == n_val
+    assert all(sg["name"].startswith("validation flight: auto_de_") for sg in pm["segments"])
+    # a calm flight with the model's own structure: the proof of match passes
+    assert pm["all_pass"], [(sg["name"], {c: d["max_abs_error_display"] for c, d in
+                                          sg["channels"].items()}) for sg in pm["segments"]]
+    # every maneuver of the first log was fitted: one x0 per maneuver
+    fitted = {n.split("[")[1].rstrip("]") for n in m["parameters"] if n.startswith("bias_q[")}
+    assert len(fitted) == n_elev
+    assert main(["estimate", str(log), "--model", "longitudinal", "--no-compat", "--quiet",
+                 "--out", str(tmp_path / "d")]) == 0
+    capsys.readouterr()
+    d = _report(tmp_path / "d")["methods"]["oem"]
+    held = d["validation"]["proof_of_match"]["segments"]
+    assert len(held) == 1 and not held[0]["name"].startswith("validation flight")
+    assert len({n.split("[")[1].rstrip("]") for n in d["parameters"]
+                if n.startswith("bias_q[")}) == n_elev - 1
+
+
+def test_user_model_validate_with(two_flights, tmp_path, capsys):
+    """A user model (tests/test_estimate_user_model.MODEL_FILE) takes the validation flight
+    too: every maneuver fitted, the proof of match on the second log's."""
+    from tests.test_estimate_user_model import MODEL_FILE
+
+    (tmp_path / "sp_user.py").write_text(MODEL_FILE)
+    log, second = two_flights / "flight.mcap", two_flights / "second.mcap"
+    code = main(["estimate", str(log), "--model", f"{tmp_path / 'sp_user.py'}:short_period_user",
+                 "--no-compat", "--quiet", "--validate-with", str(second),
+                 "--out", str(tmp_path / "u")])
+    assert code == 0, capsys.readouterr().err
+    m = _report(tmp_path / "u")["methods"]["oem"]
+    segs = m["validation"]["proof_of_match"]["segments"]
+    assert len(segs) == len(read_log(second).segments)
+    assert all(sg["name"].startswith("validation flight: ") for sg in segs)
+    assert len({n for n in m["parameters"] if n.startswith("de0[")}) == len(read_log(log).segments)
+
+
+@pytest.mark.parametrize("which, words", [
+    ("same", "that is the log being fitted"),
+    ("missing", "nothing.mcap: No such file"),
+])
+def test_validate_with_errors_are_one_line(two_flights, tmp_path, capsys, which, words):
+    log = two_flights / "flight.mcap"
+    other = log if which == "same" else two_flights / "nothing.mcap"
+    code = main(["estimate", str(log), "--model", "longitudinal", "--no-compat", "--quiet",
+                 "--validate-with", str(other), "--out", str(tmp_path / "e")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and words in err[0], err
