@@ -143,3 +143,24 @@ def test_validate_with_errors_are_one_line(two_flights, tmp_path, capsys, which,
                  "--validate-with", str(other), "--out", str(tmp_path / "e")])
     err = capsys.readouterr().err.strip().splitlines()
     assert code != 0 and len(err) == 1 and words in err[0], err
+
+
+def test_simulate_writes_the_validation_flight(tmp_path, capsys):
+    """``fsid simulate`` of a scenario with a [validation_flight] also writes
+    validation.mcap and validation.bin: its own maneuvers and duration."""
+    text = (SCENARIOS / "longitudinal_3211_calm.toml").read_text().replace(
+        'aircraft = "aircraft/', f'aircraft = "{SCENARIOS}/aircraft/')
+    text += ("\n[validation_flight]\nduration_s = 20.0\n[[validation_flight.maneuver]]\n"
+             'name = "check_3211"\naxis = "de"\nshape = "3211"\namplitude_deg = 1.5\n'
+             "pulse_s = 0.4\n")
+    path = tmp_path / "with_validation.toml"
+    path.write_text(text)
+    assert main(["simulate", str(path), "--out", str(tmp_path / "run"), "--seed", "9"]) == 0
+    out = capsys.readouterr().out
+    assert "validation.mcap" in out and "validation.bin" in out
+    flight = read_log(tmp_path / "run" / "flight.mcap")
+    assert flight["q"].t[-1] > 60.0
+    for name in ("validation.mcap", "validation.bin"):
+        fd = read_log(tmp_path / "run" / name)
+        assert [s.axis for s in fd.segments] == ["de"], (name, fd.segments)
+        assert fd["q"].t[-1] == pytest.approx(20.0, abs=0.2), name

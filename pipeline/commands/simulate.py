@@ -1,7 +1,10 @@
 """``fsid simulate SCENARIO [--out DIR] [--seed N]``: fly a scenario, write its logs.
 
 Writes ``DIR/flight.mcap`` (the product's own MCAP), ``DIR/flight.bin`` (ArduPilot
-DataFlash) and ``DIR/truth.json`` (truth set, trim, sensor errors, seed, versions).
+DataFlash) and ``DIR/truth.json`` (truth set, trim, sensor errors, seed, versions); a
+scenario with a ``[validation_flight]`` also ``DIR/validation.mcap`` and
+``DIR/validation.bin`` (for ``fsid estimate DIR/flight.mcap --validate-with
+DIR/validation.mcap``).
 SCENARIO is a path to a scenario TOML or the name of a built-in one (``default``,
 ``longitudinal_3211_calm``, ... in the repository's ``scenarios/`` folder).
 """
@@ -68,7 +71,8 @@ class _Progress:
 def simulate(scenario_path: str | Path, out: str | Path | None = None, seed: int | None = None,
              keep_jsbsim: bool = False, progress: bool = True):
     """Fly ``scenario_path`` and write flight.mcap, flight.bin and truth.json into the run
-    folder. Returns (run folder, SimResult). ScenarioError becomes FsidError."""
+    folder (and validation.mcap, validation.bin when the scenario has a validation flight).
+    Returns (run folder, SimResult). ScenarioError becomes FsidError."""
     import sim
     from pipeline.writers import write_dataflash, write_mcap, write_truth_json
 
@@ -91,6 +95,11 @@ def simulate(scenario_path: str | Path, out: str | Path | None = None, seed: int
     write_mcap(run_dir / "flight.mcap", result)
     write_dataflash(run_dir / "flight.bin", result)
     write_truth_json(run_dir / "truth.json", result)
+    val = (scenario.with_seed(seed) if seed is not None else scenario).validation
+    if val is not None:
+        vres = sim.fly(val, workdir=run_dir if keep_jsbsim else None)
+        write_mcap(run_dir / "validation.mcap", vres)
+        write_dataflash(run_dir / "validation.bin", vres)
     return run_dir, result
 
 
@@ -101,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
     s = result.scenario
     print(f"simulated {s.name} ({s.aircraft.name}, {s.duration:g} s, seed {result.meta['seed']}, "
           f"{len(result.maneuvers)} maneuvers) in {dt:.1f} s")
-    for f in ("flight.mcap", "flight.bin", "truth.json"):
-        print(f"wrote {run_dir / f}")
+    for f in ("flight.mcap", "flight.bin", "truth.json", "validation.mcap", "validation.bin"):
+        if (run_dir / f).exists():
+            print(f"wrote {run_dir / f}")
     return 0
