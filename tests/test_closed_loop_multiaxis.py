@@ -87,8 +87,8 @@ the longitudinal FEM's Cm0, Cmde, Cmalphadot go to 3.5-3.9 std (Cmalphadot -8.64
 -7.27) and EKF/UKF Clp stayed ~31 std (gust state started at 1e-3 rad/s); at [3.5, 3, 3] deg, Clp 3.3 and Cm0/Cmalphadot
 3.4/3.7. The scenario kept 1.5 deg until the longitudinal model held at the larger
 amplitude; in the aircraft's axes and with every maneuver fitted it does as well at 3 deg
-as at 1.5 over seeds 31-38 (3/8 seeds within 3 reported std either way, empirical std
-25-45 % smaller), so the scenario flies 3 deg.
+as at 1.5 over seeds 31-38 (3/8 seeds within 3 reported std either way, the empirical std
+a median 0.65 of the 1.5 deg one), so the scenario flies 3 deg.
 """
 import json
 import re
