@@ -207,7 +207,7 @@ def test_multisine_takes_one_amplitude_per_axis():
     raw["maneuver"][0]["amplitude_deg"] = [1.5, 4.0, -3.0]
     s = custom(raw)
     assert np.degrees(s.maneuvers[0].amplitude) == pytest.approx([1.5, 4.0, -3.0])
-    assert np.degrees(s.maneuvers[1].amplitude) == pytest.approx([-1.5] * 3)   # one value: all axes
+    assert np.degrees(s.maneuvers[1].amplitude) == pytest.approx([-3.0] * 3)   # one value: all axes
     for bad, what in (([1.5, 4.0], "one value per axis (3), got 2"),
                       ([1.5, "big", 2.0], "amplitude_deg[1]: must be a finite number"),
                       ([1.5, 0.0, 2.0], "amplitude_deg: must not be zero")):
