@@ -28,7 +28,11 @@ q_g modelled as s / (1 + tau s) alpha_g + a Markov rest, which follows JSBSim's 
 within 10-30 % in gain at coherence 0.3-0.6; estimators.models.longitudinal), not the
 filter's Cramér-Rao bounds, and not the noise of the measured lateral pseudo-inputs (ad
 hoc, seeds 31-37: the same fits with noise-free beta, p, r, phi, ay from a twin flight
-moved the worst |error| / std by at most 0.02).
+moved the worst |error| / std by at most 0.02). One such difference, ad hoc on seed 31's
+truth: JSBSim drives its q_turb with the earth-vertical gust (q_turb against
+s / (V (1 + tau s)) of the down gust: correlation 0.978, residual 0.0064 rad/s rms), not
+the gust along the aircraft's z axis that MIL-F-8785C and the model use (0.928, 0.0116 -
+the rms of the model's q_gi at FEM's F_q_gi); the flight banks up to 20 deg.
 
     python benchmarks/longitudinal_gust_fem_mc.py [--seeds 12] [--seed-base 0] [--jobs 2]
         [--flight-seed 31]
