@@ -623,7 +623,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                 vbase = build(validation, ac, smooth_inputs=smooth_inputs, hold_out=0)
                 vbase.inputs = inputs
             except FsidError as exc:
-                val_note(f"no {problem.axis} maneuvers to prove the model on ({exc}); "
+                val_note(f"the {problem.axis} axis cannot be set up there ({exc}); "
                          "that axis has no proof of match")
         problem.inputs = inputs
         problems.append(problem)
@@ -992,6 +992,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                           servo_travel=servo_travel_for(validation_log, aircraft))
         pr.done(f"{len(fd_val.channels)} channels, {len(fd_val.segments)} segments")
         fd_val = flow_angle_stage(fd_val, ac_sensors, pr)[0]
+        val_checks = summarize(run_checks(fd_val))
     if user:                         # before the slow stages: a bad model fails at once
         pr.stage(f"load model {model}")
         from pipeline.user_model import check_channels, load_user_model
@@ -1005,7 +1006,8 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     meta = {"log": str(log), "aircraft": ac_name}
     if fd_val is not None:
         meta["validation flight"] = (f"{validation_log}: the proof of match; every maneuver of "
-                                     f"{Path(log).name} fitted")
+                                     f"{Path(log).name} fitted; its data-quality checks: "
+                                     + ", ".join(f"{k} {v}" for k, v in val_checks.items()))
     if fd.meta.get("servo_travel"):
         meta["servo_travel"] = fd.meta["servo_travel"]
         assumed = [k for k, v in fd.meta["servo_travel"].items() if v["from"] == "assumed"]
