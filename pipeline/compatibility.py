@@ -198,35 +198,51 @@ class CompatibilityResult:
         }
 
     def corrected(self, fd: FlightData, keep_times: bool = False) -> FlightData:
-        """A copy of ``fd`` with the estimated errors removed from the measured channels
-        (IMU: (x - bias) / (1 + scale); air data also shifted earlier by the delay).
+        """A copy of ``fd`` with the estimated errors removed (:func:`remove_sensor_errors`)."""
+        return remove_sensor_errors(fd, self.params, keep_times=keep_times)
 
-        keep_times : undo the delay by interpolating each air-data channel at t + delay on
-            its own sample times (samples whose t + delay lies past the channel's end are
-            dropped) instead of moving the time stamps: the channel keeps its sample grid,
-            which the estimation's multi-rate frame places slow channels on."""
-        from pipeline.flightdata import Channel
 
-        v = self.params
-        out = FlightData(dict(fd.channels), dict(fd.meta), list(fd.segments))
-        for ch in INPUTS:
-            if ch in fd.channels:
-                c = fd.channels[ch]
-                vals = (c.values - v.get(f"bias_{ch}", 0.0)) / (1.0 + v.get(f"scale_{ch}", 0.0))
-                out.channels[ch] = Channel(c.t, vals, c.unit, c.source + " (compatibility-corrected)")
-        tau = float(v.get("delay_air", 0.0))
-        for ch in ("V", "alpha", "beta"):
-            if ch in fd.channels:
-                c = fd.channels[ch]
-                vals = (c.values - v.get(f"bias_{ch}", 0.0)) / (1.0 + v.get(f"scale_{ch}", 0.0))
-                if keep_times and tau != 0.0 and len(c.t) > 1:
-                    keep = (c.t + tau >= c.t[0]) & (c.t + tau <= c.t[-1])
-                    out.channels[ch] = Channel(c.t[keep], np.interp(c.t[keep] + tau, c.t, vals), c.unit,
-                                               c.source + " (compatibility-corrected)")
-                    continue
-                out.channels[ch] = Channel(c.t - tau, vals, c.unit, c.source + " (compatibility-corrected)")
-        out.meta["compatibility"] = {k: float(x) for k, x in v.items()}
-        return out
+def remove_sensor_errors(fd: FlightData, errors: Mapping[str, float],
+                         keep_times: bool = False) -> FlightData:
+    """A copy of ``fd`` with sensor errors (this module's names: ``bias_<ch>``,
+    ``scale_<ch>``, ``delay_air``; missing ones are 0) removed from the measured channels
+    (IMU: (x - bias) / (1 + scale); air data also shifted earlier by the delay).
+
+    keep_times : undo the delay by interpolating each air-data channel at t + delay on
+        its own sample times (samples whose t + delay lies past the channel's end are
+        dropped) instead of moving the time stamps: the channel keeps its sample grid,
+        which the estimation's multi-rate frame places slow channels on."""
+    from pipeline.flightdata import Channel
+
+    v = errors
+    out = FlightData(dict(fd.channels), dict(fd.meta), list(fd.segments))
+    for ch in INPUTS:
+        if ch in fd.channels:
+            c = fd.channels[ch]
+            vals = (c.values - v.get(f"bias_{ch}", 0.0)) / (1.0 + v.get(f"scale_{ch}", 0.0))
+            out.channels[ch] = Channel(c.t, vals, c.unit, c.source + " (compatibility-corrected)")
+    tau = float(v.get("delay_air", 0.0))
+    for ch in ("V", "alpha", "beta"):
+        if ch in fd.channels:
+            c = fd.channels[ch]
+            vals = (c.values - v.get(f"bias_{ch}", 0.0)) / (1.0 + v.get(f"scale_{ch}", 0.0))
+            if keep_times and tau != 0.0 and len(c.t) > 1:
+                keep = (c.t + tau >= c.t[0]) & (c.t + tau <= c.t[-1])
+                out.channels[ch] = Channel(c.t[keep], np.interp(c.t[keep] + tau, c.t, vals), c.unit,
+                                           c.source + " (compatibility-corrected)")
+                continue
+            out.channels[ch] = Channel(c.t - tau, vals, c.unit, c.source + " (compatibility-corrected)")
+    out.meta["compatibility"] = {k: float(x) for k, x in v.items()}
+    return out
+
+
+def instrument_errors(applied: Mapping[str, Mapping[str, float]]) -> dict[str, float]:
+    """Of a compatibility document's ``applied`` errors, those of the instruments that a
+    second flight with the same sensors shares: the scale factors and the air-data delay
+    (name -> estimate). Biases are left out: they change with every power-up (the proof of
+    match fits its own output biases)."""
+    return {n: float(d["estimate"]) for n, d in applied.items()
+            if n.startswith("scale_") or n == "delay_air"}
 
 
 def _lever(t: np.ndarray, rates: np.ndarray, r: np.ndarray) -> np.ndarray:

@@ -841,6 +841,23 @@ def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabl
     return out, doc
 
 
+def with_instrument_errors_removed(fd_val, comp: Mapping[str, Any],
+                                   meta: dict | None = None):
+    """The validation flight with the instrument errors the compatibility stage removed
+    from the fitted flight (scale factors, air-data delay:
+    :func:`pipeline.compatibility.instrument_errors`) removed too, so that the model is
+    proved on data in the same corrected space it was fitted on; the names go to
+    ``meta["validation flight corrections"]``."""
+    from pipeline.compatibility import instrument_errors, remove_sensor_errors
+
+    errs = instrument_errors(comp.get("applied") or {})
+    if not errs:
+        return fd_val
+    if meta is not None:
+        meta["validation flight corrections"] = {n: float(v) for n, v in errs.items()}
+    return remove_sensor_errors(fd_val, errs, keep_times=True)
+
+
 def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = None,
                  methods: Sequence[str] | None = None, quiet: bool = False,
                  compat: bool = True, bands: Mapping[str, float] | None = None,
@@ -903,6 +920,9 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     fd_mcap, comp = compatibility_stage(fd_mcap, ac, pr, enabled=compat, truth=truth_errors(truth_doc))
     checks["flight.mcap"]["compatibility"] = comp
     atomic_write_text(out / "checks.json", json.dumps(checks, indent=2, default=str) + "\n")
+    val_meta: dict = {}
+    if fd_val is not None:
+        fd_val = with_instrument_errors_removed(fd_val, comp, val_meta)
     truth = {k: float(v) for k, v in truth_doc["derivatives"].items()}
     # estimation reads the product's own MCAP (surface positions at full resolution; the
     # .bin's RCOU carries whole-microsecond PWM, ~0.075 deg steps); the simulator moves
@@ -929,6 +949,7 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
         meta["validation flight"] = (f"validation.mcap (seed {vres.meta['seed']}, "
                                      f"{'calm air' if calm else 'turbulence as the flight'}): "
                                      "the proof of match; every maneuver of flight.mcap fitted")
+        meta.update(val_meta)
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary,
                           meta=meta, compatibility=comp)
 
@@ -947,8 +968,10 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     (``rate_deg_s``, ``accel_g``, ``angle_deg``) and ``pom`` set the proof of match
     (defaults 1.5 deg/s, 0.1 g, 1.5 deg; auto mode); ``smooth_inputs``: see :func:`identify`.
     ``validation_log``: a second flight for the proof of match (read with the same map and
-    servo travel, its air-data angles rebuilt the same way, no sensor corrections of its
-    own): every maneuver of ``log`` is fitted and the model proved on its maneuvers
+    servo travel, its air-data angles rebuilt the same way; of the sensor errors removed
+    from ``log`` the instruments' scale factors and air-data delay removed from it too,
+    :func:`with_instrument_errors_removed`): every maneuver of ``log`` is fitted and the
+    model proved on its maneuvers
     (:func:`identify`'s ``validation``; the air-data proof of match in auto mode for the
     filter methods, since its turbulence is not known)."""
     from estimators.validation import default_tolerances
@@ -1038,6 +1061,8 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         fd = replace(fd_c, channels={**fd_c.channels, **{
             k: c for k, c in fd.channels.items() if k not in fd_c.channels}})
     meta["data"] = f"{Path(log).name}, {comp['data_for_estimation']}"
+    if fd_val is not None:
+        fd_val = with_instrument_errors_removed(fd_val, comp, meta)
     from pipeline.correction_uncertainty import quiet_progress
     if user:
         results, validations, problems = identify_user_model(fd, um, methods, truth, pr, inputs=inputs,

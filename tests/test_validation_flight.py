@@ -164,3 +164,32 @@ def test_simulate_writes_the_validation_flight(tmp_path, capsys):
         fd = read_log(tmp_path / "run" / name)
         assert [s.axis for s in fd.segments] == ["de"], (name, fd.segments)
         assert fd["q"].t[-1] == pytest.approx(20.0, abs=0.2), name
+
+
+def test_the_instrument_errors_carry_to_the_validation_flight():
+    """Of the sensor errors the compatibility stage removed from the fitted flight, the
+    scale factors and the air-data delay are removed from the validation flight too (the
+    same instruments); the biases, which change with every power-up, are not."""
+    import numpy as np
+
+    from pipeline.flightdata import Channel, FlightData
+    from pipeline.run import with_instrument_errors_removed
+
+    t = np.arange(0.0, 10.0, 0.02)
+    fd = FlightData({"q": Channel(t, 0.1 + 1.02 * np.sin(t), "rad/s", "imu"),
+                     "alpha": Channel(t, 1.05 * np.sin(t - 0.04), "rad", "vane")}, {}, [])
+    comp = {"applied": {"scale_q": {"estimate": 0.02, "std": 0.001},
+                        "bias_q": {"estimate": 0.1, "std": 0.001},
+                        "scale_alpha": {"estimate": 0.05, "std": 0.01},
+                        "delay_air": {"estimate": 0.04, "std": 0.002}}}
+    meta: dict = {}
+    out = with_instrument_errors_removed(fd, comp, meta)
+    assert meta["validation flight corrections"] == {"scale_q": 0.02, "scale_alpha": 0.05,
+                                                      "delay_air": 0.04}
+    q = out["q"]
+    np.testing.assert_allclose(q.values, 0.1 / 1.02 + np.sin(t), atol=1e-12)   # bias kept
+    a = out["alpha"]
+    inside = (a.t > 0.1) & (a.t < 9.9)
+    np.testing.assert_allclose(a.values[inside], np.sin(a.t[inside]), atol=2e-4)
+    assert fd["alpha"].values[5] == 1.05 * np.sin(t[5] - 0.04)                 # input untouched
+    assert with_instrument_errors_removed(fd, {"applied": {}}) is fd
