@@ -9,7 +9,9 @@ The test holds one seed (31); this shows how typical it is. Per method (axis-met
   * over the seeds, per derivative: empirical std / mean reported std (1 = honest) and
     bias = (mean - truth) / empirical std (the band of the mean of n seeds is
     +-2/sqrt(n)).
-The last line: the share of (seed, method) fits with every derivative within 3 std.
+Then per method and seed the proof of match (pass, and its worst channel's max |error| /
+band) and the largest Theil coefficient. The last line: the share of (seed, method) fits
+with every derivative within 3 std.
 
 Measured (2026-11-25, seeds 31-38, 2 jobs): the scenario as it is - 3 deg multisines, every
 maneuver of the flight fitted, the proof of match on its calm validation flight:
@@ -20,6 +22,11 @@ maneuver of the flight fitted, the proof of match on its calm validation flight:
                       |bias| <= 1.03
     EKF / UKF         0/8 on both axes: longitudinal worst 3.7-7.4 (Cmalphadot, CLq), lateral
                       UKF 3.1-18.8, EKF 3.7-90 (Clp)
+    proof of match on the calm validation flight (worst channel's max |error| / band):
+                      longitudinal FEM, EKF, UKF pass on 8/8 seeds (0.40-0.81); lateral FEM
+                      7/8 (0.50-0.79; seed 35 1.02), UKF 5/8 (0.81-2.04), EKF 1/8 (0.83-4.10)
+    largest Theil coefficient: longitudinal 0.090-0.097, lateral 0.070-0.081 (every method,
+                      every seed)
   The same with 1.5 deg multisines (FEM only): longitudinal 1.8 3.5 4.2 3.0 4.1 3.1 5.4 2.8
   (3/8; 6/8), empirical / reported up to 3.29 (Cmalphadot), 1.90 (Cmq); lateral 5/8, 5/8;
   the 3 deg empirical std a median 0.65 of it (0.26-1.13 by derivative: Cmde 0.018 against
@@ -84,10 +91,23 @@ def one_seed(seed: int, methods: str = METHODS, scenario: str = str(SCENARIO)) -
         out = Path(tmp)
         run_scenario(scenario, out, seed=seed, methods=methods.split(","), quiet=True, compat=False)
         rep = json.loads((out / "report.json").read_text())
+    val = {key: _pom_and_tic(m) for key, m in rep["methods"].items()}
     return [{"seed": seed, "method": key, "parameter": name, "estimate": p["estimate"],
              "truth": p["truth"], "reported": p["std"], "err": abs(p["error_in_std"]),
              "scatter": p.get("cluster_std") if p.get("cluster_std") is not None else float("nan"),
-             "converged": m["converged"]} for key, name, p, m in judged_parameters(rep)]
+             "converged": m["converged"], **val[key]} for key, name, p, m in judged_parameters(rep)]
+
+
+def _pom_and_tic(m: dict) -> dict:
+    """A method's proof of match (pass, and the worst channel's max |error| / band) and its
+    largest Theil coefficient."""
+    pm = (m.get("validation") or {}).get("proof_of_match") or {}
+    ratios = [d["max_abs_error"] / d["tolerance"] for sg in pm.get("segments", [])
+              for d in sg["channels"].values()
+              if d.get("pass") is not None and d.get("tolerance")]
+    tic = [d["TIC"] for d in ((m.get("validation") or {}).get("fit") or {}).get("per_output", {}).values()]
+    return {"pom_pass": bool(pm.get("all_pass")), "pom_ratio": max(ratios, default=float("nan")),
+            "max_tic": max(tic, default=float("nan"))}
 
 
 def with_axes(scenario: Path, axes: str, folder: Path) -> Path:
@@ -138,6 +158,14 @@ def main() -> float:
     for method, row in wide.iterrows():
         print(f"  {method:18s} within 3 std in {int((row <= 3.0).sum())}/{len(row)} seeds | "
               + " ".join(f"{v:5.1f}" for v in row))
+    per = df.groupby(["method", "seed"]).first()
+    print("proof of match per seed (worst channel's max |error| / band; * = fails) and the "
+          "largest Theil coefficient:")
+    for method in worst.index:
+        rows = per.loc[method]
+        print(f"  {method:18s} passes in {int(rows['pom_pass'].sum())}/{len(rows)} seeds | "
+              + " ".join(f"{r:4.2f}{' ' if ok else '*'}" for r, ok in zip(rows["pom_ratio"], rows["pom_pass"]))
+              + f" | TIC {rows['max_tic'].min():.3f}-{rows['max_tic'].max():.3f}")
     share = float((worst <= 3.0).to_numpy().mean())
     print(f"\nfits with every derivative within 3 std: {int((worst <= 3.0).to_numpy().sum())}"
           f"/{worst.size} = {share:.2f}")
