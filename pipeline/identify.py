@@ -108,6 +108,12 @@ def isa_density(h: np.ndarray | float) -> np.ndarray:
     return 1.225 * (T / 288.15) ** 4.2559
 
 
+def isa_altitude(rho: float) -> float:
+    """The altitude (m) of the ISA troposphere where the air density is ``rho`` (kg/m^3):
+    the inverse of :func:`isa_density`."""
+    return float((1.0 - (max(rho, 1e-3) / 1.225) ** (1.0 / 4.2559)) * 288.15 / 0.0065)
+
+
 @dataclass
 class Problem:
     """One estimation problem: a model, the segments it is fitted to, held-out segments."""

@@ -127,28 +127,25 @@ def process_noise_std(problem: Problem, turbulence: Mapping[str, Any] | None = N
     time constant L/V has the white-noise intensity sigma sqrt(2 V / L), so
     F_V = sigma_u sqrt(2V/L_u), F_alpha = sigma_w/V sqrt(2V/L_w), and F_q = 0.3 F_alpha
     for what the alpha noise does not carry into the pitch rate (FEM estimated 0.33 on
-    the turbulence scenario). Otherwise (a real log, calm air) the FilterError default:
-    0.05 sqrt(var(diff z)/h) per measured state. Lateral: beta, p, r likewise from
-    sigma_v (F_p = F_r = 0.3 F_beta). Everything times ``scale``."""
+    the turbulence scenario). Lateral: beta, p, r likewise from sigma_v (F_p = F_r = 0.3
+    F_beta). A gust model (rotary-gust states) without a known level starts from light
+    turbulence at the flight's altitude (:func:`assumed_turbulence`; a real log): the data
+    default below leaves its unmeasured gust states at 0, where their time constant has no
+    effect on the likelihood (multiaxis_multisine_turbulence, the Dryden level withheld:
+    filter error stopped at a singular information matrix on tau_pg, and on the
+    longitudinal axis, started from the default's F_alpha 7x below the gusts', at one on
+    CLq, CLalphadot and the initial airspeeds). Otherwise (a real log, a model without
+    gust states) the FilterError default: 0.05 sqrt(var(diff z)/h) per measured state.
+    Everything times ``scale``."""
     m = problem.model
     turb = turbulence or {}
+    if not dryden_known(turb) and any(st in m.states for st in COLOURED_STATES):
+        turb = assumed_turbulence(problem)
     if dryden_known(turb):
-        V = float(np.nanmean(np.concatenate([s.z[:, m.outputs.index("V")] for s in problem.fit]))) \
-            if "V" in m.outputs else float(m.constants.get("V", 30.0))
+        V = _mean_airspeed(problem)
         su, sv, sw = (float(turb.get(k, turb["sigma_w"])) for k in ("sigma_u", "sigma_v", "sigma_w"))
         Lu, Lv, Lw = (float(turb.get(k, 300.0)) for k in ("L_u", "L_v", "L_w"))
-        # rotary gust states (p_g, q_gi: first-order Markov, time constant 4b/(pi V)): the
-        # MIL-F-8785C roll-gust level sigma_w sqrt(0.8 / (L_w b)) (pi L_w / 4b)^(1/6)
-        # (0.052 rad/s on multiaxis_multisine_turbulence; JSBSim flew p_g 0.049, q_g 0.041
-        # rad/s); q_gi, the part of the pitch gust not coherent with w_g, at half of it (FEM
-        # estimated F_q_gi 0.078 there, 0.48 x). Not times ``scale``: these states are
-        # coloured already (the filters' 2x is for white noise standing in for Dryden gusts)
-        rot = {}
-        for st, k in (("p_g", 1.0), ("q_gi", 0.5)):
-            if st in m.states:
-                b = float(m.constants["b"])
-                sg = sw * np.sqrt(0.8 / (Lw * b)) * (np.pi * Lw / (4 * b)) ** (1 / 6)
-                rot[st] = k * sg * np.sqrt(2 * np.pi * V / (4 * b))
+        rot = _rotary_gust_std(m, V, sw, Lw)
         if problem.axis == "longitudinal":
             fa = sw / V * np.sqrt(2 * V / Lw)
             return {"V": scale * su * np.sqrt(2 * V / Lu), "alpha": scale * fa, "q": scale * 0.3 * fa,
@@ -159,6 +156,42 @@ def process_noise_std(problem: Problem, turbulence: Mapping[str, Any] | None = N
 
     f = default_process_noise(m, problem.fit)
     return {st: float(scale * v) for st, v in zip(m.states, f) if st in m.outputs}
+
+
+def _mean_airspeed(problem: Problem) -> float:
+    """Mean measured airspeed over the fitted segments (m/s), else the model's constant V."""
+    m = problem.model
+    if "V" in m.outputs:
+        return float(np.nanmean(np.concatenate([s.z[:, m.outputs.index("V")] for s in problem.fit])))
+    return float(m.constants.get("V", 30.0))
+
+
+def _rotary_gust_std(m: Any, V: float, sigma_w: float, L_w: float) -> dict[str, float]:
+    """F of the rotary gust states of a gust model (first-order Markov, time constant
+    4b/(pi V)): the MIL-F-8785C roll-gust level sigma_w sqrt(0.8 / (L_w b)) (pi L_w / 4b)^(1/6)
+    (0.052 rad/s on multiaxis_multisine_turbulence; JSBSim flew p_g 0.049, q_g 0.041
+    rad/s); q_gi, the part of the pitch gust not coherent with w_g, at half of it (FEM
+    estimated F_q_gi 0.078 there, 0.48 x). Not times a scale: these states are coloured
+    already (the filters' 2x is for white noise standing in for Dryden gusts)."""
+    rot = {}
+    for st, k in (("p_g", 1.0), ("q_gi", 0.5)):
+        if st in m.states:
+            b = float(m.constants["b"])
+            sg = sigma_w * np.sqrt(0.8 / (L_w * b)) * (np.pi * L_w / (4 * b)) ** (1 / 6)
+            rot[st] = k * sg * np.sqrt(2 * np.pi * V / (4 * b))
+    return rot
+
+
+def assumed_turbulence(problem: Problem) -> dict[str, float]:
+    """The Dryden level of light turbulence (MIL-F-8785C: 15 kt at 20 ft, probability of
+    exceedance 1e-2, as sim.turbulence tabulates it) at the flight's altitude, taken from
+    the model's air density (ISA): the start of filter error's process noise for the gust
+    states when no turbulence level is known (a real log); FEM then estimates it."""
+    from pipeline.identify import isa_altitude
+    from sim.turbulence import dryden_parameters
+
+    rho = float(problem.model.constants.get("rho", 1.225))
+    return {"model": "assumed light", **dryden_parameters(isa_altitude(rho), 15 * 0.514444, 3)}
 
 
 def dryden_known(turbulence: Mapping[str, Any] | None) -> bool:
