@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import argparse
 from concurrent.futures import ProcessPoolExecutor
-from typing import Callable, Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import pandas as pd
 
@@ -66,3 +67,21 @@ def range_line(tab: pd.DataFrame, group: str, extra: Mapping[str, str] | None = 
     more = ", ".join(f"{label} {t[c].min():.2f}-{t[c].max():.2f}" for c, label in (extra or {}).items())
     return (f"{group}: empirical std / reported std {t['reported'].min():.2f}-{t['reported'].max():.2f}"
             + (f" ({more})" if more else "") + f"; |bias| <= {t['bias'].abs().max():.2f} empirical std")
+
+
+def flown_problem(workdir: Path, axis: str, **kw) -> tuple[Any, dict]:
+    """(the multi-axis ``axis`` problem with the gust states, the truth document) of the
+    flight written into ``workdir`` (flight.mcap, truth.json): linear inputs, the log's
+    noise levels attached; ``kw`` go to pipeline.identify.multiaxis_problem."""
+    import json
+
+    from pipeline.identify import AircraftConstants, multiaxis_problem
+    from pipeline.readers import read_log
+    from pipeline.run import attach_logged_noise
+
+    truth_doc = json.loads((Path(workdir) / "truth.json").read_text())
+    fd = read_log(Path(workdir) / "flight.mcap")
+    pb = multiaxis_problem(fd, AircraftConstants.from_truth(truth_doc), axis, gust_states=True, **kw)
+    pb.inputs = "linear"
+    attach_logged_noise(fd, pb)
+    return pb, truth_doc

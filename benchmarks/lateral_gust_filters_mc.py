@@ -56,7 +56,6 @@ every lag from 0.1 to 0.6 s), so what fails there is the filters, not the gust m
 """
 from __future__ import annotations
 
-import json
 import sys
 import tempfile
 from functools import lru_cache, partial
@@ -66,7 +65,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from _montecarlo import fly, range_line, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
+from _montecarlo import (fly, flown_problem, range_line, scatter_table,  # noqa: E402
+                         seed_arguments)
 
 SCENARIO = ROOT / "scenarios" / "multiaxis_multisine_turbulence.toml"
 NAMES = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
@@ -96,16 +96,7 @@ def flight(workdir: Path) -> dict:
     """The flown flight of ``workdir`` (once per process): the lateral problem (from the
     written MCAP), the truth document and JSBSim's roll gust (t, p_turb) with its time
     constant (s, from the lag autocorrelation) and rms (rad/s)."""
-    from pipeline.identify import AircraftConstants, multiaxis_problem
-    from pipeline.readers import read_log
-    from pipeline.run import attach_logged_noise
-
-    truth_doc = json.loads((workdir / "truth.json").read_text())
-    fd = read_log(workdir / "flight.mcap")
-    pb = multiaxis_problem(fd, AircraftConstants.from_truth(truth_doc), "lateral",
-                           gust_states=True, rate_hz=50.0)
-    pb.inputs = "linear"
-    attach_logged_noise(fd, pb)
+    pb, truth_doc = flown_problem(workdir, "lateral", rate_hz=50.0)
     t, pt = np.load(workdir / "p_turb.npy")
     lag = int(round(0.2 / np.median(np.diff(t))))
     rho = np.corrcoef(pt[:-lag], pt[lag:])[0, 1]

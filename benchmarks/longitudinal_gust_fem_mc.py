@@ -40,7 +40,6 @@ the rms of the model's q_gi at FEM's F_q_gi); the flight banks up to 20 deg.
 from __future__ import annotations
 
 import copy
-import json
 import sys
 import tempfile
 from functools import lru_cache, partial
@@ -50,7 +49,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from _montecarlo import fly, range_line, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
+from _montecarlo import (fly, flown_problem, range_line, scatter_table,  # noqa: E402
+                         seed_arguments)
 
 SCENARIO = ROOT / "scenarios" / "multiaxis_multisine_turbulence.toml"
 NAMES = ("CD0", "CDalpha", "CDalpha2", "CL0", "CLalpha", "CLq", "CLde", "Cm0", "Cmalpha",
@@ -74,16 +74,9 @@ def flight(workdir: Path) -> dict:
     """The flown flight of ``workdir`` (once per process): its longitudinal problem (every
     maneuver fitted), the truth document and FEM's fit of the flight itself (its process
     noise is the draws')."""
-    from pipeline.identify import AircraftConstants, multiaxis_problem
-    from pipeline.readers import read_log
-    from pipeline.run import attach_logged_noise, fit_problem
+    from pipeline.run import fit_problem
 
-    truth_doc = json.loads((workdir / "truth.json").read_text())
-    fd = read_log(workdir / "flight.mcap")
-    pb = multiaxis_problem(fd, AircraftConstants.from_truth(truth_doc), "longitudinal",
-                           gust_states=True, hold_out=0)
-    pb.inputs = "linear"
-    attach_logged_noise(fd, pb)
+    pb, truth_doc = flown_problem(workdir, "longitudinal", hold_out=0)
     fem = fit_problem(pb, "fem", turbulence=truth_doc["turbulence"])
     F = {n[2:]: float(v) for n, v in fem.params.items() if n.startswith("F_")}
     return {"problem": pb, "truth": truth_doc, "F": F, "fem": fem}
