@@ -396,6 +396,10 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
              f"thrust from {'thrust channel' if 'thrust' in df else 'throttle x max_thrust'}",
              "start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())
              ] + ([input_note] if input_note else [])
+    if not {"CLalphadot", "Cmalphadot"} & set(free):
+        notes.append("CLalphadot, Cmalphadot held at 0: without gusts to separate them, the "
+                     "angle-of-attack rate moves with q, so CLq and Cmq carry their effect "
+                     "(Cmq estimates about Cmq + Cmalphadot)")
     return Problem("longitudinal", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
                    fit_specs, held,
                    estimate_x0=["V", "alpha", "theta", "q"] if rotary_gust else True,

@@ -142,6 +142,8 @@ def test_longitudinal_multiaxis_model(report, method):
     if method == "fem":
         ps = m["parameters"]
         assert {"F_V", "F_alpha", "F_q_gi"} <= set(ps) and ps["F_q_gi"]["estimate"] > 0
+        # CLalphadot, Cmalphadot free here: no note that Cmq carries Cmalphadot
+        assert not any("Cmq estimates" in n for n in m["validation"]["problem"]["notes"])
         # the 4 fitted maneuvers' scatter (estimators.validation.cluster, from FEM's own
         # per-maneuver information; seed 31: median 1.76 of the Cramér-Rao bound, largest
         # 3.9 on CLq; Cmalpha 3.37 std off)

@@ -101,6 +101,8 @@ def test_estimate_validate_with_a_second_flight(two_flights, tmp_path, capsys):
     # a calm flight with the model's own structure: the proof of match passes
     assert pm["all_pass"], [(sg["name"], {c: d["max_abs_error_display"] for c, d in
                                           sg["channels"].items()}) for sg in pm["segments"]]
+    # the alphadot derivatives are held: the report says what Cmq then estimates
+    assert any("Cmq estimates about Cmq + Cmalphadot" in n for n in m["validation"]["problem"]["notes"])
     # every maneuver of the first log was fitted: one x0 per maneuver
     fitted = {n.split("[")[1].rstrip("]") for n in m["parameters"] if n.startswith("bias_q[")}
     assert len(fitted) == n_elev
