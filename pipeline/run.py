@@ -523,6 +523,20 @@ def _held_refit(fd, ac: AircraftConstants, inputs: str, res, smooth_inputs: bool
 VALIDATION_PREFIX = "validation flight: "
 
 
+def hold_out_count(validation: Any, fit_all: bool | None) -> int:
+    """Maneuvers per axis held out of the fitted flight for the proof of match: none when
+    there is a validation flight (or ``fit_all``: the refits of such a run), else one."""
+    return 0 if (validation is not None if fit_all is None else fit_all) else 1
+
+
+def identified_axes(fd, axes: Sequence[str] = ("longitudinal", "lateral")) -> int:
+    """How many of ``axes`` the log's maneuvers excite (elevator: longitudinal; aileron or
+    rudder: lateral): the fits a run makes per method, for its progress count."""
+    flown = {sg.axis for sg in fd.segments}
+    return sum(1 for name, surfaces in (("longitudinal", {"de"}), ("lateral", {"da", "dr"}))
+               if name in axes and flown & surfaces)
+
+
 def _method_problem(fd, ac: AircraftConstants, base: Problem, build, outs: Sequence[str], m: str,
                     *, lon, multiaxis: bool, say: Callable[[str], None], cache: dict,
                     inputs: str, smooth_inputs: bool, hold_out: int) -> Problem:
@@ -628,7 +642,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     bad = [m for m in methods if m not in METHODS]
     if bad:
         raise FsidError(f"unknown method(s) {bad}: use some of {', '.join(METHODS)}")
-    hold = 0 if (validation is not None if fit_all is None else fit_all) else 1
+    hold = hold_out_count(validation, fit_all)
     results, validations, problems = {}, {}, []
     flown = {s.axis for s in fd.segments}
     builders = [("longitudinal" in axes and "de" in flown, longitudinal_problem, LONG_OUTPUTS),
@@ -962,8 +976,7 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     # inputs linearly between samples, hence linear input interpolation
     if not methods:
         methods = scenario_methods(truth_doc)
-    n_axes = sum(1 for ax in (("de",), ("da", "dr")) if {s.axis for s in fd_mcap.segments} & set(ax))
-    pr.total = pr.n + 2 * max(n_axes, 1) * len(methods) + 2   # + correction uncertainty, outputs
+    pr.total = pr.n + 2 * max(identified_axes(fd_mcap), 1) * len(methods) + 2   # + correction uncertainty, outputs
     from estimators.validation import default_tolerances
     from pipeline.correction_uncertainty import quiet_progress
     results, validations, problems = identify(fd_mcap, ac, methods, truth, pr, inputs="linear",
@@ -1072,9 +1085,8 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                   f"{fd.meta['servo_travel'][assumed[0]]['deg']:g} deg at full travel assumed; the "
                   f"control derivatives scale with it: give the aircraft TOML's [servos] "
                   f"({', '.join(a + '_travel_deg' for a in assumed)})", file=pr.stream)
-    flown = {sg.axis for sg in fd.segments}
-    n_axes = 1 if user else sum(1 for name, ax in (("longitudinal", {"de"}), ("lateral", {"da", "dr"}))
-                                if model in ("auto", name) and flown & ax)
+    n_axes = 1 if user else identified_axes(fd, ("longitudinal", "lateral") if model == "auto"
+                                            else (model,))
     pr.total = pr.n + 1 + 2 * max(n_axes, 1) * len(methods) + 2   # compatibility, fits, uncertainty, outputs
     from pipeline.compatibility import truth_errors
     # the reconstruction sees the logged channels only: angles rebuilt from the GPS velocity

@@ -202,23 +202,28 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
     ``tolerances``, ``pom``, ``starts`` (refit only), ``smooth_inputs``, ``validation``
     (a second flight for the proof of match) and ``fit_all`` as there."""
     from pipeline.run import (COMMON_GRID, METHODS, attach_logged_noise, filters_process_noise,
-                              fit_and_validate, with_validation_flight)
+                              fit_and_validate, hold_out_count, with_validation_flight)
 
     bad = [m for m in methods if m not in METHODS]
     if bad:
         raise FsidError(f"unknown method(s) {bad}: use some of {', '.join(METHODS)}")
     check_methods(methods)
-    hold = 0 if (validation is not None if fit_all is None else fit_all) else 1
-    problem = user_model_problem(fd, model, smooth_inputs=smooth_inputs, hold_out=hold)
-    problem.inputs = inputs
-    vproblem = None
-    if validation is not None and starts is None:
+    hold = hold_out_count(validation, fit_all)
+
+    def proved_on_validation(pb: Any) -> Any:
+        """``pb`` with the validation flight's maneuvers (on its grid) held out."""
+        if validation is None or starts is not None:
+            return pb
         try:
-            vproblem = user_model_problem(validation, model, smooth_inputs=smooth_inputs,
-                                          hold_out=0, rate_hz=problem.rate_hz)
+            val = user_model_problem(validation, model, smooth_inputs=smooth_inputs,
+                                     hold_out=0, rate_hz=pb.rate_hz)
         except FsidError as exc:
             raise FsidError(f"validation flight: {exc}") from None
-        problem = with_validation_flight(problem, vproblem, calm=False)
+        return with_validation_flight(pb, val, calm=False)
+
+    problem = proved_on_validation(user_model_problem(fd, model, smooth_inputs=smooth_inputs,
+                                                      hold_out=hold))
+    problem.inputs = inputs
     for n in problem.notes:
         if not progress.quiet:
             print(f"note: {n}", file=progress.stream)
@@ -231,13 +236,9 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
             rate = min(fd[c].rate_hz for c in model.outputs)
             if rate < 0.9 * problem.rate_hz:
                 if common is None:
-                    common = user_model_problem(fd, model, rate_hz=rate, smooth_inputs=smooth_inputs,
-                                                hold_out=hold)
+                    common = proved_on_validation(user_model_problem(
+                        fd, model, rate_hz=rate, smooth_inputs=smooth_inputs, hold_out=hold))
                     common.inputs = inputs
-                    if vproblem is not None:
-                        common = with_validation_flight(common, user_model_problem(
-                            validation, model, rate_hz=rate, smooth_inputs=smooth_inputs,
-                            hold_out=0), calm=False)
                 pb = common
         if m == "fem":              # its R; EKF/UKF keep the grid's (fit_problem)
             attach_logged_noise(fd, pb)
