@@ -250,3 +250,48 @@ def dryden_short_period_example(seed: int = 0, n: int = 1000, dt: float = 0.02, 
     start = {nm: STABLE_SP_TRUTH[nm] * (1.0 + s * start_offset) for nm, s in zip(free, signs)}
     model, _ = dryden_short_period_model(values=start, sigma_w=sigma_w, L=L)
     return NoisyExample(model, truth_model, [seg], dict(STABLE_SP_TRUTH), F, sd, [X])
+
+
+#: roll_gust_example's truth: damping a (1/s), control power b (rad/s^2 per unit input)
+ROLL_GUST_TRUTH = {"a": -6.0, "b": 10.0}
+
+
+def _roll_gust_f(x, u, p, c):
+    return (p.a * (x[0] + x[1]) + p.b * u[0], -x[1] / p.tau)
+
+
+def _roll_gust_g(x, u, p, c):
+    return (x[0],)
+
+
+def roll_gust_model(values=None) -> Model:
+    """A roll axis whose unmeasured first-order roll gust g acts through the damping a:
+    p' = a (p + g) + b u, g' = -g / tau; output p (rad/s). a, b free; tau held."""
+    v = {**ROLL_GUST_TRUTH, "tau": 0.4, **(values or {})}
+    return Model(states=["p", "g"], inputs=["u"], outputs=["p"],
+                 parameters=[Parameter("a", v["a"]), Parameter("b", v["b"]),
+                             Parameter("tau", v["tau"], free=False)],
+                 f=_roll_gust_f, g=_roll_gust_g, name="roll_gust")
+
+
+def roll_gust_example(seed: int = 0, n: int = 1500, dt: float = 0.02, *, tau: float = 0.4,
+                      gust_rms: float = 0.1, sensor_std: float = 0.003,
+                      start: dict[str, float] | None = None) -> NoisyExample:
+    """:func:`roll_gust_model` flown through its own gust (a first-order Markov process of
+    time constant tau s and rms gust_rms rad/s: white input gust_rms sqrt(2 / tau) per
+    sqrt(s), the gust started from its stationary spread) on a square wave plus a sine,
+    sensor noise sensor_std rad/s. Start values 33 % / 20 % off the truth (``start``
+    overrides)."""
+    truth_model = roll_gust_model({"tau": tau})
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt
+    u = 0.05 * np.sign(np.sin(2 * np.pi * t / 3.0 + 0.3)) + 0.03 * np.sin(2 * np.pi * 0.7 * t)
+    F = np.diag([0.0, gust_rms * np.sqrt(2.0 / tau)])
+    seg = Segment(t=t, u=u[:, None], z=np.zeros((n, 1)),
+                  x0=[0.0, gust_rms * rng.standard_normal()], name="roll-gust")
+    X, Z, _ = simulate_with_process_noise(truth_model, seg, F, rng, np.array([sensor_std]))
+    seg.z = Z
+    seg.x0 = np.array([Z[0, 0], 0.0])              # the filters know the measured rate, not the gust
+    model = roll_gust_model({"tau": tau, **(start or {"a": -4.0, "b": 8.0})})
+    return NoisyExample(model, truth_model, [seg], dict(ROLL_GUST_TRUTH), F,
+                        np.array([sensor_std]), [X])
