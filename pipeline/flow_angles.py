@@ -149,6 +149,16 @@ def fit_wind(t: np.ndarray, vg: np.ndarray, V: np.ndarray, axes: np.ndarray, *,
                    beta_rms=float(np.sqrt(np.mean((r2 / mag) ** 2))), n=int(t.size))
 
 
+#: ``Channel.derived`` of an angle this module rebuilt
+REBUILT = "rebuilt from the inertial velocity, attitude and airspeed"
+
+
+def rebuilt(fd: FlightData, name: str) -> bool:
+    """Whether channel ``name`` (alpha, beta) of ``fd`` is an angle rebuilt from the flight
+    path: the rigid body's angle against the mean wind, which carries no gust."""
+    return name in fd and fd[name].derived == REBUILT
+
+
 def _at(fd: FlightData, name: str, t: np.ndarray, wrapped: bool = False) -> np.ndarray:
     ch = fd[name]
     v = np.unwrap(ch.values) if wrapped else ch.values
@@ -197,7 +207,7 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
     for k in todo:
         channels[k] = Channel(t=t.copy(), values=angles[k], unit="rad", source=src,
                               notes="reconstructed: no vane in the log (pipeline.flow_angles)",
-                              derived="rebuilt from the inertial velocity, attitude and airspeed")
+                              derived=REBUILT)
     out = FlightData(channels=channels, meta=dict(fd.meta), segments=list(fd.segments))
     heading = np.unwrap(psi[ok])
     doc = {"status": "reconstructed", "channels": todo,

@@ -25,6 +25,7 @@ from estimators.models.lateral import lateral_measured_longitudinal
 from estimators.models.longitudinal import longitudinal_measured_lateral
 from pipeline.errors import FsidError
 from pipeline.flightdata import FlightData, SegmentSpec
+from pipeline.flow_angles import rebuilt
 from pipeline.input_smoothing import smooth_columns, smoothed_control_inputs, zero_phase
 
 #: derivatives estimated by default for the longitudinal axis
@@ -300,6 +301,11 @@ def longitudinal_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
     return {k: float(v) for k, v in sol.items()}
 
 
+#: problem note when a gust model measures a rebuilt angle as the rigid body's
+KINEMATIC_NOTE = ("{angle} rebuilt from the flight path (no vane) is measured as {state}, the "
+                  "rigid body's angle against the mean wind: it carries no gust")
+
+
 def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | None = None,
                          segments: Sequence[SegmentSpec] | None = None,
                          hold_out: int = 1, free: Sequence[str] = LONG_FREE,
@@ -346,6 +352,8 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
         c.update({"Ixx": ac.Ixx, "Izz": ac.Izz, "Ixz": ac.Ixz, "y_vane": ac.airdata[1],
                   "b": ac.b})
     rotary_gust = rotary_gust and measured_lateral
+    if rotary_gust:
+        c["kin_angles"] = float(rebuilt(fd, "alpha"))
     elev = [s for s in specs if s.axis == "de"]
     held = elev[-hold_out:] if hold_out else []
     fit_specs = [s for s in specs if s not in held]
@@ -405,7 +413,9 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
                    estimate_x0=["V", "alpha", "theta", "q"] if rotary_gust else True,
                    notes=notes + (["vertical gust in the states (Dryden shaping filters): "
                                    "rotary gust q_g = -s/(1 + tau s) alpha_g + q_gi in the pitch "
-                                   "damping"] if rotary_gust else []),
+                                   "damping"] if rotary_gust else [])
+                   + ([KINEMATIC_NOTE.format(angle="alpha", state="alpha_k")]
+                      if rotary_gust and c["kin_angles"] else []),
                    regressions=regs,
                    rate_hz=rate_hz)
 
@@ -709,6 +719,7 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     regs = lateral_regressions([frames[id(s)] for s in fit_specs], c)
     if rotary_gust:                     # Dryden roll-gust time constant 4 b / (pi V)
         start["tau_pg"] = 4.0 * ac.b / (np.pi * c["V"])
+        c["kin_angles"] = float(rebuilt(fd, "beta"))
     if measured_longitudinal:
         model = lateral_measured_longitudinal({**c, "Iyy": ac.Iyy}, values=start, free=free,
                                               output_biases=biases, name="lateral-measured",
@@ -742,6 +753,8 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
              "start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())]
     if rotary_gust:
         notes.append("roll-gust state p_g (Dryden, time constant 4b/(pi V)) in the roll damping")
+        if c["kin_angles"]:
+            notes.append(KINEMATIC_NOTE.format(angle="beta", state="beta_k"))
     if input_note:
         notes.append(input_note)
     return Problem("lateral", model, [seg(s) for s in fit_specs], [seg(s) for s in held],

@@ -230,3 +230,33 @@ def test_autopilot_angles_kept_when_they_cannot_be_rebuilt():
     # estimation keeps them; the sensor-compatibility stage gets the log without them
     assert out is fd and "alpha" not in base and doc["status"] == "not possible"
     assert "kept" in doc["reason"] and "AOA.AOA" in doc["reason"]
+
+
+@pytest.mark.parametrize("axis", ["longitudinal", "lateral"])
+def test_gust_models_measure_a_rebuilt_angle_as_the_rigid_bodys(axis):
+    """With ``kin_angles`` = 1 the gust models' alpha (beta) output is the rigid body's
+    alpha_k (beta_k), which is what an angle rebuilt from the flight path sees; with 0
+    (a vane, at the CG here) the air-relative state. The other outputs do not change."""
+    from estimators.model import Namespace
+    from estimators.models.lateral import lateral_measured_longitudinal
+    from estimators.models.longitudinal import longitudinal_measured_lateral
+
+    base = {"m": 1000.0, "Ixx": 1300.0, "Iyy": 1800.0, "Izz": 2600.0, "Ixz": 0.0, "S": 16.0,
+            "cbar": 1.5, "b": 11.0, "rho": 1.1}
+    if axis == "longitudinal":
+        build, k, ik = longitudinal_measured_lateral, 1, 4
+        x = np.array([60.0, 0.08, 0.05, 0.02, 0.06, 0.01, 0.003])
+        u = np.array([-0.02, 900.0, 0.01, 0.05, 0.02, 0.1, 0.3, 1.1])
+    else:
+        build, k, ik = lateral_measured_longitudinal, 0, 5
+        x = np.array([0.04, 0.05, 0.02, 0.1, 0.01, 0.025, 0.005])
+        u = np.array([0.02, -0.01, 60.0, 0.06, 0.05, 0.02])
+    ys = []
+    for kin in (0.0, 1.0):
+        m = build({**base, "kin_angles": kin}, rotary_gust=True)
+        p = Namespace({q.name: q.value for q in m.parameters})
+        ys.append(np.array(m.g(x, u, p, Namespace(m.constants)), dtype=float))
+    assert ys[0][k] == pytest.approx(x[k], abs=1e-9)
+    assert ys[1][k] == pytest.approx(x[ik], abs=1e-12)
+    np.testing.assert_array_equal(np.delete(ys[0], k), np.delete(ys[1], k))
+    assert build(base, rotary_gust=True).constants["kin_angles"] == 0.0

@@ -138,8 +138,10 @@ def g_measured_gust(x, u, p, c):
     beta, pr, rr, phi, pg, beta_k, bgf = x
     da, dr, V, alpha, theta, qr = u
     dgf = (beta - beta_k - bgf) * np.pi * V / (4.0 * c.b)
-    return _measured_outputs(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pr - pg,
-                             rr + dgf)
+    bm, pm, rm, phim, aym = _measured_outputs(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p,
+                                              c, pr - pg, rr + dgf)
+    # a sideslip rebuilt from the flight path (kin_angles = 1) is the rigid body's
+    return bm + c.kin_angles * (beta_k - bm), pm, rm, phim, aym
 
 
 def g_measured(x, u, p, c):
@@ -193,11 +195,13 @@ def lateral_measured_longitudinal(constants: Mapping[str, float],
         = -v_g / V decays with L_v / V (constant ``L_v``, default 533.4 m), and the yaw
         rate of the air mass r_g = -s / (1 + tau s) beta_g (tau = 4 b / (pi V); JSBSim's
         r_turb follows v_g'/V lagged, correlation 0.75) enters the aerodynamics as r - r_g
-        (CYr, Clr, Cnr)."""
+        (CYr, Clr, Cnr). Constant ``kin_angles`` = 1 (default 0): the beta output is
+        beta_k, for a sideslip rebuilt from the flight path (no vane:
+        :mod:`pipeline.flow_angles`), which sees no gust."""
     c = require_constants(constants, ("m", "Ixx", "Iyy", "Izz", "Ixz", "S", "b", "rho"),
                           "lateral-directional (measured longitudinal)")
     for k, v in {"g": 9.80665, "x_vane": 0.0, "z_vane": 0.0, "x_imu": 0.0, "z_imu": 0.0,
-                 "L_v": 533.4}.items():
+                 "L_v": 533.4, "kin_angles": 0.0}.items():
         c.setdefault(k, v)
     gust_free = rotary_gust and "tau_pg" in set(free or ())
     tau0 = dict(values or {}).get("tau_pg", 4.0 * c["b"] / (np.pi * 30.0))

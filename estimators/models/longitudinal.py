@@ -179,8 +179,10 @@ def g_measured_gust(x, u, p, c):
     V, alpha, theta, q, alpha_k, agf, qgi = x
     de, thrust, beta, pr, rr, phi, ay, rho = u
     dgf = (alpha - alpha_k - agf) * np.pi * V / (4.0 * c.b)
-    return _measured_outputs(V, alpha, theta, q, de, thrust, beta, pr, rr, phi, ay, rho, p,
-                             c, q + dgf - qgi)
+    Vm, am, thm, qm, qdm, axm, azm = _measured_outputs(V, alpha, theta, q, de, thrust, beta, pr,
+                                                       rr, phi, ay, rho, p, c, q + dgf - qgi)
+    # an angle of attack rebuilt from the flight path (kin_angles = 1) is the rigid body's
+    return Vm, am + c.kin_angles * (alpha_k - am), thm, qm, qdm, axm, azm
 
 
 @register_jitable
@@ -235,7 +237,10 @@ def longitudinal_measured_lateral(constants: Mapping[str, float],
         ``alpha_k`` is the rigid body's part (its rate is the alphadot of the
         CLalphadot/Cmalphadot terms, as JSBSim's aero/alphadot-rad_sec), alpha_g = alpha -
         alpha_k = -w_g / V the gust's, which decays with time constant L_w / V (constant
-        ``L_w``, default 533.4 m = 1750 ft). The pitch rate of the air mass (rotary gust,
+        ``L_w``, default 533.4 m = 1750 ft). Constant ``kin_angles`` = 1 (default 0):
+        the alpha output is alpha_k, for an angle of attack rebuilt from the flight path
+        (no vane: :mod:`pipeline.flow_angles`), which sees the body's motion against the
+        mean wind and no gust. The pitch rate of the air mass (rotary gust,
         the gust gradient along the airframe) is q_g = -s / (1 + tau s) alpha_g + q_gi,
         tau = 4 b / (pi V) (lag state alpha_gf; constant ``b``, span, needed): JSBSim's
         q_turb follows s/V/(1 + tau s) w_g within 10-30 % in gain and 15 deg in phase from
@@ -250,7 +255,7 @@ def longitudinal_measured_lateral(constants: Mapping[str, float],
                           "longitudinal (measured lateral)")
     for k, v in {"g": 9.80665, "sigmaT": 0.0, "zT": 0.0, "x_vane": 0.0, "y_vane": 0.0,
                  "z_vane": 0.0, "x_imu": 0.0, "z_imu": 0.0, "Ixx": 0.0, "Izz": 0.0,
-                 "Ixz": 0.0}.items():
+                 "Ixz": 0.0, "kin_angles": 0.0}.items():
         c.setdefault(k, v)
     if rotary_gust and not c.get("b"):
         raise ModelDefinitionError("rotary_gust needs the span b (m) among the constants")
