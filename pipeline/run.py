@@ -17,6 +17,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from pipeline.errors import FsidError
+from pipeline.flow_angles import rebuilt
 from pipeline.sixdof_problem import sixdof_lateral_problem
 from pipeline.identify import multi_axis, multiaxis_problem
 from pipeline.identify import (LAT_OUTPUTS, LONG_OUTPUTS, AircraftConstants, Problem, lateral_problem,
@@ -37,9 +38,10 @@ METHOD_HELP = {
     "eigen": "output error with eigenvalue transformation (unstable aircraft)",
     "decouple": "output error with equation decoupling (unstable aircraft)",
 }
-#: methods that need every output at every sample: their problem is built on the grid of
-#: the slowest output channel (FEM drops samples with any output missing; the Kalman
-#: filters would update on some outputs only)
+#: methods whose problem is built on the grid of the slowest output channel (FEM's
+#: steady-state gain is that of every output; the Kalman filters would update on some
+#: outputs only); filter error's multi-axis gust models leave out the angles rebuilt from
+#: the flight path (_method_problem)
 COMMON_GRID = frozenset({"fem", "ekf", "ukf"})
 
 
@@ -560,10 +562,19 @@ def _method_problem(fd, ac: AircraftConstants, base: Problem, build, outs: Seque
         # variables (the wings-level longitudinal model booked bank angle and yaw
         # rate on the derivatives), the filters with the Dryden gust states (the
         # rotary gusts in the damping terms; multiaxis_multisine_turbulence: FEM
-        # Cmde 9.5 -> 0.6 std, Clp 49 -> 7 std from the truth)
+        # Cmde 9.5 -> 0.6 std, Clp 49 -> 7 std from the truth).
+        # Filter error's gust models measure an angle rebuilt from the flight path as
+        # the rigid body's; its grid is that of the slowest other output, the rebuilt
+        # angles at their own samples (FEM's per-pattern gains): on the rebuilt angles'
+        # 10 Hz the 50-100 Hz channels lost their samples - ArduPilot flight.bin of
+        # this scenario, seeds 31-34, worst |error|/std lateral 8.5-10.4 there, 2.9-4.7
+        # on the 50 Hz of the other outputs; longitudinal 9.3-75, 7.8-14.5
+        rate = pb.rate_hz
+        if m == "fem":
+            rate = min((fd[c].rate_hz for c in outs if not rebuilt(fd, c)), default=rate)
         try:
             pb = multiaxis_problem(fd, ac, pb.axis, gust_states=m in COMMON_GRID,
-                                   rate_hz=pb.rate_hz, smooth_inputs=smooth_inputs,
+                                   rate_hz=rate, smooth_inputs=smooth_inputs,
                                    hold_out=hold_out)
         except FsidError as exc:
             say(f"multi-axis {pb.axis} model not set up ({exc}); {pb.model.name} model used")
