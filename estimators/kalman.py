@@ -581,6 +581,19 @@ def _adapt(F: np.ndarray, R: np.ndarray, match: _NoiseMatch, adapt_r: bool, adap
     return F, R, float(max(moves))
 
 
+def _joseph_update(P: np.ndarray, H: np.ndarray, R: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Kalman measurement update of the covariance P (..., L, L) with output Jacobian H
+    (..., k, L) and noise R (k, k), stacked over leading axes: (P in Joseph form
+    (I - K H) P (I - K H)^T + K R K^T, made symmetric; gain K = P H^T S^-1 (..., L, k);
+    innovation covariance S = H P H^T + R)."""
+    T = lambda A: np.swapaxes(A, -1, -2)              # noqa: E731
+    S = H @ P @ T(H) + R
+    K = T(np.linalg.solve(S, H @ P))                  # S symmetric
+    IKH = np.eye(P.shape[-1]) - K @ H
+    P = IKH @ P @ T(IKH) + K @ R @ T(K)
+    return 0.5 * (P + T(P)), K, S
+
 
 # -- Ljung's modification: the gain's dependence on the parameters ------------------------------
 class _GainSensitivity:
@@ -632,13 +645,7 @@ class _GainSensitivity:
         for the innovations nu (on ``ok``)."""
         S, h = self._columns(s)
         H = self._jacobian(aug.outputs(S, i), h)[:, ok]           # (m + 1, k, n)
-        Rk = R[np.ix_(ok, ok)]
-        Ht = np.transpose(H, (0, 2, 1))
-        PHt = self.P @ Ht
-        K = np.transpose(np.linalg.solve(H @ PHt + Rk, np.transpose(PHt, (0, 2, 1))), (0, 2, 1))
-        IKH = np.eye(self.n) - K @ H
-        self.P = IKH @ self.P @ np.transpose(IKH, (0, 2, 1)) + K @ Rk @ np.transpose(K, (0, 2, 1))
-        self.P = 0.5 * (self.P + np.transpose(self.P, (0, 2, 1)))
+        self.P, K, _ = _joseph_update(self.P, H, R[np.ix_(ok, ok)])
         return ((K[1:] - K[:1]) @ nu).T / self.d                  # (n, m)
 
     @staticmethod
@@ -1149,13 +1156,8 @@ class EKF(_ParameterFilter):
         if not np.any(ok):
             return s, P, y, None, None
         H = ((Y[:, 1:] - Y[:, :1]) / h)[ok]
-        Rk = R[np.ix_(ok, ok)]
-        Sinn = H @ P @ H.T + Rk
-        K = np.linalg.solve(Sinn, H @ P).T            # P H^T S^-1 (S symmetric)
-        s = s + K @ (z[ok] - y[ok])
-        IKH = np.eye(s.size) - K @ H
-        P = IKH @ P @ IKH.T + K @ Rk @ K.T             # Joseph form
-        return s, 0.5 * (P + P.T), y, K, Sinn
+        P, K, Sinn = _joseph_update(P, H, R[np.ix_(ok, ok)])
+        return s + K @ (z[ok] - y[ok]), P, y, K, Sinn
 
     def _settings(self) -> dict[str, Any]:
         return {**super()._settings(), "fd_step": self.fd_step}
