@@ -611,16 +611,44 @@ def _method_problem(fd, ac: AircraftConstants, base: Problem, build, outs: Seque
     return pb
 
 
-def with_validation_flight(pb: Problem, val: Problem, calm: bool) -> Problem:
-    """``pb`` with the maneuvers of ``val`` (the same axis and model built on a validation
-    flight, nothing held out there) as its held-out segments, named VALIDATION_PREFIX +
-    maneuver; ``calm``: that flight is known to be in calm air (a simulated one)."""
-    segs = [replace(s, name=VALIDATION_PREFIX + s.name) for s in val.fit + val.held_out]
-    note = (f"proof of match on the validation flight's {_count(len(segs), 'maneuver')} "
-            f"({', '.join(s.name[len(VALIDATION_PREFIX):] for s in segs)})"
-            + ("; flown in calm air" if calm else "") + "; every maneuver of this flight fitted")
-    return replace(pb, held_out=segs, held_specs=list(val.specs) + list(val.held_specs),
-                   notes=list(pb.notes) + [note])
+def validation_prefix(k: int, n: int) -> str:
+    """Name prefix of the proof-of-match segments of validation flight k (0-based) of n:
+    VALIDATION_PREFIX for a single flight, "validation flight <k+1>: " for several."""
+    return VALIDATION_PREFIX if n == 1 else f"validation flight {k + 1}: "
+
+
+def with_validation_flight(pb: Problem, vals: Problem | Sequence[Problem], calm: bool,
+                           numbers: Sequence[int] | None = None, n_flights: int | None = None
+                           ) -> Problem:
+    """``pb`` with the maneuvers of ``vals`` (the same axis and model built on each
+    validation flight, nothing held out there) as its held-out segments, named
+    :func:`validation_prefix` + maneuver; ``numbers``: each problem's flight (0-based, of
+    ``n_flights``; default: the order given); ``calm``: the flights are known to be in calm
+    air (a simulated one)."""
+    vals = [vals] if isinstance(vals, Problem) else list(vals)
+    numbers = list(range(len(vals))) if numbers is None else list(numbers)
+    total = len(vals) if n_flights is None else n_flights
+    segs, specs, parts = [], [], []
+    for k, val in zip(numbers, vals):
+        pre = validation_prefix(k, total)
+        mine = [replace(sg, name=pre + sg.name) for sg in val.fit + val.held_out]
+        segs += mine
+        specs += list(val.specs) + list(val.held_specs)
+        parts.append(("" if total == 1 else f"flight {k + 1}: ")
+                     + ", ".join(sg.name[len(pre):] for sg in mine))
+    where = "the validation flight's" if total == 1 else f"{total} validation flights'"
+    note = (f"proof of match on {where} {_count(len(segs), 'maneuver')} "
+            f"({'; '.join(parts)})" + ("; flown in calm air" if calm else "")
+            + "; every maneuver of this flight fitted")
+    return replace(pb, held_out=segs, held_specs=specs, notes=list(pb.notes) + [note])
+
+
+def validation_flights(validation: Any) -> list:
+    """The validation flights of ``identify``'s ``validation`` argument as a list (None:
+    none; one FlightData; or a sequence of them)."""
+    if validation is None:
+        return []
+    return list(validation) if isinstance(validation, (list, tuple)) else [validation]
 
 
 def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[str, float] | None,
@@ -643,9 +671,10 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     no progress. ``smooth_inputs``: the measured surface positions low-passed where a flat
     noise floor begins (:mod:`pipeline.input_smoothing`), else as logged.
 
-    validation: a second flight (FlightData) for the proof of match: each axis' model is
-    fitted to every maneuver of ``fd`` and proved on every maneuver of ``validation`` on
-    that axis (built the same way), instead of on the last maneuver of ``fd``;
+    validation: a second flight (FlightData), or several, for the proof of match: each
+    axis' model is fitted to every maneuver of ``fd`` and proved on every maneuver of each
+    validation flight on that axis (built the same way; segments named by
+    :func:`validation_prefix`), instead of on the last maneuver of ``fd``;
     ``validation_calm``: it is known to be flown in calm air (a simulated flight), so the
     automatic proof-of-match mode is the open-loop simulation whatever the method
     (:func:`pipeline.validate.pom_mode`). ``fit_all`` (default: with a validation flight):
@@ -653,7 +682,8 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     bad = [m for m in methods if m not in METHODS]
     if bad:
         raise FsidError(f"unknown method(s) {bad}: use some of {', '.join(METHODS)}")
-    hold = hold_out_count(validation, fit_all)
+    vflights = validation_flights(validation)
+    hold = hold_out_count(vflights or None, fit_all)
     results, validations, problems = {}, {}, []
     flown = {s.axis for s in fd.segments}
     builders = [("longitudinal" in axes and "de" in flown, longitudinal_problem, LONG_OUTPUTS),
@@ -664,8 +694,9 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     def note(msg: str) -> None:
         print(f"note: {msg}", file=progress.stream)
 
-    def val_note(msg: str) -> None:
-        note(f"validation flight: {msg}")
+    def val_note(k: int):
+        """The note function of validation flight k."""
+        return lambda msg: note(f"{validation_prefix(k, len(vflights))}{msg}")
 
     for wanted, build, outs in builders:
         if not wanted:
@@ -675,17 +706,18 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
         except FsidError as exc:        # e.g. one maneuver only: say so, fit the other axis
             skipped.append(str(exc))
             continue
-        vbase = None
-        if validation is not None:
+        vbases = []                     # (flight number, its problem of this axis)
+        for k, vfd in enumerate(vflights):
             try:
-                vbase = build(validation, ac, smooth_inputs=smooth_inputs, hold_out=0)
-                vbase.inputs = inputs
+                vb = build(vfd, ac, smooth_inputs=smooth_inputs, hold_out=0)
+                vb.inputs = inputs
+                vbases.append((k, vb))
             except FsidError as exc:
-                val_note(f"the {problem.axis} axis cannot be set up there ({exc}); "
-                         "that axis has no proof of match")
+                val_note(k)(f"the {problem.axis} axis cannot be set up there ({exc}); "
+                            "it proves nothing on that axis")
         problem.inputs = inputs
         problems.append(problem)
-        plans.append((problem, build, outs, vbase))
+        plans.append((problem, build, outs, vbases))
     if not problems:
         raise FsidError("no axis can be identified from this log: " + ("; ".join(skipped) or
                         "no control-input activity found (fly doublets/3-2-1-1s on the "
@@ -694,24 +726,28 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
         note(msg)
     multiaxis = multi_axis(fd)
     filter_q: dict[str, dict[str, float] | None] = {}   # axis -> EKF/UKF process noise
-    for problem, build, outs, vbase in plans:
+    for problem, build, outs, vbases in plans:
         cache: dict = {}
-        vcache: dict = {}
+        vcaches: dict[int, dict] = {k: {} for k, _ in vbases}
         for m in methods:
             lon = results.get("longitudinal-oem")
             pb = _method_problem(fd, ac, problem, build, outs, m, lon=lon, multiaxis=multiaxis,
                                  say=note, cache=cache, inputs=inputs,
                                  smooth_inputs=smooth_inputs, hold_out=hold)
-            if vbase is not None and starts is None:
-                vpb = _method_problem(validation, ac, vbase, build, outs, m, lon=lon,
-                                      multiaxis=multiaxis, say=val_note, cache=vcache,
-                                      inputs=inputs, smooth_inputs=smooth_inputs, hold_out=0)
-                if vpb.model.name == pb.model.name:
-                    pb = with_validation_flight(pb, vpb, validation_calm)
-                else:
-                    val_note(f"{pb.model.name} model not set up there; {m.upper()} on the "
-                             f"{pb.axis} axis has no proof of match")
-                    pb = replace(pb, held_out=[], held_specs=[])
+            if vflights and starts is None:
+                vpbs, numbers = [], []
+                for k, vbase in vbases:
+                    vpb = _method_problem(vflights[k], ac, vbase, build, outs, m, lon=lon,
+                                          multiaxis=multiaxis, say=val_note(k), cache=vcaches[k],
+                                          inputs=inputs, smooth_inputs=smooth_inputs, hold_out=0)
+                    if vpb.model.name == pb.model.name:
+                        vpbs.append(vpb)
+                        numbers.append(k)
+                    else:
+                        val_note(k)(f"{pb.model.name} model not set up there; it proves "
+                                    f"nothing for {m.upper()} on the {pb.axis} axis")
+                pb = (with_validation_flight(pb, vpbs, validation_calm, numbers, len(vflights))
+                      if vpbs else replace(pb, held_out=[], held_specs=[]))
             key = m if len(problems) == 1 else f"{pb.axis}-{m}"
             if m == "fem":          # its R; EKF/UKF keep the grid's (fit_problem)
                 attach_logged_noise(fd, pb)
@@ -721,7 +757,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                                     tolerances=tolerances, pom=pom,
                                     start=None if starts is None else starts.get(key, {}),
                                     process_noise=q,
-                                    calm_air=validation_calm and vbase is not None)
+                                    calm_air=validation_calm and bool(vbases))
             if done is not None:
                 results[key], validations[key] = done
                 if starts is None and pb.model.name.startswith("sixdof") and lon is not None:
@@ -1016,7 +1052,8 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                  inputs: str = "linear", model: str = "auto", quiet: bool = False,
                  compat: bool = True, bands: Mapping[str, float] | None = None,
                  pom: str = "auto", smooth_inputs: bool = True,
-                 validation_log: str | Path | None = None) -> dict[str, Path]:
+                 validation_log: str | Path | Sequence[str | Path] | None = None
+                 ) -> dict[str, Path]:
     """``fsid estimate``: a log -> report and recording. ``model``: a built-in model
     (auto|longitudinal|lateral; needs ``aircraft``, or a truth.json next to the log) or a
     user model ``path.py:name`` (:mod:`pipeline.user_model`). Aircraft and sensor positions:
@@ -1024,11 +1061,11 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     is the filter-error method's estimate (:func:`filters_process_noise`). ``bands``
     (``rate_deg_s``, ``accel_g``, ``angle_deg``) and ``pom`` set the proof of match
     (defaults 1.5 deg/s, 0.1 g, 1.5 deg; auto mode); ``smooth_inputs``: see :func:`identify`.
-    ``validation_log``: a second flight for the proof of match (read with the same map and
-    servo travel, its air-data angles rebuilt the same way; of the sensor errors removed
-    from ``log`` the instruments' scale factors and air-data delay removed from it too,
-    :func:`with_instrument_errors_removed`): every maneuver of ``log`` is fitted and the
-    model proved on its maneuvers
+    ``validation_log``: a second flight, or a sequence of them, for the proof of match
+    (each read with the same map and servo travel, its air-data angles rebuilt the same
+    way; of the sensor errors removed from ``log`` the instruments' scale factors and
+    air-data delay removed from it too, :func:`with_instrument_errors_removed`): every
+    maneuver of ``log`` is fitted and the model proved on their maneuvers
     (:func:`identify`'s ``validation``; the air-data proof of match in auto mode for the
     filter methods, since its turbulence is not known)."""
     from estimators.validation import default_tolerances
@@ -1046,7 +1083,9 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     # ingest, aircraft, air-data angles, checks, compatibility, its uncertainty, outputs (7),
     # the user model's loading, the validation flight's ingest and angles, a fit and its
     # validation per method and axis (both axes for auto: recounted once the log is read)
-    pr = Progress(7 + user + 2 * (validation_log is not None)
+    vlogs = ([] if validation_log is None else [validation_log]
+             if isinstance(validation_log, (str, Path)) else list(validation_log))
+    pr = Progress(7 + user + 2 * len(vlogs)
                   + 2 * len(methods) * (2 if model == "auto" else 1), quiet=quiet)
     pr.stage(f"ingest {log}")
     from pipeline.aircraft_setup import servo_travel_for
@@ -1062,17 +1101,19 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
              if truth_doc and truth_doc.get("derivatives") else None)
     ac_sensors = ac
     fd, ac, fd_logged, flow = flow_angle_stage(fd, ac, pr)
-    fd_val = None
-    if validation_log is not None:
-        if Path(validation_log).resolve() == Path(log).resolve():
-            raise FsidError(f"--validate-with {validation_log}: that is the log being fitted; "
-                            "give a second flight (or leave it out to hold out the last maneuver)")
-        pr.stage(f"ingest the validation flight {validation_log}")
-        fd_val = read_log(validation_log, map=map_path,
-                          servo_travel=servo_travel_for(validation_log, aircraft))
-        pr.done(f"{len(fd_val.channels)} channels, {len(fd_val.segments)} segments")
-        fd_val = flow_angle_stage(fd_val, ac_sensors, pr)[0]
-        val_checks = summarize(run_checks(fd_val))
+    fd_vals, val_checks = [], []
+    seen = {Path(log).resolve(): "the log being fitted"}
+    for vlog in vlogs:
+        if Path(vlog).resolve() in seen:
+            raise FsidError(f"--validate-with {vlog}: that is {seen[Path(vlog).resolve()]}; "
+                            "give another flight (or leave it out to hold out the last maneuver)")
+        seen[Path(vlog).resolve()] = "a validation flight already given"
+    for vlog in vlogs:
+        pr.stage(f"ingest the validation flight {vlog}")
+        fv = read_log(vlog, map=map_path, servo_travel=servo_travel_for(vlog, aircraft))
+        pr.done(f"{len(fv.channels)} channels, {len(fv.segments)} segments")
+        fd_vals.append(flow_angle_stage(fv, ac_sensors, pr)[0])
+        val_checks.append(summarize(run_checks(fd_vals[-1])))
     if user:                         # before the slow stages: a bad model fails at once
         pr.stage(f"load model {model}")
         from pipeline.user_model import check_channels, load_user_model
@@ -1084,10 +1125,13 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     summary = summarize(run_checks(fd))
     pr.done(str(summary))
     meta = {"log": str(log), "aircraft": ac_name}
-    if fd_val is not None:
-        meta["validation flight"] = (f"{validation_log}: the proof of match; every maneuver of "
-                                     f"{Path(log).name} fitted; its data-quality checks: "
-                                     + ", ".join(f"{k} {v}" for k, v in val_checks.items()))
+    if fd_vals:
+        meta["validation flight"] = "; ".join(
+            f"{validation_prefix(k, len(vlogs))}{vlog}" if len(vlogs) > 1 else str(vlog)
+            for k, vlog in enumerate(vlogs)) + (
+            f": the proof of match; every maneuver of {Path(log).name} fitted; data-quality "
+            "checks: " + "; ".join(", ".join(f"{k} {v}" for k, v in c.items())
+                                   for c in val_checks))
     if fd.meta.get("servo_travel"):
         meta["servo_travel"] = fd.meta["servo_travel"]
         assumed = [k for k, v in fd.meta["servo_travel"].items() if v["from"] == "assumed"]
@@ -1117,30 +1161,29 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         fd = replace(fd_c, channels={**fd_c.channels, **{
             k: c for k, c in fd.channels.items() if k not in fd_c.channels}})
     meta["data"] = f"{Path(log).name}, {comp['data_for_estimation']}"
-    if fd_val is not None:
-        fd_val = with_instrument_errors_removed(fd_val, comp, meta)
+    fd_vals = [with_instrument_errors_removed(fv, comp, meta) for fv in fd_vals]
     from pipeline.correction_uncertainty import quiet_progress
     if user:
         results, validations, problems = identify_user_model(fd, um, methods, truth, pr, inputs=inputs,
                                                              tolerances=tol, pom=pom,
                                                              smooth_inputs=smooth_inputs,
-                                                             validation=fd_val)
+                                                             validation=fd_vals or None)
         meta["model"] = model
 
         def refit(fd_j, starts):
             return identify_user_model(with_flow_angles(fd_j, flow)[0], um, methods, truth,
                                        quiet_progress(), inputs=inputs, starts=starts,
-                                       smooth_inputs=smooth_inputs, fit_all=fd_val is not None)[0]
+                                       smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
     else:
         axes = ("longitudinal", "lateral") if model == "auto" else (model,)
         results, validations, problems = identify(fd, ac, methods, truth, pr, inputs=inputs, axes=axes,
                                                   tolerances=tol, pom=pom, smooth_inputs=smooth_inputs,
-                                                  validation=fd_val)
+                                                  validation=fd_vals or None)
 
         def refit(fd_j, starts):
             return identify(with_flow_angles(fd_j, flow)[0], ac, methods, truth, quiet_progress(),
                             inputs=inputs, axes=axes, starts=starts, smooth_inputs=smooth_inputs,
-                            fit_all=fd_val is not None)[0]
+                            fit_all=bool(fd_vals))[0]
     carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit)
     if truth is not None:
         meta["truth"] = "truth.json next to the log"

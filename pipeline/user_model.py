@@ -195,31 +195,36 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
                         truth: Mapping[str, float] | None, progress: Any,
                         inputs: str = "linear", tolerances: Mapping[str, float] | None = None,
                         pom: str = "auto", starts: Mapping[str, Any] | None = None,
-                        smooth_inputs: bool = True, validation: FlightData | None = None,
+                        smooth_inputs: bool = True,
+                        validation: FlightData | Sequence[FlightData] | None = None,
                         fit_all: bool | None = None) -> tuple[dict, dict, list]:
     """Fit and validate a user model with each method; same return as
     :func:`pipeline.run.identify` (results, validations, problems), keyed by method;
     ``tolerances``, ``pom``, ``starts`` (refit only), ``smooth_inputs``, ``validation``
-    (a second flight for the proof of match) and ``fit_all`` as there."""
+    (a second flight, or several, for the proof of match) and ``fit_all`` as there."""
     from pipeline.run import (COMMON_GRID, METHODS, attach_logged_noise, filters_process_noise,
-                              fit_and_validate, hold_out_count, with_validation_flight)
+                              fit_and_validate, hold_out_count, validation_flights,
+                              validation_prefix, with_validation_flight)
 
     bad = [m for m in methods if m not in METHODS]
     if bad:
         raise FsidError(f"unknown method(s) {bad}: use some of {', '.join(METHODS)}")
     check_methods(methods)
-    hold = hold_out_count(validation, fit_all)
+    vflights = validation_flights(validation)
+    hold = hold_out_count(vflights or None, fit_all)
 
     def proved_on_validation(pb: Any) -> Any:
-        """``pb`` with the validation flight's maneuvers (on its grid) held out."""
-        if validation is None or starts is not None:
+        """``pb`` with the validation flights' maneuvers (on its grid) held out."""
+        if not vflights or starts is not None:
             return pb
-        try:
-            val = user_model_problem(validation, model, smooth_inputs=smooth_inputs,
-                                     hold_out=0, rate_hz=pb.rate_hz)
-        except FsidError as exc:
-            raise FsidError(f"validation flight: {exc}") from None
-        return with_validation_flight(pb, val, calm=False)
+        vals = []
+        for k, vfd in enumerate(vflights):
+            try:
+                vals.append(user_model_problem(vfd, model, smooth_inputs=smooth_inputs,
+                                               hold_out=0, rate_hz=pb.rate_hz))
+            except FsidError as exc:
+                raise FsidError(f"{validation_prefix(k, len(vflights))}{exc}") from None
+        return with_validation_flight(pb, vals, calm=False)
 
     problem = proved_on_validation(user_model_problem(fd, model, smooth_inputs=smooth_inputs,
                                                       hold_out=hold))

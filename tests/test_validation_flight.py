@@ -60,8 +60,9 @@ def test_validation_flight_errors_name_the_table(extra, words):
 
 @pytest.fixture(scope="module")
 def two_flights(tmp_path_factory):
-    """longitudinal_3211_calm flown twice (seeds 4 and 5): flight.mcap with truth.json, and
-    second.mcap in the same folder (the validation flight: same aircraft and sensors)."""
+    """longitudinal_3211_calm flown three times (seeds 4, 5, 6): flight.mcap with truth.json,
+    and second.mcap, third.mcap in the same folder (validation flights: same aircraft and
+    sensors)."""
     from pipeline.writers import write_mcap, write_truth_json
 
     out = tmp_path_factory.mktemp("two")
@@ -70,6 +71,7 @@ def two_flights(tmp_path_factory):
     write_mcap(out / "flight.mcap", first)
     write_truth_json(out / "truth.json", first)
     write_mcap(out / "second.mcap", sim.fly(s, seed=5, workdir=out / ".jsbsim"))
+    write_mcap(out / "third.mcap", sim.fly(s, seed=6, workdir=out / ".jsbsim"))
     return out
 
 
@@ -116,9 +118,40 @@ def test_estimate_validate_with_a_second_flight(two_flights, tmp_path, capsys):
                 if n.startswith("bias_q[")}) == n_elev - 1
 
 
+def test_validate_with_several_flights(two_flights, tmp_path, capsys):
+    """``--validate-with`` repeated: the proof of match on every maneuver of each flight,
+    named "validation flight 1: ...", "validation flight 2: ..."; the same flight's
+    maneuvers score the same as with it alone; every stage counted once."""
+    log, second, third = (two_flights / f"{k}.mcap" for k in ("flight", "second", "third"))
+    n = [sum(s.axis == "de" for s in read_log(f).segments) for f in (second, third)]
+    code = main(["estimate", str(log), "--model", "longitudinal", "--no-compat",
+                 "--validate-with", str(second), "--validate-with", str(third),
+                 "--out", str(tmp_path / "two")])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    stages = [(int(a), int(b)) for a, b in re.findall(r"^\[(\d+)/(\d+)\]", err, flags=re.M)]
+    assert {b for _, b in stages} == {len(stages)}, err
+    assert err.count("ingest the validation flight") == 2
+    rep = _report(tmp_path / "two")
+    assert rep["meta"]["validation flight"].startswith(
+        f"validation flight 1: {second}; validation flight 2: {third}: the proof of match")
+    segs = rep["methods"]["oem"]["validation"]["proof_of_match"]["segments"]
+    names = [sg["name"] for sg in segs]
+    assert len(segs) == sum(n) and all(
+        nm.startswith(f"validation flight {1 + (i >= n[0])}: auto_de_") for i, nm in enumerate(names))
+    assert main(["estimate", str(log), "--model", "longitudinal", "--no-compat", "--quiet",
+                 "--validate-with", str(second), "--out", str(tmp_path / "one")]) == 0
+    one = _report(tmp_path / "one")["methods"]["oem"]["validation"]["proof_of_match"]["segments"]
+    assert [sg["name"].split(": ")[1] for sg in one] == [nm.split(": ")[1] for nm in names[:n[0]]]
+    for a, b in zip(one, segs):
+        assert {c: d["max_abs_error_display"] for c, d in a["channels"].items()} == pytest.approx(
+            {c: d["max_abs_error_display"] for c, d in b["channels"].items()}, rel=1e-9)
+
+
 def test_user_model_validate_with(two_flights, tmp_path, capsys):
     """A user model (tests/test_estimate_user_model.MODEL_FILE) takes the validation flight
-    too: every maneuver fitted, the proof of match on the second log's."""
+    too: every maneuver fitted, the proof of match on the second log's (and on a third's
+    when given twice)."""
     from tests.test_estimate_user_model import MODEL_FILE
 
     (tmp_path / "sp_user.py").write_text(MODEL_FILE)
@@ -132,17 +165,29 @@ def test_user_model_validate_with(two_flights, tmp_path, capsys):
     assert len(segs) == len(read_log(second).segments)
     assert all(sg["name"].startswith("validation flight: ") for sg in segs)
     assert len({n for n in m["parameters"] if n.startswith("de0[")}) == len(read_log(log).segments)
+    # and on two flights
+    third = two_flights / "third.mcap"
+    assert main(["estimate", str(log), "--model", f"{tmp_path / 'sp_user.py'}:short_period_user",
+                 "--no-compat", "--quiet", "--validate-with", str(second),
+                 "--validate-with", str(third), "--out", str(tmp_path / "u2")]) == 0
+    segs2 = _report(tmp_path / "u2")["methods"]["oem"]["validation"]["proof_of_match"]["segments"]
+    assert [sg["name"] for sg in segs2] == (
+        [sg["name"].replace("validation flight:", "validation flight 1:") for sg in segs]
+        + [f"validation flight 2: {sg.name}" for sg in read_log(third).segments])
 
 
 @pytest.mark.parametrize("which, words", [
     ("same", "that is the log being fitted"),
     ("missing", "nothing.mcap: No such file"),
+    ("twice", "that is a validation flight already given"),
 ])
 def test_validate_with_errors_are_one_line(two_flights, tmp_path, capsys, which, words):
     log = two_flights / "flight.mcap"
-    other = log if which == "same" else two_flights / "nothing.mcap"
+    other = {"same": [log], "missing": [two_flights / "nothing.mcap"],
+             "twice": [two_flights / "second.mcap"] * 2}[which]
     code = main(["estimate", str(log), "--model", "longitudinal", "--no-compat", "--quiet",
-                 "--validate-with", str(other), "--out", str(tmp_path / "e")])
+                 *[a for o in other for a in ("--validate-with", str(o))],
+                 "--out", str(tmp_path / "e")])
     err = capsys.readouterr().err.strip().splitlines()
     assert code != 0 and len(err) == 1 and words in err[0], err
 

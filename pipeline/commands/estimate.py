@@ -34,11 +34,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="how control inputs vary between log samples (default: linear)")
     p.add_argument("--out", help="output folder (default: a new folder under ./runs/)")
     p.add_argument("--no-compat", action="store_true", help="skip the sensor-compatibility stage")
-    p.add_argument("--validate-with", metavar="LOG2",
+    p.add_argument("--validate-with", metavar="LOG2", action="append",
                    help="a second flight log (same aircraft, channel map and sensors) for the "
                         "proof of match: every maneuver of LOG is then fitted and the model "
-                        "is proved on LOG2's maneuvers (default: the last maneuver of each "
-                        "axis of LOG is held out)")
+                        "is proved on LOG2's maneuvers (repeat for several flights; default: "
+                        "the last maneuver of each axis of LOG is held out)")
     add_input_arguments(p)
     add_validation_arguments(p)
     p.add_argument("--quiet", action="store_true")
