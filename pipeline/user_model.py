@@ -247,8 +247,8 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
                 pb = common
         if m == "fem":              # its R; EKF/UKF keep the grid's (fit_problem)
             attach_logged_noise(fd, pb)
-        q = filters_process_noise(fd, pb, m, results.get("fem"), filter_q, progress,
-                                  quiet=starts is not None)
+        q, pb = filters_process_noise(fd, pb, m, results.get("fem"), filter_q, progress,
+                                      quiet=starts is not None)
         done = fit_and_validate(pb, m, f"user model {model.name!r}", truth, progress,
                                 tolerances=tolerances, pom=pom,
                                 start=None if starts is None else starts.get(m, {}),
