@@ -383,10 +383,10 @@ def _states_at_cg(model: Any):
 def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] | None = None,
                 process_noise: Mapping[str, float] | None = None,
                 callback: Callable[[int, float, Any], None] | None = None) -> Any:
-    """Run one estimation method on a problem (names in METHODS). EKF/UKF process noise:
-    ``process_noise`` (state -> F, e.g. :func:`filter_process_noise`) when given, else
-    twice the Dryden level ``turbulence`` when known (truth.json), else the data's
-    default; ``turbulence`` also starts FEM's. ``callback``: called after each iteration (OEM, FEM) or pass (EKF,
+    """Run one estimation method on a problem (names in METHODS). ``turbulence``: the
+    Dryden level when known (truth.json), for the filters' process noise; else
+    ``process_noise`` (EKF/UKF: state -> F, e.g. :func:`filter_process_noise`), else the
+    data's default. ``callback``: called after each iteration (OEM, FEM) or pass (EKF,
     UKF) as callback(iteration, cost, params)."""
     import estimators as E
 
@@ -419,7 +419,8 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
         # tuned with: with the log's native-rate noise (lower on the 100 Hz IMU channels, see
         # attach_logged_noise) and the same Q, EKF/UKF CL0, CLde, CLq on
         # multiaxis_multisine_turbulence went from within 3 to 3.7-5.7 std off the truth
-        Q = (process_noise_std(problem, turbulence, 2.0) if process_noise is None else
+        Q = (process_noise_std(problem, turbulence, 2.0)
+             if dryden_known(turbulence) or process_noise is None else
              {k: v for k, v in process_noise.items() if k in model.states})
         return cls(model, inputs=inputs, process_noise=Q,
                    measurement_noise=measurement_noise_std(problem, logged=False),
@@ -783,19 +784,13 @@ GUST_NOISE_PARAMETERS = ("tau_pg",)
 def filters_process_noise(fd, pb: Problem, method: str, fem: Any, cache: dict, progress: Progress,
                           *, turbulence: Mapping[str, Any] | None = None, quiet: bool = False
                           ) -> tuple[dict[str, float] | None, Problem]:
-    """The process noise of an EKF/UKF fit and its problem: filter error's noise model,
-    from this run's FEM of the axis (``fem``, when it ran first) or, with no Dryden level
-    known, from a filter-error fit made for it, once per axis (``cache``: axis -> that fit
-    or None): its F (:func:`filter_process_noise`) and ``pb`` with its free
-    GUST_NOISE_PARAMETERS held at that fit's estimates. (None, ``pb``) for other methods;
-    when the Dryden level is known and FEM did not run (fit_problem takes twice the level);
-    and when the filter-error fit fails (the filters' default).
-
-    multiaxis_multisine_turbulence through fsid run, seed 31: with twice the Dryden level
-    the lateral UKF put Clp 6.5 std off the truth; with FEM's noise model every lateral
-    derivative within 2.4 std (EKF 28 -> 30; longitudinal EKF/UKF worst 6.2/5.5 -> 6.0/6.5,
-    failing either way). longitudinal_3211_turbulence: EKF/UKF worst 2.5/2.5 -> 2.2/2.3."""
-    if method not in ("ekf", "ukf") or (dryden_known(turbulence) and fem is None):
+    """The process noise of an EKF/UKF fit and its problem: (None, ``pb``) for other
+    methods and when the Dryden level is known (fit_problem takes it from there); else
+    from this run's FEM of the problem (``fem``), or a filter-error fit made for it, once
+    per axis (``cache``: axis -> that fit or None), with ``pb``'s free
+    GUST_NOISE_PARAMETERS held at that fit's estimates; (None, ``pb``), the filters'
+    default, when that fit fails."""
+    if method not in ("ekf", "ukf") or dryden_known(turbulence):
         return None, pb
     if pb.axis not in cache:
         cache[pb.axis] = _fem_for_filters(fd, pb, fem, progress, quiet)

@@ -10,9 +10,7 @@ What is asserted is what was measured to hold; what does not hold is stated, not
   the gusts, and the flown response to the gusts alone exceeds the bands - the TRUE
   derivatives (x0 and biases fitted) miss by 3.9 deg/s on q (band 1.5), 1.6 deg on theta,
   0.118 g on az. Kept as a strict xfail so that it shows up when validation learns a
-  turbulence-aware proof of match. The EKF/UKF take the run's filter-error noise model
-  (pipeline.run.filters_process_noise, as on a log): worst 2.2 / 2.3 std (with twice the
-  Dryden level 2.5 / 2.5, ad hoc).
+  turbulence-aware proof of match.
 * unstable_short_period, FEM / EKF / UKF / equation decoupling / stabilised OEM: every
   derivative within 3 std, TIC < 0.1, proof of match (air-data driven: an open-loop
   simulation of a statically unstable model through the SAS-flown surface positions misses
