@@ -27,6 +27,11 @@ maneuver of the flight fitted, the proof of match on its calm validation flight:
                       7/8 (0.50-0.79; seed 35 1.02), UKF 5/8 (0.81-2.04), EKF 1/8 (0.83-4.10)
     largest Theil coefficient: longitudinal 0.090-0.097, lateral 0.070-0.081 (every method,
                       every seed)
+  Tried and dropped (2026-11-25): EKF/UKF with the run's filter-error noise model (its F
+  x2, tau_pg held at its estimate) instead of twice the Dryden level: lateral UKF within 3
+  std on 2/8 seeds (worst 2.4-14.3; seed 31 from 6.5 to 2.4), but its proof of match 3/8;
+  longitudinal EKF/UKF worse on every seed (worst 5.3-9.1 / 6.4-11.2, CLq); lateral EKF
+  3.5-79; 10/48 fits within 3 std. Real logs (no level known) take that noise model.
   The same with 1.5 deg multisines (FEM only): longitudinal 1.8 3.5 4.2 3.0 4.1 3.1 5.4 2.8
   (3/8; 6/8), empirical / reported up to 3.29 (Cmalphadot), 1.90 (Cmq); lateral 5/8, 5/8;
   the 3 deg empirical std a median 0.65 of it (0.26-1.13 by derivative: Cmde 0.018 against
