@@ -525,10 +525,11 @@ def _held_refit(fd, ac: AircraftConstants, inputs: str, res, smooth_inputs: bool
 VALIDATION_PREFIX = "validation flight: "
 
 
-def hold_out_count(validation: Any, fit_all: bool | None) -> int:
+def hold_out_count(validation: Sequence[Any], fit_all: bool | None) -> int:
     """Maneuvers per axis held out of the fitted flight for the proof of match: none when
-    there is a validation flight (or ``fit_all``: the refits of such a run), else one."""
-    return 0 if (validation is not None if fit_all is None else fit_all) else 1
+    there is a validation flight (``validation``: the list of them, see
+    :func:`validation_flights`; or ``fit_all``: the refits of such a run), else one."""
+    return 0 if (bool(validation) if fit_all is None else fit_all) else 1
 
 
 def identified_axes(fd, axes: Sequence[str] = ("longitudinal", "lateral")) -> int:
@@ -617,7 +618,7 @@ def validation_prefix(k: int, n: int) -> str:
     return VALIDATION_PREFIX if n == 1 else f"validation flight {k + 1}: "
 
 
-def with_validation_flight(pb: Problem, vals: Problem | Sequence[Problem], calm: bool,
+def with_validation_flight(pb: Problem, vals: Sequence[Problem], calm: bool,
                            numbers: Sequence[int] | None = None, n_flights: int | None = None
                            ) -> Problem:
     """``pb`` with the maneuvers of ``vals`` (the same axis and model built on each
@@ -625,7 +626,6 @@ def with_validation_flight(pb: Problem, vals: Problem | Sequence[Problem], calm:
     :func:`validation_prefix` + maneuver; ``numbers``: each problem's flight (0-based, of
     ``n_flights``; default: the order given); ``calm``: the flights are known to be in calm
     air (a simulated one)."""
-    vals = [vals] if isinstance(vals, Problem) else list(vals)
     numbers = list(range(len(vals))) if numbers is None else list(numbers)
     total = len(vals) if n_flights is None else n_flights
     segs, specs, parts = [], [], []
@@ -644,8 +644,9 @@ def with_validation_flight(pb: Problem, vals: Problem | Sequence[Problem], calm:
 
 
 def validation_flights(validation: Any) -> list:
-    """The validation flights of ``identify``'s ``validation`` argument as a list (None:
-    none; one FlightData; or a sequence of them)."""
+    """``identify``'s ``validation`` argument (or ``estimate_log``'s ``validation_log``) as
+    a list: None -> none; one flight (a FlightData, a path) -> [it]; a list or tuple of
+    them as it is."""
     if validation is None:
         return []
     return list(validation) if isinstance(validation, (list, tuple)) else [validation]
@@ -683,7 +684,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     if bad:
         raise FsidError(f"unknown method(s) {bad}: use some of {', '.join(METHODS)}")
     vflights = validation_flights(validation)
-    hold = hold_out_count(vflights or None, fit_all)
+    hold = hold_out_count(vflights, fit_all)
     results, validations, problems = {}, {}, []
     flown = {s.axis for s in fd.segments}
     builders = [("longitudinal" in axes and "de" in flown, longitudinal_problem, LONG_OUTPUTS),
@@ -725,7 +726,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     for msg in skipped:
         note(msg)
     multiaxis = multi_axis(fd)
-    filter_q: dict[str, dict[str, float] | None] = {}   # axis -> EKF/UKF process noise
+    filter_q: dict[str, Any] = {}   # axis -> the filter-error fit the EKF/UKF take their noise from
     for problem, build, outs, vbases in plans:
         cache: dict = {}
         vcaches: dict[int, dict] = {k: {} for k, _ in vbases}
@@ -1105,8 +1106,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     # ingest, aircraft, air-data angles, checks, compatibility, its uncertainty, outputs (7),
     # the user model's loading, the validation flight's ingest and angles, a fit and its
     # validation per method and axis (both axes for auto: recounted once the log is read)
-    vlogs = ([] if validation_log is None else [validation_log]
-             if isinstance(validation_log, (str, Path)) else list(validation_log))
+    vlogs = validation_flights(validation_log)
     pr = Progress(7 + user + 2 * len(vlogs)
                   + 2 * len(methods) * (2 if model == "auto" else 1), quiet=quiet)
     pr.stage(f"ingest {log}")
@@ -1189,7 +1189,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         results, validations, problems = identify_user_model(fd, um, methods, truth, pr, inputs=inputs,
                                                              tolerances=tol, pom=pom,
                                                              smooth_inputs=smooth_inputs,
-                                                             validation=fd_vals or None)
+                                                             validation=fd_vals)
         meta["model"] = model
 
         def refit(fd_j, starts):
@@ -1200,7 +1200,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         axes = ("longitudinal", "lateral") if model == "auto" else (model,)
         results, validations, problems = identify(fd, ac, methods, truth, pr, inputs=inputs, axes=axes,
                                                   tolerances=tol, pom=pom, smooth_inputs=smooth_inputs,
-                                                  validation=fd_vals or None)
+                                                  validation=fd_vals)
 
         def refit(fd_j, starts):
             return identify(with_flow_angles(fd_j, flow)[0], ac, methods, truth, quiet_progress(),

@@ -211,7 +211,7 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
         raise FsidError(f"unknown method(s) {bad}: use some of {', '.join(METHODS)}")
     check_methods(methods)
     vflights = validation_flights(validation)
-    hold = hold_out_count(vflights or None, fit_all)
+    hold = hold_out_count(vflights, fit_all)
 
     def proved_on_validation(pb: Any) -> Any:
         """``pb`` with the validation flights' maneuvers (on its grid) held out."""
