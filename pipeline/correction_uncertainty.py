@@ -1,7 +1,8 @@
 """How the uncertainty of what a fit holds as exact reaches its estimates: the sensor
-corrections applied before estimation (:func:`propagate`) and another fit's estimates
+corrections applied before estimation (:func:`propagate`), another fit's estimates
 held in the model (:func:`held_estimates`: the 6-DoF lateral output error holds the
-longitudinal derivatives), both by refits (:func:`consider_by_refits`).
+longitudinal derivatives) and the wind the air-data angles of a log without vanes were
+rebuilt with (:func:`wind`), all by refits (:func:`consider_by_refits`).
 
 The compatibility stage (:func:`pipeline.compatibility.correct_for_estimation`) removes the
 significant sensor errors from the data before estimation, with estimates c (k values)
@@ -36,6 +37,7 @@ from pipeline.flightdata import FlightData
 
 SOURCE = "the uncertainty of the sensor corrections applied before the fit"
 HELD_SOURCE = "the uncertainty of the other axis' estimates the fit held"
+WIND_SOURCE = "the uncertainty of the wind the air-data angles were rebuilt with"
 
 
 def correction_covariance(doc: Mapping[str, Any]) -> tuple[list[str], np.ndarray, np.ndarray]:
@@ -56,16 +58,12 @@ def correction_covariance(doc: Mapping[str, Any]) -> tuple[list[str], np.ndarray
     return names, est, corr * np.outer(sd, sd)
 
 
-def consider_by_refits(results: Mapping[str, Any], names: list[str], C: np.ndarray,
-                       refit_j: Callable[[int], Mapping[str, Any]], what: str,
-                       source: str, progress: Any = None) -> dict[str, str]:
-    """Add J C J^T to ``consider_cov`` of every result in ``results`` (key -> result), with
-    J[:, j] = (refit_j(j)[key] - result) / std_j: ``refit_j(j)`` repeats the fits with the
-    j-th of ``names`` (covariance ``C``) moved by its std. ``what`` names the j-th
-    perturbation in messages ("{name} + 1 std"); ``source`` is appended to
-    ``consider_source``. Returns key -> "propagated" or why not (that result keeps what it
-    had)."""
-    sd = np.sqrt(np.diag(C))
+def _refit_jacobians(results: Mapping[str, Any], names: list[str], step: np.ndarray,
+                     refit_j: Callable[[int], Mapping[str, Any]], what: str,
+                     progress: Any = None) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+    """(key -> J (n_free, k), key -> "propagated" or why not) with J[:, j] =
+    (refit_j(j)[key] - result) / step[j]: ``refit_j(j)`` repeats the fits with the j-th of
+    ``names`` moved by ``step[j]``; ``what`` names that move in messages."""
     free = {key: list(res.free_names) for key, res in results.items()}
     J = {key: np.zeros((len(free[key]), len(names))) for key in results}
     status: dict[str, str] = {key: "propagated" for key in results}
@@ -88,12 +86,32 @@ def consider_by_refits(results: Mapping[str, Any], names: list[str], C: np.ndarr
                 status[key] = f"not propagated: the refit with {what.format(name=n)} failed or changed the parameters"
                 continue
             J[key][:, j] = (r.params[free[key]].to_numpy(float)
-                            - res.params[free[key]].to_numpy(float)) / sd[j]
+                            - res.params[free[key]].to_numpy(float)) / step[j]
+    return J, status
+
+
+def _add_consider(results: Mapping[str, Any], J: Mapping[str, np.ndarray],
+                  C: Mapping[str, np.ndarray], status: Mapping[str, str], source: str) -> None:
+    """Add J C J^T to ``consider_cov`` of every result whose status is "propagated" (C by
+    key), and ``source`` to its ``consider_source``."""
     for key, res in results.items():
         if status[key] == "propagated":
-            add = J[key] @ C @ J[key].T
+            add = J[key] @ C[key] @ J[key].T
             res.consider_cov = add if res.consider_cov is None else res.consider_cov + add
             res.consider_source = "; ".join(x for x in (res.consider_source, source) if x)
+
+
+def consider_by_refits(results: Mapping[str, Any], names: list[str], C: np.ndarray,
+                       refit_j: Callable[[int], Mapping[str, Any]], what: str,
+                       source: str, progress: Any = None) -> dict[str, str]:
+    """Add J C J^T to ``consider_cov`` of every result in ``results`` (key -> result), with
+    J[:, j] = (refit_j(j)[key] - result) / std_j: ``refit_j(j)`` repeats the fits with the
+    j-th of ``names`` (covariance ``C``) moved by its std. ``what`` names the j-th
+    perturbation in messages ("{name} + 1 std"); ``source`` is appended to
+    ``consider_source``. Returns key -> "propagated" or why not (that result keeps what it
+    had)."""
+    J, status = _refit_jacobians(results, names, np.sqrt(np.diag(C)), refit_j, what, progress)
+    _add_consider(results, J, {key: C for key in results}, status, source)
     return status
 
 
@@ -123,6 +141,46 @@ def propagate(fd_raw: FlightData, doc: Mapping[str, Any], results: Mapping[str, 
     return {"corrections": names, "refits": len(names),
             "perturbation": "each applied correction moved by +1 std (its Cramér-Rao std), "
                             "all fits repeated; total std = sqrt(CRB^2 + consider^2)",
+            "methods": status, "seconds": time.perf_counter() - t0}
+
+
+def wind(flow: Mapping[str, Any], spans: Mapping[str, Any], results: Mapping[str, Any],
+         refit: Callable[[tuple[float, float, float]], Mapping[str, Any]],
+         progress: Any = None) -> dict[str, Any]:
+    """Add to ``consider_cov`` of every result in ``results`` the uncertainty of the wind
+    its air-data angles were rebuilt with (``flow``, the document of
+    :func:`pipeline.flow_angles.reconstruct_flow_angles`): the fitted horizontal wind and
+    the mean vertical wind the reconstruction takes as zero, by key over that fit's
+    ``spans`` [(t0, t1), ...] [s] (:func:`pipeline.flow_angles.wind_uncertainty`). Each
+    part is moved by its largest std over the keys and ``refit(offset)`` (offset (north,
+    east, down) [m/s] added to the wind) repeats the fits; each key then gets J C_key J^T.
+    Returns a JSON-ready document (empty when no angle was rebuilt or no part is
+    uncertain)."""
+    from pipeline.flow_angles import WIND_PARTS, wind_uncertainty
+
+    per = {key: wind_uncertainty(flow, spans[key]) for key in results}
+    if not results or not any(per.values()):
+        return {}
+    t0 = time.perf_counter()
+    names = [n for n in WIND_PARTS if max(p[n] for p in per.values()) > 0.0]
+    if not names:
+        return {}
+    step = np.array([max(p[n] for p in per.values()) for n in names])
+
+    def refit_j(j: int) -> Mapping[str, Any]:
+        offset = [0.0, 0.0, 0.0]
+        offset[WIND_PARTS.index(names[j])] = float(step[j])
+        return refit(tuple(offset))
+
+    J, status = _refit_jacobians(results, names, step, refit_j, "the {name} moved by its std",
+                                 progress)
+    _add_consider(results, J, {key: np.diag([per[key][n] ** 2 for n in names]) for key in results},
+                  status, WIND_SOURCE)
+    return {"parts": names, "refits": len(names),
+            "std_mps": {key: {n: per[key][n] for n in names} for key in results},
+            "perturbation": "each part of the wind moved by its std (the largest over the "
+                            "fits), the angles rebuilt and all fits repeated; total std = "
+                            "sqrt(CRB^2 + consider^2)",
             "methods": status, "seconds": time.perf_counter() - t0}
 
 

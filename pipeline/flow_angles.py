@@ -19,7 +19,8 @@ least-squares solution of two conditions on every airborne sample:
   to the airspeed condition alone, and the sideslip condition then matters less.
 
 Assumptions, which the document names: no vertical wind (it would shift alpha by
-W_d / V), a mean sideslip of zero over each window (a steady sideslip, e.g. from
+W_d / V; its uncertainty is carried to the estimates, :func:`wind_uncertainty`), a mean
+sideslip of zero over each window (a steady sideslip, e.g. from
 asymmetric thrust, is booked on the cross-track wind), a correct airspeed (a pitot scale
 factor error is booked on the along-track wind), and the inertial velocity at the body
 origin, taken as the CG (the navigation filters, ArduPilot's EKF3 and PX4's EKF2, report
@@ -52,7 +53,8 @@ WINDOW_S = 120.0
 @dataclass
 class WindFit:
     """The wind of :func:`fit_wind`: knots (K,) [s], north/east (K,) [m/s] and their
-    std (K,) [m/s], airspeed residual rms [m/s], rms sideslip [rad], samples used."""
+    std (K,) [m/s], airspeed residual rms [m/s], rms sideslip [rad], samples used, the
+    airspeed residual's correlation time [s]."""
 
     knots: np.ndarray
     north: np.ndarray
@@ -62,6 +64,8 @@ class WindFit:
     airspeed_rms: float
     beta_rms: float
     n: int
+    #: correlation time of the airspeed residual [s] (:func:`correlation_time`)
+    airspeed_tau: float = 0.0
 
     def at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(north, east) wind [m/s] at times t [s] (linear between knots, constant beyond)."""
@@ -93,6 +97,28 @@ def _effective_n(r: np.ndarray) -> float:
     rho = float(np.dot(r[1:], r[:-1]) / max(np.dot(r, r), 1e-300))
     rho = min(max(rho, 0.0), 0.999)
     return float(r.size * (1.0 - rho) / (1.0 + rho))
+
+
+def correlation_time(r: np.ndarray, dt: float) -> float:
+    """Correlation time [s] of a residual series r (n,) sampled every dt [s]: the lag at
+    which its autocorrelation falls to 1/e of the lag-1 value (so that white noise on top,
+    which only lowers lag 0, does not shorten it), linear between lags; 0 for a series
+    without lag-1 correlation, at most a quarter of its span."""
+    r = np.asarray(r, dtype=float) - np.mean(r)
+    n = r.size
+    if n < 8:
+        return 0.0
+    m = 1 << int(np.ceil(np.log2(2 * n)))
+    f = np.fft.rfft(r, m)
+    acf = np.fft.irfft(f * np.conj(f), m)[: n // 4 + 1]
+    if acf[1] <= 0.0:
+        return 0.0
+    below = np.flatnonzero(acf[1:] < acf[1] / np.e)
+    if below.size == 0:
+        return float((acf.size - 1) * dt)
+    k = int(below[0]) + 1                       # first lag under acf[1] / e (k >= 2)
+    frac = (acf[k - 1] - acf[1] / np.e) / (acf[k - 1] - acf[k])
+    return float((k - 2 + frac) * dt)
 
 
 def fit_wind(t: np.ndarray, vg: np.ndarray, V: np.ndarray, axes: np.ndarray, *,
@@ -146,7 +172,8 @@ def fit_wind(t: np.ndarray, vg: np.ndarray, V: np.ndarray, axes: np.ndarray, *,
     mag = np.maximum(mag, 1e-6)
     return WindFit(knots=knots, north=x[:nk].copy(), east=x[nk:].copy(), std_north=sd[:nk],
                    std_east=sd[nk:], airspeed_rms=float(np.sqrt(np.mean(r1 ** 2))),
-                   beta_rms=float(np.sqrt(np.mean((r2 / mag) ** 2))), n=int(t.size))
+                   beta_rms=float(np.sqrt(np.mean((r2 / mag) ** 2))), n=int(t.size),
+                   airspeed_tau=correlation_time(r1, float(np.median(np.diff(t)))))
 
 
 #: ``Channel.derived`` of an angle this module rebuilt
@@ -166,9 +193,13 @@ def _at(fd: FlightData, name: str, t: np.ndarray, wrapped: bool = False) -> np.n
 
 
 def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
-                            beta_std: float = BETA_STD) -> tuple[FlightData, dict[str, Any]]:
+                            beta_std: float = BETA_STD,
+                            wind_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+                            ) -> tuple[FlightData, dict[str, Any]]:
     """The flight with the missing ones of alpha, beta reconstructed from the flight path
     (module doc), and a JSON-ready document of what was done. The input is not modified.
+    ``wind_offset`` (north, east, down) [m/s] is added to the fitted wind before the angles
+    are rebuilt (the refits of :func:`wind_uncertainty`; down: a vertical wind).
 
     Nothing to do (both angles logged): the same object and ``{"status": "not needed"}``.
     Raises FsidError naming the missing channels when an angle is missing and the flight
@@ -198,7 +229,8 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
     axes = _body_axes(phi[ok], theta[ok], psi[ok])
     wind = fit_wind(t, vg, V, axes, window_s=window_s, beta_std=beta_std)
     Wn, We = wind.at(t)
-    va = np.einsum("nij,nj->ni", axes, vg - np.column_stack([Wn, We, np.zeros_like(Wn)]))
+    dn, de, dd = (float(v) for v in wind_offset)
+    va = np.einsum("nij,nj->ni", axes, vg - np.column_stack([Wn + dn, We + de, np.full_like(Wn, dd)]))
     speed = np.linalg.norm(va, axis=1)
     angles = {"alpha": np.arctan2(va[:, 2], va[:, 0]),
               "beta": np.arcsin(np.clip(va[:, 1] / speed, -1.0, 1.0))}
@@ -217,12 +249,72 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
                     "east_mps": wind.east.tolist(), "std_north_mps": wind.std_north.tolist(),
                     "std_east_mps": wind.std_east.tolist()},
            "airspeed_residual_rms_mps": wind.airspeed_rms,
+           "airspeed_residual_tau_s": wind.airspeed_tau,
            "airspeed_noise_mps": float(fd.noise_std("V")),
            "sideslip_rms_deg": float(np.rad2deg(wind.beta_rms)),
            "heading_span_deg": float(np.rad2deg(np.ptp(heading))),
            "assumptions": "no vertical wind; mean sideslip zero over each wind window; "
                           "airspeed without scale error; angles at the CG (the navigation filter's velocity)"}
+    if any(wind_offset):
+        doc["wind_offset_mps"] = [dn, de, dd]
     return out, doc
+
+
+def markov_mean_std(sigma: float, tau: float, spans: Any) -> float:
+    """Std of the time average, over the union of ``spans`` [(t0, t1), ...] [s], of a
+    stationary first-order Markov process of std ``sigma`` and time constant ``tau`` [s]
+    (autocovariance sigma^2 exp(-|dt| / tau)). Exact: with the merged spans [a_i, b_i]
+    of lengths L_i and total T, the variance is sigma^2 / T^2 sum_ij I_ij with
+    I_ii = 2 tau^2 (L_i / tau - 1 + exp(-L_i / tau)) and, for a_i < b_i <= a_j < b_j,
+    I_ij = tau^2 (exp((b_i - a_j)/tau) - exp((b_i - b_j)/tau) - exp((a_i - a_j)/tau)
+    + exp((a_i - b_j)/tau)). One span much longer than tau: sigma sqrt(2 tau / T);
+    much shorter: sigma."""
+    iv = sorted((float(a), float(b)) for a, b in spans if b > a)
+    merged: list[list[float]] = []
+    for a, b in iv:
+        if merged and a <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], b)
+        else:
+            merged.append([a, b])
+    if not merged or sigma <= 0.0 or tau <= 0.0:
+        return 0.0
+    a, b = np.array(merged).T
+    L = b - a
+    T = float(L.sum())
+    total = float(np.sum(2.0 * tau ** 2 * (L / tau - 1.0 + np.exp(-L / tau))))
+    i, j = np.triu_indices(a.size, k=1)
+    total += 2.0 * float(np.sum(tau ** 2 * (np.exp((b[i] - a[j]) / tau) - np.exp((b[i] - b[j]) / tau)
+                                           - np.exp((a[i] - a[j]) / tau) + np.exp((a[i] - b[j]) / tau))))
+    return float(sigma * np.sqrt(max(total, 0.0)) / T)
+
+
+#: names of the wind parts whose uncertainty :func:`wind_uncertainty` returns
+WIND_PARTS = ("wind north", "wind east", "vertical wind")
+
+
+def wind_uncertainty(doc: dict[str, Any], spans: Any) -> dict[str, float]:
+    """The std [m/s] of the wind the rebuilt angles were computed with, over the fitted
+    ``spans`` [(t0, t1), ...] [s], by :data:`WIND_PARTS`: the horizontal wind's from its fit
+    (the mean over the knots of the std of each component, taken as one shift of all
+    knots), and the mean vertical wind's, which the reconstruction assumes zero. In
+    turbulence the vertical gust averaged over the fitted spans is not zero: it shifts
+    alpha by W_d / V and trades with CL0, Cm0, CD0 (multiaxis_multisine_turbulence's
+    .bin, seed 31: the flight-mean vertical gust -0.40 m/s, alpha 0.45 deg, CL0 9.6 std
+    off). Its std is :func:`markov_mean_std` of the vertical gust, taken as isotropic
+    with the horizontal one the airspeed residual shows: level sqrt(residual^2 -
+    pitot noise^2), time constant the residual's correlation time (MIL-F-8785C: below
+    2000 ft the vertical gust is weaker and shorter, so this errs on the large side).
+    Not covered: vertical air motion that is no turbulence (thermals, ridge lift, waves).
+    Nothing rebuilt: {}."""
+    if doc.get("status") != "reconstructed":
+        return {}
+    w = doc["wind"]
+    res, noise = doc["airspeed_residual_rms_mps"], doc.get("airspeed_noise_mps") or 0.0
+    sigma = float(np.sqrt(max(res ** 2 - (noise if np.isfinite(noise) else 0.0) ** 2, 0.0)))
+    return {"wind north": float(np.mean(w["std_north_mps"])),
+            "wind east": float(np.mean(w["std_east_mps"])),
+            "vertical wind": markov_mean_std(sigma, float(doc.get("airspeed_residual_tau_s", 0.0)),
+                                             spans)}
 
 
 def unsteady(doc: dict[str, Any], limit: float = 1.5) -> str | None:

@@ -826,22 +826,38 @@ def _fem_for_filters(fd, pb: Problem, fem: Any, progress: Progress, quiet: bool 
     return fem
 
 
+def fitted_spans(results: Mapping[str, Any], problems: Sequence[Problem]
+                 ) -> dict[str, list[tuple[float, float]]]:
+    """key -> the (start, end) times [s] of the segments its fit used (those of the
+    problem of its axis: keys "<axis>-<method>", or the method alone with one problem)."""
+    by_axis = {pb.axis: [(float(s.t[0]), float(s.t[-1])) for s in pb.fit] for pb in problems}
+    every = [sp for v in by_axis.values() for sp in v]
+    return {key: by_axis.get(key.split("-")[0], every) if len(problems) > 1 else every
+            for key in results}
+
+
 def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, validations: dict,
                           truth: Mapping[str, float] | None, progress: Progress,
-                          refit) -> None:
+                          refit, *, flow: dict[str, Any] | None = None,
+                          spans: Mapping[str, Any] | None = None, wind_refit=None) -> None:
     """One stage after the fits: what each fit held as exact gets its uncertainty into the
     result's ``consider_cov`` (:mod:`pipeline.correction_uncertainty`) - the other axis'
     estimates a fit held (``result.extra["held"]``, the 6-DoF lateral output error holding
-    the longitudinal derivatives; the doc goes to the validation's ``held_estimates``) and
+    the longitudinal derivatives; the doc goes to the validation's ``held_estimates``),
     the sensor corrections applied before estimation (``comp["propagation"]``; ``refit(fd,
-    starts)`` repeats the fits, results only). Then the truth checks and verdicts are
-    redone with the total std."""
-    from pipeline.correction_uncertainty import held_estimates, propagate
+    starts)`` repeats the fits, results only) and, for air-data angles rebuilt from the
+    flight path (``flow``, their document; ``flow["wind_uncertainty"]``), the wind they
+    were rebuilt with (``wind_refit(offset)`` repeats the fits with the wind moved,
+    ``spans`` key -> fitted time spans). Then the truth checks and verdicts are redone
+    with the total std."""
+    from pipeline.correction_uncertainty import held_estimates, propagate, wind
     from pipeline.validate import refresh_truth_check
 
     held = [k for k, r in results.items() if (r.extra or {}).get("held") is not None]
+    rebuilt = (flow or {}).get("status") == "reconstructed" and wind_refit is not None
     parts = [f"{k}: held estimates" for k in held]
     parts += [f"{len(comp['applied'])} sensor corrections"] if comp.get("applied") else []
+    parts += ["the wind of the rebuilt air-data angles"] if rebuilt else []
     progress.stage("uncertainty of what the fits held as exact" + (f" ({', '.join(parts)})" if parts else ""))
     for k in held:
         r = results[k]
@@ -851,10 +867,12 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
             validations[k]["held_estimates"] = doc
     if comp.get("applied"):
         comp["propagation"] = propagate(fd_raw, comp, results, refit, progress)
+    if rebuilt:
+        flow["wind_uncertainty"] = wind(flow, spans or {}, results, wind_refit, progress)
     for key, res in results.items():
         if key in validations:
             refresh_truth_check(validations[key], res, truth)
-    progress.done("nothing held" if not held and not comp.get("applied") else
+    progress.done("nothing held" if not parts else
                   f"{sum(r.consider_cov is not None for r in results.values())} of {len(results)} "
                   "fits with a consider part")
 
@@ -898,14 +916,16 @@ def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress) -> tuple[An
     return out, ac, base, doc
 
 
-def with_flow_angles(fd, flow: Mapping[str, Any]) -> tuple[Any, dict]:
+def with_flow_angles(fd, flow: Mapping[str, Any],
+                     wind_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[Any, dict]:
     """(``fd`` with the air-data angles rebuilt as :func:`flow_angle_stage` rebuilt them,
-    their document); ``fd`` and ``flow`` unchanged when that stage rebuilt nothing."""
+    ``wind_offset`` (north, east, down) [m/s] added to their wind, their document); ``fd``
+    and ``flow`` unchanged when that stage rebuilt nothing."""
     if flow.get("status") != "reconstructed":
         return fd, dict(flow)
     from pipeline.flow_angles import reconstruct_flow_angles
 
-    return reconstruct_flow_angles(fd)
+    return reconstruct_flow_angles(fd, wind_offset=wind_offset)
 
 
 def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabled: bool = True,
@@ -1192,9 +1212,9 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                                                              validation=fd_vals)
         meta["model"] = model
 
-        def refit(fd_j, starts):
-            return identify_user_model(with_flow_angles(fd_j, flow)[0], um, methods, truth,
-                                       quiet_progress(), inputs=inputs, starts=starts,
+        def refit(fd_j, starts, wind_offset=(0.0, 0.0, 0.0)):
+            return identify_user_model(with_flow_angles(fd_j, flow, wind_offset)[0], um, methods,
+                                       truth, quiet_progress(), inputs=inputs, starts=starts,
                                        smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
     else:
         axes = ("longitudinal", "lateral") if model == "auto" else (model,)
@@ -1202,11 +1222,17 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                                                   tolerances=tol, pom=pom, smooth_inputs=smooth_inputs,
                                                   validation=fd_vals)
 
-        def refit(fd_j, starts):
-            return identify(with_flow_angles(fd_j, flow)[0], ac, methods, truth, quiet_progress(),
-                            inputs=inputs, axes=axes, starts=starts, smooth_inputs=smooth_inputs,
-                            fit_all=bool(fd_vals))[0]
-    carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit)
+        def refit(fd_j, starts, wind_offset=(0.0, 0.0, 0.0)):
+            return identify(with_flow_angles(fd_j, flow, wind_offset)[0], ac, methods, truth,
+                            quiet_progress(), inputs=inputs, axes=axes, starts=starts,
+                            smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
+    # the wind's refits: the corrected data the fits saw, the angles rebuilt with the wind moved
+    starts = {key: res.params for key, res in results.items()}
+    carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit, flow=flow,
+                               spans=fitted_spans(results, problems),
+                               wind_refit=lambda offset: refit(fd_c, starts, offset))
+    if "wind_uncertainty" in flow:
+        meta["flow_angles"]["wind_uncertainty"] = flow["wind_uncertainty"]
     if truth is not None:
         meta["truth"] = "truth.json next to the log"
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary, meta=meta,

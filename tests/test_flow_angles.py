@@ -23,7 +23,8 @@ import pytest
 
 from pipeline.errors import FsidError
 from pipeline.flightdata import Channel, FlightData
-from pipeline.flow_angles import _body_axes, fit_wind, reconstruct_flow_angles
+from pipeline.flow_angles import (_body_axes, correlation_time, fit_wind, markov_mean_std,
+                                  reconstruct_flow_angles, wind_uncertainty)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -101,6 +102,73 @@ def test_rebuilt_angles_match_the_true_ones_and_leave_the_input_alone():
     assert abs(doc["wind"]["north_mps"][0] - 3.0) < 0.2 and abs(doc["wind"]["east_mps"][0] + 6.0) < 0.2
     same, doc2 = reconstruct_flow_angles(_flight(t, vg, V, tr, with_vanes=True))
     assert doc2 == {"status": "not needed"} and "alpha" in same
+
+
+def test_a_vertical_wind_shifts_the_rebuilt_alpha_by_w_over_v():
+    """The reconstruction assumes no vertical wind: in a 1 m/s down-wind the rebuilt alpha
+    sits 1/25 rad too high; rebuilt with the wind offset (0, 0, 1) it is the true one."""
+    t, vg, V, _, tr = _kinematics(5, 0.05)
+    vg = vg + np.array([0.0, 0.0, 1.0])          # air moving down at 1 m/s
+    fd = _flight(t, vg, V, tr)
+    for offset, bias in (((0.0, 0.0, 0.0), 1.0 / 25.0), ((0.0, 0.0, 1.0), 0.0)):
+        out, doc = reconstruct_flow_angles(fd, wind_offset=offset)
+        e = out["alpha"].values - np.interp(out["alpha"].t, t, tr["alpha"])
+        assert abs(e.mean() - bias * np.cos(tr["phi"][0])) < 2e-3, (offset, e.mean())
+    assert doc["wind_offset_mps"] == [0.0, 0.0, 1.0]
+
+
+def test_mean_of_a_markov_process_over_spans():
+    """markov_mean_std against its limits and a Monte Carlo of the process itself."""
+    s, tau = 2.0, 5.0
+    assert markov_mean_std(s, tau, [(0.0, 1e4)]) == pytest.approx(s * np.sqrt(2 * tau / 1e4), rel=1e-3)
+    assert markov_mean_std(s, tau, [(0.0, 1e-3)]) == pytest.approx(s, rel=1e-3)
+    one = markov_mean_std(s, tau, [(0.0, 30.0)])
+    # two spans far apart: independent halves; overlapping spans count once
+    assert markov_mean_std(s, tau, [(0.0, 30.0), (1e4, 1e4 + 30.0)]) == pytest.approx(one / np.sqrt(2))
+    assert markov_mean_std(s, tau, [(0.0, 20.0), (10.0, 30.0)]) == pytest.approx(one)
+    assert markov_mean_std(0.0, tau, [(0.0, 30.0)]) == 0.0 and markov_mean_std(s, 0.0, [(0, 30)]) == 0.0
+    # Monte Carlo: 8000 AR(1) paths at 50 Hz averaged over two spans of one tau, 0.4 tau
+    # apart, whose correlation adds 17 % to the std of independent spans
+    rng = np.random.default_rng(1)
+    dt, n = 0.02, 600
+    a = np.exp(-dt / tau)
+    x = np.empty((8000, n))
+    x[:, 0] = s * rng.standard_normal(8000)
+    w = s * np.sqrt(1 - a * a) * rng.standard_normal((8000, n))
+    for k in range(1, n):
+        x[:, k] = a * x[:, k - 1] + w[:, k]
+    t = np.arange(n) * dt
+    m = (t < 5.0) | (t >= 7.0)                   # spans [0, 5) and [7, 12)
+    mc = x[:, m].mean(axis=1).std()
+    assert markov_mean_std(s, tau, [(0.0, 5.0), (7.0, 12.0)]) == pytest.approx(mc, rel=0.04), mc
+
+
+def test_correlation_time_of_a_gust_under_white_noise():
+    """An AR(1) gust (tau 6 s) at 10 Hz under white noise of twice its level: the lag-1
+    normalisation keeps the noise from shortening it."""
+    rng = np.random.default_rng(2)
+    dt, n, tau = 0.1, 60000, 6.0
+    a = np.exp(-dt / tau)
+    g = np.empty(n)
+    g[0] = 0.0
+    w = np.sqrt(1 - a * a) * rng.standard_normal(n)
+    for k in range(1, n):
+        g[k] = a * g[k - 1] + w[k]
+    assert correlation_time(g + 2.0 * rng.standard_normal(n), dt) == pytest.approx(tau, rel=0.15)
+    assert correlation_time(rng.standard_normal(5000), dt) < 2 * dt
+
+
+def test_wind_uncertainty_from_the_airspeed_residual():
+    """The vertical wind's std: the airspeed residual above the pitot noise (sqrt(2.5^2 -
+    1.5^2) = 2 m/s) as the gust level, its correlation time, over the fitted spans."""
+    doc = {"status": "reconstructed", "airspeed_residual_rms_mps": 2.5, "airspeed_noise_mps": 1.5,
+           "airspeed_residual_tau_s": 8.0,
+           "wind": {"std_north_mps": [0.2, 0.4], "std_east_mps": [0.3, 0.3]}}
+    u = wind_uncertainty(doc, [(0.0, 60.0), (100.0, 160.0)])
+    assert u["wind north"] == pytest.approx(0.3) and u["wind east"] == pytest.approx(0.3)
+    assert u["vertical wind"] == pytest.approx(markov_mean_std(2.0, 8.0, [(0.0, 60.0), (100.0, 160.0)]))
+    assert 0.2 < u["vertical wind"] < 2.0 * np.sqrt(2 * 8.0 / 120.0)
+    assert wind_uncertainty({"status": "not needed"}, [(0.0, 1.0)]) == {}
 
 
 def test_rebuild_errors_name_what_is_missing():
