@@ -184,6 +184,21 @@ def wind(flow: Mapping[str, Any], spans: Mapping[str, Any], results: Mapping[str
             "methods": status, "seconds": time.perf_counter() - t0}
 
 
+def wind_summary(doc: Mapping[str, Any]) -> str:
+    """One line for report.md from the document of :func:`wind`."""
+    if not doc:
+        return "nothing carried"
+    stds = doc["std_mps"]
+    parts = []
+    for n in doc["parts"]:
+        lo, hi = min(v[n] for v in stds.values()), max(v[n] for v in stds.values())
+        what = "flight-mean vertical wind (assumed 0)" if n == "vertical wind" else n
+        parts.append(f"{what} +-{lo:.2f}" + (f"-{hi:.2f}" if hi - lo >= 0.005 else "") + " m/s")
+    bad = {k: v for k, v in doc["methods"].items() if v != "propagated"}
+    return (", ".join(parts) + ": carried to the estimates' std as a consider part"
+            + (f" (except {'; '.join(f'{k}: {v}' for k, v in bad.items())})" if bad else ""))
+
+
 def held_estimates(result: Any, refit: Callable[[dict[str, float]], Any],
                    progress: Any = None) -> dict[str, Any]:
     """Add to ``consider_cov`` of ``result`` the uncertainty of another fit's estimates it

@@ -1232,7 +1232,10 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                                spans=fitted_spans(results, problems),
                                wind_refit=lambda offset: refit(fd_c, starts, offset))
     if "wind_uncertainty" in flow:
+        from pipeline.correction_uncertainty import wind_summary
+
         meta["flow_angles"]["wind_uncertainty"] = flow["wind_uncertainty"]
+        meta["air-data angles' wind"] = wind_summary(flow["wind_uncertainty"])
     if truth is not None:
         meta["truth"] = "truth.json next to the log"
     return _write_outputs(out, results, validations, problems, truth, pr, checks=summary, meta=meta,
