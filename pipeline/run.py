@@ -1226,11 +1226,13 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
             return identify(with_flow_angles(fd_j, flow, wind_offset)[0], ac, methods, truth,
                             quiet_progress(), inputs=inputs, axes=axes, starts=starts,
                             smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
-    # the wind's refits: the corrected data the fits saw, the angles rebuilt with the wind moved
+    # the wind's refits (models that see an air-data angle): the corrected data the fits
+    # saw, the angles rebuilt with the wind moved
     starts = {key: res.params for key, res in results.items()}
+    angles = any({"alpha", "beta"} & {*pb.model.inputs, *pb.model.outputs} for pb in problems)
     carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit, flow=flow,
                                spans=fitted_spans(results, problems),
-                               wind_refit=lambda offset: refit(fd_c, starts, offset))
+                               wind_refit=(lambda offset: refit(fd_c, starts, offset)) if angles else None)
     if "wind_uncertainty" in flow:
         from pipeline.correction_uncertainty import wind_summary
 
