@@ -193,7 +193,7 @@ def wind_summary(doc: Mapping[str, Any]) -> str:
     for n in doc["parts"]:
         lo, hi = min(v[n] for v in stds.values()), max(v[n] for v in stds.values())
         what = "flight-mean vertical wind (assumed 0)" if n == "vertical wind" else n
-        parts.append(f"{what} +-{lo:.2f}" + (f"-{hi:.2f}" if hi - lo >= 0.005 else "") + " m/s")
+        parts.append(f"{what} +-{lo:.2f}" + (f" to {hi:.2f}" if hi - lo >= 0.005 else "") + " m/s")
     bad = {k: v for k, v in doc["methods"].items() if v != "propagated"}
     return (", ".join(parts) + ": carried to the estimates' std as a consider part"
             + (f" (except {'; '.join(f'{k}: {v}' for k, v in bad.items())})" if bad else ""))
