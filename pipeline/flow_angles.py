@@ -250,6 +250,7 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
                     "std_east_mps": wind.std_east.tolist()},
            "airspeed_residual_rms_mps": wind.airspeed_rms,
            "airspeed_residual_tau_s": wind.airspeed_tau,
+           "airspeed_mean_mps": float(np.mean(V)),
            "airspeed_noise_mps": float(fd.noise_std("V")),
            "sideslip_rms_deg": float(np.rad2deg(wind.beta_rms)),
            "heading_span_deg": float(np.rad2deg(np.ptp(heading))),
@@ -290,6 +291,9 @@ def markov_mean_std(sigma: float, tau: float, spans: Any) -> float:
 
 #: names of the wind parts whose uncertainty :func:`wind_uncertainty` returns
 WIND_PARTS = ("wind north", "wind east", "vertical wind")
+#: the largest scale length of the vertical gust [m] (MIL-F-8785C: 1750 ft above 2000 ft,
+#: the altitude below): its time constant is at most this over the airspeed
+L_W_MAX = 533.4
 
 
 def wind_uncertainty(doc: dict[str, Any], spans: Any) -> dict[str, float]:
@@ -303,18 +307,21 @@ def wind_uncertainty(doc: dict[str, Any], spans: Any) -> dict[str, float]:
     off). Its std is :func:`markov_mean_std` of the vertical gust, taken as isotropic
     with the horizontal one the airspeed residual shows: level sqrt(residual^2 -
     pitot noise^2), time constant the residual's correlation time (MIL-F-8785C: below
-    2000 ft the vertical gust is weaker and shorter, so this errs on the large side).
-    Not covered: vertical air motion that is no turbulence (thermals, ridge lift, waves).
-    Nothing rebuilt: {}."""
+    2000 ft the vertical gust is weaker and shorter, so this errs on the large side), at
+    most :data:`L_W_MAX` over the mean airspeed (a slower residual is the horizontal wind
+    changing, not vertical turbulence). Not covered: vertical air motion that is no
+    turbulence (thermals, ridge lift, waves). Nothing rebuilt: {}."""
     if doc.get("status") != "reconstructed":
         return {}
     w = doc["wind"]
     res, noise = doc["airspeed_residual_rms_mps"], doc.get("airspeed_noise_mps") or 0.0
     sigma = float(np.sqrt(max(res ** 2 - (noise if np.isfinite(noise) else 0.0) ** 2, 0.0)))
+    tau = float(doc.get("airspeed_residual_tau_s", 0.0))
+    if doc.get("airspeed_mean_mps"):
+        tau = min(tau, L_W_MAX / float(doc["airspeed_mean_mps"]))
     return {"wind north": float(np.mean(w["std_north_mps"])),
             "wind east": float(np.mean(w["std_east_mps"])),
-            "vertical wind": markov_mean_std(sigma, float(doc.get("airspeed_residual_tau_s", 0.0)),
-                                             spans)}
+            "vertical wind": markov_mean_std(sigma, tau, spans)}
 
 
 def unsteady(doc: dict[str, Any], limit: float = 1.5) -> str | None:

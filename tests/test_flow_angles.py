@@ -168,6 +168,12 @@ def test_wind_uncertainty_from_the_airspeed_residual():
     assert u["wind north"] == pytest.approx(0.3) and u["wind east"] == pytest.approx(0.3)
     assert u["vertical wind"] == pytest.approx(markov_mean_std(2.0, 8.0, [(0.0, 60.0), (100.0, 160.0)]))
     assert 0.2 < u["vertical wind"] < 2.0 * np.sqrt(2 * 8.0 / 120.0)
+    # a residual slower than the vertical gust's largest scale (533.4 m at 25 m/s: 21.3 s)
+    # is the horizontal wind changing: the time constant stops there
+    slow = wind_uncertainty({**doc, "airspeed_residual_tau_s": 300.0, "airspeed_mean_mps": 25.0},
+                            [(0.0, 60.0), (100.0, 160.0)])
+    assert slow["vertical wind"] == pytest.approx(
+        markov_mean_std(2.0, 533.4 / 25.0, [(0.0, 60.0), (100.0, 160.0)]))
     assert wind_uncertainty({"status": "not needed"}, [(0.0, 1.0)]) == {}
 
 
