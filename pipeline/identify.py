@@ -190,19 +190,54 @@ def _window(df: pd.DataFrame, spec: SegmentSpec) -> pd.DataFrame:
     return w.reset_index(drop=True)
 
 
+def _window_fault(w: pd.DataFrame, s: SegmentSpec, outputs: Sequence[str],
+                  others: Sequence[str]) -> str | None:
+    """What makes window ``w`` of segment ``s`` unusable - fewer than 10 rows, an output
+    with fewer than 10 samples (outputs may be slower than the grid: NaN between their
+    samples), another channel (an input) with any NaN - or None."""
+    bad = [k for k in outputs if w[k].notna().sum() < 10] + [k for k in others if w[k].isna().any()]
+    if len(w) < 10 or bad:
+        return f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in {bad}"
+    return None
+
+
 def checked_windows(df: pd.DataFrame, specs: Sequence[SegmentSpec], outputs: Sequence[str],
                     others: Sequence[str]) -> dict[int, pd.DataFrame]:
     """The rows of ``df`` in each segment window, by ``id(spec)``; one clear error when a
-    window has fewer than 10 rows, an output fewer than 10 samples (outputs may be slower
-    than the grid: NaN between their samples), or another channel (an input) any NaN."""
+    window is unusable (:func:`_window_fault`)."""
     frames = {id(s): _window(df, s) for s in specs}
     for s in specs:
-        w = frames[id(s)]
-        bad = [k for k in outputs if w[k].notna().sum() < 10] + [k for k in others if w[k].isna().any()]
-        if len(w) < 10 or bad:
-            raise FsidError(f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in "
-                            f"{bad}: cut it or fix the log")
+        fault = _window_fault(frames[id(s)], s, outputs, others)
+        if fault:
+            raise FsidError(f"{fault}: cut it or fix the log")
     return frames
+
+
+def usable_segments(df: pd.DataFrame, specs: Sequence[SegmentSpec], outputs: Sequence[str],
+                    others: Sequence[str], hold_out: int, what: str
+                    ) -> tuple[list[SegmentSpec], list[str]]:
+    """(the segments of ``specs`` whose windows are usable, a note for each one left out).
+    Found segments (automatic or by flight mode) that are not - a maneuver detected in a
+    hover without forward flight for the rebuilt air-data angles, a telemetry dropout -
+    are left out and named, so that the others are still fitted; a segment given by time
+    range (kind "time") ends with the error of :func:`checked_windows`. FsidError when
+    fewer than 1 + ``hold_out`` remain (``what``: the maneuvers, for the message)."""
+    keep, faults = [], []
+    for s in specs:
+        fault = _window_fault(_window(df, s), s, outputs, others)
+        if fault is None:
+            keep.append(s)
+        elif s.kind == "time":
+            raise FsidError(f"{fault}: cut it or fix the log")
+        else:
+            faults.append(fault)
+    if len(keep) < 1 + hold_out:
+        more = f"; and {len(faults) - 2} more" if len(faults) > 2 else ""
+        raise FsidError(f"found {len(specs)} {what} segment(s), {len(keep)} usable, but need at "
+                        f"least {1 + hold_out} (one to fit, {hold_out} to hold out)"
+                        + (f" - {'; '.join(faults[:2])}{more}" if faults else "")
+                        + ": fly more maneuvers or give segments by time range")
+    return keep, [f"{f}: left out" for f in faults]
 
 
 def with_smoothed_inputs(frames: Mapping[int, pd.DataFrame], specs: Sequence[SegmentSpec],
@@ -354,11 +389,13 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
     rotary_gust = rotary_gust and measured_lateral
     if rotary_gust:
         c["kin_angles"] = float(rebuilt(fd, "alpha"))
+    outs = [k for k in channels if k in LONG_OUTPUTS]
+    others = [k for k in channels if k not in LONG_OUTPUTS]
+    specs, left_out = usable_segments(df, specs, outs, others, hold_out, "longitudinal maneuver")
     elev = [s for s in specs if s.axis == "de"]
     held = elev[-hold_out:] if hold_out else []
     fit_specs = [s for s in specs if s not in held]
-    frames = checked_windows(df, specs, [k for k in channels if k in LONG_OUTPUTS],
-                             [k for k in channels if k not in LONG_OUTPUTS])
+    frames = checked_windows(df, specs, outs, others)
     thrust = {id(s): thrust_signal(frames[id(s)], ac) for s in specs}
     regs = longitudinal_regressions([frames[id(s)] for s in fit_specs], c,
                                     [thrust[id(s)] for s in fit_specs])
@@ -403,7 +440,7 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
              f"density {rho:.4f} kg/m^3 (mean over the flight)",
              f"thrust from {'thrust channel' if 'thrust' in df else 'throttle x max_thrust'}",
              "start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())
-             ] + ([input_note] if input_note else [])
+             ] + ([input_note] if input_note else []) + left_out
     if not {"CLalphadot", "Cmalphadot"} & set(free):
         notes.append("CLalphadot, Cmalphadot held at 0: without gusts to separate them, the "
                      "angle-of-attack rate moves with q, so CLq and Cmq carry their effect "
@@ -690,8 +727,10 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     smoothed, input_note = smoothed_control_inputs(fd, df, rate_hz,
                                                    ("da", "dr") if smooth_inputs else ())
     rho = mean_density(df)
-    frames = checked_windows(df, specs, [k for k in channels if k in LAT_OUTPUTS],
-                             [k for k in channels if k not in LAT_OUTPUTS])
+    outs = [k for k in channels if k in LAT_OUTPUTS]
+    others = [k for k in channels if k not in LAT_OUTPUTS]
+    specs, left_out = usable_segments(df, specs, outs, others, hold_out, "aileron/rudder maneuver")
+    frames = checked_windows(df, specs, outs, others)
     allw = pd.concat(frames.values())
     c = {"m": ac.mass, "Ixx": ac.Ixx, "Izz": ac.Izz, "Ixz": ac.Ixz, "S": ac.S, "b": ac.b,
          "rho": rho, "V": float(allw["V"].mean()), "alpha0": float(allw["alpha"].mean()),
@@ -757,6 +796,7 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
             notes.append(KINEMATIC_NOTE.format(angle="beta", state="beta_k"))
     if input_note:
         notes.append(input_note)
+    notes += left_out
     return Problem("lateral", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
                    fit_specs, held,
                    estimate_x0=["beta", "p", "r", "phi"] if rotary_gust else True,

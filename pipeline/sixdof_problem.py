@@ -20,8 +20,7 @@ from estimators.models.sixdof import body_velocity
 from pipeline.flightdata import FlightData, SegmentSpec
 from pipeline.input_smoothing import smoothed_control_inputs
 from pipeline.identify import (LAT_FREE, AircraftConstants, Problem, _first_valid, checked_windows,
-                               with_smoothed_inputs,
-                               lateral_specs, lateral_starts, longitudinal_starts, mean_density,
+                               usable_segments, with_smoothed_inputs, lateral_specs, lateral_starts, longitudinal_starts, mean_density,
                                multirate_frame, thrust_signal)
 
 SIXDOF_OUTPUTS = ("V", "alpha", "beta", "p", "q", "r", "phi", "theta", "ax", "ay", "az")
@@ -53,6 +52,8 @@ def sixdof_lateral_problem(fd: FlightData, ac: AircraftConstants, *,
     c = {"m": ac.mass, "Ixx": ac.Ixx, "Iyy": ac.Iyy, "Izz": ac.Izz, "Ixz": ac.Ixz, "S": ac.S,
          "b": ac.b, "cbar": ac.cbar, "rho": rho, "x_vane": ac.airdata[0],
          "y_vane": ac.airdata[1], "z_vane": ac.airdata[2], "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
+    specs, left_out = usable_segments(df, specs, SIXDOF_OUTPUTS, SIXDOF_INPUTS, hold_out,
+                                      "aileron/rudder maneuver")
     frames = checked_windows(df, specs, SIXDOF_OUTPUTS, SIXDOF_INPUTS)
     held = specs[-hold_out:] if hold_out else []
     fit_specs = [s for s in specs if s not in held]
@@ -84,6 +85,6 @@ def sixdof_lateral_problem(fd: FlightData, ac: AircraftConstants, *,
     notes = [f"nonlinear 6-DoF model on a {rate_hz:g} Hz grid, density {rho:.4f} kg/m^3",
              "longitudinal derivatives held at " + ("the longitudinal estimates" if longitudinal
                                                     else "equation-error values")
-             + f" except {', '.join(TRIM_FREE)}"] + ([input_note] if input_note else [])
+             + f" except {', '.join(TRIM_FREE)}"] + ([input_note] if input_note else []) + left_out
     return Problem("lateral", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
                    fit_specs, held, estimate_x0=True, notes=notes, rate_hz=rate_hz)

@@ -155,7 +155,7 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
     floor begins unless ``smooth_inputs`` is False (:mod:`pipeline.input_smoothing`)."""
     from pipeline.flightdata import CONTROL_INPUTS
     from pipeline.identify import (Problem, _first_valid, checked_windows, multirate_frame,
-                                   with_smoothed_inputs)
+                                   usable_segments, with_smoothed_inputs)
     from pipeline.input_smoothing import smoothed_control_inputs
 
     check_channels(fd, model)
@@ -165,10 +165,12 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
         raise FsidError(f"no maneuvers found in the log {fd.meta.get('source', '')} to fit the "
                         f"model {model.name!r} to: fly doublets/3-2-1-1s on its inputs "
                         f"({', '.join(model.inputs)})")
+    df, rate = multirate_frame(fd, list(model.outputs), list(model.inputs), rate_hz)
+    specs, left_out = usable_segments(df, specs, model.outputs, model.inputs, 0,
+                                      f"{model.name!r} maneuver")
     hold = hold_out if len(specs) > hold_out else 0
     held = specs[len(specs) - hold:] if hold else []
     fit_specs = [s for s in specs if s not in held]
-    df, rate = multirate_frame(fd, list(model.outputs), list(model.inputs), rate_hz)
     controls = [c for c in model.inputs if c in CONTROL_INPUTS] if smooth_inputs else []
     smoothed, input_note = smoothed_control_inputs(fd, df, rate, controls)
     frames = checked_windows(df, specs, model.outputs, model.inputs)
@@ -186,7 +188,7 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
              f"grid {rate:g} Hz; slower channels at their own samples only",
              f"segments: {'maneuvers on ' + '/'.join(sorted({s.axis for s in specs})) if on_inputs else 'all maneuvers of the log'}"
              f"; {'held out for proof of match: ' + held[0].name if held else 'none held out' + (' (one maneuver only)' if hold_out else '')}"
-             ] + ([input_note] if input_note else [])
+             ] + ([input_note] if input_note else []) + left_out
     return Problem(model.name, model, [seg(s) for s in fit_specs], [seg(s) for s in held],
                    fit_specs, held, estimate_x0=True, notes=notes, rate_hz=rate)
 

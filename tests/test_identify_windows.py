@@ -30,3 +30,24 @@ def test_a_nan_input_or_too_few_output_samples_is_one_line():
         checked_windows(df, [SegmentSpec("b", 2.0, 3.0)], ["q"], ["de"])
     with pytest.raises(FsidError, match=r"\['q'\]: cut it or fix the log"):
         checked_windows(_frame(), [SegmentSpec("c", 2.0, 2.3)], ["q"], ["de"])
+
+
+def test_a_found_segment_that_is_unusable_is_left_out_and_named():
+    """A maneuver found in the log (kind auto or mode) whose window has a gap - detected in
+    a hover, where no angle of attack can be rebuilt, or in a telemetry dropout - is left
+    out with a note, and the others are fitted; a segment the user gave by time range still
+    stops with the error, and too few usable segments is one line naming those left out."""
+    from pipeline.identify import usable_segments
+
+    df = _frame()
+    df.loc[250, "de"] = np.nan
+    a, b, c = (SegmentSpec("a", 0.5, 1.5, "auto", axis="de"), SegmentSpec("b", 2.0, 3.0, "auto", axis="de"),
+               SegmentSpec("c", 5.0, 7.0, "mode", mode="FBWA"))
+    keep, notes = usable_segments(df, [a, b, c], ["q"], ["de"], 1, "elevator maneuver")
+    assert keep == [a, c]
+    assert notes == ["segment b (2.00-3.00 s) has gaps or NaN in ['de']: left out"]
+    with pytest.raises(FsidError, match=r"segment t \(2.00-3.00 s\) has gaps or NaN in \['de'\]: cut it"):
+        usable_segments(df, [a, SegmentSpec("t", 2.0, 3.0)], ["q"], ["de"], 1, "elevator maneuver")
+    with pytest.raises(FsidError, match=r"found 2 elevator maneuver segment\(s\), 1 usable, but need "
+                                        r"at least 2 .* - segment b \(2.00-3.00 s\) has gaps"):
+        usable_segments(df, [a, b], ["q"], ["de"], 1, "elevator maneuver")
