@@ -51,3 +51,32 @@ def test_a_found_segment_that_is_unusable_is_left_out_and_named():
     with pytest.raises(FsidError, match=r"found 2 elevator maneuver segment\(s\), 1 usable, but need "
                                         r"at least 2 .* - segment b \(2.00-3.00 s\) has gaps"):
         usable_segments(df, [a, b], ["q"], ["de"], 1, "elevator maneuver")
+
+
+def test_the_longitudinal_problem_fits_the_usable_maneuvers():
+    """The default scenario's log with the pitch rate lost over its first elevator
+    maneuver (a dropout): that maneuver is left out, named in the problem notes, and the
+    problem is built from the others (before: the axis failed)."""
+    import json
+    from dataclasses import replace
+
+    pytest.importorskip("jsbsim")
+    from _simdata import written
+
+    from pipeline.flightdata import FlightData
+    from pipeline.identify import AircraftConstants, longitudinal_problem
+    from pipeline.readers import read_log
+
+    d = written("default")
+    fd = read_log(d / "flight.mcap")
+    ac = AircraftConstants.from_truth(json.loads((d / "truth.json").read_text()))
+    first = [s for s in fd.segments if s.axis == "de"][0]
+    q = fd["q"]
+    keep = (q.t < first.t0) | (q.t > first.t1)
+    cut = FlightData(channels={**fd.channels, "q": replace(q, t=q.t[keep], values=q.values[keep])},
+                     meta=dict(fd.meta), segments=list(fd.segments))
+    full, part = longitudinal_problem(fd, ac, hold_out=0), longitudinal_problem(cut, ac, hold_out=0)
+    names = lambda pb: [s.name for s in pb.specs + pb.held_specs]   # noqa: E731
+    assert first.name in names(full) and names(part) == [n for n in names(full) if n != first.name]
+    assert [n for n in part.notes if n.endswith("left out")] == [
+        f"segment {first.name} ({first.t0:.2f}-{first.t1:.2f} s) has gaps or NaN in ['q']: left out"]
