@@ -80,3 +80,30 @@ def test_the_longitudinal_problem_fits_the_usable_maneuvers():
     assert first.name in names(full) and names(part) == [n for n in names(full) if n != first.name]
     assert [n for n in part.notes if n.endswith("left out")] == [
         f"segment {first.name} ({first.t0:.2f}-{first.t1:.2f} s) has gaps or NaN in ['q']: left out"]
+
+
+def test_slow_outputs_off_the_grid_keep_every_sample():
+    """A 10 Hz output (a GPS-rate rebuilt angle) whose stamps sit 9 ms off the 50 Hz grid of
+    the fast outputs, with 2 ms jitter: every native sample is one grid sample, valued at
+    its grid time, NaN in between. Keeping only samples within a quarter step of the grid
+    (before) dropped nearly all of them."""
+    from pipeline.flightdata import Channel, FlightData
+    from pipeline.identify import multirate_frame
+
+    rng = np.random.default_rng(3)
+    tf = np.arange(0.0, 20.0, 0.02)
+    ts = np.arange(0.2, 19.8, 0.1) + 0.009 + 0.002 * rng.uniform(-1, 1, 196)
+    f = lambda t: np.sin(0.7 * t)                            # noqa: E731
+    fd = FlightData(channels={"q": Channel(t=tf, values=np.cos(tf), unit="rad/s"),
+                              "alpha": Channel(t=ts, values=f(ts), unit="rad"),
+                              "de": Channel(t=tf, values=0.1 * np.sin(tf), unit="rad")})
+    df, rate = multirate_frame(fd, ["q", "alpha"], ["de"])
+    assert rate == pytest.approx(50.0, rel=1e-3)
+    a = df["alpha"].to_numpy()
+    kept = np.isfinite(a)
+    assert kept.sum() == ts.size and df["q"].notna().all()
+    # each kept value is the channel at its grid time (linear between its samples: within
+    # 6e-4 here; the first, before the first sample, takes that sample's value), which is
+    # within half a step of a sample
+    assert np.allclose(a[kept][1:], f(df["t"].to_numpy()[kept][1:]), atol=1e-3)
+    assert np.max(np.abs(np.subtract.outer(df["t"].to_numpy()[kept], ts)).min(axis=1)) <= 0.01 + 1e-9
