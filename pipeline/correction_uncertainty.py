@@ -2,7 +2,7 @@
 corrections applied before estimation (:func:`propagate`), another fit's estimates
 held in the model (:func:`held_estimates`: the 6-DoF lateral output error holds the
 longitudinal derivatives) and the wind the air-data angles of a log without vanes were
-rebuilt with (:func:`wind`), all by refits (:func:`consider_by_refits`).
+rebuilt with (:func:`wind`), all by refits (:func:`_refit_jacobians`).
 
 The compatibility stage (:func:`pipeline.compatibility.correct_for_estimation`) removes the
 significant sensor errors from the data before estimation, with estimates c (k values)
