@@ -207,32 +207,24 @@ def _window_fault(w: pd.DataFrame, s: SegmentSpec, outputs: Sequence[str],
     return None
 
 
-def checked_windows(df: pd.DataFrame, specs: Sequence[SegmentSpec], outputs: Sequence[str],
-                    others: Sequence[str]) -> dict[int, pd.DataFrame]:
-    """The rows of ``df`` in each segment window, by ``id(spec)``; one clear error when a
-    window is unusable (:func:`_window_fault`)."""
-    frames = {id(s): _window(df, s) for s in specs}
-    for s in specs:
-        fault = _window_fault(frames[id(s)], s, outputs, others)
-        if fault:
-            raise FsidError(f"{fault}: cut it or fix the log")
-    return frames
-
-
 def usable_segments(df: pd.DataFrame, specs: Sequence[SegmentSpec], outputs: Sequence[str],
                     others: Sequence[str], hold_out: int, what: str
-                    ) -> tuple[list[SegmentSpec], list[str]]:
-    """(the segments of ``specs`` whose windows are usable, a note for each one left out).
+                    ) -> tuple[list[SegmentSpec], list[str], dict[int, pd.DataFrame]]:
+    """(the segments of ``specs`` whose windows are usable, a note for each one left out,
+    their rows of ``df`` by ``id(spec)``): the one place that cuts segment windows out of the
+    multi-rate frame.
     Found segments (automatic or by flight mode) that are not - a maneuver detected in a
     hover without forward flight for the rebuilt air-data angles, a telemetry dropout -
     are left out and named, so that the others are still fitted; a segment given by time
-    range (kind "time") ends with the error of :func:`checked_windows`. FsidError when
+    range (kind "time") ends with one clear error naming what is missing. FsidError when
     fewer than 1 + ``hold_out`` remain (``what``: the maneuvers, for the message)."""
-    keep, faults = [], []
+    keep, faults, frames = [], [], {}
     for s in specs:
-        fault = _window_fault(_window(df, s), s, outputs, others)
+        w = _window(df, s)
+        fault = _window_fault(w, s, outputs, others)
         if fault is None:
             keep.append(s)
+            frames[id(s)] = w
         elif s.kind == "time":
             raise FsidError(f"{fault}: cut it or fix the log")
         else:
@@ -243,7 +235,7 @@ def usable_segments(df: pd.DataFrame, specs: Sequence[SegmentSpec], outputs: Seq
                         f"least {1 + hold_out} (one to fit, {hold_out} to hold out)"
                         + (f" - {'; '.join(faults[:2])}{more}" if faults else "")
                         + ": fly more maneuvers or give segments by time range")
-    return keep, [f"{f}: left out" for f in faults]
+    return keep, [f"{f}: left out" for f in faults], frames
 
 
 def with_smoothed_inputs(frames: Mapping[int, pd.DataFrame], specs: Sequence[SegmentSpec],
@@ -397,11 +389,11 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
         c["kin_angles"] = float(rebuilt(fd, "alpha"))
     outs = [k for k in channels if k in LONG_OUTPUTS]
     others = [k for k in channels if k not in LONG_OUTPUTS]
-    specs, left_out = usable_segments(df, specs, outs, others, hold_out, "longitudinal maneuver")
+    specs, left_out, frames = usable_segments(df, specs, outs, others, hold_out,
+                                              "longitudinal maneuver")
     elev = [s for s in specs if s.axis == "de"]
     held = elev[-hold_out:] if hold_out else []
     fit_specs = [s for s in specs if s not in held]
-    frames = checked_windows(df, specs, outs, others)
     thrust = {id(s): thrust_signal(frames[id(s)], ac) for s in specs}
     regs = longitudinal_regressions([frames[id(s)] for s in fit_specs], c,
                                     [thrust[id(s)] for s in fit_specs])
@@ -735,8 +727,8 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     rho = mean_density(df)
     outs = [k for k in channels if k in LAT_OUTPUTS]
     others = [k for k in channels if k not in LAT_OUTPUTS]
-    specs, left_out = usable_segments(df, specs, outs, others, hold_out, "aileron/rudder maneuver")
-    frames = checked_windows(df, specs, outs, others)
+    specs, left_out, frames = usable_segments(df, specs, outs, others, hold_out,
+                                              "aileron/rudder maneuver")
     allw = pd.concat(frames.values())
     c = {"m": ac.mass, "Ixx": ac.Ixx, "Izz": ac.Izz, "Ixz": ac.Ixz, "S": ac.S, "b": ac.b,
          "rho": rho, "V": float(allw["V"].mean()), "alpha0": float(allw["alpha"].mean()),

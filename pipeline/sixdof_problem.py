@@ -19,9 +19,9 @@ from estimators.models import sixdof
 from estimators.models.sixdof import body_velocity
 from pipeline.flightdata import FlightData, SegmentSpec
 from pipeline.input_smoothing import smoothed_control_inputs
-from pipeline.identify import (LAT_FREE, AircraftConstants, Problem, _first_valid, checked_windows,
-                               usable_segments, with_smoothed_inputs, lateral_specs, lateral_starts, longitudinal_starts, mean_density,
-                               multirate_frame, thrust_signal)
+from pipeline.identify import (LAT_FREE, AircraftConstants, Problem, _first_valid, lateral_specs,
+                               lateral_starts, longitudinal_starts, mean_density, multirate_frame,
+                               thrust_signal, usable_segments, with_smoothed_inputs)
 
 SIXDOF_OUTPUTS = ("V", "alpha", "beta", "p", "q", "r", "phi", "theta", "ax", "ay", "az")
 SIXDOF_INPUTS = ("de", "da", "dr")
@@ -52,9 +52,8 @@ def sixdof_lateral_problem(fd: FlightData, ac: AircraftConstants, *,
     c = {"m": ac.mass, "Ixx": ac.Ixx, "Iyy": ac.Iyy, "Izz": ac.Izz, "Ixz": ac.Ixz, "S": ac.S,
          "b": ac.b, "cbar": ac.cbar, "rho": rho, "x_vane": ac.airdata[0],
          "y_vane": ac.airdata[1], "z_vane": ac.airdata[2], "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
-    specs, left_out = usable_segments(df, specs, SIXDOF_OUTPUTS, SIXDOF_INPUTS, hold_out,
-                                      "aileron/rudder maneuver")
-    frames = checked_windows(df, specs, SIXDOF_OUTPUTS, SIXDOF_INPUTS)
+    specs, left_out, frames = usable_segments(df, specs, SIXDOF_OUTPUTS, SIXDOF_INPUTS, hold_out,
+                                              "aileron/rudder maneuver")
     held = specs[-hold_out:] if hold_out else []
     fit_specs = [s for s in specs if s not in held]
     thrust = {id(s): thrust_signal(frames[id(s)], ac) for s in specs}

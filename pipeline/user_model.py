@@ -154,7 +154,7 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
     model's inputs among the surface positions (de, da, dr) low-passed where their noise
     floor begins unless ``smooth_inputs`` is False (:mod:`pipeline.input_smoothing`)."""
     from pipeline.flightdata import CONTROL_INPUTS
-    from pipeline.identify import (Problem, _first_valid, checked_windows, multirate_frame,
+    from pipeline.identify import (Problem, _first_valid, multirate_frame,
                                    usable_segments, with_smoothed_inputs)
     from pipeline.input_smoothing import smoothed_control_inputs
 
@@ -166,14 +166,13 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
                         f"model {model.name!r} to: fly doublets/3-2-1-1s on its inputs "
                         f"({', '.join(model.inputs)})")
     df, rate = multirate_frame(fd, list(model.outputs), list(model.inputs), rate_hz)
-    specs, left_out = usable_segments(df, specs, model.outputs, model.inputs, 0,
-                                      f"{model.name!r} maneuver")
+    specs, left_out, frames = usable_segments(df, specs, model.outputs, model.inputs, 0,
+                                              f"{model.name!r} maneuver")
     hold = hold_out if len(specs) > hold_out else 0
     held = specs[len(specs) - hold:] if hold else []
     fit_specs = [s for s in specs if s not in held]
     controls = [c for c in model.inputs if c in CONTROL_INPUTS] if smooth_inputs else []
     smoothed, input_note = smoothed_control_inputs(fd, df, rate, controls)
-    frames = checked_windows(df, specs, model.outputs, model.inputs)
     with_smoothed_inputs(frames, specs, smoothed, controls)
 
     def seg(s):

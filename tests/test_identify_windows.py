@@ -1,12 +1,13 @@
-"""pipeline.identify.checked_windows: the one place that cuts segment windows out of the
-multi-rate frame and refuses gaps with one clear message."""
+"""pipeline.identify.usable_segments: the one place that cuts segment windows out of the
+multi-rate frame, leaves out found segments with gaps and refuses a given one with one clear
+message; pipeline.identify.multirate_frame: slower outputs at their own samples."""
 import numpy as np
 import pandas as pd
 import pytest
 
 from pipeline.errors import FsidError
 from pipeline.flightdata import SegmentSpec
-from pipeline.identify import checked_windows
+from pipeline.identify import usable_segments
 
 
 def _frame():
@@ -17,7 +18,7 @@ def _frame():
 
 def test_windows_keep_sparse_outputs_and_span_the_segment():
     spec = SegmentSpec("a", 2.0, 3.0)
-    frames = checked_windows(_frame(), [spec], ["q"], ["de"])
+    _, _, frames = usable_segments(_frame(), [spec], ["q"], ["de"], 0, "elevator maneuver")
     w = frames[id(spec)]
     assert w["t"].iloc[0] == pytest.approx(2.0) and w["t"].iloc[-1] == pytest.approx(3.0)
     assert w["q"].notna().sum() == 26 and not w["de"].isna().any()
@@ -27,9 +28,9 @@ def test_a_nan_input_or_too_few_output_samples_is_one_line():
     df = _frame()
     df.loc[250, "de"] = np.nan
     with pytest.raises(FsidError, match=r"segment b \(2.00-3.00 s\) has gaps or NaN in \['de'\]"):
-        checked_windows(df, [SegmentSpec("b", 2.0, 3.0)], ["q"], ["de"])
+        usable_segments(df, [SegmentSpec("b", 2.0, 3.0)], ["q"], ["de"], 0, "elevator maneuver")
     with pytest.raises(FsidError, match=r"\['q'\]: cut it or fix the log"):
-        checked_windows(_frame(), [SegmentSpec("c", 2.0, 2.3)], ["q"], ["de"])
+        usable_segments(_frame(), [SegmentSpec("c", 2.0, 2.3)], ["q"], ["de"], 0, "elevator maneuver")
 
 
 def test_a_found_segment_that_is_unusable_is_left_out_and_named():
@@ -37,14 +38,12 @@ def test_a_found_segment_that_is_unusable_is_left_out_and_named():
     a hover, where no angle of attack can be rebuilt, or in a telemetry dropout - is left
     out with a note, and the others are fitted; a segment the user gave by time range still
     stops with the error, and too few usable segments is one line naming those left out."""
-    from pipeline.identify import usable_segments
-
     df = _frame()
     df.loc[250, "de"] = np.nan
     a, b, c = (SegmentSpec("a", 0.5, 1.5, "auto", axis="de"), SegmentSpec("b", 2.0, 3.0, "auto", axis="de"),
                SegmentSpec("c", 5.0, 7.0, "mode", mode="FBWA"))
-    keep, notes = usable_segments(df, [a, b, c], ["q"], ["de"], 1, "elevator maneuver")
-    assert keep == [a, c]
+    keep, notes, frames = usable_segments(df, [a, b, c], ["q"], ["de"], 1, "elevator maneuver")
+    assert keep == [a, c] and set(frames) == {id(a), id(c)}
     assert notes == ["segment b (2.00-3.00 s) has gaps or NaN in ['de']: left out"]
     with pytest.raises(FsidError, match=r"segment t \(2.00-3.00 s\) has gaps or NaN in \['de'\]: cut it"):
         usable_segments(df, [a, SegmentSpec("t", 2.0, 3.0)], ["q"], ["de"], 1, "elevator maneuver")
