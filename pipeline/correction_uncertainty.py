@@ -144,21 +144,26 @@ def propagate(fd_raw: FlightData, doc: Mapping[str, Any], results: Mapping[str, 
             "methods": status, "seconds": time.perf_counter() - t0}
 
 
-def wind(flow: Mapping[str, Any], spans: Mapping[str, Any], results: Mapping[str, Any],
+def fitted_spans(result: Any) -> list[tuple[float, float]]:
+    """The (start, end) times [s] of the segments a fit used (its residuals' time spans)."""
+    return [(float(r.index[0]), float(r.index[-1])) for r in result.residuals if len(r)]
+
+
+def wind(flow: Mapping[str, Any], results: Mapping[str, Any],
          refit: Callable[[tuple[float, float, float]], Mapping[str, Any]],
          progress: Any = None) -> dict[str, Any]:
     """Add to ``consider_cov`` of every result in ``results`` the uncertainty of the wind
     its air-data angles were rebuilt with (``flow``, the document of
     :func:`pipeline.flow_angles.reconstruct_flow_angles`): the fitted horizontal wind and
-    the mean vertical wind the reconstruction takes as zero, by key over that fit's
-    ``spans`` [(t0, t1), ...] [s] (:func:`pipeline.flow_angles.wind_uncertainty`). Each
+    the mean vertical wind the reconstruction takes as zero, by key over the segments that
+    fit used (:func:`fitted_spans`, :func:`pipeline.flow_angles.wind_uncertainty`). Each
     part is moved by its largest std over the keys and ``refit(offset)`` (offset (north,
     east, down) [m/s] added to the wind) repeats the fits; each key then gets J C_key J^T.
     Returns a JSON-ready document (empty when no angle was rebuilt or no part is
     uncertain)."""
     from pipeline.flow_angles import WIND_PARTS, wind_uncertainty
 
-    per = {key: wind_uncertainty(flow, spans[key]) for key in results}
+    per = {key: wind_uncertainty(flow, fitted_spans(res)) for key, res in results.items()}
     if not results or not any(per.values()):
         return {}
     t0 = time.perf_counter()

@@ -826,20 +826,9 @@ def _fem_for_filters(fd, pb: Problem, fem: Any, progress: Progress, quiet: bool 
     return fem
 
 
-def fitted_spans(results: Mapping[str, Any], problems: Sequence[Problem]
-                 ) -> dict[str, list[tuple[float, float]]]:
-    """key -> the (start, end) times [s] of the segments its fit used (those of the
-    problem of its axis: keys "<axis>-<method>", or the method alone with one problem)."""
-    by_axis = {pb.axis: [(float(s.t[0]), float(s.t[-1])) for s in pb.fit] for pb in problems}
-    every = [sp for v in by_axis.values() for sp in v]
-    return {key: by_axis.get(key.split("-")[0], every) if len(problems) > 1 else every
-            for key in results}
-
-
 def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, validations: dict,
                           truth: Mapping[str, float] | None, progress: Progress,
-                          refit, *, flow: dict[str, Any] | None = None,
-                          spans: Mapping[str, Any] | None = None, wind_refit=None) -> None:
+                          refit, *, flow: dict[str, Any] | None = None, wind_refit=None) -> None:
     """One stage after the fits: what each fit held as exact gets its uncertainty into the
     result's ``consider_cov`` (:mod:`pipeline.correction_uncertainty`) - the other axis'
     estimates a fit held (``result.extra["held"]``, the 6-DoF lateral output error holding
@@ -847,9 +836,8 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
     the sensor corrections applied before estimation (``comp["propagation"]``; ``refit(fd,
     starts)`` repeats the fits, results only) and, for air-data angles rebuilt from the
     flight path (``flow``, their document; ``flow["wind_uncertainty"]``), the wind they
-    were rebuilt with (``wind_refit(offset)`` repeats the fits with the wind moved,
-    ``spans`` key -> fitted time spans). Then the truth checks and verdicts are redone
-    with the total std."""
+    were rebuilt with (``wind_refit(offset)`` repeats the fits with the wind moved). Then
+    the truth checks and verdicts are redone with the total std."""
     from pipeline.correction_uncertainty import held_estimates, propagate, wind
     from pipeline.validate import refresh_truth_check
 
@@ -868,7 +856,7 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
     if comp.get("applied"):
         comp["propagation"] = propagate(fd_raw, comp, results, refit, progress)
     if rebuilt:
-        flow["wind_uncertainty"] = wind(flow, spans or {}, results, wind_refit, progress)
+        flow["wind_uncertainty"] = wind(flow, results, wind_refit, progress)
     for key, res in results.items():
         if key in validations:
             refresh_truth_check(validations[key], res, truth)
@@ -1231,7 +1219,6 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     starts = {key: res.params for key, res in results.items()}
     angles = any({"alpha", "beta"} & {*pb.model.inputs, *pb.model.outputs} for pb in problems)
     carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit, flow=flow,
-                               spans=fitted_spans(results, problems),
                                wind_refit=(lambda offset: refit(fd_c, starts, offset)) if angles else None)
     if "wind_uncertainty" in flow:
         from pipeline.correction_uncertainty import wind_summary
