@@ -45,6 +45,12 @@ def tlog_fd():
 
 
 @pytest.fixture(scope="module")
+def tlog_recv():
+    """The .tlog on its receive stamps (``time_base="log"``)."""
+    return read_log(need(TLOG), time_base="log")
+
+
+@pytest.fixture(scope="module")
 def ulg_fd():
     return read_log(need(ULG))
 
@@ -134,14 +140,22 @@ def test_tlog_counts_params_modes(tlog_fd):
     assert fd.params["SR0_RAW_SENS"] == 4.0  # last value sent wins (first was 2.0)
     assert fd.params["ARSPD_TYPE"] == 2.0
     assert [m for _, m in fd.modes] == ["QLOITER", "CIRCLE", "GUIDED", "QLAND"]
+
+
+def test_tlog_receive_stamps(tlog_recv):
+    """time_base="log": the .tlog's own receive stamps (mavutil's ``_timestamp``)."""
+    fd = tlog_recv
+    assert "receive" in fd.meta["time_base"]
     assert fd.modes[0][0] == pytest.approx(1533737161.935, abs=1e-3)
     assert fd.modes[3][0] == pytest.approx(1533737285.271, abs=1e-3)
+    assert fd["phi"].t[0] == pytest.approx(1533737161.914, abs=1e-3)
+    segs = [s for s in fd.segments if s.kind == "mode"]
+    assert segs[1].duration == pytest.approx(1533737246.913 - 1533737201.028, abs=1e-2)
 
 
 def test_tlog_values_and_units(tlog_fd):
     fd = tlog_fd
     assert fd["phi"].values[0] == pytest.approx(-0.024653663858771324, rel=1e-7)
-    assert fd["phi"].t[0] == pytest.approx(1533737161.914, abs=1e-3)
     # SCALED_IMU2 first: zacc -999 mG, xgyro -8 mrad/s
     assert fd["az"].values[0] == pytest.approx(-999 * 9.80665e-3)
     assert fd["p"].values[0] == pytest.approx(-0.008)
@@ -175,7 +189,9 @@ def test_tlog_checks_flag_low_rate_and_hover_segments(tlog_fd):
 def test_tlog_mode_segments(tlog_fd):
     segs = [s for s in tlog_fd.segments if s.kind == "mode"]
     assert [s.mode for s in segs] == ["QLOITER", "CIRCLE", "GUIDED", "QLAND"]
-    assert segs[1].duration == pytest.approx(1533737246.913 - 1533737201.028, abs=1e-2)
+    # on the autopilot's clock: the latest stamp sent before each mode's first HEARTBEAT
+    # (mavutil, in file order): GUIDED 694.456375 s, CIRCLE 648.399359 s since boot
+    assert segs[1].duration == pytest.approx(694.456375 - 648.399359, abs=1e-6)
 
 
 # ------------------------------------------------------------------ PX4 .ulg
@@ -214,15 +230,33 @@ def test_ulg_resample_common_base(ulg_fd):
     assert df["p"].std() < np.std(ulg_fd["p"].values)
 
 
-def test_tlog_boot_time_base(tlog_fd):
-    fd = read_log(need(TLOG), time_base="boot")
-    assert "boot" in fd.meta["time_base"]
-    # ATTITUDE.time_boot_ms (mavutil): 608582, 608821, 609063, 609301, 609543, 611021 ms
-    assert np.allclose(np.diff(fd["phi"].t[:6]), [0.239, 0.242, 0.238, 0.242, 1.478], atol=1e-6)
+def test_tlog_autopilot_time_base(tlog_fd, tlog_recv):
+    """The default time base of a .tlog: the autopilot's stamps (pipeline.readers.tlog_time).
+    Expected numbers from mavutil over the file, in file order."""
+    fd = tlog_fd
+    assert fd.meta["time_base"].startswith("autopilot stamps")
+    with pytest.raises(Exception, match="time_base must be"):
+        read_log(TLOG, time_base="gps")
+    # ATTITUDE.time_boot_ms 608582, 608821, 609063, 609301, 609543, then 611021 ... 611941
+    # received before 610541 and 610781: put back in order
+    t = fd["phi"].t - fd["phi"].t[0]
+    assert np.allclose(t[:8], [0, 0.239, 0.481, 0.719, 0.961, 1.959, 2.199, 2.439], atol=1e-6)
+    assert np.all(np.diff(fd["phi"].t) > 0) and len(fd["phi"]) == 888
+    i = np.flatnonzero(np.isclose(t, 1.959, atol=1e-6))[0]
+    assert fd["phi"].values[i] == pytest.approx(-0.0266, abs=1e-4)      # roll sent at 610541 ms
+    assert np.any(np.diff(tlog_recv["phi"].t) < 0.01)
+    # the modes and VFR_HUD (no stamp) at the latest stamp sent before them: QLOITER's first
+    # HEARTBEAT after 609.301766 s, CIRCLE 648.399359, GUIDED 694.456375, QLAND 732.449763
+    rel = [m - fd["phi"].t[0] for m, _ in fd.modes]
+    assert np.allclose(rel, np.array([609.301766, 648.399359, 694.456375, 732.449763]) - 608.582,
+                       atol=1e-6)
+    assert fd["V"].t[0] - fd["phi"].t[0] == pytest.approx(0.000234, abs=1e-6)
     jit = {c.channel: c.value for c in run_checks(fd) if c.check == "jitter"}
-    jit_log = {c.channel: c.value for c in run_checks(tlog_fd) if c.check == "jitter"}
-    assert jit["phi"] < jit_log["phi"]  # autopilot stamps are steadier than bursty arrivals
-    assert len(fd["phi"]) == 888
+    jit_log = {c.channel: c.value for c in run_checks(tlog_recv) if c.check == "jitter"}
+    # autopilot stamps are steadier than bursty arrivals, also for VFR_HUD's airspeed
+    assert jit["phi"] < 0.5 * jit_log["phi"] and jit["V"] < 0.5 * jit_log["V"], (jit, jit_log)
+    assert not any(c.check in ("time_order", "duplicate_times") and c.status != "pass"
+                   for c in run_checks(fd))
 
 
 @pytest.mark.parametrize("name", [BIN.name, TLOG.name, ULG.name])

@@ -6,7 +6,8 @@ dialect (a superset of ``common``, so PX4 logs decode too). Only the vehicle's o
 messages (the system that sends autopilot HEARTBEATs, default the most frequent sender)
 are kept. PARAM_VALUE messages fill ``params`` (PX4 integer parameters are decoded
 bytewise), HEARTBEAT ``custom_mode`` gives the flight modes (pymavlink's mode tables).
-Time base: the .tlog's receive timestamps (UTC seconds).
+Time base: the autopilot's own stamps where messages carry them, on the receive clock
+(:mod:`pipeline.readers.tlog_time`); ``time_base="log"`` keeps the receive timestamps.
 
 Damage: bytes that are not a valid timestamped packet are skipped until the next one;
 the first such offset is reported in ``RawLog.damage``.
@@ -21,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.readers.base import Damage, LogReadError, RawLog, Table
+from pipeline.readers.tlog_time import boot_time_base
 
 MAV_AUTOPILOT_ARDUPILOTMEGA = 3
 MAV_AUTOPILOT_PX4 = 12
@@ -61,18 +63,21 @@ def _flatten(m, fields: list[str]) -> list:
 
 
 def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | None = None,
-              time_base: str = "log") -> RawLog:
+              time_base: str = "auto") -> RawLog:
     """Read a .tlog into one table per message type (fields flattened: ``controls[0]``).
 
     ``system``: MAVLink system id to keep (default: the autopilot's).
-    ``time_base``: "log" (default) the .tlog receive stamps (UTC s; telemetry arrives in
-    bursts, so intervals jitter); "boot" the autopilot's own ``time_boot_ms``/``time_usec``
-    stamps where a message has them (moved onto the receive clock by their median offset);
-    messages without such stamps keep their receive time.
+    ``time_base``: "auto" (default) the autopilot's own ``time_boot_ms``/``time_usec``
+    stamps where messages have them, on the receive clock, the others at their receive
+    time less the link's latency, reboots and wrapped counters handled, each message type
+    in the order of its stamps (:func:`pipeline.readers.tlog_time.boot_time_base`); the
+    receive stamps when no message has a usable stamp. "boot": the same, but a log without
+    stamps is an error. "log": the .tlog's receive stamps (UTC s; telemetry arrives in
+    bursts, so intervals jitter and packets can arrive out of order).
     """
-    if time_base not in ("log", "boot"):
-        raise LogReadError(f"time_base must be 'log' or 'boot' (got {time_base!r})", path=str(path),
-                           where="options")
+    if time_base not in ("auto", "log", "boot"):
+        raise LogReadError(f"time_base must be 'auto', 'log' or 'boot' (got {time_base!r})",
+                           path=str(path), where="options")
     path = Path(path)
     try:
         data = path.read_bytes()
@@ -89,7 +94,8 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
     rows: dict[tuple[int, str], list] = defaultdict(list)
     times: dict[tuple[int, str], list] = defaultdict(list)
     fields_of: dict[str, list[str]] = {}
-    heartbeats: list[tuple[float, int, object]] = []
+    seqs: dict[tuple[int, str], list] = defaultdict(list)
+    heartbeats: list[tuple[float, int, object, int]] = []
     params: dict[int, dict[str, float]] = defaultdict(dict)
     senders: Counter = Counter()
     kept = 0
@@ -121,7 +127,7 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
         sysid = m.get_srcSystem()
         senders[sysid] += 1
         if name == "HEARTBEAT":
-            heartbeats.append((ts, sysid, m))
+            heartbeats.append((ts, sysid, m, kept))
         elif name == "PARAM_VALUE":
             pid = m.param_id if isinstance(m.param_id, str) else m.param_id.decode("ascii", "replace")
             params[sysid][pid.rstrip("\0")] = (m.param_value, m.param_type)
@@ -130,18 +136,20 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
             fl = fields_of[name] = list(m.get_fieldnames())
         rows[(sysid, name)].append(_flatten(m, fl))
         times[(sysid, name)].append(ts)
+        seqs[(sysid, name)].append(kept)
     trailing = n - i if i < n else 0
     if kept == 0:
         raise LogReadError(f"{path}: no MAVLink packets found (first bytes "
                            f"{data[:12].hex()}); is this a .tlog?", path=str(path), offset=0,
                            where="byte 0")
     # the vehicle: a system sending autopilot heartbeats, else the busiest sender
-    autop = [s for _, s, hb in heartbeats if hb.autopilot != 8]
+    autop = [s for _, s, hb, _ in heartbeats if hb.autopilot != 8]
     sysid = system if system is not None else (Counter(autop).most_common(1)[0][0] if autop
                                                else senders.most_common(1)[0][0])
-    hbs = [(t, hb) for t, s, hb in heartbeats if s == sysid and hb.autopilot != 8]
+    hbs = [(t, hb, k) for t, s, hb, k in heartbeats if s == sysid and hb.autopilot != 8]
     autopilot = hbs[0][1].autopilot if hbs else None
     tables: dict[str, Table] = {}
+    seq_of: dict[str, np.ndarray] = {}
     for (s, name), r in rows.items():
         if s != sysid or name in ("PARAM_VALUE", "STATUSTEXT"):
             continue
@@ -158,23 +166,34 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
                 cols[col] = np.asarray([str(v) for v in vals], dtype=object)
         t = np.asarray([tt for tt, row in zip(times[(s, name)], r) if len(row) == width])
         tables[name] = Table(name, t, cols)
-    tb_text = "tlog receive timestamps (UTC, seconds since 1970)"
-    if time_base == "boot":
-        tb_text = _boot_times(tables)
+        seq_of[name] = np.asarray([k for k, row in zip(seqs[(s, name)], r) if len(row) == width])
     par: dict[str, float] = {}
     for pid, (val, ptype) in params.get(sysid, {}).items():
         if autopilot == MAV_AUTOPILOT_PX4 and ptype in _INT_TYPES:
             val = struct.unpack("<i", struct.pack("<f", val))[0]
         par[pid] = float(val)
     modes: list[tuple[float, str]] = []
+    mode_seq: list[int] = []
     try:
         from pymavlink import mavutil
-        for t, hb in hbs:
+        for t, hb, k in hbs:
             name = mavutil.mode_string_v10(hb)
             if not modes or modes[-1][1] != name:
                 modes.append((float(t), name))
+                mode_seq.append(k)
     except Exception:  # pragma: no cover
         pass
+    tb_text = "tlog receive timestamps (UTC, seconds since 1970)"
+    if time_base != "log":
+        mapped = boot_time_base(tables, seq_of, modes, mode_seq)
+        if mapped is not None:
+            tb_text, modes = mapped
+        elif time_base == "boot":
+            raise LogReadError(f"{path}: no message carries an autopilot stamp (time_boot_ms "
+                               "or time_usec since boot); read it with time_base='log'",
+                               path=str(path), where="time base")
+        else:
+            tb_text += ": no autopilot stamps found"
     damage = None
     if first_bad >= 0 or trailing:
         at = first_bad if first_bad >= 0 else i
@@ -190,28 +209,6 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
                                          if nm == "PARAM_VALUE" and s == sysid)),
             "map_hint": "px4_tlog" if ap == "px4" else "mavlink_tlog"}
     return RawLog(tables, "tlog", par, modes, tb_text, damage, info)
-
-
-def _boot_times(tables: dict[str, Table]) -> str:
-    """Replace receive times by autopilot boot stamps (see ``read_tlog``); returns the
-    time-base sentence."""
-    own: dict[str, np.ndarray] = {}
-    for name, tab in tables.items():
-        if "time_boot_ms" in tab:
-            own[name] = tab["time_boot_ms"] * 1e-3
-        elif "time_usec" in tab:
-            tu = tab["time_usec"] * 1e-6
-            if tu.size and np.nanmax(tu) < 1e8:  # since boot, not UNIX time
-                own[name] = tu
-    if not own:
-        return "tlog receive timestamps (UTC, seconds since 1970): no autopilot stamps found"
-    diffs = np.concatenate([tables[n].t - b for n, b in own.items()])
-    offset = float(np.nanmedian(diffs))
-    for name, tab in tables.items():
-        if name in own:
-            tab.t = own[name] + offset
-    return (f"autopilot boot stamps (time_boot_ms / time_usec) + {offset:.3f} s (median receive "
-            "offset), in s; messages without stamps at their receive time")
 
 
 def _expand_names(mav, name: str, proto: list[str], width: int) -> list[str]:
