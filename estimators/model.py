@@ -187,6 +187,17 @@ class Model:
         return Model(self.states, self.inputs, self.outputs, new, self.f, self.g,
                      self.constants, self.output_biases, self.name)
 
+    def hold(self, values: Mapping[str, float]) -> "Model":
+        """A copy with the parameters named in ``values`` fixed at those values (name ->
+        value; the others unchanged)."""
+        unknown = sorted(set(values) - set(self.parameter_names))
+        if unknown:
+            raise ModelDefinitionError(f"model {self.name!r} has no parameter {unknown}")
+        new = [Parameter(p.name, float(values[p.name]), False, p.bounds, p.per_segment, p.unit)
+               if p.name in values else p for p in self.parameters]
+        return Model(self.states, self.inputs, self.outputs, new, self.f, self.g,
+                     self.constants, self.output_biases, self.name)
+
     def select_outputs(self, names: Sequence[str]) -> "Model":
         """A copy observing only ``names`` (a subset of the outputs, any order): for data
         that lack a channel of the built-in model (e.g. no angular acceleration)."""

@@ -431,7 +431,7 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
         return Segment(t=w["t"].to_numpy(), u=u,
                        z=w[list(LONG_OUTPUTS)].to_numpy(), x0=x0, name=s.name)
 
-    notes = ([f"measured beta, p, r, phi, ay as inputs (multi-axis maneuvers); air data at "
+    notes = ([f"measured beta, p, r, phi, ay as inputs (the lateral motion as flown); air data at "
               f"({ac.airdata[0]:g}, {ac.airdata[1]:g}, {ac.airdata[2]:g}) m"]
              if measured_lateral else []) + [
              f"grid {rate_hz:g} Hz; slower channels at their own samples only",
@@ -594,7 +594,8 @@ MULTIAXIS_FILTER_FREE = {"longitudinal": ("CLalphadot", "Cmalphadot"), "lateral"
 def multiaxis_problem(fd: FlightData, ac: AircraftConstants, axis: str, *, gust_states: bool,
                       rate_hz: float | None = None, smooth_inputs: bool = True,
                       hold_out: int = 1) -> Problem:
-    """The axis problem for maneuvers that move all axes at once: the model of that axis
+    """The axis problem for maneuvers that move all axes at once, and for the filters in
+    turbulence whatever the maneuvers (pipeline.run's _method_problem): the model of that axis
     driven by the other axis' measured variables (longitudinal_measured_lateral /
     lateral_measured_longitudinal), air data at the boom's full position. ``gust_states``
     (the filters, in turbulence): the Dryden gust states of the models (rotary gusts q_g,

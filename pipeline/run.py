@@ -456,12 +456,43 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
 START_FREE = ("oem", "ls", "fem", "soem", "eigen", "decouple")
 
 
+#: (damping, angle-of-attack-rate) derivative pairs of the gust models
+ALPHADOT_PAIRS = (("CLq", "CLalphadot"), ("Cmq", "Cmalphadot"))
+#: |correlation| of a pair above which the flight does not separate them
+ALPHADOT_CORR = 0.9
+
+
+def _inseparable_alphadot(pb: Problem, res: Any) -> str | None:
+    """The note for holding CLalphadot, Cmalphadot at 0 when a fit with them free could not
+    separate them from CLq, Cmq (|correlation| above :data:`ALPHADOT_CORR` for either
+    pair; the report's flag of near-linear dependence), else None. The gust angle of attack
+    separates alphadot from q only where the turbulence is strong against the maneuver.
+    Measured with FEM (ad hoc): longitudinal_3211_turbulence (small UAV, 3-2-1-1s, truth
+    CLalphadot = Cmalphadot = 0), seeds 11-15: |corr| 0.89-0.94, held on every seed (seed
+    12 with them free: CLq -13.4 +- 4.3, CLalphadot 11.8 +- 4.3, Cmalphadot 3.1 std off;
+    held, every derivative within 1.4 std); the light aircraft's multisines keep them
+    free: 0.32 (multiaxis_multisine_turbulence, seed 31), 0.66-0.72 flown with elevator
+    multisines only (flight.mcap, seed 34; 0.45-0.57 from its .bin)."""
+    free = set(res.free_names)
+    pairs = [(a, b) for a, b in ALPHADOT_PAIRS if a in free and b in free]
+    if not pairs:
+        return None
+    corr = res.corr
+    r = {f"{a}~{b}": float(corr.loc[a, b]) for a, b in pairs}
+    if max(abs(v) for v in r.values()) <= ALPHADOT_CORR:
+        return None
+    return ("CLalphadot, Cmalphadot held at 0: this flight does not separate them from CLq, "
+            f"Cmq (correlation {', '.join(f'{k} {v:+.2f}' for k, v in r.items())} with them "
+            "free), so CLq and Cmq carry their effect (Cmq estimates about Cmq + Cmalphadot)")
+
+
 def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, float] | None,
                      progress: Progress, *, turbulence: Mapping[str, Any] | None = None,
                      tolerances: Mapping[str, float] | None = None, pom: str = "auto",
                      start: Mapping[str, float] | None = None,
                      process_noise: Mapping[str, float] | None = None,
-                     calm_air: bool = False) -> tuple[Any, dict[str, Any] | None] | None:
+                     calm_air: bool = False, held_alphadot: str | None = None
+                     ) -> tuple[Any, dict[str, Any] | None] | None:
     """Fit ``method`` on ``pb`` and validate the result on its held-out segments, with a
     progress stage each; ``what`` names the fit in messages ("lateral axis", "model 'x'").
     A method that fails - an EstimationError (plain OEM diverging on an unstable aircraft)
@@ -472,11 +503,26 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
         (returns (result, None)), starting from these values for the methods of
         ``START_FREE`` (the EKF/UKF estimate depends on its start: they start as before).
     calm_air: the held-out maneuvers are known to be flown in calm air (see
-        :func:`pipeline.validate.validate`)."""
+        :func:`pipeline.validate.validate`).
+    held_alphadot: the note of another method's fit of this axis that held CLalphadot,
+        Cmalphadot (its ``extra["alphadot_held"]``): this fit holds them too, so the
+        methods estimate, and are cross-checked on, the same derivatives. Otherwise a fit
+        that cannot separate them from CLq, Cmq is repeated with them held
+        (:func:`_inseparable_alphadot`)."""
     from estimators import EstimationError
     from pipeline.validate import validate
 
     refit = start is not None
+    alphadot = [b for _, b in ALPHADOT_PAIRS if b in pb.model.parameter_names
+                and pb.model.parameter(b).free]
+    if refit and alphadot and all(start.get(b) == 0.0 for b in alphadot):
+        # the fit this one repeats held them (_inseparable_alphadot; a free estimate is
+        # never exactly 0)
+        pb = replace(pb, model=pb.model.hold({b: 0.0 for b in alphadot}))
+    elif alphadot and held_alphadot:
+        pb = replace(pb, model=pb.model.hold({b: 0.0 for b in alphadot}),
+                     notes=[*pb.notes, f"{held_alphadot} (found by filter error's fit)"])
+        alphadot = []
     if refit and method in START_FREE and len(start):   # (then fit_problem's equation-error starts off)
         free = {p.name for p in pb.model.parameters if p.free}   # held values stay the problem's
         pb = replace(pb, model=pb.model.with_values({n: v for n, v in start.items() if n in free}),
@@ -497,6 +543,24 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
         return None
     if refit:
         return res, None
+    held = _inseparable_alphadot(pb, res) if alphadot else None
+    if held is not None:
+        progress.done(f"{'converged' if res.converged else 'NOT converged'}; alphadot "
+                      "derivatives not separable: refit with them held")
+        pb = replace(pb, model=pb.model.hold({b: 0.0 for b in alphadot}), notes=[*pb.notes, held])
+        progress.total += 1
+        progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, "
+                       "CLalphadot, Cmalphadot held)")
+        try:
+            res = fit_problem(pb, method, turbulence=turbulence, process_noise=process_noise,
+                              callback=lambda it, cost, p: progress.tick(str(it + 1)))
+        except (EstimationError, np.linalg.LinAlgError) as exc:
+            progress.done(f"FAILED: {exc}")
+            print(f"note: {method.upper()} on the {what} failed: {exc}", file=progress.stream)
+            return None
+        res.extra["alphadot_held"] = held
+    elif held_alphadot and not [b for _, b in ALPHADOT_PAIRS if b in res.free_names]:
+        res.extra["alphadot_held"] = held_alphadot
     progress.done(f"{'converged' if res.converged else 'NOT converged'} in {_count(res.iterations, 'iteration')}")
     progress.stage(f"validate {what} {method.upper()} (fit, residuals, modes, proof of match)")
     v = validate(res, held_out=pb.held_out, truth=truth, tolerances=tolerances, proof_of_match=pom,
@@ -541,13 +605,16 @@ def identified_axes(fd, axes: Sequence[str] = ("longitudinal", "lateral")) -> in
 
 
 def _method_problem(fd, ac: AircraftConstants, base: Problem, build, outs: Sequence[str], m: str,
-                    *, lon, multiaxis: bool, say: Callable[[str], None], cache: dict,
+                    *, lon, multiaxis: bool, turbulent: bool = False,
+                    say: Callable[[str], None], cache: dict,
                     inputs: str, smooth_inputs: bool, hold_out: int) -> Problem:
     """The problem method ``m`` is fitted on for the axis of ``base`` (built by ``build``
     on ``fd``; ``outs`` its outputs): ``base`` itself, or the same axis on the grid of its
     slowest output (COMMON_GRID methods; built once into ``cache``), or a richer model of
     the axis (below). ``lon``: the longitudinal output-error result, if any; ``multiaxis``:
-    the flight moves all axes at once; ``say`` reports a model that could not be set up;
+    the flight moves all axes at once; ``turbulent``: the flight may be in turbulence (its
+    level known and not off, or not known: a log); ``say`` reports a model that could not
+    be set up;
     ``hold_out``: maneuvers per axis kept for the proof of match."""
     pb = base
     if m in COMMON_GRID:
@@ -558,7 +625,8 @@ def _method_problem(fd, ac: AircraftConstants, base: Problem, build, outs: Seque
                                         hold_out=hold_out)
                 cache["common"].inputs = inputs
             pb = cache["common"]
-    if multiaxis and m != "ls" and (pb.axis == "longitudinal" or m in COMMON_GRID):
+    gusts = turbulent and m in COMMON_GRID
+    if (multiaxis or gusts) and m != "ls" and (pb.axis == "longitudinal" or m in COMMON_GRID):
         # all axes move at once: each axis' model driven by the other axis' measured
         # variables (the wings-level longitudinal model booked bank angle and yaw
         # rate on the derivatives), the filters with the Dryden gust states (the
@@ -569,7 +637,14 @@ def _method_problem(fd, ac: AircraftConstants, base: Problem, build, outs: Seque
         # angles at their own samples (FEM's per-pattern gains): on the rebuilt angles'
         # 10 Hz the 50-100 Hz channels lost their samples - ArduPilot flight.bin of
         # this scenario, seeds 31-34, worst |error|/std lateral 8.5-10.4 there, 2.9-4.7
-        # on the 50 Hz of the other outputs; longitudinal 9.3-75, 7.8-14.5
+        # on the 50 Hz of the other outputs; longitudinal 9.3-75, 7.8-14.5.
+        # The filters take the gust models in turbulence also when one axis moves: the
+        # aerodynamics see p - p_turb, q - q_turb whatever the maneuver
+        # (multiaxis_multisine_turbulence flown with elevator multisines only, seed 34,
+        # flight.mcap: FEM with the wings-level model Cmalpha, Cmde, Cm0 21-23 std off,
+        # proof of match failed; with the gust model every derivative within 2.6 std;
+        # with aileron-rudder multisines only: the linear lateral model Clp 46, Clda 38
+        # std off, the gust model every derivative within 2.5 std)
         rate = pb.rate_hz
         if m == "fem":
             rate = min((fd[c].rate_hz for c in outs if not rebuilt(fd, c)), default=rate)
@@ -726,6 +801,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     for msg in skipped:
         note(msg)
     multiaxis = multi_axis(fd)
+    turbulent = turbulence is None or turbulence.get("model", "off") != "off"
     filter_q: dict[str, Any] = {}   # axis -> the filter-error fit the EKF/UKF take their noise from
     for problem, build, outs, vbases in plans:
         cache: dict = {}
@@ -733,13 +809,14 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
         for m in methods:
             lon = results.get("longitudinal-oem")
             pb = _method_problem(fd, ac, problem, build, outs, m, lon=lon, multiaxis=multiaxis,
-                                 say=note, cache=cache, inputs=inputs,
+                                 turbulent=turbulent, say=note, cache=cache, inputs=inputs,
                                  smooth_inputs=smooth_inputs, hold_out=hold)
             if vflights and starts is None:
                 vpbs, numbers = [], []
                 for k, vbase in vbases:
                     vpb = _method_problem(vflights[k], ac, vbase, build, outs, m, lon=lon,
-                                          multiaxis=multiaxis, say=val_note(k), cache=vcaches[k],
+                                          multiaxis=multiaxis, turbulent=turbulent,
+                                          say=val_note(k), cache=vcaches[k],
                                           inputs=inputs, smooth_inputs=smooth_inputs, hold_out=0)
                     if vpb.model.name == pb.model.name:
                         vpbs.append(vpb)
@@ -754,11 +831,13 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                 attach_logged_noise(fd, pb)
             q, pb = filters_process_noise(fd, pb, m, results.get(key[:-3] + "fem"), filter_q,
                                           progress, turbulence=turbulence, quiet=starts is not None)
+            fem = results.get(key[:-3] + "fem") if m in ("ekf", "ukf") else None
             done = fit_and_validate(pb, m, f"{pb.axis} axis", truth, progress, turbulence=turbulence,
                                     tolerances=tolerances, pom=pom,
                                     start=None if starts is None else starts.get(key, {}),
                                     process_noise=q,
-                                    calm_air=validation_calm and bool(vbases))
+                                    calm_air=validation_calm and bool(vbases),
+                                    held_alphadot=fem.extra.get("alphadot_held") if fem else None)
             if done is not None:
                 results[key], validations[key] = done
                 if starts is None and pb.model.name.startswith("sixdof") and lon is not None:

@@ -60,7 +60,9 @@ def unstable(tmp_path_factory):
 def _derivatives_within_3_std(rep, method):
     m = rep["methods"][method]
     derivs = {k: v for k, v in m["parameters"].items() if v.get("truth") is not None}
-    assert len(derivs) == 11, sorted(derivs)
+    # the gust model's angle-of-attack-rate derivatives (truth 0 here) when they are free
+    alphadot = {"CLalphadot", "Cmalphadot"} & set(derivs)
+    assert len(derivs) == 11 + len(alphadot) and len(alphadot) in (0, 2), sorted(derivs)
     errs = {k: round(v["error_in_std"], 2) for k, v in derivs.items()}
     assert all(e <= 3.0 for e in errs.values()), f"{method}: |error|/std per derivative {errs}"
     tic = {k: d["TIC"] for k, d in m["validation"]["fit"]["per_output"].items()}
@@ -73,11 +75,18 @@ def _derivatives_within_3_std(rep, method):
 def test_turbulence_derivatives_within_3_std_and_tic(turbulence, method):
     m = _derivatives_within_3_std(turbulence, method)
     assert turbulence["meta"]["log"] == "flight.mcap"
+    # the gust model (rotary gust q_g in the damping terms) although only the elevator moves
+    assert m["model"] == "longitudinal-measured"
     if method == "fem":
         assert m["converged"]
         # the process noise is estimated, on the gust-driven states
-        assert {"F_V", "F_alpha", "F_q"} <= set(m["parameters"])
+        assert {"F_V", "F_alpha", "F_q_gi"} <= set(m["parameters"])
         assert m["parameters"]["F_alpha"]["estimate"] > 0
+        # with CLalphadot, Cmalphadot free FEM could not separate them from CLq, Cmq on
+        # these 3-2-1-1s (CLq -13.4 +- 4.3, CLalphadot 11.8 +- 4.3): held at 0 and said so
+        assert "CLalphadot" not in m["parameters"]
+        assert any(n.startswith("CLalphadot, Cmalphadot held at 0: this flight does not "
+                                "separate them") for n in m["validation"]["problem"]["notes"])
 
 
 def _air_data_proof_of_match(rep, method):

@@ -325,3 +325,19 @@ def test_simplex_fallback_only_when_no_step_was_accepted():
     res = OutputError(model, jacobian=hook).fit(seg)
     assert not res.converged and res.iterations == 2
     assert "Nelder-Mead" not in res.message and "after 1 accepted steps" in res.message
+
+
+def test_hold_fixes_named_parameters(example, fitted):
+    """Model.hold: the named parameters fixed at the given values, the others as they were;
+    the fit then estimates the rest (one parameter fewer)."""
+    m = example.model
+    free0 = [p.name for p in m.parameters if p.free]
+    name = free0[0]
+    held = m.hold({name: example.truth[name]})
+    assert not held.parameter(name).free and held.parameter(name).value == example.truth[name]
+    assert [p.name for p in held.parameters if p.free] == free0[1:]
+    assert m.parameter(name).free                       # the original is untouched
+    res = OutputError(held).fit(example.segments)
+    assert name not in res.free_names and res.params[name] == example.truth[name]
+    with pytest.raises(ModelDefinitionError, match="no parameter"):
+        m.hold({"Cnope": 0.0})
