@@ -1,0 +1,130 @@
+"""One axis maneuvered in turbulence, over seeds: filter error with the gust models (what the
+pipeline fits in turbulence and on logs: pipeline.run._method_problem) against the baseline
+in the same process, the models it fitted before when only one axis moved (the wings-level
+longitudinal model, the linear lateral one).
+
+Each seed flies multiaxis_multisine_turbulence (light aircraft, 67 m/s, light Tustin
+turbulence) twice, written and read back: its multisines on aileron and rudder only (the
+lateral axis is fitted) and on the elevator only, with the elevator sweep (the
+longitudinal axis). Both models are fitted by FEM on the same flight.mcap, every maneuver,
+through pipeline.run.fit_and_validate (the gust model's CLalphadot, Cmalphadot held at 0
+where the fit does not separate them from CLq, Cmq). Printed per axis and model: the worst
+|error| / std per seed, the seeds with every derivative within 3 std, and over the seeds
+empirical / reported std per derivative. The last line: the share of (seed, axis) fits
+within 3 std with the gust models, and the baseline's.
+
+Measured (2026-11-25, seeds 31-42, 2 jobs, 1 min 12 s):
+  lateral       baseline  0/12 within 3 std, worst 41-54 std (Clp every seed); Clp, Clbeta,
+                          Clda biased 20, 14, -17 empirical std; empirical / reported std
+                          1.06-5.95
+                gust     10/12, worst 1.8-4.2 (Cnr 4.2, Clda 3.2); |bias| <= 1.76 (Clp);
+                          empirical / reported std 0.76-1.56
+  longitudinal  baseline  0/12, worst 23-30 std (Cmde, Cmq, Cmalpha); Cmde, Cmq, Cm0 biased
+                          11, -9, -8 empirical std; empirical / reported 1.72-3.92
+                gust      6/12, worst 1.9-5.4 (Cmalphadot 5.4, 4.5, 4.1); |bias| <= 1.82
+                          (Cmde); empirical / reported 0.69-2.74 (Cmalphadot 2.74, Cmq 2.44)
+  fits with every derivative within 3 std: gust models 0.67, baseline 0.00.
+
+    python benchmarks/single_axis_gusts_seeds.py [--seeds 6] [--seed-base 31] [--jobs 2]
+"""
+from __future__ import annotations
+
+import json
+import re
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from _montecarlo import fly, scatter_table, seed_arguments  # noqa: E402
+
+SCENARIO = ROOT / "scenarios" / "multiaxis_multisine_turbulence.toml"
+#: flight variant -> (the axes its multisines move, the axis fitted)
+VARIANTS = {"aileron-rudder": ('["da", "dr"]', "lateral"), "elevator": ('"de"', "longitudinal")}
+
+
+def variant(axes: str, folder: Path) -> Path:
+    """The scenario with its multisines on ``axes`` only (the elevator sweep kept for the
+    elevator variant), its aircraft path made absolute."""
+    src = SCENARIO.read_text().replace('aircraft = "aircraft/',
+                                       f'aircraft = "{SCENARIO.parent}/aircraft/')
+    head, _, tail = src.partition("[turbulence]")
+    blocks = head.split("[[maneuver]]")
+    kept = [b.replace('axis = ["de", "da", "dr"]', f"axis = {axes}") for b in blocks[1:]
+            if axes.startswith('"de"') or '"elevator_log_sweep"' not in b]
+    out = folder / f"{re.sub(r'[^a-z]', '', axes)}.toml"
+    out.write_text("[[maneuver]]".join([blocks[0], *kept]) + "[turbulence]" + tail)
+    return out
+
+
+def one_seed(seed: int) -> list[dict]:
+    from pipeline.commands.simulate import simulate
+    from pipeline.correction_uncertainty import quiet_progress
+    from pipeline.identify import (AircraftConstants, lateral_problem, longitudinal_problem,
+                                   multiaxis_problem)
+    from pipeline.readers import read_log
+    from pipeline.run import attach_logged_noise, fit_and_validate
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, (axes, axis) in VARIANTS.items():
+            run, _ = simulate(variant(axes, Path(tmp)), Path(tmp) / name, seed=seed, progress=False)
+            truth_doc = json.loads((run / "truth.json").read_text())
+            truth = {k: float(v) for k, v in truth_doc["derivatives"].items()}
+            fd = read_log(run / "flight.mcap")
+            ac = AircraftConstants.from_truth(truth_doc)
+            build = longitudinal_problem if axis == "longitudinal" else lateral_problem
+            base = build(fd, ac, hold_out=0)
+            rate = min(fd[c].rate_hz for c in base.model.outputs)
+            for model, pb in (("baseline", build(fd, ac, rate_hz=rate, hold_out=0)),
+                              ("gust", multiaxis_problem(fd, ac, axis, gust_states=True,
+                                                         rate_hz=rate, hold_out=0))):
+                pb.inputs = "linear"
+                attach_logged_noise(fd, pb)
+                done = fit_and_validate(pb, "fem", f"{axis} axis", truth, quiet_progress())
+                if done is None:
+                    continue
+                res = done[0]
+                for n in res.free_names:
+                    if n in truth and np.isfinite(res.std[n]):
+                        rows.append({"seed": seed, "axis": axis, "model": model, "parameter": n,
+                                     "estimate": float(res.params[n]), "truth": truth[n],
+                                     "reported": float(res.std[n]),
+                                     "err": abs(res.params[n] - truth[n]) / res.std[n],
+                                     "converged": bool(res.converged)})
+    return rows
+
+
+def main() -> float:
+    seeds, jobs = seed_arguments(__doc__.split("\n\n")[0], 6, 31)
+    df = fly(one_seed, seeds, jobs)
+    worst = df.groupby(["axis", "model", "seed"])["err"].max().unstack("seed")
+    which = (df.loc[df.groupby(["axis", "model", "seed"])["err"].idxmax()]
+             .set_index(["axis", "model", "seed"])["parameter"])
+    print(f"seeds {seeds[0]}-{seeds[-1]}; worst |error| / reported std per seed (the derivative):")
+    for (axis, model), row in worst.iterrows():
+        cells = [f"{row[s]:5.1f} {which[(axis, model, s)]:<10s}" for s in worst.columns]
+        print(f"  {axis:12s} {model:8s} within 3 std in {int((row <= 3.0).sum())}/{len(row)} | "
+              + " ".join(cells))
+    print("\nover the seeds, per derivative (empirical std / mean reported std; bias in "
+          "empirical std):")
+    tab = scatter_table(df, ["axis", "model", "parameter"], {"reported": "reported"})
+    for (axis, model), t in tab.groupby(level=[0, 1]):
+        print(f"  {axis} {model}: empirical / reported std {t['reported'].min():.2f}-"
+              f"{t['reported'].max():.2f}, |bias| <= {t['bias'].abs().max():.2f}")
+    share = {m: float((worst.xs(m, level="model") <= 3.0).to_numpy().mean())
+             for m in ("gust", "baseline")}
+    print(f"\nfits with every derivative within 3 std: gust models {share['gust']:.2f}, "
+          f"baseline {share['baseline']:.2f}")
+    return share["gust"]
+
+
+if __name__ == "__main__":
+    pd.set_option("display.width", 140)
+    main()
