@@ -28,14 +28,15 @@ With --log bin (seeds 31-38, 1 min 17 s; the Cramér-Rao std only, no wind part)
   lateral       baseline 0/8, worst 89-125 std (CYbeta); gust 0/8, worst 3.1-7.2 (CYr,
                           Cnr), seed 37 230 (Clbeta)
   longitudinal  baseline 0/8, worst 30-146 (CDalpha, CLalpha, CDalpha2, Cmalpha); gust 0/8,
-                          worst 3.3-13.1 (Cmq, CDalpha, CL0): the rebuilt angles' bias of
-                          README's open points. Seed 34 with the TRUE alpha_k, beta_k as the
-                          rebuilt angles (no wind error; ad hoc) at 50 Hz and at 10 Hz: Cmq
-                          9.7, 10.7, CLalpha -7.1, -7.6 std - neither the wind fit nor the
-                          GPS rate nor filter error's multi-rate gains make it. Nor the rate of
-                          alpha_k: taken across the flight path's velocity (its speed rebuilt
-                          with the angles as an input; on the truth 10x closer to the path
-                          angle's rate than the air-relative form) worst 4.2-13.0, unchanged.
+                          worst 3.3-13.1 (Cmq, CDalpha, CL0): the rebuilt angles'
+                          longitudinal bias (also on multiaxis flights,
+                          benchmarks/bin_wind_mc.py). Seed 34 with the TRUE alpha_k, beta_k
+                          as the rebuilt angles (no wind error; ad hoc) at 50 Hz and at 10
+                          Hz: Cmq 9.7, 10.7, CLalpha -7.1, -7.6 std - neither the wind fit nor
+                          the GPS rate nor filter error's multi-rate gains make it. Nor the
+                          rate of alpha_k: taken across the flight path's velocity (its speed
+                          rebuilt with the angles as an input; on the truth 10x closer to the
+                          path angle's rate than the air-relative form) worst 4.2-13.0, unchanged.
 
     python benchmarks/single_axis_gusts_seeds.py [--seeds 12] [--seed-base 31] [--jobs 2]
         [--log mcap|bin]
