@@ -26,7 +26,10 @@ Measured (2026-11-25, seeds 31-42, 2 jobs, 1 min 12 s):
   fits with every derivative within 3 std: gust models 0.67, baseline 0.00.
 With --log bin (seeds 31-38, 1 min 17 s; the Cramér-Rao std only, no wind part):
   lateral       baseline 0/8, worst 89-125 std (CYbeta); gust 0/8, worst 3.1-7.2 (CYr,
-                          Cnr), seed 37 230 (Clbeta)
+                          Cnr, Cnbeta); empirical / reported std 0.73-3.77. Seed 37 had
+                          been 230 (Clbeta): filter error wandered from the equation-error
+                          starts; it now restarts with the noise held first
+                          (pipeline.run._fem_restart)
   longitudinal  baseline 0/8, worst 30-146 (CDalpha, CLalpha, CDalpha2, Cmalpha); gust 0/8,
                           worst 3.3-13.1 (Cmq, CDalpha, CL0): the rebuilt angles'
                           longitudinal bias (also on multiaxis flights,
