@@ -24,6 +24,10 @@ Measured (2026-11-25, seeds 31-42, 2 jobs, 1 min 12 s):
                 gust      6/12, worst 1.9-5.4 (Cmalphadot 5.4, 4.5, 4.1); |bias| <= 1.82
                           (Cmde); empirical / reported 0.69-2.74 (Cmalphadot 2.74, Cmq 2.44)
   fits with every derivative within 3 std: gust models 0.67, baseline 0.00.
+Then with the maneuver scatter as the std where it is significant (pipeline.validate.
+widen_by_scatter; same seeds): gust models lateral 10/12, longitudinal 8/12 (worst 1.6-3.9),
+empirical / reported std 0.56-1.29 and 0.62-1.44 (Cmalphadot 2.74 -> about 1); baseline
+0/12 both (worst 5-50 std: its std widened up to honest, 0.24-1.69, its bias left).
 With --log bin (seeds 31-38, 1 min 17 s; the Cramér-Rao std only, no wind part):
   lateral       baseline 0/8, worst 89-125 std (CYbeta); gust 0/8, worst 3.1-7.2 (CYr,
                           Cnr, Cnbeta); empirical / reported std 0.73-3.77. Seed 37 had
