@@ -559,9 +559,25 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
     if not refit:
         progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, "
                        f"{_count(len(pb.fit), 'maneuver')}, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
+
+    def fit(pb: Problem) -> Any:
+        return fit_problem(pb, method, turbulence=turbulence, process_noise=process_noise,
+                           callback=None if refit else lambda it, cost, p: progress.tick(str(it + 1)))
+
     try:
-        res = fit_problem(pb, method, turbulence=turbulence, process_noise=process_noise,
-                          callback=None if refit else lambda it, cost, p: progress.tick(str(it + 1)))
+        res = fit(pb)
+        held = _inseparable_alphadot(pb, res) if alphadot and not refit else None
+        if held is not None:
+            progress.done(f"{'converged' if res.converged else 'NOT converged'}; alphadot "
+                          "derivatives not separable: refit with them held")
+            pb = replace(pb, model=pb.model.hold({b: 0.0 for b in alphadot}), notes=[*pb.notes, held])
+            progress.total += 1
+            progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, "
+                           "CLalphadot, Cmalphadot held)")
+            res = fit(pb)
+            res.extra["alphadot_held"] = held
+        elif held_alphadot and not [b for _, b in ALPHADOT_PAIRS if b in res.free_names]:
+            res.extra["alphadot_held"] = held_alphadot
     except (EstimationError, np.linalg.LinAlgError) as exc:
         if refit:
             return None
@@ -572,24 +588,6 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
         return None
     if refit:
         return res, None
-    held = _inseparable_alphadot(pb, res) if alphadot else None
-    if held is not None:
-        progress.done(f"{'converged' if res.converged else 'NOT converged'}; alphadot "
-                      "derivatives not separable: refit with them held")
-        pb = replace(pb, model=pb.model.hold({b: 0.0 for b in alphadot}), notes=[*pb.notes, held])
-        progress.total += 1
-        progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, "
-                       "CLalphadot, Cmalphadot held)")
-        try:
-            res = fit_problem(pb, method, turbulence=turbulence, process_noise=process_noise,
-                              callback=lambda it, cost, p: progress.tick(str(it + 1)))
-        except (EstimationError, np.linalg.LinAlgError) as exc:
-            progress.done(f"FAILED: {exc}")
-            print(f"note: {method.upper()} on the {what} failed: {exc}", file=progress.stream)
-            return None
-        res.extra["alphadot_held"] = held
-    elif held_alphadot and not [b for _, b in ALPHADOT_PAIRS if b in res.free_names]:
-        res.extra["alphadot_held"] = held_alphadot
     progress.done(f"{'converged' if res.converged else 'NOT converged'} in {_count(res.iterations, 'iteration')}")
     progress.stage(f"validate {what} {method.upper()} (fit, residuals, modes, proof of match)")
     v = validate(res, held_out=pb.held_out, truth=truth, tolerances=tolerances, proof_of_match=pom,
