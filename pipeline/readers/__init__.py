@@ -110,7 +110,9 @@ def read_log(path: str | os.PathLike, map=None, **opts):
     map : channel map — None (built-in map for the detected format), a built-in map name,
         a TOML path, or a :class:`pipeline.maps.ChannelMap`; user TOML maps with
         ``[map] extends = "<builtin>"`` add to / override a built-in map
-    opts : ``strict`` (raise on damage), ``time_base`` ("log" | "header", MCAP),
+    opts : ``strict`` (raise on damage), ``time_base`` (MCAP: "auto" | "header" | "log";
+        .tlog: "auto" | "boot" | "log", default the autopilot's own stamps,
+        :mod:`pipeline.readers.tlog_time`),
         ``segments`` ("mode" | "auto" | list of (t0, t1) [s]; default: mode segments when
         the log has modes, then automatic ones from control activity), ``servo_travel``
         (surface -> (deg, origin): the deflection at full servo travel for surfaces
