@@ -657,6 +657,9 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
              integrator: str | None = None, proof_of_match: str = "auto",
              calm_air: bool = False) -> dict[str, Any]:
     """Run the validation of :mod:`estimators.validation` on one result (see module doc).
+    Where the fit's maneuvers scatter significantly beyond its Cramér-Rao bounds, the
+    result's covariance is widened in place to that scatter (:func:`widen_by_scatter`;
+    ``result.std_method`` then says so, the bound stays in ``extra["crb_cov"]``).
 
     held_out: segments NOT used in the fit (same model input/output columns); the
         identified model, all parameters held fixed, predicts each from its measured
