@@ -25,7 +25,9 @@ Keys of the returned dict
     ``max_share``: 1 where the other maneuvers cannot identify it),
     ``cluster_ratio`` (/ its Cramér-Rao std) per parameter, and ``cluster``: ``n_segments``,
     ``limit``, ``median_ratio``, ``max_ratio``, ``max_parameter`` (over the system
-    parameters), ``flagged`` (ratio above ``flag_ratio``).
+    parameters), ``flagged`` (ratio above ``flag_ratio``); ``widened`` (``threshold``,
+    ``confidence``, ``parameters``: ratio) where :func:`widen_by_scatter` made the scatter
+    the reported std.
 ``modes``: ``None`` for a model without states/segments (a regression); else ``trim`` (x0 per state, u0 per input), ``table`` per mode (``real imag wn zeta
     period t_half t_double stable axis``), ``eigenvalues`` (list of [real, imag]).
 ``proof_of_match``: ``None`` without ``held_out``; else ``mode`` (``simulation`` or
