@@ -193,10 +193,7 @@ class Model:
         unknown = sorted(set(values) - set(self.parameter_names))
         if unknown:
             raise ModelDefinitionError(f"model {self.name!r} has no parameter {unknown}")
-        new = [Parameter(p.name, float(values[p.name]), False, p.bounds, p.per_segment, p.unit)
-               if p.name in values else p for p in self.parameters]
-        return Model(self.states, self.inputs, self.outputs, new, self.f, self.g,
-                     self.constants, self.output_biases, self.name)
+        return self.with_values(values).fixed(values)
 
     def select_outputs(self, names: Sequence[str]) -> "Model":
         """A copy observing only ``names`` (a subset of the outputs, any order): for data

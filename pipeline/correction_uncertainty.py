@@ -167,10 +167,11 @@ def wind(flow: Mapping[str, Any], results: Mapping[str, Any],
     if not results or not any(per.values()):
         return {}
     t0 = time.perf_counter()
-    names = [n for n in WIND_PARTS if max(p[n] for p in per.values()) > 0.0]
+    top = {n: max(p[n] for p in per.values()) for n in WIND_PARTS}
+    names = [n for n in WIND_PARTS if top[n] > 0.0]
     if not names:
         return {}
-    step = np.array([max(p[n] for p in per.values()) for n in names])
+    step = np.array([top[n] for n in names])
 
     def refit_j(j: int) -> Mapping[str, Any]:
         offset = [0.0, 0.0, 0.0]

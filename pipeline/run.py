@@ -643,17 +643,22 @@ def _method_problem(fd, ac: AircraftConstants, base: Problem, build, outs: Seque
     level known and not off, or not known: a log); ``say`` reports a model that could not
     be set up;
     ``hold_out``: maneuvers per axis kept for the proof of match."""
+    slowest = min(fd[c].rate_hz for c in outs) if m in COMMON_GRID else base.rate_hz
+    rate = slowest if slowest < 0.9 * base.rate_hz else base.rate_hz
+
+    def own() -> Problem:
+        """The axis' own problem on the method's grid (the common grid built once)."""
+        if rate == base.rate_hz:
+            return base
+        if "common" not in cache:
+            cache["common"] = build(fd, ac, rate_hz=rate, smooth_inputs=smooth_inputs,
+                                    hold_out=hold_out)
+            cache["common"].inputs = inputs
+        return cache["common"]
+
     pb = base
-    if m in COMMON_GRID:
-        rate = min(fd[c].rate_hz for c in outs)
-        if rate < 0.9 * base.rate_hz:
-            if "common" not in cache:
-                cache["common"] = build(fd, ac, rate_hz=rate, smooth_inputs=smooth_inputs,
-                                        hold_out=hold_out)
-                cache["common"].inputs = inputs
-            pb = cache["common"]
-    gusts = turbulent and m in COMMON_GRID
-    if (multiaxis or gusts) and m != "ls" and (pb.axis == "longitudinal" or m in COMMON_GRID):
+    if ((multiaxis or (turbulent and m in COMMON_GRID)) and m != "ls"
+            and (base.axis == "longitudinal" or m in COMMON_GRID)):
         # all axes move at once: each axis' model driven by the other axis' measured
         # variables (the wings-level longitudinal model booked bank angle and yaw
         # rate on the derivatives), the filters with the Dryden gust states (the
@@ -671,16 +676,18 @@ def _method_problem(fd, ac: AircraftConstants, base: Problem, build, outs: Seque
         # flight.mcap: FEM with the wings-level model Cmalpha, Cmde, Cm0 21-23 std off,
         # proof of match failed; with the gust model every derivative within 2.6 std;
         # with aileron-rudder multisines only: the linear lateral model Clp 46, Clda 38
-        # std off, the gust model every derivative within 2.5 std)
-        rate = pb.rate_hz
-        if m == "fem":
-            rate = min((fd[c].rate_hz for c in outs if not rebuilt(fd, c)), default=rate)
+        # std off, the gust model every derivative within 2.5 std). The axis' own problem
+        # on the common grid is not built then (only where this one cannot be set up).
         try:
-            pb = multiaxis_problem(fd, ac, pb.axis, gust_states=m in COMMON_GRID,
-                                   rate_hz=rate, smooth_inputs=smooth_inputs,
-                                   hold_out=hold_out)
+            pb = multiaxis_problem(fd, ac, base.axis, gust_states=m in COMMON_GRID,
+                                   rate_hz=min((fd[c].rate_hz for c in outs if not rebuilt(fd, c)),
+                                               default=rate) if m == "fem" else rate,
+                                   smooth_inputs=smooth_inputs, hold_out=hold_out)
         except FsidError as exc:
+            pb = own()
             say(f"multi-axis {pb.axis} model not set up ({exc}); {pb.model.name} model used")
+    elif m in COMMON_GRID:
+        pb = own()
     elif pb.axis == "lateral" and m == "oem" and lon is not None:
         # output error on the lateral axis uses the nonlinear 6-DoF model with the
         # longitudinal estimates held: the linear lateral model's frozen airspeed and
@@ -907,7 +914,7 @@ def filters_process_noise(fd, pb: Problem, method: str, fem: Any, cache: dict, p
     free = {p.name for p in pb.model.parameters if p.free}
     held = {n: float(src.params[n]) for n in GUST_NOISE_PARAMETERS if n in free and n in src.params}
     if held:
-        pb = replace(pb, model=pb.model.with_values(held).fixed(held), notes=list(pb.notes) + [
+        pb = replace(pb, model=pb.model.hold(held), notes=list(pb.notes) + [
             ", ".join(f"{n} = {v:.4g}" for n, v in held.items())
             + " held at filter error's estimate (the gust model's noise, with its process noise)"])
     return filter_process_noise(src), pb

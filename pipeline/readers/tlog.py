@@ -157,16 +157,16 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
         width = len(r[0])
         cols: dict[str, np.ndarray] = {}
         expanded = proto if len(proto) == width else _expand_names(mav, name, proto, width)
-        arr_rows = [row for row in r if len(row) == width]
+        same = np.array([len(row) == width for row in r])      # rows of the first's layout
+        arr_rows = [row for row, ok in zip(r, same) if ok]
         for c, col in enumerate(expanded):
             vals = [row[c] for row in arr_rows]
             try:
                 cols[col] = np.asarray(vals, dtype=np.float64)
             except (TypeError, ValueError):
                 cols[col] = np.asarray([str(v) for v in vals], dtype=object)
-        t = np.asarray([tt for tt, row in zip(times[(s, name)], r) if len(row) == width])
-        tables[name] = Table(name, t, cols)
-        seq_of[name] = np.asarray([k for k, row in zip(seqs[(s, name)], r) if len(row) == width])
+        tables[name] = Table(name, np.asarray(times[(s, name)])[same], cols)
+        seq_of[name] = np.asarray(seqs[(s, name)])[same]
     par: dict[str, float] = {}
     for pid, (val, ptype) in params.get(sysid, {}).items():
         if autopilot == MAV_AUTOPILOT_PX4 and ptype in _INT_TYPES:

@@ -222,12 +222,13 @@ def boot_time_base(tables: dict[str, Table], seq: dict[str, np.ndarray],
         t = new_t[name]
         idx = np.argsort(t, kind="stable")
         reordered += int(np.sum(idx != np.arange(t.size)))
+        t, cols = t[idx], {k: v[idx] for k, v in tab.columns.items()}
         if name in own and t.size > 1:
-            keep = _drop_repeats(t[idx], {k: v[idx] for k, v in tab.columns.items()})
-            dropped += int((~keep).sum())
-            idx = idx[keep]
-        tab.t = _spread_ties(t[idx])
-        tab.columns = {k: v[idx] for k, v in tab.columns.items()}
+            keep = _drop_repeats(t, cols)
+            if not keep.all():
+                dropped += int((~keep).sum())
+                t, cols = t[keep], {k: v[keep] for k, v in cols.items()}
+        tab.t, tab.columns = _spread_ties(t), cols
     mapped = ([(float(t), m) for t, (_, m) in zip(place(mode_seq, [t for t, _ in modes]), modes)]
               if len(modes) else [])
     fields = sorted({s[1] for s in own.values()})
