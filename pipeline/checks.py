@@ -194,6 +194,27 @@ def _window(fd: FlightData, name: str, seg: SegmentSpec) -> np.ndarray:
     return v[np.isfinite(v)]
 
 
+def no_forward_flight(fd: FlightData, seg: SegmentSpec) -> tuple[bool | None, str]:
+    """Whether ``seg`` holds no forward flight (on the ground or hovering), and why.
+
+    With airspeed: below 5 m/s for more than 90 % of the span. Without it, from the
+    altitude: within 2 m of a median within 5 m of 0, and no body rate above 0.3 rad/s.
+    None (unknown) when neither channel has samples in the span."""
+    if "V" in fd.channels:
+        v = _window(fd, "V", seg)
+        if v.size:
+            low = float(np.mean(v < 5.0))
+            return low > 0.9, f"airspeed below 5 m/s for {low:.0%} of it"
+    if "h" in fd.channels:
+        h = _window(fd, "h", seg)
+        rates = [_window(fd, c, seg) for c in ("p", "q", "r") if c in fd.channels]
+        if h.size:
+            still = all(r.size == 0 or np.max(np.abs(r)) < 0.3 for r in rates)
+            return (bool(np.ptp(h) < 2.0 and abs(float(np.median(h))) < 5.0 and still),
+                    f"altitude within {np.ptp(h):.2f} m of {np.median(h):.2f} m and no rotation")
+    return None, ""
+
+
 def check_segment(fd: FlightData, seg: SegmentSpec, *, min_duration: float = 5.0,
                   inputs: Iterable[str] = CONTROL_INPUTS) -> list[Finding]:
     """Duration, ground-only data and excitation of each control axis in one segment."""
@@ -206,19 +227,7 @@ def check_segment(fd: FlightData, seg: SegmentSpec, *, min_duration: float = 5.0
     else:
         out.append(Finding(PASS, "segment_duration", None, f"{label} lasts {seg.duration:.1f} s",
                            seg.t0, seg.t1, seg.duration))
-    ground = None
-    if "V" in fd.channels:
-        v = _window(fd, "V", seg)
-        if v.size:
-            ground = bool(np.mean(v < 5.0) > 0.9)
-            why = f"airspeed below 5 m/s for {np.mean(v < 5.0):.0%} of it"
-    if ground is None and "h" in fd.channels:
-        h = _window(fd, "h", seg)
-        rates = [_window(fd, c, seg) for c in ("p", "q", "r") if c in fd.channels]
-        if h.size:
-            still = all(r.size == 0 or np.max(np.abs(r)) < 0.3 for r in rates)
-            ground = bool(np.ptp(h) < 2.0 and abs(float(np.median(h))) < 5.0 and still)
-            why = f"altitude within {np.ptp(h):.2f} m of {np.median(h):.2f} m and no rotation"
+    ground, why = no_forward_flight(fd, seg)
     if ground:
         out.append(Finding(WARN, "ground", None, f"{label} has no forward flight ({why}): "
                            "on the ground or hovering; it holds no aircraft flight dynamics", seg.t0, seg.t1))

@@ -346,6 +346,42 @@ def frames_to_flightdata(frames: "pd.DataFrame | Sequence[pd.DataFrame]") -> tup
     return FlightData(ch, {"source": "DataFrame segments"}, segs), segs
 
 
+def default_segments(data: FlightData, span_s: float = 20.0) -> list[SegmentSpec]:
+    """The spans a reconstruction uses when none are given: the log's own time ranges
+    (kind "time", e.g. ``--segments t0:t1``) as they are; else its maneuvers (kind "auto"),
+    else its flight modes of at least 5 s, else the whole log in ``span_s`` pieces - of
+    these, the ones in forward flight (:func:`pipeline.checks.no_forward_flight`; a span
+    whose state is unknown is kept), from the first choice that has any.
+
+    A log that starts with minutes on the ground or mixes hover and wing-borne flight
+    (a VTOL) is reconstructed from its flight; raises FsidError when no span is in
+    forward flight."""
+    from pipeline.checks import no_forward_flight
+
+    given = [s for s in data.segments if s.kind == "time"]
+    if given:
+        return given
+    lo, hi = data.span
+    edges = np.arange(lo, hi, span_s)
+    pieces = [SegmentSpec(f"span_{k}", a, min(a + span_s, hi)) for k, a in enumerate(edges)
+              if min(a + span_s, hi) - a >= 5.0]
+    why = ""
+    for cands in ([s for s in data.segments if s.kind == "auto"],
+                  [s for s in data.segments if s.kind == "mode" and s.duration >= 5], pieces):
+        ground = [no_forward_flight(data, s) for s in cands]
+        keep = [s for s, (g, _) in zip(cands, ground) if not g]
+        if keep:
+            return keep
+        why = why or next((f"{s.name} {s.t0:.1f}-{s.t1:.1f} s: {w}"
+                           for s, (g, w) in zip(cands, ground) if g), "")
+    if not why:
+        raise FsidError(f"compatibility: the log spans {hi - lo:.1f} s, no span of >= 5 s to "
+                        "reconstruct; use a longer log")
+    raise FsidError(f"compatibility: no span of the log is in forward flight (on the ground or "
+                    f"hovering; {why}), nothing to reconstruct; give spans in flight with "
+                    "--segments t0:t1")
+
+
 def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, segments: Sequence[SegmentSpec] | None = None,
                 rate_hz: float | None = None, estimate: Sequence[str] = DEFAULT_ESTIMATE,
                 imu_position: Sequence[float] = (0.0, 0.0, 0.0),
@@ -361,8 +397,9 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
     ----------
     data : FlightData with at least ax ay az p q r and some of V alpha beta phi theta psi h vn ve vd,
         or DataFrame segments with those columns and ``t`` [s] (one segment per DataFrame)
-    segments : spans to use (default: ``data.segments`` of kind "auto", else "mode", else the
-        whole log in 20 s pieces); at most ``max_segments`` of them
+    segments : spans to use (default: :func:`default_segments`, the log's time ranges, else
+        its maneuvers, else its modes, else 20 s pieces, in forward flight); at most
+        ``max_segments`` of them
     rate_hz : common rate (default: the IMU rate, at most 100 Hz)
     estimate : names of the free sensor-error parameters (module docstring)
     imu_position, boom_position : sensor positions from the CG, body axes [m]
@@ -408,17 +445,7 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
         est = [e for e in est if e != "delay_air"]
     if method not in ("oem", "ekf", "ukf"):
         raise FsidError(f"compatibility method '{method}' unknown; use oem, ekf or ukf")
-    if segments is None:
-        segs = [s for s in data.segments if s.kind == "auto"] or \
-               [s for s in data.segments if s.kind == "mode" and s.duration >= 5] or []
-        if not segs:
-            lo, hi = data.span
-            edges = np.arange(lo, hi, 20.0)
-            segs = [SegmentSpec(f"span_{k}", a, min(a + 20.0, hi)) for k, a in enumerate(edges)
-                    if min(a + 20.0, hi) - a >= 5.0]
-    else:
-        segs = list(segments)
-    segs = segs[:max_segments]
+    segs = (default_segments(data) if segments is None else list(segments))[:max_segments]
     if rate_hz is None:  # the IMU's sample interval (median: robust to gaps between segments)
         dt = np.diff(data.channels["p"].t)
         dt = dt[dt > 0]
@@ -578,9 +605,6 @@ def compatibility_report(fd: FlightData, **kw) -> dict:
 def _reconstruct_or_reason(fd: FlightData, **kw) -> tuple[dict, "CompatibilityResult | None"]:
     """(``reconstruct(fd, **kw).to_dict()``, the result), or ({status: skipped|failed,
     reason}, None) when the log cannot be reconstructed."""
-    if "V" in fd.channels and len(fd["V"]) and np.nanmedian(fd["V"].values) < 5.0:
-        return {"status": "skipped", "reason": f"airspeed median {np.nanmedian(fd['V'].values):.1f} m/s: "
-                "no forward flight (on the ground or hovering), nothing to reconstruct"}, None
     try:
         res = reconstruct(fd, **kw)
     except FsidError as exc:

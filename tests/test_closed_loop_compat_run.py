@@ -173,11 +173,38 @@ def test_stage_reports_instead_of_ending_the_run():
     out, doc = compatibility_stage(no_imu, None, pr)
     assert out is no_imu and doc["status"] == "skipped" and "IMU" in doc["reason"]
     assert doc["data_for_estimation"] == "as logged" and doc["applied"] == {}
-    ground = FlightData({"V": Channel(t, np.zeros_like(t), "m/s")}, {}, [])
+    zero = np.zeros_like(t)
+    ground = FlightData({c: Channel(t, zero, "") for c in ("ax", "ay", "az", "p", "q", "r", "V",
+                                                          "phi", "theta")}, {}, [])
     out, doc = compatibility_stage(ground, None, pr)
-    assert out is ground and doc["status"] == "skipped" and "no forward flight" in doc["reason"]
+    assert out is ground and doc["status"] == "skipped"
+    assert "no span of the log is in forward flight" in doc["reason"]
+    assert "span_0 0.0-20.0 s: airspeed below 5 m/s for 100% of it" in doc["reason"]
     out, doc = compatibility_stage(no_imu, None, pr, enabled=False)
     assert out is no_imu and doc["status"] == "skipped" and "--no-compat" in doc["reason"]
+
+
+def test_default_segments_are_in_forward_flight():
+    """A log that starts on the ground (or hovers) is reconstructed from its flight: the
+    ground spans and ground modes are left out, the user's own ranges kept as given."""
+    from pipeline.compatibility import default_segments
+    from pipeline.flightdata import Channel, FlightData, SegmentSpec
+
+    t = np.arange(0.0, 130.0, 0.1)
+    v = np.where(t < 60.0, 1.0, 30.0)
+    chans = {"V": Channel(t, v, "m/s")}
+    spans = default_segments(FlightData(chans, {}, []))
+    assert [(s.t0, s.t1) for s in spans] == [(60.0, 80.0), (80.0, 100.0), (100.0, 120.0),
+                                             (120.0, 129.9)]
+    modes = [SegmentSpec("MANUAL", 0.0, 58.0, "mode"), SegmentSpec("FBWA", 58.0, 129.9, "mode")]
+    assert [s.name for s in default_segments(FlightData(chans, {}, modes))] == ["FBWA"]
+    # ground modes only: the pieces in flight
+    assert default_segments(FlightData(chans, {}, modes[:1]))[0].t0 == 60.0
+    given = [SegmentSpec("mine", 10.0, 30.0, "time")]
+    assert default_segments(FlightData(chans, {}, given + modes)) == given
+    # no airspeed: the altitude and rotation say ground
+    h = {"h": Channel(t, np.where(t < 50.0, 0.3, 150.0), "m"), "p": Channel(t, 0 * t, "rad/s")}
+    assert default_segments(FlightData(h, {}, []))[0].t0 == 40.0
 
 
 def test_no_compat_flag():
