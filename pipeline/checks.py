@@ -194,6 +194,13 @@ def _window(fd: FlightData, name: str, seg: SegmentSpec) -> np.ndarray:
     return v[np.isfinite(v)]
 
 
+def slow_airspeed(v: np.ndarray) -> tuple[bool, str]:
+    """Whether airspeed samples ``v`` (m/s, finite) are below 5 m/s more than 90 % of the
+    time - on the ground or hovering - and a phrase that says how much."""
+    low = float(np.mean(np.asarray(v) < 5.0))
+    return low > 0.9, f"airspeed below 5 m/s for {low:.0%} of it"
+
+
 def no_forward_flight(fd: FlightData, seg: SegmentSpec) -> tuple[bool | None, str]:
     """Whether ``seg`` holds no forward flight (on the ground or hovering), and why.
 
@@ -203,8 +210,7 @@ def no_forward_flight(fd: FlightData, seg: SegmentSpec) -> tuple[bool | None, st
     if "V" in fd.channels:
         v = _window(fd, "V", seg)
         if v.size:
-            low = float(np.mean(v < 5.0))
-            return low > 0.9, f"airspeed below 5 m/s for {low:.0%} of it"
+            return slow_airspeed(v)
     if "h" in fd.channels:
         h = _window(fd, "h", seg)
         rates = [_window(fd, c, seg) for c in ("p", "q", "r") if c in fd.channels]

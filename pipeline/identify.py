@@ -23,6 +23,7 @@ from estimators import Segment
 from estimators.models import lateral_directional, longitudinal
 from estimators.models.lateral import lateral_measured_longitudinal
 from estimators.models.longitudinal import longitudinal_measured_lateral
+from pipeline.checks import slow_airspeed
 from pipeline.errors import FsidError
 from pipeline.flightdata import FlightData, SegmentSpec
 from pipeline.flow_angles import rebuilt
@@ -197,31 +198,37 @@ def _window(df: pd.DataFrame, spec: SegmentSpec) -> pd.DataFrame:
 
 
 def _window_fault(w: pd.DataFrame, s: SegmentSpec, outputs: Sequence[str],
-                  others: Sequence[str]) -> str | None:
+                  others: Sequence[str], airborne: bool = True) -> str | None:
     """What makes window ``w`` of segment ``s`` unusable - fewer than 10 rows, an output
     with fewer than 10 samples (outputs may be slower than the grid: NaN between their
-    samples), another channel (an input) with any NaN - or None."""
+    samples), another channel (an input) with any NaN, and with ``airborne`` an airspeed
+    column below 5 m/s (:func:`pipeline.checks.slow_airspeed`: a control check on the
+    ground, a hover) - or None."""
     bad = [k for k in outputs if w[k].notna().sum() < 10] + [k for k in others if w[k].isna().any()]
     if len(w) < 10 or bad:
         return f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in {bad}"
+    if airborne and "V" in w:
+        slow, why = slow_airspeed(w["V"].dropna().to_numpy())
+        if slow:
+            return f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) is on the ground or hovering ({why})"
     return None
 
 
 def usable_segments(df: pd.DataFrame, specs: Sequence[SegmentSpec], outputs: Sequence[str],
-                    others: Sequence[str], hold_out: int, what: str
+                    others: Sequence[str], hold_out: int, what: str, airborne: bool = True
                     ) -> tuple[list[SegmentSpec], list[str], dict[int, pd.DataFrame]]:
     """(the segments of ``specs`` whose windows are usable, a note for each one left out,
     their rows of ``df`` by ``id(spec)``): the one place that cuts segment windows out of the
     multi-rate frame.
     Found segments (automatic or by flight mode) that are not - a maneuver detected in a
-    hover without forward flight for the rebuilt air-data angles, a telemetry dropout -
-    are left out and named, so that the others are still fitted; a segment given by time
+    hover without forward flight for the rebuilt air-data angles, a telemetry dropout, with
+    ``airborne`` (the aircraft models) a control check on the ground - are left out and named, so that the others are still fitted; a segment given by time
     range (kind "time") ends with one clear error naming what is missing. FsidError when
     fewer than 1 + ``hold_out`` remain (``what``: the maneuvers, for the message)."""
     keep, faults, frames = [], [], {}
     for s in specs:
         w = _window(df, s)
-        fault = _window_fault(w, s, outputs, others)
+        fault = _window_fault(w, s, outputs, others, airborne and s.kind != "time")
         if fault is None:
             keep.append(s)
             frames[id(s)] = w

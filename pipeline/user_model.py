@@ -166,8 +166,9 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
                         f"model {model.name!r} to: fly doublets/3-2-1-1s on its inputs "
                         f"({', '.join(model.inputs)})")
     df, rate = multirate_frame(fd, list(model.outputs), list(model.inputs), rate_hz)
+    # a user model may well be a hovering vehicle's: no airspeed rule
     specs, left_out, frames = usable_segments(df, specs, model.outputs, model.inputs, 0,
-                                              f"{model.name!r} maneuver")
+                                              f"{model.name!r} maneuver", airborne=False)
     hold = hold_out if len(specs) > hold_out else 0
     held = specs[len(specs) - hold:] if hold else []
     fit_specs = [s for s in specs if s not in held]

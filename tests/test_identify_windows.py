@@ -52,6 +52,22 @@ def test_a_found_segment_that_is_unusable_is_left_out_and_named():
         usable_segments(df, [a, b], ["q"], ["de"], 1, "elevator maneuver")
 
 
+def test_a_found_segment_on_the_ground_is_left_out():
+    """A control check on the ground (airspeed below 5 m/s) found as a maneuver holds no
+    flight dynamics: it is left out and named; the same span given by time range, or for a
+    user model (a hovering vehicle's), is kept."""
+    df = _frame()
+    df["V"] = np.where(df["t"] < 4.0, 1.5, 25.0)
+    a, b = SegmentSpec("a", 0.5, 1.5, "auto", axis="de"), SegmentSpec("b", 5.0, 7.0, "auto", axis="de")
+    keep, notes, _ = usable_segments(df, [a, b], ["q"], ["de"], 0, "elevator maneuver")
+    assert keep == [b]
+    assert notes == ["segment a (0.50-1.50 s) is on the ground or hovering (airspeed below 5 m/s "
+                     "for 100% of it): left out"]
+    t = SegmentSpec("t", 0.5, 1.5)
+    assert usable_segments(df, [t, b], ["q"], ["de"], 0, "elevator maneuver")[0] == [t, b]
+    assert usable_segments(df, [a, b], ["q"], ["de"], 0, "m", airborne=False)[0] == [a, b]
+
+
 def test_the_longitudinal_problem_fits_the_usable_maneuvers():
     """The default scenario's log with the pitch rate lost over its first elevator
     maneuver (a dropout): that maneuver is left out, named in the problem notes, and the
