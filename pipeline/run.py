@@ -1196,8 +1196,8 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                  inputs: str = "linear", model: str = "auto", quiet: bool = False,
                  compat: bool = True, bands: Mapping[str, float] | None = None,
                  pom: str = "auto", smooth_inputs: bool = True,
-                 validation_log: str | Path | Sequence[str | Path] | None = None
-                 ) -> dict[str, Path]:
+                 validation_log: str | Path | Sequence[str | Path] | None = None,
+                 time_base: str | None = None) -> dict[str, Path]:
     """``fsid estimate``: a log -> report and recording. ``model``: a built-in model
     (auto|longitudinal|lateral; needs ``aircraft``, or a truth.json next to the log) or a
     user model ``path.py:name`` (:mod:`pipeline.user_model`). Aircraft and sensor positions:
@@ -1211,13 +1211,15 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     air-data delay removed from it too, :func:`with_instrument_errors_removed`): every
     maneuver of ``log`` is fitted and the model proved on their maneuvers
     (:func:`identify`'s ``validation``; the air-data proof of match in auto mode for the
-    filter methods, since its turbulence is not known)."""
+    filter methods, since its turbulence is not known). ``time_base``: of a .tlog or .mcap
+    log and its validation flights of the same format (:func:`pipeline.readers.read_log`;
+    None: the default)."""
     from estimators.validation import default_tolerances
 
     tol = default_tolerances(**(bands or {}))
     from pipeline.aircraft_setup import aircraft_for_log
     from pipeline.checks import run_checks, summarize
-    from pipeline.readers import read_log
+    from pipeline.readers import detect_format, read_log
     from pipeline.user_model import check_methods, identify_user_model, is_user_model, split_spec
 
     user = is_user_model(model)
@@ -1232,7 +1234,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                   + 2 * len(methods) * (2 if model == "auto" else 1), quiet=quiet)
     pr.stage(f"ingest {log}")
     from pipeline.aircraft_setup import servo_travel_for
-    fd = read_log(log, map=map_path, servo_travel=servo_travel_for(log, aircraft))
+    fd = read_log(log, map=map_path, servo_travel=servo_travel_for(log, aircraft), time_base=time_base)
     pr.done(f"{len(fd.channels)} channels, {len(fd.segments)} segments")
     pr.stage("aircraft and sensor positions")
     notes: list[str] = []
@@ -1253,7 +1255,8 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         seen[Path(vlog).resolve()] = "a validation flight already given"
     for vlog in vlogs:
         pr.stage(f"ingest the validation flight {vlog}")
-        fv = read_log(vlog, map=map_path, servo_travel=servo_travel_for(vlog, aircraft))
+        fv = read_log(vlog, map=map_path, servo_travel=servo_travel_for(vlog, aircraft),
+                      time_base=time_base if detect_format(vlog) == fd.meta["format"] else None)
         pr.done(f"{len(fv.channels)} channels, {len(fv.segments)} segments")
         fd_vals.append(flow_angle_stage(fv, ac_sensors, pr)[0])
         val_checks.append(summarize(run_checks(fd_vals[-1])))

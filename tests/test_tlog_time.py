@@ -4,6 +4,7 @@ reboot and a 32-bit ``time_usec`` that wraps: every sample must land at its auto
 """
 from __future__ import annotations
 
+import json
 import os
 import struct
 
@@ -134,3 +135,27 @@ def test_time_base_choices(tmp_path):
     s.write_bytes(encode_tlog(n=100))
     a, b = read_tlog(s), read_tlog(s, time_base="log")
     assert np.allclose(a.tables["ATTITUDE"].t, b.tables["ATTITUDE"].t, atol=1e-6)
+
+
+def test_time_base_option_of_read_log_and_the_cli(tmp_path, capsys):
+    """``read_log(time_base=)`` and ``fsid check --time-base``: the receive times on request,
+    a time base the format does not offer is one line and exit code 2."""
+    from pipeline.cli import main
+    from pipeline.readers import LogReadError, read_log
+
+    p, truth = _flight(tmp_path)
+    auto, recv = read_log(p), read_log(p, time_base="log")
+    assert read_log(p, time_base=None).channels["phi"].t.tolist() == auto.channels["phi"].t.tolist()
+    t_auto, t_recv = auto.channels["phi"].t, recv.channels["phi"].t
+    d_auto, d_recv = np.diff(t_auto), np.diff(t_recv)
+    assert np.sum(np.abs(d_auto - 0.05) > 1e-5) == 1                 # the stamps: 20 Hz exactly
+    assert np.sum(np.abs(d_recv - 0.05) > 1e-3) > 100                # but for the reboot; the
+    assert "receive" in recv.meta["time_base"]                       # link's bursts
+    with pytest.raises(LogReadError, match=r"time base 'header' does not apply to a tlog log"):
+        read_log(p, time_base="header")
+    out = tmp_path / "chk"
+    assert main(["check", str(p), "--time-base", "log", "--no-compat", "--out", str(out)]) == 0
+    assert json.loads((out / "checks.json").read_text())["source"]["time_base"].startswith("tlog receive")
+    assert main(["check", str(p), "--time-base", "header", "--out", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "does not apply to a tlog log" in err[0]

@@ -13,6 +13,15 @@ from pipeline.errors import FsidError
 HELP = "ingest a flight log, check its data quality and sensor compatibility"
 
 
+def add_time_base_argument(parser: argparse.ArgumentParser) -> None:
+    """``--time-base``: the time base of a .tlog or .mcap log (pipeline.readers.TIME_BASES)."""
+    parser.add_argument("--time-base", default=None, choices=["auto", "boot", "header", "log"],
+                        help="time base of a .tlog (auto = the autopilot's own stamps, boot = "
+                             "those only, log = the ground station's receive times) or .mcap "
+                             "(auto, header = the messages' header stamps, log = log times); "
+                             "default auto")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", help="flight log: .mcap, .bin, .tlog, .ulg or .csv")
     parser.add_argument("--map", default=None,
@@ -22,6 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="rate of canonical.csv in Hz (default: fastest core channel, at most 100)")
     parser.add_argument("--segments", default=None,
                         help="'mode', 'auto' or time ranges 't0:t1,t0:t1' in s on the log's time base")
+    add_time_base_argument(parser)
     parser.add_argument("--no-compat", action="store_true", help="skip the sensor-compatibility fit")
     parser.add_argument("--imu-pos", default=None, metavar="X,Y,Z",
                         help="IMU position from the CG, body axes, m (default: from a truth.json "
@@ -80,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     log = Path(args.log)
     if not log.is_file():
         raise FsidError(f"log '{log}' not found; give the path of a .mcap/.bin/.tlog/.ulg/.csv file")
-    fd = read_log(log, map=args.map, segments=_segments(args.segments))
+    fd = read_log(log, map=args.map, segments=_segments(args.segments), time_base=args.time_base)
     print(f"read {log} ({fd.meta['format']}, map {fd.meta['map']}): {len(fd.channels)} channels")
     findings = run_checks(fd)
     extra: dict = {}

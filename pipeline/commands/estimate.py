@@ -6,6 +6,8 @@ import argparse
 
 from pipeline.paths import new_run_dir
 
+from pipeline.commands.check import add_time_base_argument
+from pipeline.commands.check import add_time_base_argument
 from pipeline.commands.run import (METHOD_LIST, METHODS, add_input_arguments,
                                    add_validation_arguments, validation_options)
 
@@ -30,6 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", action="append", choices=list(METHODS),
                    help="estimation method (repeat for several; default: oem). " + METHOD_LIST)
     p.add_argument("--map", help="channel map TOML extending the built-in one")
+    add_time_base_argument(p)
     p.add_argument("--inputs", default="linear", choices=["linear", "average", "hold"],
                    help="how control inputs vary between log samples (default: linear)")
     p.add_argument("--out", help="output folder (default: a new folder under ./runs/)")
@@ -53,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
                          methods=args.method or ["oem"], inputs=args.inputs, model=args.model,
                          quiet=args.quiet, compat=not args.no_compat,
                          smooth_inputs=not args.raw_inputs, validation_log=args.validate_with,
+                         time_base=args.time_base,
                          **validation_options(args))
     print_outputs(out, paths)
     return 0

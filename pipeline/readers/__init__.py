@@ -101,6 +101,10 @@ def _builtin() -> list[str]:
     return builtin_names()
 
 
+#: the time bases a format offers (the first its default; the readers say what each is)
+TIME_BASES = {"tlog": ("auto", "boot", "log"), "mcap": ("auto", "header", "log")}
+
+
 def read_log(path: str | os.PathLike, map=None, **opts):
     """Read any supported log into canonical :class:`~pipeline.flightdata.FlightData`.
 
@@ -112,7 +116,8 @@ def read_log(path: str | os.PathLike, map=None, **opts):
         ``[map] extends = "<builtin>"`` add to / override a built-in map
     opts : ``strict`` (raise on damage), ``time_base`` (MCAP: "auto" | "header" | "log";
         .tlog: "auto" | "boot" | "log", default the autopilot's own stamps,
-        :mod:`pipeline.readers.tlog_time`),
+        :mod:`pipeline.readers.tlog_time`; ``TIME_BASES``; None is the default, a choice
+        the format does not offer is a LogReadError),
         ``segments`` ("mode" | "auto" | list of (t0, t1) [s]; default: mode segments when
         the log has modes, then automatic ones from control activity), ``servo_travel``
         (surface -> (deg, origin): the deflection at full servo travel for surfaces
@@ -129,6 +134,13 @@ def read_log(path: str | os.PathLike, map=None, **opts):
     segments = opts.pop("segments", None)
     travel = opts.pop("servo_travel", None)
     fmt = opts.pop("format", None) or detect_format(path)
+    if opts.get("time_base", "") is None:
+        opts.pop("time_base")
+    elif "time_base" in opts and opts["time_base"] not in TIME_BASES.get(fmt, ()):
+        choices = "; ".join(f"a .{f} log: {', '.join(c)}" for f, c in TIME_BASES.items())
+        raise LogReadError(f"{path}: time base {opts['time_base']!r} does not apply to a {fmt} "
+                           f"log; the time base is chosen for {choices} (leave it out for "
+                           "the default)", path=str(path), where="options")
     raw = read_raw(path, fmt, **opts)
     map_fmt = raw.info.get("map_hint", raw.format)
     cmap = load_map(map, raw.format) if map is not None else load_map(map_fmt if map_fmt in
