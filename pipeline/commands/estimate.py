@@ -7,7 +7,6 @@ import argparse
 from pipeline.paths import new_run_dir
 
 from pipeline.commands.check import add_time_base_argument
-from pipeline.commands.check import add_time_base_argument
 from pipeline.commands.run import (METHOD_LIST, METHODS, add_input_arguments,
                                    add_validation_arguments, validation_options)
 
