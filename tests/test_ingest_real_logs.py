@@ -235,7 +235,7 @@ def test_tlog_autopilot_time_base(tlog_fd, tlog_recv):
     Expected numbers from mavutil over the file, in file order."""
     fd = tlog_fd
     assert fd.meta["time_base"].startswith("autopilot stamps")
-    with pytest.raises(Exception, match="time_base must be"):
+    with pytest.raises(Exception, match="time base .gps. does not apply to a tlog log"):
         read_log(TLOG, time_base="gps")
     # ATTITUDE.time_boot_ms 608582, 608821, 609063, 609301, 609543, then 611021 ... 611941
     # received before 610541 and 610781: put back in order
