@@ -24,8 +24,7 @@ itself: Cmalpha 3.32, Cmalphadot 2.75, Cmde 2.64, Cm0 2.29 std off; over seeds 3
 (Cmq), 2.1 (Cmalpha). On data its own gust model makes, filter error is honest and
 unbiased; what its bounds miss on JSBSim's flights - the pitching-moment derivatives most -
 is the difference between JSBSim's turbulence and the model's gust states (the pitch gust
-q_g modelled as s / (1 + tau s) alpha_g + a Markov rest, which follows JSBSim's q_turb
-within 10-30 % in gain at coherence 0.3-0.6; estimators.models.longitudinal), not the
+q_g modelled as s / (1 + tau s) alpha_g + a Markov rest; estimators.models.longitudinal), not the
 filter's Cramér-Rao bounds, and not the noise of the measured lateral pseudo-inputs (ad
 hoc, seeds 31-37: the same fits with noise-free beta, p, r, phi, ay from a twin flight
 moved the worst |error| / std by at most 0.02). One such difference, ad hoc on seed 31's

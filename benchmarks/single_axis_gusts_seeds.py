@@ -44,6 +44,26 @@ With --log bin (seeds 31-38, 1 min 17 s; the Cramér-Rao std only, no wind part)
                           rate of alpha_k: taken across the flight path's velocity (its speed
                           rebuilt with the angles as an input; on the truth 10x closer to the
                           path angle's rate than the air-relative form) worst 4.2-13.0, unchanged.
+The cause (ad hoc, seed 34, elevator flight.mcap with its vanes dropped so the angles are
+rebuilt; scripts not kept): JSBSim's pitch gust. FEM on the flight: CDalpha +11.3, Cmq
++10.3, CDalpha2 +8.6, CLalpha -7.5 std (with the vanes: within 2.6). Fitted on data the
+gust model makes on the flight's true inputs, with white sensor noise at the grid's levels:
+  - its own Markov gusts (4 draws): worst mean |error| / std 1.9 (CLalphadot: the pipeline
+    holds it), Cmq -0.2;
+  - JSBSim's own alpha_g and airspeed gust forced into the states, q_g from alpha_g by the
+    model's form (2 draws): Cmq -3.1, CDalpha 0.8;
+  - the same with JSBSim's q_turb forced as the pitch gust: Cmq +9.3, CDalpha +9.5, CL0
+    -7.7 - the flight's bias; with q_g from the earth-vertical (down) gust by the model's
+    form: CDalpha +13.9, Cmq +8.4;
+  - JSBSim's true states with white sensor noise: CDalpha +13.9, CD0 +10.9, Cmq +9.0.
+  JSBSim (FGWinds, Tustin) forms q_turb from the earth-vertical gust, the angle of attack
+  sees the gust along the body z axis; this flight banks 7 deg rms (up to 22: no wings
+  leveller, the lateral turbulence turns it through 360 deg), so the horizontal gusts
+  (2 m/s rms) reach alpha_g but not q_turb. With the vanes the filter reads alpha_g and the
+  difference costs little; without them it infers alpha_g through q_g and the lift. The
+  model keeps MIL-F-8785C's aircraft-axes form (body z); what a real gust field does
+  under bank is neither. Giving alpha_k its own process noise (F 0.0014 estimated) or the
+  accelerometer's true noise level as R changed nothing (Cmq 10.4, 11.0).
 
     python benchmarks/single_axis_gusts_seeds.py [--seeds 12] [--seed-base 31] [--jobs 2]
         [--log mcap|bin]

@@ -242,9 +242,12 @@ def longitudinal_measured_lateral(constants: Mapping[str, float],
         (no vane: :mod:`pipeline.flow_angles`), which sees the body's motion against the
         mean wind and no gust. The pitch rate of the air mass (rotary gust,
         the gust gradient along the airframe) is q_g = -s / (1 + tau s) alpha_g + q_gi,
-        tau = 4 b / (pi V) (lag state alpha_gf; constant ``b``, span, needed): JSBSim's
-        q_turb follows s/V/(1 + tau s) w_g within 10-30 % in gain and 15 deg in phase from
-        0.05 to 4 Hz with coherence 0.3-0.6; the rest, q_gi, is a first-order Markov
+        tau = 4 b / (pi V) (lag state alpha_gf; constant ``b``, span, needed), the
+        MIL-F-8785C form on the gust along the aircraft's z axis (JSBSim's Tustin
+        turbulence applies it to the earth-vertical gust instead: its q_turb follows the
+        form on alpha_g with correlation 0.92, on the down gust 0.98, in a flight banking
+        7 deg rms; ad hoc, multiaxis_multisine_turbulence flown with elevator multisines,
+        seed 34); the rest, q_gi, is a first-order Markov
         process with time constant tau to be driven by its own process noise. The
         aerodynamics see q - q_g (CLq, Cmq), the gyro q. Without q_g the pitch damping
         of the gyro rate books the rotary gust on the derivatives:
