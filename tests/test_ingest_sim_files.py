@@ -98,3 +98,45 @@ def test_aircraft_servo_travel_flies_and_decodes(tmp_path):
         k = np.rad2deg(want[late]) / step_deg
         assert np.max(np.abs(k - np.round(k))) < 1e-3, axis          # flown on the PWM steps
         assert np.ptp(want) > np.radians(3.5), axis
+
+
+def _without(src: Path, dst: Path, drop: set[str]) -> Path:
+    """A copy of the DataFlash log ``src`` without the messages named in ``drop`` (records
+    are 0xA3 0x95 type, their lengths from the FMT records)."""
+    data, out, i = src.read_bytes(), bytearray(), 0
+    lens, names = {128: 89}, {128: "FMT"}
+    while i < len(data) - 3:
+        t = data[i + 2]
+        if t == 128:
+            lens[data[i + 3]], names[data[i + 3]] = data[i + 4], data[i + 5:i + 9].rstrip(b"\0").decode()
+        if names.get(t) not in drop:
+            out += data[i:i + lens[t]]
+        i += lens[t]
+    dst.write_bytes(bytes(out))
+    return dst
+
+
+def test_airspeed_without_a_sensor_is_the_autopilots_estimate(files, tmp_path):
+    """A log with no airspeed sensor (no ARSP): V is the map's fallback, ArduPilot's own
+    estimate CTUN.As x E2T, said to be one; without CTUN either, V is missing and both
+    reasons are named. A fallback of a fallback is a map error."""
+    from pipeline.errors import FsidError
+    from pipeline.maps import load_map
+    from tests._simdata import written
+
+    fb = files[0]
+    src = written(SCENARIO.stem) / "flight.bin"
+    fd = read_log(_without(src, tmp_path / "noarsp.bin", {"ARSP"}))
+    a, b = _at(fb, fd, "V")
+    assert np.max(np.abs(a - b)) < 1e-4 * np.max(a)
+    assert fd["V"].derived.startswith("ArduPilot's airspeed estimate")
+    assert "from the fallback CTUN.As x CTUN.E2T (ARSP[0].Airspeed, CTUN.E2T: no ARSP[0] messages)" in fd["V"].notes
+    fd = read_log(_without(src, tmp_path / "noair.bin", {"ARSP", "CTUN"}))
+    assert "V" not in fd.channels
+    assert fd.meta["unmapped"]["V"] == "no ARSP[0] messages; fallback CTUN.As, CTUN.E2T: no CTUN messages"
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[map]\nextends = "ardupilot_bin"\n[channels.V]\nsource = "ARSP.Airspeed"\n'
+                   '[channels.V.fallback]\nsource = "CTUN.As"\n[channels.V.fallback.fallback]\n'
+                   'source = "X.y"\n')
+    with pytest.raises(FsidError, match=r"\[channels.V.fallback\] cannot have a fallback"):
+        load_map(bad)

@@ -29,6 +29,11 @@ Map file format (all keys but ``source`` optional)::
     source = "actuator_controls_0.control[0]"  # controls are group 1
     source_if = { VT_TYPE = ["actuator_controls_1.control[0]"] }
 
+    [channels.V.fallback]                    # tried when the rule above fills nothing
+    source = ["CTUN.As", "CTUN.E2T"]         # (no airspeed sensor: the autopilot's estimate)
+    transform = "product"
+    derived = "ArduPilot's airspeed estimate, not a pitot"
+
     [channels.phi]                           # quaternion -> Euler angle (w, x, y, z order)
     source = ["vehicle_attitude.q[0]", "vehicle_attitude.q[1]", "vehicle_attitude.q[2]", "vehicle_attitude.q[3]"]
     transform = "quat_wxyz"
@@ -125,6 +130,8 @@ class ChannelRule:
     derived: str | None = None          #: why it is no independent measurement (Channel.derived)
     #: {parameter: sources}: when the log has that parameter, those sources replace ``sources``
     source_if: dict[str, list[str]] = field(default_factory=dict)
+    #: the rule to try when this one fills nothing (``[channels.NAME.fallback]``)
+    fallback: "ChannelRule | None" = None
 
     def sources_for(self, params: Mapping[str, float]) -> list[str]:
         """The sources to try for a log with these parameters (``source_if``)."""
@@ -168,6 +175,34 @@ def _source_if(spec, origin: str, name: str) -> dict[str, list[str]]:
     return {str(k): [v] if isinstance(v, str) else [str(x) for x in v] for k, v in spec.items()}
 
 
+def _rule(name: str, spec, origin: str, what: str = "") -> ChannelRule:
+    """One ``[channels.NAME]`` table (``what``: ".fallback" for its fallback) as a rule."""
+    where = f"[channels.{name}{what}]"
+    if not isinstance(spec, dict) or "source" not in spec:
+        raise FsidError(f"channel map {origin}: {where} needs a 'source' "
+                        "(\"MESSAGE.field\" or a list of them)")
+    src = spec["source"]
+    sources = [src] if isinstance(src, str) else [str(s) for s in src]
+    unit = str(spec.get("unit", CANONICAL_UNITS.get(name, "-")))
+    if unit not in UNIT_FACTORS:
+        raise FsidError(f"channel map {origin}: {where} unit '{unit}' unknown; "
+                        f"use one of {', '.join(sorted(UNIT_FACTORS))}")
+    for src_ in sources:
+        parts = src_.split()
+        if len(parts) > 1 and parts[1] not in UNIT_FACTORS:
+            raise FsidError(f"channel map {origin}: {where} source '{src_}' has "
+                            f"unknown unit '{parts[1]}'")
+    fb = spec.get("fallback")
+    if fb is not None and what:
+        raise FsidError(f"channel map {origin}: {where} cannot have a fallback of its own")
+    return ChannelRule(name, sources, unit, float(spec.get("scale", 1.0)),
+                       float(spec.get("offset", 0.0)), float(spec.get("sign", 1.0)),
+                       spec.get("pwm"), spec.get("transform"), spec.get("component"),
+                       spec.get("scale_param"), spec.get("unless_param"),
+                       spec.get("derived"), _source_if(spec.get("source_if"), origin, name),
+                       None if fb is None else _rule(name, fb, origin, ".fallback"))
+
+
 def _parse(doc: dict, origin: str) -> ChannelMap:
     head = doc.get("map", {})
     chans = doc.get("channels", {})
@@ -175,25 +210,7 @@ def _parse(doc: dict, origin: str) -> ChannelMap:
         raise FsidError(f"channel map {origin}: [channels] must be a table; see pipeline/maps/__init__.py")
     rules: dict[str, ChannelRule] = {}
     for name, spec in chans.items():
-        if not isinstance(spec, dict) or "source" not in spec:
-            raise FsidError(f"channel map {origin}: [channels.{name}] needs a 'source' "
-                            "(\"MESSAGE.field\" or a list of them)")
-        src = spec["source"]
-        sources = [src] if isinstance(src, str) else [str(s) for s in src]
-        unit = str(spec.get("unit", CANONICAL_UNITS.get(name, "-")))
-        if unit not in UNIT_FACTORS:
-            raise FsidError(f"channel map {origin}: [channels.{name}] unit '{unit}' unknown; "
-                            f"use one of {', '.join(sorted(UNIT_FACTORS))}")
-        for src_ in sources:
-            parts = src_.split()
-            if len(parts) > 1 and parts[1] not in UNIT_FACTORS:
-                raise FsidError(f"channel map {origin}: [channels.{name}] source '{src_}' has "
-                                f"unknown unit '{parts[1]}'")
-        rules[name] = ChannelRule(name, sources, unit, float(spec.get("scale", 1.0)),
-                                  float(spec.get("offset", 0.0)), float(spec.get("sign", 1.0)),
-                                  spec.get("pwm"), spec.get("transform"), spec.get("component"),
-                                  spec.get("scale_param"), spec.get("unless_param"),
-                                  spec.get("derived"), _source_if(spec.get("source_if"), origin, name))
+        rules[name] = _rule(name, spec, origin)
     return ChannelMap(str(head.get("name", Path(origin).stem)), rules,
                       list(head.get("formats", [])), dict(head), origin)
 
@@ -598,11 +615,20 @@ def apply_map(raw: RawLog, cmap: ChannelMap,
         surface = rule.pwm is not None and not dict(rule.pwm).get("throttle")
         deg, origin = (servo_travel(rule, raw.params, (servo_travel_deg or {}).get(name))
                        if surface else (DEFAULT_TRAVEL_DEG, ""))
-        got = apply_rule(raw, rule, deg)
+        got, used = apply_rule(raw, rule, deg), rule
+        if isinstance(got, str) and rule.fallback is not None:
+            first, alt = got, apply_rule(raw, rule.fallback, deg)
+            if isinstance(alt, str):
+                got = f"{first}; fallback {', '.join(rule.fallback.sources)}: {alt}"
+            else:
+                got, used = alt, rule.fallback
+                got.notes = "; ".join(filter(None, [got.notes, (
+                    f"from the fallback {got.source} ({', '.join(rule.sources)}: {first})"
+                    + (f": {used.derived}" if used.derived else ""))]))
         if isinstance(got, str):
             why[name] = got
             continue
-        got.derived = rule.derived or ""
+        got.derived = used.derived or ""
         if surface:
             travels[name] = {"deg": deg, "from": origin}
             if origin == "assumed":
