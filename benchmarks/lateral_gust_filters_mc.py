@@ -20,9 +20,28 @@ Per variant, method and derivative: empirical std over the draws / mean reported
 the sensor noise's and this ratio and the bias say little), the bias in empirical std, and
 the mean |error| / reported std (what the closed-loop tests hold below 3). A method name
 ending in ``-trueQ`` (ekf-trueQ, ukf-trueQ) gives the filter the draws' own process noise
-instead of the pipeline's.
+instead of the pipeline's, ``-trueQR`` their own measurement noise too (R; the pipeline's is
+the grid's second differences). With ``flight`` the draws' process noise has no roll gust
+(it is forced), so -trueQ/-trueQR filters get none and say nothing there.
 
-Measured (2026-11-25, with the scenario's turbulence in JSBSim's frame - it has since
+Measured (2026-11-25, the scenario as it is now - turbulence in the aircraft's axes,
+smoothed surface inputs - flight seed 31: p_turb rms 0.0566 rad/s, time constant 0.483 s;
+draws 0-7, 2 jobs, 1 min; empirical / reported std, largest |bias| in empirical std,
+worst mean |error| / std):
+  markov fem         0.56-1.31, 1.70, 1.64 (Cnr)
+  markov ekf         0.68-2.93, 1.88, 2.97 (Clp)
+  markov ukf         0.42-1.23, 3.40, 1.46 (Clr)
+  markov ekf-trueQ   0.63-2.07, 2.62, 4.76 (Clbeta)
+  markov ukf-trueQ   0.52-3.16, 3.38, 4.01 (Clbeta)
+  markov ekf-trueQR  0.82-2.59, 1.06, 3.09 (Clbeta)
+  markov ukf-trueQR  0.59-4.61, 1.27, 3.49 (Clbeta)
+  flight fem         mean |error|/std worst 1.84 (Clp); ekf 19.2 (Clp); ukf 2.32 (Clbeta)
+Given both noise covariances exactly the filters' bias shrinks to about one empirical std
+(the true process noise with the second-difference R is worse than the pipeline's
+twice-the-level Q); their std stays too small (up to 2.6x, 4.6x: the covariance of the
+parameter-in-the-state filter misses the gain's dependence on the parameters, Ljung).
+
+Measured before (2026-11-25, with the scenario's turbulence in JSBSim's frame - it has since
 put it in the aircraft's axes - and before the pipeline smoothed the surface inputs - the draws are
 simulated and fitted on the same inputs, so that changes only their content; flight seed
 31: p_turb rms 0.049 rad/s, time constant 0.418 s; draws 0-7; empirical/reported std, largest |bias| in empirical std, worst mean
@@ -52,7 +71,8 @@ L_p = sqrt(L_w b) / 2.6: 0.44 s here; ad-hoc, its autocorrelation gives 0.41-0.4
 every lag from 0.1 to 0.6 s), so what fails there is the filters, not the gust model.
 
     python benchmarks/lateral_gust_filters_mc.py [--seeds 8] [--seed-base 0] [--jobs 2]
-        [--flight-seed 31] [--methods fem,ekf,ukf,ekf-trueQ,ukf-trueQ] [--variants markov,flight]
+        [--flight-seed 31] [--methods fem,ekf,ukf,ekf-trueQ,ukf-trueQ,ekf-trueQR,ukf-trueQR]
+        [--variants markov,flight]
 """
 from __future__ import annotations
 
@@ -164,7 +184,7 @@ def one_draw(seed: int, *, workdir: Path, methods: list[str], variants: list[str
     name, estimate, std, truth)."""
     import copy
 
-    from pipeline.run import fit_problem
+    from pipeline.run import fit_problem, measurement_noise_std
 
     fl = flight(workdir)
     rows = []
@@ -172,7 +192,11 @@ def one_draw(seed: int, *, workdir: Path, methods: list[str], variants: list[str
         pb = copy.copy(fl["problem"])
         pb.fit = simulate(fl["problem"], fl["truth"], gust, fl, np.random.default_rng(1000 + seed))
         for method in methods:
-            if method.endswith("-trueQ"):     # the filter given the draws' own process noise
+            if method.endswith("-trueQR"):    # ... and their own measurement noise
+                res = fit_problem(pb, method[:-7], process_noise=true_process_noise(pb, gust, fl),
+                                  measurement_noise=dict(zip(pb.model.outputs,
+                                                             measurement_noise_std(pb))))
+            elif method.endswith("-trueQ"):   # the filter given the draws' own process noise
                 res = fit_problem(pb, method[:-6], process_noise=true_process_noise(pb, gust, fl))
             else:
                 res = fit_problem(pb, method, turbulence=fl["truth"]["turbulence"])

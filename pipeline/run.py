@@ -382,11 +382,13 @@ def _states_at_cg(model: Any):
 
 def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] | None = None,
                 process_noise: Mapping[str, float] | None = None,
+                measurement_noise: Mapping[str, float] | None = None,
                 callback: Callable[[int, float, Any], None] | None = None) -> Any:
     """Run one estimation method on a problem (names in METHODS). ``turbulence``: the
     Dryden level when known (truth.json), for the filters' process noise; else
     ``process_noise`` (EKF/UKF: state -> F, e.g. :func:`filter_process_noise`), else the
-    data's default. ``callback``: called after each iteration (OEM, FEM) or pass (EKF,
+    data's default. ``measurement_noise``: EKF/UKF R as output -> std (default: the grid's
+    second differences). ``callback``: called after each iteration (OEM, FEM) or pass (EKF,
     UKF) as callback(iteration, cost, params)."""
     import estimators as E
 
@@ -435,7 +437,8 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
              if dryden_known(turbulence) or process_noise is None else
              {k: v for k, v in process_noise.items() if k in model.states})
         return cls(model, inputs=inputs, process_noise=Q,
-                   measurement_noise=measurement_noise_std(problem, logged=False),
+                   measurement_noise=(dict(measurement_noise) if measurement_noise is not None
+                                      else measurement_noise_std(problem, logged=False)),
                    param_std=_filter_param_std(model), callback=callback).fit(problem.fit)
     if method == "soem":
         # feed back only the short-period measurements where the model has them: with V and
