@@ -525,7 +525,9 @@ def _truth_check(result: EstimationResult, truth: Mapping[str, float], k: float)
 def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
     """``ok`` and the ``reasons`` behind it from a validation dict: converged, every TIC
     below the limit, proof of match passed (when run), truth within k std (when known);
-    residual colour, correlation flags and frequency mismatch are listed as notes only."""
+    residual colour, correlation flags and frequency mismatch are listed as notes only, and
+    for an output-error method with coloured residuals and scattering maneuvers the advice
+    to fit filter error."""
     reasons, notes = [], []
     if not v.get("converged", True):
         why = v.get("not_settled")
@@ -569,6 +571,12 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
             f"{n} ({r:.1f}x the Cramér-Rao bound)" for n, r in wide["parameters"].items())
             + f": more than an exact bound's {wide['confidence']:.0%} limit of "
             f"{wide['threshold']:.2f}x with {cl.get('n_segments')} maneuvers")
+    # output error and its stabilised forms ("oem-..."): no process noise in the model
+    if (str(v.get("method", "")).startswith("oem") and res and not res.get("all_white", True)
+            and (cl.get("flagged") or wide)):
+        notes.append("output error leaves process noise out: coloured residuals and maneuvers "
+                     "that scatter beyond the bound are what turbulence does to it; fit filter "
+                     "error too (--method fem) and compare")
     if v.get("correlations_flagged"):
         notes.append("highly correlated: " + ", ".join(f"{a}~{b}" for a, b, _ in v["correlations_flagged"]))
     fr = v.get("frequency")

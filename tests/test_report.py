@@ -229,3 +229,22 @@ def test_inverse_simulation_on_log_times(fitted):
     assert "error" not in inv
     assert inv["per_input"]["de"]["ratio"] == pytest.approx(
         v["inverse_simulation"]["per_input"]["de"]["ratio"], rel=1e-6)
+
+
+def test_verdict_advises_filter_error_for_output_error_in_turbulence():
+    """Output error with coloured residuals and maneuvers that scatter beyond the bound:
+    the verdict's notes say to fit filter error too; not for filter error itself, nor
+    with white residuals."""
+    from pipeline.validate import verdict
+
+    v = {"method": "oem", "converged": True,
+         "residuals": {"all_white": False, "whiteness": {"q": {"white": False}}},
+         "uncertainty": {"cluster": {"n_segments": 4, "flag_ratio": 3.0, "flagged": {"Cmq": 5.0}}}}
+    advice = "fit filter error too (--method fem)"
+    assert any(advice in n for n in verdict(v)["notes"])
+    assert any(advice in n for n in verdict({**v, "method": "oem-stabilized"})["notes"])
+    assert not any(advice in n for n in verdict({**v, "method": "fem"})["notes"])
+    white = {**v, "residuals": {"all_white": True, "whiteness": {}}}
+    assert not any(advice in n for n in verdict(white)["notes"])
+    calm = {**v, "uncertainty": {"cluster": {"n_segments": 4, "flag_ratio": 3.0, "flagged": {}}}}
+    assert not any(advice in n for n in verdict(calm)["notes"])
