@@ -221,10 +221,12 @@ def usable_segments(df: pd.DataFrame, specs: Sequence[SegmentSpec], outputs: Seq
     their rows of ``df`` by ``id(spec)``): the one place that cuts segment windows out of the
     multi-rate frame.
     Found segments (automatic or by flight mode) that are not - a maneuver detected in a
-    hover without forward flight for the rebuilt air-data angles, a telemetry dropout, with
-    ``airborne`` (the aircraft models) a control check on the ground - are left out and named, so that the others are still fitted; a segment given by time
-    range (kind "time") ends with one clear error naming what is missing. FsidError when
-    fewer than 1 + ``hold_out`` remain (``what``: the maneuvers, for the message)."""
+    hover without forward flight for the rebuilt air-data angles, a telemetry dropout, and
+    with ``airborne`` (the aircraft models) one on the ground or hovering - are left out and
+    named, so that the others are still fitted; a segment given by time range (kind
+    "time") ends with one clear error naming what is missing (the airspeed rule aside: a
+    range the user chose is fitted as given). FsidError when fewer than 1 + ``hold_out``
+    remain (``what``: the maneuvers, for the message)."""
     keep, faults, frames = [], [], {}
     for s in specs:
         w = _window(df, s)

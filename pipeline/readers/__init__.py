@@ -18,7 +18,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from pipeline.readers.base import Damage, LogReadError, RawLog, Table
+from pipeline.readers.base import TIME_BASES, Damage, LogReadError, RawLog, Table
 
 __all__ = ["read_log", "read_raw", "detect_format", "LogReadError", "RawLog", "Table", "Damage"]
 
@@ -101,10 +101,6 @@ def _builtin() -> list[str]:
     return builtin_names()
 
 
-#: the time bases a format offers (the first its default; the readers say what each is)
-TIME_BASES = {"tlog": ("auto", "boot", "log"), "mcap": ("auto", "header", "log")}
-
-
 def read_log(path: str | os.PathLike, map=None, **opts):
     """Read any supported log into canonical :class:`~pipeline.flightdata.FlightData`.
 
@@ -134,13 +130,14 @@ def read_log(path: str | os.PathLike, map=None, **opts):
     segments = opts.pop("segments", None)
     travel = opts.pop("servo_travel", None)
     fmt = opts.pop("format", None) or detect_format(path)
-    if opts.get("time_base", "") is None:
-        opts.pop("time_base")
-    elif "time_base" in opts and opts["time_base"] not in TIME_BASES.get(fmt, ()):
-        choices = "; ".join(f"a .{f} log: {', '.join(c)}" for f, c in TIME_BASES.items())
-        raise LogReadError(f"{path}: time base {opts['time_base']!r} does not apply to a {fmt} "
-                           f"log; the time base is chosen for {choices} (leave it out for "
-                           "the default)", path=str(path), where="options")
+    time_base = opts.pop("time_base", None)
+    if time_base is not None:
+        if time_base not in TIME_BASES.get(fmt, ()):
+            choices = "; ".join(f"a .{f} log: {', '.join(c)}" for f, c in TIME_BASES.items())
+            raise LogReadError(f"{path}: time base {time_base!r} does not apply to a {fmt} log; "
+                               f"the time base is chosen for {choices} (leave it out for the "
+                               "default)", path=str(path), where="options")
+        opts["time_base"] = time_base
     raw = read_raw(path, fmt, **opts)
     map_fmt = raw.info.get("map_hint", raw.format)
     cmap = load_map(map, raw.format) if map is not None else load_map(map_fmt if map_fmt in

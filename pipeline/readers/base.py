@@ -13,6 +13,10 @@ import numpy as np
 from pipeline.errors import FsidError
 
 
+#: the time bases a format's reader offers (its ``time_base``; the first is its default)
+TIME_BASES = {"tlog": ("auto", "boot", "log"), "mcap": ("auto", "header", "log")}
+
+
 class LogReadError(FsidError):
     """The only error a reader raises for a bad input file.
 

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.readers.base import Damage, LogReadError, RawLog, Table
+from pipeline.readers.base import TIME_BASES, Damage, LogReadError, RawLog, Table
 
 _HEADER_TIME_FIELDS = ("header.stamp", "t", "timestamp")
 
@@ -98,7 +98,7 @@ def read_mcap(path: str | os.PathLike, *, strict: bool = False, time_base: str =
     from mcap.stream_reader import StreamReader
     from mcap.records import Channel, Message, Schema
 
-    if time_base not in ("auto", "header", "log"):
+    if time_base not in TIME_BASES["mcap"]:
         raise LogReadError(f"time_base must be auto, header or log (got {time_base!r})",
                            path=str(path), where="options")
     path = Path(path)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.readers.base import Damage, LogReadError, RawLog, Table
+from pipeline.readers.base import TIME_BASES, Damage, LogReadError, RawLog, Table
 from pipeline.readers.tlog_time import boot_time_base
 
 MAV_AUTOPILOT_ARDUPILOTMEGA = 3
@@ -75,7 +75,7 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
     stamps is an error. "log": the .tlog's receive stamps (UTC s; telemetry arrives in
     bursts, so intervals jitter and packets can arrive out of order).
     """
-    if time_base not in ("auto", "log", "boot"):
+    if time_base not in TIME_BASES["tlog"]:
         raise LogReadError(f"time_base must be 'auto', 'log' or 'boot' (got {time_base!r})",
                            path=str(path), where="options")
     path = Path(path)
