@@ -574,9 +574,10 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
                        f"{_count(len(pb.fit), 'maneuver')}, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
 
     def fit(pb: Problem) -> Any:
-        # a refit carries the free values, initial states and per-segment values included
-        # (without them 37 output-error iterations instead of 2 on a 6-DoF lateral held
-        # refit); the held ones stay the problem's (the values a refit moves)
+        # output error and filter error refit from all the free values, initial states and
+        # per-segment values included (without them a 6-DoF lateral held refit took 37
+        # output-error iterations, now 4); the held ones stay the problem's (the values a
+        # refit moves). The other START_FREE methods get the model's values above.
         free = {p.name for p in pb.model.parameters if p.free}
         carry = ({n: v for n, v in start.items() if n.split("[")[0] in free or n.startswith("x0_")}
                  if refit and method in ("oem", "fem") else None)
