@@ -908,6 +908,10 @@ class FilterError:
     # -- the fit --------------------------------------------------------------------------------
     def fit(self, segments: Segment | Sequence[Segment], estimate_x0: bool | Sequence[str] = False,
             start: Mapping[str, float] | None = None) -> EstimationResult:
+        """Estimate the free parameters, F and G from one or several segments (see the class).
+        ``start``: start values by expanded name, overriding the model's; an ``F_<state>``
+        entry (an earlier fit's, for a refit) starts that state's process noise, or holds
+        it with ``estimate_F=False``."""
         segments = [segments] if isinstance(segments, Segment) else list(segments)
         if not segments:
             raise ModelDefinitionError("fit() needs at least one segment")
@@ -924,6 +928,10 @@ class FilterError:
             self._set_form("linear" if linear else "nonlinear")
         m = len(model.outputs)
         self._noisy, f0 = self._noise_setup(segments)
+        for i in self._noisy:   # an earlier fit's F (``start`` of a refit) over the default,
+            v = (start or {}).get(f"F_{model.states[i]}")   # where it is not 0 (a start at 0
+            if v is not None and float(v) > 0.0:            # gives F no gradient)
+                f0[i] = float(v)
         self._f_fixed = f0.copy()
         fi = lay.free_idx
         names = list(lay.free_names)

@@ -574,12 +574,14 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
                        f"{_count(len(pb.fit), 'maneuver')}, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
 
     def fit(pb: Problem) -> Any:
-        # output error and filter error refit from all the free values, initial states and
-        # per-segment values included (without them a 6-DoF lateral held refit took 37
-        # output-error iterations, now 4); the held ones stay the problem's (the values a
-        # refit moves). The other START_FREE methods get the model's values above.
+        # output error and filter error refit from all the free values, initial states,
+        # per-segment values and filter error's F included (without them a 6-DoF lateral
+        # held refit took 37 output-error iterations, now 4); the held ones stay the
+        # problem's (the values a refit moves). The other START_FREE methods get the
+        # model's values above.
         free = {p.name for p in pb.model.parameters if p.free}
-        carry = ({n: v for n, v in start.items() if n.split("[")[0] in free or n.startswith("x0_")}
+        carry = ({n: v for n, v in start.items() if n.split("[")[0] in free or n.startswith("x0_")
+                  or (method == "fem" and n.startswith("F_"))}
                  if refit and method in ("oem", "fem") else None)
         return fit_problem(pb, method, turbulence=turbulence, process_noise=process_noise,
                            callback=None if refit else lambda it, cost, p: progress.tick(str(it + 1)),
