@@ -68,6 +68,11 @@ def runaway_error(model: Model, seg: Segment, k: int, where: tuple[int, int],
 SensitivityHook = Callable[[Model, Segment, int, Layout, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
+def _counts(E: Sequence[np.ndarray]) -> np.ndarray:
+    """(n_out,) samples of each output in residuals ``E`` (NaN: not measured there)."""
+    return sum(np.isfinite(np.asarray(e, float)).sum(axis=0) for e in E)
+
+
 class OutputError:
     """Output-error method.
 
@@ -238,7 +243,7 @@ class OutputError:
         R = self._R(E)
         if self.noise == "full":
             return float(np.linalg.det(R))
-        n_j = sum(np.isfinite(np.asarray(e, float)).sum(axis=0) for e in E)
+        n_j = _counts(E)
         with np.errstate(divide="ignore", invalid="ignore"):
             return float(np.exp(n_j @ np.log(np.diag(R)) / np.mean(n_j)))
 
@@ -258,8 +263,7 @@ class OutputError:
             d = np.diag(R)
             if not np.all(d > 0):
                 return np.inf
-            n_j = sum(np.isfinite(np.asarray(e, float)).sum(axis=0) for e in E)
-            val = 0.5 * float(n_j @ np.log(d))
+            val = 0.5 * float(_counts(E) @ np.log(d))
         return val + self._prior_terms(theta_free)[2]
 
     def _simplex(self, theta: np.ndarray, max_evals: int | None = None) -> np.ndarray:
