@@ -22,6 +22,7 @@ from estimators.errors import ModelDefinitionError, SimulationDivergedError
 from estimators.integrators import check_options
 from estimators.model import Model, Segment, check_outputs_measured
 from estimators.results import EstimationResult, frames
+from estimators.sensitivity import Sensitivity
 from estimators.simulation import Layout, divergence_error, simulate_batch
 from estimators import statistics as st
 
@@ -153,19 +154,19 @@ class OutputError:
         return [seg.z - Y for seg, Y in zip(self._segments, Ys)]
 
     def _sensitivities(self, theta: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
-        """Outputs Y_k (N, n_out) and sensitivities S_k (N, n_out, n_free) per segment, all
-        perturbed parameter sets of a segment integrated in one batch."""
+        """Outputs Y_k (N, n_out) and sensitivities S_k per segment (:class:`Sensitivity`:
+        (N, n_out) by the free parameters segment k depends on), all perturbed parameter
+        sets of a segment integrated in one batch."""
         lay = self._lay
         free_idx = lay.free_idx
         col = {j: i for i, j in enumerate(free_idx)}
         Ys, Ss = [], []
         for k, seg in enumerate(self._segments):
             rel = lay.relevant[k]
-            S = np.zeros((seg.n, len(self.model.outputs), free_idx.size))
+            cols = np.array([col[j] for j in rel], dtype=int)
             if callable(self.jacobian):
                 Y, Srel = self.jacobian(self.model, seg, k, lay, theta)
-                S[:, :, [col[j] for j in rel]] = Srel
-                Ys.append(Y); Ss.append(S)
+                Ys.append(Y); Ss.append(Sensitivity(np.asarray(Srel, dtype=float), cols, free_idx.size))
                 continue
             step = self.fd_step * np.maximum(np.abs(theta[rel]), 1.0)
             up_ok = theta[rel] + step <= lay.upper[rel]
@@ -195,8 +196,7 @@ class OutputError:
                 raise divergence_error(self.model, seg, Xb[:, :, 1 + int(np.flatnonzero(
                     ~np.isfinite(Srel).all(axis=(0, 1)))[0])], k,
                     f"when perturbing {', '.join(bad)}", DIVERGE_HINT)
-            S[:, :, [col[j] for j in rel]] = Srel
-            Ys.append(Y); Ss.append(S)
+            Ys.append(Y); Ss.append(Sensitivity(Srel, cols, free_idx.size))
         return Ys, Ss
 
     def _linearise(self, theta: np.ndarray):

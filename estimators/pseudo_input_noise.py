@@ -42,6 +42,7 @@ from scipy import signal
 
 from estimators.fem import linearize_batch
 from estimators.model import Model, Segment
+from estimators.sensitivity import add_block, as_sensitivity
 from estimators.simulation import Layout
 from estimators import statistics as st
 
@@ -151,7 +152,8 @@ def propagated_covariance(model: Model, segments: Sequence[Segment], values: Map
     model: the fed (transformed) model; its last len(pseudo_outputs) inputs are the
         pseudo-inputs, pseudo-input k derived from the measurement of pseudo_outputs[k].
     segments: the fitted segments of that model; values: the estimates (name -> value).
-    sensitivities: per segment (N, n_out, n_p); residuals: per segment (N, n_out) (NaN =
+    sensitivities: per segment (N, n_out, n_p) or a
+        :class:`~estimators.sensitivity.Sensitivity`; residuals: per segment (N, n_out) (NaN =
         missing); R: the residual covariance the fit weighted with (n_out, n_out); info:
         M = sum S^T R^-1 S (n_p, n_p). pseudo: as :func:`pseudo_mixing`.
     noisy_inputs: other inputs that are measurements with white noise of their own (the
@@ -178,15 +180,16 @@ def propagated_covariance(model: Model, segments: Sequence[Segment], values: Map
     mid = np.zeros_like(info, dtype=float)
     for seg, S, e, J, sys_ in zip(segments, sensitivities, res, Js, systems):
         ok = np.isfinite(e)
-        a = np.einsum("ab,nbp->nap", W, np.where(ok[:, :, None], np.nan_to_num(S), 0.0))
+        b = as_sensitivity(S)                                # the segment's own columns
+        a = np.matmul(W, np.where(ok[:, :, None], np.nan_to_num(b.values), 0.0))
         T = a.copy()                                         # (N, n_out noise channel, n_p)
         back = adjoint_sums(*sys_, a)                        # (N, n_pseudo + n_noisy, n_p)
         for k in range(npse):
             for j in np.flatnonzero(np.any(J[:, k, :] != 0, axis=0)):
                 T[:, j, :] -= onto_measured(J[:, k, j, None] * back[:, k], seg.t, ok[:, j])
         # a noisy input's noise only echoes
-        mid += np.einsum("nkp,k,nkq->pq", back[:, npse:], s2_in, back[:, npse:])
-        mid += np.einsum("njp,j,njq->pq", T, s2, T)
+        add_block(mid, b.cols, np.einsum("nkp,k,nkq->pq", back[:, npse:], s2_in, back[:, npse:])
+                  + np.einsum("njp,j,njq->pq", T, s2, T))
     if prior_info is not None:
         mid += np.asarray(prior_info, dtype=float)
     Minv = st.covariance(info)

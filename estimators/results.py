@@ -44,7 +44,9 @@ class EstimationResult:
     predicted, residuals : per segment, DataFrames on t with one column per output.
     at_bounds : names of parameters that ended on a bound (their std is NaN).
     information : (n_free, n_free) Fisher information matrix at the optimum.
-    sensitivities : per segment (N, n_outputs, n_free) output sensitivities, when kept.
+    sensitivities : per segment the output sensitivities, when kept: a
+        :class:`~estimators.sensitivity.Sensitivity` (the free parameters the segment depends
+        on; ``np.asarray`` gives the dense (N, n_outputs, n_free) array).
     extra : method-specific details (filter gain, process noise, parameter trajectories).
     consider_cov : (n_free, n_free) covariance added to ``cov`` by uncertain quantities the
         fit held as exact ("consider" parameters in the sense of Schmidt: e.g. the sensor
@@ -69,7 +71,7 @@ class EstimationResult:
     at_bounds: list[str] = field(default_factory=list)
     message: str = ""
     information: np.ndarray | None = None
-    sensitivities: list[np.ndarray] | None = None
+    sensitivities: list[Any] | None = None
     settings: dict[str, Any] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
     consider_cov: np.ndarray | None = None

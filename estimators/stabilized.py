@@ -46,6 +46,7 @@ from estimators.model import Model, Segment
 from estimators.oem import OutputError
 from estimators.pseudo_input_noise import PropagationError, propagated_covariance
 from estimators.results import EstimationResult
+from estimators.sensitivity import add_block, as_sensitivity
 from estimators.simulation import Layout
 from estimators import statistics as st
 
@@ -145,7 +146,7 @@ class _TransformedOEM:
         inner = np.flatnonzero(np.isfinite(np.diag(res.cov)))
         if self.std_method == "crb" or res.sensitivities is None or not inner.size:
             return
-        S = [s[:, :, inner] for s in res.sensitivities]
+        S = [as_sensitivity(s).take(inner) for s in res.sensitivities]
         E = [r.to_numpy() for r in res.residuals]
         M = res.information[np.ix_(inner, inner)]
         W = res.extra.get("prior_information")
@@ -334,7 +335,7 @@ class EigenvalueTransformation(_TransformedOEM):
         variance falls as exp(-2 sigma t)) by the heteroscedasticity-consistent one."""
         inner = np.flatnonzero(np.isfinite(np.diag(res.cov)))
         if res.sensitivities is not None and inner.size:
-            S = [s[:, :, inner] for s in res.sensitivities]
+            S = [as_sensitivity(s).take(inner) for s in res.sensitivities]
             E = [r.to_numpy() for r in res.residuals]
             C = sandwich_covariance(S, E, res.R, res.information[np.ix_(inner, inner)])
             res.replace_cov(_on_free(res.cov, inner, C), "sandwich", "std: heteroscedasticity-"
@@ -347,13 +348,15 @@ def sandwich_covariance(S_list: Sequence[np.ndarray], E_list: Sequence[np.ndarra
     """Heteroscedasticity-consistent (White) covariance M^-1 (sum g_k g_k^T) M^-1 with
     g_k = S_k^T R^-1 e_k: correct when the residual variance changes over time, as the
     exp(-sigma t)-weighted residuals of the eigenvalue transformation do, while the fit
-    assumed one R. S (N, n_out, n_p), e (N, n_out) per segment; NaN residuals skipped."""
+    assumed one R. S (N, n_out, n_p) or a :class:`Sensitivity`, e (N, n_out) per segment;
+    NaN residuals skipped."""
     Rinv = np.linalg.inv(R)
     mid = np.zeros_like(info)
     for S, E in zip(S_list, E_list):
+        b = as_sensitivity(S)
         E = np.where(np.isfinite(E), E, 0.0)
-        g = np.einsum("top,oq,tq->tp", S, Rinv, E)
-        mid += g.T @ g
+        g = np.einsum("top,oq,tq->tp", b.values, Rinv, E, optimize=True)
+        add_block(mid, b.cols, g.T @ g)
     Minv = st.covariance(info)
     C = Minv @ mid @ Minv
     return 0.5 * (C + C.T)

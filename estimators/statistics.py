@@ -2,11 +2,12 @@
 whitened information matrix and gradient, Cramér-Rao bounds, identifiability."""
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from estimators.errors import IdentifiabilityError
+from estimators.sensitivity import add_block, as_sensitivity
 
 #: eigenvalue of the scaled information matrix (relative to its largest) below which a
 #: direction in parameter space counts as unidentifiable
@@ -37,24 +38,27 @@ def whitener(R: np.ndarray) -> np.ndarray:
     return np.linalg.cholesky(np.linalg.inv(R))
 
 
-def information_and_gradient(S_list: Sequence[np.ndarray], E_list: Sequence[np.ndarray],
+def information_and_gradient(S_list: Sequence[Any], E_list: Sequence[np.ndarray],
                              L: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """F = sum S^T R^-1 S, G = sum S^T R^-1 e and J = 1/2 sum e^T R^-1 e.
 
-    S_list[k] (N_k, n_out, n_p) sensitivities, E_list[k] (N_k, n_out) residuals (NaN = missing),
-    L the whitener of R.
+    S_list[k] the sensitivities of segment k (:class:`~estimators.sensitivity.Sensitivity`
+    or a dense (N_k, n_out, n_p) array), E_list[k] (N_k, n_out) residuals (NaN = missing),
+    L the whitener of R. Each segment adds to the block of the parameters it depends on.
     """
-    n_p = S_list[0].shape[2]
+    blocks = [as_sensitivity(S) for S in S_list]
+    n_p = blocks[0].n_free
     F = np.zeros((n_p, n_p))
     G = np.zeros(n_p)
     J = 0.0
-    for S, E in zip(S_list, E_list):
+    for b, E in zip(blocks, E_list):
         ok = np.isfinite(E)
         E0 = np.where(ok, E, 0.0)
-        Sw = np.einsum("oi,top->tip", L, np.where(ok[:, :, None], S, 0.0)).reshape(-1, n_p)
+        m = b.cols.size
+        Sw = np.matmul(L.T, np.where(ok[:, :, None], b.values, 0.0)).reshape(-1, m)
         Ew = (E0 @ L).ravel()
-        F += Sw.T @ Sw
-        G += Sw.T @ Ew
+        add_block(F, b.cols, Sw.T @ Sw)
+        add_block(G, b.cols, Sw.T @ Ew)
         J += 0.5 * float(Ew @ Ew)
     return F, G, J
 

@@ -42,9 +42,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pandas as pd
+
+from estimators.sensitivity import add_block, as_sensitivity
 
 __all__ = ["ClusterResult", "cluster_covariance", "maneuver_scatter", "segment_parts",
            "FLAG_RATIO", "MIN_SEGMENTS", "SHARE_LIMIT"]
@@ -107,22 +110,27 @@ class ClusterResult:
                             index=pd.Index(self.names, name="parameter"))
 
 
-def segment_parts(S: np.ndarray, e: np.ndarray, Winv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def segment_parts(S: Any, e: np.ndarray, Winv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One maneuver's information M_j = sum_i S_i^T W S_i and gradient part
     s_j = sum_i S_i^T W e_i.
 
-    S : (N, n_out, n_p) sensitivities of the outputs (or innovations) to the parameters.
+    S : (N, n_out, n_p) sensitivities of the outputs (or innovations) to the parameters,
+        or a :class:`~estimators.sensitivity.Sensitivity` (the maneuver's own columns).
     e : (N, n_out) residuals; a non-finite residual leaves its sample's output out.
     Winv : (n_out, n_out) inverse residual covariance W, or (N, n_out, n_out) per sample.
+    Returns ((n_p, n_p), (n_p,)).
     """
-    S = np.asarray(S, dtype=float)
+    b = as_sensitivity(S)
     e = np.asarray(e, dtype=float)
-    ok = np.isfinite(e) & np.all(np.isfinite(S), axis=2)
+    ok = np.isfinite(e) & np.all(np.isfinite(b.values), axis=2)
     e0 = np.where(ok, e, 0.0)
-    S0 = np.where(ok[:, :, None], S, 0.0)
+    S0 = np.where(ok[:, :, None], b.values, 0.0)
     W = np.asarray(Winv, dtype=float)
-    WS = np.einsum("ij,njp->nip", W, S0) if W.ndim == 2 else np.einsum("nij,njp->nip", W, S0)
-    return np.einsum("nip,niq->pq", S0, WS), np.einsum("nip,ni->p", WS, e0)
+    WS = np.matmul(W, S0)
+    M, s = np.zeros((b.n_free, b.n_free)), np.zeros(b.n_free)
+    add_block(M, b.cols, np.einsum("nip,niq->pq", S0, WS, optimize=True))
+    add_block(s, b.cols, np.einsum("nip,ni->p", WS, e0, optimize=True))
+    return M, s
 
 
 def _inverse_diagonal(A: np.ndarray, rtol: float = 1e-10) -> np.ndarray:

@@ -20,6 +20,7 @@ import pandas as pd
 from scipy import fft as sfft
 from scipy import stats
 
+from estimators.sensitivity import Sensitivity, add_block, as_sensitivity
 from estimators.statistics import residual_covariance as _residual_covariance
 
 __all__ = ["UncertaintyResult", "crb", "morelli_klein", "correlation", "correlation_flags"]
@@ -47,20 +48,20 @@ class UncertaintyResult:
                             index=pd.Index(self.names, name="parameter"))
 
 
-def _segments(S, residuals) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    if isinstance(S, np.ndarray) or not isinstance(S, Sequence):
+def _segments(S, residuals) -> tuple[list[Sensitivity], list[np.ndarray]]:
+    """Per segment the sensitivities (:class:`Sensitivity`) and residuals (N, n_out) of one
+    array, a :class:`Sensitivity` or a list of them (one per segment)."""
+    if isinstance(S, (np.ndarray, Sensitivity)) or not isinstance(S, Sequence):
         S, residuals = [S], [residuals]
     if len(S) != len(residuals):
         raise ValueError("S and residuals must have the same number of segments")
     Ss, vs = [], []
     for s, v in zip(S, residuals):
-        s = np.asarray(s, dtype=float)
+        s = as_sensitivity(s)
         v = np.asarray(v.to_numpy() if isinstance(v, pd.DataFrame) else v, dtype=float)
         if v.ndim == 1:
             v = v[:, None]
-        if s.ndim == 2 and v.shape[1] == 1:
-            s = s[:, None, :]
-        if s.ndim != 3 or s.shape[:2] != v.shape:
+        if s.values.shape[:2] != v.shape:
             raise ValueError(f"S must be (N, n_out, n_p) matching residuals (N, n_out); "
                              f"got S {s.shape}, residuals {v.shape}")
         Ss.append(s)
@@ -77,15 +78,17 @@ def coloured_information(S: Sequence[np.ndarray], v: Sequence[np.ndarray],
     truncated at max_lag): the covariance of the score when the residuals are coloured.
     It equals sum_i S_i^T R^-1 S_i (the information) for white residuals of covariance R.
 
-    S: per segment (N, n_out, n_p) sensitivities (zero where a measurement is missing);
-    v: per segment (N, n_out) residuals (zero where missing); Rinv: per segment (n_out,
-    n_out) inverse residual covariance the fit weighted with; present: per segment (N,
-    n_out) bool of the measured samples (default all). max_lag, window, unbiased: as in
-    :func:`morelli_klein`. Returns ((n_p, n_p), the lag used per segment)."""
-    n_p = S[0].shape[2]
+    S: per segment (N, n_out, n_p) sensitivities or a :class:`Sensitivity` (zero where a
+    measurement is missing); v: per segment (N, n_out) residuals (zero where missing);
+    Rinv: per segment (n_out, n_out) inverse residual covariance the fit weighted with;
+    present: per segment (N, n_out) bool of the measured samples (default all). max_lag,
+    window, unbiased: as in :func:`morelli_klein`. Returns ((n_p, n_p), the lag used per
+    segment)."""
+    blocks = [as_sensitivity(s) for s in S]
+    n_p = blocks[0].n_free
     mid = np.zeros((n_p, n_p))
     lags = []
-    for k, (s, r) in enumerate(zip(S, v)):
+    for k, (b, r) in enumerate(zip(blocks, v)):
         n = r.shape[0]
         if max_lag is None:
             L = n - 1
@@ -96,8 +99,8 @@ def coloured_information(S: Sequence[np.ndarray], v: Sequence[np.ndarray],
         else:
             L = int(min(max(int(max_lag), 0), n - 1))
         lags.append(L)
-        mid += _middle(s, r, Rinv[k], L, window, unbiased,
-                       None if present is None else present[k])
+        add_block(mid, b.cols, _middle(b.values, r, Rinv[k], L, window, unbiased,
+                                       None if present is None else present[k]))
     return mid, lags
 
 
@@ -107,11 +110,17 @@ def crb(S, R) -> np.ndarray:
     S: sensitivities dy/dtheta, (N, n_out, n_p) or a list of them (segments);
     R: residual covariance (n_out, n_out). Returns (n_p, n_p) (pseudo-inverse if singular).
     """
-    Ss = [np.asarray(s, dtype=float) for s in (S if isinstance(S, (list, tuple)) else [S])]
-    Ss = [s[:, None, :] if s.ndim == 2 else s for s in Ss]
+    Ss = [as_sensitivity(s) for s in (S if isinstance(S, (list, tuple)) else [S])]
     Rinv = np.linalg.inv(np.atleast_2d(R))
-    M = sum(np.einsum("nap,ab,nbq->pq", s, Rinv, s) for s in Ss)
-    return np.linalg.pinv(M, hermitian=True)
+    return np.linalg.pinv(_information(Ss, Rinv), hermitian=True)
+
+
+def _information(Ss: Sequence[Sensitivity], Rinv: np.ndarray) -> np.ndarray:
+    """M = sum_i S_i^T R^-1 S_i over the segments' sensitivities, (n_p, n_p)."""
+    M = np.zeros((Ss[0].n_free,) * 2)
+    for s in Ss:
+        add_block(M, s.cols, np.einsum("nap,ab,nbq->pq", s.values, Rinv, s.values, optimize=True))
+    return M
 
 
 def _auto_lag(v: np.ndarray) -> int:
@@ -175,8 +184,8 @@ def morelli_klein(S, residuals, R=None, info=None, *, names: Sequence[str] | Non
     """Cramér-Rao bounds corrected for coloured residuals (Morelli-Klein).
 
     S: output sensitivities dy/dtheta at the estimate, (N, n_out, n_p) (units of output per
-       unit of parameter), or a list of such arrays, one per segment (lags never cross
-       segments).
+       unit of parameter), or a list of such arrays or :class:`Sensitivity` blocks, one per
+       segment (lags never cross segments).
     residuals: z - y, (N, n_out) or a matching list.
     R: residual covariance (n_out, n_out) used in the fit; default (1/N) sum v v^T over all
        segments.
@@ -196,17 +205,18 @@ def morelli_klein(S, residuals, R=None, info=None, *, names: Sequence[str] | Non
     Returns an :class:`UncertaintyResult`.
     """
     Ss, vs = _segments(S, residuals)
-    n_p = Ss[0].shape[2]
+    n_p = Ss[0].n_free
     if R is None:
         R = _residual_covariance(vs, full=True)
     # missing measurements (NaN): no residual and no sensitivity there
     present = [np.isfinite(v) for v in vs]
-    Ss = [np.where(ok[:, :, None], s, 0.0) for s, ok in zip(Ss, present)]
+    Ss = [Sensitivity(np.where(ok[:, :, None], s.values, 0.0), s.cols, s.n_free)
+          for s, ok in zip(Ss, present)]
     vs = [np.where(ok, v, 0.0) for v, ok in zip(vs, present)]
     Rinv = np.linalg.inv(np.atleast_2d(np.asarray(R, dtype=float)))
     W = np.zeros((n_p, n_p)) if prior_info is None else np.asarray(prior_info, dtype=float)
     if info is None:
-        info = sum(np.einsum("nap,ab,nbq->pq", s, Rinv, s) for s in Ss) + W
+        info = _information(Ss, Rinv) + W
     Minv = np.linalg.pinv(np.asarray(info, dtype=float), hermitian=True)
     mid, lags = coloured_information(Ss, vs, [Rinv] * len(Ss), present, max_lag=max_lag,
                                      window=window, unbiased=unbiased)
