@@ -12,6 +12,7 @@ penalty (theta - theta*)^T W (theta - theta*), and a Nelder-Mead start for poor 
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -454,6 +455,64 @@ class OutputError:
             settings={"integrator": self.integrator, "optimizer": self.optimizer,
                       "noise": self.noise, "inputs": self.inputs, "jacobian": self.jacobian if isinstance(self.jacobian, str)
                       else "analytic", "tol": self.tol, "max_iter": self.max_iter})
+
+    def step_from(self, result: EstimationResult, segments: Segment | Sequence[Segment],
+                  estimate_x0: bool | str | Sequence[str] = "auto") -> EstimationResult:
+        """``result``'s estimates moved to this model and these data by one Gauss-Newton
+        step that reuses the result's sensitivities, information and R:
+
+            theta = theta_hat + M^-1 sum S^T R^-1 (e - e_hat)
+
+        with e the residuals of this model on ``segments`` at theta_hat (its held values
+        this model's) and e_hat the result's own. For the first-order change of the
+        estimates when a held value or the data move a little (the Jacobian of a consider
+        parameter, :mod:`pipeline.correction_uncertainty`), for one simulation instead of
+        a refit's several sensitivity batches; exact when the outputs are linear in the
+        parameters. Parameters at a bound stay there. ``segments`` must be the result's
+        (same spans) and give the same free parameters.
+
+        Returns a copy of ``result`` with the moved values and the new residuals; its
+        covariance, information and sensitivities are the result's. Raises
+        ModelDefinitionError when the free parameters or segments differ, and
+        SimulationDivergedError when the model diverges over a segment.
+        """
+        segments = [segments] if isinstance(segments, Segment) else list(segments)
+        if result.sensitivities is None or result.information is None:
+            raise ModelDefinitionError("step_from needs a result with sensitivities and information")
+        if [s.n for s in segments] != [len(r) for r in result.residuals]:
+            raise ModelDefinitionError("step_from needs the result's segments (same samples)")
+        free = set(result.free_names)
+        self._segments = segments
+        lay = self._lay = Layout.build(self.model, segments, estimate_x0,
+                                       values={n: v for n, v in result.params.items() if n in free})
+        if list(lay.free_names) != list(result.free_names):
+            raise ModelDefinitionError("step_from: this model and these segments give other free "
+                                       "parameters than the result")
+        theta = lay.values.copy()
+        Ys = self._simulate(theta)
+        if Ys is None:
+            k, X = self._first_diverged(theta)
+            raise divergence_error(self.model, segments[k], X, k, "at the result's estimates",
+                                   DIVERGE_HINT)
+        E = self._residuals(Ys)
+        dE = [e - r.to_numpy(dtype=float) for e, r in zip(E, result.residuals)]
+        _, G, _ = st.information_and_gradient(result.sensitivities, dE, st.whitener(result.R))
+        inner = np.array([i for i, n in enumerate(result.free_names) if n not in result.at_bounds],
+                         dtype=int)
+        fi = lay.free_idx
+        if inner.size:
+            theta[fi[inner]] += st.solve_step(result.information[np.ix_(inner, inner)], G[inner])
+        Ys = self._simulate(theta)
+        if Ys is None:
+            k, X = self._first_diverged(theta)
+            raise divergence_error(self.model, segments[k], X, k, "one step from the result's "
+                                   "estimates", DIVERGE_HINT)
+        return replace(result, model=self.model, values=theta, segments=segments,
+                       predicted=frames([s.t for s in segments], Ys, self.model.outputs),
+                       residuals=frames([s.t for s in segments], self._residuals(Ys),
+                                        self.model.outputs),
+                       message="one Gauss-Newton step from the earlier estimates (step_from)",
+                       extra=dict(result.extra), consider_cov=None, consider_source="")
 
     # -- helpers --------------------------------------------------------------------------
     def _first_diverged(self, theta: np.ndarray) -> tuple[int, np.ndarray]:

@@ -17,6 +17,8 @@ can see. This module accounts for it as "consider" parameters (Schmidt):
 Each refit corrects the logged data with c_j moved by one std and repeats the run's fits
 exactly (same problems, same methods); maximum-likelihood and least-squares methods start
 from the run's estimates (``pipeline.run.START_FREE``), the EKF/UKF from their usual start.
+Output error instead takes one Gauss-Newton step from its estimates with the run's
+sensitivities (:meth:`estimators.OutputError.step_from`): the first-order change J needs.
 A method whose refit fails or changes its parameter list keeps its CRB alone, and the
 document says so.
 
@@ -116,12 +118,12 @@ def consider_by_refits(results: Mapping[str, Any], names: list[str], C: np.ndarr
 
 
 def propagate(fd_raw: FlightData, doc: Mapping[str, Any], results: Mapping[str, Any],
-              refit: Callable[[FlightData, dict[str, pd.Series]], Mapping[str, Any]],
+              refit: Callable[[FlightData, dict[str, Any]], Mapping[str, Any]],
               progress: Any = None) -> dict[str, Any]:
     """Add to ``consider_cov`` of every result in ``results`` the part of the applied
     corrections of ``doc`` (module doc). ``fd_raw``: the data as logged; ``refit(fd,
     starts)`` repeats the run's fits on other flight data (``starts``: key -> the run's
-    estimates) and returns key -> result. Returns a JSON-ready document: refits,
+    result, its estimates the start) and returns key -> result. Returns a JSON-ready document: refits,
     perturbation, per-key status, seconds. Nothing applied: an empty document."""
     from pipeline.compatibility import CompatibilityResult
 
@@ -130,7 +132,7 @@ def propagate(fd_raw: FlightData, doc: Mapping[str, Any], results: Mapping[str, 
         return {}
     t0 = time.perf_counter()
     sd = pd.Series(np.sqrt(np.diag(C)), index=names)
-    starts = {key: res.params for key, res in results.items()}
+    starts = dict(results)
 
     def refit_j(j: int) -> Mapping[str, Any]:
         v = pd.Series(est, index=names)

@@ -531,7 +531,7 @@ def _inseparable_alphadot(pb: Problem, res: Any) -> str | None:
 def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, float] | None,
                      progress: Progress, *, turbulence: Mapping[str, Any] | None = None,
                      tolerances: Mapping[str, float] | None = None, pom: str = "auto",
-                     start: Mapping[str, float] | None = None,
+                     start: Mapping[str, float] | Any = None,
                      process_noise: Mapping[str, float] | None = None,
                      calm_air: bool = False, held_alphadot: str | None = None
                      ) -> tuple[Any, dict[str, Any] | None] | None:
@@ -542,8 +542,11 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
     gives None: one method failing must not cost the others. Returns (result, validation).
 
     start : a refit (:mod:`pipeline.correction_uncertainty`): fit only, no validation
-        (returns (result, None)), starting from these values for the methods of
-        ``START_FREE`` (the EKF/UKF estimate depends on its start: they start as before).
+        (returns (result, None)), starting from these values (or the values of this
+        earlier result) for the methods of ``START_FREE`` (the EKF/UKF estimate depends on
+        its start: they start as before). Output error given its earlier result moves it
+        by one Gauss-Newton step with that fit's sensitivities
+        (:meth:`estimators.OutputError.step_from`) instead of refitting.
     calm_air: the held-out maneuvers are known to be flown in calm air (see
         :func:`pipeline.validate.validate`).
     held_alphadot: the note of another method's fit of this axis that held CLalphadot,
@@ -551,9 +554,11 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
         methods estimate, and are cross-checked on, the same derivatives. Otherwise a fit
         that cannot separate them from CLq, Cmq is repeated with them held
         (:func:`_inseparable_alphadot`)."""
-    from estimators import EstimationError
+    from estimators import EstimationError, EstimationResult, ModelDefinitionError, OutputError
     from pipeline.validate import validate
 
+    earlier = start if isinstance(start, EstimationResult) else None
+    start = start.params if earlier is not None else start
     refit = start is not None
     alphadot = [b for _, b in ALPHADOT_PAIRS if b in pb.model.parameter_names
                 and pb.model.parameter(b).free]
@@ -574,6 +579,15 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
                        f"{_count(len(pb.fit), 'maneuver')}, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
 
     def fit(pb: Problem) -> Any:
+        if earlier is not None and method == "oem" and earlier.sensitivities is not None:
+            # the consider refits move the estimates by a fraction of their std: one
+            # Gauss-Newton step with the earlier sensitivities is their first-order change
+            # (ad hoc, a 600 s log with 44 lateral maneuvers: the consider stage 79 -> 10 s)
+            try:
+                return OutputError(pb.model, inputs=pb.inputs).step_from(
+                    earlier, pb.fit, estimate_x0=pb.estimate_x0)
+            except ModelDefinitionError:
+                pass                        # other parameters or segments: refit
         # output error and filter error refit from all the free values, initial states,
         # per-segment values and filter error's F included (without them a 6-DoF lateral
         # held refit took 37 output-error iterations, now 4); the held ones stay the
@@ -630,7 +644,7 @@ def _held_refit(fd, ac: AircraftConstants, inputs: str, res, smooth_inputs: bool
         pb = sixdof_lateral_problem(fd, ac, longitudinal=values, smooth_inputs=smooth_inputs,
                                     hold_out=hold_out)
         pb.inputs = inputs
-        done = fit_and_validate(pb, "oem", "lateral axis", None, quiet_progress(), start=res.params)
+        done = fit_and_validate(pb, "oem", "lateral axis", None, quiet_progress(), start=res)
         return None if done is None else done[0]
     return refit
 
@@ -1355,7 +1369,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                             smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
     # the wind's refits (models that see an air-data angle): the corrected data the fits
     # saw, the angles rebuilt with the wind moved
-    starts = {key: res.params for key, res in results.items()}
+    starts = dict(results)
     angles = any({"alpha", "beta"} & {*pb.model.inputs, *pb.model.outputs} for pb in problems)
     carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit, flow=flow,
                                wind_refit=(lambda offset: refit(fd_c, starts, offset)) if angles else None)

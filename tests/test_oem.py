@@ -341,3 +341,53 @@ def test_hold_fixes_named_parameters(example, fitted):
     assert name not in res.free_names and res.params[name] == example.truth[name]
     with pytest.raises(ModelDefinitionError, match="no parameter"):
         m.hold({"Cnope": 0.0})
+
+
+@pytest.fixture(scope="module")
+def two_segments():
+    """Two 3-2-1-1 segments with their initial states estimated: each segment depends on
+    the shared derivatives and its own x0 only."""
+    ex = longitudinal_example(seed=5, segments=2)
+    return ex, OutputError(ex.model).fit(ex.segments, estimate_x0=True)
+
+
+def test_sensitivities_are_kept_per_segment_for_its_own_parameters(two_segments):
+    from estimators import statistics as st
+    ex, res = two_segments
+    names = res.free_names
+    for k, S in enumerate(res.sensitivities):
+        own = {names[i] for i in S.cols}
+        other = 1 - k
+        assert not any(n.endswith(f"[{other}]") for n in own)        # not the other's x0
+        assert {n for n in names if "[" not in n} <= own
+        dense = np.asarray(S)
+        assert dense.shape == (ex.segments[k].n, 7, len(names))
+        assert not np.any(dense[:, :, [i for i in range(len(names)) if i not in S.cols]])
+    # the blocks give the information of the dense arrays
+    E = [r.to_numpy() for r in res.residuals]
+    L = st.whitener(res.R)
+    F_b, G_b, J_b = st.information_and_gradient(res.sensitivities, E, L)
+    F_d, G_d, J_d = st.information_and_gradient([np.asarray(S) for S in res.sensitivities], E, L)
+    np.testing.assert_allclose(F_b, F_d, rtol=1e-12)
+    np.testing.assert_allclose(G_b, G_d, rtol=1e-9, atol=1e-7 * np.abs(G_d).max())   # ~0 at the optimum
+    np.testing.assert_allclose(F_b, res.information, rtol=1e-10)
+
+
+def test_step_from_gives_the_refit_change_of_a_held_value(two_segments):
+    """Moving the held CDalpha2 by 0.1: one Gauss-Newton step with the fit's sensitivities
+    moves the estimates as a full refit does (the first-order change a consider
+    parameter's Jacobian needs), and by many std."""
+    ex, res = two_segments
+    held = ex.model.hold({"CDalpha2": 0.1})
+    step = OutputError(held).step_from(res, ex.segments, estimate_x0=True)
+    refit = OutputError(held).fit(ex.segments, estimate_x0=True,
+                                  start={n: res.params[n] for n in res.free_names})
+    names = [n for n in res.free_names if "[" not in n]
+    d_step = step.params[names] - res.params[names]
+    d_refit = refit.params[names] - res.params[names]
+    assert (d_refit.abs() / res.std[names]).max() > 3.0          # a change that matters
+    np.testing.assert_allclose(d_step, d_refit, atol=0.05 * float(d_refit.abs().max()))
+    assert step.params["CDalpha2"] == 0.1 and step.free_names == res.free_names
+    # other segments than the fit's: one clear error
+    with pytest.raises(ModelDefinitionError, match="segments"):
+        OutputError(held).step_from(res, ex.segments[:1], estimate_x0=True)
