@@ -504,6 +504,20 @@ ALPHADOT_PAIRS = (("CLq", "CLalphadot"), ("Cmq", "Cmalphadot"))
 ALPHADOT_CORR = 0.9
 
 
+def _unidentifiable_alphadot(exc: Any, alphadot: Sequence[str]) -> str | None:
+    """The note for holding CLalphadot, Cmalphadot at 0 when a fit with them free stopped
+    on a singular information matrix that names one of them (an IdentifiabilityError),
+    else None: the flight does not separate them from CLq, Cmq at all. Ad hoc, a calm 600 s
+    log of the small UAV's elevator 3-2-1-1s: filter error stopped there, "CLq,
+    CLalphadot cannot be identified"."""
+    named = [n for n in (getattr(exc, "parameters", None) or []) if n in alphadot]
+    if not named:
+        return None
+    return ("CLalphadot, Cmalphadot held at 0: this flight does not separate them from CLq, "
+            f"Cmq (with them free the information matrix was singular in {', '.join(named)}), "
+            "so CLq and Cmq carry their effect (Cmq estimates about Cmq + Cmalphadot)")
+
+
 def _inseparable_alphadot(pb: Problem, res: Any) -> str | None:
     """The note for holding CLalphadot, Cmalphadot at 0 when a fit with them free could not
     separate them from CLq, Cmq (|correlation| above :data:`ALPHADOT_CORR` for either
@@ -554,7 +568,8 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
         methods estimate, and are cross-checked on, the same derivatives. Otherwise a fit
         that cannot separate them from CLq, Cmq is repeated with them held
         (:func:`_inseparable_alphadot`)."""
-    from estimators import EstimationError, EstimationResult, ModelDefinitionError, OutputError
+    from estimators import (EstimationError, EstimationResult, IdentifiabilityError,
+                            ModelDefinitionError, OutputError)
     from pipeline.validate import validate
 
     earlier = start if isinstance(start, EstimationResult) else None
@@ -602,11 +617,18 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
                            start=carry)
 
     try:
-        res = fit(pb)
-        held = _inseparable_alphadot(pb, res) if alphadot and not refit else None
+        try:
+            res = fit(pb)
+            held = _inseparable_alphadot(pb, res) if alphadot and not refit else None
+        except IdentifiabilityError as exc:
+            held = _unidentifiable_alphadot(exc, alphadot) if not refit else None
+            if held is None:
+                raise
+            res = None
         if held is not None:
-            progress.done(f"{'converged' if res.converged else 'NOT converged'}; alphadot "
-                          "derivatives not separable: refit with them held")
+            progress.done(("not identifiable" if res is None else
+                           'converged' if res.converged else 'NOT converged')
+                          + "; alphadot derivatives not separable: refit with them held")
             pb = replace(pb, model=pb.model.hold({b: 0.0 for b in alphadot}), notes=[*pb.notes, held])
             progress.total += 1
             progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, "

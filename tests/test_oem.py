@@ -203,6 +203,19 @@ def test_singular_information_names_the_parameters():
     assert res.params["a"] == pytest.approx(1.0, abs=1e-3)
 
 
+def test_identifiability_does_not_depend_on_the_parameters_units():
+    """A parameter with little information in its own units is not "without sensitivity":
+    filter error's F_alpha (information 3.5e16) next to CLq (24, std 0.2) once failed a fit."""
+    from estimators.statistics import unidentifiable
+    F = np.diag([3.5e16, 24.0, 1.2e8])
+    F[1, 2] = F[2, 1] = 0.5 * np.sqrt(24.0 * 1.2e8)            # correlated, not dependent
+    assert unidentifiable(F, ["F_alpha", "CLq", "CL0"]) == []
+    F[1, 1] = F[1, 2] = F[2, 1] = 0.0                            # CLq without any effect
+    assert unidentifiable(F, ["F_alpha", "CLq", "CL0"]) == ["CLq"]
+    G = np.array([[4.0, 2.0], [2.0, 1.0]])                       # b = 2 a: one direction
+    assert set(unidentifiable(G, ["a", "b"])) == {"a", "b"}
+
+
 def test_bad_segments_are_rejected(example):
     seg = example.segments[0]
     t = seg.t.copy()
