@@ -72,6 +72,7 @@ from estimators.kalman import (SEGMENT_HELPERS, _ekf_segment, _ukf_segment, defa
                                is_name_list, named_process_noise)
 from estimators.model import Model, Segment, check_outputs_measured
 from estimators.results import EstimationResult, frames
+from estimators.sensitivity import Sensitivity, add_block
 from estimators.simulation import Layout
 from estimators import statistics as st
 
@@ -693,16 +694,22 @@ class FilterError:
         return D
 
     # -- filtering a batch of parameter vectors ------------------------------------------------
-    def _filter(self, Phis: np.ndarray, want_states: bool = False):
+    def _filter(self, Phis: np.ndarray, want_states: bool = False,
+                rows: Sequence[np.ndarray] | None = None):
         """For parameter columns Phis (Bc, n_phi): per segment predicted outputs
-        (Bc, N, m), innovation covariances (Bc, m, m) and details of column 0."""
+        (Bc_k, N, m), innovation covariances (Bc_k, m, m) and details of column 0.
+        ``rows``: per segment the columns of Phis to run (column 0 first; default all):
+        a sensitivity batch needs only the parameters the segment depends on
+        (:meth:`_segment_rows`)."""
         model = self.model
         n, m = len(model.states), len(model.outputs)
-        Bc = Phis.shape[0]
         unpacked = [self._unpack(p) for p in Phis]
-        Theta = np.stack([u[0] for u in unpacked])
+        Theta_all = np.stack([u[0] for u in unpacked])
         out = []
         for k, seg in enumerate(self._segments):
+            idx = np.arange(Phis.shape[0]) if rows is None else rows[k]
+            Bc = idx.size
+            Theta = Theta_all[idx]
             lay = self._lay
             P = np.ascontiguousarray(Theta[:, lay.pidx[k]].T)
             X0 = np.ascontiguousarray(Theta[:, lay.x0idx[k]].T)
@@ -712,7 +719,7 @@ class FilterError:
             Phi = np.empty((Bc, n, n)); Gam = np.empty((Bc, n, n))
             Kg = np.empty((Bc, n, m)); Binn = np.empty((Bc, m, m)); Pp = np.empty((Bc, n, n))
             for b in range(Bc):
-                F, R = unpacked[b][1], unpacked[b][2]
+                F, R = unpacked[idx[b]][1], unpacked[idx[b]][2]
                 Phi[b], Gam[b], Qd = discretize(A[b], F @ F.T, h)
                 try:
                     Pp[b], Binn[b], Kg[b] = steady_state_gain(Phi[b], C[b], Qd, R)
@@ -834,51 +841,70 @@ class FilterError:
             val += 0.5 * float(np.sum(Ei.T * W)) + 0.5 * Ei.shape[0] * logdet
         return val if np.isfinite(val) else np.inf
 
-    def _scoring(self, res, hsteps: np.ndarray, keep: list | None = None):
+    def _segment_rows(self, nphi: int) -> list[np.ndarray]:
+        """Per segment the columns of a sensitivity batch (:meth:`_batch`) it needs: 0 (the
+        base) and 1 + the phi it depends on - the model parameters of
+        ``Layout.relevant`` (shared ones and its own initial states) and every noise
+        parameter. Without this every segment ran every other segment's initial states:
+        G maneuvers cost G^2 filter runs."""
+        fi = self._lay.free_idx
+        noise = np.arange(fi.size, nphi)
+        return [np.r_[0, 1 + np.searchsorted(fi, rel), 1 + noise] for rel in self._lay.relevant]
+
+    def _scoring(self, res, hsteps: np.ndarray, keep: list | None = None,
+                 rows: Sequence[np.ndarray] | None = None):
         """Fisher information M, gradient g (of -J) and J from a batch (column 0 = base),
         each sample on the outputs measured there (per pattern of measured outputs, the
         block of B for them; samples whose measured outputs have a non-finite prediction
-        left out). ``keep``: a list that receives, per segment, (S (N, m, nphi) innovation
-        sensitivities, E (N, m) innovations, B^-1, rows used, S^T B^-1 S (nphi, nphi): its
-        part of M) for the coloured-innovation covariance - the samples where every output
-        is measured (the others stay in M as white) - then the segment's whole part of M
-        and of g (for the maneuver cluster covariance)."""
+        left out). ``rows``: per segment the batch columns it was run with (as
+        :meth:`_filter`; default all). ``keep``: a list that receives, per segment,
+        (S innovation sensitivities (a :class:`Sensitivity`, (N, m) by its phi), E (N, m)
+        innovations, B^-1, rows used, S^T B^-1 S (nphi, nphi): its part of M) for the
+        coloured-innovation covariance - the samples where every output is measured (the
+        others stay in M as white) - then the segment's whole part of M and of g (for the
+        maneuver cluster covariance)."""
         nphi = hsteps.size
         M = np.zeros((nphi, nphi))
         g = np.zeros(nphi)
         J = 0.0
         for k, (seg, r) in enumerate(zip(self._segments, res)):
             M0, g0 = (M.copy(), g.copy()) if keep is not None else (None, None)
+            cols = np.arange(nphi) if rows is None else rows[k][1:] - 1     # its phi
+            npk = cols.size
             Y, Bs = r["Y"], r["B"]
             E = seg.z - Y[0]
             Bm = Bs[0]
-            S = (Y[1:] - Y[:1]) / hsteps[:, None, None]              # (nphi, N, m)
+            S = (Y[1:] - Y[:1]) / hsteps[cols, None, None]           # (npk, N, m)
             S = np.where(np.isfinite(S), S, 0.0)
-            dB = (Bs[1:] - Bs[:1]) / hsteps[:, None, None]           # (nphi, m, m)
+            dB = (Bs[1:] - Bs[:1]) / hsteps[cols, None, None]        # (npk, m, m)
             dB = np.where(np.isfinite(dB), dB, 0.0)
             masks, pat = self._patterns[k]
             full = np.zeros(seg.n, dtype=bool)
             M_full = np.zeros((nphi, nphi))
             for p, o in enumerate(masks):
-                rows = (pat == p) & np.all(np.isfinite(np.where(o, E, 0.0)), axis=1)
-                if not (o.any() and rows.any()):
+                used = (pat == p) & np.all(np.isfinite(np.where(o, E, 0.0)), axis=1)
+                if not (o.any() and used.any()):
                     continue
                 Bo = Bm[np.ix_(o, o)]
                 Binv = np.linalg.inv(Bo)
                 Lw = np.linalg.cholesky(Binv)
-                Eo = E[rows][:, o]
-                Sw = np.einsum("pnm,mk->pnk", S[:, rows][:, :, o], Lw).reshape(nphi, -1)
+                Eo = E[used][:, o]
+                Sw = np.einsum("pnm,mk->pnk", S[:, used][:, :, o], Lw).reshape(npk, -1)
                 M_S = Sw @ Sw.T
-                M += M_S
-                g += Sw @ (Eo @ Lw).ravel()
-                Nk = rows.sum()
+                add_block(M, cols, M_S)
+                add_block(g, cols, Sw @ (Eo @ Lw).ravel())
+                Nk = used.sum()
                 T = np.einsum("ij,pjk->pik", Binv, dB[:, o][:, :, o])   # B^-1 B_i
-                M += 0.5 * Nk * np.einsum("pij,qji->pq", T, T)
-                g += 0.5 * np.einsum("pij,jk,kl->pil", T, Binv, Eo.T @ Eo - Nk * Bo).trace(axis1=1, axis2=2)
+                add_block(M, cols, 0.5 * Nk * np.einsum("pij,qji->pq", T, T))
+                add_block(g, cols, 0.5 * np.einsum("pij,jk,kl->pil", T, Binv,
+                                                   Eo.T @ Eo - Nk * Bo).trace(axis1=1, axis2=2))
                 if o.all():
-                    full, M_full = rows, M_S
+                    full = used
+                    M_full = np.zeros((nphi, nphi))
+                    add_block(M_full, cols, M_S)
             if keep is not None:
-                keep.append((np.where(full[:, None, None], np.moveaxis(S, 0, 2), 0.0),
+                keep.append((Sensitivity(np.where(full[:, None, None], np.moveaxis(S, 0, 2), 0.0),
+                                         cols, nphi),
                              np.where(full[:, None], E, 0.0), np.linalg.inv(Bm), full, M_full,
                              M - M0, g - g0))
             J += self._seg_nll(E, Bm, masks, pat)
@@ -970,6 +996,7 @@ class FilterError:
         self._floor = np.concatenate([np.ones(fi.size), self._scale[fi.size:]])
         phi = phi_arr
         nphi = phi.size
+        seg_rows = self._segment_rows(nphi)
         history = []
         converged = False
         message = ""
@@ -977,12 +1004,12 @@ class FilterError:
         it = 0
         for it in range(1, self.max_iter + 1):
             Phis, hsteps = self._batch(phi)
-            res = self._filter(Phis)
+            res = self._filter(Phis, rows=seg_rows)
             if not np.all(np.isfinite(res[0]["B"][0])):
                 raise SimulationDivergedError(
                     "the filter-error Riccati equation has no stabilising solution at the "
                     "current parameters (system not detectable from the outputs?)")
-            M, g, J = self._scoring(res, hsteps)
+            M, g, J = self._scoring(res, hsteps, rows=seg_rows)
             if not np.isfinite(J):
                 self._raise_diverged(res)
             if it == 1:
@@ -1044,9 +1071,9 @@ class FilterError:
             message = f"stopped at max_iter={self.max_iter} before J settled"
         # information at the final estimate
         Phis, hsteps = self._batch(phi)
-        res = self._filter(Phis)
+        res = self._filter(Phis, rows=seg_rows)
         parts: list = []
-        M, g, J = self._scoring(res, hsteps, keep=parts)
+        M, g, J = self._scoring(res, hsteps, keep=parts, rows=seg_rows)
         from estimators.validation.cluster import ClusterResult, cluster_covariance
         span = np.maximum(1.0, np.abs(phi))
         on_bound = (phi <= self._lo + 1e-9 * span) | (phi >= self._hi - 1e-9 * span)
@@ -1062,7 +1089,7 @@ class FilterError:
             cov[np.ix_(inner, inner)] = st.covariance(M[np.ix_(inner, inner)])
             cov_mk[np.ix_(inner, inner)], mk_lags = _coloured_innovation_cov(
                 M[np.ix_(inner, inner)], sum(p[4] for p in parts)[np.ix_(inner, inner)],
-                [(S[:, :, inner], E, Bi, ok) for S, E, Bi, ok, *_ in parts])
+                [(S.take(inner), E, Bi, ok) for S, E, Bi, ok, *_ in parts])
             if len(parts) >= 2:
                 # the maneuvers' scatter (estimators.validation.cluster), each segment a cluster
                 try:
