@@ -922,8 +922,10 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
             key = m if len(problems) == 1 else f"{pb.axis}-{m}"
             if m == "fem":          # its R; EKF/UKF keep the grid's (fit_problem)
                 attach_logged_noise(fd, pb)
-            q, pb = filters_process_noise(fd, pb, m, results.get(key[:-3] + "fem"), filter_q,
-                                          progress, turbulence=turbulence, quiet=starts is not None)
+            q, pb, noise = filters_process_noise(fd, pb, m, results.get(key[:-3] + "fem"), filter_q,
+                                                 progress, turbulence=turbulence,
+                                                 quiet=starts is not None,
+                                                 earlier=None if starts is None else starts.get(key))
             fem = results.get(key[:-3] + "fem") if m in ("ekf", "ukf") else None
             done = fit_and_validate(pb, m, f"{pb.axis} axis", truth, progress, turbulence=turbulence,
                                     tolerances=tolerances, pom=pom,
@@ -933,6 +935,8 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                                     held_alphadot=fem.extra.get("alphadot_held") if fem else None)
             if done is not None:
                 results[key], validations[key] = done
+                if noise is not None:
+                    results[key].extra["filters_noise"] = noise
                 if starts is None and pb.model.name.startswith("sixdof") and lon is not None:
                     # the longitudinal estimates this fit holds: their uncertainty is
                     # carried to it after the fits (carry_consider_uncertainty)
@@ -955,28 +959,36 @@ GUST_NOISE_PARAMETERS = ("tau_pg",)
 
 
 def filters_process_noise(fd, pb: Problem, method: str, fem: Any, cache: dict, progress: Progress,
-                          *, turbulence: Mapping[str, Any] | None = None, quiet: bool = False
-                          ) -> tuple[dict[str, float] | None, Problem]:
+                          *, turbulence: Mapping[str, Any] | None = None, quiet: bool = False,
+                          earlier: Any = None) -> tuple[dict[str, float] | None, Problem, Any]:
     """The process noise of an EKF/UKF fit and its problem: (None, ``pb``) for other
     methods and when the Dryden level is known (fit_problem takes it from there); else
     from this run's FEM of the problem (``fem``), or a filter-error fit made for it, once
     per axis (``cache``: axis -> that fit or None), with ``pb``'s free
     GUST_NOISE_PARAMETERS held at that fit's estimates; (None, ``pb``), the filters'
-    default, when that fit fails."""
+    default, when that fit fails. The third element, (process noise, held values) or None,
+    goes to the result's ``extra["filters_noise"]``: a refit of that result (``earlier``,
+    :mod:`pipeline.correction_uncertainty`) takes the same noise model instead of another
+    filter-error fit (ad hoc, fsid estimate --method ekf of a 600 s log: 50 of the
+    consider stage's 66 s)."""
     if method not in ("ekf", "ukf") or dryden_known(turbulence):
-        return None, pb
-    if pb.axis not in cache:
-        cache[pb.axis] = _fem_for_filters(fd, pb, fem, progress, quiet)
-    src = cache[pb.axis]
-    if src is None:
-        return None, pb
-    free = {p.name for p in pb.model.parameters if p.free}
-    held = {n: float(src.params[n]) for n in GUST_NOISE_PARAMETERS if n in free and n in src.params}
+        return None, pb, None
+    noise = (getattr(earlier, "extra", None) or {}).get("filters_noise")
+    if noise is None:
+        if pb.axis not in cache:
+            cache[pb.axis] = _fem_for_filters(fd, pb, fem, progress, quiet)
+        src = cache[pb.axis]
+        if src is None:
+            return None, pb, None
+        free = {p.name for p in pb.model.parameters if p.free}
+        noise = (filter_process_noise(src), {n: float(src.params[n]) for n in GUST_NOISE_PARAMETERS
+                                             if n in free and n in src.params})
+    q, held = noise
     if held:
         pb = replace(pb, model=pb.model.hold(held), notes=list(pb.notes) + [
             ", ".join(f"{n} = {v:.4g}" for n, v in held.items())
             + " held at filter error's estimate (the gust model's noise, with its process noise)"])
-    return filter_process_noise(src), pb
+    return q, pb, noise
 
 
 def _fem_for_filters(fd, pb: Problem, fem: Any, progress: Progress, quiet: bool = False) -> Any:

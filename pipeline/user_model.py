@@ -249,14 +249,17 @@ def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],
                 pb = common
         if m == "fem":              # its R; EKF/UKF keep the grid's (fit_problem)
             attach_logged_noise(fd, pb)
-        q, pb = filters_process_noise(fd, pb, m, results.get("fem"), filter_q, progress,
-                                      quiet=starts is not None)
+        q, pb, noise = filters_process_noise(fd, pb, m, results.get("fem"), filter_q, progress,
+                                             quiet=starts is not None,
+                                             earlier=None if starts is None else starts.get(m))
         done = fit_and_validate(pb, m, f"user model {model.name!r}", truth, progress,
                                 tolerances=tolerances, pom=pom,
                                 start=None if starts is None else starts.get(m, {}),
                                 process_noise=q)
         if done is not None:
             results[m], validations[m] = done
+            if noise is not None:
+                results[m].extra["filters_noise"] = noise
     if not results:
         raise FsidError(f"every estimation method failed on the model {model.name!r} (see the "
                         "notes above)")
