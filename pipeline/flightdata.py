@@ -31,6 +31,10 @@ CANONICAL_UNITS: dict[str, str] = {
 WRAPPED_ANGLES = ("phi", "psi")
 #: control-input channels used for automatic segmentation
 CONTROL_INPUTS = ("de", "da", "dr")
+#: the longest maneuver found in a log (:meth:`FlightData.find_segments`) [s]: longer spans
+#: of control activity are cut into pieces. 60 s keeps a designed maneuver whole (sweeps of
+#: 20-60 s, multisines of 10-20 s per cycle) and gives a continuous 200 s multisine 4 pieces
+MAX_AUTO_SEGMENT_S = 60.0
 
 
 @dataclass
@@ -236,13 +240,18 @@ class FlightData:
     def find_segments(self, inputs: Sequence[str] = CONTROL_INPUTS, *, window: float = 1.0,
                       threshold: float | None = None, pad_before: float = 1.0,
                       pad_after: float = 3.0, min_duration: float = 2.0,
-                      rate_hz: float = 50.0) -> list[SegmentSpec]:
+                      rate_hz: float = 50.0, max_duration: float | None = MAX_AUTO_SEGMENT_S
+                      ) -> list[SegmentSpec]:
         """Segments where a control input is being moved (maneuvers).
 
         Activity is the moving standard deviation of each input over ``window`` [s]; an
         input is active where it exceeds ``threshold`` [rad] (default: max(0.25 x its peak
         moving std, 0.2 deg)). Active spans are padded, merged per axis and kept when at
-        least ``min_duration`` [s] long.
+        least ``min_duration`` [s] long. A span longer than ``max_duration`` [s] (continuous
+        excitation: a long multisine, minutes of piloted or autopilot activity) is cut into
+        equal pieces no longer than that, each fitted with its own initial state: one
+        segment of 200 s could be neither fitted by a simulation that drifts over minutes
+        nor held out for the proof of match (None: never cut).
         """
         segs: list[SegmentSpec] = []
         for axis in inputs:
@@ -269,7 +278,9 @@ class FlightData:
                     merged[-1][1] = max(merged[-1][1], b)
                 else:
                     merged.append([a, b])
-            for k, (a, b) in enumerate(m for m in merged if m[1] - m[0] >= min_duration):
+            pieces = [p for a, b in merged if b - a >= min_duration
+                      for p in cut_span(a, b, max_duration)]
+            for k, (a, b) in enumerate(pieces):
                 segs.append(SegmentSpec(f"auto_{axis}_{k}", float(a), float(b), "auto", axis=axis))
         segs.sort(key=lambda s: s.t0)
         return segs
@@ -298,6 +309,15 @@ class FlightData:
         for k, c in self.channels.items():
             lines.append(f"  {k:9s} {len(c):8d} samples {c.rate_hz:8.2f} Hz  [{c.unit}]  <- {c.source}")
         return "\n".join(lines)
+
+
+def cut_span(t0: float, t1: float, max_duration: float | None = MAX_AUTO_SEGMENT_S
+             ) -> list[tuple[float, float]]:
+    """``t0..t1`` [s] as equal pieces no longer than ``max_duration`` (itself when it is
+    not longer, or max_duration is None)."""
+    n = 1 if not max_duration else max(int(np.ceil((t1 - t0) / max_duration - 1e-9)), 1)
+    e = np.linspace(t0, t1, n + 1)
+    return [(float(a), float(b)) for a, b in zip(e[:-1], e[1:])]
 
 
 def _uniform(t: np.ndarray, v: np.ndarray, rate: float) -> tuple[np.ndarray, np.ndarray]:

@@ -240,6 +240,33 @@ def test_resample_antialias_and_segments(binfile):
     assert [(s.mode, s.t0, s.t1) for s in ms] == [("FBWA", 0.0, 30.0), ("AUTO", 30.0, t[-1])]
 
 
+def test_continuous_excitation_is_cut_into_pieces():
+    """200 s of multisine on aileron and rudder (one span of activity each) give pieces of
+    at most 60 s per surface, and the lateral windows (aileron and rudder merged) are cut
+    again: 4 to fit and hold out, not one window the pipeline can neither fit nor prove."""
+    from pipeline.flightdata import MAX_AUTO_SEGMENT_S, Channel, FlightData
+    from pipeline.identify import merge_overlapping
+
+    t = np.arange(0, 220, 0.02)
+    on = (t > 10) & (t < 210)
+    da = np.where(on, np.radians(2) * np.sin(2 * np.pi * 0.7 * t), 0.0)
+    dr = np.where(on, np.radians(2) * np.sin(2 * np.pi * 0.45 * t + 1.0), 0.0)
+    fd = FlightData({"da": Channel(t, da, "rad"), "dr": Channel(t, dr, "rad")}, {})
+    segs = fd.find_segments()
+    for axis in ("da", "dr"):
+        mine = [s for s in segs if s.axis == axis]
+        assert len(mine) == 4 and [s.name for s in mine] == [f"auto_{axis}_{k}" for k in range(4)]
+        assert all(s.t1 - s.t0 <= MAX_AUTO_SEGMENT_S for s in mine)
+        assert mine[0].t0 < 10 and mine[-1].t1 > 209                 # the whole span covered
+        assert all(a.t1 == b.t0 for a, b in zip(mine, mine[1:]))      # without gaps or overlap
+    lat = merge_overlapping(segs)
+    assert len(lat) == 4 and all(set(s.axis.split("+")) == {"da", "dr"} for s in lat)
+    assert all(s.t1 - s.t0 <= MAX_AUTO_SEGMENT_S for s in lat)
+    assert all(a.t1 <= b.t0 for a, b in zip(lat, lat[1:]))            # the data once
+    assert len({s.name for s in lat}) == 4
+    assert len(fd.find_segments(max_duration=None)) == 2                # uncut on request
+
+
 def test_px4_tlog_dialect(tmp_path):
     from pipeline.readers.synth import encode_px4_tlog
 
