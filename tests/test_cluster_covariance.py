@@ -142,3 +142,48 @@ def test_the_maneuvers_expose_output_error_in_turbulence():
         assert pp["bias_az[0]"]["cluster_std"] is None and pp["bias_az[0]"]["max_share"] > 0.95
     assert 0.4 < np.mean(fem_ratio) < 1.8, np.round(fem_ratio, 2)
     assert max(worst_wide) < 3.0, worst_wide
+
+
+def test_maneuver_own_parameters_are_profiled_out_exactly():
+    """Each maneuver with its own offset (a per-maneuver bias, as the fits' initial states
+    and biases): given as (cols, block) parts, the own offsets are profiled out. The shared
+    parameters' Cramér-Rao std is the full inverse's, the offsets' too, their share is 1
+    and their scatter NaN; the dense parts give the same numbers; a maneuver that leaves a
+    shared regressor at 0 (no information on it there) does not make it its own."""
+    from estimators.sensitivity import Sensitivity
+    from estimators.validation.cluster import segment_block
+
+    rng = np.random.default_rng(7)
+    X = _design(rng)
+    for Xj in X:                                         # no constant: the offsets are that
+        Xj[:, 0] = rng.standard_normal(len(Xj))
+    X[0][:, 1] = 0.0                                     # maneuver 0 leaves regressor 1 at 0
+    G, n_sh = len(X), 3
+    n_p = n_sh + G                                       # shared, then one offset per maneuver
+    y = [Xj @ np.array([0.5, -1.0, 2.0]) + 0.3 * j + SIGMA * rng.standard_normal(len(Xj))
+         for j, Xj in enumerate(X)]
+    rows = [np.column_stack([Xj, np.ones(len(Xj))]) for Xj in X]          # [x, offset_j]
+    A = np.zeros((sum(map(len, X)), n_p))
+    r0 = 0
+    for j, R in enumerate(rows):
+        A[r0:r0 + len(R), :n_sh] = R[:, :n_sh]
+        A[r0:r0 + len(R), n_sh + j] = 1.0
+        r0 += len(R)
+    M = A.T @ A / SIGMA**2
+    theta = np.linalg.solve(M, A.T @ np.concatenate(y) / SIGMA**2)
+    W = np.array([[SIGMA**-2]])
+    blocks, dense = [], []
+    for j, R in enumerate(rows):
+        cols = np.r_[np.arange(n_sh), n_sh + j]
+        e = y[j] - R @ theta[cols]
+        S = Sensitivity(R[:, None, :], cols, n_p)
+        blocks.append(segment_block(S, e[:, None], W))
+        dense.append(segment_parts(S, e[:, None], W))
+    names = ["a", "b", "c"] + [f"off[{j}]" for j in range(G)]
+    rb = cluster_covariance([b[0] for b in blocks], [b[1] for b in blocks], M, names=names)
+    rd = cluster_covariance([d[0] for d in dense], [d[1] for d in dense], M, names=names)
+    np.testing.assert_allclose(rb.crb_std, np.sqrt(np.diag(np.linalg.inv(M))), rtol=1e-9)
+    np.testing.assert_allclose(rb.std[:n_sh], rd.std[:n_sh], rtol=1e-12)
+    assert np.all(np.isfinite(rb.std[:n_sh])) and np.all(np.isnan(rb.std[n_sh:]))
+    np.testing.assert_allclose(np.diag(rb.share[:, n_sh:]), 1.0)
+    assert rb.share[0, 1] < 0.01 and rb.share[1:, 1].sum() > 0.5
