@@ -597,7 +597,7 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
         if earlier is not None and method == "oem" and earlier.sensitivities is not None:
             # the consider refits move the estimates by a fraction of their std: one
             # Gauss-Newton step with the earlier sensitivities is their first-order change
-            # (ad hoc, a 600 s log with 44 lateral maneuvers: the consider stage 79 -> 10 s)
+            # (ad hoc, a 600 s log with 44 lateral maneuvers: the consider stage 79 -> 15.5 s)
             try:
                 return OutputError(pb.model, inputs=pb.inputs).step_from(
                     earlier, pb.fit, estimate_x0=pb.estimate_x0)
