@@ -140,3 +140,27 @@ def test_airspeed_without_a_sensor_is_the_autopilots_estimate(files, tmp_path):
                    'source = "X.y"\n')
     with pytest.raises(FsidError, match=r"\[channels.V.fallback\] cannot have a fallback"):
         load_map(bad)
+
+
+def test_velocity_without_the_ekf_is_the_gps_receivers(files, tmp_path):
+    """A log without XKF1 (no EKF velocity): vn, ve, vd are the map's fallback, the GPS
+    receiver's ground speed along its course and its vertical speed, said to be those; they
+    equal what XKF1 held (the simulator logs the same GPS velocity in both). A transform
+    the maps do not know is a map error."""
+    from pipeline.errors import FsidError
+    from pipeline.maps import load_map
+    from tests._simdata import written
+
+    fb = files[0]
+    src = written(SCENARIO.stem) / "flight.bin"
+    fd = read_log(_without(src, tmp_path / "noxkf.bin", {"XKF1"}))
+    for c in ("vn", "ve", "vd"):
+        a, b = _at(fb, fd, c)
+        assert np.max(np.abs(a - b)) < 1e-4 * max(np.max(np.abs(a)), 1.0), c
+        assert fd[c].derived.startswith("the GPS receiver's"), c
+    assert np.ptp(fd["ve"].values) > 1.0                    # the flight turns: east moves
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[map]\nextends = "ardupilot_bin"\n[channels.vn]\nsource = ["GPS.Spd", '
+                   '"GPS.GCrs"]\ntransform = "polr"\n')
+    with pytest.raises(FsidError, match="transform 'polr' unknown"):
+        load_map(bad)

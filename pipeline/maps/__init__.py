@@ -34,6 +34,11 @@ Map file format (all keys but ``source`` optional)::
     transform = "product"
     derived = "ArduPilot's airspeed estimate, not a pitot"
 
+    [channels.vn.fallback]                   # no EKF velocity: the GPS ground speed
+    source = ["GPS.Spd", "GPS.GCrs"]         # along its course (deg)
+    transform = "polar"
+    component = "north"                      # (ve: "east")
+
     [channels.phi]                           # quaternion -> Euler angle (w, x, y, z order)
     source = ["vehicle_attitude.q[0]", "vehicle_attitude.q[1]", "vehicle_attitude.q[2]", "vehicle_attitude.q[3]"]
     transform = "quat_wxyz"
@@ -175,6 +180,11 @@ def _source_if(spec, origin: str, name: str) -> dict[str, list[str]]:
     return {str(k): [v] if isinstance(v, str) else [str(x) for x in v] for k, v in spec.items()}
 
 
+#: a rule's ``transform``s: quaternion to Euler angle, the product of two sources, a
+#: speed along a course (``polar``, component north or east: GPS ground speed and course)
+TRANSFORMS = (None, "quat_wxyz", "quat_xyzw", "product", "polar")
+
+
 def _rule(name: str, spec, origin: str, what: str = "") -> ChannelRule:
     """One ``[channels.NAME]`` table (``what``: ".fallback" for its fallback) as a rule."""
     where = f"[channels.{name}{what}]"
@@ -192,6 +202,9 @@ def _rule(name: str, spec, origin: str, what: str = "") -> ChannelRule:
         if len(parts) > 1 and parts[1] not in UNIT_FACTORS:
             raise FsidError(f"channel map {origin}: {where} source '{src_}' has "
                             f"unknown unit '{parts[1]}'")
+    if spec.get("transform") not in TRANSFORMS:
+        raise FsidError(f"channel map {origin}: {where} transform '{spec.get('transform')}' "
+                        f"unknown; use one of {', '.join(t for t in TRANSFORMS if t)}")
     fb = spec.get("fallback")
     if fb is not None and what:
         raise FsidError(f"channel map {origin}: {where} cannot have a fallback of its own")
@@ -419,6 +432,18 @@ def apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAVE
     return _apply_rule(raw, rule, travel_deg)
 
 
+def _onto(t: np.ndarray, got: tuple[Table, np.ndarray], source: str) -> np.ndarray | str:
+    """The values of a looked-up source ``got`` (its table, values) interpolated onto the
+    times ``t`` (non-finite samples left out), or why not."""
+    tb, vb = got
+    tb_t = np.asarray(tb.t, dtype=float)
+    ok = np.isfinite(tb_t) & np.isfinite(vb)
+    if not ok.any():
+        return f"{source} has no finite samples"
+    order = np.argsort(tb_t[ok], kind="stable")
+    return np.interp(t, tb_t[ok][order], np.asarray(vb, dtype=float)[ok][order])
+
+
 def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAVEL_DEG) -> Channel | str:
     if rule.transform in ("quat_wxyz", "quat_xyzw"):
         if len(rule.sources) != 4:
@@ -451,15 +476,31 @@ def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAV
             vals = (va * rule.scale + rule.offset) * UNIT_FACTORS.get(rule.unit, 1.0) * rule.sign
             return Channel(np.asarray(tab.t, float), vals, CANONICAL_UNITS.get(rule.name, rule.unit),
                            f"{rule.sources[0]} (without {rule.sources[1]}: {b})")
-        tb, vb = b
-        ok = np.isfinite(tb.t) & np.isfinite(vb)
-        if not ok.any():
-            return f"{rule.sources[1]} has no finite samples"
-        order = np.argsort(tb.t[ok], kind="stable")
-        f = np.interp(tab.t, tb.t[ok][order], vb[ok][order])
+        f = _onto(tab.t, b, rule.sources[1])
+        if isinstance(f, str):
+            return f
         vals = (va * f * rule.scale + rule.offset) * UNIT_FACTORS.get(rule.unit, 1.0) * rule.sign
         return Channel(np.asarray(tab.t, float), vals, CANONICAL_UNITS.get(rule.name, rule.unit),
                        f"{rule.sources[0]} x {rule.sources[1]}")
+    if rule.transform == "polar":  # speed sources[0] along the course sources[1] [deg]
+        if len(rule.sources) != 2 or rule.component not in ("north", "east"):
+            return "polar transform needs 2 sources (speed, course in deg) and component north or east"
+        a = _lookup(raw, rule.sources[0])
+        if isinstance(a, str):
+            return a
+        tab, va = a
+        b = _lookup(raw, rule.sources[1])
+        if isinstance(b, str):
+            return b
+        # the course's cosine and sine interpolated (a course through 360 deg stays whole)
+        c, sn = (_onto(tab.t, (b[0], fn(np.radians(b[1]))), rule.sources[1])
+                 for fn in (np.cos, np.sin))
+        if isinstance(c, str):
+            return c
+        trig = (c if rule.component == "north" else sn) / np.maximum(np.hypot(c, sn), 1e-9)
+        vals = (va * trig * rule.scale + rule.offset) * UNIT_FACTORS.get(rule.unit, 1.0) * rule.sign
+        return Channel(np.asarray(tab.t, float), vals, CANONICAL_UNITS.get(rule.name, rule.unit),
+                       f"polar({rule.sources[0]}, {rule.sources[1]}).{rule.component}")
     reasons = []
     for src in rule.sources_for(raw.params):
         # the servo output whose calibration applies (function or channel of the pwm block)
