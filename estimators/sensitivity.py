@@ -37,9 +37,18 @@ class Sensitivity:
         out[:, :, self.cols] = self.values
         return out
 
+    @property
+    def ndim(self) -> int:
+        return 3
+
     def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
         d = self.dense()
         return d if dtype is None else d.astype(dtype)
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        """Indexing as the dense array (``S[:, :, i]``, ``S[n]``): code written for the
+        (N, n_out, n_free) arrays reads the same values (the dense array is formed)."""
+        return self.dense()[key]
 
     def take(self, idx: np.ndarray) -> "Sensitivity":
         """The sensitivities to the free parameters ``idx`` (increasing), numbered 0..len(idx)-1."""

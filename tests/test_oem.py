@@ -374,7 +374,8 @@ def test_sensitivities_are_kept_per_segment_for_its_own_parameters(two_segments)
         assert not any(n.endswith(f"[{other}]") for n in own)        # not the other's x0
         assert {n for n in names if "[" not in n} <= own
         dense = np.asarray(S)
-        assert dense.shape == (ex.segments[k].n, 7, len(names))
+        assert dense.shape == S.shape == (ex.segments[k].n, 7, len(names)) and S.ndim == 3
+        np.testing.assert_array_equal(S[:, :, 3], dense[:, :, 3])   # indexes as the array
         assert not np.any(dense[:, :, [i for i in range(len(names)) if i not in S.cols]])
     # the blocks give the information of the dense arrays
     E = [r.to_numpy() for r in res.residuals]
