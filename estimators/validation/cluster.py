@@ -256,7 +256,7 @@ def cluster_covariance(M_parts: Sequence[Any], scores: Sequence[Any],
     Mj = np.zeros((G, p, p))
     sj = np.zeros((G, p))
     Mr = M[np.ix_(shared, shared)].copy()
-    owned: list[np.ndarray] = []
+    owned: list[tuple[int, np.ndarray, np.ndarray]] = []   # (maneuver, own cols, M_oo^-1)
     for j, (c, A, b) in enumerate(parts):
         o = own[c]
         pos = np.searchsorted(shared, c[~o])
@@ -264,27 +264,27 @@ def cluster_covariance(M_parts: Sequence[Any], scores: Sequence[Any],
         K = Aco @ _pinv_scaled(Aoo) if o.any() else np.zeros((pos.size, 0))
         Mj[j][np.ix_(pos, pos)] = Acc - K @ Aco.T
         sj[j][pos] = b[~o] - K @ b[o]
-        co = c[o]
-        owned.append(co)
-        if co.size:
+        if o.any():
+            co = c[o]
+            Moo_inv = _pinv_scaled(M[np.ix_(co, co)])
             Mco = M[np.ix_(shared, co)]
-            Mr -= Mco @ _pinv_scaled(M[np.ix_(co, co)]) @ Mco.T
+            Mr -= Mco @ Moo_inv @ Mco.T
+            owned.append((j, co, Moo_inv))
+    Mr = 0.5 * (Mr + Mr.T)
     cov = np.full((n_p, n_p), np.nan)
     crb = np.full(n_p, np.nan)
     share = np.zeros((G, n_p))
     if p:
-        cov_s, crb_s, share_s = _core(Mj, sj, 0.5 * (Mr + Mr.T), limit)
+        cov_s, crb_s, share_s = _core(Mj, sj, Mr, limit)
         cov[np.ix_(shared, shared)] = cov_s
         crb[shared] = crb_s
         share[:, shared] = share_s
-        Mr_inv = np.linalg.inv(0.5 * (Mr + Mr.T))
-    for j, co in enumerate(owned):
-        if not co.size:
-            continue
+    Mr_inv = _pinv_scaled(Mr) if p else np.zeros((0, 0))
+    for j, co, Moo_inv in owned:
+        # the own parameters' Cramér-Rao variance: the block inverse's diagonal
         share[j, co] = 1.0
-        Moo_inv = _pinv_scaled(M[np.ix_(co, co)])
-        X = Moo_inv @ M[np.ix_(co, shared)] if p else np.zeros((co.size, 0))
-        crb[co] = np.sqrt(np.clip(np.diag(Moo_inv + (X @ Mr_inv @ X.T if p else 0.0)), 0.0, None))
+        X = Moo_inv @ M[np.ix_(co, shared)]
+        crb[co] = np.sqrt(np.clip(np.diag(Moo_inv + X @ Mr_inv @ X.T), 0.0, None))
     bad = share.max(axis=0) > limit
     cov[bad, :] = np.nan
     cov[:, bad] = np.nan
