@@ -319,17 +319,8 @@ class OutputError:
         theta = lay.values.copy()
         lo, hi = lay.lower[fi], lay.upper[fi]
 
-        E0 = self._residuals(self._simulate(theta))
-        if E0 is None:
-            for k, seg in enumerate(segments):
-                Yk = simulate_batch(self.model, seg, theta[None, :], lay, k, self.integrator,
-                                    self.rtol, self.atol, inputs=self.inputs)[:, :, 0]
-                away = runaway(seg, Yk) if np.all(np.isfinite(Yk)) else None
-                if away is not None:
-                    raise runaway_error(self.model, seg, k, away, "with the start values")
-            k, X = self._first_diverged(theta)
-            raise divergence_error(self.model, segments[k], X, k, "with the start values",
-                                   DIVERGE_HINT)
+        if self._simulate(theta) is None:
+            self._raise_simulation_failure(theta, "with the start values")
         used_simplex = False
         if self.fallback == "always":
             theta = self._simplex(theta)
@@ -491,9 +482,7 @@ class OutputError:
         theta = lay.values.copy()
         Ys = self._simulate(theta)
         if Ys is None:
-            k, X = self._first_diverged(theta)
-            raise divergence_error(self.model, segments[k], X, k, "at the result's estimates",
-                                   DIVERGE_HINT)
+            self._raise_simulation_failure(theta, "at the result's estimates")
         E = self._residuals(Ys)
         dE = [e - r.to_numpy(dtype=float) for e, r in zip(E, result.residuals)]
         _, G, _ = st.information_and_gradient(result.sensitivities, dE, st.whitener(result.R))
@@ -504,9 +493,7 @@ class OutputError:
             theta[fi[inner]] += st.solve_step(result.information[np.ix_(inner, inner)], G[inner])
         Ys = self._simulate(theta)
         if Ys is None:
-            k, X = self._first_diverged(theta)
-            raise divergence_error(self.model, segments[k], X, k, "one step from the result's "
-                                   "estimates", DIVERGE_HINT)
+            self._raise_simulation_failure(theta, "one step from the result's estimates")
         return replace(result, model=self.model, values=theta, segments=segments,
                        predicted=frames([s.t for s in segments], Ys, self.model.outputs),
                        residuals=frames([s.t for s in segments], self._residuals(Ys),
@@ -515,6 +502,18 @@ class OutputError:
                        extra=dict(result.extra), consider_cov=None, consider_source="")
 
     # -- helpers --------------------------------------------------------------------------
+    def _raise_simulation_failure(self, theta: np.ndarray, what: str) -> None:
+        """Raise the error of a simulation at ``theta`` that :meth:`_simulate` refused: the
+        first segment whose outputs run away (finite), else the one that diverged."""
+        for k, seg in enumerate(self._segments):
+            Yk = simulate_batch(self.model, seg, theta[None, :], self._lay, k, self.integrator,
+                                self.rtol, self.atol, inputs=self.inputs)[:, :, 0]
+            away = runaway(seg, Yk) if np.all(np.isfinite(Yk)) else None
+            if away is not None:
+                raise runaway_error(self.model, seg, k, away, what)
+        k, X = self._first_diverged(theta)
+        raise divergence_error(self.model, self._segments[k], X, k, what, DIVERGE_HINT)
+
     def _first_diverged(self, theta: np.ndarray) -> tuple[int, np.ndarray]:
         for k, seg in enumerate(self._segments):
             _, X = simulate_batch(self.model, seg, theta[None, :], self._lay, k, self.integrator,
