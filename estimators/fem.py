@@ -851,13 +851,13 @@ class FilterError:
         noise = np.arange(fi.size, nphi)
         return [np.r_[0, 1 + np.searchsorted(fi, rel), 1 + noise] for rel in self._lay.relevant]
 
-    def _scoring(self, res, hsteps: np.ndarray, keep: list | None = None,
-                 rows: Sequence[np.ndarray] | None = None):
+    def _scoring(self, res, hsteps: np.ndarray, rows: Sequence[np.ndarray],
+                 keep: list | None = None):
         """Fisher information M, gradient g (of -J) and J from a batch (column 0 = base),
         each sample on the outputs measured there (per pattern of measured outputs, the
         block of B for them; samples whose measured outputs have a non-finite prediction
-        left out). ``rows``: per segment the batch columns it was run with (as
-        :meth:`_filter`; default all). ``keep``: a list that receives, per segment,
+        left out). ``rows``: per segment the batch columns it was run with
+        (:meth:`_segment_rows`, as given to :meth:`_filter`). ``keep``: a list that receives, per segment,
         (S innovation sensitivities (a :class:`Sensitivity`, (N, m) by its phi), E (N, m)
         innovations, B^-1, rows used, S^T B^-1 S (nphi, nphi): its part of M) for the
         coloured-innovation covariance - the samples where every output is measured (the
@@ -869,7 +869,7 @@ class FilterError:
         J = 0.0
         for k, (seg, r) in enumerate(zip(self._segments, res)):
             M0, g0 = (M.copy(), g.copy()) if keep is not None else (None, None)
-            cols = np.arange(nphi) if rows is None else rows[k][1:] - 1     # its phi
+            cols = rows[k][1:] - 1                                   # its phi
             npk = cols.size
             Y, Bs = r["Y"], r["B"]
             E = seg.z - Y[0]
@@ -1009,7 +1009,7 @@ class FilterError:
                 raise SimulationDivergedError(
                     "the filter-error Riccati equation has no stabilising solution at the "
                     "current parameters (system not detectable from the outputs?)")
-            M, g, J = self._scoring(res, hsteps, rows=seg_rows)
+            M, g, J = self._scoring(res, hsteps, seg_rows)
             if not np.isfinite(J):
                 self._raise_diverged(res)
             if it == 1:
@@ -1073,7 +1073,7 @@ class FilterError:
         Phis, hsteps = self._batch(phi)
         res = self._filter(Phis, rows=seg_rows)
         parts: list = []
-        M, g, J = self._scoring(res, hsteps, keep=parts, rows=seg_rows)
+        M, g, J = self._scoring(res, hsteps, seg_rows, keep=parts)
         from estimators.validation.cluster import ClusterResult, cluster_covariance
         span = np.maximum(1.0, np.abs(phi))
         on_bound = (phi <= self._lo + 1e-9 * span) | (phi >= self._hi - 1e-9 * span)
