@@ -138,6 +138,11 @@ class ChannelRule:
     #: the rule to try when this one fills nothing (``[channels.NAME.fallback]``)
     fallback: "ChannelRule | None" = None
 
+    def scaled(self, x: np.ndarray, unit: str | None = None) -> np.ndarray:
+        """Logged values ``x`` in the canonical unit: (x scale + offset), converted from
+        ``unit`` (default the rule's), times the sign."""
+        return (x * self.scale + self.offset) * UNIT_FACTORS.get(unit or self.unit, 1.0) * self.sign
+
     def sources_for(self, params: Mapping[str, float]) -> list[str]:
         """The sources to try for a log with these parameters (``source_if``)."""
         for name, srcs in self.source_if.items():
@@ -473,13 +478,13 @@ def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAV
         if rule.unless_param and float(raw.params.get(rule.unless_param, 0.0)) != 0.0:
             b = f"log parameter {rule.unless_param} says {rule.sources[0]} needs no factor"
         if isinstance(b, str):  # keep the first factor alone and say so
-            vals = (va * rule.scale + rule.offset) * UNIT_FACTORS.get(rule.unit, 1.0) * rule.sign
+            vals = rule.scaled(va)
             return Channel(np.asarray(tab.t, float), vals, CANONICAL_UNITS.get(rule.name, rule.unit),
                            f"{rule.sources[0]} (without {rule.sources[1]}: {b})")
         f = _onto(tab.t, b, rule.sources[1])
         if isinstance(f, str):
             return f
-        vals = (va * f * rule.scale + rule.offset) * UNIT_FACTORS.get(rule.unit, 1.0) * rule.sign
+        vals = rule.scaled(va * f)
         return Channel(np.asarray(tab.t, float), vals, CANONICAL_UNITS.get(rule.name, rule.unit),
                        f"{rule.sources[0]} x {rule.sources[1]}")
     if rule.transform == "polar":  # speed sources[0] along the course sources[1] [deg]
@@ -498,7 +503,7 @@ def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAV
         if isinstance(c, str):
             return c
         trig = (c if rule.component == "north" else sn) / np.maximum(np.hypot(c, sn), 1e-9)
-        vals = (va * trig * rule.scale + rule.offset) * UNIT_FACTORS.get(rule.unit, 1.0) * rule.sign
+        vals = rule.scaled(va * trig)
         return Channel(np.asarray(tab.t, float), vals, CANONICAL_UNITS.get(rule.name, rule.unit),
                        f"polar({rule.sources[0]}, {rule.sources[1]}).{rule.component}")
     reasons = []
@@ -536,7 +541,7 @@ def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAV
             vals, note = _pwm(rule, raw_v * rule.scale + rule.offset, raw.params, n, travel_deg)
             vals = vals * rule.sign
         else:
-            vals = (raw_v * rule.scale + rule.offset) * UNIT_FACTORS.get(unit, 1.0) * rule.sign
+            vals = rule.scaled(raw_v, unit)
         notes = ""
         msg, fld = _split(src)
         logged = tab.units.get(fld)
