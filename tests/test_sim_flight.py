@@ -6,7 +6,7 @@ import pytest
 
 import sim
 from sim.maneuvers import input_histories
-from tests._simdata import custom, flown, quiet_flight
+from tests._simdata import custom, flown, quiet_flight, scenario
 
 G0 = 9.80665
 
@@ -32,6 +32,31 @@ def test_jsbsim_coefficients_equal_the_truth_formula(name):
         # aero rates are body rates minus turbulence rates
         np.testing.assert_allclose(T["q_aero"], T["q"] - T["q_turb"], atol=1e-12)
         assert np.std(T["q_turb"]) > 1e-3
+
+
+@pytest.mark.parametrize("lag", [0.02, 0.05])
+def test_actuator_lag_is_the_scenario_time_constant(tmp_path, lag):
+    """A surface step through the actuator is 1 - 1/e of the way after lag_s. JSBSim works
+    out the lag filter's coefficients when it loads the model: with the step size set
+    after loading, lag_s = 0.05 acted as 0.01 s (the coefficients of its default 1/120 s
+    step, run on 1/600 s steps)."""
+    from sim.flight import _make_fdm
+
+    raw = dict(scenario("default").raw)
+    raw["actuators"] = {"lag_s": lag}
+    fdm = _make_fdm(custom(raw), tmp_path)
+    fdm.run_ic()
+    for _ in range(5):
+        fdm.run()
+    p0, c0 = fdm["fcs/de-pos-rad"], fdm["fcs/de-cmd-rad"]
+    fdm["fcs/de-maneuver-rad"] = 0.1
+    n = int(round(lag / fdm.get_delta_t()))
+    frac = []
+    for _ in range(2 * n):
+        fdm.run()
+        frac.append((fdm["fcs/de-pos-rad"] - p0) / (fdm["fcs/de-cmd-rad"] - c0))
+    assert abs(frac[n - 1] - (1 - np.exp(-1))) < 0.02, frac[n - 1]
+    assert abs(frac[2 * n - 1] - (1 - np.exp(-2))) < 0.02, frac[2 * n - 1]
 
 
 @pytest.mark.parametrize("aircraft, h, V", [("uav_small", 150.0, 30.0), ("light_aircraft", 1500.0, 67.0)])
