@@ -40,6 +40,8 @@ from pipeline.flightdata import FlightData
 SOURCE = "the uncertainty of the sensor corrections applied before the fit"
 HELD_SOURCE = "the uncertainty of the other axis' estimates the fit held"
 WIND_SOURCE = "the uncertainty of the wind the air-data angles were rebuilt with"
+DYNAMICS_SOURCE = ("the uncertainty of the control-input delays and lags applied before "
+                   "the fit")
 
 
 def correction_covariance(doc: Mapping[str, Any]) -> tuple[list[str], np.ndarray, np.ndarray]:
@@ -231,6 +233,38 @@ def held_estimates(result: Any, refit: Callable[[dict[str, float]], Any],
                                 HELD_SOURCE, progress)["r"]
     return {"held": names, "refits": len(names), "status": status,
             "seconds": time.perf_counter() - t0}
+
+
+def input_dynamics(doc: Mapping[str, Any], results: Mapping[str, Any],
+                   refit: Callable[[dict[str, dict[str, float]]], Mapping[str, Any]],
+                   progress: Any = None) -> dict[str, Any]:
+    """Add to ``consider_cov`` of every result in ``results`` the uncertainty of the
+    control-input dynamics applied before the fits (``doc``: the document of
+    :func:`pipeline.input_dynamics.estimate_input_dynamics`; each applied surface's delay
+    and lag with their Morelli-Klein covariance, :func:`pipeline.input_dynamics.covariance`):
+    ``refit(dynamics)`` (surface -> {"delay_s", "lag_s"}) repeats the fits with one of
+    them moved by its std. Returns a JSON-ready document (empty when nothing was applied)."""
+    from pipeline.input_dynamics import covariance
+
+    names, C, where = covariance(doc)
+    if not names or not results:
+        return {}
+    t0 = time.perf_counter()
+    applied = {s: dict(v) for s, v in doc["applied"].items()}
+    sd = np.sqrt(np.diag(C))
+
+    def refit_j(j: int) -> Mapping[str, Any]:
+        s, key = where[names[j]]
+        moved = {k: dict(v) for k, v in applied.items()}
+        moved[s][key] = moved[s][key] + float(sd[j])
+        return refit(moved)
+
+    status = consider_by_refits(results, names, C, refit_j, "the {name} + 1 std",
+                                DYNAMICS_SOURCE, progress)
+    return {"parameters": names, "refits": len(names),
+            "perturbation": "each applied delay and lag moved by +1 std (Morelli-Klein), all "
+                            "fits repeated; total std = sqrt(CRB^2 + consider^2)",
+            "methods": status, "seconds": time.perf_counter() - t0}
 
 
 def quiet_progress() -> Any:

@@ -1012,7 +1012,8 @@ def _fem_for_filters(fd, pb: Problem, fem: Any, progress: Progress, quiet: bool 
 
 def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, validations: dict,
                           truth: Mapping[str, float] | None, progress: Progress,
-                          refit, *, flow: dict[str, Any] | None = None, wind_refit=None) -> None:
+                          refit, *, flow: dict[str, Any] | None = None, wind_refit=None,
+                          dynamics: dict[str, Any] | None = None, dynamics_refit=None) -> None:
     """One stage after the fits: what each fit held as exact gets its uncertainty into the
     result's ``consider_cov`` (:mod:`pipeline.correction_uncertainty`) - the other axis'
     estimates a fit held (``result.extra["held"]``, the 6-DoF lateral output error holding
@@ -1020,9 +1021,12 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
     the sensor corrections applied before estimation (``comp["propagation"]``; ``refit(fd,
     starts)`` repeats the fits, results only) and, for air-data angles rebuilt from the
     flight path (``flow``, their document; ``flow["wind_uncertainty"]``), the wind they
-    were rebuilt with (``wind_refit(offset)`` repeats the fits with the wind moved). Then
-    the truth checks and verdicts are redone with the total std."""
-    from pipeline.correction_uncertainty import held_estimates, propagate, wind
+    were rebuilt with (``wind_refit(offset)`` repeats the fits with the wind moved), and
+    the control-input delays and lags applied before the fits (``dynamics``, the document
+    of :func:`input_dynamics_stage`, gets ``uncertainty``; ``dynamics_refit(dynamics)``
+    repeats the fits with other ones). Then the truth checks and verdicts are redone with
+    the total std."""
+    from pipeline.correction_uncertainty import held_estimates, input_dynamics, propagate, wind
     from pipeline.validate import refresh_truth_check
 
     held = [k for k, r in results.items() if (r.extra or {}).get("held") is not None]
@@ -1030,6 +1034,9 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
     parts = [f"{k}: held estimates" for k in held]
     parts += [f"{len(comp['applied'])} sensor corrections"] if comp.get("applied") else []
     parts += ["the wind of the rebuilt air-data angles"] if rebuilt else []
+    delayed = bool((dynamics or {}).get("status") == "estimated" and dynamics.get("applied")
+                   and dynamics_refit is not None)
+    parts += [f"the delay and lag of {len(dynamics['applied'])} control inputs"] if delayed else []
     progress.stage("uncertainty of what the fits held as exact" + (f" ({', '.join(parts)})" if parts else ""))
     for k in held:
         r = results[k]
@@ -1041,6 +1048,8 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
         comp["propagation"] = propagate(fd_raw, comp, results, refit, progress)
     if rebuilt:
         flow["wind_uncertainty"] = wind(flow, results, wind_refit, progress)
+    if delayed:
+        dynamics["uncertainty"] = input_dynamics(dynamics, results, dynamics_refit, progress)
     for key, res in results.items():
         if key in validations:
             refresh_truth_check(validations[key], res, truth)
@@ -1150,6 +1159,36 @@ def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabl
     return out, doc
 
 
+def input_dynamics_stage(fd, pr: Progress, setting: str | tuple[float, float] = "auto"
+                         ) -> tuple[Any, dict]:
+    """The control-input dynamics stage (:mod:`pipeline.input_dynamics`): returns (flight
+    data with the dynamics applied, JSON-ready document). ``setting``: "auto" estimates each
+    surface's delay and lag and applies the significant ones; "off" skips the stage;
+    (delay, lag) [s] applies those to every control input without estimating. Never ends
+    the run: a failed estimate is reported and the inputs stay as logged."""
+    from pipeline.flightdata import CONTROL_INPUTS
+    from pipeline.input_dynamics import estimate_input_dynamics, summary, with_input_dynamics
+
+    pr.stage("control-input delay and lag (equation error)")
+    if setting == "off":
+        pr.done("skipped (--input-dynamics off)")
+        return fd, {"status": "skipped", "reason": "switched off (--input-dynamics off)", "applied": {}}
+    if setting != "auto":
+        d, tau = (float(x) for x in setting)
+        doc = {"status": "given",
+               "applied": {s: {"delay_s": d, "lag_s": tau} for s in CONTROL_INPUTS if s in fd}}
+        pr.done(summary(doc))
+        return with_input_dynamics(fd, doc["applied"]), doc
+    try:
+        doc = estimate_input_dynamics(fd)
+    except Exception as exc:  # noqa: BLE001 - the estimate must not cost the run
+        pr.done(f"failed: {type(exc).__name__}: {exc}; inputs as logged")
+        return fd, {"status": "failed", "reason": f"{type(exc).__name__}: {exc}", "applied": {}}
+    doc["status"] = "estimated"
+    pr.done(summary(doc))
+    return with_input_dynamics(fd, doc["applied"]), doc
+
+
 def with_instrument_errors_removed(fd_val, comp: Mapping[str, Any],
                                    meta: dict | None = None):
     """The validation flight with the instrument errors the compatibility stage removed
@@ -1170,7 +1209,8 @@ def with_instrument_errors_removed(fd_val, comp: Mapping[str, Any],
 def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = None,
                  methods: Sequence[str] | None = None, quiet: bool = False,
                  compat: bool = True, bands: Mapping[str, float] | None = None,
-                 pom: str = "auto", smooth_inputs: bool = True) -> dict[str, Path]:
+                 pom: str = "auto", smooth_inputs: bool = True,
+                 input_dynamics: str | tuple[float, float] = "auto") -> dict[str, Path]:
     """``fsid run``: everything of DESIGN.md section 5 into ``out``. ``methods`` default:
     the ones that suit the flight (:func:`scenario_methods`). ``compat``: run the
     sensor-compatibility stage on the ingested MCAP and estimate from its corrected data
@@ -1178,7 +1218,9 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     ``flight.mcap.compatibility`` and to the report). ``bands``: proof-of-match bands
     (``rate_deg_s``, ``accel_g``, ``angle_deg``) over the scenario's ``[validation]``;
     ``pom``: proof-of-match mode (auto, simulation, air-data); ``smooth_inputs``: see
-    :func:`identify`."""
+    :func:`identify`; ``input_dynamics``: see :func:`input_dynamics_stage` (the MCAP's
+    surface positions are the surfaces', so it finds none unless the scenario's surfaces
+    sensor has a delay)."""
     import sim
     from pipeline.checks import findings_to_json, run_checks, summarize
     from pipeline.readers import read_log
@@ -1226,12 +1268,15 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     ac = AircraftConstants.from_truth(truth_doc)
     from pipeline.compatibility import truth_errors
     fd_logged = fd_mcap
-    fd_mcap, comp = compatibility_stage(fd_mcap, ac, pr, enabled=compat, truth=truth_errors(truth_doc))
+    fd_c, comp = compatibility_stage(fd_mcap, ac, pr, enabled=compat, truth=truth_errors(truth_doc))
     checks["flight.mcap"]["compatibility"] = comp
     atomic_write_text(out / "checks.json", json.dumps(checks, indent=2, default=str) + "\n")
+    from pipeline.input_dynamics import summary as dynamics_summary, with_input_dynamics
+    fd_mcap, dyn_doc = input_dynamics_stage(fd_c, pr, input_dynamics)
+    applied = dict(dyn_doc["applied"])
     val_meta: dict = {}
     if fd_val is not None:
-        fd_val = with_instrument_errors_removed(fd_val, comp, val_meta)
+        fd_val = with_input_dynamics(with_instrument_errors_removed(fd_val, comp, val_meta), applied)
     truth = {k: float(v) for k, v in truth_doc["derivatives"].items()}
     # estimation reads the product's own MCAP (surface positions at full resolution; the
     # .bin's RCOU carries whole-microsecond PWM, ~0.075 deg steps); the simulator moves
@@ -1247,12 +1292,20 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
                                                   **{**scenario.pom_bands, **(bands or {})}),
                                               pom=pom, smooth_inputs=smooth_inputs,
                                               validation=fd_val, validation_calm=calm)
-    carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, lambda fd, starts: identify(
-        fd, ac, methods, truth, quiet_progress(), inputs="linear",
-        turbulence=truth_doc.get("turbulence"), starts=starts, smooth_inputs=smooth_inputs,
-        fit_all=fd_val is not None)[0])
+
+    def refit(fd, starts, dynamics=None):
+        """The run's fits repeated on corrected data ``fd`` with the input dynamics
+        (default: the applied ones), started from ``starts``."""
+        return identify(with_input_dynamics(fd, applied if dynamics is None else dynamics), ac, methods,
+                        truth, quiet_progress(), inputs="linear",
+                        turbulence=truth_doc.get("turbulence"), starts=starts,
+                        smooth_inputs=smooth_inputs, fit_all=fd_val is not None)[0]
+    starts = dict(results)
+    carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit,
+                               dynamics=dyn_doc, dynamics_refit=lambda d: refit(fd_c, starts, d))
     meta = {"scenario": scenario.name, "log": "flight.mcap", "seed": result.meta["seed"],
-            "aircraft": result.aircraft.name, "data": f"flight.mcap, {comp['data_for_estimation']}"}
+            "aircraft": result.aircraft.name, "data": f"flight.mcap, {comp['data_for_estimation']}",
+            "control-input delay and lag": dynamics_summary(dyn_doc), "input_dynamics": dyn_doc}
     if val is not None:
         meta["validation flight"] = (f"validation.mcap (seed {vres.meta['seed']}, "
                                      f"{'calm air' if calm else 'turbulence as the flight'}): "
@@ -1268,7 +1321,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                  compat: bool = True, bands: Mapping[str, float] | None = None,
                  pom: str = "auto", smooth_inputs: bool = True,
                  validation_log: str | Path | Sequence[str | Path] | None = None,
-                 time_base: str | None = None) -> dict[str, Path]:
+                 time_base: str | None = None, input_dynamics: str | tuple[float, float] = "auto") -> dict[str, Path]:
     """``fsid estimate``: a log -> report and recording. ``model``: a built-in model
     (auto|longitudinal|lateral; needs ``aircraft``, or a truth.json next to the log) or a
     user model ``path.py:name`` (:mod:`pipeline.user_model`). Aircraft and sensor positions:
@@ -1284,7 +1337,9 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     (:func:`identify`'s ``validation``; the air-data proof of match in auto mode for the
     filter methods, since its turbulence is not known). ``time_base``: of a .tlog or .mcap
     log and its validation flights of the same format (:func:`pipeline.readers.read_log`;
-    None: the default)."""
+    None: the default). ``input_dynamics``: the control-input delay and lag stage
+    (:func:`input_dynamics_stage`: auto, off or (delay, lag)); they go to the validation
+    flights too (the same servos)."""
     from estimators.validation import default_tolerances
 
     tol = default_tolerances(**(bands or {}))
@@ -1359,7 +1414,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                   f"({', '.join(a + '_travel_deg' for a in assumed)})", file=pr.stream)
     n_axes = 1 if user else identified_axes(fd, ("longitudinal", "lateral") if model == "auto"
                                             else (model,))
-    pr.total = pr.n + 1 + 2 * max(n_axes, 1) * len(methods) + 2   # compatibility, fits, uncertainty, outputs
+    pr.total = pr.n + 2 + 2 * max(n_axes, 1) * len(methods) + 2   # compatibility, delays, fits, uncertainty, outputs
     from pipeline.compatibility import truth_errors
     # the reconstruction sees the logged channels only: angles rebuilt from the GPS velocity
     # and attitude are no independent air data (with them, 4 "significant" sensor errors
@@ -1378,8 +1433,18 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         fd = replace(fd_c, channels={**fd_c.channels, **{
             k: c for k, c in fd.channels.items() if k not in fd_c.channels}})
     meta["data"] = f"{Path(log).name}, {comp['data_for_estimation']}"
-    fd_vals = [with_instrument_errors_removed(fv, comp, meta) for fv in fd_vals]
+    from pipeline.input_dynamics import with_input_dynamics
+    fd, dyn_doc = input_dynamics_stage(fd, pr, input_dynamics)
+    applied = dict(dyn_doc["applied"])
+    fd_vals = [with_input_dynamics(with_instrument_errors_removed(fv, comp, meta), applied)
+               for fv in fd_vals]
     from pipeline.correction_uncertainty import quiet_progress
+
+    def refit_data(fd_j, wind_offset, dynamics):
+        """The refits' flight data: the angles rebuilt, the input dynamics applied as in
+        the fits (or ``dynamics``)."""
+        return with_input_dynamics(with_flow_angles(fd_j, flow, wind_offset)[0],
+                                   applied if dynamics is None else dynamics)
     if user:
         results, validations, problems = identify_user_model(fd, um, methods, truth, pr, inputs=inputs,
                                                              tolerances=tol, pom=pom,
@@ -1387,8 +1452,8 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                                                              validation=fd_vals)
         meta["model"] = model
 
-        def refit(fd_j, starts, wind_offset=(0.0, 0.0, 0.0)):
-            return identify_user_model(with_flow_angles(fd_j, flow, wind_offset)[0], um, methods,
+        def refit(fd_j, starts, wind_offset=(0.0, 0.0, 0.0), dynamics=None):
+            return identify_user_model(refit_data(fd_j, wind_offset, dynamics), um, methods,
                                        truth, quiet_progress(), inputs=inputs, starts=starts,
                                        smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
     else:
@@ -1397,8 +1462,8 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                                                   tolerances=tol, pom=pom, smooth_inputs=smooth_inputs,
                                                   validation=fd_vals)
 
-        def refit(fd_j, starts, wind_offset=(0.0, 0.0, 0.0)):
-            return identify(with_flow_angles(fd_j, flow, wind_offset)[0], ac, methods, truth,
+        def refit(fd_j, starts, wind_offset=(0.0, 0.0, 0.0), dynamics=None):
+            return identify(refit_data(fd_j, wind_offset, dynamics), ac, methods, truth,
                             quiet_progress(), inputs=inputs, axes=axes, starts=starts,
                             smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
     # the wind's refits (models that see an air-data angle): the corrected data the fits
@@ -1406,7 +1471,12 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     starts = dict(results)
     angles = any({"alpha", "beta"} & {*pb.model.inputs, *pb.model.outputs} for pb in problems)
     carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit, flow=flow,
-                               wind_refit=(lambda offset: refit(fd_c, starts, offset)) if angles else None)
+                               wind_refit=(lambda offset: refit(fd_c, starts, offset)) if angles else None,
+                               dynamics=dyn_doc,
+                               dynamics_refit=lambda dyn: refit(fd_c, starts, dynamics=dyn))
+    from pipeline.input_dynamics import summary as dynamics_summary
+    meta["control-input delay and lag"] = dynamics_summary(dyn_doc)
+    meta["input_dynamics"] = dyn_doc
     if "wind_uncertainty" in flow:
         from pipeline.correction_uncertainty import wind_summary
 

@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
                          methods=args.method or ["oem"], inputs=args.inputs, model=args.model,
                          quiet=args.quiet, compat=not args.no_compat,
                          smooth_inputs=not args.raw_inputs, validation_log=args.validate_with,
-                         time_base=args.time_base,
+                         time_base=args.time_base, input_dynamics=args.input_dynamics,
                          **validation_options(args))
     print_outputs(out, paths)
     return 0

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 from pipeline.paths import new_run_dir
 
@@ -31,12 +32,38 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 
 
+def input_dynamics_setting(text: str) -> str | tuple[float, float]:
+    """``--input-dynamics`` value: auto, off, or DELAY[,LAG] in seconds (|delay| <= 1,
+    0 <= lag <= 1)."""
+    if text in ("auto", "off"):
+        return text
+    try:
+        vals = [float(x) for x in text.split(",")]
+    except ValueError:
+        vals = []
+    if len(vals) not in (1, 2) or not all(math.isfinite(v) for v in vals):
+        raise argparse.ArgumentTypeError(f"{text!r}: give auto, off or DELAY[,LAG] in seconds "
+                                         "(e.g. 0.02,0.04)")
+    delay, lag = vals[0], (vals[1] if len(vals) == 2 else 0.0)
+    if abs(delay) > 1.0 or not 0.0 <= lag <= 1.0:
+        raise argparse.ArgumentTypeError(f"{text!r}: the delay must be within -1..1 s and the "
+                                         "lag within 0..1 s")
+    return delay, lag
+
+
 def add_input_arguments(p: argparse.ArgumentParser) -> None:
     """Data-preparation options shared by fsid run and fsid estimate."""
     p.add_argument("--raw-inputs", action="store_true",
                    help="use the logged surface positions (de, da, dr) as they are; by default "
                         "those with a flat white noise floor are low-passed zero-phase where it "
                         "begins (the corners are in the report's data preparation notes)")
+    p.add_argument("--input-dynamics", default="auto", type=input_dynamics_setting,
+                   metavar="auto|off|DELAY[,LAG]",
+                   help="the servo between a logged control input and its surface (a logged "
+                        "command leads the surface): auto = each surface's delay and first-order "
+                        "lag estimated from the maneuvers (equation error), applied where "
+                        "significant, their std carried to the estimates (default); off = inputs "
+                        "as logged; DELAY[,LAG] = those, in seconds, for every surface")
 
 
 def add_validation_arguments(p: argparse.ArgumentParser) -> None:
@@ -76,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
     out = new_run_dir("run", args.out)
     paths = run_scenario(args.scenario, out, seed=args.seed, methods=args.method,
                          quiet=args.quiet, compat=not args.no_compat,
-                         smooth_inputs=not args.raw_inputs, **validation_options(args))
+                         smooth_inputs=not args.raw_inputs, input_dynamics=args.input_dynamics,
+                         **validation_options(args))
     print_outputs(out, paths)
     return 0

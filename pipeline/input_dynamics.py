@@ -1,0 +1,433 @@
+"""The dynamics between a logged control input and the surface it moves: a pure delay and
+a first-order lag per surface, estimated from the maneuvers and applied before estimation.
+
+A log's surface position is often the servo *command* (ArduPilot RCOU/AETR, PX4 actuator
+outputs, MAVLink SERVO_OUTPUT_RAW): the surface follows it through the servo's transport
+delay and lag, tens of milliseconds on small-UAV servos. A measured position can instead
+lag the surface (a filtered potentiometer: a negative delay). Output error and filter
+error take the inputs as exact; at a 2 Hz short period a 40 ms delay is 29 deg of phase,
+which a fit books on the damping and the control derivative. A pure delay does not stand
+in for a lag: with a 50 ms servo lag on the commands of the default scenario (ArduPilot
+.bin, ad hoc) output error put CLq 76 and Cldr 162 std off the truth as logged, still 14
+and 74 std with the best pure delay (33, 16, 17 ms on de, da, dr).
+
+Model of surface s: delta_s(t) = L_tau_s[u_s](t - d_s), L_tau the first-order lag
+1 / (tau s + 1) (tau = 0: none), d the delay (> 0: the surface acts after the logged value).
+
+Estimate (equation error, no aircraft data needed): the angular acceleration of the
+surface's axis (de -> pitch, da -> roll, dr -> yaw) is regressed on the measured variables,
+
+    omega_dot(t) = a_k + sum_i c_i x_i(t) + sum_s b_s delta_s(t)          (k: the maneuver)
+
+with x = p, q, r, the air-data angles (else the accelerations ay, az), V and the throttle.
+(d_s, tau_s) minimise the residual sum of squares over a grid (a profile: coarse, then
+fine around the coarse minimum, then the quadratic through the 3 x 3 points around the
+fine minimum); the other surfaces of the equation take their own latest (d, tau). The
+start is each equation's best with every surface at the same (d, tau) (aileron and rudder
+flown together: one surface at a time stayed at the other's start), then SWEEPS passes.
+omega_dot is the central difference of the gyro rate, and the response and every
+regressor are low-passed by the same zero-phase filter: it commutes with the linear
+relation and with the lag, so the regression stays consistent while the differentiated
+gyro noise above the maneuvers' band goes.
+
+std: the Cramér-Rao bound of the joint least squares in (c, b, d, tau), corrected for
+coloured residuals (Morelli-Klein, :func:`estimators.validation.uncertainty.morelli_klein`).
+A surface's dynamics are applied (:func:`with_input_dynamics`) when its equivalent delay
+d + tau (the phase at low frequency) is at least SIGNIFICANT std from zero and at least
+MIN_APPLIED_S, and neither estimate sits at the edge of the searched range.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from pipeline.flightdata import CONTROL_INPUTS, Channel, FlightData
+
+#: the rate each control input's moment equation is regressed on
+AXIS_RATE = {"de": "q", "da": "p", "dr": "r"}
+#: searched delays [s]: a servo command leads its surface by up to a few tenths of a
+#: second; a measured position lags by less
+DELAY_RANGE_S = (-0.1, 0.25)
+#: searched lag time constants [s]
+LAG_RANGE_S = (0.0, 0.2)
+#: coarse grid steps [s] (delay, lag); the fine grid is FINE_STEPS per coarse step
+COARSE_STEP_S = (0.01, 0.01)
+FINE_STEPS = 8
+#: |equivalent delay| / std from which a surface's dynamics are applied
+SIGNIFICANT = 3.0
+#: the smallest equivalent delay applied [s]: one 100 Hz sample. Below it a shift is
+#: within the logs' time-stamp resolution and the equation's own bias: the default
+#: scenario's ArduPilot .bin (commands, no servo lag) gives 4.8 +- 0.6 ms on da, its MCAP
+#: (the surfaces' positions) -1.7 to -2.4 (ad hoc); servo lags are 20-100 ms
+MIN_APPLIED_S = 0.01
+#: corner of the zero-phase low-pass on the response and the regressors [Hz], at most
+#: LOWPASS_FRACTION of the grid rate
+LOWPASS_HZ = 15.0
+LOWPASS_FRACTION = 0.3
+#: highest rate of the regression grid [Hz]
+MAX_RATE_HZ = 100.0
+#: samples kept off each end of a maneuver (the filter's edge transient)
+EDGE_SAMPLES = 10
+#: time before a maneuver the lag starts from (its initial transient settles) [s]
+LAG_LEAD_S = 1.0
+#: passes over the surfaces, each estimated with the others at their latest values
+SWEEPS = 2
+
+
+def lagged(u: np.ndarray, tau: float, h: float) -> np.ndarray:
+    """u (..., n) on a uniform grid of step h [s] through the first-order lag 1/(tau s + 1),
+    exact for u linear between samples, started in steady state at u[..., 0]; tau [s] may
+    be an array (K,) with u (n,) or (K, n): one lag per row."""
+    from scipy.signal import lfilter
+
+    taus = np.atleast_1d(np.asarray(tau, dtype=float))
+    u = np.asarray(u, dtype=float)
+    rows = np.broadcast_to(u, (taus.size, u.shape[-1])) if u.ndim == 1 else u
+    out = np.array(rows, dtype=float, copy=True)
+    for k, t in enumerate(taus):
+        if t <= 0.0:
+            continue
+        a = np.exp(-h / t)
+        b1 = 1.0 - t / h * (1.0 - a)           # weight of u_k (first-order hold)
+        b = np.array([b1, 1.0 - a - b1])
+        out[k] = lfilter(b, [1.0, -a], rows[k], zi=np.array([a * rows[k, 0]]))[0]
+    return out if np.ndim(tau) or u.ndim > 1 else out[0]
+
+
+def _regressors(fd: FlightData) -> list[str]:
+    """The measured variables besides the surfaces every moment equation is regressed on."""
+    out = [c for c in ("p", "q", "r") if c in fd]
+    for angle, accel in (("alpha", "az"), ("beta", "ay")):
+        if angle in fd:
+            out.append(angle)
+        elif accel in fd:
+            out.append(accel)
+    return out + [c for c in ("V", "throttle") if c in fd]
+
+
+class _Maneuvers:
+    """The maneuvers of one axis on the regression grid: response, regressors and each
+    surface low-passed on a grid reaching beyond the maneuver's ends (for the delays and
+    the lag's start)."""
+
+    def __init__(self, fd: FlightData, spans: Sequence[tuple[float, float]], rate: str,
+                 regressors: Sequence[str], surfaces: Sequence[str], rate_hz: float):
+        from pipeline.input_smoothing import zero_phase
+
+        fc = min(LOWPASS_HZ, LOWPASS_FRACTION * rate_hz)
+        after = max(abs(d) for d in DELAY_RANGE_S) + (EDGE_SAMPLES + 2) / rate_hz
+        before = after + LAG_LEAD_S
+        self.h = 1.0 / rate_hz
+        self.names = list(regressors)
+        self.surfaces = list(surfaces)
+        self.t: list[np.ndarray] = []          # core times per maneuver
+        self.y: list[np.ndarray] = []          # omega_dot [rad/s^2]
+        self.X: list[np.ndarray] = []          # (n, len(names))
+        self.grid: list[np.ndarray] = []       # times with the margins
+        self.u: list[dict[str, np.ndarray]] = []   # surface -> low-passed on that grid
+        chans = [rate, *regressors, *surfaces]
+        for t0, t1 in spans:
+            df = fd.resample(rate_hz, chans, t0=t0 - before, t1=t1 + after, unwrap=True)
+            if len(df) < 4 * EDGE_SAMPLES + 20 or not np.all(np.isfinite(df[chans].to_numpy())):
+                continue
+            tg = df["t"].to_numpy()
+            lp = {c: zero_phase(df[c].to_numpy(), rate_hz, fc, order=4) for c in chans}
+            idx = np.arange(tg.size)
+            core = (tg >= t0) & (tg <= t1) & (idx >= EDGE_SAMPLES) & (idx < tg.size - EDGE_SAMPLES)
+            if core.sum() < 20:
+                continue
+            self.t.append(tg[core])
+            self.y.append(np.gradient(lp[rate], tg)[core])
+            self.X.append(np.column_stack([lp[c][core] for c in regressors]))
+            self.grid.append(tg)
+            self.u.append({s: lp[s] for s in surfaces})
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def surface(self, s: str, delays: np.ndarray, lag: float) -> list[np.ndarray]:
+        """Surface ``s`` through the lag, at t - d for each delay d: (K, n) per maneuver."""
+        out = []
+        for t, g, u in zip(self.t, self.grid, self.u):
+            v = lagged(u[s], lag, self.h)
+            out.append(np.interp(t[None, :] - delays[:, None], g, v))
+        return out
+
+
+def _demeaned(parts: Sequence[np.ndarray], axis: int = 0) -> np.ndarray:
+    """The maneuvers' arrays joined along ``axis``, each with its own mean removed (the
+    per-maneuver intercept a_k profiled out)."""
+    return np.concatenate([p - p.mean(axis=axis, keepdims=True) for p in parts], axis=axis)
+
+
+def _basis(X: np.ndarray) -> np.ndarray:
+    """Orthonormal basis (n, r) of the range of X (n, P): columns without independent
+    variation (a throttle held through the maneuvers) drop out."""
+    if not X.shape[1]:
+        return X[:, :0]
+    Q, sv, _ = np.linalg.svd(X, full_matrices=False)
+    return Q[:, sv > 1e-9 * sv[0]] if sv.size and sv[0] > 0 else Q[:, :0]
+
+
+def _rss(y: np.ndarray, Q: np.ndarray, U: np.ndarray) -> np.ndarray:
+    """Residual sum of squares of y on [range(Q), U_k] for each stack U_k (ns, n) of U
+    (K, ns, n): (K,)."""
+    yp = y - Q @ (Q.T @ y)
+    Up = U - (U @ Q) @ Q.T
+    G = np.einsum("kin,kjn->kij", Up, Up)
+    b = Up @ yp
+    return float(yp @ yp) - np.einsum("ki,ki->k", b, (np.linalg.pinv(G, hermitian=True) @ b[..., None])[..., 0])
+
+
+def _common_profile(m: _Maneuvers, delays: np.ndarray, lags: np.ndarray) -> np.ndarray:
+    """RSS of the equation with every surface at the same (delay, lag): (n_lag, n_delay)."""
+    Q = _basis(_demeaned(m.X))
+    y = _demeaned(m.y)
+    return np.array([_rss(y, Q, np.stack([_demeaned(m.surface(s, delays, lag), axis=1)
+                                          for s in m.surfaces], axis=1)) for lag in lags])
+
+
+def _axis(lo: float, hi: float, step: float) -> np.ndarray:
+    return np.arange(lo, hi + 0.5 * step, step)
+
+
+def _minimum(rss: np.ndarray, delays: np.ndarray, lags: np.ndarray) -> tuple[float, float, bool]:
+    """(delay, lag, inside) at the grid minimum of ``rss`` (n_lag, n_delay), refined by the
+    quadratic through the 3 x 3 points around it (log RSS) when that is a minimum inside
+    them; ``inside``: not on the grid's delay edge or its upper lag edge."""
+    j, k = np.unravel_index(int(np.argmin(rss)), rss.shape)
+    d, tau = float(delays[k]), float(lags[j])
+    inside = 0 < k < delays.size - 1 and j < lags.size - 1
+    if not (0 < k < delays.size - 1 and 0 < j < lags.size - 1):
+        return d, tau, inside
+    z = np.log(np.maximum(rss[j - 1:j + 2, k - 1:k + 2], 1e-300))
+    hd, hl = delays[1] - delays[0], lags[1] - lags[0]
+    gd = (z[1, 2] - z[1, 0]) / 2.0
+    gl = (z[2, 1] - z[0, 1]) / 2.0
+    Hdd = z[1, 2] - 2 * z[1, 1] + z[1, 0]
+    Hll = z[2, 1] - 2 * z[1, 1] + z[0, 1]
+    Hdl = (z[2, 2] - z[2, 0] - z[0, 2] + z[0, 0]) / 4.0
+    H = np.array([[Hdd, Hdl], [Hdl, Hll]])
+    if np.all(np.linalg.eigvalsh(H) > 0):
+        step = -np.linalg.solve(H, [gd, gl])
+        if np.all(np.abs(step) <= 1.0):
+            d, tau = d + step[0] * hd, max(tau + step[1] * hl, 0.0)
+    return d, tau, inside
+
+
+def _search(profile, start: tuple[float, float] | None = None) -> tuple[float, float, bool]:
+    """(delay, lag, inside) minimising ``profile(delays, lags)`` (-> RSS (n_lag, n_delay)):
+    the coarse grid over the searched ranges (or around ``start``), then a fine grid
+    around the coarse minimum."""
+    cd, cl = COARSE_STEP_S
+    if start is None:
+        delays, lags = _axis(*DELAY_RANGE_S, cd), _axis(*LAG_RANGE_S, cl)
+        d0, l0, _ = _minimum(profile(delays, lags), delays, lags)
+    else:
+        d0, l0 = start
+    fd_, fl = cd / FINE_STEPS, cl / FINE_STEPS
+    delays = _axis(max(d0 - cd, DELAY_RANGE_S[0]), min(d0 + cd, DELAY_RANGE_S[1]), fd_)
+    lags = _axis(max(l0 - cl, LAG_RANGE_S[0]), min(l0 + cl, LAG_RANGE_S[1]), fl)
+    d, tau, _ = _minimum(profile(delays, lags), delays, lags)
+    inside = (DELAY_RANGE_S[0] + fd_ < d < DELAY_RANGE_S[1] - fd_) and tau < LAG_RANGE_S[1] - fl
+    return d, tau, inside
+
+
+def _residuals(axes: Mapping[str, _Maneuvers], dyn: Mapping[str, tuple[float, float]],
+               weights: Mapping[str, float] | None = None) -> list[np.ndarray]:
+    """Per maneuver of each equation (``axes``: surface -> its equation's maneuvers), the
+    residuals of the least-squares fit with every surface at its (delay, lag) in ``dyn``
+    (the linear coefficients and intercepts solved for), times the equation's weight."""
+    out = []
+    for e, m in axes.items():
+        moved = {o: m.surface(o, np.array([dyn[o][0]]), dyn[o][1]) for o in m.surfaces}
+        cols = [np.column_stack([X] + [moved[o][k][0] for o in m.surfaces]) for k, X in enumerate(m.X)]
+        Z = _demeaned(cols)
+        y = _demeaned(m.y)
+        Q = _basis(Z)
+        r = (y - Q @ (Q.T @ y)) * (1.0 if weights is None else weights[e])
+        out += np.split(r, np.cumsum([t.size for t in m.t])[:-1])
+    return out
+
+
+def _joint(axes: Mapping[str, _Maneuvers], start: Mapping[str, tuple[float, float]]
+           ) -> tuple[dict[str, tuple[float, float]], np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Every surface with maneuvers at once, over every equation (variable projection:
+    the linear coefficients profiled out, each equation weighted by its residual std at
+    ``start``): (surface -> (delay, lag), x, Jacobian blocks (n, 1, 2 k) of the weighted
+    residuals per maneuver, the weighted residuals per maneuver)."""
+    from scipy.optimize import least_squares
+
+    free = list(axes)
+    dyn0 = dict(start)
+    lo = np.array([DELAY_RANGE_S[0], LAG_RANGE_S[0]] * len(free))
+    hi = np.array([DELAY_RANGE_S[1], LAG_RANGE_S[1]] * len(free))
+    x0 = np.clip(np.array([v for s in free for v in start[s]]), lo, hi)
+
+    def dyn(x: np.ndarray) -> dict[str, tuple[float, float]]:
+        return {**dyn0, **{s: (float(x[2 * i]), float(x[2 * i + 1])) for i, s in enumerate(free)}}
+
+    w = {}
+    for e, m in axes.items():
+        r = np.concatenate(_residuals({e: m}, dyn(x0)))
+        w[e] = 1.0 / max(float(np.sqrt(np.mean(r ** 2))), 1e-300)
+
+    def fun(x: np.ndarray) -> np.ndarray:
+        return np.concatenate(_residuals(axes, dyn(x), w))
+
+    sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=0.01, diff_step=1e-2, method="trf")
+    x = sol.x
+    parts = np.cumsum([r.size for r in _residuals(axes, dyn(x), w)])[:-1]
+    return dyn(x), x, [-j[:, None, :] for j in np.split(sol.jac, parts)], \
+        _residuals(axes, dyn(x), w)
+
+
+def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL_INPUTS) -> dict[str, Any]:
+    """The delay and lag of each control input with maneuvers in ``fd`` (module doc).
+    Returns a JSON-ready document: ``surfaces`` (name -> delay_s, lag_s, their std
+    (Morelli-Klein) and correlation, equivalent_delay_s (d + tau) and its std, crb_std
+    of both, response (the rate whose derivative was regressed), maneuvers, samples,
+    rate_hz, at_bound, significant, applied), ``applied`` (name -> {"delay_s", "lag_s"}),
+    ``method``, ``regressors``, and ``not_estimated`` (name -> why) for surfaces without
+    maneuvers or gyro."""
+    from estimators.validation.uncertainty import morelli_klein
+
+    doc: dict[str, Any] = {
+        "method": ("equation error of the rate derivatives, all surfaces and axes at once; "
+                   f"delays {DELAY_RANGE_S[0] * 1e3:g}..{DELAY_RANGE_S[1] * 1e3:g} ms, first-order "
+                   f"lags {LAG_RANGE_S[0] * 1e3:g}..{LAG_RANGE_S[1] * 1e3:g} ms; Morelli-Klein std"),
+        "surfaces": {}, "applied": {}, "not_estimated": {}}
+    regs = _regressors(fd)
+    doc["regressors"] = regs
+    present = [s for s in surfaces if s in fd and len(fd[s]) > 1]
+    axes: dict[str, _Maneuvers] = {}
+    for s in present:
+        rate = AXIS_RATE[s]
+        spans = [(sg.t0, sg.t1) for sg in fd.segments if sg.axis == s]
+        if rate not in fd:
+            doc["not_estimated"][s] = f"no {rate} gyro channel"
+            continue
+        if not spans:
+            doc["not_estimated"][s] = "no maneuver on it"
+            continue
+        m = _Maneuvers(fd, spans, rate, [r for r in regs if r != rate] + [rate], present,
+                       float(min(fd[rate].rate_hz, MAX_RATE_HZ)))
+        if len(m) == 0:
+            doc["not_estimated"][s] = "its maneuvers lack samples of the needed channels"
+            continue
+        axes[s] = m
+    if not axes:
+        return doc
+    # start: each equation's best with all its surfaces at one (delay, lag) (a grid
+    # profile); then every surface's own pair over every equation at once
+    start: dict[str, tuple[float, float]] = {s: (0.0, 0.0) for s in present}
+    for s, m in axes.items():
+        start[s] = _search(lambda dd, ll, m=m: _common_profile(m, dd, ll))[:2]
+    dyn, x, S, v = _joint(axes, start)
+    unc = morelli_klein(S, v)
+    crb = np.sqrt(np.clip(np.diag(unc.crb_cov), 0.0, None))
+    for i, s in enumerate(axes):
+        d, tau = dyn[s]
+        C = unc.cov[2 * i:2 * i + 2, 2 * i:2 * i + 2]
+        sd, sl = np.sqrt(np.clip(np.diag(C), 0.0, None))
+        eq, eq_sd = d + tau, float(np.sqrt(max(C.sum(), 0.0)))
+        step = COARSE_STEP_S[0] / FINE_STEPS
+        inside = (DELAY_RANGE_S[0] + step < d < DELAY_RANGE_S[1] - step
+                  and tau < LAG_RANGE_S[1] - COARSE_STEP_S[1] / FINE_STEPS)
+        significant = bool(inside and np.isfinite(eq_sd) and eq_sd > 0
+                           and abs(eq) >= SIGNIFICANT * eq_sd)
+        applied = significant and abs(eq) >= MIN_APPLIED_S
+        m = axes[s]
+        doc["surfaces"][s] = {
+            "delay_s": d, "delay_std": float(sd), "lag_s": tau, "lag_std": float(sl),
+            "corr": float(C[0, 1] / (sd * sl)) if sd > 0 and sl > 0 else None,
+            "equivalent_delay_s": eq, "equivalent_std": eq_sd,
+            "crb_std": [float(crb[2 * i]), float(crb[2 * i + 1])],
+            "response": f"d{AXIS_RATE[s]}/dt", "maneuvers": len(m),
+            "samples": int(sum(t.size for t in m.t)), "rate_hz": 1.0 / m.h,
+            "at_bound": not inside, "significant": significant, "applied": bool(applied)}
+        if applied:
+            doc["applied"][s] = {"delay_s": d, "lag_s": tau}
+    return doc
+
+
+def covariance(doc: Mapping[str, Any]) -> tuple[list[str], np.ndarray, dict[str, tuple[str, str]]]:
+    """(names, covariance, name -> (surface, "delay_s" | "lag_s")) of the applied
+    dynamics of ``doc``: each surface's delay and lag with their Morelli-Klein covariance,
+    surfaces independent (lags fixed at 0 are left out)."""
+    names, blocks, where = [], [], {}
+    for s in (doc.get("applied") or {}):
+        d = doc["surfaces"][s]
+        sd = [d["delay_std"]] + ([d["lag_std"]] if d["lag_s"] > 0 else [])
+        r = d["corr"] if d["corr"] is not None else 0.0
+        C = np.diag(np.square(sd))
+        if len(sd) == 2:
+            C[0, 1] = C[1, 0] = r * sd[0] * sd[1]
+        for key in ("delay_s", "lag_s")[:len(sd)]:
+            names.append(f"{s} {key[:-2]}")
+            where[names[-1]] = (s, key)
+        blocks.append(C)
+    n = len(names)
+    out = np.zeros((n, n))
+    i = 0
+    for C in blocks:
+        out[i:i + len(C), i:i + len(C)] = C
+        i += len(C)
+    return names, out, where
+
+
+def with_input_dynamics(fd: FlightData, dynamics: Mapping[str, Mapping[str, float]]) -> FlightData:
+    """``fd`` with each control input of ``dynamics`` (name -> {"delay_s", "lag_s"}) as
+    its surface moves: the logged values through the lag, then the time stamps moved later
+    by the delay (the models see L[u](t - d)); ``fd`` itself unchanged, and returned as it
+    is when nothing changes. The lag runs on a uniform grid at the channel's median
+    interval, started in steady state, and is read back at the channel's own times."""
+    todo = {s: (float(v.get("delay_s", 0.0)), float(v.get("lag_s", 0.0)))
+            for s, v in dynamics.items() if s in fd.channels and len(fd.channels[s]) > 1}
+    todo = {s: dl for s, dl in todo.items() if dl != (0.0, 0.0)}
+    if not todo:
+        return fd
+    chans = dict(fd.channels)
+    for s, (d, tau) in todo.items():
+        c = chans[s]
+        vals = c.values
+        if tau > 0.0:
+            h = float(np.median(np.diff(c.t)))
+            g = np.arange(c.t[0], c.t[-1] + 0.5 * h, h)
+            vals = np.interp(c.t, g, lagged(np.interp(g, c.t, c.values), tau, h))
+        chans[s] = Channel(c.t + d, vals, c.unit,
+                           f"{c.source} (as its surface: delay {d * 1e3:.1f} ms, lag "
+                           f"{tau * 1e3:.1f} ms estimated)", c.notes, c.derived)
+    meta = dict(fd.meta)
+    meta["input_dynamics"] = {s: {"delay_s": d, "lag_s": tau} for s, (d, tau) in todo.items()}
+    return FlightData(chans, meta, list(fd.segments))
+
+
+def summary(doc: Mapping[str, Any]) -> str:
+    """One line for report.md from the document of :func:`estimate_input_dynamics` or of
+    the run's stage (skipped, given, failed)."""
+    status = doc.get("status", "estimated")
+    if status == "skipped":
+        return f"not estimated: {doc.get('reason', 'skipped')}"
+    if status == "failed":
+        return f"estimate failed ({doc.get('reason', '')}); inputs as logged"
+    if status == "given":
+        return ", ".join(f"{s} delay {v['delay_s'] * 1e3:+.1f} ms, lag {v['lag_s'] * 1e3:.1f} ms"
+                         for s, v in doc["applied"].items()) + " (given)"
+    parts = []
+    for s, d in (doc.get("surfaces") or {}).items():
+        state = ("applied" if d["applied"] else "at the search bound, not applied" if d["at_bound"]
+                 else f"below {MIN_APPLIED_S * 1e3:g} ms, not applied" if d["significant"]
+                 else "not significant")
+        parts.append(f"{s} delay {d['delay_s'] * 1e3:+.1f} +- {d['delay_std'] * 1e3:.1f} ms, lag "
+                     f"{d['lag_s'] * 1e3:.1f} +- {d['lag_std'] * 1e3:.1f} ms ({state})")
+    parts += [f"{s}: {why}" for s, why in (doc.get("not_estimated") or {}).items()]
+    line = "; ".join(parts) or "no control input with maneuvers"
+    unc = doc.get("uncertainty") or {}
+    if unc:
+        bad = {k: v for k, v in unc["methods"].items() if v != "propagated"}
+        line += ("; their std carried to the estimates' std as a consider part"
+                 + (f" (except {'; '.join(f'{k}: {v}' for k, v in bad.items())})" if bad else ""))
+    return line
