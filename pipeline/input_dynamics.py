@@ -14,30 +14,35 @@ and 74 std with the best pure delay (33, 16, 17 ms on de, da, dr).
 Model of surface s: delta_s(t) = L_tau_s[u_s](t - d_s), L_tau the first-order lag
 1 / (tau s + 1) (tau = 0: none), d the delay (> 0: the surface acts after the logged value).
 
-Estimate (equation error, no aircraft data needed): the angular acceleration of the
+Estimate (equation error, no aircraft data needed): the angular acceleration of each
 surface's axis (de -> pitch, da -> roll, dr -> yaw) is regressed on the measured variables,
 
     omega_dot(t) = a_k + sum_i c_i x_i(t) + sum_s b_s delta_s(t)          (k: the maneuver)
 
-with x = p, q, r, the air-data angles (else the accelerations ay, az), V and the throttle.
-(d_s, tau_s) minimise the residual sum of squares over a grid (a profile: coarse, then
-fine around the coarse minimum, then the quadratic through the 3 x 3 points around the
-fine minimum); the other surfaces of the equation take their own latest (d, tau). The
-start is each equation's best with every surface at the same (d, tau) (aileron and rudder
-flown together: one surface at a time stayed at the other's start), then SWEEPS passes.
-omega_dot is the central difference of the gyro rate, and the response and every
-regressor are low-passed by the same zero-phase filter: it commutes with the linear
-relation and with the lag, so the regression stays consistent while the differentiated
-gyro noise above the maneuvers' band goes.
+over the maneuvers on that surface, with x = p, q, r, the air-data angles (else the
+accelerations ay, az, which carry the surfaces' own force and bias the estimate), V and
+the throttle. Every surface's (d, tau) is found over all the equations at once (variable
+projection: the linear coefficients solved for inside a bounded least squares in the
+delays and lags, each equation weighted by its residual rms), from a start where each
+equation's surfaces share one (d, tau) found on a grid (aileron and rudder flown
+together: one surface at a time stayed at the other's start). omega_dot is the central
+difference of the gyro rate, and the response and every regressor are low-passed by the
+same zero-phase filter: it commutes with the linear relation and with the lag, so the
+regression stays consistent while the differentiated gyro noise above the maneuvers' band
+goes. The surfaces are read between samples by cubic convolution (smooth in the delay).
 
-std: the Cramér-Rao bound of the joint least squares in (c, b, d, tau), corrected for
-coloured residuals (Morelli-Klein, :func:`estimators.validation.uncertainty.morelli_klein`).
-A surface's dynamics are applied (:func:`with_input_dynamics`) when its equivalent delay
-d + tau (the phase at low frequency) is at least SIGNIFICANT std from zero and at least
-MIN_APPLIED_S, and neither estimate sits at the edge of the searched range.
+std: the Cramér-Rao bound of the joint least squares, corrected for coloured residuals
+(Morelli-Klein, :func:`estimators.validation.uncertainty.morelli_klein`), widened to the
+delete-a-group jackknife over the maneuvers where that is larger (the maneuvers disagree
+by more than one fit's residuals say: on the 50 ms lag above, the aileron's lag 55 +- 10
+instead of +- 1.5 ms). A surface's dynamics are applied (:func:`with_input_dynamics`) when
+its equivalent delay d + tau (the phase at low frequency) is at least SIGNIFICANT std from
+zero and at least MIN_APPLIED_S, and neither estimate sits at an end of its range
+(DELAY_RANGE_S, LAG_RANGE_S: equation error is biased in turbulence, see there).
 """
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -47,14 +52,19 @@ from pipeline.flightdata import CONTROL_INPUTS, Channel, FlightData
 
 #: the rate each control input's moment equation is regressed on
 AXIS_RATE = {"de": "q", "da": "p", "dr": "r"}
-#: searched delays [s]: a servo command leads its surface by up to a few tenths of a
-#: second; a measured position lags by less
-DELAY_RANGE_S = (-0.1, 0.25)
+#: searched delays [s]: a servo command leads its surface by up to about 0.1 s; a measured
+#: position lags it by a few ms (a negative delay). An estimate at an end of the range is
+#: not applied: equation error is biased in turbulence (its rates carry the gusts' response),
+#: and on multiaxis_multisine_turbulence's MCAP (the surfaces' own positions, no delay) it
+#: put the aileron's delay at 216-228 ms (seeds 31-33, ad hoc) and the elevator's at the
+#: lower end
+DELAY_RANGE_S = (-0.02, 0.15)
 #: searched lag time constants [s]
-LAG_RANGE_S = (0.0, 0.2)
-#: coarse grid steps [s] (delay, lag); the fine grid is FINE_STEPS per coarse step
-COARSE_STEP_S = (0.01, 0.01)
-FINE_STEPS = 8
+LAG_RANGE_S = (0.0, 0.15)
+#: step of the grid the joint least squares starts from [s] (delays and lags)
+GRID_STEP_S = 0.01
+#: how close to an end of its range an estimate counts as at that end [s]
+AT_END_S = 0.001
 #: |equivalent delay| / std from which a surface's dynamics are applied
 SIGNIFICANT = 3.0
 #: the smallest equivalent delay applied [s]: one 100 Hz sample. Below it a shift is
@@ -72,8 +82,8 @@ MAX_RATE_HZ = 100.0
 EDGE_SAMPLES = 10
 #: time before a maneuver the lag starts from (its initial transient settles) [s]
 LAG_LEAD_S = 1.0
-#: passes over the surfaces, each estimated with the others at their latest values
-SWEEPS = 2
+#: groups of the delete-a-group jackknife over the maneuvers
+JACKKNIFE_GROUPS = 10
 
 
 def lagged(u: np.ndarray, tau: float, h: float) -> np.ndarray:
@@ -87,7 +97,7 @@ def lagged(u: np.ndarray, tau: float, h: float) -> np.ndarray:
     rows = np.broadcast_to(u, (taus.size, u.shape[-1])) if u.ndim == 1 else u
     out = np.array(rows, dtype=float, copy=True)
     for k, t in enumerate(taus):
-        if t <= 0.0:
+        if t <= 1e-6 * h:                      # no lag (or one far below a sample)
             continue
         a = np.exp(-h / t)
         b1 = 1.0 - t / h * (1.0 - a)           # weight of u_k (first-order hold)
@@ -127,6 +137,7 @@ class _Maneuvers:
         self.X: list[np.ndarray] = []          # (n, len(names))
         self.grid: list[np.ndarray] = []       # times with the margins
         self.u: list[dict[str, np.ndarray]] = []   # surface -> low-passed on that grid
+        self._lagged: dict[tuple[str, float], list[np.ndarray]] = {}
         chans = [rate, *regressors, *surfaces]
         for t0, t1 in spans:
             df = fd.resample(rate_hz, chans, t0=t0 - before, t1=t1 + after, unwrap=True)
@@ -147,13 +158,39 @@ class _Maneuvers:
     def __len__(self) -> int:
         return len(self.t)
 
-    def surface(self, s: str, delays: np.ndarray, lag: float) -> list[np.ndarray]:
-        """Surface ``s`` through the lag, at t - d for each delay d: (K, n) per maneuver."""
-        out = []
-        for t, g, u in zip(self.t, self.grid, self.u):
-            v = lagged(u[s], lag, self.h)
-            out.append(np.interp(t[None, :] - delays[:, None], g, v))
+    def subset(self, keep: Sequence[int]) -> "_Maneuvers":
+        """The same equation on the maneuvers ``keep`` (indices) only."""
+        out = copy.copy(self)
+        for name in ("t", "y", "X", "grid", "u"):
+            setattr(out, name, [getattr(self, name)[k] for k in keep])
+        out._lagged = {}
         return out
+
+    def surface(self, s: str, delays: np.ndarray, lag: float) -> list[np.ndarray]:
+        """Surface ``s`` through the lag, at t - d for each delay d: (K, n) per maneuver,
+        cubic between the samples (:func:`cubic_at`: smooth in d; linear interpolation
+        made the residuals kink at every sample and the least squares stop short). The
+        lagged series are kept per lag (the delays' finite differences reuse them)."""
+        key = (s, float(lag))
+        if key not in self._lagged:
+            if len(self._lagged) > 64:
+                self._lagged.clear()
+            self._lagged[key] = [lagged(u[s], lag, self.h) for u in self.u]
+        return [cubic_at(v, g[0], self.h, t[None, :] - delays[:, None])
+                for t, g, v in zip(self.t, self.grid, self._lagged[key])]
+
+
+def cubic_at(v: np.ndarray, t0: float, h: float, x: np.ndarray) -> np.ndarray:
+    """Samples v (n,) at t0 + k h interpolated at times x (any shape) by cubic convolution
+    (Keys, a = -1/2: exact for quadratics, continuous first derivative); x is clipped to
+    the samples' span."""
+    n = v.size
+    s = np.clip((np.asarray(x, dtype=float) - t0) / h, 0.0, n - 1.0)
+    k = np.minimum(np.floor(s).astype(int), n - 2)
+    f = s - k
+    vp = np.concatenate([[2 * v[0] - v[1]], v, [2 * v[-1] - v[-2], 2 * v[-1] - v[-2]]])
+    p0, p1, p2, p3 = vp[k], vp[k + 1], vp[k + 2], vp[k + 3]
+    return p1 + 0.5 * f * (p2 - p0 + f * (2 * p0 - 5 * p1 + 4 * p2 - p3 + f * (3 * (p1 - p2) + p3 - p0)))
 
 
 def _demeaned(parts: Sequence[np.ndarray], axis: int = 0) -> np.ndarray:
@@ -169,6 +206,15 @@ def _basis(X: np.ndarray) -> np.ndarray:
         return X[:, :0]
     Q, sv, _ = np.linalg.svd(X, full_matrices=False)
     return Q[:, sv > 1e-9 * sv[0]] if sv.size and sv[0] > 0 else Q[:, :0]
+
+
+def _ls_residuals(Z: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """y - Z c with c the least squares (normal equations of the column-scaled Z, a
+    pseudo-inverse for columns without independent variation)."""
+    scale = np.sqrt(np.einsum("ij,ij->j", Z, Z))
+    Zs = Z / np.where(scale > 0, scale, 1.0)
+    c = np.linalg.pinv(Zs.T @ Zs, rcond=1e-12, hermitian=True) @ (Zs.T @ y)
+    return y - Zs @ c
 
 
 def _rss(y: np.ndarray, Q: np.ndarray, U: np.ndarray) -> np.ndarray:
@@ -189,50 +235,28 @@ def _common_profile(m: _Maneuvers, delays: np.ndarray, lags: np.ndarray) -> np.n
                                           for s in m.surfaces], axis=1)) for lag in lags])
 
 
-def _axis(lo: float, hi: float, step: float) -> np.ndarray:
-    return np.arange(lo, hi + 0.5 * step, step)
-
-
-def _minimum(rss: np.ndarray, delays: np.ndarray, lags: np.ndarray) -> tuple[float, float, bool]:
-    """(delay, lag, inside) at the grid minimum of ``rss`` (n_lag, n_delay), refined by the
-    quadratic through the 3 x 3 points around it (log RSS) when that is a minimum inside
-    them; ``inside``: not on the grid's delay edge or its upper lag edge."""
+def _grid_start(m: _Maneuvers) -> tuple[float, float]:
+    """The start of the joint least squares for the surfaces of equation ``m``: the
+    (delay, lag) they best share on the grid of GRID_STEP_S over the searched ranges,
+    refined by the quadratic through the 3 x 3 points around the grid minimum (log RSS)
+    when that is a minimum within them."""
+    delays = np.arange(DELAY_RANGE_S[0], DELAY_RANGE_S[1] + 0.5 * GRID_STEP_S, GRID_STEP_S)
+    lags = np.arange(LAG_RANGE_S[0], LAG_RANGE_S[1] + 0.5 * GRID_STEP_S, GRID_STEP_S)
+    rss = _common_profile(m, delays, lags)
     j, k = np.unravel_index(int(np.argmin(rss)), rss.shape)
     d, tau = float(delays[k]), float(lags[j])
-    inside = 0 < k < delays.size - 1 and j < lags.size - 1
     if not (0 < k < delays.size - 1 and 0 < j < lags.size - 1):
-        return d, tau, inside
+        return d, tau
     z = np.log(np.maximum(rss[j - 1:j + 2, k - 1:k + 2], 1e-300))
-    hd, hl = delays[1] - delays[0], lags[1] - lags[0]
-    gd = (z[1, 2] - z[1, 0]) / 2.0
-    gl = (z[2, 1] - z[0, 1]) / 2.0
-    Hdd = z[1, 2] - 2 * z[1, 1] + z[1, 0]
-    Hll = z[2, 1] - 2 * z[1, 1] + z[0, 1]
-    Hdl = (z[2, 2] - z[2, 0] - z[0, 2] + z[0, 0]) / 4.0
-    H = np.array([[Hdd, Hdl], [Hdl, Hll]])
+    g = np.array([z[1, 2] - z[1, 0], z[2, 1] - z[0, 1]]) / 2.0
+    H = np.array([[z[1, 2] - 2 * z[1, 1] + z[1, 0], (z[2, 2] - z[2, 0] - z[0, 2] + z[0, 0]) / 4.0],
+                  [0.0, z[2, 1] - 2 * z[1, 1] + z[0, 1]]])
+    H[1, 0] = H[0, 1]
     if np.all(np.linalg.eigvalsh(H) > 0):
-        step = -np.linalg.solve(H, [gd, gl])
+        step = -np.linalg.solve(H, g)
         if np.all(np.abs(step) <= 1.0):
-            d, tau = d + step[0] * hd, max(tau + step[1] * hl, 0.0)
-    return d, tau, inside
-
-
-def _search(profile, start: tuple[float, float] | None = None) -> tuple[float, float, bool]:
-    """(delay, lag, inside) minimising ``profile(delays, lags)`` (-> RSS (n_lag, n_delay)):
-    the coarse grid over the searched ranges (or around ``start``), then a fine grid
-    around the coarse minimum."""
-    cd, cl = COARSE_STEP_S
-    if start is None:
-        delays, lags = _axis(*DELAY_RANGE_S, cd), _axis(*LAG_RANGE_S, cl)
-        d0, l0, _ = _minimum(profile(delays, lags), delays, lags)
-    else:
-        d0, l0 = start
-    fd_, fl = cd / FINE_STEPS, cl / FINE_STEPS
-    delays = _axis(max(d0 - cd, DELAY_RANGE_S[0]), min(d0 + cd, DELAY_RANGE_S[1]), fd_)
-    lags = _axis(max(l0 - cl, LAG_RANGE_S[0]), min(l0 + cl, LAG_RANGE_S[1]), fl)
-    d, tau, _ = _minimum(profile(delays, lags), delays, lags)
-    inside = (DELAY_RANGE_S[0] + fd_ < d < DELAY_RANGE_S[1] - fd_) and tau < LAG_RANGE_S[1] - fl
-    return d, tau, inside
+            d, tau = d + step[0] * GRID_STEP_S, max(tau + step[1] * GRID_STEP_S, 0.0)
+    return d, tau
 
 
 def _residuals(axes: Mapping[str, _Maneuvers], dyn: Mapping[str, tuple[float, float]],
@@ -244,20 +268,19 @@ def _residuals(axes: Mapping[str, _Maneuvers], dyn: Mapping[str, tuple[float, fl
     for e, m in axes.items():
         moved = {o: m.surface(o, np.array([dyn[o][0]]), dyn[o][1]) for o in m.surfaces}
         cols = [np.column_stack([X] + [moved[o][k][0] for o in m.surfaces]) for k, X in enumerate(m.X)]
-        Z = _demeaned(cols)
-        y = _demeaned(m.y)
-        Q = _basis(Z)
-        r = (y - Q @ (Q.T @ y)) * (1.0 if weights is None else weights[e])
+        r = _ls_residuals(_demeaned(cols), _demeaned(m.y)) * (1.0 if weights is None else weights[e])
         out += np.split(r, np.cumsum([t.size for t in m.t])[:-1])
     return out
 
 
-def _joint(axes: Mapping[str, _Maneuvers], start: Mapping[str, tuple[float, float]]
-           ) -> tuple[dict[str, tuple[float, float]], np.ndarray, np.ndarray, list[np.ndarray]]:
+def _joint(axes: Mapping[str, _Maneuvers], start: Mapping[str, tuple[float, float]],
+           weights: Mapping[str, float] | None = None
+           ) -> tuple[dict[str, tuple[float, float]], dict[str, float], list[np.ndarray], list[np.ndarray]]:
     """Every surface with maneuvers at once, over every equation (variable projection:
-    the linear coefficients profiled out, each equation weighted by its residual std at
-    ``start``): (surface -> (delay, lag), x, Jacobian blocks (n, 1, 2 k) of the weighted
-    residuals per maneuver, the weighted residuals per maneuver)."""
+    the linear coefficients profiled out; each equation weighted by ``weights``, default
+    1 / its residual rms at ``start``): (surface -> (delay, lag), the weights, Jacobian
+    blocks (n, 1, 2 k) of the weighted prediction per maneuver, the weighted residuals per
+    maneuver)."""
     from scipy.optimize import least_squares
 
     free = list(axes)
@@ -269,19 +292,47 @@ def _joint(axes: Mapping[str, _Maneuvers], start: Mapping[str, tuple[float, floa
     def dyn(x: np.ndarray) -> dict[str, tuple[float, float]]:
         return {**dyn0, **{s: (float(x[2 * i]), float(x[2 * i + 1])) for i, s in enumerate(free)}}
 
-    w = {}
-    for e, m in axes.items():
-        r = np.concatenate(_residuals({e: m}, dyn(x0)))
-        w[e] = 1.0 / max(float(np.sqrt(np.mean(r ** 2))), 1e-300)
+    if weights is None:
+        weights = {}
+        for e, m in axes.items():
+            r = np.concatenate(_residuals({e: m}, dyn(x0)))
+            weights[e] = 1.0 / max(float(np.sqrt(np.mean(r ** 2))), 1e-300)
 
     def fun(x: np.ndarray) -> np.ndarray:
-        return np.concatenate(_residuals(axes, dyn(x), w))
+        return np.concatenate(_residuals(axes, dyn(x), weights))
 
-    sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=0.01, diff_step=1e-2, method="trf")
-    x = sol.x
-    parts = np.cumsum([r.size for r in _residuals(axes, dyn(x), w)])[:-1]
-    return dyn(x), x, [-j[:, None, :] for j in np.split(sol.jac, parts)], \
-        _residuals(axes, dyn(x), w)
+    # diff_step is relative to max(1, |x|): 2e-4 s steps (delays and lags of 0.001-0.2 s)
+    sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=0.01, diff_step=2e-4, method="trf")
+    v = _residuals(axes, dyn(sol.x), weights)
+    parts = np.cumsum([r.size for r in v])[:-1]
+    return dyn(sol.x), weights, [-j[:, None, :] for j in np.split(sol.jac, parts)], v
+
+
+def _jackknife(axes: Mapping[str, _Maneuvers], dyn: Mapping[str, tuple[float, float]],
+               weights: Mapping[str, float]) -> np.ndarray | None:
+    """Delete-a-group jackknife covariance (2 k, 2 k) of the joint estimate over the
+    maneuvers of every equation (at most JACKKNIFE_GROUPS groups; None with fewer than 3
+    maneuvers): the spread the maneuvers' disagreement gives, which the Morelli-Klein
+    bound of one fit cannot see (model error that differs between maneuvers)."""
+    pairs = [(e, k) for e, m in axes.items() for k in range(len(m))]
+    if len(pairs) < 3:
+        return None
+    groups = np.array_split(np.arange(len(pairs)), min(len(pairs), JACKKNIFE_GROUPS))
+    est = []
+    for grp in groups:
+        drop = {pairs[i] for i in grp}
+        sub = {e: m.subset([k for k in range(len(m)) if (e, k) not in drop]) for e, m in axes.items()}
+        sub = {e: m for e, m in sub.items() if len(m)}
+        if not sub:
+            continue
+        got = _joint(sub, dyn, weights)[0]
+        est.append([v for e in axes for v in got[e]])
+    E = np.asarray(est)
+    g = len(E)
+    if g < 3:
+        return None
+    dev = E - E.mean(axis=0)
+    return (g - 1) / g * dev.T @ dev
 
 
 def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL_INPUTS) -> dict[str, Any]:
@@ -324,18 +375,25 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
     # profile); then every surface's own pair over every equation at once
     start: dict[str, tuple[float, float]] = {s: (0.0, 0.0) for s in present}
     for s, m in axes.items():
-        start[s] = _search(lambda dd, ll, m=m: _common_profile(m, dd, ll))[:2]
-    dyn, x, S, v = _joint(axes, start)
+        start[s] = _grid_start(m)
+    dyn, weights, S, v = _joint(axes, start)
     unc = morelli_klein(S, v)
     crb = np.sqrt(np.clip(np.diag(unc.crb_cov), 0.0, None))
+    jk = _jackknife(axes, dyn, weights)
     for i, s in enumerate(axes):
         d, tau = dyn[s]
         C = unc.cov[2 * i:2 * i + 2, 2 * i:2 * i + 2]
+        mk = np.sqrt(np.clip(np.diag(C), 0.0, None))
+        widen = np.ones(2)
+        if jk is not None:
+            spread = np.sqrt(np.clip(np.diag(jk)[2 * i:2 * i + 2], 0.0, None))
+            ok = mk > 1e-9                         # (a lag at 0 has no std of its own)
+            widen = np.where(ok, np.maximum(1.0, spread / np.where(ok, mk, 1.0)), 1.0)
+            C = C * np.outer(widen, widen)
         sd, sl = np.sqrt(np.clip(np.diag(C), 0.0, None))
         eq, eq_sd = d + tau, float(np.sqrt(max(C.sum(), 0.0)))
-        step = COARSE_STEP_S[0] / FINE_STEPS
-        inside = (DELAY_RANGE_S[0] + step < d < DELAY_RANGE_S[1] - step
-                  and tau < LAG_RANGE_S[1] - COARSE_STEP_S[1] / FINE_STEPS)
+        inside = (DELAY_RANGE_S[0] + AT_END_S < d < DELAY_RANGE_S[1] - AT_END_S
+                  and tau < LAG_RANGE_S[1] - AT_END_S)
         significant = bool(inside and np.isfinite(eq_sd) and eq_sd > 0
                            and abs(eq) >= SIGNIFICANT * eq_sd)
         applied = significant and abs(eq) >= MIN_APPLIED_S
@@ -345,6 +403,8 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
             "corr": float(C[0, 1] / (sd * sl)) if sd > 0 and sl > 0 else None,
             "equivalent_delay_s": eq, "equivalent_std": eq_sd,
             "crb_std": [float(crb[2 * i]), float(crb[2 * i + 1])],
+            "mk_std": [float(x) for x in mk],
+            "std_from": ("jackknife over maneuvers" if np.any(widen > 1.0) else "Morelli-Klein"),
             "response": f"d{AXIS_RATE[s]}/dt", "maneuvers": len(m),
             "samples": int(sum(t.size for t in m.t)), "rate_hz": 1.0 / m.h,
             "at_bound": not inside, "significant": significant, "applied": bool(applied)}

@@ -1352,11 +1352,12 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     if user:                         # cheap checks before the log is read
         split_spec(model)
         check_methods(methods)
-    # ingest, aircraft, air-data angles, checks, compatibility, its uncertainty, outputs (7),
+    # ingest, aircraft, air-data angles, checks, compatibility, input dynamics, its
+    # uncertainty, outputs (8),
     # the user model's loading, the validation flight's ingest and angles, a fit and its
     # validation per method and axis (both axes for auto: recounted once the log is read)
     vlogs = validation_flights(validation_log)
-    pr = Progress(7 + user + 2 * len(vlogs)
+    pr = Progress(8 + user + 2 * len(vlogs)
                   + 2 * len(methods) * (2 if model == "auto" else 1), quiet=quiet)
     pr.stage(f"ingest {log}")
     from pipeline.aircraft_setup import servo_travel_for
