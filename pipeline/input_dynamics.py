@@ -78,6 +78,9 @@ LOWPASS_HZ = 15.0
 LOWPASS_FRACTION = 0.3
 #: highest rate of the regression grid [Hz]
 MAX_RATE_HZ = 100.0
+#: lowest gyro rate the delays are estimated from [Hz]: a 10-50 ms delay is a fraction of
+#: a sample below it
+MIN_RATE_HZ = 20.0
 #: samples kept off each end of a maneuver (the filter's edge transient)
 EDGE_SAMPLES = 10
 #: time before a maneuver the lag starts from (its initial transient settles) [s]
@@ -356,9 +359,14 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
     axes: dict[str, _Maneuvers] = {}
     for s in present:
         rate = AXIS_RATE[s]
-        spans = [(sg.t0, sg.t1) for sg in fd.segments if sg.axis == s]
+        # its own maneuvers, and spans given without an axis (user or mode segments)
+        spans = [(sg.t0, sg.t1) for sg in fd.segments if sg.axis in (s, None)]
         if rate not in fd:
             doc["not_estimated"][s] = f"no {rate} gyro channel"
+            continue
+        if fd[rate].rate_hz < MIN_RATE_HZ:
+            doc["not_estimated"][s] = (f"needs the {rate} gyro at >= {MIN_RATE_HZ:g} Hz, the log has "
+                                       f"it at {fd[rate].rate_hz:.3g} Hz (telemetry?): use the onboard log")
             continue
         if not spans:
             doc["not_estimated"][s] = "no maneuver on it"
