@@ -37,8 +37,11 @@ delete-a-group jackknife over the maneuvers where that is larger (the maneuvers 
 by more than one fit's residuals say: on the 50 ms lag above, the aileron's lag 55 +- 10
 instead of +- 1.5 ms). A surface's dynamics are applied (:func:`with_input_dynamics`) when
 its equivalent delay d + tau (the phase at low frequency) is at least SIGNIFICANT std from
-zero and at least MIN_APPLIED_S, and neither estimate sits at an end of its range
-(DELAY_RANGE_S, LAG_RANGE_S: equation error is biased in turbulence, see there).
+zero and at least MIN_APPLIED_S (positive: a log lagging its surface by 10 ms or more
+would need a position sensor filtered that slowly; on multiaxis_multisine_turbulence's
+.bin, commands without lag, the gusts gave the rudder -19 +- 6 ms), and neither
+estimate sits at an end of its range (DELAY_RANGE_S, LAG_RANGE_S: equation error is
+biased in turbulence, see there).
 """
 from __future__ import annotations
 
@@ -404,7 +407,7 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
                   and tau < LAG_RANGE_S[1] - AT_END_S)
         significant = bool(inside and np.isfinite(eq_sd) and eq_sd > 0
                            and abs(eq) >= SIGNIFICANT * eq_sd)
-        applied = significant and abs(eq) >= MIN_APPLIED_S
+        applied = significant and eq >= MIN_APPLIED_S
         m = axes[s]
         doc["surfaces"][s] = {
             "delay_s": d, "delay_std": float(sd), "lag_s": tau, "lag_std": float(sl),
@@ -423,17 +426,18 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
 
 def covariance(doc: Mapping[str, Any]) -> tuple[list[str], np.ndarray, dict[str, tuple[str, str]]]:
     """(names, covariance, name -> (surface, "delay_s" | "lag_s")) of the applied
-    dynamics of ``doc``: each surface's delay and lag with their Morelli-Klein covariance,
-    surfaces independent (lags fixed at 0 are left out)."""
+    dynamics of ``doc``: each surface's delay and lag with their covariance, surfaces
+    independent (a value without a std - a lag at 0, its bound - left out)."""
     names, blocks, where = [], [], {}
     for s in (doc.get("applied") or {}):
         d = doc["surfaces"][s]
-        sd = [d["delay_std"]] + ([d["lag_std"]] if d["lag_s"] > 0 else [])
-        r = d["corr"] if d["corr"] is not None else 0.0
+        keys = [k for k in ("delay_s", "lag_s")
+                if np.isfinite(d[f"{k[:-2]}_std"]) and d[f"{k[:-2]}_std"] > 0]
+        sd = [d[f"{k[:-2]}_std"] for k in keys]
         C = np.diag(np.square(sd))
         if len(sd) == 2:
-            C[0, 1] = C[1, 0] = r * sd[0] * sd[1]
-        for key in ("delay_s", "lag_s")[:len(sd)]:
+            C[0, 1] = C[1, 0] = (d["corr"] or 0.0) * sd[0] * sd[1]
+        for key in keys:
             names.append(f"{s} {key[:-2]}")
             where[names[-1]] = (s, key)
         blocks.append(C)
@@ -487,6 +491,8 @@ def summary(doc: Mapping[str, Any]) -> str:
     parts = []
     for s, d in (doc.get("surfaces") or {}).items():
         state = ("applied" if d["applied"] else "at the search bound, not applied" if d["at_bound"]
+                 else "the log lagging its surface, not applied" if d["significant"]
+                 and d["equivalent_delay_s"] < 0
                  else f"below {MIN_APPLIED_S * 1e3:g} ms, not applied" if d["significant"]
                  else "not significant")
         parts.append(f"{s} delay {d['delay_s'] * 1e3:+.1f} +- {d['delay_std'] * 1e3:.1f} ms, lag "
