@@ -9,18 +9,18 @@ std (``reported``, 1 = honest; the 95 % band from n seeds is about +-1.4/sqrt(n)
 same for the Morelli-Klein std alone (``mk``, before the jackknife widening), bias in
 empirical std, and the share of seeds where the surface was applied.
 
-Measured (seeds 300-307, 2026-11-25):
-  default, lag 0.05 s: mean lags de 48.4, da 56.3, dr 50.2 ms, delays -1.0..-0.5 ms; every
-      surface applied on every seed. Empirical / reported std 0.12-0.75 (the jackknife
-      widening; the Morelli-Klein std alone 0.73-1.26), the aileron's lag biased +6 ms
-      (5.3 empirical std, inside its reported std of about 10 ms).
-  default, --lag 0.02: de 20.8 ms (delay -1.2); da 35.0 (delay -4.3), dr 29.3 (delay -3.4):
-      the lateral lags biased +9 to +15 ms (5.5-7.7 empirical std; the Morelli-Klein std
-      alone 1.5-2.5x optimistic), their reported std 4-7x the scatter, so the aileron is
-      applied on no seed and the rudder on 3 of 8.
-  lateral_doublets_calm, lag 0.05 s: da 56.5, dr 47.4 ms; reported 0.11-0.59.
-  So the std are conservative and carry the lateral lags' bias (also on noise-free truth
-  data: a model-structure bias of the linear roll and yaw equations, not traced).
+Measured (seeds 300-307, 2026-11-25; noisy air data low-passed at their noise floor, the
+regressors scaled by the dynamic pressure):
+  default, lag 0.05 s: mean lags de 49.1, da 56.2, dr 51.6 ms, delays -0.3..0.1 ms; every
+      surface applied on every seed. Empirical / reported std 0.11-0.91 (the jackknife
+      widening), 0.66-1.51 with the Morelli-Klein std alone. The aileron's lag is biased
+      +6 ms (5.9 empirical std), inside its reported std of about 10 ms.
+  default, --lag 0.02: de 20.4 ms, da 23.2 (delay -1.5), dr 20.8; applied on every seed;
+      reported 0.17-0.83, Morelli-Klein alone 0.86-1.26.
+  Before the air data's smoothing, at 0.02 s: da 35.0, dr 29.3 ms (the 0.17 deg vane
+  noise in beta biases the least squares; with the noise-free sideslip 21.8, 22.0) and the
+  aileron applied on no seed. The bias left at 0.05 s goes with that noise too (52.7 ms
+  from the noise-free sideslip, ad hoc).
 
     python benchmarks/input_dynamics_mc.py [--seeds 8] [--seed-base 300] [--jobs 2]
         [--scenario default] [--lag 0.05]

@@ -21,7 +21,8 @@ surface's axis (de -> pitch, da -> roll, dr -> yaw) is regressed on the measured
 
 over the maneuvers on that surface, with x = p, q, r, the air-data angles (else the
 accelerations ay, az, which carry the surfaces' own force and bias the estimate), V and
-the throttle. Every surface's (d, tau) is found over all the equations at once (variable
+the throttle; the rates scaled by V / V_ref, the angles, the surfaces and a constant by
+(V / V_ref)^2 (the dynamic pressure's share of each moment term). Every surface's (d, tau) is found over all the equations at once (variable
 projection: the linear coefficients solved for inside a bounded least squares in the
 delays and lags, each equation weighted by its residual rms), from a start where each
 equation's surfaces share one (d, tau) found on a grid (aileron and rudder flown
@@ -90,6 +91,9 @@ EDGE_SAMPLES = 10
 LAG_LEAD_S = 1.0
 #: groups of the delete-a-group jackknife over the maneuvers
 JACKKNIFE_GROUPS = 10
+#: function evaluations of the joint least squares before it stops unconverged (its
+#: estimates are then not applied); the jackknife's refits get half
+MAX_EVALUATIONS = 60
 
 
 def lagged(u: np.ndarray, tau: float, h: float) -> np.ndarray:
@@ -129,7 +133,8 @@ class _Maneuvers:
     the lag's start)."""
 
     def __init__(self, fd: FlightData, spans: Sequence[tuple[float, float]], rate: str,
-                 regressors: Sequence[str], surfaces: Sequence[str], rate_hz: float):
+                 regressors: Sequence[str], surfaces: Sequence[str], rate_hz: float,
+                 corners: Mapping[str, float] | None = None):
         from pipeline.input_smoothing import zero_phase
 
         fc = min(LOWPASS_HZ, LOWPASS_FRACTION * rate_hz)
@@ -143,21 +148,31 @@ class _Maneuvers:
         self.X: list[np.ndarray] = []          # (n, len(names))
         self.grid: list[np.ndarray] = []       # times with the margins
         self.u: list[dict[str, np.ndarray]] = []   # surface -> low-passed on that grid
+        self.qs: list[np.ndarray] = []         # dynamic pressure / its reference
         self._lagged: dict[tuple[str, float], list[np.ndarray]] = {}
         chans = [rate, *regressors, *surfaces]
+        v_ref = float(np.nanmedian(fd["V"].values)) if "V" in regressors else 1.0
         for t0, t1 in spans:
             df = fd.resample(rate_hz, chans, t0=t0 - before, t1=t1 + after, unwrap=True)
             if len(df) < 4 * EDGE_SAMPLES + 20 or not np.all(np.isfinite(df[chans].to_numpy())):
                 continue
             tg = df["t"].to_numpy()
-            lp = {c: zero_phase(df[c].to_numpy(), rate_hz, fc, order=4) for c in chans}
+            lp = {c: zero_phase(df[c].to_numpy(), rate_hz, min(fc, (corners or {}).get(c, fc)),
+                                order=4) for c in chans}
             idx = np.arange(tg.size)
             core = (tg >= t0) & (tg <= t1) & (idx >= EDGE_SAMPLES) & (idx < tg.size - EDGE_SAMPLES)
             if core.sum() < 20:
                 continue
+            # the moments scale with the dynamic pressure: the rate terms (p b / 2V) with
+            # V, the angles', the surfaces' and the constant's with V^2 (unscaled, the
+            # small UAV's +-1-2 m/s put the aileron's lag 5 ms high on noise-free truth data)
+            w = lp["V"][core] / v_ref if "V" in lp else np.ones(int(core.sum()))
+            power = {"p": 1, "q": 1, "r": 1, "alpha": 2, "beta": 2, "V": 2}
             self.t.append(tg[core])
             self.y.append(np.gradient(lp[rate], tg)[core])
-            self.X.append(np.column_stack([lp[c][core] for c in regressors]))
+            self.X.append(np.column_stack([(w ** 2 if c == "V" else lp[c][core] * w ** power.get(c, 0))
+                                           for c in regressors]))
+            self.qs.append(w ** 2)
             self.grid.append(tg)
             self.u.append({s: lp[s] for s in surfaces})
 
@@ -167,14 +182,14 @@ class _Maneuvers:
     def subset(self, keep: Sequence[int]) -> "_Maneuvers":
         """The same equation on the maneuvers ``keep`` (indices) only."""
         out = copy.copy(self)
-        for name in ("t", "y", "X", "grid", "u"):
+        for name in ("t", "y", "X", "qs", "grid", "u"):
             setattr(out, name, [getattr(self, name)[k] for k in keep])
         out._lagged = {}
         return out
 
     def surface(self, s: str, delays: np.ndarray, lag: float) -> list[np.ndarray]:
-        """Surface ``s`` through the lag, at t - d for each delay d: (K, n) per maneuver,
-        cubic between the samples (:func:`cubic_at`: smooth in d; linear interpolation
+        """Surface ``s`` through the lag, at t - d for each delay d, times the dynamic
+        pressure's ratio: (K, n) per maneuver, cubic between the samples (:func:`cubic_at`: smooth in d; linear interpolation
         made the residuals kink at every sample and the least squares stop short). The
         lagged series are kept per lag (the delays' finite differences reuse them)."""
         key = (s, float(lag))
@@ -182,8 +197,8 @@ class _Maneuvers:
             if len(self._lagged) > 64:
                 self._lagged.clear()
             self._lagged[key] = [lagged(u[s], lag, self.h) for u in self.u]
-        return [cubic_at(v, g[0], self.h, t[None, :] - delays[:, None])
-                for t, g, v in zip(self.t, self.grid, self._lagged[key])]
+        return [q * cubic_at(v, g[0], self.h, t[None, :] - delays[:, None])
+                for t, g, v, q in zip(self.t, self.grid, self._lagged[key], self.qs)]
 
 
 def cubic_at(v: np.ndarray, t0: float, h: float, x: np.ndarray) -> np.ndarray:
@@ -280,13 +295,14 @@ def _residuals(axes: Mapping[str, _Maneuvers], dyn: Mapping[str, tuple[float, fl
 
 
 def _joint(axes: Mapping[str, _Maneuvers], start: Mapping[str, tuple[float, float]],
-           weights: Mapping[str, float] | None = None
-           ) -> tuple[dict[str, tuple[float, float]], dict[str, float], list[np.ndarray], list[np.ndarray]]:
+           weights: Mapping[str, float] | None = None, max_nfev: int = MAX_EVALUATIONS
+           ) -> tuple[dict[str, tuple[float, float]], dict[str, float], list[np.ndarray],
+                      list[np.ndarray], bool]:
     """Every surface with maneuvers at once, over every equation (variable projection:
     the linear coefficients profiled out; each equation weighted by ``weights``, default
     1 / its residual rms at ``start``): (surface -> (delay, lag), the weights, Jacobian
     blocks (n, 1, 2 k) of the weighted prediction per maneuver, the weighted residuals per
-    maneuver)."""
+    maneuver, converged within ``max_nfev`` evaluations)."""
     from scipy.optimize import least_squares
 
     free = list(axes)
@@ -307,11 +323,15 @@ def _joint(axes: Mapping[str, _Maneuvers], start: Mapping[str, tuple[float, floa
     def fun(x: np.ndarray) -> np.ndarray:
         return np.concatenate(_residuals(axes, dyn(x), weights))
 
-    # diff_step is relative to max(1, |x|): 2e-4 s steps (delays and lags of 0.001-0.2 s)
-    sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=0.01, diff_step=2e-4, method="trf")
+    # diff_step is relative to max(1, |x|): 2e-4 s steps (delays and lags of 0.001-0.2 s);
+    # xtol: steps below 0.01 ms end it. Calm flights converge in 5-15 evaluations; in
+    # strong gusts the landscape is flat and an unbounded search took 270 iterations
+    # per fit (multiaxis_multisine_turbulence's MCAP: 153 s), hence the cap
+    sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=0.01, diff_step=2e-4, method="trf",
+                        xtol=1e-3, max_nfev=max_nfev)
     v = _residuals(axes, dyn(sol.x), weights)
     parts = np.cumsum([r.size for r in v])[:-1]
-    return dyn(sol.x), weights, [-j[:, None, :] for j in np.split(sol.jac, parts)], v
+    return dyn(sol.x), weights, [-j[:, None, :] for j in np.split(sol.jac, parts)], v, sol.status > 0
 
 
 def _jackknife(axes: Mapping[str, _Maneuvers], dyn: Mapping[str, tuple[float, float]],
@@ -331,7 +351,7 @@ def _jackknife(axes: Mapping[str, _Maneuvers], dyn: Mapping[str, tuple[float, fl
         sub = {e: m for e, m in sub.items() if len(m)}
         if not sub:
             continue
-        got = _joint(sub, dyn, weights)[0]
+        got = _joint(sub, dyn, weights, max_nfev=MAX_EVALUATIONS // 2)[0]
         est.append([v for e in axes for v in got[e]])
     E = np.asarray(est)
     g = len(E)
@@ -350,6 +370,7 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
     ``method``, ``regressors``, and ``not_estimated`` (name -> why) for surfaces without
     maneuvers or gyro."""
     from estimators.validation.uncertainty import morelli_klein
+    from pipeline.input_smoothing import control_input_corners
 
     doc: dict[str, Any] = {
         "method": ("equation error of the rate derivatives, all surfaces and axes at once; "
@@ -359,6 +380,11 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
     regs = _regressors(fd)
     doc["regressors"] = regs
     present = [s for s in surfaces if s in fd and len(fd[s]) > 1]
+    # noisy measured variables are low-passed where their white noise floor begins: the
+    # noise of a regressor biases least squares (errors in variables; the default
+    # scenario's 0.17 deg vane noise put the lateral lags 7-15 ms high on 20 ms)
+    corners = control_input_corners(fd, [c for c in (*regs, *present) if c not in AXIS_RATE.values()])
+    doc["smoothed_hz"] = corners
     axes: dict[str, _Maneuvers] = {}
     for s in present:
         rate = AXIS_RATE[s]
@@ -375,7 +401,7 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
             doc["not_estimated"][s] = "no maneuver on it"
             continue
         m = _Maneuvers(fd, spans, rate, [r for r in regs if r != rate] + [rate], present,
-                       float(min(fd[rate].rate_hz, MAX_RATE_HZ)))
+                       float(min(fd[rate].rate_hz, MAX_RATE_HZ)), corners)
         if len(m) == 0:
             doc["not_estimated"][s] = "its maneuvers lack samples of the needed channels"
             continue
@@ -387,7 +413,8 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
     start: dict[str, tuple[float, float]] = {s: (0.0, 0.0) for s in present}
     for s, m in axes.items():
         start[s] = _grid_start(m)
-    dyn, weights, S, v = _joint(axes, start)
+    dyn, weights, S, v, converged = _joint(axes, start)
+    doc["converged"] = converged
     unc = morelli_klein(S, v)
     crb = np.sqrt(np.clip(np.diag(unc.crb_cov), 0.0, None))
     jk = _jackknife(axes, dyn, weights)
@@ -405,7 +432,7 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
         eq, eq_sd = d + tau, float(np.sqrt(max(C.sum(), 0.0)))
         inside = (DELAY_RANGE_S[0] + AT_END_S < d < DELAY_RANGE_S[1] - AT_END_S
                   and tau < LAG_RANGE_S[1] - AT_END_S)
-        significant = bool(inside and np.isfinite(eq_sd) and eq_sd > 0
+        significant = bool(converged and inside and np.isfinite(eq_sd) and eq_sd > 0
                            and abs(eq) >= SIGNIFICANT * eq_sd)
         applied = significant and eq >= MIN_APPLIED_S
         m = axes[s]
@@ -499,6 +526,9 @@ def summary(doc: Mapping[str, Any]) -> str:
                      f"{d['lag_s'] * 1e3:.1f} +- {d['lag_std'] * 1e3:.1f} ms ({state})")
     parts += [f"{s}: {why}" for s, why in (doc.get("not_estimated") or {}).items()]
     line = "; ".join(parts) or "no control input with maneuvers"
+    if not doc.get("converged", True):
+        line += (f"; the least squares did not converge in {MAX_EVALUATIONS} evaluations "
+                 "(strong gusts?): nothing applied")
     unc = doc.get("uncertainty") or {}
     if unc:
         bad = {k: v for k, v in unc["methods"].items() if v != "propagated"}
