@@ -20,9 +20,8 @@ surface's axis (de -> pitch, da -> roll, dr -> yaw) is regressed on the measured
 
     omega_dot(t) = a_k + sum_i c_i x_i(t) + sum_s b_s delta_s(t)          (k: the maneuver)
 
-over the maneuvers on that surface, with x = p, q, r, the air-data angles (else the
-accelerations ay, az, which carry the surfaces' own force and bias the estimate), V and
-the throttle; the rates scaled by V / V_ref, the angles, the surfaces and a constant by
+over the maneuvers on that surface, with x = p, q, r, the air-data angles (alpha, else
+az; the sideslip is needed for the aileron and rudder), V and the throttle; the rates scaled by V / V_ref, the angles, the surfaces and a constant by
 (V / V_ref)^2 (the dynamic pressure's share of each moment term). Every surface's (d, tau) is found over all the equations at once (variable
 projection: the linear coefficients solved for inside a bounded least squares in the
 delays and lags, each equation weighted by its residual rms), from a start where each
@@ -44,6 +43,11 @@ would need a position sensor filtered that slowly; on multiaxis_multisine_turbul
 .bin, commands without lag, the gusts gave the rudder -19 +- 6 ms), and neither
 estimate sits at an end of its range (DELAY_RANGE_S, LAG_RANGE_S: equation error is
 biased in turbulence, see there).
+
+Known limit (ad hoc): with the commands logged at 20 Hz (RCOU) and the angles rebuilt from
+the 10 Hz flight path, the same 50 ms lag gave the aileron and rudder 45 ms of pure delay
+(70 ms equivalent from the vanes): the lateral output error ended 61 std off (166 as
+logged); the elevator's was found as with 100 Hz commands (longitudinal within 1.5 std).
 """
 from __future__ import annotations
 
@@ -90,6 +94,10 @@ MIN_RATE_HZ = 20.0
 EDGE_SAMPLES = 10
 #: time before a maneuver the lag starts from (its initial transient settles) [s]
 LAG_LEAD_S = 1.0
+#: why the aileron's and rudder's dynamics are not estimated without a sideslip angle
+LATERAL_NEEDS = ("needs the sideslip angle (a vane, or rebuilt from the flight path): with "
+                 "the lateral accelerometer instead the rudder's 50 ms lag came out 187 ms "
+                 "(the default scenario, ad hoc)")
 #: groups of the delete-a-group jackknife over the maneuvers
 JACKKNIFE_GROUPS = 10
 #: function evaluations of the joint least squares before it stops unconverged (its
@@ -118,13 +126,13 @@ def lagged(u: np.ndarray, tau: float, h: float) -> np.ndarray:
 
 
 def _regressors(fd: FlightData) -> list[str]:
-    """The measured variables besides the surfaces every moment equation is regressed on."""
+    """The measured variables besides the surfaces every moment equation is regressed on:
+    the rates, alpha (else az, which carries the elevator's lift through the same lag:
+    the default scenario's 50 ms servo lag came out 49 ms either way), beta (required:
+    see LATERAL_NEEDS), V and the throttle."""
     out = [c for c in ("p", "q", "r") if c in fd]
-    for angle, accel in (("alpha", "az"), ("beta", "ay")):
-        if angle in fd:
-            out.append(angle)
-        elif accel in fd:
-            out.append(accel)
+    out += ["alpha"] if "alpha" in fd else ["az"] if "az" in fd else []
+    out += ["beta"] if "beta" in fd else []
     return out + [c for c in ("V", "throttle") if c in fd]
 
 
@@ -393,6 +401,9 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
         spans = [(sg.t0, sg.t1) for sg in fd.segments if sg.axis in (s, None)]
         if rate not in fd:
             doc["not_estimated"][s] = f"no {rate} gyro channel"
+            continue
+        if s in ("da", "dr") and "beta" not in fd:
+            doc["not_estimated"][s] = LATERAL_NEEDS
             continue
         if fd[rate].rate_hz < MIN_RATE_HZ:
             doc["not_estimated"][s] = (f"needs the {rate} gyro at >= {MIN_RATE_HZ:g} Hz, the log has "
