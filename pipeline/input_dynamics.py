@@ -384,7 +384,8 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
     doc: dict[str, Any] = {
         "method": ("equation error of the rate derivatives, all surfaces and axes at once; "
                    f"delays {DELAY_RANGE_S[0] * 1e3:g}..{DELAY_RANGE_S[1] * 1e3:g} ms, first-order "
-                   f"lags {LAG_RANGE_S[0] * 1e3:g}..{LAG_RANGE_S[1] * 1e3:g} ms; Morelli-Klein std"),
+                   f"lags {LAG_RANGE_S[0] * 1e3:g}..{LAG_RANGE_S[1] * 1e3:g} ms; Morelli-Klein std, "
+                   "widened to the maneuvers' jackknife"),
         "surfaces": {}, "applied": {}, "not_estimated": {}}
     regs = _regressors(fd)
     doc["regressors"] = regs
@@ -429,17 +430,20 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
     doc["converged"] = converged
     unc = morelli_klein(S, v)
     crb = np.sqrt(np.clip(np.diag(unc.crb_cov), 0.0, None))
+    mk_all = np.sqrt(np.clip(np.diag(unc.cov), 0.0, None))
+    widen = np.ones(mk_all.size)
     jk = _jackknife(axes, dyn, weights)
+    if jk is not None:
+        spread = np.sqrt(np.clip(np.diag(jk), 0.0, None))
+        ok = mk_all > 1e-9                         # (a lag at 0 has no std of its own)
+        widen = np.where(ok, np.maximum(1.0, spread / np.where(ok, mk_all, 1.0)), 1.0)
+    cov = unc.cov * np.outer(widen, widen)
+    doc["covariance"] = {"names": [f"{s} {k}" for s in axes for k in ("delay", "lag")],
+                         "matrix": cov.tolist()}
     for i, s in enumerate(axes):
         d, tau = dyn[s]
-        C = unc.cov[2 * i:2 * i + 2, 2 * i:2 * i + 2]
-        mk = np.sqrt(np.clip(np.diag(C), 0.0, None))
-        widen = np.ones(2)
-        if jk is not None:
-            spread = np.sqrt(np.clip(np.diag(jk)[2 * i:2 * i + 2], 0.0, None))
-            ok = mk > 1e-9                         # (a lag at 0 has no std of its own)
-            widen = np.where(ok, np.maximum(1.0, spread / np.where(ok, mk, 1.0)), 1.0)
-            C = C * np.outer(widen, widen)
+        C = cov[2 * i:2 * i + 2, 2 * i:2 * i + 2]
+        mk = mk_all[2 * i:2 * i + 2]
         sd, sl = np.sqrt(np.clip(np.diag(C), 0.0, None))
         eq, eq_sd = d + tau, float(np.sqrt(max(C.sum(), 0.0)))
         inside = (DELAY_RANGE_S[0] + AT_END_S < d < DELAY_RANGE_S[1] - AT_END_S
@@ -454,7 +458,8 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
             "equivalent_delay_s": eq, "equivalent_std": eq_sd,
             "crb_std": [float(crb[2 * i]), float(crb[2 * i + 1])],
             "mk_std": [float(x) for x in mk],
-            "std_from": ("jackknife over maneuvers" if np.any(widen > 1.0) else "Morelli-Klein"),
+            "std_from": ("jackknife over maneuvers" if np.any(widen[2 * i:2 * i + 2] > 1.0)
+                         else "Morelli-Klein"),
             "response": f"d{AXIS_RATE[s]}/dt", "maneuvers": len(m),
             "samples": int(sum(t.size for t in m.t)), "rate_hz": 1.0 / m.h,
             "at_bound": not inside, "significant": significant, "applied": bool(applied)}
@@ -465,28 +470,20 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
 
 def covariance(doc: Mapping[str, Any]) -> tuple[list[str], np.ndarray, dict[str, tuple[str, str]]]:
     """(names, covariance, name -> (surface, "delay_s" | "lag_s")) of the applied
-    dynamics of ``doc``: each surface's delay and lag with their covariance, surfaces
-    independent (a value without a std - a lag at 0, its bound - left out)."""
-    names, blocks, where = [], [], {}
+    dynamics of ``doc``: each applied surface's delay and lag with their joint covariance
+    (``doc["covariance"]``; a value without a std - a lag at its bound 0 - left out)."""
+    joint = doc.get("covariance") or {"names": [], "matrix": []}
+    pos = {n: k for k, n in enumerate(joint["names"])}
+    full = np.asarray(joint["matrix"], dtype=float)
+    names, where = [], {}
     for s in (doc.get("applied") or {}):
-        d = doc["surfaces"][s]
-        keys = [k for k in ("delay_s", "lag_s")
-                if np.isfinite(d[f"{k[:-2]}_std"]) and d[f"{k[:-2]}_std"] > 0]
-        sd = [d[f"{k[:-2]}_std"] for k in keys]
-        C = np.diag(np.square(sd))
-        if len(sd) == 2:
-            C[0, 1] = C[1, 0] = (d["corr"] or 0.0) * sd[0] * sd[1]
-        for key in keys:
-            names.append(f"{s} {key[:-2]}")
-            where[names[-1]] = (s, key)
-        blocks.append(C)
-    n = len(names)
-    out = np.zeros((n, n))
-    i = 0
-    for C in blocks:
-        out[i:i + len(C), i:i + len(C)] = C
-        i += len(C)
-    return names, out, where
+        for key in ("delay_s", "lag_s"):
+            name = f"{s} {key[:-2]}"
+            if name in pos and full[pos[name], pos[name]] > 0:
+                names.append(name)
+                where[name] = (s, key)
+    idx = [pos[n] for n in names]
+    return names, full[np.ix_(idx, idx)], where
 
 
 def with_input_dynamics(fd: FlightData, dynamics: Mapping[str, Mapping[str, float]]) -> FlightData:

@@ -54,6 +54,26 @@ def test_a_channel_takes_the_given_delay_and_lag():
     assert with_input_dynamics(fd, {}) is fd
 
 
+def test_consider_covariance_is_the_applied_part_of_the_joint_one():
+    """The refits move the applied surfaces' delays and lags; a lag at its bound 0 has no
+    std and is left out; the cross-surface covariance of the joint fit is kept."""
+    from pipeline.input_dynamics import covariance
+
+    names = ["de delay", "de lag", "da delay", "da lag", "dr delay", "dr lag"]
+    sd = np.array([1.0, 2.0, 3.0, 0.0, 5.0, 6.0]) * 1e-3
+    corr = np.eye(6)
+    corr[0, 2] = corr[2, 0] = 0.5                      # de delay ~ da delay
+    cov = corr * np.outer(sd, sd)
+    doc = {"applied": {"da": {"delay_s": 0.01, "lag_s": 0.0}, "de": {"delay_s": 0.0, "lag_s": 0.05}},
+           "covariance": {"names": names, "matrix": cov.tolist()}}
+    got, C, where = covariance(doc)
+    assert got == ["da delay", "de delay", "de lag"]
+    assert where["da delay"] == ("da", "delay_s") and where["de lag"] == ("de", "lag_s")
+    np.testing.assert_allclose(np.sqrt(np.diag(C)), [3e-3, 1e-3, 2e-3])
+    assert C[0, 1] == pytest.approx(0.5 * 3e-3 * 1e-3)
+    assert covariance({"applied": {}})[0] == []
+
+
 @pytest.fixture(scope="module")
 def lagged_flight(tmp_path_factory):
     """The default scenario with a 50 ms servo lag, written as flight.bin / flight.mcap."""
