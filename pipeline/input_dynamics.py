@@ -482,6 +482,8 @@ def covariance(doc: Mapping[str, Any]) -> tuple[list[str], np.ndarray, dict[str,
             if name in pos and full[pos[name], pos[name]] > 0:
                 names.append(name)
                 where[name] = (s, key)
+    if not names:
+        return [], np.zeros((0, 0)), {}
     idx = [pos[n] for n in names]
     return names, full[np.ix_(idx, idx)], where
 
