@@ -44,10 +44,14 @@ would need a position sensor filtered that slowly; on multiaxis_multisine_turbul
 estimate sits at an end of its range (DELAY_RANGE_S, LAG_RANGE_S: equation error is
 biased in turbulence, see there).
 
-Known limit (ad hoc): with the commands logged at 20 Hz (RCOU) and the angles rebuilt from
-the 10 Hz flight path, the same 50 ms lag gave the aileron and rudder 45 ms of pure delay
-(70 ms equivalent from the vanes): the lateral output error ended 61 std off (166 as
-logged); the elevator's was found as with 100 Hz commands (longitudinal within 1.5 std).
+Known limits (ad hoc): on that 50 ms lag the lateral output error's proof of match still
+failed on p (2.8 deg/s for a band of 1.5; with the true lags it passes): the aileron's
+and rudder's lags (57, 44 ms) are a few ms off, which the derivatives' std carry but the
+held-out time history shows. With the commands logged at 20 Hz (RCOU) and the angles
+rebuilt from the 10 Hz flight path, the same lag gave the aileron and rudder 45 ms of
+pure delay (70 ms equivalent from the vanes): the lateral output error ended 61 std off
+(166 as logged); the elevator's was found as with 100 Hz commands (longitudinal within
+1.5 std). Refining the lags by output error (the fits' own likelihood) is not done.
 """
 from __future__ import annotations
 
