@@ -81,9 +81,10 @@ AT_END_S = 0.001
 #: |equivalent delay| / std from which a surface's dynamics are applied
 SIGNIFICANT = 3.0
 #: the smallest equivalent delay applied [s]: one 100 Hz sample. Below it a shift is
-#: within the logs' time-stamp resolution and the equation's own bias: the default
-#: scenario's ArduPilot .bin (commands, no servo lag) gives 4.8 +- 0.6 ms on da, its MCAP
-#: (the surfaces' positions) -1.7 to -2.4 (ad hoc); servo lags are 20-100 ms
+#: within the logs' time-stamp resolution and the equation's own bias: the calm built-in
+#: scenarios' ArduPilot .bin (commands, no servo lag) give -1.3 to +1.4 ms, significant on
+#: sensor_errors_calm's rudder (ad hoc; an earlier version of this estimate 4.8 ms on the
+#: default's aileron); servo lags are 20-100 ms
 MIN_APPLIED_S = 0.01
 #: corner of the zero-phase low-pass on the response and the regressors [Hz], at most
 #: LOWPASS_FRACTION of the grid rate
