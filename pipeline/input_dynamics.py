@@ -155,11 +155,10 @@ class _Maneuvers:
         after = max(abs(d) for d in DELAY_RANGE_S) + (EDGE_SAMPLES + 2) / rate_hz
         before = after + LAG_LEAD_S
         self.h = 1.0 / rate_hz
-        self.names = list(regressors)
         self.surfaces = list(surfaces)
         self.t: list[np.ndarray] = []          # core times per maneuver
         self.y: list[np.ndarray] = []          # omega_dot [rad/s^2]
-        self.X: list[np.ndarray] = []          # (n, len(names))
+        self.X: list[np.ndarray] = []          # (n, len(regressors))
         self.grid: list[np.ndarray] = []       # times with the margins
         self.u: list[dict[str, np.ndarray]] = []   # surface -> low-passed on that grid
         self.qs: list[np.ndarray] = []         # dynamic pressure / its reference
@@ -203,9 +202,10 @@ class _Maneuvers:
 
     def surface(self, s: str, delays: np.ndarray, lag: float) -> list[np.ndarray]:
         """Surface ``s`` through the lag, at t - d for each delay d, times the dynamic
-        pressure's ratio: (K, n) per maneuver, cubic between the samples (:func:`cubic_at`: smooth in d; linear interpolation
-        made the residuals kink at every sample and the least squares stop short). The
-        lagged series are kept per lag (the delays' finite differences reuse them)."""
+        pressure's ratio: (K, n) per maneuver. Cubic between the samples (:func:`cubic_at`,
+        smooth in d; linear reads kinked the residuals at every sample and the least
+        squares stopped short). The lagged series are kept per lag (the delays' finite
+        differences reuse them)."""
         key = (s, float(lag))
         if key not in self._lagged:
             if len(self._lagged) > 64:
