@@ -35,7 +35,7 @@ goes. The surfaces are read between samples by cubic convolution (smooth in the 
 std: the Cramér-Rao bound of the joint least squares, corrected for coloured residuals
 (Morelli-Klein, :func:`estimators.validation.uncertainty.morelli_klein`), widened to the
 delete-a-group jackknife over the maneuvers where that is larger (the maneuvers disagree
-by more than one fit's residuals say: on the 50 ms lag above, the aileron's lag 55 +- 10
+by more than one fit's residuals say: on the 50 ms lag above, the aileron's lag 57 +- 10
 instead of +- 1.5 ms). A surface's dynamics are applied (:func:`with_input_dynamics`) when
 its equivalent delay d + tau (the phase at low frequency) is at least SIGNIFICANT std from
 zero and at least MIN_APPLIED_S (positive: a log lagging its surface by 10 ms or more
@@ -380,11 +380,14 @@ def _jackknife(axes: Mapping[str, _Maneuvers], dyn: Mapping[str, tuple[float, fl
 def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL_INPUTS) -> dict[str, Any]:
     """The delay and lag of each control input with maneuvers in ``fd`` (module doc).
     Returns a JSON-ready document: ``surfaces`` (name -> delay_s, lag_s, their std
-    (Morelli-Klein) and correlation, equivalent_delay_s (d + tau) and its std, crb_std
+    (delay_std, lag_std: Morelli-Klein widened to the jackknife; std_from says which)
+    and correlation, equivalent_delay_s (d + tau) and equivalent_std, crb_std and mk_std
     of both, response (the rate whose derivative was regressed), maneuvers, samples,
     rate_hz, at_bound, significant, applied), ``applied`` (name -> {"delay_s", "lag_s"}),
-    ``method``, ``regressors``, and ``not_estimated`` (name -> why) for surfaces without
-    maneuvers or gyro."""
+    ``covariance`` (names "<surface> delay|lag" and the joint matrix), ``converged``,
+    ``smoothed_hz`` (the regressors low-passed at their noise floor), ``method``,
+    ``regressors``, and ``not_estimated`` (name -> why) for surfaces without maneuvers,
+    gyro or sideslip."""
     from estimators.validation.uncertainty import morelli_klein
     from pipeline.input_smoothing import control_input_corners
 

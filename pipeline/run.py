@@ -1434,7 +1434,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         fd = replace(fd_c, channels={**fd_c.channels, **{
             k: c for k, c in fd.channels.items() if k not in fd_c.channels}})
     meta["data"] = f"{Path(log).name}, {comp['data_for_estimation']}"
-    from pipeline.input_dynamics import with_input_dynamics
+    from pipeline.input_dynamics import summary as dynamics_summary, with_input_dynamics
     fd, dyn_doc = input_dynamics_stage(fd, pr, input_dynamics)
     applied = dict(dyn_doc["applied"])
     fd_vals = [with_input_dynamics(with_instrument_errors_removed(fv, comp, meta), applied)
@@ -1475,7 +1475,6 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                                wind_refit=(lambda offset: refit(fd_c, starts, offset)) if angles else None,
                                dynamics=dyn_doc,
                                dynamics_refit=lambda dyn: refit(fd_c, starts, dynamics=dyn))
-    from pipeline.input_dynamics import summary as dynamics_summary
     meta["control-input delay and lag"] = dynamics_summary(dyn_doc)
     meta["input_dynamics"] = dyn_doc
     if "wind_uncertainty" in flow:

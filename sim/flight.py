@@ -153,13 +153,12 @@ def _make_fdm(scenario: Scenario, root: Path):
     fdm.set_aircraft_path("aircraft")
     fdm.set_engine_path("engine")
     fdm.set_systems_path("systems")
-    # the step before the model: JSBSim's actuator works out its lag filter's (Tustin)
-    # coefficients from dt when it loads; set afterwards, a lag_s of 0.05 s acted as
-    # 0.01 s (the coefficients of the default 1/120 s step on 1/600 s steps)
+    # the step before the model (loading keeps it): JSBSim's actuator works out its lag
+    # filter's (Tustin) coefficients from dt when it loads; set afterwards, a lag_s of
+    # 0.05 s acted as 0.01 s (the coefficients of the default 1/120 s step on 1/600 s steps)
     fdm.set_dt(1.0 / (scenario.rate_hz * scenario.substeps))
     if not fdm.load_model(name):
         raise ScenarioError(f"{ac.path}: JSBSim could not load the generated aircraft; check the truth set values")
-    fdm.set_dt(1.0 / (scenario.rate_hz * scenario.substeps))
     for kind, val in INTEGRATORS.items():
         fdm[f"simulation/integrator/{kind}"] = val
     return fdm
