@@ -1189,6 +1189,33 @@ def input_dynamics_stage(fd, pr: Progress, setting: str | tuple[float, float] = 
     return with_input_dynamics(fd, doc["applied"]), doc
 
 
+def refine_input_dynamics_stage(fd_before, fd, doc: dict[str, Any], methods: Sequence[str],
+                                pr: Progress, fit) -> tuple[Any, dict]:
+    """The control-input dynamics stage's delays and lags refined by output error
+    (:func:`pipeline.input_dynamics.refine_by_output_error`; ``fit(dynamics, starts)`` its
+    output-error fits) when that stage estimated and applied some and output error is
+    among ``methods``. Returns (the data ``fd_before`` that stage had, with the refined
+    dynamics applied - ``fd``, the stage's, when nothing was refined -, ``doc``). Never
+    ends the run: a refinement that fails keeps the equation-error values, and says why."""
+    from pipeline.input_dynamics import refine_by_output_error, with_input_dynamics
+
+    if doc.get("status") != "estimated" or not doc.get("applied"):
+        return fd, doc
+    if "oem" not in methods:
+        doc["refined"] = {"status": "not refined", "reason": "output error is not among the methods"}
+        return fd, doc
+    pr.total += 1
+    pr.stage(f"control-input delay and lag refined by output error ({', '.join(doc['applied'])})")
+    ref = refine_by_output_error(doc, fit, pr)
+    if ref["status"] != "refined":
+        pr.done(f"not refined: {ref['reason']}; equation error's values kept")
+        return fd, doc
+    pr.done(", ".join(f"{s} delay {v['delay_s'] * 1e3:+.1f}, lag {v['lag_s'] * 1e3:.1f} ms"
+                      for s, v in doc["applied"].items())
+            + f" ({ref['iterations']} iterations, {ref['fits']} fits)")
+    return with_input_dynamics(fd_before, doc["applied"]), doc
+
+
 def with_instrument_errors_removed(fd_val, comp: Mapping[str, Any],
                                    meta: dict | None = None):
     """The validation flight with the instrument errors the compatibility stage removed
@@ -1273,33 +1300,37 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     atomic_write_text(out / "checks.json", json.dumps(checks, indent=2, default=str) + "\n")
     from pipeline.input_dynamics import summary as dynamics_summary, with_input_dynamics
     fd_mcap, dyn_doc = input_dynamics_stage(fd_c, pr, input_dynamics)
-    applied = dict(dyn_doc["applied"])
-    val_meta: dict = {}
-    if fd_val is not None:
-        fd_val = with_input_dynamics(with_instrument_errors_removed(fd_val, comp, val_meta), applied)
     truth = {k: float(v) for k, v in truth_doc["derivatives"].items()}
     # estimation reads the product's own MCAP (surface positions at full resolution; the
     # .bin's RCOU carries whole-microsecond PWM, ~0.075 deg steps); the simulator moves
     # inputs linearly between samples, hence linear input interpolation
     if not methods:
         methods = scenario_methods(truth_doc)
+    from pipeline.correction_uncertainty import quiet_progress
+
+    def refit(fd, starts, dynamics=None, only=None):
+        """The run's fits (of ``only`` methods, default all) repeated on corrected data
+        ``fd`` with the input dynamics (default: the applied ones), started from
+        ``starts``."""
+        return identify(with_input_dynamics(fd, dyn_doc["applied"] if dynamics is None else dynamics),
+                        ac, only or methods, truth, quiet_progress(), inputs="linear",
+                        turbulence=truth_doc.get("turbulence"), starts=starts,
+                        smooth_inputs=smooth_inputs, fit_all=fd_val is not None)[0]
+    fd_mcap, dyn_doc = refine_input_dynamics_stage(
+        fd_c, fd_mcap, dyn_doc, methods, pr,
+        lambda dyn, starts: refit(fd_c, {} if starts is None else starts, dyn, only=("oem",)))
+    applied = dict(dyn_doc["applied"])
+    val_meta: dict = {}
+    if fd_val is not None:
+        fd_val = with_input_dynamics(with_instrument_errors_removed(fd_val, comp, val_meta), applied)
     pr.total = pr.n + 2 * max(identified_axes(fd_mcap), 1) * len(methods) + 2   # + correction uncertainty, outputs
     from estimators.validation import default_tolerances
-    from pipeline.correction_uncertainty import quiet_progress
     results, validations, problems = identify(fd_mcap, ac, methods, truth, pr, inputs="linear",
                                               turbulence=truth_doc.get("turbulence"),
                                               tolerances=default_tolerances(
                                                   **{**scenario.pom_bands, **(bands or {})}),
                                               pom=pom, smooth_inputs=smooth_inputs,
                                               validation=fd_val, validation_calm=calm)
-
-    def refit(fd, starts, dynamics=None):
-        """The run's fits repeated on corrected data ``fd`` with the input dynamics
-        (default: the applied ones), started from ``starts``."""
-        return identify(with_input_dynamics(fd, applied if dynamics is None else dynamics), ac, methods,
-                        truth, quiet_progress(), inputs="linear",
-                        turbulence=truth_doc.get("turbulence"), starts=starts,
-                        smooth_inputs=smooth_inputs, fit_all=fd_val is not None)[0]
     starts = dict(results)
     carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit,
                                dynamics=dyn_doc, dynamics_refit=lambda d: refit(fd_c, starts, d))
@@ -1435,38 +1466,43 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
             k: c for k, c in fd.channels.items() if k not in fd_c.channels}})
     meta["data"] = f"{Path(log).name}, {comp['data_for_estimation']}"
     from pipeline.input_dynamics import summary as dynamics_summary, with_input_dynamics
-    fd, dyn_doc = input_dynamics_stage(fd, pr, input_dynamics)
-    applied = dict(dyn_doc["applied"])
-    fd_vals = [with_input_dynamics(with_instrument_errors_removed(fv, comp, meta), applied)
-               for fv in fd_vals]
+    fd_before, (fd, dyn_doc) = fd, input_dynamics_stage(fd, pr, input_dynamics)
     from pipeline.correction_uncertainty import quiet_progress
 
     def refit_data(fd_j, wind_offset, dynamics):
         """The refits' flight data: the angles rebuilt, the input dynamics applied as in
         the fits (or ``dynamics``)."""
         return with_input_dynamics(with_flow_angles(fd_j, flow, wind_offset)[0],
-                                   applied if dynamics is None else dynamics)
+                                   dyn_doc["applied"] if dynamics is None else dynamics)
+    axes = ("longitudinal", "lateral") if model == "auto" else (model,)
+
+    def refit(fd_j, starts, wind_offset=(0.0, 0.0, 0.0), dynamics=None, only=None):
+        """The fits (of ``only`` methods, default all) repeated on data ``fd_j`` (the
+        angles rebuilt with ``wind_offset``, the input dynamics ``dynamics``), started
+        from ``starts``; results only."""
+        if user:
+            return identify_user_model(refit_data(fd_j, wind_offset, dynamics), um, only or methods,
+                                       truth, quiet_progress(), inputs=inputs, starts=starts,
+                                       smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
+        return identify(refit_data(fd_j, wind_offset, dynamics), ac, only or methods, truth,
+                        quiet_progress(), inputs=inputs, axes=axes, starts=starts,
+                        smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
+    fd, dyn_doc = refine_input_dynamics_stage(
+        fd_before, fd, dyn_doc, methods, pr,
+        lambda dyn, starts: refit(fd_c, {} if starts is None else starts, dynamics=dyn, only=("oem",)))
+    applied = dict(dyn_doc["applied"])
+    fd_vals = [with_input_dynamics(with_instrument_errors_removed(fv, comp, meta), applied)
+               for fv in fd_vals]
     if user:
         results, validations, problems = identify_user_model(fd, um, methods, truth, pr, inputs=inputs,
                                                              tolerances=tol, pom=pom,
                                                              smooth_inputs=smooth_inputs,
                                                              validation=fd_vals)
         meta["model"] = model
-
-        def refit(fd_j, starts, wind_offset=(0.0, 0.0, 0.0), dynamics=None):
-            return identify_user_model(refit_data(fd_j, wind_offset, dynamics), um, methods,
-                                       truth, quiet_progress(), inputs=inputs, starts=starts,
-                                       smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
     else:
-        axes = ("longitudinal", "lateral") if model == "auto" else (model,)
         results, validations, problems = identify(fd, ac, methods, truth, pr, inputs=inputs, axes=axes,
                                                   tolerances=tol, pom=pom, smooth_inputs=smooth_inputs,
                                                   validation=fd_vals)
-
-        def refit(fd_j, starts, wind_offset=(0.0, 0.0, 0.0), dynamics=None):
-            return identify(refit_data(fd_j, wind_offset, dynamics), ac, methods, truth,
-                            quiet_progress(), inputs=inputs, axes=axes, starts=starts,
-                            smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
     # the wind's refits (models that see an air-data angle): the corrected data the fits
     # saw, the angles rebuilt with the wind moved
     starts = dict(results)

@@ -4,9 +4,11 @@ Hand-computed: the lag's ramp response, cubic reads of a quadratic, a channel mo
 given dynamics. Closed loop: the default scenario flown with a 50 ms first-order servo lag
 ([actuators] lag_s), its ArduPilot .bin carrying the servo *commands* (RCOU) and its MCAP
 the surfaces' positions: from the .bin every surface's lag is found within 3 std of
-50 ms and its delay of 0, the MCAP needs nothing; ``fsid estimate`` of the .bin with the
-dynamics applied puts every derivative within 3 std of the truth (1.2 measured), as
-logged (``--input-dynamics off``) the longitudinal ones more than 10 std off (76).
+50 ms and its delay of 0, the MCAP needs nothing; ``fsid estimate`` of the .bin refines
+them by output error and with the dynamics applied puts every derivative within 3 std of
+the truth and passes the proof of match on both axes, as logged (``--input-dynamics
+off``) the longitudinal ones are more than 10 std off (76). A refinement whose fits fail
+keeps equation error's values and says why.
 """
 from __future__ import annotations
 
@@ -126,6 +128,19 @@ def test_estimate_applies_the_servo_lag(lagged_flight, tmp_path, capsys):
         assert worst <= 3.0, (key, worst)
     dyn = rep["meta"]["input_dynamics"]
     assert dyn["status"] == "estimated" and set(dyn["applied"]) == {"de", "da", "dr"}
+    # refined by output error: the equivalent delays (delay + lag) within 3 ms of the 50 ms
+    # lag (measured 48.5, 49.9, 49.7 ms), the aileron's and rudder's closer than equation
+    # error's (56.9, 45.5 ms), and with them the lateral proof of match passes on p
+    # (0.23 deg/s; 2.8 with equation error's, for a band of 1.5)
+    assert dyn["refined"]["status"] == "refined", dyn["refined"]
+    for s, d in dyn["surfaces"].items():
+        eq = d["refined"]["delay_s"] + d["refined"]["lag_s"]
+        assert abs(eq - LAG) < 0.003, (s, d)
+        if s != "de":
+            assert abs(eq - LAG) < abs(d["equivalent_delay_s"] - LAG), (s, d)
+        assert dyn["applied"][s] == {"delay_s": d["refined"]["delay_s"], "lag_s": d["refined"]["lag_s"]}
+    for key in ("longitudinal-oem", "lateral-oem"):
+        assert rep["methods"][key]["verdict"]["ok"], rep["methods"][key]["verdict"]
     # the lags' std reach the estimates as a consider part (refits with each moved)
     assert set(dyn["uncertainty"]["methods"].values()) == {"propagated"}
     pars = rep["methods"]["longitudinal-oem"]["parameters"]
@@ -137,6 +152,27 @@ def test_estimate_applies_the_servo_lag(lagged_flight, tmp_path, capsys):
     assert main(base + ["--out", str(tmp_path / "given"), "--input-dynamics", f"0,{LAG}"]) == 0
     worst, rep = _worst(tmp_path / "given", "oem")
     assert worst <= 3.0 and rep["meta"]["input_dynamics"]["status"] == "given"
+
+
+def test_a_failed_refinement_keeps_the_equation_error_values():
+    from pipeline.input_dynamics import refine_by_output_error, summary
+
+    doc = {"status": "estimated", "applied": {"da": {"delay_s": 0.0, "lag_s": 0.05}},
+           "covariance": {"names": ["da delay", "da lag"], "matrix": [[1e-6, 0.0], [0.0, 4e-6]]},
+           "surfaces": {"da": {"delay_s": 0.0, "delay_std": 1e-3, "lag_s": 0.05, "lag_std": 2e-3,
+                               "equivalent_delay_s": 0.05, "equivalent_std": 2e-3, "applied": True,
+                               "at_bound": False, "significant": True}}}
+
+    def fit(dynamics, starts):
+        raise np.linalg.LinAlgError("singular information matrix")
+    before = json.dumps(doc, sort_keys=True)
+    ref = refine_by_output_error(doc, fit)
+    assert ref["status"] == "not refined" and "LinAlgError: singular information matrix" in ref["reason"]
+    assert ref["fits"] == 1
+    doc.pop("refined")
+    assert json.dumps(doc, sort_keys=True) == before
+    doc["refined"] = ref
+    assert "not refined by output error (a fit failed (LinAlgError" in summary(doc)
 
 
 @pytest.mark.parametrize("value", ["0.02,abc", "2", "0.01,-0.1", "0,0,0"])

@@ -62,7 +62,8 @@ def add_input_arguments(p: argparse.ArgumentParser) -> None:
                    help="the servo between a logged control input and its surface (a logged "
                         "command leads the surface): auto = each surface's delay and first-order "
                         "lag estimated from the maneuvers (equation error), applied where "
-                        "significant, their std carried to the estimates (default); off = inputs "
+                        "significant and refined by output error's fits when oem is among the "
+                        "methods, their std carried to the estimates (default); off = inputs "
                         "as logged; DELAY[,LAG] = those, in seconds, for every surface")
 
 
