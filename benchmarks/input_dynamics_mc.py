@@ -72,6 +72,7 @@ def one_flight(seed: int) -> list[dict]:
             doc = json.loads((Path(d) / "out" / "report.json").read_text())["meta"]["input_dynamics"]
         else:
             doc = estimate_input_dynamics(read_log(Path(d) / "flight.bin"))
+    why = (doc.get("refined") or {}).get("reason", "")
     rows = []
     for s, e in doc["surfaces"].items():
         ref = e.get("refined") or {}
@@ -80,11 +81,11 @@ def one_flight(seed: int) -> list[dict]:
             rows.append({"surface": s, "parameter": key, "estimate": ref.get(name, e[name]),
                          "truth": truth, "std": ref.get(f"{key}_std") or e[f"{key}_std"],
                          "mk_std": ref[f"{key}_mk_std"] if ref else e["mk_std"][k],
-                         "applied": float(e["applied"]), "refined": float(bool(ref))})
+                         "applied": float(e["applied"]), "refined": float(bool(ref)), "why": why, "seed": seed})
         rows.append({"surface": s, "parameter": "equivalent", "truth": lag,
                      "estimate": ref.get("delay_s", e["delay_s"]) + ref.get("lag_s", e["lag_s"]),
                      "std": e["equivalent_std"], "mk_std": float("nan"),
-                     "applied": float(e["applied"]), "refined": float(bool(ref))})
+                     "applied": float(e["applied"]), "refined": float(bool(ref)), "why": why, "seed": seed})
     return rows
 
 
@@ -93,5 +94,8 @@ if __name__ == "__main__":
     tab = scatter_table(df, ["surface", "parameter"], {"reported": "std", "mk": "mk_std"})
     print("applied on", df.groupby("surface")["applied"].mean().round(2).to_dict(), "of the seeds;",
           "refined by output error on", df.groupby("surface")["refined"].mean().round(2).to_dict())
+    if (df["why"] != "").any():
+        print("not refined:", df.drop_duplicates("seed")["why"].value_counts().to_dict())
+    print("empirical std (ms):", (df.groupby(["surface", "parameter"])["estimate"].std() * 1e3).round(2).to_dict())
     print(f"mean estimate (ms): "
           f"{(df.groupby(['surface', 'parameter'])['estimate'].mean() * 1e3).round(1).to_dict()}")
