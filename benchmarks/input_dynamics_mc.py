@@ -22,6 +22,16 @@ regressors scaled by the dynamic pressure):
   aileron applied on no seed. The bias left at 0.05 s goes with that noise too (52.7 ms
   from the noise-free sideslip, ad hoc).
 
+With the pipeline's refinement (--refine 1, 2026-11-25, the same seeds):
+  lag 0.05 s: mean delay / lag de -0.1 / 50.1, da 0.3 / 49.5, dr 0.2 / 49.5 ms (equivalent
+      50.0, 49.8, 49.7), refined on every seed; empirical std 0.05-0.72 ms; output error's
+      Morelli-Klein std honest (empirical / mk 0.48-0.82); empirical / carried std (at
+      least 1 ms) 0.05-0.98; the aileron's and rudder's 0.2-0.5 ms biases are 3-6 of their
+      empirical std, below the 1 ms floor.
+  lag 0.02 s: de 0.5 / 19.4, da 0.7 / 19.1, dr 0.6 / 19.2 ms (equivalent 19.9, 19.8,
+      19.8); empirical / mk 0.70-1.58; empirical / carried 0.02-0.88 (equation error's
+      lags, 23.2 ms on the aileron, disagree: widened to the difference).
+
 With ``--refine 1`` the delays and lags are the pipeline's (``estimate_log`` of the .bin:
 equation error refined by output error, pipeline.input_dynamics.refine_by_output_error);
 ``mk`` is then output error's Morelli-Klein std, ``reported`` the std the pipeline carries
@@ -84,9 +94,19 @@ def one_flight(seed: int) -> list[dict]:
                          "applied": float(e["applied"]), "refined": float(bool(ref)), "why": why, "seed": seed})
         rows.append({"surface": s, "parameter": "equivalent", "truth": lag,
                      "estimate": ref.get("delay_s", e["delay_s"]) + ref.get("lag_s", e["lag_s"]),
-                     "std": e["equivalent_std"], "mk_std": float("nan"),
+                     "std": _equivalent_std(doc, s) if ref else e["equivalent_std"], "mk_std": float("nan"),
                      "applied": float(e["applied"]), "refined": float(bool(ref)), "why": why, "seed": seed})
     return rows
+
+
+def _equivalent_std(doc: dict, surface: str) -> float:
+    """std of delay + lag of ``surface`` from the document's joint covariance [s]."""
+    import numpy as np
+
+    names = doc["covariance"]["names"]
+    C = np.asarray(doc["covariance"]["matrix"])
+    k = [names.index(f"{surface} {p}") for p in ("delay", "lag") if f"{surface} {p}" in names]
+    return float(np.sqrt(C[np.ix_(k, k)].sum()))
 
 
 if __name__ == "__main__":
