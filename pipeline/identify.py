@@ -538,11 +538,13 @@ def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]
     return out
 
 
-def lateral_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float]) -> dict[str, float]:
+def lateral_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
+                   regressions: Sequence | None = None) -> dict[str, float]:
     """Equation-error start values: least squares of CY (from ay), Cl and Cn (from the
-    differentiated roll and yaw rates with the inertia coupling) on the maneuver windows."""
+    differentiated roll and yaw rates with the inertia coupling) on the maneuver windows
+    (``regressions``: those of :func:`lateral_regressions` when already formed)."""
     out: dict[str, float] = {}
-    for _, names, A, y, _ in lateral_regressions(frames, c):
+    for _, names, A, y, _ in (regressions if regressions is not None else lateral_regressions(frames, c)):
         sol = np.linalg.lstsq(A, y, rcond=None)[0]
         for name, v in zip(names[1:], sol[1:]):
             out[name] = float(v)
@@ -774,8 +776,8 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     both = [s for s in specs]
     held = both[-hold_out:] if hold_out else []
     fit_specs = [s for s in specs if s not in held]
-    start = lateral_starts([frames[id(s)] for s in fit_specs], c)
     regs = lateral_regressions([frames[id(s)] for s in fit_specs], c)
+    start = lateral_starts([frames[id(s)] for s in fit_specs], c, regs)
     if rotary_gust:                     # Dryden roll-gust time constant 4 b / (pi V)
         start["tau_pg"] = 4.0 * ac.b / (np.pi * c["V"])
         c["kin_angles"] = float(rebuilt(fd, "beta"))

@@ -1476,20 +1476,24 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                                    dyn_doc["applied"] if dynamics is None else dynamics)
     axes = ("longitudinal", "lateral") if model == "auto" else (model,)
 
-    def refit(fd_j, starts, wind_offset=(0.0, 0.0, 0.0), dynamics=None, only=None):
-        """The fits (of ``only`` methods, default all) repeated on data ``fd_j`` (the
-        angles rebuilt with ``wind_offset``, the input dynamics ``dynamics``), started
-        from ``starts``; results only."""
+    def fits(data, starts, only=None):
+        """The fits (of ``only`` methods, default all) repeated on ``data``, started from
+        ``starts``; results only."""
         if user:
-            return identify_user_model(refit_data(fd_j, wind_offset, dynamics), um, only or methods,
-                                       truth, quiet_progress(), inputs=inputs, starts=starts,
-                                       smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
-        return identify(refit_data(fd_j, wind_offset, dynamics), ac, only or methods, truth,
-                        quiet_progress(), inputs=inputs, axes=axes, starts=starts,
-                        smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
+            return identify_user_model(data, um, only or methods, truth, quiet_progress(),
+                                       inputs=inputs, starts=starts, smooth_inputs=smooth_inputs,
+                                       fit_all=bool(fd_vals))[0]
+        return identify(data, ac, only or methods, truth, quiet_progress(), inputs=inputs, axes=axes,
+                        starts=starts, smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
+
+    def refit(fd_j, starts, wind_offset=(0.0, 0.0, 0.0), dynamics=None):
+        """The fits repeated on data ``fd_j`` (the angles rebuilt with ``wind_offset``, the
+        input dynamics ``dynamics``), started from ``starts``; results only."""
+        return fits(refit_data(fd_j, wind_offset, dynamics), starts)
     fd, dyn_doc = refine_input_dynamics_stage(
         fd_before, fd, dyn_doc, methods, pr,
-        lambda dyn, starts: refit(fd_c, {} if starts is None else starts, dynamics=dyn, only=("oem",)))
+        lambda dyn, starts: fits(with_input_dynamics(fd_before, dyn), {} if starts is None else starts,
+                                 only=("oem",)))
     applied = dict(dyn_doc["applied"])
     fd_vals = [with_input_dynamics(with_instrument_errors_removed(fv, comp, meta), applied)
                for fv in fd_vals]
