@@ -751,8 +751,11 @@ def summary(doc: Mapping[str, Any]) -> str:
                  else "not significant")
         ref = d.get("refined") or {}
         if ref:
+            apart = [k for k in ("delay", "lag") if ref.get(f"{k}_widened")]
             state = (f"{REFINE_METHOD}; equation error {d['delay_s'] * 1e3:+.1f} and "
-                     f"{d['lag_s'] * 1e3:.1f} ms; {state}")
+                     f"{d['lag_s'] * 1e3:.1f} ms"
+                     + (f", the two apart on the {' and '.join(apart)}: std widened to the difference"
+                        if apart else "") + f"; {state}")
         v = {k: ref[k] if ref.get(k) is not None else d[k] for k in ("delay_s", "delay_std", "lag_s", "lag_std")}
         parts.append(f"{s} delay {v['delay_s'] * 1e3:+.1f} +- {v['delay_std'] * 1e3:.1f} ms, lag "
                      f"{v['lag_s'] * 1e3:.1f} +- {v['lag_std'] * 1e3:.1f} ms ({state})")
