@@ -27,10 +27,13 @@ With the pipeline's refinement (--refine 1, 2026-11-25, the same seeds):
       50.0, 49.8, 49.7), refined on every seed; empirical std 0.05-0.72 ms; output error's
       Morelli-Klein std honest (empirical / mk 0.48-0.82); empirical / carried std (at
       least 1 ms) 0.05-0.98; the aileron's and rudder's 0.2-0.5 ms biases are 3-6 of their
-      empirical std, below the 1 ms floor.
+      empirical std, below the 1 ms floor. The derivatives (output error, both axes, the
+      dynamics applied): every one within 3 std of the truth on 8/8 seeds (worst per seed
+      1.25-2.4 longitudinal, 0.67-2.05 lateral).
   lag 0.02 s: de 0.5 / 19.4, da 0.7 / 19.1, dr 0.6 / 19.2 ms (equivalent 19.9, 19.8,
       19.8); empirical / mk 0.70-1.58; empirical / carried 0.02-0.88 (equation error's
-      lags, 23.2 ms on the aileron, disagree: widened to the difference).
+      lags, 23.2 ms on the aileron, disagree: widened to the difference). Every derivative
+      within 3 std on 8/8 seeds (worst 1.07-2.58 longitudinal, 0.15-2.15 lateral).
 
 With ``--refine 1`` the delays and lags are the pipeline's (``estimate_log`` of the .bin:
 equation error refined by output error, pipeline.input_dynamics.refine_by_output_error);
@@ -51,8 +54,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from _montecarlo import fly, scatter_table, seed_arguments  # noqa: E402
+from _montecarlo import fly, judged_parameters, scatter_table, seed_arguments  # noqa: E402
 
+#: the rows of the fits' derivatives (--refine 1)
+FIT = "(fit)"
 SEEDS, JOBS, OPTS = seed_arguments(__doc__.splitlines()[0], 8, 300,
                                    {"scenario": "default", "lag": "0.05", "refine": "0"})
 
@@ -79,11 +84,18 @@ def one_flight(seed: int) -> list[dict]:
             from pipeline.run import estimate_log
             write_truth_json(Path(d) / "truth.json", res)
             estimate_log(Path(d) / "flight.bin", Path(d) / "out", quiet=True, compat=False)
-            doc = json.loads((Path(d) / "out" / "report.json").read_text())["meta"]["input_dynamics"]
+            rep = json.loads((Path(d) / "out" / "report.json").read_text())
+            doc = rep["meta"]["input_dynamics"]
         else:
             doc = estimate_input_dynamics(read_log(Path(d) / "flight.bin"))
     why = (doc.get("refined") or {}).get("reason", "")
     rows = []
+    if refine:      # the derivatives with the dynamics applied: worst |error| / total std per fit
+        worst: dict[str, float] = {}
+        for key, name, par, _ in judged_parameters(rep):
+            if "[" not in name and par.get("error_in_std") is not None:
+                worst[key] = max(worst.get(key, 0.0), abs(par["error_in_std"]))
+        rows += [{"surface": FIT, "parameter": key, "estimate": w, "seed": seed} for key, w in worst.items()]
     for s, e in doc["surfaces"].items():
         ref = e.get("refined") or {}
         for k, (name, truth) in enumerate((("delay_s", 0.0), ("lag_s", lag))):
@@ -111,6 +123,12 @@ def _equivalent_std(doc: dict, surface: str) -> float:
 
 if __name__ == "__main__":
     df = fly(one_flight, SEEDS, JOBS)
+    fits = df[df["surface"] == FIT]
+    df = df[df["surface"] != FIT]
+    if len(fits):
+        w = fits.pivot(index="seed", columns="parameter", values="estimate")
+        print("worst |error| / std of the derivatives per seed:", w.round(2).to_dict("list"))
+        print("every derivative within 3 std on", int((w.max(axis=1) <= 3.0).sum()), "of", len(w), "seeds")
     tab = scatter_table(df, ["surface", "parameter"], {"reported": "std", "mk": "mk_std"})
     print("applied on", df.groupby("surface")["applied"].mean().round(2).to_dict(), "of the seeds;",
           "refined by output error on", df.groupby("surface")["refined"].mean().round(2).to_dict())
