@@ -612,7 +612,9 @@ def refine_by_output_error(doc: dict[str, Any], fit, progress: Any = None) -> di
     try:
         base = run(x, None)
         bad = [k for k, r in base.items() if not r.converged]
-        if not base or bad:
+        if not base:
+            return done("no output-error fit on this log")
+        if bad:
             return done(f"output error did not converge with the equation-error values ({', '.join(bad)})")
         it, converged = 0, False
         while True:
@@ -700,6 +702,7 @@ def refine_by_output_error(doc: dict[str, Any], fit, progress: Any = None) -> di
              k[:-2] + "_widened": bool(apart[j])})
     ref["status"] = "refined"
     return done(None)
+
 
 def with_input_dynamics(fd: FlightData, dynamics: Mapping[str, Mapping[str, float]]) -> FlightData:
     """``fd`` with each control input of ``dynamics`` (name -> {"delay_s", "lag_s"}) as
