@@ -696,10 +696,12 @@ def refine_by_output_error(doc: dict[str, Any], fit, progress: Any = None) -> di
     doc["covariance"] = {"names": names, "matrix": cov.tolist()}
     sd = np.sqrt(np.diag(cov))
     for j, (s, k) in enumerate(keys):
-        doc["surfaces"][s].setdefault("refined", {}).update(
-            {k: float(x[j]), k[:-2] + "_std": float(sd[j]), k[:-2] + "_crb_std": float(crb[j]),
-             k[:-2] + "_mk_std": float(mk[j]), k[:-2] + "_seen": bool(seen[j]),
-             k[:-2] + "_widened": bool(apart[j])})
+        if seen[j]:
+            doc["surfaces"][s].setdefault("refined", {}).update(
+                {k: float(x[j]), k[:-2] + "_std": float(sd[j]), k[:-2] + "_crb_std": float(crb[j]),
+                 k[:-2] + "_mk_std": float(mk[j]), k[:-2] + "_widened": bool(apart[j])})
+    if not np.all(seen):
+        ref["not_seen"] = [n for n, ok in zip(names, seen) if not ok]
     ref["status"] = "refined"
     return done(None)
 
@@ -753,7 +755,7 @@ def summary(doc: Mapping[str, Any]) -> str:
                  else f"below {MIN_APPLIED_S * 1e3:g} ms, not applied" if d["significant"]
                  else "not significant")
         ref = d.get("refined") or {}
-        if ref:
+        if ref:         # (a surface no output-error fit sees keeps equation error's values)
             apart = [k for k in ("delay", "lag") if ref.get(f"{k}_widened")]
             state = (f"{REFINE_METHOD}; equation error {d['delay_s'] * 1e3:+.1f} and "
                      f"{d['lag_s'] * 1e3:.1f} ms"

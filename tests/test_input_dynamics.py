@@ -148,6 +148,13 @@ def test_estimate_applies_the_servo_lag(lagged_flight, tmp_path, capsys):
     pars = rep["methods"]["longitudinal-oem"]["parameters"]
     assert pars["Cmq"]["consider_std"] > 0
     assert "control-input delay and lag" in (tmp_path / "auto" / "report.md").read_text()
+    # the longitudinal model alone sees the elevator only: the aileron and rudder keep
+    # equation error's values (and report.md does not call them refined)
+    assert main(base + ["--out", str(tmp_path / "lon")]) == 0
+    lon = json.loads((tmp_path / "lon" / "report.json").read_text())["meta"]["input_dynamics"]
+    assert lon["refined"]["not_seen"] == ["da delay", "da lag", "dr delay", "dr lag"]
+    assert "refined" in lon["surfaces"]["de"] and "refined" not in lon["surfaces"]["da"]
+    assert lon["applied"]["da"] == {k: lon["surfaces"]["da"][k] for k in ("delay_s", "lag_s")}
     assert main(base + ["--out", str(tmp_path / "off"), "--input-dynamics", "off"]) == 0
     assert _worst(tmp_path / "off", "oem")[0] > 10.0
     # given: the truth's lag on every surface
