@@ -345,6 +345,18 @@ def mean_wind(doc: dict[str, Any]) -> tuple[float, float] | None:
     return float(np.mean(doc["wind"]["north_mps"])), float(np.mean(doc["wind"]["east_mps"]))
 
 
+#: what report.md says of the airspeed the rebuilt angles take as calibrated
+AIRSPEED_CAVEAT = ("a pitot scale factor or bias goes into the along-track wind, and the models' "
+                   "airspeed and dynamic pressure keep it, outside the std (ad hoc: "
+                   "sensor_errors_calm's .bin, a 3 % scale factor and 0.4 m/s, put the "
+                   "derivatives 55-88 std off): calibrate the airspeed before estimation")
+
+
+def assumptions(doc: dict[str, Any]) -> str:
+    """One line for report.md: what the rebuilt angles assume, the airspeed's caveat."""
+    return f"{doc.get('assumptions', '')}; {AIRSPEED_CAVEAT}"
+
+
 def summary(doc: dict[str, Any]) -> str:
     """One line for progress and report.md."""
     if doc.get("status") != "reconstructed":

@@ -1452,7 +1452,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     # and attitude are no independent air data (with them, 4 "significant" sensor errors
     # were applied on a windy longitudinal_3211_turbulence); they are rebuilt afterwards
     # from the corrected data, and again in every refit of the correction uncertainty
-    from pipeline.flow_angles import mean_wind, summary as flow_summary, unsteady
+    from pipeline.flow_angles import assumptions as flow_assumptions, mean_wind, summary as flow_summary, unsteady
     fd_c, comp = compatibility_stage(fd_logged, ac_sensors, pr, enabled=compat,
                                      truth=truth_errors(truth_doc) if truth_doc else None,
                                      imu_only=not any(k in fd_logged for k in ("alpha", "beta")),
@@ -1460,6 +1460,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     if flow.get("status") == "reconstructed":
         fd, flow = with_flow_angles(fd_c, flow)     # rebuilt from the corrected data
         meta["air-data angles"] = flow_summary(flow)
+        meta["air-data angles assume"] = flow_assumptions(flow)
         meta["flow_angles"] = {**flow, "data": comp["data_for_estimation"]}
     else:                                           # derived angles not rebuilt: as logged
         fd = replace(fd_c, channels={**fd_c.channels, **{
