@@ -349,7 +349,8 @@ def mean_wind(doc: dict[str, Any]) -> tuple[float, float] | None:
 AIRSPEED_CAVEAT = ("a pitot scale factor or bias goes into the along-track wind, and the models' "
                    "airspeed and dynamic pressure keep it, outside the std (ad hoc: "
                    "sensor_errors_calm's .bin, a 3 % scale factor and 0.4 m/s, put the "
-                   "derivatives 55-88 std off): calibrate the airspeed before estimation")
+                   "derivatives 55-88 std off, 7.1 and 1.2 without them): calibrate the airspeed "
+                   "before estimation")
 
 
 def assumptions(doc: dict[str, Any]) -> str:
