@@ -129,9 +129,8 @@ REFINE_ITERATIONS = 10
 REFINE_STEP_S = 0.002
 REFINE_TOLERANCE = 0.1
 #: ... or when a step lowers the weighted residual sum of squares (whitened by R: a
-#: parameter 1 Cramér-Rao std off adds 1) by less than this: the elevator's delay and lag,
-#: nearly one parameter on one maneuver, went on trading 0.2 ms for 0.03 of it (the
-#: default scenario with a 50 ms servo lag, ArduPilot .bin, ad hoc)
+#: parameter 1 Cramér-Rao std off adds 1) by less than this (a delay and a lag seen on one
+#: maneuver are nearly one parameter: steps trading them gain next to nothing)
 REFINE_COST_GAIN = 1.0
 #: the refinement's name in documents and reports
 REFINE_METHOD = "output error"
@@ -145,6 +144,7 @@ REFINE_AGREE = 3.0
 #: (their Morelli-Klein std 0.1-0.2 ms; the simulator's servo and the log's sample timing),
 #: and real logs stamp their samples no better than that
 REFINE_MIN_STD_S = 0.001
+
 
 def lagged(u: np.ndarray, tau: float, h: float) -> np.ndarray:
     """u (..., n) on a uniform grid of step h [s] through the first-order lag 1/(tau s + 1),
@@ -532,7 +532,6 @@ def covariance(doc: Mapping[str, Any]) -> tuple[list[str], np.ndarray, dict[str,
     return names, full[np.ix_(idx, idx)], where
 
 
-
 def _whitened(results: Mapping[str, Any], weights: Mapping[str, np.ndarray] | None = None
               ) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
     """Per fitted segment of every result (keys sorted) its residuals (N, n_out) times the
@@ -576,8 +575,6 @@ def refine_by_output_error(doc: dict[str, Any], fit, progress: Any = None) -> di
     Nothing changes when a fit fails or does not converge, or an estimate ends at its
     range's end."""
     import time
-
-    from estimators.validation.uncertainty import coloured_information
 
     t0 = time.perf_counter()
     applied = {s: dict(v) for s, v in doc["applied"].items()}
@@ -665,6 +662,34 @@ def refine_by_output_error(doc: dict[str, Any], fit, progress: Any = None) -> di
             if val >= b - AT_END_S or (k == "delay_s" and val <= a + AT_END_S)]
     if ends:
         return done(f"{', '.join(ends)} at the end of its range")
+    names = [f"{s} {k[:-2]}" for s, k in keys]
+    cov, mk, crb, apart = _refined_covariance(S, v0, Minv, seen, x, names, doc)
+    refined = dynamics(x)
+    doc["equation_error"] = {"applied": applied, "covariance": doc["covariance"]}
+    doc["applied"] = refined
+    doc["covariance"] = {"names": names, "matrix": cov.tolist()}
+    sd = np.sqrt(np.diag(cov))
+    for j, (s, k) in enumerate(keys):
+        if seen[j]:
+            doc["surfaces"][s].setdefault("refined", {}).update(
+                {k: float(x[j]), k[:-2] + "_std": float(sd[j]), k[:-2] + "_crb_std": float(crb[j]),
+                 k[:-2] + "_mk_std": float(mk[j]), k[:-2] + "_widened": bool(apart[j])})
+    if not np.all(seen):
+        ref["not_seen"] = [n for n, ok in zip(names, seen) if not ok]
+    ref["status"] = "refined"
+    return done(None)
+
+
+def _refined_covariance(S: list[np.ndarray], v0: list[np.ndarray], Minv: np.ndarray,
+                        seen: np.ndarray, x: np.ndarray, names: list[str],
+                        doc: Mapping[str, Any]) -> tuple[np.ndarray, ...]:
+    """(covariance, Morelli-Klein std, Cramér-Rao std, apart) of the refined values ``x``
+    (named ``names``, "<surface> delay|lag"; ``seen`` by the fits) from the last
+    Gauss-Newton iteration of :func:`refine_by_output_error` (its whitened sensitivities
+    ``S`` and residuals ``v0`` per segment, ``Minv``), ``doc`` still equation error's;
+    ``apart``: where the two methods disagree."""
+    from estimators.validation.uncertainty import coloured_information
+
     # the std: output error's Morelli-Klein one, at least REFINE_MIN_STD_S, where equation
     # error agrees (within REFINE_AGREE combined std); where it does not, the data cannot
     # tell them apart (the commands or the gyro logged slowly: a delay and a lag of a few
@@ -679,9 +704,9 @@ def refine_by_output_error(doc: dict[str, Any], fit, progress: Any = None) -> di
     old = doc["covariance"]
     pos = {n: i for i, n in enumerate(old["names"])}
     ee = np.asarray(old["matrix"], dtype=float)
-    names = [f"{s} {k[:-2]}" for s, k in keys]
     sd_ee = np.array([np.sqrt(max(ee[pos[n], pos[n]], 0.0)) if n in pos else 0.0 for n in names])
-    diff = np.abs(x - np.array([applied[s][k] for s, k in keys]))
+    was = np.array([doc["applied"][n.split()[0]][n.split()[1] + "_s"] for n in names])
+    diff = np.abs(x - was)
     apart = seen & (diff > REFINE_AGREE * np.hypot(sd_ee, mk))
     want = np.maximum(np.where(apart, np.maximum(mk, diff), mk), REFINE_MIN_STD_S)
     widen = np.where(mk > 0, want / np.where(mk > 0, mk, 1.0), 1.0)
@@ -689,21 +714,7 @@ def refine_by_output_error(doc: dict[str, Any], fit, progress: Any = None) -> di
     for j in np.flatnonzero(~seen | ~(mk > 0)):
         cov[j, :] = cov[:, j] = 0.0
         cov[j, j] = sd_ee[j] ** 2 if not seen[j] else want[j] ** 2
-    cov = 0.5 * (cov + cov.T)
-    refined = dynamics(x)
-    doc["equation_error"] = {"applied": applied, "covariance": old}
-    doc["applied"] = refined
-    doc["covariance"] = {"names": names, "matrix": cov.tolist()}
-    sd = np.sqrt(np.diag(cov))
-    for j, (s, k) in enumerate(keys):
-        if seen[j]:
-            doc["surfaces"][s].setdefault("refined", {}).update(
-                {k: float(x[j]), k[:-2] + "_std": float(sd[j]), k[:-2] + "_crb_std": float(crb[j]),
-                 k[:-2] + "_mk_std": float(mk[j]), k[:-2] + "_widened": bool(apart[j])})
-    if not np.all(seen):
-        ref["not_seen"] = [n for n, ok in zip(names, seen) if not ok]
-    ref["status"] = "refined"
-    return done(None)
+    return 0.5 * (cov + cov.T), mk, crb, apart
 
 
 def with_input_dynamics(fd: FlightData, dynamics: Mapping[str, Mapping[str, float]]) -> FlightData:
