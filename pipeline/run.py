@@ -79,6 +79,15 @@ class Progress:
             print(f"[{self.n}/{self.total}] {text} ...", end="", file=self.stream, flush=True)
         return self
 
+    def substage(self, text: str) -> "Progress":
+        """A second part of the stage just done, on a line of its own under it (counted
+        with that stage: a part that only some logs need keeps the count right)."""
+        self._t = time.perf_counter()
+        if not self.quiet:
+            print(f"{' ' * (len(str(self.n)) + len(str(self.total)) + 3)} {text} ...", end="",
+                  file=self.stream, flush=True)
+        return self
+
     def tick(self, text: str) -> None:
         """A step within the current stage, on its line (an iteration, a refit)."""
         if not self.quiet:
@@ -1204,8 +1213,7 @@ def refine_input_dynamics_stage(fd_before, fd, doc: dict[str, Any], methods: Seq
     if "oem" not in methods:
         doc["refined"] = {"status": "not refined", "reason": "output error is not among the methods"}
         return fd, doc
-    pr.total += 1
-    pr.stage(f"control-input delay and lag refined by output error ({', '.join(doc['applied'])})")
+    pr.substage(f"refined by output error ({', '.join(doc['applied'])})")
     ref = refine_by_output_error(doc, fit, pr)
     if ref["status"] != "refined":
         pr.done(f"not refined: {ref['reason']}; equation error's values kept")
