@@ -537,8 +537,10 @@ def _whitened(results: Mapping[str, Any], weights: Mapping[str, np.ndarray] | No
     """Per fitted segment of every result (keys sorted) its residuals (N, n_out) times the
     whitening W of its result (W W^T = R^-1), missing samples 0; and the W used
     (``weights``, else each result's own R)."""
+    from estimators.statistics import whitener
+
     if weights is None:
-        weights = {k: np.linalg.cholesky(np.linalg.inv(np.atleast_2d(r.R))) for k, r in results.items()}
+        weights = {k: whitener(np.atleast_2d(r.R)) for k, r in results.items()}
     if set(weights) != set(results):
         raise ValueError(f"the fits changed ({sorted(weights)} -> {sorted(results)})")
     out = []
@@ -663,7 +665,8 @@ def refine_by_output_error(doc: dict[str, Any], fit, progress: Any = None) -> di
     if ends:
         return done(f"{', '.join(ends)} at the end of its range")
     names = [f"{s} {k[:-2]}" for s, k in keys]
-    cov, mk, crb, apart = _refined_covariance(S, v0, Minv, seen, x, names, doc)
+    cov, mk, crb, apart = _refined_covariance(S, v0, Minv, seen, x,
+                                              np.array([applied[s][k] for s, k in keys]), names, doc)
     refined = dynamics(x)
     doc["equation_error"] = {"applied": applied, "covariance": doc["covariance"]}
     doc["applied"] = refined
@@ -681,13 +684,13 @@ def refine_by_output_error(doc: dict[str, Any], fit, progress: Any = None) -> di
 
 
 def _refined_covariance(S: list[np.ndarray], v0: list[np.ndarray], Minv: np.ndarray,
-                        seen: np.ndarray, x: np.ndarray, names: list[str],
+                        seen: np.ndarray, x: np.ndarray, was: np.ndarray, names: list[str],
                         doc: Mapping[str, Any]) -> tuple[np.ndarray, ...]:
     """(covariance, Morelli-Klein std, Cramér-Rao std, apart) of the refined values ``x``
-    (named ``names``, "<surface> delay|lag"; ``seen`` by the fits) from the last
-    Gauss-Newton iteration of :func:`refine_by_output_error` (its whitened sensitivities
-    ``S`` and residuals ``v0`` per segment, ``Minv``), ``doc`` still equation error's;
-    ``apart``: where the two methods disagree."""
+    (equation error's ``was``; named ``names``, "<surface> delay|lag"; ``seen`` by the
+    fits) from the last Gauss-Newton iteration of :func:`refine_by_output_error` (its
+    whitened sensitivities ``S`` and residuals ``v0`` per segment, ``Minv``), ``doc``
+    still equation error's; ``apart``: where the two methods disagree."""
     from estimators.validation.uncertainty import coloured_information
 
     # the std: output error's Morelli-Klein one, at least REFINE_MIN_STD_S, where equation
@@ -705,7 +708,6 @@ def _refined_covariance(S: list[np.ndarray], v0: list[np.ndarray], Minv: np.ndar
     pos = {n: i for i, n in enumerate(old["names"])}
     ee = np.asarray(old["matrix"], dtype=float)
     sd_ee = np.array([np.sqrt(max(ee[pos[n], pos[n]], 0.0)) if n in pos else 0.0 for n in names])
-    was = np.array([doc["applied"][n.split()[0]][n.split()[1] + "_s"] for n in names])
     diff = np.abs(x - was)
     apart = seen & (diff > REFINE_AGREE * np.hypot(sd_ee, mk))
     want = np.maximum(np.where(apart, np.maximum(mk, diff), mk), REFINE_MIN_STD_S)

@@ -1478,11 +1478,6 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     fd_before, (fd, dyn_doc) = fd, input_dynamics_stage(fd, pr, input_dynamics)
     from pipeline.correction_uncertainty import quiet_progress
 
-    def refit_data(fd_j, wind_offset, dynamics):
-        """The refits' flight data: the angles rebuilt, the input dynamics applied as in
-        the fits (or ``dynamics``)."""
-        return with_input_dynamics(with_flow_angles(fd_j, flow, wind_offset)[0],
-                                   dyn_doc["applied"] if dynamics is None else dynamics)
     axes = ("longitudinal", "lateral") if model == "auto" else (model,)
 
     def fits(data, starts, only=None):
@@ -1495,10 +1490,12 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         return identify(data, ac, only or methods, truth, quiet_progress(), inputs=inputs, axes=axes,
                         starts=starts, smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
 
-    def refit(fd_j, starts, wind_offset=(0.0, 0.0, 0.0), dynamics=None):
+    def refit(fd_j, starts, wind_offset=(0.0, 0.0, 0.0)):
         """The fits repeated on data ``fd_j`` (the angles rebuilt with ``wind_offset``, the
-        input dynamics ``dynamics``), started from ``starts``; results only."""
-        return fits(refit_data(fd_j, wind_offset, dynamics), starts)
+        input dynamics applied as in the fits), started from ``starts``; results only."""
+        return fits(with_input_dynamics(with_flow_angles(fd_j, flow, wind_offset)[0], dyn_doc["applied"]),
+                    starts)
+    # the fits with other input dynamics: the data the stage had (angles as rebuilt)
     fd, dyn_doc = refine_input_dynamics_stage(
         fd_before, fd, dyn_doc, methods, pr,
         lambda dyn, starts: fits(with_input_dynamics(fd_before, dyn), {} if starts is None else starts,
@@ -1523,7 +1520,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit, flow=flow,
                                wind_refit=(lambda offset: refit(fd_c, starts, offset)) if angles else None,
                                dynamics=dyn_doc,
-                               dynamics_refit=lambda dyn: refit(fd_c, starts, dynamics=dyn))
+                               dynamics_refit=lambda dyn: fits(with_input_dynamics(fd_before, dyn), starts))
     meta["control-input delay and lag"] = dynamics_summary(dyn_doc)
     meta["input_dynamics"] = dyn_doc
     if "wind_uncertainty" in flow:
