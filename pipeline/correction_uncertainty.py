@@ -39,7 +39,8 @@ from pipeline.flightdata import FlightData
 
 SOURCE = "the uncertainty of the sensor corrections applied before the fit"
 HELD_SOURCE = "the uncertainty of the other axis' estimates the fit held"
-WIND_SOURCE = "the uncertainty of the wind the air-data angles were rebuilt with"
+WIND_SOURCE = ("the uncertainty of the wind (and the pitot's scale factor) the air-data "
+               "angles were rebuilt with")
 DYNAMICS_SOURCE = ("the uncertainty of the control-input delays and lags applied before "
                    "the fit")
 
@@ -178,7 +179,7 @@ def wind(flow: Mapping[str, Any], results: Mapping[str, Any],
     step = np.array([top[n] for n in names])
 
     def refit_j(j: int) -> Mapping[str, Any]:
-        offset = [0.0, 0.0, 0.0]
+        offset = [0.0] * len(WIND_PARTS)
         offset[WIND_PARTS.index(names[j])] = float(step[j])
         return refit(tuple(offset))
 
@@ -186,8 +187,11 @@ def wind(flow: Mapping[str, Any], results: Mapping[str, Any],
                                  progress)
     _add_consider(results, J, {key: np.diag([per[key][n] ** 2 for n in names]) for key in results},
                   status, WIND_SOURCE)
+    speed = [n for n in names if n != "airspeed scale"]
     return {"parts": names, "refits": len(names),
-            "std_mps": {key: {n: per[key][n] for n in names} for key in results},
+            "std_mps": {key: {n: per[key][n] for n in speed} for key in results},
+            **({"std_airspeed_scale": {key: per[key]["airspeed scale"] for key in results}}
+               if "airspeed scale" in names else {}),
             "perturbation": "each part of the wind moved by its std (the largest over the "
                             "fits), the angles rebuilt and all fits repeated; total std = "
                             "sqrt(CRB^2 + consider^2)",
@@ -201,6 +205,9 @@ def wind_summary(doc: Mapping[str, Any]) -> str:
     stds = doc["std_mps"]
     parts = []
     for n in doc["parts"]:
+        if n == "airspeed scale":     # one value for the flight
+            parts.append(f"pitot scale factor +-{100 * max(doc['std_airspeed_scale'].values()):.2f} %")
+            continue
         lo, hi = min(v[n] for v in stds.values()), max(v[n] for v in stds.values())
         what = "flight-mean vertical wind (assumed 0)" if n == "vertical wind" else n
         parts.append(f"{what} +-{lo:.2f}" + (f" to {hi:.2f}" if hi - lo >= 0.005 else "") + " m/s")

@@ -34,8 +34,8 @@ as the sign that the calm-air sensor-compatibility model does not hold.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, replace
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -48,6 +48,16 @@ NEEDS = ("vn", "ve", "vd", "phi", "theta", "psi", "V")
 BETA_STD = np.deg2rad(2.0)
 #: knot spacing of the wind [s]
 WINDOW_S = 120.0
+#: std [-] of the prior (mean 0) on the pitot's scale factor in the wind fit: a plausible
+#: range, weak beside what turning flight tells (std 0.02-0.2 % over 90-1400 deg of heading
+#: on the unit test's kinematics)
+SCALE_PRIOR = 0.3
+#: the scale factor is estimated with the wind only when its std at 0 is at most this [-]
+SCALE_STD_MAX = 0.02
+#: ... applied when at least this many std from 0 (as a sensor error in pipeline.compatibility)
+SCALE_SIGNIFICANCE = 3.0
+#: ... and within +- this [-] (beyond: implausible for a pitot, something else is wrong)
+SCALE_MAX = 0.25
 
 
 @dataclass
@@ -66,6 +76,12 @@ class WindFit:
     n: int
     #: correlation time of the airspeed residual [s] (:func:`correlation_time`)
     airspeed_tau: float = 0.0
+    #: the pitot's scale factor k [-] (airspeed measured as (1 + k) x true), estimated or held
+    scale: float = 0.0
+    #: its std [-], estimated or (held) what it would be if freed there
+    std_scale: float = float("nan")
+    #: whether ``scale`` was estimated (else held)
+    scale_estimated: bool = False
 
     def at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(north, east) wind [m/s] at times t [s] (linear between knots, constant beyond)."""
@@ -123,57 +139,81 @@ def correlation_time(r: np.ndarray, dt: float) -> float:
 
 def fit_wind(t: np.ndarray, vg: np.ndarray, V: np.ndarray, axes: np.ndarray, *,
              window_s: float = WINDOW_S, beta_std: float = BETA_STD,
-             iterations: int = 12) -> WindFit:
-    """Horizontal wind from inertial velocity and airspeed (module doc).
+             iterations: int = 12, scale: float | None = 0.0) -> WindFit:
+    """Horizontal wind from inertial velocity and airspeed (module doc), with the pitot's
+    scale factor k (the airspeed measured as (1 + k) |vg - W|) held at ``scale``, or
+    estimated with the wind when ``scale`` is None and the flight's headings tell it from
+    the wind: its std at k = 0 at most :data:`SCALE_STD_MAX` (else k is held at 0).
 
     t (n,) [s]; vg (n, 3) inertial NED velocity [m/s]; V (n,) true airspeed [m/s];
     axes (n, 3, 3) body axes in NED (:func:`_body_axes`). Gauss-Newton on the stacked
     airspeed and zero-sideslip residuals, reweighted by each group's rms; the std come
     from the normal matrix with each group's sample count shrunk for its autocorrelation.
+    ``WindFit.std_scale`` is k's std, estimated, or (held) what it would be if freed there
+    with white residuals (the headings' geometry; at most :data:`SCALE_PRIOR`, a prior that
+    keeps it finite without turns).
     """
-    span = float(t[-1] - t[0])
-    nk = 1 if span < 1.5 * window_s else int(np.ceil(span / window_s)) + 1
-    knots = np.array([0.5 * (t[0] + t[-1])]) if nk == 1 else np.linspace(t[0], t[-1], nk)
-    B = _hat_basis(t, knots)                               # (n, K)
-    used = B.sum(axis=0) > 0
-    if not used.all():                                     # knots in a gap of the data
-        knots = knots[used]
-        nk = knots.size
-        B = _hat_basis(t, knots)
+    if scale is None:
+        held = fit_wind(t, vg, V, axes, window_s=window_s, beta_std=beta_std, iterations=iterations)
+        if not held.std_scale <= SCALE_STD_MAX:
+            return held
+        x = np.concatenate([held.north, held.east, [0.0]])   # (north knots, east knots, k)
+        knots, B = held.knots, _hat_basis(t, held.knots)
+    else:
+        span = float(t[-1] - t[0])
+        nk = 1 if span < 1.5 * window_s else int(np.ceil(span / window_s)) + 1
+        knots = np.array([0.5 * (t[0] + t[-1])]) if nk == 1 else np.linspace(t[0], t[-1], nk)
+        B = _hat_basis(t, knots)                           # (n, K)
+        used = B.sum(axis=0) > 0
+        if not used.all():                                 # knots in a gap of the data
+            knots = knots[used]
+            B = _hat_basis(t, knots)
+        # start: zero sideslip and the airspeed along the body x axis's horizontal direction
+        ex = axes[:, 0, :2] / np.linalg.norm(axes[:, 0, :2], axis=1, keepdims=True)
+        Vh = np.sqrt(np.maximum((V / (1.0 + scale)) ** 2 - vg[:, 2] ** 2, 0.0))
+        w0 = np.linalg.lstsq(B, vg[:, :2] - Vh[:, None] * ex, rcond=None)[0]  # (K, 2)
+        x = np.append(w0.T.reshape(-1), float(scale))
+    nk = knots.size
+    free = np.arange(2 * nk + (scale is None))            # the columns estimated
     ey = axes[:, 1, :2]                                    # body y axis, horizontal part
-    # start: zero sideslip and the airspeed along the body x axis's horizontal direction
-    ex = axes[:, 0, :2] / np.linalg.norm(axes[:, 0, :2], axis=1, keepdims=True)
-    Vh = np.sqrt(np.maximum(V * V - vg[:, 2] ** 2, 0.0))
-    w0 = np.linalg.lstsq(B, vg[:, :2] - Vh[:, None] * ex, rcond=None)[0]      # (K, 2)
-    x = w0.T.reshape(-1)                                   # (north knots, east knots)
     s_v, s_b = 1.0, beta_std * float(np.median(V))
     for it in range(iterations):
-        Wn, We = B @ x[:nk], B @ x[nk:]
+        k = float(x[-1])
+        Wn, We = B @ x[:nk], B @ x[nk:2 * nk]
         va = vg - np.column_stack([Wn, We, np.zeros_like(Wn)])
         mag = np.linalg.norm(va, axis=1)
-        r1 = mag - V
+        r1 = (1.0 + k) * mag - V
         r2 = np.einsum("ij,ij->i", ey, va[:, :2]) + axes[:, 1, 2] * va[:, 2]
         if it >= 2:                                        # reweight once the fit settled
             s_v = max(float(np.sqrt(np.mean(r1 ** 2))), 1e-3)
-        J1 = np.hstack([-(va[:, :1] / mag[:, None]) * B, -(va[:, 1:2] / mag[:, None]) * B])
-        J2 = np.hstack([-ey[:, :1] * B, -ey[:, 1:2] * B])
-        J = np.vstack([J1 / s_v, J2 / s_b])
+        # columns: north knots, east knots, k
+        J1 = np.hstack([-(1.0 + k) * (va[:, :1] / mag[:, None]) * B,
+                        -(1.0 + k) * (va[:, 1:2] / mag[:, None]) * B, mag[:, None]])
+        J2 = np.hstack([-ey[:, :1] * B, -ey[:, 1:2] * B, np.zeros((t.size, 1))])
+        J = np.vstack([J1[:, free] / s_v, J2[:, free] / s_b])
         r = np.concatenate([r1 / s_v, r2 / s_b])
-        M = J.T @ J + 1e-9 * np.eye(2 * nk)
-        dx = -np.linalg.solve(M, J.T @ r)
-        x = x + dx
+        dx = -np.linalg.solve(J.T @ J + 1e-9 * np.eye(free.size), J.T @ r)
+        x[free] += dx
         if np.max(np.abs(dx)) < 1e-6:
             break
-    # the std: each group's information scaled by its effective/actual sample count
+    # the std: each group's information scaled by its effective/actual sample count; k's
+    # prior information keeps its std finite when the headings cannot tell it from the wind
     f1, f2 = _effective_n(r1) / r1.size, _effective_n(r2) / r2.size
-    M = f1 * (J1.T @ J1) / s_v ** 2 + f2 * (J2.T @ J2) / s_b ** 2
-    cov = np.linalg.pinv(M)
-    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    M1, M2 = (J1.T @ J1) / s_v ** 2, (J2.T @ J2) / s_b ** 2
+    M = f1 * M1 + f2 * M2
+    sd = np.sqrt(np.clip(np.diag(np.linalg.pinv(M[np.ix_(free, free)])), 0.0, None))
+    if scale is None:
+        std_k = float(sd[-1])
+    else:   # k freed here, the residuals taken as white: the headings' geometry, not a
+            # residual the held k makes coloured (sim, 386 deg: 0.4 % shrunk, 0.04 % fitted)
+        P = np.linalg.pinv(M1 + M2 + np.diag(np.r_[np.zeros(2 * nk), SCALE_PRIOR ** -2]))
+        std_k = float(np.sqrt(P[-1, -1]))
     mag = np.maximum(mag, 1e-6)
-    return WindFit(knots=knots, north=x[:nk].copy(), east=x[nk:].copy(), std_north=sd[:nk],
-                   std_east=sd[nk:], airspeed_rms=float(np.sqrt(np.mean(r1 ** 2))),
+    return WindFit(knots=knots, north=x[:nk].copy(), east=x[nk:2 * nk].copy(), std_north=sd[:nk],
+                   std_east=sd[nk:2 * nk], airspeed_rms=float(np.sqrt(np.mean(r1 ** 2))),
                    beta_rms=float(np.sqrt(np.mean((r2 / mag) ** 2))), n=int(t.size),
-                   airspeed_tau=correlation_time(r1, float(np.median(np.diff(t)))))
+                   airspeed_tau=correlation_time(r1, float(np.median(np.diff(t)))),
+                   scale=float(x[-1]), std_scale=std_k, scale_estimated=scale is None)
 
 
 #: ``Channel.derived`` of an angle this module rebuilt
@@ -194,12 +234,17 @@ def _at(fd: FlightData, name: str, t: np.ndarray, wrapped: bool = False) -> np.n
 
 def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
                             beta_std: float = BETA_STD,
-                            wind_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+                            wind_offset: Sequence[float] = (0.0, 0.0, 0.0),
+                            airspeed_scale: float | None = None
                             ) -> tuple[FlightData, dict[str, Any]]:
     """The flight with the missing ones of alpha, beta reconstructed from the flight path
     (module doc), and a JSON-ready document of what was done. The input is not modified.
-    ``wind_offset`` (north, east, down) [m/s] is added to the fitted wind before the angles
-    are rebuilt (the refits of :func:`wind_uncertainty`; down: a vertical wind).
+    ``wind_offset`` (north, east, down [m/s], airspeed scale [-], the last optional, in
+    the order of :data:`WIND_PARTS`) moves the fitted wind before the angles are rebuilt
+    and the pitot's scale factor from where :func:`airspeed_calibration` put it (the refits
+    of :func:`wind_uncertainty`; down: a vertical wind). ``airspeed_scale`` holds the
+    pitot's scale factor there (another flight's, the same pitot) instead of estimating it.
+    Where a scale factor k is used, the V channel becomes the calibrated V / (1 + k).
 
     Nothing to do (both angles logged): the same object and ``{"status": "not needed"}``.
     Raises FsidError naming the missing channels when an angle is missing and the flight
@@ -227,19 +272,30 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
                         f"{fd.meta.get('source', 'log')}")
     t, vg, V = t[ok], vg[ok], V[ok]
     axes = _body_axes(phi[ok], theta[ok], psi[ok])
-    wind = fit_wind(t, vg, V, axes, window_s=window_s, beta_std=beta_std)
+    dn, de, dd, dk = (list(map(float, wind_offset)) + [0.0])[:4]
+    fit = {"window_s": window_s, "beta_std": beta_std}
+    if airspeed_scale is None:
+        cal = airspeed_calibration(fit_wind(t, vg, V, axes, scale=None, **fit))
+    else:
+        cal = {"status": "held", "estimate": float(airspeed_scale), "applied": bool(airspeed_scale)}
+    k = (cal["estimate"] if cal["applied"] else 0.0) + dk
+    wind = fit_wind(t, vg, V, axes, scale=k, **fit)     # given k: the wind's conditional std
     Wn, We = wind.at(t)
-    dn, de, dd = (float(v) for v in wind_offset)
     va = np.einsum("nij,nj->ni", axes, vg - np.column_stack([Wn + dn, We + de, np.full_like(Wn, dd)]))
     speed = np.linalg.norm(va, axis=1)
     angles = {"alpha": np.arctan2(va[:, 2], va[:, 0]),
               "beta": np.arcsin(np.clip(va[:, 1] / speed, -1.0, 1.0))}
     src = f"flight path ({fd['vn'].source or 'vn'}, attitude, V) minus the fitted wind"
     channels = dict(fd.channels)
-    for k in todo:
-        channels[k] = Channel(t=t.copy(), values=angles[k], unit="rad", source=src,
+    for a in todo:
+        channels[a] = Channel(t=t.copy(), values=angles[a], unit="rad", source=src,
                               notes="reconstructed: no vane in the log (pipeline.flow_angles)",
                               derived=REBUILT)
+    if k:
+        v = fd["V"]
+        channels["V"] = replace(v, values=v.values / (1.0 + k), source=f"{v.source or 'V'} / (1 + {k:.5f})",
+                                notes="calibrated: pitot scale factor estimated with the wind "
+                                      "(pipeline.flow_angles)")
     out = FlightData(channels=channels, meta=dict(fd.meta), segments=list(fd.segments))
     heading = np.unwrap(psi[ok])
     doc = {"status": "reconstructed", "channels": todo,
@@ -254,11 +310,47 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
            "airspeed_noise_mps": float(fd.noise_std("V")),
            "sideslip_rms_deg": float(np.rad2deg(wind.beta_rms)),
            "heading_span_deg": float(np.rad2deg(np.ptp(heading))),
+           "airspeed_scale": cal,
            "assumptions": "no vertical wind; mean sideslip zero over each wind window; "
-                          "airspeed without scale error; angles at the CG (the navigation filter's velocity)"}
-    if any(wind_offset):
+                          f"{_SCALE_ASSUMED[cal['status']]}; angles at the CG (the navigation "
+                          "filter's velocity)"}
+    if any((dn, de, dd, dk)):
         doc["wind_offset_mps"] = [dn, de, dd]
+        doc["airspeed_scale_offset"] = dk
     return out, doc
+
+
+def airspeed_calibration(wind: WindFit) -> dict[str, Any]:
+    """What the rebuilt angles take as the pitot's scale factor, from a wind fit that tried
+    to estimate it (``fit_wind(scale=None)``), as a JSON-ready document: ``status``
+    "estimated" (the headings tell it from the wind: std at most :data:`SCALE_STD_MAX`)
+    or "not identifiable" (k held at 0, the caveat stands), ``estimate``, ``std``,
+    ``applied`` (estimated, at least :data:`SCALE_SIGNIFICANCE` std from 0 and within
+    +-:data:`SCALE_MAX`; else 0 is used) and ``carried`` (its std goes to the estimates as
+    a consider part: whenever it was estimated, applied or not)."""
+    est, sd = float(wind.scale), float(wind.std_scale)
+    if not wind.scale_estimated:
+        return {"status": "not identifiable", "estimate": 0.0, "std": sd, "applied": False,
+                "carried": False,
+                "note": f"the headings do not separate a pitot scale factor from the wind "
+                        f"(its std would be {100 * sd:.1f} %, > {100 * SCALE_STD_MAX:g} %): "
+                        "taken as 0"}
+    sig = abs(est) / sd if sd > 0 else float("inf")
+    applied = sig >= SCALE_SIGNIFICANCE and abs(est) <= SCALE_MAX
+    why = ("applied" if applied else
+           f"beyond +-{100 * SCALE_MAX:g} %, implausible: not applied" if abs(est) > SCALE_MAX
+           else f"within {SCALE_SIGNIFICANCE:g} std of 0: not applied")
+    return {"status": "estimated", "estimate": est, "std": sd, "significance_std": sig,
+            "applied": applied, "carried": True,
+            "note": f"pitot scale factor {100 * est:+.2f} +- {100 * sd:.2f} % with the wind ({why}; "
+                    "its std carried to the estimates)"}
+
+
+#: what the rebuilt angles assume of the airspeed, by :func:`airspeed_calibration` status
+_SCALE_ASSUMED = {"estimated": "the pitot's scale factor estimated with the wind (a pitot bias "
+                               "taken as a scale factor at the flight's airspeed)",
+                  "not identifiable": "airspeed without scale error",
+                  "held": "the pitot's scale factor of the fitted flight"}
 
 
 def markov_mean_std(sigma: float, tau: float, spans: Any) -> float:
@@ -289,8 +381,9 @@ def markov_mean_std(sigma: float, tau: float, spans: Any) -> float:
     return float(sigma * np.sqrt(max(total, 0.0)) / T)
 
 
-#: names of the wind parts whose uncertainty :func:`wind_uncertainty` returns
-WIND_PARTS = ("wind north", "wind east", "vertical wind")
+#: names of the parts whose uncertainty :func:`wind_uncertainty` returns (the order of
+#: :func:`reconstruct_flow_angles`' ``wind_offset``)
+WIND_PARTS = ("wind north", "wind east", "vertical wind", "airspeed scale")
 #: the largest scale length of the vertical gust [m] (MIL-F-8785C: 1750 ft above 2000 ft,
 #: the altitude below): its time constant is at most this over the airspeed
 L_W_MAX = 533.4
@@ -300,7 +393,9 @@ def wind_uncertainty(doc: dict[str, Any], spans: Any) -> dict[str, float]:
     """The std [m/s] of the wind the rebuilt angles were computed with, over the fitted
     ``spans`` [(t0, t1), ...] [s], by :data:`WIND_PARTS`: the horizontal wind's from its fit
     (the mean over the knots of the std of each component, taken as one shift of all
-    knots), and the mean vertical wind's, which the reconstruction assumes zero. In
+    knots; given the pitot's scale factor), the pitot's scale factor's [-] where it was
+    estimated (:func:`airspeed_calibration` ``carried``), and the mean vertical wind's,
+    which the reconstruction assumes zero. In
     turbulence the vertical gust averaged over the fitted spans is not zero: it shifts
     alpha by W_d / V and trades with CL0, Cm0, CD0 (multiaxis_multisine_turbulence's
     .bin, seed 31: the flight-mean vertical gust -0.40 m/s, alpha 0.45 deg, CL0 9.6 std
@@ -319,9 +414,11 @@ def wind_uncertainty(doc: dict[str, Any], spans: Any) -> dict[str, float]:
     tau = float(doc.get("airspeed_residual_tau_s", 0.0))
     if doc.get("airspeed_mean_mps"):
         tau = min(tau, L_W_MAX / float(doc["airspeed_mean_mps"]))
+    cal = doc.get("airspeed_scale") or {}
     return {"wind north": float(np.mean(w["std_north_mps"])),
             "wind east": float(np.mean(w["std_east_mps"])),
-            "vertical wind": markov_mean_std(sigma, tau, spans)}
+            "vertical wind": markov_mean_std(sigma, tau, spans),
+            "airspeed scale": float(cal["std"]) if cal.get("carried") else 0.0}
 
 
 def unsteady(doc: dict[str, Any], limit: float = 1.5) -> str | None:
@@ -354,8 +451,12 @@ AIRSPEED_CAVEAT = ("a pitot scale factor or bias goes into the along-track wind,
 
 
 def assumptions(doc: dict[str, Any]) -> str:
-    """One line for report.md: what the rebuilt angles assume, the airspeed's caveat."""
-    return f"{doc.get('assumptions', '')}; {AIRSPEED_CAVEAT}"
+    """One line for report.md: what the rebuilt angles assume; the airspeed's caveat where
+    the pitot's scale factor was not estimated."""
+    cal = doc.get("airspeed_scale") or {}
+    if cal.get("status") == "estimated":
+        return f"{doc.get('assumptions', '')}; {cal['note']}"
+    return f"{doc.get('assumptions', '')}; {cal.get('note', '')}{'; ' if cal.get('note') else ''}{AIRSPEED_CAVEAT}"
 
 
 def summary(doc: dict[str, Any]) -> str:
@@ -368,4 +469,14 @@ def summary(doc: dict[str, Any]) -> str:
             f"{np.hypot(wn, we):.1f} m/s towards {np.rad2deg(np.arctan2(we, wn)) % 360:.0f} deg "
             f"(+-{max(max(w['std_north_mps']), max(w['std_east_mps'])):.2f}, {len(w['t_s'])} knot(s)), "
             f"airspeed residual {doc['airspeed_residual_rms_mps']:.2f} m/s rms, heading span "
-            f"{doc['heading_span_deg']:.0f} deg")
+            f"{doc['heading_span_deg']:.0f} deg" + _scale_summary(doc.get("airspeed_scale") or {}))
+
+
+def _scale_summary(cal: dict[str, Any]) -> str:
+    """The pitot scale factor's part of :func:`summary`."""
+    if cal.get("status") == "estimated":
+        return (f", pitot scale factor {100 * cal['estimate']:+.2f} +- {100 * cal['std']:.2f} % "
+                f"({'applied' if cal['applied'] else 'not applied'})")
+    if cal.get("status") == "held":
+        return f", pitot scale factor {100 * cal['estimate']:+.2f} % (the fitted flight's)"
+    return ""

@@ -1067,7 +1067,8 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
                   "fits with a consider part")
 
 
-def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress) -> tuple[Any, Any, Any, dict]:
+def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress, *,
+                     airspeed_scale: float | None = None) -> tuple[Any, Any, Any, dict]:
     """The air-data-angle stage of ``fsid estimate``: alpha/beta the log lacks (no vane), or
     holds only as an autopilot's estimate (``Channel.derived``: ArduPilot's AOA/SSA, from
     its EKF velocity and wind), rebuilt from the flight path and a fitted wind
@@ -1076,7 +1077,9 @@ def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress) -> tuple[An
     angles - what the sensor-compatibility stage may use, also when they are kept for
     estimation -, document). Rebuilt angles are
     the CG's (the navigation filter's velocity is the body origin's), so the constants'
-    air-data position becomes (0, 0, 0). A log that cannot give
+    air-data position becomes (0, 0, 0). ``airspeed_scale``: the pitot's scale factor held
+    (a validation flight takes the fitted flight's), else estimated with the wind where the
+    headings allow (:func:`pipeline.flow_angles.airspeed_calibration`). A log that cannot give
     them (no inertial velocity, no forward flight) goes on as it is: the document says why,
     and a model that needs the angles stops later with the missing channels named."""
     from pipeline.flightdata import FlightData
@@ -1089,7 +1092,7 @@ def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress) -> tuple[An
         channels={k: c for k, c in fd.channels.items() if k not in derived},
         meta=dict(fd.meta), segments=list(fd.segments))
     try:
-        out, doc = reconstruct_flow_angles(base)
+        out, doc = reconstruct_flow_angles(base, airspeed_scale=airspeed_scale)
     except FsidError as exc:
         kept = f"; the logged estimates kept ({', '.join(derived.values())})" if derived else ""
         pr.done(f"not rebuilt: {exc}{kept}")
@@ -1107,15 +1110,18 @@ def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress) -> tuple[An
 
 
 def with_flow_angles(fd, flow: Mapping[str, Any],
-                     wind_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> tuple[Any, dict]:
+                     wind_offset: Sequence[float] = (0.0, 0.0, 0.0)) -> tuple[Any, dict]:
     """(``fd`` with the air-data angles rebuilt as :func:`flow_angle_stage` rebuilt them,
-    ``wind_offset`` (north, east, down) [m/s] added to their wind, their document); ``fd``
-    and ``flow`` unchanged when that stage rebuilt nothing."""
+    ``wind_offset`` (north, east, down [m/s], pitot scale factor [-], the last optional)
+    added to their wind and scale factor, their document); ``fd`` and ``flow`` unchanged
+    when that stage rebuilt nothing."""
     if flow.get("status") != "reconstructed":
         return fd, dict(flow)
     from pipeline.flow_angles import reconstruct_flow_angles
 
-    return reconstruct_flow_angles(fd, wind_offset=wind_offset)
+    cal = flow.get("airspeed_scale") or {}
+    return reconstruct_flow_angles(fd, wind_offset=wind_offset,
+                                   airspeed_scale=cal["estimate"] if cal.get("status") == "held" else None)
 
 
 def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabled: bool = True,
@@ -1419,12 +1425,15 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
             raise FsidError(f"--validate-with {vlog}: that is {seen[Path(vlog).resolve()]}; "
                             "give another flight (or leave it out to hold out the last maneuver)")
         seen[Path(vlog).resolve()] = "a validation flight already given"
+    # the same pitot: a validation flight takes the fitted flight's scale factor
+    cal = flow.get("airspeed_scale") or {}
+    k_pitot = cal["estimate"] if cal.get("applied") else (0.0 if cal.get("carried") else None)
     for vlog in vlogs:
         pr.stage(f"ingest the validation flight {vlog}")
         fv = read_log(vlog, map=map_path, servo_travel=servo_travel_for(vlog, aircraft),
                       time_base=time_base if detect_format(vlog) == fd.meta["format"] else None)
         pr.done(f"{len(fv.channels)} channels, {len(fv.segments)} segments")
-        fd_vals.append(flow_angle_stage(fv, ac_sensors, pr)[0])
+        fd_vals.append(flow_angle_stage(fv, ac_sensors, pr, airspeed_scale=k_pitot)[0])
         val_checks.append(summarize(run_checks(fd_vals[-1])))
     if user:                         # before the slow stages: a bad model fails at once
         pr.stage(f"load model {model}")

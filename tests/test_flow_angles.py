@@ -23,8 +23,8 @@ import pytest
 
 from pipeline.errors import FsidError
 from pipeline.flightdata import Channel, FlightData
-from pipeline.flow_angles import (_body_axes, correlation_time, fit_wind, markov_mean_std,
-                                  reconstruct_flow_angles, wind_uncertainty)
+from pipeline.flow_angles import (SCALE_STD_MAX, _body_axes, correlation_time, fit_wind,
+                                  markov_mean_std, reconstruct_flow_angles, wind_uncertainty)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -79,6 +79,64 @@ def test_wind_fit_skips_knots_in_a_gap():
     assert np.all(w.std_north > 0) and np.all(w.std_north < 0.5)
     wn, we = w.at(t[keep])
     assert np.max(np.abs(wn - 3.0)) < 0.5 and np.max(np.abs(we + 6.0)) < 0.5
+
+
+@pytest.mark.parametrize("seed", [3, 4, 5])
+def test_wind_fit_estimates_a_pitot_scale_factor_in_a_turn(seed):
+    """A 3 % pitot scale factor with the wind, over 860 deg of heading: within 3 std, the
+    std under 0.1 %; held at 0 the airspeed error goes into the wind."""
+    t, vg, V, axes, _ = _kinematics(seed, 0.05)
+    w = fit_wind(t, vg, 1.03 * V, axes, window_s=1e9, scale=None)
+    assert w.scale_estimated and w.std_scale < 1e-3
+    assert abs(w.scale - 0.03) < 3 * w.std_scale, (w.scale, w.std_scale)
+    assert abs(w.north[0] - 3.0) < 3 * w.std_north[0] and abs(w.east[0] + 6.0) < 3 * w.std_east[0]
+    held = fit_wind(t, vg, 1.03 * V, axes, window_s=1e9)
+    assert not held.scale_estimated and held.scale == 0.0
+    assert held.airspeed_rms > 2 * w.airspeed_rms          # 0.75 m/s of scale error in it
+
+
+def test_wind_fit_leaves_the_scale_factor_alone_in_straight_flight():
+    """No turn: the scale factor cannot be told from the wind along the track (its std with
+    the prior near 0.16), so it is held at 0 and the wind takes the error."""
+    t, vg, V, axes, _ = _kinematics(3, 0.0)
+    w = fit_wind(t, vg, 1.03 * V, axes, window_s=1e9, scale=None)
+    assert not w.scale_estimated and w.scale == 0.0 and w.std_scale > SCALE_STD_MAX
+    assert w.north[0] - 3.0 == pytest.approx(-0.03 * 25.0, abs=0.05)   # the tail wind took it
+
+
+def test_rebuilt_flight_carries_the_calibrated_airspeed():
+    t, vg, V, _, tr = _kinematics(5, 0.05)
+    fd = _flight(t, vg, 1.03 * V, tr)
+    out, doc = reconstruct_flow_angles(fd)
+    cal = doc["airspeed_scale"]
+    assert cal["status"] == "estimated" and cal["applied"] and abs(cal["estimate"] - 0.03) < 3 * cal["std"]
+    assert np.array_equal(fd["V"].values, 1.03 * V)               # the input is not modified
+    assert np.allclose(out["V"].values, 1.03 * V / (1 + cal["estimate"]))
+    assert "calibrated" in out["V"].notes and "/ (1 + 0.03" in out["V"].source
+    assert wind_uncertainty(doc, [(0.0, 300.0)])["airspeed scale"] == cal["std"]
+    # held (a validation flight takes the fitted flight's); the scale part of the offset
+    held, hdoc = reconstruct_flow_angles(fd, airspeed_scale=0.03)
+    assert hdoc["airspeed_scale"]["status"] == "held" and np.allclose(held["V"].values, V)
+    moved, mdoc = reconstruct_flow_angles(fd, wind_offset=(0.0, 0.0, 0.0, 0.01))
+    assert np.allclose(moved["V"].values, 1.03 * V / (1 + cal["estimate"] + 0.01))
+    assert mdoc["airspeed_scale_offset"] == 0.01
+    assert mdoc["wind"]["north_mps"][0] != doc["wind"]["north_mps"][0]   # the wind refitted
+    # a straight flight: not identifiable, the airspeed as logged, nothing carried
+    t, vg, V, _, tr = _kinematics(5, 0.0)
+    out, doc = reconstruct_flow_angles(_flight(t, vg, V, tr))
+    assert doc["airspeed_scale"]["status"] == "not identifiable" and out["V"] is not None
+    assert np.array_equal(out["V"].values, V) and wind_uncertainty(doc, [(0.0, 300.0)])["airspeed scale"] == 0.0
+
+
+def test_an_insignificant_scale_factor_is_not_applied_but_carried():
+    """A correct pitot in a turn: k within 3 std of 0, the airspeed kept as logged, the
+    wind fitted with k = 0, and k's std still carried (the calibration's uncertainty)."""
+    t, vg, V, _, tr = _kinematics(6, 0.05)
+    out, doc = reconstruct_flow_angles(_flight(t, vg, V, tr))
+    cal = doc["airspeed_scale"]
+    assert cal["status"] == "estimated" and not cal["applied"] and cal["carried"], cal
+    assert np.array_equal(out["V"].values, V) and "not applied" in cal["note"]
+    assert wind_uncertainty(doc, [(0.0, 300.0)])["airspeed scale"] == cal["std"] > 0
 
 
 def _flight(t, vg, V, tr, with_vanes=False) -> FlightData:

@@ -12,7 +12,8 @@ from sim.maneuvers import Maneuver, schroeder_multisine
 from tests._simdata import SCENARIOS, custom, flown, scenario
 
 BUILTIN = ["default", "longitudinal_3211_calm", "longitudinal_3211_turbulence", "lateral_doublets_calm",
-           "multiaxis_multisine_turbulence", "unstable_short_period", "sensor_errors_calm"]
+           "multiaxis_multisine_turbulence", "unstable_short_period", "sensor_errors_calm",
+           "pitot_wind_turn"]
 
 
 def _raw(name: str = "longitudinal_3211_calm") -> dict:
