@@ -374,7 +374,12 @@ def test_estimate_from_the_bin_without_vanes(tmp_path):
     residual's correlation (6.8 s; L_w / V 8.0), averaged over the fitted maneuvers:
     0.76 m/s (longitudinal). With it CL0 is 1.05 total std off, Cm0 and CD0 under 1;
     longitudinal within 3.7 (CLq), lateral 4.3 (CYbeta; the horizontal wind's part is
-    small there)."""
+    small there).
+
+    The flight turns through 80 deg, enough for the wind fit to estimate the pitot's scale
+    factor with the wind (pipeline.flow_angles.airspeed_calibration): +2.99 +- 1.91 %
+    (truth 0; the gusts colour the airspeed residual), not applied, and its std carried
+    with the wind's: longitudinal within 1.85 std, lateral 3.04 (CYbeta)."""
     from pipeline.cli import main
     from pipeline.commands.simulate import simulate
     from pipeline.identify import KINEMATIC_NOTE
@@ -387,7 +392,10 @@ def test_estimate_from_the_bin_without_vanes(tmp_path):
     rep = json.loads((out / "report.json").read_text())
     assert rep["meta"]["flow_angles"]["channels"] == ["alpha", "beta"]
     wu = rep["meta"]["flow_angles"]["wind_uncertainty"]
-    assert wu["parts"] == ["wind north", "wind east", "vertical wind"]
+    assert wu["parts"] == ["wind north", "wind east", "vertical wind", "airspeed scale"]
+    cal = rep["meta"]["flow_angles"]["airspeed_scale"]      # the pitot has no error here
+    assert cal["status"] == "estimated" and not cal["applied"] and cal["carried"], cal
+    assert abs(cal["estimate"]) < 3 * cal["std"] and set(wu["std_airspeed_scale"].values()) == {cal["std"]}
     assert set(wu["methods"].values()) == {"propagated"}
     assert 0.4 < wu["std_mps"]["longitudinal-fem"]["vertical wind"] < 1.2, wu["std_mps"]
     for axis, names, angle, state in (("longitudinal", LONG, "alpha", "alpha_k"),
@@ -396,7 +404,7 @@ def test_estimate_from_the_bin_without_vanes(tmp_path):
         assert KINEMATIC_NOTE.format(angle=angle, state=state) in m["validation"]["problem"]["notes"]
         assert "rebuilt with" in m["consider_source"]
         worst = max(abs(m["parameters"][n]["error_in_std"]) for n in names)
-        assert m["converged"] and worst < {"longitudinal": 4.5, "lateral": 5.0}[axis], (axis, worst)
+        assert m["converged"] and worst < {"longitudinal": 3.0, "lateral": 3.5}[axis], (axis, worst)
     ps = rep["methods"]["longitudinal-fem"]["parameters"]
     crb = rep["methods"]["longitudinal-fem"]["validation"]["uncertainty"]["per_parameter"]
     # the trim terms the mean vertical gust moves: within 3 total std, 6-10 CRB std off

@@ -274,3 +274,18 @@ def test_fsid_check_on_real_logs_does_not_fail_the_run(name, tmp_path):
     assert (tmp_path / "canonical.csv").stat().st_size > 0
     if name == BIN.name:
         assert doc["source"]["damage"]["offset"] == 65512
+
+
+def test_tlog_circles_calibrate_the_airspeed_with_the_wind(tlog_fd):
+    """The quadplane's CIRCLE and loiter flight turns through 700 deg: the wind fit can tell
+    a pitot scale factor from the wind (std 0.42 %), and SITL's simulated pitot has none
+    (estimate -0.01 %, not applied, its std carried) in its near-calm air (0.1 m/s)."""
+    from pipeline.flow_angles import reconstruct_flow_angles
+
+    out, doc = reconstruct_flow_angles(tlog_fd)
+    cal = doc["airspeed_scale"]
+    assert doc["heading_span_deg"] > 600.0
+    assert cal["status"] == "estimated" and cal["std"] < 0.01 and cal["carried"], cal
+    assert abs(cal["estimate"]) < 3 * cal["std"] and not cal["applied"], cal
+    assert np.array_equal(out["V"].values, tlog_fd["V"].values)
+    assert np.hypot(doc["wind"]["north_mps"][0], doc["wind"]["east_mps"][0]) < 1.0

@@ -8,8 +8,7 @@ Measured (seed 1): scale factor +4.37 +- 0.04 % (the pitot's 3 % plus its 0.4 m/
 4.2-4.4 % over the flight's 29-34 m/s), wind (3.01, -3.96) m/s; every derivative within
 2.3 (longitudinal) and 2.8 std (lateral), both verdicts pass. The same log with the scale
 factor taken as 0 (as before; the along-track wind takes the airspeed error, the models'
-dynamic pressure keeps it): Cmalpha 50, CYbeta 9.6 std off (on the 386 deg turn of a first
-version of the scenario), both verdicts fail. The vanes' run (``fsid run``: flight.mcap, the
+dynamic pressure keeps it): Cmalpha 46, Cnr 7.8 std off, both verdicts fail. The vanes' run (``fsid run``: flight.mcap, the
 compatibility stage estimates the air-data errors) is within 2.5 std.
 """
 from __future__ import annotations
