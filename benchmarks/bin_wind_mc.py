@@ -12,16 +12,22 @@ std (``crb``) and / mean total std (``total``, the CRB with the wind's part; 1 =
 the 95 % band from n seeds about +-1.4/sqrt(n)), bias in empirical std; then per seed the
 largest |error| / total std of each axis.
 
-Measured (seeds 31-38, 2026-11-25; the vertical std given 0.41-0.77 m/s longitudinal):
-  trim terms CL0, Cm0, CD0: empirical / CRB 3.74-4.80, / total 0.71-0.98 - honest with
-      the wind's part, 4-5 x optimistic without; CDalpha 3.77 -> 1.36, CLde 2.59 -> 1.40.
-  the rest stays optimistic (total = CRB there): Cmq 3.70, Cmalphadot 3.39, CLalpha 2.53,
-      CLq 2.39, CDalpha2 2.03 (bias 2.2 empirical std); lateral CYbeta 3.38, Cnbeta 3.17,
-      Cnr 2.52. With the vanes (flight.mcap, benchmarks/multiaxis_seeds.py) filter error
-      has Cmalphadot 3.1 and Cmq 2.0, so rebuilt angles add CLalpha, CYbeta, Cnbeta.
-  worst |error| / total std per seed 31-38: longitudinal 3.7, 8.6, 5.9, 13.7, 9.1, 5.7,
-      7.4, 2.2 (CRB alone 9.6, 8.6, 7.8, 14.5, 10.4, 5.8, 8.7, 2.3), lateral 4.3, 3.5, 4.5,
-      2.8, 3.2, 3.8, 4.2, 6.2: the trim terms are no longer the worst, Cmq is.
+Measured (seeds 31-38, 2026-11-26, re-run at 27344cf and with the pitot's scale factor):
+  the wind fit now estimates the pitot's scale factor with the wind (the flight turns 80
+      deg; truth 0): +2.99 +- 1.91, +0.12 +- 1.03, -2.93 +- 2.03, -0.53 +- 1.50, +2.91 +-
+      1.63, +0.71 +- 1.35, -0.39 +- 0.68, +3.96 +- 2.43 %, estimate / std rms 1.18; applied
+      on no seed, so the estimates are those of 27344cf, and its std is carried.
+  empirical / total std: longitudinal 0.52-1.38 (27344cf 0.56-1.38), lateral 0.30-2.00
+      (0.47-2.46): CYbeta 2.24 -> 1.47, Cnbeta 2.46 -> 1.45, Cnr 2.41 -> 2.00; the control
+      derivatives scale with the dynamic pressure, so the scale factor's 1-2 % makes Cndr
+      0.30, Cmde 0.55 (this pitot has no error for the scatter to show).
+  within 3 total std: longitudinal 5/8 seeds (4/8), lateral 5/8 (2/8); worst per seed
+      longitudinal 1.8, 4.0, 6.7, 3.7, 2.4, 3.0, 2.9, 1.8 (3.0, 4.2, 7.0, 4.4, 2.8, 3.7,
+      2.9, 1.8), lateral 3.0, 2.3, 2.6, 2.6, 2.7, 3.7, 2.7, 3.1 (4.4, 3.6, 4.6, 2.8, 3.2,
+      3.9, 2.8, 3.5).
+  trim terms CL0, Cm0, CD0: empirical / CRB 0.69-0.84, / total 0.52-0.68 (0.56-0.70).
+  An earlier run (2026-11-25, before the maneuver-scatter std and the input smoothing of
+  later sessions) had the trim terms' empirical / CRB at 3.74-4.80.
 
     python benchmarks/bin_wind_mc.py [--seeds 8] [--seed-base 31] [--jobs 2]
 """
@@ -53,13 +59,16 @@ def one_flight(seed: int) -> list[dict]:
                      validation_log=run_dir / "validation.bin")
         rep = json.loads((d / "est" / "report.json").read_text())
         wu = rep["meta"]["flow_angles"].get("wind_uncertainty", {}).get("std_mps", {})
+        cal = rep["meta"]["flow_angles"].get("airspeed_scale") or {}
         for key, m in rep["methods"].items():
             for n, p in m["parameters"].items():
                 if p.get("truth") is not None and p.get("std") and "[" not in n:
                     rows.append({"seed": seed, "key": key, "parameter": n, "estimate": p["estimate"],
                                  "std": p["std"], "total_std": p.get("total_std") or p["std"],
                                  "truth": p["truth"], "converged": m["converged"],
-                                 "vertical": wu.get(key, {}).get("vertical wind", 0.0)})
+                                 "vertical": wu.get(key, {}).get("vertical wind", 0.0),
+                                 "scale": cal.get("estimate", 0.0), "scale_std": cal.get("std", 0.0),
+                                 "scale_applied": bool(cal.get("applied"))})
     return rows
 
 
@@ -79,6 +88,13 @@ def main() -> None:
         print(f"  {key}: within 3 total std on {(w['total'] <= 3).sum()}/{len(w)} seeds "
               f"({(w['crb'] <= 3).sum()}/{len(w)} with the CRB alone); worst per seed "
               + ", ".join(f"{v:.1f}" for v in w["total"]))
+    # the pitot's scale factor the wind fit estimated (truth 0)
+    cal = df.groupby("seed")[["scale", "scale_std", "scale_applied"]].first()
+    z = cal["scale"] / cal["scale_std"]
+    print("pitot scale factor (truth 0) per seed: " + ", ".join(
+        f"{100 * k:+.2f} +- {100 * sd:.2f} %{' applied' if a else ''}"
+        for k, sd, a in cal.itertuples(index=False))
+          + f"; estimate / std rms {float((z ** 2).mean() ** 0.5):.2f}")
     trim = tab.loc[[(k, n) for k, n in tab.index if n in ("CL0", "Cm0", "CD0")]]
     print("trim terms (the flight-mean vertical gust's): empirical / CRB "
           f"{trim['crb'].min():.2f}-{trim['crb'].max():.2f}, / total "
