@@ -128,6 +128,25 @@ def test_rebuilt_flight_carries_the_calibrated_airspeed():
     assert np.array_equal(out["V"].values, V) and wind_uncertainty(doc, [(0.0, 300.0)])["airspeed scale"] == 0.0
 
 
+def test_airspeed_calibration_rules():
+    """The document's rules on a wind fit's scale factor: too uncertain (the joint std
+    above SCALE_STD_MAX, as with 10 deg of weaving heading: 2.5 %) is not identifiable;
+    significant and plausible is applied; beyond SCALE_MAX it is taken as 0, like one not
+    identifiable (units or a blocked pitot, not a calibration)."""
+    from pipeline.flow_angles import SCALE_MAX, WindFit, airspeed_calibration
+
+    def fit(k, sd):
+        z = np.zeros(1)
+        return WindFit(knots=z, north=z, east=z, std_north=z, std_east=z, airspeed_rms=0.3,
+                       beta_rms=0.01, n=100, scale=k, std_scale=sd, scale_estimated=True)
+    assert airspeed_calibration(fit(-0.03, 0.025))["status"] == "not identifiable"
+    cal = airspeed_calibration(fit(0.05, 0.01))
+    assert cal["status"] == "estimated" and cal["applied"] and cal["significance_std"] == pytest.approx(5.0)
+    assert not airspeed_calibration(fit(0.02, 0.01))["applied"]          # 2 std
+    wild = airspeed_calibration(fit(SCALE_MAX + 0.05, 0.01))
+    assert wild["status"] == "implausible" and not wild["applied"] and not wild["carried"]
+
+
 def test_an_insignificant_scale_factor_is_not_applied_but_carried():
     """A correct pitot in a turn: k within 3 std of 0, the airspeed kept as logged, the
     wind fitted with k = 0, and k's std still carried (the calibration's uncertainty)."""
