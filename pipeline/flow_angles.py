@@ -455,6 +455,11 @@ def unsteady(doc: dict[str, Any], limit: float = 1.5) -> str | None:
             f"{res / noise:.1f} x the pitot noise (turbulence or a changing wind)")
 
 
+def calibrated(doc: dict[str, Any]) -> bool:
+    """Whether the rebuilt flight's V channel is the calibrated V / (1 + k)."""
+    return doc.get("status") == "reconstructed" and bool((doc.get("airspeed_scale") or {}).get("applied"))
+
+
 def mean_wind(doc: dict[str, Any]) -> tuple[float, float] | None:
     """The rebuilt flight's mean wind (north, east) [m/s] over its knots, or None when
     nothing was rebuilt."""

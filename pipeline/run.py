@@ -1127,7 +1127,9 @@ def with_flow_angles(fd, flow: Mapping[str, Any],
 def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabled: bool = True,
                         truth: Mapping[str, float] | None = None,
                         imu_only: bool = False, unsteady: str | None = None,
-                        wind: tuple[float, float] | None = None) -> tuple[Any, dict]:
+                        wind: tuple[float, float] | None = None, airspeed: Any = None,
+                        positions: tuple[Sequence[float], Sequence[float]] | None = None
+                        ) -> tuple[Any, dict]:
     """The sensor-compatibility stage of a run (flight path reconstruction,
     :func:`pipeline.compatibility.correct_for_estimation`): returns (flight data for
     estimation, JSON-ready document). Sensor errors distinguishable from zero (|estimate|
@@ -1140,7 +1142,13 @@ def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabl
     factor and delay are nearly one parameter - bias_V 21 m/s, delay 0.7 s "significant"
     on a windy longitudinal_3211_turbulence). ``unsteady`` and ``wind`` (the air-data-angle
     stage's, which its zero-sideslip condition fixes across the track) go to
-    :func:`~pipeline.compatibility.correct_for_estimation`."""
+    :func:`~pipeline.compatibility.correct_for_estimation`. ``airspeed``: the V channel
+    that wind was fitted with (calibrated by the pitot's scale factor,
+    :func:`pipeline.flow_angles.airspeed_calibration`), which the reconstruction then
+    takes in place of the logged one (with the logged one and the held wind, the airspeed
+    error would be booked on the IMU); the data returned keep the logged V, which the
+    air-data-angle stage calibrates again. ``positions`` (IMU, boom) [m] instead of
+    ``ac``'s."""
     pr.stage("sensor compatibility (flight path reconstruction)")
     if not enabled:
         doc = {"status": "skipped", "reason": "switched off (--no-compat)", "applied": {},
@@ -1149,14 +1157,18 @@ def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabl
         return fd, doc
     from pipeline.compatibility import correct_for_estimation
 
-    imu = tuple(ac.imu) if ac is not None else (0.0, 0.0, 0.0)
-    boom = tuple(ac.airdata) if ac is not None else (0.0, 0.0, 0.0)
+    imu, boom = positions or ((tuple(ac.imu), tuple(ac.airdata)) if ac is not None
+                              else ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)))
     try:
         from pipeline.compatibility import IMU_PARAMS, RUN_ESTIMATE
 
-        doc, out = correct_for_estimation(fd, imu_position=imu, boom_position=boom, truth=truth,
+        seen = fd if airspeed is None else replace(fd, channels={**fd.channels, "V": airspeed})
+        doc, out = correct_for_estimation(seen, imu_position=imu, boom_position=boom, truth=truth,
                                           estimate=IMU_PARAMS if imu_only else RUN_ESTIMATE,
                                           wind=wind, unsteady=unsteady)
+        if airspeed is not None:
+            out = replace(out, channels={**out.channels, "V": fd["V"]})
+            doc["airspeed"] = "calibrated by the air-data-angle stage's pitot scale factor"
         if imu_only:
             doc["scope"] = "IMU errors only: no air-data vanes in the log"
     except Exception as exc:  # noqa: BLE001 - the compatibility check must not cost the run
@@ -1469,11 +1481,13 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     # and attitude are no independent air data (with them, 4 "significant" sensor errors
     # were applied on a windy longitudinal_3211_turbulence); they are rebuilt afterwards
     # from the corrected data, and again in every refit of the correction uncertainty
-    from pipeline.flow_angles import assumptions as flow_assumptions, mean_wind, summary as flow_summary, unsteady
+    from pipeline.flow_angles import (assumptions as flow_assumptions, calibrated, mean_wind,
+                                      summary as flow_summary, unsteady)
+    imu_only = not any(k in fd_logged for k in ("alpha", "beta"))
     fd_c, comp = compatibility_stage(fd_logged, ac_sensors, pr, enabled=compat,
                                      truth=truth_errors(truth_doc) if truth_doc else None,
-                                     imu_only=not any(k in fd_logged for k in ("alpha", "beta")),
-                                     unsteady=unsteady(flow), wind=mean_wind(flow))
+                                     imu_only=imu_only, unsteady=unsteady(flow), wind=mean_wind(flow),
+                                     airspeed=fd["V"] if imu_only and calibrated(flow) else None)
     if flow.get("status") == "reconstructed":
         fd, flow = with_flow_angles(fd_c, flow)     # rebuilt from the corrected data
         meta["air-data angles"] = flow_summary(flow)

@@ -94,3 +94,22 @@ def test_the_vanes_run_estimates_the_air_data_errors(run):
     assert set(applied) == {"scale_V"}, applied       # the bias carried by the scale factor
     k = applied["scale_V"]         # seed 1: 4.72 +- 0.21 %
     assert EFFECTIVE_SCALE[0] - 3 * k["std"] < k["estimate"] < EFFECTIVE_SCALE[1] + 3 * k["std"], k
+
+
+def test_fsid_check_of_the_bin_calibrates_the_pitot_and_checks_the_imu(run, tmp_path, capsys):
+    """``fsid check flight.bin``: the stages of ``fsid estimate`` - ArduPilot's AOA/SSA (the
+    autopilot's estimates) are not taken as vanes: the angles are rebuilt, the pitot's scale
+    factor estimated with the wind, and the compatibility reconstruction checks the IMU
+    against the calibrated airspeed and the wind held (before, it fitted vane biases and
+    scale factors to the autopilot's angles and called scale_V significant)."""
+    from pipeline.cli import main
+
+    assert main(["check", str(run[0] / "flight.bin"), "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "checks.json").read_text())
+    cal = doc["air_data_angles"]["airspeed_scale"]
+    assert cal["applied"] and EFFECTIVE_SCALE[0] < cal["estimate"] < EFFECTIVE_SCALE[1], cal
+    comp = doc["compatibility"]
+    assert comp["status"] == "ok" and comp["scope"].startswith("IMU errors only") and "airspeed" in comp
+    assert not {"bias_V", "scale_V", "bias_alpha", "scale_alpha"} & set(comp["parameters"])
+    assert comp["applied"] == {}                     # the IMU has no error in this scenario
+    assert "pitot scale factor +4." in capsys.readouterr().out

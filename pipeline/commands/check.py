@@ -95,18 +95,27 @@ def run(args: argparse.Namespace) -> int:
     findings = run_checks(fd)
     extra: dict = {}
     if not args.no_compat:
-        try:
-            # the same estimates and rule as the compatibility stage of fsid run / estimate
-            # (which errors that stage would remove: "applied")
-            from pipeline.compatibility import correct_for_estimation
-            imu, boom, origin = _positions(log, args)
-            print("sensor compatibility (flight path reconstruction) ...")
-            extra["compatibility"], _ = correct_for_estimation(fd, imu_position=imu, boom_position=boom)
-            extra["compatibility"]["positions_from"] = origin
-        except ImportError:
-            extra["compatibility"] = {"status": "skipped", "reason": "compatibility stage not available"}
-        except FsidError as exc:
-            extra["compatibility"] = {"status": "skipped", "reason": str(exc)}
+        # the same stages, estimates and rules as fsid estimate's: the air-data angles a log
+        # lacks, or holds as an autopilot's estimate, rebuilt from the flight path with a
+        # fitted wind and the pitot's scale factor where the headings allow; then the
+        # compatibility reconstruction on the logged channels (IMU errors only without
+        # vanes, the wind held), which errors that stage would remove: "applied"
+        from pipeline.flow_angles import calibrated, mean_wind, summary, unsteady
+        from pipeline.run import Progress, compatibility_stage, flow_angle_stage
+
+        quiet = Progress(2, quiet=True)
+        rebuilt, _, logged, flow = flow_angle_stage(fd, None, quiet)
+        extra["air_data_angles"] = flow
+        print(f"air-data angles: {summary(flow) if flow['status'] == 'reconstructed' else flow['status']}"
+              + (f" ({flow['reason']})" if flow.get("reason") else ""))
+        imu_only = not any(k in logged for k in ("alpha", "beta"))
+        imu, boom, origin = _positions(log, args)
+        print("sensor compatibility (flight path reconstruction) ...")
+        extra["compatibility"] = compatibility_stage(
+            logged, None, quiet, imu_only=imu_only, unsteady=unsteady(flow), wind=mean_wind(flow),
+            airspeed=rebuilt["V"] if imu_only and calibrated(flow) else None,
+            positions=(imu, boom))[1]
+        extra["compatibility"]["positions_from"] = origin
     out = new_run_dir("check", args.out)
     atomic_write_text(out / "checks.json", findings_to_json(findings, fd, extra))
     rate = args.rate
