@@ -113,3 +113,53 @@ def test_fsid_check_of_the_bin_calibrates_the_pitot_and_checks_the_imu(run, tmp_
     assert not {"bias_V", "scale_V", "bias_alpha", "scale_alpha"} & set(comp["parameters"])
     assert comp["applied"] == {}                     # the IMU has no error in this scenario
     assert "pitot scale factor +4." in capsys.readouterr().out
+
+
+#: a straight second flight with the same pitot and wind (12 deg of heading: too little to
+#: tell its own scale factor from the wind), for the proof of match
+VALIDATION_FLIGHT = """
+[validation_flight]
+duration_s = 40.0
+
+[[validation_flight.maneuver]]
+name = "elevator_3211_v"
+axis = "de"
+shape = "3211"
+amplitude_deg = 2.0
+pulse_s = 0.3
+
+[[validation_flight.maneuver]]
+name = "aileron_doublet_v"
+axis = "da"
+shape = "doublet"
+amplitude_deg = 5.0
+pulse_s = 0.5
+"""
+
+
+def test_a_validation_flight_takes_the_fitted_flights_scale_factor(tmp_path, capsys):
+    """``fsid estimate flight.bin --validate-with validation.bin``: the same pitot, so the
+    validation flight's airspeed is calibrated with the fitted flight's scale factor
+    (seed 1: +4.37 %; its own 12 deg of heading could not tell it), and the proof of match
+    on it passes (worst derivative 2.7 / 2.0 std, ad hoc)."""
+    from pipeline.commands.simulate import simulate
+
+    text = SCENARIO.read_text().replace('aircraft = "aircraft/', f'aircraft = "{SCENARIO.parent}/aircraft/')
+    scen = tmp_path / "pitot_validation.toml"
+    scen.write_text(text + VALIDATION_FLIGHT)
+    run_dir, _ = simulate(scen, tmp_path / "sim", progress=False)
+    out = tmp_path / "est"
+    estimate_log(run_dir / "flight.bin", out, methods=("oem",),
+                 validation_log=run_dir / "validation.bin")
+    rep = json.loads((out / "report.json").read_text())
+    cal = rep["meta"]["flow_angles"]["airspeed_scale"]
+    assert cal["applied"] and EFFECTIVE_SCALE[0] < cal["estimate"] < EFFECTIVE_SCALE[1], cal
+    # the validation flight's air-data-angle stage (its progress line) held that value
+    said = capsys.readouterr()
+    held = [ln for ln in (said.out + said.err).splitlines() if "(the fitted flight's)" in ln]
+    assert len(held) == 1 and f"pitot scale factor {100 * cal['estimate']:+.2f} %" in held[0], held
+    assert "validation.bin" in rep["meta"]["validation flight"]
+    for key, m in rep["methods"].items():
+        pom = m["validation"]["proof_of_match"]
+        assert pom["all_pass"] and all(g["name"].startswith("v") for g in pom["segments"]), (key, pom)
+    assert max(_worst(rep).values()) <= 3.0, _worst(rep)
