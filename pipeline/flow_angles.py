@@ -291,7 +291,12 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
     dn, de, dd, dk = (list(map(float, wind_offset)) + [0.0])[:4]
     fit = {"window_s": window_s, "beta_std": beta_std}
     if airspeed_scale is None:
-        cal = airspeed_calibration(fit_wind(t, vg, V, axes, scale=None, **fit))
+        try:
+            cal = airspeed_calibration(fit_wind(t, vg, V, axes, scale=None, **fit))
+        except np.linalg.LinAlgError as exc:       # the joint fit: k taken as 0, as untold
+            cal = {"status": "not identifiable", "estimate": 0.0, "std": float("nan"),
+                   "applied": False, "carried": False,
+                   "note": f"the pitot scale factor's fit with the wind failed ({exc}): taken as 0"}
     else:
         cal = {"status": "held", "estimate": float(airspeed_scale), "applied": bool(airspeed_scale)}
     k = (cal["estimate"] if cal["applied"] else 0.0) + dk
