@@ -1195,6 +1195,21 @@ def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabl
     return out, doc
 
 
+def compatibility_after_flow_angles(logged, rebuilt, flow: Mapping[str, Any],
+                                    ac: AircraftConstants | None, pr: Progress, **kw) -> tuple[Any, dict]:
+    """:func:`compatibility_stage` as ``fsid estimate`` and ``fsid check`` run it after the
+    air-data-angle stage (:func:`flow_angle_stage`: ``logged`` its logged data without
+    derived angles, ``rebuilt`` its data, ``flow`` its document): the IMU errors only when
+    the log has no vane, with that stage's wind held, its verdict on the steadiness of the
+    air, and the airspeed it calibrated. ``kw`` go to :func:`compatibility_stage`."""
+    from pipeline.flow_angles import calibrated, mean_wind, unsteady
+
+    imu_only = not any(k in logged for k in ("alpha", "beta"))
+    return compatibility_stage(logged, ac, pr, imu_only=imu_only, unsteady=unsteady(flow),
+                               wind=mean_wind(flow),
+                               airspeed=rebuilt["V"] if imu_only and calibrated(flow) else None, **kw)
+
+
 def input_dynamics_stage(fd, pr: Progress, setting: str | tuple[float, float] = "auto"
                          ) -> tuple[Any, dict]:
     """The control-input dynamics stage (:mod:`pipeline.input_dynamics`): returns (flight
@@ -1490,13 +1505,9 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     # and attitude are no independent air data (with them, 4 "significant" sensor errors
     # were applied on a windy longitudinal_3211_turbulence); they are rebuilt afterwards
     # from the corrected data, and again in every refit of the correction uncertainty
-    from pipeline.flow_angles import (assumptions as flow_assumptions, calibrated, mean_wind,
-                                      summary as flow_summary, unsteady)
-    imu_only = not any(k in fd_logged for k in ("alpha", "beta"))
-    fd_c, comp = compatibility_stage(fd_logged, ac_sensors, pr, enabled=compat,
-                                     truth=truth_errors(truth_doc) if truth_doc else None,
-                                     imu_only=imu_only, unsteady=unsteady(flow), wind=mean_wind(flow),
-                                     airspeed=fd["V"] if imu_only and calibrated(flow) else None)
+    from pipeline.flow_angles import assumptions as flow_assumptions, summary as flow_summary
+    fd_c, comp = compatibility_after_flow_angles(fd_logged, fd, flow, ac_sensors, pr, enabled=compat,
+                                                 truth=truth_errors(truth_doc) if truth_doc else None)
     if flow.get("status") == "reconstructed":
         fd, flow = with_flow_angles(fd_c, flow)     # rebuilt from the corrected data
         meta["air-data angles"] = flow_summary(flow)

@@ -100,21 +100,18 @@ def run(args: argparse.Namespace) -> int:
         # fitted wind and the pitot's scale factor where the headings allow; then the
         # compatibility reconstruction on the logged channels (IMU errors only without
         # vanes, the wind held), which errors that stage would remove: "applied"
-        from pipeline.flow_angles import calibrated, mean_wind, summary, unsteady
-        from pipeline.run import Progress, compatibility_stage, flow_angle_stage
+        from pipeline.flow_angles import summary
+        from pipeline.run import Progress, compatibility_after_flow_angles, flow_angle_stage
 
         quiet = Progress(2, quiet=True)
         rebuilt, _, logged, flow = flow_angle_stage(fd, None, quiet)
         extra["air_data_angles"] = flow
         print(f"air-data angles: {summary(flow) if flow['status'] == 'reconstructed' else flow['status']}"
               + (f" ({flow['reason']})" if flow.get("reason") else ""))
-        imu_only = not any(k in logged for k in ("alpha", "beta"))
         imu, boom, origin = _positions(log, args)
         print("sensor compatibility (flight path reconstruction) ...")
-        extra["compatibility"] = compatibility_stage(
-            logged, None, quiet, imu_only=imu_only, unsteady=unsteady(flow), wind=mean_wind(flow),
-            airspeed=rebuilt["V"] if imu_only and calibrated(flow) else None,
-            positions=(imu, boom))[1]
+        extra["compatibility"] = compatibility_after_flow_angles(logged, rebuilt, flow, None, quiet,
+                                                                 positions=(imu, boom))[1]
         extra["compatibility"]["positions_from"] = origin
     out = new_run_dir("check", args.out)
     atomic_write_text(out / "checks.json", findings_to_json(findings, fd, extra))
