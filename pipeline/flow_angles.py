@@ -315,8 +315,8 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
     if k:
         v = fd["V"]
         channels["V"] = replace(v, values=v.values / (1.0 + k), source=f"{v.source or 'V'} / (1 + {k:.5f})",
-                                notes="calibrated: pitot scale factor estimated with the wind "
-                                      "(pipeline.flow_angles)")
+                                notes=f"calibrated: the pitot's scale factor {100 * k:+.2f} % "
+                                      f"({cal['status']}, pipeline.flow_angles)")
     out = FlightData(channels=channels, meta=dict(fd.meta), segments=list(fd.segments))
     heading = np.unwrap(psi[ok])
     doc = {"status": "reconstructed", "channels": todo,
