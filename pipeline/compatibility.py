@@ -700,6 +700,9 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
     lateral output error then put CYbeta 3.8 and Cnr 3.6 std off), delay_air on 1; with
     the stage off, the lateral output error's empirical / reported std is 0.34-1.26, with
     it 0.34-2.16 (CYbeta, Cnr). The .bin (IMU errors only): scale_ay on 1 of 8, bias_ay on 2.
+    Not the sensors' lever arms (IMU and boom at the CG: bias_ay mean -2.16, scale_ay rms
+    2.0) and not the Coriolis force of JSBSim's rotating Earth (flown east instead of
+    north, which would move it to ax and az: bias_ay mean -2.18).
 
     ``wind`` (north, east) m/s: held instead of estimated (a log without vanes: the air-data-
     angle stage's wind). ``unsteady``: why the air is known not to be steady (the airspeed
