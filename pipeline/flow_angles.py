@@ -290,9 +290,11 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
     axes = _body_axes(phi[ok], theta[ok], psi[ok])
     dn, de, dd, dk = (list(map(float, wind_offset)) + [0.0])[:4]
     fit = {"window_s": window_s, "beta_std": beta_std}
+    tried = None                                   # the fit that tried to estimate k
     if airspeed_scale is None:
         try:
-            cal = airspeed_calibration(fit_wind(t, vg, V, axes, scale=None, **fit))
+            tried = fit_wind(t, vg, V, axes, scale=None, **fit)
+            cal = airspeed_calibration(tried)
         except np.linalg.LinAlgError as exc:       # the joint fit: k taken as 0, as untold
             cal = {"status": "not identifiable", "estimate": 0.0, "std": float("nan"),
                    "applied": False, "carried": False,
@@ -300,7 +302,10 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
     else:
         cal = {"status": "held", "estimate": float(airspeed_scale), "applied": bool(airspeed_scale)}
     k = (cal["estimate"] if cal["applied"] else 0.0) + dk
-    wind = fit_wind(t, vg, V, axes, scale=k, **fit)     # given k: the wind's conditional std
+    # given k: the wind's conditional std (a k the headings could not tell is already that
+    # fit, held at 0)
+    wind = (tried if tried is not None and not tried.scale_estimated and k == 0.0
+            else fit_wind(t, vg, V, axes, scale=k, **fit))
     Wn, We = wind.at(t)
     va = np.einsum("nij,nj->ni", axes, vg - np.column_stack([Wn + dn, We + de, np.full_like(Wn, dd)]))
     speed = np.linalg.norm(va, axis=1)
