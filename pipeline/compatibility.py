@@ -30,7 +30,7 @@ from numba.extending import register_jitable
 
 from estimators.statistics import difference_noise_std
 from pipeline.errors import FsidError
-from pipeline.flightdata import FlightData, SegmentSpec
+from pipeline.flightdata import FlightData, SegmentSpec, merge_overlapping
 
 G0 = 9.80665
 STATES = ["u", "v", "w", "phi", "theta", "psi", "h"]
@@ -445,7 +445,9 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
         est = [e for e in est if e != "delay_air"]
     if method not in ("oem", "ekf", "ukf"):
         raise FsidError(f"compatibility method '{method}' unknown; use oem, ekf or ukf")
-    segs = (default_segments(data) if segments is None else list(segments))[:max_segments]
+    # windows over the same span (aileron and rudder moved together) once: fitted twice, the
+    # data would count twice
+    segs = merge_overlapping(default_segments(data) if segments is None else list(segments))[:max_segments]
     if rate_hz is None:  # the IMU's sample interval (median: robust to gaps between segments)
         dt = np.diff(data.channels["p"].t)
         dt = dt[dt > 0]
@@ -691,23 +693,18 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
     lateral_doublets_calm bias_az/scale_az (nearly collinear at 1 g, cancelling to < 0.01
     m/s^2). With the plain Cramér-Rao std longitudinal_3211_calm and default had bias_p
     applied too (3.3-3.4 std, 0.008 deg/s); with the IMU noise carried it is 1.8 std (fsid demo).
-    Not solved (ad hoc, default's error-free flight.mcap over seeds 1-12): the lateral
-    accelerometer's errors are not honest - bias_ay's estimate / std has mean -2.1 (a
-    systematic error the kinematic model does not hold), scale_ay rms 1.9, delay_air 1.7
-    (the other 16 errors 0.7-1.5), and the segments do not scatter beyond the std (ratio
-    0.2-1.4), so the maneuver scatter does not see it. Over seeds 1-8 bias_ay was applied
-    on 4 flights (3.5-4.3 std; harmless to the derivatives), scale_ay on 1 (4.7 std: the
-    lateral output error then put CYbeta 3.8 and Cnr 3.6 std off), delay_air on 1; with
-    the stage off, the lateral output error's empirical / reported std is 0.34-1.26, with
-    it 0.34-2.16 (CYbeta, Cnr). The .bin (IMU errors only): scale_ay on 1 of 8, bias_ay on 2.
-    bias_ay is the Coriolis force of JSBSim's rotating Earth, which this flat-Earth model
-    lacks: JSBSim's own truth leaves dv/dt - (p w - r u + g cos(theta) sin(phi) + ay) at
-    a mean 0.0032 m/s^2 = 2 Omega V sin(47 deg) (the horizontal part is always across the
-    track, so flying east keeps it: mean -2.18); at latitude 0 bias_ay's mean is -0.10.
+    On default's error-free flight.mcap (benchmarks/correction_uncertainty_mc.py
+    --scenario scenarios/default.toml, seeds 1-12; ad hoc over seeds 1-48) every sensor
+    error's estimate / std has rms 0.83-1.17 but bias_ay's: mean -1.9, applied on 3 of 12
+    flights (3.5-3.8 std). That is the Coriolis force of JSBSim's rotating Earth, which this
+    flat-Earth model lacks: JSBSim's own truth leaves dv/dt - (p w - r u + g cos(theta)
+    sin(phi) + ay) at a mean 0.0032 m/s^2 = 2 Omega V sin(47 deg) (the horizontal part is
+    always across the track; at latitude 0 bias_ay's mean is -0.25 and bias_az's +1.2).
     Applied, it stands in for that force (a real IMU feels it too). scale_ay and
-    delay_air are not: the sensors at the CG, without accelerometer or gyro noise, they
-    keep rms 2.0-2.1 and 1.9; with a tenth of the vane noise (0.02 deg) 1.41 and 1.39 -
-    the vanes' noise reaches them beyond their std. Each 12 seeds, ad hoc.
+    delay_air had been over-dispersed too (rms 1.9 and 1.7) until the reconstruction
+    stopped fitting the cross-controlled rudder doublets twice (one window per surface over
+    the same span: :func:`pipeline.flightdata.merge_overlapping`); with them, scale_ay was
+    applied at 4.7 "std" on one flight and the lateral output error put CYbeta 3.8 std off.
 
     ``wind`` (north, east) m/s: held instead of estimated (a log without vanes: the air-data-
     angle stage's wind). ``unsteady``: why the air is known not to be steady (the airspeed

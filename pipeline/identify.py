@@ -25,7 +25,7 @@ from estimators.models.lateral import lateral_measured_longitudinal
 from estimators.models.longitudinal import longitudinal_measured_lateral
 from pipeline.checks import slow_airspeed
 from pipeline.errors import FsidError
-from pipeline.flightdata import FlightData, SegmentSpec, cut_span
+from pipeline.flightdata import FlightData, SegmentSpec, merge_overlapping
 from pipeline.flow_angles import rebuilt
 from pipeline.input_smoothing import smooth_columns, smoothed_control_inputs, zero_phase
 
@@ -378,7 +378,7 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
                         f"does not provide ({fd.meta.get('source', 'log')}); add them to the "
                         "channel map (--map) or choose another model")
     specs = list(segments if segments is not None else
-                 [s for s in fd.segments if s.axis in ("de", "throttle")])
+                 merge_overlapping([s for s in fd.segments if s.axis in ("de", "throttle")]))
     if len(specs) < 1 + hold_out:
         raise FsidError(f"found {len(specs)} longitudinal maneuver segment(s) but need at least "
                         f"{1 + hold_out} (one to fit, {hold_out} to hold out): fly more elevator "
@@ -553,36 +553,6 @@ def lateral_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
     out["Clp"] = min(out["Clp"], -0.05)
     out["Cnr"] = min(out["Cnr"], -0.01)
     return out
-
-
-def merge_overlapping(specs: Sequence[SegmentSpec]) -> list[SegmentSpec]:
-    """Windows that overlap in time merged into one (their union, axes joined with '+').
-    Aileron and rudder moved together (a cross-controlled sideslip, a multisine on both)
-    give one detected window per surface over the same span; fitting both would count
-    that data twice (Cramer-Rao bounds too small by sqrt(2)) and, when one of them is the
-    held-out window, fit the data the proof of match is run on. Found (auto) windows that
-    merge into one longer than :data:`~pipeline.flightdata.MAX_AUTO_SEGMENT_S` (the
-    pieces of continuous excitation on both surfaces chain) are cut again, as
-    :meth:`FlightData.find_segments` cuts them, named ``auto_<axes>_<k>``."""
-    out: list[SegmentSpec] = []
-    for s in sorted(specs, key=lambda s: s.t0):
-        if out and s.t0 < out[-1].t1:
-            a = out[-1]
-            axes = "+".join(dict.fromkeys((a.axis or "").split("+") + [s.axis or ""]))
-            out[-1] = SegmentSpec(f"{a.name}+{s.name}", a.t0, max(a.t1, s.t1), a.kind,
-                                  a.mode, axes)
-        else:
-            out.append(s)
-    cut: list[SegmentSpec] = []
-    for s in out:
-        pieces = cut_span(s.t0, s.t1) if s.kind == "auto" and "+" in s.name else [(s.t0, s.t1)]
-        if len(pieces) == 1:
-            cut.append(s)
-            continue
-        k0 = sum(c.name.startswith(f"auto_{s.axis}_") for c in cut)
-        cut += [SegmentSpec(f"auto_{s.axis}_{k0 + i}", a, b, s.kind, s.mode, s.axis)
-                for i, (a, b) in enumerate(pieces)]
-    return cut
 
 
 def lateral_specs(fd: FlightData, channels: Sequence[str],

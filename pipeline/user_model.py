@@ -153,14 +153,14 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
     """A :class:`pipeline.identify.Problem` for a user model on the log's maneuvers; the
     model's inputs among the surface positions (de, da, dr) low-passed where their noise
     floor begins unless ``smooth_inputs`` is False (:mod:`pipeline.input_smoothing`)."""
-    from pipeline.flightdata import CONTROL_INPUTS
+    from pipeline.flightdata import CONTROL_INPUTS, merge_overlapping
     from pipeline.identify import (Problem, _first_valid, multirate_frame,
                                    usable_segments, with_smoothed_inputs)
     from pipeline.input_smoothing import smoothed_control_inputs
 
     check_channels(fd, model)
     on_inputs = [s for s in fd.segments if s.axis in model.inputs]
-    specs = on_inputs or list(fd.segments)
+    specs = merge_overlapping(on_inputs or list(fd.segments))
     if not specs:
         raise FsidError(f"no maneuvers found in the log {fd.meta.get('source', '')} to fit the "
                         f"model {model.name!r} to: fly doublets/3-2-1-1s on its inputs "
