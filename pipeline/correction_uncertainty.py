@@ -41,6 +41,8 @@ SOURCE = "the uncertainty of the sensor corrections applied before the fit"
 HELD_SOURCE = "the uncertainty of the other axis' estimates the fit held"
 WIND_SOURCE = ("the uncertainty of the wind (and the pitot's scale factor) the air-data "
                "angles were rebuilt with")
+SAMPLING_SOURCE = ("the unknown times of the control-input steps between their logged "
+                   "samples")
 DYNAMICS_SOURCE = ("the uncertainty of the control-input delays and lags applied before "
                    "the fit")
 
@@ -271,6 +273,76 @@ def input_dynamics(doc: Mapping[str, Any], results: Mapping[str, Any],
     return {"parameters": names, "refits": len(names),
             "perturbation": "each applied delay and lag moved by +1 std (Morelli-Klein), all "
                             "fits repeated; total std = sqrt(CRB^2 + consider^2)",
+            "methods": status, "seconds": time.perf_counter() - t0}
+
+
+#: the most refit pairs the step-timing part takes: more steps are moved in this many
+#: groups, each step of a group by its std with a random sign
+MAX_STEP_GROUPS = 24
+
+
+def sampled_steps(fd: FlightData, results: Mapping[str, Any]) -> list:
+    """The steps of control inputs logged more slowly than the fits' grid (the finest
+    grid of ``results``) in their fitted windows (:func:`pipeline.input_sampling.step_edges`)."""
+    from pipeline.input_sampling import step_edges
+
+    spans = [s for res in results.values() for s in fitted_spans(res)]
+    steps = [float(np.median(np.diff(r.index.to_numpy(dtype=float))))
+             for res in results.values() for r in res.residuals if len(r) > 2]
+    return step_edges(fd, spans, min(steps)) if steps else []
+
+
+def input_sampling(fd: FlightData, results: Mapping[str, Any],
+                   refit: Callable[[FlightData], Mapping[str, Any]],
+                   progress: Any = None) -> dict[str, Any]:
+    """Add to ``consider_cov`` of every result in ``results`` the uncertainty of the times
+    of the control-input steps logged more slowly than the fits' grid
+    (:mod:`pipeline.input_sampling`): each step ``j`` of the fitted windows, time std
+    s_j = h_j / sqrt(12), is moved by +s_j and by -s_j in ``fd`` (the data before the
+    input dynamics) and ``refit(data)`` repeats the fits; the central difference gives J's
+    column, C = I (the steps' times independent, in units of their std). More than
+    MAX_STEP_GROUPS steps: that many groups, every step of a group moved at once with a
+    random sign (fixed seed), which estimates J J^T without bias (the groups' cross terms
+    have mean zero). Returns a JSON-ready document (empty when no input is slow or has no
+    step in a fitted window)."""
+    from pipeline.input_sampling import with_edges_moved
+
+    edges = sampled_steps(fd, results)
+    if not edges:
+        return {}
+    t0 = time.perf_counter()
+    m = len(edges)
+    n_groups = min(m, MAX_STEP_GROUPS)
+    signs = np.ones(m) if n_groups == m else np.random.default_rng(0).choice([-1.0, 1.0], m)
+    group = np.arange(m) % n_groups
+    std = np.array([e.std for e in edges])
+    names = [edges[g].name if n_groups == m else f"step group {g + 1} of {n_groups}"
+             for g in range(n_groups)]
+
+    def moved(sign: float):
+        def refit_j(j: int) -> Mapping[str, Any]:
+            mine = group == j
+            return refit(with_edges_moved(fd, [e for e, k in zip(edges, mine) if k],
+                                          list(sign * signs[mine] * std[mine])))
+        return refit_j
+
+    Jp, sp = _refit_jacobians(results, names, np.ones(n_groups), moved(1.0),
+                              "the {name} moved later by its std", progress)
+    Jm, sm = _refit_jacobians(results, names, -np.ones(n_groups), moved(-1.0),
+                              "the {name} moved earlier by its std", progress)
+    status = {key: sp[key] if sp[key] != "propagated" else sm[key] for key in results}
+    J = {key: 0.5 * (Jp[key] + Jm[key]) for key in results}
+    _add_consider(results, J, {key: np.eye(n_groups) for key in results}, status, SAMPLING_SOURCE)
+    chans = sorted({e.channel for e in edges})
+    return {"steps": m, "channels": {c: {"steps": sum(e.channel == c for e in edges),
+                                         "time_std_s": float(np.mean([e.std for e in edges
+                                                                      if e.channel == c]))}
+                                     for c in chans},
+            "groups": n_groups, "refits": 2 * n_groups,
+            "perturbation": ("each step moved by +1 and -1 std of its time (h / sqrt(12), h its "
+                             "sample interval), all fits repeated, the central difference; "
+                             + ("" if n_groups == m else f"{m} steps in {n_groups} groups moved "
+                                "with random signs; ") + "total std = sqrt(CRB^2 + consider^2)"),
             "methods": status, "seconds": time.perf_counter() - t0}
 
 

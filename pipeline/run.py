@@ -1031,7 +1031,8 @@ def _fem_for_filters(fd, pb: Problem, fem: Any, progress: Progress, quiet: bool 
 def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, validations: dict,
                           truth: Mapping[str, float] | None, progress: Progress,
                           refit, *, flow: dict[str, Any] | None = None, wind_refit=None,
-                          dynamics: dict[str, Any] | None = None, dynamics_refit=None) -> None:
+                          dynamics: dict[str, Any] | None = None, dynamics_refit=None,
+                          inputs_data: Any = None, inputs_refit=None) -> dict[str, Any]:
     """One stage after the fits: what each fit held as exact gets its uncertainty into the
     result's ``consider_cov`` (:mod:`pipeline.correction_uncertainty`) - the other axis'
     estimates a fit held (``result.extra["held"]``, the 6-DoF lateral output error holding
@@ -1042,9 +1043,13 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
     were rebuilt with (``wind_refit(offset)`` repeats the fits with the wind moved), and
     the control-input delays and lags applied before the fits (``dynamics``, the document
     of :func:`input_dynamics_stage`, gets ``uncertainty``; ``dynamics_refit(dynamics)``
-    repeats the fits with other ones). Then the truth checks and verdicts are redone with
-    the total std."""
-    from pipeline.correction_uncertainty import held_estimates, input_dynamics, propagate, wind
+    repeats the fits with other ones), and the times of the control-input steps logged more
+    slowly than the fits' grid (``inputs_data``: the data before the input dynamics;
+    ``inputs_refit(data)`` repeats the fits on it; :func:`pipeline.correction_uncertainty.
+    input_sampling`). Then the truth checks and verdicts are redone with the total std.
+    Returns the step-timing part's document (empty when no input is slow)."""
+    from pipeline.correction_uncertainty import (held_estimates, input_dynamics, input_sampling,
+                                                 propagate, sampled_steps, wind)
     from pipeline.validate import refresh_truth_check
 
     held = [k for k, r in results.items() if (r.extra or {}).get("held") is not None]
@@ -1055,6 +1060,8 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
     delayed = bool((dynamics or {}).get("status") == "estimated" and dynamics.get("applied")
                    and dynamics_refit is not None)
     parts += [f"the delay and lag of {len(dynamics['applied'])} control inputs"] if delayed else []
+    slow = inputs_refit is not None and inputs_data is not None and bool(sampled_steps(inputs_data, results))
+    parts += ["the times of the control-input steps between their samples"] if slow else []
     progress.stage("uncertainty of what the fits held as exact" + (f" ({', '.join(parts)})" if parts else ""))
     for k in held:
         r = results[k]
@@ -1068,12 +1075,29 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
         flow["wind_uncertainty"] = wind(flow, results, wind_refit, progress)
     if delayed:
         dynamics["uncertainty"] = input_dynamics(dynamics, results, dynamics_refit, progress)
+    sampling = input_sampling(inputs_data, results, inputs_refit, progress) if slow else {}
     for key, res in results.items():
         if key in validations:
             refresh_truth_check(validations[key], res, truth)
     progress.done("nothing held" if not parts else
                   f"{sum(r.consider_cov is not None for r in results.values())} of {len(results)} "
                   "fits with a consider part")
+    return sampling
+
+
+
+def sampling_meta(doc: Mapping[str, Any]) -> dict[str, Any]:
+    """report.json/report.md meta entries of the step-timing consider part
+    (:func:`pipeline.correction_uncertainty.input_sampling`): none when no input was slow."""
+    if not doc:
+        return {}
+    chans = ", ".join(f"{c} {v['steps']} steps, time std {1e3 * v['time_std_s']:.1f} ms"
+                      for c, v in doc["channels"].items())
+    return {"control-input sampling": (f"control inputs logged more slowly than the fits' grid "
+                                       f"({chans}): the steps' times between samples are "
+                                       f"unknown; carried to the estimates' total std "
+                                       f"({doc['refits']} refits)"),
+            "input_sampling": doc}
 
 
 def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress, *,
@@ -1382,11 +1406,13 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
                                               pom=pom, smooth_inputs=smooth_inputs,
                                               validation=fd_val, validation_calm=calm)
     starts = dict(results)
-    carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit,
-                               dynamics=dyn_doc, dynamics_refit=lambda d: refit(fd_c, starts, d))
+    sampling = carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit,
+                                          dynamics=dyn_doc, dynamics_refit=lambda d: refit(fd_c, starts, d),
+                                          inputs_data=fd_c, inputs_refit=lambda data: refit(data, starts))
     meta = {"scenario": scenario.name, "log": "flight.mcap", "seed": result.meta["seed"],
             "aircraft": result.aircraft.name, "data": f"flight.mcap, {comp['data_for_estimation']}",
-            "control-input delay and lag": dynamics_summary(dyn_doc), "input_dynamics": dyn_doc}
+            "control-input delay and lag": dynamics_summary(dyn_doc), "input_dynamics": dyn_doc,
+            **sampling_meta(sampling)}
     if val is not None:
         meta["validation flight"] = (f"validation.mcap (seed {vres.meta['seed']}, "
                                      f"{'calm air' if calm else 'turbulence as the flight'}): "
@@ -1560,12 +1586,15 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     # saw, the angles rebuilt with the wind moved
     starts = dict(results)
     angles = any({"alpha", "beta"} & {*pb.model.inputs, *pb.model.outputs} for pb in problems)
-    carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit, flow=flow,
-                               wind_refit=(lambda offset: refit(fd_c, starts, offset)) if angles else None,
-                               dynamics=dyn_doc,
-                               dynamics_refit=lambda dyn: fits(with_input_dynamics(fd_before, dyn), starts))
+    sampling = carry_consider_uncertainty(
+        fd_logged, comp, results, validations, truth, pr, refit, flow=flow,
+        wind_refit=(lambda offset: refit(fd_c, starts, offset)) if angles else None,
+        dynamics=dyn_doc, dynamics_refit=lambda dyn: fits(with_input_dynamics(fd_before, dyn), starts),
+        inputs_data=fd_before,
+        inputs_refit=lambda data: fits(with_input_dynamics(data, dyn_doc["applied"]), starts))
     meta["control-input delay and lag"] = dynamics_summary(dyn_doc)
     meta["input_dynamics"] = dyn_doc
+    meta.update(sampling_meta(sampling))
     if "wind_uncertainty" in flow:
         from pipeline.correction_uncertainty import wind_summary
 
