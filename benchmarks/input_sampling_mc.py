@@ -11,15 +11,17 @@ Per derivative: the estimates' empirical std over the seeds / mean Cramér-Rao s
 with the steps' times carried); the bias in empirical std. Per seed the worst |error| /
 std both ways. Honest: total ~1 (95 % band about +-1.4/sqrt(n) for n seeds).
 
-Measured 2026-11-26 (seeds 1-12, 25 Hz surfaces, 62 s on 2 cores): worst |error| / std per
-seed 1.42-2.65 with the steps' times carried (12/12 within 3 on both axes), 18.8-32.2
-with the Cramér-Rao bound alone (0/12); median ratio 16.0. Empirical std / total std
-0.25-1.85 over the 29 derivatives (CD0 1.85, CDalpha2 1.53), against 0.38-23.0 for the CRB
-alone (Cmalpha 23.0, Cmq 21.3, Cldr 19.8, Cnbeta 19.6); |bias| <= 0.42 empirical std. The
-price: the total std is many times the CRB (Cmq's about 20x) - the times are only known to
-their 40 ms interval. Without the phase offsets (the maneuvers on the same 25 Hz phase on
-every seed) the timing errors repeat and the scatter cannot judge the part: Cmq's bias
-was 52 empirical std, |error| / total std still 1.42-2.65 on 8/8 seeds.
+Measured 2026-11-26, seeds 1-12 (about 60 s on 2 cores each):
+  25 Hz surfaces, the steps timed from the gyros (pipeline.input_sampling.refine_steps)
+      and their remaining uncertainty carried: worst |error| / total std per seed 0.71-3.61
+      (within 3 on 11/12 longitudinal, 10/12 lateral), 2.1-10.4 with the CRB alone (3/12,
+      0/12); empirical / total std 0.32-2.63 (CYbeta 2.63, CYdr 2.19), CRB alone 0.77-4.71.
+  --surfaces-hz 100 (no input slower than the IMU, nothing to time: the floor): 0.57-2.91
+      (CYbeta 2.77, Cnr 2.91, CYdr 2.05 - the compatibility stage's scale_ay applied on seed
+      6, pipeline.compatibility), within 3 on 12/12 and 11/12.
+  Before the timing (the steps carried at h / sqrt(12) of their 40 ms interval): 1.42-2.65,
+      12/12 within 3, empirical / total 0.25-1.85, but Cmq's total std 20x its bound and
+      the proof of match failing on q; the CRB alone 18.8-32.2 (Cmq 28 std off).
 
     python benchmarks/input_sampling_mc.py [--seeds 8] [--seed-base 1] [--jobs 2] [--surfaces-hz 25]
 """

@@ -281,33 +281,31 @@ def input_dynamics(doc: Mapping[str, Any], results: Mapping[str, Any],
 MAX_STEP_GROUPS = 24
 
 
-def sampled_steps(fd: FlightData, results: Mapping[str, Any]) -> list:
-    """The steps of control inputs logged more slowly than the fits' grid (the finest
-    grid of ``results``) in their fitted windows (:func:`pipeline.input_sampling.step_edges`)."""
-    from pipeline.input_sampling import step_edges
-
+def fitted_steps(steps: list, results: Mapping[str, Any]) -> list:
+    """The control-input steps (:class:`pipeline.input_sampling.Edge`) in a window some fit
+    of ``results`` used."""
     spans = [s for res in results.values() for s in fitted_spans(res)]
-    steps = [float(np.median(np.diff(r.index.to_numpy(dtype=float))))
-             for res in results.values() for r in res.residuals if len(r) > 2]
-    return step_edges(fd, spans, min(steps)) if steps else []
+    return [e for e in steps if any(e.t1 > a and e.t0 < b for a, b in spans)]
 
 
 def input_sampling(fd: FlightData, results: Mapping[str, Any],
-                   refit: Callable[[FlightData], Mapping[str, Any]],
+                   refit: Callable[[FlightData], Mapping[str, Any]], steps: list,
                    progress: Any = None) -> dict[str, Any]:
     """Add to ``consider_cov`` of every result in ``results`` the uncertainty of the times
-    of the control-input steps logged more slowly than the fits' grid
-    (:mod:`pipeline.input_sampling`): each step ``j`` of the fitted windows, time std
-    s_j = h_j / sqrt(12), is moved by +s_j and by -s_j in ``fd`` (the data before the
-    input dynamics) and ``refit(data)`` repeats the fits; the central difference gives J's
-    column, C = I (the steps' times independent, in units of their std). More than
+    of the control-input steps logged more slowly than the fits' grid (``steps``: the
+    :class:`pipeline.input_sampling.Edge` list of :func:`pipeline.input_sampling.time_steps`,
+    as they are in ``fd``, the data before the input dynamics): each step ``j`` in a
+    fitted window, time std s_j (timed from the gyros, else h_j / sqrt(12) of its sample
+    interval h_j), is moved by +s_j and by -s_j and ``refit(data)`` repeats the fits; the
+    central difference gives J's column, C = I (the steps' times independent, in units of
+    their std). More than
     MAX_STEP_GROUPS steps: that many groups, every step of a group moved at once with a
     random sign (fixed seed), which estimates J J^T without bias (the groups' cross terms
     have mean zero). Returns a JSON-ready document (empty when no input is slow or has no
     step in a fitted window)."""
     from pipeline.input_sampling import with_edges_moved
 
-    edges = sampled_steps(fd, results)
+    edges = fitted_steps(steps, results)
     if not edges:
         return {}
     t0 = time.perf_counter()
@@ -335,12 +333,15 @@ def input_sampling(fd: FlightData, results: Mapping[str, Any],
     _add_consider(results, J, {key: np.eye(n_groups) for key in results}, status, SAMPLING_SOURCE)
     chans = sorted({e.channel for e in edges})
     return {"steps": m, "channels": {c: {"steps": sum(e.channel == c for e in edges),
-                                         "time_std_s": float(np.mean([e.std for e in edges
-                                                                      if e.channel == c]))}
+                                         "timed": sum(e.channel == c and e.time_std is not None
+                                                      for e in edges),
+                                         "time_std_s": float(np.sqrt(np.mean(
+                                             [e.std ** 2 for e in edges if e.channel == c])))}
                                      for c in chans},
             "groups": n_groups, "refits": 2 * n_groups,
-            "perturbation": ("each step moved by +1 and -1 std of its time (h / sqrt(12), h its "
-                             "sample interval), all fits repeated, the central difference; "
+            "perturbation": ("each step moved by +1 and -1 std of its time (timed from the "
+                             "gyros, else h / sqrt(12) of its sample interval h), all fits "
+                             "repeated, the central difference; "
                              + ("" if n_groups == m else f"{m} steps in {n_groups} groups moved "
                                 "with random signs; ") + "total std = sqrt(CRB^2 + consider^2)"),
             "methods": status, "seconds": time.perf_counter() - t0}

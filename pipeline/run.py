@@ -22,7 +22,8 @@ from pipeline.sixdof_problem import sixdof_lateral_problem
 from pipeline.identify import multi_axis, multiaxis_problem
 from pipeline.identify import (LAT_OUTPUTS, LONG_OUTPUTS, AircraftConstants, Problem, lateral_problem,
                                longitudinal_problem)
-from pipeline.identify import with_airspeed_offsets
+from pipeline.identify import MAX_RATE_HZ, with_airspeed_offsets
+from pipeline.input_sampling import summary as step_summary, time_steps
 from pipeline.paths import atomic_write_text
 
 #: methods the run knows; the scenario or the command line picks among them
@@ -1032,7 +1033,8 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
                           truth: Mapping[str, float] | None, progress: Progress,
                           refit, *, flow: dict[str, Any] | None = None, wind_refit=None,
                           dynamics: dict[str, Any] | None = None, dynamics_refit=None,
-                          inputs_data: Any = None, inputs_refit=None) -> dict[str, Any]:
+                          steps: Sequence[Any] = (), inputs_data: Any = None,
+                          inputs_refit=None) -> dict[str, Any]:
     """One stage after the fits: what each fit held as exact gets its uncertainty into the
     result's ``consider_cov`` (:mod:`pipeline.correction_uncertainty`) - the other axis'
     estimates a fit held (``result.extra["held"]``, the 6-DoF lateral output error holding
@@ -1044,12 +1046,12 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
     the control-input delays and lags applied before the fits (``dynamics``, the document
     of :func:`input_dynamics_stage`, gets ``uncertainty``; ``dynamics_refit(dynamics)``
     repeats the fits with other ones), and the times of the control-input steps logged more
-    slowly than the fits' grid (``inputs_data``: the data before the input dynamics;
-    ``inputs_refit(data)`` repeats the fits on it; :func:`pipeline.correction_uncertainty.
-    input_sampling`). Then the truth checks and verdicts are redone with the total std.
+    slowly than the fits' grid (``steps``: :func:`pipeline.input_sampling.time_steps`'
+    list; ``inputs_data``: the data before the input dynamics; ``inputs_refit(data)``
+    repeats the fits on it; :func:`pipeline.correction_uncertainty.input_sampling`). Then the truth checks and verdicts are redone with the total std.
     Returns the step-timing part's document (empty when no input is slow)."""
-    from pipeline.correction_uncertainty import (held_estimates, input_dynamics, input_sampling,
-                                                 propagate, sampled_steps, wind)
+    from pipeline.correction_uncertainty import (fitted_steps, held_estimates, input_dynamics,
+                                                 input_sampling, propagate, wind)
     from pipeline.validate import refresh_truth_check
 
     held = [k for k, r in results.items() if (r.extra or {}).get("held") is not None]
@@ -1060,8 +1062,8 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
     delayed = bool((dynamics or {}).get("status") == "estimated" and dynamics.get("applied")
                    and dynamics_refit is not None)
     parts += [f"the delay and lag of {len(dynamics['applied'])} control inputs"] if delayed else []
-    slow = inputs_refit is not None and inputs_data is not None and bool(sampled_steps(inputs_data, results))
-    parts += ["the times of the control-input steps between their samples"] if slow else []
+    slow = inputs_refit is not None and inputs_data is not None and bool(fitted_steps(list(steps), results))
+    parts += ["the times of the control-input steps between slow samples"] if slow else []
     progress.stage("uncertainty of what the fits held as exact" + (f" ({', '.join(parts)})" if parts else ""))
     for k in held:
         r = results[k]
@@ -1075,7 +1077,7 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
         flow["wind_uncertainty"] = wind(flow, results, wind_refit, progress)
     if delayed:
         dynamics["uncertainty"] = input_dynamics(dynamics, results, dynamics_refit, progress)
-    sampling = input_sampling(inputs_data, results, inputs_refit, progress) if slow else {}
+    sampling = input_sampling(inputs_data, results, inputs_refit, list(steps), progress) if slow else {}
     for key, res in results.items():
         if key in validations:
             refresh_truth_check(validations[key], res, truth)
@@ -1086,18 +1088,21 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
 
 
 
-def sampling_meta(doc: Mapping[str, Any]) -> dict[str, Any]:
-    """report.json/report.md meta entries of the step-timing consider part
-    (:func:`pipeline.correction_uncertainty.input_sampling`): none when no input was slow."""
-    if not doc:
+def sampling_meta(timing: Mapping[str, Any], carried: Mapping[str, Any]) -> dict[str, Any]:
+    """report.json/report.md meta entries of control inputs logged more slowly than the
+    gyros: their steps timed from the rates (``timing``, :func:`pipeline.input_sampling.
+    time_steps`' document) and those times' uncertainty carried to the estimates
+    (``carried``, :func:`pipeline.correction_uncertainty.input_sampling`'s); none when no
+    input was slow."""
+    if not timing:
         return {}
-    chans = ", ".join(f"{c} {v['steps']} steps, time std {1e3 * v['time_std_s']:.1f} ms"
-                      for c, v in doc["channels"].items())
-    return {"control-input sampling": (f"control inputs logged more slowly than the fits' grid "
-                                       f"({chans}): the steps' times between samples are "
-                                       f"unknown; carried to the estimates' total std "
-                                       f"({doc['refits']} refits)"),
-            "input_sampling": doc}
+    line = step_summary(timing)
+    if carried:
+        chans = ", ".join(f"{c} {v['steps']} ({v['timed']} timed, rms std {1e3 * v['time_std_s']:.1f} ms)"
+                          for c, v in carried["channels"].items())
+        line += (f"; the fitted windows' steps ({chans}) carried to the estimates' total std "
+                 f"({carried['refits']} refits)")
+    return {"control-input sampling": line, "input_sampling": {**timing, "uncertainty": dict(carried)}}
 
 
 def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress, *,
@@ -1357,8 +1362,11 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
         pr.done(f"{len(vres.maneuvers)} maneuvers")
     pr.stage("ingest flight.bin and flight.mcap")
     fd_bin = read_log(out / "flight.bin")
-    fd_mcap = read_log(out / "flight.mcap")
-    pr.done(f"{len(fd_bin.channels)} channels, {len(fd_bin.segments)} maneuver segments")
+    fd_mcap, steps, steps_doc = time_steps(read_log(out / "flight.mcap"), MAX_RATE_HZ)
+    if fd_val is not None:
+        fd_val = time_steps(fd_val, MAX_RATE_HZ)[0]
+    pr.done(f"{len(fd_bin.channels)} channels, {len(fd_bin.segments)} maneuver segments"
+            + (f"; {step_summary(steps_doc)}" if steps_doc else ""))
     pr.stage("data-quality checks")
     logs = {"flight.bin": fd_bin, "flight.mcap": fd_mcap,
             **({"validation.mcap": fd_val} if fd_val is not None else {})}
@@ -1408,11 +1416,12 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     starts = dict(results)
     sampling = carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit,
                                           dynamics=dyn_doc, dynamics_refit=lambda d: refit(fd_c, starts, d),
-                                          inputs_data=fd_c, inputs_refit=lambda data: refit(data, starts))
+                                          steps=steps, inputs_data=fd_c,
+                                          inputs_refit=lambda data: refit(data, starts))
     meta = {"scenario": scenario.name, "log": "flight.mcap", "seed": result.meta["seed"],
             "aircraft": result.aircraft.name, "data": f"flight.mcap, {comp['data_for_estimation']}",
             "control-input delay and lag": dynamics_summary(dyn_doc), "input_dynamics": dyn_doc,
-            **sampling_meta(sampling)}
+            **sampling_meta(steps_doc, sampling)}
     if val is not None:
         meta["validation flight"] = (f"validation.mcap (seed {vres.meta['seed']}, "
                                      f"{'calm air' if calm else 'turbulence as the flight'}): "
@@ -1468,8 +1477,10 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
                   + 2 * len(methods) * (2 if model == "auto" else 1), quiet=quiet)
     pr.stage(f"ingest {log}")
     from pipeline.aircraft_setup import servo_travel_for
-    fd = read_log(log, map=map_path, servo_travel=servo_travel_for(log, aircraft), time_base=time_base)
-    pr.done(f"{len(fd.channels)} channels, {len(fd.segments)} segments")
+    fd, steps, steps_doc = time_steps(read_log(log, map=map_path, servo_travel=servo_travel_for(log, aircraft),
+                                               time_base=time_base), MAX_RATE_HZ)
+    pr.done(f"{len(fd.channels)} channels, {len(fd.segments)} segments"
+            + (f"; {step_summary(steps_doc)}" if steps_doc else ""))
     pr.stage("aircraft and sensor positions")
     notes: list[str] = []
     ac, ac_name, truth_doc = aircraft_for_log(log, aircraft, fd, required=not user, say=notes.append)
@@ -1492,8 +1503,9 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     k_pitot = cal["estimate"] if cal.get("applied") else (0.0 if cal.get("carried") else None)
     for vlog in vlogs:
         pr.stage(f"ingest the validation flight {vlog}")
-        fv = read_log(vlog, map=map_path, servo_travel=servo_travel_for(vlog, aircraft),
-                      time_base=time_base if detect_format(vlog) == fd.meta["format"] else None)
+        fv = time_steps(read_log(vlog, map=map_path, servo_travel=servo_travel_for(vlog, aircraft),
+                                 time_base=time_base if detect_format(vlog) == fd.meta["format"] else None),
+                        MAX_RATE_HZ)[0]
         pr.done(f"{len(fv.channels)} channels, {len(fv.segments)} segments")
         fd_vals.append(flow_angle_stage(fv, ac_sensors, pr, airspeed_scale=k_pitot)[0])
         val_checks.append(summarize(run_checks(fd_vals[-1])))
@@ -1590,11 +1602,11 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         fd_logged, comp, results, validations, truth, pr, refit, flow=flow,
         wind_refit=(lambda offset: refit(fd_c, starts, offset)) if angles else None,
         dynamics=dyn_doc, dynamics_refit=lambda dyn: fits(with_input_dynamics(fd_before, dyn), starts),
-        inputs_data=fd_before,
+        steps=steps, inputs_data=fd_before,
         inputs_refit=lambda data: fits(with_input_dynamics(data, dyn_doc["applied"]), starts))
     meta["control-input delay and lag"] = dynamics_summary(dyn_doc)
     meta["input_dynamics"] = dyn_doc
-    meta.update(sampling_meta(sampling))
+    meta.update(sampling_meta(steps_doc, sampling))
     if "wind_uncertainty" in flow:
         from pipeline.correction_uncertainty import wind_summary
 

@@ -57,13 +57,15 @@ def test_a_moved_step_moves_the_interpolated_ramp_and_leaves_the_log_alone():
     for shift in (+e.std, -e.std):
         assert centre(with_edges_moved(fd, [e], [shift])) == pytest.approx(1.50 + shift, abs=1e-3)
     np.testing.assert_array_equal(fd["de"].t, before)
-    with pytest.raises(ValueError, match="leaves its interval"):
-        with_edges_moved(fd, [e], [0.021])
+    with pytest.raises(ValueError, match="passes a neighbouring sample"):
+        with_edges_moved(fd, [e], [0.041])
     assert isinstance(e, Edge) and "de step at 1.500 s" == e.name
 
 
 @pytest.fixture(scope="module")
 def slow_surfaces(tmp_path_factory):
+    """default.toml with its surfaces logged at 25 Hz (seed 1): the log folder and the
+    truth's step times (the middle of each 10 ms input ramp of the simulation) per input."""
     pytest.importorskip("jsbsim")
     import sim
     from pipeline.writers import write_dataflash, write_truth_json
@@ -75,28 +77,56 @@ def slow_surfaces(tmp_path_factory):
     r = sim.fly(custom(raw, "default_slow_surfaces"), seed=1)
     write_dataflash(d / "flight.bin", r)
     write_truth_json(d / "truth.json", r)
-    return d
+    t = r.truth["t"].to_numpy()
+    steps = {c: t[1:][np.abs(np.diff(r.truth[f"{c}_cmd"].to_numpy())) > 1e-6] - 0.5 * (t[1] - t[0])
+             for c in ("de", "da", "dr")}
+    return d, steps
+
+
+def test_the_steps_are_timed_from_the_gyros(slow_surfaces):
+    from pipeline.readers import read_log
+    from pipeline.input_sampling import time_steps
+
+    d, truth = slow_surfaces
+    fd = read_log(d / "flight.bin")
+    before = {c: fd[c].t.copy() for c in ("de", "da", "dr")}
+    timed_fd, edges, doc = time_steps(fd)
+    assert doc["steps"] == len(edges) >= 20 and doc["timed"] >= doc["steps"] - 2
+    for c in ("de", "da", "dr"):
+        np.testing.assert_array_equal(fd[c].t, before[c])            # the log as read
+    z = []
+    for e in edges:
+        if e.time_std is None:
+            continue
+        centre = 0.5 * (e.t0 + e.t1)
+        true = truth[e.channel][np.argmin(np.abs(truth[e.channel] - centre))]
+        z.append((centre - true) / e.time_std)
+        assert e.time_std < 0.04 / np.sqrt(12.0)
+        i = np.searchsorted(timed_fd[e.channel].t, centre)       # the ramp in the data
+        assert timed_fd[e.channel].t[i - 1] == pytest.approx(e.t0) and timed_fd[e.channel].t[i] == pytest.approx(e.t1)
+    # the timed steps against the truth in units of their std (seeds 1-6, ad hoc: rms 1.18
+    # de, 1.13 da, 0.98 dr, largest 3.7; errors rms 2.7, 0.5, 0.4 ms in 40 ms intervals)
+    z = np.array(z)
+    assert np.sqrt(np.mean(z ** 2)) < 1.5 and np.max(np.abs(z)) < 4.0, z
 
 
 def test_the_steps_times_reach_the_estimates(slow_surfaces):
     from pipeline.run import estimate_log
 
-    out = slow_surfaces / "est"
-    estimate_log(slow_surfaces / "flight.bin", out, methods=("oem",), quiet=True)
+    d, _ = slow_surfaces
+    out = d / "est"
+    estimate_log(d / "flight.bin", out, methods=("oem",), quiet=True)
     rep = json.loads((out / "report.json").read_text())
     doc = rep["meta"]["input_sampling"]
-    assert set(doc["channels"]) == {"de", "da", "dr"} and doc["steps"] >= 10
-    assert all(v["time_std_s"] == pytest.approx(0.04 / np.sqrt(12.0)) for v in doc["channels"].values())
-    assert set(doc["methods"].values()) == {"propagated"}
-    assert "control inputs logged more slowly" in (out / "report.md").read_text()
-    worst_crb, worst_total = {}, {}
+    assert doc["timed"] >= doc["steps"] - 2
+    carried = doc["uncertainty"]
+    assert set(carried["channels"]) == {"de", "da", "dr"} and set(carried["methods"].values()) == {"propagated"}
+    assert "timed from the gyro rates" in (out / "report.md").read_text()
     for key in ("longitudinal-oem", "lateral-oem"):
-        ps = {n: p for n, p in rep["methods"][key]["parameters"].items()
-              if p.get("truth") is not None and "[" not in n}
-        err = {n: abs(p["estimate"] - p["truth"]) for n, p in ps.items()}
-        worst_crb[key] = max(err[n] / ps[n]["std"] for n in ps)
-        worst_total[key] = max(err[n] / ps[n]["total_std"] for n in ps)
-    # the Cramér-Rao bound alone: the steps' timing errors far outside it ...
-    assert worst_crb["longitudinal-oem"] > 10.0, worst_crb
-    # ... carried: every derivative within 3 total std (seed 1: 1.5 and 1.6)
-    assert max(worst_total.values()) <= 3.0, worst_total
+        m = rep["methods"][key]
+        ps = {n: p for n, p in m["parameters"].items() if p.get("truth") is not None and "[" not in n}
+        worst = max(abs(p["estimate"] - p["truth"]) / p["total_std"] for p in ps.values())
+        # seed 1: 0.7 and 1.7; the steps at their 25 Hz samples' midpoints instead put Cmq
+        # 28 std off and failed the proof of match on q (module docstring)
+        assert worst <= 3.0, (key, worst)
+        assert m["verdict"]["ok"], (key, m["verdict"])
