@@ -59,7 +59,7 @@ def _fit_longitudinal(fd, truth):
     err = {n: float((r.params[n] - tr[n]) / r.std[n]) for n in r.params.index
            if n in tr and np.isfinite(r.std[n]) and r.std[n] > 0}
     tic = {o: d["TIC"] for o, d in val["oem"]["fit"]["per_output"].items()}
-    return err, tic, val["oem"]
+    return err, tic, val["oem"], r
 
 
 def test_compatibility_stage_recovers_the_injected_errors(run):
@@ -150,16 +150,20 @@ def test_correction_matters_and_matches_the_true_correction(run):
     good as with the injected errors removed exactly."""
     out, truth, rep, _ = run
     fd = read_log(out / "flight.mcap")
-    raw_err, raw_tic, raw_val = _fit_longitudinal(fd, truth)
+    raw_err, raw_tic, raw_val, _ = _fit_longitudinal(fd, truth)
     cor_err = _errors_in_std(rep["methods"]["longitudinal-oem"])
     worse = {n: round(raw_err[n], 1) for n in cor_err if abs(raw_err[n]) > 10.0 and abs(cor_err[n]) < 6.0}
     assert len(worse) >= 3, (raw_err, cor_err)          # measured: CL0, CLalpha, CLde, Cm0, Cmalpha, Cmde
     assert max(abs(e) for e in raw_err.values()) > 5 * max(abs(e) for e in cor_err.values())
     te = pd.Series(truth_errors(truth))
     exact = CompatibilityResult(None, te, te * 0 + 1.0).corrected(fd, keep_times=True)
-    true_err, true_tic, _ = _fit_longitudinal(exact, truth)
-    for n, e in cor_err.items():   # |error|/std (report.json) within 1.5 of the exact correction's
-        assert abs(e - abs(true_err[n])) < 1.5, (n, e, true_err[n])
+    _, _, _, exact_fit = _fit_longitudinal(exact, truth)
+    # the estimates within 1.5 total std (report.json) of the exact correction's (measured
+    # 0.97 at most, CL0; CLalpha 0.87, whose exact-correction fit is 2.7 CRB std off itself)
+    ps = rep["methods"]["longitudinal-oem"]["parameters"]
+    for n in cor_err:
+        d = abs(ps[n]["estimate"] - float(exact_fit.params[n])) / ps[n]["total_std"]
+        assert d < 1.5, (n, d, ps[n]["estimate"], float(exact_fit.params[n]))
 
 
 def test_stage_reports_instead_of_ending_the_run():
