@@ -1,6 +1,7 @@
 """Are the bounds honest when the control inputs are logged more slowly than the IMU? A
 Monte Carlo over flights of scenarios/default.toml with its surfaces logged at
-``--surfaces-hz`` (default 25 Hz, ArduPilot's RCOU) beside the 100 Hz IMU: for each seed
+``--surfaces-hz`` (default 25 Hz, ArduPilot's RCOU) beside the 100 Hz IMU (``--rates
+ardupilot``: IMU and attitude at 25 Hz, air data and barometer 10, GPS 5): for each seed
 JSBSim flies it (its maneuvers 0-30 ms later by seed: the steps' phase against the
 surface samples varies), the product writes flight.bin and ``fsid estimate flight.bin`` fits both
 axes by output error, the steps' unknown times between the surface samples carried to the
@@ -24,6 +25,7 @@ Measured 2026-11-26, seeds 1-12 (about 60 s on 2 cores each):
       the proof of match failing on q; the CRB alone 18.8-32.2 (Cmq 28 std off).
 
     python benchmarks/input_sampling_mc.py [--seeds 8] [--seed-base 1] [--jobs 2] [--surfaces-hz 25]
+        [--rates default|ardupilot]
 """
 from __future__ import annotations
 
@@ -43,7 +45,11 @@ from _montecarlo import fly, judged_parameters, scatter_table, seed_arguments  #
 SCENARIO = ROOT / "scenarios" / "default.toml"
 
 
-def one_flight(seed: int, surfaces_hz: float = 25.0) -> list[dict]:
+#: ``--rates ardupilot``: an ArduPilot log's usual rates [Hz] (the surfaces' from --surfaces-hz)
+ARDUPILOT_RATES = {"imu": 25.0, "attitude": 25.0, "airdata": 10.0, "gps": 5.0, "baro": 10.0}
+
+
+def one_flight(seed: int, surfaces_hz: float = 25.0, rates: str = "default") -> list[dict]:
     """Rows (seed, key, parameter, estimate, std, total_std, truth) of one flight."""
     import sim
     from pipeline.run import estimate_log
@@ -51,6 +57,8 @@ def one_flight(seed: int, surfaces_hz: float = 25.0) -> list[dict]:
 
     raw = tomllib.loads(SCENARIO.read_text())
     raw.setdefault("sensors", {}).setdefault("surfaces", {})["rate_hz"] = surfaces_hz
+    for name, hz in (ARDUPILOT_RATES if rates == "ardupilot" else {}).items():
+        raw["sensors"].setdefault(name, {})["rate_hz"] = hz
     # the maneuvers' phase against the surface samples: 0-3 truth steps (10 ms) later by
     # seed, so the steps' timing errors differ between flights as between real ones
     late = (seed % 4) / raw.get("rate_hz", 100.0)
@@ -73,8 +81,8 @@ def one_flight(seed: int, surfaces_hz: float = 25.0) -> list[dict]:
 
 def main() -> None:
     seeds, jobs, opt = seed_arguments(__doc__.splitlines()[0], seeds=8, seed_base=1,
-                                      options={"surfaces-hz": "25"})
-    df = fly(partial(one_flight, surfaces_hz=float(opt["surfaces-hz"])), seeds, jobs)
+                                      options={"surfaces-hz": "25", "rates": "default"})
+    df = fly(partial(one_flight, surfaces_hz=float(opt["surfaces-hz"]), rates=opt["rates"]), seeds, jobs)
     tab = scatter_table(df, ["key", "parameter"], {"crb": "std", "total": "total_std"})
     df["z_crb"] = (df["estimate"] - df["truth"]).abs() / df["std"]
     df["z_total"] = (df["estimate"] - df["truth"]).abs() / df["total_std"]

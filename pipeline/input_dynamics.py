@@ -64,7 +64,12 @@ Known limits (ad hoc, the same flight logged more slowly):
   lateral proof of match fails on p by a little (1.83 deg/s for 1.5);
 * the IMU and the commands both at 25 Hz: refined, longitudinal within 3.8 std and
   lateral 2.7 (4.2 and 20 with equation error's values; 35 and 81 as logged); both proofs
-  of match fail (q 1.9, p 4.0 deg/s).
+  of match fail (q 1.9, p 4.0 deg/s). With the air data at 10 Hz and the GPS at 5 Hz too
+  (the sideslip rebuilt at 5 Hz), equation error put 47 ms of delay and 86 ms of lag on
+  the rudder (truth none) and the lateral output error did not converge with them: the
+  run withdraws them when output error converges with the inputs as logged
+  (:func:`pipeline.run.refine_input_dynamics_stage`; then within 1.9 std with the steps'
+  unknown times carried, pipeline.input_sampling, tests/test_input_sampling.py).
 """
 from __future__ import annotations
 
@@ -551,6 +556,32 @@ def _whitened(results: Mapping[str, Any], weights: Mapping[str, np.ndarray] | No
     return out, weights
 
 
+def logged_inputs_fit_better(applied: Mapping[str, Mapping[str, float]], fit) -> str | None:
+    """Why the output-error fits want the inputs as logged rather than with the delays and
+    lags ``applied`` (surface -> {"delay_s", "lag_s"}), or None: ``fit(dynamics, None)``
+    (as :func:`refine_by_output_error`'s) is run both ways; the logged inputs win when
+    their fits converge and the fits with ``applied`` do not, or leave weighted residuals
+    at least as large (each fit's residuals whitened by the logged fit's R: the same
+    yardstick). For a refinement that could not settle: equation error's values are then
+    worse than none."""
+    try:
+        logged = fit({}, None)
+        moved = fit({s: dict(v) for s, v in applied.items()}, None)
+    except Exception:  # noqa: BLE001 - either way failing: no verdict
+        return None
+    if not logged or not all(r.converged for r in logged.values()):
+        return None
+    if not all(r.converged for r in moved.values()):
+        return "output error did not converge with them and did with the inputs as logged"
+    v0, W = _whitened(logged)
+    v1, _ = _whitened(moved, W)
+    c0, c1 = (sum(float(np.sum(v * v)) for v in vs) for vs in (v0, v1))
+    if c0 <= c1:
+        return (f"output error fits the inputs as logged at least as well (weighted residuals "
+                f"{c0:.6g} against {c1:.6g} with them)")
+    return None
+
+
 def refine_by_output_error(doc: dict[str, Any], fit, progress: Any = None) -> dict[str, Any]:
     """Refine the delays and lags ``doc`` applies (the document of
     :func:`estimate_input_dynamics`) by the output-error fits' own likelihood; when that
@@ -762,7 +793,8 @@ def summary(doc: Mapping[str, Any]) -> str:
                          for s, v in doc["applied"].items()) + " (given)"
     parts = []
     for s, d in (doc.get("surfaces") or {}).items():
-        state = ("applied" if d["applied"] else "at the search bound, not applied" if d["at_bound"]
+        state = ("applied" if d["applied"] else "withdrawn: " + d["withdrawn"] if d.get("withdrawn")
+                 else "at the search bound, not applied" if d["at_bound"]
                  else "the log lagging its surface, not applied" if d["significant"]
                  and d["equivalent_delay_s"] < 0
                  else f"below {MIN_APPLIED_S * 1e3:g} ms, not applied" if d["significant"]

@@ -43,8 +43,11 @@ from pipeline.flightdata import CONTROL_INPUTS, Channel, FlightData
 STEP_RATIO = 4.0
 #: ... and at least this large [rad] (0.2 deg: below any designed maneuver's steps)
 MIN_STEP_RAD = np.radians(0.2)
-#: an input counts as slow when its sample interval exceeds this many fit-grid steps
+#: an input counts as slow when its sample interval exceeds this many fit-grid steps ...
 SLOW_FACTOR = 1.5
+#: ... or this many seconds whatever the grid (a 25 Hz log throughout: the fits' grid is the
+#: inputs' own, and a step's time within its 40 ms is as unknown)
+COARSE_INTERVAL_S = 0.025
 
 
 @dataclass(frozen=True)
@@ -88,10 +91,11 @@ def step_edges(fd: FlightData, spans: Sequence[tuple[float, float]], grid_step_s
         t, u = np.asarray(ch.t, float), np.asarray(ch.values, float)
         h = np.diff(t)
         d = np.abs(np.diff(u))
-        if float(np.median(h)) <= SLOW_FACTOR * grid_step_s:
+        coarse = (h > SLOW_FACTOR * grid_step_s) | (h >= COARSE_INTERVAL_S)
+        if not np.any(coarse):
             continue
         nb = np.maximum(np.r_[0.0, d[:-1]], np.r_[d[1:], 0.0])      # the larger neighbour
-        step = (d >= MIN_STEP_RAD) & (d >= STEP_RATIO * nb) & (h > SLOW_FACTOR * grid_step_s)
+        step = (d >= MIN_STEP_RAD) & (d >= STEP_RATIO * nb) & coarse
         inside = np.zeros_like(step)
         for a, b in spans:
             inside |= (t[1:] > a) & (t[:-1] < b)

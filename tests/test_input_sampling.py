@@ -38,9 +38,12 @@ def test_steps_of_a_slow_input_are_found_with_their_timing_std():
     assert [(round(e.t0, 2), round(e.t1, 2)) for e in edges] == [(1.0, 1.04), (1.48, 1.52), (2.0, 2.04)]
     assert [round(np.degrees(e.size), 6) for e in edges] == [2.0, -4.0, 2.0]
     assert all(e.std == pytest.approx(0.04 / np.sqrt(12.0)) for e in edges)
-    # outside the fitted windows, or on the grid's own rate: none
+    # outside the fitted windows: none; on a 25 Hz grid the 25 Hz steps still count (their
+    # 40 ms are as unknown), a 50 Hz one on a 50 Hz grid does not (COARSE_INTERVAL_S)
     assert step_edges(fd, [(2.5, 4.0)], grid_step_s=0.01) == []
-    assert step_edges(fd, [(0.0, 4.0)], grid_step_s=0.04) == []
+    assert len(step_edges(fd, [(0.0, 4.0)], grid_step_s=0.04)) == 3
+    half = FlightData({"de": Channel(fd["de"].t / 2, fd["de"].values, "rad")}, {})   # 50 Hz
+    assert step_edges(half, [(0.0, 2.0)], grid_step_s=0.02) == []
 
 
 def test_a_moved_step_moves_the_interpolated_ramp_and_leaves_the_log_alone():
@@ -130,3 +133,38 @@ def test_the_steps_times_reach_the_estimates(slow_surfaces):
         # 28 std off and failed the proof of match on q (module docstring)
         assert worst <= 3.0, (key, worst)
         assert m["verdict"]["ok"], (key, m["verdict"])
+
+
+def test_a_25_hz_log_throughout(tmp_path):
+    """IMU, attitude and surfaces at 25 Hz, air data 10, GPS 5 (an ArduPilot log's usual
+    rates): the gyros cannot time a step inside its 40 ms, so each is carried with
+    h / sqrt(12); equation error's control-input delays and lags (47 ms and 86 ms on the
+    rudder, truth none) broke the lateral output error, which converges with the inputs
+    as logged: they are withdrawn. Seed 1: every derivative within 1.9 total std."""
+    pytest.importorskip("jsbsim")
+    import sim
+    from pipeline.run import estimate_log
+    from pipeline.writers import write_dataflash, write_truth_json
+    from tests._simdata import SCENARIOS, custom
+
+    raw = tomllib.loads((SCENARIOS / "default.toml").read_text())
+    for name, hz in {"imu": 25.0, "attitude": 25.0, "surfaces": 25.0, "airdata": 10.0,
+                     "gps": 5.0, "baro": 10.0}.items():
+        raw.setdefault("sensors", {}).setdefault(name, {})["rate_hz"] = hz
+    r = sim.fly(custom(raw, "default_25hz"), seed=1)
+    write_dataflash(tmp_path / "flight.bin", r)
+    write_truth_json(tmp_path / "truth.json", r)
+    estimate_log(tmp_path / "flight.bin", tmp_path / "out", methods=("oem",), quiet=True)
+    rep = json.loads((tmp_path / "out" / "report.json").read_text())
+    steps = rep["meta"]["input_sampling"]
+    assert steps["steps"] >= 20 and steps["timed"] == 0
+    assert all(v["timed"] == 0 and v["time_std_s"] == pytest.approx(0.04 / np.sqrt(12.0))
+               for v in steps["uncertainty"]["channels"].values())
+    dyn = rep["meta"]["input_dynamics"]
+    assert dyn["applied"] == {} and any(s.get("withdrawn") for s in dyn["surfaces"].values())
+    for key in ("longitudinal-oem", "lateral-oem"):
+        m = rep["methods"][key]
+        assert m["converged"], key
+        ps = {n: p for n, p in m["parameters"].items() if p.get("truth") is not None and "[" not in n}
+        worst = max(abs(p["estimate"] - p["truth"]) / p["total_std"] for p in ps.values())
+        assert worst <= 3.0, (key, worst)
