@@ -277,8 +277,9 @@ def input_dynamics(doc: Mapping[str, Any], results: Mapping[str, Any],
 
 
 #: the most refit pairs the step-timing part takes: more steps are moved in this many
-#: groups, each step of a group by its std with a random sign
-MAX_STEP_GROUPS = 24
+#: groups, each step of a group by its std with a random sign (the variance then known to
+#: about sqrt(2 / 12) = 41 %; a refit pair each, on logs where a refit takes seconds)
+MAX_STEP_GROUPS = 12
 
 
 def fitted_steps(steps: list, results: Mapping[str, Any]) -> list:

@@ -236,7 +236,7 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float
     return (FlightData(chans, fd.meta, fd.segments), [timed.get(e, e) for e in edges], doc)
 
 
-def time_steps(fd: FlightData, max_rate_hz: float = 200.0) -> tuple[FlightData, list[Edge], dict]:
+def time_steps(fd: FlightData, max_rate_hz: float) -> tuple[FlightData, list[Edge], dict]:
     """The ingest step of a log whose control inputs are logged more slowly than its gyros:
     the steps of its maneuver windows (:meth:`FlightData.find_segments`' spans, else the
     whole log) on the grid the fits will use (the gyros' rate, at most ``max_rate_hz``)

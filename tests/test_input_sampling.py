@@ -88,12 +88,13 @@ def slow_surfaces(tmp_path_factory):
 
 def test_the_steps_are_timed_from_the_gyros(slow_surfaces):
     from pipeline.readers import read_log
+    from pipeline.identify import MAX_RATE_HZ
     from pipeline.input_sampling import time_steps
 
     d, truth = slow_surfaces
     fd = read_log(d / "flight.bin")
     before = {c: fd[c].t.copy() for c in ("de", "da", "dr")}
-    timed_fd, edges, doc = time_steps(fd)
+    timed_fd, edges, doc = time_steps(fd, MAX_RATE_HZ)
     assert doc["steps"] == len(edges) >= 20 and doc["timed"] >= doc["steps"] - 2
     for c in ("de", "da", "dr"):
         np.testing.assert_array_equal(fd[c].t, before[c])            # the log as read
