@@ -20,6 +20,13 @@ Measured 2026-11-26, seeds 1-12 (about 60 s on 2 cores each):
   --surfaces-hz 100 (no input slower than the IMU, nothing to time: the floor): 0.57-2.91
       (CYbeta 2.77, Cnr 2.91, CYdr 2.05 - the compatibility stage's scale_ay applied on seed
       6, pipeline.compatibility), within 3 on 12/12 and 11/12.
+  --rates ardupilot (IMU 25 Hz: no step timed inside its 40 ms, each carried at h /
+      sqrt(12)): worst per seed 1.29-2.41 longitudinal (12/12 within 3), 1.36-6.58 lateral
+      (7/12; CYbeta -1.10 against -0.98 on seeds 2, 3, 7, 10, 11, which the 100 Hz
+      surfaces of seed 3 share: the sideslip rebuilt from the 5 Hz GPS, not the steps);
+      empirical / total std 0.22-1.51 (CRB alone 0.68-13.3); the rudder's equation-error
+      delay and lag (about 90 ms of lag, truth none) withdrawn where output error wanted the
+      inputs as logged.
   Before the timing (the steps carried at h / sqrt(12) of their 40 ms interval): 1.42-2.65,
       12/12 within 3, empirical / total 0.25-1.85, but Cmq's total std 20x its bound and
       the proof of match failing on q; the CRB alone 18.8-32.2 (Cmq 28 std off).
