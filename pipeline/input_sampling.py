@@ -171,9 +171,9 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float
     log), tau on REFINE_GRID points over the interval; the best tau's std comes from the
     weighted residual sum of squares' curvature (Delta chi^2 = 1), scaled by the reduced
     chi^2 where that exceeds 1 (turbulence, the cubic's misfit), and bounded by the
-    interval's own h / sqrt(12). A step is timed when the gyros sample it at least twice
-    per interval, the kink stands REFINE_SIGNIFICANCE std above the noise on some axis and
-    the best tau is inside the interval; the others keep their interval.
+    interval's own h / sqrt(12). A step is timed when a gyro sample falls inside its
+    interval, the kink stands REFINE_SIGNIFICANCE std above the noise on some axis and the
+    best tau is inside the interval; the others keep their interval.
 
     A timed step becomes a ramp ``grid_step_s`` wide centred on its time (its two bracketing
     samples moved there: before and after them the input is flat). Returns (flight data
@@ -215,8 +215,15 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float
         std = float(np.sqrt(max(red, 1.0) / a)) if a > 0 else np.inf
         std = min(max(std, 1e-4), h / np.sqrt(12.0))
         width = min(grid_step_s, 0.5 * h)
+        a0, a1 = tau - 0.5 * width, tau + 0.5 * width
+
+        def fits_between(e: Edge) -> bool:       # the ramp stays between the flat samples
+            t = fd[e.channel].t
+            return (e.k == 0 or t[e.k - 1] < a0) and (e.k + 2 >= t.size or a1 < t[e.k + 2])
+        if not all(fits_between(e) for e in grp):
+            continue
         for e in grp:
-            timed[e] = Edge(e.channel, e.k, tau - 0.5 * width, tau + 0.5 * width, e.size, std)
+            timed[e] = Edge(e.channel, e.k, a0, a1, e.size, std)
         stds.append(std)
     if not timed:
         doc["note"] = "no step timed (gyros too slow or the kinks too weak)"

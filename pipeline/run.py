@@ -1048,8 +1048,9 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
     repeats the fits with other ones), and the times of the control-input steps logged more
     slowly than the fits' grid (``steps``: :func:`pipeline.input_sampling.time_steps`'
     list; ``inputs_data``: the data before the input dynamics; ``inputs_refit(data)``
-    repeats the fits on it; :func:`pipeline.correction_uncertainty.input_sampling`). Then the truth checks and verdicts are redone with the total std.
-    Returns the step-timing part's document (empty when no input is slow)."""
+    repeats the fits on it; :func:`pipeline.correction_uncertainty.input_sampling`). Then
+    the truth checks and verdicts are redone with the total std. Returns the step-timing
+    part's document (empty when no input is slow)."""
     from pipeline.correction_uncertainty import (fitted_steps, held_estimates, input_dynamics,
                                                  input_sampling, propagate, wind)
     from pipeline.validate import refresh_truth_check
@@ -1085,7 +1086,6 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
                   f"{sum(r.consider_cov is not None for r in results.values())} of {len(results)} "
                   "fits with a consider part")
     return sampling
-
 
 
 def sampling_meta(timing: Mapping[str, Any], carried: Mapping[str, Any]) -> dict[str, Any]:
