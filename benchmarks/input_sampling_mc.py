@@ -22,8 +22,10 @@ Measured 2026-11-26, seeds 1-12 (about 60 s on 2 cores each):
       6, pipeline.compatibility), within 3 on 12/12 and 11/12.
   --rates ardupilot (IMU 25 Hz: no step timed inside its 40 ms, each carried at h /
       sqrt(12)): worst per seed 1.29-2.41 longitudinal (12/12 within 3), 1.36-6.58 lateral
-      (7/12; CYbeta -1.10 against -0.98 on seeds 2, 3, 7, 10, 11, which the 100 Hz
-      surfaces of seed 3 share: the sideslip rebuilt from the 5 Hz GPS, not the steps);
+      (7/12; CYbeta -1.10 against -0.98 on seeds 2, 3, 7, 10, 11 - the 25 Hz IMU: with
+      it at 100 Hz seeds 3 and 7 give -0.97; not the steps, 100 Hz surfaces give it too;
+      not the sideslip rebuilt from the 5 Hz GPS, slope 0.993 against the truth; not the
+      25 Hz grid alone, the 100 Hz flight fitted on it gives -0.98; ad hoc);
       empirical / total std 0.22-1.51 (CRB alone 0.68-13.3); the rudder's equation-error
       delay and lag (about 90 ms of lag, truth none) withdrawn where output error wanted the
       inputs as logged.
