@@ -226,7 +226,7 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float
             timed[e] = Edge(e.channel, e.k, a0, a1, e.size, std)
         stds.append(std)
     if not timed:
-        doc["note"] = "no step timed (gyros too slow or the kinks too weak)"
+        doc["note"] = "the gyros do not sample inside their intervals, or the kinks are too weak"
         return fd, list(edges), doc
     chans = dict(fd.channels)
     for c in sorted({e.channel for e in timed}):
