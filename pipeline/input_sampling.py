@@ -26,9 +26,10 @@ seeds (benchmarks/input_sampling_mc.py) the fits are within 3 total std on 10-11
 bound; the Cramér-Rao bound alone: 0 of 12) and the proof of match passes on seed 1.
 
 A step is a sample-to-sample change of a control input that stands out: at least
-``STEP_RATIO`` times both neighbouring changes and at least ``MIN_STEP_RAD``; only inputs
-whose sample interval exceeds ``SLOW_FACTOR`` fit-grid steps count (at the grid's rate the
-interpolation puts a step within one grid step of where it was).
+``STEP_RATIO`` times both neighbouring changes and at least ``MIN_STEP_RAD``; only changes
+over an interval longer than ``SLOW_FACTOR`` fit-grid steps (at the grid's rate the
+interpolation puts a step within one grid step of where it was) or than
+``COARSE_INTERVAL_S`` (a 25 Hz log throughout) count.
 """
 from __future__ import annotations
 
@@ -54,7 +55,7 @@ COARSE_INTERVAL_S = 0.025
 class Edge:
     """One step of control input ``channel`` between its samples ``k`` and ``k + 1``
     (times ``t0``, ``t1`` [s]); ``size`` the change [rad]; ``std`` [s] the uncertainty of
-    its time, (t1 - t0) / sqrt(12)."""
+    its time: ``time_std`` when timed, else (t1 - t0) / sqrt(12)."""
 
     channel: str
     k: int
@@ -69,10 +70,6 @@ class Edge:
     def std(self) -> float:
         return self.time_std if self.time_std is not None else (self.t1 - self.t0) / np.sqrt(12.0)
 
-    def as_dict(self) -> dict:
-        return {"channel": self.channel, "k": self.k, "t0": self.t0, "t1": self.t1,
-                "size": self.size, "time_std": self.time_std}
-
     @property
     def name(self) -> str:
         return f"{self.channel} step at {0.5 * (self.t0 + self.t1):.3f} s"
@@ -80,9 +77,10 @@ class Edge:
 
 def step_edges(fd: FlightData, spans: Sequence[tuple[float, float]], grid_step_s: float,
                channels: Sequence[str] = CONTROL_INPUTS) -> list[Edge]:
-    """The steps (:class:`Edge`, in time order) of the control inputs ``channels`` slower
-    than the fit grid (sample interval > SLOW_FACTOR x ``grid_step_s`` [s]) that lie in
-    one of ``spans`` ((start, end) [s], the fitted windows)."""
+    """The steps (:class:`Edge`, in time order) of the control inputs ``channels`` over
+    sample intervals longer than SLOW_FACTOR x ``grid_step_s`` [s] (the fit grid's step)
+    or than COARSE_INTERVAL_S, that lie in one of ``spans`` ((start, end) [s], the fitted
+    windows)."""
     out: list[Edge] = []
     for c in channels:
         if c not in fd.channels or c == "throttle" or len(fd[c]) < 4:
@@ -111,19 +109,32 @@ def with_edges_moved(fd: FlightData, edges: Sequence[Edge], shifts: Sequence[flo
     the step's flat levels: moving them along the level changes nothing else). Raises
     ValueError when a shift would pass a neighbouring sample. The data are copied, never
     changed in place."""
+    ramps = {}
+    times = {c: np.array(fd[c].t, dtype=float) for c in {e.channel for e in edges}}
+    for e, s in zip(edges, shifts):
+        if s == 0.0:
+            continue
+        t = times[e.channel]               # with the steps moved so far: none may cross
+        lo = t[e.k - 1] if e.k > 0 else -np.inf
+        hi = t[e.k + 2] if e.k + 2 < t.size else np.inf
+        if not (lo < t[e.k] + s and t[e.k + 1] + s < hi):
+            raise ValueError(f"{e.name}: a shift of {s:+.4f} s passes a neighbouring sample")
+        t[e.k] += s
+        t[e.k + 1] += s
+        ramps[e] = (float(t[e.k]), float(t[e.k + 1]))
+    return _with_ramps(fd, ramps)
+
+
+def _with_ramps(fd: FlightData, ramps: dict[Edge, tuple[float, float]]) -> FlightData:
+    """A copy of ``fd`` whose steps (``ramps``' keys) have their two bracketing samples at
+    the times of the values (start, end) [s]; the other samples as they are."""
     chans = dict(fd.channels)
-    for c in sorted({e.channel for e in edges}):
+    for c in sorted({e.channel for e in ramps}):
         ch = chans[c]
         t = np.array(ch.t, dtype=float)
-        for e, s in zip(edges, shifts):
-            if e.channel != c or s == 0.0:
-                continue
-            lo = t[e.k - 1] if e.k > 0 else -np.inf
-            hi = t[e.k + 2] if e.k + 2 < t.size else np.inf
-            if not (lo < t[e.k] + s and t[e.k + 1] + s < hi):
-                raise ValueError(f"{e.name}: a shift of {s:+.4f} s passes a neighbouring sample")
-            t[e.k] += s
-            t[e.k + 1] += s
+        for e, (a, b) in ramps.items():
+            if e.channel == c:
+                t[e.k], t[e.k + 1] = a, b
         chans[c] = Channel(t, ch.values, ch.unit, ch.source, ch.notes, ch.derived)
     return FlightData(chans, fd.meta, fd.segments)
 
@@ -228,19 +239,12 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float
     if not timed:
         doc["note"] = "the gyros do not sample inside their intervals, or the kinks are too weak"
         return fd, list(edges), doc
-    chans = dict(fd.channels)
-    for c in sorted({e.channel for e in timed}):
-        ch = chans[c]
-        t = np.array(ch.t, dtype=float)
-        for e, new in timed.items():
-            if e.channel == c:
-                t[e.k], t[e.k + 1] = new.t0, new.t1    # the ramp: tau -+ width / 2
-        chans[c] = Channel(t, ch.values, ch.unit, ch.source, ch.notes, ch.derived)
     doc.update(timed=len(timed), time_std_ms={"median": 1e3 * float(np.median(stds)),
                                               "max": 1e3 * float(np.max(stds))},
                shifts_ms={e.name: round(1e3 * (0.5 * (timed[e].t0 + timed[e].t1)
                                                - 0.5 * (e.t0 + e.t1)), 2) for e in timed})
-    return (FlightData(chans, fd.meta, fd.segments), [timed.get(e, e) for e in edges], doc)
+    return (_with_ramps(fd, {e: (new.t0, new.t1) for e, new in timed.items()}),   # tau -+ width / 2
+            [timed.get(e, e) for e in edges], doc)
 
 
 def time_steps(fd: FlightData, max_rate_hz: float) -> tuple[FlightData, list[Edge], dict]:
