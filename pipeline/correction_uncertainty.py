@@ -299,7 +299,10 @@ def input_sampling(fd: FlightData, results: Mapping[str, Any],
     fitted window, time std s_j (timed from the gyros, else h_j / sqrt(12) of its sample
     interval h_j), is moved by +s_j and by -s_j and ``refit(data)`` repeats the fits; the
     central difference gives J's column, C = I (the steps' times independent, in units of
-    their std). More than
+    their std). The part of a timed step's std that comes from its kink model
+    (``Edge.form_std``, systematic: the model's misfit is alike for every step of a
+    surface) is moved for all of a surface's steps at once, one more column per surface;
+    s_j is then the rest. More than
     MAX_STEP_GROUPS steps: that many groups, every step of a group moved at once with a
     random sign (fixed seed), which estimates J J^T without bias (the groups' cross terms
     have mean zero). Returns a JSON-ready document (empty when no input is slow or has no
@@ -314,24 +317,31 @@ def input_sampling(fd: FlightData, results: Mapping[str, Any],
     n_groups = min(m, MAX_STEP_GROUPS)
     signs = np.ones(m) if n_groups == m else np.random.default_rng(0).choice([-1.0, 1.0], m)
     group = np.arange(m) % n_groups
-    std = np.array([e.std for e in edges])
+    form = np.array([e.form_std for e in edges])
+    own = np.sqrt(np.maximum(np.array([e.std for e in edges]) ** 2 - form ** 2, 0.0))
+    shared = sorted({e.channel for e, f in zip(edges, form) if f > 0})
     names = [edges[g].name if n_groups == m else f"step group {g + 1} of {n_groups}"
-             for g in range(n_groups)]
+             for g in range(n_groups)] + [f"{c} steps' shared timing" for c in shared]
 
     def moved(sign: float):
         def refit_j(j: int) -> Mapping[str, Any]:
-            mine = group == j
-            return refit(with_edges_moved(fd, [e for e, k in zip(edges, mine) if k],
-                                          list(sign * signs[mine] * std[mine])))
+            if j < n_groups:                       # steps on their own
+                mine = group == j
+                return refit(with_edges_moved(fd, [e for e, k in zip(edges, mine) if k],
+                                              list(sign * signs[mine] * own[mine])))
+            mine = [k for k, e in enumerate(edges)                # a surface's steps together
+                    if e.channel == shared[j - n_groups] and form[k] > 0]
+            return refit(with_edges_moved(fd, [edges[k] for k in mine], list(sign * form[mine])))
         return refit_j
 
-    Jp, sp = _refit_jacobians(results, names, np.ones(n_groups), moved(1.0),
+    n = len(names)
+    Jp, sp = _refit_jacobians(results, names, np.ones(n), moved(1.0),
                               "the {name} moved later by its std", progress)
-    Jm, sm = _refit_jacobians(results, names, -np.ones(n_groups), moved(-1.0),
+    Jm, sm = _refit_jacobians(results, names, -np.ones(n), moved(-1.0),
                               "the {name} moved earlier by its std", progress)
     status = {key: sp[key] if sp[key] != "propagated" else sm[key] for key in results}
     J = {key: 0.5 * (Jp[key] + Jm[key]) for key in results}
-    _add_consider(results, J, {key: np.eye(n_groups) for key in results}, status, SAMPLING_SOURCE)
+    _add_consider(results, J, {key: np.eye(n) for key in results}, status, SAMPLING_SOURCE)
     chans = sorted({e.channel for e in edges})
     return {"steps": m, "channels": {c: {"steps": sum(e.channel == c for e in edges),
                                          "timed": sum(e.channel == c and e.time_std is not None
@@ -339,12 +349,15 @@ def input_sampling(fd: FlightData, results: Mapping[str, Any],
                                          "time_std_s": float(np.sqrt(np.mean(
                                              [e.std ** 2 for e in edges if e.channel == c])))}
                                      for c in chans},
-            "groups": n_groups, "refits": 2 * n_groups,
+            "groups": n_groups, "shared": shared, "refits": 2 * n,
             "perturbation": ("each step moved by +1 and -1 std of its time (timed from the "
                              "gyros, else h / sqrt(12) of its sample interval h), all fits "
                              "repeated, the central difference; "
                              + ("" if n_groups == m else f"{m} steps in {n_groups} groups moved "
-                                "with random signs; ") + "total std = sqrt(CRB^2 + consider^2)"),
+                                "with random signs; ")
+                             + ("the part of a timed step's std from its kink model moved "
+                                "with the surface's other steps at once; " if shared else "")
+                             + "total std = sqrt(CRB^2 + consider^2)"),
             "methods": status, "seconds": time.perf_counter() - t0}
 
 

@@ -25,8 +25,9 @@ from estimators.models.lateral import lateral_measured_longitudinal
 from estimators.models.longitudinal import longitudinal_measured_lateral
 from pipeline.checks import slow_airspeed
 from pipeline.errors import FsidError
-from pipeline.flightdata import FlightData, SegmentSpec, merge_overlapping
+from pipeline.flightdata import FlightData, SegmentSpec, fit_grid_rate, merge_overlapping
 from pipeline.flow_angles import rebuilt
+from pipeline.input_sampling import step_spans
 from pipeline.input_smoothing import smooth_columns, smoothed_control_inputs, zero_phase
 
 #: derivatives estimated by default for the longitudinal axis
@@ -151,14 +152,19 @@ def thrust_signal(df: pd.DataFrame, ac: AircraftConstants) -> np.ndarray:
 
 #: highest grid rate for estimation; faster channels are low-pass filtered down to it
 MAX_RATE_HZ = 200.0
+#: outputs a control input reaches without dynamics (the control forces on the
+#: accelerometers): left out where the fits' input is a ramp standing in for a step between
+#: two slow samples (:func:`pipeline.input_sampling.step_spans`)
+FEEDTHROUGH_OUTPUTS = ("ax", "ay", "az")
 
 
 def multirate_frame(fd: FlightData, outputs: Sequence[str], others: Sequence[str],
                     rate_hz: float | None = None) -> tuple[pd.DataFrame, float]:
     """Measurements on one uniform grid without inventing samples.
 
-    The grid runs at the fastest output channel's rate (at most MAX_RATE_HZ, or
-    ``rate_hz``). Output channels at that rate are resampled as usual; slower output
+    The grid runs at the fastest output channel's rate, or a whole multiple of it that
+    reaches MIN_GRID_HZ (:func:`pipeline.flightdata.fit_grid_rate`, at most MAX_RATE_HZ),
+    or at ``rate_hz``. Output channels at that rate are resampled as usual; slower output
     channels keep only their native samples and are NaN in between, so the likelihood
     counts every real measurement once and no interpolated one (the estimators give NaN
     samples zero weight): each native sample goes to its nearest grid time, with the
@@ -171,7 +177,7 @@ def multirate_frame(fd: FlightData, outputs: Sequence[str], others: Sequence[str
     Returns (frame, rate).
     """
     rates = {c: fd[c].rate_hz for c in outputs}
-    rate = float(rate_hz or min(MAX_RATE_HZ, max(rates.values())))
+    rate = float(rate_hz or fit_grid_rate(max(rates.values()), MAX_RATE_HZ))
     fast = [c for c in outputs if rates[c] >= 0.9 * rate]
     df = fd.resample(rate, list(fast) + [c for c in others if c in fd])
     t = df["t"].to_numpy()
@@ -184,6 +190,14 @@ def multirate_frame(fd: FlightData, outputs: Sequence[str], others: Sequence[str
         col = np.full(t.size, np.nan)
         col[idx] = np.interp(t[idx], ch.t, ch.values)
         df[c] = col
+    spans = step_spans(fd.meta)
+    blank = [c for c in outputs if c in FEEDTHROUGH_OUTPUTS]
+    if spans and blank:
+        a, b = np.array(spans).T
+        marks = np.zeros(t.size + 1, dtype=np.int64)     # +1 where a span opens, -1 where it closes
+        np.add.at(marks, np.searchsorted(t, a, side="right"), 1)
+        np.add.at(marks, np.searchsorted(t, b, side="left"), -1)
+        df.loc[np.cumsum(marks)[:-1] > 0, blank] = np.nan  # grid times strictly inside a span
     return df, rate
 
 

@@ -98,22 +98,22 @@ def test_the_longitudinal_problem_fits_the_usable_maneuvers():
 
 
 def test_slow_outputs_off_the_grid_keep_every_sample():
-    """A 10 Hz output (a GPS-rate rebuilt angle) whose stamps sit 9 ms off the 50 Hz grid of
-    the fast outputs, with 2 ms jitter: every native sample is one grid sample, valued at
+    """A 10 Hz output (a GPS-rate rebuilt angle) whose stamps sit 4 ms off the 100 Hz grid of
+    the fast outputs, with 1 ms jitter: every native sample is one grid sample, valued at
     its grid time, NaN in between. Keeping only samples within a quarter step of the grid
     (before) dropped nearly all of them."""
     from pipeline.flightdata import Channel, FlightData
     from pipeline.identify import multirate_frame
 
     rng = np.random.default_rng(3)
-    tf = np.arange(0.0, 20.0, 0.02)
-    ts = np.arange(0.2, 19.8, 0.1) + 0.009 + 0.002 * rng.uniform(-1, 1, 196)
+    tf = np.arange(0.0, 20.0, 0.01)
+    ts = np.arange(0.2, 19.8, 0.1) + 0.004 + 0.001 * rng.uniform(-1, 1, 196)
     f = lambda t: np.sin(0.7 * t)                            # noqa: E731
     fd = FlightData(channels={"q": Channel(t=tf, values=np.cos(tf), unit="rad/s"),
                               "alpha": Channel(t=ts, values=f(ts), unit="rad"),
                               "de": Channel(t=tf, values=0.1 * np.sin(tf), unit="rad")})
     df, rate = multirate_frame(fd, ["q", "alpha"], ["de"])
-    assert rate == pytest.approx(50.0, rel=1e-3)
+    assert rate == pytest.approx(100.0, rel=1e-3)
     a = df["alpha"].to_numpy()
     kept = np.isfinite(a)
     assert kept.sum() == ts.size and df["q"].notna().all()
@@ -121,4 +121,59 @@ def test_slow_outputs_off_the_grid_keep_every_sample():
     # 6e-4 here; the first, before the first sample, takes that sample's value), which is
     # within half a step of a sample
     assert np.allclose(a[kept][1:], f(df["t"].to_numpy()[kept][1:]), atol=1e-3)
-    assert np.max(np.abs(np.subtract.outer(df["t"].to_numpy()[kept], ts)).min(axis=1)) <= 0.01 + 1e-9
+    assert np.max(np.abs(np.subtract.outer(df["t"].to_numpy()[kept], ts)).min(axis=1)) <= 0.005 + 1e-9
+
+
+@pytest.mark.parametrize("fastest, grid", [(400.0, 200.0), (200.0, 200.0), (100.0, 100.0),
+                                           (50.0, 100.0), (40.0, 120.0), (25.0, 100.0),
+                                           (4.0, 100.0), (3.0, 102.0)])
+def test_the_grid_runs_at_least_at_100_hz(fastest, grid):
+    """pipeline.flightdata.fit_grid_rate: the fastest output's rate up to MAX_RATE_HZ; a
+    slower one's smallest whole multiple that reaches 100 Hz."""
+    from pipeline.flightdata import fit_grid_rate
+    from pipeline.identify import MAX_RATE_HZ
+
+    assert fit_grid_rate(fastest, MAX_RATE_HZ) == pytest.approx(grid)
+
+
+def test_a_25_hz_imu_is_compared_at_its_own_samples():
+    """Every output at 25 Hz (an ArduPilot IMU): the grid runs at 100 Hz, the inputs at
+    every grid time, each output at its own samples only (every 4th row), NaN in between."""
+    from pipeline.flightdata import Channel, FlightData
+    from pipeline.identify import multirate_frame
+
+    ts, tu = np.arange(0.0, 10.0, 0.04), np.arange(0.0, 10.0, 0.04)
+    fd = FlightData(channels={"q": Channel(t=ts, values=np.cos(ts), unit="rad/s"),
+                              "az": Channel(t=ts, values=np.sin(ts), unit="m/s^2"),
+                              "de": Channel(t=tu, values=0.1 * tu, unit="rad")})
+    df, rate = multirate_frame(fd, ["q", "az"], ["de"])
+    assert rate == pytest.approx(100.0)
+    assert df["de"].notna().all() and np.allclose(df["de"], 0.1 * df["t"])
+    for c in ("q", "az"):
+        rows = np.flatnonzero(df[c].notna().to_numpy())
+        assert np.array_equal(rows, np.arange(0, len(df), 4)), c
+        assert np.allclose(df[c].to_numpy()[rows], np.cos(ts) if c == "q" else np.sin(ts))
+
+
+def test_accelerometers_are_left_out_inside_a_step_ramp():
+    """Where the fits' control input is a ramp standing in for a step between two slow
+    samples (meta["input_steps"] of pipeline.input_sampling.time_steps), the accelerometer
+    samples strictly inside it are NaN (the model's control force is part of the way
+    through the step, the aircraft's was not); the gyros and every other sample stay; a
+    surface's applied delay moves its spans with it."""
+    from pipeline.flightdata import Channel, FlightData
+    from pipeline.identify import multirate_frame
+
+    t = np.arange(0.0, 2.0, 0.01)
+    chans = {"q": Channel(t=t, values=np.cos(t), unit="rad/s"),
+             "az": Channel(t=t, values=np.sin(t), unit="m/s^2"),
+             "de": Channel(t=t, values=np.zeros_like(t), unit="rad")}
+    steps = {"de": [[0.505, 0.515], [1.0, 1.04]]}
+    df, _ = multirate_frame(FlightData(chans, {"input_steps": steps}), ["q", "az"], ["de"])
+    blank = np.flatnonzero(df["az"].isna().to_numpy())
+    assert np.allclose(df["t"].to_numpy()[blank], [0.51, 1.01, 1.02, 1.03])
+    assert df["q"].notna().all()
+    moved = {"input_steps": steps, "input_dynamics": {"de": {"delay_s": 0.02, "lag_s": 0.0}}}
+    df, _ = multirate_frame(FlightData(chans, moved), ["q", "az"], ["de"])
+    blank = np.flatnonzero(df["az"].isna().to_numpy())
+    assert np.allclose(df["t"].to_numpy()[blank], [0.53, 1.03, 1.04, 1.05])
