@@ -26,8 +26,9 @@ ramps:
       alone 2/12, 0/12, up to 16 std); empirical / total std 0.05-0.94: the estimates
       scatter little between seeds but share a bias of up to 3.1 times that scatter
       (Clp 3.1, Clbeta 2.8, Cldr -2.8, Clda -2.5: the kink model's timing error, alike for
-      every flight), which the
-      shared-timing part of the total std covers.
+      every flight), which the shared-timing part of the total std covers. The control-
+      input delays are not estimated from 25 Hz gyros (pipeline.input_dynamics.
+      MIN_RATE_HZ): the same estimates, to the digit, as when they were and were withdrawn.
 Before (session 24): the steps timed only where a gyro sampled inside their interval, the
   fits on the fastest output's grid:
   25 Hz surfaces: 0.71-3.61 (11/12 longitudinal, 10/12 lateral), empirical / total std

@@ -111,8 +111,13 @@ LOWPASS_FRACTION = 0.3
 #: highest rate of the regression grid [Hz]
 MAX_RATE_HZ = 100.0
 #: lowest gyro rate the delays are estimated from [Hz]: a 10-50 ms delay is a fraction of
-#: a sample below it
-MIN_RATE_HZ = 20.0
+#: a sample below it. At 25 Hz (an ArduPilot IMU; default.toml, seeds 1 and 3, ad hoc) the
+#: estimates were the elevator's and aileron's delays at the -20 ms search bound and the
+#: rudder's 43-57 ms with 79-85 ms of lag (truth none), withdrawn or, on a 100 Hz
+#: regression grid, applied, the lateral fit then 2.8 total std off; a step between slow
+#: samples is timed from the kink the surface's motion puts in the gyros instead
+#: (pipeline.input_sampling)
+MIN_RATE_HZ = 40.0
 #: samples kept off each end of a maneuver (the filter's edge transient)
 EDGE_SAMPLES = 10
 #: time before a maneuver the lag starts from (its initial transient settles) [s]
@@ -457,7 +462,9 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
             continue
         if fd[rate].rate_hz < MIN_RATE_HZ:
             doc["not_estimated"][s] = (f"needs the {rate} gyro at >= {MIN_RATE_HZ:g} Hz, the log has "
-                                       f"it at {fd[rate].rate_hz:.3g} Hz (telemetry?): use the onboard log")
+                                       f"it at {fd[rate].rate_hz:.3g} Hz: a servo's 10-50 ms are a "
+                                       "fraction of its sample interval (telemetry? use the onboard "
+                                       "log; else log the IMU faster)")
             continue
         if not spans:
             doc["not_estimated"][s] = "no maneuver on it"

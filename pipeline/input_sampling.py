@@ -214,7 +214,8 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float
     gyro = [c for c in ("p", "q", "r") if c in fd.channels]
     doc: dict = {"steps": len(edges), "timed": 0, "method": (
         "each step's time from the kink it puts in the gyro rates (a cubic per axis plus a "
-        "kink, least squares over trial times; std from Delta chi^2 = 1)")}
+        "kink and its higher powers, the number of powers by BIC, least squares over trial "
+        "times; std from Delta chi^2 = 1 and the other number's time)")}
     if not edges or len(gyro) < 3:
         doc["note"] = "no gyro rates to time the steps by" if edges else "no step"
         return fd, list(edges), doc
@@ -272,7 +273,7 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float
             timed[e] = Edge(e.channel, e.k, a0, a1, e.size, std, form)
         stds.append(std)
     if not timed:
-        doc["note"] = "the gyros do not sample inside their intervals, or the kinks are too weak"
+        doc["note"] = "too few gyro samples around them, or the kinks are too weak"
         return fd, list(edges), doc
     doc.update(timed=len(timed), time_std_ms={"median": 1e3 * float(np.median(stds)),
                                               "max": 1e3 * float(np.max(stds))},
