@@ -151,6 +151,10 @@ REFINE_SIGNIFICANCE = 10.0
 REFINE_GRID = 81
 #: gyro samples either side of a step at least (gyros as slow as the inputs: none inside)
 REFINE_MIN_SAMPLES = 6.5
+#: ... within this many seconds either side: the cubic and the kink's powers stand in for
+#: the aircraft's motion only over a fraction of its periods (a 4 Hz telemetry gyro would
+#: otherwise be fitted over 3 s)
+REFINE_MAX_HALF_S = 0.3
 #: powers of (t - tau)+ after the kink tried; the one with the smaller BIC times the step
 KINK_ORDERS = (2, 3)
 
@@ -187,7 +191,7 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float
     rudder moved together) share a time. For each such interval, the gyro samples within
     REFINE_WINDOW intervals either side (at least REFINE_MIN_SAMPLES gyro samples: gyros as
     slow as the inputs sample nothing inside the interval, and the kink's time shows in
-    the samples after it) are fitted per axis by a cubic in time plus a kink at a trial
+    the samples after it; at most REFINE_MAX_HALF_S) are fitted per axis by a cubic in time plus a kink at a trial
     time tau and its higher powers (KINK_ORDERS; weighted by each gyro's noise std, second
     differences over the log), tau on REFINE_GRID points over the interval. The order with
     the smaller BIC times the step; its std comes from the weighted residual sum of
@@ -233,7 +237,7 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float
     stds = []
     for (t0, t1), grp in groups.items():
         h = t1 - t0
-        half = max(REFINE_WINDOW * h, REFINE_MIN_SAMPLES * dt_gyro)
+        half = min(max(REFINE_WINDOW * h, REFINE_MIN_SAMPLES * dt_gyro), REFINE_MAX_HALF_S)
         sel = (tg >= t0 - half) & (tg <= t1 + half)
         if sel.sum() < 12:
             continue                                   # too few gyro samples around the step
