@@ -40,8 +40,10 @@ The result is an :class:`~estimators.EstimationResult`: ``predicted`` are the a-
 ``R`` is the sample covariance of the innovations (the measurement-noise covariance the
 filter used is ``extra["measurement_noise"]``); ``cov`` the final parameter block of P.
 ``extra`` holds ``trajectory``/``trajectory_std`` (per segment, DataFrames on t),
-``states`` (a-posteriori states), ``posterior_outputs``, ``gain`` (last Kalman gain) and
-``process_noise`` (F).
+``states`` (a-posteriori states), ``posterior_outputs``, ``gain`` (last Kalman gain),
+``process_noise`` (F) and ``cluster``: the maneuvers' scatter of the last pass
+(:mod:`estimators.validation.cluster`, each segment a cluster, from what it added to the
+parameters' information; :func:`_segment_scatter`), None with one segment.
 """
 from __future__ import annotations
 
@@ -172,6 +174,39 @@ def measurement_noise_matrix(model: Model, spec: Any, segments: Sequence[Segment
 
 
 # -- the augmented model ----------------------------------------------------------------------
+def _information(P: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(P^-1, P^-1 theta) of a parameter estimate theta (m,) with covariance P (m, m): the
+    information form, in which a segment's contribution to a filter pass adds up."""
+    Pinv = np.linalg.pinv(0.5 * (P + P.T))
+    return Pinv, Pinv @ theta
+
+
+def _segment_scatter(info: list[tuple[np.ndarray, np.ndarray]], P: np.ndarray,
+                     theta: np.ndarray, names: Sequence[str]):
+    """The maneuvers' scatter of one filter pass (:mod:`estimators.validation.cluster`,
+    each segment a cluster), or None with fewer than 2 segments or a failed inversion.
+
+    A segment j adds A_j = P_after^-1 - P_before^-1 to the parameters' information and
+    b_j = P_after^-1 theta_after - P_before^-1 theta_before = A_j theta_j to its weighted
+    estimate (exact for a linear model with Gaussian noise, each segment's states started
+    anew: theta_j is what the segment alone says); its part of the gradient at the pass's
+    estimate theta is s_j = b_j - A_j theta, and M = P^-1 (the initial covariance's prior
+    included). When the segments disagree more than their information allows, the
+    cluster covariance grows beyond P, as filter error's does (pipeline.validate.
+    widen_by_scatter then reports it as the std)."""
+    if len(info) < 2:
+        return None
+    from estimators.validation.cluster import cluster_covariance
+
+    try:
+        M = np.linalg.pinv(0.5 * (P + P.T))
+        return cluster_covariance([0.5 * (A + A.T) for A, _ in info],
+                                  [b - A @ theta for A, b in info], 0.5 * (M + M.T),
+                                  names=list(names))
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+
+
 class AugmentedModel:
     """Batched evaluation of the parameter-augmented system for one segment.
 
@@ -871,7 +906,9 @@ class _ParameterFilter:
         lo, hi = lay.lower[fi], lay.upper[fi]
         hits = np.zeros(m, dtype=int)
         nll, n_obs = 0.0, 0                 # innovations' negative log-likelihood (+ const)
+        info = []                           # per segment: what it adds to P_theta^-1 (and x P^-1 theta)
         for k, seg in enumerate(segments):
+            before = _information(Pth, theta)
             aug = AugmentedModel(model, lay, seg, k, self.integrator, self.rtol, self.atol, self.inputs)
             x0 = lay.values[lay.x0idx[k]]
             s = np.concatenate([x0, theta])
@@ -893,6 +930,8 @@ class _ParameterFilter:
             K = K if K_seg is None else K_seg
             theta = s[n:].copy()
             Pth = P[n:, n:].copy()
+            after = _information(Pth, theta)
+            info.append((after[0] - before[0], after[1] - before[1]))
             idx = pd.Index(seg.t, name="t")
             out["pred"].append(Ypred)
             out["innov"].append(seg.z - Ypred)
@@ -919,6 +958,7 @@ class _ParameterFilter:
                    "states": out["states"], "posterior_outputs": out["post"], "gain": K,
                    "measurement_noise": R, "process_noise": F, "residuals_are": "innovations",
                    "innovation_nll": nll, "innovation_count": n_obs,
+                   "cluster": _segment_scatter(info, Pth, theta, lay.free_names),
                    "bound_hits": {lay.free_names[j]: int(hits[j]) for j in np.flatnonzero(hits)}}), match
 
     def _settings(self) -> dict[str, Any]:

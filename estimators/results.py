@@ -16,7 +16,8 @@ CORR_FLAG = 0.9
 #: column label of ``std`` per ``EstimationResult.std_method`` (summary, report.md)
 STD_LABELS = {"crb": "std (CRB)", "filter-covariance": "std (filter P)",
               "propagated": "std (propagated)", "morelli-klein": "std (M-K)",
-              "sandwich": "std (sandwich)", "crb|scatter": "std (CRB or scatter)"}
+              "sandwich": "std (sandwich)", "crb|scatter": "std (CRB or scatter)",
+              "filter-covariance|scatter": "std (filter P or scatter)"}
 
 
 def std_label(method: str) -> str:

@@ -205,8 +205,9 @@ def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
 SCATTER_CONFIDENCE = 0.95
 #: fewest maneuvers whose scatter may widen a bound (two degrees of freedom)
 SCATTER_MIN_SEGMENTS = 3
-#: ``std_method`` of a result whose bounds the maneuver scatter widened
-SCATTER_STD_METHOD = "crb|scatter"
+#: ``std_method`` of a result whose bounds the maneuver scatter widened, by the method of
+#: the bounds it widened (the Cramér-Rao bound; a Kalman filter's parameter covariance)
+SCATTER_STD_METHOD = {"crb": "crb|scatter", "filter-covariance": "filter-covariance|scatter"}
 
 
 def scatter_threshold(n_segments: int) -> float:
@@ -226,14 +227,17 @@ def widen_by_scatter(result: EstimationResult, unc: dict[str, Any] | None) -> di
     columns (correlations kept; the Cramér-Rao covariance stays in ``extra["crb_cov"]``,
     ``std_method`` SCATTER_STD_METHOD) and ``unc["widened"]`` lists them. Returns
     {parameter: ratio} (empty: nothing widened; only results whose std is the Cramér-Rao
-    bound).
+    bound or, for the EKF and UKF, the filter's parameter covariance, whose scatter the
+    filter keeps from each segment's information: estimators.kalman. Their lateral fit
+    on multiaxis_multisine_turbulence, seed 31: the EKF's maneuvers scatter 8.3x its P on
+    Clp, 6.9x on Clda, which were 28 and 20 P-std off the truth).
 
     The bound assumes the model exact; flight data scatter more from maneuver to maneuver
     (Jategaonkar: "a fudge factor of 5-10"). Filter error on multiaxis_multisine_turbulence,
     seeds 31-38 (benchmarks/multiaxis_seeds.py): empirical / Cramér-Rao std up to 3.5
     (Cmalphadot), every derivative within 3 Cramér-Rao std on 3/8 seeds, 6/8 with the larger
     of bound and scatter."""
-    if result.std_method != "crb" or not unc or not unc.get("cluster"):
+    if result.std_method not in SCATTER_STD_METHOD or not unc or not unc.get("cluster"):
         return {}
     n_seg = int(unc["cluster"]["n_segments"])
     if n_seg < SCATTER_MIN_SEGMENTS:
@@ -248,7 +252,7 @@ def widen_by_scatter(result: EstimationResult, unc: dict[str, Any] | None) -> di
     D = np.ones(len(names))
     for n, r in wide.items():
         D[names.index(n)] = r
-    result.replace_cov(D[:, None] * result.cov * D[None, :], SCATTER_STD_METHOD)
+    result.replace_cov(D[:, None] * result.cov * D[None, :], SCATTER_STD_METHOD[result.std_method])
     unc["widened"] = {"threshold": t, "confidence": SCATTER_CONFIDENCE, "parameters": wide}
     return wide
 

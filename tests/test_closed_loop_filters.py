@@ -126,16 +126,18 @@ def test_maneuver_scatter_flags_output_error_in_turbulence(turbulence):
     """Without the truth and without a second method: output error's two maneuvers
     disagree far beyond its Cramér-Rao bounds (estimators.validation.cluster; seed of the
     scenario: CLalpha 6.8x, CL0 6.2x, CLq 5.3x, CLde 4.0x, Cmq 3.0x) and its verdict says
-    so; filter error's agree within theirs (largest 2.6x, CDalpha). What both maneuvers
-    share (output error's Cm0, Cmde, 13-18 std off the truth) no scatter can show: that
-    takes the methods' cross-check."""
+    so; filter error's agree within theirs (largest 2.6x, CDalpha), and so do the EKF's
+    (from the information each segment adds to its parameter covariance,
+    estimators.kalman). What both maneuvers share (output error's Cm0, Cmde, 13-18 std off
+    the truth) no scatter can show: that takes the methods' cross-check."""
     oem = turbulence["methods"]["oem"]["validation"]
     fem = turbulence["methods"]["fem"]["validation"]
     assert oem["uncertainty"]["cluster"]["n_segments"] == 2
     assert {"CLalpha", "CL0", "CLq"} <= set(oem["uncertainty"]["cluster"]["flagged"])
     assert any(n.startswith("the 2 maneuvers scatter more than 3x") for n in oem["verdict"]["notes"])
     assert not fem["uncertainty"]["cluster"]["flagged"], fem["uncertainty"]["cluster"]
-    assert turbulence["methods"]["ekf"]["validation"]["uncertainty"] is None
+    ekf = turbulence["methods"]["ekf"]["validation"]["uncertainty"]["cluster"]
+    assert ekf["n_segments"] == 2 and not ekf["flagged"], ekf
 
 
 def test_filters_on_a_log_take_the_process_noise_from_filter_error(turbulence, tmp_path, capsys):
