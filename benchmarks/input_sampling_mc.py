@@ -14,7 +14,7 @@ std both ways. Honest: total ~1 (95 % band about +-1.4/sqrt(n) for n seeds).
 
 Measured 2026-11-26, seeds 1-12 (about 60 s on 2 cores each), the steps timed from the
 gyros with the kink's order chosen by BIC, each surface's steps also moved together by the
-part of their std from the kink model, the fits on a grid of at least 100 Hz
+part of their std from the kink model, the fits on a grid of at least 90 Hz (100 Hz here)
 (pipeline.flightdata.fit_grid_rate) with the accelerometers left out inside the steps'
 ramps:
   25 Hz surfaces: worst |error| / total std per seed 0.67-3.54 (within 3 on 11/12

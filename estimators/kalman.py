@@ -173,7 +173,7 @@ def measurement_noise_matrix(model: Model, spec: Any, segments: Sequence[Segment
     return np.diag(sd ** 2)
 
 
-# -- the augmented model ----------------------------------------------------------------------
+# -- a pass's segments as clusters ------------------------------------------------------------
 def _information(P: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(P^-1, P^-1 theta) of a parameter estimate theta (m,) with covariance P (m, m): the
     information form, in which a segment's contribution to a filter pass adds up."""
@@ -207,6 +207,7 @@ def _segment_scatter(info: list[tuple[np.ndarray, np.ndarray]], P: np.ndarray,
         return None
 
 
+# -- the augmented model ----------------------------------------------------------------------
 class AugmentedModel:
     """Batched evaluation of the parameter-augmented system for one segment.
 

@@ -174,7 +174,8 @@ def multirate_frame(fd: FlightData, outputs: Sequence[str], others: Sequence[str
     jitter - are all kept: when only those within a quarter step were (before), a
     MAVLink telemetry log at 3.8-4.3 Hz kept 2-8 of its 26-41 pitch-rate samples per
     maneuver. ``others`` (inputs, air density, ...) are interpolated to every grid time.
-    Returns (frame, rate).
+    The accelerometers (FEEDTHROUGH_OUTPUTS) are NaN at grid times inside a control-input
+    step's span (:func:`pipeline.input_sampling.step_spans`). Returns (frame, rate).
     """
     rates = {c: fd[c].rate_hz for c in outputs}
     rate = float(rate_hz or fit_grid_rate(max(rates.values()), MAX_RATE_HZ))
