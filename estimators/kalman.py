@@ -908,8 +908,8 @@ class _ParameterFilter:
         hits = np.zeros(m, dtype=int)
         nll, n_obs = 0.0, 0                 # innovations' negative log-likelihood (+ const)
         info = []                           # per segment: what it adds to P_theta^-1 (and x P^-1 theta)
+        before = _information(Pth, theta)
         for k, seg in enumerate(segments):
-            before = _information(Pth, theta)
             aug = AugmentedModel(model, lay, seg, k, self.integrator, self.rtol, self.atol, self.inputs)
             x0 = lay.values[lay.x0idx[k]]
             s = np.concatenate([x0, theta])
@@ -933,6 +933,7 @@ class _ParameterFilter:
             Pth = P[n:, n:].copy()
             after = _information(Pth, theta)
             info.append((after[0] - before[0], after[1] - before[1]))
+            before = after                  # the next segment starts where this one ended
             idx = pd.Index(seg.t, name="t")
             out["pred"].append(Ypred)
             out["innov"].append(seg.z - Ypred)
