@@ -167,20 +167,19 @@ def _kink_profile(tw: np.ndarray, W: np.ndarray, taus: np.ndarray, order: int = 
     at tau) and its ``order`` - 1 higher powers c2 (t - tau)+^2, ... (the response's
     curvature after it: a roll mode's 0.1 s time constant bends it within the window), and
     the kink's largest |c1| / std over the axes. Shapes (len(taus),)."""
-    x = (tw - tw.mean()) / max(np.ptp(tw), 1e-9)
-    base = np.vander(x, 4, increasing=True)                          # (n, 4)
-    rss = np.empty(taus.size)
-    sig = np.empty(taus.size)
-    for i, tau in enumerate(taus):
-        k = np.maximum(tw - tau, 0.0) / max(np.ptp(tw), 1e-9)
-        A = np.column_stack([base] + [k ** j for j in range(1, order + 1)])   # one design for every axis
-        coef, *_ = np.linalg.lstsq(A, W, rcond=None)
-        r = W - A @ coef
-        rss[i] = float(np.sum(r * r))
-        dof = max(W.shape[0] - A.shape[1], 1)
-        s2 = np.sum(r * r, axis=0) / dof                              # per axis, in noise units^2
-        cov_c = np.linalg.pinv(A.T @ A)[4, 4]
-        sig[i] = float(np.max(np.abs(coef[4]) / np.sqrt(np.maximum(s2, 1.0) * cov_c)))
+    span = max(np.ptp(tw), 1e-9)
+    x = (tw - tw.mean()) / span
+    base = np.broadcast_to(np.vander(x, 4, increasing=True), (taus.size, tw.size, 4))
+    k = np.maximum(tw[None, :] - taus[:, None], 0.0) / span          # (T, n)
+    # one design per trial time, the same for every axis: (T, n, 4 + order)
+    A = np.concatenate([base, np.stack([k ** j for j in range(1, order + 1)], axis=-1)], axis=-1)
+    Ap = np.linalg.pinv(A)                                           # (T, 4 + order, n)
+    coef = Ap @ W                                                    # (T, 4 + order, 3)
+    r = W[None] - A @ coef
+    rss = np.sum(r * r, axis=(1, 2))
+    s2 = np.sum(r * r, axis=1) / max(W.shape[0] - A.shape[2], 1)     # (T, 3), in noise units^2
+    cov_c = np.sum(Ap[:, 4, :] ** 2, axis=1)                         # (A^T A)^+ [4, 4]
+    sig = np.max(np.abs(coef[:, 4, :]) / np.sqrt(np.maximum(s2, 1.0) * cov_c[:, None]), axis=1)
     return rss, sig
 
 
