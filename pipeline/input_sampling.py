@@ -153,8 +153,10 @@ REFINE_GRID = 81
 REFINE_MIN_SAMPLES = 6.5
 #: ... within this many seconds either side: the cubic and the kink's powers stand in for
 #: the aircraft's motion only over a fraction of its periods (a 4 Hz telemetry gyro would
-#: otherwise be fitted over 3 s)
-REFINE_MAX_HALF_S = 0.3
+#: otherwise be fitted over 3 s). default.toml with 10 Hz surfaces, seeds 1-4 against
+#: JSBSim (ad hoc): with 0.3 s (3 intervals) the aileron's steps 4.5 ms rms (25 Hz gyros:
+#: 5.0), with 0.25 s 1.9 (2.2); the 25 Hz surfaces' as with 0.3
+REFINE_MAX_HALF_S = 0.25
 #: powers of (t - tau)+ after the kink tried; the one with the smaller BIC times the step
 KINK_ORDERS = (2, 3)
 
