@@ -29,6 +29,10 @@ ramps:
       every flight), which the shared-timing part of the total std covers. The control-
       input delays are not estimated from 25 Hz gyros (pipeline.input_dynamics.
       MIN_RATE_HZ): the same estimates, to the digit, as when they were and were withdrawn.
+  --rates ardupilot --surfaces-hz 10 (ArduPilot's slowest RCOU beside the 25 Hz IMU): worst
+      per seed 0.89-3.48 longitudinal, 0.92-3.20 lateral (11/12 and 11/12 within 3, seed 11
+      the one over on both; the CRB alone 1/12, 0/12, up to 21 std); empirical / total std
+      0.20-1.70.
 Before (session 24): the steps timed only where a gyro sampled inside their interval, the
   fits on the fastest output's grid:
   25 Hz surfaces: 0.71-3.61 (11/12 longitudinal, 10/12 lateral), empirical / total std
