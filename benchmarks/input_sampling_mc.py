@@ -14,25 +14,25 @@ std both ways. Honest: total ~1 (95 % band about +-1.4/sqrt(n) for n seeds).
 
 Measured 2026-11-26, seeds 1-12 (about 60 s on 2 cores each), the steps timed from the
 gyros with the kink's order chosen by BIC, each surface's steps also moved together by the
-part of their std from the kink model, the fits on a grid of at least 90 Hz (100 Hz here)
-(pipeline.flightdata.fit_grid_rate) with the accelerometers left out inside the steps'
+part of their std from the kink model, the fits on a grid of at least 90 Hz (100 Hz here,
+pipeline.flightdata.fit_grid_rate) with the accelerometers left out inside the steps'
 ramps:
-  25 Hz surfaces: worst |error| / total std per seed 0.67-3.54 (within 3 on 11/12
-      longitudinal, 11/12 lateral - seed 6's lateral 3.54, the seed the floor below also
-      misses), 2.1-10.4 with the CRB alone (1/12, 0/12); empirical / total std
-      0.14-1.99 (CYbeta 1.99), CRB alone 0.68-5.32.
+  25 Hz surfaces: worst |error| / total std per seed 0.67-3.59 (within 3 on 11/12
+      longitudinal, 11/12 lateral - seed 6's lateral 3.59, the seed the floor below also
+      misses), 2.1-10.4 with the CRB alone (2/12, 0/12); empirical / total std
+      0.14-2.01, CRB alone 0.68-5.07.
   --rates ardupilot (IMU 25 Hz, steps timed from the gyro samples after them): worst per
-      seed 0.55-2.45 longitudinal, 0.59-2.79 lateral (12/12 and 12/12 within 3; the CRB
-      alone 2/12, 0/12, up to 16 std); empirical / total std 0.05-0.94: the estimates
-      scatter little between seeds but share a bias of up to 3.1 times that scatter
-      (Clp 3.1, Clbeta 2.8, Cldr -2.8, Clda -2.5: the kink model's timing error, alike for
+      seed 0.60-2.23 longitudinal, 0.59-2.69 lateral (12/12 and 12/12 within 3; the CRB
+      alone 2/12, 0/12, up to 16 std); empirical / total std 0.04-0.92: the estimates
+      scatter little between seeds but share a bias of up to 3.3 times that scatter
+      (Clp 3.3, Clbeta 3.0, Cldr -3.0, Clda -2.7: the kink model's timing error, alike for
       every flight), which the shared-timing part of the total std covers. The control-
       input delays are not estimated from 25 Hz gyros (pipeline.input_dynamics.
-      MIN_RATE_HZ): the same estimates, to the digit, as when they were and were withdrawn.
+      MIN_RATE_HZ).
   --rates ardupilot --surfaces-hz 10 (ArduPilot's slowest RCOU beside the 25 Hz IMU): worst
       per seed 0.89-3.48 longitudinal, 0.92-3.20 lateral (11/12 and 11/12 within 3, seed 11
       the one over on both; the CRB alone 1/12, 0/12, up to 21 std); empirical / total std
-      0.20-1.70.
+      0.17-1.71.
 Before (session 24): the steps timed only where a gyro sampled inside their interval, the
   fits on the fastest output's grid:
   25 Hz surfaces: 0.71-3.61 (11/12 longitudinal, 10/12 lateral), empirical / total std

@@ -65,6 +65,33 @@ def test_a_moved_step_moves_the_interpolated_ramp_and_leaves_the_log_alone():
     assert isinstance(e, Edge) and "de step at 1.500 s" == e.name
 
 
+@pytest.mark.parametrize("gyro_hz, timed", [(100.0, True), (25.0, True), (4.0, False)])
+def test_a_kink_is_timed_from_gyros_near_the_step_only(gyro_hz, timed):
+    """A 10 Hz elevator step at 2.063 s and the pitch rate's kink there (its response to the
+    step of pitching moment), sampled at ``gyro_hz`` with 0.1 deg/s noise: timed within
+    3 std (100 and 25 Hz: none of the 25 Hz samples falls inside the step's interval),
+    but not from 4 Hz telemetry gyros, whose samples within REFINE_MAX_HALF_S of the step
+    are too few for the kink's model (it would have been fitted over 3 s)."""
+    from pipeline.input_sampling import refine_steps
+
+    step, rng = 2.063, np.random.default_rng(7)
+    ts = np.arange(0.0, 4.0, 0.1)
+    tg = np.arange(0.0, 4.0, 1.0 / gyro_hz)
+    q = 0.05 * np.sin(0.8 * tg) + 0.6 * np.maximum(tg - step, 0.0) * np.exp(-2.0 * np.maximum(tg - step, 0.0))
+    gyro = {c: Channel(tg, v + np.radians(0.1) * rng.standard_normal(tg.size), "rad/s")
+            for c, v in (("p", 0.0 * tg), ("q", q), ("r", 0.0 * tg))}
+    fd = FlightData({"de": Channel(ts, np.where(ts > step, np.radians(3.0), 0.0), "rad"), **gyro}, {})
+    edges = step_edges(fd, [(0.0, 4.0)], grid_step_s=0.01)
+    assert [(e.channel, round(e.t0, 2), round(e.t1, 2)) for e in edges] == [("de", 2.0, 2.1)]
+    _, out, doc = refine_steps(fd, edges, 0.01)
+    assert (doc["timed"] == 1) is timed, doc
+    if timed:
+        e = out[0]
+        assert abs(0.5 * (e.t0 + e.t1) - step) < 3.0 * e.time_std < 0.1 / np.sqrt(12.0)
+    else:
+        assert out[0].time_std is None and "too few gyro samples" in doc["note"]
+
+
 def _slow_flight(tmp_path_factory, rates: dict[str, float], name: str):
     """default.toml with the sensors of ``rates`` logged at those rates [Hz] (seed 1): the log
     folder and the truth's step times (the middle of each 10 ms input ramp of the
@@ -104,8 +131,8 @@ def test_the_steps_are_timed_from_the_gyros(flight, min_share, request):
     """The timed steps against JSBSim's in units of their std. 100 Hz gyros (seeds 1-6, ad
     hoc, before the kink's order was chosen by BIC: rms 1.18 de, 1.13 da, 0.98 dr, largest
     3.7; errors rms 2.7, 0.5, 0.4 ms in 40 ms intervals); 25 Hz gyros, timed from the samples
-    after the step (seeds 1-4, ad hoc: elevator 34 of 40 timed, 2.9 ms rms, error / std rms
-    0.91; aileron 48 of 48, 2.3 ms, 1.23)."""
+    after the step (seeds 1-4, ad hoc: elevator 40 of 40 timed, 3.4 ms rms, error / std rms
+    0.90; aileron 48 of 48, 1.7 ms, 0.48)."""
     from pipeline.readers import read_log
     from pipeline.identify import MAX_RATE_HZ
     from pipeline.input_sampling import time_steps
