@@ -186,12 +186,12 @@ def test_the_steps_times_reach_the_estimates(slow_surfaces):
 def test_a_25_hz_log_throughout(tmp_path):
     """IMU, attitude and surfaces at 25 Hz, air data 10, GPS 5 (an ArduPilot log's usual
     rates): no gyro sample falls inside a step's 40 ms, but the kink shows in the samples
-    after it, so the steps are timed all the same (seed 1: 26 of 28), and the fits run on
+    after it, so the steps are timed all the same (seed 1: 27 of 28), and the fits run on
     a 100 Hz grid (pipeline.flightdata.fit_grid_rate) with each output at its own 25 Hz
     samples, so that a timed step is a 10 ms ramp where it was. The control inputs' delays
     and lags are not estimated from 25 Hz gyros (pipeline.input_dynamics.MIN_RATE_HZ: the
     rudder's had come out at 57 ms and 79 ms, truth none, and were withdrawn).
-    Seed 1: every derivative within 1.4 total std (the Cramér-Rao bound alone: Clda 10
+    Seed 1: every derivative within 0.7 total std (the Cramér-Rao bound alone: Clda 9.3
     std off). Before (the steps untimed, each carried with h / sqrt(12), on the 25 Hz grid):
     within 1.9; over seeds 1-12 (benchmarks/input_sampling_mc.py --rates ardupilot) the
     lateral fit was within 3 total std on 7 (CYbeta 12 % high on the 5 others), now on 12."""
