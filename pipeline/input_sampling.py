@@ -34,13 +34,16 @@ interpolation puts a step within one grid step of where it was) or than
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from estimators.model import Segment
 from pipeline.flightdata import CONTROL_INPUTS, Channel, FlightData, fit_grid_rate
 
+#: where in its interval the proof of match puts an untimed step (:func:`timing_variants`)
+TIMING_FRACTIONS = (0.0, 0.25, 0.5, 0.75, 1.0)
 #: a step's change is at least this many times its neighbouring changes ...
 STEP_RATIO = 4.0
 #: ... and at least this large [rad] (0.2 deg: below any designed maneuver's steps)
@@ -297,8 +300,9 @@ def time_steps(fd: FlightData, max_rate_hz: float) -> tuple[FlightData, list[Edg
     (:func:`pipeline.flightdata.fit_grid_rate` of the gyros' rate, at most ``max_rate_hz``)
     found (:func:`step_edges`) and timed from the rates
     (:func:`refine_steps`); every step's span as it now is goes to the data's
-    ``meta["input_steps"]`` (channel -> [[start, end], ...] s) for :func:`step_spans`.
-    Returns (flight data, its steps - what
+    ``meta["input_steps"]`` (channel -> [[start, end], ...] s) for :func:`step_spans`, and
+    those of the steps left untimed (the whole interval between two slow samples) to
+    ``meta["untimed_steps"]`` for :func:`untimed_spans`. Returns (flight data, its steps - what
     :func:`pipeline.correction_uncertainty.input_sampling` carries -, JSON-ready document;
     {} when no input is slower than the grid)."""
     gyro = [fd[c].rate_hz for c in ("p", "q", "r") if c in fd.channels]
@@ -309,11 +313,15 @@ def time_steps(fd: FlightData, max_rate_hz: float) -> tuple[FlightData, list[Edg
     edges = step_edges(fd, spans, grid)
     if not edges:
         return fd, [], {}
-    out, edges, doc = refine_steps(fd, edges, grid)
+    out, refined, doc = refine_steps(fd, edges, grid)
     steps: dict[str, list[list[float]]] = {}
-    for e in edges:
-        steps.setdefault(e.channel, []).append([float(e.t0), float(e.t1)])
-    return FlightData(out.channels, {**out.meta, "input_steps": steps}, out.segments), edges, doc
+    untimed: dict[str, list[list[float]]] = {}
+    for e, new in zip(edges, refined):
+        steps.setdefault(e.channel, []).append([float(new.t0), float(new.t1)])
+        if new is e:
+            untimed.setdefault(e.channel, []).append([float(e.t0), float(e.t1)])
+    meta = {**out.meta, "input_steps": steps, "untimed_steps": untimed}
+    return FlightData(out.channels, meta, out.segments), refined, doc
 
 
 def step_spans(meta: dict) -> list[tuple[float, float]]:
@@ -325,9 +333,56 @@ def step_spans(meta: dict) -> list[tuple[float, float]]:
     an output the input reaches without dynamics (the accelerometers: the control forces)
     is then off by up to the step's whole force, and :func:`pipeline.identify.multirate_frame`
     leaves those samples out (FEEDTHROUGH_OUTPUTS)."""
+    return sorted(s for spans in _spans_by_input(meta, "input_steps").values() for s in spans)
+
+
+def untimed_spans(meta: dict) -> dict[str, list[tuple[float, float]]]:
+    """Per control input, the spans [s] of its steps that :func:`refine_steps` could not
+    time (``meta["untimed_steps"]`` of :func:`time_steps`: the whole interval between the
+    two slow samples, where the step happened at an unknown time), moved by the input's
+    delay as :func:`step_spans` moves them. The proof of match predicts a held-out
+    maneuver with such steps at either end of their intervals as well
+    (:func:`timing_variants`)."""
+    return _spans_by_input(meta, "untimed_steps")
+
+
+def _spans_by_input(meta: dict, key: str) -> dict[str, list[tuple[float, float]]]:
+    """``meta[key]`` (channel -> [[start, end], ...] s) as sorted spans per channel, each
+    moved by its surface's delay where input dynamics are applied (``meta["input_dynamics"]``:
+    the models see u(t - d))."""
     delays = {c: float(v.get("delay_s", 0.0)) for c, v in (meta.get("input_dynamics") or {}).items()}
-    return sorted((a + delays.get(c, 0.0), b + delays.get(c, 0.0))
-                  for c, spans in (meta.get("input_steps") or {}).items() for a, b in spans)
+    return {c: sorted((a + delays.get(c, 0.0), b + delays.get(c, 0.0)) for a, b in spans)
+            for c, spans in (meta.get(key) or {}).items() if spans}
+
+
+def timing_variants(seg: Segment, inputs: Sequence[str],
+                    spans: Mapping[str, Sequence[tuple[float, float]]],
+                    fractions: Sequence[float] = TIMING_FRACTIONS) -> list[Segment]:
+    """Copies of ``seg`` (inputs ``inputs``, the model's order) with every untimed step of
+    ``spans`` (input -> [(start, end), ...] s, :func:`untimed_spans`) at each of
+    ``fractions`` of its interval (0: at its start, 1: at its end): the grid samples
+    inside a span, where the fits' input is a ramp from the sample before to the sample
+    after, take the value before the step's time and the value after it from there on.
+    [] when no span holds a grid sample of ``seg`` (every step timed, or none in the
+    segment). A first-order lag applied to an input (input dynamics) is not undone: the
+    copies are then approximate."""
+    moves = []                                  # (column, interior samples, before, after, start, end)
+    t = seg.t
+    for j, c in enumerate(inputs):
+        for a, b in spans.get(c, ()):
+            inside = np.flatnonzero((t > a) & (t < b))
+            if not inside.size or inside[0] == 0 or inside[-1] == t.size - 1:
+                continue        # a step at the segment's edge: its before or after is not in it
+            moves.append((j, inside, seg.u[inside[0] - 1, j], seg.u[inside[-1] + 1, j], a, b))
+    if not moves:
+        return []
+    out = []
+    for f in fractions:
+        u = seg.u.copy()
+        for j, inside, before, after, a, b in moves:
+            u[inside, j] = np.where(t[inside] < a + f * (b - a), before, after)
+        out.append(replace(seg, u=u))
+    return out
 
 
 def summary(doc: dict) -> str:

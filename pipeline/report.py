@@ -52,6 +52,7 @@ import numpy as np
 from estimators import EstimationResult
 from estimators.results import std_label
 from pipeline.paths import atomic_write_text
+from pipeline.input_sampling import TIMING_FRACTIONS
 from pipeline.validate import display_unit, is_segment_parameter, json_ready, num, verdict
 
 SCHEMA = "fsid-report/1"
@@ -239,6 +240,23 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
         L += [f"Note: {n}." for n in pm.get("notes") or ()] + ([""] if pm.get("notes") else [])
         for s in pm["segments"]:
             L += [f"Held-out segment **{s['name']}**: {'PASS' if s['all_pass'] else 'FAIL'}", ""]
+            timing = s.get("input_timing") or {}
+            if timing.get("envelope"):
+                wide = {c: d for c, d in s["channels"].items()
+                        if d.get("pass") is not None and (d.get("envelope_max_width_display") or 0) > 0}
+                n = timing["untimed_steps"]
+                L += [f"{n} control-input step{'s' if n != 1 else ''} between two slow samples "
+                      "could not be timed: the model also predicted the segment with each at "
+                      f"{', '.join(f'{f:g}' for f in TIMING_FRACTIONS)} of its interval, and a "
+                      "sample's error is its distance from the range of those predictions and "
+                      "the ramp's. Without that, the largest errors were: "
+                      + ", ".join(f"{c} {_g(d.get('nominal_max_abs_error_display'))} {d['unit']} "
+                                  f"(range up to {_g(d.get('envelope_max_width_display'))})"
+                                  for c, d in wide.items()) + ".", ""]
+            elif timing:
+                L += [f"{timing['untimed_steps']} untimed control-input step(s): the "
+                      "predictions with them moved failed (see the notes); judged on the "
+                      "ramps alone.", ""]
             rows = []
             for c, d in s["channels"].items():
                 judged = d.get("pass")

@@ -9,6 +9,7 @@ every derivative of both axes is within 3 total std.
 """
 from __future__ import annotations
 
+import copy
 import json
 import tomllib
 
@@ -135,7 +136,7 @@ def test_the_steps_are_timed_from_the_gyros(flight, min_share, request):
     0.90; aileron 48 of 48, 1.7 ms, 0.48)."""
     from pipeline.readers import read_log
     from pipeline.identify import MAX_RATE_HZ
-    from pipeline.input_sampling import time_steps
+    from pipeline.input_sampling import time_steps, untimed_spans
 
     d, truth = request.getfixturevalue(flight)
     fd = read_log(d / "flight.bin")
@@ -159,6 +160,13 @@ def test_the_steps_are_timed_from_the_gyros(flight, min_share, request):
         assert e.t1 - e.t0 == pytest.approx(0.01) and [e.t0, e.t1] in timed_fd.meta["input_steps"][e.channel]
     z = np.array(z)
     assert np.sqrt(np.mean(z ** 2)) < 1.5 and np.max(np.abs(z)) < 4.0, z
+    # the steps left untimed, whole sample intervals, for the proof of match (untimed_spans)
+    untimed = {}
+    for e in edges:
+        if e.time_std is None:
+            untimed.setdefault(e.channel, []).append((e.t0, e.t1))
+            assert e.t1 - e.t0 == pytest.approx(0.04)
+    assert untimed_spans(timed_fd.meta) == {c: sorted(v) for c, v in untimed.items()}
 
 
 def test_the_steps_times_reach_the_estimates(slow_surfaces):
@@ -228,3 +236,67 @@ def test_a_25_hz_log_throughout(tmp_path):
         ps = {n: p for n, p in m["parameters"].items() if p.get("truth") is not None and "[" not in n}
         worst = max(abs(p["estimate"] - p["truth"]) / p["total_std"] for p in ps.values())
         assert worst <= 3.0, (key, worst)
+
+
+def _roll(t: np.ndarray, da: np.ndarray, seed: int):
+    """A roll-rate model p' = Lp p + Lda da (Lp -8 1/s, Lda 40 1/s^2) and its measured p
+    (0.05 deg/s noise) driven by ``da`` on the 100 Hz grid ``t``: a Segment."""
+    from estimators import Model, Parameter, Segment, simulate_outputs
+
+    m = Model(states=["p"], inputs=["da"], outputs=["p"],
+              parameters=[Parameter("Lp", -8.0), Parameter("Lda", 40.0)],
+              f=lambda x, u, p, c: (p.Lp * x[0] + p.Lda * u[0],), g=lambda x, u, p, c: (x[0],),
+              name="roll")
+    seg = Segment(t=t, u=da[:, None], z=np.zeros((t.size, 1)), x0=np.zeros(1))
+    y = simulate_outputs(m, seg, inputs="linear").to_numpy()
+    z = y + np.radians(0.05) * np.random.default_rng(seed).standard_normal(y.shape)
+    return m, Segment(t=t, u=da[:, None], z=z, x0=np.zeros(1))
+
+
+def test_the_proof_of_match_moves_an_untimed_step_within_its_interval():
+    """A 2 deg aileron step at 1.012 s, logged at 10 Hz (samples at 1.0 and 1.1 s) and left
+    untimed: the fits' input is a ramp over 100 ms, 38 ms late at its middle, and the true
+    model's prediction misses the measured roll rate by about 3 deg/s just after it (band
+    1.5). With the step also at 0, 1/4 ... 1 of its interval the measurement lies within the
+    predictions' range (pipeline.input_sampling.timing_variants): the proof of match
+    passes, and says what it did; a wrong Lda still fails it."""
+    from estimators import OutputError
+    from pipeline.input_sampling import TIMING_FRACTIONS, timing_variants
+    from pipeline.validate import validate
+
+    t = np.round(np.arange(0.0, 3.0, 0.01), 10)
+    amp = np.radians(2.0)
+    exact = np.where(t >= 1.012, amp, 0.0)
+    exact[t == 1.01] = amp * 0.8               # the grid's linear reading of a step at 1.012
+    ramp = np.interp(t, [0.0, 1.0, 1.1, 3.0], [0.0, 0.0, amp, amp])
+    model, train = _roll(t, exact, seed=1)
+    res = OutputError(model, inputs="linear").fit(train, estimate_x0=False)
+    assert abs(res.params["Lda"] - 40.0) < 3 * res.std["Lda"]
+    _, held = _roll(t, exact, seed=2)
+    held.u = ramp[:, None]                     # what a 10 Hz log gives the fits
+    spans = {"da": [(1.0, 1.1)]}
+
+    variants = timing_variants(held, ["da"], spans)
+    assert len(variants) == len(TIMING_FRACTIONS)
+    inside = (t > 1.0) & (t < 1.1)
+    np.testing.assert_array_equal(variants[0].u[inside, 0], amp)          # at the interval's start
+    np.testing.assert_array_equal(variants[-1].u[inside, 0], 0.0)         # at its end
+    np.testing.assert_array_equal(variants[2].u[inside, 0], np.where(t[inside] < 1.05, 0.0, amp))
+    np.testing.assert_array_equal(variants[0].u[~inside, 0], ramp[~inside])
+    assert timing_variants(held, ["da"], {"da": [(1.0, 1.01)]}) == []    # no grid sample inside
+    assert timing_variants(held, ["da"], {"de": [(1.0, 1.1)]}) == []     # not the model's input
+
+    plain = validate(res, held_out=[held])["proof_of_match"]
+    p = plain["segments"][0]["channels"]["p"]
+    assert not p["pass"] and 2.0 < p["max_abs_error_display"] < 5.0, p
+    moved = validate(res, held_out=[held], untimed_steps=[spans])["proof_of_match"]
+    seg = moved["segments"][0]
+    p = seg["channels"]["p"]
+    assert seg["input_timing"] == {"untimed_steps": 1, "envelope": True}
+    assert p["pass"] and p["max_abs_error_display"] < 0.5, p
+    assert p["nominal_max_abs_error_display"] == pytest.approx(plain["segments"][0]["channels"]["p"]["max_abs_error_display"])
+    assert p["envelope_max_width_display"] > 4.0       # about 80 deg/s^2 over 90 ms, less the decay
+    wrong = copy.copy(res)                     # the same result with Lda 25 % low
+    wrong.values = np.where(np.array(res.names) == "Lda", 30.0, res.values)
+    bad = validate(wrong, held_out=[held], untimed_steps=[spans])["proof_of_match"]
+    assert not bad["segments"][0]["channels"]["p"]["pass"]

@@ -56,6 +56,35 @@ def test_proof_of_match_pass_fail_per_channel():
     assert not bool(df4.loc["V", "pass"])
 
 
+def test_an_input_timing_envelope_judges_the_distance_from_the_range():
+    """envelope=(lower, upper): the prediction's range under an input's own uncertainty (a
+    step's unknown time between two slow samples); the error is the distance from it."""
+    meas = pd.DataFrame({"p": np.zeros(5), "r": np.zeros(5)})
+    pred = pd.DataFrame({"p": [0.0, 3.0, 0.0, 0.0, 0.0], "r": [0.0, 0.0, 0.0, 0.0, 4.0]}) * DEG
+    lower = pred.copy()
+    upper = pred.copy()
+    lower.loc[1, "p"] = -1.0 * DEG            # the measurement 1 deg/s inside the range
+    upper.loc[4, "r"] = 5.0 * DEG             # a range above the prediction: r stays 4 off
+    plain = proof_of_match(meas, pred)
+    assert not bool(plain.loc["p", "pass"]) and plain.loc["p", "max_abs_error"] == pytest.approx(3 * DEG)
+    assert plain.loc["p", "envelope_max_width"] == 0.0
+    df = proof_of_match(meas, pred, envelope=(lower, upper))
+    assert bool(df.loc["p", "pass"]) and df.loc["p", "max_abs_error"] == 0.0
+    assert df.loc["p", "nominal_max_abs_error"] == pytest.approx(3 * DEG)
+    assert df.loc["p", "envelope_max_width"] == pytest.approx(4 * DEG)
+    # the range always holds the prediction: r is judged 4 deg/s off either way
+    assert df.loc["r", "max_abs_error"] == pytest.approx(4 * DEG) and not bool(df.loc["r", "pass"])
+    assert df.loc["r", "envelope_max_width"] == pytest.approx(1 * DEG)
+    assert df.loc["r", "rms_error"] == pytest.approx(4 * DEG / np.sqrt(5))
+    # an allowed bias is taken from the prediction itself, then the range judged
+    shifted = meas + 0.5 * DEG
+    db = proof_of_match(shifted, pred, envelope=(lower, upper), allowed_bias={"p": 0.2 * DEG})
+    assert db.loc["p", "bias_removed"] == pytest.approx(-0.1 * DEG)     # mean(z - y), within 0.2
+    assert db.loc["p", "max_abs_error"] == pytest.approx(0.6 * DEG)     # 0.5 + 0.1 off a 0-wide range
+    with pytest.raises(ValueError, match="envelope"):
+        proof_of_match(meas, pred, envelope=(lower.iloc[:3], upper))
+
+
 APRIORI = """
 [Cmq]
 value = -25.0

@@ -38,7 +38,8 @@ def default_tolerances(rate_deg_s: float = 1.5, accel_g: float = 0.1,
 def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
                    tolerances: Mapping[str, float] | None = None, *,
                    required_fraction: float = 1.0,
-                   allowed_bias: Mapping[str, float] | None = None) -> pd.DataFrame:
+                   allowed_bias: Mapping[str, float] | None = None,
+                   envelope: tuple[object, object] | None = None) -> pd.DataFrame:
     """Pass/fail per channel of predicted vs measured time histories.
 
     measured, predicted: (N, n_out) arrays or DataFrames (columns give the names), SI units.
@@ -47,8 +48,17 @@ def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
     required_fraction: share of samples that must lie inside the band (1.0: all of them).
     allowed_bias: per channel, the largest constant offset (SI) that may be removed first
     (the mean error, clipped to +/- this value), for "small allowed biases".
+    envelope: (lower, upper), each shaped as ``predicted``: the range the prediction spans
+        under an uncertainty of the inputs themselves (a control step's unknown time
+        between two slow samples of the surface: the prediction with the step at either
+        end of its interval). A sample is then judged by its distance from that range
+        (0 inside it; the range always includes ``predicted``), and ``max_abs_error`` /
+        ``rms_error`` are that distance; ``nominal_max_abs_error`` is the error of
+        ``predicted`` itself and ``envelope_max_width`` the range's widest point. Without
+        it the two columns are the error's and 0.
     Returns a DataFrame indexed by channel with ``tolerance``, ``bias_removed``,
-    ``max_abs_error``, ``rms_error``, ``fraction_within``, ``pass``; the attribute
+    ``max_abs_error``, ``rms_error``, ``fraction_within``, ``pass``,
+    ``nominal_max_abs_error``, ``envelope_max_width``; the attribute
     ``df.attrs["all_pass"]`` is True when every judged channel passes.
     """
     z, y = as_2d(measured, "measured"), as_2d(predicted, "predicted")
@@ -61,6 +71,16 @@ def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
     bmax = np.array([(allowed_bias or {}).get(n, 0.0) for n in names], dtype=float)
     bias = np.clip(np.nanmean(e, axis=0), -bmax, bmax)
     e = e - bias
+    nominal = np.abs(e)
+    width = np.zeros_like(e)
+    if envelope is not None:
+        lo, hi = (as_2d(a, f"envelope {w}") for a, w in zip(envelope, ("lower", "upper")))
+        if lo.shape != y.shape or hi.shape != y.shape:
+            raise ValueError(f"envelope {lo.shape}, {hi.shape} must have the predicted shape {y.shape}")
+        lo, hi = np.fmin(lo, y), np.fmax(hi, y)        # NaN bounds: the prediction alone
+        zb = z - bias
+        e = zb - np.clip(zb, lo, hi)
+        width = hi - lo
     ae = np.abs(e)
     present = np.isfinite(e)                      # NaN: no measurement at this sample
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -70,7 +90,9 @@ def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
     passed[~judged] = pd.NA
     df = pd.DataFrame({"tolerance": tol, "bias_removed": bias, "max_abs_error": np.nanmax(ae, axis=0),
                        "rms_error": np.sqrt(np.nanmean(e * e, axis=0)),
-                       "fraction_within": np.where(judged, frac, np.nan), "pass": passed},
+                       "fraction_within": np.where(judged, frac, np.nan), "pass": passed,
+                       "nominal_max_abs_error": np.nanmax(nominal, axis=0),
+                       "envelope_max_width": np.max(np.where(present, width, 0.0), axis=0)},
                       index=pd.Index(names, name="channel"))
     df.attrs["all_pass"] = bool(judged.any() and df["pass"][judged].all())
     return df
