@@ -253,7 +253,7 @@ def _roll(t: np.ndarray, da: np.ndarray, seed: int):
     return m, Segment(t=t, u=da[:, None], z=z, x0=np.zeros(1))
 
 
-def test_the_proof_of_match_moves_an_untimed_step_within_its_interval():
+def test_the_proof_of_match_moves_an_untimed_step_within_its_interval(tmp_path):
     """A 2 deg aileron step at 1.012 s, logged at 10 Hz (samples at 1.0 and 1.1 s) and left
     untimed: the fits' input is a ramp over 100 ms, 38 ms late at its middle, and the true
     model's prediction misses the measured roll rate by about 3 deg/s just after it (band
@@ -296,6 +296,16 @@ def test_the_proof_of_match_moves_an_untimed_step_within_its_interval():
     assert p["pass"] and p["max_abs_error_display"] < 0.5, p
     assert p["nominal_max_abs_error_display"] == pytest.approx(plain["segments"][0]["channels"]["p"]["max_abs_error_display"])
     assert p["envelope_max_width_display"] > 4.0       # about 80 deg/s^2 over 90 ms, less the decay
+    # run.rrd: the predictions' range beside the prediction, on the held-out samples
+    rc = pytest.importorskip("rerun.chunk")
+    from pipeline.recording import write_recording
+    path = write_recording(tmp_path / "run.rrd", {"oem": res},
+                           {"oem": validate(res, held_out=[held], untimed_steps=[spans])})
+    rows = {}
+    for ch in rc.RrdReader(path).stream():
+        if not ch.is_static:
+            rows[ch.entity_path] = rows.get(ch.entity_path, 0) + ch.num_rows
+    assert rows["/match/p/oem"] == rows["/match/p/oem/lower"] == rows["/match/p/oem/upper"] == t.size
     wrong = copy.copy(res)                     # the same result with Lda 25 % low
     wrong.values = np.where(np.array(res.names) == "Lda", 30.0, res.values)
     bad = validate(wrong, held_out=[held], untimed_steps=[spans])["proof_of_match"]
