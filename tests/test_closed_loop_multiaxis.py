@@ -76,6 +76,20 @@ this seed 3.3 std low (seeds 32, 33: 1.5, 1.4); benchmarks/lateral_gust_filters_
 (-0.33 empirical std) and within 2 std with this seed's p_turb (all in JSBSim's turbulence
 frame).
 
+Neither a better noise model nor a likelihood refinement moves the filters to the truth
+(ad hoc, seed 31, scripts not kept). Their estimate is not the optimum of their own
+innovation likelihood: a pass with the parameters held, the pipeline's noise, gives FEM's
+longitudinal estimate a negative log-likelihood 44 lower than the EKF's own. That optimum
+is biased too: on longitudinal_3211_turbulence (seed 1), where the EKF lands within 1.3
+std, a Gauss-Newton step on it (finite-difference gradient, the filter's P as the inverse
+Hessian) raised the likelihood and would put CLq 5.7 std off (on this flight the same step
+overshot: the filter's P is no Hessian there). With Ljung's gain sensitivity (a recursive
+prediction-error method) and FEM's F and R, the longitudinal EKF still ends Cmde 6.3 and
+Cm0 5.7 of FEM's std off, and the lateral one does not settle. Split into 1-10 s blocks,
+the maneuvers scatter as they do whole (the derivatives off: 0.6-2.4x the filter's P, the
+EKF's lateral Clp and Clda 5.6-9.2x, as over the 3 maneuvers), so the blocks show no more:
+the filters' bias is shared, not a variance.
+
 What limits the lateral EKF/UKF is the parameter-in-the-state filter itself
 (benchmarks/lateral_gust_filters_mc.py: data the lateral gust model makes on this flight's
 inputs, 8 draws). With the model's own first-order roll gust, FEM is honest (empirical /
