@@ -139,16 +139,17 @@ class Problem:
     #: measurement-noise std per output on this grid, from the log's native samples
     #: (pipeline.run.attach_logged_noise); outputs not in it use the grid's own estimate
     noise_std: dict[str, float] = field(default_factory=dict)
-    #: the untimed control-input steps of the flight the segments come from, input ->
-    #: [(start, end), ...] s (pipeline.input_sampling.untimed_spans)
-    untimed_steps: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
+    #: the control-input steps between slow samples of the flight the segments come from,
+    #: input -> [(start, end, std or None), ...] s (pipeline.input_sampling.step_times)
+    step_times: dict[str, list[tuple[float, float, float | None]]] = field(default_factory=dict)
     #: per held-out segment, those of its own flight when they come from other flights
-    #: (pipeline.run.with_validation_flight); empty: ``untimed_steps`` for each
-    held_untimed: list[dict[str, list[tuple[float, float]]]] = field(default_factory=list)
+    #: (pipeline.run.with_validation_flight); empty: ``step_times`` for each
+    held_step_times: list[dict[str, list[tuple[float, float, float | None]]]] = field(
+        default_factory=list)
 
-    def held_out_untimed(self) -> list[dict[str, list[tuple[float, float]]]]:
-        """The untimed control-input steps of each held-out segment's flight."""
-        return list(self.held_untimed) or [self.untimed_steps] * len(self.held_out)
+    def held_out_step_times(self) -> list[dict[str, list[tuple[float, float, float | None]]]]:
+        """The control-input steps between slow samples of each held-out segment's flight."""
+        return list(self.held_step_times) or [self.step_times] * len(self.held_out)
 
 
 def thrust_signal(df: pd.DataFrame, ac: AircraftConstants) -> np.ndarray:

@@ -42,8 +42,10 @@ import numpy as np
 from estimators.model import Segment
 from pipeline.flightdata import CONTROL_INPUTS, Channel, FlightData, fit_grid_rate
 
-#: where in its interval the proof of match puts an untimed step (:func:`timing_variants`)
+#: where in the range of its time the proof of match puts a step (:func:`timing_variants`)
 TIMING_FRACTIONS = (0.0, 0.25, 0.5, 0.75, 1.0)
+#: ... the range of a timed step's time: this many std either side
+TIMED_RANGE_STD = 2.0
 #: a step's change is at least this many times its neighbouring changes ...
 STEP_RATIO = 4.0
 #: ... and at least this large [rad] (0.2 deg: below any designed maneuver's steps)
@@ -301,10 +303,10 @@ def time_steps(fd: FlightData, max_rate_hz: float) -> tuple[FlightData, list[Edg
     found (:func:`step_edges`) and timed from the rates
     (:func:`refine_steps`); every step's span as it now is goes to the data's
     ``meta["input_steps"]`` (channel -> [[start, end], ...] s) for :func:`step_spans`, and
-    those of the steps left untimed (the whole interval between two slow samples) to
-    ``meta["untimed_steps"]`` for :func:`untimed_spans`. Returns (flight data, its steps - what
-    :func:`pipeline.correction_uncertainty.input_sampling` carries -, JSON-ready document;
-    {} when no input is slower than the grid)."""
+    with its time's std (None: untimed, anywhere in the span) to ``meta["step_times"]``
+    (channel -> [[start, end, std], ...]) for :func:`step_times`. Returns (flight data, its
+    steps - what :func:`pipeline.correction_uncertainty.input_sampling` carries -,
+    JSON-ready document; {} when no input is slower than the grid)."""
     gyro = [fd[c].rate_hz for c in ("p", "q", "r") if c in fd.channels]
     if not gyro:
         return fd, [], {}
@@ -313,15 +315,21 @@ def time_steps(fd: FlightData, max_rate_hz: float) -> tuple[FlightData, list[Edg
     edges = step_edges(fd, spans, grid)
     if not edges:
         return fd, [], {}
-    out, refined, doc = refine_steps(fd, edges, grid)
+    out, edges, doc = refine_steps(fd, edges, grid)
     steps: dict[str, list[list[float]]] = {}
-    untimed: dict[str, list[list[float]]] = {}
-    for e, new in zip(edges, refined):
-        steps.setdefault(e.channel, []).append([float(new.t0), float(new.t1)])
-        if new is e:
-            untimed.setdefault(e.channel, []).append([float(e.t0), float(e.t1)])
-    meta = {**out.meta, "input_steps": steps, "untimed_steps": untimed}
-    return FlightData(out.channels, meta, out.segments), refined, doc
+    times: dict[str, list[list[float | None]]] = {}
+    for e in edges:
+        steps.setdefault(e.channel, []).append([float(e.t0), float(e.t1)])
+        times.setdefault(e.channel, []).append(
+            [float(e.t0), float(e.t1), None if e.time_std is None else float(e.time_std)])
+    meta = {**out.meta, "input_steps": steps, "step_times": times}
+    return FlightData(out.channels, meta, out.segments), edges, doc
+
+
+def _delays(meta: dict) -> dict[str, float]:
+    """Each surface's delay (s) where input dynamics are applied (``meta["input_dynamics"]``:
+    the models see u(t - d)): the steps' spans move with it."""
+    return {c: float(v.get("delay_s", 0.0)) for c, v in (meta.get("input_dynamics") or {}).items()}
 
 
 def step_spans(meta: dict) -> list[tuple[float, float]]:
@@ -333,55 +341,59 @@ def step_spans(meta: dict) -> list[tuple[float, float]]:
     an output the input reaches without dynamics (the accelerometers: the control forces)
     is then off by up to the step's whole force, and :func:`pipeline.identify.multirate_frame`
     leaves those samples out (FEEDTHROUGH_OUTPUTS)."""
-    return sorted(s for spans in _spans_by_input(meta, "input_steps").values() for s in spans)
+    d = _delays(meta)
+    return sorted((a + d.get(c, 0.0), b + d.get(c, 0.0))
+                  for c, spans in (meta.get("input_steps") or {}).items() for a, b in spans)
 
 
-def untimed_spans(meta: dict) -> dict[str, list[tuple[float, float]]]:
-    """Per control input, the spans [s] of its steps that :func:`refine_steps` could not
-    time (``meta["untimed_steps"]`` of :func:`time_steps`: the whole interval between the
-    two slow samples, where the step happened at an unknown time), moved by the input's
-    delay as :func:`step_spans` moves them. The proof of match predicts a held-out
-    maneuver with such steps at either end of their intervals as well
-    (:func:`timing_variants`)."""
-    return _spans_by_input(meta, "untimed_steps")
-
-
-def _spans_by_input(meta: dict, key: str) -> dict[str, list[tuple[float, float]]]:
-    """``meta[key]`` (channel -> [[start, end], ...] s) as sorted spans per channel, each
-    moved by its surface's delay where input dynamics are applied (``meta["input_dynamics"]``:
-    the models see u(t - d))."""
-    delays = {c: float(v.get("delay_s", 0.0)) for c, v in (meta.get("input_dynamics") or {}).items()}
-    return {c: sorted((a + delays.get(c, 0.0), b + delays.get(c, 0.0)) for a, b in spans)
-            for c, spans in (meta.get(key) or {}).items() if spans}
+def step_times(meta: dict) -> dict[str, list[tuple[float, float, float | None]]]:
+    """Per control input, its steps between two slow samples as (start, end, std) [s]
+    (``meta["step_times"]`` of :func:`time_steps`): a timed step is a ramp one grid step
+    wide over (start, end) with its time's std; an untimed one (std None) happened anywhere
+    in the interval. Moved by the input's delay as :func:`step_spans` moves them. The proof
+    of match predicts a held-out maneuver with its steps moved within their uncertainty as
+    well (:func:`timing_variants`)."""
+    d = _delays(meta)
+    return {c: sorted((a + d.get(c, 0.0), b + d.get(c, 0.0), sd) for a, b, sd in rows)
+            for c, rows in (meta.get("step_times") or {}).items() if rows}
 
 
 def timing_variants(seg: Segment, inputs: Sequence[str],
-                    spans: Mapping[str, Sequence[tuple[float, float]]],
-                    fractions: Sequence[float] = TIMING_FRACTIONS) -> list[Segment]:
-    """Copies of ``seg`` (inputs ``inputs``, the model's order) with every untimed step of
-    ``spans`` (input -> [(start, end), ...] s, :func:`untimed_spans`) at each of
-    ``fractions`` of its interval (0: at its start, 1: at its end): the grid samples
-    inside a span, where the fits' input is a ramp from the sample before to the sample
-    after, take the value before the step's time and the value after it from there on.
-    [] when no span holds a grid sample of ``seg`` (every step timed, or none in the
-    segment). A first-order lag applied to an input (input dynamics) is not undone: the
-    copies are then approximate."""
-    moves = []                                  # (column, interior samples, before, after, start, end)
+                    steps: Mapping[str, Sequence[tuple[float, float, float | None]]],
+                    fractions: Sequence[float] = TIMING_FRACTIONS,
+                    k: float = TIMED_RANGE_STD) -> list[Segment]:
+    """Copies of ``seg`` (inputs ``inputs``, the model's order) with every step of ``steps``
+    (input -> [(start, end, std), ...] s, :func:`step_times`) at each of ``fractions`` of the
+    range of its time: an untimed step (std None) anywhere in its interval, as a sharp step
+    on the grid (0: at the start, 1: at the end); a timed one within ``k`` std of its time,
+    as the fits' ramp one grid step wide. The samples around a step take the value before
+    it and the value after it (those of the samples just outside that range) with the step
+    at that time. [] when no step moves a grid sample of ``seg`` (none in the segment, or
+    the timed ones known to within a grid step). A first-order lag applied to an input
+    (input dynamics) is not undone: the copies are then approximate."""
     t = seg.t
+    moves = []          # (column, samples, value before, after, earliest time, latest, ramp width)
     for j, c in enumerate(inputs):
-        for a, b in spans.get(c, ()):
-            inside = np.flatnonzero((t > a) & (t < b))
-            if not inside.size or inside[0] == 0 or inside[-1] == t.size - 1:
+        for a, b, sd in steps.get(c, ()):
+            if sd is None:
+                lo, hi, t0, t1, w = a, b, a, b, 0.0
+            else:
+                mid = 0.5 * (a + b)
+                lo, hi, t0, t1, w = a - k * sd, b + k * sd, mid - k * sd, mid + k * sd, b - a
+            near = np.flatnonzero((t > lo) & (t < hi))
+            if not near.size or near[0] == 0 or near[-1] == t.size - 1:
                 continue        # a step at the segment's edge: its before or after is not in it
-            moves.append((j, inside, seg.u[inside[0] - 1, j], seg.u[inside[-1] + 1, j], a, b))
-    if not moves:
-        return []
+            moves.append((j, near, seg.u[near[0] - 1, j], seg.u[near[-1] + 1, j], t0, t1, w))
     out = []
     for f in fractions:
         u = seg.u.copy()
-        for j, inside, before, after, a, b in moves:
-            u[inside, j] = np.where(t[inside] < a + f * (b - a), before, after)
+        for j, near, before, after, t0, t1, w in moves:
+            tau = t0 + f * (t1 - t0)
+            x = (t[near] >= tau).astype(float) if w <= 0 else np.clip((t[near] - tau) / w + 0.5, 0.0, 1.0)
+            u[near, j] = before + (after - before) * x
         out.append(replace(seg, u=u))
+    if not any(np.any(v.u != seg.u) for v in out):
+        return []
     return out
 
 

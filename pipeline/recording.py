@@ -20,8 +20,8 @@ keys of ``results`` such as ``oem``, ``<name>`` a parameter name with any charac
                                           (simulation, or air-data driven: report.json mode)
     /match/<out>/upper, /match/<out>/lower   measured +/- tolerance (judged channels only)
     /match/<out>/<method>/lower|upper     the prediction's range with the held-out segments'
-                                          untimed control steps at either end of their
-                                          sample intervals (only when some has one)
+                                          control steps between slow samples moved within
+                                          their timing uncertainty (only when some has one)
     /params/<name>/<method>               estimate per iteration (timeline ``iteration``) or,
                                           for filters, per sample (timelines t, segment)
     /params/<name>/<method>/upper|lower   estimate +/- std (final Cramer-Rao std for
@@ -280,8 +280,8 @@ def _time_histories(w: _Writer, results: Mapping[str, EstimationResult],
             t, sg, z = lay.cat([a["measured"] for a in arr], hnames, times)
             _, _, y = lay.cat([a["predicted"] for a in arr], hnames, times)
             tol = arr[0]["tolerance"]
-            # the prediction's range over the untimed control steps' times, where a segment
-            # has one (the prediction itself elsewhere)
+            # the prediction's range over the times of the control steps between slow
+            # samples, where a segment has one (the prediction itself elsewhere)
             bounds = [] if all(a.get("envelope") is None for a in arr) else [
                 lay.cat([a["predicted"] if a.get("envelope") is None else a["envelope"][i]
                          for a in arr], hnames, times)[2] for i in (0, 1)]
@@ -301,7 +301,7 @@ def _time_histories(w: _Writer, results: Mapping[str, EstimationResult],
                          name=f"{o} {m} (held-fixed model) [{unit}]", color=col)
                 for side, b in zip(("lower", "upper"), bounds):
                     w.series(f"/match/{po}/{pm}/{side}", b[o], t=t, segment=sg,
-                             name=f"{o} {m} with the untimed steps moved ({side}) [{unit}]",
+                             name=f"{o} {m} with the steps moved in time ({side}) [{unit}]",
                              color=col)
 
 

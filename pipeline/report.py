@@ -244,19 +244,20 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
             if timing.get("envelope"):
                 wide = {c: d for c, d in s["channels"].items()
                         if d.get("pass") is not None and (d.get("envelope_max_width_display") or 0) > 0}
-                n = timing["untimed_steps"]
-                L += [f"{n} control-input step{'s' if n != 1 else ''} between two slow samples "
-                      "could not be timed: the model also predicted the segment with each at "
-                      f"{', '.join(f'{f:g}' for f in TIMING_FRACTIONS)} of its interval, and a "
+                L += [f"Control-input steps between two slow samples: {timing['steps']} "
+                      f"({timing['untimed']} untimed). The model also predicted the segment with "
+                      "each moved through the range of its time (an untimed one across its "
+                      f"interval, a timed one {timing['timed_range_std']:g} std either side, at "
+                      f"{', '.join(f'{f:g}' for f in TIMING_FRACTIONS)} of that range), and a "
                       "sample's error is its distance from the range of those predictions and "
-                      "the ramp's. Without that, the largest errors were: "
+                      "the fitted one. Without that, the largest errors were: "
                       + ", ".join(f"{c} {_g(d.get('nominal_max_abs_error_display'))} {d['unit']} "
                                   f"(range up to {_g(d.get('envelope_max_width_display'))})"
                                   for c, d in wide.items()) + ".", ""]
             elif timing:
-                L += [f"{timing['untimed_steps']} untimed control-input step(s): the "
+                L += [f"{timing['steps']} control-input step(s) between slow samples: the "
                       "predictions with them moved failed (see the notes); judged on the "
-                      "ramps alone.", ""]
+                      "steps as fitted.", ""]
             rows = []
             for c, d in s["channels"].items():
                 judged = d.get("pass")

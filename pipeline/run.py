@@ -23,7 +23,7 @@ from pipeline.identify import multi_axis, multiaxis_problem
 from pipeline.identify import (LAT_OUTPUTS, LONG_OUTPUTS, AircraftConstants, Problem, lateral_problem,
                                longitudinal_problem)
 from pipeline.identify import MAX_RATE_HZ, with_airspeed_offsets
-from pipeline.input_sampling import summary as step_summary, time_steps, untimed_spans
+from pipeline.input_sampling import summary as step_summary, step_times, time_steps
 from pipeline.paths import atomic_write_text
 
 #: methods the run knows; the scenario or the command line picks among them
@@ -660,7 +660,7 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
     progress.done(f"{'converged' if res.converged else 'NOT converged'} in {_count(res.iterations, 'iteration')}")
     progress.stage(f"validate {what} {method.upper()} (fit, residuals, modes, proof of match)")
     v = validate(res, held_out=pb.held_out, truth=truth, tolerances=tolerances, proof_of_match=pom,
-                 calm_air=calm_air, untimed_steps=pb.held_out_untimed())
+                 calm_air=calm_air, step_times=pb.held_out_step_times())
     v["problem"] = {"notes": list(pb.notes)}
     progress.done()
     return res, v
@@ -815,12 +815,12 @@ def with_validation_flight(pb: Problem, vals: Sequence[Problem], calm: bool,
     air (a simulated one)."""
     numbers = list(range(len(vals))) if numbers is None else list(numbers)
     total = len(vals) if n_flights is None else n_flights
-    segs, specs, parts, untimed = [], [], [], []
+    segs, specs, parts, times = [], [], [], []
     for k, val in zip(numbers, vals):
         pre = validation_prefix(k, total)
         mine = [replace(sg, name=pre + sg.name) for sg in val.fit + val.held_out]
         segs += mine
-        untimed += [val.untimed_steps] * len(mine)
+        times += [val.step_times] * len(mine)
         specs += list(val.specs) + list(val.held_specs)
         parts.append(("" if total == 1 else f"flight {k + 1}: ")
                      + ", ".join(sg.name[len(pre):] for sg in mine))
@@ -828,7 +828,7 @@ def with_validation_flight(pb: Problem, vals: Sequence[Problem], calm: bool,
     note = (f"proof of match on {where} {_count(len(segs), 'maneuver')} "
             f"({'; '.join(parts)})" + ("; flown in calm air" if calm else "")
             + "; every maneuver of this flight fitted")
-    return replace(pb, held_out=segs, held_specs=specs, held_untimed=untimed,
+    return replace(pb, held_out=segs, held_specs=specs, held_step_times=times,
                    notes=list(pb.notes) + [note])
 
 
@@ -925,7 +925,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
             pb = _method_problem(fd, ac, problem, build, outs, m, lon=lon, multiaxis=multiaxis,
                                  turbulent=turbulent, say=note, cache=cache, inputs=inputs,
                                  smooth_inputs=smooth_inputs, hold_out=hold)
-            pb = replace(pb, untimed_steps=untimed_spans(fd.meta))
+            pb = replace(pb, step_times=step_times(fd.meta))
             if vflights and starts is None:
                 vpbs, numbers = [], []
                 for k, vbase in vbases:
@@ -934,7 +934,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                                           say=val_note(k), cache=vcaches[k],
                                           inputs=inputs, smooth_inputs=smooth_inputs, hold_out=0)
                     if vpb.model.name == pb.model.name:
-                        vpbs.append(replace(vpb, untimed_steps=untimed_spans(vflights[k].meta)))
+                        vpbs.append(replace(vpb, step_times=step_times(vflights[k].meta)))
                         numbers.append(k)
                     else:
                         val_note(k)(f"{pb.model.name} model not set up there; it proves "

@@ -154,7 +154,7 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
     model's inputs among the surface positions (de, da, dr) low-passed where their noise
     floor begins unless ``smooth_inputs`` is False (:mod:`pipeline.input_smoothing`)."""
     from pipeline.flightdata import CONTROL_INPUTS, merge_overlapping
-    from pipeline.input_sampling import untimed_spans
+    from pipeline.input_sampling import step_times
     from pipeline.identify import (Problem, _first_valid, multirate_frame,
                                    usable_segments, with_smoothed_inputs)
     from pipeline.input_smoothing import smoothed_control_inputs
@@ -192,7 +192,7 @@ def user_model_problem(fd: FlightData, model: Model, *, rate_hz: float | None = 
              ] + ([input_note] if input_note else []) + left_out
     return Problem(model.name, model, [seg(s) for s in fit_specs], [seg(s) for s in held],
                    fit_specs, held, estimate_x0=True, notes=notes, rate_hz=rate,
-                   untimed_steps=untimed_spans(fd.meta))
+                   step_times=step_times(fd.meta))
 
 
 def identify_user_model(fd: FlightData, model: Model, methods: Sequence[str],

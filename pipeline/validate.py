@@ -428,7 +428,7 @@ def pom_mode(result: EstimationResult, lin=None, calm_air: bool = False) -> str:
 def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
                     tolerances: Mapping[str, float] | None,
                     allowed_bias: Mapping[str, float] | None, integrator: str, mode: str,
-                    untimed_steps: Sequence[Mapping[str, Any]] | None = None
+                    step_times: Sequence[Mapping[str, Any]] | None = None
                     ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     model = result.model_with_estimates()
     segs, arrays = [], []
@@ -449,8 +449,8 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
         if y is None:
             y = _held_out_prediction(result, seg, integrator)
         name = seg.name or f"held-out {k}"
-        spans = (untimed_steps or [{}] * len(held_out))[k] or {}
-        envelope, timing = _timing_envelope(result, seg, spans, seg_mode, integrator, y, notes, name)
+        steps = (step_times or [{}] * len(held_out))[k] or {}
+        envelope, timing = _timing_envelope(result, seg, steps, seg_mode, integrator, y, notes, name)
         z = pd.DataFrame(seg.z, index=y.index, columns=model.outputs)
         # the channels that drive the filter are its one-step predictions: not judged
         tol = {**(tolerances or {}), **{c: math.nan for c in driven}}
@@ -480,36 +480,39 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
             "all_pass": bool(segs) and all(s["all_pass"] for s in segs)}, arrays
 
 
-def _timing_envelope(result: EstimationResult, seg: Segment, spans: Mapping[str, Any], mode: str,
+def _timing_envelope(result: EstimationResult, seg: Segment, steps: Mapping[str, Any], mode: str,
                      integrator: str, y: pd.DataFrame, notes: list[str], name: str
                      ) -> tuple[tuple[np.ndarray, np.ndarray] | None, dict[str, Any] | None]:
     """The range of the held-out prediction ``y`` over the unknown times of the segment's
-    untimed control-input steps (``spans``: input -> [(start, end), ...] s,
-    :func:`pipeline.input_sampling.untimed_spans`): the model, as held, predicts the
-    segment again with every such step at the start of its interval and at its end
-    (:func:`pipeline.input_sampling.timing_variants`), in ``mode`` as ``y`` was; (lower,
-    upper) over the three, and what was done. (None, None) when the segment has no such
-    step on its grid; (None, doc) with a note when a prediction fails. Why: with the
+    control-input steps between slow samples (``steps``: input -> [(start, end, std), ...]
+    s, :func:`pipeline.input_sampling.step_times`): the model, as held, predicts the
+    segment again with every such step moved through the range of its time - an untimed
+    one anywhere in its interval, a timed one within TIMED_RANGE_STD of its std
+    (:func:`pipeline.input_sampling.timing_variants`) - in ``mode`` as ``y`` was; (lower,
+    upper) over those and ``y``, and what was done. (None, None) when no step moves a grid
+    sample of the segment; (None, doc) with a note when a prediction fails. Why: with the
     surfaces at 10 Hz (scenarios/default.toml at ArduPilot's rates, seed 1, ad hoc) a
     cross-controlled rudder step left untimed was a 100 ms ramp in the prediction, and p
-    and r missed the 1.5 deg/s band by 14 deg/s at that step, a model everywhere else
-    within it."""
-    from pipeline.input_sampling import timing_variants
+    and r missed the 1.5 deg/s band by 14 deg/s at that step; at 25 Hz (seed 3) the steps
+    were all timed, and one sample of p and r, at an aileron doublet's reversal where p
+    moves 900 deg/s^2, missed the band by 0.08 and 0.02 deg/s."""
+    from pipeline.input_sampling import TIMED_RANGE_STD, timing_variants
 
-    variants = timing_variants(seg, result.model.inputs, spans) if spans else []
+    variants = timing_variants(seg, result.model.inputs, steps) if steps else []
     if not variants:
         return None, None
-    n = sum(1 for c in result.model.inputs for a, b in spans.get(c, ())
-            if np.any((seg.t > a) & (seg.t < b)))
-    doc: dict[str, Any] = {"untimed_steps": n, "envelope": False}
+    inside = [sd for c in result.model.inputs for a, b, sd in steps.get(c, ())
+              if seg.t[0] < a and b < seg.t[-1]]
+    doc: dict[str, Any] = {"steps": len(inside), "untimed": sum(sd is None for sd in inside),
+                           "timed_range_std": TIMED_RANGE_STD, "envelope": False}
     ys = []
     for v in variants:
         try:
             ys.append(_air_data_prediction(result, v, integrator).predicted if mode == "air-data"
                       else _held_out_prediction(result, v, integrator))
         except (estimators.EstimationError, np.linalg.LinAlgError) as exc:
-            notes.append(f"{name}: the prediction with its untimed control-input steps moved "
-                         f"failed ({exc}); judged on the ramps alone")
+            notes.append(f"{name}: the prediction with its control-input steps moved within "
+                         f"their timing uncertainty failed ({exc}); judged on the steps as fitted")
             return None, doc
     stack = np.stack([y.to_numpy(float)] + [a.to_numpy(float) for a in ys])
     doc["envelope"] = True
@@ -714,7 +717,7 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
              input_power_fraction: float = 0.1, inverse_bandwidth: float = 5.0,
              integrator: str | None = None, proof_of_match: str = "auto",
              calm_air: bool = False,
-             untimed_steps: Sequence[Mapping[str, Any]] | None = None) -> dict[str, Any]:
+             step_times: Sequence[Mapping[str, Any]] | None = None) -> dict[str, Any]:
     """Run the validation of :mod:`estimators.validation` on one result (see module doc).
     Where the fit's maneuvers scatter significantly beyond its Cramér-Rao bounds, the
     result's covariance is widened in place to that scatter (:func:`widen_by_scatter`;
@@ -733,13 +736,13 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
         channels are then not judged); ``auto`` (default) - :func:`pom_mode`.
     calm_air: the held-out maneuvers are known to be flown in calm air (a simulated
         validation flight): ``auto`` then picks the simulation for every stable model.
-    untimed_steps: per held-out segment, the control-input steps of its flight that could
-        not be timed between two slow samples (input -> [(start, end), ...] s,
-        :func:`pipeline.input_sampling.untimed_spans`): the held-out prediction is also
-        made with each at either end of its interval, and a sample is judged by its
-        distance from the range of the three (the step's time is as unknown as a sensor
-        bias; ``input_timing`` of the segment and the channels' nominal error and
-        envelope width say what it did).
+    step_times: per held-out segment, the control-input steps of its flight between two
+        slow samples (input -> [(start, end, std or None), ...] s,
+        :func:`pipeline.input_sampling.step_times`): the held-out prediction is also made
+        with each moved through the range of its time (untimed: its interval; timed: 2 std
+        either side), and a sample is judged by its distance from the range of those
+        predictions (the step's time is as uncertain as a sensor bias; ``input_timing`` of
+        the segment and the channels' nominal error and envelope width say what it did).
     allowed_bias: largest constant offset per channel (SI) removed before judging.
     apriori: a-priori values (TOML path, mapping or DataFrame of
         :func:`estimators.validation.load_apriori`); truth: true parameter values by name.
@@ -788,7 +791,7 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
     if held_out:
         mode = pom_mode(result, lin, calm_air) if proof_of_match == "auto" else proof_of_match
         out["proof_of_match"], arrays["match"] = _proof_of_match(
-            result, list(held_out), tolerances, allowed_bias, integ, mode, untimed_steps)
+            result, list(held_out), tolerances, allowed_bias, integ, mode, step_times)
     plaus: dict[str, Any] = {}
     if truth:
         plaus["truth"] = _truth_check(result, truth, truth_k)

@@ -136,7 +136,7 @@ def test_the_steps_are_timed_from_the_gyros(flight, min_share, request):
     0.90; aileron 48 of 48, 1.7 ms, 0.48)."""
     from pipeline.readers import read_log
     from pipeline.identify import MAX_RATE_HZ
-    from pipeline.input_sampling import time_steps, untimed_spans
+    from pipeline.input_sampling import step_times, time_steps
 
     d, truth = request.getfixturevalue(flight)
     fd = read_log(d / "flight.bin")
@@ -160,13 +160,14 @@ def test_the_steps_are_timed_from_the_gyros(flight, min_share, request):
         assert e.t1 - e.t0 == pytest.approx(0.01) and [e.t0, e.t1] in timed_fd.meta["input_steps"][e.channel]
     z = np.array(z)
     assert np.sqrt(np.mean(z ** 2)) < 1.5 and np.max(np.abs(z)) < 4.0, z
-    # the steps left untimed, whole sample intervals, for the proof of match (untimed_spans)
-    untimed = {}
+    # every step with its time's std for the proof of match (step_times): an untimed one
+    # over its whole sample interval, std None
+    times = {}
     for e in edges:
+        times.setdefault(e.channel, []).append((e.t0, e.t1, e.time_std))
         if e.time_std is None:
-            untimed.setdefault(e.channel, []).append((e.t0, e.t1))
             assert e.t1 - e.t0 == pytest.approx(0.04)
-    assert untimed_spans(timed_fd.meta) == {c: sorted(v) for c, v in untimed.items()}
+    assert step_times(timed_fd.meta) == {c: sorted(v) for c, v in times.items()}
 
 
 def test_the_steps_times_reach_the_estimates(slow_surfaces):
@@ -267,14 +268,14 @@ def test_the_proof_of_match_moves_an_untimed_step_within_its_interval(tmp_path):
     t = np.round(np.arange(0.0, 3.0, 0.01), 10)
     amp = np.radians(2.0)
     exact = np.where(t >= 1.012, amp, 0.0)
-    exact[t == 1.01] = amp * 0.8               # the grid's linear reading of a step at 1.012
+    exact[t == 1.01] = amp * 0.3               # a step at 1.012 read linearly: its area kept
     ramp = np.interp(t, [0.0, 1.0, 1.1, 3.0], [0.0, 0.0, amp, amp])
     model, train = _roll(t, exact, seed=1)
     res = OutputError(model, inputs="linear").fit(train, estimate_x0=False)
     assert abs(res.params["Lda"] - 40.0) < 3 * res.std["Lda"]
     _, held = _roll(t, exact, seed=2)
     held.u = ramp[:, None]                     # what a 10 Hz log gives the fits
-    spans = {"da": [(1.0, 1.1)]}
+    spans = {"da": [(1.0, 1.1, None)]}
 
     variants = timing_variants(held, ["da"], spans)
     assert len(variants) == len(TIMING_FRACTIONS)
@@ -283,16 +284,24 @@ def test_the_proof_of_match_moves_an_untimed_step_within_its_interval(tmp_path):
     np.testing.assert_array_equal(variants[-1].u[inside, 0], 0.0)         # at its end
     np.testing.assert_array_equal(variants[2].u[inside, 0], np.where(t[inside] < 1.05, 0.0, amp))
     np.testing.assert_array_equal(variants[0].u[~inside, 0], ramp[~inside])
-    assert timing_variants(held, ["da"], {"da": [(1.0, 1.01)]}) == []    # no grid sample inside
-    assert timing_variants(held, ["da"], {"de": [(1.0, 1.1)]}) == []     # not the model's input
+    assert timing_variants(held, ["da"], {"da": [(1.0, 1.01, None)]}) == []   # no grid sample inside
+    assert timing_variants(held, ["da"], {"de": [(1.0, 1.1, None)]}) == []    # not the model's input
+    # a timed step, a ramp one grid step wide about 1.012 s, within 2 std (3 ms) either side
+    timed = {"da": [(1.007, 1.017, 0.003)]}
+    moved = timing_variants(train, ["da"], timed)
+    np.testing.assert_allclose([v.u[t == 1.01, 0][0] / amp for v in moved],
+                               np.clip((1.01 - (1.012 + np.array([-6, -3, 0, 3, 6]) * 1e-3)) / 0.01 + 0.5, 0, 1),
+                               atol=1e-12)
+    fine = timing_variants(train, ["da"], {"da": [(1.007, 1.017, 1e-5)]})     # 10 us: the fit's ramp
+    assert max(np.max(np.abs(v.u - train.u)) for v in fine) == pytest.approx(0.002 * amp, rel=1e-6)
 
     plain = validate(res, held_out=[held])["proof_of_match"]
     p = plain["segments"][0]["channels"]["p"]
     assert not p["pass"] and 2.0 < p["max_abs_error_display"] < 5.0, p
-    moved = validate(res, held_out=[held], untimed_steps=[spans])["proof_of_match"]
+    moved = validate(res, held_out=[held], step_times=[spans])["proof_of_match"]
     seg = moved["segments"][0]
     p = seg["channels"]["p"]
-    assert seg["input_timing"] == {"untimed_steps": 1, "envelope": True}
+    assert seg["input_timing"] == {"steps": 1, "untimed": 1, "timed_range_std": 2.0, "envelope": True}
     assert p["pass"] and p["max_abs_error_display"] < 0.5, p
     assert p["nominal_max_abs_error_display"] == pytest.approx(plain["segments"][0]["channels"]["p"]["max_abs_error_display"])
     assert p["envelope_max_width_display"] > 4.0       # about 80 deg/s^2 over 90 ms, less the decay
@@ -300,7 +309,7 @@ def test_the_proof_of_match_moves_an_untimed_step_within_its_interval(tmp_path):
     rc = pytest.importorskip("rerun.chunk")
     from pipeline.recording import write_recording
     path = write_recording(tmp_path / "run.rrd", {"oem": res},
-                           {"oem": validate(res, held_out=[held], untimed_steps=[spans])})
+                           {"oem": validate(res, held_out=[held], step_times=[spans])})
     rows = {}
     for ch in rc.RrdReader(path).stream():
         if not ch.is_static:
@@ -308,5 +317,5 @@ def test_the_proof_of_match_moves_an_untimed_step_within_its_interval(tmp_path):
     assert rows["/match/p/oem"] == rows["/match/p/oem/lower"] == rows["/match/p/oem/upper"] == t.size
     wrong = copy.copy(res)                     # the same result with Lda 25 % low
     wrong.values = np.where(np.array(res.names) == "Lda", 30.0, res.values)
-    bad = validate(wrong, held_out=[held], untimed_steps=[spans])["proof_of_match"]
+    bad = validate(wrong, held_out=[held], step_times=[spans])["proof_of_match"]
     assert not bad["segments"][0]["channels"]["p"]["pass"]

@@ -242,10 +242,11 @@ def test_the_instrument_errors_carry_to_the_validation_flight():
     assert with_instrument_errors_removed(fd, {"applied": {}}) is fd
 
 
-def test_each_held_out_maneuver_keeps_its_own_flights_untimed_steps():
-    """The untimed control-input steps (pipeline.input_sampling.untimed_spans) that the proof
-    of match moves within their intervals are times of one flight: a maneuver proved on a
-    validation flight takes that flight's, not the fitted flight's (their clocks overlap)."""
+def test_each_held_out_maneuver_keeps_its_own_flights_step_times():
+    """The control-input steps between slow samples (pipeline.input_sampling.step_times) that
+    the proof of match moves within their timing uncertainty are times of one flight: a
+    maneuver proved on a validation flight takes that flight's, not the fitted flight's
+    (their clocks overlap)."""
     import numpy as np
 
     from estimators import Model, Parameter, Segment
@@ -256,12 +257,12 @@ def test_each_held_out_maneuver_keeps_its_own_flights_untimed_steps():
               f=lambda x, u, p, c: (p.a * x[0] + u[0],), g=lambda x, u, p, c: (x[0],))
     seg = lambda name: Segment(t=np.arange(0.0, 1.0, 0.01), u=np.zeros((100, 1)),  # noqa: E731
                                z=np.zeros((100, 1)), name=name)
-    own = Problem("lateral", m, [seg("a")], [seg("b")], [], [], untimed_steps={"da": [(0.2, 0.3)]})
-    assert own.held_out_untimed() == [{"da": [(0.2, 0.3)]}]
-    v1 = Problem("lateral", m, [seg("c"), seg("d")], [], [], [], untimed_steps={"da": [(0.5, 0.6)]})
-    v2 = Problem("lateral", m, [seg("e")], [], [], [], untimed_steps={})
+    own = Problem("lateral", m, [seg("a")], [seg("b")], [], [], step_times={"da": [(0.2, 0.3, None)]})
+    assert own.held_out_step_times() == [{"da": [(0.2, 0.3, None)]}]
+    v1 = Problem("lateral", m, [seg("c"), seg("d")], [], [], [], step_times={"da": [(0.5, 0.51, 0.002)]})
+    v2 = Problem("lateral", m, [seg("e")], [], [], [], step_times={})
     pb = with_validation_flight(own, [v1, v2], calm=False)
     assert [s.name for s in pb.held_out] == ["validation flight 1: c", "validation flight 1: d",
                                              "validation flight 2: e"]
-    assert pb.held_out_untimed() == [{"da": [(0.5, 0.6)]}, {"da": [(0.5, 0.6)]}, {}]
-    assert pb.untimed_steps == own.untimed_steps          # the fitted flight's own
+    assert pb.held_out_step_times() == [{"da": [(0.5, 0.51, 0.002)]}] * 2 + [{}]
+    assert pb.step_times == own.step_times                # the fitted flight's own
