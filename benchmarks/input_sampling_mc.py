@@ -10,7 +10,18 @@ estimates (pipeline.correction_uncertainty.input_sampling).
 Per derivative: the estimates' empirical std over the seeds / mean Cramér-Rao std
 (``crb``, the baseline: the bound the fit alone reports) and / mean total std (``total``,
 with the steps' times carried); the bias in empirical std. Per seed the worst |error| /
-std both ways. Honest: total ~1 (95 % band about +-1.4/sqrt(n) for n seeds).
+std both ways. Honest: total ~1 (95 % band about +-1.4/sqrt(n) for n seeds). Per axis the
+proof of match on the held-out maneuver: passed, and passed without the steps moved through
+the range of their time (pipeline.input_sampling.timing_variants: each sample judged by its
+distance from the range of the predictions; without it, from the prediction with the steps
+as fitted).
+
+Proof of match, measured 2026-11-26, seeds 1-12 (the same flights as below):
+  25 Hz surfaces beside the 100 Hz IMU: 12/12 and 12/12, also without the steps moved.
+  --rates ardupilot: longitudinal 12/12 (12/12 without the steps moved), lateral 12/12
+      (7/12 without: one sample of p or r at an aileron reversal, every step timed).
+  --rates ardupilot --surfaces-hz 10: longitudinal 10/12 (5/12), lateral 3/12 (0/12; the
+      lateral fit of seed 1 misses p by up to 5 deg/s 0.3 s after a step too).
 
 Measured 2026-11-26, seeds 1-12 (about 60 s on 2 cores each), the steps timed from the
 gyros with the kink's order chosen by BIC, each surface's steps also moved together by the
@@ -108,15 +119,15 @@ def one_flight(seed: int, surfaces_hz: float = 25.0, rates: str = "default") -> 
 
 
 def proof_of_match(method: dict) -> dict:
-    """The proof of match of one fit: passed, passed without the untimed steps moved within
-    their intervals (every judged channel's nominal error within its band), and the untimed
-    steps in its held-out maneuvers."""
+    """The proof of match of one fit: passed, passed without the steps between slow samples
+    moved through the range of their time (every judged channel's nominal error within its
+    band), and the untimed steps in its held-out maneuvers."""
     pm = (method.get("validation") or {}).get("proof_of_match") or {}
     segs = pm.get("segments") or []
     chans = [d for s in segs for d in s["channels"].values() if d.get("pass") is not None]
     nominal = all(d.get("nominal_max_abs_error", d["max_abs_error"]) <= d["tolerance"] for d in chans)
     return {"pom": bool(pm.get("all_pass")), "pom_nominal": bool(segs) and nominal,
-            "untimed": sum((s.get("input_timing") or {}).get("untimed_steps", 0) for s in segs)}
+            "untimed": sum((s.get("input_timing") or {}).get("untimed", 0) for s in segs)}
 
 
 def main() -> None:
@@ -134,7 +145,7 @@ def main() -> None:
     pom = df.groupby(["key", "seed"])[["pom", "pom_nominal", "untimed"]].first()
     for key, g in pom.groupby(level=0):
         print(f"  {key}: proof of match passes on {int(g['pom'].sum())}/{len(g)} seeds, "
-              f"{int(g['pom_nominal'].sum())}/{len(g)} without the untimed steps moved "
+              f"{int(g['pom_nominal'].sum())}/{len(g)} without the steps moved in time "
               f"({int((g['untimed'] > 0).sum())} with untimed steps in the held-out maneuver)")
     print(f"empirical std / total std {tab['total'].min():.2f}-{tab['total'].max():.2f} "
           f"(CRB alone {tab['crb'].min():.2f}-{tab['crb'].max():.2f})")

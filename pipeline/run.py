@@ -925,7 +925,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
             pb = _method_problem(fd, ac, problem, build, outs, m, lon=lon, multiaxis=multiaxis,
                                  turbulent=turbulent, say=note, cache=cache, inputs=inputs,
                                  smooth_inputs=smooth_inputs, hold_out=hold)
-            pb = replace(pb, step_times=step_times(fd.meta))
+            pb.step_times = step_times(fd.meta)      # the flight's: the cached problem's too
             if vflights and starts is None:
                 vpbs, numbers = [], []
                 for k, vbase in vbases:
@@ -934,7 +934,8 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                                           say=val_note(k), cache=vcaches[k],
                                           inputs=inputs, smooth_inputs=smooth_inputs, hold_out=0)
                     if vpb.model.name == pb.model.name:
-                        vpbs.append(replace(vpb, step_times=step_times(vflights[k].meta)))
+                        vpb.step_times = step_times(vflights[k].meta)
+                        vpbs.append(vpb)
                         numbers.append(k)
                     else:
                         val_note(k)(f"{pb.model.name} model not set up there; it proves "
