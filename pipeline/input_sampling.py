@@ -368,9 +368,10 @@ def timing_variants(seg: Segment, inputs: Sequence[str],
     on the grid (0: at the start, 1: at the end); a timed one within ``k`` std of its time,
     as the fits' ramp one grid step wide. The samples around a step take the value before
     it and the value after it (those of the samples just outside that range) with the step
-    at that time. [] when no step moves a grid sample of ``seg`` (none in the segment, or
-    the timed ones known to within a grid step). A first-order lag applied to an input
-    (input dynamics) is not undone: the copies are then approximate."""
+    at that time. [] when no step moves a grid sample of ``seg`` (none in it, or only at its
+    edges). Steps are taken one by one: two whose ranges overlap would each take the
+    other's samples as its before or after. A first-order lag applied to an input (input
+    dynamics) is not undone: the copies are then approximate."""
     t = seg.t
     moves = []          # (column, samples, value before, after, earliest time, latest, ramp width)
     for j, c in enumerate(inputs):
