@@ -51,6 +51,7 @@ import numpy as np
 
 from estimators import EstimationResult
 from estimators.results import std_label
+from estimators.validation import NOISE_ALPHA
 from pipeline.paths import atomic_write_text
 from pipeline.input_sampling import TIMING_FRACTIONS
 from pipeline.validate import display_unit, is_segment_parameter, json_ready, num, verdict
@@ -240,6 +241,14 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
         L += [f"Note: {n}." for n in pm.get("notes") or ()] + ([""] if pm.get("notes") else [])
         for s in pm["segments"]:
             L += [f"Held-out segment **{s['name']}**: {'PASS' if s['all_pass'] else 'FAIL'}", ""]
+            allow = {c: d for c, d in s["channels"].items()
+                     if d.get("pass") is not None and (d.get("noise_allowance_display") or 0) > 0}
+            if allow:
+                L += ["Each band is widened by what the channel's measurement noise (its white "
+                      "level in this segment's data, from second differences) reaches over the "
+                      f"segment's samples with {100 * (1 - NOISE_ALPHA):g} % probability: "
+                      + ", ".join(f"{c} +{_g(d['noise_allowance_display'])} {d['unit']}"
+                                  for c, d in allow.items()) + ".", ""]
             timing = s.get("input_timing") or {}
             if timing.get("envelope"):
                 wide = {c: d for c, d in s["channels"].items()

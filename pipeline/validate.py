@@ -73,6 +73,7 @@ import estimators
 from estimators import EstimationResult, Segment, simulate_outputs
 from estimators import validation as V
 from estimators.model import Namespace
+from estimators import statistics as st
 
 #: TIC below which a channel's fit counts as good (DESIGN.md section 8)
 TIC_LIMIT = 0.1
@@ -454,7 +455,12 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
         z = pd.DataFrame(seg.z, index=y.index, columns=model.outputs)
         # the channels that drive the filter are its one-step predictions: not judged
         tol = {**(tolerances or {}), **{c: math.nan for c in driven}}
-        pm = V.proof_of_match(z, y, tolerances=tol, allowed_bias=allowed_bias, envelope=envelope)
+        # the measurement noise of the held-out data, so that it alone does not fail a
+        # channel somewhere in a long segment (robust: the kinks at control steps aside)
+        noise = {c: float(v) for c, v in zip(model.outputs, st.difference_noise_std([seg.z], robust=True))
+                 if np.isfinite(v) and v > 0}
+        pm = V.proof_of_match(z, y, tolerances=tol, allowed_bias=allowed_bias, envelope=envelope,
+                              noise_std=noise)
         tic = V.theil(z.to_numpy(), y.to_numpy()).U
         chans = {}
         for (ch, row), u in zip(pm.iterrows(), tic):
@@ -463,6 +469,7 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
             d.update(unit=unit, tolerance_display=num(row["tolerance"] * fac),
                      max_abs_error_display=num(row["max_abs_error"] * fac),
                      rms_error_display=num(row["rms_error"] * fac), TIC=num(u),
+                     noise_allowance_display=num(row["noise_allowance"] * fac),
                      role="drives the filter" if ch in driven else "predicted")
             if envelope is not None:
                 d.update(nominal_max_abs_error_display=num(row["nominal_max_abs_error"] * fac),

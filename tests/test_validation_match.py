@@ -85,6 +85,39 @@ def test_an_input_timing_envelope_judges_the_distance_from_the_range():
         proof_of_match(meas, pred, envelope=(lower.iloc[:3], upper))
 
 
+def test_white_noise_alone_fails_a_channel_in_5_percent_of_segments():
+    """noise_std: the band widened by what the noise reaches over the channel's samples
+    (noise_reach: all of n N(0, 1) samples within +-z with probability 95 %), so a perfect
+    model is not failed for its data's noise; a model error beyond band + reach still is."""
+    from estimators.validation import noise_reach
+    from scipy.stats import norm
+
+    assert noise_reach(1) == pytest.approx(1.959964, abs=1e-6)
+    for n in (10, 1000):          # (1 - 2 Phi(-z))^n = 0.95
+        assert (1 - 2 * norm.cdf(-noise_reach(n))) ** n == pytest.approx(0.95, abs=1e-12)
+    sd, n, draws = 0.5 * DEG, 1000, 400
+    rng = np.random.default_rng(3)
+    meas = pd.DataFrame({"q": sd * rng.standard_normal(n)})
+    pred = pd.DataFrame({"q": np.zeros(n)})
+    plain = proof_of_match(meas, pred)                  # 0.5 deg/s noise, 1.5 deg/s band
+    assert not bool(plain.loc["q", "pass"]) and plain.loc["q", "noise_allowance"] == 0.0
+    df = proof_of_match(meas, pred, noise_std={"q": sd})
+    assert bool(df.loc["q", "pass"])
+    assert df.loc["q", "noise_allowance"] == pytest.approx(noise_reach(n) * sd)
+    fails = sum(not bool(proof_of_match(pd.DataFrame({"q": sd * rng.standard_normal(n)}), pred,
+                                        noise_std={"q": sd}).loc["q", "pass"]) for _ in range(draws))
+    # the 1.5 deg/s band comes on top of the reach: far fewer than 5 % fail; without it 5 %
+    assert fails / draws < 0.01
+    zero = sum(not bool(proof_of_match(pd.DataFrame({"q": sd * rng.standard_normal(n)}), pred,
+                                       tolerances={"q": 0.0}, noise_std={"q": sd}).loc["q", "pass"])
+               for _ in range(draws))
+    assert 0.02 < zero / draws < 0.09, zero / draws
+    # a model 2.5 deg/s off over a tenth of the samples still fails (1.5 + 4.05 x 0.5 = 3.5)
+    off = pred.copy()
+    off.loc[:99, "q"] = 4.0 * DEG
+    assert not bool(proof_of_match(meas, off, noise_std={"q": sd}).loc["q", "pass"])
+
+
 APRIORI = """
 [Cmq]
 value = -25.0
@@ -178,3 +211,33 @@ def test_inverse_simulation_reveals_control_effectiveness_error():
     assert np.abs(r.residual_inputs[T < 1.0]).max() < 1e-12
     with pytest.raises(ValueError, match="unstable"):
         inverse_simulation(A, B, np.eye(2), None, T, measured(), bandwidth=500.0)
+
+
+def test_the_pipeline_judges_a_held_out_maneuver_with_its_own_noise_level():
+    """pipeline.validate: the held-out data's white-noise level (second differences) widens
+    each band by its reach; a true roll-rate model on data with 0.5 deg/s gyro noise passes
+    (it failed on the noise alone: a 1.5 deg/s band, 3 sigma, over 300 samples), a 30 %
+    wrong control derivative still fails."""
+    import copy
+
+    from estimators import Model, OutputError, Parameter, Segment, simulate_outputs
+    from pipeline.validate import validate
+
+    m = Model(states=["p"], inputs=["da"], outputs=["p"],
+              parameters=[Parameter("Lp", -8.0), Parameter("Lda", 40.0)],
+              f=lambda x, u, p, c: (p.Lp * x[0] + p.Lda * u[0],), g=lambda x, u, p, c: (x[0],))
+    t = np.round(np.arange(0.0, 3.0, 0.01), 10)
+    da = np.radians(4.0) * ((t >= 0.5) & (t < 1.5)) - np.radians(4.0) * ((t >= 1.5) & (t < 2.5))
+    clean = Segment(t=t, u=da[:, None], z=np.zeros((t.size, 1)), x0=np.zeros(1))
+    y = simulate_outputs(m, clean).to_numpy()
+    rng = np.random.default_rng(5)
+    segs = [Segment(t=t, u=da[:, None], z=y + 0.5 * DEG * rng.standard_normal(y.shape), x0=np.zeros(1))
+            for _ in range(2)]
+    res = OutputError(m).fit(segs[0], estimate_x0=False)
+    p = validate(res, held_out=[segs[1]])["proof_of_match"]["segments"][0]["channels"]["p"]
+    assert p["pass"] and p["max_abs_error_display"] > 1.5, p                 # noise beyond the band
+    assert 0.5 * 3.0 < p["noise_allowance_display"] < 0.5 * 4.5, p           # about 3.8 sigma
+    wrong = copy.copy(res)
+    wrong.values = np.where(np.array(res.names) == "Lda", 0.7 * float(res.params["Lda"]), res.values)
+    q = validate(wrong, held_out=[segs[1]])["proof_of_match"]["segments"][0]["channels"]["p"]
+    assert not q["pass"], q

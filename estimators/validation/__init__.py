@@ -20,7 +20,7 @@ from .fit import TheilResult, det_r, fit_metrics, r_squared, residual_covariance
 from .frequency import (MismatchResult, SpectralEstimate, bode, freq_response, mismatch,
                         spectral_estimate)
 from .inverse import InverseSimResult, inverse_simulation
-from .match import DEFAULT_TOLERANCES, default_tolerances, proof_of_match
+from .match import DEFAULT_TOLERANCES, NOISE_ALPHA, default_tolerances, noise_reach, proof_of_match
 from .modes import ModeAnalysis, linearize, mode_properties, modes
 from .plausibility import agreement, load_apriori, plausibility
 from .prediction import AIR_DATA, DrivenPrediction, air_data_prediction, driving_states
@@ -38,7 +38,7 @@ __all__ = [
     "ModeAnalysis", "modes", "mode_properties", "linearize",
     "freq_response", "bode", "SpectralEstimate", "spectral_estimate", "MismatchResult",
     "mismatch",
-    "DEFAULT_TOLERANCES", "default_tolerances", "proof_of_match",
+    "DEFAULT_TOLERANCES", "NOISE_ALPHA", "default_tolerances", "noise_reach", "proof_of_match",
     "load_apriori", "plausibility", "agreement",
     "InverseSimResult", "inverse_simulation",
     "AIR_DATA", "DrivenPrediction", "air_data_prediction", "driving_states",

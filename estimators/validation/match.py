@@ -15,7 +15,8 @@ import pandas as pd
 
 from ._util import as_2d, output_names
 
-__all__ = ["G0", "DEFAULT_TOLERANCES", "default_tolerances", "proof_of_match"]
+__all__ = ["G0", "DEFAULT_TOLERANCES", "NOISE_ALPHA", "default_tolerances", "noise_reach",
+           "proof_of_match"]
 
 G0 = 9.80665  # m/s^2
 _DEG = np.pi / 180.0
@@ -24,6 +25,22 @@ DEFAULT_TOLERANCES: Mapping[str, float] = {
     **{k: 0.1 * G0 for k in ("ax", "ay", "az")},                 # m/s^2
     **{k: 1.5 * _DEG for k in ("phi", "theta", "psi", "alpha", "beta")},   # rad
 }
+
+
+#: the chance that white measurement noise alone fails a channel of the proof of match
+#: when its level is given (``proof_of_match(noise_std=...)``)
+NOISE_ALPHA = 0.05
+
+
+def noise_reach(n: int, alpha: float = NOISE_ALPHA) -> float:
+    """z such that n independent N(0, 1) samples all lie within +-z with probability
+    1 - alpha: z = -Phi^-1((1 - (1 - alpha)^(1/n)) / 2) (n = 1: 1.96; 1000: 4.05 for 5 %);
+    0 for n < 1."""
+    from scipy.stats import norm
+
+    if n < 1:
+        return 0.0
+    return float(-norm.ppf(-np.expm1(np.log1p(-alpha) / n) / 2.0))
 
 
 def default_tolerances(rate_deg_s: float = 1.5, accel_g: float = 0.1,
@@ -39,7 +56,9 @@ def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
                    tolerances: Mapping[str, float] | None = None, *,
                    required_fraction: float = 1.0,
                    allowed_bias: Mapping[str, float] | None = None,
-                   envelope: tuple[object, object] | None = None) -> pd.DataFrame:
+                   envelope: tuple[object, object] | None = None,
+                   noise_std: Mapping[str, float] | None = None,
+                   noise_alpha: float = NOISE_ALPHA) -> pd.DataFrame:
     """Pass/fail per channel of predicted vs measured time histories.
 
     measured, predicted: (N, n_out) arrays or DataFrames (columns give the names), SI units.
@@ -56,9 +75,16 @@ def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
         ``rms_error`` are that distance; ``nominal_max_abs_error`` is the error of
         ``predicted`` itself and ``envelope_max_width`` the range's widest point. Without
         it the two columns are the error's and 0.
+    noise_std: per channel, the white measurement-noise std (SI) of ``measured``: the band
+        a sample is judged against is the tolerance plus the noise's reach over the
+        channel's n measured samples, :func:`noise_reach` (n, ``noise_alpha``) x std, so
+        that noise alone fails a channel in ``noise_alpha`` (5 %) of segments instead of
+        almost surely over a long one (a 0.5 deg/s gyro noise exceeds a 1.5 deg/s band
+        somewhere in 1000 samples with probability 0.93). ``noise_allowance`` says how
+        much was added (0 without).
     Returns a DataFrame indexed by channel with ``tolerance``, ``bias_removed``,
     ``max_abs_error``, ``rms_error``, ``fraction_within``, ``pass``,
-    ``nominal_max_abs_error``, ``envelope_max_width``; the attribute
+    ``nominal_max_abs_error``, ``envelope_max_width``, ``noise_allowance``; the attribute
     ``df.attrs["all_pass"]`` is True when every judged channel passes.
     """
     z, y = as_2d(measured, "measured"), as_2d(predicted, "predicted")
@@ -83,8 +109,12 @@ def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
         width = hi - lo
     ae = np.abs(e)
     present = np.isfinite(e)                      # NaN: no measurement at this sample
+    sd = np.array([(noise_std or {}).get(n, np.nan) for n in names], dtype=float)
+    allow = np.where(np.isfinite(sd) & (sd > 0),
+                     [noise_reach(int(k), noise_alpha) for k in present.sum(axis=0)] * np.nan_to_num(sd),
+                     0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        frac = np.sum((ae <= tol) & present, axis=0) / present.sum(axis=0)
+        frac = np.sum((ae <= tol + allow) & present, axis=0) / present.sum(axis=0)
     judged = np.isfinite(tol)
     passed = pd.array(np.where(judged, frac >= required_fraction, False), dtype="boolean")
     passed[~judged] = pd.NA
@@ -92,7 +122,8 @@ def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
                        "rms_error": np.sqrt(np.nanmean(e * e, axis=0)),
                        "fraction_within": np.where(judged, frac, np.nan), "pass": passed,
                        "nominal_max_abs_error": np.nanmax(nominal, axis=0),
-                       "envelope_max_width": np.max(np.where(present, width, 0.0), axis=0)},
+                       "envelope_max_width": np.max(np.where(present, width, 0.0), axis=0),
+                       "noise_allowance": allow},
                       index=pd.Index(names, name="channel"))
     df.attrs["all_pass"] = bool(judged.any() and df["pass"][judged].all())
     return df
