@@ -241,3 +241,39 @@ def test_the_pipeline_judges_a_held_out_maneuver_with_its_own_noise_level():
     wrong.values = np.where(np.array(res.names) == "Lda", 0.7 * float(res.params["Lda"]), res.values)
     q = validate(wrong, held_out=[segs[1]])["proof_of_match"]["segments"][0]["channels"]["p"]
     assert not q["pass"], q
+
+
+def test_a_tic_at_the_noise_floor_is_noted_not_failed():
+    """pipeline.validate: a channel the maneuver hardly moves (a 0.2 deg aileron doublet: p
+    about 1 deg/s against 0.5 deg/s of gyro noise) has TIC >= 0.1 with the true model; its
+    residuals are its noise, so the verdict notes it (tic_noise_floor) instead of failing.
+    A model whose residuals exceed the noise by more than NOISE_FLOOR_RATIO still fails."""
+    import copy
+
+    from estimators import Model, OutputError, Parameter, Segment, simulate_outputs
+    from pipeline.validate import NOISE_FLOOR_RATIO, validate
+
+    m = Model(states=["p"], inputs=["da"], outputs=["p"],
+              parameters=[Parameter("Lp", -8.0), Parameter("Lda", 40.0)],
+              f=lambda x, u, p, c: (p.Lp * x[0] + p.Lda * u[0],), g=lambda x, u, p, c: (x[0],))
+    t = np.round(np.arange(0.0, 6.0, 0.01), 10)
+    da = np.radians(0.2) * (((t % 2) >= 0.5) & ((t % 2) < 1.0)) - np.radians(0.2) * (((t % 2) >= 1.0) & ((t % 2) < 1.5))
+    clean = Segment(t=t, u=da[:, None], z=np.zeros((t.size, 1)), x0=np.zeros(1))
+    z = simulate_outputs(m, clean).to_numpy() + 0.5 * DEG * np.random.default_rng(7).standard_normal((t.size, 1))
+    seg = Segment(t=t, u=da[:, None], z=z, x0=np.zeros(1))
+    res = OutputError(m).fit(seg, estimate_x0=False)
+    v = validate(res)
+    fit = v["fit"]
+    assert fit["per_output"]["p"]["TIC"] >= 0.1 and not fit["tic_ok"]
+    assert fit["tic_noise_floor"] == ["p"]
+    assert fit["per_output"]["p"]["noise_std"] == pytest.approx(0.5 * DEG, rel=0.1)
+    assert not any("TIC" in r for r in v["verdict"]["reasons"])
+    assert any("noise floor" in n for n in v["verdict"]["notes"])
+    wrong = copy.copy(res)                     # the prediction of a model with Lda 70 % low
+    wrong.values = np.where(np.array(res.names) == "Lda", 0.3 * float(res.params["Lda"]), res.values)
+    wrong.predicted = [simulate_outputs(wrong.model_with_estimates(), seg)]
+    wrong.residuals = [pd.DataFrame(seg.z - wrong.predicted[0].to_numpy(), index=wrong.predicted[0].index,
+                                    columns=["p"])]
+    w = validate(wrong)["fit"]
+    assert w["per_output"]["p"]["RMS"] > NOISE_FLOOR_RATIO * w["per_output"]["p"]["noise_std"]
+    assert w["tic_noise_floor"] == [] and not w["tic_ok"]
