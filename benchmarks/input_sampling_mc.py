@@ -121,12 +121,13 @@ def one_flight(seed: int, surfaces_hz: float = 25.0, rates: str = "default") -> 
 def proof_of_match(method: dict) -> dict:
     """The proof of match of one fit: passed, passed without the steps between slow samples
     moved through the range of their time (every judged channel's nominal error within its
-    band), and the untimed steps in its held-out maneuvers."""
+    band), the untimed steps in its held-out maneuvers, and the fit's verdict."""
     pm = (method.get("validation") or {}).get("proof_of_match") or {}
     segs = pm.get("segments") or []
     chans = [d for s in segs for d in s["channels"].values() if d.get("pass") is not None]
     nominal = all(d.get("nominal_max_abs_error", d["max_abs_error"]) <= d["tolerance"] for d in chans)
     return {"pom": bool(pm.get("all_pass")), "pom_nominal": bool(segs) and nominal,
+            "verdict": bool((method.get("verdict") or {}).get("ok")),
             "untimed": sum((s.get("input_timing") or {}).get("untimed", 0) for s in segs)}
 
 
@@ -142,11 +143,12 @@ def main() -> None:
     for key, g in worst.groupby(level=0):
         print(f"  {key}: within 3 std on {int((g['z_total'] <= 3).sum())}/{len(g)} seeds with the "
               f"steps' times carried, {int((g['z_crb'] <= 3).sum())}/{len(g)} with the CRB alone")
-    pom = df.groupby(["key", "seed"])[["pom", "pom_nominal", "untimed"]].first()
+    pom = df.groupby(["key", "seed"])[["pom", "pom_nominal", "untimed", "verdict"]].first()
     for key, g in pom.groupby(level=0):
         print(f"  {key}: proof of match passes on {int(g['pom'].sum())}/{len(g)} seeds, "
               f"{int(g['pom_nominal'].sum())}/{len(g)} without the steps moved in time "
-              f"({int((g['untimed'] > 0).sum())} with untimed steps in the held-out maneuver)")
+              f"({int((g['untimed'] > 0).sum())} with untimed steps in the held-out maneuver); "
+              f"verdict PASS on {int(g['verdict'].sum())}/{len(g)}")
     print(f"empirical std / total std {tab['total'].min():.2f}-{tab['total'].max():.2f} "
           f"(CRB alone {tab['crb'].min():.2f}-{tab['crb'].max():.2f})")
     print(f"median worst |error|/std, CRB alone / total: "

@@ -18,6 +18,7 @@ import pytest
 
 from pipeline.flightdata import Channel, FlightData
 from pipeline.input_sampling import Edge, step_edges, with_edges_moved
+from tests._roll import roll_model, roll_segment
 
 
 def _doublet_25hz(t_edges=(1.013, 1.513, 2.013), amp=np.radians(2.0)) -> FlightData:
@@ -239,21 +240,6 @@ def test_a_25_hz_log_throughout(tmp_path):
         assert worst <= 3.0, (key, worst)
 
 
-def _roll(t: np.ndarray, da: np.ndarray, seed: int):
-    """A roll-rate model p' = Lp p + Lda da (Lp -8 1/s, Lda 40 1/s^2) and its measured p
-    (0.05 deg/s noise) driven by ``da`` on the 100 Hz grid ``t``: a Segment."""
-    from estimators import Model, Parameter, Segment, simulate_outputs
-
-    m = Model(states=["p"], inputs=["da"], outputs=["p"],
-              parameters=[Parameter("Lp", -8.0), Parameter("Lda", 40.0)],
-              f=lambda x, u, p, c: (p.Lp * x[0] + p.Lda * u[0],), g=lambda x, u, p, c: (x[0],),
-              name="roll")
-    seg = Segment(t=t, u=da[:, None], z=np.zeros((t.size, 1)), x0=np.zeros(1))
-    y = simulate_outputs(m, seg, inputs="linear").to_numpy()
-    z = y + np.radians(0.05) * np.random.default_rng(seed).standard_normal(y.shape)
-    return m, Segment(t=t, u=da[:, None], z=z, x0=np.zeros(1))
-
-
 def test_the_proof_of_match_moves_an_untimed_step_within_its_interval(tmp_path):
     """A 2 deg aileron step at 1.012 s, logged at 10 Hz (samples at 1.0 and 1.1 s) and left
     untimed: the fits' input is a ramp over 100 ms, 38 ms late at its middle, and the true
@@ -270,10 +256,10 @@ def test_the_proof_of_match_moves_an_untimed_step_within_its_interval(tmp_path):
     exact = np.where(t >= 1.012, amp, 0.0)
     exact[t == 1.01] = amp * 0.3               # a step at 1.012 read linearly: its area kept
     ramp = np.interp(t, [0.0, 1.0, 1.1, 3.0], [0.0, 0.0, amp, amp])
-    model, train = _roll(t, exact, seed=1)
-    res = OutputError(model, inputs="linear").fit(train, estimate_x0=False)
+    train = roll_segment(t, exact, np.radians(0.05), seed=1)
+    res = OutputError(roll_model(), inputs="linear").fit(train, estimate_x0=False)
     assert abs(res.params["Lda"] - 40.0) < 3 * res.std["Lda"]
-    _, held = _roll(t, exact, seed=2)
+    held = roll_segment(t, exact, np.radians(0.05), seed=2)
     held.u = ramp[:, None]                     # what a 10 Hz log gives the fits
     spans = {"da": [(1.0, 1.1, None)]}
 

@@ -7,6 +7,7 @@ from scipy import signal
 
 from estimators.validation import (agreement, default_tolerances, inverse_simulation,
                                    load_apriori, plausibility, proof_of_match)
+from tests._roll import roll_model, roll_segment
 
 DEG = np.pi / 180
 
@@ -220,20 +221,13 @@ def test_the_pipeline_judges_a_held_out_maneuver_with_its_own_noise_level():
     wrong control derivative still fails."""
     import copy
 
-    from estimators import Model, OutputError, Parameter, Segment, simulate_outputs
+    from estimators import OutputError
     from pipeline.validate import validate
 
-    m = Model(states=["p"], inputs=["da"], outputs=["p"],
-              parameters=[Parameter("Lp", -8.0), Parameter("Lda", 40.0)],
-              f=lambda x, u, p, c: (p.Lp * x[0] + p.Lda * u[0],), g=lambda x, u, p, c: (x[0],))
     t = np.round(np.arange(0.0, 3.0, 0.01), 10)
     da = np.radians(4.0) * ((t >= 0.5) & (t < 1.5)) - np.radians(4.0) * ((t >= 1.5) & (t < 2.5))
-    clean = Segment(t=t, u=da[:, None], z=np.zeros((t.size, 1)), x0=np.zeros(1))
-    y = simulate_outputs(m, clean).to_numpy()
-    rng = np.random.default_rng(5)
-    segs = [Segment(t=t, u=da[:, None], z=y + 0.5 * DEG * rng.standard_normal(y.shape), x0=np.zeros(1))
-            for _ in range(2)]
-    res = OutputError(m).fit(segs[0], estimate_x0=False)
+    segs = [roll_segment(t, da, 0.5 * DEG, seed) for seed in (5, 6)]
+    res = OutputError(roll_model()).fit(segs[0], estimate_x0=False)
     p = validate(res, held_out=[segs[1]])["proof_of_match"]["segments"][0]["channels"]["p"]
     assert p["pass"] and p["max_abs_error_display"] > 1.5, p                 # noise beyond the band
     assert 0.5 * 3.0 < p["noise_allowance_display"] < 0.5 * 4.5, p           # about 3.8 sigma
@@ -250,18 +244,14 @@ def test_a_tic_at_the_noise_floor_is_noted_not_failed():
     A model whose residuals exceed the noise by more than NOISE_FLOOR_RATIO still fails."""
     import copy
 
-    from estimators import Model, OutputError, Parameter, Segment, simulate_outputs
+    from estimators import OutputError, simulate_outputs
     from pipeline.validate import NOISE_FLOOR_RATIO, validate
 
-    m = Model(states=["p"], inputs=["da"], outputs=["p"],
-              parameters=[Parameter("Lp", -8.0), Parameter("Lda", 40.0)],
-              f=lambda x, u, p, c: (p.Lp * x[0] + p.Lda * u[0],), g=lambda x, u, p, c: (x[0],))
     t = np.round(np.arange(0.0, 6.0, 0.01), 10)
-    da = np.radians(0.2) * (((t % 2) >= 0.5) & ((t % 2) < 1.0)) - np.radians(0.2) * (((t % 2) >= 1.0) & ((t % 2) < 1.5))
-    clean = Segment(t=t, u=da[:, None], z=np.zeros((t.size, 1)), x0=np.zeros(1))
-    z = simulate_outputs(m, clean).to_numpy() + 0.5 * DEG * np.random.default_rng(7).standard_normal((t.size, 1))
-    seg = Segment(t=t, u=da[:, None], z=z, x0=np.zeros(1))
-    res = OutputError(m).fit(seg, estimate_x0=False)
+    ph = t % 2
+    da = np.radians(0.2) * (((ph >= 0.5) & (ph < 1.0)).astype(float) - ((ph >= 1.0) & (ph < 1.5)))
+    seg = roll_segment(t, da, 0.5 * DEG, seed=7)
+    res = OutputError(roll_model()).fit(seg, estimate_x0=False)
     v = validate(res)
     fit = v["fit"]
     assert fit["per_output"]["p"]["TIC"] >= 0.1 and not fit["tic_ok"]
