@@ -53,7 +53,6 @@ from estimators import EstimationResult
 from estimators.results import std_label
 from estimators.validation import NOISE_ALPHA
 from pipeline.paths import atomic_write_text
-from pipeline.input_sampling import TIMING_FRACTIONS
 from pipeline.validate import display_unit, is_segment_parameter, json_ready, num, verdict
 
 SCHEMA = "fsid-report/1"
@@ -257,7 +256,7 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
                       f"({timing['untimed']} untimed). The model also predicted the segment with "
                       "each moved through the range of its time (an untimed one across its "
                       f"interval, a timed one {timing['timed_range_std']:g} std either side, at "
-                      f"{', '.join(f'{f:g}' for f in TIMING_FRACTIONS)} of that range), and a "
+                      f"{', '.join(f'{f:g}' for f in timing['fractions'])} of that range), and a "
                       "sample's error is its distance from the range of those predictions and "
                       "the fitted one. Without that, the largest errors were: "
                       + ", ".join(f"{c} {_g(d.get('nominal_max_abs_error_display'))} {d['unit']} "

@@ -524,7 +524,7 @@ def _timing_envelope(result: EstimationResult, seg: Segment, steps: Mapping[str,
     and r missed the 1.5 deg/s band by 14 deg/s at that step; at 25 Hz (seed 3) the steps
     were all timed, and one sample of p and r, at an aileron doublet's reversal where p
     moves 900 deg/s^2, missed the band by 0.08 and 0.02 deg/s."""
-    from pipeline.input_sampling import TIMED_RANGE_STD, timing_variants
+    from pipeline.input_sampling import TIMED_RANGE_STD, TIMING_FRACTIONS, timing_variants
 
     variants = timing_variants(seg, result.model.inputs, steps) if steps else []
     if not variants:
@@ -532,7 +532,8 @@ def _timing_envelope(result: EstimationResult, seg: Segment, steps: Mapping[str,
     inside = [sd for c in result.model.inputs for a, b, sd in steps.get(c, ())
               if seg.t[0] < a and b < seg.t[-1]]
     doc: dict[str, Any] = {"steps": len(inside), "untimed": sum(sd is None for sd in inside),
-                           "timed_range_std": TIMED_RANGE_STD, "envelope": False}
+                           "timed_range_std": TIMED_RANGE_STD, "fractions": list(TIMING_FRACTIONS),
+                           "envelope": False}
     ys = []
     for v in variants:
         try:

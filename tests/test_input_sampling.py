@@ -287,7 +287,8 @@ def test_the_proof_of_match_moves_an_untimed_step_within_its_interval(tmp_path):
     moved = validate(res, held_out=[held], step_times=[spans])["proof_of_match"]
     seg = moved["segments"][0]
     p = seg["channels"]["p"]
-    assert seg["input_timing"] == {"steps": 1, "untimed": 1, "timed_range_std": 2.0, "envelope": True}
+    assert seg["input_timing"] == {"steps": 1, "untimed": 1, "timed_range_std": 2.0,
+                                   "fractions": list(TIMING_FRACTIONS), "envelope": True}
     assert p["pass"] and p["max_abs_error_display"] < 0.5, p
     assert p["nominal_max_abs_error_display"] == pytest.approx(plain["segments"][0]["channels"]["p"]["max_abs_error_display"])
     assert p["envelope_max_width_display"] > 4.0       # about 80 deg/s^2 over 90 ms, less the decay
