@@ -301,12 +301,11 @@ def time_steps(fd: FlightData, max_rate_hz: float) -> tuple[FlightData, list[Edg
     spans, else the whole log) on the grid the fits will use
     (:func:`pipeline.flightdata.fit_grid_rate` of the gyros' rate, at most ``max_rate_hz``)
     found (:func:`step_edges`) and timed from the rates
-    (:func:`refine_steps`); every step's span as it now is goes to the data's
-    ``meta["input_steps"]`` (channel -> [[start, end], ...] s) for :func:`step_spans`, and
-    with its time's std (None: untimed, anywhere in the span) to ``meta["step_times"]``
-    (channel -> [[start, end, std], ...]) for :func:`step_times`. Returns (flight data, its
-    steps - what :func:`pipeline.correction_uncertainty.input_sampling` carries -,
-    JSON-ready document; {} when no input is slower than the grid)."""
+    (:func:`refine_steps`); every step's span as it now is and its time's std (None:
+    untimed, anywhere in the span) go to the data's ``meta["input_steps"]`` (channel ->
+    [[start, end, std], ...] s) for :func:`step_spans` and :func:`step_times`. Returns
+    (flight data, its steps - what :func:`pipeline.correction_uncertainty.input_sampling`
+    carries -, JSON-ready document; {} when no input is slower than the grid)."""
     gyro = [fd[c].rate_hz for c in ("p", "q", "r") if c in fd.channels]
     if not gyro:
         return fd, [], {}
@@ -316,20 +315,11 @@ def time_steps(fd: FlightData, max_rate_hz: float) -> tuple[FlightData, list[Edg
     if not edges:
         return fd, [], {}
     out, edges, doc = refine_steps(fd, edges, grid)
-    steps: dict[str, list[list[float]]] = {}
-    times: dict[str, list[list[float | None]]] = {}
+    steps: dict[str, list[list[float | None]]] = {}
     for e in edges:
-        steps.setdefault(e.channel, []).append([float(e.t0), float(e.t1)])
-        times.setdefault(e.channel, []).append(
+        steps.setdefault(e.channel, []).append(
             [float(e.t0), float(e.t1), None if e.time_std is None else float(e.time_std)])
-    meta = {**out.meta, "input_steps": steps, "step_times": times}
-    return FlightData(out.channels, meta, out.segments), edges, doc
-
-
-def _delays(meta: dict) -> dict[str, float]:
-    """Each surface's delay (s) where input dynamics are applied (``meta["input_dynamics"]``:
-    the models see u(t - d)): the steps' spans move with it."""
-    return {c: float(v.get("delay_s", 0.0)) for c, v in (meta.get("input_dynamics") or {}).items()}
+    return FlightData(out.channels, {**out.meta, "input_steps": steps}, out.segments), edges, doc
 
 
 def step_spans(meta: dict) -> list[tuple[float, float]]:
@@ -341,21 +331,21 @@ def step_spans(meta: dict) -> list[tuple[float, float]]:
     an output the input reaches without dynamics (the accelerometers: the control forces)
     is then off by up to the step's whole force, and :func:`pipeline.identify.multirate_frame`
     leaves those samples out (FEEDTHROUGH_OUTPUTS)."""
-    d = _delays(meta)
-    return sorted((a + d.get(c, 0.0), b + d.get(c, 0.0))
-                  for c, spans in (meta.get("input_steps") or {}).items() for a, b in spans)
+    return sorted((a, b) for rows in step_times(meta).values() for a, b, _ in rows)
 
 
 def step_times(meta: dict) -> dict[str, list[tuple[float, float, float | None]]]:
     """Per control input, its steps between two slow samples as (start, end, std) [s]
-    (``meta["step_times"]`` of :func:`time_steps`): a timed step is a ramp one grid step
-    wide over (start, end) with its time's std; an untimed one (std None) happened anywhere
-    in the interval. Moved by the input's delay as :func:`step_spans` moves them. The proof
-    of match predicts a held-out maneuver with its steps moved within their uncertainty as
-    well (:func:`timing_variants`)."""
-    d = _delays(meta)
-    return {c: sorted((a + d.get(c, 0.0), b + d.get(c, 0.0), sd) for a, b, sd in rows)
-            for c, rows in (meta.get("step_times") or {}).items() if rows}
+    (``meta["input_steps"]`` of :func:`time_steps`; a row without its std counts as
+    untimed): a timed step is a ramp one grid step wide over (start, end) with its time's
+    std; an untimed one (std None) happened anywhere in the interval. Each moved by its
+    surface's delay where input dynamics are applied (``meta["input_dynamics"]``: the
+    models see u(t - d)). The proof of match predicts a held-out maneuver with its steps
+    moved within their uncertainty as well (:func:`timing_variants`)."""
+    d = {c: float(v.get("delay_s", 0.0)) for c, v in (meta.get("input_dynamics") or {}).items()}
+    return {c: sorted(((r[0] + d.get(c, 0.0), r[1] + d.get(c, 0.0), r[2] if len(r) > 2 else None)
+                       for r in rows), key=lambda r: r[:2])
+            for c, rows in (meta.get("input_steps") or {}).items() if rows}
 
 
 def timing_variants(seg: Segment, inputs: Sequence[str],

@@ -158,7 +158,7 @@ def test_the_steps_are_timed_from_the_gyros(flight, min_share, request):
         # the ramp in the data: one 100 Hz grid step wide, where the spans say
         i = np.searchsorted(timed_fd[e.channel].t, centre)
         assert timed_fd[e.channel].t[i - 1] == pytest.approx(e.t0) and timed_fd[e.channel].t[i] == pytest.approx(e.t1)
-        assert e.t1 - e.t0 == pytest.approx(0.01) and [e.t0, e.t1] in timed_fd.meta["input_steps"][e.channel]
+        assert e.t1 - e.t0 == pytest.approx(0.01) and [e.t0, e.t1, e.time_std] in timed_fd.meta["input_steps"][e.channel]
     z = np.array(z)
     assert np.sqrt(np.mean(z ** 2)) < 1.5 and np.max(np.abs(z)) < 4.0, z
     # every step with its time's std for the proof of match (step_times): an untimed one
