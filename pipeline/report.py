@@ -266,16 +266,26 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
                 L += [f"{timing['steps']} control-input step(s) between slow samples: the "
                       "predictions with them moved failed (see the notes); judged on the "
                       "steps as fitted.", ""]
+            pu = s.get("prediction_uncertainty")
+            if pu:
+                L += ["\"model std\": the prediction's own std from the covariance of the "
+                      f"{pu['parameters']} estimated derivatives (pointwise, its largest value; "
+                      "the segment's initial state and biases refitted); \"beyond\": how far "
+                      f"the misses reach beyond {pu['k']:g} of it (0: the estimates' imprecision "
+                      "explains them).", ""]
             rows = []
             for c, d in s["channels"].items():
                 judged = d.get("pass")
                 rows.append([c, d["unit"], _g(d.get("tolerance_display")),
                              _g(d.get("max_abs_error_display")), _g(d.get("rms_error_display")),
-                             _g(d.get("fraction_within"), ".3f"), _g(d.get("TIC"), ".4f"),
-                             "driving" if d.get("role") == "drives the filter" else
-                             "-" if judged is None else ("pass" if judged else "FAIL")])
+                             _g(d.get("fraction_within"), ".3f"), _g(d.get("TIC"), ".4f")]
+                            + ([_g(d.get("prediction_std_max_display")),
+                                _g(d.get("beyond_prediction_display"))] if pu else [])
+                            + ["driving" if d.get("role") == "drives the filter" else
+                               "-" if judged is None else ("pass" if judged else "FAIL")])
             L += _table(["channel", "unit", "tolerance", "max abs error", "rms error",
-                         "fraction within", "TIC", "result"], rows)
+                         "fraction within", "TIC"] + (["model std", "beyond"] if pu else [])
+                        + ["result"], rows)
     fr = v.get("frequency")
     if fr and fr.get("table"):
         b = fr["bounds"]

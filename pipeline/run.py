@@ -1057,7 +1057,7 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
     part's document (empty when no input is slow)."""
     from pipeline.correction_uncertainty import (fitted_steps, held_estimates, input_dynamics,
                                                  input_sampling, propagate, wind)
-    from pipeline.validate import refresh_truth_check
+    from pipeline.validate import refresh_prediction_uncertainty, refresh_truth_check
 
     held = [k for k, r in results.items() if (r.extra or {}).get("held") is not None]
     rebuilt = (flow or {}).get("status") == "reconstructed" and wind_refit is not None
@@ -1085,6 +1085,7 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
     sampling = input_sampling(inputs_data, results, inputs_refit, list(steps), progress) if slow else {}
     for key, res in results.items():
         if key in validations:
+            refresh_prediction_uncertainty(validations[key], res)
             refresh_truth_check(validations[key], res, truth)
     progress.done("nothing held" if not parts else
                   f"{sum(r.consider_cov is not None for r in results.values())} of {len(results)} "

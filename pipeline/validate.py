@@ -38,8 +38,11 @@ Keys of the returned dict
     filter in air-data mode: reported, not judged), ``notes``, ``segments`` (per held-out
     segment: ``name``, ``mode``, ``channels`` per output with ``tolerance max_abs_error
     rms_error fraction_within pass`` (SI) and the same in display units ``*_display`` with
-    ``unit``, ``TIC``, ``role`` (predicted / drives the filter), ``all_pass``) and
-    ``all_pass`` over all segments.
+    ``unit``, ``TIC``, ``role`` (predicted / drives the filter), in simulation mode
+    ``prediction_std_max_display`` and ``beyond_prediction_display`` (the prediction's own
+    std from the estimates' covariance and how far the misses reach beyond
+    ``estimators.validation.PREDICTION_K`` of it; ``prediction_uncertainty`` per segment:
+    ``parameters``, ``k``), ``all_pass``) and ``all_pass`` over all segments.
 ``frequency``: ``None`` when no input is excited; else ``inputs`` used, ``table`` per
     ``"<output>/<input>"`` (``max_mag_db max_phase_deg n_used pass``), ``bounds``: the
     model's response (through the same Welch estimator as the data, see :func:`_frequency`)
@@ -60,7 +63,9 @@ Keys of the returned dict
     ``H_model`` (the same estimator on the fixed model's simulated outputs), ``H_analytic`` (G(jw)
     of the linearised model), real ``coherence`` and bool ``used``, all (n_f, n_out, n_in_used);
     ``inputs``, ``outputs``), ``match`` (list per held-out segment of
-    ``t`` (N,), ``measured``/``predicted`` (N, n_out) DataFrames, ``tolerance`` (n_out,)),
+    ``t`` (N,), ``measured``/``predicted`` (N, n_out) DataFrames, ``tolerance`` (n_out,),
+    ``excess`` (N, n_out) each sample's error beyond its band, ``sensitivity`` (names, S
+    (N, n_out, n_names)) or None),
     ``inverse`` (``t`` (N,), ``inputs``, ``residual_inputs`` (N, n_in_used) SI).
 """
 from __future__ import annotations
@@ -468,8 +473,10 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
                              "open-loop simulation instead")
                 driven = []
         seg_mode = "air-data" if y is not None else "simulation"
+        sens = None
         if y is None:
-            y = _held_out_prediction(result, seg, integrator)
+            y, fit = _held_out_fit(result, seg, integrator)
+            sens = _prediction_sensitivity(result, seg, fit, integrator)
         name = seg.name or f"held-out {k}"
         steps = (step_times or [{}] * len(held_out))[k] or {}
         envelope, timing = _timing_envelope(result, seg, steps, seg_mode, integrator, y, notes, name)
@@ -480,8 +487,9 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
         # channel somewhere in a long segment (robust: the kinks at control steps aside)
         noise = {c: float(v) for c, v in zip(model.outputs, st.difference_noise_std([seg.z], robust=True))
                  if np.isfinite(v) and v > 0}
+        pstd = None if sens is None else V.prediction_std(sens[1], _band_covariance(result, sens[0]))
         pm = V.proof_of_match(z, y, tolerances=tol, allowed_bias=allowed_bias, envelope=envelope,
-                              noise_std=noise)
+                              noise_std=noise, prediction_std=pstd)
         tic = V.theil(z.to_numpy(), y.to_numpy()).U
         chans = {}
         for (ch, row), u in zip(pm.iterrows(), tic):
@@ -495,10 +503,14 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
             if envelope is not None:
                 d.update(nominal_max_abs_error_display=num(row["nominal_max_abs_error"] * fac),
                          envelope_max_width_display=num(row["envelope_max_width"] * fac))
+            _prediction_columns(d, row["prediction_std_max"], row["beyond_prediction"], fac)
             chans[ch] = d
         segs.append({"name": name, "mode": seg_mode, "channels": chans, "input_timing": timing,
-                     "all_pass": bool(pm.attrs["all_pass"])})
+                     "all_pass": bool(pm.attrs["all_pass"]),
+                     "prediction_uncertainty": None if sens is None else {
+                         "parameters": len(sens[0]), "k": V.PREDICTION_K}})
         arrays.append({"name": name, "t": seg.t, "measured": z, "predicted": y,
+                       "excess": pm.attrs["excess"], "sensitivity": sens,
                        "tolerance": pm["tolerance"].to_numpy(float),
                        "envelope": None if envelope is None else tuple(
                            pd.DataFrame(a, index=y.index, columns=y.columns) for a in envelope)})
@@ -506,6 +518,40 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
         mode = "simulation"
     return {"mode": mode, "driven": driven, "segments": segs, "notes": notes,
             "all_pass": bool(segs) and all(s["all_pass"] for s in segs)}, arrays
+
+
+def _band_covariance(result: EstimationResult, names: Sequence[str]) -> np.ndarray:
+    """The covariance of ``names`` among the result's free shared parameters (total:
+    with its consider part), for the held-out prediction's std."""
+    have, cov = shared_covariance(result)
+    idx = [have.index(n) for n in names]
+    return cov[np.ix_(idx, idx)]
+
+
+def _prediction_columns(d: dict[str, Any], std_max: float, beyond: float, fac: float) -> None:
+    """A proof-of-match channel's entries of the prediction's own uncertainty (display
+    units): its largest std and how far the misses reach beyond PREDICTION_K of it."""
+    d.update(prediction_std_max_display=num(std_max * fac),
+             beyond_prediction_display=num(beyond * fac))
+
+
+def refresh_prediction_uncertainty(validation: dict[str, Any], result: EstimationResult) -> None:
+    """Redo the proof of match's prediction-uncertainty entries of ``validation`` (in
+    place) with the result's current covariance (a ``consider_cov`` set after validation),
+    from the sensitivities and per-sample misses kept in its ``arrays``."""
+    pm = validation.get("proof_of_match")
+    arrays = (validation.get("arrays") or {}).get("match") or []
+    if not pm:
+        return
+    for sg, a in zip(pm["segments"], arrays):
+        if a.get("sensitivity") is None:
+            continue
+        names, S = a["sensitivity"]
+        top, beyond = V.prediction_uncertainty(a["excess"], V.prediction_std(S, _band_covariance(result, names)))
+        for j, ch in enumerate(a["predicted"].columns):
+            if ch in sg["channels"]:
+                _prediction_columns(sg["channels"][ch], top[j], beyond[j], display_unit(ch)[0])
+    validation["verdict"] = verdict(validation)
 
 
 def _timing_envelope(result: EstimationResult, seg: Segment, steps: Mapping[str, Any], mode: str,
@@ -568,21 +614,64 @@ def _air_data_prediction(result: EstimationResult, seg: Segment, integrator: str
 
 
 def _held_out_prediction(result: EstimationResult, seg: Segment, integrator: str) -> pd.DataFrame:
+    """The identified model's prediction of a held-out segment (:func:`_held_out_fit`)."""
+    return _held_out_fit(result, seg, integrator)[0]
+
+
+def _held_out_fit(result: EstimationResult, seg: Segment, integrator: str
+                  ) -> tuple[pd.DataFrame, EstimationResult | None]:
     """The identified model's prediction of a held-out segment: every derivative held at
     its estimate; only the segment's initial state and the model's per-segment biases are
     adjusted to the data (the usual proof of match - a noisy first sample as initial
     condition would excite the phugoid and fail the angles for no fault of the model).
-    Falls back to a plain simulation from the segment's x0 when that fit fails."""
+    Falls back to a plain simulation from the segment's x0 when that fit fails (None for
+    the fit)."""
     shared = {n: v for n, v in zip(result.names, result.values) if "[" not in n}
     model = result.model.with_values(shared).fixed([n for n in result.free_names if "[" not in n])
     inputs = result.settings.get("inputs", "average")
     try:
         fit = estimators.OutputError(model, integrator=integrator, inputs=inputs,
                                      fallback="never").fit(seg, estimate_x0=True)
-        return fit.predicted[0]
+        return fit.predicted[0], fit
     except estimators.EstimationError:
         return simulate_outputs(result.model_with_estimates(), seg, integrator=integrator,
-                                inputs=inputs)
+                                inputs=inputs), None
+
+
+def shared_covariance(result: EstimationResult) -> tuple[list[str], np.ndarray]:
+    """(names, covariance) of the result's free shared parameters (no per-segment ones):
+    its covariance plus its ``consider_cov`` when it has one (the total uncertainty)."""
+    free = result.free_names
+    keep = [i for i, n in enumerate(free) if not is_segment_parameter(n)]
+    cov = np.asarray(result.cov, dtype=float)
+    if result.consider_cov is not None:
+        cov = cov + np.asarray(result.consider_cov, dtype=float)
+    return [free[i] for i in keep], cov[np.ix_(keep, keep)]
+
+
+def _prediction_sensitivity(result: EstimationResult, seg: Segment, fit: EstimationResult | None,
+                            integrator: str) -> tuple[list[str], np.ndarray] | None:
+    """(names, S) with S (N, n_out, n_names) the held-out prediction's sensitivity to the
+    result's free shared parameters, the segment's initial state and output biases refitted
+    as the proof of match fits them (:func:`estimators.validation.parameter_sensitivity`,
+    weighted by that fit's residual variance); None without that fit or when the
+    simulation fails. Parameters the result held (another axis' estimates a 6-DoF model
+    holds) add nothing here: their uncertainty is not in its covariance."""
+    if fit is None:
+        return None
+    names, _ = shared_covariance(result)
+    if not names:
+        return None
+    values = {n: float(v) for n, v in zip(fit.names, fit.values)}
+    w = 1.0 / np.diag(np.atleast_2d(fit.R))
+    w = np.where(np.isfinite(w) & (w > 0), w, 0.0)
+    try:
+        S = V.parameter_sensitivity(fit.model, seg, values, names, fit.free_names, weights=w,
+                                    integrator=integrator,
+                                    inputs=result.settings.get("inputs", "average"))
+    except (estimators.EstimationError, np.linalg.LinAlgError, ValueError):
+        return None
+    return (names, S) if np.all(np.isfinite(S)) else None
 
 
 def _truth_check(result: EstimationResult, truth: Mapping[str, float], k: float) -> dict[str, Any]:
@@ -629,6 +718,7 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
         bad = sorted({c for s in pm["segments"] for c, d in s["channels"].items()
                       if d.get("pass") is False})
         reasons.append("proof of match failed on " + (", ".join(bad) or "every channel (none judged)"))
+        notes += _prediction_notes(pm)
     tr = (v.get("plausibility") or {}).get("truth")
     if tr and tr["per_parameter"] and not tr["all_within"]:
         bad = [n for n, d in tr["per_parameter"].items() if not d["within"]]
@@ -670,6 +760,36 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
         bad = [k for k, d in fr["table"].items() if d["n_used"] and not d["pass"]]
         notes.append(f"frequency-response mismatch beyond bounds on {', '.join(bad)}")
     return {"ok": not reasons, "reasons": reasons, "notes": notes}
+
+
+def _prediction_notes(pm: Mapping[str, Any]) -> list[str]:
+    """Verdict notes on the failed channels of a proof of match whose prediction has its
+    own uncertainty from the estimates: are the misses within PREDICTION_K of it (the
+    estimates' precision limits the match) or beyond (the model's form or its inputs)?"""
+    within, beyond = {}, {}
+    for sg in pm["segments"]:
+        k = (sg.get("prediction_uncertainty") or {}).get("k")
+        for c, d in sg["channels"].items():
+            b, top = d.get("beyond_prediction_display"), d.get("prediction_std_max_display")
+            if d.get("pass") is not False or b is None or top is None:
+                continue
+            if b > 0:
+                beyond[c] = max(beyond.get(c, (0.0, ""))[0], b), d["unit"]
+            elif c not in beyond:
+                within[c] = max(within.get(c, (0.0, ""))[0], top), d["unit"]
+    notes = []
+    if within:
+        notes.append("proof of match: the misses on " + ", ".join(within) + f" are within {k:g} "
+                     "std of the prediction's own uncertainty from the estimates' covariance (its std "
+                     "up to " + ", ".join(f"{v:.3g} {u} on {c}" for c, (v, u) in within.items())
+                     + "): the estimates are too imprecise for the band, not shown wrong; more "
+                     "or richer maneuvers narrow them")
+    if beyond:
+        notes.append("proof of match: " + ", ".join(f"{c} by {v:.3g} {u}" for c, (v, u) in beyond.items())
+                     + f" beyond {k:g} std of the prediction's own uncertainty from the estimates: "
+                     "not explained by their stated uncertainty - the model's form, its inputs, "
+                     "or estimates biased beyond their std")
+    return notes
 
 
 def refresh_truth_check(validation: dict[str, Any], result: EstimationResult,

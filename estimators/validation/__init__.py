@@ -7,7 +7,8 @@ Modules: :mod:`.fit` (det R, Theil inequality coefficient and proportions, R^2, 
 :mod:`.cluster` (maneuver-to-maneuver scatter: the covariance with each maneuver a cluster),
 :mod:`.modes` (named modes of a linearised model, numerical linearisation),
 :mod:`.frequency` (model frequency response, spectral estimates with coherence, mismatch),
-:mod:`.match` (proof of match against tolerance bands), :mod:`.prediction` (the
+:mod:`.match` (proof of match against tolerance bands), :mod:`.prediction_band` (a
+prediction's std from the parameters' covariance), :mod:`.prediction` (the
 model driven by its measured air data: proof of match in turbulence, unstable aircraft),
 :mod:`.plausibility` (estimates vs a-priori values, and between methods), :mod:`.inverse` (inverse simulation).
 Needs numpy, scipy and pandas (and the package's EKF for :mod:`.prediction`).
@@ -20,10 +21,12 @@ from .fit import TheilResult, det_r, fit_metrics, r_squared, residual_covariance
 from .frequency import (MismatchResult, SpectralEstimate, bode, freq_response, mismatch,
                         spectral_estimate)
 from .inverse import InverseSimResult, inverse_simulation
-from .match import DEFAULT_TOLERANCES, NOISE_ALPHA, default_tolerances, noise_reach, proof_of_match
+from .match import (DEFAULT_TOLERANCES, NOISE_ALPHA, PREDICTION_K, default_tolerances, noise_reach,
+                    prediction_uncertainty, proof_of_match)
 from .modes import ModeAnalysis, linearize, mode_properties, modes
 from .plausibility import agreement, load_apriori, plausibility
 from .prediction import AIR_DATA, DrivenPrediction, air_data_prediction, driving_states
+from .prediction_band import parameter_sensitivity, prediction_std
 from .residuals import (WhitenessResult, autocorrelation, autocovariance, psd,
                         residual_stats, whiteness)
 from .uncertainty import (UncertaintyResult, correlation, correlation_flags, crb,
@@ -38,8 +41,10 @@ __all__ = [
     "ModeAnalysis", "modes", "mode_properties", "linearize",
     "freq_response", "bode", "SpectralEstimate", "spectral_estimate", "MismatchResult",
     "mismatch",
-    "DEFAULT_TOLERANCES", "NOISE_ALPHA", "default_tolerances", "noise_reach", "proof_of_match",
+    "DEFAULT_TOLERANCES", "NOISE_ALPHA", "PREDICTION_K", "default_tolerances", "noise_reach",
+    "prediction_uncertainty", "proof_of_match",
     "load_apriori", "plausibility", "agreement",
     "InverseSimResult", "inverse_simulation",
     "AIR_DATA", "DrivenPrediction", "air_data_prediction", "driving_states",
+    "parameter_sensitivity", "prediction_std",
 ]

@@ -15,8 +15,8 @@ import pandas as pd
 
 from ._util import as_2d, output_names
 
-__all__ = ["G0", "DEFAULT_TOLERANCES", "NOISE_ALPHA", "default_tolerances", "noise_reach",
-           "proof_of_match"]
+__all__ = ["G0", "DEFAULT_TOLERANCES", "NOISE_ALPHA", "PREDICTION_K", "prediction_uncertainty",
+           "default_tolerances", "noise_reach", "proof_of_match"]
 
 G0 = 9.80665  # m/s^2
 _DEG = np.pi / 180.0
@@ -30,6 +30,31 @@ DEFAULT_TOLERANCES: Mapping[str, float] = {
 #: the chance that white measurement noise alone fails a channel of the proof of match
 #: when its level is given (``proof_of_match(noise_std=...)``)
 NOISE_ALPHA = 0.05
+
+
+#: a miss counts as within the prediction's own uncertainty up to this many of its std
+#: (``proof_of_match(prediction_std=...)``; pointwise, about 95 % per sample)
+PREDICTION_K = 2.0
+
+
+def prediction_uncertainty(excess: np.ndarray, prediction_std: np.ndarray,
+                           k: float = PREDICTION_K) -> tuple[np.ndarray, np.ndarray]:
+    """(std_max, beyond) per channel, (n_out,) each, over the judged samples (finite
+    ``excess``): the prediction's largest std there, and how far the proof of match's
+    misses reach beyond ``k`` of it, max(0, excess - k std) at worst (NaN for a channel
+    with no judged sample). ``excess`` (N, n_out): each sample's error beyond its band
+    (negative inside; ``proof_of_match``'s ``attrs["excess"]``); ``prediction_std`` (N,
+    n_out), the same units. beyond 0: every miss is within the uncertainty the estimates'
+    covariance gives the prediction (:mod:`estimators.validation.prediction_band`)."""
+    excess = np.asarray(excess, dtype=float)
+    ps = np.asarray(prediction_std, dtype=float)
+    judged = np.isfinite(excess) & np.isfinite(ps)
+
+    def worst(a: np.ndarray) -> np.ndarray:
+        m = np.max(np.where(judged, a, -np.inf), axis=0)
+        return np.where(np.isfinite(m), m, np.nan)
+
+    return worst(ps), worst(np.clip(excess - k * ps, 0.0, None))
 
 
 def noise_reach(n: int, alpha: float = NOISE_ALPHA) -> float:
@@ -58,7 +83,9 @@ def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
                    allowed_bias: Mapping[str, float] | None = None,
                    envelope: tuple[object, object] | None = None,
                    noise_std: Mapping[str, float] | None = None,
-                   noise_alpha: float = NOISE_ALPHA) -> pd.DataFrame:
+                   noise_alpha: float = NOISE_ALPHA,
+                   prediction_std: object | None = None,
+                   prediction_k: float = PREDICTION_K) -> pd.DataFrame:
     """Pass/fail per channel of predicted vs measured time histories.
 
     measured, predicted: (N, n_out) arrays or DataFrames (columns give the names), SI units.
@@ -82,10 +109,18 @@ def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
         almost surely over a long one (a 0.5 deg/s gyro noise exceeds a 1.5 deg/s band
         somewhere in 1000 samples with probability 0.93). ``noise_allowance`` says how
         much was added (0 without).
+    prediction_std: shaped as ``predicted``, the prediction's own std from the estimates'
+        covariance (:func:`estimators.validation.prediction_band.prediction_std`). It does
+        not change pass/fail; it says why a channel fails: ``prediction_std_max`` (its
+        largest value) and ``beyond_prediction`` (:func:`prediction_uncertainty` with
+        ``prediction_k``: 0 when every miss is within that many std, so the estimates'
+        imprecision explains the failure; more: the model's form or its inputs). NaN without.
     Returns a DataFrame indexed by channel with ``tolerance``, ``bias_removed``,
     ``max_abs_error``, ``rms_error``, ``fraction_within``, ``pass``,
-    ``nominal_max_abs_error``, ``envelope_max_width``, ``noise_allowance``; the attribute
-    ``df.attrs["all_pass"]`` is True when every judged channel passes.
+    ``nominal_max_abs_error``, ``envelope_max_width``, ``noise_allowance``,
+    ``prediction_std_max``, ``beyond_prediction``; the attribute ``df.attrs["all_pass"]``
+    is True when every judged channel passes, ``df.attrs["excess"]`` (N, n_out) is each
+    sample's error beyond its band (negative inside; NaN unmeasured or not judged).
     """
     z, y = as_2d(measured, "measured"), as_2d(predicted, "predicted")
     if z.shape != y.shape:
@@ -116,6 +151,13 @@ def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
     with np.errstate(invalid="ignore", divide="ignore"):
         frac = np.sum((ae <= tol + allow) & present, axis=0) / present.sum(axis=0)
     judged = np.isfinite(tol)
+    excess = np.where(present & judged, ae - (tol + allow), np.nan)
+    pstd_max = beyond = np.full(len(names), np.nan)
+    if prediction_std is not None:
+        ps = as_2d(prediction_std, "prediction_std")
+        if ps.shape != y.shape:
+            raise ValueError(f"prediction_std {ps.shape} must have the predicted shape {y.shape}")
+        pstd_max, beyond = prediction_uncertainty(excess, ps, prediction_k)
     passed = pd.array(np.where(judged, frac >= required_fraction, False), dtype="boolean")
     passed[~judged] = pd.NA
     df = pd.DataFrame({"tolerance": tol, "bias_removed": bias, "max_abs_error": np.nanmax(ae, axis=0),
@@ -123,7 +165,9 @@ def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
                        "fraction_within": np.where(judged, frac, np.nan), "pass": passed,
                        "nominal_max_abs_error": np.nanmax(nominal, axis=0),
                        "envelope_max_width": np.max(np.where(present, width, 0.0), axis=0),
-                       "noise_allowance": allow},
+                       "noise_allowance": allow, "prediction_std_max": pstd_max,
+                       "beyond_prediction": beyond},
                       index=pd.Index(names, name="channel"))
     df.attrs["all_pass"] = bool(judged.any() and df["pass"][judged].all())
+    df.attrs["excess"] = excess
     return df
