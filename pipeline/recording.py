@@ -22,6 +22,9 @@ keys of ``results`` such as ``oem``, ``<name>`` a parameter name with any charac
     /match/<out>/<method>/lower|upper     the prediction's range with the held-out segments'
                                           control steps between slow samples moved within
                                           their timing uncertainty (only when some has one)
+    /match/<out>/<method>/model_lower|model_upper   the prediction -/+ 2 of its own std
+                                          from the estimates' covariance (open-loop
+                                          simulation segments)
     /params/<name>/<method>               estimate per iteration (timeline ``iteration``) or,
                                           for filters, per sample (timelines t, segment)
     /params/<name>/<method>/upper|lower   estimate +/- std (final Cramer-Rao std for
@@ -74,6 +77,7 @@ import numpy as np
 import pandas as pd
 
 from estimators import EstimationResult
+from estimators.validation import PREDICTION_K
 from pipeline.paths import atomic_path
 from pipeline.validate import display_unit
 
@@ -285,6 +289,11 @@ def _time_histories(w: _Writer, results: Mapping[str, EstimationResult],
             bounds = [] if all(a.get("envelope") is None for a in arr) else [
                 lay.cat([a["predicted"] if a.get("envelope") is None else a["envelope"][i]
                          for a in arr], hnames, times)[2] for i in (0, 1)]
+            # the prediction -/+ PREDICTION_K of its own std from the estimates' covariance
+            spread = [] if all(a.get("prediction_std") is None for a in arr) else [
+                y + sign * PREDICTION_K * lay.cat([a["predicted"] * np.nan if a.get("prediction_std") is None
+                                                   else a["prediction_std"] for a in arr], hnames, times)[2]
+                for sign in (-1.0, 1.0)]
             for j, o in enumerate(z.columns):
                 po, unit = entity_part(o), _si_unit(o)
                 k = fresh(f"/match/{po}/measured", sg)
@@ -303,6 +312,11 @@ def _time_histories(w: _Writer, results: Mapping[str, EstimationResult],
                     w.series(f"/match/{po}/{pm}/{side}", b[o], t=t, segment=sg,
                              name=f"{o} {m} with the steps moved in time ({side}) [{unit}]",
                              color=col)
+                for side, b in zip(("model_lower", "model_upper"), spread):
+                    if np.isfinite(b[o].to_numpy(float)).any():
+                        w.series(f"/match/{po}/{pm}/{side}", b[o], t=t, segment=sg,
+                                 name=f"{o} {m} {side[6:]} {PREDICTION_K:g} std from the "
+                                      f"estimates' covariance [{unit}]", color=col)
 
 
 def _trajectory(r: EstimationResult) -> tuple[list[pd.DataFrame], list[pd.DataFrame] | None] | None:

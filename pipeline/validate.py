@@ -65,7 +65,7 @@ Keys of the returned dict
     ``inputs``, ``outputs``), ``match`` (list per held-out segment of
     ``t`` (N,), ``measured``/``predicted`` (N, n_out) DataFrames, ``tolerance`` (n_out,),
     ``excess`` (N, n_out) each sample's error beyond its band, ``sensitivity`` (names, S
-    (N, n_out, n_names)) or None),
+    (N, n_out, n_names)) and ``prediction_std`` (N, n_out) DataFrame, or None),
     ``inverse`` (``t`` (N,), ``inputs``, ``residual_inputs`` (N, n_in_used) SI).
 """
 from __future__ import annotations
@@ -511,6 +511,8 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
                          "parameters": len(sens[0]), "k": V.PREDICTION_K}})
         arrays.append({"name": name, "t": seg.t, "measured": z, "predicted": y,
                        "excess": pm.attrs["excess"], "sensitivity": sens,
+                       "prediction_std": None if pstd is None else pd.DataFrame(
+                           pstd, index=y.index, columns=y.columns),
                        "tolerance": pm["tolerance"].to_numpy(float),
                        "envelope": None if envelope is None else tuple(
                            pd.DataFrame(a, index=y.index, columns=y.columns) for a in envelope)})
@@ -547,7 +549,9 @@ def refresh_prediction_uncertainty(validation: dict[str, Any], result: Estimatio
         if a.get("sensitivity") is None:
             continue
         names, S = a["sensitivity"]
-        top, beyond = V.prediction_uncertainty(a["excess"], V.prediction_std(S, _band_covariance(result, names)))
+        ps = V.prediction_std(S, _band_covariance(result, names))
+        a["prediction_std"] = pd.DataFrame(ps, index=a["predicted"].index, columns=a["predicted"].columns)
+        top, beyond = V.prediction_uncertainty(a["excess"], ps)
         for j, ch in enumerate(a["predicted"].columns):
             if ch in sg["channels"]:
                 _prediction_columns(sg["channels"][ch], top[j], beyond[j], display_unit(ch)[0])

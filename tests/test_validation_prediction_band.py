@@ -127,3 +127,29 @@ def test_the_pipeline_tells_an_imprecise_estimate_from_a_wrong_model():
     ok = validate(res, held_out=[held])
     assert ok["proof_of_match"]["all_pass"]
     assert not any(n.startswith("proof of match") for n in ok["verdict"]["notes"])
+
+
+def test_run_rrd_holds_the_prediction_spread(tmp_path):
+    """run.rrd: /match/p/<method>/model_lower|model_upper, the prediction -/+ 2 std, one
+    value per held-out sample, read back with rerun's reader; their distance is 4 std."""
+    rc = pytest.importorskip("rerun.chunk")
+    from pipeline.recording import write_recording
+    from pipeline.validate import validate
+
+    res, held = _fitted_roll()
+    v = validate(res, held_out=[held])
+    path = write_recording(tmp_path / "run.rrd", {"oem": res}, {"oem": v})
+    rows, vals = {}, {}
+    for ch in rc.RrdReader(path).stream():
+        if not ch.is_static:
+            rows[ch.entity_path] = rows.get(ch.entity_path, 0) + ch.num_rows
+            if ch.entity_path.startswith("/match/p/oem/model_"):
+                rb = ch.to_record_batch()
+                col = [n for n in rb.schema.names if "Scalar" in n][0]
+                vals.setdefault(ch.entity_path, []).extend(x[0] for x in rb.column(col).to_pylist())
+    n = held.t.size
+    assert rows["/match/p/oem"] == rows["/match/p/oem/model_lower"] == rows["/match/p/oem/model_upper"] == n
+    width = np.array(vals["/match/p/oem/model_upper"]) - np.array(vals["/match/p/oem/model_lower"])
+    sd = v["arrays"]["match"][0]["prediction_std"]["p"].to_numpy()
+    np.testing.assert_allclose(width, 4.0 * sd, rtol=1e-5, atol=1e-12)
+    assert sd.max() > 0
