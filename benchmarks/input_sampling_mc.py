@@ -24,6 +24,12 @@ Proof of match, measured 2026-11-26, seeds 1-12 (the same flights as below):
       pipeline.validate.NOISE_FLOOR_RATIO; ad hoc, seed 3: the 5 Hz rebuilt beta's 0.103).
   --rates ardupilot --surfaces-hz 10: longitudinal 10/12 (5/12), lateral 3/12 (0/12; the
       lateral fit of seed 1 misses p by up to 5 deg/s 0.3 s after a step too).
+  Measured again 2026-11-27 (with the noise allowance of the bands), --rates ardupilot
+      --surfaces-hz 10: longitudinal 12/12 (5/12 without the steps moved), lateral 7/12
+      (0/12); each of the 5 lateral failures within 2 std of the prediction's own
+      uncertainty from the estimates' covariance (pipeline.validate: "beyond" 0), so the
+      verdict notes them as the estimates' imprecision. Seed 1 (ad hoc): p missed by 4.1
+      deg/s even with the true surface positions, by 0.25 with the true derivatives.
 
 Measured 2026-11-26, seeds 1-12 (about 60 s on 2 cores each), the steps timed from the
 gyros with the kink's order chosen by BIC, each surface's steps also moved together by the
@@ -128,7 +134,10 @@ def proof_of_match(method: dict) -> dict:
     segs = pm.get("segments") or []
     chans = [d for s in segs for d in s["channels"].values() if d.get("pass") is not None]
     nominal = all(d.get("nominal_max_abs_error", d["max_abs_error"]) <= d["tolerance"] for d in chans)
+    failed = [d for d in chans if d["pass"] is False]
     return {"pom": bool(pm.get("all_pass")), "pom_nominal": bool(segs) and nominal,
+            # every failed channel within 2 std of the prediction's own uncertainty
+            "pom_within": bool(failed) and all(d.get("beyond_prediction_display") == 0.0 for d in failed),
             "verdict": bool((method.get("verdict") or {}).get("ok")),
             "untimed": sum((s.get("input_timing") or {}).get("untimed", 0) for s in segs)}
 
@@ -145,9 +154,11 @@ def main() -> None:
     for key, g in worst.groupby(level=0):
         print(f"  {key}: within 3 std on {int((g['z_total'] <= 3).sum())}/{len(g)} seeds with the "
               f"steps' times carried, {int((g['z_crb'] <= 3).sum())}/{len(g)} with the CRB alone")
-    pom = df.groupby(["key", "seed"])[["pom", "pom_nominal", "untimed", "verdict"]].first()
+    pom = df.groupby(["key", "seed"])[["pom", "pom_nominal", "pom_within", "untimed", "verdict"]].first()
     for key, g in pom.groupby(level=0):
-        print(f"  {key}: proof of match passes on {int(g['pom'].sum())}/{len(g)} seeds, "
+        print(f"  {key}: proof of match passes on {int(g['pom'].sum())}/{len(g)} seeds "
+              f"(of the {int((~g['pom']).sum())} failures {int(g['pom_within'].sum())} within 2 std "
+              "of the prediction's own uncertainty), "
               f"{int(g['pom_nominal'].sum())}/{len(g)} without the steps moved in time "
               f"({int((g['untimed'] > 0).sum())} with untimed steps in the held-out maneuver); "
               f"verdict PASS on {int(g['verdict'].sum())}/{len(g)}")
