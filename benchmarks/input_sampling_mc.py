@@ -24,7 +24,7 @@ Proof of match, measured 2026-11-26, seeds 1-12 (the same flights as below):
       pipeline.validate.NOISE_FLOOR_RATIO; ad hoc, seed 3: the 5 Hz rebuilt beta's 0.103).
   --rates ardupilot --surfaces-hz 10: longitudinal 10/12 (5/12), lateral 3/12 (0/12; the
       lateral fit of seed 1 misses p by up to 5 deg/s 0.3 s after a step too).
-  Measured again 2026-11-27 (with the noise allowance of the bands), --rates ardupilot
+  Measured again 2026-11-26 (with the noise allowance of the bands), --rates ardupilot
       --surfaces-hz 10: longitudinal 12/12 (5/12 without the steps moved), lateral 7/12
       (0/12); each of the 5 lateral failures within 2 std of the prediction's own
       uncertainty from the estimates' covariance (pipeline.validate: "beyond" 0), so the
