@@ -271,8 +271,8 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
                 L += ["\"model std\": the prediction's own std from the covariance of the "
                       f"{pu['parameters']} estimated derivatives (pointwise, its largest value; "
                       "the segment's initial state and biases refitted); \"beyond\": how far "
-                      f"the misses reach beyond {pu['k']:g} of it (0: the estimates' imprecision "
-                      "explains them).", ""]
+                      f"the misses reach beyond {pu['k']:g} of it on a failed channel (0: the "
+                      "estimates' imprecision explains them).", ""]
             rows = []
             for c, d in s["channels"].items():
                 judged = d.get("pass")
@@ -280,7 +280,8 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
                              _g(d.get("max_abs_error_display")), _g(d.get("rms_error_display")),
                              _g(d.get("fraction_within"), ".3f"), _g(d.get("TIC"), ".4f")]
                             + ([_g(d.get("prediction_std_max_display")),
-                                _g(d.get("beyond_prediction_display"))] if pu else [])
+                                _g(d.get("beyond_prediction_display")) if judged is False else "-"]
+                               if pu else [])
                             + ["driving" if d.get("role") == "drives the filter" else
                                "-" if judged is None else ("pass" if judged else "FAIL")])
             L += _table(["channel", "unit", "tolerance", "max abs error", "rms error",

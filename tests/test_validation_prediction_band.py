@@ -95,7 +95,7 @@ def _fitted_roll(noise: float = 0.5 * DEG):
     return OutputError(roll_model()).fit(segs[0], estimate_x0=False), segs[1]
 
 
-def test_the_pipeline_tells_an_imprecise_estimate_from_a_wrong_model():
+def test_the_pipeline_tells_an_imprecise_estimate_from_a_wrong_model(tmp_path):
     """pipeline.validate: Lda 30 % low fails the proof of match on p. With the fit's own
     covariance (Lda known to about 0.5 %) that miss is far beyond the prediction's
     uncertainty: the verdict says the model misses. With a covariance that makes Lda 30 %
@@ -123,6 +123,14 @@ def test_the_pipeline_tells_an_imprecise_estimate_from_a_wrong_model():
     assert p["pass"] is False and p["beyond_prediction_display"] == 0.0, p
     assert p["prediction_std_max_display"] > 2.0, p
     assert any("within 2 std" in n and "too imprecise" in n for n in v["verdict"]["notes"]), v["verdict"]
+    # report.md: the failed channel's row carries the model std and 0 beyond it
+    from pipeline.report import write_report
+    md, js = write_report(tmp_path, {"oem": loose}, {"oem": v})
+    text = md.read_text()
+    section = text[text.index("### Proof of match"):]
+    row = next(line for line in section.splitlines() if line.startswith("| p | deg/s |"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[-3:] == [f"{p['prediction_std_max_display']:.4g}", "0", "FAIL"], row
     # the true model passes and gets no such note
     ok = validate(res, held_out=[held])
     assert ok["proof_of_match"]["all_pass"]
