@@ -80,6 +80,7 @@ import pandas as pd
 import estimators
 from estimators import EstimationResult, Segment, simulate_outputs
 from estimators import validation as V
+from estimators.integrators import INTEGRATORS
 from estimators.model import Namespace
 from estimators import statistics as st
 
@@ -663,7 +664,8 @@ def _prediction_sensitivity(result: EstimationResult, seg: Segment, fit: Estimat
     holds) add nothing here: their uncertainty is not in its covariance."""
     if fit is None:
         return None
-    names, _ = shared_covariance(result)
+    # the model's own parameters (filter error's process-noise F_<state> are not in it)
+    names = [n for n in shared_covariance(result)[0] if n in fit.model.parameter_names]
     if not names:
         return None
     values = {n: float(v) for n, v in zip(fit.names, fit.values)}
@@ -779,8 +781,9 @@ def _prediction_notes(pm: Mapping[str, Any]) -> list[str]:
                 continue
             if b > 0:
                 beyond[c] = max(beyond.get(c, (0.0, ""))[0], b), d["unit"]
-            elif c not in beyond:
+            else:
                 within[c] = max(within.get(c, (0.0, ""))[0], top), d["unit"]
+    within = {c: w for c, w in within.items() if c not in beyond}   # beyond on some segment
     notes = []
     if within:
         notes.append("proof of match: the misses on " + ", ".join(within) + f" are within {k:g} "
@@ -912,6 +915,8 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
     integrator: for the proof-of-match simulation (default: the one used in the fit).
     """
     integ = integrator or result.settings.get("integrator", "rk4")
+    if integ not in INTEGRATORS:       # filter error's linear form: "transition matrix"
+        integ = "rk4"
     out: dict[str, Any] = {"method": result.method, "converged": bool(result.converged),
                            "not_settled": result.extra.get("not_settled"),
                            "det_R": num(result.cost),

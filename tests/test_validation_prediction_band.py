@@ -161,3 +161,18 @@ def test_run_rrd_holds_the_prediction_spread(tmp_path):
     sd = v["arrays"]["match"][0]["prediction_std"]["p"].to_numpy()
     np.testing.assert_allclose(width, 4.0 * sd, rtol=1e-5, atol=1e-12)
     assert sd.max() > 0
+
+
+def test_filter_error_results_get_the_band_from_their_model_parameters():
+    """Filter error's free F_<state>, G_<output> are noise parameters, not the model's:
+    the prediction's std comes from Lp, Lda alone. Its linear form ("transition matrix", no
+    integrator) is validated with the simulation proof of match by RK4; it had raised."""
+    from estimators import FilterError
+    from pipeline.validate import validate
+
+    res, held = _fitted_roll()
+    fem = FilterError(roll_model()).fit(res.segments[0])
+    assert {"F_p", "G_p"} <= set(fem.free_names) and fem.settings["integrator"] == "transition matrix"
+    seg = validate(fem, held_out=[held], proof_of_match="simulation")["proof_of_match"]["segments"][0]
+    assert seg["prediction_uncertainty"] == {"parameters": 2, "k": 2.0}
+    assert seg["all_pass"] and 0 < seg["channels"]["p"]["prediction_std_max_display"] < 1.0, seg
