@@ -23,8 +23,7 @@ keys of ``results`` such as ``oem``, ``<name>`` a parameter name with any charac
                                           control steps between slow samples moved within
                                           their timing uncertainty (only when some has one)
     /match/<out>/<method>/model_lower|model_upper   the prediction -/+ 2 of its own std
-                                          from the estimates' covariance (open-loop
-                                          simulation segments)
+                                          from the estimates' covariance
     /params/<name>/<method>               estimate per iteration (timeline ``iteration``) or,
                                           for filters, per sample (timelines t, segment)
     /params/<name>/<method>/upper|lower   estimate +/- std (final Cramer-Rao std for

@@ -270,7 +270,8 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
             if pu:
                 L += ["\"model std\": the prediction's own std from the covariance of the "
                       f"{pu['parameters']} estimated derivatives (pointwise, its largest value; "
-                      "the segment's initial state and biases refitted); \"beyond\": how far "
+                      + ("the segment's initial state and biases refitted" if s.get("mode") == "simulation"
+                         else "the filter's gain moving with them") + "); \"beyond\": how far "
                       f"the misses reach beyond {pu['k']:g} of it on a failed channel (0: the "
                       "estimates' imprecision explains them).", ""]
             rows = []

@@ -38,7 +38,7 @@ Keys of the returned dict
     filter in air-data mode: reported, not judged), ``notes``, ``segments`` (per held-out
     segment: ``name``, ``mode``, ``channels`` per output with ``tolerance max_abs_error
     rms_error fraction_within pass`` (SI) and the same in display units ``*_display`` with
-    ``unit``, ``TIC``, ``role`` (predicted / drives the filter), in simulation mode
+    ``unit``, ``TIC``, ``role`` (predicted / drives the filter),
     ``prediction_std_max_display`` and ``beyond_prediction_display`` (the prediction's own
     std from the estimates' covariance and how far the misses reach beyond
     ``estimators.validation.PREDICTION_K`` of it; ``prediction_uncertainty`` per segment:
@@ -463,18 +463,18 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
     driven: list[str] = []
     notes: list[str] = []
     for k, seg in enumerate(held_out):
-        y = None
+        y, sens = None, None
         if mode == "air-data":
             try:
                 dp = _air_data_prediction(result, seg, integrator)
                 y, driven = dp.predicted, dp.driven
+                sens = _air_data_sensitivity(result, seg, integrator, y)
             except (estimators.EstimationError, np.linalg.LinAlgError) as exc:
                 # reported, and the classic proof of match run instead of none
                 notes.append(f"air-data prediction of {seg.name or k} failed ({exc}); "
                              "open-loop simulation instead")
                 driven = []
         seg_mode = "air-data" if y is not None else "simulation"
-        sens = None
         if y is None:
             y, fit = _held_out_fit(result, seg, integrator)
             sens = _prediction_sensitivity(result, seg, fit, integrator)
@@ -599,13 +599,16 @@ def _timing_envelope(result: EstimationResult, seg: Segment, steps: Mapping[str,
     return (np.min(stack, axis=0), np.max(stack, axis=0)), doc
 
 
-def _air_data_prediction(result: EstimationResult, seg: Segment, integrator: str):
+def _air_data_prediction(result: EstimationResult, seg: Segment, integrator: str,
+                         shift: Mapping[str, float] | None = None):
     """The identified model driven by the held-out segment's air data: every derivative
     held; per-segment parameters (output biases) at their mean over the fitted segments
     (sensor biases persist through a flight); the filter's process noise on the air-data
     states is the one the method identified or used (FEM, EKF, UKF), else the data
-    default; the measurement noise is the method's (its R)."""
-    vals = {n: v for n, v in zip(result.names, result.values) if "[" not in n}
+    default; the measurement noise is the method's (its R). ``shift``: amounts added to
+    shared parameters (the sensitivities of :func:`_air_data_sensitivity`)."""
+    vals = {n: v + (shift or {}).get(n, 0.0) for n, v in zip(result.names, result.values)
+            if "[" not in n}
     per_seg: dict[str, list[float]] = {}
     for n, v in zip(result.names, result.values):
         if "[" in n and not n.startswith("x0_"):
@@ -616,6 +619,29 @@ def _air_data_prediction(result: EstimationResult, seg: Segment, integrator: str
                                  process_noise=_process_noise(result), measurement_noise=R,
                                  integrator=integrator,
                                  inputs=result.settings.get("inputs", "average"))
+
+
+def _air_data_sensitivity(result: EstimationResult, seg: Segment, integrator: str,
+                          y: pd.DataFrame, rel_step: float = 1e-5
+                          ) -> tuple[list[str], np.ndarray] | None:
+    """(names, S) as :func:`_prediction_sensitivity`, for the air-data-driven prediction
+    ``y``: forward differences, one filter pass per free shared model parameter (the
+    filter's gain moves with them too; nothing is refitted to the segment). None when a
+    pass fails."""
+    names = [n for n in shared_covariance(result)[0] if n in result.model.parameter_names]
+    if not names:
+        return None
+    vals = result.params
+    cols = []
+    for n in names:
+        h = rel_step * max(abs(float(vals[n])), 1.0)
+        try:
+            yp = _air_data_prediction(result, seg, integrator, {n: h}).predicted
+        except (estimators.EstimationError, np.linalg.LinAlgError):
+            return None
+        cols.append((yp.to_numpy(float) - y.to_numpy(float)) / h)
+    S = np.stack(cols, axis=2)
+    return (names, S) if np.all(np.isfinite(S)) else None
 
 
 def _held_out_prediction(result: EstimationResult, seg: Segment, integrator: str) -> pd.DataFrame:

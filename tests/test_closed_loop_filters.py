@@ -97,6 +97,11 @@ def _air_data_proof_of_match(rep, method):
     assert {c for c, d in chans.items() if d["pass"] is None} == {"V", "alpha"}
     errs = {c: round(d["max_abs_error_display"], 2) for c, d in chans.items()}
     assert pm["all_pass"], f"{method}: max abs error per channel {errs}"
+    # the filter-driven prediction's own std from the derivatives' covariance (one filter
+    # pass per derivative): on the judged channels only, up to 0.23-0.36 deg/s on q (seed 1)
+    assert pm["segments"][0]["prediction_uncertainty"]["parameters"] >= 9
+    assert all((d["prediction_std_max_display"] is None) == (d["pass"] is None) for d in chans.values())
+    assert 0.05 < chans["q"]["prediction_std_max_display"] < 1.5, chans["q"]
     return chans
 
 
