@@ -526,7 +526,7 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
 def _band_covariance(result: EstimationResult, names: Sequence[str]) -> np.ndarray:
     """The covariance of ``names`` among the result's free shared parameters (total:
     with its consider part), for the held-out prediction's std."""
-    have, cov = shared_covariance(result)
+    have, cov = _shared_covariance(result)
     idx = [have.index(n) for n in names]
     return cov[np.ix_(idx, idx)]
 
@@ -628,7 +628,7 @@ def _air_data_sensitivity(result: EstimationResult, seg: Segment, integrator: st
     ``y``: forward differences, one filter pass per free shared model parameter (the
     filter's gain moves with them too; nothing is refitted to the segment). None when a
     pass fails."""
-    names = [n for n in shared_covariance(result)[0] if n in result.model.parameter_names]
+    names = _band_parameters(result)
     if not names:
         return None
     vals = result.params
@@ -669,7 +669,7 @@ def _held_out_fit(result: EstimationResult, seg: Segment, integrator: str
                                 inputs=inputs), None
 
 
-def shared_covariance(result: EstimationResult) -> tuple[list[str], np.ndarray]:
+def _shared_covariance(result: EstimationResult) -> tuple[list[str], np.ndarray]:
     """(names, covariance) of the result's free shared parameters (no per-segment ones):
     its covariance plus its ``consider_cov`` when it has one (the total uncertainty)."""
     free = result.free_names
@@ -678,6 +678,12 @@ def shared_covariance(result: EstimationResult) -> tuple[list[str], np.ndarray]:
     if result.consider_cov is not None:
         cov = cov + np.asarray(result.consider_cov, dtype=float)
     return [free[i] for i in keep], cov[np.ix_(keep, keep)]
+
+
+def _band_parameters(result: EstimationResult) -> list[str]:
+    """The free shared parameters of the result's model that its predictions depend on
+    (filter error's process-noise F_<state>, G_<output> are not the model's)."""
+    return [n for n in _shared_covariance(result)[0] if n in result.model.parameter_names]
 
 
 def _prediction_sensitivity(result: EstimationResult, seg: Segment, fit: EstimationResult | None,
@@ -690,8 +696,7 @@ def _prediction_sensitivity(result: EstimationResult, seg: Segment, fit: Estimat
     holds) add nothing here: their uncertainty is not in its covariance."""
     if fit is None:
         return None
-    # the model's own parameters (filter error's process-noise F_<state> are not in it)
-    names = [n for n in shared_covariance(result)[0] if n in fit.model.parameter_names]
+    names = _band_parameters(result)
     if not names:
         return None
     values = {n: float(v) for n, v in zip(fit.names, fit.values)}
@@ -796,11 +801,13 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
 
 def _prediction_notes(pm: Mapping[str, Any]) -> list[str]:
     """Verdict notes on the failed channels of a proof of match whose prediction has its
-    own uncertainty from the estimates: are the misses within PREDICTION_K of it (the
-    estimates' precision limits the match) or beyond (the model's form or its inputs)?"""
+    own uncertainty from the estimates: are the misses within k (PREDICTION_K) std of it
+    (the estimates' precision limits the match) or beyond (the model's form, its inputs or
+    biased estimates)?"""
     within, beyond = {}, {}
+    k = next((sg["prediction_uncertainty"]["k"] for sg in pm["segments"]
+              if sg.get("prediction_uncertainty")), V.PREDICTION_K)
     for sg in pm["segments"]:
-        k = (sg.get("prediction_uncertainty") or {}).get("k")
         for c, d in sg["channels"].items():
             b, top = d.get("beyond_prediction_display"), d.get("prediction_std_max_display")
             if d.get("pass") is not False or b is None or top is None:
