@@ -30,6 +30,11 @@ Proof of match, measured 2026-11-26, seeds 1-12 (the same flights as below):
       uncertainty from the estimates' covariance (pipeline.validate: "beyond" 0), so the
       verdict notes them as the estimates' imprecision. Seed 1 (ad hoc): p missed by 4.1
       deg/s even with the true surface positions, by 0.25 with the true derivatives.
+  With the noise allowance from the second differences of the error against the
+      prediction instead of the data's own (the 5 Hz rebuilt beta's had carried its
+      curvature): --rates ardupilot 12/12 and 12/12 (7/12 and 12/12 without the steps
+      moved), verdicts 12/12 on both axes; --surfaces-hz 10: longitudinal 12/12, lateral
+      6/12, the 6 failures all within 2 std of the prediction's own uncertainty.
 
 Measured 2026-11-26, seeds 1-12 (about 60 s on 2 cores each), the steps timed from the
 gyros with the kink's order chosen by BIC, each surface's steps also moved together by the

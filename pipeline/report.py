@@ -244,7 +244,8 @@ def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
                      if d.get("pass") is not None and (d.get("noise_allowance_display") or 0) > 0}
             if allow:
                 L += ["Each band is widened by what the channel's measurement noise (its white "
-                      "level in this segment's data, from second differences) reaches over the "
+                      "level in this segment, from the second differences of the error against "
+                      "the prediction) reaches over the "
                       f"segment's samples with {100 * (1 - NOISE_ALPHA):g} % probability: "
                       + ", ".join(f"{c} +{_g(d['noise_allowance_display'])} {d['unit']}"
                                   for c, d in allow.items()) + ".", ""]
