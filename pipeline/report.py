@@ -434,6 +434,21 @@ def _agreement_md(agreement: Mapping[str, Any] | None) -> list[str]:
     return L
 
 
+def _pom_cell(pm: Mapping[str, Any] | None) -> str:
+    """The summary table's proof-of-match cell: pass, or FAIL with whether the failed
+    channels' misses are within 2 std of the prediction's own uncertainty ("within model
+    std": the estimates too imprecise for the band) or some beyond it."""
+    if not pm:
+        return "-"
+    if pm["all_pass"]:
+        return "pass"
+    beyond = [d.get("beyond_prediction_display") for sg in pm["segments"]
+              for d in sg["channels"].values() if d.get("pass") is False]
+    if not beyond or any(b is None for b in beyond):
+        return "FAIL"
+    return "FAIL (beyond model std)" if any(b > 0 for b in beyond) else "FAIL (within model std)"
+
+
 def report_markdown(rep: Mapping[str, Any]) -> str:
     """report.md text from the report dict of :func:`report_dict`."""
     meta = rep.get("meta") or {}
@@ -454,7 +469,7 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
             rows.append([m, "PASS" if mj["verdict"]["ok"] else "CHECK",
                          "yes" if mj["converged"] else "NO", _g(mj["det_R"], ".4e"),
                          _g(max(tics) if tics else None, ".4f"),
-                         "-" if not pm else ("pass" if pm["all_pass"] else "FAIL")])
+                         _pom_cell(pm)])
         L += _table(["method", "verdict", "converged", "det(R)", "max TIC", "proof of match"], rows)
     L += _agreement_md(rep.get("agreement"))
     L += _checks_md(rep.get("checks"))

@@ -131,6 +131,10 @@ def test_the_pipeline_tells_an_imprecise_estimate_from_a_wrong_model(tmp_path):
     row = next(line for line in section.splitlines() if line.startswith("| p | deg/s |"))
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[-3:] == [f"{p['prediction_std_max_display']:.4g}", "0", "FAIL"], row
+    summary = text[text.index("## Summary"):text.index("## Summary") + 600]
+    assert "| FAIL (within model std) |" in summary, summary
+    md, _ = write_report(tmp_path, {"oem": wrong}, {"oem": validate(wrong, held_out=[held])})
+    assert "| FAIL (beyond model std) |" in md.read_text()
     # the true model passes and gets no such note
     ok = validate(res, held_out=[held])
     assert ok["proof_of_match"]["all_pass"]
