@@ -41,8 +41,10 @@ Keys of the returned dict
     ``unit``, ``TIC``, ``role`` (predicted / drives the filter),
     ``prediction_std_max_display`` and ``beyond_prediction_display`` (the prediction's own
     std from the estimates' covariance and how far the misses reach beyond
-    ``estimators.validation.PREDICTION_K`` of it; ``prediction_uncertainty`` per segment:
-    ``parameters``, ``k``), ``all_pass``) and ``all_pass`` over all segments.
+    ``estimators.validation.PREDICTION_K`` of it; on a failed channel
+    ``prediction_std_from``, the derivatives' shares of that variance at its worst miss;
+    ``prediction_uncertainty`` per segment: ``parameters``, ``k``), ``all_pass``) and
+    ``all_pass`` over all segments.
 ``frequency``: ``None`` when no input is excited; else ``inputs`` used, ``table`` per
     ``"<output>/<input>"`` (``max_mag_db max_phase_deg n_used pass``), ``bounds``: the
     model's response (through the same Welch estimator as the data, see :func:`_frequency`)
@@ -494,9 +496,8 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
         noise = {c: float(v) for c, v in zip(model.outputs, st.difference_noise_std(
                      [seg.z - y.to_numpy(float)], robust=True))
                  if np.isfinite(v) and v > 0}
-        pstd = None if sens is None else V.prediction_std(sens[1], _band_covariance(result, sens[0]))
         pm = V.proof_of_match(z, y, tolerances=tol, allowed_bias=allowed_bias, envelope=envelope,
-                              noise_std=noise, prediction_std=pstd)
+                              noise_std=noise)
         tic = V.theil(z.to_numpy(), y.to_numpy()).U
         chans = {}
         for (ch, row), u in zip(pm.iterrows(), tic):
@@ -510,8 +511,9 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
             if envelope is not None:
                 d.update(nominal_max_abs_error_display=num(row["nominal_max_abs_error"] * fac),
                          envelope_max_width_display=num(row["envelope_max_width"] * fac))
-            _prediction_columns(d, row["prediction_std_max"], row["beyond_prediction"], fac)
             chans[ch] = d
+        pstd = _prediction_entries(chans, y.columns, pm.attrs["excess"], sens,
+                                   None if sens is None else _band_covariance(result, sens[0]))
         segs.append({"name": name, "mode": seg_mode, "channels": chans, "input_timing": timing,
                      "all_pass": bool(pm.attrs["all_pass"]),
                      "prediction_uncertainty": None if sens is None else {
@@ -537,11 +539,33 @@ def _band_covariance(result: EstimationResult, names: Sequence[str]) -> np.ndarr
     return cov[np.ix_(idx, idx)]
 
 
-def _prediction_columns(d: dict[str, Any], std_max: float, beyond: float, fac: float) -> None:
-    """A proof-of-match channel's entries of the prediction's own uncertainty (display
-    units): its largest std and how far the misses reach beyond PREDICTION_K of it."""
-    d.update(prediction_std_max_display=num(std_max * fac),
-             beyond_prediction_display=num(beyond * fac))
+def _prediction_entries(chans: dict[str, dict[str, Any]], columns: Sequence[str],
+                        excess: np.ndarray, sens: tuple[list[str], np.ndarray] | None,
+                        cov: np.ndarray | None) -> np.ndarray | None:
+    """Set each proof-of-match channel's entries of the prediction's own uncertainty
+    (display units, in place): ``prediction_std_max_display`` (its largest std),
+    ``beyond_prediction_display`` (how far the misses reach beyond PREDICTION_K of it) and,
+    on a failed channel, ``prediction_std_from`` (the derivatives carrying at least a tenth
+    of the variance at its worst miss, :func:`estimators.validation.variance_shares`, at
+    most 3: the ones better maneuvers should pin down). ``excess`` (N, n_out) each
+    sample's error beyond its band; ``sens`` (names, S (N, n_out, n_p)) and ``cov`` their
+    covariance, or None (no band: the entries None). Returns the std (N, n_out) or None."""
+    ps = None if sens is None else V.prediction_std(sens[1], cov)
+    top, beyond = (V.prediction_uncertainty(excess, ps) if ps is not None
+                   else (np.full(len(columns), np.nan),) * 2)
+    for j, ch in enumerate(columns):
+        d = chans.get(ch)
+        if d is None:
+            continue
+        fac = display_unit(ch)[0]
+        d.update(prediction_std_max_display=num(top[j] * fac),
+                 beyond_prediction_display=num(beyond[j] * fac))
+        if ps is not None and d.get("pass") is False and np.isfinite(excess[:, j]).any():
+            n = int(np.nanargmax(excess[:, j]))
+            share = V.variance_shares(sens[1][n, j], cov)
+            d["prediction_std_from"] = {sens[0][i]: num(round(float(share[i]), 3))
+                                        for i in np.argsort(-share)[:3] if share[i] >= 0.1}
+    return ps
 
 
 def refresh_prediction_uncertainty(validation: dict[str, Any], result: EstimationResult) -> None:
@@ -555,13 +579,9 @@ def refresh_prediction_uncertainty(validation: dict[str, Any], result: Estimatio
     for sg, a in zip(pm["segments"], arrays):
         if a.get("sensitivity") is None:
             continue
-        names, S = a["sensitivity"]
-        ps = V.prediction_std(S, _band_covariance(result, names))
+        ps = _prediction_entries(sg["channels"], a["predicted"].columns, a["excess"],
+                                 a["sensitivity"], _band_covariance(result, a["sensitivity"][0]))
         a["prediction_std"] = pd.DataFrame(ps, index=a["predicted"].index, columns=a["predicted"].columns)
-        top, beyond = V.prediction_uncertainty(a["excess"], ps)
-        for j, ch in enumerate(a["predicted"].columns):
-            if ch in sg["channels"]:
-                _prediction_columns(sg["channels"][ch], top[j], beyond[j], display_unit(ch)[0])
     validation["verdict"] = verdict(validation)
 
 
@@ -820,14 +840,18 @@ def _prediction_notes(pm: Mapping[str, Any]) -> list[str]:
                 continue
             if b > 0:
                 beyond[c] = max(beyond.get(c, (0.0, ""))[0], b), d["unit"]
-            else:
-                within[c] = max(within.get(c, (0.0, ""))[0], top), d["unit"]
+            elif top >= within.get(c, (-1.0,))[0]:
+                within[c] = top, d["unit"], d.get("prediction_std_from") or {}
     within = {c: w for c, w in within.items() if c not in beyond}   # beyond on some segment
     notes = []
     if within:
         notes.append("proof of match: the misses on " + ", ".join(within) + f" are within {k:g} "
                      "std of the prediction's own uncertainty from the estimates' covariance (its std "
-                     "up to " + ", ".join(f"{v:.3g} {u} on {c}" for c, (v, u) in within.items())
+                     "up to " + ", ".join(
+                         f"{v:.3g} {u} on {c}" + ("; at its worst miss mostly " + ", ".join(
+                             f"{n} {100 * x:.0f} %" for n, x in src.items()) + " of its variance"
+                             if src else "")
+                         for c, (v, u, src) in within.items())
                      + "): the estimates are too imprecise for the band, not shown wrong; more "
                      "or richer maneuvers narrow them")
     if beyond:

@@ -7,7 +7,7 @@ import pytest
 
 from estimators import Model, OutputError, Parameter, Segment
 from estimators.validation import (parameter_sensitivity, prediction_std, prediction_uncertainty,
-                                   proof_of_match)
+                                   proof_of_match, variance_shares)
 from tests._roll import roll_model, roll_segment
 
 DEG = np.pi / 180
@@ -57,6 +57,15 @@ def test_what_a_refitted_bias_or_initial_state_takes_up_is_projected_out():
     assert 0 < np.sum(proj[:, 0, 1] ** 2) < np.sum(plain[:, 0, 1] ** 2)
     with pytest.raises(ValueError, match="not parameters"):
         parameter_sensitivity(m, seg, {}, ["Cmq"])
+
+
+def test_variance_shares_hand_computed():
+    """s = (1, 2), P = [[1, 0.5], [0.5, 4]]: P s = (2, 8.5), s^T P s = 19, shares 2/19 and
+    17/19; a correlation that lowers the variance gives a negative share."""
+    np.testing.assert_allclose(variance_shares([1.0, 2.0], [[1.0, 0.5], [0.5, 4.0]]), [2 / 19, 17 / 19])
+    sh = variance_shares([2.0, 1.0], [[1.0, -0.9], [-0.9, 1.0]])     # P s = (1.1, -0.8), var 1.4
+    np.testing.assert_allclose(sh, [2.2 / 1.4, -0.8 / 1.4])
+    assert not variance_shares([0.0, 0.0], np.eye(2)).any()
 
 
 def test_prediction_uncertainty_hand_computed():
@@ -122,7 +131,9 @@ def test_the_pipeline_tells_an_imprecise_estimate_from_a_wrong_model(tmp_path):
     p = v["proof_of_match"]["segments"][0]["channels"]["p"]
     assert p["pass"] is False and p["beyond_prediction_display"] == 0.0, p
     assert p["prediction_std_max_display"] > 2.0, p
-    assert any("within 2 std" in n and "too imprecise" in n for n in v["verdict"]["notes"]), v["verdict"]
+    assert any("within 2 std" in n and "too imprecise" in n and "worst miss mostly Lda" in n
+               for n in v["verdict"]["notes"]), v["verdict"]
+    assert p["prediction_std_from"]["Lda"] > 0.9, p        # the 30 % std given to Lda
     # report.md: the failed channel's row carries the model std and 0 beyond it
     from pipeline.report import write_report
     md, js = write_report(tmp_path, {"oem": loose}, {"oem": v})

@@ -26,7 +26,7 @@ from .match import (DEFAULT_TOLERANCES, NOISE_ALPHA, PREDICTION_K, default_toler
 from .modes import ModeAnalysis, linearize, mode_properties, modes
 from .plausibility import agreement, load_apriori, plausibility
 from .prediction import AIR_DATA, DrivenPrediction, air_data_prediction, driving_states
-from .prediction_band import parameter_sensitivity, prediction_std
+from .prediction_band import parameter_sensitivity, prediction_std, variance_shares
 from .residuals import (WhitenessResult, autocorrelation, autocovariance, psd,
                         residual_stats, whiteness)
 from .uncertainty import (UncertaintyResult, correlation, correlation_flags, crb,
@@ -46,5 +46,5 @@ __all__ = [
     "load_apriori", "plausibility", "agreement",
     "InverseSimResult", "inverse_simulation",
     "AIR_DATA", "DrivenPrediction", "air_data_prediction", "driving_states",
-    "parameter_sensitivity", "prediction_std",
+    "parameter_sensitivity", "prediction_std", "variance_shares",
 ]

@@ -31,7 +31,7 @@ import numpy as np
 from estimators.model import Model, Segment
 from estimators.simulation import Layout, simulate_batch
 
-__all__ = ["parameter_sensitivity", "prediction_std"]
+__all__ = ["parameter_sensitivity", "prediction_std", "variance_shares"]
 
 
 def parameter_sensitivity(model: Model, segment: Segment, values: Mapping[str, float],
@@ -73,3 +73,14 @@ def prediction_std(S: np.ndarray, cov: np.ndarray) -> np.ndarray:
     (N, n_out, n_p) and a parameter covariance P (n_p, n_p) in the same order."""
     S = np.asarray(S, dtype=float)
     return np.sqrt(np.clip(np.einsum("nmi,ij,nmj->nm", S, np.asarray(cov, dtype=float), S), 0.0, None))
+
+
+def variance_shares(s: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Each parameter's share of the variance s^T P s of one predicted value, (n_p,):
+    s_i (P s)_i / (s^T P s), summing to 1 (a share is negative where a correlation with
+    the others lowers the variance). ``s`` (n_p,) its sensitivities, ``cov`` P (n_p, n_p).
+    Zeros when the variance is 0."""
+    s = np.asarray(s, dtype=float)
+    Ps = np.asarray(cov, dtype=float) @ s
+    var = float(s @ Ps)
+    return s * Ps / var if var > 0 else np.zeros_like(s)
