@@ -512,19 +512,17 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
                 d.update(nominal_max_abs_error_display=num(row["nominal_max_abs_error"] * fac),
                          envelope_max_width_display=num(row["envelope_max_width"] * fac))
             chans[ch] = d
-        pstd = _prediction_entries(chans, y.columns, pm.attrs["excess"], sens,
-                                   None if sens is None else _band_covariance(result, sens[0]))
+        arr = {"name": name, "t": seg.t, "measured": z, "predicted": y,
+               "excess": pm.attrs["excess"], "sensitivity": sens,
+               "tolerance": pm["tolerance"].to_numpy(float),
+               "envelope": None if envelope is None else tuple(
+                   pd.DataFrame(a, index=y.index, columns=y.columns) for a in envelope)}
+        _prediction_entries(chans, arr, None if sens is None else _band_covariance(result, sens[0]))
         segs.append({"name": name, "mode": seg_mode, "channels": chans, "input_timing": timing,
                      "all_pass": bool(pm.attrs["all_pass"]),
                      "prediction_uncertainty": None if sens is None else {
                          "parameters": len(sens[0]), "k": V.PREDICTION_K}})
-        arrays.append({"name": name, "t": seg.t, "measured": z, "predicted": y,
-                       "excess": pm.attrs["excess"], "sensitivity": sens,
-                       "prediction_std": None if pstd is None else pd.DataFrame(
-                           pstd, index=y.index, columns=y.columns),
-                       "tolerance": pm["tolerance"].to_numpy(float),
-                       "envelope": None if envelope is None else tuple(
-                           pd.DataFrame(a, index=y.index, columns=y.columns) for a in envelope)})
+        arrays.append(arr)
     if segs and all(sg["mode"] == "simulation" for sg in segs):
         mode = "simulation"
     return {"mode": mode, "driven": driven, "segments": segs, "notes": notes,
@@ -539,18 +537,22 @@ def _band_covariance(result: EstimationResult, names: Sequence[str]) -> np.ndarr
     return cov[np.ix_(idx, idx)]
 
 
-def _prediction_entries(chans: dict[str, dict[str, Any]], columns: Sequence[str],
-                        excess: np.ndarray, sens: tuple[list[str], np.ndarray] | None,
-                        cov: np.ndarray | None) -> np.ndarray | None:
+def _prediction_entries(chans: dict[str, dict[str, Any]], arr: dict[str, Any],
+                        cov: np.ndarray | None) -> None:
     """Set each proof-of-match channel's entries of the prediction's own uncertainty
     (display units, in place): ``prediction_std_max_display`` (its largest std),
     ``beyond_prediction_display`` (how far the misses reach beyond PREDICTION_K of it) and,
     on a failed channel, ``prediction_std_from`` (the derivatives carrying at least a tenth
     of the variance at its worst miss, :func:`estimators.validation.variance_shares`, at
-    most 3: the ones better maneuvers should pin down). ``excess`` (N, n_out) each
-    sample's error beyond its band; ``sens`` (names, S (N, n_out, n_p)) and ``cov`` their
-    covariance, or None (no band: the entries None). Returns the std (N, n_out) or None."""
+    most 3: the ones better maneuvers should pin down); and the segment's ``arrays`` entry
+    ``arr``'s ``prediction_std`` (N, n_out) DataFrame. From ``arr``: ``excess`` (N, n_out)
+    each sample's error beyond its band, ``predicted`` (its columns and index) and
+    ``sensitivity`` (names, S (N, n_out, n_p)) with ``cov`` their covariance, or None (no
+    band: the entries None)."""
+    sens, excess, columns = arr["sensitivity"], arr["excess"], arr["predicted"].columns
     ps = None if sens is None else V.prediction_std(sens[1], cov)
+    arr["prediction_std"] = None if ps is None else pd.DataFrame(
+        ps, index=arr["predicted"].index, columns=columns)
     top, beyond = (V.prediction_uncertainty(excess, ps) if ps is not None
                    else (np.full(len(columns), np.nan),) * 2)
     for j, ch in enumerate(columns):
@@ -565,7 +567,6 @@ def _prediction_entries(chans: dict[str, dict[str, Any]], columns: Sequence[str]
             share = V.variance_shares(sens[1][n, j], cov)
             d["prediction_std_from"] = {sens[0][i]: num(round(float(share[i]), 3))
                                         for i in np.argsort(-share)[:3] if share[i] >= 0.1}
-    return ps
 
 
 def refresh_prediction_uncertainty(validation: dict[str, Any], result: EstimationResult) -> None:
@@ -579,9 +580,7 @@ def refresh_prediction_uncertainty(validation: dict[str, Any], result: Estimatio
     for sg, a in zip(pm["segments"], arrays):
         if a.get("sensitivity") is None:
             continue
-        ps = _prediction_entries(sg["channels"], a["predicted"].columns, a["excess"],
-                                 a["sensitivity"], _band_covariance(result, a["sensitivity"][0]))
-        a["prediction_std"] = pd.DataFrame(ps, index=a["predicted"].index, columns=a["predicted"].columns)
+        _prediction_entries(sg["channels"], a, _band_covariance(result, a["sensitivity"][0]))
     validation["verdict"] = verdict(validation)
 
 

@@ -114,7 +114,8 @@ def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
         not change pass/fail; it says why a channel fails: ``prediction_std_max`` (its
         largest value) and ``beyond_prediction`` (:func:`prediction_uncertainty` with
         ``prediction_k``: 0 when every miss is within that many std, so the estimates'
-        imprecision explains the failure; more: the model's form or its inputs). NaN without.
+        imprecision explains the failure; more: the model's form, its inputs, or estimates
+        biased beyond their std). NaN without.
     Returns a DataFrame indexed by channel with ``tolerance``, ``bias_removed``,
     ``max_abs_error``, ``rms_error``, ``fraction_within``, ``pass``,
     ``nominal_max_abs_error``, ``envelope_max_width``, ``noise_allowance``,
