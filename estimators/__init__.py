@@ -5,19 +5,50 @@ Public API (DESIGN.md section 4)::
     from estimators import Model, Parameter, Segment, OutputError
     res = OutputError(model, integrator="rk4").fit([seg1, seg2], estimate_x0=False)
     res.params, res.std, res.corr, res.R, res.cost, res.summary()
+
+The names below are imported from their modules on first use (PEP 562), so
+``from estimators import OutputError`` loads output error and what it needs, not the
+filters, the stabilised methods and scipy.signal with them: a fresh process reaches its
+first fit sooner (``benchmarks/first_fit.py``).
 """
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
 from estimators.errors import (BoundsError, ConvergenceError, EstimationError,
                                IdentifiabilityError, ModelDefinitionError,
                                SimulationDivergedError, UnknownNameError)
-from estimators.equation_error import FourierRegression, LeastSquares, RecursiveLeastSquares
-from estimators.fem import FilterError
-from estimators.kalman import EKF, UKF
-from estimators.model import Model, Parameter, Segment
-from estimators.oem import OutputError
-from estimators.results import EstimationResult
-from estimators.stabilized import (EigenvalueTransformation, EquationDecoupling,
-                                   StabilizedOutputError)
-from estimators.simulation import simulate_outputs
+
+#: public name -> the module that defines it
+_LAZY = {
+    "FourierRegression": "estimators.equation_error",
+    "LeastSquares": "estimators.equation_error",
+    "RecursiveLeastSquares": "estimators.equation_error",
+    "FilterError": "estimators.fem",
+    "EKF": "estimators.kalman",
+    "UKF": "estimators.kalman",
+    "Model": "estimators.model",
+    "Parameter": "estimators.model",
+    "Segment": "estimators.model",
+    "OutputError": "estimators.oem",
+    "EstimationResult": "estimators.results",
+    "EigenvalueTransformation": "estimators.stabilized",
+    "EquationDecoupling": "estimators.stabilized",
+    "StabilizedOutputError": "estimators.stabilized",
+    "simulate_outputs": "estimators.simulation",
+}
+
+if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs
+    from estimators.equation_error import FourierRegression, LeastSquares, RecursiveLeastSquares
+    from estimators.fem import FilterError
+    from estimators.kalman import EKF, UKF
+    from estimators.model import Model, Parameter, Segment
+    from estimators.oem import OutputError
+    from estimators.results import EstimationResult
+    from estimators.simulation import simulate_outputs
+    from estimators.stabilized import (EigenvalueTransformation, EquationDecoupling,
+                                       StabilizedOutputError)
 
 __all__ = [
     "Model", "Parameter", "Segment", "OutputError", "EstimationResult", "simulate_outputs",
@@ -26,3 +57,24 @@ __all__ = [
     "LeastSquares", "RecursiveLeastSquares", "FourierRegression", "EKF", "UKF",
     "FilterError", "StabilizedOutputError", "EigenvalueTransformation", "EquationDecoupling",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    """A public name imported from its module on first use (then kept as an attribute);
+    a submodule (``estimators.fem``) imported on first attribute access."""
+    mod = _LAZY.get(name)
+    if mod is not None:
+        value = getattr(importlib.import_module(mod), name)
+        globals()[name] = value
+        return value
+    if not name.startswith("_"):
+        try:
+            return importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as e:
+            if e.name != f"{__name__}.{name}":
+                raise
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

@@ -1,58 +1,51 @@
 """Filter-error method (FEM): maximum likelihood with process and measurement noise.
 
 Model (DESIGN.md section 8): x' = f(x, u, theta) + F w, y = g(x, u, theta),
-z_k = y_k + G v_k with w, v unit white noise; F (diagonal, states listed in
-``process_noise``) and G (diagonal, every output; R = G G^T) are estimated with theta.
-
-Filter (steady-state Kalman filter, one per parameter set):
+z_k = y_k + G v_k with w, v unit white noise; F is diagonal on the states listed in
+``process_noise``. The algorithm is the reference software's (Jategaonkar's ml_fem; Maine
+and Iliff's relaxation):
 
 * Linearisation: A = df/dx, B = df/du, C = dg/dx, D = dg/du by central differences about
   each segment's initial state and first input (the trim point), re-evaluated for every
   parameter set; the affine parts f(x_r, u_r) - A x_r - B u_r and g(...) - C x_r - D u_r
-  are kept, so linear models with trim offsets and output biases are represented
-  exactly.
-* Discretisation over the sample interval h: Phi = e^{A h}, Gamma = int_0^h e^{A s} ds,
-  Qd = int_0^h e^{A s} F F^T e^{A^T s} ds (van Loan), inputs averaged over the step as in
-  output error.
-* Gain: P from the discrete algebraic Riccati equation
-  P = Phi P Phi^T - Phi P C^T (C P C^T + R)^-1 C P Phi^T + Qd (scipy solve_discrete_are),
-  innovation covariance B = C P C^T + R, K = P C^T B^-1.
-* ``form="linear"``: prediction x~_{k+1} = Phi x^_k + Gamma (B u_k + f_0);
-  ``form="nonlinear"``: prediction by one integrator step of the nonlinear f from x^_k
-  (the package integrators, default RK4), outputs g(x~_k) of the nonlinear g, and the
-  steady-state gain of the linearisation at the trim point (a constant gain; state it
-  when reporting: the linearisation is about x0 and u[0] of each segment).
+  are kept, so linear models with trim offsets and output biases are represented exactly.
+* Gain: P from A P + P A^T - P C^T (R h)^-1 C P + F F^T = 0 with R the innovation
+  covariance and h the sample interval (Potter's method, :func:`continuous_gain`);
+  K = P C^T R^-1.
+* ``form="linear"``: prediction x~_{k+1} = Phi x^_k + Gamma0 (B u_k + f_0)
+  + Gamma1 B (u_k+1 - u_k) (exact for inputs interpolated linearly between samples,
+  :func:`input_integrals`; Gamma1 is left out for held inputs); ``form="nonlinear"``:
+  prediction by one integrator step of the nonlinear f from x^_k (default RK4), outputs
+  g(x~_k) of the nonlinear g, and the constant gain of the linearisation at the trim point.
 * Correction x^_k = x~_k + K (z_k - y~_k). A sample where only the outputs o are measured
   (NaN = missing: multi-rate data) is corrected with the gain of those outputs,
-  K_o = P C_o^T B_oo^-1, and enters the likelihood and information below with the block
-  B_oo (``output_patterns``, ``pattern_gains``; P stays the steady state of the full
-  output set).
+  K_o = P C_o^T R_oo^-1 (``output_patterns``, ``pattern_gains``).
 
-Estimation (internally the process-noise unknowns are F_i^2, which enter Qd linearly;
-results report F_i and its std): the negative log-likelihood of the innovations
-J = 1/2 sum (nu^T B^-1 nu + log det B) over all samples and segments, minimised by
-Gauss-Newton (Fisher scoring) over phi = [theta, F_i, G_j]:
+Estimation, by relaxation:
 
-    M = sum S^T B^-1 S + N/2 tr(B^-1 B_i B^-1 B_j),  S = d y~/d phi (filtered outputs),
-    g = sum S^T B^-1 nu + 1/2 tr(B^-1 B_i B^-1 (sum nu nu^T - N B)),
+1. R, the diagonal covariance of the innovations, in closed form: R = diag(1/N sum nu nu^T)
+   (at the start from the start model run without a gain, or the given std).
+2. For that R, Gauss-Newton on phi = [theta, F]: M = sum S^T R^-1 S, g = sum S^T R^-1 nu,
+   with S = d y~/d phi from forward differences (they include the gain's gradients
+   dK/dphi), all perturbed parameter sets filtered in one batch; the step respects
+   diag(C K) <= 1 (the implied measurement noise R - C P C^T stays non-negative), step
+   halving on det(R), then Levenberg-Marquardt damping.
+3. From the ``r_update_from``-th iteration on, R is re-estimated after each step and F
+   compensated for the change (Maine and Iliff, :meth:`FilterError._compensate`).
 
-with the sensitivities of the filtered outputs (they include the gain's gradients
-dK/dphi) from forward differences, all perturbed parameter sets filtered in one batch.
-Step halving on J, then Levenberg-Marquardt damping when halving fails; F_i >= 0 and
-G_j > 0 by bounds. The Cramér-Rao bounds M^-1 cover
-theta, F and G together.
+R is full by default (``full_R``; the reference keeps its diagonal), and the sampled
+filter's P solves the discrete equation of :func:`discrete_gain` (the reference's
+continuous form is its start). The Cramér-Rao bounds are those of phi with R estimated
+too (:meth:`FilterError._marginal_information`).
 
-F-R compensation: Maine and Iliff's relaxation estimates the innovation covariance in
-closed form and afterwards rescales F so that the implied measurement-noise covariance
-B - C P C^T stays positive definite. Here the measurement noise G is itself a
-parameter of the likelihood and B = C P C^T + G G^T comes from the Riccati solution, so
-every Gauss-Newton step moves F and R consistently and the measurement-noise part stays
-positive by construction; no separate compensation step is needed.
+The cost is det(R), the likelihood with R concentrated out; the fit has converged when its
+relative change and R's have settled. R is never a free parameter of the Gauss-Newton
+step, so it cannot collapse to zero.
 
 Result: an :class:`~estimators.EstimationResult`; ``predicted`` are the one-step
 predictions y~_k, ``residuals`` the innovations, ``R`` their sample covariance;
-``extra`` holds ``gain`` (K per segment), ``F`` (n, n), ``measurement_noise`` (G G^T),
-``innovation_cov`` (B per segment), ``P`` (a-priori state covariance), ``A/B/C/D``
+``extra`` holds ``gain`` (K per segment), ``F`` (n, n), ``innovation_cov`` (the R the gain
+used, per segment), ``measurement_noise`` (R - C P C^T, diagonal), ``P``, ``A/B/C/D``
 (linearisation per segment) and ``filtered_states``.
 """
 from __future__ import annotations
@@ -65,7 +58,7 @@ import pandas as pd
 from scipy import linalg
 
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
-from estimators.integrators import INTEGRATORS, check_options
+from estimators.integrators import DEFAULT_INPUTS, INTEGRATORS, check_options
 from estimators.jit import (adapter_source, bound_source, compile_user_function, first_line,
                            kernel_for, load_kernels, probe_point)
 from estimators.kalman import (SEGMENT_HELPERS, _ekf_segment, _ukf_segment, default_process_noise,
@@ -212,6 +205,24 @@ def is_affine(model: Model, segments: Sequence[Segment], layout: Layout,
     return True
 
 
+def _mm(A, B):
+    """A @ B as plain loops (small matrices, compiled)."""
+    n, k = A.shape
+    m = B.shape[1]
+    out = np.zeros((n, m))
+    for i in range(n):
+        for l in range(k):
+            a = A[i, l]
+            if a != 0.0:
+                for j in range(m):
+                    out[i, j] += a * B[l, j]
+    return out
+
+
+if numba is not None:
+    _mm = numba.njit(cache=True)(_mm)
+
+
 def _expm_small(M):
     """e^M by scaling and squaring with a degree-16 Taylor polynomial, written as plain
     loops so that small matrices (n <= ~20) do not go through threaded BLAS/LAPACK (whose
@@ -251,7 +262,8 @@ def expm(M: np.ndarray) -> np.ndarray:
 
 
 def discretize(A: np.ndarray, FFt: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Phi = e^{A h}, Gamma = int_0^h e^{As} ds, Qd (van Loan) for one system."""
+    """Phi = e^{A h}, Gamma = int_0^h e^{As} ds, Qd = int_0^h e^{As} F F^T e^{A^T s} ds (van
+    Loan) for one system: A (n, n), FFt (n, n), h (s)."""
     n = A.shape[0]
     M = np.zeros((2 * n, 2 * n))
     M[:n, :n] = A
@@ -269,107 +281,111 @@ def discretize(A: np.ndarray, FFt: np.ndarray, h: float) -> tuple[np.ndarray, np
     return Phi, Gam, 0.5 * (Qd + Qd.T)
 
 
-def _mm(A, B):
-    n, k = A.shape
-    m = B.shape[1]
-    out = np.zeros((n, m))
-    for i in range(n):
-        for l in range(k):
-            a = A[i, l]
-            if a != 0.0:
-                for j in range(m):
-                    out[i, j] += a * B[l, j]
-    return out
-
-
-def _inv(M):
-    """Gauss-Jordan inverse with partial pivoting (small matrices); NaN if singular."""
-    n = M.shape[0]
-    A = M.copy()
-    I = np.eye(n)
-    for c in range(n):
-        p = c
-        for r in range(c + 1, n):
-            if abs(A[r, c]) > abs(A[p, c]):
-                p = r
-        if A[p, c] == 0.0 or not np.isfinite(A[p, c]):
-            return np.full((n, n), np.nan)
-        if p != c:
-            for j in range(n):
-                A[c, j], A[p, j] = A[p, j], A[c, j]
-                I[c, j], I[p, j] = I[p, j], I[c, j]
-        d = A[c, c]
-        for j in range(n):
-            A[c, j] /= d
-            I[c, j] /= d
-        for r in range(n):
-            if r != c:
-                f = A[r, c]
-                if f != 0.0:
-                    for j in range(n):
-                        A[r, j] -= f * A[c, j]
-                        I[r, j] -= f * I[c, j]
-    return I
-
-
-def _dare_sda(A, G, H, max_iter, tol):
-    """Structure-preserving doubling for X = A^T X A - A^T X B (R + B^T X B)^-1 B^T X A + H
-    with G = B R^-1 B^T:  W = I + G_k H_k,  A_{k+1} = A_k W^-1 A_k,
-    G_{k+1} = G_k + A_k W^-1 G_k A_k^T,  H_{k+1} = H_k + A_k^T H_k W^-1 A_k  ->  H_k -> X."""
+def input_integrals(A: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Phi = e^{A h}, Gamma0 = int_0^h e^{As} ds and Gamma1 = int_0^h e^{A(h-s)} s ds / h for
+    one system A (n, n): over a sample interval the input enters as Gamma0 B u_k for a held
+    input plus Gamma1 B (u_k+1 - u_k) for one interpolated linearly (first-order hold, the
+    exact counterpart of the integrators' stage-time interpolation)."""
     n = A.shape[0]
-    Ak, Gk, Hk = A.copy(), G.copy(), H.copy()
-    for _ in range(max_iter):
-        Wi = _inv(np.eye(n) + _mm(Gk, Hk))
-        if not np.all(np.isfinite(Wi)):
-            return np.full((n, n), np.nan)
-        AW = _mm(Ak, Wi)
-        Gn = Gk + _mm(_mm(AW, Gk), Ak.T.copy())
-        Hn = Hk + _mm(_mm(Ak.T.copy(), Hk), _mm(Wi, Ak))
-        An = _mm(AW, Ak)
-        num = 0.0
-        den = 0.0
-        for i in range(n):
-            for j in range(n):
-                num = max(num, abs(Hn[i, j] - Hk[i, j]))
-                den = max(den, abs(Hn[i, j]))
-        Ak, Gk, Hk = An, Gn, Hn
-        if num <= tol * max(den, 1e-300):
-            return 0.5 * (Hk + Hk.T)
-        if not np.all(np.isfinite(Hk)):
-            break
-    return np.full((n, n), np.nan)
+    M = np.zeros((3 * n, 3 * n))
+    M[:n, :n] = A * h
+    M[:n, n:2 * n] = np.eye(n) * h
+    M[n:2 * n, 2 * n:] = np.eye(n)
+    E = expm(M)
+    return E[:n, :n], E[:n, n:2 * n], E[:n, 2 * n:]
 
 
-def _gain(Phi, C, Qd, R):
-    """P (a-priori), B = C P C^T + R, K = P C^T B^-1 (all compiled, small matrices)."""
-    Ri = _inv(R)
-    G = _mm(_mm(C.T.copy(), Ri), C)
-    P = _dare_sda(Phi.T.copy(), G, Qd, 60, 1e-13)
-    PCt = _mm(P, C.T.copy())
-    Bm = _mm(C, PCt) + R
-    Bm = 0.5 * (Bm + Bm.T)
-    K = _mm(PCt, _inv(Bm))
-    return P, Bm, K
+def continuous_gain(A: np.ndarray, C: np.ndarray, FFt: np.ndarray, R: np.ndarray,
+                    h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Steady-state P (B, n, n) and gain K = P C^T R^-1 (B, n, m) of the filter-error method
+    for a batch of linearisations A (B, n, n), C (B, m, n) and process noise FFt (B, n, n),
+    with R (m, m) the innovation covariance and h the sample interval (s).
+
+    P solves A P + P A^T - P C^T (R h)^-1 C P + F F^T = 0 (the reference software's
+    continuous form of the Riccati equation with the innovation covariance in place of the
+    measurement noise), by Potter's method: the eigenvectors of the Hamiltonian
+    [[A, -F F^T], [-C^T R^-1 C / h, -A^T]] for its eigenvalues of positive real part give
+    P = -E11 E21^-1, all columns in one batched eigen-decomposition. A column where that
+    fails (an eigenvalue on the imaginary axis) is solved by scipy's Schur method; NaN
+    where neither has a stabilising solution. Columns without process noise get P = 0."""
+    Bc, n, _ = A.shape
+    Ri = np.linalg.inv(R)
+    P = np.zeros((Bc, n, n))
+    noisy = np.any(FFt.reshape(Bc, -1) != 0.0, axis=1)
+    if np.any(noisy):
+        a, c, q = A[noisy], C[noisy], FFt[noisy]
+        H = np.block([[a, -q], [-np.einsum("bji,jk,bkl->bil", c, Ri, c) / h, -a.transpose(0, 2, 1)]])
+        with np.errstate(all="ignore"):
+            ok = np.all(np.isfinite(H.reshape(H.shape[0], -1)), axis=1)
+            Pn = np.full((H.shape[0], n, n), np.nan)
+            if np.any(ok):
+                w, V = np.linalg.eig(H[ok])
+                order = np.argsort(w.real, axis=1)[:, n:]
+                E = np.take_along_axis(V, order[:, None, :], axis=2)
+                wr = np.take_along_axis(w.real, order, axis=1)
+                sol = -E[:, :n] @ np.linalg.pinv(E[:, n:])
+                good = (np.min(wr, axis=1) > 1e-9 * np.max(np.abs(w), axis=1, initial=1.0)) \
+                    & np.all(np.abs(sol.imag) <= 1e-8 * (1.0 + np.abs(sol.real)), axis=(1, 2))
+                Pn[ok] = np.where(good[:, None, None], sol.real, np.nan)
+        for b in np.flatnonzero(~np.all(np.isfinite(Pn.reshape(Pn.shape[0], -1)), axis=1)):
+            try:
+                Pn[b] = linalg.solve_continuous_are(a[b].T, c[b].T, q[b], R * h)
+            except (np.linalg.LinAlgError, ValueError):
+                Pn[b] = np.nan
+        P[noisy] = 0.5 * (Pn + Pn.transpose(0, 2, 1))
+    K = np.einsum("bij,bkj,kl->bil", P, C, Ri)
+    return P, K
 
 
-if numba is not None:
-    _mm = numba.njit(cache=True)(_mm)
-    _inv = numba.njit(cache=True)(_inv)
-    _dare_sda = numba.njit(cache=True)(_dare_sda)
-    _gain = numba.njit(cache=True)(_gain)
+def discrete_gain(A: np.ndarray, C: np.ndarray, FFt: np.ndarray, R: np.ndarray, h: float,
+                  max_iter: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """Steady-state a-priori P (B, n, n) and gain K = P C^T R^-1 (B, n, m) of the sampled
+    filter for a batch of linearisations A (B, n, n), C (B, m, n), process noise FFt
+    (B, n, n), the innovation covariance R (m, m) and the sample interval h (s).
 
-
-def steady_state_gain(Phi: np.ndarray, C: np.ndarray, Qd: np.ndarray, R: np.ndarray):
-    """(P a-priori, B = C P C^T + R, K = P C^T B^-1) from the discrete algebraic Riccati
-    equation P = Phi P Phi^T - Phi P C^T (C P C^T + R)^-1 C P Phi^T + Qd, solved by the
-    structure-preserving doubling algorithm (compiled; same solution as
-    scipy.linalg.solve_discrete_are, which the tests check). Raises LinAlgError when there
-    is no stabilising solution."""
-    P, Bm, K = _gain(np.ascontiguousarray(Phi, dtype=float), np.ascontiguousarray(C, dtype=float),
-                     np.ascontiguousarray(Qd, dtype=float), np.ascontiguousarray(R, dtype=float))
-    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(K))):
-        raise np.linalg.LinAlgError("the Riccati equation has no stabilising solution")
-    return P, Bm, K
+    P solves P = Phi (P - P C^T R^-1 C P) Phi^T + Qd (Phi, Qd of :func:`discretize`): the
+    Kalman filter's prediction of its own a-posteriori covariance when R is the innovation
+    covariance. Newton's method from the continuous form's solution
+    (:func:`continuous_gain`, the reference software's, which it approaches as h -> 0),
+    batched over columns; the continuous solution is kept for a column where Newton does
+    not settle. NaN where neither exists."""
+    Bc, n, _ = A.shape
+    P, K = continuous_gain(A, C, FFt, R, h)
+    noisy = np.any(FFt.reshape(Bc, -1) != 0.0, axis=1) & np.all(np.isfinite(P.reshape(Bc, -1)), axis=1)
+    if not np.any(noisy):
+        return P, K
+    idx = np.flatnonzero(noisy)
+    Ri = np.linalg.inv(R)
+    Phi = np.empty((idx.size, n, n))
+    Q = np.empty((idx.size, n, n))
+    for j, b in enumerate(idx):
+        Phi[j], _, Q[j] = discretize(A[b], FFt[b], h)
+    Mm = np.einsum("bji,jk,bkl->bil", C[idx], Ri, C[idx])
+    X = P[idx].copy()
+    eye = np.eye(n * n)
+    scale = np.abs(Q).reshape(idx.size, -1).max(axis=1) + 1e-300
+    done = np.zeros(idx.size, dtype=bool)
+    with np.errstate(all="ignore"):
+        for _ in range(max_iter):
+            XM = X @ Mm
+            f = Phi @ (X - XM @ X) @ Phi.transpose(0, 2, 1) + Q - X
+            err = np.abs(f).reshape(idx.size, -1).max(axis=1) / scale
+            done = np.isfinite(err) & (err < 1e-12)
+            if np.all(done | ~np.isfinite(err)):
+                break
+            PXM = Phi @ XM
+            J = (np.einsum("bij,bkl->bikjl", Phi, Phi) - np.einsum("bij,bkl->bikjl", Phi, PXM)
+                 - np.einsum("bij,bkl->bikjl", PXM, Phi)).reshape(idx.size, n * n, n * n) - eye
+            try:
+                dX = np.linalg.solve(J, -f.reshape(idx.size, n * n, 1)).reshape(idx.size, n, n)
+            except np.linalg.LinAlgError:
+                break
+            X = X + np.where(done[:, None, None], 0.0, dX)
+            X = 0.5 * (X + X.transpose(0, 2, 1))
+    good = done & np.all(np.isfinite(X.reshape(idx.size, -1)), axis=1)
+    P[idx[good]] = X[good]
+    K = np.einsum("bij,bkj,kl->bil", P, C, Ri)
+    return P, K
 
 
 # -- compiled nonlinear filter loop ----------------------------------------------------------
@@ -547,6 +563,10 @@ def pattern_gains(Pp: np.ndarray, C: np.ndarray, B: np.ndarray, K: np.ndarray,
     return np.nan_to_num(out)
 
 
+#: relative change of the innovation covariance's diagonal under which the relaxation has
+#: settled (with det(R) settled too, the fit has converged)
+R_SETTLED = 1e-3
+
 #: largest deviation of a sample interval from the segment's median interval (relative)
 #: that the filter-error method accepts: the steady-state gain, and in the linear form the
 #: transition matrices, are those of the median interval
@@ -566,7 +586,8 @@ def sample_interval(seg: Segment, k: int = 0) -> float:
             f"segment {seg.name or k}: the filter-error method needs a constant sample interval; "
             f"at t={seg.t[i]:.6g} s the step is {dt[i]:.6g} s against a median of {h:.6g} s "
             f"({dev[i]:.0%} off, {JITTER_TOL:.0%} accepted): resample the data to a constant "
-            "rate or split the segment at the gap")
+            f"rate, or split the segment there (Segment.split_at_gaps(factor={1 + JITTER_TOL:g})) "
+            "and fit the pieces as a list of segments")
     return h
 
 
@@ -583,26 +604,28 @@ class FilterError:
         0.05 sqrt(var(diff z)/h) (a twentieth of the bound the sample-to-sample variation
         gives). Starting from output-error estimates (``start=oem.params``) helps.
     estimate_F : estimate the F entries (True) or hold them at their start values.
-    measurement_noise : start of G (std per output): {output: std} or (n_out,); default
-        from the innovations of the start model.
-    estimate_G : estimate G (True, default) or hold it at ``measurement_noise`` (False;
-        then ``measurement_noise`` is required). Holding G at an independent measurement-
-        noise estimate helps when the process noise is a white-noise stand-in for coloured
-        turbulence: the likelihood can then trade G of an output that also measures the
-        gust-driven state (e.g. az for alpha) down towards 0, where the information matrix
-        becomes singular. Held entries are reported with no std.
+    measurement_noise : start of the innovation covariance R as std per output
+        ({output: std} or (n_out,)), the reference software's given output-error std;
+        default: the residuals of the start model run without a gain (K = 0).
     form : "auto" (default: "linear" when f and g are affine in x and u over the data,
         :func:`is_affine`, else "nonlinear"), "linear" (transition matrix of the
-        linearisation at each segment's start: exact for linear models only - on the
-        nonlinear HFB-320 class model of an 18 m/s speed change it put the derivatives
-        up to 44 std off) or "nonlinear" (integrator prediction, gain of the
-        linearisation at the trim point).
+        linearisation at each segment's start: exact for linear models only) or
+        "nonlinear" (integrator prediction, gain of the linearisation at the trim point).
     integrator : the one-step predictor of the nonlinear form.
-    max_iter, tol : Gauss-Newton iterations; stop when the relative change of J is < tol.
+    max_iter, tol : Gauss-Newton iterations; stop when the relative change of det(R) is
+        below ``tol`` after an iteration that updated R.
     fd_step : relative forward-difference step of the sensitivities.
-    step_halvings : maximum halvings of a step that does not lower J.
-    inputs : input variation over a sample interval, as OutputError: "average" (default),
-        "hold" (zero-order hold) or "linear" (nonlinear form only).
+    step_halvings : maximum halvings of a step that does not lower det(R).
+    r_update_from : first iteration after which R is re-estimated and F compensated (the
+        reference software waits until its third; from the first, a start R far from the
+        innovations - the output-error residuals of a start in turbulence - weights the
+        early steps less wrongly).
+    full_R : estimate the full innovation covariance (default; the likelihood's) or only
+        its diagonal (the reference software's): a diagonal R ignores the correlation the
+        process noise puts between the innovations, and the F that makes up for it is
+        biased (HFB-320 replica: F_alpha 4-7 std low).
+    inputs : input variation over a sample interval, as OutputError: "linear" (default) or
+        "hold" (zero-order hold); the linear form discretises either exactly.
     compiled : run the nonlinear filter loop compiled with numba (f and g compiled; falls
         back to the numpy loop when the model does not compile).
     """
@@ -610,9 +633,10 @@ class FilterError:
     method = "fem"
 
     def __init__(self, model: Model, *, process_noise: Any = None, estimate_F: bool = True,
-                 measurement_noise: Any = None, estimate_G: bool = True, form: str = "auto", integrator: str = "rk4",
-                 max_iter: int = 30, tol: float = 1e-7, fd_step: float = 1e-6,
-                 step_halvings: int = 10, inputs: str = "average", compiled: bool = True,
+                 measurement_noise: Any = None, form: str = "auto", integrator: str = "rk4",
+                 max_iter: int = 40, tol: float = 1e-6, fd_step: float = 1e-6,
+                 step_halvings: int = 10, r_update_from: int = 1,
+                 inputs: str = DEFAULT_INPUTS, compiled: bool = True, full_R: bool = True,
                  callback=None) -> None:
         if form not in ("auto", "linear", "nonlinear"):
             raise ModelDefinitionError(f"form must be 'auto', 'linear' or 'nonlinear', not {form!r}")
@@ -620,9 +644,6 @@ class FilterError:
         self.model = model
         self.process_noise = process_noise
         self.estimate_F = estimate_F
-        self.estimate_G = estimate_G
-        if not estimate_G and measurement_noise is None:
-            raise ModelDefinitionError("estimate_G=False needs measurement_noise (std per output)")
         self.measurement_noise = measurement_noise
         self.form_requested = form
         self.integrator = integrator
@@ -630,26 +651,24 @@ class FilterError:
         self.tol = tol
         self.fd_step = fd_step
         self.step_halvings = step_halvings
+        self.r_update_from = max(int(r_update_from), 1)
         self.callback = callback
-        if form == "linear" and inputs == "linear":
-            raise ModelDefinitionError("the linear form supports inputs='average' or 'hold'; use "
-                                       "form='nonlinear' for linearly interpolated inputs")
         self.inputs = inputs
         self.compiled = compiled
+        self.full_R = full_R
         self._set_form(form)
 
     def _set_form(self, form: str) -> None:
         self.form = form
         self.method = "fem-nl" if form == "nonlinear" else "fem"
 
-    # -- parameter vector phi = [layout free, F_i, G_j] ---------------------------------------
+    # -- parameter vector phi = [layout free, F_i] -----------------------------------------------
     def _noise_setup(self, segments: Sequence[Segment]) -> tuple[list[int], np.ndarray]:
         m = self.model
         n = len(m.states)
-        default = default_process_noise(m, segments)
         spec = self.process_noise
         if spec is None:
-            f0 = default
+            f0 = default_process_noise(m, segments)
         elif is_name_list(spec):
             f0 = named_process_noise(m, spec, segments)
         elif isinstance(spec, Mapping):
@@ -664,47 +683,32 @@ class FilterError:
         noisy = [i for i in range(n) if f0[i] > 0]
         return noisy, f0
 
-    def _unpack(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """theta (n_all,), F (n, n), R (m, m) from phi (free vector)."""
+    def _unpack(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """theta (n_all,) and F (n, n) from phi (free vector)."""
         theta = self._lay.values.copy()
         nf = self._lay.free_idx.size
         theta[self._lay.free_idx] = phi[:nf]
         fvec = self._f_fixed.copy()
         if self.estimate_F:
-            fvec[self._noisy] = np.sqrt(np.maximum(phi[nf:nf + len(self._noisy)], 0.0))
-        g = phi[-len(self.model.outputs):]
-        return theta, np.diag(fvec), np.diag(g ** 2)
-
-    def _fslice(self) -> slice:
-        nf = self._lay.free_idx.size
-        return slice(nf, nf + (len(self._noisy) if self.estimate_F else 0))
-
-    def _report(self, phi: np.ndarray) -> np.ndarray:
-        """phi with the process-noise entries as std F (internally F^2 is the unknown: it
-        enters Qd linearly, so its gradient does not vanish at F = 0 and the bound works)."""
-        out = np.array(phi, dtype=float)
-        sl = self._fslice()
-        out[sl] = np.sqrt(np.maximum(out[sl], 0.0))
-        return out
-
-    def _dphi(self, phi: np.ndarray) -> np.ndarray:
-        """d phi / d reported: 2 F for the process-noise entries, 1 otherwise."""
-        D = np.ones(phi.size)
-        D[self._fslice()] = 2.0 * self._report(phi)[self._fslice()]
-        return D
+            fvec[self._noisy] = np.maximum(phi[nf:nf + len(self._noisy)], 0.0)
+        return theta, np.diag(fvec)
 
     # -- filtering a batch of parameter vectors ------------------------------------------------
-    def _filter(self, Phis: np.ndarray, want_states: bool = False,
-                rows: Sequence[np.ndarray] | None = None):
-        """For parameter columns Phis (Bc, n_phi): per segment predicted outputs
-        (Bc_k, N, m), innovation covariances (Bc_k, m, m) and details of column 0.
-        ``rows``: per segment the columns of Phis to run (column 0 first; default all):
-        a sensitivity batch needs only the parameters the segment depends on
-        (:meth:`_segment_rows`)."""
+    def _filter(self, Phis: np.ndarray, R: np.ndarray, rows: Sequence[np.ndarray] | None = None,
+                gain: bool = True) -> list[dict[str, Any]]:
+        """For parameter columns Phis (Bc, n_phi) and innovation covariance R (m, m): per
+        segment the predicted outputs Y (Bc_k, N, m), gain K (Bc_k, n, m), P, diag(C K)
+        (Bc_k, m), filtered states and the linearisation of column 0. ``rows``: per segment
+        the columns of Phis to run (column 0 first; default all): a sensitivity batch needs
+        only the parameters the segment depends on (:meth:`_segment_rows`). ``gain`` False
+        runs without a gain (K = 0: the output-error simulation)."""
         model = self.model
         n, m = len(model.states), len(model.outputs)
         unpacked = [self._unpack(p) for p in Phis]
         Theta_all = np.stack([u[0] for u in unpacked])
+        FF_all = np.stack([u[1] @ u[1].T for u in unpacked])
+        if not gain:
+            FF_all[:] = 0.0
         out = []
         for k, seg in enumerate(self._segments):
             idx = np.arange(Phis.shape[0]) if rows is None else rows[k]
@@ -716,29 +720,24 @@ class FilterError:
             c = model.constants_for(seg)
             A, Bu, C, D, f0, y0 = linearize_batch(model, P, X0, seg.u[0], c)
             h = self._h[k]
-            Phi = np.empty((Bc, n, n)); Gam = np.empty((Bc, n, n))
-            Kg = np.empty((Bc, n, m)); Binn = np.empty((Bc, m, m)); Pp = np.empty((Bc, n, n))
-            for b in range(Bc):
-                F, R = unpacked[idx[b]][1], unpacked[idx[b]][2]
-                Phi[b], Gam[b], Qd = discretize(A[b], F @ F.T, h)
-                try:
-                    Pp[b], Binn[b], Kg[b] = steady_state_gain(Phi[b], C[b], Qd, R)
-                except np.linalg.LinAlgError:
-                    Pp[b] = np.nan; Binn[b] = np.nan; Kg[b] = np.nan
-            if self.inputs == "hold":
-                ua = seg.u
-            else:
-                ua = np.vstack([0.5 * (seg.u[:-1] + seg.u[1:]), seg.u[-1:]])    # (N, ni)
-            offset = np.einsum("bij,nj->bni", D, seg.u) + y0[:, None, :]
+            with np.errstate(all="ignore"):
+                Pp, Kg = discrete_gain(A, C, FF_all[idx], R, h)
+            ok = np.all(np.isfinite(Kg.reshape(Bc, -1)), axis=1)
             Z = np.ascontiguousarray(seg.z)
             masks, pat = self._patterns[k]
-            Kp = pattern_gains(Pp, C, Binn, Kg, masks)
+            Kp = pattern_gains(Pp, C, np.repeat(R[None], Bc, axis=0), Kg, masks)
             if self.form == "linear":
-                drive = np.einsum("bij,bnj->bni", Gam,
-                                  np.einsum("bij,nj->bni", Bu, ua) + f0[:, None, :])
-                ok = np.all(np.isfinite(Kg.reshape(Bc, -1)), axis=1)
                 Y = np.full((Bc, seg.n, m), np.nan)
                 Xf = np.full((Bc, seg.n, n), np.nan)
+                drive = np.empty((Bc, seg.n, n))
+                Phi = np.empty((Bc, n, n))
+                du = np.vstack([np.diff(seg.u, axis=0), np.zeros((1, seg.u.shape[1]))])
+                for b in range(Bc):
+                    Phi[b], G0, G1 = input_integrals(A[b], h)
+                    drive[b] = (Bu[b] @ seg.u.T + f0[b][:, None]).T @ G0.T
+                    if self.inputs == "linear":
+                        drive[b] += (Bu[b] @ du.T).T @ G1.T
+                offset = np.einsum("bij,nj->bni", D, seg.u) + y0[:, None, :]
                 if np.any(ok):
                     Y[ok], Xf[ok] = _kf_loop_jit(np.ascontiguousarray(Phi[ok]), np.ascontiguousarray(Kp[ok]),
                                                  pat, np.ascontiguousarray(C[ok]), np.ascontiguousarray(drive[ok]),
@@ -746,7 +745,8 @@ class FilterError:
                                                  np.ascontiguousarray(X0.T[ok]))
             else:
                 Y, Xf = self._nonlinear_loop(seg, k, P, X0, Kg, Kp, pat, c)
-            out.append({"Y": Y, "B": Binn, "K": Kg, "P": Pp, "X": Xf,
+            CK = np.einsum("bij,bji->bi", C, Kg)
+            out.append({"Y": Y, "K": Kg, "P": Pp, "X": Xf, "CK": CK, "C": C,
                         "lin": (A[0], Bu[0], C[0], D[0])})
         return out
 
@@ -768,8 +768,7 @@ class FilterError:
                 pat, np.ascontiguousarray(seg.z), float(1e-8), float(1e-10),
                 _integ.INPUT_MODES[self.inputs])
             # a diverging column is not an error here: its non-finite predictions make the
-            # likelihood infinite, so a trial step that causes it is rejected (see _seg_nll);
-            # fit() raises SimulationDivergedError when the accepted parameters diverge
+            # cost infinite, so a trial step that causes it is rejected
             bad = ~np.all(np.isfinite(Kg.reshape(Bc, -1)), axis=1)
             Y[bad] = np.nan
             return Y, Xf
@@ -810,105 +809,237 @@ class FilterError:
         Y[bad] = np.nan
         return Y, Xf
 
-    # -- likelihood pieces ----------------------------------------------------------------------
-    def _nll(self, res) -> float:
+    # -- cost pieces ---------------------------------------------------------------------------
+    def _innovations(self, res) -> list[np.ndarray]:
+        return [seg.z - r["Y"][0] for seg, r in zip(self._segments, res)]
+
+    def _cost(self, res) -> tuple[float, np.ndarray]:
+        """(det R^, R^): the innovations' diagonal covariance R^ over every segment and its
+        determinant, the cost with R concentrated out; inf when a measured output's
+        prediction is not finite (a diverged filter must not shorten the sums)."""
+        E = self._innovations(res)
+        for seg, e in zip(self._segments, E):
+            if np.any(np.isfinite(seg.z) & ~np.isfinite(e)):
+                return np.inf, np.full((e.shape[1], e.shape[1]), np.nan)
+        Rh = st.residual_covariance(E, full=self.full_R)
+        if not np.all(np.isfinite(Rh)):
+            return np.inf, Rh
+        sign, logdet = np.linalg.slogdet(Rh)
+        if sign <= 0:
+            return np.inf, Rh
+        return float(np.exp(logdet)), Rh
+
+    def _weighted(self, res, R: np.ndarray) -> float:
+        """J = 1/2 sum nu^T R^-1 nu over every sample on its measured outputs: the cost the
+        Gauss-Newton step lowers for a fixed R; inf when a measured output's prediction is
+        not finite."""
         J = 0.0
         for k, (seg, r) in enumerate(zip(self._segments, res)):
-            Y, Bm = r["Y"][0], r["B"][0]
-            if not np.all(np.isfinite(Bm)):
-                return np.inf
-            E = seg.z - Y
-            J += self._seg_nll(E, Bm, *self._patterns[k])
-        return J
+            E = seg.z - r["Y"][0]
+            masks, pat = self._patterns[k]
+            for p, o in enumerate(masks):
+                if not o.any():
+                    continue
+                Eo = E[pat == p][:, o]
+                if not np.all(np.isfinite(Eo)):
+                    return np.inf
+                J += 0.5 * float(np.sum(Eo.T * np.linalg.solve(R[np.ix_(o, o)], Eo.T)))
+        return J if np.isfinite(J) else np.inf
 
-    @staticmethod
-    def _seg_nll(E: np.ndarray, Bm: np.ndarray, masks: np.ndarray, pat: np.ndarray) -> float:
-        """Innovation likelihood over every sample, each on the outputs measured there
-        (the block of B for them). A non-finite prediction of a measured output (a filter
-        that diverged) makes J infinite: it must not shorten the sum (fewer samples would
-        look like a better fit)."""
-        val = 0.0
-        for p, o in enumerate(masks):
-            if not o.any():
-                continue
-            Ei = E[pat == p][:, o]
-            if not np.all(np.isfinite(Ei)):
-                return np.inf
-            sign, logdet = np.linalg.slogdet(Bm[np.ix_(o, o)])
-            if sign <= 0:
-                return np.inf
-            W = np.linalg.solve(Bm[np.ix_(o, o)], Ei.T)
-            val += 0.5 * float(np.sum(Ei.T * W)) + 0.5 * Ei.shape[0] * logdet
-        return val if np.isfinite(val) else np.inf
+    def _marginal_information(self, M: np.ndarray, phi: np.ndarray, batch, R: np.ndarray,
+                              rel_step: float = 1e-4) -> np.ndarray:
+        """The information on phi with R estimated too: the Schur complement
+        M - M_pr M_rr^-1 M_rp of the joint Fisher information over phi and the entries r of
+        R (its diagonal, and the off-diagonal ones when R is full). R enters the gain
+        (sensitivities S_r of the innovations, by forward differences) and the likelihood
+        directly (N/2 tr(R^-1 E_r R^-1 E_s)); leaving it out, as the reference software
+        does, understates the std of F, which trades against R."""
+        m = R.shape[0]
+        pairs = [(i, j) for i in range(m) for j in range(i, m) if i == j or self.full_R]
+        nphi = phi.size
+        nr = len(pairs)
+        Mpr = np.zeros((nphi, nr))
+        Mrr = np.zeros((nr, nr))
+        Es = []
+        for i, j in pairs:
+            E = np.zeros((m, m))
+            E[i, j] = E[j, i] = 1.0
+            Es.append(E)
+        for k, (seg, r) in enumerate(zip(self._segments, batch)):
+            Y0 = r["Y"][0]
+            cols = self._segment_rows(nphi)[k][1:] - 1
+            S_phi = np.zeros((nphi, seg.n, m))
+            S_phi[cols] = self._last_S[k]
+            S_r = np.zeros((nr, seg.n, m))
+            for a, (i, j) in enumerate(pairs):
+                d = rel_step * np.sqrt(R[i, i] * R[j, j])
+                rr = self._filter(phi[None, :], R + d * Es[a])
+                if self._constraint_ok(rr):       # else its gain over-corrects: no gradient
+                    S_r[a] = (rr[k]["Y"][0] - Y0) / d
+            S_r = np.where(np.isfinite(S_r), S_r, 0.0)
+            masks, pat = self._patterns[k]
+            E = seg.z - Y0
+            for p_, o in enumerate(masks):
+                used = (pat == p_) & np.all(np.isfinite(np.where(o, E, 0.0)), axis=1)
+                if not (o.any() and used.any()):
+                    continue
+                Ri = np.linalg.inv(R[np.ix_(o, o)])
+                Lw = np.linalg.cholesky(Ri)
+                A = np.einsum("pnm,mk->pnk", S_phi[:, used][:, :, o], Lw).reshape(nphi, -1)
+                Bm = np.einsum("pnm,mk->pnk", S_r[:, used][:, :, o], Lw).reshape(nr, -1)
+                Mpr += A @ Bm.T
+                T = np.array([Ri @ Ea[np.ix_(o, o)] for Ea in Es])
+                Mrr += Bm @ Bm.T + 0.5 * used.sum() * np.einsum("aij,bji->ab", T, T)
+        with np.errstate(all="ignore"):
+            try:
+                out = M - Mpr @ np.linalg.solve(Mrr, Mpr.T)
+            except np.linalg.LinAlgError:
+                return M
+        out = 0.5 * (out + out.T)
+        # a valid Schur complement lies between 0 and M; anything else is a failed gradient
+        d = np.diag(out)
+        if not np.all(np.isfinite(out)) or np.any(d <= 0) or np.any(d > np.diag(M) * (1 + 1e-9)):
+            return M
+        return out
+
+    def _constraint_ok(self, res) -> bool:
+        """diag(C K) <= 1 on every segment: the measurement noise R - C P C^T implied by the
+        gain keeps non-negative variances."""
+        return all(np.all(r["CK"][0] <= 1.0 + 1e-9) for r in res)
 
     def _segment_rows(self, nphi: int) -> list[np.ndarray]:
         """Per segment the columns of a sensitivity batch (:meth:`_batch`) it needs: 0 (the
-        base) and 1 + the phi it depends on - the model parameters of
-        ``Layout.relevant`` (shared ones and its own initial states) and every noise
-        parameter. Without this every segment ran every other segment's initial states:
-        G maneuvers cost G^2 filter runs."""
+        base) and 1 + the phi it depends on - the model parameters of ``Layout.relevant``
+        (shared ones and its own initial states) and every process-noise parameter."""
         fi = self._lay.free_idx
         noise = np.arange(fi.size, nphi)
         return [np.r_[0, 1 + np.searchsorted(fi, rel), 1 + noise] for rel in self._lay.relevant]
 
-    def _scoring(self, res, hsteps: np.ndarray, rows: Sequence[np.ndarray],
+    def _scoring(self, res, R: np.ndarray, hsteps: np.ndarray, rows: Sequence[np.ndarray],
                  keep: list | None = None):
-        """Fisher information M, gradient g (of -J) and J from a batch (column 0 = base),
-        each sample on the outputs measured there (per pattern of measured outputs, the
-        block of B for them; samples whose measured outputs have a non-finite prediction
-        left out). ``rows``: per segment the batch columns it was run with
-        (:meth:`_segment_rows`, as given to :meth:`_filter`). ``keep``: a list that receives, per segment,
-        (S innovation sensitivities (a :class:`Sensitivity`, (N, m) by its phi), E (N, m)
-        innovations, B^-1, rows used, S^T B^-1 S (nphi, nphi): its part of M) for the
-        coloured-innovation covariance - the samples where every output is measured (the
-        others stay in M as white) - then the segment's whole part of M and of g (for the
-        maneuver cluster covariance)."""
+        """Information M = sum S^T R^-1 S and gradient g = sum S^T R^-1 nu (of -J) for the
+        fixed innovation covariance R, plus the gradient of diag(C K) per segment
+        (list of (m, nphi)), from a batch (column 0 = base). Each sample counts on the outputs
+        measured there. ``keep`` receives per segment (innovation sensitivities as a
+        :class:`Sensitivity`, innovations, R^-1, rows used, the segment's part of M, of M
+        again, of g) for the coloured-innovation and maneuver-scatter covariances."""
         nphi = hsteps.size
         M = np.zeros((nphi, nphi))
         g = np.zeros(nphi)
-        J = 0.0
+        dCK = []
+        self._last_S = [None] * len(self._segments)
         for k, (seg, r) in enumerate(zip(self._segments, res)):
-            M0, g0 = (M.copy(), g.copy()) if keep is not None else (None, None)
-            cols = rows[k][1:] - 1                                   # its phi
+            cols = rows[k][1:] - 1
             npk = cols.size
-            Y, Bs = r["Y"], r["B"]
+            Y = r["Y"]
             E = seg.z - Y[0]
-            Bm = Bs[0]
             S = (Y[1:] - Y[:1]) / hsteps[cols, None, None]           # (npk, N, m)
             S = np.where(np.isfinite(S), S, 0.0)
-            dB = (Bs[1:] - Bs[:1]) / hsteps[cols, None, None]        # (npk, m, m)
-            dB = np.where(np.isfinite(dB), dB, 0.0)
+            self._last_S[k] = S
+            G = np.zeros((r["CK"].shape[1], nphi))
+            G[:, cols] = ((r["CK"][1:] - r["CK"][:1]) / hsteps[cols, None]).T
+            dCK.append(np.where(np.isfinite(G), G, 0.0))
             masks, pat = self._patterns[k]
+            Mk = np.zeros((nphi, nphi))
+            gk = np.zeros(nphi)
             full = np.zeros(seg.n, dtype=bool)
             M_full = np.zeros((nphi, nphi))
             for p, o in enumerate(masks):
                 used = (pat == p) & np.all(np.isfinite(np.where(o, E, 0.0)), axis=1)
                 if not (o.any() and used.any()):
                     continue
-                Bo = Bm[np.ix_(o, o)]
-                Binv = np.linalg.inv(Bo)
-                Lw = np.linalg.cholesky(Binv)
-                Eo = E[used][:, o]
+                Lw = np.linalg.cholesky(np.linalg.inv(R[np.ix_(o, o)]))
                 Sw = np.einsum("pnm,mk->pnk", S[:, used][:, :, o], Lw).reshape(npk, -1)
-                M_S = Sw @ Sw.T
-                add_block(M, cols, M_S)
-                add_block(g, cols, Sw @ (Eo @ Lw).ravel())
-                Nk = used.sum()
-                T = np.einsum("ij,pjk->pik", Binv, dB[:, o][:, :, o])   # B^-1 B_i
-                add_block(M, cols, 0.5 * Nk * np.einsum("pij,qji->pq", T, T))
-                add_block(g, cols, 0.5 * np.einsum("pij,jk,kl->pil", T, Binv,
-                                                   Eo.T @ Eo - Nk * Bo).trace(axis1=1, axis2=2))
+                add_block(Mk, cols, Sw @ Sw.T)
+                add_block(gk, cols, Sw @ (E[used][:, o] @ Lw).ravel())
                 if o.all():
                     full = used
                     M_full = np.zeros((nphi, nphi))
-                    add_block(M_full, cols, M_S)
+                    add_block(M_full, cols, Sw @ Sw.T)
+            M += Mk
+            g += gk
             if keep is not None:
                 keep.append((Sensitivity(np.where(full[:, None, None], np.moveaxis(S, 0, 2), 0.0),
                                          cols, nphi),
-                             np.where(full[:, None], E, 0.0), np.linalg.inv(Bm), full, M_full,
-                             M - M0, g - g0))
-            J += self._seg_nll(E, Bm, masks, pat)
-        return M, g, J
+                             np.where(full[:, None], E, 0.0), np.linalg.inv(R), full, M_full, Mk, gk))
+        return M, g, dCK
+
+    def _step(self, M: np.ndarray, g: np.ndarray, active: np.ndarray, res, dCK: list,
+              lam: float = 0.0) -> np.ndarray:
+        """Gauss-Newton (or, with ``lam``, Levenberg-Marquardt) step on the active
+        parameters under the linearised constraints diag(C K) + dCK delta <= 1 (active-set:
+        the violated ones are made equalities, as the reference software's KC <= 1 check)."""
+        nphi = g.size
+        a = np.flatnonzero(active)
+        delta = np.zeros(nphi)
+        if a.size == 0:
+            return delta
+        Ma, ga = M[np.ix_(a, a)], g[a]
+        delta[a] = st.solve_step(Ma, ga, lam)
+        ck = np.concatenate([r["CK"][0] for r in res])
+        Gk = np.concatenate(dCK, axis=0)[:, a]
+        rows: list[int] = []
+        for _ in range(ck.size):
+            viol = np.flatnonzero((ck + Gk @ delta[a] > 1.0 + 1e-12) & np.any(Gk != 0, axis=1))
+            viol = [v for v in viol if v not in rows]
+            if not viol:
+                break
+            rows.append(int(viol[np.argmax((ck + Gk @ delta[a])[viol])]))
+            Aeq = Gk[rows]
+            beq = 1.0 - ck[rows]
+            d = np.sqrt(np.maximum(np.diag(Ma), 1e-300))
+            Ms = Ma / np.outer(d, d) + lam * np.eye(a.size)
+            Kkt = np.block([[Ms, (Aeq / d).T], [Aeq / d, np.zeros((len(rows), len(rows)))]])
+            try:
+                sol = np.linalg.lstsq(Kkt, np.concatenate([ga / d, beq]), rcond=1e-12)[0]
+            except np.linalg.LinAlgError:
+                break
+            delta[a] = sol[:a.size] / d
+        return delta
+
+    def _cap_noise_step(self, phi: np.ndarray, delta: np.ndarray, factor: float = 10.0) -> np.ndarray:
+        """delta scaled so that no process-noise entry grows more than ``factor``-fold in
+        one step: F's information can start out negligible (a small start gain), and an
+        unbounded Gauss-Newton step then throws F far beyond the data."""
+        sl = self._fslice()
+        f, d = phi[sl], delta[sl]
+        grow = (d > 0) & (f > 0)
+        if not np.any(grow):
+            return delta
+        scale = np.min(np.where(grow, (factor - 1.0) * f / np.where(grow, d, 1.0), np.inf))
+        return delta * min(1.0, float(scale))
+
+    def _sensitivity_batch(self, phi: np.ndarray, R: np.ndarray, rows: Sequence[np.ndarray]):
+        """The perturbed filter runs of :meth:`_batch` for phi (column 0 the base) and their
+        steps; a column whose forward step makes the gain over-correct (diag(C K) > 1) or
+        the prediction run away is run again with the step reversed."""
+        Phis, hsteps = self._batch(phi)
+        batch = self._filter(Phis, R, rows=rows)
+        flip = np.zeros(phi.size, dtype=bool)
+        for k, r in enumerate(batch):
+            Y = r["Y"]
+            big = 1e6 * (1.0 + np.nanmax(np.abs(Y[0])))
+            with np.errstate(invalid="ignore"):
+                bad = (np.any(r["CK"][1:] > 1.0 + 1e-9, axis=1)
+                       | ~np.all(np.isfinite(Y[1:]).reshape(Y.shape[0] - 1, -1)
+                                 | ~np.isfinite(Y[:1]).reshape(1, -1), axis=1)
+                       | (np.nanmax(np.abs(Y[1:] - Y[:1]).reshape(Y.shape[0] - 1, -1), axis=1,
+                                    initial=0.0) > big))
+            flip[rows[k][1:][bad] - 1] = True
+        if np.any(flip):
+            hsteps = np.where(flip, -hsteps, hsteps)
+            Phis = np.repeat(phi[None, :], phi.size + 1, axis=0)
+            Phis[1 + np.arange(phi.size), np.arange(phi.size)] += hsteps
+            batch = self._filter(Phis, R, rows=rows)
+        return batch, hsteps
+
+    def _batch(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        hsteps = self.fd_step * np.maximum(np.abs(phi), self._floor)
+        up_ok = phi + hsteps <= self._hi
+        hsteps = np.where(up_ok, hsteps, -hsteps)
+        Phis = np.repeat(phi[None, :], phi.size + 1, axis=0)
+        Phis[1 + np.arange(phi.size), np.arange(phi.size)] += hsteps
+        return Phis, hsteps
 
     def _raise_diverged(self, res) -> None:
         for k, (seg, r) in enumerate(zip(self._segments, res)):
@@ -919,44 +1050,123 @@ class FilterError:
                     f"the {'nonlinear ' if self.form == 'nonlinear' else ''}filter prediction of "
                     f"segment {seg.name or k} became non-finite at t={seg.t[i]:.4g} s (start "
                     "closer, e.g. from output-error or equation-error estimates, or give a "
-                    "larger process-noise start)", segment=k, time=float(seg.t[i]))
-        raise SimulationDivergedError("the filter-error likelihood is not finite at the "
-                                      "current parameters")
+                    "smaller process-noise start)", segment=k, time=float(seg.t[i]))
+        raise SimulationDivergedError(
+            "the filter-error Riccati equation has no stabilising solution at the current "
+            "parameters (a state not detectable from the outputs?)")
 
-    def _batch(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        hsteps = self.fd_step * np.maximum(np.abs(phi), self._floor)
-        up_ok = phi + hsteps <= self._hi
-        hsteps = np.where(up_ok, hsteps, -hsteps)
-        Phis = np.repeat(phi[None, :], phi.size + 1, axis=0)
-        Phis[1 + np.arange(phi.size), np.arange(phi.size)] += hsteps
-        return Phis, hsteps
+    def _compensate(self, phi: np.ndarray, R_old: np.ndarray, R_new: np.ndarray, res) -> np.ndarray:
+        """F-R compensation (Maine and Iliff): after R changes from R_old to R_new, F_i is
+        scaled by sum_k C_ki^2 / R_old,kk sqrt(R_new,kk / R_old,kk) / sum_k C_ki^2 / R_old,kk
+        so that the gain, and the noise R - C P C^T it implies, stay consistent."""
+        if not self.estimate_F or not self._noisy:
+            return phi
+        C2 = np.mean([r["C"][0] ** 2 for r in res], axis=0)          # (m, n)
+        w = 1.0 / np.diag(R_old)
+        ratio = np.sqrt(np.diag(R_new) / np.diag(R_old))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            fac = (C2.T @ (w * ratio)) / (C2.T @ w)
+        out = phi.copy()
+        sl = self._fslice()
+        f = np.asarray(self._noisy)
+        out[sl] = phi[sl] * np.where(np.isfinite(fac[f]) & (fac[f] > 0), fac[f], 1.0)
+        return out
+
+    def _feasible_start(self, phi: np.ndarray, res, R: np.ndarray) -> tuple[np.ndarray, Any]:
+        """The start with F scaled down, halving at most 30 times, until diag(C K) <= 1: a
+        start F too large for the start R implies a negative measurement noise, and its
+        filter over-corrects every sample. The free F entries are scaled, else the fixed
+        ones; unchanged when already feasible."""
+        for _ in range(30):
+            if self._constraint_ok(res) or not self._noisy:
+                break
+            if self.estimate_F:
+                phi = phi.copy()
+                phi[self._fslice()] *= 0.5
+            else:
+                self._f_fixed = 0.5 * self._f_fixed
+            res = self._filter(phi[None, :], R)
+        return phi, res
+
+    def _to_constraint(self, phi: np.ndarray, res, R: np.ndarray, margin: float = 1e-4):
+        """phi with its F scaled by the largest factor in (0, 1] (bisection, 30 steps) that
+        keeps diag(C K) <= 1 - margin for the innovation covariance R, and its filter run;
+        (phi, None) when no factor does or F is not estimated."""
+        if not self.estimate_F or not self._noisy:
+            return phi, None
+        sl = self._fslice()
+        lo, hi, best = 0.0, 1.0, None
+        for _ in range(30):
+            s = 0.5 * (lo + hi)
+            c = phi.copy()
+            c[sl] *= s
+            rc = self._filter(c[None, :], R)
+            if all(np.all(r["CK"][0] <= 1.0 - margin) for r in rc):
+                lo, best = s, (c, rc)
+            else:
+                hi = s
+            if hi - lo < 1e-3 * hi:
+                break
+        return best if best is not None else (phi, None)
+
+    def _relax(self, phi, res, cost, Rh, R):
+        """One relaxation update: R in closed form from the innovations (Rh) with F
+        compensated for it (:meth:`_compensate`). When the compensated F raises det(R), it
+        is halved back towards the old F (the reference software's rule); when the new R
+        makes the gain over-correct (diag(C K) > 1), F is scaled down until it does not.
+        The first candidate that lowers det(R) is taken, else the feasible one of least
+        det(R): R must follow the innovations, or the relaxation stalls on a stale R.
+        Returns (phi, res, cost, Rh, R, the relative change of R)."""
+        change = float(np.max(np.abs(np.diag(Rh) / np.diag(R) - 1.0)))
+        phi_c = self._compensate(phi, R, Rh, res)
+        cands = [phi_c, 0.5 * (phi_c + phi), phi]
+        best = None
+        for c in cands:
+            rc = self._filter(c[None, :], Rh)
+            if not self._constraint_ok(rc):
+                c, rc = self._to_constraint(c, rc, Rh)
+            if rc is None:
+                continue
+            cc, Rc = self._cost(rc)
+            if not np.isfinite(cc):
+                continue
+            if cc <= cost * (1.0 + 1e-9):
+                return c, rc, cc, Rc, Rh, change
+            if best is None or cc < best[2]:
+                best = (c, rc, cc, Rc)
+        if best is not None:
+            return (*best, Rh, change)
+        return phi, res, cost, Rh, R, change
+
+    def _fslice(self) -> slice:
+        nf = self._lay.free_idx.size
+        return slice(nf, nf + (len(self._noisy) if self.estimate_F else 0))
 
     # -- the fit --------------------------------------------------------------------------------
     def fit(self, segments: Segment | Sequence[Segment], estimate_x0: bool | Sequence[str] = False,
             start: Mapping[str, float] | None = None) -> EstimationResult:
-        """Estimate the free parameters, F and G from one or several segments (see the class).
-        ``start``: start values by expanded name, overriding the model's; an ``F_<state>``
-        entry (an earlier fit's, for a refit) starts that state's process noise, or holds
-        it with ``estimate_F=False``."""
+        """Estimate the free parameters and F, with R in closed form, from one or several
+        segments (see the class). ``start``: start values by expanded name, overriding the
+        model's; an ``F_<state>`` entry (an earlier fit's, for a refit) starts that state's
+        process noise, or holds it with ``estimate_F=False``."""
         segments = [segments] if isinstance(segments, Segment) else list(segments)
         if not segments:
             raise ModelDefinitionError("fit() needs at least one segment")
         model = self.model
         self._segments = segments
-        # per segment, once: the sample interval (jitter checked) and the patterns of
-        # measured outputs
+        lay = self._lay = Layout.build(model, segments, estimate_x0, values=start)
         self._h = [sample_interval(seg, k) for k, seg in enumerate(segments)]
         self._patterns = [output_patterns(seg.z) for seg in segments]
-        lay = self._lay = Layout.build(model, segments, estimate_x0, values=start)
+        self._n_samples = int(sum(seg.n for seg in segments))
         check_outputs_measured(self.model, segments, "filter error")
         if self.form_requested == "auto":
-            linear = self.inputs != "linear" and is_affine(model, segments, lay)
-            self._set_form("linear" if linear else "nonlinear")
+            self._set_form("linear" if is_affine(model, segments, lay) else "nonlinear")
         m = len(model.outputs)
         self._noisy, f0 = self._noise_setup(segments)
-        for i in self._noisy:   # an earlier fit's F (``start`` of a refit) over the default,
-            v = (start or {}).get(f"F_{model.states[i]}")   # where it is not 0 (a start at 0
-            if v is not None and float(v) > 0.0:            # gives F no gradient)
+        start = dict(start) if start is not None else {}
+        for i in self._noisy:   # an earlier fit's F (``start`` of a refit) over the default
+            v = start.get(f"F_{model.states[i]}")
+            if v is not None and float(v) > 0.0:
                 f0[i] = float(v)
         self._f_fixed = f0.copy()
         fi = lay.free_idx
@@ -965,120 +1175,111 @@ class FilterError:
         phi = list(lay.values[fi])
         if self.estimate_F:
             for i in self._noisy:
-                names.append(f"F_{model.states[i]}"); phi.append(f0[i] ** 2); lo.append(0.0); hi.append(np.inf)
-        gnames = [f"G_{o}" for o in model.outputs]
-        # measurement-noise start: from the innovations of the start model
-        phi_arr = np.array(phi + [1.0] * m)
+                names.append(f"F_{model.states[i]}"); phi.append(f0[i]); lo.append(0.0); hi.append(np.inf)
+        phi = np.array(phi, dtype=float)
+        nphi = phi.size
+        self._lo, self._hi = np.array(lo, float), np.array(hi, float)
+        # finite-difference floor: 1 for model parameters (as OEM), the start for F
+        self._floor = np.concatenate([np.ones(fi.size), np.maximum(np.abs(phi[fi.size:]), 1e-12)])
+        # the start of R: the given output-error std, else the residuals without a gain
         if self.measurement_noise is not None:
             from estimators.kalman import _vector
-            g0 = _vector(self.measurement_noise, model.outputs, "measurement_noise", np.ones(m))
+            R = np.diag(_vector(self.measurement_noise, model.outputs, "measurement_noise",
+                                np.ones(m)) ** 2)
         else:
-            g0 = np.ones(m)
-            phi_arr[-m:] = g0
-            for _ in range(3):            # fixed point: G^2 ~ var(innovations) - C P C^T
-                r0 = self._filter(phi_arr[None, :])
-                E = [seg.z - r["Y"][0] for seg, r in zip(segments, r0)]
-                V = np.diag(st.residual_covariance(E))
-                CPC = np.diag(r0[0]["B"][0]) - phi_arr[-m:] ** 2
-                if not np.all(np.isfinite(V)) or not np.all(np.isfinite(CPC)):
-                    break
-                g0 = np.sqrt(np.maximum(V - CPC, 0.1 * V))
-                phi_arr[-m:] = g0
-        phi_arr[-m:] = g0
-        names += gnames
-        lo += [0.0] * m; hi += [np.inf] * m
-        self._lo, self._hi = np.array(lo, float), np.array(hi, float)
-        self._scale = np.maximum(np.abs(phi_arr), 1e-12)
-        self._held = np.zeros(phi_arr.size, dtype=bool)
-        if not self.estimate_G:
-            self._held[-m:] = True
-        # finite-difference floor: 1 for model parameters (as OEM), the start for noise std
-        self._floor = np.concatenate([np.ones(fi.size), self._scale[fi.size:]])
-        phi = phi_arr
-        nphi = phi.size
+            # the start model's residuals without a gain, each output's variance at most
+            # that of its data: a model that misses by more (an unstable aircraft's
+            # simulation runs away) is no guide to R
+            r0 = self._filter(phi[None, :], np.eye(m), gain=False)
+            R = self._cost(r0)[1]
+            Zall = np.concatenate([seg.z for seg in segments])
+            var_z = np.nanvar(Zall, axis=0)
+            var_z = np.where(var_z > 0, var_z, 1.0)
+            d = np.diag(R)
+            if not np.all(np.isfinite(R)) or np.any(d > var_z):
+                R = np.diag(np.where(np.isfinite(d) & (d > 0), np.minimum(d, var_z), var_z))
+        if np.any(np.diag(R) <= 0) or not np.all(np.isfinite(R)):
+            raise ModelDefinitionError("measurement_noise: every output needs a positive, finite std")
         seg_rows = self._segment_rows(nphi)
-        history = []
+        res = self._filter(phi[None, :], R)
+        phi, res = self._feasible_start(phi, res, R)
+        cost, Rh = self._cost(res)
+        if not np.isfinite(cost):
+            self._raise_diverged(res)
+        history: list[dict] = []
         converged = False
         message = ""
-        J_old = np.inf
         it = 0
         for it in range(1, self.max_iter + 1):
-            Phis, hsteps = self._batch(phi)
-            res = self._filter(Phis, rows=seg_rows)
-            if not np.all(np.isfinite(res[0]["B"][0])):
-                raise SimulationDivergedError(
-                    "the filter-error Riccati equation has no stabilising solution at the "
-                    "current parameters (system not detectable from the outputs?)")
-            M, g, J = self._scoring(res, hsteps, seg_rows)
-            if not np.isfinite(J):
-                self._raise_diverged(res)
+            batch, hsteps = self._sensitivity_batch(phi, R, seg_rows)
+            M, g, dCK = self._scoring(batch, R, hsteps, seg_rows)
             if it == 1:
-                # at the start only parameters without any effect are an error (a large start
-                # F lets the filter follow the data and makes others weak, not unidentifiable)
+                # at the start only parameters without any effect are an error
+                # (the process noise is exempt: with a start R far above the innovations its
+                # gain, and so its effect, can start out negligible)
                 d = np.diag(M) * np.maximum(np.abs(phi), self._floor) ** 2    # scale-free
                 dead = d <= 1e-14 * max(float(d.max()), 1e-300)
+                dead[fi.size:] = False
                 if np.any(dead):
                     st.check_identifiable(np.diag(np.where(dead, 0.0, 1.0)), names,
                                           " at the start values")
-            history.append({"iteration": it - 1, "J": J, "det_R": float(np.linalg.det(res[0]["B"][0])),
-                            "step": np.nan, **dict(zip(names, self._report(phi)))})
+            history.append({"iteration": it - 1, "J": 0.5 * self._n_samples * np.log(cost),
+                            "det_R": cost, "step": np.nan, **dict(zip(names, phi))})
             if self.callback:
-                self.callback(it - 1, J, pd.Series(self._report(phi), index=names))
-            if np.isfinite(J_old) and abs(J_old - J) <= self.tol * max(abs(J), 1.0):
-                converged = True
-                break
-            J_old = J
+                self.callback(it - 1, cost, pd.Series(phi, index=names))
             span = np.maximum(1.0, np.abs(phi))
             at_lo = phi <= self._lo + 1e-12 * span
             at_hi = phi >= self._hi - 1e-12 * span
-            active = ~((at_lo & (g < 0)) | (at_hi & (g > 0))) & ~self._held
-            a = np.flatnonzero(active)
-            delta = np.zeros(nphi)
-            delta[a] = st.solve_step(M[np.ix_(a, a)], g[a])
-            alpha = 1.0
-            accepted = False
+            active = ~((at_lo & (g < 0)) | (at_hi & (g > 0)))
+            delta = self._cap_noise_step(phi, self._step(M, g, active, batch, dCK))
+            J0 = self._weighted(res, R)
+            accepted, alpha = False, 1.0
             for _ in range(self.step_halvings + 1):
                 trial = np.clip(phi + alpha * delta, self._lo, self._hi)
-                # keep noise std off exactly zero from above (G > 0 needed for R > 0)
-                trial[-m:] = np.maximum(trial[-m:], 1e-9 * self._scale[-m:])
-                Jt = self._nll(self._filter(trial[None, :]))
-                if Jt < J:
-                    phi = trial
+                rt = self._filter(trial[None, :], R)
+                if self._weighted(rt, R) < J0 and self._constraint_ok(rt):
                     accepted = True
                     break
                 alpha *= 0.5
             if not accepted:
-                # Levenberg-Marquardt damping: bends the step towards the gradient
                 for lam in (1e-2, 1e-1, 1.0, 10.0, 1e2, 1e3, 1e4):
-                    d_lm = np.zeros(nphi)
-                    d_lm[a] = st.solve_step(M[np.ix_(a, a)], g[a], lam)
-                    trial = np.clip(phi + d_lm, self._lo, self._hi)
-                    trial[-m:] = np.maximum(trial[-m:], 1e-9 * self._scale[-m:])
-                    Jt = self._nll(self._filter(trial[None, :]))
-                    if Jt < J:
-                        phi = trial
-                        accepted = True
-                        alpha = -lam          # recorded as a negative step: LM with lambda
+                    trial = np.clip(phi + self._cap_noise_step(phi, self._step(M, g, active, batch, dCK, lam)),
+                                    self._lo, self._hi)
+                    rt = self._filter(trial[None, :], R)
+                    if self._weighted(rt, R) < J0 and self._constraint_ok(rt):
+                        accepted, alpha = True, -lam     # recorded as a negative step: LM
                         break
+            if accepted:
+                ct, Rt = self._cost(rt)
             history[-1]["step"] = alpha
-            if not accepted:
-                if 0.5 * float(g[a] @ delta[a]) <= 1e-9 * max(abs(J), 1.0):
-                    converged = True
-                    break
-                message = "no step lowered the negative log-likelihood (line search failed)"
+            prev = cost
+            if accepted:
+                phi, res, cost, Rh = trial, rt, ct, Rt
+            r_change = 0.0
+            if it >= self.r_update_from:
+                phi, res, cost, Rh, R, r_change = self._relax(phi, res, cost, Rh, R)
+            settled = abs(prev - cost) <= self.tol * abs(cost) and r_change <= R_SETTLED
+            if settled and it >= self.r_update_from:
+                converged = True
+                break
+            if not accepted and r_change <= R_SETTLED:
+                if 0.5 * float(g @ delta) <= 1e-6 * max(1.0, J0):
+                    converged = True             # the predicted decrease is negligible
+                else:
+                    message = "no step lowered det(R) (line search failed)"
                 break
         else:
-            message = f"stopped at max_iter={self.max_iter} before J settled"
-        # information at the final estimate
-        Phis, hsteps = self._batch(phi)
-        res = self._filter(Phis, rows=seg_rows)
+            message = f"stopped at max_iter={self.max_iter} before det(R) settled"
+        # information at the final estimate, with R the innovations' covariance there
+        R = Rh
+        batch, hsteps = self._sensitivity_batch(phi, R, seg_rows)
         parts: list = []
-        M, g, J = self._scoring(res, hsteps, seg_rows, keep=parts)
+        M, g, _ = self._scoring(batch, R, hsteps, seg_rows, keep=parts)
+        M = self._marginal_information(M, phi, batch, R)
         from estimators.validation.cluster import ClusterResult, cluster_covariance
         span = np.maximum(1.0, np.abs(phi))
         on_bound = (phi <= self._lo + 1e-9 * span) | (phi >= self._hi - 1e-9 * span)
-        inner = np.flatnonzero(~on_bound & ~self._held)
-        on_bound &= ~self._held
+        inner = np.flatnonzero(~on_bound)
         cov = np.full((nphi, nphi), np.nan)
         cov_mk = np.full((nphi, nphi), np.nan)
         cov_cl = np.full((nphi, nphi), np.nan)
@@ -1089,38 +1290,26 @@ class FilterError:
             cov[np.ix_(inner, inner)] = st.covariance(M[np.ix_(inner, inner)])
             cov_mk[np.ix_(inner, inner)], mk_lags = _coloured_innovation_cov(
                 M[np.ix_(inner, inner)], sum(p[4] for p in parts)[np.ix_(inner, inner)],
-                [(S.take(inner), E, Bi, ok) for S, E, Bi, ok, *_ in parts])
+                [(S.take(inner), E, Ri, ok) for S, E, Ri, ok, *_ in parts])
             if len(parts) >= 2:
-                # the maneuvers' scatter (estimators.validation.cluster), each segment a cluster
                 try:
                     cl = cluster_covariance([p[5][np.ix_(inner, inner)] for p in parts],
                                             [p[6][inner] for p in parts], M[np.ix_(inner, inner)])
                     cov_cl[np.ix_(inner, inner)], share[:, inner] = cl.cov, cl.share
                 except np.linalg.LinAlgError:
                     pass
-        # report F as std: F = sqrt(phi_F); covariance and information by the chain rule
-        D = self._dphi(phi)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            cov = cov / np.outer(D, D)
-            cov_mk = cov_mk / np.outer(D, D)
-            cov_cl = cov_cl / np.outer(D, D)
-        M = M * np.outer(D, D)
-        keep = ~self._held
-        cov, M = cov[np.ix_(keep, keep)], M[np.ix_(keep, keep)]
-        cov_mk = cov_mk[np.ix_(keep, keep)]
-        cov_cl = cov_cl[np.ix_(keep, keep)]
-        kept_names = [nm for nm, k in zip(names, keep) if k]
         cluster = (None if len(parts) < 2 or not np.any(np.isfinite(share)) else ClusterResult(
-            names=kept_names, cov=cov_cl, crb_std=np.sqrt(np.clip(np.diag(cov), 0.0, None)),
-            share=share[:, keep]))
-        theta, F, R = self._unpack(phi)
-        E = [seg.z - r["Y"][0] for seg, r in zip(segments, res)]
-        Ys = [r["Y"][0] for r in res]
+            names=names, cov=cov_cl, crb_std=np.sqrt(np.clip(np.diag(cov), 0.0, None)), share=share))
+        theta, F = self._unpack(phi)
+        E = self._innovations(batch)
+        Ys = [r["Y"][0] for r in batch]
         all_names = list(lay.names) + names[fi.size:]
-        values = np.concatenate([theta, self._report(phi)[fi.size:]])
-        free = np.concatenate([lay.free, ~self._held[fi.size:]])
+        values = np.concatenate([theta, phi[fi.size:]])
+        free = np.concatenate([lay.free, np.ones(nphi - fi.size, dtype=bool)])
         if not converged and not message:
             message = "did not converge"
+        noise = [np.diag(np.maximum(np.diag(R) - np.diag(r["C"][0] @ r["P"][0] @ r["C"][0].T), 0.0))
+                 for r in batch]
         return EstimationResult(
             method=self.method, model=model, names=all_names, values=values, free=free, cov=cov,
             R=st.residual_covariance(E, full=True), converged=converged, iterations=it,
@@ -1130,14 +1319,14 @@ class FilterError:
             at_bounds=[names[i] for i in np.flatnonzero(on_bound)], message=message,
             information=M,
             settings={"form": self.form, "integrator": self.integrator if self.form == "nonlinear" else "transition matrix",
-                      "optimizer": "gauss-newton", "estimate_F": self.estimate_F,
-                      "estimate_G": self.estimate_G,
+                      "optimizer": "gauss-newton, R by relaxation, F-R compensation",
+                      "estimate_F": self.estimate_F, "inputs": self.inputs,
                       "linearisation": "about x0 and u[0] of each segment"},
-            extra={"gain": [r["K"][0] for r in res], "F": F, "measurement_noise": R,
-                   "innovation_cov": [r["B"][0] for r in res], "P": [r["P"][0] for r in res],
-                   "linearisation": [dict(zip("ABCD", r["lin"])) for r in res],
+            extra={"gain": [r["K"][0] for r in batch], "F": F, "measurement_noise": noise[0],
+                   "innovation_cov": [R for _ in batch], "P": [r["P"][0] for r in batch],
+                   "linearisation": [dict(zip("ABCD", r["lin"])) for r in batch],
                    "filtered_states": [pd.DataFrame(r["X"][0], index=pd.Index(s.t, name="t"),
-                                                    columns=model.states) for s, r in zip(segments, res)],
-                   "nll": J, "residuals_are": "innovations",
-                   "mk_cov": cov_mk, "mk_names": kept_names,
+                                                    columns=model.states) for s, r in zip(segments, batch)],
+                   "det_R": float(np.linalg.det(R)), "residuals_are": "innovations",
+                   "mk_cov": cov_mk, "mk_names": names,
                    "mk_max_lag": mk_lags, "cluster": cluster})

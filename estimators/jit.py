@@ -5,28 +5,36 @@ per-step overhead of a model function (~40 small array operations) dominates an 
 error fit. numba compiles the user's ``f`` together with the integrator loop, so a fit of
 600 samples x 12 perturbed parameter sets integrates in milliseconds.
 
-How: ``f`` is compiled as written. A generated adapter packs the state rows into a tuple
-(so ``V, alpha, theta, q = x`` works), the inputs into a tuple of floats, and the
-parameter rows into a namedtuple (so ``p.CD0`` works); constants become a namedtuple of
-floats. The compiled kernel is checked once against the numpy evaluation; when ``f``
-does not compile (e.g. it uses Python objects numba does not know) or disagrees, the
-numpy path is used and a warning says so. ``FSID_JIT=0`` switches compilation off.
+How: ``f`` is compiled as written. A generated adapter loops over the batch columns and
+calls ``f`` on scalars: the states of one column as a tuple of floats (so ``V, alpha,
+theta, q = x`` works), the inputs as a tuple of floats, the parameters of that column as a
+namedtuple (so ``p.CD0`` works); constants are a namedtuple of floats. Compiled for
+scalars, ``f`` has no array temporaries, and numba compiles it (and the integrator loops,
+written as element loops too: :mod:`estimators.integrators`) in a fraction of the time
+array expressions take - a fresh installation's first fit waits for that compile. An
+``f`` that needs whole rows (e.g. reads ``V.shape``) gets the adapter that passes them.
+The compiled kernel is checked once against the numpy evaluation; when ``f`` does not
+compile either way (e.g. it uses Python objects numba does not know) or disagrees, the
+numpy path is used and a warning says so. ``FSID_JIT=0`` switches compilation off. numba
+itself is imported on the first compile, not with the package.
 
 Compiled code is kept on disk between runs (:func:`load_kernels`): compiling a model with
-its integrator loops takes 5-15 s (most of a short ``fsid`` run), loading it back well
-under a second. The adapters and the loops that call them are written as a small module
-into ``$FSID_CACHE_DIR`` (default ``~/.cache/fsid``) under ``kernels/``, named by a hash
-of everything the compiled code depends on: that generated source, the source files of
-``f`` and ``g`` and of every function they call, the values of the module globals and
-closure cells they read, the package files with the loops they run (integrators.py,
-jit.py, fem.py for the filter loop), and the numba and Python versions. Any edit there
-gives a new name, so a stale kernel is never loaded; the folder may be deleted at any
-time. Each process that writes a new module first prunes the folder (:func:`prune_kernels`):
-modules unused for ``FSID_CACHE_DAYS`` days (default 30) go, then the least recently used
-until the folder is below ``FSID_CACHE_MB`` (default 500). ``FSID_JIT_CACHE=0`` keeps
-everything in memory. A model whose functions have no
-source file (typed at a prompt, built with ``exec``) or read globals that cannot be
-fingerprinted is compiled in memory every run, as before.
+its integrator loops takes seconds (most of a short ``fsid`` run), loading it back a
+fraction of that (``benchmarks/first_fit.py`` measures both). The adapters and the loops
+that call them are written as a small module into ``$FSID_CACHE_DIR`` (default
+``~/.cache/fsid``) under ``kernels/``, named by a hash of everything the compiled code
+depends on: that generated source, the source files of ``f`` and ``g`` and of every
+function they call, the values of the module globals and closure cells they read, the
+package files with the loops they run (integrators.py, jit.py, fem.py for the filter loop),
+and the numba and Python versions. Any edit there gives a new name, so a stale kernel is
+never loaded; the folder may be deleted at any time. Each process that writes a new module
+first prunes the folder (:func:`prune_kernels`): modules unused for ``FSID_CACHE_DAYS``
+days (default 30) go, then the least recently used until the folder is below
+``FSID_CACHE_MB`` (default 500). ``FSID_JIT_CACHE=0`` keeps everything in memory. A model
+whose functions have no source file (typed at a prompt, built with ``exec``) or read
+globals that cannot be fingerprinted is compiled in memory every run, as before. A kernel
+module that did not compile or disagreed with numpy is marked ``<name>.failed``, so later
+runs go straight to the way that worked instead of failing the same way again.
 """
 from __future__ import annotations
 
@@ -48,36 +56,50 @@ from estimators import integrators as _integ
 from estimators.errors import ModelDefinitionError
 from estimators.model import Model, Namespace, stack_rows
 
-try:
-    import numba
-except ImportError:  # pragma: no cover
-    numba = None
+#: numba, imported by :func:`load_numba` on the first compile (its import takes a few
+#: tenths of a second that a process which never compiles need not pay); None until then
+#: and when it is not installed
+numba = None
+_HAVE_NUMBA = importlib.util.find_spec("numba") is not None
+
+
+def load_numba():
+    """The numba module (imported now if it was not yet), or None when not installed."""
+    global numba
+    if numba is None and _HAVE_NUMBA:
+        import numba as nb
+        numba = nb
+    return numba
 
 _KERNELS: dict[tuple, "RhsKernel"] = {}
 #: the package's source files every generated kernel module runs (their bytes enter the hash)
 _PACKAGE_SOURCES = ("integrators.py", "jit.py")
 
 
-def compile_user_function(fn: Callable, _done: dict | None = None) -> Callable:
+def compile_user_function(fn: Callable, _done: dict | None = None,
+                          inline: bool = False) -> Callable:
     """``fn`` compiled with numba, together with the plain Python functions it calls by a
     global name (a helper such as ``coefs(x, u, p, c)`` shared by f and g, recursively):
     each is recompiled in a copy of its globals where those names are compiled too, so
-    numba's nopython mode can call them. The user's function objects are not changed."""
+    numba's nopython mode can call them. The user's function objects are not changed.
+    ``inline``: numba inlines each into its caller (``inline="always"``) instead of
+    compiling it as a function of its own, which saves a compile pipeline per function."""
     done = {} if _done is None else _done
     if fn in done:
         return done[fn]
     if not isinstance(fn, types.FunctionType):          # already compiled, or a builtin
         return fn
     done[fn] = None                                    # recursion guard
+    load_numba()
     key, glb = fn, fn.__globals__
     helpers = {name: glb[name] for name in fn.__code__.co_names
                if isinstance(glb.get(name), types.FunctionType) and glb[name] is not fn}
     if helpers:
         env = dict(glb)
         for name, h in helpers.items():
-            env[name] = compile_user_function(h, done) or h
+            env[name] = compile_user_function(h, done, inline) or h
         fn = types.FunctionType(fn.__code__, env, fn.__name__, fn.__defaults__, fn.__closure__)
-    done[key] = out = numba.njit(error_model="numpy")(fn)
+    done[key] = out = numba.njit(error_model="numpy", inline="always" if inline else "never")(fn)
     return out
 
 
@@ -87,19 +109,51 @@ def _tuple_source(items: Sequence[str]) -> str:
 
 
 def adapter_source(name: str, call: str, n_states: int, n_inputs: int, n_params: int,
-                   rows: Sequence[int], extra: Sequence[str] = ()) -> list[str]:
+                   rows: Sequence[int], extra: Sequence[str] = (),
+                   scalar: bool = False) -> list[str]:
     """Lines of a compiled adapter ``name(x2d, u1d, P, c, out)`` in the integrators'
     calling convention: the state rows unpacked into a tuple, the inputs into a tuple of
     floats, the parameter rows into the module's ``Params`` namedtuple, ``call(x, u, p, c)``
-    and row ``rows[j]`` of its result into ``out[j]``; ``extra`` lines after that."""
+    and row ``rows[j]`` of its result into ``out[j]``; ``extra`` lines after that.
+    ``scalar``: a loop over the batch columns instead, ``call`` on the floats of one column
+    (states, parameters) at a time, which numba compiles several times faster than the
+    same arithmetic on rows (no array expressions) and runs without temporaries."""
+    if not scalar:
+        return ["@numba.njit(error_model='numpy', cache=CACHE)",
+                f"def {name}(x2d, u1d, P, c, out):",
+                f"    x = {_tuple_source([f'x2d[{i}]' for i in range(n_states)])}",
+                f"    u = {_tuple_source([f'u1d[{i}]' for i in range(n_inputs)])}",
+                f"    p = Params({', '.join(f'P[{i}]' for i in range(n_params))})",
+                f"    r = {call}(x, u, p, c)",
+                *[f"    out[{j}, :] = r[{r}]" for j, r in enumerate(rows)],
+                *extra]
     return ["@numba.njit(error_model='numpy', cache=CACHE)",
             f"def {name}(x2d, u1d, P, c, out):",
-            f"    x = {_tuple_source([f'x2d[{i}]' for i in range(n_states)])}",
             f"    u = {_tuple_source([f'u1d[{i}]' for i in range(n_inputs)])}",
-            f"    p = Params({', '.join(f'P[{i}]' for i in range(n_params))})",
-            f"    r = {call}(x, u, p, c)",
-            *[f"    out[{j}, :] = r[{r}]" for j, r in enumerate(rows)],
+            "    for b in range(x2d.shape[1]):",
+            f"        x = {_tuple_source([f'x2d[{i}, b]' for i in range(n_states)])}",
+            f"        p = Params({', '.join(f'P[{i}, b]' for i in range(n_params))})",
+            f"        r = {call}(x, u, p, c)",
+            *[f"        out[{j}, b] = r[{r}]" for j, r in enumerate(rows)],
             *extra]
+
+
+def calls_unknown_helpers(fn: Callable) -> bool:
+    """True when ``fn`` calls by a global name a plain Python function numba does not know
+    (not compiled, not registered with ``register_jitable``): compiled as written it fails
+    to type, so :class:`RhsKernel` compiles its helpers with it (:func:`compile_user_function`)
+    first and does not spend a failed compile on each run."""
+    fn = getattr(fn, "py_func", fn)
+    if not isinstance(fn, types.FunctionType) or load_numba() is None:
+        return False
+    try:
+        from numba.core.typing.templates import builtin_registry
+        known = {id(v) for v, _ in builtin_registry.globals}
+    except Exception:  # pragma: no cover - numba internals moved: try as written first
+        return False
+    glb = fn.__globals__
+    return any(isinstance(glb.get(name), types.FunctionType) and glb[name] is not fn
+               and id(glb[name]) not in known for name in _code_names(fn.__code__))
 
 
 def probe_point(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -307,7 +361,7 @@ def load_kernels(source: str, inject: Mapping[str, Any], functions: Sequence[Cal
     (``CACHE`` False) when caching is off or ``functions`` cannot be fingerprinted.
     ``package``: the package's source files the module runs beyond integrators.py and
     jit.py (e.g. ``("fem.py",)``)."""
-    root = cache_dir() if numba is not None else None
+    root = cache_dir() if load_numba() is not None else None
     key = kernel_key(source, functions, package) if root is not None else None
     if key is None:
         ns: dict[str, Any] = {**inject, "CACHE": False}
@@ -348,6 +402,29 @@ def load_kernels(source: str, inject: Mapping[str, Any], functions: Sequence[Cal
     raise AssertionError("unreachable")  # pragma: no cover
 
 
+def failed_before(mod: Any) -> str | None:
+    """The reason a kernel module kept on disk failed in an earlier run (its
+    ``<name>.failed`` mark, see :func:`mark_failed`), or None."""
+    path = getattr(mod, "__file__", None)
+    if not path:
+        return None
+    try:
+        return Path(path).with_suffix(".failed").read_text() or "failed before"
+    except OSError:
+        return None
+
+
+def mark_failed(mod: Any, why: str) -> None:
+    """Mark a kernel module kept on disk as failed (it did not compile, or disagreed with
+    the numpy evaluation), so later runs skip it; nothing for one in memory."""
+    path = getattr(mod, "__file__", None)
+    if path:
+        try:
+            Path(path).with_suffix(".failed").write_text(why)
+        except OSError:
+            pass
+
+
 def _write_module(path: Path, source: str) -> None:
     """Write a generated module atomically (another process may race: same text)."""
     tmp = path.with_suffix(f".{os.getpid()}.tmp")
@@ -373,22 +450,48 @@ def bound_source(fn: Callable, drop: str, replace: Mapping[str, str] | None = No
     return src
 
 
+_LOOPS: dict[str, Any] = {}
+
+
+def loop_helpers() -> dict[str, Any]:
+    """The integrators' array helpers as numba functions of their element loops
+    (:data:`estimators.integrators.LOOP_HELPERS`), made once per process and shared by every
+    kernel module (compiled when a module's loop first needs them; a loop loaded from the
+    disk cache carries its own copy)."""
+    if not _LOOPS:
+        nb = load_numba()
+        _LOOPS.update({name: nb.njit(error_model="numpy", inline="always")(fn)
+                       for name, fn in _integ.LOOP_HELPERS.items()})
+    return _LOOPS
+
+
 def _scheme_source() -> str:
     """The integrators of a kernel module: every scheme of :mod:`estimators.integrators`
     with ``rhs`` the module's global, compiled (and cached) as ``integrate_<scheme>(x0, U,
-    t, P, c, rtol, atol, mode)``."""
-    parts = [bound_source(_integ._explicit_rk, "rhs, ")]
+    t, P, c, rtol, atol, mode)``; the module's globals must hold the array helpers' loops
+    (``_LOOPS``, :func:`loop_helpers`)."""
+    parts = ["globals().update(_LOOPS)",
+             bound_source(_integ._explicit_rk, "rhs, "),
+             "_explicit_rk = numba.njit(error_model='numpy', inline='always')(_explicit_rk)"]
     for s in _integ.INTEGRATORS:
         parts += [bound_source(_integ.PY_SCHEMES[s], "rhs, "),
                   f"integrate_{s} = numba.njit(error_model='numpy', cache=CACHE)({s})"]
     return "\n".join(parts)
 
 
+class _FailedBefore(RuntimeError):
+    """A kernel module marked failed by an earlier run (:func:`failed_before`)."""
+
+
+class _Disagrees(ValueError):
+    """A compiled kernel that disagrees with the numpy evaluation."""
+
+
 class RhsKernel:
     """The model's state equations in the form the integrators call.
 
     ``integrate(scheme, x0 (n, B), U (N, n_in), t (N,), P (n_p, B), constants, inputs=...)``
-    returns X (N, n, B); ``inputs`` is "average", "linear" or "hold" (integrators.INPUT_MODES).
+    returns X (N, n, B); ``inputs`` is "linear" or "hold" (integrators.INPUT_MODES).
     ``module`` holds the compiled ``rhs`` and ``integrate_<scheme>`` once compiled.
     """
 
@@ -409,31 +512,39 @@ class RhsKernel:
 
         self.rhs_py = rhs_py
         self.module = None
-        self._jit_state = "untried" if (numba is not None and os.environ.get("FSID_JIT", "1") != "0") \
+        self._jit_state = "untried" if (_HAVE_NUMBA and os.environ.get("FSID_JIT", "1") != "0") \
             else "off"
 
     # -- compiled path -------------------------------------------------------------------
-    def source(self, helpers: bool) -> str:
-        """The kernel module's source: the rhs adapter and the integrator entry points."""
+    def source(self, helpers: bool, scalar: bool = True) -> str:
+        """The kernel module's source: the rhs adapter (``scalar``: f called per batch
+        column on floats, see :func:`adapter_source`) and the integrator entry points."""
         m = self.model
         return "\n".join([
             f"# fsid compiled kernels of model {m.name!r} (generated by estimators.jit; "
             "safe to delete)",
             f"# f: {getattr(m.f, '__module__', '?')}.{getattr(m.f, '__qualname__', '?')}, "
-            f"helpers compiled: {helpers}",
+            f"helpers compiled: {helpers}, f on {'scalars' if scalar else 'rows'}",
             "from collections import namedtuple",
             "import numba",
             "from estimators import integrators as _I",
             "globals().update({k: v for k, v in vars(_I).items() if not k.startswith('__')})",
             f"Params = namedtuple('Params', {list(self.names)!r})",
             f"Constants = namedtuple('Constants', {list(self.const_names)!r})",
-            *adapter_source("rhs", "_f", self.n, len(m.inputs), len(self.names), range(self.n)),
+            *adapter_source("rhs", "_f", self.n, len(m.inputs), len(self.names), range(self.n),
+                            scalar=scalar),
             _scheme_source(), ""])
 
-    def _build_jit(self, helpers: bool = False) -> None:
+    def _build_jit(self, helpers: bool = False, scalar: bool = True) -> None:
+        # f and its helpers inlined into the scalar adapter (one compile instead of one
+        # each); the rows adapter, the fallback for what the scalar one cannot take, keeps
+        # them as functions of their own, as before
         m = self.model
-        fj = compile_user_function(m.f) if helpers else numba.njit(error_model="numpy")(m.f)
-        self.module = load_kernels(self.source(helpers), {"_f": fj}, [m.f], "fsid_rhs")
+        nb = load_numba()
+        fj = compile_user_function(m.f, inline=scalar) if helpers else \
+            nb.njit(error_model="numpy", inline="always" if scalar else "never")(m.f)
+        self.module = load_kernels(self.source(helpers, scalar),
+                                   {"_f": fj, "_LOOPS": loop_helpers()}, [m.f], "fsid_rhs")
 
     def _c_jit(self, constants: Mapping[str, float]):
         if not self.const_names:
@@ -442,13 +553,29 @@ class RhsKernel:
 
     def _try_jit(self, x0: np.ndarray, U: np.ndarray, P: np.ndarray,
                  constants: Mapping[str, float]) -> None:
-        """Compile and check the kernel once against the numpy evaluation: f as written
-        (helpers decorated for numba, as in :mod:`estimators.models`, are inlined), else with
-        the plain helper functions it calls compiled too (:func:`compile_user_function`)."""
+        """Compile and check the kernel once against the numpy evaluation: f on scalars,
+        else on rows (:func:`adapter_source`); each as written (helpers decorated for numba,
+        as in :mod:`estimators.models`, are inlined) and with the plain helper functions it
+        calls compiled too (:func:`compile_user_function`), the latter first when f calls
+        such helpers (:func:`calls_unknown_helpers`). A way that failed in an earlier run
+        (:func:`failed_before`) is not tried again; one that fails now is marked."""
         exc: Exception | None = None
-        for helpers in (False, True):
+        f = self.model.f
+        glb = getattr(f, "__globals__", {})
+        if not any(isinstance(glb.get(n), types.FunctionType) and glb[n] is not f
+                   for n in getattr(getattr(f, "__code__", None), "co_names", ())):
+            order = (False,)                  # no helpers: compiling them too is the same
+        elif calls_unknown_helpers(f):
+            order = (True, False)
+        else:
+            order = (False, True)
+        for scalar, helpers in [(s, h) for s in (True, False) for h in order]:
+            self.module = None
             try:
-                self._build_jit(helpers)
+                self._build_jit(helpers, scalar)
+                why = failed_before(self.module)
+                if why is not None:
+                    raise _FailedBefore(why)
                 c = self._c_jit(constants)
                 u = np.ascontiguousarray(U[0], dtype=float)
                 a = np.empty_like(x0)
@@ -456,11 +583,15 @@ class RhsKernel:
                 b = np.empty_like(x0)
                 self.rhs_py(x0, u, P, Namespace(constants), b)
                 if not np.allclose(a, b, rtol=1e-9, atol=1e-12, equal_nan=True):
-                    raise ValueError("compiled and numpy state derivatives differ")
+                    raise _Disagrees("compiled and numpy state derivatives differ")
                 self._jit_state = "on"
                 return
             except Exception as e:  # any failure -> next way, then the numpy path, said once
                 exc = e
+                # numba's refusal and a disagreement are the code's: the same next run
+                if self.module is not None and (isinstance(e, _Disagrees)
+                                                or type(e).__module__.startswith("numba")):
+                    mark_failed(self.module, first_line(e))
         self.module = None
         self._jit_state = "failed"
         warnings.warn(
@@ -483,7 +614,7 @@ class RhsKernel:
 
     def integrate(self, scheme: str, x0: np.ndarray, U: np.ndarray, t: np.ndarray,
                   P: np.ndarray, constants: Mapping[str, float], *,
-                  rtol: float = 1e-8, atol: float = 1e-10, inputs: str = "average") -> np.ndarray:
+                  rtol: float = 1e-8, atol: float = 1e-10, inputs: str = _integ.DEFAULT_INPUTS) -> np.ndarray:
         if scheme not in _integ.PY_SCHEMES:
             raise ModelDefinitionError(
                 f"unknown integrator {scheme!r}: choose one of {', '.join(_integ.INTEGRATORS)}")

@@ -16,7 +16,7 @@ Discrete model used by both filters, sample k -> k+1 (step h = t_{k+1} - t_k):
     theta_{k+1} = theta_k + w_theta,        w_theta ~ N(0, diag(param_noise^2) h)
     z_k = g(x_k, u_k, theta) + v_k,         v_k ~ N(0, R)
 
-Phi_h is one step of the package's integrator (default RK4, inputs averaged over the step
+Phi_h is one step of the package's integrator (default RK4, inputs interpolated at each stage time
 as in output error), so the filters predict exactly like the OEM simulation.
 
 * :class:`EKF`: Jacobians of Phi_h and g with respect to s by forward differences, all
@@ -53,7 +53,7 @@ import numpy as np
 import pandas as pd
 
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
-from estimators.integrators import INPUT_MODES, check_options
+from estimators.integrators import DEFAULT_INPUTS, INPUT_MODES, check_options
 from estimators.jit import kernel_for
 from estimators.model import Model, Segment
 from estimators.results import EstimationResult, frames
@@ -216,7 +216,7 @@ class AugmentedModel:
     """
 
     def __init__(self, model: Model, layout: Layout, seg: Segment, k: int, integrator: str,
-                 rtol: float = 1e-8, atol: float = 1e-10, inputs: str = "average") -> None:
+                 rtol: float = 1e-8, atol: float = 1e-10, inputs: str = DEFAULT_INPUTS) -> None:
         self.model, self.lay, self.seg, self.k = model, layout, seg, k
         self.integrator = integrator
         self.n = len(model.states)
@@ -699,7 +699,7 @@ class _ParameterFilter:
     def __init__(self, model: Model, *, integrator: str = "rk4", process_noise: Any = None,
                  measurement_noise: Any = None, param_std: Any = None, state_std: Any = None,
                  param_noise: Any = None, rtol: float = 1e-8, atol: float = 1e-10,
-                 inputs: str = "average", passes: int | str = "auto", max_passes: int = 8,
+                 inputs: str = DEFAULT_INPUTS, passes: int | str = "auto", max_passes: int = 8,
                  pass_tol: float = 0.2, adapt_noise: bool | str = "auto",
                  callback: Callable[[int, float, pd.Series], None] | None = None,
                  compiled: bool = True, gain_sensitivity: bool = False,
@@ -1130,7 +1130,7 @@ class EKF(_ParameterFilter):
         old start.
     param_noise : random-walk std of the parameters per sqrt(s) (default 0: constant).
     inputs : input variation over a sample interval in the prediction step, as
-        OutputError: "average" (default), "linear" or "hold".
+        OutputError: "linear" (default) or "hold".
     passes : "auto" (default: repeat the pass from the last estimates until no free
         parameter moves by more than ``pass_tol`` (0.2) of its std, at most ``max_passes``
         (8)) or a fixed number of passes (see :meth:`fit`). A pass whose innovations'

@@ -14,7 +14,7 @@ still runs through numpy.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
@@ -22,6 +22,13 @@ import numpy as np
 from estimators.errors import BoundsError, ModelDefinitionError, UnknownNameError
 
 ModelFunction = Callable[[Any, Any, Any, Any], Any]
+
+#: a sample interval longer than GAP_FACTOR times the segment's median interval is a gap:
+#: the estimators step the model from sample to sample and would cross it in one step, as
+#: if the aircraft had flown on unobserved with the inputs interpolated across. Logger
+#: jitter and a few dropped samples stay below it (pipeline.checks warns of gaps from the
+#: same multiple); :meth:`Segment.split_at_gaps` cuts a segment there
+GAP_FACTOR = 5.0
 
 
 @dataclass
@@ -334,6 +341,64 @@ class Segment:
     @property
     def n(self) -> int:
         return self.t.size
+
+    def _gap_index(self, factor: float = GAP_FACTOR) -> np.ndarray:
+        """Indices i whose interval t[i] -> t[i+1] is a gap (see :data:`GAP_FACTOR`)."""
+        if not factor > 1.0:
+            raise ModelDefinitionError(f"gap factor {factor!r} must exceed 1 (times the median interval)")
+        dt = np.diff(self.t)
+        return np.flatnonzero(dt > factor * float(np.median(dt)))
+
+    def gaps(self, factor: float = GAP_FACTOR) -> list[tuple[float, float]]:
+        """(start time, length) in s of each gap in ``t``: an interval longer than
+        ``factor`` times the segment's median interval."""
+        return [(float(self.t[i]), float(self.t[i + 1] - self.t[i])) for i in self._gap_index(factor)]
+
+    def split_at_gaps(self, factor: float = GAP_FACTOR) -> list["Segment"]:
+        """The stretches between gaps (see :meth:`gaps`) as segments, in time order.
+
+        Each piece keeps its rows of ``t``, ``u``, ``z``, the segment's ``constants`` and
+        any other field, and is named ``<name>.<j>`` (``segment.<j>`` without a name). The
+        first piece keeps ``x0``; the later ones get ``x0=None``: the state after a gap
+        is unknown, so each starts from its first measured sample or, with
+        ``estimate_x0="auto"`` (OutputError's default), is estimated; give ``piece.x0``
+        for a model whose states are not all measured. A lone sample between two gaps
+        is dropped (a segment needs two). Without a gap: ``[self]``.
+        """
+        idx = self._gap_index(factor)
+        if not idx.size:
+            return [self]
+        bounds = np.concatenate([[0], idx + 1, [self.n]])
+        base = self.name or "segment"
+        consts = None if self.constants is None else dict(self.constants)
+        pieces = []
+        for j, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+            if b - a < 2:
+                continue
+            pieces.append(replace(
+                self, t=self.t[a:b].copy(), u=self.u[a:b].copy(), z=self.z[a:b].copy(),
+                x0=(None if self.x0 is None else self.x0.copy()) if a == 0 else None,
+                constants=None if consts is None else dict(consts), name=f"{base}.{j}"))
+        return pieces
+
+    def check_no_gaps(self, k: int | None = None, factor: float = GAP_FACTOR) -> None:
+        """Raise ModelDefinitionError naming the first gap in ``t`` (its start time and
+        length) and how many there are; ``k`` labels an unnamed segment by its index.
+        Every estimator calls it (through :meth:`estimators.simulation.Layout.build`)."""
+        idx = self._gap_index(factor)
+        if not idx.size:
+            return
+        i = int(idx[0])
+        h = float(np.median(np.diff(self.t)))
+        length = float(self.t[i + 1] - self.t[i])
+        label = self.name or (str(k) if k is not None else "")
+        where = f"segment {label!r}" if label else "segment"
+        more = f" (and {idx.size - 1} more)" if idx.size > 1 else ""
+        raise ModelDefinitionError(
+            f"{where}: the time has a gap of {length:.4g} s from t={self.t[i]:.6g} s{more}, "
+            f"{length / h:.0f} times the median sample interval {h:.4g} s (over {factor:g} "
+            "times it counts as a gap): the model would be integrated across it in one step. "
+            "Call Segment.split_at_gaps() and fit the pieces as a list of segments")
 
     def check_against(self, model: Model) -> None:
         where = f"segment {self.name!r}" if self.name else "segment"

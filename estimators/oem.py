@@ -17,10 +17,9 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
-from scipy import optimize
 
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
-from estimators.integrators import check_options
+from estimators.integrators import DEFAULT_INPUTS, check_options
 from estimators.model import Model, Segment, check_outputs_measured
 from estimators.results import EstimationResult, frames
 from estimators.sensitivity import Sensitivity
@@ -66,6 +65,76 @@ def runaway_error(model: Model, seg: Segment, k: int, where: tuple[int, int],
         f"range; the model is unstable or far off) {what}. {DIVERGE_HINT}",
         segment=k, time=float(seg.t[i]), state=model.outputs[o])
 
+#: an output is not followed when its residuals' lag-1 autocorrelation exceeds FOLLOW_LAG1
+#: and their variance FOLLOW_SHARE times the measured output's: a slow misfit that is a
+#: large part of the signal, not noise. Coloured residuals alone are common in a good
+#: output-error fit (light turbulence sampled at 50 Hz gives a lag-1 near 0.9 with a few
+#: percent of the variance left); an unstable short period fitted open loop in turbulence
+#: leaves above 0.9 and 40-80 %. The note needs half the outputs or more (one poorly
+#: modelled channel is not the aircraft)
+FOLLOW_LAG1 = 0.8
+FOLLOW_SHARE = 0.1
+
+#: the methods that keep the simulation of an unstable aircraft bounded, named in messages
+UNSTABLE_METHODS = ("StabilizedOutputError, EigenvalueTransformation, EquationDecoupling "
+                    "or FilterError")
+
+
+def lag1_autocorrelation(E: Sequence[np.ndarray]) -> np.ndarray:
+    """(n_out,) lag-1 autocorrelation of residuals ``E`` (per segment (N_k, n_out)), each
+    output over its measured (finite) samples, demeaned per segment and pooled over the
+    segments as :func:`estimators.validation.whiteness` pools them; NaN without data."""
+    n_out = np.shape(E[0])[1]
+    rho = np.full(n_out, np.nan)
+    for j in range(n_out):
+        cols = [np.asarray(e, float)[:, j] for e in E]
+        cols = [c[np.isfinite(c)] for c in cols]
+        cols = [c - c.mean() for c in cols if c.size > 2]
+        if cols:
+            c0 = sum(float(c @ c) for c in cols)
+            c1 = sum(float(c[:-1] @ c[1:]) for c in cols)
+            if c0 > 0:
+                rho[j] = c1 / c0
+    return rho
+
+
+def _pooled_variance(X: Sequence[np.ndarray]) -> np.ndarray:
+    """(n,) variance of each column about its per-segment mean, finite samples only."""
+    ss = sum(np.nansum((x - np.nanmean(x, axis=0)) ** 2, axis=0) for x in X)
+    return ss / np.maximum(sum(np.isfinite(x).sum(axis=0) for x in X), 1)
+
+
+def follow_note(outputs: Sequence[str], segments: Sequence[Segment], E: Sequence[np.ndarray],
+                runaways: int = 0) -> tuple[str, dict[str, Any]]:
+    """A message, and its numbers, when an output-error fit did not follow the data: at
+    least half the outputs with residuals coloured and large (see FOLLOW_LAG1), or trial
+    parameter values whose simulation ran away (``runaways`` of them). Both mark a model
+    simulated open loop that cannot track the flight: an unstable aircraft, or strong
+    process noise (turbulence). ("", {}) otherwise."""
+    with np.errstate(all="ignore"):
+        rho = lag1_autocorrelation(E)
+        share = _pooled_variance(E) / _pooled_variance([s.z for s in segments])
+    bad = [j for j in range(len(outputs)) if rho[j] > FOLLOW_LAG1 and share[j] > FOLLOW_SHARE]
+    coloured = len(bad) >= max(1, int(np.ceil(len(outputs) / 2)))
+    if not coloured and not runaways:
+        return "", {}
+    why = []
+    if coloured:
+        why.append(f"the residuals of {', '.join(outputs[j] for j in bad)} are far from white "
+                   f"(lag-1 autocorrelation {', '.join(f'{rho[j]:.2f}' for j in bad)}) and "
+                   f"leave {', '.join(f'{100 * min(share[j], 9.99):.0f}' for j in bad)} % of "
+                   "their measured variance unexplained")
+    if runaways:
+        why.append(f"the simulation ran away for {runaways} trial parameter "
+                   f"set{'s' if runaways > 1 else ''}")
+    msg = (f"the model does not follow the data: {' and '.join(why)}. An unstable aircraft "
+           "(or strong turbulence) cannot be fitted by simulating it open loop: use "
+           f"{UNSTABLE_METHODS}")
+    info = {"outputs": [outputs[j] for j in bad], "runaways": int(runaways),
+            "lag1": dict(zip(outputs, rho.tolist())), "unexplained": dict(zip(outputs, share.tolist()))}
+    return msg, info
+
+
 #: (model, segment, k, layout, theta (n_all,)) -> (Y (N, n_out), S (N, n_out, n_relevant))
 SensitivityHook = Callable[[Model, Segment, int, Layout, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -98,19 +167,28 @@ class OutputError:
         on the numpy path of the stabilised models), "always" runs it first, "never" does
         not.
     rtol, atol : tolerances of the adaptive integrator.
-    inputs : input variation inside a sample interval: "average" (default), "linear" or
-        "hold" (see :data:`estimators.integrators.INPUT_MODES`).
+    inputs : input variation inside a sample interval: "linear" (default: each integration
+        stage reads them interpolated at its own time) or "hold" (see :data:`estimators.integrators.INPUT_MODES`).
     callback : called as callback(iteration, cost, params Series) after each iteration.
+
+    A fit whose model does not follow the data (residuals of most outputs coloured and
+    large, or trial steps whose simulation ran away: an unstable aircraft or strong
+    turbulence, see :func:`follow_note`) keeps ``converged`` as the optimiser left it; its
+    ``message`` says so and names the methods for unstable aircraft, and
+    ``extra["not_followed"]`` holds the numbers.
     """
 
     method = "oem"
+    #: add :func:`follow_note` to the message; off for the transformed problems of
+    #: estimators.stabilized, which are the remedy it names
+    _check_follow = True
 
     def __init__(self, model: Model, integrator: str = "rk4", *, noise: str = "diagonal",
                  optimizer: str = "gauss-newton", jacobian: str | SensitivityHook = "forward",
                  fd_step: float = 1e-6, max_iter: int = 50, tol: float = 1e-6,
                  step_halvings: int = 10, priors: Mapping[str, tuple[float, float]] | None = None,
                  fallback: str = "auto", rtol: float = 1e-8, atol: float = 1e-10,
-                 inputs: str = "average", callback: Callable[[int, float, pd.Series], None] | None = None) -> None:
+                 inputs: str = DEFAULT_INPUTS, callback: Callable[[int, float, pd.Series], None] | None = None) -> None:
         check_options(integrator, inputs)
         if noise not in ("diagonal", "full"):
             raise ModelDefinitionError(f"noise must be 'diagonal' or 'full', not {noise!r}")
@@ -281,6 +359,8 @@ class OutputError:
 
         n = fi.size
         sim0 = np.vstack([x0 / scale] + [x0 / scale + 0.2 * np.eye(n)[i] for i in range(n)])
+        from scipy import optimize      # only this start needs it: import on use
+
         res = optimize.minimize(fun, x0 / scale, method="Nelder-Mead",
                                 options={"maxfev": max_evals or max(600, 200 * n),
                                          "initial_simplex": sim0, "xatol": 1e-6, "fatol": 1e-8})
@@ -329,6 +409,7 @@ class OutputError:
         history: list[dict[str, Any]] = []
         converged = False
         message = ""
+        runaways = 0            # line-search trials whose simulation ran away or diverged
         lam = 1e-3
         cost_old = np.inf
         it = 0
@@ -379,6 +460,7 @@ class OutputError:
                 trial = theta.copy()
                 trial[fi] = np.clip(tf + step, lo, hi)
                 Et = self._residuals(self._simulate(trial))
+                runaways += Et is None
                 if self._R_fixed is None:
                     # the likelihood itself, R at its optimum for each trial: with J at this
                     # iteration's R a full step could raise det(R), and the iterations
@@ -432,6 +514,16 @@ class OutputError:
         if used_simplex:
             message = (message + "; " if message else "") + \
                 f"started with Nelder-Mead ({self._n_simplex_evals} evaluations)"
+        extra: dict[str, Any] = {}
+        if self.priors:
+            # the a-priori part of F (free-parameter order): the Morelli-Klein sandwich adds
+            # it to its middle term (estimators.validation.morelli_klein, prior_info)
+            extra["prior_information"] = self._prior_terms(theta[lay.free_idx])[0]
+        if self._check_follow:
+            note, info = follow_note(self.model.outputs, segments, E, runaways)
+            if note:
+                message = (message + "; " if message else "") + note
+                extra["not_followed"] = info
         return EstimationResult(
             method=self.method, model=self.model, names=list(lay.names), values=theta,
             free=lay.free.copy(), cov=cov, R=R_cur, converged=converged, iterations=it,
@@ -439,10 +531,7 @@ class OutputError:
             predicted=frames([s.t for s in segments], Ys, self.model.outputs),
             residuals=frames([s.t for s in segments], E, self.model.outputs),
             at_bounds=[lay.free_names[i] for i in np.flatnonzero(on_bound)],
-            message=message, information=F, sensitivities=Ss,
-            # the a-priori part of F (free-parameter order): the Morelli-Klein sandwich adds
-            # it to its middle term (estimators.validation.morelli_klein, prior_info)
-            extra={"prior_information": self._prior_terms(theta[lay.free_idx])[0]} if self.priors else {},
+            message=message, information=F, sensitivities=Ss, extra=extra,
             settings={"integrator": self.integrator, "optimizer": self.optimizer,
                       "noise": self.noise, "inputs": self.inputs, "jacobian": self.jacobian if isinstance(self.jacobian, str)
                       else "analytic", "tol": self.tol, "max_iter": self.max_iter})

@@ -41,8 +41,12 @@ class NoisyExample:
 
 def simulate_with_process_noise(model: Model, seg: Segment, F: np.ndarray, rng: np.random.Generator,
                                 noise_std: np.ndarray | None = None, integrator: str = "rk4",
-                                feedback=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                                feedback=None, substeps: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Simulate one segment with process noise F (see module docstring).
+
+    substeps : integrator steps per sample interval, each followed by its share of the
+        noise (F w sqrt(h / substeps)); more sub-steps approach the continuous noise model
+        the filter-error method assumes (one step per sample misses its O(h A) part).
 
     feedback : optional callable (i, z_{i-1}) -> u_i replacing the input at sample i from
         the outputs measured one sample earlier (a closed loop on the measurements with one
@@ -67,8 +71,16 @@ def simulate_with_process_noise(model: Model, seg: Segment, F: np.ndarray, rng: 
             if feedback is not None:
                 U[i + 1] = feedback(i + 1, Z[i])
             h = seg.t[i + 1] - seg.t[i]
-            Xs = kern.integrate(integrator, x[:, None], U[i:i + 2], seg.t[i:i + 2], P, c)
-            x = Xs[1, :, 0] + F @ rng.standard_normal(F.shape[1]) * np.sqrt(h)
+            if substeps == 1:
+                Xs = kern.integrate(integrator, x[:, None], U[i:i + 2], seg.t[i:i + 2], P, c)
+                x = Xs[1, :, 0] + F @ rng.standard_normal(F.shape[1]) * np.sqrt(h)
+                continue
+            frac = np.linspace(0.0, 1.0, substeps + 1)
+            Us = U[i] + frac[:, None] * (U[i + 1] - U[i])
+            ts = seg.t[i] + frac * h
+            for j in range(substeps):
+                Xs = kern.integrate(integrator, x[:, None], Us[j:j + 2], ts[j:j + 2], P, c)
+                x = Xs[1, :, 0] + F @ rng.standard_normal(F.shape[1]) * np.sqrt(h / substeps)
     return X, Z, U
 
 

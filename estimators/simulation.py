@@ -16,8 +16,21 @@ import numpy as np
 import pandas as pd
 
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
+from estimators.integrators import DEFAULT_INPUTS
 from estimators.jit import kernel_for
 from estimators.model import Model, Segment, check_in_bounds
+
+
+def as_values(values: Mapping[str, float] | pd.Series | None) -> dict[str, float]:
+    """Parameter values by name as a dict from a mapping, a pandas Series or None (a
+    Series has no single truth value, so ``if values:`` cannot test it)."""
+    if values is None:
+        return {}
+    if not hasattr(values, "items"):
+        raise ModelDefinitionError(
+            f"parameter values must map names to numbers (a dict or a pandas Series), "
+            f"not {type(values).__name__}")
+    return dict(values.items())
 
 
 @dataclass
@@ -44,7 +57,10 @@ class Layout:
               estimate_x0: bool | str | Sequence[str] = False,
               values: Mapping[str, float] | None = None) -> "Layout":
         """``estimate_x0``: False, True, state names, or "auto" (the measured states of
-        the segments that have no ``x0`` of their own; see OutputError.fit)."""
+        the segments that have no ``x0`` of their own; see OutputError.fit). ``values``:
+        start values by expanded name, a mapping or a pandas Series (a result's
+        ``params``), or None. Every estimator builds its layout here, so a segment with a
+        gap in its time (:meth:`Segment.check_no_gaps`) is refused here for all of them."""
         nseg = len(segments)
         auto = isinstance(estimate_x0, str) and estimate_x0 == "auto"
         if auto:
@@ -75,6 +91,7 @@ class Layout:
         pidx, x0idx = [], []
         for k, seg in enumerate(segments):
             seg.check_against(model)
+            seg.check_no_gaps(k)
             row = []
             for p in model.parameters:
                 if p.per_segment:
@@ -87,10 +104,10 @@ class Layout:
             x0idx.append(np.array([add(f"x0_{s}[{k}]", x0[i], s in est_k, (-np.inf, np.inf), "x0")
                                    for i, s in enumerate(model.states)], dtype=int))
         values_arr = np.array(vals, dtype=float)
-        if values:
-            for i, n in enumerate(names):
-                if n in values:
-                    values_arr[i] = float(values[n])
+        given = as_values(values)
+        for i, n in enumerate(names):
+            if n in given:
+                values_arr[i] = float(given[n])
         free_arr = np.array(free, dtype=bool)
         relevant = []
         for k in range(nseg):
@@ -114,7 +131,7 @@ class Layout:
 
 def simulate_batch(model: Model, seg: Segment, Theta: np.ndarray, layout: Layout, k: int,
                    integrator: str = "rk4", rtol: float = 1e-8, atol: float = 1e-10,
-                   return_states: bool = False, inputs: str = "average"):
+                   return_states: bool = False, inputs: str = DEFAULT_INPUTS):
     """Outputs Y (N, n_outputs, B) of segment ``k`` for parameter vectors Theta (B, n_all).
     Diverged trajectories carry NaN from the first non-finite sample on."""
     Theta = np.atleast_2d(Theta)
@@ -142,16 +159,31 @@ def divergence_error(model: Model, seg: Segment, X: np.ndarray, k: int, what: st
         f"became non-finite) {what}. {hint}", segment=k, time=float(seg.t[i]), state=state)
 
 
-def simulate_outputs(model: Model, segment: Segment, params: Mapping[str, float] | None = None,
-                     integrator: str = "rk4", *, states: bool = False, **kw) -> pd.DataFrame:
+def simulate_outputs(model: Model, segment: Segment, params: Mapping[str, float] | pd.Series | None = None,
+                     integrator: str = "rk4", *, states: bool = False, k: int = 0,
+                     **kw) -> pd.DataFrame:
     """Simulate one segment; a DataFrame of outputs (and states when ``states``) on t.
-    ``params`` may hold model parameter names or expanded names (``bias_az[0]``); keywords
-    go to :func:`simulate_batch` (rtol, atol, inputs="average"|"linear"|"hold")."""
-    lay = Layout.build(model, [segment], values=params)
-    if params:
-        for p in model.parameters:
-            if p.per_segment and p.name in params:
-                lay.values[lay.pidx[0][model.parameter_names.index(p.name)]] = params[p.name]
+
+    params : values by name, a mapping or a pandas Series (``res.params``), or None for
+        the model's own. Model parameter names (``Cmq``; ``bias_az`` sets the segment's
+        bias) and expanded names of segment ``k`` (``bias_az[k]``, ``x0_alpha[k]``) are
+        read; an initial state not given comes from the segment (:meth:`Segment.initial_state`).
+    k : the index of ``segment`` among the segments of the fit ``params`` come from:
+        ``simulate_outputs(model, segs[k], res.params, k=k)`` reproduces
+        ``res.predicted[k]`` of an :class:`~estimators.OutputError` fit (same integrator
+        and ``inputs``). With the default 0 a multi-segment result's ``[0]`` values are
+        used whatever the segment.
+    Other keywords go to :func:`simulate_batch` (rtol, atol, inputs="linear"|"hold").
+    """
+    given = as_values(params)
+    suffix = f"[{int(k)}]"
+    # expanded names of segment k become those of this one-segment layout ([0])
+    vals = {n: v for n, v in given.items() if not n.endswith("]")}
+    vals.update({n[: -len(suffix)] + "[0]": v for n, v in given.items() if n.endswith(suffix)})
+    for p in model.parameters:
+        if p.per_segment and p.name in vals:
+            vals[f"{p.name}[0]"] = vals.pop(p.name)
+    lay = Layout.build(model, [segment], values=vals)
     Y, X = simulate_batch(model, segment, lay.values[None, :], lay, 0, integrator,
                           return_states=True, **kw)
     df = pd.DataFrame(Y[:, :, 0], index=pd.Index(segment.t, name="t"), columns=model.outputs)

@@ -121,8 +121,9 @@ class _TransformedOEM:
         for s in segments:
             s.check_against(self.model)
         model_t, segs_t, info = self._transform(segments, start)
-        res = OutputError(model_t, self.integrator, **self.oem_options).fit(
-            segs_t, estimate_x0=estimate_x0, R=R, start=start)
+        oem = OutputError(model_t, self.integrator, **self.oem_options)
+        oem._check_follow = False       # its note would recommend these methods themselves
+        res = oem.fit(segs_t, estimate_x0=estimate_x0, R=R, start=start)
         if info.get("pseudo_outputs"):
             self._fed_measurement_std(res, model_t, segs_t, info)
         res.method = self.method

@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from estimators import Segment
+from estimators.integrators import DEFAULT_INPUTS
 from estimators.models import lateral_directional, longitudinal
 from estimators.models.lateral import lateral_measured_longitudinal
 from estimators.models.longitudinal import longitudinal_measured_lateral
@@ -128,7 +129,7 @@ class Problem:
     specs: list[SegmentSpec]
     held_specs: list[SegmentSpec]
     estimate_x0: bool | Sequence[str] = True
-    inputs: str = "average"
+    inputs: str = DEFAULT_INPUTS
     notes: list[str] = field(default_factory=list)
     #: equation-error regressions on the fitted windows (:class:`Regression`)
     regressions: list[Regression] = field(default_factory=list)

@@ -24,7 +24,9 @@
          "validation": {...}            # pipeline.validate.validate() minus "arrays", plus
                                         # "problem": {"notes"} (how the data were prepared:
                                         # grid, pseudo-inputs, input smoothing corners, ...)
-         "verdict": {"ok", "reasons", "notes"}}}}
+         "verdict": {"level", "ok", "reasons", "reason_levels", "notes"}}}}
+                                        # level PASS / CHECK / FAIL (pipeline.validate.
+                                        # REASON_LEVELS), ok == (level == "PASS")
 
 Numbers are SI (per radian for derivatives) with NaN written as ``null``. ``estimate`` and
 ``std`` are exactly the result's ``params``/``std`` (Cramér-Rao, unless ``std_method``
@@ -149,12 +151,39 @@ def param_rows(mj: Mapping[str, Any], with_truth: bool, *, segment: bool | None 
     return rows
 
 
+#: what the levels mean (pipeline.validate.REASON_LEVELS), under the summary table
+VERDICT_LEGEND = ("Verdict FAIL: the run shows the estimates wrong or unfinished (not converged, "
+                  "off the truth, an EKF/UKF disagreeing with filter error, a proof-of-match "
+                  "miss beyond the prediction's own uncertainty or with none to weigh it); "
+                  "CHECK: not proven right (a TIC over the limit, a miss within that "
+                  "uncertainty); PASS: neither.")
+
+
+def verdict_level(vd: Mapping[str, Any]) -> str:
+    """PASS / CHECK / FAIL of a verdict dict; one written before the levels (``ok`` only)
+    reads PASS or CHECK, as it was reported then."""
+    return vd.get("level") or ("PASS" if vd.get("ok") else "CHECK")
+
+
+def _verdict_reasons(vd: Mapping[str, Any]) -> str:
+    """The reasons after the verdict's level: " - a; b", the milder ones of a FAIL after
+    "to check too:"."""
+    reasons = list(vd.get("reasons") or [])
+    if not reasons:
+        return ""
+    levels = list(vd.get("reason_levels") or [])
+    if len(levels) != len(reasons) or verdict_level(vd) != "FAIL":
+        return " - " + "; ".join(reasons)
+    fail = [r for r, lv in zip(reasons, levels) if lv == "FAIL"]
+    rest = [r for r, lv in zip(reasons, levels) if lv != "FAIL"]
+    return " - " + "; ".join(fail) + ("; to check too: " + "; ".join(rest) if rest else "")
+
+
 def _method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
     v = mj.get("validation") or {}
     vd = mj["verdict"]
     L = [f"## {m.upper()} ({mj['model']})", ""]
-    L.append(f"**Verdict: {'PASS' if vd['ok'] else 'CHECK'}**"
-             + ("" if vd["ok"] else " - " + "; ".join(vd["reasons"])))
+    L.append(f"**Verdict: {verdict_level(vd)}**" + _verdict_reasons(vd))
     L += [f"- note: {n}" for n in vd.get("notes", [])]
     L += ["", f"Converged: {'yes' if mj['converged'] else 'NO'} after {mj['iterations']} "
           f"iterations; det(R) = {_g(mj['det_R'], '.4e')}; {mj['n_samples']} samples."
@@ -466,11 +495,12 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
             fit = mj.get("fit") or {}
             tics = [d["TIC"] for d in fit.values() if d.get("TIC") is not None]
             pm = (mj.get("validation") or {}).get("proof_of_match")
-            rows.append([m, "PASS" if mj["verdict"]["ok"] else "CHECK",
+            rows.append([m, verdict_level(mj["verdict"]),
                          "yes" if mj["converged"] else "NO", _g(mj["det_R"], ".4e"),
                          _g(max(tics) if tics else None, ".4f"),
                          _pom_cell(pm)])
         L += _table(["method", "verdict", "converged", "det(R)", "max TIC", "proof of match"], rows)
+        L += [VERDICT_LEGEND, ""]
     L += _agreement_md(rep.get("agreement"))
     L += _checks_md(rep.get("checks"))
     L += _compat_md(rep.get("compatibility"))

@@ -416,15 +416,13 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
     if method == "fem":
         # nonlinear form (integrator prediction, gain of the linearisation at each
         # segment's start); process noise started from the turbulence level and
-        # estimated; measurement noise held at the second-difference estimate (estimating
-        # it too lets the likelihood drive G of an output that also measures the gust-
-        # driven state to 0 - see FilterError's estimate_G)
+        # estimated; R started at the second-difference noise level (no output-error run
+        # from equation-error starts that may diverge) and estimated by relaxation
         def fem(m, estimate_F: bool = True):
             return E.FilterError(m, form="nonlinear", inputs=inputs,
                                  process_noise=process_noise_std(problem, turbulence),
                                  measurement_noise=measurement_noise_std(problem), estimate_F=estimate_F,
-                                 estimate_G=False, callback=callback).fit(problem.fit, estimate_x0=x0,
-                                                                          start=start)
+                                 callback=callback).fit(problem.fit, estimate_x0=x0, start=start)
 
         res = fem(model)
         if not res.converged:

@@ -57,9 +57,11 @@ Keys of the returned dict
 ``plausibility``: ``truth`` (per parameter: ``truth error error_in_std within``) and
     ``apriori`` (per parameter: columns of :func:`estimators.validation.plausibility`).
 ``agreement``: set by :func:`cross_check_methods` once every method of the run has its
-    final std: ``k`` and ``flagged`` (per other method of the same axis, the parameters
-    where the two estimates differ by more than k combined std, with that z).
-``verdict``: ``ok`` (bool) and ``reasons`` (list of short sentences), see :func:`verdict`.
+    final std: ``k``, ``flagged`` (per other method of the same axis, the parameters
+    where the two estimates differ by more than k combined std, with that z) and
+    ``against`` (per flagged method: its ``method`` name and whether it ``converged``).
+``verdict``: ``level`` (PASS / CHECK / FAIL, :data:`REASON_LEVELS`), ``ok`` (level PASS),
+    ``reasons`` (short sentences) with their ``reason_levels``, ``notes``; see :func:`verdict`.
 ``arrays``: ``psd`` (``f`` (n_f,) Hz, ``Pxx`` (n_f, n_out) units^2/Hz),
     ``freq`` (``f`` (n_f,) Hz; complex ``H_data`` (spectral estimate from the data),
     ``H_model`` (the same estimator on the fixed model's simulated outputs), ``H_analytic`` (G(jw)
@@ -82,7 +84,7 @@ import pandas as pd
 import estimators
 from estimators import EstimationResult, Segment, simulate_outputs
 from estimators import validation as V
-from estimators.integrators import INTEGRATORS
+from estimators.integrators import DEFAULT_INPUTS, INTEGRATORS
 from estimators.model import Namespace
 from estimators import statistics as st
 
@@ -94,6 +96,49 @@ TIC_LIMIT = 0.1
 NOISE_FLOOR_RATIO = 1.2
 #: |estimate - truth| / std allowed for a truth check to pass
 TRUTH_K = 3.0
+#: verdict levels, mildest first; a fit's level is the worst of its reasons' (PASS: none)
+LEVELS = ("PASS", "CHECK", "FAIL")
+#: The level each kind of verdict reason sets (:func:`verdict`). A verdict is never milder
+#: than its evidence: FAIL where the run itself shows the estimates wrong or unfinished,
+#: CHECK where it shows only that they are not proven right.
+#:
+#: - ``not converged`` FAIL: the optimiser stopped short or diverged, or the filter passes
+#:   did not settle: the numbers are not the method's estimate, nor their std its bound.
+#: - ``truth`` FAIL: a simulated run knows the truth; an estimate more than TRUTH_K of its
+#:   own std from it is wrong by the tool's own measure.
+#: - ``filter error`` FAIL: an EKF/UKF more than the agreement's k combined std from a
+#:   converged filter-error fit of the same flight (:func:`cross_check_methods`): filter
+#:   error is the method to trust in turbulence (DESIGN.md section 8), its noise model
+#:   holding calm air as the case without process noise.
+#: - ``proof of match beyond`` FAIL: a held-out miss beyond PREDICTION_K std of the
+#:   prediction's own uncertainty is not explained by the estimates' imprecision: the
+#:   model's form, its inputs or estimates biased beyond their std.
+#: - ``proof of match unweighed`` FAIL: a miss with no prediction uncertainty to set it
+#:   against: nothing in the run excuses it.
+#: - ``proof of match within`` CHECK: every miss within PREDICTION_K std of the
+#:   prediction's own uncertainty: the estimates too imprecise for the band, not shown wrong.
+#: - ``proof of match none judged`` CHECK: no channel could be judged: unproven, not failed.
+#: - ``TIC`` CHECK: an output followed poorly (weakly excited or modelled) is a question for
+#:   the engineer, not evidence that the estimates are wrong.
+#:
+#: Notes set no level: coloured residuals, correlations, frequency-response mismatch, TIC
+#: at an output's noise floor, maneuver scatter, a-priori values (the uncertain knowledge
+#: identification replaces) and disagreements between other pairs of methods (neither of
+#: which is the one to trust): context that neither proves nor disproves the estimates.
+REASON_LEVELS = {
+    "not converged": "FAIL",
+    "truth": "FAIL",
+    "filter error": "FAIL",
+    "proof of match beyond": "FAIL",
+    "proof of match unweighed": "FAIL",
+    "proof of match within": "CHECK",
+    "proof of match none judged": "CHECK",
+    "TIC": "CHECK",
+}
+#: why an EKF/UKF that disagrees with filter error fails (DESIGN.md section 8)
+FILTER_ERROR_TRUST = ("filter error is the method to trust in turbulence (its process noise "
+                      "model; the EKF/UKF's white process noise biases them in coloured "
+                      "turbulence)")
 #: channels shown in degrees (rad -> deg) and degrees per second (rad/s -> deg/s)
 ANGLES = frozenset({"alpha", "beta", "phi", "theta", "psi", "de", "da", "dr"})
 RATES = frozenset({"p", "q", "r"})
@@ -343,7 +388,7 @@ def _frequency(result: EstimationResult, lin, *, mag_bound_db: float, phase_boun
     u = seg.u[:, excited]
     se = V.spectral_estimate(u, z[:, keep], fs)
     y_sim = simulate_outputs(result.model_with_estimates(), seg, integrator=integrator,
-                             inputs=result.settings.get("inputs", "average"))
+                             inputs=result.settings.get("inputs", DEFAULT_INPUTS))
     sm = V.spectral_estimate(u, y_sim.to_numpy()[:, keep], fs)
     w = se.w[1:]                                            # drop DC
     Hd, coh = se.H[1:], se.coherence[1:]
@@ -643,7 +688,7 @@ def _air_data_prediction(result: EstimationResult, seg: Segment, integrator: str
     return V.air_data_prediction(result.model.with_values(vals), seg,
                                  process_noise=_process_noise(result), measurement_noise=R,
                                  integrator=integrator,
-                                 inputs=result.settings.get("inputs", "average"))
+                                 inputs=result.settings.get("inputs", DEFAULT_INPUTS))
 
 
 def _air_data_sensitivity(result: EstimationResult, seg: Segment, integrator: str,
@@ -684,7 +729,7 @@ def _held_out_fit(result: EstimationResult, seg: Segment, integrator: str
     the fit)."""
     shared = {n: v for n, v in zip(result.names, result.values) if "[" not in n}
     model = result.model.with_values(shared).fixed([n for n in result.free_names if "[" not in n])
-    inputs = result.settings.get("inputs", "average")
+    inputs = result.settings.get("inputs", DEFAULT_INPUTS)
     try:
         fit = estimators.OutputError(model, integrator=integrator, inputs=inputs,
                                      fallback="never").fit(seg, estimate_x0=True)
@@ -730,7 +775,7 @@ def _prediction_sensitivity(result: EstimationResult, seg: Segment, fit: Estimat
     try:
         S = V.parameter_sensitivity(fit.model, seg, values, names, fit.free_names, weights=w,
                                     integrator=integrator,
-                                    inputs=result.settings.get("inputs", "average"))
+                                    inputs=result.settings.get("inputs", DEFAULT_INPUTS))
     except (estimators.EstimationError, np.linalg.LinAlgError, ValueError):
         return None
     return (names, S) if np.all(np.isfinite(S)) else None
@@ -753,46 +798,101 @@ def _truth_check(result: EstimationResult, truth: Mapping[str, float], k: float)
             "all_within": bool(out) and all(v["within"] for v in out.values())}
 
 
+def _is_method(name: Any, base: str) -> bool:
+    """Whether a method name or result key is of method ``base``: "fem" for "fem",
+    "fem-nl" and "lateral-fem"; "ukf" for "ukf-aug"."""
+    return base in str(name or "").split("-")
+
+
+def _trusted_over(method: Any, other: Any, converged: bool = True) -> bool:
+    """Whether ``other`` is the method to trust where it and ``method`` disagree: a
+    converged filter-error fit (fem, fem-nl) over an EKF or UKF of the same flight."""
+    return (converged and _is_method(other, "fem")
+            and any(_is_method(method, m) for m in ("ekf", "ukf")))
+
+
+def _pom_channels(pm: Mapping[str, Any]) -> tuple[float, list[str], list[str], list[str]]:
+    """(k, within, beyond, unweighed): the failed proof-of-match channels by how their
+    misses compare with k (PREDICTION_K) std of the prediction's own uncertainty, the
+    worst segment deciding (beyond on any segment, else no uncertainty on any, else within)."""
+    k = next((sg["prediction_uncertainty"]["k"] for sg in pm["segments"]
+              if sg.get("prediction_uncertainty")), V.PREDICTION_K)
+    worst: dict[str, int] = {}                  # 0 within, 1 unweighed, 2 beyond
+    for sg in pm["segments"]:
+        for c, d in sg["channels"].items():
+            if d.get("pass") is not False:
+                continue
+            b, top = d.get("beyond_prediction_display"), d.get("prediction_std_max_display")
+            w = 1 if b is None or top is None else 2 if b > 0 else 0
+            worst[c] = max(worst.get(c, 0), w)
+    names = sorted(worst)
+    return (k, [c for c in names if worst[c] == 0], [c for c in names if worst[c] == 2],
+            [c for c in names if worst[c] == 1])
+
+
 def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
-    """``ok`` and the ``reasons`` behind it from a validation dict: converged, every TIC
-    below the limit, proof of match passed (when run), truth within k std (when known);
-    residual colour, correlation flags and frequency mismatch are listed as notes only, and
-    for an output-error method with coloured residuals and scattering maneuvers the advice
-    to fit filter error."""
-    reasons, notes = [], []
+    """The verdict on one fit from its validation dict: ``level`` (PASS / CHECK / FAIL, the
+    worst of its reasons' levels, :data:`REASON_LEVELS`), ``ok`` (level PASS), ``reasons``
+    with their ``reason_levels``, and ``notes`` that set no level.
+
+    Reasons: not converged; TIC over the limit; a failed proof of match, by whether its
+    misses are within the prediction's own uncertainty; truth beyond k std (when known); an
+    EKF/UKF disagreeing with filter error (``agreement`` from :func:`cross_check_methods`).
+    Notes: residual colour, correlations, frequency mismatch, a-priori values, other
+    methods' disagreement, and for an output-error method with coloured residuals and
+    scattering maneuvers the advice to fit filter error."""
+    reasons: list[tuple[str, str]] = []             # (kind, sentence)
+    notes: list[str] = []
     if not v.get("converged", True):
         why = v.get("not_settled")
-        reasons.append(f"the filter passes did not settle: {why}" if why
-                       else "the optimiser did not converge")
+        reasons.append(("not converged", f"the filter passes did not settle: {why}" if why
+                        else "the optimiser did not converge"))
     fit = v.get("fit") or {}
     if fit and not fit.get("tic_ok", True):
         floor = fit.get("tic_noise_floor") or []
         bad = [o for o, d in fit["per_output"].items()
                if (d.get("TIC") is None or d["TIC"] >= fit["tic_limit"]) and o not in floor]
         if bad:
-            reasons.append(f"TIC >= {fit['tic_limit']} on {', '.join(bad)}")
+            reasons.append(("TIC", f"TIC >= {fit['tic_limit']} on {', '.join(bad)}"))
         if floor:
             notes.append(f"TIC >= {fit['tic_limit']} on {', '.join(floor)} at their noise floor: "
                          f"residuals within {NOISE_FLOOR_RATIO:g}x their measurement noise (the "
                          "maneuvers hardly move them)")
     pm = v.get("proof_of_match")
     if pm is not None and not pm["all_pass"]:
-        bad = sorted({c for s in pm["segments"] for c, d in s["channels"].items()
-                      if d.get("pass") is False})
-        reasons.append("proof of match failed on " + (", ".join(bad) or "every channel (none judged)"))
+        k, within, beyond, unweighed = _pom_channels(pm)
+        if beyond:
+            reasons.append(("proof of match beyond", f"proof of match failed on {', '.join(beyond)} "
+                            f"beyond {k:g} std of the prediction's own uncertainty"))
+        if unweighed:
+            reasons.append(("proof of match unweighed", "proof of match failed on "
+                            f"{', '.join(unweighed)} (no prediction uncertainty to weigh the miss)"))
+        if within:
+            reasons.append(("proof of match within", f"proof of match failed on {', '.join(within)} "
+                            f"within {k:g} std of the prediction's own uncertainty"))
+        if not (beyond or unweighed or within):
+            reasons.append(("proof of match none judged",
+                            "proof of match failed on every channel (none judged)"))
         notes += _prediction_notes(pm)
     tr = (v.get("plausibility") or {}).get("truth")
     if tr and tr["per_parameter"] and not tr["all_within"]:
         bad = [n for n, d in tr["per_parameter"].items() if not d["within"]]
-        reasons.append(f"{', '.join(bad)} more than {tr['k']:g} std from the truth")
+        reasons.append(("truth", f"{', '.join(bad)} more than {tr['k']:g} std from the truth"))
     ap = (v.get("plausibility") or {}).get("apriori")
     if ap:
         flagged = [n for n, d in ap.items() if d.get("flag")]
         if flagged:
             notes.append(f"disagree with a-priori values: {', '.join(flagged)}")
-    for other, bad in ((v.get("agreement") or {}).get("flagged") or {}).items():
-        notes.append(f"disagrees with {other} by more than {v['agreement']['k']:g} combined std "
-                     f"on " + ", ".join(f"{n} ({z:.1f})" for n, z in bad.items()))
+    ag = v.get("agreement") or {}
+    for other, bad in (ag.get("flagged") or {}).items():
+        on = ", ".join(f"{n} ({z:.1f})" for n, z in bad.items())
+        against = (ag.get("against") or {}).get(other) or {}
+        if _trusted_over(v.get("method"), against.get("method", other),
+                         bool(against.get("converged", True))):
+            reasons.append(("filter error", f"disagrees with filter error ({other}) by more than "
+                            f"{ag['k']:g} combined std on {on}: {FILTER_ERROR_TRUST}"))
+        else:
+            notes.append(f"disagrees with {other} by more than {ag['k']:g} combined std on {on}")
     res = v.get("residuals") or {}
     if res and not res.get("all_white", True):
         col = [o for o, d in res["whiteness"].items() if not d.get("white")]
@@ -821,7 +921,10 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
     if fr and fr.get("n_judged") and not fr["all_pass"]:
         bad = [k for k, d in fr["table"].items() if d["n_used"] and not d["pass"]]
         notes.append(f"frequency-response mismatch beyond bounds on {', '.join(bad)}")
-    return {"ok": not reasons, "reasons": reasons, "notes": notes}
+    levels = [REASON_LEVELS[kind] for kind, _ in reasons]
+    level = max(levels, key=LEVELS.index, default="PASS")
+    return {"ok": level == "PASS", "level": level, "reasons": [r for _, r in reasons],
+            "reason_levels": levels, "notes": notes}
 
 
 def _prediction_notes(pm: Mapping[str, Any]) -> list[str]:
@@ -892,8 +995,10 @@ def cross_check_methods(results: Mapping[str, EstimationResult],
     assumptions do not hold for the flight (e.g. output error in turbulence, or an EKF whose
     process noise carries the response it should leave to the parameters).
 
-    Sets ``agreement`` in each compared method's validation and redoes its verdict (a note
-    per disagreeing method). Returns, per axis with at least two methods (key "" when the
+    Sets ``agreement`` in each compared method's validation and redoes its verdict: a FAIL
+    reason for an EKF/UKF that disagrees with a converged filter-error fit (the method to
+    trust in turbulence, :data:`REASON_LEVELS`), a note for any other disagreeing pair.
+    The test is |a - b| / sqrt(std_a^2 + std_b^2) > k, k = TRUTH_K (3). Returns, per axis with at least two methods (key "" when the
     keys carry no axis): ``methods``, ``k``, ``table`` (one record per parameter and pair,
     the columns of :func:`~estimators.validation.agreement`), ``n_flagged`` and
     ``odd_one_out``: the method that disagrees with every other one while those agree among
@@ -920,7 +1025,10 @@ def cross_check_methods(results: Mapping[str, EstimationResult],
                     other = row.method_b if key == row.method_a else row.method_a
                     flagged.setdefault(other, {})[row.parameter] = float(row.z)
             if key in validations:
-                validations[key]["agreement"] = {"k": k, "flagged": flagged}
+                validations[key]["agreement"] = {
+                    "k": k, "flagged": flagged,
+                    "against": {o: {"method": results[o].method,
+                                    "converged": bool(results[o].converged)} for o in flagged}}
                 validations[key]["verdict"] = verdict(validations[key])
         pairs = {frozenset((r.method_a, r.method_b)) for r in table[table["flag"]].itertuples()}
         odd = [m for m in keys if len(keys) > 2 and

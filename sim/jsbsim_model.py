@@ -15,7 +15,8 @@ surface limit) writes ``fcs/<s>-pos-rad`` for s in de, da, dr. Elevator trim is
 Servo resolution (``FcsConfig.servo_step_rad``, ``throttle_step``; 0 = none): while
 ``fcs/servo-quantize`` is 1 every command is rounded to the nearest multiple of its step,
 as an autopilot's whole-microsecond PWM does (the flight sets it after the trim, which
-needs continuous controls).
+needs continuous controls); the unrounded sums are ``fcs/<s>-cmd-sum-rad`` and
+``fcs/throttle-cmd-sum``.
 Pitch SAS (optional): ``fcs/de-sas-rad = fcs/sas-on * (k_alpha*(alpha - fcs/sas-alpha-ref-rad)
 + k_q*q)`` with the truth alpha and body pitch rate.
 """
@@ -91,7 +92,9 @@ def _aero_xml(aircraft: Aircraft) -> str:
             val = aircraft.derivatives[n]
             if val == 0.0:
                 continue
-            props = ["aero/qbar-psf", "metrics/Sw-sqft"]
+            # aero/qbar-area: JSBSim's qbar * S, formed each step before the aero functions
+            # run; one read in place of qbar and S (the same product, bit for bit)
+            props = ["aero/qbar-area"]
             if _REF[coef]:
                 props.append(_REF[coef])
             props += _REG_PROPS[regressor_key(n)]
@@ -110,16 +113,20 @@ def _actuator(axis: str, limit: float, lag: float) -> str:
             f"<output>fcs/{axis}-pos-rad</output></actuator>")
 
 
-def _quantized(terms: str, step: float) -> str:
-    """A function body: the sum of ``terms``, rounded to a multiple of ``step`` while
-    ``fcs/servo-quantize`` is 1 (x + on * (step * floor(x / step + 1/2) - x))."""
+def _command(out: str, total: str, terms: str, step: float, clip: str = "") -> str:
+    """FCS component(s) writing property ``out``: the sum of ``terms``; with a ``step`` > 0
+    rounded to a multiple of it while ``fcs/servo-quantize`` is 1 (x + on * (step *
+    floor(x / step + 1/2) - x)). The rounding reads the sum x three times, so x is formed
+    once, by a component of its own writing property ``total`` (listed just before): the
+    same arithmetic on the same values as three inline sums, a third of the evaluations."""
     if step <= 0.0:
-        return f"<sum>{terms}</sum>"
-    x = f"<sum>{terms}</sum>"
+        return f'<fcs_function name="{out}"><function><sum>{terms}</sum></function>{clip}</fcs_function>'
+    x = f"<property>{total}</property>"
     rounded = (f"<product><value>{step!r}</value><floor><sum><product><value>{1.0 / step!r}</value>{x}"
                f"</product><value>0.5</value></sum></floor></product>")
-    return (f"<sum>{x}<product><property>fcs/servo-quantize</property>"
-            f"<difference>{rounded}{x}</difference></product></sum>")
+    return (f'<fcs_function name="{total}"><function><sum>{terms}</sum></function></fcs_function>\n'
+            f'      <fcs_function name="{out}"><function><sum>{x}<product><property>fcs/servo-quantize</property>'
+            f"<difference>{rounded}{x}</difference></product></sum></function>{clip}</fcs_function>")
 
 
 def _fcs_xml(aircraft: Aircraft, fcs: FcsConfig) -> str:
@@ -127,12 +134,13 @@ def _fcs_xml(aircraft: Aircraft, fcs: FcsConfig) -> str:
     q_de, q_da, q_dr = fcs.servo_step_rad
     trim = {a: f"<product><property>fcs/{n}-trim-cmd-norm</property><value>{lim[a]!r}</value></product>"
             for a, n in (("de", "pitch"), ("da", "roll"), ("dr", "yaw"))}
-    de_cmd = _quantized(trim["de"] + "<property>fcs/elevator-cmd-norm</property>"
-                        "<property>fcs/de-maneuver-rad</property><property>fcs/de-sas-rad</property>", q_de)
-    da_cmd = _quantized(trim["da"] + "<property>fcs/da-maneuver-rad</property>", q_da)
-    dr_cmd = _quantized(trim["dr"] + "<property>fcs/dr-maneuver-rad</property>", q_dr)
-    throttle = _quantized("<property>fcs/throttle-cmd-norm[0]</property>"
-                          "<property>fcs/throttle-maneuver</property>", fcs.throttle_step)
+    de_cmd = _command("fcs/de-cmd-rad", "fcs/de-cmd-sum-rad", trim["de"] + "<property>fcs/elevator-cmd-norm</property>"
+                      "<property>fcs/de-maneuver-rad</property><property>fcs/de-sas-rad</property>", q_de)
+    da_cmd = _command("fcs/da-cmd-rad", "fcs/da-cmd-sum-rad", trim["da"] + "<property>fcs/da-maneuver-rad</property>", q_da)
+    dr_cmd = _command("fcs/dr-cmd-rad", "fcs/dr-cmd-sum-rad", trim["dr"] + "<property>fcs/dr-maneuver-rad</property>", q_dr)
+    throttle = _command("fcs/throttle-pos", "fcs/throttle-cmd-sum", "<property>fcs/throttle-cmd-norm[0]</property>"
+                        "<property>fcs/throttle-maneuver</property>", fcs.throttle_step,
+                        "<clipto><min>0</min><max>1</max></clipto>")
     tmax_lbf = aircraft.max_thrust * N2LBF
     return f"""  <flight_control name="fsid">
     <property value="0">fcs/de-maneuver-rad</property>
@@ -147,19 +155,19 @@ def _fcs_xml(aircraft: Aircraft, fcs: FcsConfig) -> str:
         <product><value>{fcs.sas_k_alpha!r}</value><difference><property>aero/alpha-rad</property><property>fcs/sas-alpha-ref-rad</property></difference></product>
         <product><value>{fcs.sas_k_q!r}</value><property>velocities/q-rad_sec</property></product>
       </sum></product></function></fcs_function>
-      <fcs_function name="fcs/de-cmd-rad"><function>{de_cmd}</function></fcs_function>
+      {de_cmd}
 {_actuator('de', lim['de'], fcs.actuator_lag_s)}
     </channel>
     <channel name="roll">
-      <fcs_function name="fcs/da-cmd-rad"><function>{da_cmd}</function></fcs_function>
+      {da_cmd}
 {_actuator('da', lim['da'], fcs.actuator_lag_s)}
     </channel>
     <channel name="yaw">
-      <fcs_function name="fcs/dr-cmd-rad"><function>{dr_cmd}</function></fcs_function>
+      {dr_cmd}
 {_actuator('dr', lim['dr'], fcs.actuator_lag_s)}
     </channel>
     <channel name="thrust">
-      <fcs_function name="fcs/throttle-pos"><function>{throttle}</function><clipto><min>0</min><max>1</max></clipto></fcs_function>
+      {throttle}
       <pure_gain name="fcs/thrust-lbf"><input>fcs/throttle-pos</input><gain>{tmax_lbf!r}</gain>
         <output>external_reactions/thrust/magnitude</output></pure_gain>
     </channel>

@@ -5,7 +5,7 @@ import pytest
 from scipy import integrate, linalg
 
 from estimators import EstimationResult, FilterError, OutputError
-from estimators.fem import discretize, expm, steady_state_gain
+from estimators.fem import continuous_gain, discretize, expm, input_integrals
 from estimators.process_noise_examples import (turbulent_longitudinal_example,
                                                turbulent_short_period_example)
 
@@ -28,9 +28,7 @@ def fem(sp):
 
 
 def noise_truth(ex):
-    d = {f"F_{s}": ex.process_noise[i, i] for i, s in enumerate(ex.model.states)}
-    d.update({f"G_{o}": v for o, v in zip(ex.model.outputs, ex.noise_std)})
-    return d
+    return {f"F_{s}": ex.process_noise[i, i] for i, s in enumerate(ex.model.states)}
 
 
 def test_linear_fem_in_turbulence_recovers_parameters_and_noise(sp, fem):
@@ -46,7 +44,8 @@ def test_linear_fem_in_turbulence_recovers_parameters_and_noise(sp, fem):
 
 
 def test_fem_result_contents(sp, fem):
-    assert fem.free_names[-6:] == ["F_alpha", "F_q", "G_alpha", "G_q", "G_qdot", "G_az"]
+    assert fem.free_names[-2:] == ["F_alpha", "F_q"]
+    assert not any(n.startswith("G_") for n in fem.names)     # R is not a parameter
     K = fem.extra["gain"][0]
     assert K.shape == (2, 4) and np.all(np.isfinite(K))
     seg = sp.segments[1]
@@ -54,9 +53,9 @@ def test_fem_result_contents(sp, fem):
     # innovation covariance of the model ~ sample covariance of the innovations
     Bm = fem.extra["innovation_cov"][0]
     np.testing.assert_allclose(np.diag(fem.R), np.diag(Bm), rtol=0.15)
-    # measurement noise = G G^T, F from the estimates
-    np.testing.assert_allclose(np.sqrt(np.diag(fem.extra["measurement_noise"])),
-                               fem.params[["G_alpha", "G_q", "G_qdot", "G_az"]].to_numpy())
+    # the measurement noise the gain implies, R - C P C^T, against the simulated noise
+    np.testing.assert_allclose(np.sqrt(np.diag(fem.extra["measurement_noise"])), sp.noise_std,
+                               rtol=0.25)
     assert fem.extra["F"][0, 0] == pytest.approx(fem.params["F_alpha"])
     text = fem.summary(truth=sp.truth)
     assert "FEM" in text and "F_alpha" in text
@@ -76,17 +75,29 @@ def test_riccati_and_discretisation_match_scipy():
     np.testing.assert_allclose(Gam, integrate.simpson(E, x=ts, axis=0), rtol=1e-8)
     np.testing.assert_allclose(Qd, integrate.simpson(E @ FF @ E.transpose(0, 2, 1), x=ts, axis=0),
                                rtol=1e-7, atol=1e-14)
+    # first-order hold: Gamma1 = int e^{A(h-s)} s/h ds
+    Phi1, G0, G1 = input_integrals(A, h)
+    E1 = np.array([linalg.expm(A * (h - s)) * s / h for s in ts])
+    np.testing.assert_allclose(G0, Gam, rtol=1e-12)
+    np.testing.assert_allclose(G1, integrate.simpson(E1, x=ts, axis=0), rtol=1e-8)
+    # the continuous Riccati equation with the innovation covariance R, batched
     C = rng.standard_normal((m, n))
     R = np.diag([1e-3, 4e-3])
-    P, Bm, K = steady_state_gain(Phi, C, Qd, R)
-    np.testing.assert_allclose(P, linalg.solve_discrete_are(Phi.T, C.T, Qd, R), rtol=1e-9)
-    np.testing.assert_allclose(Bm, C @ P @ C.T + R, rtol=1e-12)
-    np.testing.assert_allclose(K, P @ C.T @ np.linalg.inv(Bm), rtol=1e-9)
+    P, K = continuous_gain(np.stack([A, 0.5 * A]), np.stack([C, C]), np.stack([FF, FF]), R, h)
+    for b, Ab in enumerate((A, 0.5 * A)):
+        np.testing.assert_allclose(P[b], linalg.solve_continuous_are(Ab.T, C.T, FF, R * h), rtol=1e-8)
+        np.testing.assert_allclose(K[b], P[b] @ C.T @ np.linalg.inv(R), rtol=1e-12)
+        res = Ab @ P[b] + P[b] @ Ab.T - P[b] @ C.T @ np.linalg.inv(R * h) @ C @ P[b] + FF
+        assert np.abs(res).max() < 1e-9 * np.abs(FF).max()
+    P0, K0 = continuous_gain(A[None], C[None], np.zeros((1, n, n)), R, h)
+    assert not P0.any() and not K0.any()
 
 
 def test_without_process_noise_fem_is_output_error():
     calm = turbulent_short_period_example(seed=4, sigma_alpha=0.0, sigma_q=0.0)
-    fem = FilterError(calm.model, process_noise={"alpha": 0.0, "q": 0.0}, estimate_F=False).fit(calm.segments)
+    # output error's R is diagonal: so is this filter error's
+    fem = FilterError(calm.model, process_noise={"alpha": 0.0, "q": 0.0}, estimate_F=False,
+                      full_R=False).fit(calm.segments)
     oem = OutputError(calm.model).fit(calm.segments)
     names = oem.free_names
     d = (fem.params[names] - oem.params[names]).abs() / oem.std[names]

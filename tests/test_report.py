@@ -132,8 +132,11 @@ def test_report_md_has_table_rows_and_verdict(fitted, tmp_path):
     rows = param_rows(rep["methods"]["oem"], True)
     assert len(rows) == len(res.free_names)
     assert "## OEM (longitudinal)" in text and "**Verdict: PASS**" in text
-    assert "## WRONG (longitudinal)" in text and "**Verdict: CHECK**" in text
-    assert "| oem | PASS | yes |" in text and "| wrong | CHECK | yes |" in text
+    # the wrong model misses beyond its prediction's uncertainty and the truth: FAIL
+    assert "## WRONG (longitudinal)" in text and "**Verdict: FAIL**" in text
+    assert "| oem | PASS | yes |" in text and "| wrong | FAIL | yes |" in text
+    assert rep["methods"]["oem"]["verdict"]["level"] == "PASS"
+    assert rep["methods"]["wrong"]["verdict"]["level"] == "FAIL"
     assert "| short period |" in text and "Held-out segment **3211-1**: PASS" in text
     assert "| q | deg/s | 1.5 |" in text
     tic_q = v["fit"]["per_output"]["q"]["TIC"]
@@ -248,3 +251,129 @@ def test_verdict_advises_filter_error_for_output_error_in_turbulence():
     assert not any(advice in n for n in verdict(white)["notes"])
     calm = {**v, "uncertainty": {"cluster": {"n_segments": 4, "flag_ratio": 3.0, "flagged": {}}}}
     assert not any(advice in n for n in verdict(calm)["notes"])
+
+
+# -- verdict levels (pipeline.validate.REASON_LEVELS) ------------------------------------------
+def _pom(**channels):
+    """A proof of match of one held-out segment: channel -> (pass, beyond, std) in display
+    units (beyond/std None: no prediction uncertainty)."""
+    ch = {c: {"pass": ok, "beyond_prediction_display": b, "prediction_std_max_display": sd,
+              "unit": "deg/s"} for c, (ok, b, sd) in channels.items()}
+    return {"all_pass": all(ok for ok, _, _ in channels.values()),
+            "segments": [{"name": "3211", "channels": ch,
+                          "prediction_uncertainty": {"parameters": 3, "k": 2.0}}]}
+
+
+def _clean(method="ekf"):
+    """A validation dict with nothing against the fit."""
+    return {"method": method, "converged": True,
+            "fit": {"tic_ok": True, "tic_limit": 0.1, "per_output": {"p": {"TIC": 0.03}}},
+            "proof_of_match": _pom(p=(True, 0.0, 0.2)),
+            "plausibility": {"truth": {"k": 3.0, "all_within": True,
+                                       "per_parameter": {"Clp": {"within": True}}}}}
+
+
+def _disagreeing(other="lateral-fem", method="fem", converged=True):
+    return {"k": 3.0, "flagged": {other: {"Clbeta": 7.7, "Cnda": 7.6}},
+            "against": {other: {"method": method, "converged": converged}}}
+
+
+def test_verdict_levels_from_hand_made_validations():
+    """PASS when clean; a proof-of-match miss within the prediction's own uncertainty and a
+    TIC over the limit are CHECK; a miss beyond it (or with none to weigh it), a truth
+    beyond k std and no convergence are FAIL; the level is the worst reason's, ok is PASS."""
+    from pipeline.validate import LEVELS, REASON_LEVELS, verdict
+
+    assert LEVELS == ("PASS", "CHECK", "FAIL") and set(REASON_LEVELS.values()) <= set(LEVELS)
+    v = verdict(_clean())
+    assert v == {"ok": True, "level": "PASS", "reasons": [], "reason_levels": [], "notes": []}
+
+    within = verdict({**_clean(), "proof_of_match": _pom(p=(False, 0.0, 1.9), r=(True, 0.0, 0.1))})
+    assert within["level"] == "CHECK" and not within["ok"], within
+    assert within["reasons"] == ["proof of match failed on p within 2 std of the prediction's "
+                                 "own uncertainty"]
+    assert any("too imprecise" in n for n in within["notes"])
+
+    beyond = verdict({**_clean(), "proof_of_match": _pom(p=(False, 0.0, 1.9), r=(False, 0.4, 0.1))})
+    assert beyond["level"] == "FAIL" and beyond["reason_levels"] == ["FAIL", "CHECK"], beyond
+    assert beyond["reasons"][0] == ("proof of match failed on r beyond 2 std of the "
+                                    "prediction's own uncertainty")
+    unweighed = verdict({**_clean(), "proof_of_match": _pom(p=(False, None, None))})
+    assert unweighed["level"] == "FAIL" and "no prediction uncertainty" in unweighed["reasons"][0]
+
+    tic = {"tic_ok": False, "tic_limit": 0.1, "per_output": {"p": {"TIC": 0.14}},
+           "tic_noise_floor": []}
+    assert verdict({**_clean(), "fit": tic})["level"] == "CHECK"
+    truth = {"k": 3.0, "all_within": False, "per_parameter": {"Clp": {"within": False}}}
+    v = verdict({**_clean(), "fit": tic, "plausibility": {"truth": truth}})
+    assert v["level"] == "FAIL" and v["reason_levels"] == ["CHECK", "FAIL"], v
+    assert v["reasons"][1] == "Clp more than 3 std from the truth"
+    assert verdict({**_clean(), "converged": False})["level"] == "FAIL"
+    assert verdict({"converged": False, "not_settled": "moved"})["reasons"] == [
+        "the filter passes did not settle: moved"]
+
+
+def test_verdict_fails_an_ekf_that_disagrees_with_filter_error():
+    """An EKF or UKF more than k combined std from a converged filter-error fit (fem or
+    fem-nl) of the same flight: FAIL, naming the parameters and why. Any other pair, and
+    filter error's own verdict, keep a note; an unconverged filter error is no reference."""
+    from pipeline.validate import FILTER_ERROR_TRUST, verdict
+
+    for method in ("ekf", "ukf", "ukf-aug"):
+        for fem in ("fem", "fem-nl"):
+            v = verdict({**_clean(method), "agreement": _disagreeing(method=fem)})
+            assert v["level"] == "FAIL" and not v["ok"], v
+            assert v["reasons"] == [
+                "disagrees with filter error (lateral-fem) by more than 3 combined std on "
+                f"Clbeta (7.7), Cnda (7.6): {FILTER_ERROR_TRUST}"], v
+            assert not any("disagrees" in n for n in v["notes"])
+    assert "method to trust in turbulence" in FILTER_ERROR_TRUST
+    # without the other's method name, its result key says it
+    v = verdict({**_clean("ekf"), "agreement": {"k": 3.0, "flagged": {"fem-nl": {"Clp": 4.0}}}})
+    assert v["level"] == "FAIL" and "filter error (fem-nl)" in v["reasons"][0], v
+    for val in ({**_clean("fem"), "agreement": _disagreeing("lateral-ekf", "ekf")},
+                {**_clean("oem"), "agreement": _disagreeing()},
+                {**_clean("ekf"), "agreement": _disagreeing("lateral-ukf", "ukf")},
+                {**_clean("ekf"), "agreement": _disagreeing(converged=False)}):
+        v = verdict(val)
+        assert v["level"] == "PASS" and v["reasons"] == [], v
+        assert v["notes"][0].startswith("disagrees with lateral-") and "Clbeta (7.7)" in v["notes"][0]
+
+
+def test_report_shows_fail_for_an_ekf_that_disagrees_with_filter_error(fitted, tmp_path):
+    """The run's cross-check on an EKF whose Cmalpha and Cmq are far from filter error's
+    (the fit with those halved, labelled EKF): its report.json level and report.md verdict
+    are FAIL with the filter-error reason; filter error's own verdict stays PASS with a note."""
+    ex, res, v = fitted
+    fem = dataclasses.replace(res, method="fem")
+    ekf = dataclasses.replace(_wrong(res), method="ekf")
+    results = {"longitudinal-fem": fem, "longitudinal-ekf": ekf}
+    vals = {k: validate(r) for k, r in results.items()}
+    ag = cross_check_methods(results, vals)
+    assert vals["longitudinal-ekf"]["agreement"]["against"] == {
+        "longitudinal-fem": {"method": "fem", "converged": True}}
+    md, js = write_report(tmp_path, results, vals, agreement=ag)
+    rep = json.loads(js.read_text())
+    vd = rep["methods"]["longitudinal-ekf"]["verdict"]
+    assert vd["level"] == "FAIL" and vd["ok"] is False, vd
+    assert vd["reasons"][0].startswith("disagrees with filter error (longitudinal-fem) by more "
+                                       "than 3 combined std on Cmalpha"), vd
+    assert rep["methods"]["longitudinal-fem"]["verdict"]["level"] == "PASS"
+    text = md.read_text()
+    assert "| longitudinal-ekf | FAIL |" in text and "| longitudinal-fem | PASS |" in text
+    ekf_md = text[text.index("## LONGITUDINAL-EKF"):]
+    assert ekf_md.splitlines()[2].startswith(
+        "**Verdict: FAIL** - disagrees with filter error (longitudinal-fem) by more than 3 "
+        "combined std on Cmalpha"), ekf_md.splitlines()[2]
+    assert "filter error is the method to trust in turbulence" in ekf_md.splitlines()[2]
+
+
+def test_report_md_lists_the_milder_reasons_of_a_fail_apart():
+    """A FAIL with CHECK reasons too: the FAIL ones first, the others after 'to check too'.
+    A verdict written before the levels (ok only) reads PASS or CHECK."""
+    from pipeline.report import _verdict_reasons, verdict_level
+
+    vd = {"level": "FAIL", "reasons": ["TIC >= 0.1 on p", "Clp more than 3 std from the truth"],
+          "reason_levels": ["CHECK", "FAIL"]}
+    assert _verdict_reasons(vd) == " - Clp more than 3 std from the truth; to check too: TIC >= 0.1 on p"
+    assert verdict_level({"ok": True}) == "PASS" and verdict_level({"ok": False}) == "CHECK"

@@ -279,3 +279,42 @@ def test_mixed_tails_decode_to_the_same_deflections(tmp_path):
         assert fd.meta["servo_travel"][mixed[0]]["from"] == "log parameter FSID_TRAVEL_DE"
     with pytest.raises(ValueError, match="tail"):
         write_dataflash(tmp_path / "x.bin", r, tail="canard")
+
+
+@pytest.mark.parametrize("compression, chunk_size", [("lz4", None), ("none", 20_000), ("zstd", 300)])
+def test_mcap_bytes_as_the_mcap_writer_writes_them(tmp_path, monkeypatch, compression, chunk_size):
+    """write_mcap assembles chunks, indexes and summary itself (batched); the same messages
+    through mcap.writer.Writer one by one give the same file, byte for byte (several
+    chunks with a small chunk size, every compression)."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    import pipeline.writers.mcap_json as mj
+
+    if chunk_size:
+        monkeypatch.setattr(mj, "CHUNK_SIZE", chunk_size)
+    r = flown(NAME)
+    write_mcap(tmp_path / "ours.mcap", r, compression=compression)
+    ours = (tmp_path / "ours.mcap").read_bytes()
+    with open(tmp_path / "ours.mcap", "rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        msgs = [(m.channel_id, m.log_time, m.publish_time, m.sequence, m.data)
+                for _, _, m in reader.iter_messages(log_time_order=False)]
+        meta = list(reader.iter_metadata())
+    assert len(summary.chunk_indexes) > (3 if chunk_size else 1)
+    with open(tmp_path / "theirs.mcap", "wb") as fh:
+        w = Writer(fh, compression=getattr(CompressionType, compression.upper()),
+                   **({"chunk_size": chunk_size} if chunk_size else {}))
+        w.start(profile="", library="fsid-sim")
+        for cid, ch in summary.channels.items():
+            sc = summary.schemas[ch.schema_id]
+            assert w.register_schema(name=sc.name, encoding=sc.encoding, data=sc.data) == ch.schema_id
+            assert w.register_channel(topic=ch.topic, message_encoding=ch.message_encoding,
+                                      schema_id=ch.schema_id, metadata=ch.metadata) == cid
+        for cid, log_time, pub, seq, data in msgs:
+            w.add_message(channel_id=cid, log_time=log_time, publish_time=pub, data=data, sequence=seq)
+        w.add_metadata(meta[0].name, meta[0].metadata)
+        w.finish()
+    assert len(msgs) == sum(summary.statistics.channel_message_counts.values())
+    assert ours == (tmp_path / "theirs.mcap").read_bytes()

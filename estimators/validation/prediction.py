@@ -34,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from estimators.errors import ModelDefinitionError
+from estimators.integrators import DEFAULT_INPUTS
 from estimators.kalman import EKF, default_process_noise, process_noise_matrix
 from estimators.model import Model, Segment
 
@@ -63,7 +64,7 @@ def driving_states(model: Model, channels: Sequence[str] = AIR_DATA) -> list[str
 
 def air_data_prediction(model: Model, segment: Segment, *, process_noise: Any = None,
                         measurement_noise: Any = None, drive: Sequence[str] | None = None,
-                        integrator: str = "rk4", inputs: str = "average") -> DrivenPrediction:
+                        integrator: str = "rk4", inputs: str = DEFAULT_INPUTS) -> DrivenPrediction:
     """Predict ``segment`` with the model driven by its measured air data (module doc).
 
     model: the identified model with its estimates as values; every parameter is held

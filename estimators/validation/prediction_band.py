@@ -28,6 +28,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from estimators.integrators import DEFAULT_INPUTS
 from estimators.model import Model, Segment
 from estimators.simulation import Layout, simulate_batch
 
@@ -37,7 +38,7 @@ __all__ = ["parameter_sensitivity", "prediction_std", "variance_shares"]
 def parameter_sensitivity(model: Model, segment: Segment, values: Mapping[str, float],
                           names: Sequence[str], adjusted: Sequence[str] = (), *,
                           weights: Sequence[float] | None = None, integrator: str = "rk4",
-                          inputs: str = "average", rel_step: float = 1e-6) -> np.ndarray:
+                          inputs: str = DEFAULT_INPUTS, rel_step: float = 1e-6) -> np.ndarray:
     """dy/dtheta (N, n_out, len(names)) of ``model``'s simulation of ``segment`` (one
     segment: per-segment parameters and initial states by their layout names,
     ``bias_az[0]``, ``x0_q[0]``), at ``values`` (layout names; the model's values and the

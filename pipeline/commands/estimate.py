@@ -32,7 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="estimation method (repeat for several; default: oem). " + METHOD_LIST)
     p.add_argument("--map", help="channel map TOML extending the built-in one")
     add_time_base_argument(p)
-    p.add_argument("--inputs", default="linear", choices=["linear", "average", "hold"],
+    p.add_argument("--inputs", default="linear", choices=["linear", "hold"],
                    help="how control inputs vary between log samples (default: linear)")
     p.add_argument("--out", help="output folder (default: a new folder under ./runs/)")
     p.add_argument("--no-compat", action="store_true", help="skip the sensor-compatibility stage")

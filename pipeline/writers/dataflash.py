@@ -237,14 +237,26 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas",
         ThD=100 * truth_at("throttle", ta), As=eas_a, SAs=eas_a, E2T=e2t_a, GU=0)
 
     head = _header(result, travel, airspeed, tail)
+    atomic_write_bytes(path, head + _interleave(blocks))
+
+
+def _interleave(blocks: list[tuple[np.ndarray, np.ndarray]]) -> bytes:
+    """The records of all blocks (TimeUS, records) in time order, ties in block order, as
+    one byte string: every record is copied to its place in one array (no loop over records)."""
     times = np.concatenate([b[0] for b in blocks])
     which = np.concatenate([np.full(len(b[0]), i) for i, b in enumerate(blocks)])
     index = np.concatenate([np.arange(len(b[0])) for b in blocks])
     order = np.lexsort((which, times))
-    raw = [b[1].tobytes() for b in blocks]
-    size = [b[1].dtype.itemsize for b in blocks]
-    body = b"".join(raw[i][j * size[i]:(j + 1) * size[i]] for i, j in zip(which[order], index[order]))
-    atomic_write_bytes(path, head + body)
+    which, index = which[order], index[order]
+    size = np.array([b[1].dtype.itemsize for b in blocks], dtype=np.int64)
+    length = size[which]
+    start = np.cumsum(length) - length              # byte offset of each record in the body
+    body = np.empty(int(length.sum()), dtype=np.uint8)
+    for i, (_, rec) in enumerate(blocks):
+        mine = which == i
+        raw = np.frombuffer(rec.tobytes(), dtype=np.uint8).reshape(len(rec), size[i])
+        body[start[mine][:, None] + np.arange(size[i])] = raw[index[mine]]
+    return body.tobytes()
 
 
 def _header(result, travel: dict[str, float], airspeed: str, tail: str = "conventional") -> bytes:

@@ -1,0 +1,91 @@
+"""Filter error on simulated replicas of the reference software's two filter-error cases:
+does it recover the truth, and is its Cramér-Rao bound honest?
+
+Per seed, each replica (:mod:`estimators.replicas`: HFB-320 longitudinal with process noise
+on V, alpha, theta, q; the linear lateral case with process noise on p and r) is flown
+with the reference's estimates as truth and fitted by ``FilterError`` from the reference's
+start values with default options. Printed per parameter: the estimates' scatter over the
+seeds against the mean reported std (``scatter/CRB``, 1 = honest), the bias in scatter
+units, and per case the seeds whose every estimate lies within 3 std of the truth; the
+last line is the range of scatter/CRB over every parameter of both cases (goal: inside
+[0.7, 1.4]). ``--diagonal-R`` fits with the reference's diagonal innovation covariance
+instead of the full one.
+
+Measured on 2026-11-27, 40 seeds (``benchmarks/fem_replicas.py --seeds 40``): see the
+commit that adds this script for the table.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from estimators import EstimationError, FilterError  # noqa: E402
+from estimators.replicas import (HFB320_F_START, LATERAL_F_START, hfb320_replica,  # noqa: E402
+                                 lateral_replica)
+
+CASES = {"hfb320": (hfb320_replica, HFB320_F_START), "lateral": (lateral_replica, LATERAL_F_START)}
+
+
+def one(args: tuple[str, int, bool]) -> list[dict]:
+    case, seed, full = args
+    make, f_start = CASES[case]
+    ex = make(seed)
+    truth = {**ex.truth, **{f"F_{s}": ex.process_noise[i, i] for i, s in enumerate(ex.model.states)}}
+    try:
+        res = FilterError(ex.model, process_noise=f_start, full_R=full).fit(ex.segments)
+    except EstimationError as exc:
+        return [{"case": case, "seed": seed, "name": "(failed)", "error": str(exc)[:80]}]
+    return [{"case": case, "seed": seed, "name": n, "estimate": float(res.params[n]),
+             "std": float(res.std[n]), "truth": v, "converged": res.converged,
+             "iterations": res.iterations} for n, v in truth.items() if n in res.free_names]
+
+
+def main() -> float:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=40)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--diagonal-R", action="store_true")
+    a = ap.parse_args()
+    jobs = [(c, s, not a.diagonal_R) for c in CASES for s in range(a.seeds)]
+    with ProcessPoolExecutor(max_workers=a.jobs) as ex:
+        df = pd.DataFrame([r for rows in ex.map(one, jobs) for r in rows])
+    failed = df[df["name"] == "(failed)"]
+    if len(failed):
+        print(f"{len(failed)} fits raised EstimationError:\n{failed[['case', 'seed', 'error']]}")
+    df = df[df["name"] != "(failed)"]
+    df["off"] = (df["estimate"] - df["truth"]).abs() / df["std"]
+    g = df.groupby(["case", "name"], sort=False)
+    emp = g["estimate"].std(ddof=1)
+    tab = pd.DataFrame({"truth": g["truth"].first(), "mean_std": g["std"].mean(), "emp_std": emp,
+                        "scatter/CRB": emp / g["std"].mean(),
+                        "bias/scatter": (g["estimate"].mean() - g["truth"].first()) / emp})
+    with pd.option_context("display.width", 140, "display.max_rows", 200):
+        print(tab.round(4).to_string())
+    for case, d in df.groupby("case"):
+        per_seed = d.groupby("seed")
+        within = (per_seed["off"].max() < 3.0).sum()
+        conv = per_seed["converged"].all().sum()
+        print(f"{case}: every estimate within 3 std on {within}/{per_seed.ngroups} seeds; "
+              f"converged {conv}/{per_seed.ngroups}; iterations median "
+              f"{per_seed['iterations'].first().median():.0f}")
+    bias = tab.index.get_level_values("name").str.match(r"^B[XY]\d")
+    b = tab["scatter/CRB"][bias]
+    if len(b):
+        print(f"the {len(b)} lateral biases: scatter/CRB {b.min():.2f}-{b.max():.2f} (their "
+              "bound is conservative)")
+    r = tab["scatter/CRB"][~bias]
+    print(f"scatter/CRB over the {len(r)} derivatives and process noises: min {r.min():.2f}, "
+          f"median {r.median():.2f}, max {r.max():.2f} ({r.idxmax()[0]} {r.idxmax()[1]}); "
+          "goal [0.7, 1.4]")
+    return float(r.max())
+
+
+if __name__ == "__main__":
+    main()
