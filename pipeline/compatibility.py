@@ -780,6 +780,14 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
     if untrusted:
         sig = {}
         doc["note"] = f"no correction applied: {untrusted}, so its sensor-error estimates are not trusted"
+        # nor their std: the residuals carry what the model lacks, not white noise, and the
+        # Cramér-Rao bound (and significance) of such a fit understates the errors many times
+        for row in doc["parameters"].values():
+            row["std_withdrawn"] = row.get("std")
+            row["std"] = None
+            row["error_std"] = None
+        doc["std_note"] = ("no std: the fit does not explain the data (" + untrusted + "), so its "
+                           "Cramér-Rao bound does not hold; std_withdrawn keeps it for reference")
     for n, row in doc["parameters"].items():
         row["applied"] = n in sig
     if untrusted:
@@ -800,6 +808,18 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
         doc["seconds"] = time.perf_counter() - t0
         return doc, fd
     doc["refit"] = {k: v for k, v in refit.to_dict(truth).items() if k in ("status", "parameters", "iterations", "cost")}
+    # the refit holds the insignificant errors at 0, which the data know only to within the
+    # full fit's std: considered so, the refit's covariance is the full fit's (Schur
+    # complement), so its estimates are reported with the larger of the two std
+    for n, row in doc["refit"]["parameters"].items():
+        full_sd = (doc["parameters"].get(n) or {}).get("std")
+        if row.get("std") is not None and full_sd is not None and full_sd > row["std"]:
+            row["std_held_exact"] = row["std"]
+            row["std"] = float(full_sd)
+            if row.get("truth") is not None:
+                row["error_std"] = (row["estimate"] - row["truth"]) / row["std"]
+    doc["refit"]["std_note"] = ("std: the others held at 0 only as well as the full fit knows "
+                                "them (its std); std_held_exact takes them as exactly 0")
     doc["applied"] = {n: {"estimate": float(refit.params[n]), "std": float(refit.std[n]),
                           "unit": UNITS.get(n, ""), "significance_std": float(sig[n])}
                       for n in refit.params.index}

@@ -398,7 +398,7 @@ def _compat_md(comp: Any) -> list[str]:
           + f". Data for estimation: {comp.get('data_for_estimation', '-')}.", ""]
     if comp.get("rule"):
         L += [f"Rule: {comp['rule']}." + (f" Note: {comp['note']}." if comp.get("note") else ""), ""]
-    for key, label in (("scope", "Scope"), ("wind_note", "Wind")):
+    for key, label in (("scope", "Scope"), ("wind_note", "Wind"), ("std_note", "Std")):
         if comp.get(key):
             L += [f"{label}: {comp[key]}.", ""]
     rn = comp.get("residual_to_noise") or {}

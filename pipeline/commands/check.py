@@ -127,7 +127,8 @@ def run(args: argparse.Namespace) -> int:
     if comp.get("status") in ("ok", "not converged"):
         print(f"compatibility: {comp['status']}, {len(comp['parameters'])} sensor errors estimated")
         for n, row in comp["parameters"].items():
-            print(f"  {n:12s} {row['estimate']: .5g} +- {row['std']:.2g} {row['unit']}"
+            sd = f"+- {row['std']:.2g}" if row.get("std") is not None else "(no std)"
+            print(f"  {n:12s} {row['estimate']: .5g} {sd} {row['unit']}"
                   f"{'  (significant)' if row.get('applied') else ''}")
         if comp.get("note"):
             print(f"  note: {comp['note']}")
