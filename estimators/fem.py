@@ -565,7 +565,7 @@ def pattern_gains(Pp: np.ndarray, C: np.ndarray, B: np.ndarray, K: np.ndarray,
 
 #: relative change of the innovation covariance's diagonal under which the relaxation has
 #: settled (with det(R) settled too, the fit has converged)
-R_SETTLED = 1e-3
+R_SETTLED = 1e-2
 
 #: largest deviation of a sample interval from the segment's median interval (relative)
 #: that the filter-error method accepts: the steady-state gain, and in the linear form the
@@ -634,7 +634,7 @@ class FilterError:
 
     def __init__(self, model: Model, *, process_noise: Any = None, estimate_F: bool = True,
                  measurement_noise: Any = None, form: str = "auto", integrator: str = "rk4",
-                 max_iter: int = 40, tol: float = 1e-6, fd_step: float = 1e-6,
+                 max_iter: int = 40, tol: float = 1e-4, fd_step: float = 1e-6,
                  step_halvings: int = 10, r_update_from: int = 1,
                  inputs: str = DEFAULT_INPUTS, compiled: bool = True, full_R: bool = True,
                  callback=None) -> None:
@@ -1073,12 +1073,12 @@ class FilterError:
         return out
 
     def _feasible_start(self, phi: np.ndarray, res, R: np.ndarray) -> tuple[np.ndarray, Any]:
-        """The start with F scaled down, halving at most 30 times, until diag(C K) <= 1: a
-        start F too large for the start R implies a negative measurement noise, and its
-        filter over-corrects every sample. The free F entries are scaled, else the fixed
+        """The start with F scaled down, halving at most 30 times, until diag(C K) <= 1 and
+        the filter's predictions stay finite: a start F too large for the start R implies a
+        negative measurement noise, and its filter over-corrects every sample. The free F entries are scaled, else the fixed
         ones; unchanged when already feasible."""
         for _ in range(30):
-            if self._constraint_ok(res) or not self._noisy:
+            if not self._noisy or (self._constraint_ok(res) and np.isfinite(self._cost(res)[0])):
                 break
             if self.estimate_F:
                 phi = phi.copy()
@@ -1292,10 +1292,21 @@ class FilterError:
                 M[np.ix_(inner, inner)], sum(p[4] for p in parts)[np.ix_(inner, inner)],
                 [(S.take(inner), E, Ri, ok) for S, E, Ri, ok, *_ in parts])
             if len(parts) >= 2:
+                # each segment's score at the optimum of the whole: g_k - M_k M^-1 sum g (the
+                # iterations stop with a small gradient left, which is not the maneuvers'
+                # disagreement)
+                # over the model's parameters only: the process noise is the air's, whose
+                # intensity differs between maneuvers without any fault of the model
+                mi = inner[inner < fi.size]
+                Mi = [p[5][np.ix_(mi, mi)] for p in parts]
                 try:
-                    cl = cluster_covariance([p[5][np.ix_(inner, inner)] for p in parts],
-                                            [p[6][inner] for p in parts], M[np.ix_(inner, inner)])
-                    cov_cl[np.ix_(inner, inner)], share[:, inner] = cl.cov, cl.share
+                    step = np.linalg.solve(sum(Mi), sum(p[6][mi] for p in parts))
+                except np.linalg.LinAlgError:
+                    step = np.zeros(mi.size)
+                try:
+                    cl = cluster_covariance(Mi, [p[6][mi] - Mk @ step for p, Mk in zip(parts, Mi)],
+                                            M[np.ix_(mi, mi)])
+                    cov_cl[np.ix_(mi, mi)], share[:, mi] = cl.cov, cl.share
                 except np.linalg.LinAlgError:
                     pass
         cluster = (None if len(parts) < 2 or not np.any(np.isfinite(share)) else ClusterResult(
