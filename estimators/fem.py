@@ -623,7 +623,7 @@ class FilterError:
     full_R : estimate the full innovation covariance (default; the likelihood's) or only
         its diagonal (the reference software's): a diagonal R ignores the correlation the
         process noise puts between the innovations, and the F that makes up for it is
-        biased (HFB-320 replica: F_alpha 4-7 std low).
+        biased.
     inputs : input variation over a sample interval, as OutputError: "linear" (default) or
         "hold" (zero-order hold); the linear form discretises either exactly.
     compiled : run the nonlinear filter loop compiled with numba (f and g compiled; falls
@@ -847,13 +847,15 @@ class FilterError:
         return J if np.isfinite(J) else np.inf
 
     def _marginal_information(self, M: np.ndarray, phi: np.ndarray, batch, R: np.ndarray,
+                              S: Sequence[np.ndarray], rows: Sequence[np.ndarray],
                               rel_step: float = 1e-4) -> np.ndarray:
         """The information on phi with R estimated too: the Schur complement
         M - M_pr M_rr^-1 M_rp of the joint Fisher information over phi and the entries r of
         R (its diagonal, and the off-diagonal ones when R is full). R enters the gain
         (sensitivities S_r of the innovations, by forward differences) and the likelihood
         directly (N/2 tr(R^-1 E_r R^-1 E_s)); leaving it out, as the reference software
-        does, understates the std of F, which trades against R."""
+        does, understates the std of F, which trades against R. ``S`` and ``rows``: per
+        segment the innovation sensitivities of :meth:`_scoring` and their batch columns."""
         m = R.shape[0]
         pairs = [(i, j) for i in range(m) for j in range(i, m) if i == j or self.full_R]
         nphi = phi.size
@@ -867,9 +869,8 @@ class FilterError:
             Es.append(E)
         for k, (seg, r) in enumerate(zip(self._segments, batch)):
             Y0 = r["Y"][0]
-            cols = self._segment_rows(nphi)[k][1:] - 1
             S_phi = np.zeros((nphi, seg.n, m))
-            S_phi[cols] = self._last_S[k]
+            S_phi[rows[k][1:] - 1] = S[k]
             S_r = np.zeros((nr, seg.n, m))
             for a, (i, j) in enumerate(pairs):
                 d = rel_step * np.sqrt(R[i, i] * R[j, j])
@@ -922,12 +923,13 @@ class FilterError:
         (list of (m, nphi)), from a batch (column 0 = base). Each sample counts on the outputs
         measured there. ``keep`` receives per segment (innovation sensitivities as a
         :class:`Sensitivity`, innovations, R^-1, rows used, the segment's part of M, of M
-        again, of g) for the coloured-innovation and maneuver-scatter covariances."""
+        again, of g) for the coloured-innovation and maneuver-scatter covariances. Returns
+        (M, g, dCK, per segment S (n_cols, N, m) on its batch columns)."""
         nphi = hsteps.size
         M = np.zeros((nphi, nphi))
         g = np.zeros(nphi)
         dCK = []
-        self._last_S = [None] * len(self._segments)
+        sens = []
         for k, (seg, r) in enumerate(zip(self._segments, res)):
             cols = rows[k][1:] - 1
             npk = cols.size
@@ -935,7 +937,7 @@ class FilterError:
             E = seg.z - Y[0]
             S = (Y[1:] - Y[:1]) / hsteps[cols, None, None]           # (npk, N, m)
             S = np.where(np.isfinite(S), S, 0.0)
-            self._last_S[k] = S
+            sens.append(S)
             G = np.zeros((r["CK"].shape[1], nphi))
             G[:, cols] = ((r["CK"][1:] - r["CK"][:1]) / hsteps[cols, None]).T
             dCK.append(np.where(np.isfinite(G), G, 0.0))
@@ -962,7 +964,7 @@ class FilterError:
                 keep.append((Sensitivity(np.where(full[:, None, None], np.moveaxis(S, 0, 2), 0.0),
                                          cols, nphi),
                              np.where(full[:, None], E, 0.0), np.linalg.inv(R), full, M_full, Mk, gk))
-        return M, g, dCK
+        return M, g, dCK, sens
 
     def _step(self, M: np.ndarray, g: np.ndarray, active: np.ndarray, res, dCK: list,
               lam: float = 0.0) -> np.ndarray:
@@ -1212,7 +1214,7 @@ class FilterError:
         it = 0
         for it in range(1, self.max_iter + 1):
             batch, hsteps = self._sensitivity_batch(phi, R, seg_rows)
-            M, g, dCK = self._scoring(batch, R, hsteps, seg_rows)
+            M, g, dCK, _ = self._scoring(batch, R, hsteps, seg_rows)
             if it == 1:
                 # at the start only parameters without any effect are an error
                 # (the process noise is exempt: with a start R far above the innovations its
@@ -1274,8 +1276,8 @@ class FilterError:
         R = Rh
         batch, hsteps = self._sensitivity_batch(phi, R, seg_rows)
         parts: list = []
-        M, g, _ = self._scoring(batch, R, hsteps, seg_rows, keep=parts)
-        M = self._marginal_information(M, phi, batch, R)
+        M, g, _, sens = self._scoring(batch, R, hsteps, seg_rows, keep=parts)
+        M = self._marginal_information(M, phi, batch, R, sens, seg_rows)
         from estimators.validation.cluster import ClusterResult, cluster_covariance
         span = np.maximum(1.0, np.abs(phi))
         on_bound = (phi <= self._lo + 1e-9 * span) | (phi >= self._hi - 1e-9 * span)

@@ -68,10 +68,9 @@ def runaway_error(model: Model, seg: Segment, k: int, where: tuple[int, int],
 #: an output is not followed when its residuals' lag-1 autocorrelation exceeds FOLLOW_LAG1
 #: and their variance FOLLOW_SHARE times the measured output's: a slow misfit that is a
 #: large part of the signal, not noise. Coloured residuals alone are common in a good
-#: output-error fit (light turbulence sampled at 50 Hz gives a lag-1 near 0.9 with a few
-#: percent of the variance left); an unstable short period fitted open loop in turbulence
-#: leaves above 0.9 and 40-80 %. The note needs half the outputs or more (one poorly
-#: modelled channel is not the aircraft)
+#: output-error fit (light turbulence sampled fast colours them but leaves little of the
+#: variance); a model that cannot follow leaves both. The note needs half the outputs or
+#: more (one poorly modelled channel is not the aircraft)
 FOLLOW_LAG1 = 0.8
 FOLLOW_SHARE = 0.1
 
