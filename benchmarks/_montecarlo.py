@@ -1,18 +1,19 @@
 """The Monte Carlo harness of the benchmarks that fly a scenario once per seed: the seed
 arguments, the flights in a process pool, and the table that compares the scatter of the
 estimates over the seeds with the std the product reported."""
+
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
-from typing import Any, Callable, Iterator, Mapping, Sequence
+from typing import Any
 
 import pandas as pd
 
 
-def seed_arguments(description: str, seeds: int, seed_base: int,
-                   options: Mapping[str, str] | None = None):
+def seed_arguments(description: str, seeds: int, seed_base: int, options: Mapping[str, str] | None = None):
     """(seeds, jobs) from ``--seeds N --seed-base B --jobs J`` (defaults: ``seeds``,
     ``seed_base``, 2 jobs); with ``options`` (``--name`` -> default text) also a dict of
     those options' values: (seeds, jobs, options)."""
@@ -51,9 +52,14 @@ def scatter_table(df: pd.DataFrame, by: Sequence[str], stds: Mapping[str, str]) 
     and ``n``. Printed, and returned."""
     g = df.groupby(list(by), sort=False)
     emp = g["estimate"].std(ddof=1)
-    tab = pd.DataFrame({"emp_std": emp, **{k: emp / g[c].mean() for k, c in stds.items()},
-                        "bias": (g["estimate"].mean() - g["truth"].first()) / emp,
-                        "n": g["estimate"].count()})
+    tab = pd.DataFrame(
+        {
+            "emp_std": emp,
+            **{k: emp / g[c].mean() for k, c in stds.items()},
+            "bias": (g["estimate"].mean() - g["truth"].first()) / emp,
+            "n": g["estimate"].count(),
+        }
+    )
     with pd.option_context("display.width", 120, "display.max_rows", 200):
         print(tab.round(3).to_string())
     return tab
@@ -65,8 +71,11 @@ def range_line(tab: pd.DataFrame, group: str, extra: Mapping[str, str] | None = 
     largest |bias|."""
     t = tab.loc[group]
     more = ", ".join(f"{label} {t[c].min():.2f}-{t[c].max():.2f}" for c, label in (extra or {}).items())
-    return (f"{group}: empirical std / reported std {t['reported'].min():.2f}-{t['reported'].max():.2f}"
-            + (f" ({more})" if more else "") + f"; |bias| <= {t['bias'].abs().max():.2f} empirical std")
+    return (
+        f"{group}: empirical std / reported std {t['reported'].min():.2f}-{t['reported'].max():.2f}"
+        + (f" ({more})" if more else "")
+        + f"; |bias| <= {t['bias'].abs().max():.2f} empirical std"
+    )
 
 
 def flown_problem(workdir: Path, axis: str, **kw) -> tuple[Any, dict]:

@@ -32,6 +32,7 @@ Measured (seeds 31-38, 2026-11-26, at 27344cf and with the pitot's scale factor)
 
     python benchmarks/bin_wind_mc.py [--seeds 8] [--seed-base 31] [--jobs 2]
 """
+
 from __future__ import annotations
 
 import json
@@ -56,21 +57,37 @@ def one_flight(seed: int) -> list[dict]:
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
         run_dir, _ = simulate(SCENARIO, d / "run", seed=seed, progress=False)
-        estimate_log(run_dir / "flight.bin", d / "est", methods=["fem"], quiet=True, compat=False,
-                     validation_log=run_dir / "validation.bin")
+        estimate_log(
+            run_dir / "flight.bin",
+            d / "est",
+            methods=["fem"],
+            quiet=True,
+            compat=False,
+            validation_log=run_dir / "validation.bin",
+        )
         rep = json.loads((d / "est" / "report.json").read_text())
         wu = rep["meta"]["flow_angles"].get("wind_uncertainty", {}).get("std_mps", {})
         cal = rep["meta"]["flow_angles"].get("airspeed_scale") or {}
         for key, m in rep["methods"].items():
             for n, p in m["parameters"].items():
                 if p.get("truth") is not None and p.get("std") and "[" not in n:
-                    rows.append({"seed": seed, "key": key, "parameter": n, "estimate": p["estimate"],
-                                 "std": p["std"], "total_std": p.get("total_std") or p["std"],
-                                 "truth": p["truth"], "converged": m["converged"],
-                                 "vertical": wu.get(key, {}).get("vertical wind", 0.0),
-                                 "scale": cal.get("estimate", 0.0), "scale_std": cal.get("std", 0.0),
-                                 "scale_applied": bool(cal.get("applied")),
-                                 "scale_estimated": cal.get("status") == "estimated"})
+                    rows.append(
+                        {
+                            "seed": seed,
+                            "key": key,
+                            "parameter": n,
+                            "estimate": p["estimate"],
+                            "std": p["std"],
+                            "total_std": p.get("total_std") or p["std"],
+                            "truth": p["truth"],
+                            "converged": m["converged"],
+                            "vertical": wu.get(key, {}).get("vertical wind", 0.0),
+                            "scale": cal.get("estimate", 0.0),
+                            "scale_std": cal.get("std", 0.0),
+                            "scale_applied": bool(cal.get("applied")),
+                            "scale_estimated": cal.get("status") == "estimated",
+                        }
+                    )
     return rows
 
 
@@ -80,30 +97,44 @@ def main() -> None:
     tab = scatter_table(df, ["key", "parameter"], {"crb": "std", "reported": "total_std"})
     df["err_crb"] = (df["estimate"] - df["truth"]).abs() / df["std"]
     df["err_total"] = (df["estimate"] - df["truth"]).abs() / df["total_std"]
-    worst = df.groupby(["key", "seed"]).agg(crb=("err_crb", "max"), total=("err_total", "max"),
-                                            vertical=("vertical", "first"),
-                                            converged=("converged", "first"))
+    worst = df.groupby(["key", "seed"]).agg(
+        crb=("err_crb", "max"),
+        total=("err_total", "max"),
+        vertical=("vertical", "first"),
+        converged=("converged", "first"),
+    )
     print(worst.round(2).to_string())
     for key in dict.fromkeys(tab.index.get_level_values(0)):
         print(range_line(tab, key, {"crb": "CRB alone"}))
         w = worst.loc[key]
-        print(f"  {key}: within 3 total std on {(w['total'] <= 3).sum()}/{len(w)} seeds "
-              f"({(w['crb'] <= 3).sum()}/{len(w)} with the CRB alone); worst per seed "
-              + ", ".join(f"{v:.1f}" for v in w["total"]))
+        print(
+            f"  {key}: within 3 total std on {(w['total'] <= 3).sum()}/{len(w)} seeds "
+            f"({(w['crb'] <= 3).sum()}/{len(w)} with the CRB alone); worst per seed "
+            + ", ".join(f"{v:.1f}" for v in w["total"])
+        )
     # the pitot's scale factor the wind fit estimated (truth 0)
     cal = df.groupby("seed")[["scale", "scale_std", "scale_applied", "scale_estimated"]].first()
     est = cal[cal["scale_estimated"]]
     z = est["scale"] / est["scale_std"]
-    print("pitot scale factor (truth 0) per seed: " + ", ".join(
-        (f"{100 * k:+.2f} +- {100 * sd:.2f} %{' applied' if a else ''}" if e
-         else f"not identifiable (std {100 * sd:.2f} %)")
-        for k, sd, a, e in cal.itertuples(index=False))
-          + f"; estimated on {len(est)}/{len(cal)} seeds, estimate / std rms "
-            f"{float((z ** 2).mean() ** 0.5):.2f}")
+    print(
+        "pitot scale factor (truth 0) per seed: "
+        + ", ".join(
+            (
+                f"{100 * k:+.2f} +- {100 * sd:.2f} %{' applied' if a else ''}"
+                if e
+                else f"not identifiable (std {100 * sd:.2f} %)"
+            )
+            for k, sd, a, e in cal.itertuples(index=False)
+        )
+        + f"; estimated on {len(est)}/{len(cal)} seeds, estimate / std rms "
+        f"{float((z**2).mean() ** 0.5):.2f}"
+    )
     trim = tab.loc[[(k, n) for k, n in tab.index if n in ("CL0", "Cm0", "CD0")]]
-    print("trim terms (the flight-mean vertical gust's): empirical / CRB "
-          f"{trim['crb'].min():.2f}-{trim['crb'].max():.2f}, / total "
-          f"{trim['reported'].min():.2f}-{trim['reported'].max():.2f}")
+    print(
+        "trim terms (the flight-mean vertical gust's): empirical / CRB "
+        f"{trim['crb'].min():.2f}-{trim['crb'].max():.2f}, / total "
+        f"{trim['reported'].min():.2f}-{trim['reported'].max():.2f}"
+    )
 
 
 if __name__ == "__main__":

@@ -40,6 +40,7 @@ Measured 2026-11-26, ``--baseline yes`` (the same flights both ways):
     python benchmarks/correction_uncertainty_mc.py [--seeds 10] [--seed-base 500] [--jobs 2]
         [--scenario scenarios/sensor_errors_calm.toml] [--baseline no|yes]
 """
+
 from __future__ import annotations
 
 import json
@@ -54,6 +55,7 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from _montecarlo import fly, judged_parameters, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
+
 SCENARIO = ROOT / "scenarios" / "sensor_errors_calm.toml"
 
 
@@ -74,14 +76,32 @@ def one_flight(seed: int, scenario: Path = SCENARIO, overlapping: bool = False) 
             rep = json.loads((Path(tmp) / "report.json").read_text())
     finally:
         compatibility.merge_overlapping = keep
-    rows = [{"seed": seed, "key": key, "parameter": n, "estimate": p["estimate"], "std": p["std"],
-             "total_std": p.get("total_std") or p["std"], "truth": p["truth"]}
-            for key, n, p, _ in judged_parameters(rep)]
+    rows = [
+        {
+            "seed": seed,
+            "key": key,
+            "parameter": n,
+            "estimate": p["estimate"],
+            "std": p["std"],
+            "total_std": p.get("total_std") or p["std"],
+            "truth": p["truth"],
+        }
+        for key, n, p, _ in judged_parameters(rep)
+    ]
     for n, p in (rep.get("compatibility") or {}).get("parameters", {}).items():
         if p.get("std") and p.get("truth") is not None:
-            rows.append({"seed": seed, "key": "compatibility", "parameter": n,
-                         "estimate": p["estimate"], "std": p["std"], "total_std": p["std"],
-                         "truth": p["truth"], "applied": bool(p.get("applied"))})
+            rows.append(
+                {
+                    "seed": seed,
+                    "key": "compatibility",
+                    "parameter": n,
+                    "estimate": p["estimate"],
+                    "std": p["std"],
+                    "total_std": p["std"],
+                    "truth": p["truth"],
+                    "applied": bool(p.get("applied")),
+                }
+            )
     return rows
 
 
@@ -89,19 +109,25 @@ def compatibility_table(df: pd.DataFrame) -> pd.DataFrame:
     """Per sensor error of the compatibility stage (its full fit, every error free): rms
     and mean of (estimate - truth) / std over the seeds (honest: rms ~1, mean ~0) and on
     how many flights it was applied. Printed, and returned."""
-    c = df[df["key"] == "compatibility"].assign(
-        z=lambda d: (d["estimate"] - d["truth"]) / d["std"])
+    c = df[df["key"] == "compatibility"].assign(z=lambda d: (d["estimate"] - d["truth"]) / d["std"])
     g = c.groupby("parameter", sort=False)
-    tab = pd.DataFrame({"rms_z": g["z"].apply(lambda z: float(np.sqrt(np.mean(z ** 2)))),
-                        "mean_z": g["z"].mean(), "max_abs_z": g["z"].apply(lambda z: z.abs().max()),
-                        "applied": g["applied"].sum().astype(int), "n": g["z"].count()})
+    tab = pd.DataFrame(
+        {
+            "rms_z": g["z"].apply(lambda z: float(np.sqrt(np.mean(z**2)))),
+            "mean_z": g["z"].mean(),
+            "max_abs_z": g["z"].apply(lambda z: z.abs().max()),
+            "applied": g["applied"].sum().astype(int),
+            "n": g["z"].count(),
+        }
+    )
     print(tab.round(2).to_string())
     return tab
 
 
 def main() -> None:
-    seeds, jobs, opt = seed_arguments(__doc__.splitlines()[0], seeds=10, seed_base=500,
-                                      options={"scenario": str(SCENARIO), "baseline": "no"})
+    seeds, jobs, opt = seed_arguments(
+        __doc__.splitlines()[0], seeds=10, seed_base=500, options={"scenario": str(SCENARIO), "baseline": "no"}
+    )
     if opt["baseline"] == "yes":
         print("== baseline: overlapping maneuver windows fitted each by the compatibility stage")
         base = fly(partial(one_flight, scenario=Path(opt["scenario"]), overlapping=True), seeds, jobs)
@@ -112,13 +138,17 @@ def main() -> None:
     df = fly(partial(one_flight, scenario=Path(opt["scenario"])), seeds, jobs)
     comp = df["key"] == "compatibility"
     tab = scatter_table(df[~comp], ["key", "parameter"], {"crb": "std", "total": "total_std"})
-    print(f"seeds {seeds[0]}..{seeds[-1]}: empirical std / total std {tab['total'].min():.2f}-"
-          f"{tab['total'].max():.2f} (CRB alone {tab['crb'].min():.2f}-{tab['crb'].max():.2f})")
+    print(
+        f"seeds {seeds[0]}..{seeds[-1]}: empirical std / total std {tab['total'].min():.2f}-"
+        f"{tab['total'].max():.2f} (CRB alone {tab['crb'].min():.2f}-{tab['crb'].max():.2f})"
+    )
     if comp.any():
         print("compatibility stage, (estimate - truth) / std over the seeds:")
         ctab = compatibility_table(df)
-        print(f"compatibility: rms z {ctab['rms_z'].min():.2f}-{ctab['rms_z'].max():.2f}, "
-              f"applied {int(ctab['applied'].sum())} times on {len(seeds)} flights")
+        print(
+            f"compatibility: rms z {ctab['rms_z'].min():.2f}-{ctab['rms_z'].max():.2f}, "
+            f"applied {int(ctab['applied'].sum())} times on {len(seeds)} flights"
+        )
     if opt["baseline"] == "yes":
         print(f"baseline: empirical std / total std {btab['total'].min():.2f}-{btab['total'].max():.2f}")
     print(f"largest empirical/total std ratio: {tab['total'].max():.2f}")

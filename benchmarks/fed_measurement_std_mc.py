@@ -22,6 +22,7 @@ Measured (seeds 100-111, 2026-11-24):
 
     python benchmarks/fed_measurement_std_mc.py [--seeds 12] [--seed-base 100] [--jobs 2]
 """
+
 from __future__ import annotations
 
 import json
@@ -34,6 +35,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from _montecarlo import fly, judged_parameters, range_line, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
+
 SCENARIO = ROOT / "scenarios" / "unstable_short_period.toml"
 METHODS = ["soem", "decouple"]
 
@@ -47,17 +49,27 @@ def one_flight(seed: int) -> list[dict]:
         rep = json.loads((Path(tmp) / "report.json").read_text())
     rows = []
     for key, n, p, m in judged_parameters(rep):
-        unc = ((m["validation"].get("uncertainty") or {}).get("per_parameter", {}).get(n) or {})
-        rows.append({"seed": seed, "method": key, "parameter": n, "estimate": p["estimate"],
-                     "std": p["std"], "crb_std": unc.get("crb_std", np.nan),
-                     "mk_std": unc.get("mk_std", np.nan), "truth": p["truth"]})
+        unc = (m["validation"].get("uncertainty") or {}).get("per_parameter", {}).get(n) or {}
+        rows.append(
+            {
+                "seed": seed,
+                "method": key,
+                "parameter": n,
+                "estimate": p["estimate"],
+                "std": p["std"],
+                "crb_std": unc.get("crb_std", np.nan),
+                "mk_std": unc.get("mk_std", np.nan),
+                "truth": p["truth"],
+            }
+        )
     return rows
 
 
 def main() -> None:
     seeds, jobs = seed_arguments(__doc__.splitlines()[0], seeds=12, seed_base=100)
-    tab = scatter_table(fly(one_flight, seeds, jobs), ["method", "parameter"],
-                        {"reported": "std", "crb": "crb_std", "mk": "mk_std"})
+    tab = scatter_table(
+        fly(one_flight, seeds, jobs), ["method", "parameter"], {"reported": "std", "crb": "crb_std", "mk": "mk_std"}
+    )
     for m in METHODS:
         print(range_line(tab, m, {"crb": "Cramér-Rao", "mk": "Morelli-Klein"}))
 

@@ -17,6 +17,7 @@ include the turbulence, its estimates are biased). The last line is the worst FE
 
     python benchmarks/fem_efficiency.py [--seeds 50] [--seed-base 2000]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -63,27 +64,30 @@ def main() -> int:
             nm = names if method == "FEM" else names[:-1]
             runs[method][0].append(res.params[nm].to_numpy())
             runs[method][1].append(res.std[nm].to_numpy())
-    print(f"{args.seeds} seeds in {time.perf_counter() - t0:.1f} s "
-          f"(FEM {times['FEM'] / args.seeds:.3f} s/fit, OEM {times['OEM'] / args.seeds:.3f} s/fit); "
-          f"failures: FEM {failures['FEM']}, OEM {failures['OEM']}")
-    worst = 0.0
+    print(
+        f"{args.seeds} seeds in {time.perf_counter() - t0:.1f} s "
+        f"(FEM {times['FEM'] / args.seeds:.3f} s/fit, OEM {times['OEM'] / args.seeds:.3f} s/fit); "
+        f"failures: FEM {failures['FEM']}, OEM {failures['OEM']}"
+    )
     worst_bias = 0.0
     for method in ("FEM", "OEM"):
         est, std = (np.array(a) for a in runs[method])
         nm = names if method == "FEM" else names[:-1]
-        tr = truth[:len(nm)]
+        tr = truth[: len(nm)]
         emp = est.std(axis=0, ddof=1)
         crb = std.mean(axis=0)
         ratio = emp / crb
         bias = (est.mean(axis=0) - tr) / emp
         print(f"\n{method}: {len(est)} fits")
-        print(f"{'parameter':<10}{'truth':>10}{'mean est':>12}{'emp std':>11}{'mean CRB':>11}"
-              f"{'ratio':>8}{'bias/std':>10}")
+        print(
+            f"{'parameter':<10}{'truth':>10}{'mean est':>12}{'emp std':>11}{'mean CRB':>11}{'ratio':>8}{'bias/std':>10}"
+        )
         for i, n in enumerate(nm):
-            print(f"{n:<10}{tr[i]:>10.4g}{est[:, i].mean():>12.5g}{emp[i]:>11.4g}{crb[i]:>11.4g}"
-                  f"{ratio[i]:>8.2f}{bias[i]:>10.2f}")
+            print(
+                f"{n:<10}{tr[i]:>10.4g}{est[:, i].mean():>12.5g}{emp[i]:>11.4g}{crb[i]:>11.4g}"
+                f"{ratio[i]:>8.2f}{bias[i]:>10.2f}"
+            )
         if method == "FEM":
-            worst = float(np.max(np.abs(np.log(ratio))))
             worst_ratio = float(ratio[np.argmax(np.abs(np.log(ratio)))])
             worst_bias = float(np.max(np.abs(bias)))
     print(f"\nFEM worst |bias|/std: {worst_bias:.2f} (target < 0.5)")

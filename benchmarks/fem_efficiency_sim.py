@@ -27,6 +27,7 @@ Cmde 1.24). Cmq stays 8 % low (-3.31 for -3.6) with either.
 
     python benchmarks/fem_efficiency_sim.py [--seeds 20] [--seed-base 100] [--ekf] [--grid-noise]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -58,7 +59,7 @@ def one_seed(seed: int, methods: list[str], work: Path) -> dict[str, tuple[dict,
     ac = AircraftConstants.from_truth(doc)
     pb = longitudinal_problem(fd, ac, rate_hz=min(fd[c].rate_hz for c in LONG_OUTPUTS))
     pb.inputs = "linear"
-    attach_logged_noise(fd, pb)          # as fsid run does for the filters
+    attach_logged_noise(fd, pb)  # as fsid run does for the filters
     logged = dict(pb.noise_std)
     res = {}
     for m in methods:
@@ -76,8 +77,11 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--seed-base", type=int, default=100)
     ap.add_argument("--ekf", action="store_true", help="also the EKF on the same flights")
-    ap.add_argument("--grid-noise", action="store_true",
-                    help="also FEM with the measurement noise from the grid's second differences")
+    ap.add_argument(
+        "--grid-noise",
+        action="store_true",
+        help="also FEM with the measurement noise from the grid's second differences",
+    )
     args = ap.parse_args()
     methods = ["fem"] + (["fem-grid"] if args.grid_noise else []) + (["ekf"] if args.ekf else [])
     est = {m: [] for m in methods}
@@ -108,8 +112,7 @@ def main() -> int:
         emp = E.std(axis=0, ddof=1)
         ratio = emp / S.mean(axis=0)
         bias = (E.mean(axis=0) - tr) / emp
-        print(f"\n{m.upper()} over {len(E)} seeds: empirical std / mean reported std, "
-              "(mean - truth) / empirical std")
+        print(f"\n{m.upper()} over {len(E)} seeds: empirical std / mean reported std, (mean - truth) / empirical std")
         print(f"{'parameter':>10} {'truth':>10} {'mean':>10} {'ratio':>7} {'bias':>7}")
         for i, n in enumerate(names):
             print(f"{n:>10} {tr[i]:10.4g} {E[:, i].mean():10.4g} {ratio[i]:7.2f} {bias[i]:7.2f}")

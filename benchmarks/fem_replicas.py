@@ -17,6 +17,7 @@ every estimate within 3 std on 39/40 seeds, converged 40/40; lateral 38/40, conv
 7 lateral biases 0.22-0.85 (a conservative bound, cause not found). With the reference's
 diagonal R (``--diagonal-R``, HFB-320) F_alpha ended 4-7 std low.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -24,14 +25,12 @@ import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from estimators import EstimationError, FilterError  # noqa: E402
-from estimators.replicas import (HFB320_F_START, LATERAL_F_START, hfb320_replica,  # noqa: E402
-                                 lateral_replica)
+from estimators.replicas import HFB320_F_START, LATERAL_F_START, hfb320_replica, lateral_replica  # noqa: E402
 
 CASES = {"hfb320": (hfb320_replica, HFB320_F_START), "lateral": (lateral_replica, LATERAL_F_START)}
 
@@ -45,9 +44,20 @@ def one(args: tuple[str, int, bool]) -> list[dict]:
         res = FilterError(ex.model, process_noise=f_start, full_R=full).fit(ex.segments)
     except EstimationError as exc:
         return [{"case": case, "seed": seed, "name": "(failed)", "error": str(exc)[:80]}]
-    return [{"case": case, "seed": seed, "name": n, "estimate": float(res.params[n]),
-             "std": float(res.std[n]), "truth": v, "converged": res.converged,
-             "iterations": res.iterations} for n, v in truth.items() if n in res.free_names]
+    return [
+        {
+            "case": case,
+            "seed": seed,
+            "name": n,
+            "estimate": float(res.params[n]),
+            "std": float(res.std[n]),
+            "truth": v,
+            "converged": res.converged,
+            "iterations": res.iterations,
+        }
+        for n, v in truth.items()
+        if n in res.free_names
+    ]
 
 
 def main() -> float:
@@ -66,27 +76,36 @@ def main() -> float:
     df["off"] = (df["estimate"] - df["truth"]).abs() / df["std"]
     g = df.groupby(["case", "name"], sort=False)
     emp = g["estimate"].std(ddof=1)
-    tab = pd.DataFrame({"truth": g["truth"].first(), "mean_std": g["std"].mean(), "emp_std": emp,
-                        "scatter/CRB": emp / g["std"].mean(),
-                        "bias/scatter": (g["estimate"].mean() - g["truth"].first()) / emp})
+    tab = pd.DataFrame(
+        {
+            "truth": g["truth"].first(),
+            "mean_std": g["std"].mean(),
+            "emp_std": emp,
+            "scatter/CRB": emp / g["std"].mean(),
+            "bias/scatter": (g["estimate"].mean() - g["truth"].first()) / emp,
+        }
+    )
     with pd.option_context("display.width", 140, "display.max_rows", 200):
         print(tab.round(4).to_string())
     for case, d in df.groupby("case"):
         per_seed = d.groupby("seed")
         within = (per_seed["off"].max() < 3.0).sum()
         conv = per_seed["converged"].all().sum()
-        print(f"{case}: every estimate within 3 std on {within}/{per_seed.ngroups} seeds; "
-              f"converged {conv}/{per_seed.ngroups}; iterations median "
-              f"{per_seed['iterations'].first().median():.0f}")
+        print(
+            f"{case}: every estimate within 3 std on {within}/{per_seed.ngroups} seeds; "
+            f"converged {conv}/{per_seed.ngroups}; iterations median "
+            f"{per_seed['iterations'].first().median():.0f}"
+        )
     bias = tab.index.get_level_values("name").str.match(r"^B[XY]\d")
     b = tab["scatter/CRB"][bias]
     if len(b):
-        print(f"the {len(b)} lateral biases: scatter/CRB {b.min():.2f}-{b.max():.2f} (their "
-              "bound is conservative)")
+        print(f"the {len(b)} lateral biases: scatter/CRB {b.min():.2f}-{b.max():.2f} (their bound is conservative)")
     r = tab["scatter/CRB"][~bias]
-    print(f"scatter/CRB over the {len(r)} derivatives and process noises: min {r.min():.2f}, "
-          f"median {r.median():.2f}, max {r.max():.2f} ({r.idxmax()[0]} {r.idxmax()[1]}); "
-          "goal [0.7, 1.4]")
+    print(
+        f"scatter/CRB over the {len(r)} derivatives and process noises: min {r.min():.2f}, "
+        f"median {r.median():.2f}, max {r.max():.2f} ({r.idxmax()[0]} {r.idxmax()[1]}); "
+        "goal [0.7, 1.4]"
+    )
     return float(r.max())
 
 

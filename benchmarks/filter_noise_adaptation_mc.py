@@ -27,6 +27,7 @@ at the data default, R costs the EKF its efficiency and biases the pitch derivat
 
     python benchmarks/filter_noise_adaptation_mc.py [--seeds 16] [--seed-base 0] [--jobs 2]
 """
+
 from __future__ import annotations
 
 import sys
@@ -43,8 +44,9 @@ Q = {"alpha": 0.004, "q": 0.006}
 def one_flight(seed: int) -> list[dict]:
     """One noise draw, fitted by every variant: rows of (variant, name, estimate, std,
     truth, passes)."""
-    from estimators import EKF, UKF, FilterError
     from test_user_model_api import NOISE, START, TRUTH, _gusty_flight, model
+
+    from estimators import EKF, UKF, FilterError
 
     seg = _gusty_flight(seed)
     variants = {
@@ -57,9 +59,18 @@ def one_flight(seed: int) -> list[dict]:
     rows = []
     for variant, make in variants.items():
         res = make().fit([seg])
-        rows += [{"variant": variant, "name": n, "estimate": float(res.params[n]),
-                  "std": float(res.std[n]), "truth": v, "seed": seed,
-                  "passes": res.iterations} for n, v in TRUTH.items()]
+        rows += [
+            {
+                "variant": variant,
+                "name": n,
+                "estimate": float(res.params[n]),
+                "std": float(res.std[n]),
+                "truth": v,
+                "seed": seed,
+                "passes": res.iterations,
+            }
+            for n, v in TRUTH.items()
+        ]
     return rows
 
 
@@ -70,8 +81,10 @@ def main() -> int:
     df["err"] = (df["estimate"] - df["truth"]).abs() / df["std"]
     for variant in df["variant"].unique():
         d = df[df["variant"] == variant]
-        print(range_line(tab, variant) + f"; worst |error|/std {d['err'].max():.2f}; "
-              f"passes {d['passes'].min()}-{d['passes'].max()}")
+        print(
+            range_line(tab, variant) + f"; worst |error|/std {d['err'].max():.2f}; "
+            f"passes {d['passes'].min()}-{d['passes'].max()}"
+        )
     return 0
 
 

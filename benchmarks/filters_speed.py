@@ -16,6 +16,7 @@ iteration. The last line is that ratio.
 
     python benchmarks/filters_speed.py [--runs 5]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,7 +44,7 @@ def main() -> int:
         "UKF-py": lambda: UKF(ex.model, measurement_noise=sd, compiled=False),
         "UKF-aug": lambda: UKF(ex.model, measurement_noise=sd, augmented=True),
     }
-    for make in methods.values():          # compile once (numba), not timed
+    for make in methods.values():  # compile once (numba), not timed
         make().fit(ex.segments)
     times = {k: [] for k in methods}
     iters = {k: [] for k in methods}
@@ -70,8 +71,10 @@ def main() -> int:
     ratio = fem_per_it / (t_oem / it_oem)
     print(f"\nper Gauss-Newton iteration: OEM {1e3 * t_oem / it_oem:.1f} ms, FEM {1e3 * fem_per_it:.1f} ms")
     for f in ("EKF", "UKF"):
-        print(f"{f} compiled segment loop / per-sample Python loop: "
-              f"{np.median(times[f]) / np.median(times[f + '-py']):.2f}")
+        print(
+            f"{f} compiled segment loop / per-sample Python loop: "
+            f"{np.median(times[f]) / np.median(times[f + '-py']):.2f}"
+        )
     print(f"FEM / OEM wall time per iteration: {ratio:.2f} (target <= 3)")
     return 0
 

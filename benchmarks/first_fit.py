@@ -45,6 +45,7 @@ Python 3.11, medians of 3 runs; the spread between sessions is 10-30 %:
   fit 0.1 s, and 0.25 s in the interpreter's garbage collection at exit over the
   ~185,000 objects numba's start creates (``gc.freeze()`` before exiting: 0.05 s).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -60,19 +61,22 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-REFERENCE_S = 9.38          # the reference software under Octave, same fit, same machine class
+REFERENCE_S = 9.38  # the reference software under Octave, same fit, same machine class
 
-CHILD = ("import time; _t = time.perf_counter()\n"
-         "import sys, json; sys.path[:0] = [{bench!r}, {root!r}]\n"
-         "import _hfb320\n"
-         "print('RESULT ' + json.dumps(_hfb320.timed_fit({data!r}, _t)))\n")
+CHILD = (
+    "import time; _t = time.perf_counter()\n"
+    "import sys, json; sys.path[:0] = [{bench!r}, {root!r}]\n"
+    "import _hfb320\n"
+    "print('RESULT ' + json.dumps(_hfb320.timed_fit({data!r}, _t)))\n"
+)
 
 
 def make_data(path: Path) -> None:
     """The replica data set, made in its own process (it compiles the model too: that
     must not warm anything the timed runs use)."""
-    code = (f"import sys; sys.path[:0] = [{str(HERE)!r}, {str(ROOT)!r}]\n"
-            f"import _hfb320; _hfb320.make_data({str(path)!r})\n")
+    code = (
+        f"import sys; sys.path[:0] = [{str(HERE)!r}, {str(ROOT)!r}]\nimport _hfb320; _hfb320.make_data({str(path)!r})\n"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         env = {**os.environ, "FSID_JIT_CACHE": "0", "NUMBA_CACHE_DIR": tmp}
         subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, check=True)
@@ -81,22 +85,20 @@ def make_data(path: Path) -> None:
 def timed_run(data: Path, cache: Path) -> dict:
     """One fresh process fitting ``data`` with kernel caches under ``cache``: its wall
     time ("wall", s) and what the child reports (phase times, estimates)."""
-    env = {**os.environ, "FSID_CACHE_DIR": str(cache / "fsid"),
-           "NUMBA_CACHE_DIR": str(cache / "numba")}
+    env = {**os.environ, "FSID_CACHE_DIR": str(cache / "fsid"), "NUMBA_CACHE_DIR": str(cache / "numba")}
     for k in ("FSID_JIT", "FSID_JIT_CACHE", "NUMBA_DISABLE_JIT"):
         env.pop(k, None)
     code = CHILD.format(bench=str(HERE), root=str(ROOT), data=str(data))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True,
-                       text=True)
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
     if r.returncode != 0:
         sys.exit(f"timed fit failed: {r.stderr.strip()[-2000:]}")
     line = next(s for s in reversed(r.stdout.splitlines()) if s.startswith("RESULT "))
-    out = json.loads(line[len("RESULT "):])
+    out = json.loads(line[len("RESULT ") :])
     out["wall"] = wall
     out["cpu"] = cpu
     out["warnings"] = [s for s in r.stderr.splitlines() if "Warning" in s]
@@ -132,14 +134,18 @@ def main() -> None:
     runs = cold + warm
     params = runs[0]["params"]
     spread = max(max_rel_diff(params, r["params"]) for r in runs)
-    print(f"HFB-320 test case 4 replica (601 samples, 11 free), OutputError defaults: "
-          f"converged {runs[0]['converged']} in {runs[0]['iterations']} iterations; "
-          f"largest relative difference of the estimates between runs {spread:.1e}")
+    print(
+        f"HFB-320 test case 4 replica (601 samples, 11 free), OutputError defaults: "
+        f"converged {runs[0]['converged']} in {runs[0]['iterations']} iterations; "
+        f"largest relative difference of the estimates between runs {spread:.1e}"
+    )
     for name, rs in (("cold", cold), ("warm", warm)):
         for r in rs:
-            print(f"  {name}  wall {r['wall']:6.2f} s  cpu {r['cpu']:6.2f} s  (in the process: "
-                  f"start-up {r['before_import']:.2f}, import estimators {r['import']:.2f}, "
-                  f"data + model + fit {r['fit']:.2f})")
+            print(
+                f"  {name}  wall {r['wall']:6.2f} s  cpu {r['cpu']:6.2f} s  (in the process: "
+                f"start-up {r['before_import']:.2f}, import estimators {r['import']:.2f}, "
+                f"data + model + fit {r['fit']:.2f})"
+            )
     for w in sorted({w for r in runs for w in r["warnings"]}):
         print(f"  warning: {w}")
     if a.save:
@@ -152,8 +158,10 @@ def main() -> None:
     t_warm = statistics.median(r["wall"] for r in warm)
     c_cold = statistics.median(r["cpu"] for r in cold)
     c_warm = statistics.median(r["cpu"] for r in warm)
-    print(f"median wall: cold {t_cold:.2f} s, warm {t_warm:.2f} s (cpu: cold {c_cold:.2f} s, "
-          f"warm {c_warm:.2f} s); reference (Octave) {REFERENCE_S} s")
+    print(
+        f"median wall: cold {t_cold:.2f} s, warm {t_warm:.2f} s (cpu: cold {c_cold:.2f} s, "
+        f"warm {c_warm:.2f} s); reference (Octave) {REFERENCE_S} s"
+    )
     print(f"reference / ours: cold {REFERENCE_S / t_cold:.2f}x, warm {REFERENCE_S / t_warm:.2f}x")
 
 

@@ -32,6 +32,7 @@ Measured (seeds 200-207, 2026-11-24):
     python benchmarks/flow_angles_mc.py [--seeds 8] [--seed-base 200] [--jobs 2]
         [--scenario longitudinal_3211_calm] [--model longitudinal] [--wind=-4,5]
 """
+
 from __future__ import annotations
 
 import json
@@ -61,28 +62,42 @@ def one_flight(job: tuple[int, str, str, str]) -> list[dict]:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
-        src = (SCENARIOS / f"{scenario}.toml").read_text().replace(
-            'aircraft = "aircraft/', f'aircraft = "{SCENARIOS}/aircraft/')
+        src = (
+            (SCENARIOS / f"{scenario}.toml")
+            .read_text()
+            .replace('aircraft = "aircraft/', f'aircraft = "{SCENARIOS}/aircraft/')
+        )
         (d / "windy.toml").write_text(src + f"\n[wind]\nnorth_mps = {wn}\neast_mps = {we}\n")
         run_dir, _ = simulate(d / "windy.toml", d / "run", seed=seed, progress=False)
         fd = read_log(run_dir / "flight.mcap")
-        (d / "novane.toml").write_text(plain_map_toml(fd, "without_vanes", ["mcap"],
-                                                      drop=("alpha", "beta")))
+        (d / "novane.toml").write_text(plain_map_toml(fd, "without_vanes", ["mcap"], drop=("alpha", "beta")))
         for source, mp in (("vanes", None), ("rebuilt", str(d / "novane.toml"))):
-            estimate_log(run_dir / "flight.mcap", d / source, map_path=mp, methods=["oem"],
-                         model=model, quiet=True, compat=False)
+            estimate_log(
+                run_dir / "flight.mcap", d / source, map_path=mp, methods=["oem"], model=model, quiet=True, compat=False
+            )
             rep = json.loads((d / source / "report.json").read_text())
             for n, p in rep["methods"]["oem"]["parameters"].items():
                 if p.get("truth") is not None and p.get("std") and "[" not in n:
-                    rows.append({"seed": seed, "source": source, "parameter": n,
-                                 "estimate": p["estimate"], "std": p["std"], "truth": p["truth"]})
+                    rows.append(
+                        {
+                            "seed": seed,
+                            "source": source,
+                            "parameter": n,
+                            "estimate": p["estimate"],
+                            "std": p["std"],
+                            "truth": p["truth"],
+                        }
+                    )
     return rows
 
 
 def main() -> None:
-    seeds, jobs, opt = seed_arguments(__doc__.splitlines()[0], seeds=8, seed_base=200,
-                                      options={"scenario": "longitudinal_3211_calm",
-                                               "model": "longitudinal", "wind": "-4,5"})
+    seeds, jobs, opt = seed_arguments(
+        __doc__.splitlines()[0],
+        seeds=8,
+        seed_base=200,
+        options={"scenario": "longitudinal_3211_calm", "model": "longitudinal", "wind": "-4,5"},
+    )
     df = fly(one_flight, [(s, opt["scenario"], opt["model"], opt["wind"]) for s in seeds], jobs)
     tab = scatter_table(df, ["source", "parameter"], {"reported": "std"})
     sd = df.groupby(["source", "parameter"], sort=False)["std"].mean()

@@ -39,6 +39,7 @@ is known.
     python benchmarks/gain_sensitivity_mc.py [--seeds 16] [--seed-base 0] [--jobs 2]
         [--methods ekf,ukf]
 """
+
 from __future__ import annotations
 
 import sys
@@ -50,25 +51,34 @@ sys.path.insert(0, str(ROOT))
 from _montecarlo import fly, range_line, scatter_table, seed_arguments  # noqa: E402
 
 
-
 def fit(method: str, ljung: bool, ex):
     """The filter given the true noise, from the example's start values."""
     from estimators import EKF, UKF
+
     cls = EKF if method == "ekf" else UKF
-    return cls(ex.model, process_noise=ex.process_noise, measurement_noise=ex.noise_std,
-               gain_sensitivity=ljung).fit(ex.segments)
+    return cls(ex.model, process_noise=ex.process_noise, measurement_noise=ex.noise_std, gain_sensitivity=ljung).fit(
+        ex.segments
+    )
 
 
 def one_draw(seed: int, *, methods: list[str]) -> list[dict]:
     from estimators.process_noise_examples import roll_gust_example
+
     ex = roll_gust_example(seed)
     rows = []
     for method in methods:
         for ljung in (False, True):
             res = fit(method, ljung, ex)
-            rows += [{"method": f"{method} {'ljung' if ljung else 'plain'}", "name": n,
-                      "estimate": float(res.params[n]), "std": float(res.std[n]),
-                      "truth": ex.truth[n]} for n in ("a", "b")]
+            rows += [
+                {
+                    "method": f"{method} {'ljung' if ljung else 'plain'}",
+                    "name": n,
+                    "estimate": float(res.params[n]),
+                    "std": float(res.std[n]),
+                    "truth": ex.truth[n],
+                }
+                for n in ("a", "b")
+            ]
     return rows
 
 
@@ -80,8 +90,10 @@ def main() -> None:
     g = df.groupby(["method", "name"], sort=False)["err_std"]
     tab["mean_err_std"], tab["max_err_std"] = g.mean(), g.max()
     for group, t in tab.groupby(level=0, sort=False):
-        print(range_line(tab, (group,)) + f"; mean |error|/std worst {t['mean_err_std'].max():.2f}, "
-              f"largest {t['max_err_std'].max():.2f}")
+        print(
+            range_line(tab, (group,)) + f"; mean |error|/std worst {t['mean_err_std'].max():.2f}, "
+            f"largest {t['max_err_std'].max():.2f}"
+        )
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ speed ratio ours/DFReader last.
 
     python benchmarks/ingest_speed.py [--mb 100] [--keep PATH]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -31,8 +32,7 @@ from pipeline.readers.synth import fmt_record  # noqa: E402
 
 # ArduPlane 4.x layouts (name, id, format, columns)
 LAYOUTS = [
-    ("IMU", 0x10, "QBffffffIIfBBHH",
-     "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz"),
+    ("IMU", 0x10, "QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz"),
     ("ATT", 0x11, "QccccCCCCB", "TimeUS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw,ErrRP,ErrYaw,AEKF"),
     ("ARSP", 0x12, "QBffcffBBfB", "TimeUS,I,Airspeed,DiffPress,Temp,RawPress,Offset,U,H,Hp,Pri"),
     ("AOA", 0x13, "Qff", "TimeUS,AOA,SSA"),
@@ -40,11 +40,22 @@ LAYOUTS = [
     ("RCOU", 0x15, "QHHHHHHHHHHHHHH", "TimeUS,C1,C2,C3,C4,C5,C6,C7,C8,C9,C10,C11,C12,C13,C14"),
     ("GPS", 0x16, "QBBIHBcLLeffffB", "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U"),
 ]
-NP = {"Q": "<u8", "B": "u1", "f": "<f4", "I": "<u4", "c": "<i2", "C": "<u2", "H": "<u2",
-      "L": "<i4", "e": "<i4", "b": "i1", "h": "<i2", "i": "<i4"}
+NP = {
+    "Q": "<u8",
+    "B": "u1",
+    "f": "<f4",
+    "I": "<u4",
+    "c": "<i2",
+    "C": "<u2",
+    "H": "<u2",
+    "L": "<i4",
+    "e": "<i4",
+    "b": "i1",
+    "h": "<i2",
+    "i": "<i4",
+}
 # one "frame" = 4 ticks of a 200 Hz IMU (2 instances), plus 50 Hz ATT ARSP AOA RCOU, 10 Hz BARO/GPS
-FRAME = ["IMU", "IMU", "IMU", "IMU", "IMU", "IMU", "IMU", "IMU", "ATT", "ARSP", "AOA", "RCOU",
-         "BARO", "GPS"]
+FRAME = ["IMU", "IMU", "IMU", "IMU", "IMU", "IMU", "IMU", "IMU", "ATT", "ARSP", "AOA", "RCOU", "BARO", "GPS"]
 
 
 def _dtype(fmt: str, cols: str) -> np.dtype:
@@ -56,7 +67,7 @@ def write_synthetic_bin(path: Path, target_mb: float, seed: int = 0) -> int:
     rng = np.random.default_rng(seed)
     lay = {n: (mid, fmt, cols, _dtype(fmt, cols)) for n, mid, fmt, cols in LAYOUTS}
     parts = [fmt_record(0x80, "FMT", "BBnNZ", ["Type", "Length", "Name", "Format", "Columns"])]
-    for n, (mid, fmt, cols, dt) in lay.items():
+    for n, (mid, fmt, cols, _dt) in lay.items():
         parts.append(fmt_record(mid, n, fmt, cols.split(",")))
     head = b"".join(parts)
     frame_dt = np.dtype([(f"m{k}", lay[n][3]) for k, n in enumerate(FRAME)])
@@ -68,7 +79,7 @@ def write_synthetic_bin(path: Path, target_mb: float, seed: int = 0) -> int:
         while done < n_frames:
             m = min(chunk, n_frames - done)
             fr = np.zeros(m, frame_dt)
-            t0 = (np.arange(done, done + m, dtype=np.int64) * 20_000 + 1_000_000)  # 50 Hz frames
+            t0 = np.arange(done, done + m, dtype=np.int64) * 20_000 + 1_000_000  # 50 Hz frames
             for k, n in enumerate(FRAME):
                 mid, fmt, cols, dt = lay[n]
                 rec = fr[f"m{k}"]
@@ -164,7 +175,7 @@ def verify(path: Path, every: int = 20) -> int:
         if name == "FMT" or k % every:
             continue
         for col in m.get_fieldnames():
-            ours = scaled(arrays[name][k:k + 1], by_name[name], col)[0]
+            ours = scaled(arrays[name][k : k + 1], by_name[name], col)[0]
             theirs = getattr(m, col)
             if isinstance(ours, bytes):
                 ours = ours.rstrip(b"\0").decode("ascii", "replace")
@@ -177,10 +188,9 @@ def verify(path: Path, every: int = 20) -> int:
 def write_sim_bin(path: Path, target_mb: float) -> int | None:
     """The sim's own writer, tiled to ``target_mb``; None when the simulator is unavailable."""
     try:
-        from sim import fly, load_scenario
-
         from pipeline.readers.dataflash import scan_file
         from pipeline.writers import write_dataflash
+        from sim import fly, load_scenario
     except ImportError:
         return None
     scen = HERE / "scenarios" / "default.toml"
@@ -232,14 +242,20 @@ def main() -> int:
     size = path.stat().st_size
     print(f"wrote {path}: {size / 1e6:.1f} MB, {n} records in {time.perf_counter() - t:.1f} s ({how})")
     ours = run_ours(path)
-    print(f"ours     : {ours['seconds']:.2f} s  ({n / ours['seconds'] / 1e6:.2f} M records/s) all "
-          "message types decoded to numpy arrays")
-    print(f"ours read_log -> FlightData ({ours['channels']} canonical SI channels, segments): "
-          f"{ours['seconds_flightdata']:.2f} s, peak RSS {ours['peak_kb_flightdata'] * 1024 / 1e6:.0f} MB")
+    print(
+        f"ours     : {ours['seconds']:.2f} s  ({n / ours['seconds'] / 1e6:.2f} M records/s) all "
+        "message types decoded to numpy arrays"
+    )
+    print(
+        f"ours read_log -> FlightData ({ours['channels']} canonical SI channels, segments): "
+        f"{ours['seconds_flightdata']:.2f} s, peak RSS {ours['peak_kb_flightdata'] * 1024 / 1e6:.0f} MB"
+    )
     peak = (ours["peak_kb"] - ours["base_kb"]) * 1024
-    print(f"ours peak memory of the read: {peak / 1e6:.0f} MB = {peak / size:.2f} x file size "
-          f"(peak RSS {ours['peak_kb'] * 1024 / 1e6:.0f} MB minus {ours['base_kb'] * 1024 / 1e6:.0f} MB "
-          "of interpreter + numpy/numba before reading; includes the mapped file pages)")
+    print(
+        f"ours peak memory of the read: {peak / 1e6:.0f} MB = {peak / size:.2f} x file size "
+        f"(peak RSS {ours['peak_kb'] * 1024 / 1e6:.0f} MB minus {ours['base_kb'] * 1024 / 1e6:.0f} MB "
+        "of interpreter + numpy/numba before reading; includes the mapped file pages)"
+    )
     tdf, counts = run_dfreader(path)
     print(f"DFReader : {tdf:.2f} s  ({n / tdf / 1e6:.3f} M records/s)")
     mine = {k: v for k, v in ours["counts"].items()}
@@ -247,8 +263,10 @@ def main() -> int:
         print(f"COUNT MISMATCH ours {mine} DFReader {counts}")
         return 1
     checked = verify(path)
-    print(f"identical values: per-type counts equal ({sum(counts.values())} messages); every field "
-          f"of {checked} sampled messages (every 20th of each type) equal")
+    print(
+        f"identical values: per-type counts equal ({sum(counts.values())} messages); every field "
+        f"of {checked} sampled messages (every 20th of each type) equal"
+    )
     ok = peak < 3 * size
     print(f"peak memory < 3 x file size: {'yes' if ok else 'NO'}")
     print(f"speed ratio read_log(FlightData)/DFReader: {tdf / ours['seconds_flightdata']:.1f}")

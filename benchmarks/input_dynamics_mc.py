@@ -44,6 +44,7 @@ lag) is scored against equation error's equivalent std.
     python benchmarks/input_dynamics_mc.py [--seeds 8] [--seed-base 300] [--jobs 2]
         [--scenario default] [--lag 0.05] [--refine 0]
 """
+
 from __future__ import annotations
 
 import sys
@@ -58,8 +59,9 @@ from _montecarlo import fly, judged_parameters, scatter_table, seed_arguments  #
 
 #: the rows of the fits' derivatives (--refine 1)
 FIT = "(fit)"
-SEEDS, JOBS, OPTS = seed_arguments(__doc__.splitlines()[0], 8, 300,
-                                   {"scenario": "default", "lag": "0.05", "refine": "0"})
+SEEDS, JOBS, OPTS = seed_arguments(
+    __doc__.splitlines()[0], 8, 300, {"scenario": "default", "lag": "0.05", "refine": "0"}
+)
 
 
 def one_flight(seed: int) -> list[dict]:
@@ -78,10 +80,11 @@ def one_flight(seed: int) -> list[dict]:
     refine = OPTS["refine"] not in ("0", "no", "false")
     with tempfile.TemporaryDirectory() as d:
         write_dataflash(Path(d) / "flight.bin", res, airspeed="eas")
-        if refine:      # the pipeline's stage: equation error, then output error
+        if refine:  # the pipeline's stage: equation error, then output error
             import json
 
             from pipeline.run import estimate_log
+
             write_truth_json(Path(d) / "truth.json", res)
             estimate_log(Path(d) / "flight.bin", Path(d) / "out", quiet=True, compat=False)
             rep = json.loads((Path(d) / "out" / "report.json").read_text())
@@ -90,7 +93,7 @@ def one_flight(seed: int) -> list[dict]:
             doc = estimate_input_dynamics(read_log(Path(d) / "flight.bin"))
     why = (doc.get("refined") or {}).get("reason", "")
     rows = []
-    if refine:      # the derivatives with the dynamics applied: worst |error| / total std per fit
+    if refine:  # the derivatives with the dynamics applied: worst |error| / total std per fit
         worst: dict[str, float] = {}
         for key, name, par, _ in judged_parameters(rep):
             if "[" not in name and par.get("error_in_std") is not None:
@@ -100,14 +103,34 @@ def one_flight(seed: int) -> list[dict]:
         ref = e.get("refined") or {}
         for k, (name, truth) in enumerate((("delay_s", 0.0), ("lag_s", lag))):
             key = name[:-2]
-            rows.append({"surface": s, "parameter": key, "estimate": ref.get(name, e[name]),
-                         "truth": truth, "std": ref.get(f"{key}_std") or e[f"{key}_std"],
-                         "mk_std": ref[f"{key}_mk_std"] if ref else e["mk_std"][k],
-                         "applied": float(e["applied"]), "refined": float(bool(ref)), "why": why, "seed": seed})
-        rows.append({"surface": s, "parameter": "equivalent", "truth": lag,
-                     "estimate": ref.get("delay_s", e["delay_s"]) + ref.get("lag_s", e["lag_s"]),
-                     "std": _equivalent_std(doc, s) if ref else e["equivalent_std"], "mk_std": float("nan"),
-                     "applied": float(e["applied"]), "refined": float(bool(ref)), "why": why, "seed": seed})
+            rows.append(
+                {
+                    "surface": s,
+                    "parameter": key,
+                    "estimate": ref.get(name, e[name]),
+                    "truth": truth,
+                    "std": ref.get(f"{key}_std") or e[f"{key}_std"],
+                    "mk_std": ref[f"{key}_mk_std"] if ref else e["mk_std"][k],
+                    "applied": float(e["applied"]),
+                    "refined": float(bool(ref)),
+                    "why": why,
+                    "seed": seed,
+                }
+            )
+        rows.append(
+            {
+                "surface": s,
+                "parameter": "equivalent",
+                "truth": lag,
+                "estimate": ref.get("delay_s", e["delay_s"]) + ref.get("lag_s", e["lag_s"]),
+                "std": _equivalent_std(doc, s) if ref else e["equivalent_std"],
+                "mk_std": float("nan"),
+                "applied": float(e["applied"]),
+                "refined": float(bool(ref)),
+                "why": why,
+                "seed": seed,
+            }
+        )
     return rows
 
 
@@ -130,10 +153,14 @@ if __name__ == "__main__":
         print("worst |error| / std of the derivatives per seed:", w.round(2).to_dict("list"))
         print("every derivative within 3 std on", int((w.max(axis=1) <= 3.0).sum()), "of", len(w), "seeds")
     tab = scatter_table(df, ["surface", "parameter"], {"reported": "std", "mk": "mk_std"})
-    print("applied on", df.groupby("surface")["applied"].mean().round(2).to_dict(), "of the seeds;",
-          "refined by output error on", df.groupby("surface")["refined"].mean().round(2).to_dict())
+    print(
+        "applied on",
+        df.groupby("surface")["applied"].mean().round(2).to_dict(),
+        "of the seeds;",
+        "refined by output error on",
+        df.groupby("surface")["refined"].mean().round(2).to_dict(),
+    )
     if (df["why"] != "").any():
         print("not refined:", df.drop_duplicates("seed")["why"].value_counts().to_dict())
     print("empirical std (ms):", (df.groupby(["surface", "parameter"])["estimate"].std() * 1e3).round(2).to_dict())
-    print(f"mean estimate (ms): "
-          f"{(df.groupby(['surface', 'parameter'])['estimate'].mean() * 1e3).round(1).to_dict()}")
+    print(f"mean estimate (ms): {(df.groupby(['surface', 'parameter'])['estimate'].mean() * 1e3).round(1).to_dict()}")

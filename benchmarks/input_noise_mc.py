@@ -31,6 +31,7 @@ smoothed, the fit is as good as given the true surfaces. The whole run takes ~2 
     python benchmarks/input_noise_mc.py [--seeds 8] [--seed-base 0] [--jobs 2]
         [--flight-seed 31] [--method fem]
 """
+
 from __future__ import annotations
 
 import copy
@@ -60,8 +61,9 @@ def problems(workdir: Path) -> dict:
 
     fl = flight(workdir)
     fd = read_log(workdir / "flight.mcap")
-    raw = multiaxis_problem(fd, AircraftConstants.from_truth(fl["truth"]), "lateral",
-                            gust_states=True, rate_hz=50.0, smooth_inputs=False)
+    raw = multiaxis_problem(
+        fd, AircraftConstants.from_truth(fl["truth"]), "lateral", gust_states=True, rate_hz=50.0, smooth_inputs=False
+    )
     raw.inputs = "linear"
     attach_logged_noise(fd, raw)
     t, da, dr = np.load(workdir / "surfaces.npy")
@@ -81,25 +83,30 @@ def one_draw(seed: int, *, workdir: Path, method: str) -> list[dict]:
     from pipeline.run import fit_problem
 
     fl, pbs = flight(workdir), problems(workdir)
-    segs = simulate(pbs["smoothed"], fl["truth"], "markov", fl, np.random.default_rng(2000 + seed),
-                    u_sim=pbs["true_u"])
+    segs = simulate(pbs["smoothed"], fl["truth"], "markov", fl, np.random.default_rng(2000 + seed), u_sim=pbs["true_u"])
     rows = []
     for variant in VARIANTS:
-        given = (pbs["true_u"] if variant == "true" else [s.u for s in pbs[variant].fit])
+        given = pbs["true_u"] if variant == "true" else [s.u for s in pbs[variant].fit]
         pb = copy.copy(pbs["smoothed"])
         pb.fit = [copy.copy(s) for s in segs]
         for s, u in zip(pb.fit, given):
             s.u = u
         res = fit_problem(pb, method, turbulence=fl["truth"]["turbulence"])
-        rows += [{"variant": variant, "name": n, "estimate": float(res.params[n]),
-                  "std": float(res.std[n]), "truth": float(fl["truth"]["derivatives"][n])}
-                 for n in NAMES]
+        rows += [
+            {
+                "variant": variant,
+                "name": n,
+                "estimate": float(res.params[n]),
+                "std": float(res.std[n]),
+                "truth": float(fl["truth"]["derivatives"][n]),
+            }
+            for n in NAMES
+        ]
     return rows
 
 
 def main() -> None:
-    seeds, jobs, opt = seed_arguments(__doc__.splitlines()[0], 8, 0,
-                                      {"flight-seed": "31", "method": "fem"})
+    seeds, jobs, opt = seed_arguments(__doc__.splitlines()[0], 8, 0, {"flight-seed": "31", "method": "fem"})
     with tempfile.TemporaryDirectory() as d:
         fly_once(Path(d), int(opt["flight-seed"]))
         note = next(n for n in flight(Path(d))["problem"].notes if n.startswith("control inputs"))
@@ -112,9 +119,11 @@ def main() -> None:
     tab["mean_err_std"] = g.mean()
     for variant in VARIANTS:
         t = tab.loc[variant]
-        print(range_line(tab, variant) + f"; mean |error|/std worst {t['mean_abs_err_std'].max():.2f} "
-              f"({t['mean_abs_err_std'].idxmax()}); mean error/std Clp "
-              f"{t.loc['Clp', 'mean_err_std']:+.2f}, Clda {t.loc['Clda', 'mean_err_std']:+.2f}")
+        print(
+            range_line(tab, variant) + f"; mean |error|/std worst {t['mean_abs_err_std'].max():.2f} "
+            f"({t['mean_abs_err_std'].idxmax()}); mean error/std Clp "
+            f"{t.loc['Clp', 'mean_err_std']:+.2f}, Clda {t.loc['Clda', 'mean_err_std']:+.2f}"
+        )
 
 
 if __name__ == "__main__":

@@ -78,6 +78,7 @@ Before (session 24): the steps timed only where a gyro sampled inside their inte
     python benchmarks/input_sampling_mc.py [--seeds 8] [--seed-base 1] [--jobs 2] [--surfaces-hz 25]
         [--rates default|ardupilot]
 """
+
 from __future__ import annotations
 
 import json
@@ -125,10 +126,21 @@ def one_flight(seed: int, surfaces_hz: float = 25.0, rates: str = "default") -> 
         estimate_log(d / "flight.bin", d / "out", methods=["oem"], quiet=True)
         rep = json.loads((d / "out" / "report.json").read_text())
     steps = (rep["meta"].get("input_sampling") or {}).get("steps", 0)
-    return [{"seed": seed, "key": key, "parameter": n, "estimate": p["estimate"], "std": p["std"],
-             "total_std": p.get("total_std") or p["std"], "truth": p["truth"], "steps": steps,
-             **proof_of_match(rep["methods"][key])}
-            for key, n, p, _ in judged_parameters(rep) if "[" not in n]
+    return [
+        {
+            "seed": seed,
+            "key": key,
+            "parameter": n,
+            "estimate": p["estimate"],
+            "std": p["std"],
+            "total_std": p.get("total_std") or p["std"],
+            "truth": p["truth"],
+            "steps": steps,
+            **proof_of_match(rep["methods"][key]),
+        }
+        for key, n, p, _ in judged_parameters(rep)
+        if "[" not in n
+    ]
 
 
 def proof_of_match(method: dict) -> dict:
@@ -140,16 +152,20 @@ def proof_of_match(method: dict) -> dict:
     chans = [d for s in segs for d in s["channels"].values() if d.get("pass") is not None]
     nominal = all(d.get("nominal_max_abs_error", d["max_abs_error"]) <= d["tolerance"] for d in chans)
     failed = [d for d in chans if d["pass"] is False]
-    return {"pom": bool(pm.get("all_pass")), "pom_nominal": bool(segs) and nominal,
-            # every failed channel within 2 std of the prediction's own uncertainty
-            "pom_within": bool(failed) and all(d.get("beyond_prediction_display") == 0.0 for d in failed),
-            "verdict": bool((method.get("verdict") or {}).get("ok")),
-            "untimed": sum((s.get("input_timing") or {}).get("untimed", 0) for s in segs)}
+    return {
+        "pom": bool(pm.get("all_pass")),
+        "pom_nominal": bool(segs) and nominal,
+        # every failed channel within 2 std of the prediction's own uncertainty
+        "pom_within": bool(failed) and all(d.get("beyond_prediction_display") == 0.0 for d in failed),
+        "verdict": bool((method.get("verdict") or {}).get("ok")),
+        "untimed": sum((s.get("input_timing") or {}).get("untimed", 0) for s in segs),
+    }
 
 
 def main() -> None:
-    seeds, jobs, opt = seed_arguments(__doc__.splitlines()[0], seeds=8, seed_base=1,
-                                      options={"surfaces-hz": "25", "rates": "default"})
+    seeds, jobs, opt = seed_arguments(
+        __doc__.splitlines()[0], seeds=8, seed_base=1, options={"surfaces-hz": "25", "rates": "default"}
+    )
     df = fly(partial(one_flight, surfaces_hz=float(opt["surfaces-hz"]), rates=opt["rates"]), seeds, jobs)
     tab = scatter_table(df, ["key", "parameter"], {"crb": "std", "total": "total_std"})
     df["z_crb"] = (df["estimate"] - df["truth"]).abs() / df["std"]
@@ -157,20 +173,25 @@ def main() -> None:
     worst = df.groupby(["key", "seed"])[["z_crb", "z_total", "steps"]].max()
     print(worst.round(2).to_string())
     for key, g in worst.groupby(level=0):
-        print(f"  {key}: within 3 std on {int((g['z_total'] <= 3).sum())}/{len(g)} seeds with the "
-              f"steps' times carried, {int((g['z_crb'] <= 3).sum())}/{len(g)} with the CRB alone")
+        print(
+            f"  {key}: within 3 std on {int((g['z_total'] <= 3).sum())}/{len(g)} seeds with the "
+            f"steps' times carried, {int((g['z_crb'] <= 3).sum())}/{len(g)} with the CRB alone"
+        )
     pom = df.groupby(["key", "seed"])[["pom", "pom_nominal", "pom_within", "untimed", "verdict"]].first()
     for key, g in pom.groupby(level=0):
-        print(f"  {key}: proof of match passes on {int(g['pom'].sum())}/{len(g)} seeds "
-              f"(of the {int((~g['pom']).sum())} failures {int(g['pom_within'].sum())} within 2 std "
-              "of the prediction's own uncertainty), "
-              f"{int(g['pom_nominal'].sum())}/{len(g)} without the steps moved in time "
-              f"({int((g['untimed'] > 0).sum())} with untimed steps in the held-out maneuver); "
-              f"verdict PASS on {int(g['verdict'].sum())}/{len(g)}")
-    print(f"empirical std / total std {tab['total'].min():.2f}-{tab['total'].max():.2f} "
-          f"(CRB alone {tab['crb'].min():.2f}-{tab['crb'].max():.2f})")
-    print(f"median worst |error|/std, CRB alone / total: "
-          f"{np.median(worst['z_crb']) / np.median(worst['z_total']):.1f}")
+        print(
+            f"  {key}: proof of match passes on {int(g['pom'].sum())}/{len(g)} seeds "
+            f"(of the {int((~g['pom']).sum())} failures {int(g['pom_within'].sum())} within 2 std "
+            "of the prediction's own uncertainty), "
+            f"{int(g['pom_nominal'].sum())}/{len(g)} without the steps moved in time "
+            f"({int((g['untimed'] > 0).sum())} with untimed steps in the held-out maneuver); "
+            f"verdict PASS on {int(g['verdict'].sum())}/{len(g)}"
+        )
+    print(
+        f"empirical std / total std {tab['total'].min():.2f}-{tab['total'].max():.2f} "
+        f"(CRB alone {tab['crb'].min():.2f}-{tab['crb'].max():.2f})"
+    )
+    print(f"median worst |error|/std, CRB alone / total: {np.median(worst['z_crb']) / np.median(worst['z_total']):.1f}")
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ process, so the numbers include Python start-up, the flight simulation and the I
 
     python benchmarks/jit_cache.py [--scenario default] [--method ...]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -42,8 +43,7 @@ def run(scenario: Path, out: Path, cache: Path, methods: list[str], **env: str) 
 
 def estimates(out: Path) -> dict:
     rep = json.loads((out / "report.json").read_text())
-    return {k: {n: p["estimate"] for n, p in m["parameters"].items()}
-            for k, m in rep["methods"].items()}
+    return {k: {n: p["estimate"] for n, p in m["parameters"].items()} for k, m in rep["methods"].items()}
 
 
 def main() -> None:
@@ -54,14 +54,15 @@ def main() -> None:
     scenario = ROOT / "scenarios" / f"{a.scenario}.toml"
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        times = {"in memory": run(scenario, tmp / "mem", tmp / "mem_cache", a.method, FSID_JIT_CACHE="0"),
-                 "cold": run(scenario, tmp / "cold", tmp / "cache", a.method),
-                 "warm": run(scenario, tmp / "warm", tmp / "cache", a.method)}
+        times = {
+            "in memory": run(scenario, tmp / "mem", tmp / "mem_cache", a.method, FSID_JIT_CACHE="0"),
+            "cold": run(scenario, tmp / "cold", tmp / "cache", a.method),
+            "warm": run(scenario, tmp / "warm", tmp / "cache", a.method),
+        }
         same = estimates(tmp / "mem") == estimates(tmp / "cold") == estimates(tmp / "warm")
         n_files = len(list((tmp / "cache" / "kernels").glob("*.py")))
     base = times["in memory"]
-    print(f"fsid run {scenario.name}: {n_files} kernel modules cached; estimates identical "
-          f"in the three runs: {same}")
+    print(f"fsid run {scenario.name}: {n_files} kernel modules cached; estimates identical in the three runs: {same}")
     for k, v in times.items():
         print(f"  {k:10s} {v:6.1f} s   {v / base:5.2f} x in memory")
     print(f"warm / in-memory wall time: {times['warm'] / base:.2f}")

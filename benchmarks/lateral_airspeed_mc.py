@@ -32,6 +32,7 @@ Measured (2026-11-24): seeds 200-215 | 216-231
 
     python benchmarks/lateral_airspeed_mc.py [--seeds 16] [--seed-base 200] [--jobs 2]
 """
+
 from __future__ import annotations
 
 import json
@@ -46,8 +47,23 @@ sys.path.insert(0, str(ROOT))
 from _montecarlo import fly, range_line, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
 
 SCENARIO = ROOT / "scenarios" / "lateral_doublets_calm.toml"
-LATERAL = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
-           "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
+LATERAL = (
+    "CYbeta",
+    "CYp",
+    "CYr",
+    "CYda",
+    "CYdr",
+    "Clbeta",
+    "Clp",
+    "Clr",
+    "Clda",
+    "Cldr",
+    "Cnbeta",
+    "Cnp",
+    "Cnr",
+    "Cnda",
+    "Cndr",
+)
 
 
 def _fit(fd, ac, kinematic: bool) -> tuple[dict, dict, dict]:
@@ -60,9 +76,14 @@ def _fit(fd, ac, kinematic: bool) -> tuple[dict, dict, dict]:
     pb = with_airspeed_offsets(pb, fd)
     pb.inputs = "linear"
     res = fit_problem(pb, "oem")
-    mk = morelli_klein(res.sensitivities, [r.to_numpy() for r in res.residuals], R=res.R,
-                       info=res.information, names=res.free_names,
-                       prior_info=res.extra.get("prior_information"))
+    mk = morelli_klein(
+        res.sensitivities,
+        [r.to_numpy() for r in res.residuals],
+        R=res.R,
+        info=res.information,
+        names=res.free_names,
+        prior_info=res.extra.get("prior_information"),
+    )
     return dict(res.params), dict(res.std), dict(zip(res.free_names, mk.std))
 
 
@@ -75,25 +96,32 @@ def one_flight(seed: int) -> list[dict]:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
-        src = SCENARIO.read_text().replace('aircraft = "aircraft/',
-                                           f'aircraft = "{SCENARIO.parent}/aircraft/')
+        src = SCENARIO.read_text().replace('aircraft = "aircraft/', f'aircraft = "{SCENARIO.parent}/aircraft/')
         (d / "noisy.toml").write_text(src)
         # the same flight with a noise-free pitot
         quiet = src.replace("[sensors.airdata]", "[sensors.airdata]\nairspeed_noise_mps = 0.0", 1)
         if quiet == src:
             quiet = src + "\n[sensors.airdata]\nairspeed_noise_mps = 0.0\n"
         (d / "quiet.toml").write_text(quiet)
-        for name, fits in (("noisy", (("pitot", False), ("kinematic", True))),
-                           ("quiet", (("no_noise", False),))):
+        for name, fits in (("noisy", (("pitot", False), ("kinematic", True))), ("quiet", (("no_noise", False),))):
             run_dir, _ = simulate(d / f"{name}.toml", d / name, seed=seed, progress=False)
             truth = json.loads((run_dir / "truth.json").read_text())
             ac = AircraftConstants.from_truth(truth)
             fd = read_log(run_dir / "flight.mcap")
             for source, kin in fits:
                 params, std, mk = _fit(fd, ac, kin)
-                rows += [{"seed": seed, "source": source, "parameter": n, "estimate": params[n],
-                          "std": std[n], "mk_std": mk[n], "truth": truth["derivatives"][n]}
-                         for n in LATERAL]
+                rows += [
+                    {
+                        "seed": seed,
+                        "source": source,
+                        "parameter": n,
+                        "estimate": params[n],
+                        "std": std[n],
+                        "mk_std": mk[n],
+                        "truth": truth["derivatives"][n],
+                    }
+                    for n in LATERAL
+                ]
     return rows
 
 

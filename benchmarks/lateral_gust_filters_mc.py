@@ -74,6 +74,7 @@ every lag from 0.1 to 0.6 s), so what fails there is the filters, not the gust m
         [--flight-seed 31] [--methods fem,ekf,ukf,ekf-trueQ,ukf-trueQ,ekf-trueQR,ukf-trueQR]
         [--variants markov,flight]
 """
+
 from __future__ import annotations
 
 import sys
@@ -85,12 +86,26 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from _montecarlo import (fly, flown_problem, range_line, scatter_table,  # noqa: E402
-                         seed_arguments)
+from _montecarlo import flown_problem, fly, range_line, scatter_table, seed_arguments  # noqa: E402
 
 SCENARIO = ROOT / "scenarios" / "multiaxis_multisine_turbulence.toml"
-NAMES = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
-         "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
+NAMES = (
+    "CYbeta",
+    "CYp",
+    "CYr",
+    "CYda",
+    "CYdr",
+    "Clbeta",
+    "Clp",
+    "Clr",
+    "Clda",
+    "Cldr",
+    "Cnbeta",
+    "Cnp",
+    "Cnr",
+    "Cnda",
+    "Cndr",
+)
 #: white process noise (state unit per sqrt(s)) of the draws besides the roll gust: FEM's
 #: estimates on the JSBSim flight (F_beta 0.020, F_r 0.005, F_p 0)
 OTHER_F = {"beta": 0.020, "r": 0.005}
@@ -120,12 +135,19 @@ def flight(workdir: Path) -> dict:
     t, pt = np.load(workdir / "p_turb.npy")
     lag = int(round(0.2 / np.median(np.diff(t))))
     rho = np.corrcoef(pt[:-lag], pt[lag:])[0, 1]
-    return {"problem": pb, "truth": truth_doc, "t": t, "p_turb": pt,
-            "tau": float(-0.2 / np.log(rho)), "rms": float(pt.std())}
+    return {
+        "problem": pb,
+        "truth": truth_doc,
+        "t": t,
+        "p_turb": pt,
+        "tau": float(-0.2 / np.log(rho)),
+        "rms": float(pt.std()),
+    }
 
 
-def simulate(pb, truth: dict, gust: str, fl: dict, rng: np.random.Generator,
-             u_sim: list[np.ndarray] | None = None) -> list:
+def simulate(
+    pb, truth: dict, gust: str, fl: dict, rng: np.random.Generator, u_sim: list[np.ndarray] | None = None
+) -> list:
     """New segments of ``pb`` with outputs simulated by its model at the true derivatives,
     driven by each segment's inputs or by ``u_sim`` (one (n, n_u) array per segment: the
     inputs the simulated aircraft saw, when those are not the ones the fit is given)."""
@@ -151,8 +173,7 @@ def simulate(pb, truth: dict, gust: str, fl: dict, rng: np.random.Generator,
                 x[i] = s.z[0, m.outputs.index(st)]
         x[m.states.index("beta_k")] = x[m.states.index("beta")]
         # the gust at the segment start: JSBSim's, or a draw from the stationary spread
-        x[ig] = (np.interp(s.t[0], fl["t"], fl["p_turb"]) if gust == "flight"
-                 else fl["rms"] * rng.standard_normal())
+        x[ig] = np.interp(s.t[0], fl["t"], fl["p_turb"]) if gust == "flight" else fl["rms"] * rng.standard_normal()
         X = np.empty((n, x.size))
         X[0] = x
         w = rng.standard_normal((n, SUBSTEPS, x.size)) * F * np.sqrt(dt)
@@ -192,37 +213,55 @@ def one_draw(seed: int, *, workdir: Path, methods: list[str], variants: list[str
         pb = copy.copy(fl["problem"])
         pb.fit = simulate(fl["problem"], fl["truth"], gust, fl, np.random.default_rng(1000 + seed))
         for method in methods:
-            if method.endswith("-trueQR"):    # ... and their own measurement noise
-                res = fit_problem(pb, method[:-7], process_noise=true_process_noise(pb, gust, fl),
-                                  measurement_noise=dict(zip(pb.model.outputs,
-                                                             measurement_noise_std(pb))))
-            elif method.endswith("-trueQ"):   # the filter given the draws' own process noise
+            if method.endswith("-trueQR"):  # ... and their own measurement noise
+                res = fit_problem(
+                    pb,
+                    method[:-7],
+                    process_noise=true_process_noise(pb, gust, fl),
+                    measurement_noise=dict(zip(pb.model.outputs, measurement_noise_std(pb))),
+                )
+            elif method.endswith("-trueQ"):  # the filter given the draws' own process noise
                 res = fit_problem(pb, method[:-6], process_noise=true_process_noise(pb, gust, fl))
             else:
                 res = fit_problem(pb, method, turbulence=fl["truth"]["turbulence"])
-            rows += [{"variant": gust, "method": method, "name": n,
-                      "estimate": float(res.params[n]), "std": float(res.std[n]),
-                      "truth": float(fl["truth"]["derivatives"][n])} for n in NAMES]
+            rows += [
+                {
+                    "variant": gust,
+                    "method": method,
+                    "name": n,
+                    "estimate": float(res.params[n]),
+                    "std": float(res.std[n]),
+                    "truth": float(fl["truth"]["derivatives"][n]),
+                }
+                for n in NAMES
+            ]
     return rows
 
 
 def main() -> None:
-    seeds, jobs, opt = seed_arguments(__doc__.splitlines()[0], 8, 0,
-                                      {"flight-seed": "31", "methods": "fem,ekf,ukf",
-                                       "variants": "markov,flight"})
+    seeds, jobs, opt = seed_arguments(
+        __doc__.splitlines()[0], 8, 0, {"flight-seed": "31", "methods": "fem,ekf,ukf", "variants": "markov,flight"}
+    )
     with tempfile.TemporaryDirectory() as d:
         fly_once(Path(d), int(opt["flight-seed"]))
         fl = flight(Path(d))
-        print(f"flight seed {opt['flight-seed']}: JSBSim p_turb rms {fl['rms']:.4f} rad/s, "
-              f"time constant {fl['tau']:.3f} s")
-        df = fly(partial(one_draw, workdir=Path(d), methods=opt["methods"].split(","),
-                               variants=opt["variants"].split(",")), seeds, jobs)
+        print(
+            f"flight seed {opt['flight-seed']}: JSBSim p_turb rms {fl['rms']:.4f} rad/s, "
+            f"time constant {fl['tau']:.3f} s"
+        )
+        df = fly(
+            partial(one_draw, workdir=Path(d), methods=opt["methods"].split(","), variants=opt["variants"].split(",")),
+            seeds,
+            jobs,
+        )
     df["err_std"] = (df["estimate"] - df["truth"]).abs() / df["std"]
     tab = scatter_table(df, ["variant", "method", "name"], {"reported": "std"})
     tab["mean_err_std"] = df.groupby(["variant", "method", "name"], sort=False)["err_std"].mean()
     for group, t in tab.groupby(level=[0, 1], sort=False):
-        print(range_line(tab, group) + f"; mean |error|/std worst "
-              f"{t['mean_err_std'].max():.2f} ({t['mean_err_std'].idxmax()[2]})")
+        print(
+            range_line(tab, group) + f"; mean |error|/std worst "
+            f"{t['mean_err_std'].max():.2f} ({t['mean_err_std'].idxmax()[2]})"
+        )
 
 
 if __name__ == "__main__":

@@ -36,6 +36,7 @@ the rms of the model's q_gi at FEM's F_q_gi); the flight banks up to 20 deg.
     python benchmarks/longitudinal_gust_fem_mc.py [--seeds 12] [--seed-base 0] [--jobs 2]
         [--flight-seed 31]
 """
+
 from __future__ import annotations
 
 import copy
@@ -48,12 +49,24 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from _montecarlo import (fly, flown_problem, range_line, scatter_table,  # noqa: E402
-                         seed_arguments)
+from _montecarlo import flown_problem, fly, range_line, scatter_table, seed_arguments  # noqa: E402
 
 SCENARIO = ROOT / "scenarios" / "multiaxis_multisine_turbulence.toml"
-NAMES = ("CD0", "CDalpha", "CDalpha2", "CL0", "CLalpha", "CLq", "CLde", "Cm0", "Cmalpha",
-         "Cmq", "Cmde", "CLalphadot", "Cmalphadot")
+NAMES = (
+    "CD0",
+    "CDalpha",
+    "CDalpha2",
+    "CL0",
+    "CLalpha",
+    "CLq",
+    "CLde",
+    "Cm0",
+    "Cmalpha",
+    "Cmq",
+    "Cmde",
+    "CLalphadot",
+    "Cmalphadot",
+)
 SUBSTEPS = 10
 
 
@@ -81,8 +94,7 @@ def flight(workdir: Path) -> dict:
     return {"problem": pb, "truth": truth_doc, "F": F, "fem": fem}
 
 
-def simulate(pb, truth: dict, F: dict[str, float], rng: np.random.Generator, n_draws: int
-             ) -> list[list]:
+def simulate(pb, truth: dict, F: dict[str, float], rng: np.random.Generator, n_draws: int) -> list[list]:
     """``n_draws`` sets of new segments of ``pb``: outputs of its model at the true
     derivatives on each segment's inputs (linear between samples), process noise F (state
     -> state unit per sqrt(s)), sensor noise at the problem's measurement-noise std."""
@@ -106,17 +118,19 @@ def simulate(pb, truth: dict, F: dict[str, float], rng: np.random.Generator, n_d
             for j in range(SUBSTEPS):
                 a = (j + 0.5) / SUBSTEPS
                 u = ((1 - a) * s.u[k - 1] + a * s.u[k])[:, None] * np.ones(n_draws)
-                x = (x + np.asarray(m.f(x, u, p, c), dtype=float) * dt
-                     + f_std * np.sqrt(dt) * rng.standard_normal(x.shape))
+                x = (
+                    x
+                    + np.asarray(m.f(x, u, p, c), dtype=float) * dt
+                    + f_std * np.sqrt(dt) * rng.standard_normal(x.shape)
+                )
             X[k] = x
-        U = np.repeat(s.u.T[:, :, None], n_draws, axis=2)            # (n_u, n, draws)
-        Y = np.asarray(m.g(np.moveaxis(X, 0, 1), U, p, c), dtype=float)   # (n_y, n, draws)
+        U = np.repeat(s.u.T[:, :, None], n_draws, axis=2)  # (n_u, n, draws)
+        Y = np.asarray(m.g(np.moveaxis(X, 0, 1), U, p, c), dtype=float)  # (n_y, n, draws)
         Z = Y + G * rng.standard_normal(Y.shape)
         for d in range(n_draws):
             z = Z[:, :, d].T.copy()
             z[np.isnan(s.z)] = np.nan
-            draws[d].append(Segment(t=s.t, u=s.u, z=z, x0=s.x0, constants=s.constants,
-                                    name=s.name))
+            draws[d].append(Segment(t=s.t, u=s.u, z=z, x0=s.x0, constants=s.constants, name=s.name))
     return draws
 
 
@@ -128,8 +142,15 @@ def one_draw(seed: int, *, workdir: Path) -> list[dict]:
     pb = copy.copy(fl["problem"])
     pb.fit = simulate(pb, fl["truth"], fl["F"], np.random.default_rng(2000 + seed), 1)[0]
     res = fit_problem(pb, "fem", turbulence=fl["truth"]["turbulence"])
-    return [{"name": n, "estimate": float(res.params[n]), "std": float(res.std[n]),
-             "truth": float(fl["truth"]["derivatives"][n])} for n in NAMES]
+    return [
+        {
+            "name": n,
+            "estimate": float(res.params[n]),
+            "std": float(res.std[n]),
+            "truth": float(fl["truth"]["derivatives"][n]),
+        }
+        for n in NAMES
+    ]
 
 
 def main() -> None:
@@ -137,8 +158,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         fly_once(Path(d), int(opt["flight-seed"]))
         fl = flight(Path(d))
-        print(f"flight seed {opt['flight-seed']}: FEM's process noise on it (the draws'): "
-              + ", ".join(f"F_{k} {v:.4g}" for k, v in fl["F"].items()))
+        print(
+            f"flight seed {opt['flight-seed']}: FEM's process noise on it (the draws'): "
+            + ", ".join(f"F_{k} {v:.4g}" for k, v in fl["F"].items())
+        )
         df = fly(partial(one_draw, workdir=Path(d)), seeds, jobs)
         fem = fl["fem"]
         own = {n: abs(fem.params[n] - fl["truth"]["derivatives"][n]) / fem.std[n] for n in NAMES}
@@ -146,12 +169,15 @@ def main() -> None:
     df["err_std"] = (df["estimate"] - df["truth"]).abs() / df["std"]
     tab = scatter_table(df, ["method", "name"], {"reported": "std"})
     tab["mean_err_std"] = df.groupby(["method", "name"], sort=False)["err_std"].mean()
-    print("mean |error| / reported std: " + ", ".join(
-        f"{n} {v:.2f}" for (_, n), v in tab["mean_err_std"].items()))
-    print(range_line(tab, "fem") + f"; mean |error|/std worst {tab['mean_err_std'].max():.2f} "
-          f"({tab['mean_err_std'].idxmax()[1]})")
-    print("the JSBSim flight itself, |error| / reported std: "
-          + ", ".join(f"{n} {v:.2f}" for n, v in sorted(own.items(), key=lambda kv: -kv[1])[:6]))
+    print("mean |error| / reported std: " + ", ".join(f"{n} {v:.2f}" for (_, n), v in tab["mean_err_std"].items()))
+    print(
+        range_line(tab, "fem") + f"; mean |error|/std worst {tab['mean_err_std'].max():.2f} "
+        f"({tab['mean_err_std'].idxmax()[1]})"
+    )
+    print(
+        "the JSBSim flight itself, |error| / reported std: "
+        + ", ".join(f"{n} {v:.2f}" for n, v in sorted(own.items(), key=lambda kv: -kv[1])[:6])
+    )
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ freedom a fit), and never flags them. Output error: its bounds are 2.2-14x too s
 
     python benchmarks/maneuver_scatter_mc.py [--seeds 12] [--seed-base 0] [--jobs 2]
 """
+
 from __future__ import annotations
 
 import sys
@@ -51,14 +52,26 @@ def one_draw(seed: int) -> list[dict]:
     rows = []
     for g in (2, 4):
         ex = turbulent_short_period_example(seed=seed, segments=g, biases=BIASES[:g])
-        fits = {"fem": FilterError(ex.model, process_noise={"alpha": 0.01, "q": 0.01}).fit(ex.segments),
-                "oem": OutputError(ex.model).fit(ex.segments)}
+        fits = {
+            "fem": FilterError(ex.model, process_noise={"alpha": 0.01, "q": 0.01}).fit(ex.segments),
+            "oem": OutputError(ex.model).fit(ex.segments),
+        }
         for method, res in fits.items():
             cl = maneuver_scatter(res)
             ratio = dict(zip(cl.names, cl.ratio))
-            rows += [{"maneuvers": g, "method": method, "seed": seed, "name": n,
-                      "estimate": float(res.params[n]), "truth": float(ex.truth[n]),
-                      "crb": float(res.std[n]), "ratio": float(ratio[n])} for n in NAMES]
+            rows += [
+                {
+                    "maneuvers": g,
+                    "method": method,
+                    "seed": seed,
+                    "name": n,
+                    "estimate": float(res.params[n]),
+                    "truth": float(ex.truth[n]),
+                    "crb": float(res.std[n]),
+                    "ratio": float(ratio[n]),
+                }
+                for n in NAMES
+            ]
     return rows
 
 
@@ -67,18 +80,21 @@ def main() -> None:
     df = fly(one_draw, seeds, jobs)
     df["var_ratio"] = df["ratio"] ** 2
     g = df.groupby(["maneuvers", "method", "name"], sort=False)
-    tab = pd.DataFrame({"var_ratio": g["var_ratio"].mean(),
-                        "emp_over_crb": g["estimate"].std(ddof=1) / g["crb"].mean()})
+    tab = pd.DataFrame(
+        {"var_ratio": g["var_ratio"].mean(), "emp_over_crb": g["estimate"].std(ddof=1) / g["crb"].mean()}
+    )
     with pd.option_context("display.width", 120):
         print(tab.round(2).unstack("name").to_string())
-    flag = (df.groupby(["maneuvers", "method", "seed"])["ratio"].max() > 3.0)
+    flag = df.groupby(["maneuvers", "method", "seed"])["ratio"].max() > 3.0
     print("\nshare of fits with some derivative above 3x its bound:")
     print(flag.groupby(["maneuvers", "method"]).agg(["sum", "count"]).to_string())
     print("\nranges over the derivatives:")
     for (gm, method), t in tab.groupby(level=[0, 1], sort=False):
-        print(f"  {gm} maneuvers {method}: var ratio {t['var_ratio'].min():.2f}-"
-              f"{t['var_ratio'].max():.2f}, emp/CRB {t['emp_over_crb'].min():.2f}-"
-              f"{t['emp_over_crb'].max():.2f}")
+        print(
+            f"  {gm} maneuvers {method}: var ratio {t['var_ratio'].min():.2f}-"
+            f"{t['var_ratio'].max():.2f}, emp/CRB {t['emp_over_crb'].min():.2f}-"
+            f"{t['emp_over_crb'].max():.2f}"
+        )
 
 
 if __name__ == "__main__":

@@ -23,6 +23,7 @@ process the quiet numbers are the ones to quote.)
 
     python benchmarks/many_maneuvers.py [--segments 4 16 48]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -68,23 +69,35 @@ def one(G: int) -> dict[str, float]:
     names = [n for n in res.free_names if "[" not in n]
     d_step = (step.params[names] - res.params[names]).to_numpy()
     d_refit = (refit.params[names] - res.params[names]).to_numpy()
-    return {"G": G, "n_free": len(res.free_names), "dense_s": t_dense, "blocks_s": t_blocks,
-            "F_agree": agree, "refit_s": t_refit, "refit_iter": refit.iterations, "step_s": t_step,
-            "step_vs_refit": float(np.max(np.abs(d_step - d_refit)) / np.max(np.abs(d_refit)))}
+    return {
+        "G": G,
+        "n_free": len(res.free_names),
+        "dense_s": t_dense,
+        "blocks_s": t_blocks,
+        "F_agree": agree,
+        "refit_s": t_refit,
+        "refit_iter": refit.iterations,
+        "step_s": t_step,
+        "step_vs_refit": float(np.max(np.abs(d_step - d_refit)) / np.max(np.abs(d_refit))),
+    }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--segments", type=int, nargs="+", default=[4, 16, 48])
     args = ap.parse_args()
-    print(f"{'G':>3} {'n_free':>6} {'dense s':>8} {'blocks s':>8} {'ratio':>6} {'F agree':>8} "
-          f"{'refit s':>8} {'iter':>4} {'step s':>7} {'ratio':>6} {'step-refit':>10}")
+    print(
+        f"{'G':>3} {'n_free':>6} {'dense s':>8} {'blocks s':>8} {'ratio':>6} {'F agree':>8} "
+        f"{'refit s':>8} {'iter':>4} {'step s':>7} {'ratio':>6} {'step-refit':>10}"
+    )
     for G in args.segments:
         r = one(G)
-        print(f"{r['G']:>3} {r['n_free']:>6} {r['dense_s']:>8.3f} {r['blocks_s']:>8.3f} "
-              f"{r['dense_s'] / r['blocks_s']:>6.1f} {r['F_agree']:>8.1e} {r['refit_s']:>8.2f} "
-              f"{r['refit_iter']:>4} {r['step_s']:>7.3f} {r['refit_s'] / r['step_s']:>6.1f} "
-              f"{r['step_vs_refit']:>10.3f}")
+        print(
+            f"{r['G']:>3} {r['n_free']:>6} {r['dense_s']:>8.3f} {r['blocks_s']:>8.3f} "
+            f"{r['dense_s'] / r['blocks_s']:>6.1f} {r['F_agree']:>8.1e} {r['refit_s']:>8.2f} "
+            f"{r['refit_iter']:>4} {r['step_s']:>7.3f} {r['refit_s'] / r['step_s']:>6.1f} "
+            f"{r['step_vs_refit']:>10.3f}"
+        )
 
 
 if __name__ == "__main__":

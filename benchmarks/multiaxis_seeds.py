@@ -89,6 +89,7 @@ Earlier (1.5 deg, the last multisine held out of the fit), worst
 wind-azimuth frame, or the aircraft's axes as MIL-F-8785C defines the gusts above
 2000 ft); ``--scenario``: another variant of the scenario file.
 """
+
 from __future__ import annotations
 
 import functools
@@ -118,22 +119,39 @@ def one_seed(seed: int, methods: str = METHODS, scenario: str = str(SCENARIO)) -
         run_scenario(scenario, out, seed=seed, methods=methods.split(","), quiet=True, compat=False)
         rep = json.loads((out / "report.json").read_text())
     val = {key: _pom_and_tic(m) for key, m in rep["methods"].items()}
-    return [{"seed": seed, "method": key, "parameter": name, "estimate": p["estimate"],
-             "truth": p["truth"], "reported": p["std"], "err": abs(p["error_in_std"]),
-             "scatter": p.get("cluster_std") if p.get("cluster_std") is not None else float("nan"),
-             "converged": m["converged"], **val[key]} for key, name, p, m in judged_parameters(rep)]
+    return [
+        {
+            "seed": seed,
+            "method": key,
+            "parameter": name,
+            "estimate": p["estimate"],
+            "truth": p["truth"],
+            "reported": p["std"],
+            "err": abs(p["error_in_std"]),
+            "scatter": p.get("cluster_std") if p.get("cluster_std") is not None else float("nan"),
+            "converged": m["converged"],
+            **val[key],
+        }
+        for key, name, p, m in judged_parameters(rep)
+    ]
 
 
 def _pom_and_tic(m: dict) -> dict:
     """A method's proof of match (pass, and the worst channel's max |error| / band) and its
     largest Theil coefficient."""
     pm = (m.get("validation") or {}).get("proof_of_match") or {}
-    ratios = [d["max_abs_error"] / d["tolerance"] for sg in pm.get("segments", [])
-              for d in sg["channels"].values()
-              if d.get("pass") is not None and d.get("tolerance")]
+    ratios = [
+        d["max_abs_error"] / d["tolerance"]
+        for sg in pm.get("segments", [])
+        for d in sg["channels"].values()
+        if d.get("pass") is not None and d.get("tolerance")
+    ]
     tic = [d["TIC"] for d in ((m.get("validation") or {}).get("fit") or {}).get("per_output", {}).values()]
-    return {"pom_pass": bool(pm.get("all_pass")), "pom_ratio": max(ratios, default=float("nan")),
-            "max_tic": max(tic, default=float("nan"))}
+    return {
+        "pom_pass": bool(pm.get("all_pass")),
+        "pom_ratio": max(ratios, default=float("nan")),
+        "max_tic": max(tic, default=float("nan")),
+    }
 
 
 def with_axes(scenario: Path, axes: str, folder: Path) -> Path:
@@ -156,16 +174,18 @@ def with_axes(scenario: Path, axes: str, folder: Path) -> Path:
 
 
 def main() -> float:
-    seeds, jobs, opts = seed_arguments(__doc__.split("\n\n")[0], 8, 31,
-                                       {"methods": METHODS, "scenario": str(SCENARIO), "axes": ""})
+    seeds, jobs, opts = seed_arguments(
+        __doc__.split("\n\n")[0], 8, 31, {"methods": METHODS, "scenario": str(SCENARIO), "axes": ""}
+    )
     with tempfile.TemporaryDirectory() as tmp:
         scenario = Path(opts["scenario"]).resolve()
         if opts["axes"]:
             scenario = with_axes(scenario, opts["axes"], Path(tmp))
-        print(f"{scenario.name}, seeds {seeds[0]}-{seeds[-1]}"
-              + (f", turbulence axes {opts['axes']}" if opts["axes"] else ""))
-        df = fly(functools.partial(one_seed, methods=opts["methods"], scenario=str(scenario)),
-                 seeds, jobs)
+        print(
+            f"{scenario.name}, seeds {seeds[0]}-{seeds[-1]}"
+            + (f", turbulence axes {opts['axes']}" if opts["axes"] else "")
+        )
+        df = fly(functools.partial(one_seed, methods=opts["methods"], scenario=str(scenario)), seeds, jobs)
     worst = df.groupby(["method", "seed"])["err"].max().unstack("seed")
     which = df.loc[df.groupby(["method", "seed"])["err"].idxmax()].set_index(["method", "seed"])["parameter"]
     print("worst |error| / reported std per seed (the derivative):")
@@ -173,28 +193,37 @@ def main() -> float:
         cells = [f"{row[s]:5.1f} {which[(method, s)]:<10s}" for s in worst.columns]
         ok = int((row <= 3.0).sum())
         print(f"  {method:18s} within 3 std in {ok}/{len(row)} seeds | " + " ".join(cells))
-    print("\nover the seeds, per derivative (reported: the method's std; scatter: the "
-          "maneuver-scatter std of the report, with 2+ maneuvers; wider: the larger of both):")
+    print(
+        "\nover the seeds, per derivative (reported: the method's std; scatter: the "
+        "maneuver-scatter std of the report, with 2+ maneuvers; wider: the larger of both):"
+    )
     df["wider"] = np.fmax(df["reported"], df["scatter"])
-    scatter_table(df, ["method", "parameter"],
-                  {"reported": "reported", "scatter": "scatter", "wider": "wider"})
-    wide = (df.assign(err=(df["estimate"] - df["truth"]).abs() / df["wider"])
-            .groupby(["method", "seed"])["err"].max().unstack("seed"))
+    scatter_table(df, ["method", "parameter"], {"reported": "reported", "scatter": "scatter", "wider": "wider"})
+    wide = (
+        df.assign(err=(df["estimate"] - df["truth"]).abs() / df["wider"])
+        .groupby(["method", "seed"])["err"]
+        .max()
+        .unstack("seed")
+    )
     print("worst |error| / wider std per seed:")
     for method, row in wide.iterrows():
-        print(f"  {method:18s} within 3 std in {int((row <= 3.0).sum())}/{len(row)} seeds | "
-              + " ".join(f"{v:5.1f}" for v in row))
+        print(
+            f"  {method:18s} within 3 std in {int((row <= 3.0).sum())}/{len(row)} seeds | "
+            + " ".join(f"{v:5.1f}" for v in row)
+        )
     per = df.groupby(["method", "seed"]).first()
-    print("proof of match per seed (worst channel's max |error| / band; * = fails) and the "
-          "largest Theil coefficient:")
+    print("proof of match per seed (worst channel's max |error| / band; * = fails) and the largest Theil coefficient:")
     for method in worst.index:
         rows = per.loc[method]
-        print(f"  {method:18s} passes in {int(rows['pom_pass'].sum())}/{len(rows)} seeds | "
-              + " ".join(f"{r:4.2f}{' ' if ok else '*'}" for r, ok in zip(rows["pom_ratio"], rows["pom_pass"]))
-              + f" | TIC {rows['max_tic'].min():.3f}-{rows['max_tic'].max():.3f}")
+        print(
+            f"  {method:18s} passes in {int(rows['pom_pass'].sum())}/{len(rows)} seeds | "
+            + " ".join(f"{r:4.2f}{' ' if ok else '*'}" for r, ok in zip(rows["pom_ratio"], rows["pom_pass"]))
+            + f" | TIC {rows['max_tic'].min():.3f}-{rows['max_tic'].max():.3f}"
+        )
     share = float((worst <= 3.0).to_numpy().mean())
-    print(f"\nfits with every derivative within 3 std: {int((worst <= 3.0).to_numpy().sum())}"
-          f"/{worst.size} = {share:.2f}")
+    print(
+        f"\nfits with every derivative within 3 std: {int((worst <= 3.0).to_numpy().sum())}/{worst.size} = {share:.2f}"
+    )
     return share
 
 

@@ -10,6 +10,7 @@ ratio.
 
     python benchmarks/oem_efficiency.py [--seeds 100] [--integrator rk4]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -45,17 +46,22 @@ def main() -> int:
     crb = std.mean(axis=0)
     ratio = emp / crb
     bias = (est.mean(axis=0) - truth) / emp
-    print(f"OEM Monte Carlo: {args.seeds} seeds, 600 samples, 7 outputs, {len(names)} parameters, "
-          f"{args.integrator}; {time.perf_counter() - t0:.1f} s, iterations median "
-          f"{int(np.median(iters))} max {max(iters)}")
-    print(f"{'parameter':<10}{'truth':>10}{'mean est':>12}{'emp std':>11}{'mean CRB':>11}"
-          f"{'ratio':>8}{'bias/std':>10}  ok")
+    print(
+        f"OEM Monte Carlo: {args.seeds} seeds, 600 samples, 7 outputs, {len(names)} parameters, "
+        f"{args.integrator}; {time.perf_counter() - t0:.1f} s, iterations median "
+        f"{int(np.median(iters))} max {max(iters)}"
+    )
+    print(
+        f"{'parameter':<10}{'truth':>10}{'mean est':>12}{'emp std':>11}{'mean CRB':>11}{'ratio':>8}{'bias/std':>10}  ok"
+    )
     ok_all = True
     for i, n in enumerate(names):
         ok = 0.8 <= ratio[i] <= 1.25 and abs(bias[i]) < 0.3
         ok_all &= ok
-        print(f"{n:<10}{truth[i]:>10.4g}{est[:, i].mean():>12.5g}{emp[i]:>11.4g}{crb[i]:>11.4g}"
-              f"{ratio[i]:>8.3f}{bias[i]:>10.3f}  {'yes' if ok else 'NO'}")
+        print(
+            f"{n:<10}{truth[i]:>10.4g}{est[:, i].mean():>12.5g}{emp[i]:>11.4g}{crb[i]:>11.4g}"
+            f"{ratio[i]:>8.3f}{bias[i]:>10.3f}  {'yes' if ok else 'NO'}"
+        )
     worst = ratio[np.argmax(np.abs(np.log(ratio)))]
     print(f"all within targets: {'yes' if ok_all else 'NO'}")
     print(f"worst ratio (empirical std / CRB): {worst:.3f}")

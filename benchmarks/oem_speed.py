@@ -12,6 +12,7 @@ every parameter. Prints per-run times and, last, the median ratio baseline/ours.
 
     python benchmarks/oem_speed.py [--runs 5]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -42,8 +43,7 @@ def baseline_fit(ex, rtol: float, atol: float, diff_step: float = 1e-5):
             u = np.array([np.interp(tt, t, U[:, 0]), np.interp(tt, t, U[:, 1])])
             return np.array(model.f(x, u, p, c))
 
-        sol = integrate.solve_ivp(rhs, (t[0], t[-1]), seg.x0, t_eval=t, rtol=rtol, atol=atol,
-                                  max_step=t[1] - t[0])
+        sol = integrate.solve_ivp(rhs, (t[0], t[-1]), seg.x0, t_eval=t, rtol=rtol, atol=atol, max_step=t[1] - t[0])
         if not sol.success or sol.y.shape[1] != t.size:
             return np.full_like(Z, 1e6)
         return np.array(model.g(sol.y, U.T, p, c)).T
@@ -52,8 +52,9 @@ def baseline_fit(ex, rtol: float, atol: float, diff_step: float = 1e-5):
         return ((Z - simulate(theta)) * w).ravel()
 
     x0 = np.array([fixed[n] for n in names])
-    sol = optimize.least_squares(resid, x0, method="trf", x_scale=np.abs(x0), diff_step=diff_step,
-                                 xtol=1e-12, ftol=1e-10, gtol=1e-10)
+    sol = optimize.least_squares(
+        resid, x0, method="trf", x_scale=np.abs(x0), diff_step=diff_step, xtol=1e-12, ftol=1e-10, gtol=1e-10
+    )
     return dict(zip(names, sol.x)), sol.nfev + sol.njev * len(names)
 
 
@@ -65,7 +66,7 @@ def main() -> int:
     args = ap.parse_args()
     names = list(HFB320_FREE)
     ex = longitudinal_example(seed=7)
-    OutputError(ex.model).fit(ex.segments)            # compile once (numba), not timed
+    OutputError(ex.model).fit(ex.segments)  # compile once (numba), not timed
     ours, base, agree = [], [], True
     for run in range(args.runs):
         t0 = time.perf_counter()
@@ -77,8 +78,10 @@ def main() -> int:
         base.append(t2 - t1)
         diff = max(abs(est_b[n] - res.params[n]) / res.std[n] for n in names)
         agree &= diff < 0.1
-        print(f"run {run}: ours {ours[-1]:.3f} s ({res.iterations} iterations), baseline "
-              f"{base[-1]:.2f} s (~{nsim} simulations), max |difference| {diff:.3f} std")
+        print(
+            f"run {run}: ours {ours[-1]:.3f} s ({res.iterations} iterations), baseline "
+            f"{base[-1]:.2f} s (~{nsim} simulations), max |difference| {diff:.3f} std"
+        )
     if not agree:
         print("WARNING: baseline and ours differ by more than 0.1 std")
     ratio = float(np.median(np.array(base) / np.array(ours)))

@@ -27,6 +27,7 @@ Measured (seeds 1-8, 2026-11-26, 57 s on 2 cores):
 
     python benchmarks/pitot_calibration_mc.py [--seeds 8] [--seed-base 1] [--jobs 2] [--scenario TOML]
 """
+
 from __future__ import annotations
 
 import json
@@ -81,27 +82,46 @@ def one_flight(seed: int, scenario: Path = SCENARIO) -> list[dict]:
             for key, name, p, _ in judged_parameters(rep):
                 if "[" in name:
                     continue
-                rows.append({"seed": seed, "variant": variant, "key": key, "parameter": name,
-                             "estimate": p["estimate"], "std": p.get("total_std") or p["std"],
-                             "truth": p["truth"], "scale": cal["estimate"],
-                             "scale_std": cal.get("std", np.nan), "applied": bool(cal.get("applied")),
-                             "status": cal["status"],
-                             "effective": effective})
+                rows.append(
+                    {
+                        "seed": seed,
+                        "variant": variant,
+                        "key": key,
+                        "parameter": name,
+                        "estimate": p["estimate"],
+                        "std": p.get("total_std") or p["std"],
+                        "truth": p["truth"],
+                        "scale": cal["estimate"],
+                        "scale_std": cal.get("std", np.nan),
+                        "applied": bool(cal.get("applied")),
+                        "status": cal["status"],
+                        "effective": effective,
+                    }
+                )
     return rows
 
 
 def main() -> None:
     seeds, jobs, opts = seed_arguments(__doc__.splitlines()[0], 8, 1, {"scenario": str(SCENARIO)})
     df = fly(partial(one_flight, scenario=Path(opts["scenario"])), seeds, jobs)
-    cal = df[df["variant"] == "calibrated"].groupby("seed")[
-        ["scale", "scale_std", "applied", "effective", "status"]].first()
+    cal = (
+        df[df["variant"] == "calibrated"]
+        .groupby("seed")[["scale", "scale_std", "applied", "effective", "status"]]
+        .first()
+    )
     err = cal["scale"] - cal["effective"]
-    print("pitot scale factor per seed (estimate +- std, effective): " + ", ".join(
-        f"{100 * k:+.2f} +- {100 * s:.2f} ({100 * e:.2f}){'' if a else f', {st}, not applied'}"
-        for k, s, a, e, st in cal.itertuples(index=False)))
-    print(f"scale factor: error / std rms {float(np.sqrt(np.mean((err / cal['scale_std']) ** 2))):.2f}, "
-          f"empirical std of the error / mean std {float(err.std(ddof=1) / cal['scale_std'].mean()):.2f}, "
-          f"mean error {100 * float(err.mean()):+.3f} %")
+    print(
+        "pitot scale factor per seed (estimate +- std, effective): "
+        + ", ".join(
+            f"{100 * k:+.2f} +- {100 * s:.2f} ({100 * e:.2f}){'' if a else f', {st}, not applied'}"
+            for k, s, a, e, st in cal.itertuples(index=False)
+        )
+    )
+    print(
+        f"scale factor: error / std rms {float(np.sqrt(np.mean((err / cal['scale_std']) ** 2))):.2f}, "
+        f"empirical std of the error / mean std {float(err.std(ddof=1) / cal['scale_std'].mean()):.2f}, "
+        f"mean error {100 * float(err.mean()):+.3f} %"
+    )
     calibrated = df[df["variant"] == "calibrated"]
     tab = scatter_table(calibrated, ["key", "parameter"], {"reported": "std"})
     for key in dict.fromkeys(tab.index.get_level_values(0)):
@@ -111,8 +131,10 @@ def main() -> None:
     print(worst.round(2).to_string())
     for key in dict.fromkeys(worst.index.get_level_values(0)):
         w = worst.loc[key]
-        print(f"  {key}: within 3 std on {(w['calibrated'] <= 3).sum()}/{len(w)} seeds calibrated, "
-              f"{(w['taken as 0'] <= 3).sum()}/{len(w)} with the scale factor taken as 0")
+        print(
+            f"  {key}: within 3 std on {(w['calibrated'] <= 3).sum()}/{len(w)} seeds calibrated, "
+            f"{(w['taken as 0'] <= 3).sum()}/{len(w)} with the scale factor taken as 0"
+        )
     ratio = worst["taken as 0"].median() / worst["calibrated"].median()
     print(f"median worst |error|/std, taken as 0 / calibrated: {ratio:.1f}")
 

@@ -24,6 +24,7 @@ ratio identified/true over the judged channels.
 
     python benchmarks/pom_floor.py [SCENARIO] [--method fem|ekf|ukf]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,8 +37,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.identify import AircraftConstants, multi_axis, multiaxis_problem  # noqa: E402
-from pipeline.identify import lateral_problem, longitudinal_problem  # noqa: E402
+from pipeline.identify import AircraftConstants, lateral_problem, longitudinal_problem, multi_axis, multiaxis_problem  # noqa: E402  # noqa: E402
 from pipeline.readers import read_log  # noqa: E402
 from pipeline.run import LAT_OUTPUTS, LONG_OUTPUTS, fit_problem, run_scenario  # noqa: E402
 from pipeline.validate import validate  # noqa: E402
@@ -55,8 +55,7 @@ def with_truth(res, truth: dict[str, float]):
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("scenario", nargs="?",
-                    default=str(ROOT / "scenarios" / "multiaxis_multisine_turbulence.toml"))
+    ap.add_argument("scenario", nargs="?", default=str(ROOT / "scenarios" / "multiaxis_multisine_turbulence.toml"))
     ap.add_argument("--method", default="fem", choices=("fem", "ekf", "ukf"))
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -68,25 +67,32 @@ def main() -> None:
     ac = AircraftConstants.from_truth(truth_doc)
     flown = {s.axis for s in fd.segments}
     worst = 0.0
-    for axis, outs, build in (("longitudinal", LONG_OUTPUTS, longitudinal_problem),
-                              ("lateral", LAT_OUTPUTS, lateral_problem)):
+    for axis, outs, build in (
+        ("longitudinal", LONG_OUTPUTS, longitudinal_problem),
+        ("lateral", LAT_OUTPUTS, lateral_problem),
+    ):
         if not ({"de"} if axis == "longitudinal" else {"da", "dr"}) & flown:
             continue
         rate = min(fd[c].rate_hz for c in outs)
-        pb = (multiaxis_problem(fd, ac, axis, gust_states=True, rate_hz=rate) if multi_axis(fd)
-              else build(fd, ac, rate_hz=rate))
+        pb = (
+            multiaxis_problem(fd, ac, axis, gust_states=True, rate_hz=rate)
+            if multi_axis(fd)
+            else build(fd, ac, rate_hz=rate)
+        )
         pb.inputs = "linear"
         res = fit_problem(pb, args.method, turbulence=truth_doc.get("turbulence"))
         errs = {}
         for tag, r in (("identified", res), ("true", with_truth(res, truth))):
             pm = validate(r, held_out=pb.held_out, proof_of_match="air-data")["proof_of_match"]
-            errs[tag] = {c: (d["max_abs_error_display"], d["pass"], d.get("tolerance_display"))
-                         for c, d in pm["segments"][0]["channels"].items()}
+            errs[tag] = {
+                c: (d["max_abs_error_display"], d["pass"], d.get("tolerance_display"))
+                for c, d in pm["segments"][0]["channels"].items()
+            }
         print(f"{axis} ({args.method.upper()}, held out: {pb.held_specs[0].name if pb.held_specs else '-'})")
         print(f"  {'channel':8s} {'identified':>11s} {'true':>9s} {'ratio':>7s}  band")
         for c, (e_id, judged, band) in errs["identified"].items():
             if judged is None:
-                continue                       # the air data drive the prediction
+                continue  # the air data drive the prediction
             e_tr = errs["true"][c][0]
             ratio = e_id / e_tr if e_tr else float("nan")
             worst = max(worst, ratio)

@@ -8,6 +8,7 @@ Prints per scenario the estimates beyond 3 std in fits not FAILed (the violation
 the count of those beyond in FAILed fits; the last line is the number of scenarios that
 hold. ``--scenarios`` picks some; ``--keep DIR`` keeps the run folders.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -35,8 +36,10 @@ def beyond(report: dict) -> tuple[list[str], list[str]]:
             if z > K:
                 (excused if failed else bad).append(f"{key} {name} {z:.1f}")
     comp = report.get("compatibility") or {}
-    for part, rows in (("compatibility", comp.get("parameters") or {}),
-                       ("compatibility refit", (comp.get("refit") or {}).get("parameters") or {})):
+    for part, rows in (
+        ("compatibility", comp.get("parameters") or {}),
+        ("compatibility refit", (comp.get("refit") or {}).get("parameters") or {}),
+    ):
         for name, row in rows.items():
             tr, est, sd = row.get("truth"), row.get("estimate"), row.get("std")
             if tr is None or est is None or not sd:
@@ -58,17 +61,21 @@ def main() -> int:
     held = 0
     for name in names:
         out = base / name
-        r = subprocess.run([str(fsid), "run", str(ROOT / "scenarios" / f"{name}.toml"), "--out", str(out)],
-                           capture_output=True, text=True)
+        r = subprocess.run(
+            [str(fsid), "run", str(ROOT / "scenarios" / f"{name}.toml"), "--out", str(out)],
+            capture_output=True,
+            text=True,
+        )
         if r.returncode != 0 or not (out / "report.json").exists():
             print(f"{name}: fsid run failed ({r.returncode}): {r.stderr.strip().splitlines()[-1:]}")
             continue
         bad, excused = beyond(json.loads((out / "report.json").read_text()))
         held += not bad
-        print(f"{name}: {'holds' if not bad else 'VIOLATED'}; beyond {K:g} std in FAILed fits: "
-              f"{len(excused)}" + ("".join(f"\n    {b}" for b in bad)))
-    print(f"{held}/{len(names)} scenarios hold (every estimate with a truth within {K:g} std or "
-          "in a FAILed fit)")
+        print(
+            f"{name}: {'holds' if not bad else 'VIOLATED'}; beyond {K:g} std in FAILed fits: "
+            f"{len(excused)}" + ("".join(f"\n    {b}" for b in bad))
+        )
+    print(f"{held}/{len(names)} scenarios hold (every estimate with a truth within {K:g} std or in a FAILed fit)")
     return 0 if held == len(names) else 1
 
 

@@ -20,6 +20,7 @@ Measured:
   36000 FGFDMExec.run calls take longer than 200 ms; the rest (property reads, truth
   table, sensors, writers, the temporary JSBSim folder) is about 140 ms.
 """
+
 from __future__ import annotations
 
 import statistics
@@ -39,6 +40,7 @@ def jsbsim_steps(scenario) -> float:
     """Wall time (s) of the flight's JSBSim steps alone: trim as ``sim.fly`` does, then
     n_steps * substeps calls of FGFDMExec.run with nothing read or set in between."""
     from sim.flight import _make_fdm, _quiet_stdout, _trim
+
     with tempfile.TemporaryDirectory() as tmp:
         with _quiet_stdout():
             fdm = _make_fdm(scenario, Path(tmp))
@@ -68,7 +70,7 @@ def main(runs: int = 5) -> float:
             t3 = time.perf_counter()
             c3 = time.process_time()
             if k:
-                cpu.append(c3 - c0)                       # the first run warms caches and imports
+                cpu.append(c3 - c0)  # the first run warms caches and imports
                 for key, v in zip(parts, (t1 - t0, t2 - t1, t3 - t2, t3 - t0)):
                     parts[key].append(v)
     med = {k: statistics.median(v) for k, v in parts.items()}
@@ -77,6 +79,7 @@ def main(runs: int = 5) -> float:
         print(f"  {k:5s} {med[k] * 1e3:7.1f} ms  ({med[k] / med['total']:.0%})")
     ratio = scenario.duration / med["total"]
     from dataclasses import replace
+
     one = replace(scenario, substeps=1)
     t_one = []
     for _ in range(runs):
@@ -84,13 +87,19 @@ def main(runs: int = 5) -> float:
         sim.fly(one)
         t_one.append(time.perf_counter() - t0)
     alt = med["total"] - med["fly"] + statistics.median(t_one)
-    print(f"  (with substeps = 1, less faithful integration: fly {statistics.median(t_one) * 1e3:.1f} ms, "
-          f"{scenario.duration / alt:.0f} simulated s per wall s)")
-    print(f"  (CPU time {statistics.median(cpu) * 1e3:.1f} ms: {scenario.duration / statistics.median(cpu):.0f} "
-          "simulated s per CPU s; wall time grows when other processes share the cores)")
+    print(
+        f"  (with substeps = 1, less faithful integration: fly {statistics.median(t_one) * 1e3:.1f} ms, "
+        f"{scenario.duration / alt:.0f} simulated s per wall s)"
+    )
+    print(
+        f"  (CPU time {statistics.median(cpu) * 1e3:.1f} ms: {scenario.duration / statistics.median(cpu):.0f} "
+        "simulated s per CPU s; wall time grows when other processes share the cores)"
+    )
     t_jsb = statistics.median(jsbsim_steps(scenario) for _ in range(runs))
-    print(f"  (JSBSim steps alone: {t_jsb * 1e3:.1f} ms, {scenario.duration / t_jsb:.0f} simulated s per wall s; "
-          "the ceiling of the ratio below)")
+    print(
+        f"  (JSBSim steps alone: {t_jsb * 1e3:.1f} ms, {scenario.duration / t_jsb:.0f} simulated s per wall s; "
+        "the ceiling of the ratio below)"
+    )
     print(f"sim_speed: {ratio:.0f} simulated seconds per wall second (target >= 300)")
     return ratio
 

@@ -72,6 +72,7 @@ gust model makes on the flight's true inputs, with white sensor noise at the gri
 10 Hz flight path, pipeline.flow_angles; the Cramér-Rao std, without the rebuilt angles'
 wind part that fsid estimate adds).
 """
+
 from __future__ import annotations
 
 import functools
@@ -98,12 +99,14 @@ VARIANTS = {"aileron-rudder": ('["da", "dr"]', "lateral"), "elevator": ('"de"', 
 def variant(axes: str, folder: Path) -> Path:
     """The scenario with its multisines on ``axes`` only (the elevator sweep kept for the
     elevator variant), its aircraft path made absolute."""
-    src = SCENARIO.read_text().replace('aircraft = "aircraft/',
-                                       f'aircraft = "{SCENARIO.parent}/aircraft/')
+    src = SCENARIO.read_text().replace('aircraft = "aircraft/', f'aircraft = "{SCENARIO.parent}/aircraft/')
     head, _, tail = src.partition("[turbulence]")
     blocks = head.split("[[maneuver]]")
-    kept = [b.replace('axis = ["de", "da", "dr"]', f"axis = {axes}") for b in blocks[1:]
-            if axes.startswith('"de"') or '"elevator_log_sweep"' not in b]
+    kept = [
+        b.replace('axis = ["de", "da", "dr"]', f"axis = {axes}")
+        for b in blocks[1:]
+        if axes.startswith('"de"') or '"elevator_log_sweep"' not in b
+    ]
     out = folder / f"{re.sub(r'[^a-z]', '', axes)}.toml"
     out.write_text("[[maneuver]]".join([blocks[0], *kept]) + "[turbulence]" + tail)
     return out
@@ -111,10 +114,9 @@ def variant(axes: str, folder: Path) -> Path:
 
 def one_seed(seed: int, log: str = "mcap") -> list[dict]:
     from pipeline.commands.simulate import simulate
-    from pipeline.flow_angles import rebuilt
     from pipeline.correction_uncertainty import quiet_progress
-    from pipeline.identify import (AircraftConstants, lateral_problem, longitudinal_problem,
-                                   multiaxis_problem)
+    from pipeline.flow_angles import rebuilt
+    from pipeline.identify import AircraftConstants, lateral_problem, longitudinal_problem, multiaxis_problem
     from pipeline.readers import read_log
     from pipeline.run import attach_logged_noise, fit_and_validate, flow_angle_stage
 
@@ -126,14 +128,15 @@ def one_seed(seed: int, log: str = "mcap") -> list[dict]:
             truth = {k: float(v) for k, v in truth_doc["derivatives"].items()}
             fd = read_log(run / f"flight.{log}")
             ac = AircraftConstants.from_truth(truth_doc)
-            if log == "bin":            # no vanes: alpha, beta rebuilt from the flight path
+            if log == "bin":  # no vanes: alpha, beta rebuilt from the flight path
                 fd, ac = flow_angle_stage(fd, ac, quiet_progress())[:2]
             build = longitudinal_problem if axis == "longitudinal" else lateral_problem
             base = build(fd, ac, hold_out=0)
             rate = min(fd[c].rate_hz for c in base.model.outputs if not rebuilt(fd, c))
-            for model, pb in (("baseline", build(fd, ac, rate_hz=rate, hold_out=0)),
-                              ("gust", multiaxis_problem(fd, ac, axis, gust_states=True,
-                                                         rate_hz=rate, hold_out=0))):
+            for model, pb in (
+                ("baseline", build(fd, ac, rate_hz=rate, hold_out=0)),
+                ("gust", multiaxis_problem(fd, ac, axis, gust_states=True, rate_hz=rate, hold_out=0)),
+            ):
                 pb.inputs = "linear"
                 attach_logged_noise(fd, pb)
                 done = fit_and_validate(pb, "fem", f"{axis} axis", truth, quiet_progress())
@@ -142,11 +145,19 @@ def one_seed(seed: int, log: str = "mcap") -> list[dict]:
                 res = done[0]
                 for n in res.free_names:
                     if n in truth and np.isfinite(res.std[n]):
-                        rows.append({"seed": seed, "axis": axis, "model": model, "parameter": n,
-                                     "estimate": float(res.params[n]), "truth": truth[n],
-                                     "reported": float(res.std[n]),
-                                     "err": abs(res.params[n] - truth[n]) / res.std[n],
-                                     "converged": bool(res.converged)})
+                        rows.append(
+                            {
+                                "seed": seed,
+                                "axis": axis,
+                                "model": model,
+                                "parameter": n,
+                                "estimate": float(res.params[n]),
+                                "truth": truth[n],
+                                "reported": float(res.std[n]),
+                                "err": abs(res.params[n] - truth[n]) / res.std[n],
+                                "converged": bool(res.converged),
+                            }
+                        )
     return rows
 
 
@@ -154,23 +165,24 @@ def main() -> float:
     seeds, jobs, opts = seed_arguments(__doc__.split("\n\n")[0], 12, 31, {"log": "mcap"})
     df = fly(functools.partial(one_seed, log=opts["log"]), seeds, jobs)
     worst = df.groupby(["axis", "model", "seed"])["err"].max().unstack("seed")
-    which = (df.loc[df.groupby(["axis", "model", "seed"])["err"].idxmax()]
-             .set_index(["axis", "model", "seed"])["parameter"])
+    which = df.loc[df.groupby(["axis", "model", "seed"])["err"].idxmax()].set_index(["axis", "model", "seed"])[
+        "parameter"
+    ]
     print(f"seeds {seeds[0]}-{seeds[-1]}; worst |error| / reported std per seed (the derivative):")
     for (axis, model), row in worst.iterrows():
         cells = [f"{row[s]:5.1f} {which[(axis, model, s)]:<10s}" for s in worst.columns]
-        print(f"  {axis:12s} {model:8s} within 3 std in {int((row <= 3.0).sum())}/{len(row)} | "
-              + " ".join(cells))
-    print("\nover the seeds, per derivative (empirical std / mean reported std; bias in "
-          "empirical std):")
+        print(f"  {axis:12s} {model:8s} within 3 std in {int((row <= 3.0).sum())}/{len(row)} | " + " ".join(cells))
+    print("\nover the seeds, per derivative (empirical std / mean reported std; bias in empirical std):")
     tab = scatter_table(df, ["axis", "model", "parameter"], {"reported": "reported"})
     for (axis, model), t in tab.groupby(level=[0, 1]):
-        print(f"  {axis} {model}: empirical / reported std {t['reported'].min():.2f}-"
-              f"{t['reported'].max():.2f}, |bias| <= {t['bias'].abs().max():.2f}")
-    share = {m: float((worst.xs(m, level="model") <= 3.0).to_numpy().mean())
-             for m in ("gust", "baseline")}
-    print(f"\nfits with every derivative within 3 std: gust models {share['gust']:.2f}, "
-          f"baseline {share['baseline']:.2f}")
+        print(
+            f"  {axis} {model}: empirical / reported std {t['reported'].min():.2f}-"
+            f"{t['reported'].max():.2f}, |bias| <= {t['bias'].abs().max():.2f}"
+        )
+    share = {m: float((worst.xs(m, level="model") <= 3.0).to_numpy().mean()) for m in ("gust", "baseline")}
+    print(
+        f"\nfits with every derivative within 3 std: gust models {share['gust']:.2f}, baseline {share['baseline']:.2f}"
+    )
     return share["gust"]
 
 

@@ -11,14 +11,21 @@ The names below are imported from their modules on first use (PEP 562), so
 filters, the stabilised methods and scipy.signal with them: a fresh process reaches its
 first fit sooner (``benchmarks/first_fit.py``).
 """
+
 from __future__ import annotations
 
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from estimators.errors import (BoundsError, ConvergenceError, EstimationError,
-                               IdentifiabilityError, ModelDefinitionError,
-                               SimulationDivergedError, UnknownNameError)
+from estimators.errors import (
+    BoundsError,
+    ConvergenceError,
+    EstimationError,
+    IdentifiabilityError,
+    ModelDefinitionError,
+    SimulationDivergedError,
+    UnknownNameError,
+)
 
 #: public name -> the module that defines it
 _LAZY = {
@@ -47,15 +54,31 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs
     from estimators.oem import OutputError
     from estimators.results import EstimationResult
     from estimators.simulation import simulate_outputs
-    from estimators.stabilized import (EigenvalueTransformation, EquationDecoupling,
-                                       StabilizedOutputError)
+    from estimators.stabilized import EigenvalueTransformation, EquationDecoupling, StabilizedOutputError
 
 __all__ = [
-    "Model", "Parameter", "Segment", "OutputError", "EstimationResult", "simulate_outputs",
-    "EstimationError", "ModelDefinitionError", "BoundsError", "SimulationDivergedError",
-    "IdentifiabilityError", "ConvergenceError", "UnknownNameError",
-    "LeastSquares", "RecursiveLeastSquares", "FourierRegression", "EKF", "UKF",
-    "FilterError", "StabilizedOutputError", "EigenvalueTransformation", "EquationDecoupling",
+    "Model",
+    "Parameter",
+    "Segment",
+    "OutputError",
+    "EstimationResult",
+    "simulate_outputs",
+    "EstimationError",
+    "ModelDefinitionError",
+    "BoundsError",
+    "SimulationDivergedError",
+    "IdentifiabilityError",
+    "ConvergenceError",
+    "UnknownNameError",
+    "LeastSquares",
+    "RecursiveLeastSquares",
+    "FourierRegression",
+    "EKF",
+    "UKF",
+    "FilterError",
+    "StabilizedOutputError",
+    "EigenvalueTransformation",
+    "EquationDecoupling",
 ]
 
 

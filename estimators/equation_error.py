@@ -34,22 +34,25 @@ Covariances:
   transforms come from a recursive (sliding-sum) DFT, X_k(w) = X_{k-1}(w) + x_k e^{-jwt_k} dt,
   so the estimate is available at every sample.
 """
+
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from estimators import statistics as st
 from estimators.errors import IdentifiabilityError, ModelDefinitionError
 from estimators.model import Model, Parameter
 from estimators.results import EstimationResult
-from estimators import statistics as st
 
 
 # -- the regression as a Model --------------------------------------------------------------
-def regression_model(regressors: Sequence[str], response: str = "y",
-                     intercept: bool = False, name: str = "regression") -> Model:
+def regression_model(
+    regressors: Sequence[str], response: str = "y", intercept: bool = False, name: str = "regression"
+) -> Model:
     """A static Model y = sum theta_i x_i (+ theta_0): no states, inputs = regressors.
     Parameter names are the regressor names (``bias`` for the intercept)."""
     regs = list(regressors)
@@ -69,8 +72,9 @@ def regression_model(regressors: Sequence[str], response: str = "y",
             y = y + p.bias
         return (y,)
 
-    return Model(states=[], inputs=regs, outputs=[response],
-                 parameters=[Parameter(n, 0.0) for n in pnames], f=f, g=g, name=name)
+    return Model(
+        states=[], inputs=regs, outputs=[response], parameters=[Parameter(n, 0.0) for n in pnames], f=f, g=g, name=name
+    )
 
 
 def _as_xy(X: Any, y: Any, names: Sequence[str] | None) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray | None]:
@@ -108,8 +112,9 @@ def _check_rank(XtX: np.ndarray, names: Sequence[str]) -> None:
 class _RegressionBase:
     method = "ols"
 
-    def __init__(self, regressors: Sequence[str] | None = None, *, intercept: bool = False,
-                 response: str = "y") -> None:
+    def __init__(
+        self, regressors: Sequence[str] | None = None, *, intercept: bool = False, response: str = "y"
+    ) -> None:
         self.regressors = None if regressors is None else list(regressors)
         self.intercept = intercept
         self.response = response
@@ -121,24 +126,46 @@ class _RegressionBase:
             Xa = np.column_stack([np.ones(Xa.shape[0]), Xa])
         if Xa.shape[0] <= Xa.shape[1]:
             raise ModelDefinitionError(
-                f"{Xa.shape[0]} samples for {Xa.shape[1]} parameters: a regression needs more "
-                "samples than parameters")
+                f"{Xa.shape[0]} samples for {Xa.shape[1]} parameters: a regression needs more samples than parameters"
+            )
         return Xa, ya, names, model, index
 
-    def _result(self, model: Model, theta: np.ndarray, cov: np.ndarray, s2: float,
-                Xa: np.ndarray, ya: np.ndarray, index: np.ndarray | None,
-                history: pd.DataFrame | None = None, extra: dict | None = None,
-                information: np.ndarray | None = None, message: str = "") -> EstimationResult:
+    def _result(
+        self,
+        model: Model,
+        theta: np.ndarray,
+        cov: np.ndarray,
+        s2: float,
+        Xa: np.ndarray,
+        ya: np.ndarray,
+        index: np.ndarray | None,
+        history: pd.DataFrame | None = None,
+        extra: dict | None = None,
+        information: np.ndarray | None = None,
+        message: str = "",
+    ) -> EstimationResult:
         t = np.arange(ya.size, dtype=float) if index is None else np.asarray(index, dtype=float)
         yhat = Xa @ theta
         pred = pd.DataFrame({self.response: yhat}, index=pd.Index(t, name="t"))
         res = pd.DataFrame({self.response: ya - yhat}, index=pd.Index(t, name="t"))
         return EstimationResult(
-            method=self.method, model=model, names=model.parameter_names, values=np.asarray(theta, float),
-            free=np.ones(theta.size, dtype=bool), cov=cov, R=np.array([[s2]]), converged=True,
-            iterations=1, history=history if history is not None else pd.DataFrame(),
-            predicted=[pred], residuals=[res], message=message, information=information,
-            settings={"intercept": self.intercept}, extra=extra or {})
+            method=self.method,
+            model=model,
+            names=model.parameter_names,
+            values=np.asarray(theta, float),
+            free=np.ones(theta.size, dtype=bool),
+            cov=cov,
+            R=np.array([[s2]]),
+            converged=True,
+            iterations=1,
+            history=history if history is not None else pd.DataFrame(),
+            predicted=[pred],
+            residuals=[res],
+            message=message,
+            information=information,
+            settings={"intercept": self.intercept},
+            extra=extra or {},
+        )
 
 
 class LeastSquares(_RegressionBase):
@@ -152,9 +179,15 @@ class LeastSquares(_RegressionBase):
         estimates are returned in the original units.
     """
 
-    def __init__(self, regressors: Sequence[str] | None = None, *, method: str = "ols",
-                 intercept: bool = False, response: str = "y",
-                 scale: Sequence[float] | None = None) -> None:
+    def __init__(
+        self,
+        regressors: Sequence[str] | None = None,
+        *,
+        method: str = "ols",
+        intercept: bool = False,
+        response: str = "y",
+        scale: Sequence[float] | None = None,
+    ) -> None:
         super().__init__(regressors, intercept=intercept, response=response)
         if method not in ("ols", "tls"):
             raise ModelDefinitionError(f"method must be 'ols' or 'tls', not {method!r}")
@@ -187,10 +220,11 @@ class LeastSquares(_RegressionBase):
         _, sv, Vt = np.linalg.svd(Cm, full_matrices=False)
         v = Vt[-1]
         if abs(v[-1]) < 1e-12:
-            raise IdentifiabilityError("TLS has no solution: the smallest singular vector has no "
-                                       "response component (y is unrelated to X)",
-                                       parameters=model.parameter_names)
-        ts = -v[:-1] / v[-1]                       # in scaled units
+            raise IdentifiabilityError(
+                "TLS has no solution: the smallest singular vector has no response component (y is unrelated to X)",
+                parameters=model.parameter_names,
+            )
+        ts = -v[:-1] / v[-1]  # in scaled units
         dof = Cm.shape[0] - m - (1 if self.intercept else 0)
         s2s = float(sv[-1] ** 2) / dof
         Xs = Cm[:, :-1]
@@ -211,8 +245,9 @@ class LeastSquares(_RegressionBase):
             cov = cov_r
         e = ya - Xa @ theta
         s2 = float(e @ e) / (N - n)
-        return self._result(model, theta, cov, s2, Xa, ya, index,
-                            extra={"singular_values": sv, "noise_var_scaled": s2s})
+        return self._result(
+            model, theta, cov, s2, Xa, ya, index, extra={"singular_values": sv, "noise_var_scaled": s2s}
+        )
 
 
 class RecursiveLeastSquares(_RegressionBase):
@@ -236,9 +271,16 @@ class RecursiveLeastSquares(_RegressionBase):
 
     method = "rls"
 
-    def __init__(self, regressors: Sequence[str] | None = None, *, forgetting: float = 1.0,
-                 intercept: bool = False, response: str = "y", p0: float = 1e6,
-                 theta0: Sequence[float] | None = None) -> None:
+    def __init__(
+        self,
+        regressors: Sequence[str] | None = None,
+        *,
+        forgetting: float = 1.0,
+        intercept: bool = False,
+        response: str = "y",
+        p0: float = 1e6,
+        theta0: Sequence[float] | None = None,
+    ) -> None:
         super().__init__(regressors, intercept=intercept, response=response)
         if not 0.0 < forgetting <= 1.0:
             raise ModelDefinitionError(f"forgetting factor must lie in (0, 1], got {forgetting}")
@@ -269,8 +311,8 @@ class RecursiveLeastSquares(_RegressionBase):
         lam = self.forgetting
         traj = np.empty((N, n))
         pdiag = np.empty((N, n))
-        sw = 0.0            # forgetting-weighted sum of squared a-posteriori residuals
-        wsum = 0.0          # forgetting-weighted sample count
+        sw = 0.0  # forgetting-weighted sum of squared a-posteriori residuals
+        wsum = 0.0  # forgetting-weighted sample count
         s2_t = np.empty(N)
         theta, P = self.theta, self.P
         for k in range(N):
@@ -287,16 +329,17 @@ class RecursiveLeastSquares(_RegressionBase):
         cov = s2 * self.P
         t = np.arange(N, dtype=float) if index is None else np.asarray(index, dtype=float)
         tr = pd.DataFrame(traj, index=pd.Index(t, name="t"), columns=model.parameter_names)
-        trs = pd.DataFrame(np.sqrt(np.maximum(pdiag, 0) * s2_t[:, None]),
-                           index=pd.Index(t, name="t"), columns=model.parameter_names)
-        res = self._result(model, theta, cov, s2, Xa, ya, index,
-                           extra={"trajectory": tr, "trajectory_std": trs, "P": self.P})
+        trs = pd.DataFrame(
+            np.sqrt(np.maximum(pdiag, 0) * s2_t[:, None]), index=pd.Index(t, name="t"), columns=model.parameter_names
+        )
+        res = self._result(
+            model, theta, cov, s2, Xa, ya, index, extra={"trajectory": tr, "trajectory_std": trs, "P": self.P}
+        )
         res.settings["forgetting"] = lam
         return res
 
 
-def _rls_step(theta: np.ndarray, P: np.ndarray, x: np.ndarray, y: float,
-              lam: float) -> tuple[np.ndarray, np.ndarray]:
+def _rls_step(theta: np.ndarray, P: np.ndarray, x: np.ndarray, y: float, lam: float) -> tuple[np.ndarray, np.ndarray]:
     """One recursive-least-squares update with forgetting factor lam."""
     Px = P @ x
     gain = Px / (lam + x @ Px)
@@ -318,7 +361,7 @@ class RecursiveDFT:
         self.dt = float(dt)
         self.rot = np.exp(-1j * self.w * self.dt)
         self.X = np.zeros((self.f.size, n_channels), dtype=complex)
-        self.phase = np.ones(self.f.size, dtype=complex)   # e^{-j w t_k}, t_0 = 0
+        self.phase = np.ones(self.f.size, dtype=complex)  # e^{-j w t_k}, t_0 = 0
         self.count = 0
 
     def update(self, x: Sequence[float]) -> np.ndarray:
@@ -326,7 +369,7 @@ class RecursiveDFT:
         self.X += np.outer(self.phase, x) * self.dt
         self.phase = self.phase * self.rot
         self.count += 1
-        if self.count % 1000 == 0:       # re-normalise the carried rotation (round-off)
+        if self.count % 1000 == 0:  # re-normalise the carried rotation (round-off)
             self.phase /= np.abs(self.phase)
         return self.X
 
@@ -347,9 +390,15 @@ class FourierRegression(_RegressionBase):
 
     method = "ftr"
 
-    def __init__(self, regressors: Sequence[str] | None = None, *, band: tuple[float, float] | None = None,
-                 df: float | None = None, frequencies: Sequence[float] | None = None,
-                 response: str = "y") -> None:
+    def __init__(
+        self,
+        regressors: Sequence[str] | None = None,
+        *,
+        band: tuple[float, float] | None = None,
+        df: float | None = None,
+        frequencies: Sequence[float] | None = None,
+        response: str = "y",
+    ) -> None:
         super().__init__(regressors, intercept=False, response=response)
         if frequencies is None and band is None:
             raise ModelDefinitionError("FourierRegression needs band=(f_low, f_high) or frequencies")
@@ -413,12 +462,13 @@ class FourierRegression(_RegressionBase):
         # samples is the same sum as RecursiveDFT.update)
         dft = RecursiveDFT(freqs, dt, n + 1)
         D = np.column_stack([Xa, ya])
-        phase = np.exp(-1j * np.outer(dft.w, np.arange(N) * dt))     # (n_f, N)
+        phase = np.exp(-1j * np.outer(dft.w, np.arange(N) * dt))  # (n_f, N)
         dft.X = phase @ D * dt
         Xf, Yf = dft.X[:, :-1], dft.X[:, -1]
         theta, cov, s2, A = self._solve(Xf, Yf, model.parameter_names)
-        res = self._result(model, theta, cov, s2, Xa, ya, index, information=A / s2,
-                           extra={"frequencies": freqs, "X_f": Xf, "Y_f": Yf})
+        res = self._result(
+            model, theta, cov, s2, Xa, ya, index, information=A / s2, extra={"frequencies": freqs, "X_f": Xf, "Y_f": Yf}
+        )
         res.R = np.array([[s2]])
         res.settings.update({"band": self.band, "n_frequencies": int(freqs.size), "dt": dt})
         return res

@@ -1,4 +1,5 @@
 """Typed failures of the estimators. Each message says what happened and what to do."""
+
 from __future__ import annotations
 
 
@@ -27,8 +28,9 @@ class SimulationDivergedError(EstimationError, FloatingPointError):
     Attributes: ``segment`` (index), ``time`` (s, first non-finite sample), ``state`` (name).
     """
 
-    def __init__(self, message: str, *, segment: int | None = None,
-                 time: float | None = None, state: str | None = None) -> None:
+    def __init__(
+        self, message: str, *, segment: int | None = None, time: float | None = None, state: str | None = None
+    ) -> None:
         super().__init__(message)
         self.segment, self.time, self.state = segment, time, state
 

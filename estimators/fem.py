@@ -48,26 +48,41 @@ predictions y~_k, ``residuals`` the innovations, ``R`` their sample covariance;
 used, per segment), ``measurement_noise`` (R - C P C^T, diagonal), ``P``, ``A/B/C/D``
 (linearisation per segment) and ``filtered_states``.
 """
+
 from __future__ import annotations
 
 import warnings
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
 from scipy import linalg
 
+from estimators import statistics as st
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
 from estimators.integrators import DEFAULT_INPUTS, INTEGRATORS, check_options
-from estimators.jit import (adapter_source, bound_source, compile_user_function, first_line,
-                           kernel_for, load_kernels, probe_point)
-from estimators.kalman import (SEGMENT_HELPERS, _ekf_segment, _ukf_segment, default_process_noise,
-                               is_name_list, named_process_noise)
+from estimators.jit import (
+    adapter_source,
+    bound_source,
+    compile_user_function,
+    first_line,
+    kernel_for,
+    load_kernels,
+    probe_point,
+)
+from estimators.kalman import (
+    SEGMENT_HELPERS,
+    _ekf_segment,
+    _ukf_segment,
+    default_process_noise,
+    is_name_list,
+    named_process_noise,
+)
 from estimators.model import Model, Segment, check_outputs_measured
 from estimators.results import EstimationResult, frames
 from estimators.sensitivity import Sensitivity, add_block
 from estimators.simulation import Layout
-from estimators import statistics as st
 
 try:
     import numba
@@ -75,8 +90,7 @@ except ImportError:  # pragma: no cover
     numba = None
 
 
-def _coloured_innovation_cov(M: np.ndarray, M_S: np.ndarray, parts: list
-                             ) -> tuple[np.ndarray, list[int]]:
+def _coloured_innovation_cov(M: np.ndarray, M_S: np.ndarray, parts: list) -> tuple[np.ndarray, list[int]]:
     """Covariance of the filter-error estimates when the innovations are not white
     (Morelli-Klein on the innovations): M^-1 (M - M_S + M_S~) M^-1, where M_S = sum S^T
     B^-1 S is the part of the information M carried by the innovation sensitivities S (as
@@ -89,9 +103,12 @@ def _coloured_innovation_cov(M: np.ndarray, M_S: np.ndarray, parts: list
     B^-1 (m, m), rows used (N,)). Returns ((n_p, n_p), lag per segment)."""
     from estimators.validation.uncertainty import coloured_information
 
-    mid, lags = coloured_information([p[0] for p in parts], [p[1] for p in parts],
-                                     [p[2] for p in parts],
-                                     [np.repeat(p[3][:, None], p[1].shape[1], axis=1) for p in parts])
+    mid, lags = coloured_information(
+        [p[0] for p in parts],
+        [p[1] for p in parts],
+        [p[2] for p in parts],
+        [np.repeat(p[3][:, None], p[1].shape[1], axis=1) for p in parts],
+    )
     Minv = st.covariance(M)
     cov = Minv @ (M - M_S + mid) @ Minv
     return 0.5 * (cov + cov.T), lags
@@ -144,17 +161,18 @@ else:  # pragma: no cover
     _kf_loop_jit = _kf_loop
 
 
-def linearize_batch(model: Model, P: np.ndarray, xr: np.ndarray, ur: np.ndarray,
-                    constants: Mapping[str, float], rel_step: float = 1e-5):
+def linearize_batch(
+    model: Model, P: np.ndarray, xr: np.ndarray, ur: np.ndarray, constants: Mapping[str, float], rel_step: float = 1e-5
+):
     """A (B, n, n), Bu (B, n, ni), C (B, m, n), D (B, m, ni), f0 (B, n), y0 (B, m) of the
     affine approximation f ~ A x + Bu u + f0, g ~ C x + D u + y0 about (xr (n, B), ur (ni,))
     for the parameter columns P (n_p, B); central differences, all columns in one call."""
     n, Bc = xr.shape
     ni = ur.size
     L = n + ni
-    v0 = np.concatenate([xr, np.repeat(ur[:, None], Bc, axis=1)], axis=0)     # (L, B)
-    h = rel_step * np.maximum(np.abs(v0), 1.0)                                  # (L, B)
-    V = np.repeat(v0[:, :, None], 1 + 2 * L, axis=2)                            # (L, B, E)
+    v0 = np.concatenate([xr, np.repeat(ur[:, None], Bc, axis=1)], axis=0)  # (L, B)
+    h = rel_step * np.maximum(np.abs(v0), 1.0)  # (L, B)
+    V = np.repeat(v0[:, :, None], 1 + 2 * L, axis=2)  # (L, B, E)
     idx = np.arange(L)
     V[idx, :, 1 + idx] += h
     V[idx, :, 1 + L + idx] -= h
@@ -164,8 +182,8 @@ def linearize_batch(model: Model, P: np.ndarray, xr: np.ndarray, ur: np.ndarray,
         fv = model.eval_f(Vf[:n], Vf[n:], Pf, constants).reshape(n, Bc, -1)
         gv = model.eval_g(Vf[:n][:, None, :], Vf[n:][:, None, :], Pf, constants)[:, 0, :]
     gv = gv.reshape(len(model.outputs), Bc, -1)
-    Jf = (fv[:, :, 1:1 + L] - fv[:, :, 1 + L:]) / (2 * h.T[None, :, :])        # (n, B, L)
-    Jg = (gv[:, :, 1:1 + L] - gv[:, :, 1 + L:]) / (2 * h.T[None, :, :])
+    Jf = (fv[:, :, 1 : 1 + L] - fv[:, :, 1 + L :]) / (2 * h.T[None, :, :])  # (n, B, L)
+    Jg = (gv[:, :, 1 : 1 + L] - gv[:, :, 1 + L :]) / (2 * h.T[None, :, :])
     Jf = Jf.transpose(1, 0, 2)
     Jg = Jg.transpose(1, 0, 2)
     A, Bu = Jf[:, :, :n], Jf[:, :, n:]
@@ -176,8 +194,7 @@ def linearize_batch(model: Model, P: np.ndarray, xr: np.ndarray, ur: np.ndarray,
     return A, Bu, C, D, f0, y0
 
 
-def is_affine(model: Model, segments: Sequence[Segment], layout: Layout,
-              rtol: float = 1e-6) -> bool:
+def is_affine(model: Model, segments: Sequence[Segment], layout: Layout, rtol: float = 1e-6) -> bool:
     """Whether f and g are affine in (x, u) over the data: the linearisation (A, B, C, D)
     about each segment's start equals the one about a point moved by the data's range
     (measured states by their range in z, the others by 10 % of |x0| + 0.1, inputs by
@@ -199,8 +216,7 @@ def is_affine(model: Model, segments: Sequence[Segment], layout: Layout,
         b = linearize_batch(model, P, (x0 + 0.5 * dx)[:, None], seg.u[0] + 0.5 * du, c)[:4]
         for ma, mb in zip(a, b):
             scale = max(np.max(np.abs(ma)), np.max(np.abs(mb)), 1e-12)
-            if not np.all(np.isfinite(ma)) or not np.all(np.isfinite(mb)) \
-                    or np.max(np.abs(ma - mb)) > rtol * scale:
+            if not np.all(np.isfinite(ma)) or not np.all(np.isfinite(mb)) or np.max(np.abs(ma - mb)) > rtol * scale:
                 return False
     return True
 
@@ -238,7 +254,7 @@ def _expm_small(M):
     while norm > 0.25:
         norm *= 0.5
         s += 1
-    A = M / (2.0 ** s)
+    A = M / (2.0**s)
     E = np.eye(n)
     T = np.eye(n)
     for k in range(1, 17):
@@ -289,14 +305,15 @@ def input_integrals(A: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np
     n = A.shape[0]
     M = np.zeros((3 * n, 3 * n))
     M[:n, :n] = A * h
-    M[:n, n:2 * n] = np.eye(n) * h
-    M[n:2 * n, 2 * n:] = np.eye(n)
+    M[:n, n : 2 * n] = np.eye(n) * h
+    M[n : 2 * n, 2 * n :] = np.eye(n)
     E = expm(M)
-    return E[:n, :n], E[:n, n:2 * n], E[:n, 2 * n:]
+    return E[:n, :n], E[:n, n : 2 * n], E[:n, 2 * n :]
 
 
-def continuous_gain(A: np.ndarray, C: np.ndarray, FFt: np.ndarray, R: np.ndarray,
-                    h: float) -> tuple[np.ndarray, np.ndarray]:
+def continuous_gain(
+    A: np.ndarray, C: np.ndarray, FFt: np.ndarray, R: np.ndarray, h: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Steady-state P (B, n, n) and gain K = P C^T R^-1 (B, n, m) of the filter-error method
     for a batch of linearisations A (B, n, n), C (B, m, n) and process noise FFt (B, n, n),
     with R (m, m) the innovation covariance and h the sample interval (s).
@@ -324,8 +341,9 @@ def continuous_gain(A: np.ndarray, C: np.ndarray, FFt: np.ndarray, R: np.ndarray
                 E = np.take_along_axis(V, order[:, None, :], axis=2)
                 wr = np.take_along_axis(w.real, order, axis=1)
                 sol = -E[:, :n] @ np.linalg.pinv(E[:, n:])
-                good = (np.min(wr, axis=1) > 1e-9 * np.max(np.abs(w), axis=1, initial=1.0)) \
-                    & np.all(np.abs(sol.imag) <= 1e-8 * (1.0 + np.abs(sol.real)), axis=(1, 2))
+                good = (np.min(wr, axis=1) > 1e-9 * np.max(np.abs(w), axis=1, initial=1.0)) & np.all(
+                    np.abs(sol.imag) <= 1e-8 * (1.0 + np.abs(sol.real)), axis=(1, 2)
+                )
                 Pn[ok] = np.where(good[:, None, None], sol.real, np.nan)
         for b in np.flatnonzero(~np.all(np.isfinite(Pn.reshape(Pn.shape[0], -1)), axis=1)):
             try:
@@ -337,8 +355,9 @@ def continuous_gain(A: np.ndarray, C: np.ndarray, FFt: np.ndarray, R: np.ndarray
     return P, K
 
 
-def discrete_gain(A: np.ndarray, C: np.ndarray, FFt: np.ndarray, R: np.ndarray, h: float,
-                  max_iter: int = 12) -> tuple[np.ndarray, np.ndarray]:
+def discrete_gain(
+    A: np.ndarray, C: np.ndarray, FFt: np.ndarray, R: np.ndarray, h: float, max_iter: int = 12
+) -> tuple[np.ndarray, np.ndarray]:
     """Steady-state a-priori P (B, n, n) and gain K = P C^T R^-1 (B, n, m) of the sampled
     filter for a batch of linearisations A (B, n, n), C (B, m, n), process noise FFt
     (B, n, n), the innovation covariance R (m, m) and the sample interval h (s).
@@ -374,8 +393,11 @@ def discrete_gain(A: np.ndarray, C: np.ndarray, FFt: np.ndarray, R: np.ndarray, 
             if np.all(done | ~np.isfinite(err)):
                 break
             PXM = Phi @ XM
-            J = (np.einsum("bij,bkl->bikjl", Phi, Phi) - np.einsum("bij,bkl->bikjl", Phi, PXM)
-                 - np.einsum("bij,bkl->bikjl", PXM, Phi)).reshape(idx.size, n * n, n * n) - eye
+            J = (
+                np.einsum("bij,bkl->bikjl", Phi, Phi)
+                - np.einsum("bij,bkl->bikjl", Phi, PXM)
+                - np.einsum("bij,bkl->bikjl", PXM, Phi)
+            ).reshape(idx.size, n * n, n * n) - eye
             try:
                 dX = np.linalg.solve(J, -f.reshape(idx.size, n * n, 1)).reshape(idx.size, n, n)
             except np.linalg.LinAlgError:
@@ -400,13 +422,21 @@ def output_kernel(model: Model):
     with the model's rhs and gout; None when g does not compile or disagrees with the numpy
     evaluation."""
     # f too: the module's filter loops call the model's rhs
-    key = (model.f, model.g, tuple(model.states), tuple(model.inputs), tuple(model.parameter_names),
-           tuple(model.outputs), tuple(model.output_biases), tuple(sorted(model.constants)))
+    key = (
+        model.f,
+        model.g,
+        tuple(model.states),
+        tuple(model.inputs),
+        tuple(model.parameter_names),
+        tuple(model.outputs),
+        tuple(model.output_biases),
+        tuple(sorted(model.constants)),
+    )
     if key in _OUT_KERNELS:
         return _OUT_KERNELS[key]
     mod, why = None, ""
     kern = kernel_for(model)
-    for helpers in ((False, True) if numba is not None and kern.prepare() else ()):
+    for helpers in (False, True) if numba is not None and kern.prepare() else ():
         mod, why = _output_kernel(model, kern, helpers)
         if mod is not None:
             break
@@ -416,7 +446,9 @@ def output_kernel(model: Model):
             f"model {model.name!r}: g could not be compiled with numba ({why}); the filter "
             "loop runs with numpy, which is slower. Write g with numpy functions and "
             "arithmetic on the unpacked rows to get the compiled path.",
-            RuntimeWarning, stacklevel=3)
+            RuntimeWarning,
+            stacklevel=3,
+        )
     _OUT_KERNELS[key] = mod
     return mod
 
@@ -434,33 +466,45 @@ def _output_kernel(model: Model, kern, helpers: bool):
         bias = [(model.outputs.index(o), names.index(f"bias_{o}")) for o in model.output_biases]
         # one filter loop per integrator, with the rhs module's integrate_<scheme> and this
         # module's gout called as globals (estimators.jit.bound_source)
-        loops = [bound_source(_nl_loop, "scheme, rhs, gout, ",
-                              {"def _nl_loop(": f"def nl_loop_{s}(", "scheme(rhs, ": f"_integrate_{s}("})
-                 + f"nl_loop_{s} = numba.njit(error_model='numpy', cache=CACHE)(nl_loop_{s})"
-                 for s in INTEGRATORS]
+        loops = [
+            bound_source(
+                _nl_loop,
+                "scheme, rhs, gout, ",
+                {"def _nl_loop(": f"def nl_loop_{s}(", "scheme(rhs, ": f"_integrate_{s}("},
+            )
+            + f"nl_loop_{s} = numba.njit(error_model='numpy', cache=CACHE)(nl_loop_{s})"
+            for s in INTEGRATORS
+        ]
         # the EKF's and UKF's segment loops (estimators.kalman) on the same rhs and g
-        loops += [bound_source(h, "") + f"{h.__name__} = numba.njit(error_model='numpy', "
-                  f"cache=CACHE)({h.__name__})" for h in SEGMENT_HELPERS]
-        loops += [bound_source(fn, "scheme, gout, ",
-                               {f"def _{w}_segment(": f"def {w}_segment_{s}(", "scheme(": f"_integrate_{s}("})
-                  + f"{w}_segment_{s} = numba.njit(error_model='numpy', cache=CACHE)({w}_segment_{s})"
-                  for w, fn in (("ekf", _ekf_segment), ("ukf", _ukf_segment)) for s in INTEGRATORS]
-        src = "\n".join([
-            f"# fsid compiled filter loop of model {model.name!r} (generated by estimators.fem; "
-            "safe to delete)",
-            f"# g: {getattr(g_full, '__module__', '?')}.{getattr(g_full, '__qualname__', '?')}, "
-            f"helpers compiled: {helpers}; rhs: {getattr(kern.module, '__name__', 'in memory')}",
-            "from collections import namedtuple",
-            "import numba",
-            "import numpy as np",
-            f"Params = namedtuple('Params', {list(names)!r})",
-            *adapter_source("gout", "_g", n, ni, len(names), rows,
-                            [f"    out[{j}, :] += P[{i}]" for j, i in bias]),
-            *loops, ""])
+        loops += [
+            bound_source(h, "") + f"{h.__name__} = numba.njit(error_model='numpy', cache=CACHE)({h.__name__})"
+            for h in SEGMENT_HELPERS
+        ]
+        loops += [
+            bound_source(
+                fn, "scheme, gout, ", {f"def _{w}_segment(": f"def {w}_segment_{s}(", "scheme(": f"_integrate_{s}("}
+            )
+            + f"{w}_segment_{s} = numba.njit(error_model='numpy', cache=CACHE)({w}_segment_{s})"
+            for w, fn in (("ekf", _ekf_segment), ("ukf", _ukf_segment))
+            for s in INTEGRATORS
+        ]
+        src = "\n".join(
+            [
+                f"# fsid compiled filter loop of model {model.name!r} (generated by estimators.fem; safe to delete)",
+                f"# g: {getattr(g_full, '__module__', '?')}.{getattr(g_full, '__qualname__', '?')}, "
+                f"helpers compiled: {helpers}; rhs: {getattr(kern.module, '__name__', 'in memory')}",
+                "from collections import namedtuple",
+                "import numba",
+                "import numpy as np",
+                f"Params = namedtuple('Params', {list(names)!r})",
+                *adapter_source("gout", "_g", n, ni, len(names), rows, [f"    out[{j}, :] += P[{i}]" for j, i in bias]),
+                *loops,
+                "",
+            ]
+        )
         gj = compile_user_function(g_full) if helpers else numba.njit(error_model="numpy")(g_full)
         steps = {f"_integrate_{s}": getattr(kern.module, f"integrate_{s}") for s in INTEGRATORS}
-        mod = load_kernels(src, {"_g": gj, **steps}, [g_full, model.f], "fsid_filter",
-                           package=("fem.py",))
+        mod = load_kernels(src, {"_g": gj, **steps}, [g_full, model.f], "fsid_filter", package=("fem.py",))
         # check once against numpy
         x, u, P = probe_point(model)
         a = np.empty((m, 2))
@@ -507,7 +551,7 @@ def _nl_loop(scheme, rhs, gout, x0, U, t, P, c, K, pat, Z, rtol, atol, mode):
             idx = np.flatnonzero(alive)
             if idx.size == 0:
                 break
-            Xs = scheme(rhs, xh[:, idx], U[i:i + 2], t[i:i + 2], P[:, idx], c, rtol, atol, mode)
+            Xs = scheme(rhs, xh[:, idx], U[i : i + 2], t[i : i + 2], P[:, idx], c, rtol, atol, mode)
             ok_all = True
             for r in range(n):
                 for jj in range(idx.size):
@@ -520,8 +564,17 @@ def _nl_loop(scheme, rhs, gout, x0, U, t, P, c, K, pat, Z, rtol, atol, mode):
             else:
                 for jj in range(idx.size):
                     b = idx[jj]
-                    Xb = scheme(rhs, xh[:, b:b + 1].copy(), U[i:i + 2], t[i:i + 2],
-                                P[:, b:b + 1].copy(), c, rtol, atol, mode)
+                    Xb = scheme(
+                        rhs,
+                        xh[:, b : b + 1].copy(),
+                        U[i : i + 2],
+                        t[i : i + 2],
+                        P[:, b : b + 1].copy(),
+                        c,
+                        rtol,
+                        atol,
+                        mode,
+                    )
                     fin = True
                     for r in range(n):
                         if not np.isfinite(Xb[1, r, 0]):
@@ -544,8 +597,7 @@ def output_patterns(Z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return masks, np.ascontiguousarray(pat.reshape(-1), dtype=np.int64)
 
 
-def pattern_gains(Pp: np.ndarray, C: np.ndarray, B: np.ndarray, K: np.ndarray,
-                  masks: np.ndarray) -> np.ndarray:
+def pattern_gains(Pp: np.ndarray, C: np.ndarray, B: np.ndarray, K: np.ndarray, masks: np.ndarray) -> np.ndarray:
     """Steady-state gains per pattern of measured outputs, (Bc, n_pat, n, m): for the
     outputs o measured, K_o = P C_o^T B_oo^-1 (P the a-priori covariance, B = C P C^T + R)
     in their columns, zero in the others; the full gain K where every output is measured.
@@ -556,10 +608,9 @@ def pattern_gains(Pp: np.ndarray, C: np.ndarray, B: np.ndarray, K: np.ndarray,
         if o.all():
             out[:, p] = K
         elif o.any():
-            PCt = np.einsum("bij,bkj->bik", Pp, C[:, o, :])                 # (Bc, n, m_o)
+            PCt = np.einsum("bij,bkj->bik", Pp, C[:, o, :])  # (Bc, n, m_o)
             with np.errstate(all="ignore"):
-                out[:, p][:, :, o] = np.linalg.solve(B[:, o][:, :, o], PCt.transpose(0, 2, 1)
-                                                     ).transpose(0, 2, 1)
+                out[:, p][:, :, o] = np.linalg.solve(B[:, o][:, :, o], PCt.transpose(0, 2, 1)).transpose(0, 2, 1)
     return np.nan_to_num(out)
 
 
@@ -587,7 +638,8 @@ def sample_interval(seg: Segment, k: int = 0) -> float:
             f"at t={seg.t[i]:.6g} s the step is {dt[i]:.6g} s against a median of {h:.6g} s "
             f"({dev[i]:.0%} off, {JITTER_TOL:.0%} accepted): resample the data to a constant "
             f"rate, or split the segment there (Segment.split_at_gaps(factor={1 + JITTER_TOL:g})) "
-            "and fit the pieces as a list of segments")
+            "and fit the pieces as a list of segments"
+        )
     return h
 
 
@@ -632,12 +684,25 @@ class FilterError:
 
     method = "fem"
 
-    def __init__(self, model: Model, *, process_noise: Any = None, estimate_F: bool = True,
-                 measurement_noise: Any = None, form: str = "auto", integrator: str = "rk4",
-                 max_iter: int = 40, tol: float = 1e-4, fd_step: float = 1e-6,
-                 step_halvings: int = 10, r_update_from: int = 1,
-                 inputs: str = DEFAULT_INPUTS, compiled: bool = True, full_R: bool = True,
-                 callback=None) -> None:
+    def __init__(
+        self,
+        model: Model,
+        *,
+        process_noise: Any = None,
+        estimate_F: bool = True,
+        measurement_noise: Any = None,
+        form: str = "auto",
+        integrator: str = "rk4",
+        max_iter: int = 40,
+        tol: float = 1e-4,
+        fd_step: float = 1e-6,
+        step_halvings: int = 10,
+        r_update_from: int = 1,
+        inputs: str = DEFAULT_INPUTS,
+        compiled: bool = True,
+        full_R: bool = True,
+        callback=None,
+    ) -> None:
         if form not in ("auto", "linear", "nonlinear"):
             raise ModelDefinitionError(f"form must be 'auto', 'linear' or 'nonlinear', not {form!r}")
         check_options(integrator, inputs)
@@ -690,12 +755,13 @@ class FilterError:
         theta[self._lay.free_idx] = phi[:nf]
         fvec = self._f_fixed.copy()
         if self.estimate_F:
-            fvec[self._noisy] = np.maximum(phi[nf:nf + len(self._noisy)], 0.0)
+            fvec[self._noisy] = np.maximum(phi[nf : nf + len(self._noisy)], 0.0)
         return theta, np.diag(fvec)
 
     # -- filtering a batch of parameter vectors ------------------------------------------------
-    def _filter(self, Phis: np.ndarray, R: np.ndarray, rows: Sequence[np.ndarray] | None = None,
-                gain: bool = True) -> list[dict[str, Any]]:
+    def _filter(
+        self, Phis: np.ndarray, R: np.ndarray, rows: Sequence[np.ndarray] | None = None, gain: bool = True
+    ) -> list[dict[str, Any]]:
         """For parameter columns Phis (Bc, n_phi) and innovation covariance R (m, m): per
         segment the predicted outputs Y (Bc_k, N, m), gain K (Bc_k, n, m), P, diag(C K)
         (Bc_k, m), filtered states and the linearisation of column 0. ``rows``: per segment
@@ -739,19 +805,33 @@ class FilterError:
                         drive[b] += (Bu[b] @ du.T).T @ G1.T
                 offset = np.einsum("bij,nj->bni", D, seg.u) + y0[:, None, :]
                 if np.any(ok):
-                    Y[ok], Xf[ok] = _kf_loop_jit(np.ascontiguousarray(Phi[ok]), np.ascontiguousarray(Kp[ok]),
-                                                 pat, np.ascontiguousarray(C[ok]), np.ascontiguousarray(drive[ok]),
-                                                 np.ascontiguousarray(offset[ok]), Z,
-                                                 np.ascontiguousarray(X0.T[ok]))
+                    Y[ok], Xf[ok] = _kf_loop_jit(
+                        np.ascontiguousarray(Phi[ok]),
+                        np.ascontiguousarray(Kp[ok]),
+                        pat,
+                        np.ascontiguousarray(C[ok]),
+                        np.ascontiguousarray(drive[ok]),
+                        np.ascontiguousarray(offset[ok]),
+                        Z,
+                        np.ascontiguousarray(X0.T[ok]),
+                    )
             else:
                 Y, Xf = self._nonlinear_loop(seg, k, P, X0, Kg, Kp, pat, c)
             CK = np.einsum("bij,bji->bi", C, Kg)
-            out.append({"Y": Y, "K": Kg, "P": Pp, "X": Xf, "CK": CK, "C": C,
-                        "lin": (A[0], Bu[0], C[0], D[0])})
+            out.append({"Y": Y, "K": Kg, "P": Pp, "X": Xf, "CK": CK, "C": C, "lin": (A[0], Bu[0], C[0], D[0])})
         return out
 
-    def _nonlinear_loop(self, seg: Segment, k: int, P: np.ndarray, X0: np.ndarray,
-                        Kg: np.ndarray, Kp: np.ndarray, pat: np.ndarray, c: Mapping[str, float]):
+    def _nonlinear_loop(
+        self,
+        seg: Segment,
+        k: int,
+        P: np.ndarray,
+        X0: np.ndarray,
+        Kg: np.ndarray,
+        Kp: np.ndarray,
+        pat: np.ndarray,
+        c: Mapping[str, float],
+    ):
         """Integrator prediction and nonlinear outputs, constant gain per pattern of measured
         outputs (Kp (Bc, n_pat, n, m), pat (N,); Kg the full gain, NaN where the Riccati
         equation failed), batched over columns."""
@@ -762,11 +842,20 @@ class FilterError:
         kmod = output_kernel(model) if self.compiled else None
         if kmod is not None:
             from estimators import integrators as _integ
+
             Y, Xf = getattr(kmod, f"nl_loop_{self.integrator}")(
-                np.ascontiguousarray(X0, dtype=float), np.ascontiguousarray(seg.u), seg.t,
-                np.ascontiguousarray(P, dtype=float), kern._c_jit(c), np.ascontiguousarray(Kp),
-                pat, np.ascontiguousarray(seg.z), float(1e-8), float(1e-10),
-                _integ.INPUT_MODES[self.inputs])
+                np.ascontiguousarray(X0, dtype=float),
+                np.ascontiguousarray(seg.u),
+                seg.t,
+                np.ascontiguousarray(P, dtype=float),
+                kern._c_jit(c),
+                np.ascontiguousarray(Kp),
+                pat,
+                np.ascontiguousarray(seg.z),
+                1e-8,
+                1e-10,
+                _integ.INPUT_MODES[self.inputs],
+            )
             # a diverging column is not an error here: its non-finite predictions make the
             # cost infinite, so a trial step that causes it is rejected
             bad = ~np.all(np.isfinite(Kg.reshape(Bc, -1)), axis=1)
@@ -778,7 +867,7 @@ class FilterError:
         alive = np.ones(Bc, dtype=bool)
         for i in range(N):
             with np.errstate(all="ignore"):
-                y = model.eval_g(x[:, None, :], seg.u[i][:, None, None], P, c)[:, 0, :]   # (m, Bc)
+                y = model.eval_g(x[:, None, :], seg.u[i][:, None, None], P, c)[:, 0, :]  # (m, Bc)
             nu = seg.z[i][:, None] - y
             nu = np.where(np.isfinite(nu), nu, 0.0)
             xh = x + np.einsum("bij,jb->ib", Kp[:, pat[i]], nu)
@@ -789,18 +878,31 @@ class FilterError:
                 # diverging perturbed or trial column must not take the others with it
                 idx = np.flatnonzero(alive)
                 if idx.size == 0:
-                    break                     # every column diverged: the rest stays NaN
+                    break  # every column diverged: the rest stays NaN
                 x = np.full_like(xh, np.nan)
                 with np.errstate(all="ignore"):
-                    xs = kern.integrate(self.integrator, xh[:, idx], seg.u[i:i + 2], seg.t[i:i + 2],
-                                        P[:, idx], c, inputs=self.inputs)[1]
+                    xs = kern.integrate(
+                        self.integrator,
+                        xh[:, idx],
+                        seg.u[i : i + 2],
+                        seg.t[i : i + 2],
+                        P[:, idx],
+                        c,
+                        inputs=self.inputs,
+                    )[1]
                     if np.all(np.isfinite(xs)):
                         x[:, idx] = xs
                     else:
                         for b in idx:
-                            xb = kern.integrate(self.integrator, xh[:, b:b + 1], seg.u[i:i + 2],
-                                                seg.t[i:i + 2], P[:, b:b + 1], c,
-                                                inputs=self.inputs)[1]
+                            xb = kern.integrate(
+                                self.integrator,
+                                xh[:, b : b + 1],
+                                seg.u[i : i + 2],
+                                seg.t[i : i + 2],
+                                P[:, b : b + 1],
+                                c,
+                                inputs=self.inputs,
+                            )[1]
                             if np.all(np.isfinite(xb)):
                                 x[:, b] = xb[:, 0]
                             else:
@@ -846,9 +948,16 @@ class FilterError:
                 J += 0.5 * float(np.sum(Eo.T * np.linalg.solve(R[np.ix_(o, o)], Eo.T)))
         return J if np.isfinite(J) else np.inf
 
-    def _marginal_information(self, M: np.ndarray, phi: np.ndarray, batch, R: np.ndarray,
-                              S: Sequence[np.ndarray], rows: Sequence[np.ndarray],
-                              rel_step: float = 1e-4) -> np.ndarray:
+    def _marginal_information(
+        self,
+        M: np.ndarray,
+        phi: np.ndarray,
+        batch,
+        R: np.ndarray,
+        S: Sequence[np.ndarray],
+        rows: Sequence[np.ndarray],
+        rel_step: float = 1e-4,
+    ) -> np.ndarray:
         """The information on phi with R estimated too: the Schur complement
         M - M_pr M_rr^-1 M_rp of the joint Fisher information over phi and the entries r of
         R (its diagonal, and the off-diagonal ones when R is full). R enters the gain
@@ -875,7 +984,7 @@ class FilterError:
             for a, (i, j) in enumerate(pairs):
                 d = rel_step * np.sqrt(R[i, i] * R[j, j])
                 rr = self._filter(phi[None, :], R + d * Es[a])
-                if self._constraint_ok(rr):       # else its gain over-corrects: no gradient
+                if self._constraint_ok(rr):  # else its gain over-corrects: no gradient
                     S_r[a] = (rr[k]["Y"][0] - Y0) / d
             S_r = np.where(np.isfinite(S_r), S_r, 0.0)
             masks, pat = self._patterns[k]
@@ -916,8 +1025,7 @@ class FilterError:
         noise = np.arange(fi.size, nphi)
         return [np.r_[0, 1 + np.searchsorted(fi, rel), 1 + noise] for rel in self._lay.relevant]
 
-    def _scoring(self, res, R: np.ndarray, hsteps: np.ndarray, rows: Sequence[np.ndarray],
-                 keep: list | None = None):
+    def _scoring(self, res, R: np.ndarray, hsteps: np.ndarray, rows: Sequence[np.ndarray], keep: list | None = None):
         """Information M = sum S^T R^-1 S and gradient g = sum S^T R^-1 nu (of -J) for the
         fixed innovation covariance R, plus the gradient of diag(C K) per segment
         (list of (m, nphi)), from a batch (column 0 = base). Each sample counts on the outputs
@@ -935,7 +1043,7 @@ class FilterError:
             npk = cols.size
             Y = r["Y"]
             E = seg.z - Y[0]
-            S = (Y[1:] - Y[:1]) / hsteps[cols, None, None]           # (npk, N, m)
+            S = (Y[1:] - Y[:1]) / hsteps[cols, None, None]  # (npk, N, m)
             S = np.where(np.isfinite(S), S, 0.0)
             sens.append(S)
             G = np.zeros((r["CK"].shape[1], nphi))
@@ -961,13 +1069,20 @@ class FilterError:
             M += Mk
             g += gk
             if keep is not None:
-                keep.append((Sensitivity(np.where(full[:, None, None], np.moveaxis(S, 0, 2), 0.0),
-                                         cols, nphi),
-                             np.where(full[:, None], E, 0.0), np.linalg.inv(R), full, M_full, Mk, gk))
+                keep.append(
+                    (
+                        Sensitivity(np.where(full[:, None, None], np.moveaxis(S, 0, 2), 0.0), cols, nphi),
+                        np.where(full[:, None], E, 0.0),
+                        np.linalg.inv(R),
+                        full,
+                        M_full,
+                        Mk,
+                        gk,
+                    )
+                )
         return M, g, dCK, sens
 
-    def _step(self, M: np.ndarray, g: np.ndarray, active: np.ndarray, res, dCK: list,
-              lam: float = 0.0) -> np.ndarray:
+    def _step(self, M: np.ndarray, g: np.ndarray, active: np.ndarray, res, dCK: list, lam: float = 0.0) -> np.ndarray:
         """Gauss-Newton (or, with ``lam``, Levenberg-Marquardt) step on the active
         parameters under the linearised constraints diag(C K) + dCK delta <= 1 (active-set:
         the violated ones are made equalities, as the reference software's KC <= 1 check)."""
@@ -996,7 +1111,7 @@ class FilterError:
                 sol = np.linalg.lstsq(Kkt, np.concatenate([ga / d, beq]), rcond=1e-12)[0]
             except np.linalg.LinAlgError:
                 break
-            delta[a] = sol[:a.size] / d
+            delta[a] = sol[: a.size] / d
         return delta
 
     def _cap_noise_step(self, phi: np.ndarray, delta: np.ndarray, factor: float = 10.0) -> np.ndarray:
@@ -1022,11 +1137,13 @@ class FilterError:
             Y = r["Y"]
             big = 1e6 * (1.0 + np.nanmax(np.abs(Y[0])))
             with np.errstate(invalid="ignore"):
-                bad = (np.any(r["CK"][1:] > 1.0 + 1e-9, axis=1)
-                       | ~np.all(np.isfinite(Y[1:]).reshape(Y.shape[0] - 1, -1)
-                                 | ~np.isfinite(Y[:1]).reshape(1, -1), axis=1)
-                       | (np.nanmax(np.abs(Y[1:] - Y[:1]).reshape(Y.shape[0] - 1, -1), axis=1,
-                                    initial=0.0) > big))
+                bad = (
+                    np.any(r["CK"][1:] > 1.0 + 1e-9, axis=1)
+                    | ~np.all(
+                        np.isfinite(Y[1:]).reshape(Y.shape[0] - 1, -1) | ~np.isfinite(Y[:1]).reshape(1, -1), axis=1
+                    )
+                    | (np.nanmax(np.abs(Y[1:] - Y[:1]).reshape(Y.shape[0] - 1, -1), axis=1, initial=0.0) > big)
+                )
             flip[rows[k][1:][bad] - 1] = True
         if np.any(flip):
             hsteps = np.where(flip, -hsteps, hsteps)
@@ -1052,10 +1169,14 @@ class FilterError:
                     f"the {'nonlinear ' if self.form == 'nonlinear' else ''}filter prediction of "
                     f"segment {seg.name or k} became non-finite at t={seg.t[i]:.4g} s (start "
                     "closer, e.g. from output-error or equation-error estimates, or give a "
-                    "smaller process-noise start)", segment=k, time=float(seg.t[i]))
+                    "smaller process-noise start)",
+                    segment=k,
+                    time=float(seg.t[i]),
+                )
         raise SimulationDivergedError(
             "the filter-error Riccati equation has no stabilising solution at the current "
-            "parameters (a state not detectable from the outputs?)")
+            "parameters (a state not detectable from the outputs?)"
+        )
 
     def _compensate(self, phi: np.ndarray, R_old: np.ndarray, R_new: np.ndarray, res) -> np.ndarray:
         """F-R compensation (Maine and Iliff): after R changes from R_old to R_new, F_i is
@@ -1063,7 +1184,7 @@ class FilterError:
         so that the gain, and the noise R - C P C^T it implies, stay consistent."""
         if not self.estimate_F or not self._noisy:
             return phi
-        C2 = np.mean([r["C"][0] ** 2 for r in res], axis=0)          # (m, n)
+        C2 = np.mean([r["C"][0] ** 2 for r in res], axis=0)  # (m, n)
         w = 1.0 / np.diag(R_old)
         ratio = np.sqrt(np.diag(R_new) / np.diag(R_old))
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -1145,8 +1266,12 @@ class FilterError:
         return slice(nf, nf + (len(self._noisy) if self.estimate_F else 0))
 
     # -- the fit --------------------------------------------------------------------------------
-    def fit(self, segments: Segment | Sequence[Segment], estimate_x0: bool | Sequence[str] = False,
-            start: Mapping[str, float] | None = None) -> EstimationResult:
+    def fit(
+        self,
+        segments: Segment | Sequence[Segment],
+        estimate_x0: bool | Sequence[str] = False,
+        start: Mapping[str, float] | None = None,
+    ) -> EstimationResult:
         """Estimate the free parameters and F, with R in closed form, from one or several
         segments (see the class). ``start``: start values by expanded name, overriding the
         model's; an ``F_<state>`` entry (an earlier fit's, for a refit) starts that state's
@@ -1166,28 +1291,32 @@ class FilterError:
         m = len(model.outputs)
         self._noisy, f0 = self._noise_setup(segments)
         start = dict(start) if start is not None else {}
-        for i in self._noisy:   # an earlier fit's F (``start`` of a refit) over the default
+        for i in self._noisy:  # an earlier fit's F (``start`` of a refit) over the default
             v = start.get(f"F_{model.states[i]}")
             if v is not None and float(v) > 0.0:
                 f0[i] = float(v)
         self._f_fixed = f0.copy()
         fi = lay.free_idx
         names = list(lay.free_names)
-        lo = list(lay.lower[fi]); hi = list(lay.upper[fi])
+        lo = list(lay.lower[fi])
+        hi = list(lay.upper[fi])
         phi = list(lay.values[fi])
         if self.estimate_F:
             for i in self._noisy:
-                names.append(f"F_{model.states[i]}"); phi.append(f0[i]); lo.append(0.0); hi.append(np.inf)
+                names.append(f"F_{model.states[i]}")
+                phi.append(f0[i])
+                lo.append(0.0)
+                hi.append(np.inf)
         phi = np.array(phi, dtype=float)
         nphi = phi.size
         self._lo, self._hi = np.array(lo, float), np.array(hi, float)
         # finite-difference floor: 1 for model parameters (as OEM), the start for F
-        self._floor = np.concatenate([np.ones(fi.size), np.maximum(np.abs(phi[fi.size:]), 1e-12)])
+        self._floor = np.concatenate([np.ones(fi.size), np.maximum(np.abs(phi[fi.size :]), 1e-12)])
         # the start of R: the given output-error std, else the residuals without a gain
         if self.measurement_noise is not None:
             from estimators.kalman import _vector
-            R = np.diag(_vector(self.measurement_noise, model.outputs, "measurement_noise",
-                                np.ones(m)) ** 2)
+
+            R = np.diag(_vector(self.measurement_noise, model.outputs, "measurement_noise", np.ones(m)) ** 2)
         else:
             # the start model's residuals without a gain, each output's variance at most
             # that of its data: a model that misses by more (an unstable aircraft's
@@ -1219,14 +1348,20 @@ class FilterError:
                 # at the start only parameters without any effect are an error
                 # (the process noise is exempt: with a start R far above the innovations its
                 # gain, and so its effect, can start out negligible)
-                d = np.diag(M) * np.maximum(np.abs(phi), self._floor) ** 2    # scale-free
+                d = np.diag(M) * np.maximum(np.abs(phi), self._floor) ** 2  # scale-free
                 dead = d <= 1e-14 * max(float(d.max()), 1e-300)
-                dead[fi.size:] = False
+                dead[fi.size :] = False
                 if np.any(dead):
-                    st.check_identifiable(np.diag(np.where(dead, 0.0, 1.0)), names,
-                                          " at the start values")
-            history.append({"iteration": it - 1, "J": 0.5 * self._n_samples * np.log(cost),
-                            "det_R": cost, "step": np.nan, **dict(zip(names, phi))})
+                    st.check_identifiable(np.diag(np.where(dead, 0.0, 1.0)), names, " at the start values")
+            history.append(
+                {
+                    "iteration": it - 1,
+                    "J": 0.5 * self._n_samples * np.log(cost),
+                    "det_R": cost,
+                    "step": np.nan,
+                    **dict(zip(names, phi)),
+                }
+            )
             if self.callback:
                 self.callback(it - 1, cost, pd.Series(phi, index=names))
             span = np.maximum(1.0, np.abs(phi))
@@ -1245,11 +1380,12 @@ class FilterError:
                 alpha *= 0.5
             if not accepted:
                 for lam in (1e-2, 1e-1, 1.0, 10.0, 1e2, 1e3, 1e4):
-                    trial = np.clip(phi + self._cap_noise_step(phi, self._step(M, g, active, batch, dCK, lam)),
-                                    self._lo, self._hi)
+                    trial = np.clip(
+                        phi + self._cap_noise_step(phi, self._step(M, g, active, batch, dCK, lam)), self._lo, self._hi
+                    )
                     rt = self._filter(trial[None, :], R)
                     if self._weighted(rt, R) < J0 and self._constraint_ok(rt):
-                        accepted, alpha = True, -lam     # recorded as a negative step: LM
+                        accepted, alpha = True, -lam  # recorded as a negative step: LM
                         break
             if accepted:
                 ct, Rt = self._cost(rt)
@@ -1266,7 +1402,7 @@ class FilterError:
                 break
             if not accepted and r_change <= R_SETTLED:
                 if 0.5 * float(g @ delta) <= 1e-6 * max(1.0, J0):
-                    converged = True             # the predicted decrease is negligible
+                    converged = True  # the predicted decrease is negligible
                 else:
                     message = "no step lowered det(R) (line search failed)"
                 break
@@ -1279,6 +1415,7 @@ class FilterError:
         M, g, _, sens = self._scoring(batch, R, hsteps, seg_rows, keep=parts)
         M = self._marginal_information(M, phi, batch, R, sens, seg_rows)
         from estimators.validation.cluster import ClusterResult, cluster_covariance
+
         span = np.maximum(1.0, np.abs(phi))
         on_bound = (phi <= self._lo + 1e-9 * span) | (phi >= self._hi - 1e-9 * span)
         inner = np.flatnonzero(~on_bound)
@@ -1291,8 +1428,10 @@ class FilterError:
             st.check_identifiable(M[np.ix_(inner, inner)], [names[i] for i in inner], " at the estimates")
             cov[np.ix_(inner, inner)] = st.covariance(M[np.ix_(inner, inner)])
             cov_mk[np.ix_(inner, inner)], mk_lags = _coloured_innovation_cov(
-                M[np.ix_(inner, inner)], sum(p[4] for p in parts)[np.ix_(inner, inner)],
-                [(S.take(inner), E, Ri, ok) for S, E, Ri, ok, *_ in parts])
+                M[np.ix_(inner, inner)],
+                sum(p[4] for p in parts)[np.ix_(inner, inner)],
+                [(S.take(inner), E, Ri, ok) for S, E, Ri, ok, *_ in parts],
+            )
             if len(parts) >= 2:
                 # each segment's score at the optimum of the whole: g_k - M_k M^-1 sum g (the
                 # iterations stop with a small gradient left, which is not the maneuvers'
@@ -1306,40 +1445,65 @@ class FilterError:
                 except np.linalg.LinAlgError:
                     step = np.zeros(mi.size)
                 try:
-                    cl = cluster_covariance(Mi, [p[6][mi] - Mk @ step for p, Mk in zip(parts, Mi)],
-                                            M[np.ix_(mi, mi)])
+                    cl = cluster_covariance(Mi, [p[6][mi] - Mk @ step for p, Mk in zip(parts, Mi)], M[np.ix_(mi, mi)])
                     cov_cl[np.ix_(mi, mi)], share[:, mi] = cl.cov, cl.share
                 except np.linalg.LinAlgError:
                     pass
-        cluster = (None if len(parts) < 2 or not np.any(np.isfinite(share)) else ClusterResult(
-            names=names, cov=cov_cl, crb_std=np.sqrt(np.clip(np.diag(cov), 0.0, None)), share=share))
+        cluster = (
+            None
+            if len(parts) < 2 or not np.any(np.isfinite(share))
+            else ClusterResult(names=names, cov=cov_cl, crb_std=np.sqrt(np.clip(np.diag(cov), 0.0, None)), share=share)
+        )
         theta, F = self._unpack(phi)
         E = self._innovations(batch)
         Ys = [r["Y"][0] for r in batch]
-        all_names = list(lay.names) + names[fi.size:]
-        values = np.concatenate([theta, phi[fi.size:]])
+        all_names = list(lay.names) + names[fi.size :]
+        values = np.concatenate([theta, phi[fi.size :]])
         free = np.concatenate([lay.free, np.ones(nphi - fi.size, dtype=bool)])
         if not converged and not message:
             message = "did not converge"
-        noise = [np.diag(np.maximum(np.diag(R) - np.diag(r["C"][0] @ r["P"][0] @ r["C"][0].T), 0.0))
-                 for r in batch]
+        noise = [np.diag(np.maximum(np.diag(R) - np.diag(r["C"][0] @ r["P"][0] @ r["C"][0].T), 0.0)) for r in batch]
         return EstimationResult(
-            method=self.method, model=model, names=all_names, values=values, free=free, cov=cov,
-            R=st.residual_covariance(E, full=True), converged=converged, iterations=it,
-            history=pd.DataFrame(history), segments=segments,
+            method=self.method,
+            model=model,
+            names=all_names,
+            values=values,
+            free=free,
+            cov=cov,
+            R=st.residual_covariance(E, full=True),
+            converged=converged,
+            iterations=it,
+            history=pd.DataFrame(history),
+            segments=segments,
             predicted=frames([s.t for s in segments], Ys, model.outputs),
             residuals=frames([s.t for s in segments], E, model.outputs),
-            at_bounds=[names[i] for i in np.flatnonzero(on_bound)], message=message,
+            at_bounds=[names[i] for i in np.flatnonzero(on_bound)],
+            message=message,
             information=M,
-            settings={"form": self.form, "integrator": self.integrator if self.form == "nonlinear" else "transition matrix",
-                      "optimizer": "gauss-newton, R by relaxation, F-R compensation",
-                      "estimate_F": self.estimate_F, "inputs": self.inputs,
-                      "linearisation": "about x0 and u[0] of each segment"},
-            extra={"gain": [r["K"][0] for r in batch], "F": F, "measurement_noise": noise[0],
-                   "innovation_cov": [R for _ in batch], "P": [r["P"][0] for r in batch],
-                   "linearisation": [dict(zip("ABCD", r["lin"])) for r in batch],
-                   "filtered_states": [pd.DataFrame(r["X"][0], index=pd.Index(s.t, name="t"),
-                                                    columns=model.states) for s, r in zip(segments, batch)],
-                   "det_R": float(np.linalg.det(R)), "residuals_are": "innovations",
-                   "mk_cov": cov_mk, "mk_names": names,
-                   "mk_max_lag": mk_lags, "cluster": cluster})
+            settings={
+                "form": self.form,
+                "integrator": self.integrator if self.form == "nonlinear" else "transition matrix",
+                "optimizer": "gauss-newton, R by relaxation, F-R compensation",
+                "estimate_F": self.estimate_F,
+                "inputs": self.inputs,
+                "linearisation": "about x0 and u[0] of each segment",
+            },
+            extra={
+                "gain": [r["K"][0] for r in batch],
+                "F": F,
+                "measurement_noise": noise[0],
+                "innovation_cov": [R for _ in batch],
+                "P": [r["P"][0] for r in batch],
+                "linearisation": [dict(zip("ABCD", r["lin"])) for r in batch],
+                "filtered_states": [
+                    pd.DataFrame(r["X"][0], index=pd.Index(s.t, name="t"), columns=model.states)
+                    for s, r in zip(segments, batch)
+                ],
+                "det_R": float(np.linalg.det(R)),
+                "residuals_are": "innovations",
+                "mk_cov": cov_mk,
+                "mk_names": names,
+                "mk_max_lag": mk_lags,
+                "cluster": cluster,
+            },
+        )

@@ -21,6 +21,7 @@ The integrators return X of shape (N, n, B). When a state becomes non-finite the
 the trajectory is filled with NaN and marching stops (the caller reports divergence).
 This module does not import numba: :mod:`estimators.jit` does, when it compiles.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -226,9 +227,9 @@ def _error_norm_loop(err, x, x5, rtol, atol):
     for q in range(err.shape[0]):
         for r in range(err.shape[1]):
             a, b = abs(x[q, r]), abs(x5[q, r])
-            big = a if (a > b or a != a) else b          # np.maximum: NaN propagates
+            big = a if (a > b or a != a) else b  # np.maximum: NaN propagates
             v = abs(err[q, r]) / (atol + rtol * big)
-            if v != v:                                   # np.max: NaN propagates
+            if v != v:  # np.max: NaN propagates
                 return v
             if v > out:
                 out = v
@@ -237,8 +238,18 @@ def _error_norm_loop(err, x, x5, rtol, atol):
 
 #: the helpers the schemes call, by name, and the element loops that stand for them in the
 #: compiled kernels (estimators.jit binds each name to its loop compiled with numba)
-ARRAY_HELPERS = ("_u_at", "_finite", "_copy", "_put", "_start", "_stage", "_advance",
-                 "_combine", "_scaled_sum", "_error_norm")
+ARRAY_HELPERS = (
+    "_u_at",
+    "_finite",
+    "_copy",
+    "_put",
+    "_start",
+    "_stage",
+    "_advance",
+    "_combine",
+    "_scaled_sum",
+    "_error_norm",
+)
 LOOP_HELPERS = {name: globals()[name + "_loop"] for name in ARRAY_HELPERS}
 
 
@@ -269,12 +280,17 @@ _EULER = (np.zeros((1, 1)), np.array([1.0]), np.array([0.0]))
 #: Heun's method (trapezoidal predictor-corrector), order 2
 _RK2 = (np.array([[0.0, 0.0], [1.0, 0.0]]), np.array([0.5, 0.5]), np.array([0.0, 1.0]))
 #: Kutta's third-order method
-_RK3 = (np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [-1.0, 2.0, 0.0]]),
-        np.array([1.0, 4.0, 1.0]) / 6.0, np.array([0.0, 0.5, 1.0]))
+_RK3 = (
+    np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [-1.0, 2.0, 0.0]]),
+    np.array([1.0, 4.0, 1.0]) / 6.0,
+    np.array([0.0, 0.5, 1.0]),
+)
 #: classical fourth-order Runge-Kutta
-_RK4 = (np.array([[0.0, 0.0, 0.0, 0.0], [0.5, 0.0, 0.0, 0.0], [0.0, 0.5, 0.0, 0.0],
-                  [0.0, 0.0, 1.0, 0.0]]),
-        np.array([1.0, 2.0, 2.0, 1.0]) / 6.0, np.array([0.0, 0.5, 0.5, 1.0]))
+_RK4 = (
+    np.array([[0.0, 0.0, 0.0, 0.0], [0.5, 0.0, 0.0, 0.0], [0.0, 0.5, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]]),
+    np.array([1.0, 2.0, 2.0, 1.0]) / 6.0,
+    np.array([0.0, 0.5, 0.5, 1.0]),
+)
 _EULER_A, _EULER_B, _EULER_C = _EULER
 _RK2_A, _RK2_B, _RK2_C = _RK2
 _RK3_A, _RK3_B, _RK3_C = _RK3
@@ -329,19 +345,39 @@ def rkf45(rhs, x0, U, t, P, c, rtol, atol, mode):
             ds = h / (t_end - t[i])
             rhs(x, _u_at(U, i, s0, mode), P, c, k1)
             rhs(_combine(x, h, (0.25,), (k1,)), _u_at(U, i, s0 + 0.25 * ds, mode), P, c, k2)
-            rhs(_combine(x, h, (3.0 / 32.0, 9.0 / 32.0), (k1, k2)),
-                _u_at(U, i, s0 + 0.375 * ds, mode), P, c, k3)
-            rhs(_combine(x, h, (1932.0 / 2197.0, -(7200.0 / 2197.0), 7296.0 / 2197.0),
-                         (k1, k2, k3)), _u_at(U, i, s0 + 12.0 / 13.0 * ds, mode), P, c, k4)
-            rhs(_combine(x, h, (439.0 / 216.0, -8.0, 3680.0 / 513.0, -(845.0 / 4104.0)),
-                         (k1, k2, k3, k4)), _u_at(U, i, s0 + ds, mode), P, c, k5)
-            rhs(_combine(x, h, (-8.0 / 27.0, 2.0, -(3544.0 / 2565.0), 1859.0 / 4104.0,
-                                -(11.0 / 40.0)), (k1, k2, k3, k4, k5)),
-                _u_at(U, i, s0 + 0.5 * ds, mode), P, c, k6)
-            x5 = _combine(x, h, (16.0 / 135.0, 6656.0 / 12825.0, 28561.0 / 56430.0, -(9.0 / 50.0),
-                                 2.0 / 55.0), (k1, k3, k4, k5, k6))
-            err = _scaled_sum(h, (1.0 / 360.0, -(128.0 / 4275.0), -(2197.0 / 75240.0), 1.0 / 50.0,
-                                  2.0 / 55.0), (k1, k3, k4, k5, k6))
+            rhs(_combine(x, h, (3.0 / 32.0, 9.0 / 32.0), (k1, k2)), _u_at(U, i, s0 + 0.375 * ds, mode), P, c, k3)
+            rhs(
+                _combine(x, h, (1932.0 / 2197.0, -(7200.0 / 2197.0), 7296.0 / 2197.0), (k1, k2, k3)),
+                _u_at(U, i, s0 + 12.0 / 13.0 * ds, mode),
+                P,
+                c,
+                k4,
+            )
+            rhs(
+                _combine(x, h, (439.0 / 216.0, -8.0, 3680.0 / 513.0, -(845.0 / 4104.0)), (k1, k2, k3, k4)),
+                _u_at(U, i, s0 + ds, mode),
+                P,
+                c,
+                k5,
+            )
+            rhs(
+                _combine(
+                    x, h, (-8.0 / 27.0, 2.0, -(3544.0 / 2565.0), 1859.0 / 4104.0, -(11.0 / 40.0)), (k1, k2, k3, k4, k5)
+                ),
+                _u_at(U, i, s0 + 0.5 * ds, mode),
+                P,
+                c,
+                k6,
+            )
+            x5 = _combine(
+                x,
+                h,
+                (16.0 / 135.0, 6656.0 / 12825.0, 28561.0 / 56430.0, -(9.0 / 50.0), 2.0 / 55.0),
+                (k1, k3, k4, k5, k6),
+            )
+            err = _scaled_sum(
+                h, (1.0 / 360.0, -(128.0 / 4275.0), -(2197.0 / 75240.0), 1.0 / 50.0, 2.0 / 55.0), (k1, k3, k4, k5, k6)
+            )
             enorm = _error_norm(err, x, x5, rtol, atol)
             if not np.isfinite(enorm):
                 ok = False
@@ -350,9 +386,9 @@ def rkf45(rhs, x0, U, t, P, c, rtol, atol, mode):
             if enorm <= 1.0 or n_sub > 10000:
                 tau += h
                 x = x5
-                fac = 5.0 if enorm == 0.0 else min(5.0, 0.9 * enorm ** -0.2)
+                fac = 5.0 if enorm == 0.0 else min(5.0, 0.9 * enorm**-0.2)
             else:
-                fac = max(0.1, 0.9 * enorm ** -0.25)
+                fac = max(0.1, 0.9 * enorm**-0.25)
             h = h * fac
         if not ok or not _finite(x):
             break

@@ -36,19 +36,22 @@ globals that cannot be fingerprinted is compiled in memory every run, as before.
 module that did not compile or disagreed with numpy is marked ``<name>.failed``, so later
 runs go straight to the way that worked instead of failing the same way again.
 """
+
 from __future__ import annotations
 
 import hashlib
 import importlib.util
 import inspect
 import os
+import re
 import sys
 import textwrap
 import time
 import types
 import warnings
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -68,16 +71,17 @@ def load_numba():
     global numba
     if numba is None and _HAVE_NUMBA:
         import numba as nb
+
         numba = nb
     return numba
 
-_KERNELS: dict[tuple, "RhsKernel"] = {}
+
+_KERNELS: dict[tuple, RhsKernel] = {}
 #: the package's source files every generated kernel module runs (their bytes enter the hash)
 _PACKAGE_SOURCES = ("integrators.py", "jit.py")
 
 
-def compile_user_function(fn: Callable, _done: dict | None = None,
-                          inline: bool = False) -> Callable:
+def compile_user_function(fn: Callable, _done: dict | None = None, inline: bool = False) -> Callable:
     """``fn`` compiled with numba, together with the plain Python functions it calls by a
     global name (a helper such as ``coefs(x, u, p, c)`` shared by f and g, recursively):
     each is recompiled in a copy of its globals where those names are compiled too, so
@@ -87,13 +91,16 @@ def compile_user_function(fn: Callable, _done: dict | None = None,
     done = {} if _done is None else _done
     if fn in done:
         return done[fn]
-    if not isinstance(fn, types.FunctionType):          # already compiled, or a builtin
+    if not isinstance(fn, types.FunctionType):  # already compiled, or a builtin
         return fn
-    done[fn] = None                                    # recursion guard
+    done[fn] = None  # recursion guard
     load_numba()
     key, glb = fn, fn.__globals__
-    helpers = {name: glb[name] for name in fn.__code__.co_names
-               if isinstance(glb.get(name), types.FunctionType) and glb[name] is not fn}
+    helpers = {
+        name: glb[name]
+        for name in fn.__code__.co_names
+        if isinstance(glb.get(name), types.FunctionType) and glb[name] is not fn
+    }
     if helpers:
         env = dict(glb)
         for name, h in helpers.items():
@@ -108,9 +115,16 @@ def _tuple_source(items: Sequence[str]) -> str:
     return "(" + "".join(f"{s}, " for s in items) + ")"
 
 
-def adapter_source(name: str, call: str, n_states: int, n_inputs: int, n_params: int,
-                   rows: Sequence[int], extra: Sequence[str] = (),
-                   scalar: bool = False) -> list[str]:
+def adapter_source(
+    name: str,
+    call: str,
+    n_states: int,
+    n_inputs: int,
+    n_params: int,
+    rows: Sequence[int],
+    extra: Sequence[str] = (),
+    scalar: bool = False,
+) -> list[str]:
     """Lines of a compiled adapter ``name(x2d, u1d, P, c, out)`` in the integrators'
     calling convention: the state rows unpacked into a tuple, the inputs into a tuple of
     floats, the parameter rows into the module's ``Params`` namedtuple, ``call(x, u, p, c)``
@@ -119,23 +133,27 @@ def adapter_source(name: str, call: str, n_states: int, n_inputs: int, n_params:
     (states, parameters) at a time, which numba compiles several times faster than the
     same arithmetic on rows (no array expressions) and runs without temporaries."""
     if not scalar:
-        return ["@numba.njit(error_model='numpy', cache=CACHE)",
-                f"def {name}(x2d, u1d, P, c, out):",
-                f"    x = {_tuple_source([f'x2d[{i}]' for i in range(n_states)])}",
-                f"    u = {_tuple_source([f'u1d[{i}]' for i in range(n_inputs)])}",
-                f"    p = Params({', '.join(f'P[{i}]' for i in range(n_params))})",
-                f"    r = {call}(x, u, p, c)",
-                *[f"    out[{j}, :] = r[{r}]" for j, r in enumerate(rows)],
-                *extra]
-    return ["@numba.njit(error_model='numpy', cache=CACHE)",
+        return [
+            "@numba.njit(error_model='numpy', cache=CACHE)",
             f"def {name}(x2d, u1d, P, c, out):",
+            f"    x = {_tuple_source([f'x2d[{i}]' for i in range(n_states)])}",
             f"    u = {_tuple_source([f'u1d[{i}]' for i in range(n_inputs)])}",
-            "    for b in range(x2d.shape[1]):",
-            f"        x = {_tuple_source([f'x2d[{i}, b]' for i in range(n_states)])}",
-            f"        p = Params({', '.join(f'P[{i}, b]' for i in range(n_params))})",
-            f"        r = {call}(x, u, p, c)",
-            *[f"        out[{j}, b] = r[{r}]" for j, r in enumerate(rows)],
-            *extra]
+            f"    p = Params({', '.join(f'P[{i}]' for i in range(n_params))})",
+            f"    r = {call}(x, u, p, c)",
+            *[f"    out[{j}, :] = r[{r}]" for j, r in enumerate(rows)],
+            *extra,
+        ]
+    return [
+        "@numba.njit(error_model='numpy', cache=CACHE)",
+        f"def {name}(x2d, u1d, P, c, out):",
+        f"    u = {_tuple_source([f'u1d[{i}]' for i in range(n_inputs)])}",
+        "    for b in range(x2d.shape[1]):",
+        f"        x = {_tuple_source([f'x2d[{i}, b]' for i in range(n_states)])}",
+        f"        p = Params({', '.join(f'P[{i}, b]' for i in range(n_params))})",
+        f"        r = {call}(x, u, p, c)",
+        *[f"        out[{j}, b] = r[{r}]" for j, r in enumerate(rows)],
+        *extra,
+    ]
 
 
 def calls_unknown_helpers(fn: Callable) -> bool:
@@ -148,12 +166,15 @@ def calls_unknown_helpers(fn: Callable) -> bool:
         return False
     try:
         from numba.core.typing.templates import builtin_registry
+
         known = {id(v) for v, _ in builtin_registry.globals}
     except Exception:  # pragma: no cover - numba internals moved: try as written first
         return False
     glb = fn.__globals__
-    return any(isinstance(glb.get(name), types.FunctionType) and glb[name] is not fn
-               and id(glb[name]) not in known for name in _code_names(fn.__code__))
+    return any(
+        isinstance(glb.get(name), types.FunctionType) and glb[name] is not fn and id(glb[name]) not in known
+        for name in _code_names(fn.__code__)
+    )
 
 
 def probe_point(model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -180,7 +201,8 @@ def cache_dir() -> Path | None:
     if os.environ.get("FSID_JIT_CACHE", "1") == "0":
         return None
     base = os.environ.get("FSID_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "fsid")
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "fsid"
+    )
     d = Path(base) / "kernels"
     try:
         d.mkdir(parents=True, exist_ok=True)
@@ -194,15 +216,14 @@ _SCALARS = (bool, int, float, complex, str, bytes, type(None))
 
 #: days a kernel module may go unused, and the folder's size in MB, before pruning removes it
 CACHE_DAYS, CACHE_MB = 30.0, 500.0
-_PRUNED: set[str] = set()                              # folders pruned by this process
+_PRUNED: set[str] = set()  # folders pruned by this process
 
 
 def _env_number(name: str, default: float) -> float:
     try:
         v = float(os.environ.get(name, default))
     except ValueError:
-        warnings.warn(f"{name}={os.environ[name]!r} is not a number: using {default:g}",
-                      RuntimeWarning, stacklevel=3)
+        warnings.warn(f"{name}={os.environ[name]!r} is not a number: using {default:g}", RuntimeWarning, stacklevel=3)
         return default
     return v if v >= 0 else default
 
@@ -214,8 +235,13 @@ def _module_of(fname: str) -> str | None:
     return head if head.startswith("fsid_") and "_" in head[5:] else None
 
 
-def prune_kernels(root: Path, max_age_days: float | None = None, max_mb: float | None = None,
-                  keep: Sequence[str] = (), now: float | None = None) -> list[str]:
+def prune_kernels(
+    root: Path,
+    max_age_days: float | None = None,
+    max_mb: float | None = None,
+    keep: Sequence[str] = (),
+    now: float | None = None,
+) -> list[str]:
     """Delete the kernel modules in ``root`` (a :func:`cache_dir`) not used for
     ``max_age_days`` (default ``FSID_CACHE_DAYS`` or 30), then the least recently used until
     the folder holds at most ``max_mb`` megabytes (``FSID_CACHE_MB`` or 500): each module
@@ -291,10 +317,10 @@ def _code_names(code: types.CodeType) -> set[str]:
     return names
 
 
-def _fingerprint_function(fn: Any, h: "hashlib._Hash", seen: set, files: set) -> bool:
+def _fingerprint_function(fn: Any, h: hashlib._Hash, seen: set, files: set) -> bool:
     """Feed ``fn``'s source file, name, closure values and the globals it reads (functions
     recursively) into ``h``; False when something it depends on cannot be fingerprinted."""
-    fn = getattr(fn, "py_func", fn)                     # a numba dispatcher: its Python function
+    fn = getattr(fn, "py_func", fn)  # a numba dispatcher: its Python function
     if id(fn) in seen:
         return True
     seen.add(id(fn))
@@ -319,7 +345,7 @@ def _fingerprint_function(fn: Any, h: "hashlib._Hash", seen: set, files: set) ->
     glb = fn.__globals__
     for name in sorted(_code_names(fn.__code__)):
         if name not in glb:
-            continue                                   # a builtin or an attribute name
+            continue  # a builtin or an attribute name
         v = glb[name]
         if isinstance(v, types.ModuleType) or isinstance(v, type):
             h.update(f"{name}={getattr(v, '__name__', '')}".encode())
@@ -329,7 +355,7 @@ def _fingerprint_function(fn: Any, h: "hashlib._Hash", seen: set, files: set) ->
         elif (b := _value_bytes(v)) is not None:
             h.update(name.encode() + b"=" + b)
         elif callable(v):
-            h.update(f"{name}={type(v).__name__}".encode())   # a ufunc or builtin: by name
+            h.update(f"{name}={type(v).__name__}".encode())  # a ufunc or builtin: by name
         else:
             return False
     return True
@@ -352,8 +378,9 @@ def kernel_key(source: str, functions: Sequence[Callable], package: Sequence[str
     return h.hexdigest()[:32]
 
 
-def load_kernels(source: str, inject: Mapping[str, Any], functions: Sequence[Callable],
-                 prefix: str, package: Sequence[str] = ()) -> types.ModuleType | types.SimpleNamespace:
+def load_kernels(
+    source: str, inject: Mapping[str, Any], functions: Sequence[Callable], prefix: str, package: Sequence[str] = ()
+) -> types.ModuleType | types.SimpleNamespace:
     """Run a generated kernel ``source`` whose numba functions read ``CACHE`` for their
     ``cache=`` option, with the names in ``inject`` (compiled user functions, other
     kernels) set first. Kept on disk as ``<cache_dir>/<prefix>_<hash>.py`` and imported,
@@ -373,25 +400,25 @@ def load_kernels(source: str, inject: Mapping[str, Any], functions: Sequence[Cal
         return mod
     path = root / f"{name}.py"
     if not path.is_file():
-        if str(root) not in _PRUNED:                   # the folder grows: once per process
+        if str(root) not in _PRUNED:  # the folder grows: once per process
             _PRUNED.add(str(root))
             prune_kernels(root, keep=[n for n in sys.modules if _module_of(n) == n])
         _write_module(path, source)
     try:
-        (root / f"{name}.used").touch()                # last use, for prune_kernels
+        (root / f"{name}.used").touch()  # last use, for prune_kernels
     except OSError:
         pass
     for attempt in (0, 1):
         spec = importlib.util.spec_from_file_location(name, path)
         mod = importlib.util.module_from_spec(spec)
         mod.__dict__.update(inject, CACHE=True)
-        sys.modules[name] = mod                        # numba's cache index pickles its types
+        sys.modules[name] = mod  # numba's cache index pickles its types
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", getattr(numba, "NumbaWarning", Warning))
                 spec.loader.exec_module(mod)
             return mod
-        except FileNotFoundError:                      # pruned by another process meanwhile
+        except FileNotFoundError:  # pruned by another process meanwhile
             sys.modules.pop(name, None)
             if attempt:
                 raise
@@ -432,20 +459,27 @@ def _write_module(path: Path, source: str) -> None:
     os.replace(tmp, path)
 
 
+def _spaced(text: str) -> str:
+    """A regular expression for ``text`` that also matches it as a formatter may lay it
+    out: any whitespace, line breaks included, after an opening bracket or a comma."""
+    pattern = re.escape(text.strip())
+    return re.sub(r"(\\\(|,)(\\ )*", lambda m: m.group(1) + r"\s*", pattern) + (r"\s*" if text.endswith(" ") else "")
+
+
 def bound_source(fn: Callable, drop: str, replace: Mapping[str, str] | None = None) -> str:
     """The source of one of the package's loop functions with the callable arguments named
     in ``drop`` (e.g. ``"rhs, "``) taken out of its signature and calls, and the other
     ``replace`` substitutions made, for a generated kernel module where those callables
     are module globals. Passed as arguments, numba holds them as Python object pointers,
     and a function holding one cannot be cached; called as globals they can."""
-    src = textwrap.dedent(inspect.getsource(fn)).replace(drop, "")
-    for a, b in (replace or {}).items():
-        src = src.replace(a, b)
+    src = textwrap.dedent(inspect.getsource(fn))
+    for a, b in ((drop, ""), *(replace or {}).items()):
+        src = re.sub(_spaced(a), lambda _m, b=b: b, src) if a else src
     names = {d.strip(" ,") for d in drop.split(",") if d.strip()}
     code = compile(src, "<bound>", "exec").co_consts
     fcode = next(c for c in code if isinstance(c, types.CodeType))
     left = names & set(fcode.co_varnames)
-    if left:   # the package's loop was edited in a way this substitution misses
+    if left:  # the package's loop was edited in a way this substitution misses
         raise RuntimeError(f"{fn.__name__}: {sorted(left)} still passed as arguments")
     return src
 
@@ -460,8 +494,9 @@ def loop_helpers() -> dict[str, Any]:
     disk cache carries its own copy)."""
     if not _LOOPS:
         nb = load_numba()
-        _LOOPS.update({name: nb.njit(error_model="numpy", inline="always")(fn)
-                       for name, fn in _integ.LOOP_HELPERS.items()})
+        _LOOPS.update(
+            {name: nb.njit(error_model="numpy", inline="always")(fn) for name, fn in _integ.LOOP_HELPERS.items()}
+        )
     return _LOOPS
 
 
@@ -470,12 +505,16 @@ def _scheme_source() -> str:
     with ``rhs`` the module's global, compiled (and cached) as ``integrate_<scheme>(x0, U,
     t, P, c, rtol, atol, mode)``; the module's globals must hold the array helpers' loops
     (``_LOOPS``, :func:`loop_helpers`)."""
-    parts = ["globals().update(_LOOPS)",
-             bound_source(_integ._explicit_rk, "rhs, "),
-             "_explicit_rk = numba.njit(error_model='numpy', inline='always')(_explicit_rk)"]
+    parts = [
+        "globals().update(_LOOPS)",
+        bound_source(_integ._explicit_rk, "rhs, "),
+        "_explicit_rk = numba.njit(error_model='numpy', inline='always')(_explicit_rk)",
+    ]
     for s in _integ.INTEGRATORS:
-        parts += [bound_source(_integ.PY_SCHEMES[s], "rhs, "),
-                  f"integrate_{s} = numba.njit(error_model='numpy', cache=CACHE)({s})"]
+        parts += [
+            bound_source(_integ.PY_SCHEMES[s], "rhs, "),
+            f"integrate_{s} = numba.njit(error_model='numpy', cache=CACHE)({s})",
+        ]
     return "\n".join(parts)
 
 
@@ -512,28 +551,29 @@ class RhsKernel:
 
         self.rhs_py = rhs_py
         self.module = None
-        self._jit_state = "untried" if (_HAVE_NUMBA and os.environ.get("FSID_JIT", "1") != "0") \
-            else "off"
+        self._jit_state = "untried" if (_HAVE_NUMBA and os.environ.get("FSID_JIT", "1") != "0") else "off"
 
     # -- compiled path -------------------------------------------------------------------
     def source(self, helpers: bool, scalar: bool = True) -> str:
         """The kernel module's source: the rhs adapter (``scalar``: f called per batch
         column on floats, see :func:`adapter_source`) and the integrator entry points."""
         m = self.model
-        return "\n".join([
-            f"# fsid compiled kernels of model {m.name!r} (generated by estimators.jit; "
-            "safe to delete)",
-            f"# f: {getattr(m.f, '__module__', '?')}.{getattr(m.f, '__qualname__', '?')}, "
-            f"helpers compiled: {helpers}, f on {'scalars' if scalar else 'rows'}",
-            "from collections import namedtuple",
-            "import numba",
-            "from estimators import integrators as _I",
-            "globals().update({k: v for k, v in vars(_I).items() if not k.startswith('__')})",
-            f"Params = namedtuple('Params', {list(self.names)!r})",
-            f"Constants = namedtuple('Constants', {list(self.const_names)!r})",
-            *adapter_source("rhs", "_f", self.n, len(m.inputs), len(self.names), range(self.n),
-                            scalar=scalar),
-            _scheme_source(), ""])
+        return "\n".join(
+            [
+                f"# fsid compiled kernels of model {m.name!r} (generated by estimators.jit; safe to delete)",
+                f"# f: {getattr(m.f, '__module__', '?')}.{getattr(m.f, '__qualname__', '?')}, "
+                f"helpers compiled: {helpers}, f on {'scalars' if scalar else 'rows'}",
+                "from collections import namedtuple",
+                "import numba",
+                "from estimators import integrators as _I",
+                "globals().update({k: v for k, v in vars(_I).items() if not k.startswith('__')})",
+                f"Params = namedtuple('Params', {list(self.names)!r})",
+                f"Constants = namedtuple('Constants', {list(self.const_names)!r})",
+                *adapter_source("rhs", "_f", self.n, len(m.inputs), len(self.names), range(self.n), scalar=scalar),
+                _scheme_source(),
+                "",
+            ]
+        )
 
     def _build_jit(self, helpers: bool = False, scalar: bool = True) -> None:
         # f and its helpers inlined into the scalar adapter (one compile instead of one
@@ -541,18 +581,21 @@ class RhsKernel:
         # them as functions of their own, as before
         m = self.model
         nb = load_numba()
-        fj = compile_user_function(m.f, inline=scalar) if helpers else \
-            nb.njit(error_model="numpy", inline="always" if scalar else "never")(m.f)
-        self.module = load_kernels(self.source(helpers, scalar),
-                                   {"_f": fj, "_LOOPS": loop_helpers()}, [m.f], "fsid_rhs")
+        fj = (
+            compile_user_function(m.f, inline=scalar)
+            if helpers
+            else nb.njit(error_model="numpy", inline="always" if scalar else "never")(m.f)
+        )
+        self.module = load_kernels(
+            self.source(helpers, scalar), {"_f": fj, "_LOOPS": loop_helpers()}, [m.f], "fsid_rhs"
+        )
 
     def _c_jit(self, constants: Mapping[str, float]):
         if not self.const_names:
             return ()
         return self.module.Constants(*[float(constants[k]) for k in self.const_names])
 
-    def _try_jit(self, x0: np.ndarray, U: np.ndarray, P: np.ndarray,
-                 constants: Mapping[str, float]) -> None:
+    def _try_jit(self, x0: np.ndarray, U: np.ndarray, P: np.ndarray, constants: Mapping[str, float]) -> None:
         """Compile and check the kernel once against the numpy evaluation: f on scalars,
         else on rows (:func:`adapter_source`); each as written (helpers decorated for numba,
         as in :mod:`estimators.models`, are inlined) and with the plain helper functions it
@@ -562,9 +605,11 @@ class RhsKernel:
         exc: Exception | None = None
         f = self.model.f
         glb = getattr(f, "__globals__", {})
-        if not any(isinstance(glb.get(n), types.FunctionType) and glb[n] is not f
-                   for n in getattr(getattr(f, "__code__", None), "co_names", ())):
-            order = (False,)                  # no helpers: compiling them too is the same
+        if not any(
+            isinstance(glb.get(n), types.FunctionType) and glb[n] is not f
+            for n in getattr(getattr(f, "__code__", None), "co_names", ())
+        ):
+            order = (False,)  # no helpers: compiling them too is the same
         elif calls_unknown_helpers(f):
             order = (True, False)
         else:
@@ -589,8 +634,7 @@ class RhsKernel:
             except Exception as e:  # any failure -> next way, then the numpy path, said once
                 exc = e
                 # numba's refusal and a disagreement are the code's: the same next run
-                if self.module is not None and (isinstance(e, _Disagrees)
-                                                or type(e).__module__.startswith("numba")):
+                if self.module is not None and (isinstance(e, _Disagrees) or type(e).__module__.startswith("numba")):
                     mark_failed(self.module, first_line(e))
         self.module = None
         self._jit_state = "failed"
@@ -598,7 +642,9 @@ class RhsKernel:
             f"model {self.model.name!r}: f could not be compiled with numba ({first_line(exc)}); "
             "integrating with numpy, which is slower. Write f with numpy functions and "
             "arithmetic on the unpacked rows to get the compiled path.",
-            RuntimeWarning, stacklevel=4)
+            RuntimeWarning,
+            stacklevel=4,
+        )
 
     @property
     def compiled(self) -> bool:
@@ -612,15 +658,25 @@ class RhsKernel:
             self._try_jit(x0, u[None, :], P, self.model.constants)
         return self.compiled
 
-    def integrate(self, scheme: str, x0: np.ndarray, U: np.ndarray, t: np.ndarray,
-                  P: np.ndarray, constants: Mapping[str, float], *,
-                  rtol: float = 1e-8, atol: float = 1e-10, inputs: str = _integ.DEFAULT_INPUTS) -> np.ndarray:
+    def integrate(
+        self,
+        scheme: str,
+        x0: np.ndarray,
+        U: np.ndarray,
+        t: np.ndarray,
+        P: np.ndarray,
+        constants: Mapping[str, float],
+        *,
+        rtol: float = 1e-8,
+        atol: float = 1e-10,
+        inputs: str = _integ.DEFAULT_INPUTS,
+    ) -> np.ndarray:
         if scheme not in _integ.PY_SCHEMES:
-            raise ModelDefinitionError(
-                f"unknown integrator {scheme!r}: choose one of {', '.join(_integ.INTEGRATORS)}")
+            raise ModelDefinitionError(f"unknown integrator {scheme!r}: choose one of {', '.join(_integ.INTEGRATORS)}")
         if inputs not in _integ.INPUT_MODES:
             raise ModelDefinitionError(
-                f"unknown input interpolation {inputs!r}: choose one of {', '.join(_integ.INPUT_MODES)}")
+                f"unknown input interpolation {inputs!r}: choose one of {', '.join(_integ.INPUT_MODES)}"
+            )
         mode = _integ.INPUT_MODES[inputs]
         x0 = np.ascontiguousarray(x0, dtype=float)
         U = np.ascontiguousarray(U, dtype=float)
@@ -632,17 +688,22 @@ class RhsKernel:
             self._try_jit(x0, U, P, constants)
         if self._jit_state == "on":
             return getattr(self.module, f"integrate_{scheme}")(
-                x0, U, t, P, self._c_jit(constants), float(rtol), float(atol), mode)
+                x0, U, t, P, self._c_jit(constants), float(rtol), float(atol), mode
+            )
         with np.errstate(all="ignore"):
-            return _integ.PY_SCHEMES[scheme](self.rhs_py, x0, U, t, P, Namespace(constants),
-                                             rtol, atol, mode)
+            return _integ.PY_SCHEMES[scheme](self.rhs_py, x0, U, t, P, Namespace(constants), rtol, atol, mode)
 
 
 def kernel_for(model: Model) -> RhsKernel:
     """The (cached) kernel of a model. Models sharing f, names and constant names share
     one compiled kernel, so building a new Model object does not recompile."""
-    key = (model.f, tuple(model.states), tuple(model.inputs), tuple(model.parameter_names),
-           tuple(sorted(model.constants)))
+    key = (
+        model.f,
+        tuple(model.states),
+        tuple(model.inputs),
+        tuple(model.parameter_names),
+        tuple(sorted(model.constants)),
+    )
     k = _KERNELS.get(key)
     if k is None:
         k = _KERNELS[key] = RhsKernel(model)

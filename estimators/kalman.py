@@ -45,20 +45,22 @@ filter used is ``extra["measurement_noise"]``); ``cov`` the final parameter bloc
 (:mod:`estimators.validation.cluster`, each segment a cluster, from what it added to the
 parameters' information; :func:`_segment_scatter`), None with one segment.
 """
+
 from __future__ import annotations
 
-from typing import Any, Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from estimators import statistics as st
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
 from estimators.integrators import DEFAULT_INPUTS, INPUT_MODES, check_options
 from estimators.jit import kernel_for
 from estimators.model import Model, Segment
 from estimators.results import EstimationResult, frames
 from estimators.simulation import Layout
-from estimators import statistics as st
 
 
 # -- noise settings ---------------------------------------------------------------------------
@@ -82,8 +84,7 @@ def _vector(spec: Any, names: Sequence[str], what: str, default: np.ndarray) -> 
     return arr
 
 
-def named_process_noise(model: Model, names: Sequence[str], segments: Sequence[Segment]
-                        ) -> np.ndarray:
+def named_process_noise(model: Model, names: Sequence[str], segments: Sequence[Segment]) -> np.ndarray:
     """Process-noise std (n,) for a list of state names: the data default of
     :func:`default_process_noise` on those states, 0 on the others. A named state that is
     not a measured output has no data default: that is an error saying what to give."""
@@ -94,15 +95,15 @@ def named_process_noise(model: Model, names: Sequence[str], segments: Sequence[S
     if unmeasured:
         raise ModelDefinitionError(
             f"process_noise names {unmeasured}, not measured outputs, so their level cannot "
-            "come from the data: give it as {state: std} (state unit per sqrt(s))")
+            "come from the data: give it as {state: std} (state unit per sqrt(s))"
+        )
     default = default_process_noise(model, segments)
     return np.array([default[i] if s in names else 0.0 for i, s in enumerate(model.states)])
 
 
 def is_name_list(spec: Any) -> bool:
     """Whether a noise setting is a non-empty list of state names."""
-    return (isinstance(spec, (list, tuple)) and len(spec) > 0
-            and all(isinstance(v, str) for v in spec))
+    return isinstance(spec, (list, tuple)) and len(spec) > 0 and all(isinstance(v, str) for v in spec)
 
 
 def process_noise_matrix(model: Model, spec: Any, segments: Sequence[Segment] = ()) -> np.ndarray:
@@ -120,8 +121,7 @@ def process_noise_matrix(model: Model, spec: Any, segments: Sequence[Segment] = 
     return np.diag(_vector(spec, model.states, "process_noise", np.zeros(n)))
 
 
-def default_process_noise(model: Model, segments: Sequence[Segment], fraction: float = 0.05
-                          ) -> np.ndarray:
+def default_process_noise(model: Model, segments: Sequence[Segment], fraction: float = 0.05) -> np.ndarray:
     """Process-noise std per state (n,) from the data: ``fraction`` sqrt(var(diff z) / h)
     for each state that is a measured output (a twentieth of the bound the sample-to-sample
     variation puts on it), 0 for unmeasured states. Units: state unit per sqrt(s); h is
@@ -155,7 +155,7 @@ def default_measurement_noise(model: Model, segments: Sequence[Segment]) -> np.n
     ``adapt_noise`` (default "auto") the filter adapts it pass by pass, else pass
     ``measurement_noise`` when the sensor noise is known."""
     sd = st.difference_noise_std([seg.z for seg in segments])
-    return np.where(np.isfinite(sd), np.where(sd > 0, sd ** 2, 1e-12), 1.0)
+    return np.where(np.isfinite(sd), np.where(sd > 0, sd**2, 1e-12), 1.0)
 
 
 def measurement_noise_matrix(model: Model, spec: Any, segments: Sequence[Segment]) -> np.ndarray:
@@ -170,7 +170,7 @@ def measurement_noise_matrix(model: Model, spec: Any, segments: Sequence[Segment
     if spec is None:
         return np.diag(var0)
     sd = _vector(spec, model.outputs, "measurement_noise", np.sqrt(var0))
-    return np.diag(sd ** 2)
+    return np.diag(sd**2)
 
 
 # -- a pass's segments as clusters ------------------------------------------------------------
@@ -181,8 +181,7 @@ def _information(P: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return Pinv, Pinv @ theta
 
 
-def _segment_scatter(info: list[tuple[np.ndarray, np.ndarray]], P: np.ndarray,
-                     theta: np.ndarray, names: Sequence[str]):
+def _segment_scatter(info: list[tuple[np.ndarray, np.ndarray]], P: np.ndarray, theta: np.ndarray, names: Sequence[str]):
     """The maneuvers' scatter of one filter pass (:mod:`estimators.validation.cluster`,
     each segment a cluster), or None with fewer than 2 segments or a failed inversion.
 
@@ -200,9 +199,9 @@ def _segment_scatter(info: list[tuple[np.ndarray, np.ndarray]], P: np.ndarray,
 
     try:
         M = np.linalg.pinv(0.5 * (P + P.T))
-        return cluster_covariance([0.5 * (A + A.T) for A, _ in info],
-                                  [b - A @ theta for A, b in info], 0.5 * (M + M.T),
-                                  names=list(names))
+        return cluster_covariance(
+            [0.5 * (A + A.T) for A, _ in info], [b - A @ theta for A, b in info], 0.5 * (M + M.T), names=list(names)
+        )
     except (ValueError, np.linalg.LinAlgError):
         return None
 
@@ -215,8 +214,17 @@ class AugmentedModel:
     x part over one sample interval with the package integrator, ``outputs`` evaluates g.
     """
 
-    def __init__(self, model: Model, layout: Layout, seg: Segment, k: int, integrator: str,
-                 rtol: float = 1e-8, atol: float = 1e-10, inputs: str = DEFAULT_INPUTS) -> None:
+    def __init__(
+        self,
+        model: Model,
+        layout: Layout,
+        seg: Segment,
+        k: int,
+        integrator: str,
+        rtol: float = 1e-8,
+        atol: float = 1e-10,
+        inputs: str = DEFAULT_INPUTS,
+    ) -> None:
         self.model, self.lay, self.seg, self.k = model, layout, seg, k
         self.integrator = integrator
         self.n = len(model.states)
@@ -227,7 +235,8 @@ class AugmentedModel:
         self.rtol, self.atol = rtol, atol
         self.inputs = inputs
         # g compiled when the model allows (the filter-error kernels' gout), else numpy
-        from estimators.fem import output_kernel    # fem imports this module
+        from estimators.fem import output_kernel  # fem imports this module
+
         gk = output_kernel(model) if self.kernel.prepare() else None
         self._gout = None if gk is None else gk.gout
         self._cj = None if gk is None else self.kernel._c_jit(self.c)
@@ -239,33 +248,41 @@ class AugmentedModel:
         sees the model at the bound)."""
         B = S.shape[1]
         Theta = np.repeat(self.lay.values[:, None], B, axis=1)
-        Theta[self.fi] = np.clip(S[self.n:], self.lo, self.hi)
+        Theta[self.fi] = np.clip(S[self.n :], self.lo, self.hi)
         return Theta[self.lay.pidx[self.k]]
 
     def step(self, S: np.ndarray, i: int) -> np.ndarray:
         """x part of S advanced from sample i to i+1 (n, B); theta unchanged."""
         seg = self.seg
-        X = self.kernel.integrate(self.integrator, S[:self.n], seg.u[i:i + 2], seg.t[i:i + 2],
-                                  self.params(S), self.c, rtol=self.rtol, atol=self.atol,
-                                  inputs=self.inputs)
+        X = self.kernel.integrate(
+            self.integrator,
+            S[: self.n],
+            seg.u[i : i + 2],
+            seg.t[i : i + 2],
+            self.params(S),
+            self.c,
+            rtol=self.rtol,
+            atol=self.atol,
+            inputs=self.inputs,
+        )
         return X[1]
 
     def outputs(self, S: np.ndarray, i: int) -> np.ndarray:
         """g at sample i for the augmented columns S: (n_out, B)."""
         if self._gout is not None:
             Y = np.empty((len(self.model.outputs), S.shape[1]))
-            self._gout(np.ascontiguousarray(S[:self.n]), self._u[i], self.params(S), self._cj, Y)
+            self._gout(np.ascontiguousarray(S[: self.n]), self._u[i], self.params(S), self._cj, Y)
             return Y
         u = self.seg.u[i][:, None, None]
         with np.errstate(all="ignore"):
-            Y = self.model.eval_g(S[:self.n, None, :], u, self.params(S), self.c)
+            Y = self.model.eval_g(S[: self.n, None, :], u, self.params(S), self.c)
         return Y[:, 0, :]
 
     def outputs_along(self, S: np.ndarray) -> np.ndarray:
         """g along a trajectory of augmented states S (N, n+m): (N, n_out)."""
-        P = self.params(S.T)                                    # (n_p, N)
-        X = S[:, :self.n].T[:, None, :]                          # (n, 1, N)
-        U = self.seg.u.T[:, None, :]                             # (n_in, 1, N)
+        P = self.params(S.T)  # (n_p, N)
+        X = S[:, : self.n].T[:, None, :]  # (n, 1, N)
+        U = self.seg.u.T[:, None, :]  # (n_in, 1, N)
         with np.errstate(all="ignore"):
             return self.model.eval_g(X, U, P, self.c)[:, 0, :].T
 
@@ -376,13 +393,18 @@ def _add_process_noise(P, FFt, qth, dt, n):
 def _segment_arrays(N, L, n_out, n):
     """The outputs of a segment loop: Ypred (N, n_out) NaN, Spost and Pdiag (N, L), gain
     (L, n_out), last_ok (n_out,), hits (L - n,), acc (see :func:`_book_update`)."""
-    return (np.full((N, n_out), np.nan), np.empty((N, L)), np.empty((N, L)),
-            np.zeros((L, n_out)), np.zeros(n_out, dtype=np.bool_),
-            np.zeros(L - n, dtype=np.int64), np.zeros(2 + 3 * n_out + 2 * n))
+    return (
+        np.full((N, n_out), np.nan),
+        np.empty((N, L)),
+        np.empty((N, L)),
+        np.zeros((L, n_out)),
+        np.zeros(n_out, dtype=np.bool_),
+        np.zeros(L - n, dtype=np.int64),
+        np.zeros(2 + 3 * n_out + 2 * n),
+    )
 
 
-def _ekf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo, hi, c,
-                 fd_step, rtol, atol, mode, n):
+def _ekf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo, hi, c, fd_step, rtol, atol, mode, n):
     """The EKF over one segment, compiled with the model's rhs and g (the kernel module of
     :func:`estimators.fem.output_kernel` binds ``scheme`` and ``gout``; the helpers above
     are compiled into it too): the same equations as :meth:`EKF._predict` /
@@ -418,7 +440,7 @@ def _ekf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo,
             if pred == 0 and i > 0:
                 # prediction over [t_(i-1), t_i]
                 dt = t[i] - t[i - 1]
-                X = scheme(S[:n].copy(), U[i - 1:i + 1], t[i - 1:i + 1], Pm, c, rtol, atol, mode)
+                X = scheme(S[:n].copy(), U[i - 1 : i + 1], t[i - 1 : i + 1], Pm, c, rtol, atol, mode)
                 Phi = eye.copy()
                 for r in range(n):
                     for j in range(L):
@@ -474,8 +496,9 @@ def _sigma_points(s, P, cfac):
     return S
 
 
-def _ukf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo, hi, c,
-                 Wm, Wc, cfac, rtol, atol, mode, n):
+def _ukf_segment(
+    scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo, hi, c, Wm, Wc, cfac, rtol, atol, mode, n
+):
     """The UKF (sigma points not noise-augmented) over one segment, compiled as
     :func:`_ekf_segment` is, with the equations of :meth:`UKF._predict` /
     :meth:`UKF._update`; Wm, Wc (2L + 1,) the weights and cfac = L + lambda. Returns what
@@ -494,7 +517,7 @@ def _ukf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo,
             dt = t[i] - t[i - 1]
             S = _sigma_points(s, P, cfac)
             _column_params(S, values, fi, pidx, lo, hi, n, th, Pm)
-            X = scheme(S[:n].copy(), U[i - 1:i + 1], t[i - 1:i + 1], Pm, c, rtol, atol, mode)
+            X = scheme(S[:n].copy(), U[i - 1 : i + 1], t[i - 1 : i + 1], Pm, c, rtol, atol, mode)
             S[:n] = X[1]
             mean = S @ Wm
             D = S - mean.reshape(L, 1)
@@ -537,8 +560,15 @@ def _ukf_segment(scheme, gout, s, P, t, U, Z, R, FFt, qth, values, fi, pidx, lo,
 
 
 #: the compiled helpers of the segment loops (source copied into the kernel module)
-SEGMENT_HELPERS = (_column_params, _measured, _book_update, _project, _segment_arrays,
-                   _add_process_noise, _sigma_points)
+SEGMENT_HELPERS = (
+    _column_params,
+    _measured,
+    _book_update,
+    _project,
+    _segment_arrays,
+    _add_process_noise,
+    _sigma_points,
+)
 
 
 # -- noise adaptation (covariance matching) -----------------------------------------------------
@@ -566,14 +596,13 @@ class _NoiseMatch:
         self.q_obs = np.zeros(n)
         self.q_exp = np.zeros(n)
 
-    def add(self, nu: np.ndarray, S: np.ndarray, Kx: np.ndarray, R: np.ndarray,
-            ok: np.ndarray, h: float) -> None:
+    def add(self, nu: np.ndarray, S: np.ndarray, Kx: np.ndarray, R: np.ndarray, ok: np.ndarray, h: float) -> None:
         """One update: innovations nu (n_ok,), their covariance S, the state rows of the
         gain Kx (n, n_ok), the filter's R (n_out, n_out), finite mask ok, step h s (0 at
         a segment's first sample: no prediction preceded it)."""
         Rk = R[np.ix_(ok, ok)]
-        RSi = np.linalg.solve(S, Rk).T                    # R S^-1 (S, R symmetric)
-        self.r[ok] += nu ** 2 - np.diag(S) + np.diag(Rk)
+        RSi = np.linalg.solve(S, Rk).T  # R S^-1 (S, R symmetric)
+        self.r[ok] += nu**2 - np.diag(S) + np.diag(Rk)
         self.r_post[ok] += (RSi @ nu) ** 2 + np.diag(Rk) - np.einsum("ij,ji->i", RSi, Rk)
         self.nr[ok] += 1.0
         if h > 0:
@@ -592,8 +621,9 @@ class _NoiseMatch:
         self.q_exp += q_exp
 
 
-def _adapt(F: np.ndarray, R: np.ndarray, match: _NoiseMatch, adapt_r: bool, adapt_q: bool
-           ) -> tuple[np.ndarray, np.ndarray, float]:
+def _adapt(
+    F: np.ndarray, R: np.ndarray, match: _NoiseMatch, adapt_r: bool, adapt_q: bool
+) -> tuple[np.ndarray, np.ndarray, float]:
     """The noise for the next pass from one pass's sums: (F, R, largest relative change
     of a noise std). R's diagonal set to the matched variances (outputs never finite
     keep theirs); F's non-zero diagonal scaled by sqrt(observed / expected correction
@@ -617,15 +647,14 @@ def _adapt(F: np.ndarray, R: np.ndarray, match: _NoiseMatch, adapt_r: bool, adap
     return F, R, float(max(moves))
 
 
-def _joseph_update(P: np.ndarray, H: np.ndarray, R: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _joseph_update(P: np.ndarray, H: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Kalman measurement update of the covariance P (..., L, L) with output Jacobian H
     (..., k, L) and noise R (k, k), stacked over leading axes: (P in Joseph form
     (I - K H) P (I - K H)^T + K R K^T, made symmetric; gain K = P H^T S^-1 (..., L, k);
     innovation covariance S = H P H^T + R)."""
-    T = lambda A: np.swapaxes(A, -1, -2)              # noqa: E731
+    T = lambda A: np.swapaxes(A, -1, -2)  # noqa: E731
     S = H @ P @ T(H) + R
-    K = T(np.linalg.solve(S, H @ P))                  # S symmetric
+    K = T(np.linalg.solve(S, H @ P))  # S symmetric
     IKH = np.eye(P.shape[-1]) - K @ H
     P = IKH @ P @ T(IKH) + K @ R @ T(K)
     return 0.5 * (P + T(P)), K, S
@@ -649,8 +678,8 @@ class _GainSensitivity:
     def __init__(self, n: int, s: np.ndarray, Px: np.ndarray, step: float, fd_step: float) -> None:
         m = s.size - n
         self.n, self.m = n, m
-        self.P = np.repeat(Px[None], m + 1, axis=0)               # (m + 1, n, n)
-        self.d = step * np.maximum(np.abs(s[n:]), 1.0)            # (m,)
+        self.P = np.repeat(Px[None], m + 1, axis=0)  # (m + 1, n, n)
+        self.d = step * np.maximum(np.abs(s[n:]), 1.0)  # (m,)
         self.fd = fd_step
 
     def _columns(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -660,7 +689,7 @@ class _GainSensitivity:
         h = self.fd * np.maximum(np.abs(s[:n]), 1.0)
         base = np.repeat(s[:, None], m + 1, axis=1)
         base[n + np.arange(m), 1 + np.arange(m)] += self.d
-        S = np.repeat(base[:, :, None], n + 1, axis=2)            # (L, m + 1, n + 1)
+        S = np.repeat(base[:, :, None], n + 1, axis=2)  # (L, m + 1, n + 1)
         S[np.arange(n), :, 1 + np.arange(n)] += h[:, None]
         return S.reshape(s.size, -1), h
 
@@ -669,20 +698,21 @@ class _GainSensitivity:
         Y = Y.reshape(Y.shape[0], self.m + 1, self.n + 1)
         return np.transpose((Y[:, :, 1:] - Y[:, :, :1]) / h, (1, 0, 2))
 
-    def predict(self, aug: "AugmentedModel", s: np.ndarray, Qx: np.ndarray, i: int) -> None:
+    def predict(self, aug: AugmentedModel, s: np.ndarray, Qx: np.ndarray, i: int) -> None:
         """Each P_j over the step from sample i, linearised about the posterior s."""
         S, h = self._columns(s)
         Phi = self._jacobian(aug.step(S, i), h)
         self.P = Phi @ self.P @ np.transpose(Phi, (0, 2, 1)) + Qx
 
-    def update(self, aug: "AugmentedModel", s: np.ndarray, ok: np.ndarray, R: np.ndarray,
-               nu: np.ndarray, i: int) -> np.ndarray:
+    def update(
+        self, aug: AugmentedModel, s: np.ndarray, ok: np.ndarray, R: np.ndarray, nu: np.ndarray, i: int
+    ) -> np.ndarray:
         """Each P_j updated on the outputs ``ok`` about the predicted s; returns M (n, m)
         for the innovations nu (on ``ok``)."""
         S, h = self._columns(s)
-        H = self._jacobian(aug.outputs(S, i), h)[:, ok]           # (m + 1, k, n)
+        H = self._jacobian(aug.outputs(S, i), h)[:, ok]  # (m + 1, k, n)
         self.P, K, _ = _joseph_update(self.P, H, R[np.ix_(ok, ok)])
-        return ((K[1:] - K[:1]) @ nu).T / self.d                  # (n, m)
+        return ((K[1:] - K[:1]) @ nu).T / self.d  # (n, m)
 
     @staticmethod
     def apply(P: np.ndarray, M: np.ndarray, n: int) -> np.ndarray:
@@ -692,18 +722,33 @@ class _GainSensitivity:
         P[:, :n] += P[:, n:] @ M.T
         return 0.5 * (P + P.T)
 
+
 # -- the filters --------------------------------------------------------------------------------
 class _ParameterFilter:
     method = "ekf"
 
-    def __init__(self, model: Model, *, integrator: str = "rk4", process_noise: Any = None,
-                 measurement_noise: Any = None, param_std: Any = None, state_std: Any = None,
-                 param_noise: Any = None, rtol: float = 1e-8, atol: float = 1e-10,
-                 inputs: str = DEFAULT_INPUTS, passes: int | str = "auto", max_passes: int = 8,
-                 pass_tol: float = 0.2, adapt_noise: bool | str = "auto",
-                 callback: Callable[[int, float, pd.Series], None] | None = None,
-                 compiled: bool = True, gain_sensitivity: bool = False,
-                 gain_step: float = 1e-5) -> None:
+    def __init__(
+        self,
+        model: Model,
+        *,
+        integrator: str = "rk4",
+        process_noise: Any = None,
+        measurement_noise: Any = None,
+        param_std: Any = None,
+        state_std: Any = None,
+        param_noise: Any = None,
+        rtol: float = 1e-8,
+        atol: float = 1e-10,
+        inputs: str = DEFAULT_INPUTS,
+        passes: int | str = "auto",
+        max_passes: int = 8,
+        pass_tol: float = 0.2,
+        adapt_noise: bool | str = "auto",
+        callback: Callable[[int, float, pd.Series], None] | None = None,
+        compiled: bool = True,
+        gain_sensitivity: bool = False,
+        gain_step: float = 1e-5,
+    ) -> None:
         check_options(integrator, inputs)
         self.gain_sensitivity, self.gain_step = bool(gain_sensitivity), float(gain_step)
         self.callback = callback
@@ -743,20 +788,18 @@ class _ParameterFilter:
                 spec = {n: spec.get(n, spec.get(n.split("[")[0], None)) for n in names}
                 spec = {n: s for n, s in spec.items() if s is not None}
             sd = _vector(spec, names, "param_std", default)
-        return np.diag(sd ** 2)
+        return np.diag(sd**2)
 
     def _param_noise(self, lay: Layout) -> np.ndarray:
         names = lay.free_names
         if isinstance(self.param_noise, Mapping):
-            spec = {n: self.param_noise.get(n, self.param_noise.get(n.split("[")[0]))
-                    for n in names}
+            spec = {n: self.param_noise.get(n, self.param_noise.get(n.split("[")[0])) for n in names}
             spec = {n: s for n, s in spec.items() if s is not None}
         else:
             spec = self.param_noise
         return _vector(spec, names, "param_noise", np.zeros(len(names)))
 
-    def _initial_state_cov(self, R: np.ndarray, aug: AugmentedModel, s: np.ndarray,
-                           F: np.ndarray) -> np.ndarray:
+    def _initial_state_cov(self, R: np.ndarray, aug: AugmentedModel, s: np.ndarray, F: np.ndarray) -> np.ndarray:
         """Initial state covariance (n, n) of a segment from the augmented start s:
         ``state_std`` where given; else an output's measurement std; else, for a state
         driven by process noise (a gust state), the stationary spread of its own
@@ -765,8 +808,12 @@ class _ParameterFilter:
         at a segment start is unknown, not 0); else 1e-3 max(|x0|, 1)."""
         m, n = self.model, aug.n
         x0 = s[:n]
-        default = np.array([np.sqrt(R[m.outputs.index(st), m.outputs.index(st)]) if st in m.outputs
-                            else 1e-3 * max(abs(x0[i]), 1.0) for i, st in enumerate(m.states)])
+        default = np.array(
+            [
+                np.sqrt(R[m.outputs.index(st), m.outputs.index(st)]) if st in m.outputs else 1e-3 * max(abs(x0[i]), 1.0)
+                for i, st in enumerate(m.states)
+            ]
+        )
         q = np.diag(F @ F.T)
         noisy = np.flatnonzero([st not in m.outputs and q[i] > 0 for i, st in enumerate(m.states)])
         if noisy.size and aug.seg.n > 1:
@@ -779,11 +826,14 @@ class _ParameterFilter:
             ok = np.isfinite(phi) & (np.abs(phi) < 1.0)
             default[noisy[ok]] = np.sqrt(q[noisy[ok]] * h / (1.0 - phi[ok] ** 2))
         sd = _vector(self.state_std, m.states, "state_std", default)
-        return np.diag(sd ** 2)
+        return np.diag(sd**2)
 
-    def fit(self, segments: Segment | Sequence[Segment],
-            estimate_x0: bool | str | Sequence[str] = "auto",
-            start: Mapping[str, float] | None = None) -> EstimationResult:
+    def fit(
+        self,
+        segments: Segment | Sequence[Segment],
+        estimate_x0: bool | str | Sequence[str] = "auto",
+        start: Mapping[str, float] | None = None,
+    ) -> EstimationResult:
         """Run the filter over the segments in order, in passes; returns the final estimates.
         With no free parameter it is a state estimator (``extra["states"]``; the
         proof of match of :func:`estimators.validation.predict_ahead` uses it so).
@@ -838,10 +888,12 @@ class _ParameterFilter:
                 # the best pass's by more than 3 std of their negative log-likelihood (sum of
                 # chi-square halves: std sqrt(n_obs / 2) when the filter is consistent); the
                 # best pass is kept
-                left = (f"pass {k + 1} raised the innovations' negative log-likelihood by "
-                        f"{nll - best[0]:.4g} (> 3 std = {band:.4g}): the filter "
-                        f"wandered off, the estimates of pass {best[1]} (the most likely) are kept; "
-                        "check the process noise and the start values")
+                left = (
+                    f"pass {k + 1} raised the innovations' negative log-likelihood by "
+                    f"{nll - best[0]:.4g} (> 3 std = {band:.4g}): the filter "
+                    f"wandered off, the estimates of pass {best[1]} (the most likely) are kept; "
+                    "check the process noise and the start values"
+                )
                 moves.append(np.inf)
                 _, _, res, kept = best
                 lay.values[fi] = kept
@@ -881,7 +933,8 @@ class _ParameterFilter:
         elif not settled:
             res.extra["not_settled"] = (
                 f"the last of {n_done} passes still moved a parameter by {moves[-1]:.2g} std "
-                f"(> {self.pass_tol:g}): raise max_passes, start closer or check the model")
+                f"(> {self.pass_tol:g}): raise max_passes, start closer or check the model"
+            )
             what += "; not settled: " + res.extra["not_settled"]
         if res.at_bounds:
             what += f"; at a bound (std NaN): {', '.join(res.at_bounds)}"
@@ -889,8 +942,9 @@ class _ParameterFilter:
         return res
 
     # one filter pass -----------------------------------------------------------------------
-    def _one_pass(self, segments: list[Segment], lay: Layout, F: np.ndarray, R: np.ndarray,
-                  matching: bool = False) -> tuple[EstimationResult, _NoiseMatch | None]:
+    def _one_pass(
+        self, segments: list[Segment], lay: Layout, F: np.ndarray, R: np.ndarray, matching: bool = False
+    ) -> tuple[EstimationResult, _NoiseMatch | None]:
         """One pass of the filter over the segments from the start values in ``lay``, with
         process noise F (n, n) and measurement-noise covariance R (n_out, n_out): the
         pass's result and, with ``matching``, its covariance-matching sums (else None)."""
@@ -906,8 +960,8 @@ class _ParameterFilter:
         match = _NoiseMatch(n, R.shape[0]) if matching else None
         lo, hi = lay.lower[fi], lay.upper[fi]
         hits = np.zeros(m, dtype=int)
-        nll, n_obs = 0.0, 0                 # innovations' negative log-likelihood (+ const)
-        info = []                           # per segment: what it adds to P_theta^-1 (and x P^-1 theta)
+        nll, n_obs = 0.0, 0  # innovations' negative log-likelihood (+ const)
+        info = []  # per segment: what it adds to P_theta^-1 (and x P^-1 theta)
         before = _information(Pth, theta)
         for k, seg in enumerate(segments):
             aug = AugmentedModel(model, lay, seg, k, self.integrator, self.rtol, self.atol, self.inputs)
@@ -916,8 +970,11 @@ class _ParameterFilter:
             P = np.zeros((n + m, n + m))
             P[:n, :n] = self._initial_state_cov(R, aug, s, F)
             P[n:, n:] = Pth
-            run = (self._compiled_segment(aug, s, P, F, R, qth, lay, k, match)
-                   if self.compiled and not self.gain_sensitivity else None)
+            run = (
+                self._compiled_segment(aug, s, P, F, R, qth, lay, k, match)
+                if self.compiled and not self.gain_sensitivity
+                else None
+            )
             if run is None:
                 run = self._python_segment(aug, s, P, F, R, qth, lo, hi, match)
             s, P, Ypred, Spost, Pdiag, K_seg, nll_k, n_k, hits_k, fail = run
@@ -926,20 +983,23 @@ class _ParameterFilter:
                     f"the {self.method.upper()} prediction of segment {seg.name or k} became "
                     f"non-finite at t={seg.t[fail]:.4g} s: reduce param_std/state_std, "
                     "start closer, or use a smaller sample interval",
-                    segment=k, time=float(seg.t[fail]))
+                    segment=k,
+                    time=float(seg.t[fail]),
+                )
             nll, n_obs, hits = nll + nll_k, n_obs + n_k, hits + hits_k
             K = K if K_seg is None else K_seg
             theta = s[n:].copy()
             Pth = P[n:, n:].copy()
             after = _information(Pth, theta)
             info.append((after[0] - before[0], after[1] - before[1]))
-            before = after                  # the next segment starts where this one ended
+            before = after  # the next segment starts where this one ended
             idx = pd.Index(seg.t, name="t")
             out["pred"].append(Ypred)
             out["innov"].append(seg.z - Ypred)
             out["traj"].append(pd.DataFrame(Spost[:, n:], index=idx, columns=lay.free_names))
-            out["traj_std"].append(pd.DataFrame(np.sqrt(np.maximum(Pdiag[:, n:], 0)), index=idx,
-                                                columns=lay.free_names))
+            out["traj_std"].append(
+                pd.DataFrame(np.sqrt(np.maximum(Pdiag[:, n:], 0)), index=idx, columns=lay.free_names)
+            )
             out["states"].append(pd.DataFrame(Spost[:, :n], index=idx, columns=model.states))
             out["post"].append(pd.DataFrame(aug.outputs_along(Spost), index=idx, columns=model.outputs))
             history.append({"segment": k, **dict(zip(lay.free_names, theta))})
@@ -949,24 +1009,48 @@ class _ParameterFilter:
         E = out["innov"]
         Rinn = st.residual_covariance(E, full=False)
         return EstimationResult(
-            method=self.method, model=model, names=list(lay.names), values=values, free=free,
-            cov=0.5 * (Pth + Pth.T), R=Rinn, converged=True, iterations=1,
-            history=pd.DataFrame(history), segments=segments,
+            method=self.method,
+            model=model,
+            names=list(lay.names),
+            values=values,
+            free=free,
+            cov=0.5 * (Pth + Pth.T),
+            R=Rinn,
+            converged=True,
+            iterations=1,
+            history=pd.DataFrame(history),
+            segments=segments,
             predicted=frames([s.t for s in segments], out["pred"], model.outputs),
             residuals=frames([s.t for s in segments], E, model.outputs),
             message="one filter pass; residuals are the innovations (a-priori)",
             settings=self._settings(),
-            extra={"trajectory": out["traj"], "trajectory_std": out["traj_std"],
-                   "states": out["states"], "posterior_outputs": out["post"], "gain": K,
-                   "measurement_noise": R, "process_noise": F, "residuals_are": "innovations",
-                   "innovation_nll": nll, "innovation_count": n_obs,
-                   "cluster": _segment_scatter(info, Pth, theta, lay.free_names),
-                   "bound_hits": {lay.free_names[j]: int(hits[j]) for j in np.flatnonzero(hits)}}), match
+            extra={
+                "trajectory": out["traj"],
+                "trajectory_std": out["traj_std"],
+                "states": out["states"],
+                "posterior_outputs": out["post"],
+                "gain": K,
+                "measurement_noise": R,
+                "process_noise": F,
+                "residuals_are": "innovations",
+                "innovation_nll": nll,
+                "innovation_count": n_obs,
+                "cluster": _segment_scatter(info, Pth, theta, lay.free_names),
+                "bound_hits": {lay.free_names[j]: int(hits[j]) for j in np.flatnonzero(hits)},
+            },
+        ), match
 
     def _settings(self) -> dict[str, Any]:
-        return {"integrator": self.integrator, "optimizer": "recursive", "inputs": self.inputs,
-                "passes": self.passes, "max_passes": self.max_passes, "pass_tol": self.pass_tol,
-                "adapt_noise": self.adapt_noise, "gain_sensitivity": self.gain_sensitivity}
+        return {
+            "integrator": self.integrator,
+            "optimizer": "recursive",
+            "inputs": self.inputs,
+            "passes": self.passes,
+            "max_passes": self.max_passes,
+            "pass_tol": self.pass_tol,
+            "adapt_noise": self.adapt_noise,
+            "gain_sensitivity": self.gain_sensitivity,
+        }
 
     # one segment of a pass -----------------------------------------------------------------
     def _python_segment(self, aug, s, P, F, R, qth, lo, hi, match):
@@ -982,8 +1066,7 @@ class _ParameterFilter:
         Pdiag = np.empty((N, L))
         hits = np.zeros(L - n, dtype=int)
         K, nll, n_obs = None, 0.0, 0
-        sens = (_GainSensitivity(n, s, P[:n, :n], self.gain_step, 1e-6)
-                if self.gain_sensitivity and L > n else None)
+        sens = _GainSensitivity(n, s, P[:n, :n], self.gain_step, 1e-6) if self.gain_sensitivity and L > n else None
         for i in range(N):
             if i > 0:
                 h = seg.t[i] - seg.t[i - 1]
@@ -1001,10 +1084,10 @@ class _ParameterFilter:
             s, P, yp, Ki, Sinn = self._update(aug, s, P, z, ok, R, i)
             if sens is not None and Sinn is not None:
                 P = sens.apply(P, sens.update(aug, s_prior, ok, R, z[ok] - yp[ok], i), n)
-            th = np.clip(s[n:], lo, hi)             # bounds: the estimate projected on them
+            th = np.clip(s[n:], lo, hi)  # bounds: the estimate projected on them
             hits += th != s[n:]
             s[n:] = th
-            if Sinn is not None:                    # some output measured (K too)
+            if Sinn is not None:  # some output measured (K too)
                 K = Ki
                 nu = z[ok] - yp[ok]
                 nll += _innovation_nll(nu, Sinn)
@@ -1025,20 +1108,37 @@ class _ParameterFilter:
         """Run ``<which>_segment_<integrator>`` of the model's filter kernel module (None
         when g or f did not compile) with the segment's arguments, ``extra`` before rtol;
         its result as :meth:`_python_segment` gives it."""
-        if aug._gout is None:                       # g (or f) did not compile
+        if aug._gout is None:  # g (or f) did not compile
             return None
-        from estimators.fem import output_kernel    # fem imports this module
+        from estimators.fem import output_kernel  # fem imports this module
+
         fn = getattr(output_kernel(self.model), f"{which}_segment_{self.integrator}", None)
         if fn is None:
             return None
         seg = aug.seg
-        f64 = lambda a: np.ascontiguousarray(a, dtype=float)   # noqa: E731
+        f64 = lambda a: np.ascontiguousarray(a, dtype=float)  # noqa: E731
         i64 = lambda a: np.ascontiguousarray(a, dtype=np.int64)  # noqa: E731
         s, P, Ypred, Spost, Pdiag, gain, last_ok, hits, acc, fail = fn(
-            f64(s).copy(), f64(P).copy(), f64(seg.t), aug._u, f64(seg.z), f64(R),
-            f64(F @ F.T), f64(qth), f64(lay.values), i64(lay.free_idx), i64(lay.pidx[k]),
-            f64(aug.lo[:, 0]), f64(aug.hi[:, 0]), aug._cj, *extra, float(self.rtol),
-            float(self.atol), INPUT_MODES[self.inputs], aug.n)
+            f64(s).copy(),
+            f64(P).copy(),
+            f64(seg.t),
+            aug._u,
+            f64(seg.z),
+            f64(R),
+            f64(F @ F.T),
+            f64(qth),
+            f64(lay.values),
+            i64(lay.free_idx),
+            i64(lay.pidx[k]),
+            f64(aug.lo[:, 0]),
+            f64(aug.hi[:, 0]),
+            aug._cj,
+            *extra,
+            float(self.rtol),
+            float(self.atol),
+            INPUT_MODES[self.inputs],
+            aug.n,
+        )
         if match is not None:
             match.add_sums(acc[2:], len(self.model.outputs))
         K = gain[:, last_ok] if np.any(last_ok) else None
@@ -1078,11 +1178,12 @@ class _ParameterFilter:
         if adapt_q and not np.any(np.diag(F)):
             raise ModelDefinitionError(
                 "adapt_noise: the process noise is adapted for the states that have some; "
-                "give process_noise (e.g. {'alpha': 0.01, 'q': 0.02}) to start from")
+                "give process_noise (e.g. {'alpha': 0.01, 'q': 0.02}) to start from"
+            )
         if adapt_q and np.any(F - np.diag(np.diag(F))):
             raise ModelDefinitionError(
-                "adapt_noise: process-noise adaptation needs a diagonal process_noise (a std "
-                "per state), not a full matrix")
+                "adapt_noise: process-noise adaptation needs a diagonal process_noise (a std per state), not a full matrix"
+            )
         return adapt_r, adapt_q
 
 
@@ -1230,8 +1331,9 @@ class UKF(_ParameterFilter):
 
     method = "ukf"
 
-    def __init__(self, model: Model, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
-                 augmented: bool = False, **kw) -> None:
+    def __init__(
+        self, model: Model, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0, augmented: bool = False, **kw
+    ) -> None:
         super().__init__(model, **kw)
         self.alpha, self.beta, self.kappa = float(alpha), float(beta), float(kappa)
         self.augmented = augmented
@@ -1239,15 +1341,15 @@ class UKF(_ParameterFilter):
             self.method = "ukf-aug"
 
     def _weights(self, L: int) -> tuple[np.ndarray, np.ndarray, float]:
-        lam = self.alpha ** 2 * (L + self.kappa) - L
+        lam = self.alpha**2 * (L + self.kappa) - L
         Wm = np.full(2 * L + 1, 0.5 / (L + lam))
         Wc = Wm.copy()
         Wm[0] = lam / (L + lam)
-        Wc[0] = Wm[0] + 1.0 - self.alpha ** 2 + self.beta
+        Wc[0] = Wm[0] + 1.0 - self.alpha**2 + self.beta
         return Wm, Wc, L + lam
 
     def _compiled_segment(self, aug, s, P, F, R, qth, lay, k, match):
-        if self.augmented:                          # noise-augmented sigma points: Python
+        if self.augmented:  # noise-augmented sigma points: Python
             return None
         Wm, Wc, cfac = self._weights(s.size)
         return self._run_compiled("ukf", aug, s, P, F, R, qth, lay, k, match, Wm, Wc, float(cfac))
@@ -1310,5 +1412,10 @@ class UKF(_ParameterFilter):
         return s, 0.5 * (P + P.T), y, K, Syy
 
     def _settings(self) -> dict[str, Any]:
-        return {**super()._settings(), "alpha": self.alpha, "beta": self.beta,
-                "kappa": self.kappa, "augmented": self.augmented}
+        return {
+            **super()._settings(),
+            "alpha": self.alpha,
+            "beta": self.beta,
+            "kappa": self.kappa,
+            "augmented": self.augmented,
+        }

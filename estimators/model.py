@@ -11,11 +11,13 @@ the trailing dimensions, ``c.NAME`` a constant. Functions written with numpy ufu
 arithmetic are compiled with numba when possible (see :mod:`estimators.jit`); anything else
 still runs through numpy.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable, Iterable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -56,13 +58,14 @@ class Parameter:
         if not self.name.isidentifier():
             raise ModelDefinitionError(
                 f"parameter name {self.name!r} is not a Python identifier; model functions "
-                "read it as p.<name>: rename it (letters, digits, underscores)")
+                "read it as p.<name>: rename it (letters, digits, underscores)"
+            )
         self.value = float(self.value)
-        lo, hi = (float(b) if b is not None else s * math.inf
-                  for b, s in zip(self.bounds, (-1, 1)))
+        lo, hi = (float(b) if b is not None else s * math.inf for b, s in zip(self.bounds, (-1, 1)))
         if lo > hi:
             raise ModelDefinitionError(
-                f"parameter {self.name!r} has lower bound {lo} above upper bound {hi}: swap them")
+                f"parameter {self.name!r} has lower bound {lo} above upper bound {hi}: swap them"
+            )
         self.bounds = (lo, hi)
         check_in_bounds(self.name, self.value, lo, hi)
 
@@ -74,20 +77,21 @@ def check_in_bounds(name: str, value: float, lo: float, hi: float) -> None:
     if not lo <= value <= hi:
         raise BoundsError(
             f"start value of parameter {name!r} = {value:g} lies outside its bounds "
-            f"[{lo:g}, {hi:g}]: move the start inside the bounds or widen them")
+            f"[{lo:g}, {hi:g}]: move the start inside the bounds or widen them"
+        )
 
 
-def check_outputs_measured(model: Model, segments: Sequence["Segment"], method: str) -> None:
+def check_outputs_measured(model: Model, segments: Sequence[Segment], method: str) -> None:
     """Raise ModelDefinitionError naming the outputs with no finite sample in any segment:
     a likelihood with a per-output noise variance cannot weigh an output never measured
     (the Kalman filters skip such outputs sample by sample and need no check)."""
-    never = [o for j, o in enumerate(model.outputs)
-             if not any(np.any(np.isfinite(seg.z[:, j])) for seg in segments)]
+    never = [o for j, o in enumerate(model.outputs) if not any(np.any(np.isfinite(seg.z[:, j])) for seg in segments)]
     if never:
         raise ModelDefinitionError(
             f"{method}: output{'s' if len(never) > 1 else ''} {never} "
             f"{'have' if len(never) > 1 else 'has'} no finite sample in any segment: drop "
-            "{} from the model's outputs (g) or give the data".format("them" if len(never) > 1 else "it"))
+            "{} from the model's outputs (g) or give the data".format("them" if len(never) > 1 else "it")
+        )
 
 
 class Namespace:
@@ -115,7 +119,8 @@ class Namespace:
         return UnknownNameError(
             f"f or g uses {name!r}, which is not among the names here ({', '.join(self.__dict__)}): "
             "check its spelling, or add it to the model's parameters (p.<name>) or "
-            "constants (c.<name>)")
+            "constants (c.<name>)"
+        )
 
     def __repr__(self) -> str:
         return f"Namespace({', '.join(self.__dict__)})"
@@ -153,14 +158,12 @@ class Model:
         self.parameters = [p if isinstance(p, Parameter) else Parameter(*p) for p in self.parameters]
         self.constants = dict(self.constants)
         self.output_biases = list(self.output_biases)
-        for label, names in (("state", self.states), ("input", self.inputs),
-                             ("output", self.outputs)):
+        for label, names in (("state", self.states), ("input", self.inputs), ("output", self.outputs)):
             if len(set(names)) != len(names):
                 raise ModelDefinitionError(f"duplicate {label} names in {names}")
         unknown = [o for o in self.output_biases if o not in self.outputs]
         if unknown:
-            raise ModelDefinitionError(
-                f"output_biases {unknown} are not outputs of the model {self.outputs}")
+            raise ModelDefinitionError(f"output_biases {unknown} are not outputs of the model {self.outputs}")
         for o in self.output_biases:
             if f"bias_{o}" not in self.parameter_names:
                 self.parameters.append(Parameter(f"bias_{o}", 0.0, per_segment=True))
@@ -183,18 +186,18 @@ class Model:
                 return p
         raise KeyError(f"model {self.name!r} has no parameter {name!r}; it has {self.parameter_names}")
 
-    def with_values(self, values: Mapping[str, float] | Any, *, free: bool | None = None) -> "Model":
+    def with_values(self, values: Mapping[str, float] | Any, *, free: bool | None = None) -> Model:
         """A copy with parameter start values replaced from ``values`` (name -> value;
         a pandas Series from a result works). Per-segment names ``x[k]`` are ignored."""
         new = []
         for p in self.parameters:
             v = values[p.name] if p.name in values else p.value
-            new.append(Parameter(p.name, float(v), p.free if free is None else free,
-                                 p.bounds, p.per_segment, p.unit))
-        return Model(self.states, self.inputs, self.outputs, new, self.f, self.g,
-                     self.constants, self.output_biases, self.name)
+            new.append(Parameter(p.name, float(v), p.free if free is None else free, p.bounds, p.per_segment, p.unit))
+        return Model(
+            self.states, self.inputs, self.outputs, new, self.f, self.g, self.constants, self.output_biases, self.name
+        )
 
-    def hold(self, values: Mapping[str, float]) -> "Model":
+    def hold(self, values: Mapping[str, float]) -> Model:
         """A copy with the parameters named in ``values`` fixed at those values (name ->
         value; the others unchanged)."""
         unknown = sorted(set(values) - set(self.parameter_names))
@@ -202,7 +205,7 @@ class Model:
             raise ModelDefinitionError(f"model {self.name!r} has no parameter {unknown}")
         return self.with_values(values).fixed(values)
 
-    def select_outputs(self, names: Sequence[str]) -> "Model":
+    def select_outputs(self, names: Sequence[str]) -> Model:
         """A copy observing only ``names`` (a subset of the outputs, any order): for data
         that lack a channel of the built-in model (e.g. no angular acceleration)."""
         missing = [n for n in names if n not in self.outputs]
@@ -210,7 +213,7 @@ class Model:
             raise ModelDefinitionError(f"{missing} are not outputs of {self.name!r} ({self.outputs})")
         idx = [self.outputs.index(n) for n in names]
         g0 = self.g
-        if hasattr(g0, "selects"):                     # a selection of a selection
+        if hasattr(g0, "selects"):  # a selection of a selection
             g0, rows = g0.selects
             idx = [rows[i] for i in idx]
 
@@ -222,29 +225,42 @@ class Model:
         # rows itself: numba cannot build a tuple with a generator
         g.selects = (g0, tuple(idx))
 
-        params = [p for p in self.parameters
-                  if not (p.name.startswith("bias_") and p.name[5:] in self.output_biases
-                          and p.name[5:] not in names)]
-        return Model(self.states, self.inputs, list(names), params, self.f, g, self.constants,
-                     [o for o in self.output_biases if o in names], self.name)
+        params = [
+            p
+            for p in self.parameters
+            if not (p.name.startswith("bias_") and p.name[5:] in self.output_biases and p.name[5:] not in names)
+        ]
+        return Model(
+            self.states,
+            self.inputs,
+            list(names),
+            params,
+            self.f,
+            g,
+            self.constants,
+            [o for o in self.output_biases if o in names],
+            self.name,
+        )
 
-    def fixed(self, names: Iterable[str]) -> "Model":
+    def fixed(self, names: Iterable[str]) -> Model:
         """A copy with the named parameters held at their values."""
         names = set(names)
-        new = [Parameter(p.name, p.value, p.free and p.name not in names, p.bounds,
-                         p.per_segment, p.unit) for p in self.parameters]
-        return Model(self.states, self.inputs, self.outputs, new, self.f, self.g,
-                     self.constants, self.output_biases, self.name)
+        new = [
+            Parameter(p.name, p.value, p.free and p.name not in names, p.bounds, p.per_segment, p.unit)
+            for p in self.parameters
+        ]
+        return Model(
+            self.states, self.inputs, self.outputs, new, self.f, self.g, self.constants, self.output_biases, self.name
+        )
 
     # -- evaluation helpers ---------------------------------------------------------------
-    def constants_for(self, segment: "Segment | None" = None) -> dict[str, float]:
+    def constants_for(self, segment: Segment | None = None) -> dict[str, float]:
         c = dict(self.constants)
         if segment is not None and segment.constants:
             c.update(segment.constants)
         return c
 
-    def eval_g(self, X: np.ndarray, U: np.ndarray, P: np.ndarray,
-               constants: Mapping[str, float]) -> np.ndarray:
+    def eval_g(self, X: np.ndarray, U: np.ndarray, P: np.ndarray, constants: Mapping[str, float]) -> np.ndarray:
         """Outputs for states X (n_states, N, B), inputs U (n_inputs, N, 1) and the
         parameter matrix P (n_params, B); returns (n_outputs, N, B)."""
         p = Namespace(dict(zip(self.parameter_names, P)))
@@ -257,29 +273,28 @@ class Model:
                 Y[self.outputs.index(o)] += P[idx[f"bias_{o}"]]
         return Y
 
-    def eval_f(self, x: np.ndarray, u: np.ndarray, P: np.ndarray,
-               constants: Mapping[str, float]) -> np.ndarray:
+    def eval_f(self, x: np.ndarray, u: np.ndarray, P: np.ndarray, constants: Mapping[str, float]) -> np.ndarray:
         """State derivatives for x (n_states, ...), u (n_inputs, ...), P (n_params, ...)."""
         p = Namespace(dict(zip(self.parameter_names, P)))
         out = self.f(x, u, p, Namespace(constants))
-        return stack_rows(out, len(self.states), np.broadcast_shapes(x.shape[1:], P.shape[1:]),
-                           "f", self.states)
+        return stack_rows(out, len(self.states), np.broadcast_shapes(x.shape[1:], P.shape[1:]), "f", self.states)
 
-    def simulate(self, segment: "Segment", params: Mapping[str, float] | None = None,
-                 integrator: str = "rk4", **kw) -> "Any":
+    def simulate(
+        self, segment: Segment, params: Mapping[str, float] | None = None, integrator: str = "rk4", **kw
+    ) -> Any:
         """Simulate the model over a segment with the given (or start) parameter values;
         returns a DataFrame of outputs on ``segment.t``."""
         from estimators.simulation import simulate_outputs  # local: avoids a cycle
+
         return simulate_outputs(self, segment, params, integrator=integrator, **kw)
 
 
-def stack_rows(out: Any, n: int, shape: tuple[int, ...], which: str,
-                names: Sequence[str]) -> np.ndarray:
+def stack_rows(out: Any, n: int, shape: tuple[int, ...], which: str, names: Sequence[str]) -> np.ndarray:
     rows = list(out) if isinstance(out, (tuple, list)) else list(np.asarray(out))
     if len(rows) != n:
         raise ModelDefinitionError(
-            f"{which}() returned {len(rows)} rows but the model has {n} {names}: return one "
-            f"entry per name, in order")
+            f"{which}() returned {len(rows)} rows but the model has {n} {names}: return one entry per name, in order"
+        )
     Y = np.empty((n,) + tuple(shape))
     for i, r in enumerate(rows):
         Y[i] = r
@@ -323,18 +338,20 @@ class Segment:
             raise ModelDefinitionError(f"{where} has {n} samples; a fit needs at least 2")
         if self.u.shape[0] != n or self.z.shape[0] != n:
             raise ModelDefinitionError(
-                f"{where}: t has {n} samples but u has {self.u.shape[0]} and z {self.z.shape[0]} rows")
+                f"{where}: t has {n} samples but u has {self.u.shape[0]} and z {self.z.shape[0]} rows"
+            )
         dt = np.diff(self.t)
         if not np.all(np.isfinite(self.t)) or np.any(dt <= 0):
             k = int(np.argmax(~(dt > 0))) if np.any(~(dt > 0)) else 0
             raise ModelDefinitionError(
                 f"{where}: time is not strictly increasing (at sample {k}, t={self.t[k]:.6g} s): "
-                "sort the data and drop duplicate stamps")
+                "sort the data and drop duplicate stamps"
+            )
         if not np.all(np.isfinite(self.u)):
             k = int(np.argwhere(~np.isfinite(self.u))[0, 0])
             raise ModelDefinitionError(
-                f"{where}: input has NaN/Inf at sample {k} (t={self.t[k]:.6g} s): "
-                "interpolate or cut the segment there")
+                f"{where}: input has NaN/Inf at sample {k} (t={self.t[k]:.6g} s): interpolate or cut the segment there"
+            )
         if self.x0 is not None:
             self.x0 = np.asarray(self.x0, dtype=float).ravel()
 
@@ -354,7 +371,7 @@ class Segment:
         ``factor`` times the segment's median interval."""
         return [(float(self.t[i]), float(self.t[i + 1] - self.t[i])) for i in self._gap_index(factor)]
 
-    def split_at_gaps(self, factor: float = GAP_FACTOR) -> list["Segment"]:
+    def split_at_gaps(self, factor: float = GAP_FACTOR) -> list[Segment]:
         """The stretches between gaps (see :meth:`gaps`) as segments, in time order.
 
         Each piece keeps its rows of ``t``, ``u``, ``z``, the segment's ``constants`` and
@@ -375,10 +392,17 @@ class Segment:
         for j, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
             if b - a < 2:
                 continue
-            pieces.append(replace(
-                self, t=self.t[a:b].copy(), u=self.u[a:b].copy(), z=self.z[a:b].copy(),
-                x0=(None if self.x0 is None else self.x0.copy()) if a == 0 else None,
-                constants=None if consts is None else dict(consts), name=f"{base}.{j}"))
+            pieces.append(
+                replace(
+                    self,
+                    t=self.t[a:b].copy(),
+                    u=self.u[a:b].copy(),
+                    z=self.z[a:b].copy(),
+                    x0=(None if self.x0 is None else self.x0.copy()) if a == 0 else None,
+                    constants=None if consts is None else dict(consts),
+                    name=f"{base}.{j}",
+                )
+            )
         return pieces
 
     def check_no_gaps(self, k: int | None = None, factor: float = GAP_FACTOR) -> None:
@@ -398,19 +422,17 @@ class Segment:
             f"{where}: the time has a gap of {length:.4g} s from t={self.t[i]:.6g} s{more}, "
             f"{length / h:.0f} times the median sample interval {h:.4g} s (over {factor:g} "
             "times it counts as a gap): the model would be integrated across it in one step. "
-            "Call Segment.split_at_gaps() and fit the pieces as a list of segments")
+            "Call Segment.split_at_gaps() and fit the pieces as a list of segments"
+        )
 
     def check_against(self, model: Model) -> None:
         where = f"segment {self.name!r}" if self.name else "segment"
         if self.u.shape[1] != len(model.inputs):
-            raise ModelDefinitionError(
-                f"{where}: u has {self.u.shape[1]} columns, model inputs are {model.inputs}")
+            raise ModelDefinitionError(f"{where}: u has {self.u.shape[1]} columns, model inputs are {model.inputs}")
         if self.z.shape[1] != len(model.outputs):
-            raise ModelDefinitionError(
-                f"{where}: z has {self.z.shape[1]} columns, model outputs are {model.outputs}")
+            raise ModelDefinitionError(f"{where}: z has {self.z.shape[1]} columns, model outputs are {model.outputs}")
         if self.x0 is not None and self.x0.size != len(model.states):
-            raise ModelDefinitionError(
-                f"{where}: x0 has {self.x0.size} entries, model states are {model.states}")
+            raise ModelDefinitionError(f"{where}: x0 has {self.x0.size} entries, model states are {model.states}")
 
     def initial_state(self, model: Model) -> np.ndarray:
         """x0 as given, or taken from the first measured (finite) sample of each state that
@@ -422,12 +444,14 @@ class Segment:
         if bad:
             raise ModelDefinitionError(
                 f"segment {self.name!r} has no x0 and states {bad} are not measured "
-                "(not outputs, or no finite sample): pass Segment(..., x0=...)")
+                "(not outputs, or no finite sample): pass Segment(..., x0=...)"
+            )
         return np.array([cols[s][np.isfinite(cols[s])][0] for s in model.states])
 
     @classmethod
-    def from_frame(cls, df: Any, model: Model, *, x0: Mapping[str, float] | None = None,
-                   time: str | None = None, **kw) -> "Segment":
+    def from_frame(
+        cls, df: Any, model: Model, *, x0: Mapping[str, float] | None = None, time: str | None = None, **kw
+    ) -> Segment:
         """Build a segment from a DataFrame whose columns carry the model's input and
         output names (time in column ``time`` or the index)."""
         t = df[time].to_numpy() if time else df.index.to_numpy()

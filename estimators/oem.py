@@ -10,29 +10,33 @@ Safeguards: step halving, Levenberg-Marquardt, bounded-variable Gauss-Newton (a
 parameter on a bound whose gradient points outward leaves the active set), an a-priori
 penalty (theta - theta*)^T W (theta - theta*), and a Nelder-Mead start for poor starts.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from estimators import statistics as st
 from estimators.errors import ModelDefinitionError, SimulationDivergedError
 from estimators.integrators import DEFAULT_INPUTS, check_options
 from estimators.model import Model, Segment, check_outputs_measured
 from estimators.results import EstimationResult, frames
 from estimators.sensitivity import Sensitivity
 from estimators.simulation import Layout, divergence_error, simulate_batch
-from estimators import statistics as st
 
 OPTIMIZERS = ("gauss-newton", "levenberg-marquardt")
-DIVERGE_HINT = ("Check the units and signs of the start values, set bounds, start closer "
-                "(e.g. from an equation-error fit, estimators.LeastSquares); for an unstable "
-                "aircraft use a method that keeps the simulation bounded: StabilizedOutputError "
-                "(stabilisation matrix S), EigenvalueTransformation (exp(-sigma t) weighting) "
-                "or EquationDecoupling (measured states as pseudo-inputs), or the filter "
-                "methods FilterError, EKF or UKF.")
+DIVERGE_HINT = (
+    "Check the units and signs of the start values, set bounds, start closer "
+    "(e.g. from an equation-error fit, estimators.LeastSquares); for an unstable "
+    "aircraft use a method that keeps the simulation bounded: StabilizedOutputError "
+    "(stabilisation matrix S), EigenvalueTransformation (exp(-sigma t) weighting) "
+    "or EquationDecoupling (measured states as pseudo-inputs), or the filter "
+    "methods FilterError, EKF or UKF."
+)
 
 #: a simulated output further from the data's median than this many times the data's own
 #: largest deviation from it counts as a diverged (runaway) simulation: an unstable model
@@ -56,14 +60,17 @@ def runaway(seg: Segment, Y: np.ndarray) -> tuple[int, int] | None:
     return i, int(np.flatnonzero(ok)[np.argmax(bad[i])])
 
 
-def runaway_error(model: Model, seg: Segment, k: int, where: tuple[int, int],
-                  what: str) -> SimulationDivergedError:
+def runaway_error(model: Model, seg: Segment, k: int, where: tuple[int, int], what: str) -> SimulationDivergedError:
     i, o = where
     return SimulationDivergedError(
         f"the simulation of segment {seg.name or k} diverged at t={seg.t[i]:.4g} s (output "
         f"{model.outputs[o]!r} ran away to more than {RUNAWAY_FACTOR:g} times the measured "
         f"range; the model is unstable or far off) {what}. {DIVERGE_HINT}",
-        segment=k, time=float(seg.t[i]), state=model.outputs[o])
+        segment=k,
+        time=float(seg.t[i]),
+        state=model.outputs[o],
+    )
+
 
 #: an output is not followed when its residuals' lag-1 autocorrelation exceeds FOLLOW_LAG1
 #: and their variance FOLLOW_SHARE times the measured output's: a slow misfit that is a
@@ -75,8 +82,7 @@ FOLLOW_LAG1 = 0.8
 FOLLOW_SHARE = 0.1
 
 #: the methods that keep the simulation of an unstable aircraft bounded, named in messages
-UNSTABLE_METHODS = ("StabilizedOutputError, EigenvalueTransformation, EquationDecoupling "
-                    "or FilterError")
+UNSTABLE_METHODS = "StabilizedOutputError, EigenvalueTransformation, EquationDecoupling or FilterError"
 
 
 def lag1_autocorrelation(E: Sequence[np.ndarray]) -> np.ndarray:
@@ -103,8 +109,9 @@ def _pooled_variance(X: Sequence[np.ndarray]) -> np.ndarray:
     return ss / np.maximum(sum(np.isfinite(x).sum(axis=0) for x in X), 1)
 
 
-def follow_note(outputs: Sequence[str], segments: Sequence[Segment], E: Sequence[np.ndarray],
-                runaways: int = 0) -> tuple[str, dict[str, Any]]:
+def follow_note(
+    outputs: Sequence[str], segments: Sequence[Segment], E: Sequence[np.ndarray], runaways: int = 0
+) -> tuple[str, dict[str, Any]]:
     """A message, and its numbers, when an output-error fit did not follow the data: at
     least half the outputs with residuals coloured and large (see FOLLOW_LAG1), or trial
     parameter values whose simulation ran away (``runaways`` of them). Both mark a model
@@ -119,18 +126,25 @@ def follow_note(outputs: Sequence[str], segments: Sequence[Segment], E: Sequence
         return "", {}
     why = []
     if coloured:
-        why.append(f"the residuals of {', '.join(outputs[j] for j in bad)} are far from white "
-                   f"(lag-1 autocorrelation {', '.join(f'{rho[j]:.2f}' for j in bad)}) and "
-                   f"leave {', '.join(f'{100 * min(share[j], 9.99):.0f}' for j in bad)} % of "
-                   "their measured variance unexplained")
+        why.append(
+            f"the residuals of {', '.join(outputs[j] for j in bad)} are far from white "
+            f"(lag-1 autocorrelation {', '.join(f'{rho[j]:.2f}' for j in bad)}) and "
+            f"leave {', '.join(f'{100 * min(share[j], 9.99):.0f}' for j in bad)} % of "
+            "their measured variance unexplained"
+        )
     if runaways:
-        why.append(f"the simulation ran away for {runaways} trial parameter "
-                   f"set{'s' if runaways > 1 else ''}")
-    msg = (f"the model does not follow the data: {' and '.join(why)}. An unstable aircraft "
-           "(or strong turbulence) cannot be fitted by simulating it open loop: use "
-           f"{UNSTABLE_METHODS}")
-    info = {"outputs": [outputs[j] for j in bad], "runaways": int(runaways),
-            "lag1": dict(zip(outputs, rho.tolist())), "unexplained": dict(zip(outputs, share.tolist()))}
+        why.append(f"the simulation ran away for {runaways} trial parameter set{'s' if runaways > 1 else ''}")
+    msg = (
+        f"the model does not follow the data: {' and '.join(why)}. An unstable aircraft "
+        "(or strong turbulence) cannot be fitted by simulating it open loop: use "
+        f"{UNSTABLE_METHODS}"
+    )
+    info = {
+        "outputs": [outputs[j] for j in bad],
+        "runaways": int(runaways),
+        "lag1": dict(zip(outputs, rho.tolist())),
+        "unexplained": dict(zip(outputs, share.tolist())),
+    }
     return msg, info
 
 
@@ -182,12 +196,25 @@ class OutputError:
     #: estimators.stabilized, which are the remedy it names
     _check_follow = True
 
-    def __init__(self, model: Model, integrator: str = "rk4", *, noise: str = "diagonal",
-                 optimizer: str = "gauss-newton", jacobian: str | SensitivityHook = "forward",
-                 fd_step: float = 1e-6, max_iter: int = 50, tol: float = 1e-6,
-                 step_halvings: int = 10, priors: Mapping[str, tuple[float, float]] | None = None,
-                 fallback: str = "auto", rtol: float = 1e-8, atol: float = 1e-10,
-                 inputs: str = DEFAULT_INPUTS, callback: Callable[[int, float, pd.Series], None] | None = None) -> None:
+    def __init__(
+        self,
+        model: Model,
+        integrator: str = "rk4",
+        *,
+        noise: str = "diagonal",
+        optimizer: str = "gauss-newton",
+        jacobian: str | SensitivityHook = "forward",
+        fd_step: float = 1e-6,
+        max_iter: int = 50,
+        tol: float = 1e-6,
+        step_halvings: int = 10,
+        priors: Mapping[str, tuple[float, float]] | None = None,
+        fallback: str = "auto",
+        rtol: float = 1e-8,
+        atol: float = 1e-10,
+        inputs: str = DEFAULT_INPUTS,
+        callback: Callable[[int, float, pd.Series], None] | None = None,
+    ) -> None:
         check_options(integrator, inputs)
         if noise not in ("diagonal", "full"):
             raise ModelDefinitionError(f"noise must be 'diagonal' or 'full', not {noise!r}")
@@ -219,8 +246,9 @@ class OutputError:
         """Outputs per segment for one parameter vector; None if any simulation diverged."""
         Ys = []
         for k, seg in enumerate(self._segments):
-            Y = simulate_batch(self.model, seg, theta[None, :], self._lay, k, self.integrator,
-                               self.rtol, self.atol, inputs=self.inputs)[:, :, 0]
+            Y = simulate_batch(
+                self.model, seg, theta[None, :], self._lay, k, self.integrator, self.rtol, self.atol, inputs=self.inputs
+            )[:, :, 0]
             if not np.all(np.isfinite(Y)) or runaway(seg, Y) is not None:
                 return None
             Ys.append(Y)
@@ -244,11 +272,12 @@ class OutputError:
             cols = np.array([col[j] for j in rel], dtype=int)
             if callable(self.jacobian):
                 Y, Srel = self.jacobian(self.model, seg, k, lay, theta)
-                Ys.append(Y); Ss.append(Sensitivity(np.asarray(Srel, dtype=float), cols, free_idx.size))
+                Ys.append(Y)
+                Ss.append(Sensitivity(np.asarray(Srel, dtype=float), cols, free_idx.size))
                 continue
             step = self.fd_step * np.maximum(np.abs(theta[rel]), 1.0)
             up_ok = theta[rel] + step <= lay.upper[rel]
-            sgn = np.where(up_ok, 1.0, -1.0)           # step backwards at an upper bound
+            sgn = np.where(up_ok, 1.0, -1.0)  # step backwards at an upper bound
             m = rel.size
             central = self.jacobian == "central"
             B = 1 + m * (2 if central else 1)
@@ -256,25 +285,40 @@ class OutputError:
             Theta[1 + np.arange(m), rel] += sgn * step
             if central:
                 Theta[1 + m + np.arange(m), rel] -= sgn * step
-            Yb, Xb = simulate_batch(self.model, seg, Theta, lay, k, self.integrator,
-                                    self.rtol, self.atol, return_states=True, inputs=self.inputs)
+            Yb, Xb = simulate_batch(
+                self.model,
+                seg,
+                Theta,
+                lay,
+                k,
+                self.integrator,
+                self.rtol,
+                self.atol,
+                return_states=True,
+                inputs=self.inputs,
+            )
             if not np.all(np.isfinite(Yb[:, :, 0])):
-                raise divergence_error(self.model, seg, Xb[:, :, 0], k,
-                                       "at the current parameter values", DIVERGE_HINT)
+                raise divergence_error(self.model, seg, Xb[:, :, 0], k, "at the current parameter values", DIVERGE_HINT)
             Y = Yb[:, :, 0]
             away = runaway(seg, Y)
             if away is not None:
                 raise runaway_error(self.model, seg, k, away, "at the current parameter values")
             if central:
-                Srel = (Yb[:, :, 1:1 + m] - Yb[:, :, 1 + m:]) / (2.0 * sgn * step)
+                Srel = (Yb[:, :, 1 : 1 + m] - Yb[:, :, 1 + m :]) / (2.0 * sgn * step)
             else:
-                Srel = (Yb[:, :, 1:1 + m] - Y[:, :, None]) / (sgn * step)
+                Srel = (Yb[:, :, 1 : 1 + m] - Y[:, :, None]) / (sgn * step)
             if not np.all(np.isfinite(Srel)):
                 bad = [lay.names[rel[i]] for i in np.flatnonzero(~np.isfinite(Srel).all(axis=(0, 1)))]
-                raise divergence_error(self.model, seg, Xb[:, :, 1 + int(np.flatnonzero(
-                    ~np.isfinite(Srel).all(axis=(0, 1)))[0])], k,
-                    f"when perturbing {', '.join(bad)}", DIVERGE_HINT)
-            Ys.append(Y); Ss.append(Sensitivity(Srel, cols, free_idx.size))
+                raise divergence_error(
+                    self.model,
+                    seg,
+                    Xb[:, :, 1 + int(np.flatnonzero(~np.isfinite(Srel).all(axis=(0, 1)))[0])],
+                    k,
+                    f"when perturbing {', '.join(bad)}",
+                    DIVERGE_HINT,
+                )
+            Ys.append(Y)
+            Ss.append(Sensitivity(Srel, cols, free_idx.size))
         return Ys, Ss
 
     def _linearise(self, theta: np.ndarray):
@@ -293,7 +337,9 @@ class OutputError:
     def _prior_terms(self, theta_free: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """W (n_free, n_free), W (theta* - theta), and 1/2 (theta-theta*)^T W (theta-theta*)."""
         n = theta_free.size
-        W = np.zeros((n, n)); g = np.zeros(n); J = 0.0
+        W = np.zeros((n, n))
+        g = np.zeros(n)
+        J = 0.0
         names = self._lay.free_names
         for name, (mu, sd) in self.priors.items():
             if name not in names:
@@ -306,8 +352,7 @@ class OutputError:
         return W, g, J
 
     def _R(self, E: Sequence[np.ndarray]) -> np.ndarray:
-        return self._R_fixed if self._R_fixed is not None else \
-            st.residual_covariance(E, full=self.noise == "full")
+        return self._R_fixed if self._R_fixed is not None else st.residual_covariance(E, full=self.noise == "full")
 
     def _nll(self, theta: np.ndarray) -> float:
         """Negative log-likelihood with R at its optimum: (N/2) log det R + prior penalty."""
@@ -358,19 +403,27 @@ class OutputError:
 
         n = fi.size
         sim0 = np.vstack([x0 / scale] + [x0 / scale + 0.2 * np.eye(n)[i] for i in range(n)])
-        from scipy import optimize      # only this start needs it: import on use
+        from scipy import optimize  # only this start needs it: import on use
 
-        res = optimize.minimize(fun, x0 / scale, method="Nelder-Mead",
-                                options={"maxfev": max_evals or max(600, 200 * n),
-                                         "initial_simplex": sim0, "xatol": 1e-6, "fatol": 1e-8})
+        res = optimize.minimize(
+            fun,
+            x0 / scale,
+            method="Nelder-Mead",
+            options={"maxfev": max_evals or max(600, 200 * n), "initial_simplex": sim0, "xatol": 1e-6, "fatol": 1e-8},
+        )
         out = theta.copy()
         out[fi] = np.clip(res.x * scale, lay.lower[fi], lay.upper[fi])
         self._n_simplex_evals += int(res.nfev)
         return out
 
     # -- the fit --------------------------------------------------------------------------
-    def fit(self, segments: Segment | Sequence[Segment], estimate_x0: bool | str | Sequence[str] = "auto",
-            R: np.ndarray | None = None, start: Mapping[str, float] | None = None) -> EstimationResult:
+    def fit(
+        self,
+        segments: Segment | Sequence[Segment],
+        estimate_x0: bool | str | Sequence[str] = "auto",
+        R: np.ndarray | None = None,
+        start: Mapping[str, float] | None = None,
+    ) -> EstimationResult:
         """Estimate the free parameters from one or several segments.
 
         segments : data; system parameters are shared, per-segment ones get ``[k]``.
@@ -408,7 +461,7 @@ class OutputError:
         history: list[dict[str, Any]] = []
         converged = False
         message = ""
-        runaways = 0            # line-search trials whose simulation ran away or diverged
+        runaways = 0  # line-search trials whose simulation ran away or diverged
         lam = 1e-3
         cost_old = np.inf
         it = 0
@@ -481,18 +534,20 @@ class OutputError:
             if not accepted:
                 predicted = 0.5 * float(G[a] @ delta[a])
                 if predicted <= 1e-10 * max(J, 1.0):
-                    converged = True        # no descent left: at the minimum to round-off
+                    converged = True  # no descent left: at the minimum to round-off
                     break
                 if self.fallback == "auto" and not used_simplex and not n_accepted:
                     theta = self._simplex(theta)
                     used_simplex = True
                     cost_old = np.inf
                     continue
-                message = ("no step lowered the cost (line search failed) - the start may be "
-                           "poor or the model may not describe the data" if not n_accepted else
-                           f"no step lowered the cost after {n_accepted} accepted steps (line "
-                           "search failed near the optimum: the finite-difference gradient is "
-                           "too coarse there; jacobian='central' refines it)")
+                message = (
+                    "no step lowered the cost (line search failed) - the start may be poor or the model may not describe the data"
+                    if not n_accepted
+                    else f"no step lowered the cost after {n_accepted} accepted steps (line "
+                    "search failed near the optimum: the finite-difference gradient is "
+                    "too coarse there; jacobian='central' refines it)"
+                )
                 break
         else:
             message = f"stopped at max_iter={self.max_iter} before det(R) settled"
@@ -507,12 +562,12 @@ class OutputError:
         inner = np.flatnonzero(~on_bound)
         cov = np.full((fi.size, fi.size), np.nan)
         if inner.size:
-            st.check_identifiable(F[np.ix_(inner, inner)], [lay.free_names[i] for i in inner],
-                                  " at the estimates")
+            st.check_identifiable(F[np.ix_(inner, inner)], [lay.free_names[i] for i in inner], " at the estimates")
             cov[np.ix_(inner, inner)] = st.covariance(F[np.ix_(inner, inner)])
         if used_simplex:
-            message = (message + "; " if message else "") + \
-                f"started with Nelder-Mead ({self._n_simplex_evals} evaluations)"
+            message = (
+                message + "; " if message else ""
+            ) + f"started with Nelder-Mead ({self._n_simplex_evals} evaluations)"
         extra: dict[str, Any] = {}
         if self.priors:
             # the a-priori part of F (free-parameter order): the Morelli-Klein sandwich adds
@@ -524,19 +579,41 @@ class OutputError:
                 message = (message + "; " if message else "") + note
                 extra["not_followed"] = info
         return EstimationResult(
-            method=self.method, model=self.model, names=list(lay.names), values=theta,
-            free=lay.free.copy(), cov=cov, R=R_cur, converged=converged, iterations=it,
-            history=pd.DataFrame(history), segments=segments,
+            method=self.method,
+            model=self.model,
+            names=list(lay.names),
+            values=theta,
+            free=lay.free.copy(),
+            cov=cov,
+            R=R_cur,
+            converged=converged,
+            iterations=it,
+            history=pd.DataFrame(history),
+            segments=segments,
             predicted=frames([s.t for s in segments], Ys, self.model.outputs),
             residuals=frames([s.t for s in segments], E, self.model.outputs),
             at_bounds=[lay.free_names[i] for i in np.flatnonzero(on_bound)],
-            message=message, information=F, sensitivities=Ss, extra=extra,
-            settings={"integrator": self.integrator, "optimizer": self.optimizer,
-                      "noise": self.noise, "inputs": self.inputs, "jacobian": self.jacobian if isinstance(self.jacobian, str)
-                      else "analytic", "tol": self.tol, "max_iter": self.max_iter})
+            message=message,
+            information=F,
+            sensitivities=Ss,
+            extra=extra,
+            settings={
+                "integrator": self.integrator,
+                "optimizer": self.optimizer,
+                "noise": self.noise,
+                "inputs": self.inputs,
+                "jacobian": self.jacobian if isinstance(self.jacobian, str) else "analytic",
+                "tol": self.tol,
+                "max_iter": self.max_iter,
+            },
+        )
 
-    def step_from(self, result: EstimationResult, segments: Segment | Sequence[Segment],
-                  estimate_x0: bool | str | Sequence[str] = "auto") -> EstimationResult:
+    def step_from(
+        self,
+        result: EstimationResult,
+        segments: Segment | Sequence[Segment],
+        estimate_x0: bool | str | Sequence[str] = "auto",
+    ) -> EstimationResult:
         """``result``'s estimates moved to this model and these data by one Gauss-Newton
         step that reuses the result's sensitivities, information and R:
 
@@ -562,11 +639,13 @@ class OutputError:
             raise ModelDefinitionError("step_from needs the result's segments (same samples)")
         free = set(result.free_names)
         self._segments = segments
-        lay = self._lay = Layout.build(self.model, segments, estimate_x0,
-                                       values={n: v for n, v in result.params.items() if n in free})
+        lay = self._lay = Layout.build(
+            self.model, segments, estimate_x0, values={n: v for n, v in result.params.items() if n in free}
+        )
         if list(lay.free_names) != list(result.free_names):
-            raise ModelDefinitionError("step_from: this model and these segments give other free "
-                                       "parameters than the result")
+            raise ModelDefinitionError(
+                "step_from: this model and these segments give other free parameters than the result"
+            )
         theta = lay.values.copy()
         Ys = self._simulate(theta)
         if Ys is None:
@@ -574,28 +653,34 @@ class OutputError:
         E = self._residuals(Ys)
         dE = [e - r.to_numpy(dtype=float) for e, r in zip(E, result.residuals)]
         _, G, _ = st.information_and_gradient(result.sensitivities, dE, st.whitener(result.R))
-        inner = np.array([i for i, n in enumerate(result.free_names) if n not in result.at_bounds],
-                         dtype=int)
+        inner = np.array([i for i, n in enumerate(result.free_names) if n not in result.at_bounds], dtype=int)
         fi = lay.free_idx
         if inner.size:
             theta[fi[inner]] += st.solve_step(result.information[np.ix_(inner, inner)], G[inner])
         Ys = self._simulate(theta)
         if Ys is None:
             self._raise_simulation_failure(theta, "one step from the result's estimates")
-        return replace(result, model=self.model, values=theta, segments=segments,
-                       predicted=frames([s.t for s in segments], Ys, self.model.outputs),
-                       residuals=frames([s.t for s in segments], self._residuals(Ys),
-                                        self.model.outputs),
-                       message="one Gauss-Newton step from the earlier estimates (step_from)",
-                       extra=dict(result.extra), consider_cov=None, consider_source="")
+        return replace(
+            result,
+            model=self.model,
+            values=theta,
+            segments=segments,
+            predicted=frames([s.t for s in segments], Ys, self.model.outputs),
+            residuals=frames([s.t for s in segments], self._residuals(Ys), self.model.outputs),
+            message="one Gauss-Newton step from the earlier estimates (step_from)",
+            extra=dict(result.extra),
+            consider_cov=None,
+            consider_source="",
+        )
 
     # -- helpers --------------------------------------------------------------------------
     def _raise_simulation_failure(self, theta: np.ndarray, what: str) -> None:
         """Raise the error of a simulation at ``theta`` that :meth:`_simulate` refused: the
         first segment whose outputs run away (finite), else the one that diverged."""
         for k, seg in enumerate(self._segments):
-            Yk = simulate_batch(self.model, seg, theta[None, :], self._lay, k, self.integrator,
-                                self.rtol, self.atol, inputs=self.inputs)[:, :, 0]
+            Yk = simulate_batch(
+                self.model, seg, theta[None, :], self._lay, k, self.integrator, self.rtol, self.atol, inputs=self.inputs
+            )[:, :, 0]
             away = runaway(seg, Yk) if np.all(np.isfinite(Yk)) else None
             if away is not None:
                 raise runaway_error(self.model, seg, k, away, what)
@@ -604,14 +689,25 @@ class OutputError:
 
     def _first_diverged(self, theta: np.ndarray) -> tuple[int, np.ndarray]:
         for k, seg in enumerate(self._segments):
-            _, X = simulate_batch(self.model, seg, theta[None, :], self._lay, k, self.integrator,
-                                  self.rtol, self.atol, return_states=True, inputs=self.inputs)
+            _, X = simulate_batch(
+                self.model,
+                seg,
+                theta[None, :],
+                self._lay,
+                k,
+                self.integrator,
+                self.rtol,
+                self.atol,
+                return_states=True,
+                inputs=self.inputs,
+            )
             if not np.all(np.isfinite(X)):
                 return k, X[:, :, 0]
         return 0, X[:, :, 0]  # outputs (not states) went non-finite
 
-    def _history_row(self, it: int, cost: float, J: float, theta: np.ndarray, step: float,
-                     lam: float) -> dict[str, Any]:
+    def _history_row(
+        self, it: int, cost: float, J: float, theta: np.ndarray, step: float, lam: float
+    ) -> dict[str, Any]:
         row: dict[str, Any] = {"iteration": it, "det_R": cost, "J": J, "step": step}
         if self.optimizer == "levenberg-marquardt":
             row["lambda"] = lam

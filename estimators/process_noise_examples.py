@@ -13,14 +13,14 @@ known truth - for the filter-error / Kalman tests and benchmarks.
 * :func:`dryden_gust_longitudinal` (benchmark): a linear short period driven by a
   Dryden-filtered vertical gust, with the gust filter as an extra state.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
 
-from estimators.datasets import (HFB320_CONSTANTS, HFB320_NOISE, HFB320_TRUTH, multistep,
-                                 trim_level)
+from estimators.datasets import HFB320_CONSTANTS, HFB320_NOISE, HFB320_TRUTH, multistep, trim_level
 from estimators.jit import kernel_for
 from estimators.model import Model, Parameter, Segment
 from estimators.models import short_period
@@ -30,18 +30,25 @@ from estimators.simulation import Layout
 
 @dataclass
 class NoisyExample:
-    model: Model                 # model with start values (free as requested)
+    model: Model  # model with start values (free as requested)
     truth_model: Model
     segments: list[Segment]
     truth: dict[str, float]
-    process_noise: np.ndarray    # F (n, n), state units per sqrt(s)
-    noise_std: np.ndarray        # measurement-noise std per output
-    states: list[np.ndarray]     # true states per segment (N, n)
+    process_noise: np.ndarray  # F (n, n), state units per sqrt(s)
+    noise_std: np.ndarray  # measurement-noise std per output
+    states: list[np.ndarray]  # true states per segment (N, n)
 
 
-def simulate_with_process_noise(model: Model, seg: Segment, F: np.ndarray, rng: np.random.Generator,
-                                noise_std: np.ndarray | None = None, integrator: str = "rk4",
-                                feedback=None, substeps: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def simulate_with_process_noise(
+    model: Model,
+    seg: Segment,
+    F: np.ndarray,
+    rng: np.random.Generator,
+    noise_std: np.ndarray | None = None,
+    integrator: str = "rk4",
+    feedback=None,
+    substeps: int = 1,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Simulate one segment with process noise F (see module docstring).
 
     substeps : integrator steps per sample interval, each followed by its share of the
@@ -72,23 +79,29 @@ def simulate_with_process_noise(model: Model, seg: Segment, F: np.ndarray, rng: 
                 U[i + 1] = feedback(i + 1, Z[i])
             h = seg.t[i + 1] - seg.t[i]
             if substeps == 1:
-                Xs = kern.integrate(integrator, x[:, None], U[i:i + 2], seg.t[i:i + 2], P, c)
+                Xs = kern.integrate(integrator, x[:, None], U[i : i + 2], seg.t[i : i + 2], P, c)
                 x = Xs[1, :, 0] + F @ rng.standard_normal(F.shape[1]) * np.sqrt(h)
                 continue
             frac = np.linspace(0.0, 1.0, substeps + 1)
             Us = U[i] + frac[:, None] * (U[i + 1] - U[i])
             ts = seg.t[i] + frac * h
             for j in range(substeps):
-                Xs = kern.integrate(integrator, x[:, None], Us[j:j + 2], ts[j:j + 2], P, c)
+                Xs = kern.integrate(integrator, x[:, None], Us[j : j + 2], ts[j : j + 2], P, c)
                 x = Xs[1, :, 0] + F @ rng.standard_normal(F.shape[1]) * np.sqrt(h / substeps)
     return X, Z, U
 
 
-def turbulent_longitudinal_example(seed: int = 0, n: int = 600, dt: float = 0.02, *,
-                                   sigma_alpha: float = 0.005, sigma_q: float = 0.01,
-                                   start_offset: float = 0.2,
-                                   free=("CLalpha", "CLde", "Cmalpha", "Cmq", "Cmde", "CL0", "Cm0"),
-                                   segments: int = 1) -> NoisyExample:
+def turbulent_longitudinal_example(
+    seed: int = 0,
+    n: int = 600,
+    dt: float = 0.02,
+    *,
+    sigma_alpha: float = 0.005,
+    sigma_q: float = 0.01,
+    start_offset: float = 0.2,
+    free=("CLalpha", "CLde", "Cmalpha", "Cmq", "Cmde", "CL0", "Cm0"),
+    segments: int = 1,
+) -> NoisyExample:
     """HFB-320-like longitudinal 3-2-1-1 in turbulence: process noise std sigma_alpha
     (rad/sqrt(s)) on alpha and sigma_q (rad/s/sqrt(s)) on q, sensor noise as in
     :data:`estimators.datasets.HFB320_NOISE`. Start values off by +-start_offset."""
@@ -101,8 +114,7 @@ def turbulent_longitudinal_example(seed: int = 0, n: int = 600, dt: float = 0.02
     segs, states = [], []
     for k in range(segments):
         de = u0[0] + multistep(t, 1.0 + 0.5 * k, 0.5 + 0.1 * k, amplitude=np.radians(2.0) * (-1) ** k)
-        seg = Segment(t=t, u=np.column_stack([de, np.full(n, u0[1])]), z=np.zeros((n, 7)), x0=x0,
-                      name=f"turb-{k}")
+        seg = Segment(t=t, u=np.column_stack([de, np.full(n, u0[1])]), z=np.zeros((n, 7)), x0=x0, name=f"turb-{k}")
         X, Z, _ = simulate_with_process_noise(truth_model, seg, F, rng, sd)
         seg.z = Z
         segs.append(seg)
@@ -115,16 +127,23 @@ def turbulent_longitudinal_example(seed: int = 0, n: int = 600, dt: float = 0.02
 
 #: short-period constants (HFB-320 class at 100 m/s) and an unstable truth
 SP_CONSTANTS = {"m": 7472.0, "Iyy": 65000.0, "S": 30.0, "cbar": 2.14, "rho": 0.792, "V": 100.0}
-UNSTABLE_SP_TRUTH = {"CLalpha": 4.8, "CLq": 0.0, "CLde": 0.38, "Cmalpha": 0.5, "Cmq": -16.0,
-                     "Cmde": -1.6}
+UNSTABLE_SP_TRUTH = {"CLalpha": 4.8, "CLq": 0.0, "CLde": 0.38, "Cmalpha": 0.5, "Cmq": -16.0, "Cmde": -1.6}
 UNSTABLE_SP_FREE = ("CLalpha", "CLde", "Cmalpha", "Cmq", "Cmde")
 SP_NOISE = {"alpha": np.radians(0.1), "q": np.radians(0.2), "qdot": np.radians(1.0), "az": 0.1}
 
 
-def unstable_short_period_example(seed: int = 0, n: int = 1000, dt: float = 0.02, *,
-                                  k_alpha: float = 0.5, k_q: float = 0.3,
-                                  sigma_alpha: float = 0.0, sigma_q: float = 0.0,
-                                  start_offset: float = 0.2, segments: int = 1) -> NoisyExample:
+def unstable_short_period_example(
+    seed: int = 0,
+    n: int = 1000,
+    dt: float = 0.02,
+    *,
+    k_alpha: float = 0.5,
+    k_q: float = 0.3,
+    sigma_alpha: float = 0.0,
+    sigma_q: float = 0.0,
+    start_offset: float = 0.2,
+    segments: int = 1,
+) -> NoisyExample:
     """The statically unstable short period (Cmalpha = +0.5) with the SAS loop
     de = de_pilot + k_alpha alpha_m + k_q q_m closed on the measured signals; de_pilot a
     3-2-1-1 and a later doublet. Optional process noise (rad/sqrt(s)) on alpha and q.
@@ -137,8 +156,9 @@ def unstable_short_period_example(seed: int = 0, n: int = 1000, dt: float = 0.02
     t = np.arange(n) * dt
     segs, states = [], []
     for k in range(segments):
-        pilot = multistep(t, 1.0 + 0.3 * k, 0.6, amplitude=np.radians(1.5) * (-1) ** k) \
-            + multistep(t, 12.0, 1.0, (1, -1), np.radians(1.0))
+        pilot = multistep(t, 1.0 + 0.3 * k, 0.6, amplitude=np.radians(1.5) * (-1) ** k) + multistep(
+            t, 12.0, 1.0, (1, -1), np.radians(1.0)
+        )
         seg = Segment(t=t, u=pilot[:, None], z=np.zeros((n, 4)), x0=np.zeros(2), name=f"sas-{k}")
 
         def feedback(i, z, pilot=pilot):
@@ -149,20 +169,25 @@ def unstable_short_period_example(seed: int = 0, n: int = 1000, dt: float = 0.02
         segs.append(seg)
         states.append(X)
     signs = np.where(np.arange(len(UNSTABLE_SP_FREE)) % 2 == 0, 1.0, -1.0)
-    start = {nm: UNSTABLE_SP_TRUTH[nm] * (1.0 + s * start_offset)
-             for nm, s in zip(UNSTABLE_SP_FREE, signs)}
+    start = {nm: UNSTABLE_SP_TRUTH[nm] * (1.0 + s * start_offset) for nm, s in zip(UNSTABLE_SP_FREE, signs)}
     model = short_period(SP_CONSTANTS, values={**UNSTABLE_SP_TRUTH, **start}, free=UNSTABLE_SP_FREE)
     return NoisyExample(model, truth_model, segs, dict(UNSTABLE_SP_TRUTH), F, sd, states)
 
 
-STABLE_SP_TRUTH = {"CLalpha": 4.8, "CLq": 0.0, "CLde": 0.38, "Cmalpha": -0.75, "Cmq": -16.0,
-                   "Cmde": -1.6}
+STABLE_SP_TRUTH = {"CLalpha": 4.8, "CLq": 0.0, "CLde": 0.38, "Cmalpha": -0.75, "Cmq": -16.0, "Cmde": -1.6}
 
 
-def turbulent_short_period_example(seed: int = 0, n: int = 800, dt: float = 0.02, *,
-                                   sigma_alpha: float = 0.004, sigma_q: float = 0.008,
-                                   segments: int = 2, biases=(0.3, 0.6),
-                                   start_offset: float = 0.2) -> NoisyExample:
+def turbulent_short_period_example(
+    seed: int = 0,
+    n: int = 800,
+    dt: float = 0.02,
+    *,
+    sigma_alpha: float = 0.004,
+    sigma_q: float = 0.008,
+    segments: int = 2,
+    biases=(0.3, 0.6),
+    start_offset: float = 0.2,
+) -> NoisyExample:
     """The (stable) linear short period in turbulence: process noise on alpha and q,
     3-2-1-1 elevator inputs of different widths per segment, a per-segment az bias
     (truth ``bias_az[k]`` = biases[k]); all start values 1 + start_offset times the truth."""
@@ -182,8 +207,9 @@ def turbulent_short_period_example(seed: int = 0, n: int = 800, dt: float = 0.02
         seg.z = Z
         segs.append(seg)
         states.append(X)
-    model = short_period(SP_CONSTANTS, values={k: v * (1 + start_offset) for k, v in STABLE_SP_TRUTH.items()},
-                         output_biases=["az"])
+    model = short_period(
+        SP_CONSTANTS, values={k: v * (1 + start_offset) for k, v in STABLE_SP_TRUTH.items()}, output_biases=["az"]
+    )
     return NoisyExample(model, truth_model, segs, truth, F, sd, states)
 
 
@@ -193,11 +219,15 @@ def _sp_gust_f(x, u, p, c):
     (de,) = u
     qbar = 0.5 * c.rho * c.V * c.V
     qhat = q * c.cbar / (2.0 * c.V)
-    ag = c.kg * (g1 + c.r3tau * g2) / c.V            # gust angle of attack w_g / V
+    ag = c.kg * (g1 + c.r3tau * g2) / c.V  # gust angle of attack w_g / V
     CL = p.CLalpha * (alpha + ag) + p.CLq * qhat + p.CLde * de
     Cm = p.Cmalpha * (alpha + ag) + p.Cmq * qhat + p.Cmde * de
-    return (q - qbar * c.S / (c.m * c.V) * CL, qbar * c.S * c.cbar / c.Iyy * Cm,
-            g2, (-g1 - 2.0 * c.tau * g2) / (c.tau * c.tau))
+    return (
+        q - qbar * c.S / (c.m * c.V) * CL,
+        qbar * c.S * c.cbar / c.Iyy * Cm,
+        g2,
+        (-g1 - 2.0 * c.tau * g2) / (c.tau * c.tau),
+    )
 
 
 def _sp_gust_g(x, u, p, c):
@@ -211,8 +241,9 @@ def _sp_gust_g(x, u, p, c):
     return alpha, q, qbar * c.S * c.cbar / c.Iyy * Cm, -qbar * c.S / c.m * CL
 
 
-def dryden_short_period_model(values=None, free=UNSTABLE_SP_FREE, *, sigma_w: float = 1.5,
-                              L: float = 150.0) -> tuple[Model, float]:
+def dryden_short_period_model(
+    values=None, free=UNSTABLE_SP_FREE, *, sigma_w: float = 1.5, L: float = 150.0
+) -> tuple[Model, float]:
     """The linear short period driven by a Dryden vertical gust w_g (std sigma_w m/s, scale
     length L m): the shaping filter (1 + sqrt(3) tau s) / (1 + tau s)^2, tau = L / V, is
     realised as states g1, g2 (g1' = g2, g2' = (-g1 - 2 tau g2)/tau^2 + F n) with
@@ -220,23 +251,32 @@ def dryden_short_period_model(values=None, free=UNSTABLE_SP_FREE, *, sigma_w: fl
     aerodynamic coefficients. kg is set so that std(w_g) = sigma_w for the true noise
     intensity F_g2 = 1/tau^2 (returned). States alpha, q, g1, g2; outputs alpha, q, qdot, az."""
     from scipy import linalg as _la
+
     c = dict(SP_CONSTANTS)
     tau = L / c["V"]
-    A = np.array([[0.0, 1.0], [-1.0 / tau ** 2, -2.0 / tau]])
-    Fg = 1.0 / tau ** 2
-    Pg = _la.solve_continuous_lyapunov(A, -np.array([[0.0, 0.0], [0.0, Fg ** 2]]))
+    A = np.array([[0.0, 1.0], [-1.0 / tau**2, -2.0 / tau]])
+    Fg = 1.0 / tau**2
+    Pg = _la.solve_continuous_lyapunov(A, -np.array([[0.0, 0.0], [0.0, Fg**2]]))
     cvec = np.array([1.0, np.sqrt(3.0) * tau])
     kg = sigma_w / np.sqrt(cvec @ Pg @ cvec)
     c.update({"tau": tau, "r3tau": np.sqrt(3.0) * tau, "kg": kg})
     vals = {**STABLE_SP_TRUTH, **(values or {})}
     params = [Parameter(k, v, k in free) for k, v in vals.items()]
-    return Model(["alpha", "q", "g1", "g2"], ["de"], ["alpha", "q", "qdot", "az"], params,
-                 _sp_gust_f, _sp_gust_g, c, name="short_period+dryden"), Fg
+    return Model(
+        ["alpha", "q", "g1", "g2"],
+        ["de"],
+        ["alpha", "q", "qdot", "az"],
+        params,
+        _sp_gust_f,
+        _sp_gust_g,
+        c,
+        name="short_period+dryden",
+    ), Fg
 
 
-def dryden_short_period_example(seed: int = 0, n: int = 1000, dt: float = 0.02, *,
-                                sigma_w: float = 1.5, L: float = 150.0,
-                                start_offset: float = 0.2) -> NoisyExample:
+def dryden_short_period_example(
+    seed: int = 0, n: int = 1000, dt: float = 0.02, *, sigma_w: float = 1.5, L: float = 150.0, start_offset: float = 0.2
+) -> NoisyExample:
     """A stable short period (:data:`STABLE_SP_TRUTH`) flying a 3-2-1-1 and a doublet in
     Dryden turbulence (see :func:`dryden_short_period_model`), sensor noise SP_NOISE.
     The returned ``model`` is the same gust-augmented model with start values off by
@@ -249,14 +289,15 @@ def dryden_short_period_example(seed: int = 0, n: int = 1000, dt: float = 0.02, 
     de = multistep(t, 1.0, 0.6, amplitude=np.radians(2.0)) + multistep(t, 12.0, 1.0, (1, -1), np.radians(1.5))
     # start in a random stationary gust state (not in calm air)
     from scipy import linalg as _la
+
     tau = truth_model.constants["tau"]
-    Ag = np.array([[0.0, 1.0], [-1.0 / tau ** 2, -2.0 / tau]])
-    Pg = _la.solve_continuous_lyapunov(Ag, -np.array([[0.0, 0.0], [0.0, Fg ** 2]]))
+    Ag = np.array([[0.0, 1.0], [-1.0 / tau**2, -2.0 / tau]])
+    Pg = _la.solve_continuous_lyapunov(Ag, -np.array([[0.0, 0.0], [0.0, Fg**2]]))
     g0 = np.linalg.cholesky(Pg) @ rng.standard_normal(2)
     seg = Segment(t=t, u=de[:, None], z=np.zeros((n, 4)), x0=np.array([0.0, 0.0, *g0]), name="dryden")
     X, Z, _ = simulate_with_process_noise(truth_model, seg, F, rng, sd)
     seg.z = Z
-    seg.x0 = np.zeros(4)             # the estimators do not know the initial gust state
+    seg.x0 = np.zeros(4)  # the estimators do not know the initial gust state
     free = [p.name for p in truth_model.parameters if p.free]
     signs = np.where(np.arange(len(free)) % 2 == 0, 1.0, -1.0)
     start = {nm: STABLE_SP_TRUTH[nm] * (1.0 + s * start_offset) for nm, s in zip(free, signs)}
@@ -280,15 +321,27 @@ def roll_gust_model(values=None) -> Model:
     """A roll axis whose unmeasured first-order roll gust g acts through the damping a:
     p' = a (p + g) + b u, g' = -g / tau; output p (rad/s). a, b free; tau held."""
     v = {**ROLL_GUST_TRUTH, "tau": 0.4, **(values or {})}
-    return Model(states=["p", "g"], inputs=["u"], outputs=["p"],
-                 parameters=[Parameter("a", v["a"]), Parameter("b", v["b"]),
-                             Parameter("tau", v["tau"], free=False)],
-                 f=_roll_gust_f, g=_roll_gust_g, name="roll_gust")
+    return Model(
+        states=["p", "g"],
+        inputs=["u"],
+        outputs=["p"],
+        parameters=[Parameter("a", v["a"]), Parameter("b", v["b"]), Parameter("tau", v["tau"], free=False)],
+        f=_roll_gust_f,
+        g=_roll_gust_g,
+        name="roll_gust",
+    )
 
 
-def roll_gust_example(seed: int = 0, n: int = 1500, dt: float = 0.02, *, tau: float = 0.4,
-                      gust_rms: float = 0.1, sensor_std: float = 0.003,
-                      start: dict[str, float] | None = None) -> NoisyExample:
+def roll_gust_example(
+    seed: int = 0,
+    n: int = 1500,
+    dt: float = 0.02,
+    *,
+    tau: float = 0.4,
+    gust_rms: float = 0.1,
+    sensor_std: float = 0.003,
+    start: dict[str, float] | None = None,
+) -> NoisyExample:
     """:func:`roll_gust_model` flown through its own gust (a first-order Markov process of
     time constant tau s and rms gust_rms rad/s: white input gust_rms sqrt(2 / tau) per
     sqrt(s), the gust started from its stationary spread) on a square wave plus a sine,
@@ -299,11 +352,9 @@ def roll_gust_example(seed: int = 0, n: int = 1500, dt: float = 0.02, *, tau: fl
     t = np.arange(n) * dt
     u = 0.05 * np.sign(np.sin(2 * np.pi * t / 3.0 + 0.3)) + 0.03 * np.sin(2 * np.pi * 0.7 * t)
     F = np.diag([0.0, gust_rms * np.sqrt(2.0 / tau)])
-    seg = Segment(t=t, u=u[:, None], z=np.zeros((n, 1)),
-                  x0=[0.0, gust_rms * rng.standard_normal()], name="roll-gust")
+    seg = Segment(t=t, u=u[:, None], z=np.zeros((n, 1)), x0=[0.0, gust_rms * rng.standard_normal()], name="roll-gust")
     X, Z, _ = simulate_with_process_noise(truth_model, seg, F, rng, np.array([sensor_std]))
     seg.z = Z
-    seg.x0 = np.array([Z[0, 0], 0.0])              # the filters know the measured rate, not the gust
+    seg.x0 = np.array([Z[0, 0], 0.0])  # the filters know the measured rate, not the gust
     model = roll_gust_model({"tau": tau, **(start or {"a": -4.0, "b": 8.0})})
-    return NoisyExample(model, truth_model, [seg], dict(ROLL_GUST_TRUTH), F,
-                        np.array([sensor_std]), [X])
+    return NoisyExample(model, truth_model, [seg], dict(ROLL_GUST_TRUTH), F, np.array([sensor_std]), [X])

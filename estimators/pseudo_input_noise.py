@@ -33,18 +33,19 @@ which also carry the noise's echo through the feedback.
 
 Measured: ``benchmarks/fed_measurement_std_mc.py`` (its docstring).
 """
+
 from __future__ import annotations
 
-from typing import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 from scipy import signal
 
+from estimators import statistics as st
 from estimators.fem import linearize_batch
 from estimators.model import Model, Segment
 from estimators.sensitivity import add_block, as_sensitivity
 from estimators.simulation import Layout
-from estimators import statistics as st
 
 
 class PropagationError(ValueError):
@@ -52,8 +53,9 @@ class PropagationError(ValueError):
     channel has too few samples to estimate its noise)."""
 
 
-def pseudo_mixing(segment: Segment, outputs: Sequence[str], pseudo_outputs: Sequence[str],
-                  pseudo: Callable | None) -> np.ndarray:
+def pseudo_mixing(
+    segment: Segment, outputs: Sequence[str], pseudo_outputs: Sequence[str], pseudo: Callable | None
+) -> np.ndarray:
     """J (N, n_pseudo, n_out): d pseudo_k / d z_j per sample. Without a ``pseudo`` callable
     pseudo-input k is the measurement of ``pseudo_outputs[k]`` (J one-hot); with one
     (``pseudo(segment, states) -> (N, n_pseudo)``, a per-sample function of the
@@ -71,8 +73,7 @@ def pseudo_mixing(segment: Segment, outputs: Sequence[str], pseudo_outputs: Sequ
         for sgn in (1.0, -1.0):
             z = segment.z.copy()
             z[:, j] = z[:, j] + sgn * step
-            s = Segment(t=segment.t, u=segment.u, z=z, x0=segment.x0,
-                        constants=segment.constants, name=segment.name)
+            s = Segment(t=segment.t, u=segment.u, z=z, x0=segment.x0, constants=segment.constants, name=segment.name)
             vals.append(np.asarray(pseudo(s, list(pseudo_outputs)), dtype=float).reshape(N, -1))
         J[:, :, j] = np.nan_to_num((vals[0] - vals[1]) / (2 * step))
     return J
@@ -101,29 +102,30 @@ def onto_measured(c: np.ndarray, t: np.ndarray, measured: np.ndarray) -> np.ndar
     return out
 
 
-def _fed_system(model: Model, segment: Segment, values: Mapping[str, float],
-                pseudo_cols: Sequence[int]) -> tuple[np.ndarray, ...]:
+def _fed_system(
+    model: Model, segment: Segment, values: Mapping[str, float], pseudo_cols: Sequence[int]
+) -> tuple[np.ndarray, ...]:
     """G as a discrete system (Ad, Bd, Cd, Dd), inputs the columns ``pseudo_cols``: the fed
     model linearised at the segment's first sample, zero-order hold at its median step.
     Raises PropagationError when G grows more than 1000-fold over the segment."""
     lay = Layout.build(model, [segment], values=values)
     P = lay.values[lay.pidx[0]][:, None]
     x0 = lay.values[lay.x0idx[0]][:, None]
-    A, B, C, D, _, _ = linearize_batch(model, P, x0, np.nan_to_num(segment.u[0]),
-                                       model.constants_for(segment))
+    A, B, C, D, _, _ = linearize_batch(model, P, x0, np.nan_to_num(segment.u[0]), model.constants_for(segment))
     A, B, C, D = A[0], B[0][:, pseudo_cols], C[0], D[0][:, pseudo_cols]
     h = float(np.median(np.diff(segment.t)))
     Ad, Bd, Cd, Dd, _ = signal.cont2discrete((A, B, C, D), h, method="zoh")
     rho = float(np.max(np.abs(np.linalg.eigvals(Ad))))
     if segment.n * np.log(max(rho, 1e-300)) > np.log(1e3):
-        raise PropagationError(f"the model fed with its measurements is not stable at the "
-                               f"estimate: it grows {rho:.4f}x per sample, more than 1000x over "
-                               f"segment {segment.name or ''} ({segment.n} samples)")
+        raise PropagationError(
+            f"the model fed with its measurements is not stable at the "
+            f"estimate: it grows {rho:.4f}x per sample, more than 1000x over "
+            f"segment {segment.name or ''} ({segment.n} samples)"
+        )
     return Ad, Bd, Cd, Dd
 
 
-def adjoint_sums(Ad: np.ndarray, Bd: np.ndarray, Cd: np.ndarray, Dd: np.ndarray,
-                 a: np.ndarray) -> np.ndarray:
+def adjoint_sums(Ad: np.ndarray, Bd: np.ndarray, Cd: np.ndarray, Dd: np.ndarray, a: np.ndarray) -> np.ndarray:
     """back (N, n_in, n_p): back_m = sum_{l>=0} g_l^T a_{m+l} over the rest of the segment,
     g_0 = Dd, g_l = Cd Ad^(l-1) Bd (the discrete system's impulse response), a (N, n_out,
     n_p). The backward (adjoint) recursion mu_{m-1} = Cd^T a_m + Ad^T mu_m, back_m =
@@ -140,11 +142,19 @@ def adjoint_sums(Ad: np.ndarray, Bd: np.ndarray, Cd: np.ndarray, Dd: np.ndarray,
     return back
 
 
-def propagated_covariance(model: Model, segments: Sequence[Segment], values: Mapping[str, float],
-                          sensitivities: Sequence[np.ndarray], residuals: Sequence[np.ndarray],
-                          R: np.ndarray, info: np.ndarray, pseudo_outputs: Sequence[str],
-                          pseudo: Callable | None = None, noisy_inputs: Sequence[str] = (),
-                          prior_info: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def propagated_covariance(
+    model: Model,
+    segments: Sequence[Segment],
+    values: Mapping[str, float],
+    sensitivities: Sequence[np.ndarray],
+    residuals: Sequence[np.ndarray],
+    R: np.ndarray,
+    info: np.ndarray,
+    pseudo_outputs: Sequence[str],
+    pseudo: Callable | None = None,
+    noisy_inputs: Sequence[str] = (),
+    prior_info: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """(cov (n_p, n_p), s^2) of the estimates of a model fed measurements (see the module
     docstring); s^2 the measurement-noise variances used, (n_out + len(noisy_inputs),):
     the outputs', then the noisy inputs'.
@@ -171,25 +181,28 @@ def propagated_covariance(model: Model, segments: Sequence[Segment], values: Map
     Js = [pseudo_mixing(s, outs, pseudo_outputs, pseudo) for s in segments]
     res = [np.asarray(e, dtype=float) for e in residuals]
     s2 = st.difference_noise_std([s.z for s in segments], robust=True) ** 2
-    s2_in = (st.difference_noise_std([s.u[:, icols] for s in segments], robust=True) ** 2 if icols
-             else np.zeros(0))
+    s2_in = st.difference_noise_std([s.u[:, icols] for s in segments], robust=True) ** 2 if icols else np.zeros(0)
     if not np.all(np.isfinite(s2)) or not np.all(np.isfinite(s2_in)):
-        raise PropagationError("too few samples to estimate the measurement noise of "
-                               + ", ".join(o for o, v in zip(outs + list(noisy_inputs),
-                                                             np.r_[s2, s2_in]) if not np.isfinite(v)))
+        raise PropagationError(
+            "too few samples to estimate the measurement noise of "
+            + ", ".join(o for o, v in zip(outs + list(noisy_inputs), np.r_[s2, s2_in]) if not np.isfinite(v))
+        )
     mid = np.zeros_like(info, dtype=float)
     for seg, S, e, J, sys_ in zip(segments, sensitivities, res, Js, systems):
         ok = np.isfinite(e)
-        b = as_sensitivity(S)                                # the segment's own columns
+        b = as_sensitivity(S)  # the segment's own columns
         a = np.matmul(W, np.where(ok[:, :, None], np.nan_to_num(b.values), 0.0))
-        T = a.copy()                                         # (N, n_out noise channel, n_p)
-        back = adjoint_sums(*sys_, a)                        # (N, n_pseudo + n_noisy, n_p)
+        T = a.copy()  # (N, n_out noise channel, n_p)
+        back = adjoint_sums(*sys_, a)  # (N, n_pseudo + n_noisy, n_p)
         for k in range(npse):
             for j in np.flatnonzero(np.any(J[:, k, :] != 0, axis=0)):
                 T[:, j, :] -= onto_measured(J[:, k, j, None] * back[:, k], seg.t, ok[:, j])
         # a noisy input's noise only echoes
-        add_block(mid, b.cols, np.einsum("nkp,k,nkq->pq", back[:, npse:], s2_in, back[:, npse:])
-                  + np.einsum("njp,j,njq->pq", T, s2, T))
+        add_block(
+            mid,
+            b.cols,
+            np.einsum("nkp,k,nkq->pq", back[:, npse:], s2_in, back[:, npse:]) + np.einsum("njp,j,njq->pq", T, s2, T),
+        )
     if prior_info is not None:
         mid += np.asarray(prior_info, dtype=float)
     Minv = st.covariance(info)

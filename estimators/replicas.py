@@ -12,6 +12,7 @@ design through :func:`estimators.process_noise_examples.simulate_with_process_no
 * :func:`lateral_replica`: linear lateral-directional p, r with the lateral velocity as
   an input, 15 derivatives and 7 biases, process noise on p and r (test case 2).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -20,14 +21,36 @@ from estimators.datasets import multistep
 from estimators.model import Model, Parameter, Segment
 from estimators.process_noise_examples import NoisyExample, simulate_with_process_noise
 
-HFB320_CONSTANTS = dict(g0=9.80665, Sbym=4.028e-3, Scbyiy=8.0027e-4, Feiylt=-7.0153e-6,
-                        v0=104.67, rm=7472.0, sigmat=0.0524, rho=0.792)
+HFB320_CONSTANTS = dict(
+    g0=9.80665, Sbym=4.028e-3, Scbyiy=8.0027e-4, Feiylt=-7.0153e-6, v0=104.67, rm=7472.0, sigmat=0.0524, rho=0.792
+)
 #: the reference's filter-error estimates (the replica's truth) and start values
-HFB320_TRUTH = dict(CD0=0.12269, CDV=-0.06450, CDal=0.32005, CL0=-0.09291, CLV=0.14873,
-                    CLal=4.3278, Cm0=0.11190, CmV=0.00395, Cmal=-0.96785, Cmq=-34.710,
-                    Cmde=-1.5291)
-HFB320_START = dict(CD0=0.12, CDV=-0.065, CDal=0.32, CL0=-0.092, CLV=0.15, CLal=4.3,
-                    Cm0=0.11, CmV=0.004, Cmal=-0.97, Cmq=-35.0, Cmde=-1.5)
+HFB320_TRUTH = dict(
+    CD0=0.12269,
+    CDV=-0.06450,
+    CDal=0.32005,
+    CL0=-0.09291,
+    CLV=0.14873,
+    CLal=4.3278,
+    Cm0=0.11190,
+    CmV=0.00395,
+    Cmal=-0.96785,
+    Cmq=-34.710,
+    Cmde=-1.5291,
+)
+HFB320_START = dict(
+    CD0=0.12,
+    CDV=-0.065,
+    CDal=0.32,
+    CL0=-0.092,
+    CLV=0.15,
+    CLal=4.3,
+    Cm0=0.11,
+    CmV=0.004,
+    Cmal=-0.97,
+    Cmq=-35.0,
+    Cmde=-1.5,
+)
 #: process noise F on V, alpha, theta, q (state unit per sqrt(s)): the reference's estimate
 #: and its start
 HFB320_F = np.array([0.35855, 0.0024210, 0.00044761, 0.0017378])
@@ -51,10 +74,11 @@ def _hfb_f(x, u, p, c):
     V, alpha, theta, q = x
     de, Fe = u
     CD, CL, Cm = _hfb_coefficients(x, u, p, c)
-    qbar = 0.5 * c.rho * V ** 2
+    qbar = 0.5 * c.rho * V**2
     Vdot = -c.Sbym * qbar * CD + Fe * np.cos(alpha + c.sigmat) / c.rm + c.g0 * np.sin(alpha - theta)
-    alphadot = (-c.Sbym * qbar * CL / V + q - Fe * np.sin(alpha + c.sigmat) / (c.rm * V)
-                + c.g0 * np.cos(alpha - theta) / V)
+    alphadot = (
+        -c.Sbym * qbar * CL / V + q - Fe * np.sin(alpha + c.sigmat) / (c.rm * V) + c.g0 * np.cos(alpha - theta) / V
+    )
     return Vdot, alphadot, q, c.Scbyiy * qbar * Cm + c.Feiylt * Fe
 
 
@@ -62,12 +86,18 @@ def _hfb_g(x, u, p, c):
     V, alpha, theta, q = x
     de, Fe = u
     CD, CL, Cm = _hfb_coefficients(x, u, p, c)
-    qbar = 0.5 * c.rho * V ** 2
+    qbar = 0.5 * c.rho * V**2
     Cx = CL * np.sin(alpha) - CD * np.cos(alpha)
     Cz = -CL * np.cos(alpha) - CD * np.sin(alpha)
-    return (V, alpha, theta, q, c.Scbyiy * qbar * Cm + c.Feiylt * Fe,
-            qbar * c.Sbym * Cx + Fe * np.cos(c.sigmat) / c.rm,
-            qbar * c.Sbym * Cz - Fe * np.sin(c.sigmat) / c.rm)
+    return (
+        V,
+        alpha,
+        theta,
+        q,
+        c.Scbyiy * qbar * Cm + c.Feiylt * Fe,
+        qbar * c.Sbym * Cx + Fe * np.cos(c.sigmat) / c.rm,
+        qbar * c.Sbym * Cz - Fe * np.sin(c.sigmat) / c.rm,
+    )
 
 
 def hfb320_model(values: dict[str, float] | None = None) -> Model:
@@ -75,10 +105,16 @@ def hfb320_model(values: dict[str, float] | None = None) -> Model:
     q (rad/s); inputs elevator (rad) and thrust (N); outputs V, alpha, theta, q, qdot, ax,
     az (SI)."""
     values = HFB320_START if values is None else values
-    return Model(states=["V", "alpha", "theta", "q"], inputs=["de", "Fe"],
-                 outputs=["V", "alpha", "theta", "q", "qdot", "ax", "az"],
-                 parameters=[Parameter(k, v) for k, v in values.items()],
-                 constants=HFB320_CONSTANTS, f=_hfb_f, g=_hfb_g, name="hfb320-tc04")
+    return Model(
+        states=["V", "alpha", "theta", "q"],
+        inputs=["de", "Fe"],
+        outputs=["V", "alpha", "theta", "q", "qdot", "ax", "az"],
+        parameters=[Parameter(k, v) for k, v in values.items()],
+        constants=HFB320_CONSTANTS,
+        f=_hfb_f,
+        g=_hfb_g,
+        name="hfb320-tc04",
+    )
 
 
 def hfb320_replica(seed: int = 0) -> NoisyExample:
@@ -86,31 +122,101 @@ def hfb320_replica(seed: int = 0) -> NoisyExample:
     3-2-1-1s and a thrust step, flown with the reference's process noise and its R as
     measurement noise. The model carries the reference's start values."""
     t = np.arange(601) * 0.1
-    de = (-0.026 + multistep(t, 2.0, 1.0, amplitude=0.03)
-          + multistep(t, 25.0, 1.0, amplitude=-0.03) + multistep(t, 48.0, 0.5, amplitude=0.04))
+    de = (
+        -0.026
+        + multistep(t, 2.0, 1.0, amplitude=0.03)
+        + multistep(t, 25.0, 1.0, amplitude=-0.03)
+        + multistep(t, 48.0, 0.5, amplitude=0.04)
+    )
     U = np.c_[de, np.where((t > 15.0) & (t < 40.0), 11200.0, 9700.0)]
     seg = Segment(t=t, u=U, z=np.zeros((t.size, 7)), x0=HFB320_X0.copy(), name="tc04")
     truth_model = hfb320_model(HFB320_TRUTH)
     F = np.diag(HFB320_F)
     sd = np.sqrt(HFB320_R)
-    X, Z, _ = simulate_with_process_noise(truth_model, seg, F, np.random.default_rng(seed), sd,
-                                          substeps=10)
+    X, Z, _ = simulate_with_process_noise(truth_model, seg, F, np.random.default_rng(seed), sd, substeps=10)
     seg.z = Z
-    return NoisyExample(model=hfb320_model(), truth_model=truth_model, segments=[seg],
-                        truth=dict(HFB320_TRUTH), process_noise=F, noise_std=sd, states=[X])
+    return NoisyExample(
+        model=hfb320_model(),
+        truth_model=truth_model,
+        segments=[seg],
+        truth=dict(HFB320_TRUTH),
+        process_noise=F,
+        noise_std=sd,
+        states=[X],
+    )
 
 
-LATERAL_NAMES = ("Lp", "Lr", "Lda", "Ldr", "Lv", "Np", "Nr", "Nda", "Ndr", "Nv",
-                 "Yp", "Yr", "Yda", "Ydr", "Yv", "BX1", "BX2", "BY1", "BY2", "BY3", "BY4", "BY5")
+LATERAL_NAMES = (
+    "Lp",
+    "Lr",
+    "Lda",
+    "Ldr",
+    "Lv",
+    "Np",
+    "Nr",
+    "Nda",
+    "Ndr",
+    "Nv",
+    "Yp",
+    "Yr",
+    "Yda",
+    "Ydr",
+    "Yv",
+    "BX1",
+    "BX2",
+    "BY1",
+    "BY2",
+    "BY3",
+    "BY4",
+    "BY5",
+)
 #: the reference's start values (derivatives Lp..Yv, then BX1, BX2, BY1..BY5)
-LATERAL_START = dict(zip(LATERAL_NAMES, (
-    -6.7, 1.83, -18.3, 0.43, -0.114, -0.906, -0.665, -0.66, -2.82, 0.0069,
-    -0.64, 1.30, -1.40, 2.79, -0.193, 0.08, -0.089, 0.08, -0.089, 0.044, -0.0034, -0.0015)))
+LATERAL_START = dict(
+    zip(
+        LATERAL_NAMES,
+        (
+            -6.7,
+            1.83,
+            -18.3,
+            0.43,
+            -0.114,
+            -0.906,
+            -0.665,
+            -0.66,
+            -2.82,
+            0.0069,
+            -0.64,
+            1.30,
+            -1.40,
+            2.79,
+            -0.193,
+            0.08,
+            -0.089,
+            0.08,
+            -0.089,
+            0.044,
+            -0.0034,
+            -0.0015,
+        ),
+    )
+)
 #: the replica's truth: the reference's estimates where published (Lp, Lda, Nr, Ndr, Yv),
 #: the start values elsewhere, small biases
-LATERAL_TRUTH = {**LATERAL_START, "Lp": -5.722, "Lda": -14.97, "Nr": -0.7233, "Ndr": -2.831,
-                 "Yv": -0.1802, "BX1": 0.02, "BX2": -0.01, "BY1": 0.03, "BY2": -0.02,
-                 "BY3": 0.05, "BY4": -0.003, "BY5": -0.0015}
+LATERAL_TRUTH = {
+    **LATERAL_START,
+    "Lp": -5.722,
+    "Lda": -14.97,
+    "Nr": -0.7233,
+    "Ndr": -2.831,
+    "Yv": -0.1802,
+    "BX1": 0.02,
+    "BX2": -0.01,
+    "BY1": 0.03,
+    "BY2": -0.02,
+    "BY3": 0.05,
+    "BY4": -0.003,
+    "BY5": -0.0015,
+}
 #: process noise on p and r (rad/s per sqrt(s)): the reference's estimate and its start
 LATERAL_F = np.array([0.1672, 0.1247])
 LATERAL_F_START = {"p": 0.02, "r": 0.02}
@@ -139,10 +245,15 @@ def lateral_model(values: dict[str, float] | None = None) -> Model:
     """The linear lateral-directional model of test case 2: states p, r (rad/s); inputs
     aileron, rudder (rad) and lateral velocity vk (m/s); outputs pdot, rdot, ay, p, r."""
     values = LATERAL_START if values is None else values
-    return Model(states=["p", "r"], inputs=["da", "dr", "vk"],
-                 outputs=["pdot", "rdot", "ay", "p", "r"],
-                 parameters=[Parameter(k, v) for k, v in values.items()],
-                 f=_lat_f, g=_lat_g, name="lateral-tc02")
+    return Model(
+        states=["p", "r"],
+        inputs=["da", "dr", "vk"],
+        outputs=["pdot", "rdot", "ay", "p", "r"],
+        parameters=[Parameter(k, v) for k, v in values.items()],
+        f=_lat_f,
+        g=_lat_g,
+        name="lateral-tc02",
+    )
 
 
 def lateral_replica(seed: int = 0) -> NoisyExample:
@@ -155,9 +266,14 @@ def lateral_replica(seed: int = 0) -> NoisyExample:
     seg = Segment(t=t, u=np.c_[da, dr, vk], z=np.zeros((t.size, 5)), x0=np.zeros(2), name="tc02")
     truth_model = lateral_model(LATERAL_TRUTH)
     F = np.diag(LATERAL_F)
-    X, Z, _ = simulate_with_process_noise(truth_model, seg, F, np.random.default_rng(seed),
-                                          LATERAL_NOISE, substeps=10)
+    X, Z, _ = simulate_with_process_noise(truth_model, seg, F, np.random.default_rng(seed), LATERAL_NOISE, substeps=10)
     seg.z = Z
-    return NoisyExample(model=lateral_model(), truth_model=truth_model, segments=[seg],
-                        truth=dict(LATERAL_TRUTH), process_noise=F, noise_std=LATERAL_NOISE,
-                        states=[X])
+    return NoisyExample(
+        model=lateral_model(),
+        truth_model=truth_model,
+        segments=[seg],
+        truth=dict(LATERAL_TRUTH),
+        process_noise=F,
+        noise_std=LATERAL_NOISE,
+        states=[X],
+    )

@@ -1,8 +1,10 @@
 """The result type shared by every estimation method (OEM, FEM, EKF, UKF, least squares)."""
+
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -14,10 +16,15 @@ CORR_FLAG = 0.9
 
 
 #: column label of ``std`` per ``EstimationResult.std_method`` (summary, report.md)
-STD_LABELS = {"crb": "std (CRB)", "filter-covariance": "std (filter P)",
-              "propagated": "std (propagated)", "morelli-klein": "std (M-K)",
-              "sandwich": "std (sandwich)", "crb|scatter": "std (CRB or scatter)",
-              "filter-covariance|scatter": "std (filter P or scatter)"}
+STD_LABELS = {
+    "crb": "std (CRB)",
+    "filter-covariance": "std (filter P)",
+    "propagated": "std (propagated)",
+    "morelli-klein": "std (M-K)",
+    "sandwich": "std (sandwich)",
+    "crb|scatter": "std (CRB or scatter)",
+    "filter-covariance|scatter": "std (filter P or scatter)",
+}
 
 
 def std_label(method: str) -> str:
@@ -171,8 +178,7 @@ class EstimationResult:
         """Free parameters: estimate, std (CRB), rel. std %, with a ``consider_cov`` also
         consider_std and total_std, and with ``truth`` the error in (total) std."""
         names = self.free_names
-        df = pd.DataFrame({"estimate": self.params[names], "std": self.std[names],
-                           "rel_std_pct": self.rel_std[names]})
+        df = pd.DataFrame({"estimate": self.params[names], "std": self.std[names], "rel_std_pct": self.rel_std[names]})
         if self.consider_cov is not None:
             df["consider_std"] = self.consider_std[names]
             df["total_std"] = self.total_std[names]
@@ -194,13 +200,12 @@ class EstimationResult:
         width = 78
         s = self.settings
         head = [
-            f"{self.method.upper()} estimation results".center(width), "=" * width,
+            f"{self.method.upper()} estimation results".center(width),
+            "=" * width,
             f"Model: {self.model.name:<22} Method: {self.method.upper()}"
             + (f" ({s.get('integrator')}, {s.get('optimizer')})" if s.get("integrator") else ""),
-            f"Segments: {len(self.residuals):<19} Samples: {self.n_samples:<10} "
-            f"Outputs: {len(self.outputs)}",
-            f"Converged: {'yes' if self.converged else 'NO':<18} Iterations: {self.iterations:<7} "
-            f"det(R): {self.cost:.4e}",
+            f"Segments: {len(self.residuals):<19} Samples: {self.n_samples:<10} Outputs: {len(self.outputs)}",
+            f"Converged: {'yes' if self.converged else 'NO':<18} Iterations: {self.iterations:<7} det(R): {self.cost:.4e}",
         ]
         if self.message:
             head.append(f"Note: {self.message}")
@@ -229,8 +234,7 @@ class EstimationResult:
         fixed = [n for n, f in zip(self.names, self.free) if not f and not n.startswith("x0_")]
         if fixed:
             head.append("-" * width)
-            head.append("fixed: " + ", ".join(f"{n}={v:.4g}" for n, v in
-                                               zip(self.names, self.values) if n in fixed))
+            head.append("fixed: " + ", ".join(f"{n}={v:.4g}" for n, v in zip(self.names, self.values) if n in fixed))
         if consider:
             head.append("std (total) = sqrt(CRB^2 + consider^2), consider: " + self.consider_source)
         head.append("-" * width)
@@ -238,8 +242,7 @@ class EstimationResult:
         head.append("residual std: " + "  ".join(f"{o}={v:.3g}" for o, v in zip(self.outputs, sd)))
         flags = self.flagged_correlations
         if flags:
-            head.append(f"|correlation| > {CORR_FLAG}: " + ", ".join(
-                f"{a}~{b} ({r:+.3f})" for a, b, r in flags))
+            head.append(f"|correlation| > {CORR_FLAG}: " + ", ".join(f"{a}~{b} ({r:+.3f})" for a, b, r in flags))
         head += self._scatter_lines()
         head.append("=" * width)
         return "\n".join(head)
@@ -253,11 +256,15 @@ class EstimationResult:
         r = cl.ratio_summary() if cl is not None else {}
         if r.get("max_ratio") is None:
             return []
-        out = [f"maneuver scatter / CRB ({cl.n_segments} segments): median {r['median_ratio']:.2f}, "
-               f"largest {r['max_ratio']:.2f} ({r['max_parameter']})"]
+        out = [
+            f"maneuver scatter / CRB ({cl.n_segments} segments): median {r['median_ratio']:.2f}, "
+            f"largest {r['max_ratio']:.2f} ({r['max_parameter']})"
+        ]
         if r["flagged"]:
-            out.append(f"  above {FLAG_RATIO:g}x (the bound understates them): "
-                       + ", ".join(f"{n} {v:.1f}x" for n, v in r["flagged"].items()))
+            out.append(
+                f"  above {FLAG_RATIO:g}x (the bound understates them): "
+                + ", ".join(f"{n} {v:.1f}x" for n, v in r["flagged"].items())
+            )
         return out
 
     def __repr__(self) -> str:  # pragma: no cover - convenience
@@ -268,22 +275,25 @@ class EstimationResult:
         tab = self.table(truth)
         params = {}
         for name, row in tab.iterrows():
-            d = {k: (None if not np.isfinite(v) else float(v)) for k, v in row.items()
-                 if k != "at_bound"}
+            d = {k: (None if not np.isfinite(v) else float(v)) for k, v in row.items() if k != "at_bound"}
             d["at_bound"] = bool(row["at_bound"])
             params[name] = d
         return {
-            "method": self.method, "model": self.model.name, "converged": bool(self.converged),
-            "iterations": int(self.iterations), "message": self.message,
-            "det_R": self.cost, "R": np.asarray(self.R).tolist(), "outputs": self.outputs,
-            "n_samples": self.n_samples, "parameters": params,
+            "method": self.method,
+            "model": self.model.name,
+            "converged": bool(self.converged),
+            "iterations": int(self.iterations),
+            "message": self.message,
+            "det_R": self.cost,
+            "R": np.asarray(self.R).tolist(),
+            "outputs": self.outputs,
+            "n_samples": self.n_samples,
+            "parameters": params,
             "correlations_flagged": [list(f) for f in self.flagged_correlations],
             "settings": {k: v for k, v in self.settings.items() if isinstance(v, (str, int, float, bool))},
         }
 
 
-def frames(t_list: Sequence[np.ndarray], arrays: Sequence[np.ndarray],
-           columns: Sequence[str]) -> list[pd.DataFrame]:
+def frames(t_list: Sequence[np.ndarray], arrays: Sequence[np.ndarray], columns: Sequence[str]) -> list[pd.DataFrame]:
     """Per-segment DataFrames on t from (N, n) arrays."""
-    return [pd.DataFrame(a, index=pd.Index(t, name="t"), columns=list(columns))
-            for t, a in zip(t_list, arrays)]
+    return [pd.DataFrame(a, index=pd.Index(t, name="t"), columns=list(columns)) for t, a in zip(t_list, arrays)]

@@ -8,6 +8,7 @@ forming F = sum S^T R^-1 S than simulating. :class:`Sensitivity` holds the colum
 segment depends on and where they sit among the free parameters; the sums scatter each
 segment's block into place (:func:`add_block`).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -50,12 +51,11 @@ class Sensitivity:
         (N, n_out, n_free) arrays reads the same values (the dense array is formed)."""
         return self.dense()[key]
 
-    def take(self, idx: np.ndarray) -> "Sensitivity":
+    def take(self, idx: np.ndarray) -> Sensitivity:
         """The sensitivities to the free parameters ``idx`` (increasing), numbered 0..len(idx)-1."""
         idx = np.asarray(idx, dtype=int)
         keep = np.isin(self.cols, idx)
-        return Sensitivity(self.values[:, :, keep], np.searchsorted(idx, self.cols[keep]),
-                           int(idx.size))
+        return Sensitivity(self.values[:, :, keep], np.searchsorted(idx, self.cols[keep]), int(idx.size))
 
 
 def as_sensitivity(S: Any) -> Sensitivity:

@@ -7,10 +7,11 @@ parameter row ``P`` (n_params, B) and initial state ``X0`` (n_states, B) from a 
 of such vectors ``Theta`` (B, n_all) by index, so B perturbed parameter sets simulate in
 one integration.
 """
+
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -28,8 +29,8 @@ def as_values(values: Mapping[str, float] | pd.Series | None) -> dict[str, float
         return {}
     if not hasattr(values, "items"):
         raise ModelDefinitionError(
-            f"parameter values must map names to numbers (a dict or a pandas Series), "
-            f"not {type(values).__name__}")
+            f"parameter values must map names to numbers (a dict or a pandas Series), not {type(values).__name__}"
+        )
     return dict(values.items())
 
 
@@ -53,9 +54,13 @@ class Layout:
     relevant: list[np.ndarray]
 
     @classmethod
-    def build(cls, model: Model, segments: Sequence[Segment],
-              estimate_x0: bool | str | Sequence[str] = False,
-              values: Mapping[str, float] | None = None) -> "Layout":
+    def build(
+        cls,
+        model: Model,
+        segments: Sequence[Segment],
+        estimate_x0: bool | str | Sequence[str] = False,
+        values: Mapping[str, float] | None = None,
+    ) -> Layout:
         """``estimate_x0``: False, True, state names, or "auto" (the measured states of
         the segments that have no ``x0`` of their own; see OutputError.fit). ``values``:
         start values by expanded name, a mapping or a pandas Series (a result's
@@ -66,8 +71,7 @@ class Layout:
         if auto:
             est = {s for s in model.states if s in model.outputs}
         elif isinstance(estimate_x0, str):
-            raise ModelDefinitionError(
-                f"estimate_x0={estimate_x0!r}: use True, False, 'auto' or a list of states")
+            raise ModelDefinitionError(f"estimate_x0={estimate_x0!r}: use True, False, 'auto' or a list of states")
         elif estimate_x0 is True:
             est = set(model.states)
         elif not estimate_x0:
@@ -80,8 +84,12 @@ class Layout:
         names, vals, free, lo, hi, kind = [], [], [], [], [], []
 
         def add(name, v, fr, b, k):
-            names.append(name); vals.append(v); free.append(fr)
-            lo.append(b[0]); hi.append(b[1]); kind.append(k)
+            names.append(name)
+            vals.append(v)
+            free.append(fr)
+            lo.append(b[0])
+            hi.append(b[1])
+            kind.append(k)
             return len(names) - 1
 
         shared: dict[str, int] = {}
@@ -101,8 +109,15 @@ class Layout:
             pidx.append(np.array(row, dtype=int))
             x0 = seg.initial_state(model)
             est_k = est if not auto or seg.x0 is None else set()
-            x0idx.append(np.array([add(f"x0_{s}[{k}]", x0[i], s in est_k, (-np.inf, np.inf), "x0")
-                                   for i, s in enumerate(model.states)], dtype=int))
+            x0idx.append(
+                np.array(
+                    [
+                        add(f"x0_{s}[{k}]", x0[i], s in est_k, (-np.inf, np.inf), "x0")
+                        for i, s in enumerate(model.states)
+                    ],
+                    dtype=int,
+                )
+            )
         values_arr = np.array(vals, dtype=float)
         given = as_values(values)
         for i, n in enumerate(names):
@@ -129,25 +144,34 @@ class Layout:
         return [self.names[i] for i in self.free_idx]
 
 
-def simulate_batch(model: Model, seg: Segment, Theta: np.ndarray, layout: Layout, k: int,
-                   integrator: str = "rk4", rtol: float = 1e-8, atol: float = 1e-10,
-                   return_states: bool = False, inputs: str = DEFAULT_INPUTS):
+def simulate_batch(
+    model: Model,
+    seg: Segment,
+    Theta: np.ndarray,
+    layout: Layout,
+    k: int,
+    integrator: str = "rk4",
+    rtol: float = 1e-8,
+    atol: float = 1e-10,
+    return_states: bool = False,
+    inputs: str = DEFAULT_INPUTS,
+):
     """Outputs Y (N, n_outputs, B) of segment ``k`` for parameter vectors Theta (B, n_all).
     Diverged trajectories carry NaN from the first non-finite sample on."""
     Theta = np.atleast_2d(Theta)
     P = np.ascontiguousarray(Theta[:, layout.pidx[k]].T)
     X0 = np.ascontiguousarray(Theta[:, layout.x0idx[k]].T)
     c = model.constants_for(seg)
-    X = kernel_for(model).integrate(integrator, X0, seg.u, seg.t, P, c, rtol=rtol, atol=atol,
-                                    inputs=inputs)
+    X = kernel_for(model).integrate(integrator, X0, seg.u, seg.t, P, c, rtol=rtol, atol=atol, inputs=inputs)
     with np.errstate(all="ignore"):
         Y = model.eval_g(X.transpose(1, 0, 2), seg.u.T[:, :, None], P, c)
     Y = Y.transpose(1, 0, 2)
     return (Y, X) if return_states else Y
 
 
-def divergence_error(model: Model, seg: Segment, X: np.ndarray, k: int, what: str,
-                     hint: str) -> SimulationDivergedError:
+def divergence_error(
+    model: Model, seg: Segment, X: np.ndarray, k: int, what: str, hint: str
+) -> SimulationDivergedError:
     """Build the message for a trajectory X (N, n) that went non-finite."""
     bad = ~np.isfinite(X)
     i = int(np.argmax(bad.any(axis=1)))
@@ -155,13 +179,23 @@ def divergence_error(model: Model, seg: Segment, X: np.ndarray, k: int, what: st
     state = model.states[j]
     label = seg.name or str(k)
     return SimulationDivergedError(
-        f"the simulation of segment {label} diverged at t={seg.t[i]:.4g} s (state {state!r} "
-        f"became non-finite) {what}. {hint}", segment=k, time=float(seg.t[i]), state=state)
+        f"the simulation of segment {label} diverged at t={seg.t[i]:.4g} s (state {state!r} became non-finite) {what}. {hint}",
+        segment=k,
+        time=float(seg.t[i]),
+        state=state,
+    )
 
 
-def simulate_outputs(model: Model, segment: Segment, params: Mapping[str, float] | pd.Series | None = None,
-                     integrator: str = "rk4", *, states: bool = False, k: int = 0,
-                     **kw) -> pd.DataFrame:
+def simulate_outputs(
+    model: Model,
+    segment: Segment,
+    params: Mapping[str, float] | pd.Series | None = None,
+    integrator: str = "rk4",
+    *,
+    states: bool = False,
+    k: int = 0,
+    **kw,
+) -> pd.DataFrame:
     """Simulate one segment; a DataFrame of outputs (and states when ``states``) on t.
 
     params : values by name, a mapping or a pandas Series (``res.params``), or None for
@@ -184,8 +218,7 @@ def simulate_outputs(model: Model, segment: Segment, params: Mapping[str, float]
         if p.per_segment and p.name in vals:
             vals[f"{p.name}[0]"] = vals.pop(p.name)
     lay = Layout.build(model, [segment], values=vals)
-    Y, X = simulate_batch(model, segment, lay.values[None, :], lay, 0, integrator,
-                          return_states=True, **kw)
+    Y, X = simulate_batch(model, segment, lay.values[None, :], lay, 0, integrator, return_states=True, **kw)
     df = pd.DataFrame(Y[:, :, 0], index=pd.Index(segment.t, name="t"), columns=model.outputs)
     if states:
         for i, s in enumerate(model.states):

@@ -32,13 +32,16 @@ OEM's options apply (``**oem_options`` go to :class:`~estimators.OutputError`):
 Measurements used as pseudo-inputs follow the integrators' input convention (averaged
 over each step); missing samples (NaN) in them are filled by linear interpolation.
 """
+
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 from scipy import linalg, signal
 
+from estimators import statistics as st
 from estimators.errors import ModelDefinitionError
 from estimators.fem import linearize_batch
 from estimators.jit import kernel_for
@@ -48,7 +51,6 @@ from estimators.pseudo_input_noise import PropagationError, propagated_covarianc
 from estimators.results import EstimationResult
 from estimators.sensitivity import add_block, as_sensitivity
 from estimators.simulation import Layout
-from estimators import statistics as st
 
 
 def _fill(z: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -100,8 +102,7 @@ STD_METHODS = ("propagated", "morelli-klein", "crb")
 class _TransformedOEM:
     method = "oem"
 
-    def __init__(self, model: Model, integrator: str = "rk4", std: str = "propagated",
-                 **oem_options) -> None:
+    def __init__(self, model: Model, integrator: str = "rk4", std: str = "propagated", **oem_options) -> None:
         if std not in STD_METHODS:
             raise ModelDefinitionError(f"std must be one of {', '.join(STD_METHODS)}, not {std!r}")
         self.model = model
@@ -112,8 +113,13 @@ class _TransformedOEM:
     def _transform(self, segments: list[Segment], start) -> tuple[Model, list[Segment], dict]:
         raise NotImplementedError  # pragma: no cover
 
-    def fit(self, segments: Segment | Sequence[Segment], estimate_x0: bool | Sequence[str] = False,
-            R: np.ndarray | None = None, start: Mapping[str, float] | None = None) -> EstimationResult:
+    def fit(
+        self,
+        segments: Segment | Sequence[Segment],
+        estimate_x0: bool | Sequence[str] = False,
+        R: np.ndarray | None = None,
+        start: Mapping[str, float] | None = None,
+    ) -> EstimationResult:
         """As :meth:`OutputError.fit`, on the transformed (bounded) problem."""
         segments = [segments] if isinstance(segments, Segment) else list(segments)
         if not segments:
@@ -122,7 +128,7 @@ class _TransformedOEM:
             s.check_against(self.model)
         model_t, segs_t, info = self._transform(segments, start)
         oem = OutputError(model_t, self.integrator, **self.oem_options)
-        oem._check_follow = False       # its note would recommend these methods themselves
+        oem._check_follow = False  # its note would recommend these methods themselves
         res = oem.fit(segs_t, estimate_x0=estimate_x0, R=R, start=start)
         if info.get("pseudo_outputs"):
             self._fed_measurement_std(res, model_t, segs_t, info)
@@ -136,8 +142,7 @@ class _TransformedOEM:
     def _finish(self, res: EstimationResult) -> EstimationResult:
         return res
 
-    def _fed_measurement_std(self, res: EstimationResult, model_t: Model, segs_t: list[Segment],
-                             info: dict) -> None:
+    def _fed_measurement_std(self, res: EstimationResult, model_t: Model, segs_t: list[Segment], info: dict) -> None:
         """Replace the Cramér-Rao covariance, which assumes white residuals, by one that
         carries the measurement noise fed back through the pseudo-inputs: ``std`` =
         "propagated" (:mod:`estimators.pseudo_input_noise`; falls back to Morelli-Klein when
@@ -157,15 +162,25 @@ class _TransformedOEM:
             how, why = "morelli-klein", " (smoothed pseudo-inputs are not propagated)"
         if how == "propagated":
             try:
-                C, s2 = propagated_covariance(model_t, segs_t, res.params.to_dict(), S, E, res.R, M,
-                                              info["pseudo_outputs"], info.get("pseudo"),
-                                              prior_info=W)
+                C, s2 = propagated_covariance(
+                    model_t,
+                    segs_t,
+                    res.params.to_dict(),
+                    S,
+                    E,
+                    res.R,
+                    M,
+                    info["pseudo_outputs"],
+                    info.get("pseudo"),
+                    prior_info=W,
+                )
                 res.extra["noise_std"] = dict(zip(model_t.outputs, np.sqrt(s2).tolist()))
                 note = "std: measurement noise propagated through the fed-back measurements"
             except PropagationError as exc:
                 how, why = "morelli-klein", f" ({exc})"
         if how == "morelli-klein":
             from estimators.validation.uncertainty import morelli_klein
+
             C = morelli_klein(S, E, R=res.R, info=M, max_lag=None, prior_info=W).cov
             note = "std: Morelli-Klein (coloured residuals from the fed-back measurements)" + why
         res.replace_cov(_on_free(res.cov, inner, C), how, note)
@@ -188,9 +203,15 @@ class StabilizedOutputError(_TransformedOEM):
 
     method = "oem-stabilized"
 
-    def __init__(self, model: Model, S: Any = None, integrator: str = "rk4",
-                 feedback: Sequence[str] | None = None, std: str = "propagated",
-                 **oem_options) -> None:
+    def __init__(
+        self,
+        model: Model,
+        S: Any = None,
+        integrator: str = "rk4",
+        feedback: Sequence[str] | None = None,
+        std: str = "propagated",
+        **oem_options,
+    ) -> None:
         super().__init__(model, integrator, std, **oem_options)
         self.S = S
         self.feedback = None if feedback is None else list(feedback)
@@ -201,8 +222,7 @@ class StabilizedOutputError(_TransformedOEM):
         airspeed and attitude too ties the drag and lift terms to the measurements)."""
         m = self.model
         A, C = _linearisation(m, segments, start)
-        meas = [j for j, o in enumerate(m.outputs) if o in m.states and
-                (self.feedback is None or o in self.feedback)]
+        meas = [j for j, o in enumerate(m.outputs) if o in m.states and (self.feedback is None or o in self.feedback)]
         if not meas:
             raise ModelDefinitionError("no output measures a state: give S explicitly")
         Cm = C[meas]
@@ -221,8 +241,9 @@ class StabilizedOutputError(_TransformedOEM):
             except (ValueError, np.linalg.LinAlgError):
                 continue
         if P is None:
-            raise ModelDefinitionError("no stabilising S from the linearised start model (the "
-                                       "Riccati equation has no solution): give S explicitly")
+            raise ModelDefinitionError(
+                "no stabilising S from the linearised start model (the Riccati equation has no solution): give S explicitly"
+            )
         S = np.zeros((n, len(m.outputs)))
         S[:, meas] = P @ Cm.T @ np.linalg.inv(Rm)
         return S
@@ -265,18 +286,39 @@ class StabilizedOutputError(_TransformedOEM):
                         d[i] = d[i] + Su[i, jj] * (zz[jj] - y[j])
             return tuple(d)
 
-        mt = _numpy_only(Model(m.states, list(m.inputs) + [f"z_{m.outputs[j]}" for j in used],
-                               m.outputs, m.parameters, f, _g_of(m, ni), m.constants, [],
-                               m.name + " (stabilised)"))
-        segs = [Segment(t=s.t, u=np.column_stack([s.u, _fill(s.z[:, used], s.t)]), z=s.z, x0=s.x0,
-                        constants=s.constants, name=s.name) for s in segments]
+        mt = _numpy_only(
+            Model(
+                m.states,
+                list(m.inputs) + [f"z_{m.outputs[j]}" for j in used],
+                m.outputs,
+                m.parameters,
+                f,
+                _g_of(m, ni),
+                m.constants,
+                [],
+                m.name + " (stabilised)",
+            )
+        )
+        segs = [
+            Segment(
+                t=s.t,
+                u=np.column_stack([s.u, _fill(s.z[:, used], s.t)]),
+                z=s.z,
+                x0=s.x0,
+                constants=s.constants,
+                name=s.name,
+            )
+            for s in segments
+        ]
         return mt, segs, {"S": S, "pseudo_outputs": [m.outputs[j] for j in used]}
 
 
 def _g_of(m: Model, ni: int):
     """g of the original model on the leading ni inputs (pseudo-inputs dropped)."""
+
     def g(x, u, p, c):
         return _g_with_biases(m, x, u[:ni], p, c)
+
     return g
 
 
@@ -289,8 +331,7 @@ class EigenvalueTransformation(_TransformedOEM):
 
     method = "oem-eigenvalue-transform"
 
-    def __init__(self, model: Model, sigma: float | None = None, integrator: str = "rk4",
-                 **oem_options) -> None:
+    def __init__(self, model: Model, sigma: float | None = None, integrator: str = "rk4", **oem_options) -> None:
         super().__init__(model, integrator, **oem_options)
         self.sigma = sigma
 
@@ -321,13 +362,32 @@ class EigenvalueTransformation(_TransformedOEM):
             y0 = _g_with_biases(m, zeros_like_rows(x, n), zeros_like_rows(x, ni), p, c)
             return tuple(y[j] - (1.0 - w) * y0[j] for j in range(len(y)))
 
-        mt = _numpy_only(Model(m.states, list(m.inputs) + ["exp_weight"], m.outputs, m.parameters,
-                               f, g, m.constants, [], m.name + " (eigenvalue-transformed)"))
+        mt = _numpy_only(
+            Model(
+                m.states,
+                list(m.inputs) + ["exp_weight"],
+                m.outputs,
+                m.parameters,
+                f,
+                g,
+                m.constants,
+                [],
+                m.name + " (eigenvalue-transformed)",
+            )
+        )
         segs, weights = [], []
         for s in segments:
             wt = np.exp(-sigma * (s.t - s.t[0]))
-            segs.append(Segment(t=s.t, u=np.column_stack([s.u * wt[:, None], wt]),
-                                z=s.z * wt[:, None], x0=s.x0, constants=s.constants, name=s.name))
+            segs.append(
+                Segment(
+                    t=s.t,
+                    u=np.column_stack([s.u * wt[:, None], wt]),
+                    z=s.z * wt[:, None],
+                    x0=s.x0,
+                    constants=s.constants,
+                    name=s.name,
+                )
+            )
             weights.append(wt)
         return mt, segs, {"sigma": sigma, "weights": weights}
 
@@ -339,13 +399,17 @@ class EigenvalueTransformation(_TransformedOEM):
             S = [as_sensitivity(s).take(inner) for s in res.sensitivities]
             E = [r.to_numpy() for r in res.residuals]
             C = sandwich_covariance(S, E, res.R, res.information[np.ix_(inner, inner)])
-            res.replace_cov(_on_free(res.cov, inner, C), "sandwich", "std: heteroscedasticity-"
-                            "consistent (sandwich) covariance of the weighted residuals")
+            res.replace_cov(
+                _on_free(res.cov, inner, C),
+                "sandwich",
+                "std: heteroscedasticity-consistent (sandwich) covariance of the weighted residuals",
+            )
         return res
 
 
-def sandwich_covariance(S_list: Sequence[np.ndarray], E_list: Sequence[np.ndarray], R: np.ndarray,
-                        info: np.ndarray) -> np.ndarray:
+def sandwich_covariance(
+    S_list: Sequence[np.ndarray], E_list: Sequence[np.ndarray], R: np.ndarray, info: np.ndarray
+) -> np.ndarray:
     """Heteroscedasticity-consistent (White) covariance M^-1 (sum g_k g_k^T) M^-1 with
     g_k = S_k^T R^-1 e_k: correct when the residual variance changes over time, as the
     exp(-sigma t)-weighted residuals of the eigenvalue transformation do, while the fit
@@ -391,9 +455,16 @@ class EquationDecoupling(_TransformedOEM):
 
     method = "oem-decoupled"
 
-    def __init__(self, model: Model, states: Sequence[str] | None = None, integrator: str = "rk4",
-                 smooth: float | None = None, std: str = "propagated", pseudo=None,
-                 **oem_options) -> None:
+    def __init__(
+        self,
+        model: Model,
+        states: Sequence[str] | None = None,
+        integrator: str = "rk4",
+        smooth: float | None = None,
+        std: str = "propagated",
+        pseudo=None,
+        **oem_options,
+    ) -> None:
         super().__init__(model, integrator, std, **oem_options)
         self.states = None if states is None else list(states)
         self.smooth = smooth
@@ -410,8 +481,9 @@ class EquationDecoupling(_TransformedOEM):
             return z
         fs = 1.0 / float(np.median(np.diff(seg.t)))
         if not 0 < self.smooth < 0.5 * fs:
-            raise ModelDefinitionError(f"smooth={self.smooth} Hz must lie between 0 and the Nyquist "
-                                       f"frequency {0.5 * fs:g} Hz")
+            raise ModelDefinitionError(
+                f"smooth={self.smooth} Hz must lie between 0 and the Nyquist frequency {0.5 * fs:g} Hz"
+            )
         b, a = signal.butter(4, self.smooth / (0.5 * fs))
         return signal.filtfilt(b, a, z, axis=0)
 
@@ -421,8 +493,8 @@ class EquationDecoupling(_TransformedOEM):
         bad = [s for s in dec if s not in m.states or s not in m.outputs]
         if bad or not dec:
             raise ModelDefinitionError(
-                f"equation decoupling needs measured states (states that are outputs); "
-                f"{bad or 'none'} cannot be used")
+                f"equation decoupling needs measured states (states that are outputs); {bad or 'none'} cannot be used"
+            )
         ni, n = len(m.inputs), len(m.states)
         si = [m.states.index(s) for s in dec]
         oi = [m.outputs.index(s) for s in dec]
@@ -439,10 +511,27 @@ class EquationDecoupling(_TransformedOEM):
                 out.append(m.f(xi, uu, p, c)[i])
             return tuple(out)
 
-        mt = _numpy_only(Model(m.states, list(m.inputs) + [f"z_{s}" for s in dec], m.outputs,
-                               m.parameters, f, _g_of(m, ni), m.constants, [],
-                               m.name + " (decoupled)"))
-        segs = [Segment(t=s.t, u=np.column_stack([s.u, self._pseudo(s, oi)]), z=s.z, x0=s.x0,
-                        constants=s.constants, name=s.name) for s in segments]
-        return mt, segs, {"decoupled_states": dec, "smooth_hz": self.smooth or 0.0,
-                          "pseudo_outputs": dec, "pseudo": self.pseudo}
+        mt = _numpy_only(
+            Model(
+                m.states,
+                list(m.inputs) + [f"z_{s}" for s in dec],
+                m.outputs,
+                m.parameters,
+                f,
+                _g_of(m, ni),
+                m.constants,
+                [],
+                m.name + " (decoupled)",
+            )
+        )
+        segs = [
+            Segment(
+                t=s.t, u=np.column_stack([s.u, self._pseudo(s, oi)]), z=s.z, x0=s.x0, constants=s.constants, name=s.name
+            )
+            for s in segments
+        ]
+        return (
+            mt,
+            segs,
+            {"decoupled_states": dec, "smooth_hz": self.smooth or 0.0, "pseudo_outputs": dec, "pseudo": self.pseudo},
+        )

@@ -1,8 +1,10 @@
 """Gauss-Newton building blocks shared by the likelihood methods: residual covariance,
 whitened information matrix and gradient, Cramér-Rao bounds, identifiability."""
+
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -38,8 +40,9 @@ def whitener(R: np.ndarray) -> np.ndarray:
     return np.linalg.cholesky(np.linalg.inv(R))
 
 
-def information_and_gradient(S_list: Sequence[Any], E_list: Sequence[np.ndarray],
-                             L: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+def information_and_gradient(
+    S_list: Sequence[Any], E_list: Sequence[np.ndarray], L: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
     """F = sum S^T R^-1 S, G = sum S^T R^-1 e and J = 1/2 sum e^T R^-1 e.
 
     S_list[k] the sensitivities of segment k (:class:`~estimators.sensitivity.Sensitivity`
@@ -109,7 +112,8 @@ def check_identifiable(F: np.ndarray, names: Sequence[str], where: str = "") -> 
             "identified from these data (no effect on the outputs, or an effect that other "
             "parameters reproduce exactly). Fix one of them (Parameter(..., free=False)), give "
             "an a-priori value (priors={name: (value, std)}), or fly a maneuver that excites them.",
-            parameters=bad)
+            parameters=bad,
+        )
 
 
 def covariance(F: np.ndarray) -> np.ndarray:
@@ -149,6 +153,6 @@ def difference_noise_std(segments: Sequence[np.ndarray], robust: bool = False) -
         d2 = [np.diff(v[np.isfinite(v)], 2) for v in (np.asarray(s, dtype=float)[:, c] for s in segments)]
         d2 = np.concatenate([d for d in d2 if d.size > 1] or [np.zeros(0)])
         if d2.size:
-            spread = (1.4826 * np.median(np.abs(d2 - np.median(d2))) if robust else np.std(d2))
+            spread = 1.4826 * np.median(np.abs(d2 - np.median(d2))) if robust else np.std(d2)
             out[c] = float(spread / np.sqrt(6.0))
     return out

@@ -19,19 +19,20 @@ else the ``truth.json`` next to the log, else the log (the simulator's ``FSID_TR
 parameters), else 30 deg assumed, with a data-quality warning - the control derivatives
 scale with it.
 """
+
 from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from pipeline.errors import FsidError
 from pipeline.identify import AircraftConstants
 
 #: autopilot parameters holding the IMU position from the CG (body axes, m)
-IMU_PARAMS = (("INS_POS1_X", "INS_POS1_Y", "INS_POS1_Z"),
-              ("EKF2_IMU_POS_X", "EKF2_IMU_POS_Y", "EKF2_IMU_POS_Z"))
+IMU_PARAMS = (("INS_POS1_X", "INS_POS1_Y", "INS_POS1_Z"), ("EKF2_IMU_POS_X", "EKF2_IMU_POS_Y", "EKF2_IMU_POS_Z"))
 SENSOR_WORDS = {"airdata": "air-data vane/boom", "imu": "IMU"}
 
 
@@ -74,9 +75,9 @@ def params_imu_position(params: Mapping[str, float]) -> tuple[tuple[float, float
     return None
 
 
-def resolve_sensor_positions(ac: AircraftConstants, toml_sensors: Mapping[str, Any],
-                             truth: tuple[Path, dict] | None, params: Mapping[str, float]
-                             ) -> tuple[AircraftConstants, dict[str, str]]:
+def resolve_sensor_positions(
+    ac: AircraftConstants, toml_sensors: Mapping[str, Any], truth: tuple[Path, dict] | None, params: Mapping[str, float]
+) -> tuple[AircraftConstants, dict[str, str]]:
     """The constants with ``airdata``/``imu`` filled by the precedence of the module
     docstring; returns (constants, sensor -> where its position came from)."""
     pos, src = {}, {}
@@ -106,15 +107,18 @@ def servo_travel_for(log: str | Path, aircraft: str | Path | None) -> dict[str, 
 
     if aircraft is not None:
         ac = _aircraft(aircraft)
-        return {a: (round(float(np.rad2deg(v)), 9), f"aircraft TOML [servos] {a}_travel_deg")
-                for a, v in ac.servo_travel.items()}
+        return {
+            a: (round(float(np.rad2deg(v)), 9), f"aircraft TOML [servos] {a}_travel_deg")
+            for a, v in ac.servo_travel.items()
+        }
     truth = truth_next_to(log)
     travel = ((truth[1].get("servo") or {}).get("travel_deg") or {}) if truth else {}
     return {a: (float(v), f"{truth[0]}") for a, v in travel.items()} if isinstance(travel, dict) else {}
 
 
-def aircraft_for_log(log: str | Path, aircraft: str | Path | None, fd: Any, *, required: bool,
-                     say=print) -> tuple[AircraftConstants | None, str | None, dict | None]:
+def aircraft_for_log(
+    log: str | Path, aircraft: str | Path | None, fd: Any, *, required: bool, say=print
+) -> tuple[AircraftConstants | None, str | None, dict | None]:
     """Aircraft constants (with sensor positions) for a log: (constants or None, aircraft
     name, truth.json document when one sits next to the log). ``required``: a built-in
     model needs an aircraft: without ``--aircraft`` and without truth.json, one clear
@@ -126,21 +130,23 @@ def aircraft_for_log(log: str | Path, aircraft: str | Path | None, fd: Any, *, r
         ac = AircraftConstants.from_truth(truth[1])
         name = (truth[1].get("aircraft") or {}).get("name", "?")
         toml_sensors = {}
-        say(f"note: no --aircraft: using aircraft {name!r} from {truth[0]} next to the log "
-            "(a simulated flight)")
+        say(f"note: no --aircraft: using aircraft {name!r} from {truth[0]} next to the log (a simulated flight)")
     elif required:
-        raise FsidError(f"the built-in models need the aircraft's mass, inertia and geometry: give "
-                        f"--aircraft A.toml (see scenarios/aircraft/) for {log}, or fit your own "
-                        "model with --model path/to/file.py:name")
+        raise FsidError(
+            f"the built-in models need the aircraft's mass, inertia and geometry: give "
+            f"--aircraft A.toml (see scenarios/aircraft/) for {log}, or fit your own "
+            "model with --model path/to/file.py:name"
+        )
     else:
         return None, None, None
     ac, src = resolve_sensor_positions(ac, toml_sensors, truth, fd.params if fd is not None else {})
     for s in ("airdata", "imu"):
         p = getattr(ac, s)
         if src[s] == "none":
-            say(f"note: no {SENSOR_WORDS[s]} position known (aircraft TOML [sensors.{s}] "
-                f"position_m, truth.json or log parameters): {SENSOR_WORDS[s]} assumed at the CG")
+            say(
+                f"note: no {SENSOR_WORDS[s]} position known (aircraft TOML [sensors.{s}] "
+                f"position_m, truth.json or log parameters): {SENSOR_WORDS[s]} assumed at the CG"
+            )
         else:
-            say(f"note: {SENSOR_WORDS[s]} at ({p[0]:g}, {p[1]:g}, {p[2]:g}) m from the CG "
-                f"(from {src[s]})")
+            say(f"note: {SENSOR_WORDS[s]} at ({p[0]:g}, {p[1]:g}, {p[2]:g}) m from the CG (from {src[s]})")
     return ac, name, truth[1] if truth else None

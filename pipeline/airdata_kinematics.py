@@ -31,9 +31,10 @@ angular-acceleration lever arms of v and w, r x_imu - p z_imu and p y_imu - q x_
 subtracted after integration), u, v, w from the air data. A constant accelerometer bias integrates to a ramp, which the
 zero-phase low-pass of (measured - integrated) passes unchanged, so it cancels.
 """
+
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
@@ -57,10 +58,16 @@ def _integral(x: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(0.5 * (x[1:] + x[:-1]) * np.diff(t))])
 
 
-def kinematic_air_data(fd, rate_hz: float, imu: Sequence[float] = (0.0, 0.0, 0.0),
-                       vane: Sequence[float] = (0.0, 0.0, 0.0), *, fc_V: float = V_CORNER_HZ,
-                       fc_beta: float = BETA_CORNER_HZ,
-                       fc_alpha: float = ALPHA_CORNER_HZ) -> pd.DataFrame | None:
+def kinematic_air_data(
+    fd,
+    rate_hz: float,
+    imu: Sequence[float] = (0.0, 0.0, 0.0),
+    vane: Sequence[float] = (0.0, 0.0, 0.0),
+    *,
+    fc_V: float = V_CORNER_HZ,
+    fc_beta: float = BETA_CORNER_HZ,
+    fc_alpha: float = ALPHA_CORNER_HZ,
+) -> pd.DataFrame | None:
     """DataFrame (t, V, beta, alpha) on a uniform ``rate_hz`` grid over the flight:
     airspeed, sideslip and angle of attack at the CG, complementary-filtered (module doc).
     None when the flight lacks a channel of CHANNELS, is too short, or has gaps in them
@@ -97,5 +104,4 @@ def kinematic_air_data(fd, rate_hz: float, imu: Sequence[float] = (0.0, 0.0, 0.0
     acg = a - (p * yv - q * xv) / V
     ww = _integral(az + gz + q * u - p * v, t) - (p * y - q * x)
     w = ww + _lowpass(V * np.sin(acg) * np.cos(bcg) - ww, fc_alpha, rate_hz)
-    return pd.DataFrame({"t": t, "V": V, "beta": np.arcsin(np.clip(v / V, -1.0, 1.0)),
-                         "alpha": np.arctan2(w, u)})
+    return pd.DataFrame({"t": t, "V": V, "beta": np.arcsin(np.clip(v / V, -1.0, 1.0)), "alpha": np.arctan2(w, u)})

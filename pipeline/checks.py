@@ -9,11 +9,12 @@ saturation/clipping, stuck values, unit plausibility (degrees in a radian field,
 m/s^2 field). Per file: damage (truncation), missing channels. Per segment: duration,
 ground-only data, and the excitation of each control axis.
 """
+
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
-from typing import Iterable, Sequence
 
 import numpy as np
 
@@ -21,11 +22,28 @@ from pipeline.flightdata import CONTROL_INPUTS, FlightData, SegmentSpec
 
 PASS, WARN, FAIL = "pass", "warn", "fail"
 #: channels system identification needs (missing ones are reported)
-CORE = ("ax", "ay", "az", "p", "q", "r", "phi", "theta", "psi", "V", "alpha", "beta", "h",
-        "de", "da", "dr")
+CORE = ("ax", "ay", "az", "p", "q", "r", "phi", "theta", "psi", "V", "alpha", "beta", "h", "de", "da", "dr")
 #: channels with fast dynamics: should be sampled at >= MIN_RATE_HZ
-DYNAMIC = ("ax", "ay", "az", "p", "q", "r", "phi", "theta", "psi", "alpha", "beta", "V",
-           "de", "da", "dr", "pdot", "qdot", "rdot")
+DYNAMIC = (
+    "ax",
+    "ay",
+    "az",
+    "p",
+    "q",
+    "r",
+    "phi",
+    "theta",
+    "psi",
+    "alpha",
+    "beta",
+    "V",
+    "de",
+    "da",
+    "dr",
+    "pdot",
+    "qdot",
+    "rdot",
+)
 MIN_RATE_HZ = 20.0
 ANGLES = ("phi", "theta", "psi", "alpha", "beta", "de", "da", "dr")
 MIN_EXCITATION_RAD = np.radians(1.0)
@@ -77,13 +95,31 @@ def check_channel(name: str, t: np.ndarray, v: np.ndarray) -> list[Finding]:
     dup = int(np.sum(dt == 0))
     if back:
         i = int(np.flatnonzero(dt < 0)[0])
-        out.append(Finding(FAIL, "time_order", name, f"{name}: time goes backwards {back} time(s), "
-                           f"first at t={t[i]:.3f} s; the log's clock jumped or records are out of order",
-                           float(t[i]), float(t[i + 1]), back))
+        out.append(
+            Finding(
+                FAIL,
+                "time_order",
+                name,
+                f"{name}: time goes backwards {back} time(s), "
+                f"first at t={t[i]:.3f} s; the log's clock jumped or records are out of order",
+                float(t[i]),
+                float(t[i + 1]),
+                back,
+            )
+        )
     if dup:
         i = int(np.flatnonzero(dt == 0)[0])
-        out.append(Finding(WARN, "duplicate_times", name, f"{name}: {dup} duplicate time stamp(s), "
-                           f"first at t={t[i]:.3f} s", float(t[i]), float(t[i]), dup))
+        out.append(
+            Finding(
+                WARN,
+                "duplicate_times",
+                name,
+                f"{name}: {dup} duplicate time stamp(s), first at t={t[i]:.3f} s",
+                float(t[i]),
+                float(t[i]),
+                dup,
+            )
+        )
     if not back and not dup:
         out.append(Finding(PASS, "time_order", name, f"{name}: times strictly increasing", a, b))
     pos = dt[dt > 0]
@@ -92,31 +128,66 @@ def check_channel(name: str, t: np.ndarray, v: np.ndarray) -> list[Finding]:
     med = float(np.median(pos)) if pos.size else np.nan
     jitter = float(np.std(pos) / np.mean(pos)) if pos.size > 1 else 0.0
     if name in DYNAMIC and rate < MIN_RATE_HZ:
-        out.append(Finding(WARN, "rate", name, f"{name} is sampled at {rate:.1f} Hz; aircraft "
-                           f"dynamics need >= {MIN_RATE_HZ:.0f} Hz (telemetry logs are usually too "
-                           "slow: use the onboard log)", a, b, rate))
+        out.append(
+            Finding(
+                WARN,
+                "rate",
+                name,
+                f"{name} is sampled at {rate:.1f} Hz; aircraft "
+                f"dynamics need >= {MIN_RATE_HZ:.0f} Hz (telemetry logs are usually too "
+                "slow: use the onboard log)",
+                a,
+                b,
+                rate,
+            )
+        )
     else:
         out.append(Finding(PASS, "rate", name, f"{name} sampled at {rate:.1f} Hz", a, b, rate))
     if jitter > 0.25:
-        out.append(Finding(WARN, "jitter", name, f"{name}: sample interval varies by {jitter:.0%} "
-                           f"(std/mean of dt); samples arrive in bursts or irregularly", a, b, jitter))
+        out.append(
+            Finding(
+                WARN,
+                "jitter",
+                name,
+                f"{name}: sample interval varies by {jitter:.0%} (std/mean of dt); samples arrive in bursts or irregularly",
+                a,
+                b,
+                jitter,
+            )
+        )
     # gaps
     if pos.size:
         lim = max(5 * med, 0.1)
         big = np.flatnonzero(dt > lim)
         if big.size:
             k = int(big[np.argmax(dt[big])])
-            out.append(Finding(WARN, "gaps", name, f"{name}: {big.size} gap(s) longer than "
-                               f"{lim:.3g} s, longest {dt[k]:.3g} s from t={t[k]:.3f} s",
-                               float(t[k]), float(t[k + 1]), float(dt[k])))
+            out.append(
+                Finding(
+                    WARN,
+                    "gaps",
+                    name,
+                    f"{name}: {big.size} gap(s) longer than {lim:.3g} s, longest {dt[k]:.3g} s from t={t[k]:.3f} s",
+                    float(t[k]),
+                    float(t[k + 1]),
+                    float(dt[k]),
+                )
+            )
     # NaN / Inf
     bad = ~np.isfinite(v)
     if bad.any():
         frac = float(bad.mean())
         i = int(np.flatnonzero(bad)[0])
-        out.append(Finding(FAIL if frac > 0.5 else WARN, "finite", name,
-                           f"{name}: {int(bad.sum())} NaN/Inf value(s) ({frac:.1%}), first at "
-                           f"t={t[i]:.3f} s", float(t[i]), b, frac))
+        out.append(
+            Finding(
+                FAIL if frac > 0.5 else WARN,
+                "finite",
+                name,
+                f"{name}: {int(bad.sum())} NaN/Inf value(s) ({frac:.1%}), first at t={t[i]:.3f} s",
+                float(t[i]),
+                b,
+                frac,
+            )
+        )
     fin = v[np.isfinite(v)]
     if fin.size < 2:
         return out
@@ -130,10 +201,19 @@ def check_channel(name: str, t: np.ndarray, v: np.ndarray) -> list[Finding]:
             longest = int((runs[:, 1] - runs[:, 0]).max()) if runs.size else 0
             if 0.01 < frac < 0.5 and longest >= 3 and at.sum() >= 5:
                 r0 = runs[np.argmax(runs[:, 1] - runs[:, 0])]
-                out.append(Finding(WARN, "saturation", name, f"{name}: {frac:.1%} of samples sit at "
-                                   f"its {label} {edge:.4g} (longest run {longest} samples); the "
-                                   "sensor or actuator may be clipping", float(t[r0[0]]),
-                                   float(t[r0[1] - 1]), frac))
+                out.append(
+                    Finding(
+                        WARN,
+                        "saturation",
+                        name,
+                        f"{name}: {frac:.1%} of samples sit at "
+                        f"its {label} {edge:.4g} (longest run {longest} samples); the "
+                        "sensor or actuator may be clipping",
+                        float(t[r0[0]]),
+                        float(t[r0[1] - 1]),
+                        frac,
+                    )
+                )
     # stuck: long run of identical values while the channel moves elsewhere
     same = np.r_[False, np.diff(v) == 0]
     runs = _runs(same)
@@ -145,28 +225,73 @@ def check_channel(name: str, t: np.ndarray, v: np.ndarray) -> list[Finding]:
         s0, s1 = max(runs[k, 0] - 1, 0), runs[k, 1] - 1
         dur = float(t[s1] - t[s0])
         if lens[k] >= 20 and dur >= 1.0 and dur > 0.2 * span:
-            out.append(Finding(WARN, "stuck", name, f"{name} does not change for {dur:.2f} s "
-                               f"({lens[k] + 1} samples at {v[s0]:.4g}) from t={t[s0]:.3f} s; "
-                               "sensor stuck or output held", float(t[s0]), float(t[s1]), dur))
+            out.append(
+                Finding(
+                    WARN,
+                    "stuck",
+                    name,
+                    f"{name} does not change for {dur:.2f} s "
+                    f"({lens[k] + 1} samples at {v[s0]:.4g}) from t={t[s0]:.3f} s; "
+                    "sensor stuck or output held",
+                    float(t[s0]),
+                    float(t[s1]),
+                    dur,
+                )
+            )
     elif hi == lo and fin.size >= 20:
-        out.append(Finding(WARN, "stuck", name, f"{name} is constant ({lo:.4g}) over the whole log",
-                           a, b, 0.0))
+        out.append(Finding(WARN, "stuck", name, f"{name} is constant ({lo:.4g}) over the whole log", a, b, 0.0))
     # unit plausibility
     amax = float(np.max(np.abs(fin)))
     if name in ANGLES and amax > 2 * np.pi + 0.1:
-        out.append(Finding(FAIL, "units", name, f"{name} reaches {amax:.3g} but is an angle in rad; "
-                           "this looks like degrees in a radian field — set unit = \"deg\" in the map",
-                           a, b, amax))
+        out.append(
+            Finding(
+                FAIL,
+                "units",
+                name,
+                f"{name} reaches {amax:.3g} but is an angle in rad; "
+                "this looks like degrees in a radian field — set unit = \"deg\" in the map",
+                a,
+                b,
+                amax,
+            )
+        )
     elif name in ("p", "q", "r") and amax > 20:
-        out.append(Finding(FAIL, "units", name, f"{name} reaches {amax:.3g} rad/s; this looks like "
-                           "deg/s in a rad/s field — set unit = \"deg/s\" in the map", a, b, amax))
+        out.append(
+            Finding(
+                FAIL,
+                "units",
+                name,
+                f"{name} reaches {amax:.3g} rad/s; this looks like deg/s in a rad/s field — set unit = \"deg/s\" in the map",
+                a,
+                b,
+                amax,
+            )
+        )
     elif name in ("ax", "ay", "az") and (amax > 400 or (amax < 2.5 and name == "az")):
         hint = "mG" if amax > 400 else "g"
-        out.append(Finding(FAIL, "units", name, f"{name} peaks at {amax:.3g} m/s^2; this looks like "
-                           f"{hint} — set unit = \"{hint}\" in the map", a, b, amax))
+        out.append(
+            Finding(
+                FAIL,
+                "units",
+                name,
+                f"{name} peaks at {amax:.3g} m/s^2; this looks like {hint} — set unit = \"{hint}\" in the map",
+                a,
+                b,
+                amax,
+            )
+        )
     elif name == "V" and amax > 350:
-        out.append(Finding(FAIL, "units", name, f"V reaches {amax:.4g} m/s; this looks like cm/s or "
-                           "km/h in a m/s field", a, b, amax))
+        out.append(
+            Finding(
+                FAIL,
+                "units",
+                name,
+                f"V reaches {amax:.4g} m/s; this looks like cm/s or km/h in a m/s field",
+                a,
+                b,
+                amax,
+            )
+        )
     return out
 
 
@@ -175,15 +300,29 @@ def check_file(fd: FlightData, required: Sequence[str] = CORE) -> list[Finding]:
     out: list[Finding] = []
     dmg = fd.meta.get("damage")
     if dmg:
-        out.append(Finding(WARN, "damage", None, f"{dmg['message']}; kept the "
-                           f"{dmg.get('kept_records', 0)} records before it", None, None,
-                           float(dmg.get("offset", -1))))
+        out.append(
+            Finding(
+                WARN,
+                "damage",
+                None,
+                f"{dmg['message']}; kept the {dmg.get('kept_records', 0)} records before it",
+                None,
+                None,
+                float(dmg.get("offset", -1)),
+            )
+        )
     else:
         out.append(Finding(PASS, "damage", None, "the whole file was readable"))
     why = fd.explain_missing(required)
     for ch, reason in why.items():
-        out.append(Finding(WARN, "missing", ch, f"{ch} is missing: {reason}; identification "
-                           f"that needs {ch} cannot run (add it with --map)"))
+        out.append(
+            Finding(
+                WARN,
+                "missing",
+                ch,
+                f"{ch} is missing: {reason}; identification that needs {ch} cannot run (add it with --map)",
+            )
+        )
     return out
 
 
@@ -216,27 +355,47 @@ def no_forward_flight(fd: FlightData, seg: SegmentSpec) -> tuple[bool | None, st
         rates = [_window(fd, c, seg) for c in ("p", "q", "r") if c in fd.channels]
         if h.size:
             still = all(r.size == 0 or np.max(np.abs(r)) < 0.3 for r in rates)
-            return (bool(np.ptp(h) < 2.0 and abs(float(np.median(h))) < 5.0 and still),
-                    f"altitude within {np.ptp(h):.2f} m of {np.median(h):.2f} m and no rotation")
+            return (
+                bool(np.ptp(h) < 2.0 and abs(float(np.median(h))) < 5.0 and still),
+                f"altitude within {np.ptp(h):.2f} m of {np.median(h):.2f} m and no rotation",
+            )
     return None, ""
 
 
-def check_segment(fd: FlightData, seg: SegmentSpec, *, min_duration: float = 5.0,
-                  inputs: Iterable[str] = CONTROL_INPUTS) -> list[Finding]:
+def check_segment(
+    fd: FlightData, seg: SegmentSpec, *, min_duration: float = 5.0, inputs: Iterable[str] = CONTROL_INPUTS
+) -> list[Finding]:
     """Duration, ground-only data and excitation of each control axis in one segment."""
     out: list[Finding] = []
     label = f"segment {seg.name}"
     if seg.duration < min_duration:
-        out.append(Finding(WARN, "segment_duration", None, f"{label} lasts {seg.duration:.2f} s; "
-                           f"maneuvers need >= {min_duration:.0f} s of data", seg.t0, seg.t1,
-                           seg.duration))
+        out.append(
+            Finding(
+                WARN,
+                "segment_duration",
+                None,
+                f"{label} lasts {seg.duration:.2f} s; maneuvers need >= {min_duration:.0f} s of data",
+                seg.t0,
+                seg.t1,
+                seg.duration,
+            )
+        )
     else:
-        out.append(Finding(PASS, "segment_duration", None, f"{label} lasts {seg.duration:.1f} s",
-                           seg.t0, seg.t1, seg.duration))
+        out.append(
+            Finding(PASS, "segment_duration", None, f"{label} lasts {seg.duration:.1f} s", seg.t0, seg.t1, seg.duration)
+        )
     ground, why = no_forward_flight(fd, seg)
     if ground:
-        out.append(Finding(WARN, "ground", None, f"{label} has no forward flight ({why}): "
-                           "on the ground or hovering; it holds no aircraft flight dynamics", seg.t0, seg.t1))
+        out.append(
+            Finding(
+                WARN,
+                "ground",
+                None,
+                f"{label} has no forward flight ({why}): on the ground or hovering; it holds no aircraft flight dynamics",
+                seg.t0,
+                seg.t1,
+            )
+        )
     stds = {}
     for ax in inputs:
         if ax in fd.channels:
@@ -246,23 +405,49 @@ def check_segment(fd: FlightData, seg: SegmentSpec, *, min_duration: float = 5.0
     if stds:
         moved = {k: v for k, v in stds.items() if v >= MIN_EXCITATION_RAD}
         if moved:
-            out.append(Finding(PASS, "excitation", ",".join(moved), f"{label}: excited " + ", ".join(
-                f"{k} (std {np.degrees(v):.2f} deg)" for k, v in moved.items()), seg.t0, seg.t1,
-                max(moved.values())))
+            out.append(
+                Finding(
+                    PASS,
+                    "excitation",
+                    ",".join(moved),
+                    f"{label}: excited " + ", ".join(f"{k} (std {np.degrees(v):.2f} deg)" for k, v in moved.items()),
+                    seg.t0,
+                    seg.t1,
+                    max(moved.values()),
+                )
+            )
         else:
-            out.append(Finding(WARN, "excitation", None, f"{label}: no control axis is moved "
-                               f"(largest std {np.degrees(max(stds.values())):.2f} deg, want >= "
-                               f"{np.degrees(MIN_EXCITATION_RAD):.0f} deg); nothing to identify here",
-                               seg.t0, seg.t1, max(stds.values())))
+            out.append(
+                Finding(
+                    WARN,
+                    "excitation",
+                    None,
+                    f"{label}: no control axis is moved "
+                    f"(largest std {np.degrees(max(stds.values())):.2f} deg, want >= "
+                    f"{np.degrees(MIN_EXCITATION_RAD):.0f} deg); nothing to identify here",
+                    seg.t0,
+                    seg.t1,
+                    max(stds.values()),
+                )
+            )
         if seg.axis and seg.axis in stds and stds[seg.axis] < MIN_EXCITATION_RAD:
-            out.append(Finding(WARN, "excitation", seg.axis, f"{label}: its own axis {seg.axis} "
-                               f"hardly moves (std {np.degrees(stds[seg.axis]):.2f} deg)", seg.t0, seg.t1,
-                               stds[seg.axis]))
+            out.append(
+                Finding(
+                    WARN,
+                    "excitation",
+                    seg.axis,
+                    f"{label}: its own axis {seg.axis} hardly moves (std {np.degrees(stds[seg.axis]):.2f} deg)",
+                    seg.t0,
+                    seg.t1,
+                    stds[seg.axis],
+                )
+            )
     return out
 
 
-def run_checks(fd: FlightData, segments: Sequence[SegmentSpec] | None = None,
-               required: Sequence[str] = CORE) -> list[Finding]:
+def run_checks(
+    fd: FlightData, segments: Sequence[SegmentSpec] | None = None, required: Sequence[str] = CORE
+) -> list[Finding]:
     """Every check on ``fd``; segments default to ``fd.segments`` (or the whole log)."""
     out = check_file(fd, required)
     for name, ch in fd.channels.items():
@@ -280,9 +465,16 @@ def run_checks(fd: FlightData, segments: Sequence[SegmentSpec] | None = None,
     excited = {a for c in excited for a in (c or "").split(",")}
     for ax in CONTROL_INPUTS:
         if ax in fd.channels and ax not in excited:
-            out.append(Finding(WARN, "excitation", ax, f"{ax} is never moved enough in any segment "
-                               f"(std >= {np.degrees(MIN_EXCITATION_RAD):.0f} deg); the derivatives "
-                               f"of {ax} cannot be identified from this log"))
+            out.append(
+                Finding(
+                    WARN,
+                    "excitation",
+                    ax,
+                    f"{ax} is never moved enough in any segment "
+                    f"(std >= {np.degrees(MIN_EXCITATION_RAD):.0f} deg); the derivatives "
+                    f"of {ax} cannot be identified from this log",
+                )
+            )
     return out
 
 
@@ -294,17 +486,20 @@ def summarize(findings: Sequence[Finding]) -> dict[str, int]:
     return c
 
 
-def findings_to_json(findings: Sequence[Finding], fd: FlightData | None = None,
-                     extra: dict | None = None) -> str:
+def findings_to_json(findings: Sequence[Finding], fd: FlightData | None = None, extra: dict | None = None) -> str:
     """The ``checks.json`` document: summary, findings, and (with ``fd``) the file's facts."""
     doc: dict = {"summary": summarize(findings), "findings": [f.as_dict() for f in findings]}
     if fd is not None:
         doc["source"] = {
-            "path": fd.meta.get("source"), "format": fd.meta.get("format"),
-            "map": fd.meta.get("map"), "time_base": fd.meta.get("time_base"),
+            "path": fd.meta.get("source"),
+            "format": fd.meta.get("format"),
+            "map": fd.meta.get("map"),
+            "time_base": fd.meta.get("time_base"),
             "damage": fd.meta.get("damage"),
-            "channels": {k: {"samples": len(c), "rate_hz": c.rate_hz, "unit": c.unit,
-                             "source": c.source} for k, c in fd.channels.items()},
+            "channels": {
+                k: {"samples": len(c), "rate_hz": c.rate_hz, "unit": c.unit, "source": c.source}
+                for k, c in fd.channels.items()
+            },
             "missing": fd.meta.get("unmapped", {}),
             "modes": [[float(t), m] for t, m in fd.modes],
             "segments": [s.as_dict() for s in fd.segments],

@@ -4,6 +4,7 @@ Every failure the user can act on arrives as :class:`pipeline.errors.FsidError` 
 the estimators' typed errors) and ends in one line on stderr and a non-zero exit, never a
 traceback. Set ``FSID_DEBUG=1`` to see the traceback anyway.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -27,8 +28,7 @@ def _load(name: str):
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fsid",
-        description="Flight-vehicle system identification: flight logs in, "
-        "aerodynamic derivatives with Cramér-Rao bounds out.",
+        description="Flight-vehicle system identification: flight logs in, aerodynamic derivatives with Cramér-Rao bounds out.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
@@ -60,8 +60,10 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(exc, (FsidError, EstimationError)):
             print(f"fsid: error: {exc}", file=sys.stderr)
             return getattr(exc, "exit_code", 2)
-        print(f"fsid: error: unexpected {type(exc).__name__}: {exc} "
-              "(rerun with FSID_DEBUG=1 for the traceback and report it)", file=sys.stderr)
+        print(
+            f"fsid: error: unexpected {type(exc).__name__}: {exc} (rerun with FSID_DEBUG=1 for the traceback and report it)",
+            file=sys.stderr,
+        )
         return 1
 
 

@@ -19,10 +19,11 @@ windy longitudinal_3211_calm on the sensors (bias_az, scale_az, bias_V, bias_bet
 scale_beta, delay_air "significant" and applied; Cmalpha then 44 std off;
 tests/test_flow_angles.py).
 """
+
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -40,23 +41,33 @@ INPUTS = ["ax", "ay", "az", "p", "q", "r"]
 MODEL_INPUTS = INPUTS + ["pdot", "qdot", "rdot"]
 ALL_OUTPUTS = ["V", "alpha", "beta", "phi", "theta", "psi", "h", "vn", "ve", "vd"]
 IMU_PARAMS = [f"bias_{c}" for c in INPUTS] + [f"scale_{c}" for c in INPUTS]
-AIR_PARAMS = ["bias_V", "scale_V", "bias_alpha", "scale_alpha", "bias_beta", "scale_beta",
-              "delay_air"]
+AIR_PARAMS = ["bias_V", "scale_V", "bias_alpha", "scale_alpha", "bias_beta", "scale_beta", "delay_air"]
 #: the steady wind (m/s, NED) between the air-relative states and vn, ve
 WIND_PARAMS = ["wind_n", "wind_e"]
 #: estimated by default: IMU biases, air-data biases and scale factors, air-data delay
 DEFAULT_ESTIMATE = tuple([f"bias_{c}" for c in INPUTS] + AIR_PARAMS)
 #: initial std of each parameter for the EKF (SI units)
-PARAM_STD = {**{f"bias_{c}": 0.5 for c in ("ax", "ay", "az")},
-             **{f"bias_{c}": 0.05 for c in ("p", "q", "r")},
-             **{f"scale_{c}": 0.1 for c in INPUTS + ["V", "alpha", "beta"]},
-             "bias_V": 2.0, "bias_alpha": 0.05, "bias_beta": 0.05, "delay_air": 0.02,
-             "wind_n": 10.0, "wind_e": 10.0}
+PARAM_STD = {
+    **{f"bias_{c}": 0.5 for c in ("ax", "ay", "az")},
+    **{f"bias_{c}": 0.05 for c in ("p", "q", "r")},
+    **{f"scale_{c}": 0.1 for c in INPUTS + ["V", "alpha", "beta"]},
+    "bias_V": 2.0,
+    "bias_alpha": 0.05,
+    "bias_beta": 0.05,
+    "delay_air": 0.02,
+    "wind_n": 10.0,
+    "wind_e": 10.0,
+}
 #: parameter -> its unit (for reports)
-UNITS = {**{f"bias_{c}": "m/s^2" for c in ("ax", "ay", "az")},
-         **{f"bias_{c}": "rad/s" for c in ("p", "q", "r")},
-         **{f"scale_{c}": "-" for c in INPUTS + ["V", "alpha", "beta"]},
-         "bias_V": "m/s", "bias_alpha": "rad", "bias_beta": "rad", "delay_air": "s"}
+UNITS = {
+    **{f"bias_{c}": "m/s^2" for c in ("ax", "ay", "az")},
+    **{f"bias_{c}": "rad/s" for c in ("p", "q", "r")},
+    **{f"scale_{c}": "-" for c in INPUTS + ["V", "alpha", "beta"]},
+    "bias_V": "m/s",
+    "bias_alpha": "rad",
+    "bias_beta": "rad",
+    "delay_air": "s",
+}
 
 
 @register_jitable
@@ -121,9 +132,13 @@ def _g(x, u, p, c):
     return Vm, am, bm, phi, theta, psi, h, vn, ve, vd
 
 
-def kinematic_model(outputs: Sequence[str] = ALL_OUTPUTS, estimate: Sequence[str] = DEFAULT_ESTIMATE,
-                    boom_position: Sequence[float] = (0.0, 0.0, 0.0), start: Mapping[str, float] | None = None,
-                    wind: "bool | tuple[float, float]" = False):
+def kinematic_model(
+    outputs: Sequence[str] = ALL_OUTPUTS,
+    estimate: Sequence[str] = DEFAULT_ESTIMATE,
+    boom_position: Sequence[float] = (0.0, 0.0, 0.0),
+    start: Mapping[str, float] | None = None,
+    wind: bool | tuple[float, float] = False,
+):
     """The flight-path-reconstruction model as an ``estimators.Model``.
 
     outputs : subset of ALL_OUTPUTS the data have; estimate : free parameter names;
@@ -141,16 +156,23 @@ def kinematic_model(outputs: Sequence[str] = ALL_OUTPUTS, estimate: Sequence[str
     params = []
     for n in names:
         lo, hi = (-0.5, 0.5) if n.startswith("scale") else (-0.2, 0.5) if n == "delay_air" else (-np.inf, np.inf)
-        params.append(Parameter(n, float(start.get(n, 0.0)), free=n in estimate, bounds=(lo, hi),
-                                unit=UNITS.get(n, "")))
+        params.append(
+            Parameter(n, float(start.get(n, 0.0)), free=n in estimate, bounds=(lo, hi), unit=UNITS.get(n, ""))
+        )
     held = tuple(wind) if isinstance(wind, (tuple, list)) else (0.0, 0.0)
     free = wind is True and any(c in outputs for c in ("vn", "ve"))
-    params += [Parameter(n, float(start.get(n, w0)), free=free, unit="m/s")
-               for n, w0 in zip(WIND_PARAMS, held)]
+    params += [Parameter(n, float(start.get(n, w0)), free=free, unit="m/s") for n, w0 in zip(WIND_PARAMS, held)]
     xb, yb, zb = (float(v) for v in boom_position)
-    model = Model(states=STATES, inputs=MODEL_INPUTS, outputs=list(ALL_OUTPUTS), parameters=params,
-                  constants={"g": G0, "xb": xb, "yb": yb, "zb": zb}, f=_f, g=_g,
-                  name="flight_path_reconstruction")
+    model = Model(
+        states=STATES,
+        inputs=MODEL_INPUTS,
+        outputs=list(ALL_OUTPUTS),
+        parameters=params,
+        constants={"g": G0, "xb": xb, "yb": yb, "zb": zb},
+        f=_f,
+        g=_g,
+        name="flight_path_reconstruction",
+    )
     if list(outputs) != list(ALL_OUTPUTS):
         model = model.select_outputs(list(outputs))
     return model
@@ -174,9 +196,14 @@ class CompatibilityResult:
 
     def table(self, truth: Mapping[str, float] | None = None) -> pd.DataFrame:
         """estimate, std, unit (and truth, error in std units when ``truth`` is given)."""
-        df = pd.DataFrame({"estimate": self.params, "std": self.std,
-                           "crb_std": self.crb_std if self.crb_std is not None else self.std,
-                           "unit": [UNITS.get(n, "") for n in self.params.index]})
+        df = pd.DataFrame(
+            {
+                "estimate": self.params,
+                "std": self.std,
+                "crb_std": self.crb_std if self.crb_std is not None else self.std,
+                "unit": [UNITS.get(n, "") for n in self.params.index],
+            }
+        )
         if truth is not None:
             df["truth"] = [truth.get(n, np.nan) for n in df.index]
             df["error_std"] = (df["estimate"] - df["truth"]) / df["std"]
@@ -188,8 +215,10 @@ class CompatibilityResult:
         return {
             "status": "ok" if getattr(res, "converged", False) else "not converged",
             "method": self.settings.get("method", "oem"),
-            "parameters": {n: {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
-                               for k, v in row.items()} for n, row in tab.to_dict("index").items()},
+            "parameters": {
+                n: {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in row.items()}
+                for n, row in tab.to_dict("index").items()
+            },
             "segments": [s.as_dict() for s in self.segments],
             "outputs": self.outputs,
             "iterations": int(getattr(res, "iterations", 0)),
@@ -202,8 +231,7 @@ class CompatibilityResult:
         return remove_sensor_errors(fd, self.params, keep_times=keep_times)
 
 
-def remove_sensor_errors(fd: FlightData, errors: Mapping[str, float],
-                         keep_times: bool = False) -> FlightData:
+def remove_sensor_errors(fd: FlightData, errors: Mapping[str, float], keep_times: bool = False) -> FlightData:
     """A copy of ``fd`` with sensor errors (this module's names: ``bias_<ch>``,
     ``scale_<ch>``, ``delay_air``; missing ones are 0) removed from the measured channels
     (IMU: (x - bias) / (1 + scale); air data also shifted earlier by the delay).
@@ -228,8 +256,9 @@ def remove_sensor_errors(fd: FlightData, errors: Mapping[str, float],
             vals = (c.values - v.get(f"bias_{ch}", 0.0)) / (1.0 + v.get(f"scale_{ch}", 0.0))
             if keep_times and tau != 0.0 and len(c.t) > 1:
                 keep = (c.t + tau >= c.t[0]) & (c.t + tau <= c.t[-1])
-                out.channels[ch] = Channel(c.t[keep], np.interp(c.t[keep] + tau, c.t, vals), c.unit,
-                                           c.source + " (compatibility-corrected)")
+                out.channels[ch] = Channel(
+                    c.t[keep], np.interp(c.t[keep] + tau, c.t, vals), c.unit, c.source + " (compatibility-corrected)"
+                )
                 continue
             out.channels[ch] = Channel(c.t - tau, vals, c.unit, c.source + " (compatibility-corrected)")
     out.meta["compatibility"] = {k: float(x) for k, x in v.items()}
@@ -241,8 +270,7 @@ def instrument_errors(applied: Mapping[str, Mapping[str, float]]) -> dict[str, f
     second flight with the same sensors shares: the scale factors and the air-data delay
     (name -> estimate). Biases are left out: they change with every power-up (the proof of
     match fits its own output biases)."""
-    return {n: float(d["estimate"]) for n, d in applied.items()
-            if n.startswith("scale_") or n == "delay_air"}
+    return {n: float(d["estimate"]) for n, d in applied.items() if n.startswith("scale_") or n == "delay_air"}
 
 
 def _lever(t: np.ndarray, rates: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -265,9 +293,14 @@ def _shifted(fd: FlightData, channels: Sequence[str], tau: float) -> FlightData:
     return FlightData(chans, fd.meta, fd.segments)
 
 
-def _segment_frames(fd: FlightData, segs: Sequence[SegmentSpec], rate_hz: float, outputs: list[str],
-                    imu_position: np.ndarray, mask_from: FlightData | None = None
-                    ) -> list[tuple[SegmentSpec, pd.DataFrame]]:
+def _segment_frames(
+    fd: FlightData,
+    segs: Sequence[SegmentSpec],
+    rate_hz: float,
+    outputs: list[str],
+    imu_position: np.ndarray,
+    mask_from: FlightData | None = None,
+) -> list[tuple[SegmentSpec, pd.DataFrame]]:
     """Resampled segments; slow outputs are thinned to one grid point per native sample of
     ``mask_from`` (default ``fd``), so a time shift of ``fd`` changes values smoothly."""
     mask_from = mask_from or fd
@@ -315,11 +348,20 @@ def _x0(df: pd.DataFrame) -> np.ndarray:
         return float(v[0]) if v.size else default
 
     V, a, b = first("V", 20.0), first("alpha"), first("beta")
-    return np.array([V * np.cos(a) * np.cos(b), V * np.sin(b), V * np.sin(a) * np.cos(b),
-                     first("phi"), first("theta"), first("psi"), first("h")])
+    return np.array(
+        [
+            V * np.cos(a) * np.cos(b),
+            V * np.sin(b),
+            V * np.sin(a) * np.cos(b),
+            first("phi"),
+            first("theta"),
+            first("psi"),
+            first("h"),
+        ]
+    )
 
 
-def frames_to_flightdata(frames: "pd.DataFrame | Sequence[pd.DataFrame]") -> tuple[FlightData, list[SegmentSpec]]:
+def frames_to_flightdata(frames: pd.DataFrame | Sequence[pd.DataFrame]) -> tuple[FlightData, list[SegmentSpec]]:
     """Segments given as DataFrames (column ``t`` [s] and canonical SI columns) -> one
     FlightData with one segment each (later segments moved in time so none overlap)."""
     from pipeline.flightdata import CANONICAL_UNITS, Channel
@@ -341,8 +383,12 @@ def frames_to_flightdata(frames: "pd.DataFrame | Sequence[pd.DataFrame]") -> tup
                 v = df[c].to_numpy(dtype=float)
                 ok = np.isfinite(v)
                 chans.setdefault(c, []).append((t[ok], v[ok]))
-    ch = {c: Channel(np.concatenate([a for a, _ in parts]), np.concatenate([b for _, b in parts]),
-                     CANONICAL_UNITS.get(c, "")) for c, parts in chans.items()}
+    ch = {
+        c: Channel(
+            np.concatenate([a for a, _ in parts]), np.concatenate([b for _, b in parts]), CANONICAL_UNITS.get(c, "")
+        )
+        for c, parts in chans.items()
+    }
     return FlightData(ch, {"source": "DataFrame segments"}, segs), segs
 
 
@@ -363,34 +409,49 @@ def default_segments(data: FlightData, span_s: float = 20.0) -> list[SegmentSpec
         return given
     lo, hi = data.span
     edges = np.arange(lo, hi, span_s)
-    pieces = [SegmentSpec(f"span_{k}", a, min(a + span_s, hi)) for k, a in enumerate(edges)
-              if min(a + span_s, hi) - a >= 5.0]
+    pieces = [
+        SegmentSpec(f"span_{k}", a, min(a + span_s, hi)) for k, a in enumerate(edges) if min(a + span_s, hi) - a >= 5.0
+    ]
     why = ""
-    for cands in ([s for s in data.segments if s.kind == "auto"],
-                  [s for s in data.segments if s.kind == "mode" and s.duration >= 5], pieces):
+    for cands in (
+        [s for s in data.segments if s.kind == "auto"],
+        [s for s in data.segments if s.kind == "mode" and s.duration >= 5],
+        pieces,
+    ):
         ground = [no_forward_flight(data, s) for s in cands]
         keep = [s for s, (g, _) in zip(cands, ground) if not g]
         if keep:
             return keep
-        why = why or next((f"{s.name} {s.t0:.1f}-{s.t1:.1f} s: {w}"
-                           for s, (g, w) in zip(cands, ground) if g), "")
+        why = why or next((f"{s.name} {s.t0:.1f}-{s.t1:.1f} s: {w}" for s, (g, w) in zip(cands, ground) if g), "")
     if not why:
-        raise FsidError(f"compatibility: the log spans {hi - lo:.1f} s, no span of >= 5 s to "
-                        "reconstruct; use a longer log")
-    raise FsidError(f"compatibility: no span of the log is in forward flight (on the ground or "
-                    f"hovering; {why}), nothing to reconstruct; give spans in flight with "
-                    "--segments t0:t1")
+        raise FsidError(
+            f"compatibility: the log spans {hi - lo:.1f} s, no span of >= 5 s to reconstruct; use a longer log"
+        )
+    raise FsidError(
+        f"compatibility: no span of the log is in forward flight (on the ground or "
+        f"hovering; {why}), nothing to reconstruct; give spans in flight with "
+        "--segments t0:t1"
+    )
 
 
-def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, segments: Sequence[SegmentSpec] | None = None,
-                rate_hz: float | None = None, estimate: Sequence[str] = DEFAULT_ESTIMATE,
-                imu_position: Sequence[float] = (0.0, 0.0, 0.0),
-                boom_position: Sequence[float] = (0.0, 0.0, 0.0), max_segments: int = 8,
-                integrator: str = "rk4", max_iter: int = 50, delay: str = "profile",
-                delay_channels: Sequence[str] = ("V", "alpha", "beta"),
-                delay_bounds: tuple[float, float] = (-0.05, 0.25), method: str = "oem",
-                filter_options: Mapping | None = None,
-                wind: "bool | tuple[float, float]" = False) -> CompatibilityResult:
+def reconstruct(
+    data: FlightData | pd.DataFrame | Sequence[pd.DataFrame],
+    *,
+    segments: Sequence[SegmentSpec] | None = None,
+    rate_hz: float | None = None,
+    estimate: Sequence[str] = DEFAULT_ESTIMATE,
+    imu_position: Sequence[float] = (0.0, 0.0, 0.0),
+    boom_position: Sequence[float] = (0.0, 0.0, 0.0),
+    max_segments: int = 8,
+    integrator: str = "rk4",
+    max_iter: int = 50,
+    delay: str = "profile",
+    delay_channels: Sequence[str] = ("V", "alpha", "beta"),
+    delay_bounds: tuple[float, float] = (-0.05, 0.25),
+    method: str = "oem",
+    filter_options: Mapping | None = None,
+    wind: bool | tuple[float, float] = False,
+) -> CompatibilityResult:
     """Flight path reconstruction on ``data`` with the estimators' output-error method.
 
     Parameters
@@ -427,19 +488,19 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
         segments = df_segs if segments is None else segments
     miss = data.missing(INPUTS)
     if miss:
-        raise FsidError(f"compatibility needs the IMU channels; missing {miss} "
-                        f"({data.explain_missing(miss)})")
+        raise FsidError(f"compatibility needs the IMU channels; missing {miss} ({data.explain_missing(miss)})")
     imu_rate = min(data.channels[c].rate_hz for c in INPUTS)
     if imu_rate < 20.0:
-        raise FsidError(f"compatibility needs the IMU at >= 20 Hz; this log has it at {imu_rate:.1f} Hz "
-                        "(telemetry?) — use the onboard log")
+        raise FsidError(
+            f"compatibility needs the IMU at >= 20 Hz; this log has it at {imu_rate:.1f} Hz (telemetry?) — use the onboard log"
+        )
     # outputs with too few samples to say anything (< 20, or < 1 Hz) are left out
-    outputs = [c for c in ALL_OUTPUTS if c in data.channels and len(data.channels[c]) >= 20
-               and data.channels[c].rate_hz >= 1.0]
+    outputs = [
+        c for c in ALL_OUTPUTS if c in data.channels and len(data.channels[c]) >= 20 and data.channels[c].rate_hz >= 1.0
+    ]
     if not {"phi", "theta"} <= set(outputs):
         raise FsidError("compatibility needs phi and theta to reconstruct the flight path")
-    air = {"V": ["bias_V", "scale_V"], "alpha": ["bias_alpha", "scale_alpha"],
-           "beta": ["bias_beta", "scale_beta"]}
+    air = {"V": ["bias_V", "scale_V"], "alpha": ["bias_alpha", "scale_alpha"], "beta": ["bias_beta", "scale_beta"]}
     est = [e for e in estimate if not any(e in ps and ch not in outputs for ch, ps in air.items())]
     if not any(c in outputs for c in ("V", "alpha", "beta")):
         est = [e for e in est if e != "delay_air"]
@@ -463,23 +524,27 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
         frames = _segment_frames(shifted, segs, rate_hz, outputs, imu_pos, mask_from=shifted)
         if not frames:
             raise FsidError("compatibility: no segment with enough IMU data (>= 20 samples)")
-        eseg = [Segment(t=df["t"].to_numpy(), u=df[MODEL_INPUTS].to_numpy(),
-                        z=df[outputs].to_numpy(), x0=_x0(df), name=s.name) for s, df in frames]
+        eseg = [
+            Segment(
+                t=df["t"].to_numpy(), u=df[MODEL_INPUTS].to_numpy(), z=df[outputs].to_numpy(), x0=_x0(df), name=s.name
+            )
+            for s, df in frames
+        ]
         if method in ("ekf", "ukf"):
             from estimators import EKF, UKF
 
-            opts = {"param_std": {n: PARAM_STD[n] for n in model_est + WIND_PARAMS},
-                    "measurement_noise": _noise_levels(frames, outputs),
-                    # initial states come from biased air data: do not trust them too much
-                    "state_std": {"u": 2.0, "v": 2.0, "w": 2.0, "phi": 0.02, "theta": 0.02,
-                                  "psi": 0.02, "h": 3.0},
-                    **dict(filter_options or {})}
+            opts = {
+                "param_std": {n: PARAM_STD[n] for n in model_est + WIND_PARAMS},
+                "measurement_noise": _noise_levels(frames, outputs),
+                # initial states come from biased air data: do not trust them too much
+                "state_std": {"u": 2.0, "v": 2.0, "w": 2.0, "phi": 0.02, "theta": 0.02, "psi": 0.02, "h": 3.0},
+                **dict(filter_options or {}),
+            }
             st = {n: v for n, v in (start or {}).items() if not n.startswith("x0_")}
             cls = EKF if method == "ekf" else UKF
             res = cls(model, integrator=integrator, **opts).fit(eseg, start=st or None)
         else:
-            res = OutputError(model, integrator=integrator, max_iter=max_iter).fit(
-                eseg, estimate_x0=True, start=start)
+            res = OutputError(model, integrator=integrator, max_iter=max_iter).fit(eseg, estimate_x0=True, start=start)
         return res, frames, _nll(res)
 
     if not profile:
@@ -498,28 +563,44 @@ def reconstruct(data: "FlightData | pd.DataFrame | Sequence[pd.DataFrame]", *, s
             if step == 0:
                 break
             shift += step
-            res, frames, _ = fit(shift / rate_hz, {n: float(v) for n, v in zip(res.names, res.values)
-                                                   if n != "delay_air"})
+            res, frames, _ = fit(
+                shift / rate_hz, {n: float(v) for n, v in zip(res.names, res.values) if n != "delay_air"}
+            )
         names = [n for n in est if n in res.params.index]
         params = res.params[names].astype(float)
         std = res.std[names].astype(float)
         params["delay_air"] = shift / rate_hz + float(res.params["delay_air"])
-        tau_info = {"method": "grid shift + first-order fraction", "shift_s": shift / rate_hz,
-                    "fraction_s": float(res.params["delay_air"]), "channels": dch}
+        tau_info = {
+            "method": "grid shift + first-order fraction",
+            "shift_s": shift / rate_hz,
+            "fraction_s": float(res.params["delay_air"]),
+            "channels": dch,
+        }
     crb_std = std.copy()
     carried = method not in ("ekf", "ukf") and _carry_imu_noise(res)
     if carried:
         std = res.std[std.index].astype(float)
-    return CompatibilityResult(res, params, std, [s for s, _ in frames], outputs,
-                               {"rate_hz": rate_hz, "imu_position": list(map(float, imu_position)),
-                                "boom_position": list(map(float, boom_position)),
-                                "estimate": list(est), "integrator": integrator, "delay": tau_info,
-                                "method": method,
-                                "std": "Cramér-Rao with the IMU noise carried through the kinematics"
-                                       if carried else "Cramér-Rao",
-                                "wind_mps": {n: [float(res.params[n]), float(res.std[n])]
-                                             for n in res.params.index if n.startswith("wind_")}},
-                               crb_std=crb_std)
+    return CompatibilityResult(
+        res,
+        params,
+        std,
+        [s for s, _ in frames],
+        outputs,
+        {
+            "rate_hz": rate_hz,
+            "imu_position": list(map(float, imu_position)),
+            "boom_position": list(map(float, boom_position)),
+            "estimate": list(est),
+            "integrator": integrator,
+            "delay": tau_info,
+            "method": method,
+            "std": "Cramér-Rao with the IMU noise carried through the kinematics" if carried else "Cramér-Rao",
+            "wind_mps": {
+                n: [float(res.params[n]), float(res.std[n])] for n in res.params.index if n.startswith("wind_")
+            },
+        },
+        crb_std=crb_std,
+    )
 
 
 def _carry_imu_noise(res) -> bool:
@@ -535,10 +616,18 @@ def _carry_imu_noise(res) -> bool:
     if not getattr(res, "sensitivities", None) or res.information is None:
         return False
     try:
-        cov, _ = propagated_covariance(res.model, res.segments, res.params.to_dict(), res.sensitivities,
-                                       [r.to_numpy(dtype=float) for r in res.residuals], res.R,
-                                       res.information, [], noisy_inputs=INPUTS,
-                                       prior_info=(res.extra or {}).get("prior_information"))
+        cov, _ = propagated_covariance(
+            res.model,
+            res.segments,
+            res.params.to_dict(),
+            res.sensitivities,
+            [r.to_numpy(dtype=float) for r in res.residuals],
+            res.R,
+            res.information,
+            [],
+            noisy_inputs=INPUTS,
+            prior_info=(res.extra or {}).get("prior_information"),
+        )
     except (PropagationError, ValueError, np.linalg.LinAlgError):
         return False
     if not np.all(np.isfinite(np.diag(cov))):
@@ -550,8 +639,7 @@ def _carry_imu_noise(res) -> bool:
 def _noise_levels(frames, outputs: Sequence[str]) -> dict[str, float]:
     """Measurement-noise std of each output from its own samples: std of second differences
     / sqrt(6) (white noise on a smooth signal), pooled over segments."""
-    sd = difference_noise_std([np.column_stack([df[c].to_numpy(dtype=float) for c in outputs])
-                                  for _, df in frames])
+    sd = difference_noise_std([np.column_stack([df[c].to_numpy(dtype=float) for c in outputs]) for _, df in frames])
     return {c: max(float(v), 1e-6) if np.isfinite(v) else 1.0 for c, v in zip(outputs, sd)}
 
 
@@ -604,7 +692,7 @@ def compatibility_report(fd: FlightData, **kw) -> dict:
     return _reconstruct_or_reason(fd, **kw)[0]
 
 
-def _reconstruct_or_reason(fd: FlightData, **kw) -> tuple[dict, "CompatibilityResult | None"]:
+def _reconstruct_or_reason(fd: FlightData, **kw) -> tuple[dict, CompatibilityResult | None]:
     """(``reconstruct(fd, **kw).to_dict()``, the result), or ({status: skipped|failed,
     reason}, None) when the log cannot be reconstructed."""
     try:
@@ -657,12 +745,18 @@ SIGNIFICANCE = 3.0
 ADEQUACY = 1.5
 
 
-def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0.0, 0.0, 0.0),
-                           boom_position: Sequence[float] = (0.0, 0.0, 0.0),
-                           estimate: Sequence[str] = RUN_ESTIMATE, threshold: float = SIGNIFICANCE,
-                           truth: Mapping[str, float] | None = None,
-                           wind: tuple[float, float] | None = None, unsteady: str | None = None,
-                           **kw) -> tuple[dict, FlightData]:
+def correct_for_estimation(
+    fd: FlightData,
+    *,
+    imu_position: Sequence[float] = (0.0, 0.0, 0.0),
+    boom_position: Sequence[float] = (0.0, 0.0, 0.0),
+    estimate: Sequence[str] = RUN_ESTIMATE,
+    threshold: float = SIGNIFICANCE,
+    truth: Mapping[str, float] | None = None,
+    wind: tuple[float, float] | None = None,
+    unsteady: str | None = None,
+    **kw,
+) -> tuple[dict, FlightData]:
     """The compatibility stage of a run: estimate the sensor errors, correct the data that
     estimation will see by the significant ones, and say exactly what was done.
 
@@ -720,9 +814,11 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
     import time
 
     t0 = time.perf_counter()
-    rule = (f"a sensor error is applied when |estimate| >= {threshold:g} std in the fit with all "
-            f"errors free and that fit leaves the air-data residuals within {ADEQUACY:g} x their "
-            "noise level; the applied values come from a refit with only those free")
+    rule = (
+        f"a sensor error is applied when |estimate| >= {threshold:g} std in the fit with all "
+        f"errors free and that fit leaves the air-data residuals within {ADEQUACY:g} x their "
+        "noise level; the applied values come from a refit with only those free"
+    )
     kw = {"imu_position": imu_position, "boom_position": boom_position, **kw}
     # a steady wind is estimated first; indistinguishable from calm (every component within
     # ``threshold`` std of zero), the calm-air fit is used: the same rule as the sensor errors.
@@ -731,14 +827,13 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
     held = tuple(wind) if wind is not None else None
     doc, full = _reconstruct_or_reason(fd, estimate=list(estimate), wind=held or True, **kw)
     wind = (full.settings.get("wind_mps") or {}) if full is not None else {}
-    sig_wind = {n: round(v / s, 1) for n, (v, s) in wind.items()
-                if s and np.isfinite(s) and abs(v) >= threshold * s}
-    said = ", ".join(f"{'north' if n == 'wind_n' else 'east'} {v:.2f} +- {s:.2f} m/s"
-                     for n, (v, s) in wind.items() if s is not None)
+    sig_wind = {n: round(v / s, 1) for n, (v, s) in wind.items() if s and np.isfinite(s) and abs(v) >= threshold * s}
+    said = ", ".join(
+        f"{'north' if n == 'wind_n' else 'east'} {v:.2f} +- {s:.2f} m/s" for n, (v, s) in wind.items() if s is not None
+    )
     if held:
         kw["wind"] = held
-        doc["wind_note"] = (f"wind held at north {held[0]:.2f}, east {held[1]:.2f} m/s "
-                            "(the air-data-angle stage's)")
+        doc["wind_note"] = f"wind held at north {held[0]:.2f}, east {held[1]:.2f} m/s (the air-data-angle stage's)"
     elif full is not None and not sig_wind:
         doc, full = _reconstruct_or_reason(fd, estimate=list(estimate), **kw)
         doc["wind_note"] = f"wind {said}: within {threshold:g} std of zero, calm air assumed"
@@ -753,29 +848,40 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
             doc["note"] = "reconstruction did not converge: no correction applied"
         doc["seconds"] = time.perf_counter() - t0
         return doc, fd
-    if truth is not None:   # the parameter table with the injected values
+    if truth is not None:  # the parameter table with the injected values
         for n, row in doc["parameters"].items():
             tv = truth.get(n)
             row["truth"] = None if tv is None else float(tv)
-            row["error_std"] = (None if tv is None or not row.get("std")
-                                else (row["estimate"] - float(tv)) / row["std"])
-    sig = {n: abs(row["estimate"]) / row["std"] for n, row in doc["parameters"].items()
-           if row.get("std") and np.isfinite(row["std"]) and row["std"] > 0
-           and abs(row["estimate"]) >= threshold * row["std"]}
+            row["error_std"] = None if tv is None or not row.get("std") else (row["estimate"] - float(tv)) / row["std"]
+    sig = {
+        n: abs(row["estimate"]) / row["std"]
+        for n, row in doc["parameters"].items()
+        if row.get("std")
+        and np.isfinite(row["std"])
+        and row["std"] > 0
+        and abs(row["estimate"]) >= threshold * row["std"]
+    }
     ratio = residual_to_noise(full)
     doc["residual_to_noise"] = ratio
     poor = {c: round(x, 2) for c, x in ratio.items() if c in ("V", "alpha", "beta") and x > ADEQUACY}
     untrusted = None
     if poor:
-        untrusted = (f"air-data residuals {poor} times their noise level (> {ADEQUACY:g}): the "
-                     "calm-air kinematic model does not explain the air data (turbulence or wind?)")
+        untrusted = (
+            f"air-data residuals {poor} times their noise level (> {ADEQUACY:g}): the "
+            "calm-air kinematic model does not explain the air data (turbulence or wind?)"
+        )
     elif unsteady and sig:
         # the kinematic model has no gusts, and without vanes no air-data residual shows
         # them: on a windy longitudinal_3211_turbulence it found bias_ax and scale_ax
         # significant (truth 0) and put the cross wind 3 m/s off with a 0.2 m/s std
-        doc["not_applied"] = {n: {"estimate": doc["parameters"][n]["estimate"],
-                                  "std": doc["parameters"][n]["std"], "significance_std": float(x)}
-                              for n, x in sig.items()}
+        doc["not_applied"] = {
+            n: {
+                "estimate": doc["parameters"][n]["estimate"],
+                "std": doc["parameters"][n]["std"],
+                "significance_std": float(x),
+            }
+            for n, x in sig.items()
+        }
         untrusted = f"{unsteady}; the calm-air kinematic model does not hold"
     if untrusted:
         sig = {}
@@ -786,8 +892,10 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
             row["std_withdrawn"] = row.get("std")
             row["std"] = None
             row["error_std"] = None
-        doc["std_note"] = ("no std: the fit does not explain the data (" + untrusted + "), so its "
-                           "Cramér-Rao bound does not hold; std_withdrawn keeps it for reference")
+        doc["std_note"] = (
+            "no std: the fit does not explain the data (" + untrusted + "), so its "
+            "Cramér-Rao bound does not hold; std_withdrawn keeps it for reference"
+        )
     for n, row in doc["parameters"].items():
         row["applied"] = n in sig
     if untrusted:
@@ -807,7 +915,9 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
         doc["note"] = "refit with the significant errors did not converge: no correction applied"
         doc["seconds"] = time.perf_counter() - t0
         return doc, fd
-    doc["refit"] = {k: v for k, v in refit.to_dict(truth).items() if k in ("status", "parameters", "iterations", "cost")}
+    doc["refit"] = {
+        k: v for k, v in refit.to_dict(truth).items() if k in ("status", "parameters", "iterations", "cost")
+    }
     # the refit holds the insignificant errors at 0, which the data know only to within the
     # full fit's std: considered so, the refit's covariance is the full fit's (Schur
     # complement), so its estimates are reported with the larger of the two std
@@ -818,11 +928,18 @@ def correct_for_estimation(fd: FlightData, *, imu_position: Sequence[float] = (0
             row["std"] = float(full_sd)
             if row.get("truth") is not None:
                 row["error_std"] = (row["estimate"] - row["truth"]) / row["std"]
-    doc["refit"]["std_note"] = ("std: the others held at 0 only as well as the full fit knows "
-                                "them (its std); std_held_exact takes them as exactly 0")
-    doc["applied"] = {n: {"estimate": float(refit.params[n]), "std": float(refit.std[n]),
-                          "unit": UNITS.get(n, ""), "significance_std": float(sig[n])}
-                      for n in refit.params.index}
+    doc["refit"]["std_note"] = (
+        "std: the others held at 0 only as well as the full fit knows them (its std); std_held_exact takes them as exactly 0"
+    )
+    doc["applied"] = {
+        n: {
+            "estimate": float(refit.params[n]),
+            "std": float(refit.std[n]),
+            "unit": UNITS.get(n, ""),
+            "significance_std": float(sig[n]),
+        }
+        for n in refit.params.index
+    }
     doc["applied_correlation"] = applied_correlation(refit)
     doc["data_for_estimation"] = "compatibility-corrected"
     doc["seconds"] = time.perf_counter() - t0

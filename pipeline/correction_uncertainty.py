@@ -25,6 +25,7 @@ document says so.
 Measured on sensor_errors_calm (13 corrections applied, longitudinal output error):
 see tests/test_closed_loop_compat_run.py.
 """
+
 from __future__ import annotations
 
 import io
@@ -39,12 +40,9 @@ from pipeline.flightdata import FlightData
 
 SOURCE = "the uncertainty of the sensor corrections applied before the fit"
 HELD_SOURCE = "the uncertainty of the other axis' estimates the fit held"
-WIND_SOURCE = ("the uncertainty of the wind (and the pitot's scale factor) the air-data "
-               "angles were rebuilt with")
-SAMPLING_SOURCE = ("the unknown times of the control-input steps between their logged "
-                   "samples")
-DYNAMICS_SOURCE = ("the uncertainty of the control-input delays and lags applied before "
-                   "the fit")
+WIND_SOURCE = "the uncertainty of the wind (and the pitot's scale factor) the air-data angles were rebuilt with"
+SAMPLING_SOURCE = "the unknown times of the control-input steps between their logged samples"
+DYNAMICS_SOURCE = "the uncertainty of the control-input delays and lags applied before the fit"
 
 
 def correction_covariance(doc: Mapping[str, Any]) -> tuple[list[str], np.ndarray, np.ndarray]:
@@ -59,15 +57,20 @@ def correction_covariance(doc: Mapping[str, Any]) -> tuple[list[str], np.ndarray
     ac = doc.get("applied_correlation") or {}
     if ac.get("names"):
         pos = {n: i for i, n in enumerate(ac["names"])}
-        mine = [a for a, n in enumerate(names) if n in pos]       # names the matrix carries
+        mine = [a for a, n in enumerate(names) if n in pos]  # names the matrix carries
         theirs = [pos[names[a]] for a in mine]
         corr[np.ix_(mine, mine)] = np.asarray(ac["matrix"], dtype=float)[np.ix_(theirs, theirs)]
     return names, est, corr * np.outer(sd, sd)
 
 
-def _refit_jacobians(results: Mapping[str, Any], names: list[str], step: np.ndarray,
-                     refit_j: Callable[[int], Mapping[str, Any]], what: str,
-                     progress: Any = None) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+def _refit_jacobians(
+    results: Mapping[str, Any],
+    names: list[str],
+    step: np.ndarray,
+    refit_j: Callable[[int], Mapping[str, Any]],
+    what: str,
+    progress: Any = None,
+) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     """(key -> J (n_free, k), key -> "propagated" or why not) with J[:, j] =
     (refit_j(j)[key] - result) / step[j]: ``refit_j(j)`` repeats the fits with the j-th of
     ``names`` moved by ``step[j]``; ``what`` names that move in messages."""
@@ -76,7 +79,7 @@ def _refit_jacobians(results: Mapping[str, Any], names: list[str], step: np.ndar
     status: dict[str, str] = {key: "propagated" for key in results}
     for j, n in enumerate(names):
         if not any(v == "propagated" for v in status.values()):
-            break                                   # every fit already failed a refit
+            break  # every fit already failed a refit
         if progress is not None:
             progress.tick(f"{j + 1}/{len(names)}")
         try:
@@ -84,7 +87,9 @@ def _refit_jacobians(results: Mapping[str, Any], names: list[str], step: np.ndar
         except Exception as exc:  # noqa: BLE001 - a failed refit must not cost the run
             new = {}
             for key in results:
-                status[key] = f"not propagated: the refit with {what.format(name=n)} failed ({type(exc).__name__}: {exc})"
+                status[key] = (
+                    f"not propagated: the refit with {what.format(name=n)} failed ({type(exc).__name__}: {exc})"
+                )
         for key, res in results.items():
             r = new.get(key)
             if not status[key].startswith("propagated"):
@@ -92,13 +97,17 @@ def _refit_jacobians(results: Mapping[str, Any], names: list[str], step: np.ndar
             if r is None or list(r.free_names) != free[key]:
                 status[key] = f"not propagated: the refit with {what.format(name=n)} failed or changed the parameters"
                 continue
-            J[key][:, j] = (r.params[free[key]].to_numpy(float)
-                            - res.params[free[key]].to_numpy(float)) / step[j]
+            J[key][:, j] = (r.params[free[key]].to_numpy(float) - res.params[free[key]].to_numpy(float)) / step[j]
     return J, status
 
 
-def _add_consider(results: Mapping[str, Any], J: Mapping[str, np.ndarray],
-                  C: Mapping[str, np.ndarray], status: Mapping[str, str], source: str) -> None:
+def _add_consider(
+    results: Mapping[str, Any],
+    J: Mapping[str, np.ndarray],
+    C: Mapping[str, np.ndarray],
+    status: Mapping[str, str],
+    source: str,
+) -> None:
     """Add J C J^T to ``consider_cov`` of every result whose status is "propagated" (C by
     key), and ``source`` to its ``consider_source``."""
     for key, res in results.items():
@@ -108,9 +117,15 @@ def _add_consider(results: Mapping[str, Any], J: Mapping[str, np.ndarray],
             res.consider_source = "; ".join(x for x in (res.consider_source, source) if x)
 
 
-def consider_by_refits(results: Mapping[str, Any], names: list[str], C: np.ndarray,
-                       refit_j: Callable[[int], Mapping[str, Any]], what: str,
-                       source: str, progress: Any = None) -> dict[str, str]:
+def consider_by_refits(
+    results: Mapping[str, Any],
+    names: list[str],
+    C: np.ndarray,
+    refit_j: Callable[[int], Mapping[str, Any]],
+    what: str,
+    source: str,
+    progress: Any = None,
+) -> dict[str, str]:
     """Add J C J^T to ``consider_cov`` of every result in ``results`` (key -> result), with
     J[:, j] = (refit_j(j)[key] - result) / std_j: ``refit_j(j)`` repeats the fits with the
     j-th of ``names`` (covariance ``C``) moved by its std. ``what`` names the j-th
@@ -122,9 +137,13 @@ def consider_by_refits(results: Mapping[str, Any], names: list[str], C: np.ndarr
     return status
 
 
-def propagate(fd_raw: FlightData, doc: Mapping[str, Any], results: Mapping[str, Any],
-              refit: Callable[[FlightData, dict[str, Any]], Mapping[str, Any]],
-              progress: Any = None) -> dict[str, Any]:
+def propagate(
+    fd_raw: FlightData,
+    doc: Mapping[str, Any],
+    results: Mapping[str, Any],
+    refit: Callable[[FlightData, dict[str, Any]], Mapping[str, Any]],
+    progress: Any = None,
+) -> dict[str, Any]:
     """Add to ``consider_cov`` of every result in ``results`` the part of the applied
     corrections of ``doc`` (module doc). ``fd_raw``: the data as logged; ``refit(fd,
     starts)`` repeats the run's fits on other flight data (``starts``: key -> the run's
@@ -145,10 +164,14 @@ def propagate(fd_raw: FlightData, doc: Mapping[str, Any], results: Mapping[str, 
         return refit(CompatibilityResult(None, v, sd).corrected(fd_raw, keep_times=True), starts)
 
     status = consider_by_refits(results, names, C, refit_j, "{name} + 1 std", SOURCE, progress)
-    return {"corrections": names, "refits": len(names),
-            "perturbation": "each applied correction moved by +1 std (its Cramér-Rao std), "
-                            "all fits repeated; total std = sqrt(CRB^2 + consider^2)",
-            "methods": status, "seconds": time.perf_counter() - t0}
+    return {
+        "corrections": names,
+        "refits": len(names),
+        "perturbation": "each applied correction moved by +1 std (its Cramér-Rao std), "
+        "all fits repeated; total std = sqrt(CRB^2 + consider^2)",
+        "methods": status,
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 def fitted_spans(result: Any) -> list[tuple[float, float]]:
@@ -156,9 +179,12 @@ def fitted_spans(result: Any) -> list[tuple[float, float]]:
     return [(float(r.index[0]), float(r.index[-1])) for r in result.residuals if len(r)]
 
 
-def wind(flow: Mapping[str, Any], results: Mapping[str, Any],
-         refit: Callable[[tuple[float, float, float]], Mapping[str, Any]],
-         progress: Any = None) -> dict[str, Any]:
+def wind(
+    flow: Mapping[str, Any],
+    results: Mapping[str, Any],
+    refit: Callable[[tuple[float, float, float]], Mapping[str, Any]],
+    progress: Any = None,
+) -> dict[str, Any]:
     """Add to ``consider_cov`` of every result in ``results`` the uncertainty of the wind
     its air-data angles were rebuilt with (``flow``, the document of
     :func:`pipeline.flow_angles.reconstruct_flow_angles`): the fitted horizontal wind and
@@ -185,19 +211,24 @@ def wind(flow: Mapping[str, Any], results: Mapping[str, Any],
         offset[WIND_PARTS.index(names[j])] = float(step[j])
         return refit(tuple(offset))
 
-    J, status = _refit_jacobians(results, names, step, refit_j, "the {name} moved by its std",
-                                 progress)
-    _add_consider(results, J, {key: np.diag([per[key][n] ** 2 for n in names]) for key in results},
-                  status, WIND_SOURCE)
+    J, status = _refit_jacobians(results, names, step, refit_j, "the {name} moved by its std", progress)
+    _add_consider(results, J, {key: np.diag([per[key][n] ** 2 for n in names]) for key in results}, status, WIND_SOURCE)
     speed = [n for n in names if n != "airspeed scale"]
-    return {"parts": names, "refits": len(names),
-            "std_mps": {key: {n: per[key][n] for n in speed} for key in results},
-            **({"std_airspeed_scale": {key: per[key]["airspeed scale"] for key in results}}
-               if "airspeed scale" in names else {}),
-            "perturbation": "each part of the wind moved by its std (the largest over the "
-                            "fits), the angles rebuilt and all fits repeated; total std = "
-                            "sqrt(CRB^2 + consider^2)",
-            "methods": status, "seconds": time.perf_counter() - t0}
+    return {
+        "parts": names,
+        "refits": len(names),
+        "std_mps": {key: {n: per[key][n] for n in speed} for key in results},
+        **(
+            {"std_airspeed_scale": {key: per[key]["airspeed scale"] for key in results}}
+            if "airspeed scale" in names
+            else {}
+        ),
+        "perturbation": "each part of the wind moved by its std (the largest over the "
+        "fits), the angles rebuilt and all fits repeated; total std = "
+        "sqrt(CRB^2 + consider^2)",
+        "methods": status,
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 def wind_summary(doc: Mapping[str, Any]) -> str:
@@ -207,19 +238,21 @@ def wind_summary(doc: Mapping[str, Any]) -> str:
     stds = doc["std_mps"]
     parts = []
     for n in doc["parts"]:
-        if n == "airspeed scale":     # one value for the flight
+        if n == "airspeed scale":  # one value for the flight
             parts.append(f"pitot scale factor +-{100 * max(doc['std_airspeed_scale'].values()):.2f} %")
             continue
         lo, hi = min(v[n] for v in stds.values()), max(v[n] for v in stds.values())
         what = "flight-mean vertical wind (assumed 0)" if n == "vertical wind" else n
         parts.append(f"{what} +-{lo:.2f}" + (f" to {hi:.2f}" if hi - lo >= 0.005 else "") + " m/s")
     bad = {k: v for k, v in doc["methods"].items() if v != "propagated"}
-    return (", ".join(parts) + ": carried to the estimates' std as a consider part"
-            + (f" (except {'; '.join(f'{k}: {v}' for k, v in bad.items())})" if bad else ""))
+    return (
+        ", ".join(parts)
+        + ": carried to the estimates' std as a consider part"
+        + (f" (except {'; '.join(f'{k}: {v}' for k, v in bad.items())})" if bad else "")
+    )
 
 
-def held_estimates(result: Any, refit: Callable[[dict[str, float]], Any],
-                   progress: Any = None) -> dict[str, Any]:
+def held_estimates(result: Any, refit: Callable[[dict[str, float]], Any], progress: Any = None) -> dict[str, Any]:
     """Add to ``consider_cov`` of ``result`` the uncertainty of another fit's estimates it
     held fixed (``result.extra["held"]``: that fit's result, e.g. the longitudinal output
     error whose derivatives the 6-DoF lateral fit holds): each held estimate with a
@@ -238,15 +271,16 @@ def held_estimates(result: Any, refit: Callable[[dict[str, float]], Any],
     def refit_j(j: int) -> Mapping[str, Any]:
         return {"r": refit({**base, names[j]: base[names[j]] + sd[j]})}
 
-    status = consider_by_refits({"r": result}, names, C, refit_j, "the held {name} + 1 std",
-                                HELD_SOURCE, progress)["r"]
-    return {"held": names, "refits": len(names), "status": status,
-            "seconds": time.perf_counter() - t0}
+    status = consider_by_refits({"r": result}, names, C, refit_j, "the held {name} + 1 std", HELD_SOURCE, progress)["r"]
+    return {"held": names, "refits": len(names), "status": status, "seconds": time.perf_counter() - t0}
 
 
-def input_dynamics(doc: Mapping[str, Any], results: Mapping[str, Any],
-                   refit: Callable[[dict[str, dict[str, float]]], Mapping[str, Any]],
-                   progress: Any = None) -> dict[str, Any]:
+def input_dynamics(
+    doc: Mapping[str, Any],
+    results: Mapping[str, Any],
+    refit: Callable[[dict[str, dict[str, float]]], Mapping[str, Any]],
+    progress: Any = None,
+) -> dict[str, Any]:
     """Add to ``consider_cov`` of every result in ``results`` the uncertainty of the
     control-input dynamics applied before the fits (``doc``: the document of
     :func:`pipeline.input_dynamics.estimate_input_dynamics`; each applied surface's delay
@@ -268,12 +302,15 @@ def input_dynamics(doc: Mapping[str, Any], results: Mapping[str, Any],
         moved[s][key] = moved[s][key] + float(sd[j])
         return refit(moved)
 
-    status = consider_by_refits(results, names, C, refit_j, "the {name} + 1 std",
-                                DYNAMICS_SOURCE, progress)
-    return {"parameters": names, "refits": len(names),
-            "perturbation": "each applied delay and lag moved by +1 std (Morelli-Klein), all "
-                            "fits repeated; total std = sqrt(CRB^2 + consider^2)",
-            "methods": status, "seconds": time.perf_counter() - t0}
+    status = consider_by_refits(results, names, C, refit_j, "the {name} + 1 std", DYNAMICS_SOURCE, progress)
+    return {
+        "parameters": names,
+        "refits": len(names),
+        "perturbation": "each applied delay and lag moved by +1 std (Morelli-Klein), all "
+        "fits repeated; total std = sqrt(CRB^2 + consider^2)",
+        "methods": status,
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 #: the most refit pairs the step-timing part takes: more steps are moved in this many
@@ -289,9 +326,13 @@ def fitted_steps(steps: list, results: Mapping[str, Any]) -> list:
     return [e for e in steps if any(e.t1 > a and e.t0 < b for a, b in spans)]
 
 
-def input_sampling(fd: FlightData, results: Mapping[str, Any],
-                   refit: Callable[[FlightData], Mapping[str, Any]], steps: list,
-                   progress: Any = None) -> dict[str, Any]:
+def input_sampling(
+    fd: FlightData,
+    results: Mapping[str, Any],
+    refit: Callable[[FlightData], Mapping[str, Any]],
+    steps: list,
+    progress: Any = None,
+) -> dict[str, Any]:
     """Add to ``consider_cov`` of every result in ``results`` the uncertainty of the times
     of the control-input steps logged more slowly than the fits' grid (``steps``: the
     :class:`pipeline.input_sampling.Edge` list of :func:`pipeline.input_sampling.time_steps`,
@@ -318,47 +359,63 @@ def input_sampling(fd: FlightData, results: Mapping[str, Any],
     signs = np.ones(m) if n_groups == m else np.random.default_rng(0).choice([-1.0, 1.0], m)
     group = np.arange(m) % n_groups
     form = np.array([e.form_std for e in edges])
-    own = np.sqrt(np.maximum(np.array([e.std for e in edges]) ** 2 - form ** 2, 0.0))
+    own = np.sqrt(np.maximum(np.array([e.std for e in edges]) ** 2 - form**2, 0.0))
     shared = sorted({e.channel for e, f in zip(edges, form) if f > 0})
-    names = [edges[g].name if n_groups == m else f"step group {g + 1} of {n_groups}"
-             for g in range(n_groups)] + [f"{c} steps' shared timing" for c in shared]
+    names = [edges[g].name if n_groups == m else f"step group {g + 1} of {n_groups}" for g in range(n_groups)] + [
+        f"{c} steps' shared timing" for c in shared
+    ]
 
     def moved(sign: float):
         def refit_j(j: int) -> Mapping[str, Any]:
-            if j < n_groups:                       # steps on their own
+            if j < n_groups:  # steps on their own
                 mine = group == j
-                return refit(with_edges_moved(fd, [e for e, k in zip(edges, mine) if k],
-                                              list(sign * signs[mine] * own[mine])))
-            mine = [k for k, e in enumerate(edges)                # a surface's steps together
-                    if e.channel == shared[j - n_groups] and form[k] > 0]
+                return refit(
+                    with_edges_moved(fd, [e for e, k in zip(edges, mine) if k], list(sign * signs[mine] * own[mine]))
+                )
+            mine = [
+                k
+                for k, e in enumerate(edges)  # a surface's steps together
+                if e.channel == shared[j - n_groups] and form[k] > 0
+            ]
             return refit(with_edges_moved(fd, [edges[k] for k in mine], list(sign * form[mine])))
+
         return refit_j
 
     n = len(names)
-    Jp, sp = _refit_jacobians(results, names, np.ones(n), moved(1.0),
-                              "the {name} moved later by its std", progress)
-    Jm, sm = _refit_jacobians(results, names, -np.ones(n), moved(-1.0),
-                              "the {name} moved earlier by its std", progress)
+    Jp, sp = _refit_jacobians(results, names, np.ones(n), moved(1.0), "the {name} moved later by its std", progress)
+    Jm, sm = _refit_jacobians(results, names, -np.ones(n), moved(-1.0), "the {name} moved earlier by its std", progress)
     status = {key: sp[key] if sp[key] != "propagated" else sm[key] for key in results}
     J = {key: 0.5 * (Jp[key] + Jm[key]) for key in results}
     _add_consider(results, J, {key: np.eye(n) for key in results}, status, SAMPLING_SOURCE)
     chans = sorted({e.channel for e in edges})
-    return {"steps": m, "channels": {c: {"steps": sum(e.channel == c for e in edges),
-                                         "timed": sum(e.channel == c and e.time_std is not None
-                                                      for e in edges),
-                                         "time_std_s": float(np.sqrt(np.mean(
-                                             [e.std ** 2 for e in edges if e.channel == c])))}
-                                     for c in chans},
-            "groups": n_groups, "shared": shared, "refits": 2 * n,
-            "perturbation": ("each step moved by +1 and -1 std of its time (timed from the "
-                             "gyros, else h / sqrt(12) of its sample interval h), all fits "
-                             "repeated, the central difference; "
-                             + ("" if n_groups == m else f"{m} steps in {n_groups} groups moved "
-                                "with random signs; ")
-                             + ("the part of a timed step's std from its kink model moved "
-                                "with the surface's other steps at once; " if shared else "")
-                             + "total std = sqrt(CRB^2 + consider^2)"),
-            "methods": status, "seconds": time.perf_counter() - t0}
+    return {
+        "steps": m,
+        "channels": {
+            c: {
+                "steps": sum(e.channel == c for e in edges),
+                "timed": sum(e.channel == c and e.time_std is not None for e in edges),
+                "time_std_s": float(np.sqrt(np.mean([e.std**2 for e in edges if e.channel == c]))),
+            }
+            for c in chans
+        },
+        "groups": n_groups,
+        "shared": shared,
+        "refits": 2 * n,
+        "perturbation": (
+            "each step moved by +1 and -1 std of its time (timed from the "
+            "gyros, else h / sqrt(12) of its sample interval h), all fits "
+            "repeated, the central difference; "
+            + ("" if n_groups == m else f"{m} steps in {n_groups} groups moved with random signs; ")
+            + (
+                "the part of a timed step's std from its kink model moved with the surface's other steps at once; "
+                if shared
+                else ""
+            )
+            + "total std = sqrt(CRB^2 + consider^2)"
+        ),
+        "methods": status,
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 def quiet_progress() -> Any:

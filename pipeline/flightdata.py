@@ -4,10 +4,11 @@ Units and names follow DESIGN.md section 3: SI units, body axes x forward / y ri
 z down, angles in rad, NED velocities, altitude positive up. Each channel keeps its own
 native sample times; :meth:`FlightData.resample` puts any subset on one common time base.
 """
+
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import Iterable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -15,16 +16,35 @@ import pandas as pd
 #: canonical channel name -> SI unit (DESIGN.md section 3)
 CANONICAL_UNITS: dict[str, str] = {
     "t": "s",
-    "ax": "m/s^2", "ay": "m/s^2", "az": "m/s^2",
-    "p": "rad/s", "q": "rad/s", "r": "rad/s",
-    "pdot": "rad/s^2", "qdot": "rad/s^2", "rdot": "rad/s^2",
-    "phi": "rad", "theta": "rad", "psi": "rad",
-    "V": "m/s", "alpha": "rad", "beta": "rad",
-    "u": "m/s", "v": "m/s", "w": "m/s",
-    "vn": "m/s", "ve": "m/s", "vd": "m/s",
-    "h": "m", "qbar": "Pa", "rho": "kg/m^3",
-    "de": "rad", "da": "rad", "dr": "rad",
-    "throttle": "-", "thrust": "N",
+    "ax": "m/s^2",
+    "ay": "m/s^2",
+    "az": "m/s^2",
+    "p": "rad/s",
+    "q": "rad/s",
+    "r": "rad/s",
+    "pdot": "rad/s^2",
+    "qdot": "rad/s^2",
+    "rdot": "rad/s^2",
+    "phi": "rad",
+    "theta": "rad",
+    "psi": "rad",
+    "V": "m/s",
+    "alpha": "rad",
+    "beta": "rad",
+    "u": "m/s",
+    "v": "m/s",
+    "w": "m/s",
+    "vn": "m/s",
+    "ve": "m/s",
+    "vd": "m/s",
+    "h": "m",
+    "qbar": "Pa",
+    "rho": "kg/m^3",
+    "de": "rad",
+    "da": "rad",
+    "dr": "rad",
+    "throttle": "-",
+    "thrust": "N",
 }
 
 #: channels holding angles that wrap at +-pi (interpolated unwrapped)
@@ -89,8 +109,15 @@ class SegmentSpec:
         return float(self.t1 - self.t0)
 
     def as_dict(self) -> dict:
-        return {"name": self.name, "t0": float(self.t0), "t1": float(self.t1), "kind": self.kind,
-                "mode": self.mode, "axis": self.axis, "duration": self.duration}
+        return {
+            "name": self.name,
+            "t0": float(self.t0),
+            "t1": float(self.t1),
+            "kind": self.kind,
+            "mode": self.mode,
+            "axis": self.axis,
+            "duration": self.duration,
+        }
 
 
 @dataclass
@@ -150,8 +177,9 @@ class FlightData:
         why = self.meta.get("unmapped", {})
         return {c: why.get(c, "not in the channel map") for c in self.missing(channels)}
 
-    def noise_std(self, name: str, windows: Sequence[tuple[float, float]] | None = None,
-                  rate_hz: float | None = None) -> float:
+    def noise_std(
+        self, name: str, windows: Sequence[tuple[float, float]] | None = None, rate_hz: float | None = None
+    ) -> float:
         """White measurement-noise std of channel ``name`` (its unit) from its own native
         samples (second differences, estimators.statistics.difference_noise_std), pooled
         over ``windows`` [(t0, t1) s] (default: all samples). With ``rate_hz``: the std the
@@ -173,10 +201,18 @@ class FlightData:
         return sd * resample_noise_gain(ch.rate_hz, rate_hz) if rate_hz else sd
 
     # ----------------------------------------------------------------- resampling
-    def resample(self, rate_hz: float, channels: Sequence[str] | None = None, *,
-                 t0: float | None = None, t1: float | None = None, span: str = "common",
-                 antialias: bool = True, unwrap: bool = False,
-                 max_gap: float | None = None) -> pd.DataFrame:
+    def resample(
+        self,
+        rate_hz: float,
+        channels: Sequence[str] | None = None,
+        *,
+        t0: float | None = None,
+        t1: float | None = None,
+        span: str = "common",
+        antialias: bool = True,
+        unwrap: bool = False,
+        max_gap: float | None = None,
+    ) -> pd.DataFrame:
         """Channels on one uniform time base.
 
         Parameters
@@ -197,8 +233,11 @@ class FlightData:
         """
         if rate_hz <= 0:
             raise ValueError("rate_hz must be positive")
-        names = [c for c in (channels if channels is not None else self.names)
-                 if c in self.channels and len(self.channels[c]) > 0]
+        names = [
+            c
+            for c in (channels if channels is not None else self.names)
+            if c in self.channels and len(self.channels[c]) > 0
+        ]
         if not names:
             return pd.DataFrame({"t": np.zeros(0)})
         starts = np.array([self.channels[c].t[0] for c in names])
@@ -213,9 +252,9 @@ class FlightData:
         t = lo + np.arange(n) / rate_hz
         out = {"t": t}
         for c in names:
-            out[c] = _resample_channel(self.channels[c], t, rate_hz, antialias,
-                                       unwrap or c not in WRAPPED_ANGLES, c in WRAPPED_ANGLES,
-                                       max_gap)
+            out[c] = _resample_channel(
+                self.channels[c], t, rate_hz, antialias, unwrap or c not in WRAPPED_ANGLES, c in WRAPPED_ANGLES, max_gap
+            )
         return pd.DataFrame(out)
 
     # ----------------------------------------------------------------- segments
@@ -237,11 +276,18 @@ class FlightData:
                 segs.append(SegmentSpec(f"mode_{i}_{name}", float(a), float(b), "mode", mode=name))
         return segs
 
-    def find_segments(self, inputs: Sequence[str] = CONTROL_INPUTS, *, window: float = 1.0,
-                      threshold: float | None = None, pad_before: float = 1.0,
-                      pad_after: float = 3.0, min_duration: float = 2.0,
-                      rate_hz: float = 50.0, max_duration: float | None = MAX_AUTO_SEGMENT_S
-                      ) -> list[SegmentSpec]:
+    def find_segments(
+        self,
+        inputs: Sequence[str] = CONTROL_INPUTS,
+        *,
+        window: float = 1.0,
+        threshold: float | None = None,
+        pad_before: float = 1.0,
+        pad_after: float = 3.0,
+        min_duration: float = 2.0,
+        rate_hz: float = 50.0,
+        max_duration: float | None = MAX_AUTO_SEGMENT_S,
+    ) -> list[SegmentSpec]:
         """Segments where a control input is being moved (maneuvers).
 
         Activity is the moving standard deviation of each input over ``window`` [s]; an
@@ -269,8 +315,7 @@ class FlightData:
             if not active.any():
                 continue
             edges = np.flatnonzero(np.diff(np.r_[0, active.astype(np.int8), 0]))
-            spans = [(t[a] - pad_before, t[min(b, t.size) - 1] + pad_after)
-                     for a, b in zip(edges[::2], edges[1::2])]
+            spans = [(t[a] - pad_before, t[min(b, t.size) - 1] + pad_after) for a, b in zip(edges[::2], edges[1::2])]
             merged: list[list[float]] = []
             for a, b in spans:
                 a, b = max(a, t[0]), min(b, t[-1])
@@ -278,41 +323,43 @@ class FlightData:
                     merged[-1][1] = max(merged[-1][1], b)
                 else:
                     merged.append([a, b])
-            pieces = [p for a, b in merged if b - a >= min_duration
-                      for p in cut_span(a, b, max_duration)]
+            pieces = [p for a, b in merged if b - a >= min_duration for p in cut_span(a, b, max_duration)]
             for k, (a, b) in enumerate(pieces):
                 segs.append(SegmentSpec(f"auto_{axis}_{k}", float(a), float(b), "auto", axis=axis))
         segs.sort(key=lambda s: s.t0)
         return segs
 
-    def segment_frames(self, rate_hz: float, channels: Sequence[str] | None = None,
-                       segments: Sequence[SegmentSpec] | None = None,
-                       **kw) -> list[pd.DataFrame]:
+    def segment_frames(
+        self, rate_hz: float, channels: Sequence[str] | None = None, segments: Sequence[SegmentSpec] | None = None, **kw
+    ) -> list[pd.DataFrame]:
         """One resampled DataFrame per segment (default: ``self.segments``)."""
         segs = list(segments if segments is not None else self.segments)
         return [self.resample(rate_hz, channels, t0=s.t0, t1=s.t1, **kw) for s in segs]
 
     # ----------------------------------------------------------------- conversion
     @classmethod
-    def from_frame(cls, df: pd.DataFrame, *, time: str = "t", meta: dict | None = None,
-                   source: str = "") -> "FlightData":
+    def from_frame(cls, df: pd.DataFrame, *, time: str = "t", meta: dict | None = None, source: str = "") -> FlightData:
         """Build from a DataFrame whose columns are canonical names in SI units."""
         t = df[time].to_numpy(dtype=float)
-        chans = {c: Channel(t.copy(), df[c].to_numpy(dtype=float), CANONICAL_UNITS.get(c, ""),
-                            f"{source}{c}") for c in df.columns if c != time}
+        chans = {
+            c: Channel(t.copy(), df[c].to_numpy(dtype=float), CANONICAL_UNITS.get(c, ""), f"{source}{c}")
+            for c in df.columns
+            if c != time
+        }
         return cls(chans, dict(meta or {}), [])
 
     def summary(self) -> str:
         """Short text: one line per channel with samples, rate, span and source."""
-        lines = [f"{self.meta.get('format', '?')} {self.meta.get('source', '')}",
-                 f"time base: {self.meta.get('time_base', '?')}"]
+        lines = [
+            f"{self.meta.get('format', '?')} {self.meta.get('source', '')}",
+            f"time base: {self.meta.get('time_base', '?')}",
+        ]
         for k, c in self.channels.items():
             lines.append(f"  {k:9s} {len(c):8d} samples {c.rate_hz:8.2f} Hz  [{c.unit}]  <- {c.source}")
         return "\n".join(lines)
 
 
-def cut_span(t0: float, t1: float, max_duration: float | None = MAX_AUTO_SEGMENT_S
-             ) -> list[tuple[float, float]]:
+def cut_span(t0: float, t1: float, max_duration: float | None = MAX_AUTO_SEGMENT_S) -> list[tuple[float, float]]:
     """``t0..t1`` [s] as equal pieces no longer than ``max_duration`` (itself when it is
     not longer, or max_duration is None)."""
     n = 1 if not max_duration else max(int(np.ceil((t1 - t0) / max_duration - 1e-9)), 1)
@@ -358,8 +405,7 @@ def merge_overlapping(specs: Sequence[SegmentSpec]) -> list[SegmentSpec]:
         if out and s.t0 < out[-1].t1:
             a = out[-1]
             axes = "+".join(dict.fromkeys((a.axis or "").split("+") + [s.axis or ""]))
-            out[-1] = SegmentSpec(f"{a.name}+{s.name}", a.t0, max(a.t1, s.t1), a.kind,
-                                  a.mode, axes)
+            out[-1] = SegmentSpec(f"{a.name}+{s.name}", a.t0, max(a.t1, s.t1), a.kind, a.mode, axes)
         else:
             out.append(s)
     cut: list[SegmentSpec] = []
@@ -369,8 +415,7 @@ def merge_overlapping(specs: Sequence[SegmentSpec]) -> list[SegmentSpec]:
             cut.append(s)
             continue
         k0 = sum(c.name.startswith(f"auto_{s.axis}_") for c in cut)
-        cut += [SegmentSpec(f"auto_{s.axis}_{k0 + i}", a, b, s.kind, s.mode, s.axis)
-                for i, (a, b) in enumerate(pieces)]
+        cut += [SegmentSpec(f"auto_{s.axis}_{k0 + i}", a, b, s.kind, s.mode, s.axis) for i, (a, b) in enumerate(pieces)]
     return cut
 
 
@@ -398,15 +443,16 @@ def resample_noise_gain(native_hz: float, rate_hz: float, antialias: bool = True
         return 1.0
     from scipy.signal import sosfiltfilt
 
-    n = int(40 * native_hz / rate_hz) * 2 + 201       # many times the filter's memory
+    n = int(40 * native_hz / rate_hz) * 2 + 201  # many times the filter's memory
     imp = np.zeros(n)
     imp[n // 2] = 1.0
     h = sosfiltfilt(_antialias_sos(native_hz, rate_hz), imp, padtype=None)
     return float(np.sqrt(np.sum(h * h)))
 
 
-def _resample_channel(ch: Channel, t: np.ndarray, rate_hz: float, antialias: bool,
-                      unwrap: bool, is_angle: bool, max_gap: float | None) -> np.ndarray:
+def _resample_channel(
+    ch: Channel, t: np.ndarray, rate_hz: float, antialias: bool, unwrap: bool, is_angle: bool, max_gap: float | None
+) -> np.ndarray:
     tc = np.asarray(ch.t, dtype=float)
     vc = np.asarray(ch.values, dtype=float)
     ok = np.isfinite(tc) & np.isfinite(vc)
@@ -430,11 +476,13 @@ def _resample_channel(ch: Channel, t: np.ndarray, rate_hz: float, antialias: boo
         if vu.size > 3 * (2 * sos.shape[0] + 1):
             vu = sosfiltfilt(sos, vu)
         tc, vc = tu, vu
-    out = np.interp(t, tc, vc, left=np.nan, right=np.nan) if tc.size > 1 else \
-        np.where(np.isclose(t, tc[0]), vc[0], np.nan)
+    out = (
+        np.interp(t, tc, vc, left=np.nan, right=np.nan)
+        if tc.size > 1
+        else np.where(np.isclose(t, tc[0]), vc[0], np.nan)
+    )
     # blank samples far from native data
-    gap = max_gap if max_gap is not None else max(5.0 / native if native > 0 else 0.0,
-                                                  2.0 / rate_hz)
+    gap = max_gap if max_gap is not None else max(5.0 / native if native > 0 else 0.0, 2.0 / rate_hz)
     idx = np.clip(np.searchsorted(tc, t), 1, max(tc.size - 1, 1))
     if tc.size > 1:
         near = np.minimum(np.abs(t - tc[idx - 1]), np.abs(tc[idx] - t))

@@ -48,10 +48,12 @@ not the ones the aerodynamics see, and the airspeed departs from the steady-wind
 (:func:`unsteady`: 2.1 x the pitot noise in light turbulence), which ``fsid estimate`` takes
 as the sign that the calm-air sensor-compatibility model does not hold.
 """
+
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -113,12 +115,15 @@ def _hat_basis(t: np.ndarray, knots: np.ndarray) -> np.ndarray:
 
 def _body_axes(phi: np.ndarray, theta: np.ndarray, psi: np.ndarray) -> np.ndarray:
     """(n, 3, 3) rows = body x, y, z axes in NED (T_bn per sample)."""
-    cf, sf, ct, st, cp, sp = (np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta),
-                              np.cos(psi), np.sin(psi))
-    return np.stack([
-        np.stack([ct * cp, ct * sp, -st], axis=-1),
-        np.stack([sf * st * cp - cf * sp, sf * st * sp + cf * cp, sf * ct], axis=-1),
-        np.stack([cf * st * cp + sf * sp, cf * st * sp - sf * cp, cf * ct], axis=-1)], axis=1)
+    cf, sf, ct, st, cp, sp = (np.cos(phi), np.sin(phi), np.cos(theta), np.sin(theta), np.cos(psi), np.sin(psi))
+    return np.stack(
+        [
+            np.stack([ct * cp, ct * sp, -st], axis=-1),
+            np.stack([sf * st * cp - cf * sp, sf * st * sp + cf * cp, sf * ct], axis=-1),
+            np.stack([cf * st * cp + sf * sp, cf * st * sp - sf * cp, cf * ct], axis=-1),
+        ],
+        axis=1,
+    )
 
 
 def _effective_n(r: np.ndarray) -> float:
@@ -148,14 +153,22 @@ def correlation_time(r: np.ndarray, dt: float) -> float:
     below = np.flatnonzero(acf[1:] < acf[1] / np.e)
     if below.size == 0:
         return float((acf.size - 1) * dt)
-    k = int(below[0]) + 1                       # first lag under acf[1] / e (k >= 2)
+    k = int(below[0]) + 1  # first lag under acf[1] / e (k >= 2)
     frac = (acf[k - 1] - acf[1] / np.e) / (acf[k - 1] - acf[k])
     return float((k - 2 + frac) * dt)
 
 
-def fit_wind(t: np.ndarray, vg: np.ndarray, V: np.ndarray, axes: np.ndarray, *,
-             window_s: float = WINDOW_S, beta_std: float = BETA_STD,
-             iterations: int = 12, scale: float | None = 0.0) -> WindFit:
+def fit_wind(
+    t: np.ndarray,
+    vg: np.ndarray,
+    V: np.ndarray,
+    axes: np.ndarray,
+    *,
+    window_s: float = WINDOW_S,
+    beta_std: float = BETA_STD,
+    iterations: int = 12,
+    scale: float | None = 0.0,
+) -> WindFit:
     """Horizontal wind from inertial velocity and airspeed (module doc), with the pitot's
     scale factor k (the airspeed measured as (1 + k) |vg - W|) held at ``scale``, or
     estimated with the wind when ``scale`` is None and the flight's headings tell it from
@@ -173,15 +186,15 @@ def fit_wind(t: np.ndarray, vg: np.ndarray, V: np.ndarray, axes: np.ndarray, *,
         held = fit_wind(t, vg, V, axes, window_s=window_s, beta_std=beta_std, iterations=iterations)
         if not held.std_scale <= SCALE_STD_MAX:
             return held
-        x = np.concatenate([held.north, held.east, [0.0]])   # (north knots, east knots, k)
+        x = np.concatenate([held.north, held.east, [0.0]])  # (north knots, east knots, k)
         knots, B = held.knots, _hat_basis(t, held.knots)
     else:
         span = float(t[-1] - t[0])
         nk = 1 if span < 1.5 * window_s else int(np.ceil(span / window_s)) + 1
         knots = np.array([0.5 * (t[0] + t[-1])]) if nk == 1 else np.linspace(t[0], t[-1], nk)
-        B = _hat_basis(t, knots)                           # (n, K)
+        B = _hat_basis(t, knots)  # (n, K)
         used = B.sum(axis=0) > 0
-        if not used.all():                                 # knots in a gap of the data
+        if not used.all():  # knots in a gap of the data
             knots = knots[used]
             B = _hat_basis(t, knots)
         # start: zero sideslip and the airspeed along the body x axis's horizontal direction
@@ -190,21 +203,22 @@ def fit_wind(t: np.ndarray, vg: np.ndarray, V: np.ndarray, axes: np.ndarray, *,
         w0 = np.linalg.lstsq(B, vg[:, :2] - Vh[:, None] * ex, rcond=None)[0]  # (K, 2)
         x = np.append(w0.T.reshape(-1), float(scale))
     nk = knots.size
-    free = np.arange(2 * nk + (scale is None))            # the columns estimated
-    ey = axes[:, 1, :2]                                    # body y axis, horizontal part
+    free = np.arange(2 * nk + (scale is None))  # the columns estimated
+    ey = axes[:, 1, :2]  # body y axis, horizontal part
     s_v, s_b = 1.0, beta_std * float(np.median(V))
     for it in range(iterations):
         k = float(x[-1])
-        Wn, We = B @ x[:nk], B @ x[nk:2 * nk]
+        Wn, We = B @ x[:nk], B @ x[nk : 2 * nk]
         va = vg - np.column_stack([Wn, We, np.zeros_like(Wn)])
         mag = np.linalg.norm(va, axis=1)
         r1 = (1.0 + k) * mag - V
         r2 = np.einsum("ij,ij->i", ey, va[:, :2]) + axes[:, 1, 2] * va[:, 2]
-        if it >= 2:                                        # reweight once the fit settled
-            s_v = max(float(np.sqrt(np.mean(r1 ** 2))), 1e-3)
+        if it >= 2:  # reweight once the fit settled
+            s_v = max(float(np.sqrt(np.mean(r1**2))), 1e-3)
         # columns: north knots, east knots, k
-        J1 = np.hstack([-(1.0 + k) * (va[:, :1] / mag[:, None]) * B,
-                        -(1.0 + k) * (va[:, 1:2] / mag[:, None]) * B, mag[:, None]])
+        J1 = np.hstack(
+            [-(1.0 + k) * (va[:, :1] / mag[:, None]) * B, -(1.0 + k) * (va[:, 1:2] / mag[:, None]) * B, mag[:, None]]
+        )
         J2 = np.hstack([-ey[:, :1] * B, -ey[:, 1:2] * B, np.zeros((t.size, 1))])
         J = np.vstack([J1[:, free] / s_v, J2[:, free] / s_b])
         r = np.concatenate([r1 / s_v, r2 / s_b])
@@ -215,21 +229,30 @@ def fit_wind(t: np.ndarray, vg: np.ndarray, V: np.ndarray, axes: np.ndarray, *,
     # the std: each group's information scaled by its effective/actual sample count; k's
     # prior information keeps its std finite when the headings cannot tell it from the wind
     f1, f2 = _effective_n(r1) / r1.size, _effective_n(r2) / r2.size
-    M1, M2 = (J1.T @ J1) / s_v ** 2, (J2.T @ J2) / s_b ** 2
+    M1, M2 = (J1.T @ J1) / s_v**2, (J2.T @ J2) / s_b**2
     M = f1 * M1 + f2 * M2
     sd = np.sqrt(np.clip(np.diag(np.linalg.pinv(M[np.ix_(free, free)])), 0.0, None))
     if scale is None:
         std_k = float(sd[-1])
-    else:   # k freed here, the residuals taken as white: the headings' geometry, not a
-            # residual the held k makes coloured (sim, 386 deg: 0.4 % shrunk, 0.04 % fitted)
-        P = np.linalg.pinv(M1 + M2 + np.diag(np.r_[np.zeros(2 * nk), SCALE_PRIOR ** -2]))
+    else:  # k freed here, the residuals taken as white: the headings' geometry, not a
+        # residual the held k makes coloured (sim, 386 deg: 0.4 % shrunk, 0.04 % fitted)
+        P = np.linalg.pinv(M1 + M2 + np.diag(np.r_[np.zeros(2 * nk), SCALE_PRIOR**-2]))
         std_k = float(np.sqrt(P[-1, -1]))
     mag = np.maximum(mag, 1e-6)
-    return WindFit(knots=knots, north=x[:nk].copy(), east=x[nk:2 * nk].copy(), std_north=sd[:nk],
-                   std_east=sd[nk:2 * nk], airspeed_rms=float(np.sqrt(np.mean(r1 ** 2))),
-                   beta_rms=float(np.sqrt(np.mean((r2 / mag) ** 2))), n=int(t.size),
-                   airspeed_tau=correlation_time(r1, float(np.median(np.diff(t)))),
-                   scale=float(x[-1]), std_scale=std_k, scale_estimated=scale is None)
+    return WindFit(
+        knots=knots,
+        north=x[:nk].copy(),
+        east=x[nk : 2 * nk].copy(),
+        std_north=sd[:nk],
+        std_east=sd[nk : 2 * nk],
+        airspeed_rms=float(np.sqrt(np.mean(r1**2))),
+        beta_rms=float(np.sqrt(np.mean((r2 / mag) ** 2))),
+        n=int(t.size),
+        airspeed_tau=correlation_time(r1, float(np.median(np.diff(t)))),
+        scale=float(x[-1]),
+        std_scale=std_k,
+        scale_estimated=scale is None,
+    )
 
 
 #: ``Channel.derived`` of an angle this module rebuilt
@@ -248,11 +271,14 @@ def _at(fd: FlightData, name: str, t: np.ndarray, wrapped: bool = False) -> np.n
     return np.interp(t, ch.t, v, left=np.nan, right=np.nan)
 
 
-def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
-                            beta_std: float = BETA_STD,
-                            wind_offset: Sequence[float] = (0.0, 0.0, 0.0),
-                            airspeed_scale: float | None = None
-                            ) -> tuple[FlightData, dict[str, Any]]:
+def reconstruct_flow_angles(
+    fd: FlightData,
+    *,
+    window_s: float = WINDOW_S,
+    beta_std: float = BETA_STD,
+    wind_offset: Sequence[float] = (0.0, 0.0, 0.0),
+    airspeed_scale: float | None = None,
+) -> tuple[FlightData, dict[str, Any]]:
     """The flight with the missing ones of alpha, beta reconstructed from the flight path
     (module doc), and a JSON-ready document of what was done. The input is not modified.
     ``wind_offset`` (north, east, down [m/s], airspeed scale [-], the last optional, in
@@ -271,10 +297,12 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
         return fd, {"status": "not needed"}
     lacking = fd.missing(NEEDS)
     if lacking:
-        raise FsidError(f"the log has no {'/'.join(todo)} vane and lacks {lacking} to rebuild "
-                        f"{'them' if len(todo) > 1 else 'it'} from the flight path "
-                        f"({fd.meta.get('source', 'log')}): add the channels to the map (--map) "
-                        "or use a model without air-data angles (--model path.py:name)")
+        raise FsidError(
+            f"the log has no {'/'.join(todo)} vane and lacks {lacking} to rebuild "
+            f"{'them' if len(todo) > 1 else 'it'} from the flight path "
+            f"({fd.meta.get('source', 'log')}): add the channels to the map (--map) "
+            "or use a model without air-data angles (--model path.py:name)"
+        )
     t = np.asarray(fd["vn"].t, dtype=float)
     vg = np.column_stack([_at(fd, c, t) for c in ("vn", "ve", "vd")])
     V = _at(fd, "V", t)
@@ -283,63 +311,88 @@ def reconstruct_flow_angles(fd: FlightData, *, window_s: float = WINDOW_S,
     vmin = max(3.0, 0.5 * float(np.percentile(V[ok], 95))) if ok.any() else np.inf
     ok &= V >= vmin
     if ok.sum() < 20:
-        raise FsidError(f"cannot rebuild {'/'.join(todo)} from the flight path: fewer than 20 "
-                        f"velocity samples in forward flight (airspeed >= {vmin:.1f} m/s) in "
-                        f"{fd.meta.get('source', 'log')}")
+        raise FsidError(
+            f"cannot rebuild {'/'.join(todo)} from the flight path: fewer than 20 "
+            f"velocity samples in forward flight (airspeed >= {vmin:.1f} m/s) in "
+            f"{fd.meta.get('source', 'log')}"
+        )
     t, vg, V = t[ok], vg[ok], V[ok]
     axes = _body_axes(phi[ok], theta[ok], psi[ok])
     dn, de, dd, dk = (list(map(float, wind_offset)) + [0.0])[:4]
     fit = {"window_s": window_s, "beta_std": beta_std}
-    tried = None                                   # the fit that tried to estimate k
+    tried = None  # the fit that tried to estimate k
     if airspeed_scale is None:
         try:
             tried = fit_wind(t, vg, V, axes, scale=None, **fit)
             cal = airspeed_calibration(tried)
-        except np.linalg.LinAlgError as exc:       # the joint fit: k taken as 0, as untold
-            cal = {"status": "not identifiable", "estimate": 0.0, "std": float("nan"),
-                   "applied": False, "carried": False,
-                   "note": f"the pitot scale factor's fit with the wind failed ({exc}): taken as 0"}
+        except np.linalg.LinAlgError as exc:  # the joint fit: k taken as 0, as untold
+            cal = {
+                "status": "not identifiable",
+                "estimate": 0.0,
+                "std": float("nan"),
+                "applied": False,
+                "carried": False,
+                "note": f"the pitot scale factor's fit with the wind failed ({exc}): taken as 0",
+            }
     else:
         cal = {"status": "held", "estimate": float(airspeed_scale), "applied": bool(airspeed_scale)}
     k = (cal["estimate"] if cal["applied"] else 0.0) + dk
     # given k: the wind's conditional std (a k the headings could not tell is already that
     # fit, held at 0)
-    wind = (tried if tried is not None and not tried.scale_estimated and k == 0.0
-            else fit_wind(t, vg, V, axes, scale=k, **fit))
+    wind = (
+        tried
+        if tried is not None and not tried.scale_estimated and k == 0.0
+        else fit_wind(t, vg, V, axes, scale=k, **fit)
+    )
     Wn, We = wind.at(t)
     va = np.einsum("nij,nj->ni", axes, vg - np.column_stack([Wn + dn, We + de, np.full_like(Wn, dd)]))
     speed = np.linalg.norm(va, axis=1)
-    angles = {"alpha": np.arctan2(va[:, 2], va[:, 0]),
-              "beta": np.arcsin(np.clip(va[:, 1] / speed, -1.0, 1.0))}
+    angles = {"alpha": np.arctan2(va[:, 2], va[:, 0]), "beta": np.arcsin(np.clip(va[:, 1] / speed, -1.0, 1.0))}
     src = f"flight path ({fd['vn'].source or 'vn'}, attitude, V) minus the fitted wind"
     channels = dict(fd.channels)
     for a in todo:
-        channels[a] = Channel(t=t.copy(), values=angles[a], unit="rad", source=src,
-                              notes="reconstructed: no vane in the log (pipeline.flow_angles)",
-                              derived=REBUILT)
+        channels[a] = Channel(
+            t=t.copy(),
+            values=angles[a],
+            unit="rad",
+            source=src,
+            notes="reconstructed: no vane in the log (pipeline.flow_angles)",
+            derived=REBUILT,
+        )
     if k:
         v = fd["V"]
-        channels["V"] = replace(v, values=v.values / (1.0 + k), source=f"{v.source or 'V'} / (1 + {k:.5f})",
-                                notes=f"calibrated: the pitot's scale factor {100 * k:+.2f} % "
-                                      f"({cal['status']}, pipeline.flow_angles)")
+        channels["V"] = replace(
+            v,
+            values=v.values / (1.0 + k),
+            source=f"{v.source or 'V'} / (1 + {k:.5f})",
+            notes=f"calibrated: the pitot's scale factor {100 * k:+.2f} % ({cal['status']}, pipeline.flow_angles)",
+        )
     out = FlightData(channels=channels, meta=dict(fd.meta), segments=list(fd.segments))
     heading = np.unwrap(psi[ok])
-    doc = {"status": "reconstructed", "channels": todo,
-           "rate_hz": float(fd["vn"].rate_hz), "samples": int(t.size),
-           "airspeed_min_mps": vmin,
-           "wind": {"t_s": wind.knots.tolist(), "north_mps": wind.north.tolist(),
-                    "east_mps": wind.east.tolist(), "std_north_mps": wind.std_north.tolist(),
-                    "std_east_mps": wind.std_east.tolist()},
-           "airspeed_residual_rms_mps": wind.airspeed_rms,
-           "airspeed_residual_tau_s": wind.airspeed_tau,
-           "airspeed_mean_mps": float(np.mean(V)),
-           "airspeed_noise_mps": float(fd.noise_std("V")),
-           "sideslip_rms_deg": float(np.rad2deg(wind.beta_rms)),
-           "heading_span_deg": float(np.rad2deg(np.ptp(heading))),
-           "airspeed_scale": cal,
-           "assumptions": "no vertical wind; mean sideslip zero over each wind window; "
-                          f"{_SCALE_ASSUMED[cal['status']]}; angles at the CG (the navigation "
-                          "filter's velocity)"}
+    doc = {
+        "status": "reconstructed",
+        "channels": todo,
+        "rate_hz": float(fd["vn"].rate_hz),
+        "samples": int(t.size),
+        "airspeed_min_mps": vmin,
+        "wind": {
+            "t_s": wind.knots.tolist(),
+            "north_mps": wind.north.tolist(),
+            "east_mps": wind.east.tolist(),
+            "std_north_mps": wind.std_north.tolist(),
+            "std_east_mps": wind.std_east.tolist(),
+        },
+        "airspeed_residual_rms_mps": wind.airspeed_rms,
+        "airspeed_residual_tau_s": wind.airspeed_tau,
+        "airspeed_mean_mps": float(np.mean(V)),
+        "airspeed_noise_mps": float(fd.noise_std("V")),
+        "sideslip_rms_deg": float(np.rad2deg(wind.beta_rms)),
+        "heading_span_deg": float(np.rad2deg(np.ptp(heading))),
+        "airspeed_scale": cal,
+        "assumptions": "no vertical wind; mean sideslip zero over each wind window; "
+        f"{_SCALE_ASSUMED[cal['status']]}; angles at the CG (the navigation "
+        "filter's velocity)",
+    }
     if any((dn, de, dd, dk)):
         doc["wind_offset_mps"] = [dn, de, dd]
         doc["airspeed_scale_offset"] = dk
@@ -357,31 +410,50 @@ def airspeed_calibration(wind: WindFit) -> dict[str, Any]:
     the estimates as a consider part: whenever it was estimated, applied or not)."""
     est, sd = float(wind.scale), float(wind.std_scale)
     if not wind.scale_estimated or not sd <= SCALE_STD_MAX:
-        return {"status": "not identifiable", "estimate": 0.0, "std": sd, "applied": False,
-                "carried": False,
-                "note": f"the headings do not separate a pitot scale factor from the wind "
-                        f"(its std {100 * sd:.1f} %, > {100 * SCALE_STD_MAX:g} %): taken as 0"}
+        return {
+            "status": "not identifiable",
+            "estimate": 0.0,
+            "std": sd,
+            "applied": False,
+            "carried": False,
+            "note": f"the headings do not separate a pitot scale factor from the wind "
+            f"(its std {100 * sd:.1f} %, > {100 * SCALE_STD_MAX:g} %): taken as 0",
+        }
     sig = abs(est) / sd if sd > 0 else float("inf")
     if abs(est) > SCALE_MAX:
-        return {"status": "implausible", "estimate": est, "std": sd, "significance_std": sig,
-                "applied": False, "carried": False,
-                "note": f"pitot scale factor {100 * est:+.1f} +- {100 * sd:.1f} % with the wind, "
-                        f"beyond +-{100 * SCALE_MAX:g} %: something else is wrong (airspeed "
-                        "units, EAS for TAS, a blocked pitot?); taken as 0"}
+        return {
+            "status": "implausible",
+            "estimate": est,
+            "std": sd,
+            "significance_std": sig,
+            "applied": False,
+            "carried": False,
+            "note": f"pitot scale factor {100 * est:+.1f} +- {100 * sd:.1f} % with the wind, "
+            f"beyond +-{100 * SCALE_MAX:g} %: something else is wrong (airspeed "
+            "units, EAS for TAS, a blocked pitot?); taken as 0",
+        }
     applied = sig >= SCALE_SIGNIFICANCE
     why = "applied" if applied else f"within {SCALE_SIGNIFICANCE:g} std of 0: not applied"
-    return {"status": "estimated", "estimate": est, "std": sd, "significance_std": sig,
-            "applied": applied, "carried": True,
-            "note": f"pitot scale factor {100 * est:+.2f} +- {100 * sd:.2f} % with the wind ({why}; "
-                    "its std carried to the estimates)"}
+    return {
+        "status": "estimated",
+        "estimate": est,
+        "std": sd,
+        "significance_std": sig,
+        "applied": applied,
+        "carried": True,
+        "note": f"pitot scale factor {100 * est:+.2f} +- {100 * sd:.2f} % with the wind ({why}; "
+        "its std carried to the estimates)",
+    }
 
 
 #: what the rebuilt angles assume of the airspeed, by :func:`airspeed_calibration` status
-_SCALE_ASSUMED = {"estimated": "the pitot's scale factor estimated with the wind (a pitot bias "
-                               "taken as a scale factor at the flight's airspeed)",
-                  "not identifiable": "airspeed without scale error",
-                  "implausible": "airspeed without scale error",
-                  "held": "the pitot's scale factor of the fitted flight"}
+_SCALE_ASSUMED = {
+    "estimated": "the pitot's scale factor estimated with the wind (a pitot bias "
+    "taken as a scale factor at the flight's airspeed)",
+    "not identifiable": "airspeed without scale error",
+    "implausible": "airspeed without scale error",
+    "held": "the pitot's scale factor of the fitted flight",
+}
 
 
 def markov_mean_std(sigma: float, tau: float, spans: Any) -> float:
@@ -405,10 +477,19 @@ def markov_mean_std(sigma: float, tau: float, spans: Any) -> float:
     a, b = np.array(merged).T
     L = b - a
     T = float(L.sum())
-    total = float(np.sum(2.0 * tau ** 2 * (L / tau - 1.0 + np.exp(-L / tau))))
+    total = float(np.sum(2.0 * tau**2 * (L / tau - 1.0 + np.exp(-L / tau))))
     i, j = np.triu_indices(a.size, k=1)
-    total += 2.0 * float(np.sum(tau ** 2 * (np.exp((b[i] - a[j]) / tau) - np.exp((b[i] - b[j]) / tau)
-                                           - np.exp((a[i] - a[j]) / tau) + np.exp((a[i] - b[j]) / tau))))
+    total += 2.0 * float(
+        np.sum(
+            tau**2
+            * (
+                np.exp((b[i] - a[j]) / tau)
+                - np.exp((b[i] - b[j]) / tau)
+                - np.exp((a[i] - a[j]) / tau)
+                + np.exp((a[i] - b[j]) / tau)
+            )
+        )
+    )
     return float(sigma * np.sqrt(max(total, 0.0)) / T)
 
 
@@ -441,15 +522,17 @@ def wind_uncertainty(doc: dict[str, Any], spans: Any) -> dict[str, float]:
         return {}
     w = doc["wind"]
     res, noise = doc["airspeed_residual_rms_mps"], doc.get("airspeed_noise_mps") or 0.0
-    sigma = float(np.sqrt(max(res ** 2 - (noise if np.isfinite(noise) else 0.0) ** 2, 0.0)))
+    sigma = float(np.sqrt(max(res**2 - (noise if np.isfinite(noise) else 0.0) ** 2, 0.0)))
     tau = float(doc.get("airspeed_residual_tau_s", 0.0))
     if doc.get("airspeed_mean_mps"):
         tau = min(tau, L_W_MAX / float(doc["airspeed_mean_mps"]))
     cal = doc.get("airspeed_scale") or {}
-    return {"wind north": float(np.mean(w["std_north_mps"])),
-            "wind east": float(np.mean(w["std_east_mps"])),
-            "vertical wind": markov_mean_std(sigma, tau, spans),
-            "airspeed scale": float(cal["std"]) if cal.get("carried") else 0.0}
+    return {
+        "wind north": float(np.mean(w["std_north_mps"])),
+        "wind east": float(np.mean(w["std_east_mps"])),
+        "vertical wind": markov_mean_std(sigma, tau, spans),
+        "airspeed scale": float(cal["std"]) if cal.get("carried") else 0.0,
+    }
 
 
 def unsteady(doc: dict[str, Any], limit: float = 1.5) -> str | None:
@@ -461,8 +544,10 @@ def unsteady(doc: dict[str, Any], limit: float = 1.5) -> str | None:
     res, noise = doc["airspeed_residual_rms_mps"], doc.get("airspeed_noise_mps") or float("nan")
     if res <= limit * noise:
         return None
-    return (f"the airspeed departs from the steady-wind fit by {res:.2f} m/s rms, "
-            f"{res / noise:.1f} x the pitot noise (turbulence or a changing wind)")
+    return (
+        f"the airspeed departs from the steady-wind fit by {res:.2f} m/s rms, "
+        f"{res / noise:.1f} x the pitot noise (turbulence or a changing wind)"
+    )
 
 
 def calibrated(doc: dict[str, Any]) -> bool:
@@ -480,12 +565,14 @@ def mean_wind(doc: dict[str, Any]) -> tuple[float, float] | None:
 
 #: what report.md says of the airspeed the rebuilt angles take as calibrated, when the
 #: pitot's scale factor could not be estimated
-AIRSPEED_CAVEAT = ("a pitot scale factor or bias goes into the along-track wind, and the models' "
-                   "airspeed and dynamic pressure keep it, outside the std (pitot_wind_turn's "
-                   ".bin, a 3 % scale factor and 0.4 m/s, with the scale factor not estimated: "
-                   "46 std off; estimated: within 2.8): calibrate the airspeed before "
-                   "estimation, or fly a turn of some tens of degrees so that the wind fit "
-                   "estimates it")
+AIRSPEED_CAVEAT = (
+    "a pitot scale factor or bias goes into the along-track wind, and the models' "
+    "airspeed and dynamic pressure keep it, outside the std (pitot_wind_turn's "
+    ".bin, a 3 % scale factor and 0.4 m/s, with the scale factor not estimated: "
+    "46 std off; estimated: within 2.8): calibrate the airspeed before "
+    "estimation, or fly a turn of some tens of degrees so that the wind fit "
+    "estimates it"
+)
 
 
 def assumptions(doc: dict[str, Any]) -> str:
@@ -505,18 +592,22 @@ def summary(doc: dict[str, Any]) -> str:
         return str(doc.get("status"))
     w = doc["wind"]
     wn, we = mean_wind(doc)
-    return (f"{'/'.join(doc['channels'])} from the flight path at {doc['rate_hz']:.3g} Hz: wind "
-            f"{np.hypot(wn, we):.1f} m/s towards {np.rad2deg(np.arctan2(we, wn)) % 360:.0f} deg "
-            f"(+-{max(max(w['std_north_mps']), max(w['std_east_mps'])):.2f}, {len(w['t_s'])} knot(s)), "
-            f"airspeed residual {doc['airspeed_residual_rms_mps']:.2f} m/s rms, heading span "
-            f"{doc['heading_span_deg']:.0f} deg" + _scale_summary(doc.get("airspeed_scale") or {}))
+    return (
+        f"{'/'.join(doc['channels'])} from the flight path at {doc['rate_hz']:.3g} Hz: wind "
+        f"{np.hypot(wn, we):.1f} m/s towards {np.rad2deg(np.arctan2(we, wn)) % 360:.0f} deg "
+        f"(+-{max(max(w['std_north_mps']), max(w['std_east_mps'])):.2f}, {len(w['t_s'])} knot(s)), "
+        f"airspeed residual {doc['airspeed_residual_rms_mps']:.2f} m/s rms, heading span "
+        f"{doc['heading_span_deg']:.0f} deg" + _scale_summary(doc.get("airspeed_scale") or {})
+    )
 
 
 def _scale_summary(cal: dict[str, Any]) -> str:
     """The pitot scale factor's part of :func:`summary`."""
     if cal.get("status") == "estimated":
-        return (f", pitot scale factor {100 * cal['estimate']:+.2f} +- {100 * cal['std']:.2f} % "
-                f"({'applied' if cal['applied'] else 'not applied'})")
+        return (
+            f", pitot scale factor {100 * cal['estimate']:+.2f} +- {100 * cal['std']:.2f} % "
+            f"({'applied' if cal['applied'] else 'not applied'})"
+        )
     if cal.get("status") == "held":
         return f", pitot scale factor {100 * cal['estimate']:+.2f} % (the fitted flight's)"
     return ""

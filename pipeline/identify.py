@@ -11,10 +11,12 @@ air-data and IMU positions as constants, per-segment initial states and per-segm
 biases on q, ax, az. Thrust (N) comes from a ``thrust`` channel when the log has one,
 else from ``throttle * max_thrust``.
 """
+
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Mapping, NamedTuple, Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -32,16 +34,30 @@ from pipeline.input_sampling import step_spans
 from pipeline.input_smoothing import smooth_columns, smoothed_control_inputs, zero_phase
 
 #: derivatives estimated by default for the longitudinal axis
-LONG_FREE = ("CD0", "CDalpha", "CDalpha2", "CL0", "CLalpha", "CLq", "CLde",
-             "Cm0", "Cmalpha", "Cmq", "Cmde")
+LONG_FREE = ("CD0", "CDalpha", "CDalpha2", "CL0", "CLalpha", "CLq", "CLde", "Cm0", "Cmalpha", "Cmq", "Cmde")
 LONG_OUTPUTS = ("V", "alpha", "theta", "q", "ax", "az")
 LONG_CHANNELS = ("V", "alpha", "theta", "q", "ax", "az", "de")
 #: measured lateral-directional variables that drive the longitudinal model of multi-axis
 #: maneuvers (longitudinal_problem(measured_lateral=True))
 LONG_PSEUDO_LATERAL = ("beta", "p", "r", "phi", "ay")
 #: derivatives estimated by default for the lateral-directional axes
-LAT_FREE = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
-            "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
+LAT_FREE = (
+    "CYbeta",
+    "CYp",
+    "CYr",
+    "CYda",
+    "CYdr",
+    "Clbeta",
+    "Clp",
+    "Clr",
+    "Clda",
+    "Cldr",
+    "Cnbeta",
+    "Cnp",
+    "Cnr",
+    "Cnda",
+    "Cndr",
+)
 LAT_OUTPUTS = ("beta", "p", "r", "phi", "ay")
 LAT_CHANNELS = ("V", "alpha", "theta", "beta", "p", "r", "phi", "ay", "da", "dr")
 G0 = 9.80665
@@ -69,7 +85,7 @@ class AircraftConstants:
     imu: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @classmethod
-    def from_truth(cls, truth: Mapping[str, Any]) -> "AircraftConstants":
+    def from_truth(cls, truth: Mapping[str, Any]) -> AircraftConstants:
         """From a run's truth.json dictionary (aircraft + sensor positions)."""
         ac = truth["aircraft"]
         sensors = truth.get("sensors", {})
@@ -81,20 +97,27 @@ class AircraftConstants:
         g = ac.get("geometry", ac)
         m = ac.get("mass", ac)
         prop = ac.get("propulsion", ac)
-        return cls(mass=_num(m, "mass_kg", "mass"), Ixx=_num(m, "Ixx_kgm2", "Ixx"),
-                   Iyy=_num(m, "Iyy_kgm2", "Iyy"), Izz=_num(m, "Izz_kgm2", "Izz"),
-                   Ixz=_num(m, "Ixz_kgm2", "Ixz"), S=_num(g, "S_m2", "S"), b=_num(g, "b_m", "b"),
-                   cbar=_num(g, "cbar_m", "cbar"),
-                   max_thrust=_num(prop, "max_thrust_N", "max_thrust", default=None),
-                   airdata=pos("airdata"), imu=pos("imu"))
+        return cls(
+            mass=_num(m, "mass_kg", "mass"),
+            Ixx=_num(m, "Ixx_kgm2", "Ixx"),
+            Iyy=_num(m, "Iyy_kgm2", "Iyy"),
+            Izz=_num(m, "Izz_kgm2", "Izz"),
+            Ixz=_num(m, "Ixz_kgm2", "Ixz"),
+            S=_num(g, "S_m2", "S"),
+            b=_num(g, "b_m", "b"),
+            cbar=_num(g, "cbar_m", "cbar"),
+            max_thrust=_num(prop, "max_thrust_N", "max_thrust", default=None),
+            airdata=pos("airdata"),
+            imu=pos("imu"),
+        )
 
     @classmethod
-    def from_aircraft(cls, aircraft: Any, sensors: Mapping[str, Sequence[float]] | None = None
-                      ) -> "AircraftConstants":
+    def from_aircraft(cls, aircraft: Any, sensors: Mapping[str, Sequence[float]] | None = None) -> AircraftConstants:
         """From a :class:`sim.Aircraft` (an aircraft TOML) and optional sensor positions."""
         d = aircraft.to_dict()
-        return cls.from_truth({"aircraft": d, "sensors": {
-            k: {"position_m": list(v)} for k, v in (sensors or {}).items()}})
+        return cls.from_truth(
+            {"aircraft": d, "sensors": {k: {"position_m": list(v)} for k, v in (sensors or {}).items()}}
+        )
 
 
 def _num(d: Mapping[str, Any], *keys: str, default: Any = ...) -> Any:
@@ -145,8 +168,7 @@ class Problem:
     step_times: dict[str, list[tuple[float, float, float | None]]] = field(default_factory=dict)
     #: per held-out segment, those of its own flight when they come from other flights
     #: (pipeline.run.with_validation_flight); empty: ``step_times`` for each
-    held_step_times: list[dict[str, list[tuple[float, float, float | None]]]] = field(
-        default_factory=list)
+    held_step_times: list[dict[str, list[tuple[float, float, float | None]]]] = field(default_factory=list)
 
     def held_out_step_times(self) -> list[dict[str, list[tuple[float, float, float | None]]]]:
         """The control-input steps between slow samples of each held-out segment's flight."""
@@ -158,8 +180,10 @@ def thrust_signal(df: pd.DataFrame, ac: AircraftConstants) -> np.ndarray:
         return df["thrust"].to_numpy()
     if "throttle" in df and ac.max_thrust:
         return df["throttle"].to_numpy() * ac.max_thrust
-    raise FsidError("the log has neither a thrust channel nor throttle with a known max_thrust: "
-                    "add [propulsion] max_thrust_N to the aircraft description")
+    raise FsidError(
+        "the log has neither a thrust channel nor throttle with a known max_thrust: "
+        "add [propulsion] max_thrust_N to the aircraft description"
+    )
 
 
 #: highest grid rate for estimation; faster channels are low-pass filtered down to it
@@ -170,8 +194,9 @@ MAX_RATE_HZ = 200.0
 FEEDTHROUGH_OUTPUTS = ("ax", "ay", "az")
 
 
-def multirate_frame(fd: FlightData, outputs: Sequence[str], others: Sequence[str],
-                    rate_hz: float | None = None) -> tuple[pd.DataFrame, float]:
+def multirate_frame(
+    fd: FlightData, outputs: Sequence[str], others: Sequence[str], rate_hz: float | None = None
+) -> tuple[pd.DataFrame, float]:
     """Measurements on one uniform grid without inventing samples.
 
     The grid runs at the fastest output channel's rate, or a whole multiple of it that
@@ -207,7 +232,7 @@ def multirate_frame(fd: FlightData, outputs: Sequence[str], others: Sequence[str
     blank = [c for c in outputs if c in FEEDTHROUGH_OUTPUTS]
     if spans and blank:
         a, b = np.array(spans).T
-        marks = np.zeros(t.size + 1, dtype=np.int64)     # +1 where a span opens, -1 where it closes
+        marks = np.zeros(t.size + 1, dtype=np.int64)  # +1 where a span opens, -1 where it closes
         np.add.at(marks, np.searchsorted(t, a, side="right"), 1)
         np.add.at(marks, np.searchsorted(t, b, side="left"), -1)
         df.loc[np.cumsum(marks)[:-1] > 0, blank] = np.nan  # grid times strictly inside a span
@@ -224,8 +249,9 @@ def _window(df: pd.DataFrame, spec: SegmentSpec) -> pd.DataFrame:
     return w.reset_index(drop=True)
 
 
-def _window_fault(w: pd.DataFrame, s: SegmentSpec, outputs: Sequence[str],
-                  others: Sequence[str], airborne: bool = True) -> str | None:
+def _window_fault(
+    w: pd.DataFrame, s: SegmentSpec, outputs: Sequence[str], others: Sequence[str], airborne: bool = True
+) -> str | None:
     """What makes window ``w`` of segment ``s`` unusable - fewer than 10 rows, an output
     with fewer than 10 samples (outputs may be slower than the grid: NaN between their
     samples), another channel (an input) with any NaN, and with ``airborne`` an airspeed
@@ -241,9 +267,15 @@ def _window_fault(w: pd.DataFrame, s: SegmentSpec, outputs: Sequence[str],
     return None
 
 
-def usable_segments(df: pd.DataFrame, specs: Sequence[SegmentSpec], outputs: Sequence[str],
-                    others: Sequence[str], hold_out: int, what: str, airborne: bool = True
-                    ) -> tuple[list[SegmentSpec], list[str], dict[int, pd.DataFrame]]:
+def usable_segments(
+    df: pd.DataFrame,
+    specs: Sequence[SegmentSpec],
+    outputs: Sequence[str],
+    others: Sequence[str],
+    hold_out: int,
+    what: str,
+    airborne: bool = True,
+) -> tuple[list[SegmentSpec], list[str], dict[int, pd.DataFrame]]:
     """(the segments of ``specs`` whose windows are usable, a note for each one left out,
     their rows of ``df`` by ``id(spec)``): the one place that cuts segment windows out of the
     multi-rate frame.
@@ -267,16 +299,23 @@ def usable_segments(df: pd.DataFrame, specs: Sequence[SegmentSpec], outputs: Seq
             faults.append(fault)
     if len(keep) < 1 + hold_out:
         more = f"; and {len(faults) - 2} more" if len(faults) > 2 else ""
-        raise FsidError(f"found {len(specs)} {what} segment(s), {len(keep)} usable, but need at "
-                        f"least {1 + hold_out} (one to fit, {hold_out} to hold out)"
-                        + (f" - {'; '.join(faults[:2])}{more}" if faults else "")
-                        + ": fly more maneuvers or give segments by time range")
+        raise FsidError(
+            f"found {len(specs)} {what} segment(s), {len(keep)} usable, but need at "
+            f"least {1 + hold_out} (one to fit, {hold_out} to hold out)"
+            + (f" - {'; '.join(faults[:2])}{more}" if faults else "")
+            + ": fly more maneuvers or give segments by time range"
+        )
     return keep, [f"{f}: left out" for f in faults], frames
 
 
-def with_smoothed_inputs(frames: Mapping[int, pd.DataFrame], specs: Sequence[SegmentSpec],
-                         smoothed: pd.DataFrame | None, cols: Sequence[str], *,
-                         relative: bool = False) -> None:
+def with_smoothed_inputs(
+    frames: Mapping[int, pd.DataFrame],
+    specs: Sequence[SegmentSpec],
+    smoothed: pd.DataFrame | None,
+    cols: Sequence[str],
+    *,
+    relative: bool = False,
+) -> None:
     """Put the columns ``cols`` of ``smoothed`` (the flight's grid with its control inputs
     low-passed, :func:`pipeline.input_smoothing.smoothed_control_inputs`) into each window
     of ``frames`` in place, relative to the window's first sample when ``relative``. The
@@ -308,8 +347,9 @@ def _window_rows(parts: Sequence[np.ndarray]) -> np.ndarray:
     return np.concatenate([np.full(len(a), k) for k, a in enumerate(parts)]) if parts else np.zeros(0, int)
 
 
-def longitudinal_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
-                             thrusts: Sequence[np.ndarray]) -> list[Regression]:
+def longitudinal_regressions(
+    frames: Sequence[pd.DataFrame], c: Mapping[str, float], thrusts: Sequence[np.ndarray]
+) -> list[Regression]:
     """Equation-error regressions of the longitudinal coefficients on the maneuver windows:
     CL, CD, Cm computed from the measured specific forces and the differentiated pitch rate,
     regressed on [1, alpha, q cbar/2V, de] (CL, Cm) and [1, alpha, alpha^2] (CD), NaN rows
@@ -328,13 +368,13 @@ def longitudinal_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, flo
         # 2/cbar: +29 on CLq of uav_small) - the inverse of the model's sensor terms
         u = Vv * np.cos(av) - q * zv
         w = Vv * np.sin(av) + q * xv
-        if yv and "p" in df and "r" in df:      # wing-tip boom: + p y_vane in w, - r y_vane in u
+        if yv and "p" in df and "r" in df:  # wing-tip boom: + p y_vane in w, - r y_vane in u
             u = u + df["r"].to_numpy() * yv
             w = w - df["p"].to_numpy() * yv
         V, a = np.hypot(u, w), np.arctan2(w, u)
         ax = df["ax"].to_numpy() - qdot * zi + q * q * xi
         az = df["az"].to_numpy() + qdot * xi + q * q * zi
-        qbar = 0.5 * c["rho"] * V ** 2
+        qbar = 0.5 * c["rho"] * V**2
         CX = (c["m"] * ax - T) / (qbar * c["S"])
         CZ = c["m"] * az / (qbar * c["S"])
         CL = -CZ * np.cos(a) + CX * np.sin(a)
@@ -342,21 +382,28 @@ def longitudinal_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, flo
         Cm = c["Iyy"] * qdot / (qbar * c["S"] * c["cbar"])
         qh = q * c["cbar"] / (2 * V)
         one = np.ones_like(a)
-        rows["L"].append(np.column_stack([one, a, qh, de])); yL.append(CL)
-        rows["D"].append(np.column_stack([one, a, a * a])); yD.append(CD)
-        rows["M"].append(np.column_stack([one, a, qh, de])); yM.append(Cm)
+        rows["L"].append(np.column_stack([one, a, qh, de]))
+        yL.append(CL)
+        rows["D"].append(np.column_stack([one, a, a * a]))
+        yD.append(CD)
+        rows["M"].append(np.column_stack([one, a, qh, de]))
+        yM.append(Cm)
     out = []
-    for key, coef, y, names in (("L", "CL", yL, ["CL0", "CLalpha", "CLq", "CLde"]),
-                                ("D", "CD", yD, ["CD0", "CDalpha", "CDalpha2"]),
-                                ("M", "Cm", yM, ["Cm0", "Cmalpha", "Cmq", "Cmde"])):
-        X = np.vstack(rows[key]); Y = np.concatenate(y)
+    for key, coef, y, names in (
+        ("L", "CL", yL, ["CL0", "CLalpha", "CLq", "CLde"]),
+        ("D", "CD", yD, ["CD0", "CDalpha", "CDalpha2"]),
+        ("M", "Cm", yM, ["Cm0", "Cmalpha", "Cmq", "Cmde"]),
+    ):
+        X = np.vstack(rows[key])
+        Y = np.concatenate(y)
         ok = np.all(np.isfinite(X), axis=1) & np.isfinite(Y)
         out.append(Regression(coef, names, X[ok], Y[ok], _window_rows(rows[key])[ok]))
     return out
 
 
-def longitudinal_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
-                        thrusts: Sequence[np.ndarray]) -> dict[str, float]:
+def longitudinal_starts(
+    frames: Sequence[pd.DataFrame], c: Mapping[str, float], thrusts: Sequence[np.ndarray]
+) -> dict[str, float]:
     """Equation-error start values: least squares of CL, CD, Cm computed from the measured
     specific forces and the differentiated pitch rate on the maneuver windows."""
     sol = {}
@@ -371,17 +418,26 @@ def longitudinal_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
 
 
 #: problem note when a gust model measures a rebuilt angle as the rigid body's
-KINEMATIC_NOTE = ("{angle} rebuilt from the flight path (no vane) is measured as {state}, the "
-                  "rigid body's angle against the mean wind: it carries no gust")
+KINEMATIC_NOTE = (
+    "{angle} rebuilt from the flight path (no vane) is measured as {state}, the "
+    "rigid body's angle against the mean wind: it carries no gust"
+)
 
 
-def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | None = None,
-                         segments: Sequence[SegmentSpec] | None = None,
-                         hold_out: int = 1, free: Sequence[str] = LONG_FREE,
-                         biases: Sequence[str] = ("q", "ax", "az"),
-                         measured_lateral: bool = False, rotary_gust: bool = False,
-                         values: Mapping[str, float] | None = None,
-                         smooth_inputs: bool = True) -> Problem:
+def longitudinal_problem(
+    fd: FlightData,
+    ac: AircraftConstants,
+    *,
+    rate_hz: float | None = None,
+    segments: Sequence[SegmentSpec] | None = None,
+    hold_out: int = 1,
+    free: Sequence[str] = LONG_FREE,
+    biases: Sequence[str] = ("q", "ax", "az"),
+    measured_lateral: bool = False,
+    rotary_gust: bool = False,
+    values: Mapping[str, float] | None = None,
+    smooth_inputs: bool = True,
+) -> Problem:
     """Build the longitudinal problem from flight data.
 
     segments : windows to use (default: the log's segments whose axis is 'de' or
@@ -401,52 +457,67 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
     channels = LONG_CHANNELS + (LONG_PSEUDO_LATERAL if measured_lateral else ())
     missing = fd.missing(channels)
     if missing:
-        raise FsidError(f"longitudinal identification needs channels {missing} that the log "
-                        f"does not provide ({fd.meta.get('source', 'log')}); add them to the "
-                        "channel map (--map) or choose another model")
-    specs = list(segments if segments is not None else
-                 merge_overlapping([s for s in fd.segments if s.axis in ("de", "throttle")]))
+        raise FsidError(
+            f"longitudinal identification needs channels {missing} that the log "
+            f"does not provide ({fd.meta.get('source', 'log')}); add them to the "
+            "channel map (--map) or choose another model"
+        )
+    specs = list(
+        segments
+        if segments is not None
+        else merge_overlapping([s for s in fd.segments if s.axis in ("de", "throttle")])
+    )
     if len(specs) < 1 + hold_out:
-        raise FsidError(f"found {len(specs)} longitudinal maneuver segment(s) but need at least "
-                        f"{1 + hold_out} (one to fit, {hold_out} to hold out): fly more elevator "
-                        "maneuvers or give segments by time range")
-    df, rate_hz = multirate_frame(fd, LONG_OUTPUTS, ["de", "throttle", "thrust", "rho", "h"]
-                                  + (list(LONG_PSEUDO_LATERAL) if measured_lateral else []),
-                                  rate_hz)
+        raise FsidError(
+            f"found {len(specs)} longitudinal maneuver segment(s) but need at least "
+            f"{1 + hold_out} (one to fit, {hold_out} to hold out): fly more elevator "
+            "maneuvers or give segments by time range"
+        )
+    df, rate_hz = multirate_frame(
+        fd,
+        LONG_OUTPUTS,
+        ["de", "throttle", "thrust", "rho", "h"] + (list(LONG_PSEUDO_LATERAL) if measured_lateral else []),
+        rate_hz,
+    )
     smoothed, input_note = smoothed_control_inputs(fd, df, rate_hz, ("de",) if smooth_inputs else ())
     rho = mean_density(df)
-    c = {"m": ac.mass, "Iyy": ac.Iyy, "S": ac.S, "cbar": ac.cbar, "rho": rho,
-         "x_vane": ac.airdata[0], "z_vane": ac.airdata[2], "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
+    c = {
+        "m": ac.mass,
+        "Iyy": ac.Iyy,
+        "S": ac.S,
+        "cbar": ac.cbar,
+        "rho": rho,
+        "x_vane": ac.airdata[0],
+        "z_vane": ac.airdata[2],
+        "x_imu": ac.imu[0],
+        "z_imu": ac.imu[2],
+    }
     if measured_lateral:
-        c.update({"Ixx": ac.Ixx, "Izz": ac.Izz, "Ixz": ac.Ixz, "y_vane": ac.airdata[1],
-                  "b": ac.b})
+        c.update({"Ixx": ac.Ixx, "Izz": ac.Izz, "Ixz": ac.Ixz, "y_vane": ac.airdata[1], "b": ac.b})
     rotary_gust = rotary_gust and measured_lateral
     if rotary_gust:
         c["kin_angles"] = float(rebuilt(fd, "alpha"))
     outs = [k for k in channels if k in LONG_OUTPUTS]
     others = [k for k in channels if k not in LONG_OUTPUTS]
-    specs, left_out, frames = usable_segments(df, specs, outs, others, hold_out,
-                                              "longitudinal maneuver")
+    specs, left_out, frames = usable_segments(df, specs, outs, others, hold_out, "longitudinal maneuver")
     elev = [s for s in specs if s.axis == "de"]
     held = elev[-hold_out:] if hold_out else []
     fit_specs = [s for s in specs if s not in held]
     thrust = {id(s): thrust_signal(frames[id(s)], ac) for s in specs}
-    regs = longitudinal_regressions([frames[id(s)] for s in fit_specs], c,
-                                    [thrust[id(s)] for s in fit_specs])
-    start = longitudinal_starts([frames[id(s)] for s in fit_specs], c,
-                                [thrust[id(s)] for s in fit_specs])
+    regs = longitudinal_regressions([frames[id(s)] for s in fit_specs], c, [thrust[id(s)] for s in fit_specs])
+    start = longitudinal_starts([frames[id(s)] for s in fit_specs], c, [thrust[id(s)] for s in fit_specs])
     start.update(values or {})
     with_smoothed_inputs(frames, specs, smoothed, ["de"])
     if measured_lateral:
-        model = longitudinal_measured_lateral(c, values=start, free=free, output_biases=biases,
-                                              name="longitudinal-measured",
-                                              rotary_gust=rotary_gust
-                                              ).select_outputs(LONG_OUTPUTS)
+        model = longitudinal_measured_lateral(
+            c, values=start, free=free, output_biases=biases, name="longitudinal-measured", rotary_gust=rotary_gust
+        ).select_outputs(LONG_OUTPUTS)
         for s in specs:
             frames[id(s)] = smooth_pseudo_inputs(frames[id(s)], rate_hz, LONG_PSEUDO_CORNER_HZ)
     else:
-        model = longitudinal(c, values=start, free=free, output_biases=biases,
-                             name="longitudinal").select_outputs(LONG_OUTPUTS)
+        model = longitudinal(c, values=start, free=free, output_biases=biases, name="longitudinal").select_outputs(
+            LONG_OUTPUTS
+        )
     ucols = ["de"] + (list(LONG_PSEUDO_LATERAL) if measured_lateral else [])
 
     def density(w):
@@ -460,35 +531,59 @@ def longitudinal_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: floa
     def seg(s):
         w = frames[id(s)]
         x0 = list(_first_valid(w, ["V", "alpha", "theta", "q"]))
-        if rotary_gust:                 # alpha_k = alpha (no gust at the start), lags 0
+        if rotary_gust:  # alpha_k = alpha (no gust at the start), lags 0
             x0 += [x0[1], 0.0, 0.0]
-        u = np.column_stack([w["de"], thrust[id(s)]] + [w[k] for k in ucols[1:]]
-                            + ([density(w)] if measured_lateral else []))
-        return Segment(t=w["t"].to_numpy(), u=u,
-                       z=w[list(LONG_OUTPUTS)].to_numpy(), x0=x0, name=s.name)
+        u = np.column_stack(
+            [w["de"], thrust[id(s)]] + [w[k] for k in ucols[1:]] + ([density(w)] if measured_lateral else [])
+        )
+        return Segment(t=w["t"].to_numpy(), u=u, z=w[list(LONG_OUTPUTS)].to_numpy(), x0=x0, name=s.name)
 
-    notes = ([f"measured beta, p, r, phi, ay as inputs (the lateral motion as flown); air data at "
-              f"({ac.airdata[0]:g}, {ac.airdata[1]:g}, {ac.airdata[2]:g}) m"]
-             if measured_lateral else []) + [
-             f"grid {rate_hz:g} Hz; slower channels at their own samples only",
-             f"density {rho:.4f} kg/m^3 (mean over the flight)",
-             f"thrust from {'thrust channel' if 'thrust' in df else 'throttle x max_thrust'}",
-             "start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())
-             ] + ([input_note] if input_note else []) + left_out
+    notes = (
+        (
+            [
+                f"measured beta, p, r, phi, ay as inputs (the lateral motion as flown); air data at "
+                f"({ac.airdata[0]:g}, {ac.airdata[1]:g}, {ac.airdata[2]:g}) m"
+            ]
+            if measured_lateral
+            else []
+        )
+        + [
+            f"grid {rate_hz:g} Hz; slower channels at their own samples only",
+            f"density {rho:.4f} kg/m^3 (mean over the flight)",
+            f"thrust from {'thrust channel' if 'thrust' in df else 'throttle x max_thrust'}",
+            "start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items()),
+        ]
+        + ([input_note] if input_note else [])
+        + left_out
+    )
     if not {"CLalphadot", "Cmalphadot"} & set(free):
-        notes.append("CLalphadot, Cmalphadot held at 0: without gusts to separate them, the "
-                     "angle-of-attack rate moves with q, so CLq and Cmq carry their effect "
-                     "(Cmq estimates about Cmq + Cmalphadot)")
-    return Problem("longitudinal", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
-                   fit_specs, held,
-                   estimate_x0=["V", "alpha", "theta", "q"] if rotary_gust else True,
-                   notes=notes + (["vertical gust in the states (Dryden shaping filters): "
-                                   "rotary gust q_g = -s/(1 + tau s) alpha_g + q_gi in the pitch "
-                                   "damping"] if rotary_gust else [])
-                   + ([KINEMATIC_NOTE.format(angle="alpha", state="alpha_k")]
-                      if rotary_gust and c["kin_angles"] else []),
-                   regressions=regs,
-                   rate_hz=rate_hz)
+        notes.append(
+            "CLalphadot, Cmalphadot held at 0: without gusts to separate them, the "
+            "angle-of-attack rate moves with q, so CLq and Cmq carry their effect "
+            "(Cmq estimates about Cmq + Cmalphadot)"
+        )
+    return Problem(
+        "longitudinal",
+        model,
+        [seg(s) for s in fit_specs],
+        [seg(s) for s in held],
+        fit_specs,
+        held,
+        estimate_x0=["V", "alpha", "theta", "q"] if rotary_gust else True,
+        notes=notes
+        + (
+            [
+                "vertical gust in the states (Dryden shaping filters): "
+                "rotary gust q_g = -s/(1 + tau s) alpha_g + q_gi in the pitch "
+                "damping"
+            ]
+            if rotary_gust
+            else []
+        )
+        + ([KINEMATIC_NOTE.format(angle="alpha", state="alpha_k")] if rotary_gust and c["kin_angles"] else []),
+        regressions=regs,
+        rate_hz=rate_hz,
+    )
 
 
 #: zero-phase low-pass corner (Hz) of the lateral equation-error regressions
@@ -505,8 +600,7 @@ def _filled(df: pd.DataFrame, k: str) -> np.ndarray:
     return np.interp(t, t[ok], x[ok])
 
 
-def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]
-                        ) -> list[Regression]:
+def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]) -> list[Regression]:
     """Equation-error regressions: CY (from ay), Cl and Cn (from the differentiated roll and
     yaw rates with the inertia coupling) on [1, beta, p b/2V, r b/2V, da, dr]; the intercept
     column is named None (no model parameter). The dynamic pressure and b/2V follow the
@@ -521,8 +615,7 @@ def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]
     for df in frames:
         t = df["t"].to_numpy()
         kin = "beta_kin" in df and "V_kin" in df
-        beta, p, r, da, dr, ay = (_filled(df, k) for k in ("beta_kin" if kin else "beta", "p", "r",
-                                                             "da", "dr", "ay"))
+        beta, p, r, da, dr, ay = (_filled(df, k) for k in ("beta_kin" if kin else "beta", "p", "r", "da", "dr", "ay"))
         rate = (t.size - 1) / (t[-1] - t[0])
         V = _filled(df, "V_kin" if kin else "V") if "V" in df else np.full(t.size, c["V"])
         if not np.all(np.isfinite(V)):
@@ -534,9 +627,8 @@ def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]
         # response at each surface step over two samples while the steps in da, dr stay
         # sharp (Cl, Cn 5-7 % low, Cnp 16 %, on the noise-free truth of
         # lateral_doublets_calm; 0.2-0.4 % with the common filter)
-        beta, p, r, da, dr, ay = (zero_phase(x, rate, LATERAL_LS_CORNER_HZ)
-                                  for x in (beta, p, r, da, dr, ay))
-        qbar = 0.5 * c["rho"] * V ** 2
+        beta, p, r, da, dr, ay = (zero_phase(x, rate, LATERAL_LS_CORNER_HZ) for x in (beta, p, r, da, dr, ay))
+        qbar = 0.5 * c["rho"] * V**2
         pdot, rdot = np.gradient(p, t), np.gradient(r, t)
         # vane and IMU readings moved to the CG (inverse of the model's sensor terms; the
         # kinematic sideslip is at the CG already)
@@ -565,13 +657,14 @@ def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]
     return out
 
 
-def lateral_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
-                   regressions: Sequence | None = None) -> dict[str, float]:
+def lateral_starts(
+    frames: Sequence[pd.DataFrame], c: Mapping[str, float], regressions: Sequence | None = None
+) -> dict[str, float]:
     """Equation-error start values: least squares of CY (from ay), Cl and Cn (from the
     differentiated roll and yaw rates with the inertia coupling) on the maneuver windows
     (``regressions``: those of :func:`lateral_regressions` when already formed)."""
     out: dict[str, float] = {}
-    for _, names, A, y, _ in (regressions if regressions is not None else lateral_regressions(frames, c)):
+    for _, names, A, y, _ in regressions if regressions is not None else lateral_regressions(frames, c):
         sol = np.linalg.lstsq(A, y, rcond=None)[0]
         for name, v in zip(names[1:], sol[1:]):
             out[name] = float(v)
@@ -582,20 +675,26 @@ def lateral_starts(frames: Sequence[pd.DataFrame], c: Mapping[str, float],
     return out
 
 
-def lateral_specs(fd: FlightData, channels: Sequence[str],
-                  segments: Sequence[SegmentSpec] | None, hold_out: int) -> list[SegmentSpec]:
+def lateral_specs(
+    fd: FlightData, channels: Sequence[str], segments: Sequence[SegmentSpec] | None, hold_out: int
+) -> list[SegmentSpec]:
     """The aileron/rudder windows of a lateral problem (default: the log's 'da' and 'dr'
     segments), after checking the log has ``channels`` and enough maneuvers to fit and
     hold out ``hold_out``."""
     missing = fd.missing(channels)
     if missing:
-        raise FsidError(f"lateral identification needs channels {missing} that the log does not "
-                        f"provide ({fd.meta.get('source', 'log')}); add them to the channel map")
-    specs = list(segments if segments is not None else
-                 merge_overlapping([s for s in fd.segments if s.axis in ("da", "dr")]))
+        raise FsidError(
+            f"lateral identification needs channels {missing} that the log does not "
+            f"provide ({fd.meta.get('source', 'log')}); add them to the channel map"
+        )
+    specs = list(
+        segments if segments is not None else merge_overlapping([s for s in fd.segments if s.axis in ("da", "dr")])
+    )
     if len(specs) < 1 + hold_out:
-        raise FsidError(f"found {len(specs)} aileron/rudder maneuver segment(s) but need at least "
-                        f"{1 + hold_out}: fly more doublets or give segments by time range")
+        raise FsidError(
+            f"found {len(specs)} aileron/rudder maneuver segment(s) but need at least "
+            f"{1 + hold_out}: fly more doublets or give segments by time range"
+        )
     return specs
 
 
@@ -611,9 +710,16 @@ def multi_axis(fd: FlightData) -> bool:
 MULTIAXIS_FILTER_FREE = {"longitudinal": ("CLalphadot", "Cmalphadot"), "lateral": ("tau_pg",)}
 
 
-def multiaxis_problem(fd: FlightData, ac: AircraftConstants, axis: str, *, gust_states: bool,
-                      rate_hz: float | None = None, smooth_inputs: bool = True,
-                      hold_out: int = 1) -> Problem:
+def multiaxis_problem(
+    fd: FlightData,
+    ac: AircraftConstants,
+    axis: str,
+    *,
+    gust_states: bool,
+    rate_hz: float | None = None,
+    smooth_inputs: bool = True,
+    hold_out: int = 1,
+) -> Problem:
     """The axis problem for maneuvers that move all axes at once, and for the filters in
     turbulence whatever the maneuvers (pipeline.run's _method_problem): the model of that axis
     driven by the other axis' measured variables (longitudinal_measured_lateral /
@@ -624,12 +730,26 @@ def multiaxis_problem(fd: FlightData, ac: AircraftConstants, axis: str, *, gust_
     multiaxis_multisine_turbulence) and the roll-gust time constant tau_pg (lateral) free."""
     extra = MULTIAXIS_FILTER_FREE[axis] if gust_states else ()
     if axis == "longitudinal":
-        return longitudinal_problem(fd, ac, rate_hz=rate_hz, measured_lateral=True,
-                                    rotary_gust=gust_states, free=LONG_FREE + extra,
-                                    smooth_inputs=smooth_inputs, hold_out=hold_out)
-    return lateral_problem(fd, ac, rate_hz=rate_hz, measured_longitudinal=True,
-                           rotary_gust=gust_states, free=LAT_FREE + extra,
-                           smooth_inputs=smooth_inputs, hold_out=hold_out)
+        return longitudinal_problem(
+            fd,
+            ac,
+            rate_hz=rate_hz,
+            measured_lateral=True,
+            rotary_gust=gust_states,
+            free=LONG_FREE + extra,
+            smooth_inputs=smooth_inputs,
+            hold_out=hold_out,
+        )
+    return lateral_problem(
+        fd,
+        ac,
+        rate_hz=rate_hz,
+        measured_longitudinal=True,
+        rotary_gust=gust_states,
+        free=LAT_FREE + extra,
+        smooth_inputs=smooth_inputs,
+        hold_out=hold_out,
+    )
 
 
 def mean_density(df: pd.DataFrame) -> float:
@@ -647,8 +767,7 @@ PSEUDO_INPUT_CORNER_HZ = {"V": 1.0, "alpha": 5.0, "theta": 5.0, "q": 5.0}
 LONG_PSEUDO_CORNER_HZ = {"beta": 5.0, "p": 5.0, "r": 5.0, "phi": 5.0, "ay": 2.0}
 
 
-def smooth_pseudo_inputs(w: pd.DataFrame, rate_hz: float,
-                         corners: Mapping[str, float] | None = None) -> pd.DataFrame:
+def smooth_pseudo_inputs(w: pd.DataFrame, rate_hz: float, corners: Mapping[str, float] | None = None) -> pd.DataFrame:
     """V, alpha, theta, q of a window (or the channels of ``corners``) low-pass filtered
     forwards and backwards (second-order Butterworth at PSEUDO_INPUT_CORNER_HZ) before
     they drive the lateral model."""
@@ -702,18 +821,32 @@ def with_airspeed_offsets(problem: Problem, fd: FlightData) -> Problem:
 
     sigma, sds = airspeed_window_std(fd, problem.fit)
     priors = {f"dV[{k}]": (0.0, float(max(sd, 1e-6))) for k, sd in enumerate(sds)}
-    note = (f"per-maneuver airspeed correction dV on the pseudo-input V, a priori 0 +- "
-            f"sigma_V/sqrt(n) = {min(sds):.3f}-{max(sds):.3f} m/s (pitot noise {sigma:.2f} m/s)")
-    return replace(problem, model=with_airspeed_offset(problem.model),
-                   priors={**problem.priors, **priors}, notes=list(problem.notes) + [note])
+    note = (
+        f"per-maneuver airspeed correction dV on the pseudo-input V, a priori 0 +- "
+        f"sigma_V/sqrt(n) = {min(sds):.3f}-{max(sds):.3f} m/s (pitot noise {sigma:.2f} m/s)"
+    )
+    return replace(
+        problem,
+        model=with_airspeed_offset(problem.model),
+        priors={**problem.priors, **priors},
+        notes=list(problem.notes) + [note],
+    )
 
 
-def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | None = None,
-                    segments: Sequence[SegmentSpec] | None = None, hold_out: int = 1,
-                    free: Sequence[str] = LAT_FREE,
-                    biases: Sequence[str] = ("beta", "p", "r", "ay"),
-                    measured_longitudinal: bool = False, rotary_gust: bool = False,
-                    kinematic: bool = False, smooth_inputs: bool = True) -> Problem:
+def lateral_problem(
+    fd: FlightData,
+    ac: AircraftConstants,
+    *,
+    rate_hz: float | None = None,
+    segments: Sequence[SegmentSpec] | None = None,
+    hold_out: int = 1,
+    free: Sequence[str] = LAT_FREE,
+    biases: Sequence[str] = ("beta", "p", "r", "ay"),
+    measured_longitudinal: bool = False,
+    rotary_gust: bool = False,
+    kinematic: bool = False,
+    smooth_inputs: bool = True,
+) -> Problem:
     """Build the lateral-directional problem (linear model about the flight's mean
     airspeed, angle of attack and pitch attitude) from the aileron and rudder maneuvers;
     control inputs are taken relative to their value at the start of each window.
@@ -740,27 +873,43 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     rotary_gust = rotary_gust and measured_longitudinal
     channels = LAT_CHANNELS + (("q",) if measured_longitudinal else ())
     specs = lateral_specs(fd, channels, segments, hold_out)
-    df, rate_hz = multirate_frame(fd, LAT_OUTPUTS, ["V", "alpha", "theta", "q", "da", "dr", "rho", "h"]
-                                  if measured_longitudinal else
-                                  ["V", "alpha", "theta", "da", "dr", "rho", "h"], rate_hz)
-    smoothed, input_note = smoothed_control_inputs(fd, df, rate_hz,
-                                                   ("da", "dr") if smooth_inputs else ())
+    df, rate_hz = multirate_frame(
+        fd,
+        LAT_OUTPUTS,
+        ["V", "alpha", "theta", "q", "da", "dr", "rho", "h"]
+        if measured_longitudinal
+        else ["V", "alpha", "theta", "da", "dr", "rho", "h"],
+        rate_hz,
+    )
+    smoothed, input_note = smoothed_control_inputs(fd, df, rate_hz, ("da", "dr") if smooth_inputs else ())
     rho = mean_density(df)
     outs = [k for k in channels if k in LAT_OUTPUTS]
     others = [k for k in channels if k not in LAT_OUTPUTS]
-    specs, left_out, frames = usable_segments(df, specs, outs, others, hold_out,
-                                              "aileron/rudder maneuver")
+    specs, left_out, frames = usable_segments(df, specs, outs, others, hold_out, "aileron/rudder maneuver")
     allw = pd.concat(frames.values())
-    c = {"m": ac.mass, "Ixx": ac.Ixx, "Izz": ac.Izz, "Ixz": ac.Ixz, "S": ac.S, "b": ac.b,
-         "rho": rho, "V": float(allw["V"].mean()), "alpha0": float(allw["alpha"].mean()),
-         "theta0": float(allw["theta"].mean()), "x_vane": ac.airdata[0], "z_vane": ac.airdata[2],
-         "x_imu": ac.imu[0], "z_imu": ac.imu[2]}
+    c = {
+        "m": ac.mass,
+        "Ixx": ac.Ixx,
+        "Izz": ac.Izz,
+        "Ixz": ac.Ixz,
+        "S": ac.S,
+        "b": ac.b,
+        "rho": rho,
+        "V": float(allw["V"].mean()),
+        "alpha0": float(allw["alpha"].mean()),
+        "theta0": float(allw["theta"].mean()),
+        "x_vane": ac.airdata[0],
+        "z_vane": ac.airdata[2],
+        "x_imu": ac.imu[0],
+        "z_imu": ac.imu[2],
+    }
     for s in specs:
         w = frames[id(s)]
         w[["da", "dr"]] = w[["da", "dr"]] - w[["da", "dr"]].iloc[0]
     # airspeed and sideslip at the CG blended with the integrated IMU (V_kin, beta_kin) for
     # the equation-error regressors and, with kinematic, the pseudo-inputs V and alpha
     from pipeline.airdata_kinematics import V_CORNER_HZ, kinematic_air_data
+
     kin = kinematic_air_data(fd, rate_hz, ac.imu, ac.airdata)
     kinematic = kinematic and measured_longitudinal and kin is not None
     if kin is not None:
@@ -775,16 +924,22 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     fit_specs = [s for s in specs if s not in held]
     regs = lateral_regressions([frames[id(s)] for s in fit_specs], c)
     start = lateral_starts([frames[id(s)] for s in fit_specs], c, regs)
-    if rotary_gust:                     # Dryden roll-gust time constant 4 b / (pi V)
+    if rotary_gust:  # Dryden roll-gust time constant 4 b / (pi V)
         start["tau_pg"] = 4.0 * ac.b / (np.pi * c["V"])
         c["kin_angles"] = float(rebuilt(fd, "beta"))
     if measured_longitudinal:
-        model = lateral_measured_longitudinal({**c, "Iyy": ac.Iyy}, values=start, free=free,
-                                              output_biases=biases, name="lateral-measured",
-                                              rotary_gust=rotary_gust)
+        model = lateral_measured_longitudinal(
+            {**c, "Iyy": ac.Iyy},
+            values=start,
+            free=free,
+            output_biases=biases,
+            name="lateral-measured",
+            rotary_gust=rotary_gust,
+        )
     else:
-        model = lateral_directional(c, values=start, free=free, output_biases=biases,
-                                    name="lateral").select_outputs(LAT_OUTPUTS)
+        model = lateral_directional(c, values=start, free=free, output_biases=biases, name="lateral").select_outputs(
+            LAT_OUTPUTS
+        )
     ucols = ["da", "dr", "V", "alpha", "theta", "q"] if measured_longitudinal else ["da", "dr"]
     with_smoothed_inputs(frames, specs, smoothed, ["da", "dr"], relative=True)
     if measured_longitudinal:
@@ -796,19 +951,29 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
 
     def seg(s):
         w = frames[id(s)]
-        return Segment(t=w["t"].to_numpy(), u=w[ucols].to_numpy(),
-                       z=w[list(LAT_OUTPUTS)].to_numpy(),
-                       x0=list(_first_valid(w, ["beta", "p", "r", "phi"])) + (
-                           [0.0, float(_first_valid(w, ["beta"])[0]), 0.0] if rotary_gust else []),
-                       name=s.name)
+        return Segment(
+            t=w["t"].to_numpy(),
+            u=w[ucols].to_numpy(),
+            z=w[list(LAT_OUTPUTS)].to_numpy(),
+            x0=list(_first_valid(w, ["beta", "p", "r", "phi"]))
+            + ([0.0, float(_first_valid(w, ["beta"])[0]), 0.0] if rotary_gust else []),
+            name=s.name,
+        )
 
-    notes = [(f"measured V, alpha, theta, q as inputs, density {rho:.4f} kg/m^3"
-              + (" (V, alpha: the air data blended with the integrated IMU, the air data "
-                 f"below {V_CORNER_HZ:g} Hz)" if kinematic else "")
-              if measured_longitudinal else
-              f"linear model about V={c['V']:.2f} m/s, alpha0={np.degrees(c['alpha0']):.2f} deg, "
-              f"theta0={np.degrees(c['theta0']):.2f} deg, density {rho:.4f} kg/m^3"),
-             "start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items())]
+    notes = [
+        (
+            f"measured V, alpha, theta, q as inputs, density {rho:.4f} kg/m^3"
+            + (
+                f" (V, alpha: the air data blended with the integrated IMU, the air data below {V_CORNER_HZ:g} Hz)"
+                if kinematic
+                else ""
+            )
+            if measured_longitudinal
+            else f"linear model about V={c['V']:.2f} m/s, alpha0={np.degrees(c['alpha0']):.2f} deg, "
+            f"theta0={np.degrees(c['theta0']):.2f} deg, density {rho:.4f} kg/m^3"
+        ),
+        "start values from equation error: " + ", ".join(f"{k}={v:.3g}" for k, v in start.items()),
+    ]
     if rotary_gust:
         notes.append("roll-gust state p_g (Dryden, time constant 4b/(pi V)) in the roll damping")
         if c["kin_angles"]:
@@ -816,7 +981,15 @@ def lateral_problem(fd: FlightData, ac: AircraftConstants, *, rate_hz: float | N
     if input_note:
         notes.append(input_note)
     notes += left_out
-    return Problem("lateral", model, [seg(s) for s in fit_specs], [seg(s) for s in held],
-                   fit_specs, held,
-                   estimate_x0=["beta", "p", "r", "phi"] if rotary_gust else True,
-                   notes=notes, regressions=regs, rate_hz=rate_hz)
+    return Problem(
+        "lateral",
+        model,
+        [seg(s) for s in fit_specs],
+        [seg(s) for s in held],
+        fit_specs,
+        held,
+        estimate_x0=["beta", "p", "r", "phi"] if rotary_gust else True,
+        notes=notes,
+        regressions=regs,
+        rate_hz=rate_hz,
+    )

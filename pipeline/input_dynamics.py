@@ -71,6 +71,7 @@ Known limits (ad hoc, the same flight logged more slowly):
   (:func:`pipeline.run.refine_input_dynamics_stage`; then within 1.9 std with the steps'
   unknown times carried, pipeline.input_sampling, tests/test_input_sampling.py).
 """
+
 from __future__ import annotations
 
 import copy
@@ -123,9 +124,11 @@ EDGE_SAMPLES = 10
 #: time before a maneuver the lag starts from (its initial transient settles) [s]
 LAG_LEAD_S = 1.0
 #: why the aileron's and rudder's dynamics are not estimated without a sideslip angle
-LATERAL_NEEDS = ("needs the sideslip angle (a vane, or rebuilt from the flight path): with "
-                 "the lateral accelerometer instead the rudder's 50 ms lag came out 187 ms "
-                 "(the default scenario, ad hoc)")
+LATERAL_NEEDS = (
+    "needs the sideslip angle (a vane, or rebuilt from the flight path): with "
+    "the lateral accelerometer instead the rudder's 50 ms lag came out 187 ms "
+    "(the default scenario, ad hoc)"
+)
 #: groups of the delete-a-group jackknife over the maneuvers
 JACKKNIFE_GROUPS = 10
 #: function evaluations of the joint least squares before it stops unconverged (its
@@ -167,10 +170,10 @@ def lagged(u: np.ndarray, tau: float, h: float) -> np.ndarray:
     rows = np.broadcast_to(u, (taus.size, u.shape[-1])) if u.ndim == 1 else u
     out = np.array(rows, dtype=float, copy=True)
     for k, t in enumerate(taus):
-        if t <= 1e-6 * h:                      # no lag (or one far below a sample)
+        if t <= 1e-6 * h:  # no lag (or one far below a sample)
             continue
         a = np.exp(-h / t)
-        b1 = 1.0 - t / h * (1.0 - a)           # weight of u_k (first-order hold)
+        b1 = 1.0 - t / h * (1.0 - a)  # weight of u_k (first-order hold)
         b = np.array([b1, 1.0 - a - b1])
         out[k] = lfilter(b, [1.0, -a], rows[k], zi=np.array([a * rows[k, 0]]))[0]
     return out if np.ndim(tau) or u.ndim > 1 else out[0]
@@ -192,9 +195,16 @@ class _Maneuvers:
     surface low-passed on a grid reaching beyond the maneuver's ends (for the delays and
     the lag's start)."""
 
-    def __init__(self, fd: FlightData, spans: Sequence[tuple[float, float]], rate: str,
-                 regressors: Sequence[str], surfaces: Sequence[str], rate_hz: float,
-                 corners: Mapping[str, float] | None = None):
+    def __init__(
+        self,
+        fd: FlightData,
+        spans: Sequence[tuple[float, float]],
+        rate: str,
+        regressors: Sequence[str],
+        surfaces: Sequence[str],
+        rate_hz: float,
+        corners: Mapping[str, float] | None = None,
+    ):
         from pipeline.input_smoothing import zero_phase
 
         fc = min(LOWPASS_HZ, LOWPASS_FRACTION * rate_hz)
@@ -202,12 +212,12 @@ class _Maneuvers:
         before = after + LAG_LEAD_S
         self.h = 1.0 / rate_hz
         self.surfaces = list(surfaces)
-        self.t: list[np.ndarray] = []          # core times per maneuver
-        self.y: list[np.ndarray] = []          # omega_dot [rad/s^2]
-        self.X: list[np.ndarray] = []          # (n, len(regressors))
-        self.grid: list[np.ndarray] = []       # times with the margins
-        self.u: list[dict[str, np.ndarray]] = []   # surface -> low-passed on that grid
-        self.qs: list[np.ndarray] = []         # dynamic pressure / its reference
+        self.t: list[np.ndarray] = []  # core times per maneuver
+        self.y: list[np.ndarray] = []  # omega_dot [rad/s^2]
+        self.X: list[np.ndarray] = []  # (n, len(regressors))
+        self.grid: list[np.ndarray] = []  # times with the margins
+        self.u: list[dict[str, np.ndarray]] = []  # surface -> low-passed on that grid
+        self.qs: list[np.ndarray] = []  # dynamic pressure / its reference
         self._lagged: dict[tuple[str, float], list[np.ndarray]] = {}
         chans = [rate, *regressors, *surfaces]
         v_ref = float(np.nanmedian(fd["V"].values)) if "V" in regressors else 1.0
@@ -216,8 +226,7 @@ class _Maneuvers:
             if len(df) < 4 * EDGE_SAMPLES + 20 or not np.all(np.isfinite(df[chans].to_numpy())):
                 continue
             tg = df["t"].to_numpy()
-            lp = {c: zero_phase(df[c].to_numpy(), rate_hz, min(fc, (corners or {}).get(c, fc)),
-                                order=4) for c in chans}
+            lp = {c: zero_phase(df[c].to_numpy(), rate_hz, min(fc, (corners or {}).get(c, fc)), order=4) for c in chans}
             idx = np.arange(tg.size)
             core = (tg >= t0) & (tg <= t1) & (idx >= EDGE_SAMPLES) & (idx < tg.size - EDGE_SAMPLES)
             if core.sum() < 20:
@@ -229,16 +238,17 @@ class _Maneuvers:
             power = {"p": 1, "q": 1, "r": 1, "alpha": 2, "beta": 2, "V": 2}
             self.t.append(tg[core])
             self.y.append(np.gradient(lp[rate], tg)[core])
-            self.X.append(np.column_stack([(w ** 2 if c == "V" else lp[c][core] * w ** power.get(c, 0))
-                                           for c in regressors]))
-            self.qs.append(w ** 2)
+            self.X.append(
+                np.column_stack([(w**2 if c == "V" else lp[c][core] * w ** power.get(c, 0)) for c in regressors])
+            )
+            self.qs.append(w**2)
             self.grid.append(tg)
             self.u.append({s: lp[s] for s in surfaces})
 
     def __len__(self) -> int:
         return len(self.t)
 
-    def subset(self, keep: Sequence[int]) -> "_Maneuvers":
+    def subset(self, keep: Sequence[int]) -> _Maneuvers:
         """The same equation on the maneuvers ``keep`` (indices) only."""
         out = copy.copy(self)
         for name in ("t", "y", "X", "qs", "grid", "u"):
@@ -257,8 +267,10 @@ class _Maneuvers:
             if len(self._lagged) > 64:
                 self._lagged.clear()
             self._lagged[key] = [lagged(u[s], lag, self.h) for u in self.u]
-        return [q * cubic_at(v, g[0], self.h, t[None, :] - delays[:, None])
-                for t, g, v, q in zip(self.t, self.grid, self._lagged[key], self.qs)]
+        return [
+            q * cubic_at(v, g[0], self.h, t[None, :] - delays[:, None])
+            for t, g, v, q in zip(self.t, self.grid, self._lagged[key], self.qs)
+        ]
 
 
 def cubic_at(v: np.ndarray, t0: float, h: float, x: np.ndarray) -> np.ndarray:
@@ -312,8 +324,12 @@ def _common_profile(m: _Maneuvers, delays: np.ndarray, lags: np.ndarray) -> np.n
     """RSS of the equation with every surface at the same (delay, lag): (n_lag, n_delay)."""
     Q = _basis(_demeaned(m.X))
     y = _demeaned(m.y)
-    return np.array([_rss(y, Q, np.stack([_demeaned(m.surface(s, delays, lag), axis=1)
-                                          for s in m.surfaces], axis=1)) for lag in lags])
+    return np.array(
+        [
+            _rss(y, Q, np.stack([_demeaned(m.surface(s, delays, lag), axis=1) for s in m.surfaces], axis=1))
+            for lag in lags
+        ]
+    )
 
 
 def _grid_start(m: _Maneuvers) -> tuple[float, float]:
@@ -328,10 +344,14 @@ def _grid_start(m: _Maneuvers) -> tuple[float, float]:
     d, tau = float(delays[k]), float(lags[j])
     if not (0 < k < delays.size - 1 and 0 < j < lags.size - 1):
         return d, tau
-    z = np.log(np.maximum(rss[j - 1:j + 2, k - 1:k + 2], 1e-300))
+    z = np.log(np.maximum(rss[j - 1 : j + 2, k - 1 : k + 2], 1e-300))
     g = np.array([z[1, 2] - z[1, 0], z[2, 1] - z[0, 1]]) / 2.0
-    H = np.array([[z[1, 2] - 2 * z[1, 1] + z[1, 0], (z[2, 2] - z[2, 0] - z[0, 2] + z[0, 0]) / 4.0],
-                  [0.0, z[2, 1] - 2 * z[1, 1] + z[0, 1]]])
+    H = np.array(
+        [
+            [z[1, 2] - 2 * z[1, 1] + z[1, 0], (z[2, 2] - z[2, 0] - z[0, 2] + z[0, 0]) / 4.0],
+            [0.0, z[2, 1] - 2 * z[1, 1] + z[0, 1]],
+        ]
+    )
     H[1, 0] = H[0, 1]
     if np.all(np.linalg.eigvalsh(H) > 0):
         step = -np.linalg.solve(H, g)
@@ -340,8 +360,9 @@ def _grid_start(m: _Maneuvers) -> tuple[float, float]:
     return d, tau
 
 
-def _residuals(axes: Mapping[str, _Maneuvers], dyn: Mapping[str, tuple[float, float]],
-               weights: Mapping[str, float] | None = None) -> list[np.ndarray]:
+def _residuals(
+    axes: Mapping[str, _Maneuvers], dyn: Mapping[str, tuple[float, float]], weights: Mapping[str, float] | None = None
+) -> list[np.ndarray]:
     """Per maneuver of each equation (``axes``: surface -> its equation's maneuvers), the
     residuals of the least-squares fit with every surface at its (delay, lag) in ``dyn``
     (the linear coefficients and intercepts solved for), times the equation's weight."""
@@ -354,10 +375,12 @@ def _residuals(axes: Mapping[str, _Maneuvers], dyn: Mapping[str, tuple[float, fl
     return out
 
 
-def _joint(axes: Mapping[str, _Maneuvers], start: Mapping[str, tuple[float, float]],
-           weights: Mapping[str, float] | None = None, max_nfev: int = MAX_EVALUATIONS
-           ) -> tuple[dict[str, tuple[float, float]], dict[str, float], list[np.ndarray],
-                      list[np.ndarray], bool]:
+def _joint(
+    axes: Mapping[str, _Maneuvers],
+    start: Mapping[str, tuple[float, float]],
+    weights: Mapping[str, float] | None = None,
+    max_nfev: int = MAX_EVALUATIONS,
+) -> tuple[dict[str, tuple[float, float]], dict[str, float], list[np.ndarray], list[np.ndarray], bool]:
     """Every surface with maneuvers at once, over every equation (variable projection:
     the linear coefficients profiled out; each equation weighted by ``weights``, default
     1 / its residual rms at ``start``): (surface -> (delay, lag), the weights, Jacobian
@@ -378,7 +401,7 @@ def _joint(axes: Mapping[str, _Maneuvers], start: Mapping[str, tuple[float, floa
         weights = {}
         for e, m in axes.items():
             r = np.concatenate(_residuals({e: m}, dyn(x0)))
-            weights[e] = 1.0 / max(float(np.sqrt(np.mean(r ** 2))), 1e-300)
+            weights[e] = 1.0 / max(float(np.sqrt(np.mean(r**2))), 1e-300)
 
     def fun(x: np.ndarray) -> np.ndarray:
         return np.concatenate(_residuals(axes, dyn(x), weights))
@@ -387,15 +410,17 @@ def _joint(axes: Mapping[str, _Maneuvers], start: Mapping[str, tuple[float, floa
     # xtol: steps below 0.01 ms end it. Calm flights converge in 5-15 evaluations; in
     # strong gusts the landscape is flat and an unbounded search took 270 iterations
     # per fit (multiaxis_multisine_turbulence's MCAP: 153 s), hence the cap
-    sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=0.01, diff_step=2e-4, method="trf",
-                        xtol=1e-3, max_nfev=max_nfev)
+    sol = least_squares(
+        fun, x0, bounds=(lo, hi), x_scale=0.01, diff_step=2e-4, method="trf", xtol=1e-3, max_nfev=max_nfev
+    )
     v = _residuals(axes, dyn(sol.x), weights)
     parts = np.cumsum([r.size for r in v])[:-1]
     return dyn(sol.x), weights, [-j[:, None, :] for j in np.split(sol.jac, parts)], v, sol.status > 0
 
 
-def _jackknife(axes: Mapping[str, _Maneuvers], dyn: Mapping[str, tuple[float, float]],
-               weights: Mapping[str, float]) -> np.ndarray | None:
+def _jackknife(
+    axes: Mapping[str, _Maneuvers], dyn: Mapping[str, tuple[float, float]], weights: Mapping[str, float]
+) -> np.ndarray | None:
     """Delete-a-group jackknife covariance (2 k, 2 k) of the joint estimate over the
     maneuvers of every equation (at most JACKKNIFE_GROUPS groups; None with fewer than 3
     maneuvers): the spread the maneuvers' disagreement gives, which the Morelli-Klein
@@ -436,11 +461,16 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
     from pipeline.input_smoothing import control_input_corners
 
     doc: dict[str, Any] = {
-        "method": ("equation error of the rate derivatives, all surfaces and axes at once; "
-                   f"delays {DELAY_RANGE_S[0] * 1e3:g}..{DELAY_RANGE_S[1] * 1e3:g} ms, first-order "
-                   f"lags {LAG_RANGE_S[0] * 1e3:g}..{LAG_RANGE_S[1] * 1e3:g} ms; Morelli-Klein std, "
-                   "widened to the maneuvers' jackknife"),
-        "surfaces": {}, "applied": {}, "not_estimated": {}}
+        "method": (
+            "equation error of the rate derivatives, all surfaces and axes at once; "
+            f"delays {DELAY_RANGE_S[0] * 1e3:g}..{DELAY_RANGE_S[1] * 1e3:g} ms, first-order "
+            f"lags {LAG_RANGE_S[0] * 1e3:g}..{LAG_RANGE_S[1] * 1e3:g} ms; Morelli-Klein std, "
+            "widened to the maneuvers' jackknife"
+        ),
+        "surfaces": {},
+        "applied": {},
+        "not_estimated": {},
+    }
     regs = _regressors(fd)
     doc["regressors"] = regs
     present = [s for s in surfaces if s in fd and len(fd[s]) > 1]
@@ -461,16 +491,25 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
             doc["not_estimated"][s] = LATERAL_NEEDS
             continue
         if fd[rate].rate_hz < MIN_RATE_HZ:
-            doc["not_estimated"][s] = (f"needs the {rate} gyro at >= {MIN_RATE_HZ:g} Hz, the log has "
-                                       f"it at {fd[rate].rate_hz:.3g} Hz: a servo's 10-50 ms are a "
-                                       "fraction of its sample interval (telemetry? use the onboard "
-                                       "log; else log the IMU faster)")
+            doc["not_estimated"][s] = (
+                f"needs the {rate} gyro at >= {MIN_RATE_HZ:g} Hz, the log has "
+                f"it at {fd[rate].rate_hz:.3g} Hz: a servo's 10-50 ms are a "
+                "fraction of its sample interval (telemetry? use the onboard "
+                "log; else log the IMU faster)"
+            )
             continue
         if not spans:
             doc["not_estimated"][s] = "no maneuver on it"
             continue
-        m = _Maneuvers(fd, spans, rate, [r for r in regs if r != rate] + [rate], present,
-                       float(min(fd[rate].rate_hz, MAX_RATE_HZ)), corners)
+        m = _Maneuvers(
+            fd,
+            spans,
+            rate,
+            [r for r in regs if r != rate] + [rate],
+            present,
+            float(min(fd[rate].rate_hz, MAX_RATE_HZ)),
+            corners,
+        )
         if len(m) == 0:
             doc["not_estimated"][s] = "its maneuvers lack samples of the needed channels"
             continue
@@ -491,34 +530,39 @@ def estimate_input_dynamics(fd: FlightData, *, surfaces: Sequence[str] = CONTROL
     jk = _jackknife(axes, dyn, weights)
     if jk is not None:
         spread = np.sqrt(np.clip(np.diag(jk), 0.0, None))
-        ok = mk_all > 1e-9                         # (a lag at 0 has no std of its own)
+        ok = mk_all > 1e-9  # (a lag at 0 has no std of its own)
         widen = np.where(ok, np.maximum(1.0, spread / np.where(ok, mk_all, 1.0)), 1.0)
     cov = unc.cov * np.outer(widen, widen)
-    doc["covariance"] = {"names": [f"{s} {k}" for s in axes for k in ("delay", "lag")],
-                         "matrix": cov.tolist()}
+    doc["covariance"] = {"names": [f"{s} {k}" for s in axes for k in ("delay", "lag")], "matrix": cov.tolist()}
     for i, s in enumerate(axes):
         d, tau = dyn[s]
-        C = cov[2 * i:2 * i + 2, 2 * i:2 * i + 2]
-        mk = mk_all[2 * i:2 * i + 2]
+        C = cov[2 * i : 2 * i + 2, 2 * i : 2 * i + 2]
+        mk = mk_all[2 * i : 2 * i + 2]
         sd, sl = np.sqrt(np.clip(np.diag(C), 0.0, None))
         eq, eq_sd = d + tau, float(np.sqrt(max(C.sum(), 0.0)))
-        inside = (DELAY_RANGE_S[0] + AT_END_S < d < DELAY_RANGE_S[1] - AT_END_S
-                  and tau < LAG_RANGE_S[1] - AT_END_S)
-        significant = bool(converged and inside and np.isfinite(eq_sd) and eq_sd > 0
-                           and abs(eq) >= SIGNIFICANT * eq_sd)
+        inside = DELAY_RANGE_S[0] + AT_END_S < d < DELAY_RANGE_S[1] - AT_END_S and tau < LAG_RANGE_S[1] - AT_END_S
+        significant = bool(converged and inside and np.isfinite(eq_sd) and eq_sd > 0 and abs(eq) >= SIGNIFICANT * eq_sd)
         applied = significant and eq >= MIN_APPLIED_S
         m = axes[s]
         doc["surfaces"][s] = {
-            "delay_s": d, "delay_std": float(sd), "lag_s": tau, "lag_std": float(sl),
+            "delay_s": d,
+            "delay_std": float(sd),
+            "lag_s": tau,
+            "lag_std": float(sl),
             "corr": float(C[0, 1] / (sd * sl)) if sd > 0 and sl > 0 else None,
-            "equivalent_delay_s": eq, "equivalent_std": eq_sd,
+            "equivalent_delay_s": eq,
+            "equivalent_std": eq_sd,
             "crb_std": [float(crb[2 * i]), float(crb[2 * i + 1])],
             "mk_std": [float(x) for x in mk],
-            "std_from": ("jackknife over maneuvers" if np.any(widen[2 * i:2 * i + 2] > 1.0)
-                         else "Morelli-Klein"),
-            "response": f"d{AXIS_RATE[s]}/dt", "maneuvers": len(m),
-            "samples": int(sum(t.size for t in m.t)), "rate_hz": 1.0 / m.h,
-            "at_bound": not inside, "significant": significant, "applied": bool(applied)}
+            "std_from": ("jackknife over maneuvers" if np.any(widen[2 * i : 2 * i + 2] > 1.0) else "Morelli-Klein"),
+            "response": f"d{AXIS_RATE[s]}/dt",
+            "maneuvers": len(m),
+            "samples": int(sum(t.size for t in m.t)),
+            "rate_hz": 1.0 / m.h,
+            "at_bound": not inside,
+            "significant": significant,
+            "applied": bool(applied),
+        }
         if applied:
             doc["applied"][s] = {"delay_s": d, "lag_s": tau}
     return doc
@@ -532,7 +576,7 @@ def covariance(doc: Mapping[str, Any]) -> tuple[list[str], np.ndarray, dict[str,
     pos = {n: k for k, n in enumerate(joint["names"])}
     full = np.asarray(joint["matrix"], dtype=float)
     names, where = [], {}
-    for s in (doc.get("applied") or {}):
+    for s in doc.get("applied") or {}:
         for key in ("delay_s", "lag_s"):
             name = f"{s} {key[:-2]}"
             if name in pos and full[pos[name], pos[name]] > 0:
@@ -544,8 +588,9 @@ def covariance(doc: Mapping[str, Any]) -> tuple[list[str], np.ndarray, dict[str,
     return names, full[np.ix_(idx, idx)], where
 
 
-def _whitened(results: Mapping[str, Any], weights: Mapping[str, np.ndarray] | None = None
-              ) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
+def _whitened(
+    results: Mapping[str, Any], weights: Mapping[str, np.ndarray] | None = None
+) -> tuple[list[np.ndarray], dict[str, np.ndarray]]:
     """Per fitted segment of every result (keys sorted) its residuals (N, n_out) times the
     whitening W of its result (W W^T = R^-1), missing samples 0; and the W used
     (``weights``, else each result's own R)."""
@@ -584,8 +629,7 @@ def logged_inputs_fit_better(applied: Mapping[str, Mapping[str, float]], fit) ->
     v1, _ = _whitened(moved, W)
     c0, c1 = (sum(float(np.sum(v * v)) for v in vs) for vs in (v0, v1))
     if c0 <= c1:
-        return (f"output error fits the inputs as logged at least as well (weighted residuals "
-                f"{c0:.6g} against {c1:.6g} with them)")
+        return f"output error fits the inputs as logged at least as well (weighted residuals {c0:.6g} against {c1:.6g} with them)"
     return None
 
 
@@ -622,9 +666,10 @@ def refine_by_output_error(doc: dict[str, Any], fit, progress: Any = None) -> di
     lo = np.array([(DELAY_RANGE_S if k == "delay_s" else LAG_RANGE_S)[0] for _, k in keys])
     hi = np.array([(DELAY_RANGE_S if k == "delay_s" else LAG_RANGE_S)[1] for _, k in keys])
     x = np.array([applied[s][k] for s, k in keys], dtype=float)
-    ref: dict[str, Any] = {"method": f"{REFINE_METHOD}: Gauss-Newton on the delays and lags, "
-                                     "the derivatives profiled out; Morelli-Klein std",
-                           "status": "not refined"}
+    ref: dict[str, Any] = {
+        "method": f"{REFINE_METHOD}: Gauss-Newton on the delays and lags, the derivatives profiled out; Morelli-Klein std",
+        "status": "not refined",
+    }
     doc["refined"] = ref
     count = [0]
 
@@ -663,7 +708,7 @@ def refine_by_output_error(doc: dict[str, Any], fit, progress: Any = None) -> di
                 xj = x.copy()
                 xj[j] += h
                 vj, _ = _whitened(run(xj, base), W)
-                cols.append([(b - a) / h for a, b in zip(vj, v0)])      # d(output)/d(value)
+                cols.append([(b - a) / h for a, b in zip(vj, v0)])  # d(output)/d(value)
             S = [np.stack([c[i] for c in cols], axis=-1) for i in range(len(v0))]
             M = sum(np.einsum("nap,naq->pq", s, s) for s in S)
             seen = np.diag(M) > 1e-12 * max(float(np.max(np.diag(M))), 1e-300)
@@ -683,7 +728,7 @@ def refine_by_output_error(doc: dict[str, Any], fit, progress: Any = None) -> di
                         moved = (xn, new, cost0 - cn)
                         break
                 lam *= 0.5
-            if moved is None:          # no better point along the step: at the minimum
+            if moved is None:  # no better point along the step: at the minimum
                 converged = True
                 break
             change = np.abs(moved[0] - x)
@@ -698,13 +743,17 @@ def refine_by_output_error(doc: dict[str, Any], fit, progress: Any = None) -> di
     ref["iterations"] = it
     if not converged:
         return done(f"not converged in {REFINE_ITERATIONS} Gauss-Newton iterations")
-    ends = [f"{s} {k[:-2]}" for (s, k), val, a, b in zip(keys, x, lo, hi)
-            if val >= b - AT_END_S or (k == "delay_s" and val <= a + AT_END_S)]
+    ends = [
+        f"{s} {k[:-2]}"
+        for (s, k), val, a, b in zip(keys, x, lo, hi)
+        if val >= b - AT_END_S or (k == "delay_s" and val <= a + AT_END_S)
+    ]
     if ends:
         return done(f"{', '.join(ends)} at the end of its range")
     names = [f"{s} {k[:-2]}" for s, k in keys]
-    cov, mk, crb, apart = _refined_covariance(S, v0, Minv, seen, x,
-                                              np.array([applied[s][k] for s, k in keys]), names, doc)
+    cov, mk, crb, apart = _refined_covariance(
+        S, v0, Minv, seen, x, np.array([applied[s][k] for s, k in keys]), names, doc
+    )
     refined = dynamics(x)
     doc["equation_error"] = {"applied": applied, "covariance": doc["covariance"]}
     doc["applied"] = refined
@@ -713,17 +762,30 @@ def refine_by_output_error(doc: dict[str, Any], fit, progress: Any = None) -> di
     for j, (s, k) in enumerate(keys):
         if seen[j]:
             doc["surfaces"][s].setdefault("refined", {}).update(
-                {k: float(x[j]), k[:-2] + "_std": float(sd[j]), k[:-2] + "_crb_std": float(crb[j]),
-                 k[:-2] + "_mk_std": float(mk[j]), k[:-2] + "_widened": bool(apart[j])})
+                {
+                    k: float(x[j]),
+                    k[:-2] + "_std": float(sd[j]),
+                    k[:-2] + "_crb_std": float(crb[j]),
+                    k[:-2] + "_mk_std": float(mk[j]),
+                    k[:-2] + "_widened": bool(apart[j]),
+                }
+            )
     if not np.all(seen):
         ref["not_seen"] = [n for n, ok in zip(names, seen) if not ok]
     ref["status"] = "refined"
     return done(None)
 
 
-def _refined_covariance(S: list[np.ndarray], v0: list[np.ndarray], Minv: np.ndarray,
-                        seen: np.ndarray, x: np.ndarray, was: np.ndarray, names: list[str],
-                        doc: Mapping[str, Any]) -> tuple[np.ndarray, ...]:
+def _refined_covariance(
+    S: list[np.ndarray],
+    v0: list[np.ndarray],
+    Minv: np.ndarray,
+    seen: np.ndarray,
+    x: np.ndarray,
+    was: np.ndarray,
+    names: list[str],
+    doc: Mapping[str, Any],
+) -> tuple[np.ndarray, ...]:
     """(covariance, Morelli-Klein std, Cramér-Rao std, apart) of the refined values ``x``
     (equation error's ``was``; named ``names``, "<surface> delay|lag"; ``seen`` by the
     fits) from the last Gauss-Newton iteration of :func:`refine_by_output_error` (its
@@ -766,8 +828,11 @@ def with_input_dynamics(fd: FlightData, dynamics: Mapping[str, Mapping[str, floa
     the channel holds its first (last) value. The time stamps stay the log's, so every
     grid built from the data is the same whatever the dynamics (the output-error
     refinement compares fits sample by sample)."""
-    todo = {s: (float(v.get("delay_s", 0.0)), float(v.get("lag_s", 0.0)))
-            for s, v in dynamics.items() if s in fd.channels and len(fd.channels[s]) > 1}
+    todo = {
+        s: (float(v.get("delay_s", 0.0)), float(v.get("lag_s", 0.0)))
+        for s, v in dynamics.items()
+        if s in fd.channels and len(fd.channels[s]) > 1
+    }
     todo = {s: dl for s, dl in todo.items() if dl != (0.0, 0.0)}
     if not todo:
         return fd
@@ -779,9 +844,14 @@ def with_input_dynamics(fd: FlightData, dynamics: Mapping[str, Mapping[str, floa
             h = float(np.median(np.diff(c.t)))
             g = np.arange(c.t[0], c.t[-1] + 0.5 * h, h)
             vals = lagged(np.interp(g, c.t, c.values), tau, h)
-        chans[s] = Channel(c.t, np.interp(c.t - d, g, vals), c.unit,
-                           f"{c.source} (as its surface: delay {d * 1e3:.1f} ms, lag "
-                           f"{tau * 1e3:.1f} ms estimated)", c.notes, c.derived)
+        chans[s] = Channel(
+            c.t,
+            np.interp(c.t - d, g, vals),
+            c.unit,
+            f"{c.source} (as its surface: delay {d * 1e3:.1f} ms, lag {tau * 1e3:.1f} ms estimated)",
+            c.notes,
+            c.derived,
+        )
     meta = dict(fd.meta)
     meta["input_dynamics"] = {s: {"delay_s": d, "lag_s": tau} for s, (d, tau) in todo.items()}
     return FlightData(chans, meta, list(fd.segments))
@@ -796,37 +866,55 @@ def summary(doc: Mapping[str, Any]) -> str:
     if status == "failed":
         return f"estimate failed ({doc.get('reason', '')}); inputs as logged"
     if status == "given":
-        return ", ".join(f"{s} delay {v['delay_s'] * 1e3:+.1f} ms, lag {v['lag_s'] * 1e3:.1f} ms"
-                         for s, v in doc["applied"].items()) + " (given)"
+        return (
+            ", ".join(
+                f"{s} delay {v['delay_s'] * 1e3:+.1f} ms, lag {v['lag_s'] * 1e3:.1f} ms"
+                for s, v in doc["applied"].items()
+            )
+            + " (given)"
+        )
     parts = []
     for s, d in (doc.get("surfaces") or {}).items():
-        state = ("applied" if d["applied"] else "withdrawn: " + d["withdrawn"] if d.get("withdrawn")
-                 else "at the search bound, not applied" if d["at_bound"]
-                 else "the log lagging its surface, not applied" if d["significant"]
-                 and d["equivalent_delay_s"] < 0
-                 else f"below {MIN_APPLIED_S * 1e3:g} ms, not applied" if d["significant"]
-                 else "not significant")
+        state = (
+            "applied"
+            if d["applied"]
+            else "withdrawn: " + d["withdrawn"]
+            if d.get("withdrawn")
+            else "at the search bound, not applied"
+            if d["at_bound"]
+            else "the log lagging its surface, not applied"
+            if d["significant"] and d["equivalent_delay_s"] < 0
+            else f"below {MIN_APPLIED_S * 1e3:g} ms, not applied"
+            if d["significant"]
+            else "not significant"
+        )
         ref = d.get("refined") or {}
-        if ref:         # (a surface no output-error fit sees keeps equation error's values)
+        if ref:  # (a surface no output-error fit sees keeps equation error's values)
             apart = [k for k in ("delay", "lag") if ref.get(f"{k}_widened")]
-            state = (f"{REFINE_METHOD}; equation error {d['delay_s'] * 1e3:+.1f} and "
-                     f"{d['lag_s'] * 1e3:.1f} ms"
-                     + (f", the two apart on the {' and '.join(apart)}: std widened to the difference"
-                        if apart else "") + f"; {state}")
+            state = (
+                f"{REFINE_METHOD}; equation error {d['delay_s'] * 1e3:+.1f} and "
+                f"{d['lag_s'] * 1e3:.1f} ms"
+                + (f", the two apart on the {' and '.join(apart)}: std widened to the difference" if apart else "")
+                + f"; {state}"
+            )
         v = {k: ref[k] if ref.get(k) is not None else d[k] for k in ("delay_s", "delay_std", "lag_s", "lag_std")}
-        parts.append(f"{s} delay {v['delay_s'] * 1e3:+.1f} +- {v['delay_std'] * 1e3:.1f} ms, lag "
-                     f"{v['lag_s'] * 1e3:.1f} +- {v['lag_std'] * 1e3:.1f} ms ({state})")
+        parts.append(
+            f"{s} delay {v['delay_s'] * 1e3:+.1f} +- {v['delay_std'] * 1e3:.1f} ms, lag "
+            f"{v['lag_s'] * 1e3:.1f} +- {v['lag_std'] * 1e3:.1f} ms ({state})"
+        )
     parts += [f"{s}: {why}" for s, why in (doc.get("not_estimated") or {}).items()]
     line = "; ".join(parts) or "no control input with maneuvers"
     if not doc.get("converged", True):
-        line += (f"; the least squares did not converge in {MAX_EVALUATIONS} evaluations "
-                 "(strong gusts?): nothing applied")
+        line += (
+            f"; the least squares did not converge in {MAX_EVALUATIONS} evaluations (strong gusts?): nothing applied"
+        )
     refinement = doc.get("refined") or {}
     if refinement.get("status") == "not refined":
         line += f"; not refined by {REFINE_METHOD} ({refinement.get('reason', '')})"
     unc = doc.get("uncertainty") or {}
     if unc:
         bad = {k: v for k, v in unc["methods"].items() if v != "propagated"}
-        line += ("; their std carried to the estimates' std as a consider part"
-                 + (f" (except {'; '.join(f'{k}: {v}' for k, v in bad.items())})" if bad else ""))
+        line += "; their std carried to the estimates' std as a consider part" + (
+            f" (except {'; '.join(f'{k}: {v}' for k, v in bad.items())})" if bad else ""
+        )
     return line

@@ -32,6 +32,7 @@ over an interval longer than ``SLOW_FACTOR`` fit-grid steps (at the grid's rate 
 interpolation puts a step within one grid step of where it was) or than
 ``COARSE_INTERVAL_S`` (a 25 Hz log throughout) count.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
@@ -84,8 +85,9 @@ class Edge:
         return f"{self.channel} step at {0.5 * (self.t0 + self.t1):.3f} s"
 
 
-def step_edges(fd: FlightData, spans: Sequence[tuple[float, float]], grid_step_s: float,
-               channels: Sequence[str] = CONTROL_INPUTS) -> list[Edge]:
+def step_edges(
+    fd: FlightData, spans: Sequence[tuple[float, float]], grid_step_s: float, channels: Sequence[str] = CONTROL_INPUTS
+) -> list[Edge]:
     """The steps (:class:`Edge`, in time order) of the control inputs ``channels`` over
     sample intervals longer than SLOW_FACTOR x ``grid_step_s`` [s] (the fit grid's step)
     or than COARSE_INTERVAL_S, that lie in one of ``spans`` ((start, end) [s], the fitted
@@ -101,13 +103,14 @@ def step_edges(fd: FlightData, spans: Sequence[tuple[float, float]], grid_step_s
         coarse = (h > SLOW_FACTOR * grid_step_s) | (h >= COARSE_INTERVAL_S)
         if not np.any(coarse):
             continue
-        nb = np.maximum(np.r_[0.0, d[:-1]], np.r_[d[1:], 0.0])      # the larger neighbour
+        nb = np.maximum(np.r_[0.0, d[:-1]], np.r_[d[1:], 0.0])  # the larger neighbour
         step = (d >= MIN_STEP_RAD) & (d >= STEP_RATIO * nb) & coarse
         inside = np.zeros_like(step)
         for a, b in spans:
             inside |= (t[1:] > a) & (t[:-1] < b)
-        out += [Edge(c, int(k), float(t[k]), float(t[k + 1]), float(u[k + 1] - u[k]))
-                for k in np.flatnonzero(step & inside)]
+        out += [
+            Edge(c, int(k), float(t[k]), float(t[k + 1]), float(u[k + 1] - u[k])) for k in np.flatnonzero(step & inside)
+        ]
     return sorted(out, key=lambda e: (e.t0, e.channel))
 
 
@@ -123,7 +126,7 @@ def with_edges_moved(fd: FlightData, edges: Sequence[Edge], shifts: Sequence[flo
     for e, s in zip(edges, shifts):
         if s == 0.0:
             continue
-        t = times[e.channel]               # with the steps moved so far: none may cross
+        t = times[e.channel]  # with the steps moved so far: none may cross
         lo = t[e.k - 1] if e.k > 0 else -np.inf
         hi = t[e.k + 2] if e.k + 2 < t.size else np.inf
         if not (lo < t[e.k] + s and t[e.k + 1] + s < hi):
@@ -166,8 +169,7 @@ REFINE_MAX_HALF_S = 0.25
 KINK_ORDERS = (2, 3)
 
 
-def _kink_profile(tw: np.ndarray, W: np.ndarray, taus: np.ndarray, order: int = 2
-                  ) -> tuple[np.ndarray, np.ndarray]:
+def _kink_profile(tw: np.ndarray, W: np.ndarray, taus: np.ndarray, order: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """For each trial time tau: the weighted residual sum of squares of the gyro samples
     ``W`` ((n, 3) rates / their noise std, at times ``tw``) fitted per axis by a cubic in
     time plus a kink c1 (t - tau)+ (the rate's response to a step of angular acceleration
@@ -177,21 +179,20 @@ def _kink_profile(tw: np.ndarray, W: np.ndarray, taus: np.ndarray, order: int = 
     span = max(np.ptp(tw), 1e-9)
     x = (tw - tw.mean()) / span
     base = np.broadcast_to(np.vander(x, 4, increasing=True), (taus.size, tw.size, 4))
-    k = np.maximum(tw[None, :] - taus[:, None], 0.0) / span          # (T, n)
+    k = np.maximum(tw[None, :] - taus[:, None], 0.0) / span  # (T, n)
     # one design per trial time, the same for every axis: (T, n, 4 + order)
-    A = np.concatenate([base, np.stack([k ** j for j in range(1, order + 1)], axis=-1)], axis=-1)
-    Ap = np.linalg.pinv(A)                                           # (T, 4 + order, n)
-    coef = Ap @ W                                                    # (T, 4 + order, 3)
+    A = np.concatenate([base, np.stack([k**j for j in range(1, order + 1)], axis=-1)], axis=-1)
+    Ap = np.linalg.pinv(A)  # (T, 4 + order, n)
+    coef = Ap @ W  # (T, 4 + order, 3)
     r = W[None] - A @ coef
     rss = np.sum(r * r, axis=(1, 2))
-    s2 = np.sum(r * r, axis=1) / max(W.shape[0] - A.shape[2], 1)     # (T, 3), in noise units^2
-    cov_c = np.sum(Ap[:, 4, :] ** 2, axis=1)                         # (A^T A)^+ [4, 4]
+    s2 = np.sum(r * r, axis=1) / max(W.shape[0] - A.shape[2], 1)  # (T, 3), in noise units^2
+    cov_c = np.sum(Ap[:, 4, :] ** 2, axis=1)  # (A^T A)^+ [4, 4]
     sig = np.max(np.abs(coef[:, 4, :]) / np.sqrt(np.maximum(s2, 1.0) * cov_c[:, None]), axis=1)
     return rss, sig
 
 
-def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float
-                 ) -> tuple[FlightData, list[Edge], dict]:
+def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float) -> tuple[FlightData, list[Edge], dict]:
     """Time the steps ``edges`` from the angular rates: a step of a surface is a step of
     angular acceleration, a kink in the gyro rates. Steps in the same interval (aileron and
     rudder moved together) share a time. For each such interval, the gyro samples within
@@ -224,19 +225,23 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float
     from estimators.statistics import difference_noise_std
 
     gyro = [c for c in ("p", "q", "r") if c in fd.channels]
-    doc: dict = {"steps": len(edges), "timed": 0, "method": (
-        "each step's time from the kink it puts in the gyro rates (a cubic per axis plus a "
-        "kink and its higher powers, the number of powers by BIC, least squares over trial "
-        "times; std from Delta chi^2 = 1 and the other number's time)")}
+    doc: dict = {
+        "steps": len(edges),
+        "timed": 0,
+        "method": (
+            "each step's time from the kink it puts in the gyro rates (a cubic per axis plus a "
+            "kink and its higher powers, the number of powers by BIC, least squares over trial "
+            "times; std from Delta chi^2 = 1 and the other number's time)"
+        ),
+    }
     if not edges or len(gyro) < 3:
         doc["note"] = "no gyro rates to time the steps by" if edges else "no step"
         return fd, list(edges), doc
     tg = np.asarray(fd[gyro[0]].t, float)
     G = np.column_stack([np.interp(tg, fd[c].t, fd[c].values) for c in gyro])
     noise = difference_noise_std([G], robust=True)
-    rough = difference_noise_std([G])              # a noise-free, quantised gyro: robust 0
-    noise = np.where(np.isfinite(noise) & (noise > 0), noise,
-                     np.where(np.isfinite(rough) & (rough > 0), rough, 1e-6))
+    rough = difference_noise_std([G])  # a noise-free, quantised gyro: robust 0
+    noise = np.where(np.isfinite(noise) & (noise > 0), noise, np.where(np.isfinite(rough) & (rough > 0), rough, 1e-6))
     dt_gyro = float(np.median(np.diff(tg))) if tg.size > 1 else np.inf
     groups: dict[tuple[float, float], list[Edge]] = {}
     for e in edges:
@@ -248,22 +253,25 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float
         half = min(max(REFINE_WINDOW * h, REFINE_MIN_SAMPLES * dt_gyro), REFINE_MAX_HALF_S)
         sel = (tg >= t0 - half) & (tg <= t1 + half)
         if sel.sum() < 12:
-            continue                                   # too few gyro samples around the step
+            continue  # too few gyro samples around the step
         taus = np.linspace(t0, t1, REFINE_GRID)
         fits = {}
         for order in KINK_ORDERS:
             rss, sig = _kink_profile(tg[sel], G[sel] / noise, taus, order)
             i = int(np.argmin(rss))
-            if i in (0, taus.size - 1):                # no minimum inside the interval
+            if i in (0, taus.size - 1):  # no minimum inside the interval
                 fits[order] = dict(tau=float(taus[i]), sig=float(sig[i]), std=np.inf, bic=np.inf)
                 continue
             a = 0.5 * (rss[i + 1] - 2 * rss[i] + rss[i - 1]) / (taus[1] - taus[0]) ** 2
             off = 0.5 * (rss[i - 1] - rss[i + 1]) / (rss[i + 1] - 2 * rss[i] + rss[i - 1])
             n_obs, n_par = 3 * int(sel.sum()), 3 * (4 + order) + 1
             red = rss[i] / max(n_obs - n_par, 1)
-            fits[order] = dict(tau=float(taus[i] + off * (taus[1] - taus[0])), sig=float(sig[i]),
-                               std=float(np.sqrt(max(red, 1.0) / a)) if a > 0 else np.inf,
-                               bic=float(n_obs * np.log(max(rss[i], 1e-300) / n_obs) + n_par * np.log(n_obs)))
+            fits[order] = dict(
+                tau=float(taus[i] + off * (taus[1] - taus[0])),
+                sig=float(sig[i]),
+                std=float(np.sqrt(max(red, 1.0) / a)) if a > 0 else np.inf,
+                bic=float(n_obs * np.log(max(rss[i], 1e-300) / n_obs) + n_par * np.log(n_obs)),
+            )
         best = min(fits, key=lambda o: fits[o]["bic"])
         if not np.isfinite(fits[best]["bic"]) or max(f["sig"] for f in fits.values()) < REFINE_SIGNIFICANCE:
             continue
@@ -276,9 +284,10 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float
         form = min(form, std)
         a0, a1 = tau - 0.5 * grid_step_s, tau + 0.5 * grid_step_s
 
-        def fits_between(e: Edge) -> bool:       # the ramp stays between the flat samples
+        def fits_between(e: Edge, a0: float = a0, a1: float = a1) -> bool:  # the ramp stays between the flat samples
             t = fd[e.channel].t
             return (e.k == 0 or t[e.k - 1] < a0) and (e.k + 2 >= t.size or a1 < t[e.k + 2])
+
         if not all(fits_between(e) for e in grp):
             continue
         for e in grp:
@@ -287,12 +296,16 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float
     if not timed:
         doc["note"] = "too few gyro samples around them, or the kinks are too weak"
         return fd, list(edges), doc
-    doc.update(timed=len(timed), time_std_ms={"median": 1e3 * float(np.median(stds)),
-                                              "max": 1e3 * float(np.max(stds))},
-               shifts_ms={e.name: round(1e3 * (0.5 * (timed[e].t0 + timed[e].t1)
-                                               - 0.5 * (e.t0 + e.t1)), 2) for e in timed})
-    return (_with_ramps(fd, {e: (new.t0, new.t1) for e, new in timed.items()}),   # tau -+ width / 2
-            [timed.get(e, e) for e in edges], doc)
+    doc.update(
+        timed=len(timed),
+        time_std_ms={"median": 1e3 * float(np.median(stds)), "max": 1e3 * float(np.max(stds))},
+        shifts_ms={e.name: round(1e3 * (0.5 * (timed[e].t0 + timed[e].t1) - 0.5 * (e.t0 + e.t1)), 2) for e in timed},
+    )
+    return (
+        _with_ramps(fd, {e: (new.t0, new.t1) for e, new in timed.items()}),  # tau -+ width / 2
+        [timed.get(e, e) for e in edges],
+        doc,
+    )
 
 
 def time_steps(fd: FlightData, max_rate_hz: float) -> tuple[FlightData, list[Edge], dict]:
@@ -318,7 +331,8 @@ def time_steps(fd: FlightData, max_rate_hz: float) -> tuple[FlightData, list[Edg
     steps: dict[str, list[list[float | None]]] = {}
     for e in edges:
         steps.setdefault(e.channel, []).append(
-            [float(e.t0), float(e.t1), None if e.time_std is None else float(e.time_std)])
+            [float(e.t0), float(e.t1), None if e.time_std is None else float(e.time_std)]
+        )
     return FlightData(out.channels, {**out.meta, "input_steps": steps}, out.segments), edges, doc
 
 
@@ -343,15 +357,23 @@ def step_times(meta: dict) -> dict[str, list[tuple[float, float, float | None]]]
     models see u(t - d)). The proof of match predicts a held-out maneuver with its steps
     moved within their uncertainty as well (:func:`timing_variants`)."""
     d = {c: float(v.get("delay_s", 0.0)) for c, v in (meta.get("input_dynamics") or {}).items()}
-    return {c: sorted(((r[0] + d.get(c, 0.0), r[1] + d.get(c, 0.0), r[2] if len(r) > 2 else None)
-                       for r in rows), key=lambda r: r[:2])
-            for c, rows in (meta.get("input_steps") or {}).items() if rows}
+    return {
+        c: sorted(
+            ((r[0] + d.get(c, 0.0), r[1] + d.get(c, 0.0), r[2] if len(r) > 2 else None) for r in rows),
+            key=lambda r: r[:2],
+        )
+        for c, rows in (meta.get("input_steps") or {}).items()
+        if rows
+    }
 
 
-def timing_variants(seg: Segment, inputs: Sequence[str],
-                    steps: Mapping[str, Sequence[tuple[float, float, float | None]]],
-                    fractions: Sequence[float] = TIMING_FRACTIONS,
-                    k: float = TIMED_RANGE_STD) -> list[Segment]:
+def timing_variants(
+    seg: Segment,
+    inputs: Sequence[str],
+    steps: Mapping[str, Sequence[tuple[float, float, float | None]]],
+    fractions: Sequence[float] = TIMING_FRACTIONS,
+    k: float = TIMED_RANGE_STD,
+) -> list[Segment]:
     """Copies of ``seg`` (inputs ``inputs``, the model's order) with every step of ``steps``
     (input -> [(start, end, std), ...] s, :func:`step_times`) at each of ``fractions`` of the
     range of its time: an untimed step (std None) anywhere in its interval, as a sharp step
@@ -363,7 +385,7 @@ def timing_variants(seg: Segment, inputs: Sequence[str],
     other's samples as its before or after. A first-order lag applied to an input (input
     dynamics) is not undone: the copies are then approximate."""
     t = seg.t
-    moves = []          # (column, samples, value before, after, earliest time, latest, ramp width)
+    moves = []  # (column, samples, value before, after, earliest time, latest, ramp width)
     for j, c in enumerate(inputs):
         for a, b, sd in steps.get(c, ()):
             if sd is None:
@@ -373,7 +395,7 @@ def timing_variants(seg: Segment, inputs: Sequence[str],
                 lo, hi, t0, t1, w = a - k * sd, b + k * sd, mid - k * sd, mid + k * sd, b - a
             near = np.flatnonzero((t > lo) & (t < hi))
             if not near.size or near[0] == 0 or near[-1] == t.size - 1:
-                continue        # a step at the segment's edge: its before or after is not in it
+                continue  # a step at the segment's edge: its before or after is not in it
             moves.append((j, near, seg.u[near[0] - 1, j], seg.u[near[-1] + 1, j], t0, t1, w))
     out = []
     for f in fractions:
@@ -395,5 +417,7 @@ def summary(doc: dict) -> str:
     if not doc.get("timed"):
         return f"{doc['steps']} control-input steps between slow samples, none timed ({doc.get('note', '')})"
     ms = doc["time_std_ms"]
-    return (f"{doc['timed']} of {doc['steps']} control-input steps between slow samples timed "
-            f"from the gyro rates (std median {ms['median']:.1f}, max {ms['max']:.1f} ms)")
+    return (
+        f"{doc['timed']} of {doc['steps']} control-input steps between slow samples timed "
+        f"from the gyro rates (std median {ms['median']:.1f}, max {ms['max']:.1f} ms)"
+    )

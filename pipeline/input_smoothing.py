@@ -17,11 +17,11 @@ measured power is still twice that floor (signal above the noise: a Wiener filte
 crossover). Inputs without a flat noise floor (commands, servo outputs, noise-free steps,
 data whose signal reaches the Nyquist frequency) keep their samples.
 """
+
 from __future__ import annotations
 
 import functools
-
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -99,7 +99,7 @@ def input_corner_hz(t: np.ndarray, x: np.ndarray) -> float | None:
     upper, top = power[(f > 0.25 * rate) & (f <= 0.375 * rate)], power[f > 0.375 * rate]
     floor = np.median(power[f > 0.25 * rate]) / np.log(2.0)
     if not floor > 0 or not FLAT[0] < np.mean(top) / np.mean(upper) < FLAT[1]:
-        return None                     # no white floor: nothing or signal up there
+        return None  # no white floor: nothing or signal up there
     # third-octave bands from 0.5 Hz up to the Nyquist frequency 0.5 rate
     n_bands = int(np.ceil(np.log(rate) / np.log(BAND_RATIO)))
     edges = 0.5 * BAND_RATIO ** np.arange(n_bands + 1)
@@ -111,8 +111,7 @@ def input_corner_hz(t: np.ndarray, x: np.ndarray) -> float | None:
     return None if corner > 0.4 * rate else corner
 
 
-def control_input_corners(fd: FlightData, channels: Sequence[str] = CONTROL_INPUTS
-                          ) -> dict[str, float]:
+def control_input_corners(fd: FlightData, channels: Sequence[str] = CONTROL_INPUTS) -> dict[str, float]:
     """{channel: corner Hz} of the control inputs of ``fd`` that have noise to remove
     (:func:`input_corner_hz` on each channel's native samples)."""
     out = {}
@@ -124,8 +123,7 @@ def control_input_corners(fd: FlightData, channels: Sequence[str] = CONTROL_INPU
     return out
 
 
-def smooth_columns(df: pd.DataFrame, rate_hz: float, corners: Mapping[str, float],
-                   order: int = 2) -> pd.DataFrame:
+def smooth_columns(df: pd.DataFrame, rate_hz: float, corners: Mapping[str, float], order: int = 2) -> pd.DataFrame:
     """A copy of ``df`` (uniform grid at rate_hz) with each column of ``corners`` low-pass
     filtered forwards and backwards (:func:`zero_phase`, Butterworth of ``order``); a
     column with NaN (a gap) is filtered through its gaps' linear interpolation and keeps
@@ -144,16 +142,17 @@ def smooth_columns(df: pd.DataFrame, rate_hz: float, corners: Mapping[str, float
     return df
 
 
-def smoothed_control_inputs(fd: FlightData, df: pd.DataFrame, rate_hz: float,
-                            channels: Sequence[str] = CONTROL_INPUTS
-                            ) -> tuple[pd.DataFrame | None, str | None]:
+def smoothed_control_inputs(
+    fd: FlightData, df: pd.DataFrame, rate_hz: float, channels: Sequence[str] = CONTROL_INPUTS
+) -> tuple[pd.DataFrame | None, str | None]:
     """A copy of ``df`` (the identification grid) with its measured control inputs
     ``channels`` smoothed at their noise floors, and the note saying so for the problem;
     (None, None) when none was (no channels, or none with a noise floor)."""
     corners = {c: fc for c, fc in control_input_corners(fd, channels).items() if c in df}
     if not corners:
         return None, None
-    note = (f"control inputs low-passed zero-phase (Butterworth order {INPUT_FILTER_ORDER}) "
-            "where their measured noise floor begins: "
-            + ", ".join(f"{c} {fc:.1f} Hz" for c, fc in corners.items()))
+    note = (
+        f"control inputs low-passed zero-phase (Butterworth order {INPUT_FILTER_ORDER}) "
+        "where their measured noise floor begins: " + ", ".join(f"{c} {fc:.1f} Hz" for c, fc in corners.items())
+    )
     return smooth_columns(df, rate_hz, corners, INPUT_FILTER_ORDER), note

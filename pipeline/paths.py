@@ -1,4 +1,5 @@
 """Output folders and atomic writes shared by every command that writes."""
+
 from __future__ import annotations
 
 import os

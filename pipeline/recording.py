@@ -64,6 +64,7 @@ Filter methods (EKF/UKF) keep their parameter trajectory in ``result.extra["traj
 ``result.extra["trajectory_std"]``; it is recorded on ``t``/``segment`` (same segment
 layout as the outputs) instead of the iteration history.
 """
+
 from __future__ import annotations
 
 import re
@@ -83,9 +84,17 @@ from pipeline.validate import display_unit
 #: gap in s between segments laid end to end on the ``t`` timeline
 SEGMENT_GAP = 1.0
 #: colours of the methods and of measured/truth lines (RGB)
-COLORS = {"measured": (40, 40, 40), "truth": (200, 160, 0), "data": (40, 40, 40),
-          "oem": (31, 119, 180), "fem": (255, 127, 14), "ekf": (44, 160, 44),
-          "ukf": (214, 39, 40), "ls": (148, 103, 189), "eq": (148, 103, 189)}
+COLORS = {
+    "measured": (40, 40, 40),
+    "truth": (200, 160, 0),
+    "data": (40, 40, 40),
+    "oem": (31, 119, 180),
+    "fem": (255, 127, 14),
+    "ekf": (44, 160, 44),
+    "ukf": (214, 39, 40),
+    "ls": (148, 103, 189),
+    "eq": (148, 103, 189),
+}
 _PALETTE = [(140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
 
 
@@ -142,8 +151,7 @@ class SegmentLayout:
     several methods is one segment. Order of first appearance: for each result its fitted
     segments, then its held-out ones. Offsets from :func:`segment_starts` over that order."""
 
-    def __init__(self, results: Mapping[str, EstimationResult],
-                 validations: Mapping[str, Mapping[str, Any]]) -> None:
+    def __init__(self, results: Mapping[str, EstimationResult], validations: Mapping[str, Mapping[str, Any]]) -> None:
         times: dict[tuple, np.ndarray] = {}
         for m, r in results.items():
             for p, name in zip(r.predicted, segment_names(r)):
@@ -165,8 +173,9 @@ class SegmentLayout:
             self.offset[k] = (end + SEGMENT_GAP - k[0]) if overlap or any(self.offset.values()) else 0.0
         return self.offset[k], self.index[k]
 
-    def cat(self, frames: Sequence[pd.DataFrame], names: Sequence[str],
-            times: Sequence[Any] | None = None) -> tuple[np.ndarray, np.ndarray, pd.DataFrame]:
+    def cat(
+        self, frames: Sequence[pd.DataFrame], names: Sequence[str], times: Sequence[Any] | None = None
+    ) -> tuple[np.ndarray, np.ndarray, pd.DataFrame]:
         """Concatenate per-segment DataFrames on t (or with explicit own ``times``) of the
         named segments into (t_run (N,), segment (N,), values)."""
         times = [df.index for df in frames] if times is None else times
@@ -195,8 +204,18 @@ class _Writer:
     def style(self, path: str, name: str, color: tuple[int, int, int], width: float = 1.5) -> None:
         self.rec.log(path, self.rr.SeriesLines(names=name, colors=[color], widths=width), static=True)
 
-    def series(self, path: str, values, *, t=None, segment=None, sequence=None,
-               timeline: str = "iteration", name: str | None = None, color=None) -> None:
+    def series(
+        self,
+        path: str,
+        values,
+        *,
+        t=None,
+        segment=None,
+        sequence=None,
+        timeline: str = "iteration",
+        name: str | None = None,
+        color=None,
+    ) -> None:
         """One entity, one send_columns call; non-finite samples are left out."""
         rr = self.rr
         v = np.asarray(values, dtype=float).ravel()
@@ -219,10 +238,14 @@ class _Writer:
         self.rec.log(path, self.rr.TextDocument(body, media_type=media_type), static=True)
 
 
-def _time_histories(w: _Writer, results: Mapping[str, EstimationResult],
-                    validations: Mapping[str, Mapping[str, Any]],
-                    inputs: Sequence[pd.DataFrame] | None, lay: SegmentLayout) -> None:
-    done: dict[str, set[int]] = {}          # entity -> segment indices already written
+def _time_histories(
+    w: _Writer,
+    results: Mapping[str, EstimationResult],
+    validations: Mapping[str, Mapping[str, Any]],
+    inputs: Sequence[pd.DataFrame] | None,
+    lay: SegmentLayout,
+) -> None:
+    done: dict[str, set[int]] = {}  # entity -> segment indices already written
 
     def fresh(path: str, sg: np.ndarray) -> np.ndarray:
         """Rows of segments not yet written to ``path`` (measured data is written once)."""
@@ -242,28 +265,37 @@ def _time_histories(w: _Writer, results: Mapping[str, EstimationResult],
             po, unit = entity_part(o), _si_unit(o)
             k = fresh(f"/outputs/{po}/measured", sg)
             if k.any():
-                w.series(f"/outputs/{po}/measured", z[o][k], t=t[k], segment=sg[k],
-                         name=f"{o} measured [{unit}]", color=COLORS["measured"])
-            w.series(f"/outputs/{po}/{pm}", y[o], t=t, segment=sg, name=f"{o} {m} [{unit}]",
-                     color=col)
-            w.series(f"/residuals/{pm}/{po}", e[o], t=t, segment=sg,
-                     name=f"{o} residual {m} [{unit}]", color=col)
+                w.series(
+                    f"/outputs/{po}/measured",
+                    z[o][k],
+                    t=t[k],
+                    segment=sg[k],
+                    name=f"{o} measured [{unit}]",
+                    color=COLORS["measured"],
+                )
+            w.series(f"/outputs/{po}/{pm}", y[o], t=t, segment=sg, name=f"{o} {m} [{unit}]", color=col)
+            w.series(f"/residuals/{pm}/{po}", e[o], t=t, segment=sg, name=f"{o} residual {m} [{unit}]", color=col)
 
         # inputs: the result's segments (or the caller's tables for the first result)
         if n == 0 and inputs is not None:
             frames = list(inputs)
-            in_names = names[:len(frames)] + [f"inputs #{k}" for k in range(len(names), len(frames))]
+            in_names = names[: len(frames)] + [f"inputs #{k}" for k in range(len(names), len(frames))]
         else:
-            frames = [pd.DataFrame(s_.u, index=pd.Index(s_.t, name="t"), columns=r.model.inputs)
-                      for s_ in r.segments]
+            frames = [pd.DataFrame(s_.u, index=pd.Index(s_.t, name="t"), columns=r.model.inputs) for s_ in r.segments]
             in_names = names
         if frames:
             t, sg, u = lay.cat(frames, in_names)
             for i in u.columns:
                 k = fresh(f"/inputs/{entity_part(i)}", sg)
                 if k.any():
-                    w.series(f"/inputs/{entity_part(i)}", u[i][k], t=t[k], segment=sg[k],
-                             name=f"{i} [{_si_unit(i)}]", color=(90, 90, 90))
+                    w.series(
+                        f"/inputs/{entity_part(i)}",
+                        u[i][k],
+                        t=t[k],
+                        segment=sg[k],
+                        name=f"{i} [{_si_unit(i)}]",
+                        color=(90, 90, 90),
+                    )
 
         v = validations.get(m) or {}
         # inverse simulation (on the result's first fitted segment)
@@ -272,9 +304,14 @@ def _time_histories(w: _Writer, results: Mapping[str, EstimationResult],
             o_, k_ = lay.place(inv["t"], inv.get("name") or names[0])
             t = np.asarray(inv["t"], dtype=float) + o_
             for j, i in enumerate(inv["inputs"]):
-                w.series(f"/inverse/{pm}/{entity_part(i)}", inv["residual_inputs"][:, j], t=t,
-                         segment=np.full(t.size, k_, dtype=np.int64),
-                         name=f"{i} residual input {m} [{_si_unit(i)}]", color=col)
+                w.series(
+                    f"/inverse/{pm}/{entity_part(i)}",
+                    inv["residual_inputs"][:, j],
+                    t=t,
+                    segment=np.full(t.size, k_, dtype=np.int64),
+                    name=f"{i} residual input {m} [{_si_unit(i)}]",
+                    color=col,
+                )
 
         # proof of match on held-out segments
         arr = _match(v)
@@ -285,37 +322,87 @@ def _time_histories(w: _Writer, results: Mapping[str, EstimationResult],
             tol = arr[0]["tolerance"]
             # the prediction's range over the times of the control steps between slow
             # samples, where a segment has one (the prediction itself elsewhere)
-            bounds = [] if all(a.get("envelope") is None for a in arr) else [
-                lay.cat([a["predicted"] if a.get("envelope") is None else a["envelope"][i]
-                         for a in arr], hnames, times)[2] for i in (0, 1)]
+            bounds = (
+                []
+                if all(a.get("envelope") is None for a in arr)
+                else [
+                    lay.cat(
+                        [a["predicted"] if a.get("envelope") is None else a["envelope"][i] for a in arr], hnames, times
+                    )[2]
+                    for i in (0, 1)
+                ]
+            )
             # the prediction -/+ PREDICTION_K of its own std from the estimates' covariance
-            spread = [] if all(a.get("prediction_std") is None for a in arr) else [
-                y + sign * PREDICTION_K * lay.cat([a["predicted"] * np.nan if a.get("prediction_std") is None
-                                                   else a["prediction_std"] for a in arr], hnames, times)[2]
-                for sign in (-1.0, 1.0)]
+            spread = (
+                []
+                if all(a.get("prediction_std") is None for a in arr)
+                else [
+                    y
+                    + sign
+                    * PREDICTION_K
+                    * lay.cat(
+                        [
+                            a["predicted"] * np.nan if a.get("prediction_std") is None else a["prediction_std"]
+                            for a in arr
+                        ],
+                        hnames,
+                        times,
+                    )[2]
+                    for sign in (-1.0, 1.0)
+                ]
+            )
             for j, o in enumerate(z.columns):
                 po, unit = entity_part(o), _si_unit(o)
                 k = fresh(f"/match/{po}/measured", sg)
                 if k.any():
                     zk = z[o][k]
-                    w.series(f"/match/{po}/measured", zk, t=t[k], segment=sg[k],
-                             name=f"{o} measured (held out) [{unit}]", color=COLORS["measured"])
+                    w.series(
+                        f"/match/{po}/measured",
+                        zk,
+                        t=t[k],
+                        segment=sg[k],
+                        name=f"{o} measured (held out) [{unit}]",
+                        color=COLORS["measured"],
+                    )
                     if np.isfinite(tol[j]):
-                        w.series(f"/match/{po}/upper", zk + tol[j], t=t[k], segment=sg[k],
-                                 name=f"{o} + tolerance", color=(170, 170, 170))
-                        w.series(f"/match/{po}/lower", zk - tol[j], t=t[k], segment=sg[k],
-                                 name=f"{o} - tolerance", color=(170, 170, 170))
-                w.series(f"/match/{po}/{pm}", y[o], t=t, segment=sg,
-                         name=f"{o} {m} (held-fixed model) [{unit}]", color=col)
+                        w.series(
+                            f"/match/{po}/upper",
+                            zk + tol[j],
+                            t=t[k],
+                            segment=sg[k],
+                            name=f"{o} + tolerance",
+                            color=(170, 170, 170),
+                        )
+                        w.series(
+                            f"/match/{po}/lower",
+                            zk - tol[j],
+                            t=t[k],
+                            segment=sg[k],
+                            name=f"{o} - tolerance",
+                            color=(170, 170, 170),
+                        )
+                w.series(
+                    f"/match/{po}/{pm}", y[o], t=t, segment=sg, name=f"{o} {m} (held-fixed model) [{unit}]", color=col
+                )
                 for side, b in zip(("lower", "upper"), bounds):
-                    w.series(f"/match/{po}/{pm}/{side}", b[o], t=t, segment=sg,
-                             name=f"{o} {m} with the steps moved in time ({side}) [{unit}]",
-                             color=col)
+                    w.series(
+                        f"/match/{po}/{pm}/{side}",
+                        b[o],
+                        t=t,
+                        segment=sg,
+                        name=f"{o} {m} with the steps moved in time ({side}) [{unit}]",
+                        color=col,
+                    )
                 for side, b in zip(("model_lower", "model_upper"), spread):
                     if np.isfinite(b[o].to_numpy(float)).any():
-                        w.series(f"/match/{po}/{pm}/{side}", b[o], t=t, segment=sg,
-                                 name=f"{o} {m} {side[6:]} {PREDICTION_K:g} std from the "
-                                      f"estimates' covariance [{unit}]", color=col)
+                        w.series(
+                            f"/match/{po}/{pm}/{side}",
+                            b[o],
+                            t=t,
+                            segment=sg,
+                            name=f"{o} {m} {side[6:]} {PREDICTION_K:g} std from the estimates' covariance [{unit}]",
+                            color=col,
+                        )
 
 
 def _trajectory(r: EstimationResult) -> tuple[list[pd.DataFrame], list[pd.DataFrame] | None] | None:
@@ -324,8 +411,12 @@ def _trajectory(r: EstimationResult) -> tuple[list[pd.DataFrame], list[pd.DataFr
     ex = r.extra if isinstance(r.extra, Mapping) else {}
     traj = ex.get("trajectory", ex.get("param_trajectory"))
     std = ex.get("trajectory_std", ex.get("param_std_trajectory"))
-    as_list = lambda x: [x] if isinstance(x, pd.DataFrame) else (  # noqa: E731
-        [f for f in x if isinstance(f, pd.DataFrame)] if isinstance(x, (list, tuple)) else [])
+    as_list = lambda x: (
+        [x]
+        if isinstance(x, pd.DataFrame)
+        # noqa: E731
+        else ([f for f in x if isinstance(f, pd.DataFrame)] if isinstance(x, (list, tuple)) else [])
+    )
     traj = [f for f in as_list(traj) if len(f)]
     if not traj:
         return None
@@ -333,8 +424,9 @@ def _trajectory(r: EstimationResult) -> tuple[list[pd.DataFrame], list[pd.DataFr
     return traj, (std if len(std) == len(traj) else None)
 
 
-def _params(w: _Writer, results: Mapping[str, EstimationResult],
-            truth: Mapping[str, float] | None, lay: SegmentLayout) -> None:
+def _params(
+    w: _Writer, results: Mapping[str, EstimationResult], truth: Mapping[str, float] | None, lay: SegmentLayout
+) -> None:
     n_iter = 0
     t_span: list[float] = []
     for m, r in results.items():
@@ -351,10 +443,8 @@ def _params(w: _Writer, results: Mapping[str, EstimationResult],
                 base = f"/params/{entity_part(name)}/{pm}"
                 w.series(base, x[name], t=t, segment=sg, name=f"{name} {m}", color=col)
                 if sd is not None and name in sd:
-                    w.series(f"{base}/upper", x[name] + sd[name], t=t, segment=sg,
-                             name=f"{name} {m} + std", color=col)
-                    w.series(f"{base}/lower", x[name] - sd[name], t=t, segment=sg,
-                             name=f"{name} {m} - std", color=col)
+                    w.series(f"{base}/upper", x[name] + sd[name], t=t, segment=sg, name=f"{name} {m} + std", color=col)
+                    w.series(f"{base}/lower", x[name] - sd[name], t=t, segment=sg, name=f"{name} {m} - std", color=col)
             continue
         h = r.history
         if h is None or not len(h):
@@ -377,15 +467,20 @@ def _params(w: _Writer, results: Mapping[str, EstimationResult],
         for name in names:
             path = f"/params/{entity_part(name)}/truth"
             if n_iter:
-                w.series(path, np.full(n_iter, float(truth[name])), sequence=np.arange(n_iter),
-                         name=f"{name} truth", color=COLORS["truth"])
+                w.series(
+                    path,
+                    np.full(n_iter, float(truth[name])),
+                    sequence=np.arange(n_iter),
+                    name=f"{name} truth",
+                    color=COLORS["truth"],
+                )
             if t_span:
-                w.series(path, [truth[name]] * 2, t=[min(t_span), max(t_span)],
-                         name=f"{name} truth", color=COLORS["truth"])
+                w.series(
+                    path, [truth[name]] * 2, t=[min(t_span), max(t_span)], name=f"{name} truth", color=COLORS["truth"]
+                )
 
 
-def _spectra(w: _Writer, results: Mapping[str, EstimationResult],
-             validations: Mapping[str, Mapping[str, Any]]) -> None:
+def _spectra(w: _Writer, results: Mapping[str, EstimationResult], validations: Mapping[str, Mapping[str, Any]]) -> None:
     data_done: set[tuple[str, str]] = set()
     for m, v in validations.items():
         arr = (v or {}).get("arrays") or {}
@@ -396,8 +491,14 @@ def _spectra(w: _Writer, results: Mapping[str, EstimationResult],
             with np.errstate(divide="ignore"):
                 db = 10.0 * np.log10(np.asarray(ps["Pxx"], dtype=float))
             for j, o in enumerate(results[m].outputs):
-                w.series(f"/spectra/{pm}/{entity_part(o)}", db[:, j], sequence=fm,
-                         timeline="frequency", name=f"{o} residual PSD {m} [dB]", color=col)
+                w.series(
+                    f"/spectra/{pm}/{entity_part(o)}",
+                    db[:, j],
+                    sequence=fm,
+                    timeline="frequency",
+                    name=f"{o} residual PSD {m} [dB]",
+                    color=col,
+                )
         fr = arr.get("freq")
         if not fr:
             continue
@@ -408,18 +509,36 @@ def _spectra(w: _Writer, results: Mapping[str, EstimationResult],
                 curves = {m: fr["H_model"][:, a, b], f"{m}_linear": fr["H_analytic"][:, a, b]}
                 if (o, i) not in data_done:
                     curves["data"] = fr["H_data"][:, a, b]
-                    w.series(f"{base}/coherence", fr["coherence"][:, a, b], sequence=fm,
-                             timeline="frequency", name=f"{o}/{i} coherence", color=COLORS["data"])
+                    w.series(
+                        f"{base}/coherence",
+                        fr["coherence"][:, a, b],
+                        sequence=fm,
+                        timeline="frequency",
+                        name=f"{o}/{i} coherence",
+                        color=COLORS["data"],
+                    )
                     data_done.add((o, i))
                 for key, H in curves.items():
                     with np.errstate(divide="ignore"):
                         mag = 20.0 * np.log10(np.abs(H))
                     ph = np.degrees(np.unwrap(np.angle(H)))
                     c = COLORS["data"] if key == "data" else col
-                    w.series(f"{base}/mag_db/{entity_part(key)}", mag, sequence=fm,
-                             timeline="frequency", name=f"{o}/{i} {key} [dB]", color=c)
-                    w.series(f"{base}/phase_deg/{entity_part(key)}", ph, sequence=fm,
-                             timeline="frequency", name=f"{o}/{i} {key} [deg]", color=c)
+                    w.series(
+                        f"{base}/mag_db/{entity_part(key)}",
+                        mag,
+                        sequence=fm,
+                        timeline="frequency",
+                        name=f"{o}/{i} {key} [dB]",
+                        color=c,
+                    )
+                    w.series(
+                        f"{base}/phase_deg/{entity_part(key)}",
+                        ph,
+                        sequence=fm,
+                        timeline="frequency",
+                        name=f"{o}/{i} {key} [deg]",
+                        color=c,
+                    )
 
 
 def _extra_data(w: _Writer, data: pd.DataFrame | Sequence[pd.DataFrame]) -> None:
@@ -429,8 +548,14 @@ def _extra_data(w: _Writer, data: pd.DataFrame | Sequence[pd.DataFrame]) -> None
     t, sg, d = SegmentLayout({}, {}).cat(frames, [f"data #{k}" for k in range(len(frames))])
     for c in d.columns:
         if pd.api.types.is_numeric_dtype(d[c]):
-            w.series(f"/data/{entity_part(c)}", d[c].to_numpy(float), t=t, segment=sg,
-                     name=f"{c} [{_si_unit(str(c))}]", color=(90, 90, 90))
+            w.series(
+                f"/data/{entity_part(c)}",
+                d[c].to_numpy(float),
+                t=t,
+                segment=sg,
+                name=f"{c} [{_si_unit(str(c))}]",
+                color=(90, 90, 90),
+            )
 
 
 def _blueprint(results: Mapping[str, EstimationResult], validations) -> Any:
@@ -440,50 +565,80 @@ def _blueprint(results: Mapping[str, EstimationResult], validations) -> Any:
     outs = list(dict.fromkeys(o for r in results.values() for o in r.outputs))
     params = list(dict.fromkeys(n for r in results.values() for n in r.free_names))
     tabs = [
-        rrb.Grid(*[rrb.TimeSeriesView(origin=f"/outputs/{entity_part(o)}", name=o) for o in outs],
-                 name="outputs"),
-        rrb.Grid(*[rrb.TimeSeriesView(origin=f"/residuals/{entity_part(m)}", name=f"residuals {m}")
-                   for m in results], name="residuals"),
-        rrb.Grid(*[rrb.TimeSeriesView(origin=f"/inputs/{entity_part(i)}", name=i)
-                   for i in ins], name="inputs"),
-        rrb.Grid(*[rrb.TimeSeriesView(origin=f"/params/{entity_part(p)}", name=p) for p in params],
-                 name="parameters"),
+        rrb.Grid(*[rrb.TimeSeriesView(origin=f"/outputs/{entity_part(o)}", name=o) for o in outs], name="outputs"),
+        rrb.Grid(
+            *[rrb.TimeSeriesView(origin=f"/residuals/{entity_part(m)}", name=f"residuals {m}") for m in results],
+            name="residuals",
+        ),
+        rrb.Grid(*[rrb.TimeSeriesView(origin=f"/inputs/{entity_part(i)}", name=i) for i in ins], name="inputs"),
+        rrb.Grid(*[rrb.TimeSeriesView(origin=f"/params/{entity_part(p)}", name=p) for p in params], name="parameters"),
     ]
     if any((v or {}).get("arrays", {}).get("match") for v in validations.values()):
-        tabs.append(rrb.Grid(*[rrb.TimeSeriesView(origin=f"/match/{entity_part(o)}", name=o)
-                               for o in outs], name="proof of match"))
-    tabs.append(rrb.Grid(*[rrb.TimeSeriesView(origin=f"/spectra/{entity_part(m)}", name=f"PSD {m}")
-                           for m in results], name="spectra"))
-    pairs = list(dict.fromkeys(
-        (o, i) for v in validations.values() for fr in [((v or {}).get("arrays") or {}).get("freq")]
-        if fr for o in fr["outputs"] for i in fr["inputs"]))
+        tabs.append(
+            rrb.Grid(
+                *[rrb.TimeSeriesView(origin=f"/match/{entity_part(o)}", name=o) for o in outs], name="proof of match"
+            )
+        )
+    tabs.append(
+        rrb.Grid(
+            *[rrb.TimeSeriesView(origin=f"/spectra/{entity_part(m)}", name=f"PSD {m}") for m in results], name="spectra"
+        )
+    )
+    pairs = list(
+        dict.fromkeys(
+            (o, i)
+            for v in validations.values()
+            for fr in [((v or {}).get("arrays") or {}).get("freq")]
+            if fr
+            for o in fr["outputs"]
+            for i in fr["inputs"]
+        )
+    )
     if pairs:
         views = []
         for o, i in pairs:
             base = f"/freq_response/{entity_part(o)}/{entity_part(i)}"
-            views.append(rrb.Vertical(
-                rrb.TimeSeriesView(origin=f"{base}/mag_db", name=f"{o}/{i} magnitude (dB)"),
-                rrb.TimeSeriesView(origin=f"{base}/phase_deg", name=f"{o}/{i} phase (deg)"),
-                rrb.TimeSeriesView(origin=f"{base}/coherence", name=f"{o}/{i} coherence"),
-                name=f"{o}/{i}"))
+            views.append(
+                rrb.Vertical(
+                    rrb.TimeSeriesView(origin=f"{base}/mag_db", name=f"{o}/{i} magnitude (dB)"),
+                    rrb.TimeSeriesView(origin=f"{base}/phase_deg", name=f"{o}/{i} phase (deg)"),
+                    rrb.TimeSeriesView(origin=f"{base}/coherence", name=f"{o}/{i} coherence"),
+                    name=f"{o}/{i}",
+                )
+            )
         tabs.append(rrb.Grid(*views, name="frequency response"))
     if any(((v or {}).get("arrays") or {}).get("inverse") for v in validations.values()):
-        tabs.append(rrb.Grid(*[rrb.TimeSeriesView(origin=f"/inverse/{entity_part(m)}",
-                                                  name=f"inverse simulation {m}")
-                               for m in results], name="inverse simulation"))
-    tabs.append(rrb.Vertical(rrb.TextDocumentView(origin="/README", name="layout"),
-                             *[rrb.TextDocumentView(origin=f"/summary/{entity_part(m)}", name=m)
-                               for m in results], name="summary"))
+        tabs.append(
+            rrb.Grid(
+                *[
+                    rrb.TimeSeriesView(origin=f"/inverse/{entity_part(m)}", name=f"inverse simulation {m}")
+                    for m in results
+                ],
+                name="inverse simulation",
+            )
+        )
+    tabs.append(
+        rrb.Vertical(
+            rrb.TextDocumentView(origin="/README", name="layout"),
+            *[rrb.TextDocumentView(origin=f"/summary/{entity_part(m)}", name=m) for m in results],
+            name="summary",
+        )
+    )
     return rrb.Blueprint(rrb.Tabs(*tabs), rrb.TimePanel(timeline="t"), collapse_panels=False)
 
 
-def write_recording(path: str | Path, results: Mapping[str, EstimationResult],
-                    validations: Mapping[str, Mapping[str, Any]] | None = None, *,
-                    data: pd.DataFrame | Sequence[pd.DataFrame] | None = None,
-                    truth: Mapping[str, float] | None = None,
-                    inputs: Sequence[pd.DataFrame] | None = None,
-                    application_id: str = "fsid", recording_id: str | None = None,
-                    blueprint: bool = True) -> Path:
+def write_recording(
+    path: str | Path,
+    results: Mapping[str, EstimationResult],
+    validations: Mapping[str, Mapping[str, Any]] | None = None,
+    *,
+    data: pd.DataFrame | Sequence[pd.DataFrame] | None = None,
+    truth: Mapping[str, float] | None = None,
+    inputs: Sequence[pd.DataFrame] | None = None,
+    application_id: str = "fsid",
+    recording_id: str | None = None,
+    blueprint: bool = True,
+) -> Path:
     """Write the rerun recording of a run (layout in the module doc); returns the path.
 
     results: method -> result (the first one's segments give the inputs and the time base);
@@ -507,8 +662,7 @@ def write_recording(path: str | Path, results: Mapping[str, EstimationResult],
             w = _Writer(rec, list(results))
             w.text("/README", __doc__ or "")
             for m, r in results.items():
-                w.text(f"/summary/{entity_part(m)}", "```\n" + r.summary(dict(truth) if truth else None)
-                       + "\n```")
+                w.text(f"/summary/{entity_part(m)}", "```\n" + r.summary(dict(truth) if truth else None) + "\n```")
             lay = SegmentLayout(results, validations)
             _time_histories(w, results, validations, inputs, lay)
             _params(w, results, truth, lay)

@@ -5,26 +5,37 @@ Estimation always starts from the written log files (the path a user's real log 
 never from the simulator's in-memory tables. ``estimate_log`` is the same chain for a
 real log with an aircraft description.
 """
+
 from __future__ import annotations
 
 import json
 import sys
 import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
 from pipeline.errors import FsidError
 from pipeline.flow_angles import rebuilt
-from pipeline.sixdof_problem import sixdof_lateral_problem
-from pipeline.identify import multi_axis, multiaxis_problem
-from pipeline.identify import (LAT_OUTPUTS, LONG_OUTPUTS, AircraftConstants, Problem, lateral_problem,
-                               longitudinal_problem)
-from pipeline.identify import MAX_RATE_HZ, with_airspeed_offsets
-from pipeline.input_sampling import summary as step_summary, step_times, time_steps
+from pipeline.identify import (
+    LAT_OUTPUTS,
+    LONG_OUTPUTS,
+    MAX_RATE_HZ,
+    AircraftConstants,
+    Problem,
+    lateral_problem,
+    longitudinal_problem,
+    multi_axis,
+    multiaxis_problem,
+    with_airspeed_offsets,
+)
+from pipeline.input_sampling import step_times, time_steps
+from pipeline.input_sampling import summary as step_summary
 from pipeline.paths import atomic_write_text
+from pipeline.sixdof_problem import sixdof_lateral_problem
 
 #: methods the run knows; the scenario or the command line picks among them
 METHODS = ("oem", "ls", "fem", "ekf", "ukf", "soem", "eigen", "decouple")
@@ -73,20 +84,24 @@ class Progress:
         self.total, self.n, self.stream, self.quiet = total, 0, stream or sys.stderr, quiet
         self.t0 = time.perf_counter()
 
-    def stage(self, text: str) -> "Progress":
+    def stage(self, text: str) -> Progress:
         self.n += 1
         self._t = time.perf_counter()
         if not self.quiet:
             print(f"[{self.n}/{self.total}] {text} ...", end="", file=self.stream, flush=True)
         return self
 
-    def substage(self, text: str) -> "Progress":
+    def substage(self, text: str) -> Progress:
         """A second part of the stage just done, on a line of its own under it (counted
         with that stage: a part that only some logs need keeps the count right)."""
         self._t = time.perf_counter()
         if not self.quiet:
-            print(f"{' ' * (len(str(self.n)) + len(str(self.total)) + 3)} {text} ...", end="",
-                  file=self.stream, flush=True)
+            print(
+                f"{' ' * (len(str(self.n)) + len(str(self.total)) + 3)} {text} ...",
+                end="",
+                file=self.stream,
+                flush=True,
+            )
         return self
 
     def tick(self, text: str) -> None:
@@ -107,6 +122,7 @@ def measurement_noise_std(problem: Problem, logged: bool = True) -> np.ndarray:
     differences) / 6), exact for white noise on a signal that is locally linear over two
     samples."""
     from estimators.statistics import difference_noise_std
+
     sd = difference_noise_std([s.z for s in problem.fit])
     logged = (problem.noise_std or {}) if logged else {}
     sd = np.array([logged.get(o, v) for o, v in zip(problem.model.outputs, sd)], dtype=float)
@@ -125,13 +141,19 @@ def attach_logged_noise(fd, problem: Problem) -> Problem:
     on seed 33. Returns the problem."""
     rate = problem.rate_hz or None
     wins = [(s.t0, s.t1) for s in problem.specs]
-    problem.noise_std = {o: sd for o in problem.model.outputs if o in fd
-                         for sd in [fd.noise_std(o, wins, rate)] if np.isfinite(sd) and sd > 0}
+    problem.noise_std = {
+        o: sd
+        for o in problem.model.outputs
+        if o in fd
+        for sd in [fd.noise_std(o, wins, rate)]
+        if np.isfinite(sd) and sd > 0
+    }
     return problem
 
 
-def process_noise_std(problem: Problem, turbulence: Mapping[str, Any] | None = None,
-                      scale: float = 1.0) -> dict[str, float]:
+def process_noise_std(
+    problem: Problem, turbulence: Mapping[str, Any] | None = None, scale: float = 1.0
+) -> dict[str, float]:
     """Process-noise std F (state unit per sqrt(s)) for the filters.
 
     From a Dryden turbulence level (``sigma_u``, ``sigma_w`` m/s, scale lengths ``L_u``,
@@ -160,8 +182,7 @@ def process_noise_std(problem: Problem, turbulence: Mapping[str, Any] | None = N
         rot = _rotary_gust_std(m, V, sw, Lw)
         if problem.axis == "longitudinal":
             fa = sw / V * np.sqrt(2 * V / Lw)
-            return {"V": scale * su * np.sqrt(2 * V / Lu), "alpha": scale * fa, "q": scale * 0.3 * fa,
-                    **rot}
+            return {"V": scale * su * np.sqrt(2 * V / Lu), "alpha": scale * fa, "q": scale * 0.3 * fa, **rot}
         fb = sv / V * np.sqrt(2 * V / Lv)
         return {"beta": scale * fb, "p": scale * 0.3 * fb, "r": scale * 0.3 * fb, **rot}
     from estimators.kalman import default_process_noise
@@ -245,12 +266,13 @@ def _filter_param_std(model: Any) -> dict[str, float]:
             continue
         if p.name.startswith("bias_"):
             o = p.name[5:]
-            out[p.name] = (0.02 if o in ("p", "q", "r") else 0.3 if o in ("ax", "ay", "az")
-                           else 1.0 if o == "V" else 0.01)
+            out[p.name] = (
+                0.02 if o in ("p", "q", "r") else 0.3 if o in ("ax", "ay", "az") else 1.0 if o == "V" else 0.01
+            )
         elif p.name.endswith("alphadot"):
-            out[p.name] = 10.0           # CLalphadot, Cmalphadot start at 0: no prior pull
+            out[p.name] = 10.0  # CLalphadot, Cmalphadot start at 0: no prior pull
         elif p.name == "tau_pg":
-            out[p.name] = 0.1 * p.value   # a time constant: UKF sigma points must stay > 0
+            out[p.name] = 0.1 * p.value  # a time constant: UKF sigma points must stay > 0
         else:
             out[p.name] = max(2.0 * abs(p.value), 0.3)
     return out
@@ -270,9 +292,9 @@ def equation_error(problem: Problem) -> Any:
     for coef, names, X, y, window in problem.regressions:
         keep = [i for i, n in enumerate(names) if n is not None]
         cols = [n if n is not None else "bias" for n in names]
-        res = LeastSquares(cols if names[0] is not None else cols[1:],
-                           intercept=names[0] is None, response=coef).fit(
-            X if names[0] is not None else X[:, 1:], y)
+        res = LeastSquares(cols if names[0] is not None else cols[1:], intercept=names[0] is None, response=coef).fit(
+            X if names[0] is not None else X[:, 1:], y
+        )
         regs.append(res)
         for i in keep:
             n = names[i]
@@ -281,8 +303,7 @@ def equation_error(problem: Problem) -> Any:
         clusters.append(_regression_clusters(X, y, window, cols, res))
     free = [p.name for p in model.parameters if p.free and not p.per_segment and p.name in est]
     held = model.with_values({n: est[n] for n in free}).fixed(free)
-    sim = OutputError(held, inputs=problem.inputs, fallback="never").fit(
-        problem.fit, estimate_x0=problem.estimate_x0)
+    sim = OutputError(held, inputs=problem.inputs, fallback="never").fit(problem.fit, estimate_x0=problem.estimate_x0)
     names = list(sim.names)
     is_free = np.array([n in free for n in names])
     cov = np.diag([var[n] for n in names if n in free])
@@ -296,18 +317,35 @@ def equation_error(problem: Problem) -> Any:
                 cov[idx[na], idx[nb]] = sub[a, b]
     n_samples = sum(len(r.residuals[0]) for r in regs)
     return EstimationResult(
-        method="ls", model=model, names=names, values=np.asarray(sim.values, dtype=float),
-        free=is_free, cov=cov, R=sim.R, converged=True, iterations=1,
-        history=sim.history, predicted=sim.predicted, residuals=sim.residuals,
+        method="ls",
+        model=model,
+        names=names,
+        values=np.asarray(sim.values, dtype=float),
+        free=is_free,
+        cov=cov,
+        R=sim.R,
+        converged=True,
+        iterations=1,
+        history=sim.history,
+        predicted=sim.predicted,
+        residuals=sim.residuals,
         segments=list(problem.fit),
-        message=(f"equation error (OLS) on {', '.join(r.outputs[0] for r in regs)} from "
-                 f"{n_samples // max(len(regs), 1)} samples; predictions: the model with these "
-                 "derivatives, initial states and biases fitted"),
-        settings={"integrator": sim.settings.get("integrator", "rk4"), "optimizer": "ols",
-                  "inputs": problem.inputs},
-        extra={"regressions": regs, "x0_and_biases": sim,
-               **({"cluster": _joined_clusters(clusters, [n for n in names if n in free])}
-                  if clusters and all(c is not None for c in clusters) else {})})
+        message=(
+            f"equation error (OLS) on {', '.join(r.outputs[0] for r in regs)} from "
+            f"{n_samples // max(len(regs), 1)} samples; predictions: the model with these "
+            "derivatives, initial states and biases fitted"
+        ),
+        settings={"integrator": sim.settings.get("integrator", "rk4"), "optimizer": "ols", "inputs": problem.inputs},
+        extra={
+            "regressions": regs,
+            "x0_and_biases": sim,
+            **(
+                {"cluster": _joined_clusters(clusters, [n for n in names if n in free])}
+                if clusters and all(c is not None for c in clusters)
+                else {}
+            ),
+        },
+    )
 
 
 def _regression_clusters(X: np.ndarray, y: np.ndarray, window: np.ndarray, cols: list[str], res):
@@ -323,8 +361,7 @@ def _regression_clusters(X: np.ndarray, y: np.ndarray, window: np.ndarray, cols:
     beta = np.array([float(res.params[c]) for c in cols])
     e = y - X @ beta
     s2 = float(e @ e) / max(len(y) - len(cols), 1)
-    parts = [(X[window == k].T @ X[window == k] / s2, X[window == k].T @ e[window == k] / s2)
-             for k in wins]
+    parts = [(X[window == k].T @ X[window == k] / s2, X[window == k].T @ e[window == k] / s2) for k in wins]
     try:
         return cluster_covariance([p[0] for p in parts], [p[1] for p in parts], names=cols)
     except (ValueError, np.linalg.LinAlgError):
@@ -345,12 +382,11 @@ def _joined_clusters(clusters: list, names: list[str]):
         rows, cols = [a for a, _ in mine], [k for _, k in mine]
         cov[np.ix_(rows, rows)] = c.cov[np.ix_(cols, cols)]
         crb[rows] = c.crb_std[cols]
-        share[:c.n_segments, rows] = c.share[:, cols]
+        share[: c.n_segments, rows] = c.share[:, cols]
     bad = ~np.isfinite(np.diag(cov))
     cov[bad, :] = np.nan
     cov[:, bad] = np.nan
-    return ClusterResult(names=list(names), cov=cov, crb_std=crb, share=share,
-                         limit=clusters[0].limit)
+    return ClusterResult(names=list(names), cov=cov, crb_std=crb, share=share, limit=clusters[0].limit)
 
 
 def raw_starts(problem: Problem) -> dict[str, float]:
@@ -387,14 +423,20 @@ def _states_at_cg(model: Any):
         u, w = V * np.cos(a) - q * zv, V * np.sin(a) + q * xv
         cg = {"V": np.hypot(u, w), "alpha": np.arctan2(w, u)}
         return np.column_stack([cg[s] if s in cg else seg.z[:, outs.index(s)] for s in states])
+
     return pseudo
 
 
-def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] | None = None,
-                process_noise: Mapping[str, float] | None = None,
-                measurement_noise: Mapping[str, float] | None = None,
-                callback: Callable[[int, float, Any], None] | None = None,
-                start: Mapping[str, float] | None = None) -> Any:
+def fit_problem(
+    problem: Problem,
+    method: str,
+    *,
+    turbulence: Mapping[str, Any] | None = None,
+    process_noise: Mapping[str, float] | None = None,
+    measurement_noise: Mapping[str, float] | None = None,
+    callback: Callable[[int, float, Any], None] | None = None,
+    start: Mapping[str, float] | None = None,
+) -> Any:
     """Run one estimation method on a problem (names in METHODS). ``turbulence``: the
     Dryden level when known (truth.json), for the filters' process noise; else
     ``process_noise`` (EKF/UKF: state -> F, e.g. :func:`filter_process_noise`), else the
@@ -409,8 +451,9 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
     if method not in ("oem", "ls") and problem.regressions:
         model = model.with_values(raw_starts(problem))
     if method == "oem":
-        return E.OutputError(model, inputs=inputs, priors=problem.priors or None,
-                             callback=callback).fit(problem.fit, estimate_x0=x0, start=start)
+        return E.OutputError(model, inputs=inputs, priors=problem.priors or None, callback=callback).fit(
+            problem.fit, estimate_x0=x0, start=start
+        )
     if method == "ls":
         return equation_error(problem)
     if method == "fem":
@@ -419,10 +462,15 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
         # estimated; R started at the second-difference noise level (no output-error run
         # from equation-error starts that may diverge) and estimated by relaxation
         def fem(m, estimate_F: bool = True):
-            return E.FilterError(m, form="nonlinear", inputs=inputs,
-                                 process_noise=process_noise_std(problem, turbulence),
-                                 measurement_noise=measurement_noise_std(problem), estimate_F=estimate_F,
-                                 callback=callback).fit(problem.fit, estimate_x0=x0, start=start)
+            return E.FilterError(
+                m,
+                form="nonlinear",
+                inputs=inputs,
+                process_noise=process_noise_std(problem, turbulence),
+                measurement_noise=measurement_noise_std(problem),
+                estimate_F=estimate_F,
+                callback=callback,
+            ).fit(problem.fit, estimate_x0=x0, start=start)
 
         res = fem(model)
         if not res.converged:
@@ -445,13 +493,23 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
         # longitudinal EKF/UKF worst 5.3-11.2 std (3.7-7.4 here), the lateral EKF 3.5-79
         # either way; and with the logged noise levels as R (fsid estimate, seed 31):
         # lateral EKF Clp 34 -> 51, longitudinal CLq 4.7 -> 7.4 std
-        Q = (process_noise_std(problem, turbulence, 2.0)
-             if dryden_known(turbulence) or process_noise is None else
-             {k: v for k, v in process_noise.items() if k in model.states})
-        return cls(model, inputs=inputs, process_noise=Q,
-                   measurement_noise=(dict(measurement_noise) if measurement_noise is not None
-                                      else measurement_noise_std(problem, logged=False)),
-                   param_std=_filter_param_std(model), callback=callback).fit(problem.fit)
+        Q = (
+            process_noise_std(problem, turbulence, 2.0)
+            if dryden_known(turbulence) or process_noise is None
+            else {k: v for k, v in process_noise.items() if k in model.states}
+        )
+        return cls(
+            model,
+            inputs=inputs,
+            process_noise=Q,
+            measurement_noise=(
+                dict(measurement_noise)
+                if measurement_noise is not None
+                else measurement_noise_std(problem, logged=False)
+            ),
+            param_std=_filter_param_std(model),
+            callback=callback,
+        ).fit(problem.fit)
     if method == "soem":
         # feed back only the short-period measurements where the model has them: with V and
         # theta fed back too, CL0/CLalpha/CLde ended 17-25 std off on unstable_short_period
@@ -459,7 +517,8 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
         # central differences: with forward ones the line search stalls at the optimum of
         # the stabilised problem (det R settled to 7e-5, reported as not converged)
         return E.StabilizedOutputError(model, inputs=inputs, feedback=fb, jacobian="central").fit(
-            problem.fit, estimate_x0=x0)
+            problem.fit, estimate_x0=x0
+        )
     if method == "eigen":
         if problem.axis == "longitudinal":
             # the transformation x~ = x e^{-sigma t} is exact for linear models only; in the
@@ -467,14 +526,16 @@ def fit_problem(problem: Problem, method: str, *, turbulence: Mapping[str, Any] 
             # and the transformed simulation blows up within ~2 s
             raise E.ModelDefinitionError(
                 "eigenvalue transformation needs a linear model; the longitudinal model is "
-                "nonlinear (use soem, decouple or the filters for this axis)")
+                "nonlinear (use soem, decouple or the filters for this axis)"
+            )
         return E.EigenvalueTransformation(model, inputs=inputs).fit(problem.fit, estimate_x0=x0)
     if method == "decouple":
         # decouple only the destabilising coupling where the model has it (alpha in the
         # pitch equation of the longitudinal model); every measured state otherwise
         states = ["alpha"] if "alpha" in model.states else None
-        return E.EquationDecoupling(model, states=states, inputs=inputs,
-                                    pseudo=_states_at_cg(model)).fit(problem.fit, estimate_x0=x0)
+        return E.EquationDecoupling(model, states=states, inputs=inputs, pseudo=_states_at_cg(model)).fit(
+            problem.fit, estimate_x0=x0
+        )
     raise FsidError(f"unknown method {method!r}: use one of {', '.join(METHODS)}")
 
 
@@ -487,8 +548,11 @@ def _fem_restart(problem: Problem, model: Any, res: Any, fem: Callable[..., Any]
     rebuilt) started at CYp 0.87 (truth -0.075), Clp -0.13 (-0.48); FEM wandered (F_p_g to
     0, tau_pg to its bound) and stopped after 30 iterations with CYbeta, Clbeta 200+ std
     off; from the truth it converged in 6 at a cost 4.7x lower."""
-    held = {n: model.parameter(n).value for n in GUST_NOISE_PARAMETERS
-            if n in model.parameter_names and model.parameter(n).free}
+    held = {
+        n: model.parameter(n).value
+        for n in GUST_NOISE_PARAMETERS
+        if n in model.parameter_names and model.parameter(n).free
+    }
     first = fem(model.hold(held) if held else model, estimate_F=False)
     free = {n for n in model.parameter_names if model.parameter(n).free}
     again = fem(model.with_values({n: v for n, v in first.params.items() if n in free}))
@@ -497,7 +561,8 @@ def _fem_restart(problem: Problem, model: Any, res: Any, fem: Callable[..., Any]
         f"filter error did not converge from the equation-error starts (det R {res.cost:.4g}); "
         f"refitted with the process noise held first, then free: det R {again.cost:.4g}, "
         f"{'converged' if again.converged else 'not converged'}; "
-        f"{'that fit is kept' if better else 'the first fit is kept'}")
+        f"{'that fit is kept' if better else 'the first fit is kept'}"
+    )
     return again if better else res
 
 
@@ -521,9 +586,11 @@ def _unidentifiable_alphadot(exc: Any, alphadot: Sequence[str]) -> str | None:
     named = [n for n in (getattr(exc, "parameters", None) or []) if n in alphadot]
     if not named:
         return None
-    return ("CLalphadot, Cmalphadot held at 0: this flight does not separate them from CLq, "
-            f"Cmq (with them free the information matrix was singular in {', '.join(named)}), "
-            "so CLq and Cmq carry their effect (Cmq estimates about Cmq + Cmalphadot)")
+    return (
+        "CLalphadot, Cmalphadot held at 0: this flight does not separate them from CLq, "
+        f"Cmq (with them free the information matrix was singular in {', '.join(named)}), "
+        "so CLq and Cmq carry their effect (Cmq estimates about Cmq + Cmalphadot)"
+    )
 
 
 def _inseparable_alphadot(pb: Problem, res: Any) -> str | None:
@@ -545,18 +612,28 @@ def _inseparable_alphadot(pb: Problem, res: Any) -> str | None:
     r = {f"{a}~{b}": float(corr.loc[a, b]) for a, b in pairs}
     if max(abs(v) for v in r.values()) <= ALPHADOT_CORR:
         return None
-    return ("CLalphadot, Cmalphadot held at 0: this flight does not separate them from CLq, "
-            f"Cmq (correlation {', '.join(f'{k} {v:+.2f}' for k, v in r.items())} with them "
-            "free), so CLq and Cmq carry their effect (Cmq estimates about Cmq + Cmalphadot)")
+    return (
+        "CLalphadot, Cmalphadot held at 0: this flight does not separate them from CLq, "
+        f"Cmq (correlation {', '.join(f'{k} {v:+.2f}' for k, v in r.items())} with them "
+        "free), so CLq and Cmq carry their effect (Cmq estimates about Cmq + Cmalphadot)"
+    )
 
 
-def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, float] | None,
-                     progress: Progress, *, turbulence: Mapping[str, Any] | None = None,
-                     tolerances: Mapping[str, float] | None = None, pom: str = "auto",
-                     start: Mapping[str, float] | Any = None,
-                     process_noise: Mapping[str, float] | None = None,
-                     calm_air: bool = False, held_alphadot: str | None = None
-                     ) -> tuple[Any, dict[str, Any] | None] | None:
+def fit_and_validate(
+    pb: Problem,
+    method: str,
+    what: str,
+    truth: Mapping[str, float] | None,
+    progress: Progress,
+    *,
+    turbulence: Mapping[str, Any] | None = None,
+    tolerances: Mapping[str, float] | None = None,
+    pom: str = "auto",
+    start: Mapping[str, float] | Any = None,
+    process_noise: Mapping[str, float] | None = None,
+    calm_air: bool = False,
+    held_alphadot: str | None = None,
+) -> tuple[Any, dict[str, Any] | None] | None:
     """Fit ``method`` on ``pb`` and validate the result on its held-out segments, with a
     progress stage each; ``what`` names the fit in messages ("lateral axis", "model 'x'").
     A method that fails - an EstimationError (plain OEM diverging on an unstable aircraft)
@@ -576,30 +653,36 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
         methods estimate, and are cross-checked on, the same derivatives. Otherwise a fit
         that cannot separate them from CLq, Cmq is repeated with them held
         (:func:`_inseparable_alphadot`)."""
-    from estimators import (EstimationError, EstimationResult, IdentifiabilityError,
-                            ModelDefinitionError, OutputError)
+    from estimators import EstimationError, EstimationResult, IdentifiabilityError, ModelDefinitionError, OutputError
     from pipeline.validate import validate
 
     earlier = start if isinstance(start, EstimationResult) else None
     start = start.params if earlier is not None else start
     refit = start is not None
-    alphadot = [b for _, b in ALPHADOT_PAIRS if b in pb.model.parameter_names
-                and pb.model.parameter(b).free]
+    alphadot = [b for _, b in ALPHADOT_PAIRS if b in pb.model.parameter_names and pb.model.parameter(b).free]
     if refit and alphadot and all(start.get(b) == 0.0 for b in alphadot):
         # the fit this one repeats held them (_inseparable_alphadot; a free estimate is
         # never exactly 0)
         pb = replace(pb, model=pb.model.hold({b: 0.0 for b in alphadot}))
     elif alphadot and held_alphadot:
-        pb = replace(pb, model=pb.model.hold({b: 0.0 for b in alphadot}),
-                     notes=[*pb.notes, f"{held_alphadot} (found by filter error's fit)"])
+        pb = replace(
+            pb,
+            model=pb.model.hold({b: 0.0 for b in alphadot}),
+            notes=[*pb.notes, f"{held_alphadot} (found by filter error's fit)"],
+        )
         alphadot = []
-    if refit and method in START_FREE and len(start):   # (then fit_problem's equation-error starts off)
-        free = {p.name for p in pb.model.parameters if p.free}   # held values stay the problem's
-        pb = replace(pb, model=pb.model.with_values({n: v for n, v in start.items() if n in free}),
-                     regressions=pb.regressions if method == "ls" else [])
+    if refit and method in START_FREE and len(start):  # (then fit_problem's equation-error starts off)
+        free = {p.name for p in pb.model.parameters if p.free}  # held values stay the problem's
+        pb = replace(
+            pb,
+            model=pb.model.with_values({n: v for n, v in start.items() if n in free}),
+            regressions=pb.regressions if method == "ls" else [],
+        )
     if not refit:
-        progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, "
-                       f"{_count(len(pb.fit), 'maneuver')}, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)")
+        progress.stage(
+            f"estimate {what} ({method.upper()}, {pb.model.name} model, "
+            f"{_count(len(pb.fit), 'maneuver')}, {len(pb.held_out)} held out, {pb.rate_hz:g} Hz)"
+        )
 
     def fit(pb: Problem) -> Any:
         if earlier is not None and method == "oem" and earlier.sensitivities is not None:
@@ -607,22 +690,32 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
             # Gauss-Newton step with the earlier sensitivities is their first-order change
             # (ad hoc, a 600 s log with 44 lateral maneuvers: the consider stage 79 -> 15.5 s)
             try:
-                return OutputError(pb.model, inputs=pb.inputs).step_from(
-                    earlier, pb.fit, estimate_x0=pb.estimate_x0)
+                return OutputError(pb.model, inputs=pb.inputs).step_from(earlier, pb.fit, estimate_x0=pb.estimate_x0)
             except ModelDefinitionError:
-                pass                        # other parameters or segments: refit
+                pass  # other parameters or segments: refit
         # output error and filter error refit from all the free values, initial states,
         # per-segment values and filter error's F included (without them a 6-DoF lateral
         # held refit took 37 output-error iterations, now 4); the held ones stay the
         # problem's (the values a refit moves). The other START_FREE methods get the
         # model's values above.
         free = {p.name for p in pb.model.parameters if p.free}
-        carry = ({n: v for n, v in start.items() if n.split("[")[0] in free or n.startswith("x0_")
-                  or (method == "fem" and n.startswith("F_"))}
-                 if refit and method in ("oem", "fem") else None)
-        return fit_problem(pb, method, turbulence=turbulence, process_noise=process_noise,
-                           callback=None if refit else lambda it, cost, p: progress.tick(str(it + 1)),
-                           start=carry)
+        carry = (
+            {
+                n: v
+                for n, v in start.items()
+                if n.split("[")[0] in free or n.startswith("x0_") or (method == "fem" and n.startswith("F_"))
+            }
+            if refit and method in ("oem", "fem")
+            else None
+        )
+        return fit_problem(
+            pb,
+            method,
+            turbulence=turbulence,
+            process_noise=process_noise,
+            callback=None if refit else lambda it, cost, p: progress.tick(str(it + 1)),
+            start=carry,
+        )
 
     try:
         try:
@@ -634,13 +727,13 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
                 raise
             res = None
         if held is not None:
-            progress.done(("not identifiable" if res is None else
-                           'converged' if res.converged else 'NOT converged')
-                          + "; alphadot derivatives not separable: refit with them held")
+            progress.done(
+                ("not identifiable" if res is None else 'converged' if res.converged else 'NOT converged')
+                + "; alphadot derivatives not separable: refit with them held"
+            )
             pb = replace(pb, model=pb.model.hold({b: 0.0 for b in alphadot}), notes=[*pb.notes, held])
             progress.total += 1
-            progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, "
-                           "CLalphadot, Cmalphadot held)")
+            progress.stage(f"estimate {what} ({method.upper()}, {pb.model.name} model, CLalphadot, Cmalphadot held)")
             res = fit(pb)
             res.extra["alphadot_held"] = held
         elif held_alphadot and not [b for _, b in ALPHADOT_PAIRS if b in res.free_names]:
@@ -657,15 +750,21 @@ def fit_and_validate(pb: Problem, method: str, what: str, truth: Mapping[str, fl
         return res, None
     progress.done(f"{'converged' if res.converged else 'NOT converged'} in {_count(res.iterations, 'iteration')}")
     progress.stage(f"validate {what} {method.upper()} (fit, residuals, modes, proof of match)")
-    v = validate(res, held_out=pb.held_out, truth=truth, tolerances=tolerances, proof_of_match=pom,
-                 calm_air=calm_air, step_times=pb.held_out_step_times())
+    v = validate(
+        res,
+        held_out=pb.held_out,
+        truth=truth,
+        tolerances=tolerances,
+        proof_of_match=pom,
+        calm_air=calm_air,
+        step_times=pb.held_out_step_times(),
+    )
     v["problem"] = {"notes": list(pb.notes)}
     progress.done()
     return res, v
 
 
-def _held_refit(fd, ac: AircraftConstants, inputs: str, res, smooth_inputs: bool = True,
-                hold_out: int = 1):
+def _held_refit(fd, ac: AircraftConstants, inputs: str, res, smooth_inputs: bool = True, hold_out: int = 1):
     """values -> the 6-DoF lateral output error refitted with those longitudinal values
     held, started from ``res`` (on the same maneuvers: ``hold_out`` as in the fit). The
     problem is built once, at the first call: the held values enter only its model's values
@@ -676,15 +775,19 @@ def _held_refit(fd, ac: AircraftConstants, inputs: str, res, smooth_inputs: bool
 
     def refit(values: Mapping[str, float]):
         if not built:
-            built.append(sixdof_lateral_problem(fd, ac, longitudinal=values,
-                                                smooth_inputs=smooth_inputs, hold_out=hold_out))
+            built.append(
+                sixdof_lateral_problem(fd, ac, longitudinal=values, smooth_inputs=smooth_inputs, hold_out=hold_out)
+            )
             built[0].inputs = inputs
         pb = built[0]
-        held = {n: float(v) for n, v in values.items()
-                if n in pb.model.parameter_names and not pb.model.parameter(n).free}
-        done = fit_and_validate(replace(pb, model=pb.model.with_values(held)), "oem", "lateral axis",
-                                None, quiet_progress(), start=res)
+        held = {
+            n: float(v) for n, v in values.items() if n in pb.model.parameter_names and not pb.model.parameter(n).free
+        }
+        done = fit_and_validate(
+            replace(pb, model=pb.model.with_values(held)), "oem", "lateral axis", None, quiet_progress(), start=res
+        )
         return None if done is None else done[0]
+
     return refit
 
 
@@ -703,14 +806,30 @@ def identified_axes(fd, axes: Sequence[str] = ("longitudinal", "lateral")) -> in
     """How many of ``axes`` the log's maneuvers excite (elevator: longitudinal; aileron or
     rudder: lateral): the fits a run makes per method, for its progress count."""
     flown = {sg.axis for sg in fd.segments}
-    return sum(1 for name, surfaces in (("longitudinal", {"de"}), ("lateral", {"da", "dr"}))
-               if name in axes and flown & surfaces)
+    return sum(
+        1
+        for name, surfaces in (("longitudinal", {"de"}), ("lateral", {"da", "dr"}))
+        if name in axes and flown & surfaces
+    )
 
 
-def _method_problem(fd, ac: AircraftConstants, base: Problem, build, outs: Sequence[str], m: str,
-                    *, lon, multiaxis: bool, turbulent: bool = False,
-                    say: Callable[[str], None], cache: dict,
-                    inputs: str, smooth_inputs: bool, hold_out: int) -> Problem:
+def _method_problem(
+    fd,
+    ac: AircraftConstants,
+    base: Problem,
+    build,
+    outs: Sequence[str],
+    m: str,
+    *,
+    lon,
+    multiaxis: bool,
+    turbulent: bool = False,
+    say: Callable[[str], None],
+    cache: dict,
+    inputs: str,
+    smooth_inputs: bool,
+    hold_out: int,
+) -> Problem:
     """The problem method ``m`` is fitted on for the axis of ``base`` (built by ``build``
     on ``fd``; ``outs`` its outputs): ``base`` itself, or the same axis on the grid of its
     slowest output (COMMON_GRID methods; built once into ``cache``), or a richer model of
@@ -727,14 +846,16 @@ def _method_problem(fd, ac: AircraftConstants, base: Problem, build, outs: Seque
         if rate == base.rate_hz:
             return base
         if "common" not in cache:
-            cache["common"] = build(fd, ac, rate_hz=rate, smooth_inputs=smooth_inputs,
-                                    hold_out=hold_out)
+            cache["common"] = build(fd, ac, rate_hz=rate, smooth_inputs=smooth_inputs, hold_out=hold_out)
             cache["common"].inputs = inputs
         return cache["common"]
 
     pb = base
-    if ((multiaxis or (turbulent and m in COMMON_GRID)) and m != "ls"
-            and (base.axis == "longitudinal" or m in COMMON_GRID)):
+    if (
+        (multiaxis or (turbulent and m in COMMON_GRID))
+        and m != "ls"
+        and (base.axis == "longitudinal" or m in COMMON_GRID)
+    ):
         # all axes move at once: each axis' model driven by the other axis' measured
         # variables (the wings-level longitudinal model booked bank angle and yaw
         # rate on the derivatives), the filters with the Dryden gust states (the
@@ -755,10 +876,15 @@ def _method_problem(fd, ac: AircraftConstants, base: Problem, build, outs: Seque
         # std off, the gust model every derivative within 2.5 std). The axis' own problem
         # on the common grid is not built then (only where this one cannot be set up).
         try:
-            pb = multiaxis_problem(fd, ac, base.axis, gust_states=m in COMMON_GRID,
-                                   rate_hz=min((fd[c].rate_hz for c in outs if not rebuilt(fd, c)),
-                                               default=rate) if m == "fem" else rate,
-                                   smooth_inputs=smooth_inputs, hold_out=hold_out)
+            pb = multiaxis_problem(
+                fd,
+                ac,
+                base.axis,
+                gust_states=m in COMMON_GRID,
+                rate_hz=min((fd[c].rate_hz for c in outs if not rebuilt(fd, c)), default=rate) if m == "fem" else rate,
+                smooth_inputs=smooth_inputs,
+                hold_out=hold_out,
+            )
         except FsidError as exc:
             pb = own()
             say(f"multi-axis {pb.axis} model not set up ({exc}); {pb.model.name} model used")
@@ -769,9 +895,13 @@ def _method_problem(fd, ac: AircraftConstants, base: Problem, build, outs: Seque
         # longitudinal estimates held: the linear lateral model's frozen airspeed and
         # small-angle kinematics bias the estimates by several std on a small UAV
         try:
-            pb = sixdof_lateral_problem(fd, ac, longitudinal={
-                n: float(v) for n, v in lon.params.items() if "[" not in n},
-                smooth_inputs=smooth_inputs, hold_out=hold_out)
+            pb = sixdof_lateral_problem(
+                fd,
+                ac,
+                longitudinal={n: float(v) for n, v in lon.params.items() if "[" not in n},
+                smooth_inputs=smooth_inputs,
+                hold_out=hold_out,
+            )
         except FsidError as exc:
             say(f"6-DoF lateral model not set up ({exc}); linear model used")
     elif pb.axis == "lateral" and m in ("oem", "ls") and "q" in fd:
@@ -787,12 +917,12 @@ def _method_problem(fd, ac: AircraftConstants, base: Problem, build, outs: Seque
         # lateral model missed the held-out maneuver of scenarios/default.toml by
         # 2.05 deg/s on p and 2.01 on r (band 1.5), the driven one by 0.38, 0.33
         try:
-            pb = lateral_problem(fd, ac, measured_longitudinal=True, kinematic=True,
-                                 smooth_inputs=smooth_inputs, hold_out=hold_out)
+            pb = lateral_problem(
+                fd, ac, measured_longitudinal=True, kinematic=True, smooth_inputs=smooth_inputs, hold_out=hold_out
+            )
             pb = with_airspeed_offsets(pb, fd) if m == "oem" else pb
         except FsidError as exc:
-            say(f"lateral model with measured longitudinal inputs not set up ({exc}); "
-                "linear model used")
+            say(f"lateral model with measured longitudinal inputs not set up ({exc}); linear model used")
     pb.inputs = inputs
     return pb
 
@@ -803,9 +933,9 @@ def validation_prefix(k: int, n: int) -> str:
     return VALIDATION_PREFIX if n == 1 else f"validation flight {k + 1}: "
 
 
-def with_validation_flight(pb: Problem, vals: Sequence[Problem], calm: bool,
-                           numbers: Sequence[int] | None = None, n_flights: int | None = None
-                           ) -> Problem:
+def with_validation_flight(
+    pb: Problem, vals: Sequence[Problem], calm: bool, numbers: Sequence[int] | None = None, n_flights: int | None = None
+) -> Problem:
     """``pb`` with the maneuvers of ``vals`` (the same axis and model built on each
     validation flight, nothing held out there) as its held-out segments, named
     :func:`validation_prefix` + maneuver; ``numbers``: each problem's flight (0-based, of
@@ -820,14 +950,13 @@ def with_validation_flight(pb: Problem, vals: Sequence[Problem], calm: bool,
         segs += mine
         times += [val.step_times] * len(mine)
         specs += list(val.specs) + list(val.held_specs)
-        parts.append(("" if total == 1 else f"flight {k + 1}: ")
-                     + ", ".join(sg.name[len(pre):] for sg in mine))
+        parts.append(("" if total == 1 else f"flight {k + 1}: ") + ", ".join(sg.name[len(pre) :] for sg in mine))
     where = "the validation flight's" if total == 1 else f"{total} validation flights'"
-    note = (f"proof of match on {where} {_count(len(segs), 'maneuver')} "
-            f"({'; '.join(parts)})" + ("; flown in calm air" if calm else "")
-            + "; every maneuver of this flight fitted")
-    return replace(pb, held_out=segs, held_specs=specs, held_step_times=times,
-                   notes=list(pb.notes) + [note])
+    note = (
+        f"proof of match on {where} {_count(len(segs), 'maneuver')} "
+        f"({'; '.join(parts)})" + ("; flown in calm air" if calm else "") + "; every maneuver of this flight fitted"
+    )
+    return replace(pb, held_out=segs, held_specs=specs, held_step_times=times, notes=list(pb.notes) + [note])
 
 
 def validation_flights(validation: Any) -> list:
@@ -839,15 +968,23 @@ def validation_flights(validation: Any) -> list:
     return list(validation) if isinstance(validation, (list, tuple)) else [validation]
 
 
-def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[str, float] | None,
-             progress: Progress, inputs: str = "linear",
-             turbulence: Mapping[str, Any] | None = None,
-             axes: Sequence[str] = ("longitudinal", "lateral"),
-             tolerances: Mapping[str, float] | None = None,
-             pom: str = "auto", starts: Mapping[str, Any] | None = None,
-             smooth_inputs: bool = True, validation: Any = None,
-             validation_calm: bool = False, fit_all: bool | None = None
-             ) -> tuple[dict, dict, list[Problem]]:
+def identify(
+    fd,
+    ac: AircraftConstants,
+    methods: Sequence[str],
+    truth: Mapping[str, float] | None,
+    progress: Progress,
+    inputs: str = "linear",
+    turbulence: Mapping[str, Any] | None = None,
+    axes: Sequence[str] = ("longitudinal", "lateral"),
+    tolerances: Mapping[str, float] | None = None,
+    pom: str = "auto",
+    starts: Mapping[str, Any] | None = None,
+    smooth_inputs: bool = True,
+    validation: Any = None,
+    validation_calm: bool = False,
+    fit_all: bool | None = None,
+) -> tuple[dict, dict, list[Problem]]:
     """Estimate and validate every axis the log excites; ``inputs`` is how the inputs vary
     between samples (estimators.integrators.INPUT_MODES); ``tolerances``: proof-of-match
     bands per channel (SI; default those of DESIGN.md section 8); ``pom``: the proof-of-match
@@ -874,10 +1011,12 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
     hold = hold_out_count(vflights, fit_all)
     results, validations, problems = {}, {}, []
     flown = {s.axis for s in fd.segments}
-    builders = [("longitudinal" in axes and "de" in flown, longitudinal_problem, LONG_OUTPUTS),
-                ("lateral" in axes and bool({"da", "dr"} & flown), lateral_problem, LAT_OUTPUTS)]
+    builders = [
+        ("longitudinal" in axes and "de" in flown, longitudinal_problem, LONG_OUTPUTS),
+        ("lateral" in axes and bool({"da", "dr"} & flown), lateral_problem, LAT_OUTPUTS),
+    ]
     skipped = []
-    plans = []                 # (axis problem at the default grid, builder, outputs, on validation)
+    plans = []  # (axis problem at the default grid, builder, outputs, on validation)
 
     def note(msg: str) -> None:
         print(f"note: {msg}", file=progress.stream)
@@ -891,69 +1030,116 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
             continue
         try:
             problem = build(fd, ac, smooth_inputs=smooth_inputs, hold_out=hold)
-        except FsidError as exc:        # e.g. one maneuver only: say so, fit the other axis
+        except FsidError as exc:  # e.g. one maneuver only: say so, fit the other axis
             skipped.append(str(exc))
             continue
-        vbases = []                     # (flight number, its problem of this axis)
+        vbases = []  # (flight number, its problem of this axis)
         for k, vfd in enumerate(vflights):
             try:
                 vb = build(vfd, ac, smooth_inputs=smooth_inputs, hold_out=0)
                 vb.inputs = inputs
                 vbases.append((k, vb))
             except FsidError as exc:
-                val_note(k)(f"the {problem.axis} axis cannot be set up there ({exc}); "
-                            "it proves nothing on that axis")
+                val_note(k)(f"the {problem.axis} axis cannot be set up there ({exc}); it proves nothing on that axis")
         problem.inputs = inputs
         problems.append(problem)
         plans.append((problem, build, outs, vbases))
     if not problems:
-        raise FsidError("no axis can be identified from this log: " + ("; ".join(skipped) or
-                        "no control-input activity found (fly doublets/3-2-1-1s on the "
-                        "elevator, aileron or rudder, or give segments)"))
+        raise FsidError(
+            "no axis can be identified from this log: "
+            + (
+                "; ".join(skipped)
+                or "no control-input activity found (fly doublets/3-2-1-1s on the elevator, aileron or rudder, or give segments)"
+            )
+        )
     for msg in skipped:
         note(msg)
     multiaxis = multi_axis(fd)
     turbulent = turbulence is None or turbulence.get("model", "off") != "off"
-    filter_q: dict[str, Any] = {}   # axis -> the filter-error fit the EKF/UKF take their noise from
+    filter_q: dict[str, Any] = {}  # axis -> the filter-error fit the EKF/UKF take their noise from
     for problem, build, outs, vbases in plans:
         cache: dict = {}
         vcaches: dict[int, dict] = {k: {} for k, _ in vbases}
         for m in methods:
             lon = results.get("longitudinal-oem")
-            pb = _method_problem(fd, ac, problem, build, outs, m, lon=lon, multiaxis=multiaxis,
-                                 turbulent=turbulent, say=note, cache=cache, inputs=inputs,
-                                 smooth_inputs=smooth_inputs, hold_out=hold)
-            pb.step_times = step_times(fd.meta)      # the flight's: the cached problem's too
+            pb = _method_problem(
+                fd,
+                ac,
+                problem,
+                build,
+                outs,
+                m,
+                lon=lon,
+                multiaxis=multiaxis,
+                turbulent=turbulent,
+                say=note,
+                cache=cache,
+                inputs=inputs,
+                smooth_inputs=smooth_inputs,
+                hold_out=hold,
+            )
+            pb.step_times = step_times(fd.meta)  # the flight's: the cached problem's too
             if vflights and starts is None:
                 vpbs, numbers = [], []
                 for k, vbase in vbases:
-                    vpb = _method_problem(vflights[k], ac, vbase, build, outs, m, lon=lon,
-                                          multiaxis=multiaxis, turbulent=turbulent,
-                                          say=val_note(k), cache=vcaches[k],
-                                          inputs=inputs, smooth_inputs=smooth_inputs, hold_out=0)
+                    vpb = _method_problem(
+                        vflights[k],
+                        ac,
+                        vbase,
+                        build,
+                        outs,
+                        m,
+                        lon=lon,
+                        multiaxis=multiaxis,
+                        turbulent=turbulent,
+                        say=val_note(k),
+                        cache=vcaches[k],
+                        inputs=inputs,
+                        smooth_inputs=smooth_inputs,
+                        hold_out=0,
+                    )
                     if vpb.model.name == pb.model.name:
                         vpb.step_times = step_times(vflights[k].meta)
                         vpbs.append(vpb)
                         numbers.append(k)
                     else:
-                        val_note(k)(f"{pb.model.name} model not set up there; it proves "
-                                    f"nothing for {m.upper()} on the {pb.axis} axis")
-                pb = (with_validation_flight(pb, vpbs, validation_calm, numbers, len(vflights))
-                      if vpbs else replace(pb, held_out=[], held_specs=[]))
+                        val_note(k)(
+                            f"{pb.model.name} model not set up there; it proves nothing for {m.upper()} on the {pb.axis} axis"
+                        )
+                pb = (
+                    with_validation_flight(pb, vpbs, validation_calm, numbers, len(vflights))
+                    if vpbs
+                    else replace(pb, held_out=[], held_specs=[])
+                )
             key = m if len(problems) == 1 else f"{pb.axis}-{m}"
-            if m == "fem":          # its R; EKF/UKF keep the grid's (fit_problem)
+            if m == "fem":  # its R; EKF/UKF keep the grid's (fit_problem)
                 attach_logged_noise(fd, pb)
-            q, pb, noise = filters_process_noise(fd, pb, m, results.get(key[:-3] + "fem"), filter_q,
-                                                 progress, turbulence=turbulence,
-                                                 quiet=starts is not None,
-                                                 earlier=None if starts is None else starts.get(key))
+            q, pb, noise = filters_process_noise(
+                fd,
+                pb,
+                m,
+                results.get(key[:-3] + "fem"),
+                filter_q,
+                progress,
+                turbulence=turbulence,
+                quiet=starts is not None,
+                earlier=None if starts is None else starts.get(key),
+            )
             fem = results.get(key[:-3] + "fem") if m in ("ekf", "ukf") else None
-            done = fit_and_validate(pb, m, f"{pb.axis} axis", truth, progress, turbulence=turbulence,
-                                    tolerances=tolerances, pom=pom,
-                                    start=None if starts is None else starts.get(key, {}),
-                                    process_noise=q,
-                                    calm_air=validation_calm and bool(vbases),
-                                    held_alphadot=fem.extra.get("alphadot_held") if fem else None)
+            done = fit_and_validate(
+                pb,
+                m,
+                f"{pb.axis} axis",
+                truth,
+                progress,
+                turbulence=turbulence,
+                tolerances=tolerances,
+                pom=pom,
+                start=None if starts is None else starts.get(key, {}),
+                process_noise=q,
+                calm_air=validation_calm and bool(vbases),
+                held_alphadot=fem.extra.get("alphadot_held") if fem else None,
+            )
             if done is not None:
                 results[key], validations[key] = done
                 if noise is not None:
@@ -962,8 +1148,7 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
                     # the longitudinal estimates this fit holds: their uncertainty is
                     # carried to it after the fits (carry_consider_uncertainty)
                     results[key].extra["held"] = lon
-                    results[key].extra["held_refit"] = _held_refit(fd, ac, inputs, results[key],
-                                                                   smooth_inputs, hold)
+                    results[key].extra["held_refit"] = _held_refit(fd, ac, inputs, results[key], smooth_inputs, hold)
     if not results:
         raise FsidError("every estimation method failed on this log (see the notes above)")
     return results, validations, problems
@@ -979,9 +1164,18 @@ def identify(fd, ac: AircraftConstants, methods: Sequence[str], truth: Mapping[s
 GUST_NOISE_PARAMETERS = ("tau_pg",)
 
 
-def filters_process_noise(fd, pb: Problem, method: str, fem: Any, cache: dict, progress: Progress,
-                          *, turbulence: Mapping[str, Any] | None = None, quiet: bool = False,
-                          earlier: Any = None) -> tuple[dict[str, float] | None, Problem, Any]:
+def filters_process_noise(
+    fd,
+    pb: Problem,
+    method: str,
+    fem: Any,
+    cache: dict,
+    progress: Progress,
+    *,
+    turbulence: Mapping[str, Any] | None = None,
+    quiet: bool = False,
+    earlier: Any = None,
+) -> tuple[dict[str, float] | None, Problem, Any]:
     """The process noise of an EKF/UKF fit and its problem: (None, ``pb``) for other
     methods and when the Dryden level is known (fit_problem takes it from there); else
     from this run's FEM of the problem (``fem``), or a filter-error fit made for it, once
@@ -1002,13 +1196,21 @@ def filters_process_noise(fd, pb: Problem, method: str, fem: Any, cache: dict, p
         if src is None:
             return None, pb, None
         free = {p.name for p in pb.model.parameters if p.free}
-        noise = (filter_process_noise(src), {n: float(src.params[n]) for n in GUST_NOISE_PARAMETERS
-                                             if n in free and n in src.params})
+        noise = (
+            filter_process_noise(src),
+            {n: float(src.params[n]) for n in GUST_NOISE_PARAMETERS if n in free and n in src.params},
+        )
     q, held = noise
     if held:
-        pb = replace(pb, model=pb.model.hold(held), notes=list(pb.notes) + [
-            ", ".join(f"{n} = {v:.4g}" for n, v in held.items())
-            + " held at filter error's estimate (the gust model's noise, with its process noise)"])
+        pb = replace(
+            pb,
+            model=pb.model.hold(held),
+            notes=list(pb.notes)
+            + [
+                ", ".join(f"{n} = {v:.4g}" for n, v in held.items())
+                + " held at filter error's estimate (the gust model's noise, with its process noise)"
+            ],
+        )
     return q, pb, noise
 
 
@@ -1022,21 +1224,37 @@ def _fem_for_filters(fd, pb: Problem, fem: Any, progress: Progress, quiet: bool 
             fem = fit_problem(attach_logged_noise(fd, replace(pb)), "fem")
         except (EstimationError, np.linalg.LinAlgError) as exc:
             if not quiet:
-                print(f"note: process noise for the {pb.axis} filters: the filter-error fit "
-                      f"failed ({exc}); the data's default used", file=progress.stream)
+                print(
+                    f"note: process noise for the {pb.axis} filters: the filter-error fit "
+                    f"failed ({exc}); the data's default used",
+                    file=progress.stream,
+                )
             return None
         if not quiet:
-            print(f"note: process noise for the {pb.axis} filters from a filter-error fit "
-                  f"(no turbulence level known)", file=progress.stream)
+            print(
+                f"note: process noise for the {pb.axis} filters from a filter-error fit (no turbulence level known)",
+                file=progress.stream,
+            )
     return fem
 
 
-def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, validations: dict,
-                          truth: Mapping[str, float] | None, progress: Progress,
-                          refit, *, flow: dict[str, Any] | None = None, wind_refit=None,
-                          dynamics: dict[str, Any] | None = None, dynamics_refit=None,
-                          steps: Sequence[Any] = (), inputs_data: Any = None,
-                          inputs_refit=None) -> dict[str, Any]:
+def carry_consider_uncertainty(
+    fd_raw,
+    comp: dict[str, Any],
+    results: dict,
+    validations: dict,
+    truth: Mapping[str, float] | None,
+    progress: Progress,
+    refit,
+    *,
+    flow: dict[str, Any] | None = None,
+    wind_refit=None,
+    dynamics: dict[str, Any] | None = None,
+    dynamics_refit=None,
+    steps: Sequence[Any] = (),
+    inputs_data: Any = None,
+    inputs_refit=None,
+) -> dict[str, Any]:
     """One stage after the fits: what each fit held as exact gets its uncertainty into the
     result's ``consider_cov`` (:mod:`pipeline.correction_uncertainty`) - the other axis'
     estimates a fit held (``result.extra["held"]``, the 6-DoF lateral output error holding
@@ -1053,8 +1271,14 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
     repeats the fits on it; :func:`pipeline.correction_uncertainty.input_sampling`). Then
     the truth checks and verdicts are redone with the total std. Returns the step-timing
     part's document (empty when no input is slow)."""
-    from pipeline.correction_uncertainty import (fitted_steps, held_estimates, input_dynamics,
-                                                 input_sampling, propagate, wind)
+    from pipeline.correction_uncertainty import (
+        fitted_steps,
+        held_estimates,
+        input_dynamics,
+        input_sampling,
+        propagate,
+        wind,
+    )
     from pipeline.validate import refresh_prediction_uncertainty, refresh_truth_check
 
     held = [k for k, r in results.items() if (r.extra or {}).get("held") is not None]
@@ -1062,8 +1286,9 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
     parts = [f"{k}: held estimates" for k in held]
     parts += [f"{len(comp['applied'])} sensor corrections"] if comp.get("applied") else []
     parts += ["the wind of the rebuilt air-data angles"] if rebuilt else []
-    delayed = bool((dynamics or {}).get("status") == "estimated" and dynamics.get("applied")
-                   and dynamics_refit is not None)
+    delayed = bool(
+        (dynamics or {}).get("status") == "estimated" and dynamics.get("applied") and dynamics_refit is not None
+    )
     parts += [f"the delay and lag of {len(dynamics['applied'])} control inputs"] if delayed else []
     slow = inputs_refit is not None and inputs_data is not None and bool(fitted_steps(list(steps), results))
     parts += ["the times of the control-input steps between slow samples"] if slow else []
@@ -1085,9 +1310,11 @@ def carry_consider_uncertainty(fd_raw, comp: dict[str, Any], results: dict, vali
         if key in validations:
             refresh_prediction_uncertainty(validations[key], res)
             refresh_truth_check(validations[key], res, truth)
-    progress.done("nothing held" if not parts else
-                  f"{sum(r.consider_cov is not None for r in results.values())} of {len(results)} "
-                  "fits with a consider part")
+    progress.done(
+        "nothing held"
+        if not parts
+        else f"{sum(r.consider_cov is not None for r in results.values())} of {len(results)} fits with a consider part"
+    )
     return sampling
 
 
@@ -1101,15 +1328,19 @@ def sampling_meta(timing: Mapping[str, Any], carried: Mapping[str, Any]) -> dict
         return {}
     line = step_summary(timing)
     if carried:
-        chans = ", ".join(f"{c} {v['steps']} ({v['timed']} timed, rms std {1e3 * v['time_std_s']:.1f} ms)"
-                          for c, v in carried["channels"].items())
-        line += (f"; the fitted windows' steps ({chans}) carried to the estimates' total std "
-                 f"({carried['refits']} refits)")
+        chans = ", ".join(
+            f"{c} {v['steps']} ({v['timed']} timed, rms std {1e3 * v['time_std_s']:.1f} ms)"
+            for c, v in carried["channels"].items()
+        )
+        line += (
+            f"; the fitted windows' steps ({chans}) carried to the estimates' total std ({carried['refits']} refits)"
+        )
     return {"control-input sampling": line, "input_sampling": {**timing, "uncertainty": dict(carried)}}
 
 
-def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress, *,
-                     airspeed_scale: float | None = None) -> tuple[Any, Any, Any, dict]:
+def flow_angle_stage(
+    fd, ac: AircraftConstants | None, pr: Progress, *, airspeed_scale: float | None = None
+) -> tuple[Any, Any, Any, dict]:
     """The air-data-angle stage of ``fsid estimate``: alpha/beta the log lacks (no vane), or
     holds only as an autopilot's estimate (``Channel.derived``: ArduPilot's AOA/SSA, from
     its EKF velocity and wind), rebuilt from the flight path and a fitted wind
@@ -1127,11 +1358,16 @@ def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress, *,
     from pipeline.flow_angles import reconstruct_flow_angles, summary
 
     pr.stage("air-data angles")
-    derived = {k: f"{fd[k].source}: {fd[k].derived}" for k in ("alpha", "beta")
-               if k in fd and fd[k].derived}
-    base = fd if not derived else FlightData(
-        channels={k: c for k, c in fd.channels.items() if k not in derived},
-        meta=dict(fd.meta), segments=list(fd.segments))
+    derived = {k: f"{fd[k].source}: {fd[k].derived}" for k in ("alpha", "beta") if k in fd and fd[k].derived}
+    base = (
+        fd
+        if not derived
+        else FlightData(
+            channels={k: c for k, c in fd.channels.items() if k not in derived},
+            meta=dict(fd.meta),
+            segments=list(fd.segments),
+        )
+    )
     try:
         out, doc = reconstruct_flow_angles(base, airspeed_scale=airspeed_scale)
     except FsidError as exc:
@@ -1150,8 +1386,7 @@ def flow_angle_stage(fd, ac: AircraftConstants | None, pr: Progress, *,
     return out, ac, base, doc
 
 
-def with_flow_angles(fd, flow: Mapping[str, Any],
-                     wind_offset: Sequence[float] = (0.0, 0.0, 0.0)) -> tuple[Any, dict]:
+def with_flow_angles(fd, flow: Mapping[str, Any], wind_offset: Sequence[float] = (0.0, 0.0, 0.0)) -> tuple[Any, dict]:
     """(``fd`` with the air-data angles rebuilt as :func:`flow_angle_stage` rebuilt them,
     ``wind_offset`` (north, east, down [m/s], pitot scale factor [-], the last optional)
     added to their wind and scale factor, their document); ``fd`` and ``flow`` unchanged
@@ -1161,16 +1396,24 @@ def with_flow_angles(fd, flow: Mapping[str, Any],
     from pipeline.flow_angles import reconstruct_flow_angles
 
     cal = flow.get("airspeed_scale") or {}
-    return reconstruct_flow_angles(fd, wind_offset=wind_offset,
-                                   airspeed_scale=cal["estimate"] if cal.get("status") == "held" else None)
+    return reconstruct_flow_angles(
+        fd, wind_offset=wind_offset, airspeed_scale=cal["estimate"] if cal.get("status") == "held" else None
+    )
 
 
-def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabled: bool = True,
-                        truth: Mapping[str, float] | None = None,
-                        imu_only: bool = False, unsteady: str | None = None,
-                        wind: tuple[float, float] | None = None, airspeed: Any = None,
-                        positions: tuple[Sequence[float], Sequence[float]] | None = None
-                        ) -> tuple[Any, dict]:
+def compatibility_stage(
+    fd,
+    ac: AircraftConstants | None,
+    pr: Progress,
+    *,
+    enabled: bool = True,
+    truth: Mapping[str, float] | None = None,
+    imu_only: bool = False,
+    unsteady: str | None = None,
+    wind: tuple[float, float] | None = None,
+    airspeed: Any = None,
+    positions: tuple[Sequence[float], Sequence[float]] | None = None,
+) -> tuple[Any, dict]:
     """The sensor-compatibility stage of a run (flight path reconstruction,
     :func:`pipeline.compatibility.correct_for_estimation`): returns (flight data for
     estimation, JSON-ready document). Sensor errors distinguishable from zero (|estimate|
@@ -1192,43 +1435,64 @@ def compatibility_stage(fd, ac: AircraftConstants | None, pr: Progress, *, enabl
     ``ac``'s."""
     pr.stage("sensor compatibility (flight path reconstruction)")
     if not enabled:
-        doc = {"status": "skipped", "reason": "switched off (--no-compat)", "applied": {},
-               "data_for_estimation": "as logged"}
+        doc = {
+            "status": "skipped",
+            "reason": "switched off (--no-compat)",
+            "applied": {},
+            "data_for_estimation": "as logged",
+        }
         pr.done("skipped (--no-compat)")
         return fd, doc
     from pipeline.compatibility import correct_for_estimation
 
-    imu, boom = positions or ((tuple(ac.imu), tuple(ac.airdata)) if ac is not None
-                              else ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)))
+    imu, boom = positions or (
+        (tuple(ac.imu), tuple(ac.airdata)) if ac is not None else ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    )
     try:
         from pipeline.compatibility import IMU_PARAMS, RUN_ESTIMATE
 
         seen = fd if airspeed is None else replace(fd, channels={**fd.channels, "V": airspeed})
-        doc, out = correct_for_estimation(seen, imu_position=imu, boom_position=boom, truth=truth,
-                                          estimate=IMU_PARAMS if imu_only else RUN_ESTIMATE,
-                                          wind=wind, unsteady=unsteady)
+        doc, out = correct_for_estimation(
+            seen,
+            imu_position=imu,
+            boom_position=boom,
+            truth=truth,
+            estimate=IMU_PARAMS if imu_only else RUN_ESTIMATE,
+            wind=wind,
+            unsteady=unsteady,
+        )
         if airspeed is not None:
             out = replace(out, channels={**out.channels, "V": fd["V"]})
             doc["airspeed"] = "calibrated by the air-data-angle stage's pitot scale factor"
         if imu_only:
             doc["scope"] = "IMU errors only: no air-data vanes in the log"
     except Exception as exc:  # noqa: BLE001 - the compatibility check must not cost the run
-        doc, out = {"status": "failed", "reason": f"{type(exc).__name__}: {exc}", "applied": {},
-                    "data_for_estimation": "as logged"}, fd
+        doc, out = (
+            {
+                "status": "failed",
+                "reason": f"{type(exc).__name__}: {exc}",
+                "applied": {},
+                "data_for_estimation": "as logged",
+            },
+            fd,
+        )
     doc["positions"] = {"imu_m": list(map(float, imu)), "boom_m": list(map(float, boom))}
     st = doc.get("status")
     if st in ("skipped", "failed"):
         pr.done(f"{st}: {doc.get('reason', '')}")
     elif doc["applied"]:
-        pr.done(f"{len(doc['applied'])} of {len(doc.get('parameters', {}))} sensor errors significant, "
-                "removed from the data for estimation")
+        pr.done(
+            f"{len(doc['applied'])} of {len(doc.get('parameters', {}))} sensor errors significant, "
+            "removed from the data for estimation"
+        )
     else:
         pr.done(f"{st}: {doc.get('note', 'no correction applied')}")
     return out, doc
 
 
-def compatibility_after_flow_angles(logged, rebuilt, flow: Mapping[str, Any],
-                                    ac: AircraftConstants | None, pr: Progress, **kw) -> tuple[Any, dict]:
+def compatibility_after_flow_angles(
+    logged, rebuilt, flow: Mapping[str, Any], ac: AircraftConstants | None, pr: Progress, **kw
+) -> tuple[Any, dict]:
     """:func:`compatibility_stage` as ``fsid estimate`` and ``fsid check`` run it after the
     air-data-angle stage (:func:`flow_angle_stage`: ``logged`` its logged data without
     derived angles, ``rebuilt`` its data, ``flow`` its document): the IMU errors only when
@@ -1237,13 +1501,19 @@ def compatibility_after_flow_angles(logged, rebuilt, flow: Mapping[str, Any],
     from pipeline.flow_angles import calibrated, mean_wind, unsteady
 
     imu_only = not any(k in logged for k in ("alpha", "beta"))
-    return compatibility_stage(logged, ac, pr, imu_only=imu_only, unsteady=unsteady(flow),
-                               wind=mean_wind(flow),
-                               airspeed=rebuilt["V"] if imu_only and calibrated(flow) else None, **kw)
+    return compatibility_stage(
+        logged,
+        ac,
+        pr,
+        imu_only=imu_only,
+        unsteady=unsteady(flow),
+        wind=mean_wind(flow),
+        airspeed=rebuilt["V"] if imu_only and calibrated(flow) else None,
+        **kw,
+    )
 
 
-def input_dynamics_stage(fd, pr: Progress, setting: str | tuple[float, float] = "auto"
-                         ) -> tuple[Any, dict]:
+def input_dynamics_stage(fd, pr: Progress, setting: str | tuple[float, float] = "auto") -> tuple[Any, dict]:
     """The control-input dynamics stage (:mod:`pipeline.input_dynamics`): returns (flight
     data with the dynamics applied, JSON-ready document). ``setting``: "auto" estimates each
     surface's delay and lag and applies the significant ones; "off" skips the stage;
@@ -1258,8 +1528,7 @@ def input_dynamics_stage(fd, pr: Progress, setting: str | tuple[float, float] = 
         return fd, {"status": "skipped", "reason": "switched off (--input-dynamics off)", "applied": {}}
     if setting != "auto":
         d, tau = (float(x) for x in setting)
-        doc = {"status": "given",
-               "applied": {s: {"delay_s": d, "lag_s": tau} for s in CONTROL_INPUTS if s in fd}}
+        doc = {"status": "given", "applied": {s: {"delay_s": d, "lag_s": tau} for s in CONTROL_INPUTS if s in fd}}
         pr.done(summary(doc))
         return with_input_dynamics(fd, doc["applied"]), doc
     try:
@@ -1272,8 +1541,9 @@ def input_dynamics_stage(fd, pr: Progress, setting: str | tuple[float, float] = 
     return with_input_dynamics(fd, doc["applied"]), doc
 
 
-def refine_input_dynamics_stage(fd_before, fd, doc: dict[str, Any], methods: Sequence[str],
-                                pr: Progress, fit) -> tuple[Any, dict]:
+def refine_input_dynamics_stage(
+    fd_before, fd, doc: dict[str, Any], methods: Sequence[str], pr: Progress, fit
+) -> tuple[Any, dict]:
     """The control-input dynamics stage's delays and lags refined by output error
     (:func:`pipeline.input_dynamics.refine_by_output_error`; ``fit(dynamics, starts)`` its
     output-error fits) when that stage estimated and applied some and output error is
@@ -1283,8 +1553,7 @@ def refine_input_dynamics_stage(fd_before, fd, doc: dict[str, Any], methods: Seq
     unless the output-error fits want the inputs as logged
     (:func:`pipeline.input_dynamics.logged_inputs_fit_better`): then none is applied (each
     surface's ``withdrawn`` says why)."""
-    from pipeline.input_dynamics import (logged_inputs_fit_better, refine_by_output_error,
-                                         with_input_dynamics)
+    from pipeline.input_dynamics import logged_inputs_fit_better, refine_by_output_error, with_input_dynamics
 
     if doc.get("status") != "estimated" or not doc.get("applied"):
         return fd, doc
@@ -1309,14 +1578,16 @@ def refine_input_dynamics_stage(fd_before, fd, doc: dict[str, Any], methods: Seq
     if ref["status"] != "refined":
         pr.done(f"not refined: {ref['reason']}; equation error's values kept")
         return fd, doc
-    pr.done(", ".join(f"{s} delay {v['delay_s'] * 1e3:+.1f}, lag {v['lag_s'] * 1e3:.1f} ms"
-                      for s, v in doc["applied"].items())
-            + f" ({ref['iterations']} iterations, {ref['fits']} fits)")
+    pr.done(
+        ", ".join(
+            f"{s} delay {v['delay_s'] * 1e3:+.1f}, lag {v['lag_s'] * 1e3:.1f} ms" for s, v in doc["applied"].items()
+        )
+        + f" ({ref['iterations']} iterations, {ref['fits']} fits)"
+    )
     return with_input_dynamics(fd_before, doc["applied"]), doc
 
 
-def with_instrument_errors_removed(fd_val, comp: Mapping[str, Any],
-                                   meta: dict | None = None):
+def with_instrument_errors_removed(fd_val, comp: Mapping[str, Any], meta: dict | None = None):
     """The validation flight with the instrument errors the compatibility stage removed
     from the fitted flight (scale factors, air-data delay:
     :func:`pipeline.compatibility.instrument_errors`) removed too, so that the model is
@@ -1332,11 +1603,19 @@ def with_instrument_errors_removed(fd_val, comp: Mapping[str, Any],
     return remove_sensor_errors(fd_val, errs, keep_times=True)
 
 
-def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = None,
-                 methods: Sequence[str] | None = None, quiet: bool = False,
-                 compat: bool = True, bands: Mapping[str, float] | None = None,
-                 pom: str = "auto", smooth_inputs: bool = True,
-                 input_dynamics: str | tuple[float, float] = "auto") -> dict[str, Path]:
+def run_scenario(
+    scenario_path: str | Path,
+    out: Path,
+    *,
+    seed: int | None = None,
+    methods: Sequence[str] | None = None,
+    quiet: bool = False,
+    compat: bool = True,
+    bands: Mapping[str, float] | None = None,
+    pom: str = "auto",
+    smooth_inputs: bool = True,
+    input_dynamics: str | tuple[float, float] = "auto",
+) -> dict[str, Path]:
     """``fsid run``: everything of DESIGN.md section 5 into ``out``. ``methods`` default:
     the ones that suit the flight (:func:`scenario_methods`). ``compat``: run the
     sensor-compatibility stage on the ingested MCAP and estimate from its corrected data
@@ -1352,7 +1631,7 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     from pipeline.readers import read_log
     from pipeline.writers import write_dataflash, write_mcap, write_truth_json
 
-    pr = Progress(7 + 4 * len(methods or ("oem", "ls")) + 1, quiet=quiet)   # updated below
+    pr = Progress(7 + 4 * len(methods or ("oem", "ls")) + 1, quiet=quiet)  # updated below
     pr.stage(f"load scenario {scenario_path}")
     try:
         scenario = sim.load_scenario(scenario_path)
@@ -1367,15 +1646,16 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     result = sim.fly(scenario, workdir=out / ".jsbsim")
     pr.done(f"{len(result.maneuvers)} maneuvers")
     pr.stage("write flight.bin, flight.mcap, truth.json")
-    write_dataflash(out / "flight.bin", result, airspeed="eas")   # ArduPilot semantics
+    write_dataflash(out / "flight.bin", result, airspeed="eas")  # ArduPilot semantics
     write_mcap(out / "flight.mcap", result)
     write_truth_json(out / "truth.json", result)
     truth_doc = json.loads((out / "truth.json").read_text())
     pr.done()
     fd_val = None
-    if val is not None:             # the proof-of-match flight: its own log, read back
-        pr.stage(f"fly the validation flight ({val.duration:.0f} s"
-                 f"{', calm air' if calm else ''}) and write validation.mcap")
+    if val is not None:  # the proof-of-match flight: its own log, read back
+        pr.stage(
+            f"fly the validation flight ({val.duration:.0f} s{', calm air' if calm else ''}) and write validation.mcap"
+        )
         vres = sim.fly(val, workdir=out / ".jsbsim")
         write_mcap(out / "validation.mcap", vres)
         fd_val = read_log(out / "validation.mcap")
@@ -1385,22 +1665,26 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
     fd_mcap, steps, steps_doc = time_steps(read_log(out / "flight.mcap"), MAX_RATE_HZ)
     if fd_val is not None:
         fd_val = time_steps(fd_val, MAX_RATE_HZ)[0]
-    pr.done(f"{len(fd_bin.channels)} channels, {len(fd_bin.segments)} maneuver segments"
-            + (f"; {step_summary(steps_doc)}" if steps_doc else ""))
+    pr.done(
+        f"{len(fd_bin.channels)} channels, {len(fd_bin.segments)} maneuver segments"
+        + (f"; {step_summary(steps_doc)}" if steps_doc else "")
+    )
     pr.stage("data-quality checks")
-    logs = {"flight.bin": fd_bin, "flight.mcap": fd_mcap,
-            **({"validation.mcap": fd_val} if fd_val is not None else {})}
+    logs = {"flight.bin": fd_bin, "flight.mcap": fd_mcap, **({"validation.mcap": fd_val} if fd_val is not None else {})}
     findings = {name: run_checks(fd) for name, fd in logs.items()}
     checks = {name: json.loads(findings_to_json(f, logs[name])) for name, f in findings.items()}
     summary = {name: summarize(f) for name, f in findings.items()}
     pr.done(", ".join(f"{k}: {v}" for k, v in summary.items()))
     ac = AircraftConstants.from_truth(truth_doc)
     from pipeline.compatibility import truth_errors
+
     fd_logged = fd_mcap
     fd_c, comp = compatibility_stage(fd_mcap, ac, pr, enabled=compat, truth=truth_errors(truth_doc))
     checks["flight.mcap"]["compatibility"] = comp
     atomic_write_text(out / "checks.json", json.dumps(checks, indent=2, default=str) + "\n")
-    from pipeline.input_dynamics import summary as dynamics_summary, with_input_dynamics
+    from pipeline.input_dynamics import summary as dynamics_summary
+    from pipeline.input_dynamics import with_input_dynamics
+
     fd_mcap, dyn_doc = input_dynamics_stage(fd_c, pr, input_dynamics)
     truth = {k: float(v) for k, v in truth_doc["derivatives"].items()}
     # estimation reads the product's own MCAP (surface positions at full resolution; the
@@ -1414,50 +1698,101 @@ def run_scenario(scenario_path: str | Path, out: Path, *, seed: int | None = Non
         """The run's fits (of ``only`` methods, default all) repeated on corrected data
         ``fd`` with the input dynamics (default: the applied ones), started from
         ``starts``."""
-        return identify(with_input_dynamics(fd, dyn_doc["applied"] if dynamics is None else dynamics),
-                        ac, only or methods, truth, quiet_progress(), inputs="linear",
-                        turbulence=truth_doc.get("turbulence"), starts=starts,
-                        smooth_inputs=smooth_inputs, fit_all=fd_val is not None)[0]
+        return identify(
+            with_input_dynamics(fd, dyn_doc["applied"] if dynamics is None else dynamics),
+            ac,
+            only or methods,
+            truth,
+            quiet_progress(),
+            inputs="linear",
+            turbulence=truth_doc.get("turbulence"),
+            starts=starts,
+            smooth_inputs=smooth_inputs,
+            fit_all=fd_val is not None,
+        )[0]
+
     fd_mcap, dyn_doc = refine_input_dynamics_stage(
-        fd_c, fd_mcap, dyn_doc, methods, pr,
-        lambda dyn, starts: refit(fd_c, {} if starts is None else starts, dyn, only=("oem",)))
+        fd_c,
+        fd_mcap,
+        dyn_doc,
+        methods,
+        pr,
+        lambda dyn, starts: refit(fd_c, {} if starts is None else starts, dyn, only=("oem",)),
+    )
     applied = dict(dyn_doc["applied"])
     val_meta: dict = {}
     if fd_val is not None:
         fd_val = with_input_dynamics(with_instrument_errors_removed(fd_val, comp, val_meta), applied)
-    pr.total = pr.n + 2 * max(identified_axes(fd_mcap), 1) * len(methods) + 2   # + correction uncertainty, outputs
+    pr.total = pr.n + 2 * max(identified_axes(fd_mcap), 1) * len(methods) + 2  # + correction uncertainty, outputs
     from estimators.validation import default_tolerances
-    results, validations, problems = identify(fd_mcap, ac, methods, truth, pr, inputs="linear",
-                                              turbulence=truth_doc.get("turbulence"),
-                                              tolerances=default_tolerances(
-                                                  **{**scenario.pom_bands, **(bands or {})}),
-                                              pom=pom, smooth_inputs=smooth_inputs,
-                                              validation=fd_val, validation_calm=calm)
+
+    results, validations, problems = identify(
+        fd_mcap,
+        ac,
+        methods,
+        truth,
+        pr,
+        inputs="linear",
+        turbulence=truth_doc.get("turbulence"),
+        tolerances=default_tolerances(**{**scenario.pom_bands, **(bands or {})}),
+        pom=pom,
+        smooth_inputs=smooth_inputs,
+        validation=fd_val,
+        validation_calm=calm,
+    )
     starts = dict(results)
-    sampling = carry_consider_uncertainty(fd_logged, comp, results, validations, truth, pr, refit,
-                                          dynamics=dyn_doc, dynamics_refit=lambda d: refit(fd_c, starts, d),
-                                          steps=steps, inputs_data=fd_c,
-                                          inputs_refit=lambda data: refit(data, starts))
-    meta = {"scenario": scenario.name, "log": "flight.mcap", "seed": result.meta["seed"],
-            "aircraft": result.aircraft.name, "data": f"flight.mcap, {comp['data_for_estimation']}",
-            "control-input delay and lag": dynamics_summary(dyn_doc), "input_dynamics": dyn_doc,
-            **sampling_meta(steps_doc, sampling)}
+    sampling = carry_consider_uncertainty(
+        fd_logged,
+        comp,
+        results,
+        validations,
+        truth,
+        pr,
+        refit,
+        dynamics=dyn_doc,
+        dynamics_refit=lambda d: refit(fd_c, starts, d),
+        steps=steps,
+        inputs_data=fd_c,
+        inputs_refit=lambda data: refit(data, starts),
+    )
+    meta = {
+        "scenario": scenario.name,
+        "log": "flight.mcap",
+        "seed": result.meta["seed"],
+        "aircraft": result.aircraft.name,
+        "data": f"flight.mcap, {comp['data_for_estimation']}",
+        "control-input delay and lag": dynamics_summary(dyn_doc),
+        "input_dynamics": dyn_doc,
+        **sampling_meta(steps_doc, sampling),
+    }
     if val is not None:
-        meta["validation flight"] = (f"validation.mcap (seed {vres.meta['seed']}, "
-                                     f"{'calm air' if calm else 'turbulence as the flight'}): "
-                                     "the proof of match; every maneuver of flight.mcap fitted")
+        meta["validation flight"] = (
+            f"validation.mcap (seed {vres.meta['seed']}, "
+            f"{'calm air' if calm else 'turbulence as the flight'}): "
+            "the proof of match; every maneuver of flight.mcap fitted"
+        )
         meta.update(val_meta)
-    return _write_outputs(out, results, validations, problems, truth, pr, checks=summary,
-                          meta=meta, compatibility=comp)
+    return _write_outputs(out, results, validations, problems, truth, pr, checks=summary, meta=meta, compatibility=comp)
 
 
-def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = None,
-                 map_path: str | None = None, methods: Sequence[str] = ("oem",),
-                 inputs: str = "linear", model: str = "auto", quiet: bool = False,
-                 compat: bool = True, bands: Mapping[str, float] | None = None,
-                 pom: str = "auto", smooth_inputs: bool = True,
-                 validation_log: str | Path | Sequence[str | Path] | None = None,
-                 time_base: str | None = None, input_dynamics: str | tuple[float, float] = "auto") -> dict[str, Path]:
+def estimate_log(
+    log: str | Path,
+    out: Path,
+    *,
+    aircraft: str | Path | None = None,
+    map_path: str | None = None,
+    methods: Sequence[str] = ("oem",),
+    inputs: str = "linear",
+    model: str = "auto",
+    quiet: bool = False,
+    compat: bool = True,
+    bands: Mapping[str, float] | None = None,
+    pom: str = "auto",
+    smooth_inputs: bool = True,
+    validation_log: str | Path | Sequence[str | Path] | None = None,
+    time_base: str | None = None,
+    input_dynamics: str | tuple[float, float] = "auto",
+) -> dict[str, Path]:
     """``fsid estimate``: a log -> report and recording. ``model``: a built-in model
     (auto|longitudinal|lateral; needs ``aircraft``, or a truth.json next to the log) or a
     user model ``path.py:name`` (:mod:`pipeline.user_model`). Aircraft and sensor positions:
@@ -1485,7 +1820,7 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     from pipeline.user_model import check_methods, identify_user_model, is_user_model, split_spec
 
     user = is_user_model(model)
-    if user:                         # cheap checks before the log is read
+    if user:  # cheap checks before the log is read
         split_spec(model)
         check_methods(methods)
     # ingest, aircraft, air-data angles, checks, compatibility, input dynamics, its
@@ -1493,89 +1828,115 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
     # the user model's loading, the validation flight's ingest and angles, a fit and its
     # validation per method and axis (both axes for auto: recounted once the log is read)
     vlogs = validation_flights(validation_log)
-    pr = Progress(8 + user + 2 * len(vlogs)
-                  + 2 * len(methods) * (2 if model == "auto" else 1), quiet=quiet)
+    pr = Progress(8 + user + 2 * len(vlogs) + 2 * len(methods) * (2 if model == "auto" else 1), quiet=quiet)
     pr.stage(f"ingest {log}")
     from pipeline.aircraft_setup import servo_travel_for
-    fd, steps, steps_doc = time_steps(read_log(log, map=map_path, servo_travel=servo_travel_for(log, aircraft),
-                                               time_base=time_base), MAX_RATE_HZ)
-    pr.done(f"{len(fd.channels)} channels, {len(fd.segments)} segments"
-            + (f"; {step_summary(steps_doc)}" if steps_doc else ""))
+
+    fd, steps, steps_doc = time_steps(
+        read_log(log, map=map_path, servo_travel=servo_travel_for(log, aircraft), time_base=time_base), MAX_RATE_HZ
+    )
+    pr.done(
+        f"{len(fd.channels)} channels, {len(fd.segments)} segments"
+        + (f"; {step_summary(steps_doc)}" if steps_doc else "")
+    )
     pr.stage("aircraft and sensor positions")
     notes: list[str] = []
     ac, ac_name, truth_doc = aircraft_for_log(log, aircraft, fd, required=not user, say=notes.append)
     pr.done(ac_name or "none (user model)")
     for n in notes if not quiet else ():
         print(n, file=pr.stream)
-    truth = ({k: float(v) for k, v in truth_doc["derivatives"].items()}
-             if truth_doc and truth_doc.get("derivatives") else None)
+    truth = (
+        {k: float(v) for k, v in truth_doc["derivatives"].items()}
+        if truth_doc and truth_doc.get("derivatives")
+        else None
+    )
     ac_sensors = ac
     fd, ac, fd_logged, flow = flow_angle_stage(fd, ac, pr)
     fd_vals, val_checks = [], []
     seen = {Path(log).resolve(): "the log being fitted"}
     for vlog in vlogs:
         if Path(vlog).resolve() in seen:
-            raise FsidError(f"--validate-with {vlog}: that is {seen[Path(vlog).resolve()]}; "
-                            "give another flight (or leave it out to hold out the last maneuver)")
+            raise FsidError(
+                f"--validate-with {vlog}: that is {seen[Path(vlog).resolve()]}; "
+                "give another flight (or leave it out to hold out the last maneuver)"
+            )
         seen[Path(vlog).resolve()] = "a validation flight already given"
     # the same pitot: a validation flight takes the fitted flight's scale factor
     cal = flow.get("airspeed_scale") or {}
     k_pitot = cal["estimate"] if cal.get("applied") else (0.0 if cal.get("carried") else None)
     for vlog in vlogs:
         pr.stage(f"ingest the validation flight {vlog}")
-        fv = time_steps(read_log(vlog, map=map_path, servo_travel=servo_travel_for(vlog, aircraft),
-                                 time_base=time_base if detect_format(vlog) == fd.meta["format"] else None),
-                        MAX_RATE_HZ)[0]
+        fv = time_steps(
+            read_log(
+                vlog,
+                map=map_path,
+                servo_travel=servo_travel_for(vlog, aircraft),
+                time_base=time_base if detect_format(vlog) == fd.meta["format"] else None,
+            ),
+            MAX_RATE_HZ,
+        )[0]
         pr.done(f"{len(fv.channels)} channels, {len(fv.segments)} segments")
         fd_vals.append(flow_angle_stage(fv, ac_sensors, pr, airspeed_scale=k_pitot)[0])
         val_checks.append(summarize(run_checks(fd_vals[-1])))
-    if user:                         # before the slow stages: a bad model fails at once
+    if user:  # before the slow stages: a bad model fails at once
         pr.stage(f"load model {model}")
         from pipeline.user_model import check_channels, load_user_model
+
         um = load_user_model(model, ac, fd)
         check_channels(fd, um)
-        pr.done(f"{um.name}: {len(um.states)} states, {len(um.inputs)} inputs, "
-                f"{len(um.outputs)} outputs, {sum(p.free for p in um.parameters)} free parameters")
+        pr.done(
+            f"{um.name}: {len(um.states)} states, {len(um.inputs)} inputs, "
+            f"{len(um.outputs)} outputs, {sum(p.free for p in um.parameters)} free parameters"
+        )
     pr.stage("data-quality checks")
     summary = summarize(run_checks(fd))
     pr.done(str(summary))
     meta = {"log": str(log), "aircraft": ac_name}
     if fd_vals:
         meta["validation flight"] = "; ".join(
-            f"{validation_prefix(k, len(vlogs))}{vlog}" if len(vlogs) > 1 else str(vlog)
-            for k, vlog in enumerate(vlogs)) + (
+            f"{validation_prefix(k, len(vlogs))}{vlog}" if len(vlogs) > 1 else str(vlog) for k, vlog in enumerate(vlogs)
+        ) + (
             f": the proof of match; every maneuver of {Path(log).name} fitted; data-quality "
-            "checks: " + "; ".join(", ".join(f"{k} {v}" for k, v in c.items())
-                                   for c in val_checks))
+            "checks: " + "; ".join(", ".join(f"{k} {v}" for k, v in c.items()) for c in val_checks)
+        )
     if fd.meta.get("servo_travel"):
         meta["servo_travel"] = fd.meta["servo_travel"]
         assumed = [k for k, v in fd.meta["servo_travel"].items() if v["from"] == "assumed"]
         if assumed and not quiet:
-            print(f"note: {', '.join(assumed)} from servo commands with "
-                  f"{fd.meta['servo_travel'][assumed[0]]['deg']:g} deg at full travel assumed; the "
-                  f"control derivatives scale with it: give the aircraft TOML's [servos] "
-                  f"({', '.join(a + '_travel_deg' for a in assumed)})", file=pr.stream)
-    n_axes = 1 if user else identified_axes(fd, ("longitudinal", "lateral") if model == "auto"
-                                            else (model,))
-    pr.total = pr.n + 2 + 2 * max(n_axes, 1) * len(methods) + 2   # compatibility, delays, fits, uncertainty, outputs
+            print(
+                f"note: {', '.join(assumed)} from servo commands with "
+                f"{fd.meta['servo_travel'][assumed[0]]['deg']:g} deg at full travel assumed; the "
+                f"control derivatives scale with it: give the aircraft TOML's [servos] "
+                f"({', '.join(a + '_travel_deg' for a in assumed)})",
+                file=pr.stream,
+            )
+    n_axes = 1 if user else identified_axes(fd, ("longitudinal", "lateral") if model == "auto" else (model,))
+    pr.total = pr.n + 2 + 2 * max(n_axes, 1) * len(methods) + 2  # compatibility, delays, fits, uncertainty, outputs
     from pipeline.compatibility import truth_errors
+
     # the reconstruction sees the logged channels only: angles rebuilt from the GPS velocity
     # and attitude are no independent air data (with them, 4 "significant" sensor errors
     # were applied on a windy longitudinal_3211_turbulence); they are rebuilt afterwards
     # from the corrected data, and again in every refit of the correction uncertainty
-    from pipeline.flow_angles import assumptions as flow_assumptions, summary as flow_summary
-    fd_c, comp = compatibility_after_flow_angles(fd_logged, fd, flow, ac_sensors, pr, enabled=compat,
-                                                 truth=truth_errors(truth_doc) if truth_doc else None)
+    from pipeline.flow_angles import assumptions as flow_assumptions
+    from pipeline.flow_angles import summary as flow_summary
+
+    fd_c, comp = compatibility_after_flow_angles(
+        fd_logged, fd, flow, ac_sensors, pr, enabled=compat, truth=truth_errors(truth_doc) if truth_doc else None
+    )
     if flow.get("status") == "reconstructed":
-        fd, flow = with_flow_angles(fd_c, flow)     # rebuilt from the corrected data
+        fd, flow = with_flow_angles(fd_c, flow)  # rebuilt from the corrected data
         meta["air-data angles"] = flow_summary(flow)
         meta["air-data angles assume"] = flow_assumptions(flow)
         meta["flow_angles"] = {**flow, "data": comp["data_for_estimation"]}
-    else:                                           # derived angles not rebuilt: as logged
-        fd = replace(fd_c, channels={**fd_c.channels, **{
-            k: c for k, c in fd.channels.items() if k not in fd_c.channels}})
+    else:  # derived angles not rebuilt: as logged
+        fd = replace(
+            fd_c, channels={**fd_c.channels, **{k: c for k, c in fd.channels.items() if k not in fd_c.channels}}
+        )
     meta["data"] = f"{Path(log).name}, {comp['data_for_estimation']}"
-    from pipeline.input_dynamics import summary as dynamics_summary, with_input_dynamics
+    from pipeline.input_dynamics import summary as dynamics_summary
+    from pipeline.input_dynamics import with_input_dynamics
+
     fd_before, (fd, dyn_doc) = fd, input_dynamics_stage(fd, pr, input_dynamics)
     from pipeline.correction_uncertainty import quiet_progress
 
@@ -1585,45 +1946,94 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         """The fits (of ``only`` methods, default all) repeated on ``data``, started from
         ``starts``; results only."""
         if user:
-            return identify_user_model(data, um, only or methods, truth, quiet_progress(),
-                                       inputs=inputs, starts=starts, smooth_inputs=smooth_inputs,
-                                       fit_all=bool(fd_vals))[0]
-        return identify(data, ac, only or methods, truth, quiet_progress(), inputs=inputs, axes=axes,
-                        starts=starts, smooth_inputs=smooth_inputs, fit_all=bool(fd_vals))[0]
+            return identify_user_model(
+                data,
+                um,
+                only or methods,
+                truth,
+                quiet_progress(),
+                inputs=inputs,
+                starts=starts,
+                smooth_inputs=smooth_inputs,
+                fit_all=bool(fd_vals),
+            )[0]
+        return identify(
+            data,
+            ac,
+            only or methods,
+            truth,
+            quiet_progress(),
+            inputs=inputs,
+            axes=axes,
+            starts=starts,
+            smooth_inputs=smooth_inputs,
+            fit_all=bool(fd_vals),
+        )[0]
 
     def refit(fd_j, starts, wind_offset=(0.0, 0.0, 0.0)):
         """The fits repeated on data ``fd_j`` (the angles rebuilt with ``wind_offset``, the
         input dynamics applied as in the fits), started from ``starts``; results only."""
-        return fits(with_input_dynamics(with_flow_angles(fd_j, flow, wind_offset)[0], dyn_doc["applied"]),
-                    starts)
+        return fits(with_input_dynamics(with_flow_angles(fd_j, flow, wind_offset)[0], dyn_doc["applied"]), starts)
+
     # the fits with other input dynamics: the data the stage had (angles as rebuilt)
     fd, dyn_doc = refine_input_dynamics_stage(
-        fd_before, fd, dyn_doc, methods, pr,
-        lambda dyn, starts: fits(with_input_dynamics(fd_before, dyn), {} if starts is None else starts,
-                                 only=("oem",)))
+        fd_before,
+        fd,
+        dyn_doc,
+        methods,
+        pr,
+        lambda dyn, starts: fits(with_input_dynamics(fd_before, dyn), {} if starts is None else starts, only=("oem",)),
+    )
     applied = dict(dyn_doc["applied"])
-    fd_vals = [with_input_dynamics(with_instrument_errors_removed(fv, comp, meta), applied)
-               for fv in fd_vals]
+    fd_vals = [with_input_dynamics(with_instrument_errors_removed(fv, comp, meta), applied) for fv in fd_vals]
     if user:
-        results, validations, problems = identify_user_model(fd, um, methods, truth, pr, inputs=inputs,
-                                                             tolerances=tol, pom=pom,
-                                                             smooth_inputs=smooth_inputs,
-                                                             validation=fd_vals)
+        results, validations, problems = identify_user_model(
+            fd,
+            um,
+            methods,
+            truth,
+            pr,
+            inputs=inputs,
+            tolerances=tol,
+            pom=pom,
+            smooth_inputs=smooth_inputs,
+            validation=fd_vals,
+        )
         meta["model"] = model
     else:
-        results, validations, problems = identify(fd, ac, methods, truth, pr, inputs=inputs, axes=axes,
-                                                  tolerances=tol, pom=pom, smooth_inputs=smooth_inputs,
-                                                  validation=fd_vals)
+        results, validations, problems = identify(
+            fd,
+            ac,
+            methods,
+            truth,
+            pr,
+            inputs=inputs,
+            axes=axes,
+            tolerances=tol,
+            pom=pom,
+            smooth_inputs=smooth_inputs,
+            validation=fd_vals,
+        )
     # the wind's refits (models that see an air-data angle): the corrected data the fits
     # saw, the angles rebuilt with the wind moved
     starts = dict(results)
     angles = any({"alpha", "beta"} & {*pb.model.inputs, *pb.model.outputs} for pb in problems)
     sampling = carry_consider_uncertainty(
-        fd_logged, comp, results, validations, truth, pr, refit, flow=flow,
+        fd_logged,
+        comp,
+        results,
+        validations,
+        truth,
+        pr,
+        refit,
+        flow=flow,
         wind_refit=(lambda offset: refit(fd_c, starts, offset)) if angles else None,
-        dynamics=dyn_doc, dynamics_refit=lambda dyn: fits(with_input_dynamics(fd_before, dyn), starts),
-        steps=steps, inputs_data=fd_before,
-        inputs_refit=lambda data: fits(with_input_dynamics(data, dyn_doc["applied"]), starts))
+        dynamics=dyn_doc,
+        dynamics_refit=lambda dyn: fits(with_input_dynamics(fd_before, dyn), starts),
+        steps=steps,
+        inputs_data=fd_before,
+        inputs_refit=lambda data: fits(with_input_dynamics(data, dyn_doc["applied"]), starts),
+    )
     meta["control-input delay and lag"] = dynamics_summary(dyn_doc)
     meta["input_dynamics"] = dyn_doc
     meta.update(sampling_meta(steps_doc, sampling))
@@ -1634,13 +2044,21 @@ def estimate_log(log: str | Path, out: Path, *, aircraft: str | Path | None = No
         meta["air-data angles' wind"] = wind_summary(flow["wind_uncertainty"])
     if truth is not None:
         meta["truth"] = "truth.json next to the log"
-    return _write_outputs(out, results, validations, problems, truth, pr, checks=summary, meta=meta,
-                          compatibility=comp)
+    return _write_outputs(out, results, validations, problems, truth, pr, checks=summary, meta=meta, compatibility=comp)
 
 
-def _write_outputs(out: Path, results, validations, problems, truth, pr: Progress, *,
-                   checks: Any, meta: Mapping[str, Any],
-                   compatibility: Mapping[str, Any] | None = None) -> dict[str, Path]:
+def _write_outputs(
+    out: Path,
+    results,
+    validations,
+    problems,
+    truth,
+    pr: Progress,
+    *,
+    checks: Any,
+    meta: Mapping[str, Any],
+    compatibility: Mapping[str, Any] | None = None,
+) -> dict[str, Path]:
     """The methods' cross-check (their std final by now), then report.md, report.json and
     run.rrd."""
     from pipeline.recording import write_recording
@@ -1649,8 +2067,16 @@ def _write_outputs(out: Path, results, validations, problems, truth, pr: Progres
 
     agreement = cross_check_methods(results, validations)
     pr.stage("write report.md, report.json, run.rrd")
-    md, js = write_report(out, results, validations, truth=truth, meta=meta, checks=checks,
-                          compatibility=compatibility, agreement=agreement)
+    md, js = write_report(
+        out,
+        results,
+        validations,
+        truth=truth,
+        meta=meta,
+        checks=checks,
+        compatibility=compatibility,
+        agreement=agreement,
+    )
     rrd = write_recording(out / "run.rrd", results, validations, truth=truth)
     pr.done()
     return {"report.md": md, "report.json": js, "run.rrd": rrd}

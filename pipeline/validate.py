@@ -72,6 +72,7 @@ Keys of the returned dict
     (N, n_out, n_names)) and ``prediction_std`` (N, n_out) DataFrame, or None),
     ``inverse`` (``t`` (N,), ``inputs``, ``residual_inputs`` (N, n_in_used) SI).
 """
+
 from __future__ import annotations
 
 import math
@@ -83,10 +84,10 @@ import pandas as pd
 
 import estimators
 from estimators import EstimationResult, Segment, simulate_outputs
+from estimators import statistics as st
 from estimators import validation as V
 from estimators.integrators import DEFAULT_INPUTS, INTEGRATORS
 from estimators.model import Namespace
-from estimators import statistics as st
 
 #: TIC below which a channel's fit counts as good (DESIGN.md section 8)
 TIC_LIMIT = 0.1
@@ -136,9 +137,11 @@ REASON_LEVELS = {
     "TIC": "CHECK",
 }
 #: why an EKF/UKF that disagrees with filter error fails (DESIGN.md section 8)
-FILTER_ERROR_TRUST = ("filter error is the method to trust in turbulence (its process noise "
-                      "model; the EKF/UKF's white process noise biases them in coloured "
-                      "turbulence)")
+FILTER_ERROR_TRUST = (
+    "filter error is the method to trust in turbulence (its process noise "
+    "model; the EKF/UKF's white process noise biases them in coloured "
+    "turbulence)"
+)
 #: channels shown in degrees (rad -> deg) and degrees per second (rad/s -> deg/s)
 ANGLES = frozenset({"alpha", "beta", "phi", "theta", "psi", "de", "da", "dr"})
 RATES = frozenset({"p", "q", "r"})
@@ -190,8 +193,17 @@ def display_unit(channel: str) -> tuple[float, str]:
         return 180.0 / np.pi, "deg/s^2"
     if channel in ACCELS:
         return 1.0 / V.match.G0, "g"
-    unit = {"V": "m/s", "u": "m/s", "v": "m/s", "w": "m/s", "h": "m", "qbar": "Pa",
-            "rho": "kg/m^3", "thrust": "N", "throttle": "-"}.get(channel, "SI")
+    unit = {
+        "V": "m/s",
+        "u": "m/s",
+        "v": "m/s",
+        "w": "m/s",
+        "h": "m",
+        "qbar": "Pa",
+        "rho": "kg/m^3",
+        "thrust": "N",
+        "throttle": "-",
+    }.get(channel, "SI")
     return 1.0, unit
 
 
@@ -218,10 +230,14 @@ def _fit(result: EstimationResult, tic_limit: float) -> dict[str, Any]:
         out[o]["noise_std"] = num(sd)
         if t >= tic_limit and np.isfinite(sd) and sd > 0 and out[o]["RMS"] <= NOISE_FLOOR_RATIO * sd:
             floor.append(o)
-    return {"per_output": out, "det_R": num(df.attrs["det_R"]),
-            "max_TIC": num(np.nanmax(tic)) if np.isfinite(tic).any() else None,
-            "tic_limit": tic_limit, "tic_ok": bool(np.all(tic < tic_limit)),
-            "tic_noise_floor": floor}
+    return {
+        "per_output": out,
+        "det_R": num(df.attrs["det_R"]),
+        "max_TIC": num(np.nanmax(tic)) if np.isfinite(tic).any() else None,
+        "tic_limit": tic_limit,
+        "tic_ok": bool(np.all(tic < tic_limit)),
+        "tic_noise_floor": floor,
+    }
 
 
 def _residuals(result: EstimationResult) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -231,9 +247,16 @@ def _residuals(result: EstimationResult) -> tuple[dict[str, Any], dict[str, np.n
     t0 = result.residuals[0].index.to_numpy()
     fs = 1.0 / float(np.median(np.diff(t0)))
     f, P = V.psd(res[int(np.argmax([len(r) for r in res]))], fs)
-    return ({"stats": frame_dict(stats), "whiteness": frame_dict(w.to_frame()),
-             "max_lag": w.max_lag, "all_white": bool(np.all(w.white)), "fs_hz": fs},
-            {"f": f, "Pxx": P})
+    return (
+        {
+            "stats": frame_dict(stats),
+            "whiteness": frame_dict(w.to_frame()),
+            "max_lag": w.max_lag,
+            "all_white": bool(np.all(w.white)),
+            "fs_hz": fs,
+        },
+        {"f": f, "Pxx": P},
+    )
 
 
 def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
@@ -241,9 +264,14 @@ def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
     if result.sensitivities:
         names = result.free_names
         try:
-            u = V.morelli_klein(result.sensitivities, [r.to_numpy() for r in result.residuals],
-                                R=result.R, info=result.information, names=names,
-                                prior_info=(result.extra or {}).get("prior_information"))
+            u = V.morelli_klein(
+                result.sensitivities,
+                [r.to_numpy() for r in result.residuals],
+                R=result.R,
+                info=result.information,
+                names=names,
+                prior_info=(result.extra or {}).get("prior_information"),
+            )
         except (ValueError, np.linalg.LinAlgError) as exc:
             return {"error": str(exc)}
         mk, max_lag = u.std, u.max_lag
@@ -261,18 +289,22 @@ def _uncertainty(result: EstimationResult) -> dict[str, Any] | None:
     crb = result.std[names].to_numpy()
     if "crb_cov" in result.extra:  # std is not the Cramér-Rao bound (estimators.stabilized,
         # widen_by_scatter)
-        crb = pd.Series(np.sqrt(np.clip(np.diag(result.extra["crb_cov"]), 0.0, None)),
-                        index=result.free_names)[names].to_numpy()
-    df = pd.DataFrame({"crb_std": crb, "mk_std": mk, "ratio": mk / crb},
-                      index=pd.Index(names, name="parameter"))
+        crb = pd.Series(np.sqrt(np.clip(np.diag(result.extra["crb_cov"]), 0.0, None)), index=result.free_names)[
+            names
+        ].to_numpy()
+    df = pd.DataFrame({"crb_std": crb, "mk_std": mk, "ratio": mk / crb}, index=pd.Index(names, name="parameter"))
     cl = V.maneuver_scatter(result)
     if cl is not None:
         c = cl.to_frame().reindex(names)
         df["cluster_std"] = c["cluster_std"].to_numpy()
         df["cluster_ratio"] = c["ratio"].to_numpy()
         df["max_share"] = c["max_share"].to_numpy()
-        extra["cluster"] = {"n_segments": cl.n_segments, "limit": cl.limit,
-                            "flag_ratio": V.cluster_flag_ratio, **cl.ratio_summary()}
+        extra["cluster"] = {
+            "n_segments": cl.n_segments,
+            "limit": cl.limit,
+            "flag_ratio": V.cluster_flag_ratio,
+            **cl.ratio_summary(),
+        }
     return num({"per_parameter": frame_dict(df), "max_lag": max_lag, **extra})
 
 
@@ -290,6 +322,7 @@ def scatter_threshold(n_segments: int) -> float:
     1 - SCATTER_CONFIDENCE: sqrt(chi2_q(G - 1) / (G - 1)) for G maneuvers (1.73 for 3,
     1.61 for 4, 1.54 for 5)."""
     from scipy.stats import chi2
+
     df = n_segments - 1
     return float(np.sqrt(chi2.ppf(SCATTER_CONFIDENCE, df) / df))
 
@@ -319,9 +352,14 @@ def widen_by_scatter(result: EstimationResult, unc: dict[str, Any] | None) -> di
         return {}
     t = scatter_threshold(n_seg)
     names = result.free_names
-    wide = {n: float(d["cluster_ratio"]) for n, d in unc["per_parameter"].items()
-            if n in names and d.get("cluster_ratio") is not None
-            and math.isfinite(d["cluster_ratio"]) and d["cluster_ratio"] > t}
+    wide = {
+        n: float(d["cluster_ratio"])
+        for n, d in unc["per_parameter"].items()
+        if n in names
+        and d.get("cluster_ratio") is not None
+        and math.isfinite(d["cluster_ratio"])
+        and d["cluster_ratio"] > t
+    }
     if not wide:
         return {}
     D = np.ones(len(names))
@@ -332,8 +370,9 @@ def widen_by_scatter(result: EstimationResult, unc: dict[str, Any] | None) -> di
     return wide
 
 
-def linear_model(result: EstimationResult, segment: Segment | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def linear_model(
+    result: EstimationResult, segment: Segment | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(A, B, C, D, x0, u0): the identified model linearised at the first sample of
     ``segment`` (default: the first fitted segment): x0 its initial state, u0 its first input.
     A (n_x, n_x), B (n_x, n_u), C (n_y, n_x), D (n_y, n_u) in SI per SI."""
@@ -355,14 +394,23 @@ def _modes(result: EstimationResult, lin) -> dict[str, Any]:
     scales = {s: speed for s in _SPEEDS if speed} if speed else None
     ma = V.modes(A, model.states, scales=scales)
     tab = ma.table.drop(columns=["eigenvalue"])
-    return {"trim": {"x0": num(dict(zip(model.states, x0))), "u0": num(dict(zip(model.inputs, u0)))},
-            "table": frame_dict(tab),
-            "eigenvalues": [[float(v.real), float(v.imag)] for v in ma.eigenvalues]}
+    return {
+        "trim": {"x0": num(dict(zip(model.states, x0))), "u0": num(dict(zip(model.inputs, u0)))},
+        "table": frame_dict(tab),
+        "eigenvalues": [[float(v.real), float(v.imag)] for v in ma.eigenvalues],
+    }
 
 
-def _frequency(result: EstimationResult, lin, *, mag_bound_db: float, phase_bound_deg: float,
-               min_coherence: float, input_power_fraction: float, integrator: str
-               ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
+def _frequency(
+    result: EstimationResult,
+    lin,
+    *,
+    mag_bound_db: float,
+    phase_bound_deg: float,
+    min_coherence: float,
+    input_power_fraction: float,
+    integrator: str,
+) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
     """Model vs data in the frequency domain on the longest fitted segment.
 
     The data's response H_data is a Welch spectral estimate from the measured inputs and
@@ -377,7 +425,7 @@ def _frequency(result: EstimationResult, lin, *, mag_bound_db: float, phase_boun
     seg = result.segments[k]
     dt = np.diff(seg.t)
     if seg.t.size < 64 or np.ptp(dt) > 1e-6 * np.median(dt):
-        return None, None                                   # needs uniform sampling
+        return None, None  # needs uniform sampling
     excited = [i for i in range(seg.u.shape[1]) if np.std(seg.u[:, i]) > 1e-12]
     if not excited:
         return None, None
@@ -387,37 +435,61 @@ def _frequency(result: EstimationResult, lin, *, mag_bound_db: float, phase_boun
     fs = 1.0 / float(np.median(dt))
     u = seg.u[:, excited]
     se = V.spectral_estimate(u, z[:, keep], fs)
-    y_sim = simulate_outputs(result.model_with_estimates(), seg, integrator=integrator,
-                             inputs=result.settings.get("inputs", DEFAULT_INPUTS))
+    y_sim = simulate_outputs(
+        result.model_with_estimates(), seg, integrator=integrator, inputs=result.settings.get("inputs", DEFAULT_INPUTS)
+    )
     sm = V.spectral_estimate(u, y_sim.to_numpy()[:, keep], fs)
-    w = se.w[1:]                                            # drop DC
+    w = se.w[1:]  # drop DC
     Hd, coh = se.H[1:], se.coherence[1:]
     Hm = sm.H[1:]
     G = V.freq_response(A, B[:, excited], C[keep], D[keep][:, excited], w)
     # judge only where the input carries power: Welch coherence from a few averages is
     # biased high, so spectral nulls of the input would otherwise count as evidence
-    suu = np.real(np.diagonal(se.Suu[1:], axis1=1, axis2=2))          # (n_f, n_in)
+    suu = np.real(np.diagonal(se.Suu[1:], axis1=1, axis2=2))  # (n_f, n_in)
     weak = suu < input_power_fraction * suu.max(axis=0, keepdims=True)
     coh_used = np.where(weak[:, None, :], 0.0, coh)
     ins = [result.model.inputs[i] for i in excited]
-    mm = V.mismatch(Hm, Hd, w, coh_used, mag_bound_db=mag_bound_db,
-                    phase_bound_deg=phase_bound_deg, min_coherence=min_coherence,
-                    outputs=outs, inputs=ins)
+    mm = V.mismatch(
+        Hm,
+        Hd,
+        w,
+        coh_used,
+        mag_bound_db=mag_bound_db,
+        phase_bound_deg=phase_bound_deg,
+        min_coherence=min_coherence,
+        outputs=outs,
+        inputs=ins,
+    )
     tab = {f"{o}/{i}": num(row.to_dict()) for (o, i), row in mm.table.iterrows()}
     judged = mm.table[mm.table["n_used"] > 0]
-    out = {"inputs": ins, "outputs": outs, "segment": seg.name or f"segment {k}", "table": tab,
-           "bounds": {"mag_db": mag_bound_db, "phase_deg": phase_bound_deg,
-                      "min_coherence": min_coherence,
-                      "input_power_fraction": input_power_fraction},
-           "n_judged": int(len(judged)),
-           "all_pass": bool(len(judged) and judged["pass"].all())}
-    arrays = {"f": w / (2 * np.pi), "H_model": Hm, "H_analytic": G, "H_data": Hd,
-              "coherence": coh, "used": mm.used, "inputs": ins, "outputs": outs}
+    out = {
+        "inputs": ins,
+        "outputs": outs,
+        "segment": seg.name or f"segment {k}",
+        "table": tab,
+        "bounds": {
+            "mag_db": mag_bound_db,
+            "phase_deg": phase_bound_deg,
+            "min_coherence": min_coherence,
+            "input_power_fraction": input_power_fraction,
+        },
+        "n_judged": int(len(judged)),
+        "all_pass": bool(len(judged) and judged["pass"].all()),
+    }
+    arrays = {
+        "f": w / (2 * np.pi),
+        "H_model": Hm,
+        "H_analytic": G,
+        "H_data": Hd,
+        "coherence": coh,
+        "used": mm.used,
+        "inputs": ins,
+        "outputs": outs,
+    }
     return out, arrays
 
 
-def _inverse(result: EstimationResult, lin, bandwidth: float
-             ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
+def _inverse(result: EstimationResult, lin, bandwidth: float) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
     """Inverse simulation on the first fitted segment: the inputs the linearised model needs
     to follow the measured outputs, and the residual inputs (needed minus flown) per excited
     input, in perturbations about the first sample (trim). The loop tracks the outputs that
@@ -447,8 +519,16 @@ def _inverse(result: EstimationResult, lin, bandwidth: float
     bw = bandwidth
     for attempt in range(4):
         try:
-            inv = V.inverse_simulation(A, B[:, excited], C[keep], D[keep][:, excited], t_loop,
-                                       seg.z[:, keep] - y0[keep], u_ref=du, bandwidth=bw)
+            inv = V.inverse_simulation(
+                A,
+                B[:, excited],
+                C[keep],
+                D[keep][:, excited],
+                t_loop,
+                seg.z[:, keep] - y0[keep],
+                u_ref=du,
+                bandwidth=bw,
+            )
             break
         except ValueError as exc:
             if "unstable" not in str(exc) or attempt == 3:
@@ -459,16 +539,23 @@ def _inverse(result: EstimationResult, lin, bandwidth: float
         name = result.model.inputs[i]
         fac, unit = display_unit(name)
         r = inv.residual_inputs[:, j]
-        rms_r, rms_u = float(np.sqrt(np.mean(r ** 2))), float(np.sqrt(np.mean(du[:, j] ** 2)))
-        per[name] = num({"rms_residual": rms_r, "max_abs_residual": float(np.max(np.abs(r))),
-                         "rms_input": rms_u, "ratio": rms_r / rms_u if rms_u > 0 else math.nan,
-                         "unit": unit, "rms_residual_display": rms_r * fac})
+        rms_r, rms_u = float(np.sqrt(np.mean(r**2))), float(np.sqrt(np.mean(du[:, j] ** 2)))
+        per[name] = num(
+            {
+                "rms_residual": rms_r,
+                "max_abs_residual": float(np.max(np.abs(r))),
+                "rms_input": rms_u,
+                "ratio": rms_r / rms_u if rms_u > 0 else math.nan,
+                "unit": unit,
+                "rms_residual_display": rms_r * fac,
+            }
+        )
     ins = [result.model.inputs[i] for i in excited]
     tracked = [o for o, k in zip(result.outputs, keep) if k]
-    return ({"segment": seg.name or "segment 0", "tracked": tracked, "bandwidth": bw,
-             "per_input": per},
-            {"t": seg.t, "name": seg.name or "#0", "inputs": ins,
-             "residual_inputs": inv.residual_inputs})
+    return (
+        {"segment": seg.name or "segment 0", "tracked": tracked, "bandwidth": bw, "per_input": per},
+        {"t": seg.t, "name": seg.name or "#0", "inputs": ins, "residual_inputs": inv.residual_inputs},
+    )
 
 
 #: proof-of-match modes (see :func:`validate`)
@@ -500,11 +587,15 @@ def pom_mode(result: EstimationResult, lin=None, calm_air: bool = False) -> str:
     return "simulation"
 
 
-def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
-                    tolerances: Mapping[str, float] | None,
-                    allowed_bias: Mapping[str, float] | None, integrator: str, mode: str,
-                    step_times: Sequence[Mapping[str, Any]] | None = None
-                    ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+def _proof_of_match(
+    result: EstimationResult,
+    held_out: Sequence[Segment],
+    tolerances: Mapping[str, float] | None,
+    allowed_bias: Mapping[str, float] | None,
+    integrator: str,
+    mode: str,
+    step_times: Sequence[Mapping[str, Any]] | None = None,
+) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     model = result.model_with_estimates()
     segs, arrays = [], []
     driven: list[str] = []
@@ -518,8 +609,7 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
                 sens = _air_data_sensitivity(result, seg, integrator, y)
             except (estimators.EstimationError, np.linalg.LinAlgError) as exc:
                 # reported, and the classic proof of match run instead of none
-                notes.append(f"air-data prediction of {seg.name or k} failed ({exc}); "
-                             "open-loop simulation instead")
+                notes.append(f"air-data prediction of {seg.name or k} failed ({exc}); open-loop simulation instead")
                 driven = []
         seg_mode = "air-data" if y is not None else "simulation"
         if y is None:
@@ -538,40 +628,65 @@ def _proof_of_match(result: EstimationResult, held_out: Sequence[Segment],
         # (default.toml at ArduPilot's rates with 10 Hz surfaces, seed 1, ad hoc: the 5 Hz
         # rebuilt beta 0.45 deg from the data, 0.22 from the error; 25 Hz p 0.15 and 0.13
         # for a 0.10 deg/s gyro noise)
-        noise = {c: float(v) for c, v in zip(model.outputs, st.difference_noise_std(
-                     [seg.z - y.to_numpy(float)], robust=True))
-                 if np.isfinite(v) and v > 0}
-        pm = V.proof_of_match(z, y, tolerances=tol, allowed_bias=allowed_bias, envelope=envelope,
-                              noise_std=noise)
+        noise = {
+            c: float(v)
+            for c, v in zip(model.outputs, st.difference_noise_std([seg.z - y.to_numpy(float)], robust=True))
+            if np.isfinite(v) and v > 0
+        }
+        pm = V.proof_of_match(z, y, tolerances=tol, allowed_bias=allowed_bias, envelope=envelope, noise_std=noise)
         tic = V.theil(z.to_numpy(), y.to_numpy()).U
         chans = {}
         for (ch, row), u in zip(pm.iterrows(), tic):
             fac, unit = display_unit(ch)
             d = num(row.to_dict())
-            d.update(unit=unit, tolerance_display=num(row["tolerance"] * fac),
-                     max_abs_error_display=num(row["max_abs_error"] * fac),
-                     rms_error_display=num(row["rms_error"] * fac), TIC=num(u),
-                     noise_allowance_display=num(row["noise_allowance"] * fac),
-                     role="drives the filter" if ch in driven else "predicted")
+            d.update(
+                unit=unit,
+                tolerance_display=num(row["tolerance"] * fac),
+                max_abs_error_display=num(row["max_abs_error"] * fac),
+                rms_error_display=num(row["rms_error"] * fac),
+                TIC=num(u),
+                noise_allowance_display=num(row["noise_allowance"] * fac),
+                role="drives the filter" if ch in driven else "predicted",
+            )
             if envelope is not None:
-                d.update(nominal_max_abs_error_display=num(row["nominal_max_abs_error"] * fac),
-                         envelope_max_width_display=num(row["envelope_max_width"] * fac))
+                d.update(
+                    nominal_max_abs_error_display=num(row["nominal_max_abs_error"] * fac),
+                    envelope_max_width_display=num(row["envelope_max_width"] * fac),
+                )
             chans[ch] = d
-        arr = {"name": name, "t": seg.t, "measured": z, "predicted": y,
-               "excess": pm.attrs["excess"], "sensitivity": sens,
-               "tolerance": pm["tolerance"].to_numpy(float),
-               "envelope": None if envelope is None else tuple(
-                   pd.DataFrame(a, index=y.index, columns=y.columns) for a in envelope)}
+        arr = {
+            "name": name,
+            "t": seg.t,
+            "measured": z,
+            "predicted": y,
+            "excess": pm.attrs["excess"],
+            "sensitivity": sens,
+            "tolerance": pm["tolerance"].to_numpy(float),
+            "envelope": None
+            if envelope is None
+            else tuple(pd.DataFrame(a, index=y.index, columns=y.columns) for a in envelope),
+        }
         _prediction_entries(chans, arr, None if sens is None else _band_covariance(result, sens[0]))
-        segs.append({"name": name, "mode": seg_mode, "channels": chans, "input_timing": timing,
-                     "all_pass": bool(pm.attrs["all_pass"]),
-                     "prediction_uncertainty": None if sens is None else {
-                         "parameters": len(sens[0]), "k": V.PREDICTION_K}})
+        segs.append(
+            {
+                "name": name,
+                "mode": seg_mode,
+                "channels": chans,
+                "input_timing": timing,
+                "all_pass": bool(pm.attrs["all_pass"]),
+                "prediction_uncertainty": None if sens is None else {"parameters": len(sens[0]), "k": V.PREDICTION_K},
+            }
+        )
         arrays.append(arr)
     if segs and all(sg["mode"] == "simulation" for sg in segs):
         mode = "simulation"
-    return {"mode": mode, "driven": driven, "segments": segs, "notes": notes,
-            "all_pass": bool(segs) and all(s["all_pass"] for s in segs)}, arrays
+    return {
+        "mode": mode,
+        "driven": driven,
+        "segments": segs,
+        "notes": notes,
+        "all_pass": bool(segs) and all(s["all_pass"] for s in segs),
+    }, arrays
 
 
 def _band_covariance(result: EstimationResult, names: Sequence[str]) -> np.ndarray:
@@ -582,8 +697,7 @@ def _band_covariance(result: EstimationResult, names: Sequence[str]) -> np.ndarr
     return cov[np.ix_(idx, idx)]
 
 
-def _prediction_entries(chans: dict[str, dict[str, Any]], arr: dict[str, Any],
-                        cov: np.ndarray | None) -> None:
+def _prediction_entries(chans: dict[str, dict[str, Any]], arr: dict[str, Any], cov: np.ndarray | None) -> None:
     """Set each proof-of-match channel's entries of the prediction's own uncertainty
     (display units, in place): ``prediction_std_max_display`` (its largest std),
     ``beyond_prediction_display`` (how far the misses reach beyond PREDICTION_K of it) and,
@@ -596,22 +710,20 @@ def _prediction_entries(chans: dict[str, dict[str, Any]], arr: dict[str, Any],
     band: the entries None)."""
     sens, excess, columns = arr["sensitivity"], arr["excess"], arr["predicted"].columns
     ps = None if sens is None else V.prediction_std(sens[1], cov)
-    arr["prediction_std"] = None if ps is None else pd.DataFrame(
-        ps, index=arr["predicted"].index, columns=columns)
-    top, beyond = (V.prediction_uncertainty(excess, ps) if ps is not None
-                   else (np.full(len(columns), np.nan),) * 2)
+    arr["prediction_std"] = None if ps is None else pd.DataFrame(ps, index=arr["predicted"].index, columns=columns)
+    top, beyond = V.prediction_uncertainty(excess, ps) if ps is not None else (np.full(len(columns), np.nan),) * 2
     for j, ch in enumerate(columns):
         d = chans.get(ch)
         if d is None:
             continue
         fac = display_unit(ch)[0]
-        d.update(prediction_std_max_display=num(top[j] * fac),
-                 beyond_prediction_display=num(beyond[j] * fac))
+        d.update(prediction_std_max_display=num(top[j] * fac), beyond_prediction_display=num(beyond[j] * fac))
         if ps is not None and d.get("pass") is False and np.isfinite(excess[:, j]).any():
             n = int(np.nanargmax(excess[:, j]))
             share = V.variance_shares(sens[1][n, j], cov)
-            d["prediction_std_from"] = {sens[0][i]: num(round(float(share[i]), 3))
-                                        for i in np.argsort(-share)[:3] if share[i] >= 0.1}
+            d["prediction_std_from"] = {
+                sens[0][i]: num(round(float(share[i]), 3)) for i in np.argsort(-share)[:3] if share[i] >= 0.1
+            }
 
 
 def refresh_prediction_uncertainty(validation: dict[str, Any], result: EstimationResult) -> None:
@@ -629,9 +741,16 @@ def refresh_prediction_uncertainty(validation: dict[str, Any], result: Estimatio
     validation["verdict"] = verdict(validation)
 
 
-def _timing_envelope(result: EstimationResult, seg: Segment, steps: Mapping[str, Any], mode: str,
-                     integrator: str, y: pd.DataFrame, notes: list[str], name: str
-                     ) -> tuple[tuple[np.ndarray, np.ndarray] | None, dict[str, Any] | None]:
+def _timing_envelope(
+    result: EstimationResult,
+    seg: Segment,
+    steps: Mapping[str, Any],
+    mode: str,
+    integrator: str,
+    y: pd.DataFrame,
+    notes: list[str],
+    name: str,
+) -> tuple[tuple[np.ndarray, np.ndarray] | None, dict[str, Any] | None]:
     """The range of the held-out prediction ``y`` over the unknown times of the segment's
     control-input steps between slow samples (``steps``: input -> [(start, end, std), ...]
     s, :func:`pipeline.input_sampling.step_times`): the model, as held, predicts the
@@ -650,50 +769,62 @@ def _timing_envelope(result: EstimationResult, seg: Segment, steps: Mapping[str,
     variants = timing_variants(seg, result.model.inputs, steps) if steps else []
     if not variants:
         return None, None
-    inside = [sd for c in result.model.inputs for a, b, sd in steps.get(c, ())
-              if seg.t[0] < a and b < seg.t[-1]]
-    doc: dict[str, Any] = {"steps": len(inside), "untimed": sum(sd is None for sd in inside),
-                           "timed_range_std": TIMED_RANGE_STD, "fractions": list(TIMING_FRACTIONS),
-                           "envelope": False}
+    inside = [sd for c in result.model.inputs for a, b, sd in steps.get(c, ()) if seg.t[0] < a and b < seg.t[-1]]
+    doc: dict[str, Any] = {
+        "steps": len(inside),
+        "untimed": sum(sd is None for sd in inside),
+        "timed_range_std": TIMED_RANGE_STD,
+        "fractions": list(TIMING_FRACTIONS),
+        "envelope": False,
+    }
     ys = []
     for v in variants:
         try:
-            ys.append(_air_data_prediction(result, v, integrator).predicted if mode == "air-data"
-                      else _held_out_prediction(result, v, integrator))
+            ys.append(
+                _air_data_prediction(result, v, integrator).predicted
+                if mode == "air-data"
+                else _held_out_prediction(result, v, integrator)
+            )
         except (estimators.EstimationError, np.linalg.LinAlgError) as exc:
-            notes.append(f"{name}: the prediction with its control-input steps moved within "
-                         f"their timing uncertainty failed ({exc}); judged on the steps as fitted")
+            notes.append(
+                f"{name}: the prediction with its control-input steps moved within "
+                f"their timing uncertainty failed ({exc}); judged on the steps as fitted"
+            )
             return None, doc
     stack = np.stack([y.to_numpy(float)] + [a.to_numpy(float) for a in ys])
     doc["envelope"] = True
     return (np.min(stack, axis=0), np.max(stack, axis=0)), doc
 
 
-def _air_data_prediction(result: EstimationResult, seg: Segment, integrator: str,
-                         shift: Mapping[str, float] | None = None):
+def _air_data_prediction(
+    result: EstimationResult, seg: Segment, integrator: str, shift: Mapping[str, float] | None = None
+):
     """The identified model driven by the held-out segment's air data: every derivative
     held; per-segment parameters (output biases) at their mean over the fitted segments
     (sensor biases persist through a flight); the filter's process noise on the air-data
     states is the one the method identified or used (FEM, EKF, UKF), else the data
     default; the measurement noise is the method's (its R). ``shift``: amounts added to
     shared parameters (the sensitivities of :func:`_air_data_sensitivity`)."""
-    vals = {n: v + (shift or {}).get(n, 0.0) for n, v in zip(result.names, result.values)
-            if "[" not in n}
+    vals = {n: v + (shift or {}).get(n, 0.0) for n, v in zip(result.names, result.values) if "[" not in n}
     per_seg: dict[str, list[float]] = {}
     for n, v in zip(result.names, result.values):
         if "[" in n and not n.startswith("x0_"):
             per_seg.setdefault(n.split("[")[0], []).append(float(v))
     vals.update({n: float(np.mean(v)) for n, v in per_seg.items()})
     R = result.extra.get("measurement_noise", result.R)
-    return V.air_data_prediction(result.model.with_values(vals), seg,
-                                 process_noise=_process_noise(result), measurement_noise=R,
-                                 integrator=integrator,
-                                 inputs=result.settings.get("inputs", DEFAULT_INPUTS))
+    return V.air_data_prediction(
+        result.model.with_values(vals),
+        seg,
+        process_noise=_process_noise(result),
+        measurement_noise=R,
+        integrator=integrator,
+        inputs=result.settings.get("inputs", DEFAULT_INPUTS),
+    )
 
 
-def _air_data_sensitivity(result: EstimationResult, seg: Segment, integrator: str,
-                          y: pd.DataFrame, rel_step: float = 1e-5
-                          ) -> tuple[list[str], np.ndarray] | None:
+def _air_data_sensitivity(
+    result: EstimationResult, seg: Segment, integrator: str, y: pd.DataFrame, rel_step: float = 1e-5
+) -> tuple[list[str], np.ndarray] | None:
     """(names, S) as :func:`_prediction_sensitivity`, for the air-data-driven prediction
     ``y``: forward differences, one filter pass per free shared model parameter (the
     filter's gain moves with them too; nothing is refitted to the segment). None when a
@@ -719,8 +850,9 @@ def _held_out_prediction(result: EstimationResult, seg: Segment, integrator: str
     return _held_out_fit(result, seg, integrator)[0]
 
 
-def _held_out_fit(result: EstimationResult, seg: Segment, integrator: str
-                  ) -> tuple[pd.DataFrame, EstimationResult | None]:
+def _held_out_fit(
+    result: EstimationResult, seg: Segment, integrator: str
+) -> tuple[pd.DataFrame, EstimationResult | None]:
     """The identified model's prediction of a held-out segment: every derivative held at
     its estimate; only the segment's initial state and the model's per-segment biases are
     adjusted to the data (the usual proof of match - a noisy first sample as initial
@@ -731,12 +863,12 @@ def _held_out_fit(result: EstimationResult, seg: Segment, integrator: str
     model = result.model.with_values(shared).fixed([n for n in result.free_names if "[" not in n])
     inputs = result.settings.get("inputs", DEFAULT_INPUTS)
     try:
-        fit = estimators.OutputError(model, integrator=integrator, inputs=inputs,
-                                     fallback="never").fit(seg, estimate_x0=True)
+        fit = estimators.OutputError(model, integrator=integrator, inputs=inputs, fallback="never").fit(
+            seg, estimate_x0=True
+        )
         return fit.predicted[0], fit
     except estimators.EstimationError:
-        return simulate_outputs(result.model_with_estimates(), seg, integrator=integrator,
-                                inputs=inputs), None
+        return simulate_outputs(result.model_with_estimates(), seg, integrator=integrator, inputs=inputs), None
 
 
 def _shared_covariance(result: EstimationResult) -> tuple[list[str], np.ndarray]:
@@ -756,8 +888,9 @@ def _band_parameters(result: EstimationResult) -> list[str]:
     return [n for n in _shared_covariance(result)[0] if n in result.model.parameter_names]
 
 
-def _prediction_sensitivity(result: EstimationResult, seg: Segment, fit: EstimationResult | None,
-                            integrator: str) -> tuple[list[str], np.ndarray] | None:
+def _prediction_sensitivity(
+    result: EstimationResult, seg: Segment, fit: EstimationResult | None, integrator: str
+) -> tuple[list[str], np.ndarray] | None:
     """(names, S) with S (N, n_out, n_names) the held-out prediction's sensitivity to the
     result's free shared parameters, the segment's initial state and output biases refitted
     as the proof of match fits them (:func:`estimators.validation.parameter_sensitivity`,
@@ -773,9 +906,16 @@ def _prediction_sensitivity(result: EstimationResult, seg: Segment, fit: Estimat
     w = 1.0 / np.diag(np.atleast_2d(fit.R))
     w = np.where(np.isfinite(w) & (w > 0), w, 0.0)
     try:
-        S = V.parameter_sensitivity(fit.model, seg, values, names, fit.free_names, weights=w,
-                                    integrator=integrator,
-                                    inputs=result.settings.get("inputs", DEFAULT_INPUTS))
+        S = V.parameter_sensitivity(
+            fit.model,
+            seg,
+            values,
+            names,
+            fit.free_names,
+            weights=w,
+            integrator=integrator,
+            inputs=result.settings.get("inputs", DEFAULT_INPUTS),
+        )
     except (estimators.EstimationError, np.linalg.LinAlgError, ValueError):
         return None
     return (names, S) if np.all(np.isfinite(S)) else None
@@ -792,10 +932,10 @@ def _truth_check(result: EstimationResult, truth: Mapping[str, float], k: float)
         est, sd, tr = float(result.params[name]), float(std[name]), float(truth[name])
         err = est - tr
         ins = abs(err) / sd if sd > 0 and math.isfinite(sd) else math.nan
-        out[name] = num({"estimate": est, "std": sd, "truth": tr, "error": err,
-                         "error_in_std": ins, "within": bool(ins <= k)})
-    return {"k": k, "per_parameter": out,
-            "all_within": bool(out) and all(v["within"] for v in out.values())}
+        out[name] = num(
+            {"estimate": est, "std": sd, "truth": tr, "error": err, "error_in_std": ins, "within": bool(ins <= k)}
+        )
+    return {"k": k, "per_parameter": out, "all_within": bool(out) and all(v["within"] for v in out.values())}
 
 
 def _is_method(name: Any, base: str) -> bool:
@@ -807,17 +947,17 @@ def _is_method(name: Any, base: str) -> bool:
 def _trusted_over(method: Any, other: Any, converged: bool = True) -> bool:
     """Whether ``other`` is the method to trust where it and ``method`` disagree: a
     converged filter-error fit (fem, fem-nl) over an EKF or UKF of the same flight."""
-    return (converged and _is_method(other, "fem")
-            and any(_is_method(method, m) for m in ("ekf", "ukf")))
+    return converged and _is_method(other, "fem") and any(_is_method(method, m) for m in ("ekf", "ukf"))
 
 
 def _pom_channels(pm: Mapping[str, Any]) -> tuple[float, list[str], list[str], list[str]]:
     """(k, within, beyond, unweighed): the failed proof-of-match channels by how their
     misses compare with k (PREDICTION_K) std of the prediction's own uncertainty, the
     worst segment deciding (beyond on any segment, else no uncertainty on any, else within)."""
-    k = next((sg["prediction_uncertainty"]["k"] for sg in pm["segments"]
-              if sg.get("prediction_uncertainty")), V.PREDICTION_K)
-    worst: dict[str, int] = {}                  # 0 within, 1 unweighed, 2 beyond
+    k = next(
+        (sg["prediction_uncertainty"]["k"] for sg in pm["segments"] if sg.get("prediction_uncertainty")), V.PREDICTION_K
+    )
+    worst: dict[str, int] = {}  # 0 within, 1 unweighed, 2 beyond
     for sg in pm["segments"]:
         for c, d in sg["channels"].items():
             if d.get("pass") is not False:
@@ -826,8 +966,12 @@ def _pom_channels(pm: Mapping[str, Any]) -> tuple[float, list[str], list[str], l
             w = 1 if b is None or top is None else 2 if b > 0 else 0
             worst[c] = max(worst.get(c, 0), w)
     names = sorted(worst)
-    return (k, [c for c in names if worst[c] == 0], [c for c in names if worst[c] == 2],
-            [c for c in names if worst[c] == 1])
+    return (
+        k,
+        [c for c in names if worst[c] == 0],
+        [c for c in names if worst[c] == 2],
+        [c for c in names if worst[c] == 1],
+    )
 
 
 def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
@@ -841,38 +985,55 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
     Notes: residual colour, correlations, frequency mismatch, a-priori values, other
     methods' disagreement, and for an output-error method with coloured residuals and
     scattering maneuvers the advice to fit filter error."""
-    reasons: list[tuple[str, str]] = []             # (kind, sentence)
+    reasons: list[tuple[str, str]] = []  # (kind, sentence)
     notes: list[str] = []
     if not v.get("converged", True):
         why = v.get("not_settled")
-        reasons.append(("not converged", f"the filter passes did not settle: {why}" if why
-                        else "the optimiser did not converge"))
+        reasons.append(
+            ("not converged", f"the filter passes did not settle: {why}" if why else "the optimiser did not converge")
+        )
     fit = v.get("fit") or {}
     if fit and not fit.get("tic_ok", True):
         floor = fit.get("tic_noise_floor") or []
-        bad = [o for o, d in fit["per_output"].items()
-               if (d.get("TIC") is None or d["TIC"] >= fit["tic_limit"]) and o not in floor]
+        bad = [
+            o
+            for o, d in fit["per_output"].items()
+            if (d.get("TIC") is None or d["TIC"] >= fit["tic_limit"]) and o not in floor
+        ]
         if bad:
             reasons.append(("TIC", f"TIC >= {fit['tic_limit']} on {', '.join(bad)}"))
         if floor:
-            notes.append(f"TIC >= {fit['tic_limit']} on {', '.join(floor)} at their noise floor: "
-                         f"residuals within {NOISE_FLOOR_RATIO:g}x their measurement noise (the "
-                         "maneuvers hardly move them)")
+            notes.append(
+                f"TIC >= {fit['tic_limit']} on {', '.join(floor)} at their noise floor: "
+                f"residuals within {NOISE_FLOOR_RATIO:g}x their measurement noise (the "
+                "maneuvers hardly move them)"
+            )
     pm = v.get("proof_of_match")
     if pm is not None and not pm["all_pass"]:
         k, within, beyond, unweighed = _pom_channels(pm)
         if beyond:
-            reasons.append(("proof of match beyond", f"proof of match failed on {', '.join(beyond)} "
-                            f"beyond {k:g} std of the prediction's own uncertainty"))
+            reasons.append(
+                (
+                    "proof of match beyond",
+                    f"proof of match failed on {', '.join(beyond)} beyond {k:g} std of the prediction's own uncertainty",
+                )
+            )
         if unweighed:
-            reasons.append(("proof of match unweighed", "proof of match failed on "
-                            f"{', '.join(unweighed)} (no prediction uncertainty to weigh the miss)"))
+            reasons.append(
+                (
+                    "proof of match unweighed",
+                    f"proof of match failed on {', '.join(unweighed)} (no prediction uncertainty to weigh the miss)",
+                )
+            )
         if within:
-            reasons.append(("proof of match within", f"proof of match failed on {', '.join(within)} "
-                            f"within {k:g} std of the prediction's own uncertainty"))
+            reasons.append(
+                (
+                    "proof of match within",
+                    f"proof of match failed on {', '.join(within)} within {k:g} std of the prediction's own uncertainty",
+                )
+            )
         if not (beyond or unweighed or within):
-            reasons.append(("proof of match none judged",
-                            "proof of match failed on every channel (none judged)"))
+            reasons.append(("proof of match none judged", "proof of match failed on every channel (none judged)"))
         notes += _prediction_notes(pm)
     tr = (v.get("plausibility") or {}).get("truth")
     if tr and tr["per_parameter"] and not tr["all_within"]:
@@ -887,10 +1048,13 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
     for other, bad in (ag.get("flagged") or {}).items():
         on = ", ".join(f"{n} ({z:.1f})" for n, z in bad.items())
         against = (ag.get("against") or {}).get(other) or {}
-        if _trusted_over(v.get("method"), against.get("method", other),
-                         bool(against.get("converged", True))):
-            reasons.append(("filter error", f"disagrees with filter error ({other}) by more than "
-                            f"{ag['k']:g} combined std on {on}: {FILTER_ERROR_TRUST}"))
+        if _trusted_over(v.get("method"), against.get("method", other), bool(against.get("converged", True))):
+            reasons.append(
+                (
+                    "filter error",
+                    f"disagrees with filter error ({other}) by more than {ag['k']:g} combined std on {on}: {FILTER_ERROR_TRUST}",
+                )
+            )
         else:
             notes.append(f"disagrees with {other} by more than {ag['k']:g} combined std on {on}")
     res = v.get("residuals") or {}
@@ -899,22 +1063,32 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
         notes.append(f"coloured residuals on {', '.join(col)} (see Morelli-Klein std)")
     cl = (v.get("uncertainty") or {}).get("cluster") or {}
     if cl.get("flagged"):
-        notes.append(f"the {cl['n_segments']} maneuvers scatter more than {cl['flag_ratio']:g}x "
-                     "the Cramér-Rao bound on " + ", ".join(f"{n} ({r:.1f}x)" for n, r in
-                                                          cl["flagged"].items())
-                     + ": the bound understates their uncertainty (see the maneuver-scatter std)")
-    wide = ((v.get("uncertainty") or {}).get("widened") or {})
+        notes.append(
+            f"the {cl['n_segments']} maneuvers scatter more than {cl['flag_ratio']:g}x "
+            "the Cramér-Rao bound on "
+            + ", ".join(f"{n} ({r:.1f}x)" for n, r in cl["flagged"].items())
+            + ": the bound understates their uncertainty (see the maneuver-scatter std)"
+        )
+    wide = (v.get("uncertainty") or {}).get("widened") or {}
     if wide:
-        notes.append("std is the maneuver scatter on " + ", ".join(
-            f"{n} ({r:.1f}x the Cramér-Rao bound)" for n, r in wide["parameters"].items())
+        notes.append(
+            "std is the maneuver scatter on "
+            + ", ".join(f"{n} ({r:.1f}x the Cramér-Rao bound)" for n, r in wide["parameters"].items())
             + f": more than an exact bound's {wide['confidence']:.0%} limit of "
-            f"{wide['threshold']:.2f}x with {cl.get('n_segments')} maneuvers")
+            f"{wide['threshold']:.2f}x with {cl.get('n_segments')} maneuvers"
+        )
     # output error and its stabilised forms ("oem-..."): no process noise in the model
-    if (str(v.get("method", "")).startswith("oem") and res and not res.get("all_white", True)
-            and (cl.get("flagged") or wide)):
-        notes.append("output error leaves process noise out: coloured residuals and maneuvers "
-                     "that scatter beyond the bound are what turbulence does to it; fit filter "
-                     "error too (--method fem) and compare")
+    if (
+        str(v.get("method", "")).startswith("oem")
+        and res
+        and not res.get("all_white", True)
+        and (cl.get("flagged") or wide)
+    ):
+        notes.append(
+            "output error leaves process noise out: coloured residuals and maneuvers "
+            "that scatter beyond the bound are what turbulence does to it; fit filter "
+            "error too (--method fem) and compare"
+        )
     if v.get("correlations_flagged"):
         notes.append("highly correlated: " + ", ".join(f"{a}~{b}" for a, b, _ in v["correlations_flagged"]))
     fr = v.get("frequency")
@@ -923,8 +1097,13 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
         notes.append(f"frequency-response mismatch beyond bounds on {', '.join(bad)}")
     levels = [REASON_LEVELS[kind] for kind, _ in reasons]
     level = max(levels, key=LEVELS.index, default="PASS")
-    return {"ok": level == "PASS", "level": level, "reasons": [r for _, r in reasons],
-            "reason_levels": levels, "notes": notes}
+    return {
+        "ok": level == "PASS",
+        "level": level,
+        "reasons": [r for _, r in reasons],
+        "reason_levels": levels,
+        "notes": notes,
+    }
 
 
 def _prediction_notes(pm: Mapping[str, Any]) -> list[str]:
@@ -933,8 +1112,9 @@ def _prediction_notes(pm: Mapping[str, Any]) -> list[str]:
     (the estimates' precision limits the match) or beyond (the model's form, its inputs or
     biased estimates)?"""
     within, beyond = {}, {}
-    k = next((sg["prediction_uncertainty"]["k"] for sg in pm["segments"]
-              if sg.get("prediction_uncertainty")), V.PREDICTION_K)
+    k = next(
+        (sg["prediction_uncertainty"]["k"] for sg in pm["segments"] if sg.get("prediction_uncertainty")), V.PREDICTION_K
+    )
     for sg in pm["segments"]:
         for c, d in sg["channels"].items():
             b, top = d.get("beyond_prediction_display"), d.get("prediction_std_max_display")
@@ -944,28 +1124,41 @@ def _prediction_notes(pm: Mapping[str, Any]) -> list[str]:
                 beyond[c] = max(beyond.get(c, (0.0, ""))[0], b), d["unit"]
             elif top >= within.get(c, (-1.0,))[0]:
                 within[c] = top, d["unit"], d.get("prediction_std_from") or {}
-    within = {c: w for c, w in within.items() if c not in beyond}   # beyond on some segment
+    within = {c: w for c, w in within.items() if c not in beyond}  # beyond on some segment
     notes = []
     if within:
-        notes.append("proof of match: the misses on " + ", ".join(within) + f" are within {k:g} "
-                     "std of the prediction's own uncertainty from the estimates' covariance (its std "
-                     "up to " + ", ".join(
-                         f"{v:.3g} {u} on {c}" + ("; at its worst miss mostly " + ", ".join(
-                             f"{n} {100 * x:.0f} %" for n, x in src.items()) + " of its variance"
-                             if src else "")
-                         for c, (v, u, src) in within.items())
-                     + "): the estimates are too imprecise for the band, not shown wrong; more "
-                     "or richer maneuvers narrow them")
+        notes.append(
+            "proof of match: the misses on " + ", ".join(within) + f" are within {k:g} "
+            "std of the prediction's own uncertainty from the estimates' covariance (its std "
+            "up to "
+            + ", ".join(
+                f"{v:.3g} {u} on {c}"
+                + (
+                    "; at its worst miss mostly "
+                    + ", ".join(f"{n} {100 * x:.0f} %" for n, x in src.items())
+                    + " of its variance"
+                    if src
+                    else ""
+                )
+                for c, (v, u, src) in within.items()
+            )
+            + "): the estimates are too imprecise for the band, not shown wrong; more "
+            "or richer maneuvers narrow them"
+        )
     if beyond:
-        notes.append("proof of match: " + ", ".join(f"{c} by {v:.3g} {u}" for c, (v, u) in beyond.items())
-                     + f" beyond {k:g} std of the prediction's own uncertainty from the estimates: "
-                     "not explained by their stated uncertainty - the model's form, its inputs, "
-                     "or estimates biased beyond their std")
+        notes.append(
+            "proof of match: "
+            + ", ".join(f"{c} by {v:.3g} {u}" for c, (v, u) in beyond.items())
+            + f" beyond {k:g} std of the prediction's own uncertainty from the estimates: "
+            "not explained by their stated uncertainty - the model's form, its inputs, "
+            "or estimates biased beyond their std"
+        )
     return notes
 
 
-def refresh_truth_check(validation: dict[str, Any], result: EstimationResult,
-                        truth: Mapping[str, float] | None, truth_k: float = TRUTH_K) -> None:
+def refresh_truth_check(
+    validation: dict[str, Any], result: EstimationResult, truth: Mapping[str, float] | None, truth_k: float = TRUTH_K
+) -> None:
     """Redo the truth check and the verdict of ``validation`` (in place) after the result's
     uncertainty changed (a ``consider_cov`` set after validation)."""
     if not truth:
@@ -985,9 +1178,9 @@ def method_group(key: str) -> str:
     return key.rsplit("-", 1)[0] if "-" in key else ""
 
 
-def cross_check_methods(results: Mapping[str, EstimationResult],
-                        validations: dict[str, dict[str, Any]], k: float = TRUTH_K
-                        ) -> dict[str, Any]:
+def cross_check_methods(
+    results: Mapping[str, EstimationResult], validations: dict[str, dict[str, Any]], k: float = TRUTH_K
+) -> dict[str, Any]:
     """Every pair of methods fitted to the same axis, compared on the parameters both
     estimate (:func:`estimators.validation.agreement`, with each result's total std: the
     Cramér-Rao bound plus its consider part). Run it once all uncertainties are final.
@@ -1014,8 +1207,7 @@ def cross_check_methods(results: Mapping[str, EstimationResult],
         est = {}
         for key in keys:
             r = results[key]
-            names = [n for n in r.free_names
-                     if not n.startswith("x0_") and not is_segment_parameter(n)]
+            names = [n for n in r.free_names if not n.startswith("x0_") and not is_segment_parameter(n)]
             est[key] = (r.params[names], r.total_std[names])
         table = V.agreement(est, k)
         for key in keys:
@@ -1026,30 +1218,52 @@ def cross_check_methods(results: Mapping[str, EstimationResult],
                     flagged.setdefault(other, {})[row.parameter] = float(row.z)
             if key in validations:
                 validations[key]["agreement"] = {
-                    "k": k, "flagged": flagged,
-                    "against": {o: {"method": results[o].method,
-                                    "converged": bool(results[o].converged)} for o in flagged}}
+                    "k": k,
+                    "flagged": flagged,
+                    "against": {
+                        o: {"method": results[o].method, "converged": bool(results[o].converged)} for o in flagged
+                    },
+                }
                 validations[key]["verdict"] = verdict(validations[key])
         pairs = {frozenset((r.method_a, r.method_b)) for r in table[table["flag"]].itertuples()}
-        odd = [m for m in keys if len(keys) > 2 and
-               all(frozenset((m, o)) in pairs for o in keys if o != m) and
-               not any(m not in pr for pr in pairs)]
-        out[axis] = {"methods": keys, "k": k, "n_flagged": int(table["flag"].sum()),
-                     "odd_one_out": odd[0] if odd else None,
-                     "table": num(table.to_dict(orient="records"))}
+        odd = [
+            m
+            for m in keys
+            if len(keys) > 2
+            and all(frozenset((m, o)) in pairs for o in keys if o != m)
+            and not any(m not in pr for pr in pairs)
+        ]
+        out[axis] = {
+            "methods": keys,
+            "k": k,
+            "n_flagged": int(table["flag"].sum()),
+            "odd_one_out": odd[0] if odd else None,
+            "table": num(table.to_dict(orient="records")),
+        }
     return out
 
 
 # -- entry point ------------------------------------------------------------------------------
-def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = None,
-             tolerances: Mapping[str, float] | None = None, apriori: Any = None,
-             truth: Mapping[str, float] | None = None, allowed_bias: Mapping[str, float] | None = None,
-             tic_limit: float = TIC_LIMIT, truth_k: float = TRUTH_K, mag_bound_db: float = 3.0,
-             phase_bound_deg: float = 20.0, min_coherence: float = 0.6,
-             input_power_fraction: float = 0.1, inverse_bandwidth: float = 5.0,
-             integrator: str | None = None, proof_of_match: str = "auto",
-             calm_air: bool = False,
-             step_times: Sequence[Mapping[str, Any]] | None = None) -> dict[str, Any]:
+def validate(
+    result: EstimationResult,
+    *,
+    held_out: Sequence[Segment] | None = None,
+    tolerances: Mapping[str, float] | None = None,
+    apriori: Any = None,
+    truth: Mapping[str, float] | None = None,
+    allowed_bias: Mapping[str, float] | None = None,
+    tic_limit: float = TIC_LIMIT,
+    truth_k: float = TRUTH_K,
+    mag_bound_db: float = 3.0,
+    phase_bound_deg: float = 20.0,
+    min_coherence: float = 0.6,
+    input_power_fraction: float = 0.1,
+    inverse_bandwidth: float = 5.0,
+    integrator: str | None = None,
+    proof_of_match: str = "auto",
+    calm_air: bool = False,
+    step_times: Sequence[Mapping[str, Any]] | None = None,
+) -> dict[str, Any]:
     """Run the validation of :mod:`estimators.validation` on one result (see module doc).
     Where the fit's maneuvers scatter significantly beyond its Cramér-Rao bounds, the
     result's covariance is widened in place to that scatter (:func:`widen_by_scatter`;
@@ -1085,32 +1299,40 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
     integrator: for the proof-of-match simulation (default: the one used in the fit).
     """
     integ = integrator or result.settings.get("integrator", "rk4")
-    if integ not in INTEGRATORS:       # filter error's linear form: "transition matrix"
+    if integ not in INTEGRATORS:  # filter error's linear form: "transition matrix"
         integ = "rk4"
-    out: dict[str, Any] = {"method": result.method, "converged": bool(result.converged),
-                           "not_settled": result.extra.get("not_settled"),
-                           "det_R": num(result.cost),
-                           "correlations_flagged": num([list(f) for f in result.flagged_correlations])}
+    out: dict[str, Any] = {
+        "method": result.method,
+        "converged": bool(result.converged),
+        "not_settled": result.extra.get("not_settled"),
+        "det_R": num(result.cost),
+        "correlations_flagged": num([list(f) for f in result.flagged_correlations]),
+    }
     arrays: dict[str, Any] = {}
     out["fit"] = _fit(result, tic_limit)
     out["residuals"], arrays["psd"] = _residuals(result)
     out["uncertainty"] = _uncertainty(result)
     widen_by_scatter(result, out["uncertainty"])
     lin = None
-    out["modes"] = None                           # not applicable: no states or no segments
+    out["modes"] = None  # not applicable: no states or no segments
     if result.segments and result.model.states:
         try:
             lin = linear_model(result)
             out["modes"] = _modes(result, lin)
-        except Exception as exc:                  # noqa: BLE001 - reported, not fatal
+        except Exception as exc:  # noqa: BLE001 - reported, not fatal
             out["modes"] = {"error": f"{type(exc).__name__}: {exc}"}
     out["frequency"], arrays["freq"] = (None, None)
     if lin is not None:
         try:
             out["frequency"], arrays["freq"] = _frequency(
-                result, lin, mag_bound_db=mag_bound_db, phase_bound_deg=phase_bound_deg,
-                min_coherence=min_coherence, input_power_fraction=input_power_fraction,
-                integrator=integ)
+                result,
+                lin,
+                mag_bound_db=mag_bound_db,
+                phase_bound_deg=phase_bound_deg,
+                min_coherence=min_coherence,
+                input_power_fraction=input_power_fraction,
+                integrator=integ,
+            )
         except (ValueError, np.linalg.LinAlgError, estimators.EstimationError) as exc:
             out["frequency"] = {"error": f"{type(exc).__name__}: {exc}"}
     out["inverse_simulation"], arrays["inverse"] = None, None
@@ -1125,7 +1347,8 @@ def validate(result: EstimationResult, *, held_out: Sequence[Segment] | None = N
     if held_out:
         mode = pom_mode(result, lin, calm_air) if proof_of_match == "auto" else proof_of_match
         out["proof_of_match"], arrays["match"] = _proof_of_match(
-            result, list(held_out), tolerances, allowed_bias, integ, mode, step_times)
+            result, list(held_out), tolerances, allowed_bias, integ, mode, step_times
+        )
     plaus: dict[str, Any] = {}
     if truth:
         plaus["truth"] = _truth_check(result, truth, truth_k)

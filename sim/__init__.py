@@ -9,6 +9,7 @@ Public API (SI units throughout; see each docstring):
 
 Imports nothing else of the project (jsbsim, numpy, scipy, pandas only).
 """
+
 from sim.aircraft import ALL_DERIVATIVES, DERIVATIVES, Aircraft, load_aircraft
 from sim.errors import ScenarioError
 from sim.flight import TRUTH_COLUMNS, TRUTH_UNITS, SimResult, fly
@@ -17,6 +18,21 @@ from sim.scenario import Scenario, load_scenario, scenario_from_dict
 from sim.sensors import SensorSpec
 from sim.turbulence import dryden_parameters, dryden_psd
 
-__all__ = ["ALL_DERIVATIVES", "DERIVATIVES", "Aircraft", "Maneuver", "Scenario", "ScenarioError", "SensorSpec",
-           "SimResult", "TRUTH_COLUMNS", "TRUTH_UNITS", "dryden_parameters", "dryden_psd", "fly",
-           "load_aircraft", "load_scenario", "scenario_from_dict"]
+__all__ = [
+    "ALL_DERIVATIVES",
+    "DERIVATIVES",
+    "Aircraft",
+    "Maneuver",
+    "Scenario",
+    "ScenarioError",
+    "SensorSpec",
+    "SimResult",
+    "TRUTH_COLUMNS",
+    "TRUTH_UNITS",
+    "dryden_parameters",
+    "dryden_psd",
+    "fly",
+    "load_aircraft",
+    "load_scenario",
+    "scenario_from_dict",
+]

@@ -28,6 +28,7 @@ TRIM - MIN), default SERVO_TRAVEL_DEG. The simulator's servos take whole microse
 it; ``fsid estimate`` decodes a log's servo PWM (ArduPilot RCOU, MAVLink
 SERVO_OUTPUT_RAW) with it, and the control derivatives scale with it.
 """
+
 from __future__ import annotations
 
 import tomllib
@@ -72,7 +73,7 @@ def regressor_key(name: str) -> str:
     """The state/input a derivative multiplies: ``Cmq`` -> ``q``, ``CDalpha2`` -> ``alpha2``."""
     for coef in DERIVATIVES:
         if name.startswith(coef) and name in DERIVATIVES[coef]:
-            return name[len(coef):]
+            return name[len(coef) :]
     raise KeyError(name)
 
 
@@ -82,16 +83,16 @@ class Aircraft:
 
     name: str
     path: Path
-    S: float                      #: wing area, m^2
-    b: float                      #: span, m
-    cbar: float                   #: mean aerodynamic chord, m
-    mass: float                   #: kg
-    Ixx: float                    #: kg m^2
+    S: float  #: wing area, m^2
+    b: float  #: span, m
+    cbar: float  #: mean aerodynamic chord, m
+    mass: float  #: kg
+    Ixx: float  #: kg m^2
     Iyy: float
     Izz: float
-    Ixz: float                    #: product of inertia, kg m^2 (positive = int(x z dm), body axes)
-    max_thrust: float             #: N, thrust = throttle * max_thrust along body x
-    limits: dict[str, float]      #: surface deflection limits, rad: de, da, dr
+    Ixz: float  #: product of inertia, kg m^2 (positive = int(x z dm), body axes)
+    max_thrust: float  #: N, thrust = throttle * max_thrust along body x
+    limits: dict[str, float]  #: surface deflection limits, rad: de, da, dr
     derivatives: dict[str, float]  #: every name of ALL_DERIVATIVES, per rad
     description: str = ""
     source: str = ""
@@ -131,12 +132,21 @@ class Aircraft:
     def to_dict(self) -> dict:
         """JSON-ready description (SI units, radians)."""
         return {
-            "name": self.name, "description": self.description, "source": self.source,
+            "name": self.name,
+            "description": self.description,
+            "source": self.source,
             "geometry": {"S_m2": self.S, "b_m": self.b, "cbar_m": self.cbar},
-            "mass": {"mass_kg": self.mass, "Ixx_kgm2": self.Ixx, "Iyy_kgm2": self.Iyy,
-                     "Izz_kgm2": self.Izz, "Ixz_kgm2": self.Ixz},
-            "propulsion": {"max_thrust_N": self.max_thrust,
-                           "model": "thrust = throttle * max_thrust_N, body x axis through the CG"},
+            "mass": {
+                "mass_kg": self.mass,
+                "Ixx_kgm2": self.Ixx,
+                "Iyy_kgm2": self.Iyy,
+                "Izz_kgm2": self.Izz,
+                "Ixz_kgm2": self.Ixz,
+            },
+            "propulsion": {
+                "max_thrust_N": self.max_thrust,
+                "model": "thrust = throttle * max_thrust_N, body x axis through the CG",
+            },
             "limits_rad": dict(self.limits),
             "servo_travel_rad": dict(self.servo_travel),
             "derivatives": dict(self.derivatives),
@@ -166,14 +176,23 @@ def _servo_travel(path: Path, raw, limits: dict[str, float]) -> dict[str, float]
     for k, v in raw.items():
         if k not in _SERVOS:
             hint = _unit_hint(_SERVOS, k)
-            raise _fail(path, f"servos.{k}", f"wrong unit; write it as servos.{hint}" if hint else
-                        f"unknown key; allowed: {', '.join(sorted(_SERVOS))}")
+            raise _fail(
+                path,
+                f"servos.{k}",
+                f"wrong unit; write it as servos.{hint}"
+                if hint
+                else f"unknown key; allowed: {', '.join(sorted(_SERVOS))}",
+            )
         if not isinstance(v, (int, float)) or isinstance(v, bool) or not 0 < v <= 90:
             raise _fail(path, f"servos.{k}", f"must be a deflection in deg, 0 < x <= 90, got {v!r}")
         axis = k.split("_")[0]
         if np.deg2rad(v) < limits[axis] - 1e-12:
-            raise _fail(path, f"servos.{k}", f"{v:g} deg is less than the surface limit limits.{axis}_deg "
-                        f"({np.rad2deg(limits[axis]):.3g} deg): full servo travel must reach it")
+            raise _fail(
+                path,
+                f"servos.{k}",
+                f"{v:g} deg is less than the surface limit limits.{axis}_deg "
+                f"({np.rad2deg(limits[axis]):.3g} deg): full servo travel must reach it",
+            )
         out[axis] = float(np.deg2rad(v))
     return out
 
@@ -199,10 +218,14 @@ def _sensor_positions(path: Path, raw) -> dict[str, tuple[float, float, float]]:
         v = tab.get("position_m")
         if v is None:
             continue
-        if (not isinstance(v, list) or len(v) != 3 or
-                not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
-            raise _fail(path, f"sensors.{name}.position_m",
-                        f"must be [x, y, z] in m from the CG (body axes), got {v!r}")
+        if (
+            not isinstance(v, list)
+            or len(v) != 3
+            or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+        ):
+            raise _fail(
+                path, f"sensors.{name}.position_m", f"must be [x, y, z] in m from the CG (body axes), got {v!r}"
+            )
         out[name] = tuple(float(x) for x in v)
     return out
 
@@ -229,7 +252,9 @@ def load_aircraft(path: str | Path) -> Aircraft:
     try:
         raw = tomllib.loads(path.read_text())
     except FileNotFoundError:
-        raise ScenarioError(f"{path}: aircraft file not found; check the path or the scenario's 'aircraft' key") from None
+        raise ScenarioError(
+            f"{path}: aircraft file not found; check the path or the scenario's 'aircraft' key"
+        ) from None
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML ({exc})") from None
     for key in raw:
@@ -254,9 +279,19 @@ def load_aircraft(path: str | Path) -> Aircraft:
             if k not in got:
                 raise _fail(path, f"{sec}.{k}", "missing field")
         vals[sec] = {k: float(v) for k, v in got.items()}
-    for sec, k in [("geometry", "S_m2"), ("geometry", "b_m"), ("geometry", "cbar_m"), ("mass", "mass_kg"),
-                   ("mass", "Ixx_kgm2"), ("mass", "Iyy_kgm2"), ("mass", "Izz_kgm2"),
-                   ("propulsion", "max_thrust_N"), ("limits", "de_deg"), ("limits", "da_deg"), ("limits", "dr_deg")]:
+    for sec, k in [
+        ("geometry", "S_m2"),
+        ("geometry", "b_m"),
+        ("geometry", "cbar_m"),
+        ("mass", "mass_kg"),
+        ("mass", "Ixx_kgm2"),
+        ("mass", "Iyy_kgm2"),
+        ("mass", "Izz_kgm2"),
+        ("propulsion", "max_thrust_N"),
+        ("limits", "de_deg"),
+        ("limits", "da_deg"),
+        ("limits", "dr_deg"),
+    ]:
         if not vals[sec][k] > 0:
             raise _fail(path, f"{sec}.{k}", f"must be > 0, got {vals[sec][k]}")
     der = raw.get("derivatives")
@@ -274,12 +309,22 @@ def load_aircraft(path: str | Path) -> Aircraft:
     g, m = vals["geometry"], vals["mass"]
     limits = {a: float(np.deg2rad(vals["limits"][f"{a}_deg"])) for a in ("de", "da", "dr")}
     return Aircraft(
-        name=str(raw.get("name", path.stem)), path=path.resolve(),
-        S=g["S_m2"], b=g["b_m"], cbar=g["cbar_m"], mass=m["mass_kg"],
-        Ixx=m["Ixx_kgm2"], Iyy=m["Iyy_kgm2"], Izz=m["Izz_kgm2"], Ixz=m["Ixz_kgm2"],
+        name=str(raw.get("name", path.stem)),
+        path=path.resolve(),
+        S=g["S_m2"],
+        b=g["b_m"],
+        cbar=g["cbar_m"],
+        mass=m["mass_kg"],
+        Ixx=m["Ixx_kgm2"],
+        Iyy=m["Iyy_kgm2"],
+        Izz=m["Izz_kgm2"],
+        Ixz=m["Ixz_kgm2"],
         max_thrust=vals["propulsion"]["max_thrust_N"],
-        limits=limits, derivatives=derivs, description=str(raw.get("description", "")),
-        source=str(raw.get("source", "")), raw=raw,
+        limits=limits,
+        derivatives=derivs,
+        description=str(raw.get("description", "")),
+        source=str(raw.get("source", "")),
+        raw=raw,
         sensors=_sensor_positions(path, raw.get("sensors")),
         servo_travel=_servo_travel(path, raw.get("servos"), limits),
     )

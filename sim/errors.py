@@ -1,4 +1,5 @@
 """Errors of the simulation package."""
+
 from __future__ import annotations
 
 

@@ -20,6 +20,7 @@ needs continuous controls); the unrounded sums are ``fcs/<s>-cmd-sum-rad`` and
 Pitch SAS (optional): ``fcs/de-sas-rad = fcs/sas-on * (k_alpha*(alpha - fcs/sas-alpha-ref-rad)
 + k_q*q)`` with the truth alpha and body pitch rate.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -54,8 +55,14 @@ _REG_PROPS = {
 #: of the airspeed on the symmetry plane, y = body y). JSBSim takes stability X as drag
 #: (positive aft) and Z as lift (positive up) and flips them itself (FGAerodynamics::Run),
 #: so every function is the plain positive term. Moments in body axes about the CG.
-_AXIS = {"CL": ("Z", "STABILITY"), "CD": ("X", "STABILITY"), "CY": ("Y", "STABILITY"),
-         "Cl": ("ROLL", "BODY"), "Cm": ("PITCH", "BODY"), "Cn": ("YAW", "BODY")}
+_AXIS = {
+    "CL": ("Z", "STABILITY"),
+    "CD": ("X", "STABILITY"),
+    "CY": ("Y", "STABILITY"),
+    "Cl": ("ROLL", "BODY"),
+    "Cm": ("PITCH", "BODY"),
+    "Cn": ("YAW", "BODY"),
+}
 #: order of the axis elements (JSBSim wants one force axis system)
 _AXIS_ORDER = ("CD", "CY", "CL", "Cl", "Cm", "Cn")
 _REF = {"CL": None, "CD": None, "CY": None, "Cl": "metrics/bw-ft", "Cm": "metrics/cbarw-ft", "Cn": "metrics/bw-ft"}
@@ -65,11 +72,11 @@ _REF = {"CL": None, "CD": None, "CY": None, "Cl": "metrics/bw-ft", "Cm": "metric
 class FcsConfig:
     """Control-system options taken from the scenario."""
 
-    actuator_lag_s: float = 0.0     #: first-order actuator time constant, s (0 = none)
-    sas_k_alpha: float = 0.0        #: pitch SAS gain on alpha error, rad/rad
-    sas_k_q: float = 0.0            #: pitch SAS gain on pitch rate, rad/(rad/s)
-    servo_step_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)   #: de, da, dr command resolution, rad (0 = continuous)
-    throttle_step: float = 0.0      #: throttle command resolution, fraction (0 = continuous)
+    actuator_lag_s: float = 0.0  #: first-order actuator time constant, s (0 = none)
+    sas_k_alpha: float = 0.0  #: pitch SAS gain on alpha error, rad/rad
+    sas_k_q: float = 0.0  #: pitch SAS gain on pitch rate, rad/(rad/s)
+    servo_step_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: de, da, dr command resolution, rad (0 = continuous)
+    throttle_step: float = 0.0  #: throttle command resolution, fraction (0 = continuous)
 
 
 def coefficient_properties(aircraft: Aircraft) -> dict[str, str]:
@@ -99,8 +106,10 @@ def _aero_xml(aircraft: Aircraft) -> str:
                 props.append(_REF[coef])
             props += _REG_PROPS[regressor_key(n)]
             inner = "".join(f"<property>{p}</property>" for p in props)
-            out.append(f'      <function name="aero/coefficient/{n}"><description>{n}</description>'
-                       f"<product>{inner}<value>{val!r}</value></product></function>")
+            out.append(
+                f'      <function name="aero/coefficient/{n}"><description>{n}</description>'
+                f"<product>{inner}<value>{val!r}</value></product></function>"
+            )
         out.append("    </axis>")
     out.append("  </aerodynamics>")
     return "\n".join(out)
@@ -108,9 +117,11 @@ def _aero_xml(aircraft: Aircraft) -> str:
 
 def _actuator(axis: str, limit: float, lag: float) -> str:
     lag_xml = f"<lag>{1.0 / lag!r}</lag>" if lag > 0 else ""
-    return (f'      <actuator name="fcs/{axis}-pos-rad"><input>fcs/{axis}-cmd-rad</input>{lag_xml}'
-            f"<clipto><min>{-limit!r}</min><max>{limit!r}</max></clipto>"
-            f"<output>fcs/{axis}-pos-rad</output></actuator>")
+    return (
+        f'      <actuator name="fcs/{axis}-pos-rad"><input>fcs/{axis}-cmd-rad</input>{lag_xml}'
+        f"<clipto><min>{-limit!r}</min><max>{limit!r}</max></clipto>"
+        f"<output>fcs/{axis}-pos-rad</output></actuator>"
+    )
 
 
 def _command(out: str, total: str, terms: str, step: float, clip: str = "") -> str:
@@ -122,25 +133,44 @@ def _command(out: str, total: str, terms: str, step: float, clip: str = "") -> s
     if step <= 0.0:
         return f'<fcs_function name="{out}"><function><sum>{terms}</sum></function>{clip}</fcs_function>'
     x = f"<property>{total}</property>"
-    rounded = (f"<product><value>{step!r}</value><floor><sum><product><value>{1.0 / step!r}</value>{x}"
-               f"</product><value>0.5</value></sum></floor></product>")
-    return (f'<fcs_function name="{total}"><function><sum>{terms}</sum></function></fcs_function>\n'
-            f'      <fcs_function name="{out}"><function><sum>{x}<product><property>fcs/servo-quantize</property>'
-            f"<difference>{rounded}{x}</difference></product></sum></function>{clip}</fcs_function>")
+    rounded = (
+        f"<product><value>{step!r}</value><floor><sum><product><value>{1.0 / step!r}</value>{x}"
+        f"</product><value>0.5</value></sum></floor></product>"
+    )
+    return (
+        f'<fcs_function name="{total}"><function><sum>{terms}</sum></function></fcs_function>\n'
+        f'      <fcs_function name="{out}"><function><sum>{x}<product><property>fcs/servo-quantize</property>'
+        f"<difference>{rounded}{x}</difference></product></sum></function>{clip}</fcs_function>"
+    )
 
 
 def _fcs_xml(aircraft: Aircraft, fcs: FcsConfig) -> str:
     lim = aircraft.limits
     q_de, q_da, q_dr = fcs.servo_step_rad
-    trim = {a: f"<product><property>fcs/{n}-trim-cmd-norm</property><value>{lim[a]!r}</value></product>"
-            for a, n in (("de", "pitch"), ("da", "roll"), ("dr", "yaw"))}
-    de_cmd = _command("fcs/de-cmd-rad", "fcs/de-cmd-sum-rad", trim["de"] + "<property>fcs/elevator-cmd-norm</property>"
-                      "<property>fcs/de-maneuver-rad</property><property>fcs/de-sas-rad</property>", q_de)
-    da_cmd = _command("fcs/da-cmd-rad", "fcs/da-cmd-sum-rad", trim["da"] + "<property>fcs/da-maneuver-rad</property>", q_da)
-    dr_cmd = _command("fcs/dr-cmd-rad", "fcs/dr-cmd-sum-rad", trim["dr"] + "<property>fcs/dr-maneuver-rad</property>", q_dr)
-    throttle = _command("fcs/throttle-pos", "fcs/throttle-cmd-sum", "<property>fcs/throttle-cmd-norm[0]</property>"
-                        "<property>fcs/throttle-maneuver</property>", fcs.throttle_step,
-                        "<clipto><min>0</min><max>1</max></clipto>")
+    trim = {
+        a: f"<product><property>fcs/{n}-trim-cmd-norm</property><value>{lim[a]!r}</value></product>"
+        for a, n in (("de", "pitch"), ("da", "roll"), ("dr", "yaw"))
+    }
+    de_cmd = _command(
+        "fcs/de-cmd-rad",
+        "fcs/de-cmd-sum-rad",
+        trim["de"] + "<property>fcs/elevator-cmd-norm</property>"
+        "<property>fcs/de-maneuver-rad</property><property>fcs/de-sas-rad</property>",
+        q_de,
+    )
+    da_cmd = _command(
+        "fcs/da-cmd-rad", "fcs/da-cmd-sum-rad", trim["da"] + "<property>fcs/da-maneuver-rad</property>", q_da
+    )
+    dr_cmd = _command(
+        "fcs/dr-cmd-rad", "fcs/dr-cmd-sum-rad", trim["dr"] + "<property>fcs/dr-maneuver-rad</property>", q_dr
+    )
+    throttle = _command(
+        "fcs/throttle-pos",
+        "fcs/throttle-cmd-sum",
+        "<property>fcs/throttle-cmd-norm[0]</property><property>fcs/throttle-maneuver</property>",
+        fcs.throttle_step,
+        "<clipto><min>0</min><max>1</max></clipto>",
+    )
     tmax_lbf = aircraft.max_thrust * N2LBF
     return f"""  <flight_control name="fsid">
     <property value="0">fcs/de-maneuver-rad</property>

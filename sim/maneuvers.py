@@ -4,6 +4,7 @@ Every shape is a vectorised function of time since the maneuver start, ``tau`` (
 shape), returning the deflection increment in the unit of its amplitude (rad for
 surfaces, fraction for throttle), zero outside ``[0, duration)``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -29,13 +30,13 @@ class Maneuver:
     axes: tuple[str, ...]
     amplitude: tuple[float, ...]
     t_start: float
-    pulse: float = 0.0                       #: step width (doublet: each half), s
-    levels: tuple[float, ...] = ()           #: multistep levels in units of amplitude
-    f0: float = 0.0                          #: sweep start / multisine lowest frequency, Hz
-    f1: float = 0.0                          #: sweep end / multisine highest frequency, Hz
-    sweep: str = "linear"                    #: linear | log
-    length: float = 0.0                      #: sweep length / multisine period, s
-    cycles: int = 1                          #: multisine periods
+    pulse: float = 0.0  #: step width (doublet: each half), s
+    levels: tuple[float, ...] = ()  #: multistep levels in units of amplitude
+    f0: float = 0.0  #: sweep start / multisine lowest frequency, Hz
+    f1: float = 0.0  #: sweep end / multisine highest frequency, Hz
+    sweep: str = "linear"  #: linear | log
+    length: float = 0.0  #: sweep length / multisine period, s
+    cycles: int = 1  #: multisine periods
     harmonics: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     phases: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     scale: dict[str, float] = field(default_factory=dict, repr=False)
@@ -97,23 +98,26 @@ class Maneuver:
         return out
 
 
-def schroeder_multisine(axes: tuple[str, ...], f_min: float, f_max: float, period: float,
-                        ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, float]]:
+def schroeder_multisine(
+    axes: tuple[str, ...], f_min: float, f_max: float, period: float
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, float]]:
     """Harmonics k/period in [f_min, f_max] dealt round-robin to the axes (mutually
     orthogonal inputs), Schroeder phases per axis (low peak factor), and the scale that
     makes each axis' peak equal to 1. Returns (frequencies Hz, phases rad, scale) per axis.
     """
     k = np.arange(max(1, int(np.ceil(f_min * period - 1e-9))), int(np.floor(f_max * period + 1e-9)) + 1)
     if len(k) < len(axes):
-        raise ValueError(f"only {len(k)} harmonics of 1/{period} s between {f_min} and {f_max} Hz "
-                         f"for {len(axes)} axes; widen the band or lengthen period_s")
+        raise ValueError(
+            f"only {len(k)} harmonics of 1/{period} s between {f_min} and {f_max} Hz "
+            f"for {len(axes)} axes; widen the band or lengthen period_s"
+        )
     freqs, phases, scale = {}, {}, {}
     grid = np.linspace(0.0, period, 4001)
     for i, ax in enumerate(axes):
-        kk = k[i::len(axes)]
+        kk = k[i :: len(axes)]
         n = len(kk)
         j = np.arange(1, n + 1)
-        ph = -np.pi * j * (j - 1) / n          # Schroeder (1970), equal power per harmonic
+        ph = -np.pi * j * (j - 1) / n  # Schroeder (1970), equal power per harmonic
         f = kk / period
         s = np.sin(2 * np.pi * np.outer(grid, f) + ph).sum(axis=1)
         freqs[ax], phases[ax], scale[ax] = f, ph, 1.0 / float(np.max(np.abs(s)))

@@ -36,6 +36,7 @@ Layout (see ``scenarios/default.toml`` for a commented example)::
                   the scenario's + 1), and its own [[validation_flight.maneuver]] tables;
                   trim, schedule, aircraft, sensors, actuators as above
 """
+
 from __future__ import annotations
 
 import tomllib
@@ -89,20 +90,20 @@ class Scenario:
     path: Path | None
     description: str
     aircraft: Aircraft
-    duration: float              #: s
-    rate_hz: float               #: truth sample rate, Hz (JSBSim integrates at rate_hz * substeps)
+    duration: float  #: s
+    rate_hz: float  #: truth sample rate, Hz (JSBSim integrates at rate_hz * substeps)
     seed: int
-    altitude: float              #: trim altitude above sea level, m
-    airspeed: float              #: trim true airspeed, m/s
-    flight_path: float           #: trim flight-path angle, rad
-    heading: float               #: rad
+    altitude: float  #: trim altitude above sea level, m
+    airspeed: float  #: trim true airspeed, m/s
+    flight_path: float  #: trim flight-path angle, rad
+    heading: float  #: rad
     maneuvers: tuple[Maneuver, ...]
     turbulence: Turbulence
-    actuator_lag: float          #: s
-    sas_k_alpha: float           #: rad/rad
-    sas_k_q: float               #: rad/(rad/s)
+    actuator_lag: float  #: s
+    sas_k_alpha: float  #: rad/rad
+    sas_k_q: float  #: rad/(rad/s)
     sensors: dict[str, SensorSpec] = field(default_factory=dict)
-    substeps: int = 2            #: JSBSim integration steps per truth sample
+    substeps: int = 2  #: JSBSim integration steps per truth sample
     #: proof-of-match bands of the [validation] table: rate_deg_s (deg/s), accel_g (g),
     #: angle_deg (deg); defaults 1.5, 0.1, 1.5 (DESIGN.md section 8)
     pom_bands: dict = field(default_factory=lambda: {"rate_deg_s": 1.5, "accel_g": 0.1, "angle_deg": 1.5})
@@ -115,12 +116,13 @@ class Scenario:
     #: the [validation_flight]: a second flight (same aircraft, trim and sensors, its own
     #: maneuvers) whose maneuvers the proof of match is run on; the model is then fitted
     #: to every maneuver of this flight. None without the table.
-    validation: "Scenario | None" = None
+    validation: Scenario | None = None
 
-    def with_seed(self, seed: int) -> "Scenario":
+    def with_seed(self, seed: int) -> Scenario:
         """The same scenario with another seed (turbulence seed follows unless set apart;
         the validation flight keeps its offset from the scenario's seed)."""
         from dataclasses import replace
+
         turb = self.turbulence
         if self.raw.get("turbulence", {}).get("seed") is None:
             turb = replace(turb, seed=int(seed))
@@ -155,8 +157,15 @@ class _Section:
     def fail(self, key: str, why: str) -> ScenarioError:
         return ScenarioError(f"{self.path}: {self._key(key)}: {why}")
 
-    def num(self, key: str, default: float | None = None, *, lo: float | None = None,
-            hi: float | None = None, positive: bool = False) -> float:
+    def num(
+        self,
+        key: str,
+        default: float | None = None,
+        *,
+        lo: float | None = None,
+        hi: float | None = None,
+        positive: bool = False,
+    ) -> float:
         if key not in self.t:
             if default is None:
                 raise self.fail(key, "missing field")
@@ -204,11 +213,41 @@ class _Section:
         return int(v)
 
 
-_TOP = {"name", "description", "aircraft", "duration_s", "rate_hz", "substeps", "seed", "trim", "schedule",
-        "maneuver", "turbulence", "wind", "actuators", "sas", "sensors", "validation",
-        "validation_flight"}
-_MAN = {"name", "axis", "shape", "amplitude_deg", "amplitude", "start_s", "pulse_s", "levels",
-        "f0_hz", "f1_hz", "length_s", "sweep", "period_s", "cycles"}
+_TOP = {
+    "name",
+    "description",
+    "aircraft",
+    "duration_s",
+    "rate_hz",
+    "substeps",
+    "seed",
+    "trim",
+    "schedule",
+    "maneuver",
+    "turbulence",
+    "wind",
+    "actuators",
+    "sas",
+    "sensors",
+    "validation",
+    "validation_flight",
+}
+_MAN = {
+    "name",
+    "axis",
+    "shape",
+    "amplitude_deg",
+    "amplitude",
+    "start_s",
+    "pulse_s",
+    "levels",
+    "f0_hz",
+    "f1_hz",
+    "length_s",
+    "sweep",
+    "period_s",
+    "cycles",
+}
 
 
 def _maneuver(path: Path, i: int, tab: Any, t_next: float) -> Maneuver:
@@ -243,8 +282,14 @@ def _maneuver(path: Path, i: int, tab: Any, t_next: float) -> Maneuver:
         kw["pulse"] = s.num("pulse_s", positive=True)
         if shape == "multistep":
             lv = s.t.get("levels")
-            if not isinstance(lv, list) or not lv or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in lv):
-                raise s.fail("levels", "missing field or not a list of numbers (step heights in units of the amplitude)")
+            if (
+                not isinstance(lv, list)
+                or not lv
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in lv)
+            ):
+                raise s.fail(
+                    "levels", "missing field or not a list of numbers (step heights in units of the amplitude)"
+                )
             kw["levels"] = tuple(float(x) for x in lv)
     elif shape == "sweep":
         kw["f0"] = s.num("f0_hz", positive=True)
@@ -261,9 +306,13 @@ def _maneuver(path: Path, i: int, tab: Any, t_next: float) -> Maneuver:
         except ValueError as exc:
             raise s.fail("f0_hz", str(exc)) from None
     for key in ("pulse_s", "levels", "f0_hz", "f1_hz", "length_s", "sweep", "period_s", "cycles"):
-        used = {"doublet": {"pulse_s"}, "3211": {"pulse_s"}, "multistep": {"pulse_s", "levels"},
-                "sweep": {"f0_hz", "f1_hz", "length_s", "sweep"},
-                "multisine": {"f0_hz", "f1_hz", "period_s", "cycles"}}[shape]
+        used = {
+            "doublet": {"pulse_s"},
+            "3211": {"pulse_s"},
+            "multistep": {"pulse_s", "levels"},
+            "sweep": {"f0_hz", "f1_hz", "length_s", "sweep"},
+            "multisine": {"f0_hz", "f1_hz", "period_s", "cycles"},
+        }[shape]
         if key in s.t and key not in used:
             raise s.fail(key, f"not used by shape {shape!r}; allowed there: {', '.join(sorted(used))}")
     if kw.get("f1", 1.0) <= kw.get("f0", 0.0) and shape == "multisine":
@@ -283,8 +332,9 @@ def load_scenario(path: str | Path) -> Scenario:
     try:
         raw = tomllib.loads(path.read_text())
     except FileNotFoundError:
-        raise ScenarioError(f"{path}: scenario file not found; give a path to a .toml scenario "
-                            "(built-ins live in scenarios/)") from None
+        raise ScenarioError(
+            f"{path}: scenario file not found; give a path to a .toml scenario (built-ins live in scenarios/)"
+        ) from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ScenarioError(f"{path}: not valid TOML ({exc})") from None
     return scenario_from_dict(raw, path)
@@ -327,24 +377,34 @@ def scenario_from_dict(raw: dict, path: Path) -> Scenario:
         raise top.fail("maneuver", f"maneuver names must be unique, got {names}")
     for i, m in enumerate(mans):
         if m.t_end > duration + 1e-9:
-            raise top.fail(f"maneuver[{i}]", f"{m.name!r} ends at {m.t_end:.2f} s, after duration_s = {duration}; "
-                           "lengthen duration_s or shorten the schedule")
-        for j, o in enumerate(mans[:i]):
+            raise top.fail(
+                f"maneuver[{i}]",
+                f"{m.name!r} ends at {m.t_end:.2f} s, after duration_s = {duration}; lengthen duration_s or shorten the schedule",
+            )
+        for o in mans[:i]:
             if set(m.axes) & set(o.axes) and m.t_start < o.t_end - 1e-9 and o.t_start < m.t_end - 1e-9:
                 raise top.fail(f"maneuver[{i}]", f"{m.name!r} overlaps {o.name!r} on the same axis")
-    tu = _Section(path, "turbulence", raw.get("turbulence", {}), {"model", "severity", "windspeed_20ft_mps", "seed",
-                                                                       "axes"})
+    tu = _Section(
+        path, "turbulence", raw.get("turbulence", {}), {"model", "severity", "windspeed_20ft_mps", "seed", "axes"}
+    )
     model = tu.text("model", "off", ("off", "milspec", "tustin"))
     sev = tu.text("severity", "light", tuple(SEVERITY))
     w20 = tu.num("windspeed_20ft_mps", SEVERITY[sev][0], lo=0.0, hi=60.0)
-    turb = Turbulence(model=model, severity=sev, windspeed_20ft=w20 if model != "off" else 0.0,
-                      poe_index=SEVERITY[sev][1] if model != "off" else 0, seed=tu.integer("seed", seed),
-                      axes=tu.text("axes", "wind", ("wind", "aircraft")))
+    turb = Turbulence(
+        model=model,
+        severity=sev,
+        windspeed_20ft=w20 if model != "off" else 0.0,
+        poe_index=SEVERITY[sev][1] if model != "off" else 0,
+        seed=tu.integer("seed", seed),
+        axes=tu.text("axes", "wind", ("wind", "aircraft")),
+    )
     wsec = _Section(path, "wind", raw.get("wind", {}), {"north_mps", "east_mps"})
     wind = (wsec.num("north_mps", 0.0, lo=-60.0, hi=60.0), wsec.num("east_mps", 0.0, lo=-60.0, hi=60.0))
     if any(wind) and turb.model != "off" and turb.axes == "aircraft":
-        raise wsec.fail("", "a mean wind sets JSBSim's turbulence axes; it cannot go with "
-                        "[turbulence] axes = \"aircraft\" (drop one of them)")
+        raise wsec.fail(
+            "",
+            "a mean wind sets JSBSim's turbulence axes; it cannot go with [turbulence] axes = \"aircraft\" (drop one of them)",
+        )
     act = _Section(path, "actuators", raw.get("actuators", {}), {"lag_s", "pwm_servos"})
     pwm = act.t.get("pwm_servos", True)
     if not isinstance(pwm, bool):
@@ -357,17 +417,35 @@ def scenario_from_dict(raw: dict, path: Path) -> Scenario:
         tab = sens_sec.t.get(name, {})
         sensors[name] = sensor_spec(name, _Section(path, f"sensors.{name}", tab, SENSOR_SCHEMA[name].keys()), rate)
     val = _Section(path, "validation", raw.get("validation", {}), {"rate_deg_s", "accel_g", "angle_deg"})
-    bands = {"rate_deg_s": val.num("rate_deg_s", 1.5, positive=True, hi=90.0),
-             "accel_g": val.num("accel_g", 0.1, positive=True, hi=10.0),
-             "angle_deg": val.num("angle_deg", 1.5, positive=True, hi=90.0)}
+    bands = {
+        "rate_deg_s": val.num("rate_deg_s", 1.5, positive=True, hi=90.0),
+        "accel_g": val.num("accel_g", 0.1, positive=True, hi=10.0),
+        "angle_deg": val.num("angle_deg", 1.5, positive=True, hi=90.0),
+    }
     validation = _validation_flight(path, raw, seed) if "validation_flight" in raw else None
     return Scenario(
-        name=top.text("name", path.stem), path=path.resolve() if path.exists() else path,
-        description=top.text("description", ""), aircraft=aircraft, duration=duration, rate_hz=rate,
-        seed=seed, altitude=alt, airspeed=tas, flight_path=float(gam), heading=float(hdg),
-        maneuvers=tuple(mans), turbulence=turb, actuator_lag=act.num("lag_s", 0.0, lo=0.0, hi=1.0),
-        sas_k_alpha=sas.num("k_alpha", 0.0), sas_k_q=sas.num("k_q_s", 0.0), sensors=sensors,
-        substeps=substeps, pom_bands=bands, wind=wind, pwm_servos=pwm, raw=raw,
+        name=top.text("name", path.stem),
+        path=path.resolve() if path.exists() else path,
+        description=top.text("description", ""),
+        aircraft=aircraft,
+        duration=duration,
+        rate_hz=rate,
+        seed=seed,
+        altitude=alt,
+        airspeed=tas,
+        flight_path=float(gam),
+        heading=float(hdg),
+        maneuvers=tuple(mans),
+        turbulence=turb,
+        actuator_lag=act.num("lag_s", 0.0, lo=0.0, hi=1.0),
+        sas_k_alpha=sas.num("k_alpha", 0.0),
+        sas_k_q=sas.num("k_q_s", 0.0),
+        sensors=sensors,
+        substeps=substeps,
+        pom_bands=bands,
+        wind=wind,
+        pwm_servos=pwm,
+        raw=raw,
         validation=validation,
     )
 
@@ -380,17 +458,23 @@ def _validation_flight(path: Path, raw: dict, seed: int) -> Scenario:
     """The [validation_flight] table as a scenario of its own: the parent's aircraft, trim,
     schedule, wind, actuators, SAS, sensors and bands; its own duration, maneuvers, seed
     and turbulence. Errors name the table (``validation_flight.maneuver[0]...``)."""
-    sec = _Section(path, "validation_flight", raw["validation_flight"],
-                   {"duration_s", "turbulence", "seed", "maneuver"})
+    sec = _Section(
+        path, "validation_flight", raw["validation_flight"], {"duration_s", "turbulence", "seed", "maneuver"}
+    )
     turb = sec.text("turbulence", "off", VALIDATION_TURBULENCE)
     if not sec.t.get("maneuver"):
-        raise sec.fail("maneuver", "a validation flight needs maneuvers: add "
-                       "[[validation_flight.maneuver]] tables")
-    sub = {k: v for k, v in raw.items()
-           if k not in ("validation_flight", "maneuver", "turbulence", "duration_s", "seed", "name")}
-    sub.update(name=f"{raw.get('name', path.stem)}-validation",
-               duration_s=sec.num("duration_s", positive=True),
-               seed=sec.integer("seed", seed + 1), maneuver=sec.t["maneuver"])
+        raise sec.fail("maneuver", "a validation flight needs maneuvers: add [[validation_flight.maneuver]] tables")
+    sub = {
+        k: v
+        for k, v in raw.items()
+        if k not in ("validation_flight", "maneuver", "turbulence", "duration_s", "seed", "name")
+    }
+    sub.update(
+        name=f"{raw.get('name', path.stem)}-validation",
+        duration_s=sec.num("duration_s", positive=True),
+        seed=sec.integer("seed", seed + 1),
+        maneuver=sec.t["maneuver"],
+    )
     if turb == "same" and "turbulence" in raw:
         sub["turbulence"] = {k: v for k, v in raw["turbulence"].items() if k != "seed"}
     try:
@@ -398,5 +482,4 @@ def _validation_flight(path: Path, raw: dict, seed: int) -> Scenario:
     except ScenarioError as exc:
         msg = str(exc)
         head = f"{path}: "
-        raise ScenarioError(head + "validation_flight." + msg[len(head):] if msg.startswith(head)
-                            else msg) from None
+        raise ScenarioError(head + "validation_flight." + msg[len(head) :] if msg.startswith(head) else msg) from None

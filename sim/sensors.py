@@ -15,6 +15,7 @@ Scenario keys per sensor (``[sensors.<name>]``): ``rate_hz``, ``delay_s``, ``pos
 each takes one number or one per channel. Defaults are small-UAV/light-aircraft values
 (MEMS IMU with vibration, 16-bit ADCs, pitot-static and vane boom, EKF attitude).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -28,24 +29,42 @@ D2R = np.pi / 180.0
 @dataclass(frozen=True)
 class Group:
     channels: tuple[str, ...]
-    unit: str          #: unit suffix used in scenario keys
-    si: float          #: factor from the scenario unit to SI
-    noise: float       #: default 1-sigma noise in the scenario unit
-    quant: float       #: default quantisation in the scenario unit
+    unit: str  #: unit suffix used in scenario keys
+    si: float  #: factor from the scenario unit to SI
+    noise: float  #: default 1-sigma noise in the scenario unit
+    quant: float  #: default quantisation in the scenario unit
 
 
 #: sensor -> (default rate Hz or None = scenario rate, has position, groups)
 _SENSORS: dict[str, tuple[float | None, bool, dict[str, Group]]] = {
-    "imu": (None, True, {"accel": Group(("ax", "ay", "az"), "mps2", 1.0, 0.05, 0.0024),
-                         "gyro": Group(("p", "q", "r"), "dps", D2R, 0.1, 0.061)}),
-    "airdata": (50.0, True, {"airspeed": Group(("V",), "mps", 1.0, 0.3, 0.01),
-                             "vane": Group(("alpha", "beta"), "deg", D2R, 0.2, 0.0)}),
+    "imu": (
+        None,
+        True,
+        {
+            "accel": Group(("ax", "ay", "az"), "mps2", 1.0, 0.05, 0.0024),
+            "gyro": Group(("p", "q", "r"), "dps", D2R, 0.1, 0.061),
+        },
+    ),
+    "airdata": (
+        50.0,
+        True,
+        {"airspeed": Group(("V",), "mps", 1.0, 0.3, 0.01), "vane": Group(("alpha", "beta"), "deg", D2R, 0.2, 0.0)},
+    ),
     "attitude": (50.0, False, {"angle": Group(("phi", "theta", "psi"), "deg", D2R, 0.1, 0.0)}),
     "baro": (20.0, False, {"alt": Group(("h",), "m", 1.0, 0.3, 0.01)}),
-    "surfaces": (None, False, {"defl": Group(("de", "da", "dr"), "deg", D2R, 0.05, 0.0),
-                               "throttle": Group(("throttle",), "frac", 1.0, 0.0, 0.0)}),
-    "gps": (10.0, False, {"vel": Group(("vn", "ve", "vd"), "mps", 1.0, 0.1, 0.0),
-                          "alt": Group(("h",), "m", 1.0, 1.0, 0.0)}),
+    "surfaces": (
+        None,
+        False,
+        {
+            "defl": Group(("de", "da", "dr"), "deg", D2R, 0.05, 0.0),
+            "throttle": Group(("throttle",), "frac", 1.0, 0.0, 0.0),
+        },
+    ),
+    "gps": (
+        10.0,
+        False,
+        {"vel": Group(("vn", "ve", "vd"), "mps", 1.0, 0.1, 0.0), "alt": Group(("h",), "m", 1.0, 1.0, 0.0)},
+    ),
 }
 
 
@@ -72,22 +91,27 @@ class SensorSpec:
 
     name: str
     channels: tuple[str, ...]
-    units: tuple[str, ...]      #: SI unit of each channel
+    units: tuple[str, ...]  #: SI unit of each channel
     rate_hz: float
-    delay: float                #: s
-    position: np.ndarray        #: (3,) body axes from the CG, m
-    noise: np.ndarray           #: 1-sigma white noise
+    delay: float  #: s
+    position: np.ndarray  #: (3,) body axes from the CG, m
+    noise: np.ndarray  #: 1-sigma white noise
     bias: np.ndarray
-    scale: np.ndarray           #: scale-factor error, fraction
-    quant: np.ndarray           #: quantisation step (0 = none)
+    scale: np.ndarray  #: scale-factor error, fraction
+    quant: np.ndarray  #: quantisation step (0 = none)
 
     def to_dict(self) -> dict:
-        return {"channels": list(self.channels), "units": list(self.units), "rate_hz": self.rate_hz,
-                "delay_s": self.delay, "position_m": self.position.tolist(),
-                "noise_std": dict(zip(self.channels, self.noise.tolist())),
-                "bias": dict(zip(self.channels, self.bias.tolist())),
-                "scale_factor": dict(zip(self.channels, self.scale.tolist())),
-                "quantisation": dict(zip(self.channels, self.quant.tolist()))}
+        return {
+            "channels": list(self.channels),
+            "units": list(self.units),
+            "rate_hz": self.rate_hz,
+            "delay_s": self.delay,
+            "position_m": self.position.tolist(),
+            "noise_std": dict(zip(self.channels, self.noise.tolist())),
+            "bias": dict(zip(self.channels, self.bias.tolist())),
+            "scale_factor": dict(zip(self.channels, self.scale.tolist())),
+            "quantisation": dict(zip(self.channels, self.quant.tolist())),
+        }
 
 
 _SI_UNIT = {"mps2": "m/s^2", "dps": "rad/s", "mps": "m/s", "deg": "rad", "m": "m", "frac": "-"}
@@ -118,10 +142,18 @@ def sensor_spec(name: str, sec, sim_rate: float) -> SensorSpec:
     if min(noise) < 0 or min(quant) < 0:
         raise sec.fail("", "noise and quantisation must be >= 0")
     pos = vec("position_m", 0.0, 3, 1.0) if has_pos else [0.0, 0.0, 0.0]
-    return SensorSpec(name=name, channels=tuple(chans), units=tuple(units), rate_hz=rate,
-                      delay=sec.num("delay_s", 0.0, lo=0.0, hi=1.0), position=np.asarray(pos),
-                      noise=np.asarray(noise), bias=np.asarray(bias), scale=np.asarray(scale),
-                      quant=np.asarray(quant))
+    return SensorSpec(
+        name=name,
+        channels=tuple(chans),
+        units=tuple(units),
+        rate_hz=rate,
+        delay=sec.num("delay_s", 0.0, lo=0.0, hi=1.0),
+        position=np.asarray(pos),
+        noise=np.asarray(noise),
+        bias=np.asarray(bias),
+        scale=np.asarray(scale),
+        quant=np.asarray(quant),
+    )
 
 
 def lever_arm_signals(truth: pd.DataFrame, spec: SensorSpec) -> dict[str, np.ndarray]:
@@ -145,8 +177,7 @@ def lever_arm_signals(truth: pd.DataFrame, spec: SensorSpec) -> dict[str, np.nda
     return d
 
 
-def sample_sensor(truth: pd.DataFrame, spec: SensorSpec, rng: np.random.Generator,
-                  duration: float) -> pd.DataFrame:
+def sample_sensor(truth: pd.DataFrame, spec: SensorSpec, rng: np.random.Generator, duration: float) -> pd.DataFrame:
     """Measured table of one sensor: column t (s, its own rate) then its channels (SI)."""
     n = int(np.floor(duration * spec.rate_hz + 1e-9)) + 1
     ts = np.arange(n) / spec.rate_hz
@@ -156,7 +187,7 @@ def sample_sensor(truth: pd.DataFrame, spec: SensorSpec, rng: np.random.Generato
     noise = rng.standard_normal((n, len(spec.channels)))
     for i, c in enumerate(spec.channels):
         sig = src[c]
-        if c == "psi":   # interpolate a continuous heading, wrap afterwards
+        if c == "psi":  # interpolate a continuous heading, wrap afterwards
             sig = np.unwrap(sig)
         x = np.interp(np.maximum(ts - spec.delay, tt[0]), tt, sig)
         x = (1.0 + spec.scale[i]) * x + spec.bias[i] + spec.noise[i] * noise[:, i]

@@ -6,6 +6,7 @@ altitude above sea level, the wind at 20 ft (low altitude) and the probability-o
 exceedance table (high altitude). The gusts are along the mean-wind axes: with no mean
 wind, u -> north, v -> east, w -> down.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -40,8 +41,14 @@ def dryden_parameters(altitude_m: float, windspeed_20ft_mps: float, poe_index: i
     else:
         L_u = L_w = 1750.0
         sig_u = sig_w = poe
-    return {"sigma_u": sig_u * FT, "sigma_v": sig_u * FT, "sigma_w": sig_w * FT,
-            "L_u": L_u * FT, "L_v": L_u * FT, "L_w": L_w * FT}
+    return {
+        "sigma_u": sig_u * FT,
+        "sigma_v": sig_u * FT,
+        "sigma_w": sig_w * FT,
+        "L_u": L_u * FT,
+        "L_v": L_u * FT,
+        "L_w": L_w * FT,
+    }
 
 
 def dryden_psd(f_hz: np.ndarray, V: float, sigma: float, L: float, component: str) -> np.ndarray:
@@ -53,4 +60,4 @@ def dryden_psd(f_hz: np.ndarray, V: float, sigma: float, L: float, component: st
         phi = sigma**2 * 2 * tau / np.pi / (1 + (tau * w) ** 2)
     else:
         phi = sigma**2 * tau / np.pi * (1 + 3 * (tau * w) ** 2) / (1 + (tau * w) ** 2) ** 2
-    return phi * 2 * np.pi   # per rad/s -> per Hz (two-sided in w folded to one-sided in f)
+    return phi * 2 * np.pi  # per rad/s -> per Hz (two-sided in w folded to one-sided in f)

@@ -1,5 +1,6 @@
 """Data-quality checks: each injected defect is found (and only where it is), and
 ``fsid check`` writes checks.json plus canonical data that re-ingests."""
+
 from __future__ import annotations
 
 import json
@@ -19,19 +20,22 @@ def _flight() -> FlightData:
     t = np.arange(0, 20, 0.01)  # 100 Hz
     ch = {
         "p": Channel(t, 0.05 * np.sin(t) + rng.normal(0, 0.01, t.size), "rad/s"),
-        "q": Channel(t, np.degrees(0.5 * np.sin(t)), "rad/s"),             # deg/s in a rad/s field
+        "q": Channel(t, np.degrees(0.5 * np.sin(t)), "rad/s"),  # deg/s in a rad/s field
         "r": Channel(t, np.where((t > 5) & (t < 6), np.nan, rng.normal(0, 0.01, t.size)), "rad/s"),
         "ax": Channel(np.delete(t, np.s_[700:900]), rng.normal(0, 0.1, t.size - 200), "m/s^2"),  # 2 s gap
-        "ay": Channel(np.r_[t[:1000], t[999:]], rng.normal(0, 0.1, t.size + 1), "m/s^2"),        # duplicate
-        "az": Channel(np.r_[t[:1000], t[990:]], rng.normal(-9.8, 0.1, t.size + 10), "m/s^2"),   # backwards
+        "ay": Channel(np.r_[t[:1000], t[999:]], rng.normal(0, 0.1, t.size + 1), "m/s^2"),  # duplicate
+        "az": Channel(np.r_[t[:1000], t[990:]], rng.normal(-9.8, 0.1, t.size + 10), "m/s^2"),  # backwards
         "V": Channel(t, np.r_[np.full(1000, 25.0), 25 + rng.normal(0, 0.5, t.size - 1000)], "m/s"),  # stuck 10 s
-        "alpha": Channel(t, np.clip(rng.normal(0.05, 0.05, t.size), -1, 0.1), "rad"),   # clipped at 0.1
-        "phi": Channel(t[::25], rng.normal(0, 0.05, t[::25].size), "rad"),               # 4 Hz
+        "alpha": Channel(t, np.clip(rng.normal(0.05, 0.05, t.size), -1, 0.1), "rad"),  # clipped at 0.1
+        "phi": Channel(t[::25], rng.normal(0, 0.05, t[::25].size), "rad"),  # 4 Hz
         "de": Channel(t, np.where((t > 2) & (t < 6), np.radians(3) * np.sign(np.sin(4 * t)), 0.0), "rad"),
         "da": Channel(t, np.zeros(t.size), "rad"),
     }
-    return FlightData(ch, {"damage": None, "unmapped": {"dr": "no RCOU messages"}},
-                      [SegmentSpec("man", 1.0, 8.0, "auto", axis="de"), SegmentSpec("short", 10.0, 12.0)])
+    return FlightData(
+        ch,
+        {"damage": None, "unmapped": {"dr": "no RCOU messages"}},
+        [SegmentSpec("man", 1.0, 8.0, "auto", axis="de"), SegmentSpec("short", 10.0, 12.0)],
+    )
 
 
 def _by(fs, check, channel):

@@ -1,8 +1,8 @@
 """Closed loop through the real-log path: scenario -> JSBSim -> flight.mcap/.bin -> ingest
 -> output error -> validation, with the truth known (issue 6, calm air, longitudinal)."""
+
 import json
 
-import numpy as np
 import pytest
 
 from pipeline.cli import main
@@ -20,8 +20,7 @@ def calm_run(tmp_path_factory):
 
 def test_run_writes_every_output(calm_run):
     out, paths, _ = calm_run
-    for name in ("flight.mcap", "flight.bin", "truth.json", "checks.json", "report.md",
-                 "report.json", "run.rrd"):
+    for name in ("flight.mcap", "flight.bin", "truth.json", "checks.json", "report.md", "report.json", "run.rrd"):
         assert (out / name).stat().st_size > 0, name
     assert set(paths) == {"report.md", "report.json", "run.rrd"}
     checks = json.loads((out / "checks.json").read_text())
@@ -54,7 +53,7 @@ def test_validation_on_the_held_out_maneuver(calm_run):
     modes = v["modes"]["table"]
     assert set(modes) == {"short period", "phugoid"}
     sp, ph = modes["short period"], modes["phugoid"]
-    assert sp["stable"] and 0.2 < sp["zeta"] < 0.6 and 3.0 < sp["wn"] < 6.0      # rad/s
+    assert sp["stable"] and 0.2 < sp["zeta"] < 0.6 and 3.0 < sp["wn"] < 6.0  # rad/s
     assert ph["wn"] < 0.2 * sp["wn"]
 
 
@@ -67,18 +66,30 @@ def test_estimate_from_the_written_ardupilot_bin(calm_run, tmp_path):
     user's must (without it 30 deg is assumed, with a warning)."""
     out = calm_run[0]
     ac = tmp_path / "uav.toml"
-    ac.write_text((SCENARIOS / "aircraft" / "uav_small.toml").read_text()
-                  + "\n[servos]\nde_travel_deg = 30.0\nda_travel_deg = 30.0\ndr_travel_deg = 30.0\n")
-    code = main(["estimate", str(out / "flight.bin"), "--model", "longitudinal", "--aircraft", str(ac),
-                 "--out", str(tmp_path / "bin"), "--quiet"])
+    ac.write_text(
+        (SCENARIOS / "aircraft" / "uav_small.toml").read_text()
+        + "\n[servos]\nde_travel_deg = 30.0\nda_travel_deg = 30.0\ndr_travel_deg = 30.0\n"
+    )
+    code = main(
+        [
+            "estimate",
+            str(out / "flight.bin"),
+            "--model",
+            "longitudinal",
+            "--aircraft",
+            str(ac),
+            "--out",
+            str(tmp_path / "bin"),
+            "--quiet",
+        ]
+    )
     assert code == 0
     rep = json.loads((tmp_path / "bin" / "report.json").read_text())
     assert rep["meta"]["servo_travel"]["de"] == {"deg": 30.0, "from": "aircraft TOML [servos] de_travel_deg"}
     assert rep["meta"]["flow_angles"]["status"] == "reconstructed"
     m = rep["methods"]["oem"]
     assert m["converged"]
-    errs = {k: round(v["error_in_std"], 2) for k, v in m["parameters"].items()
-            if v.get("truth") is not None}
+    errs = {k: round(v["error_in_std"], 2) for k, v in m["parameters"].items() if v.get("truth") is not None}
     assert len(errs) == 11 and max(errs.values()) <= 3.0, errs
     assert m["validation"]["proof_of_match"]["all_pass"]
 
@@ -96,8 +107,17 @@ def test_estimate_on_a_log_without_maneuvers_says_so(tmp_path, capsys):
     log = SCENARIOS.parents[1] / "shared" / "data" / "logs" / "ardupilot_plane_ground_truncated.BIN"
     if not log.exists():
         pytest.skip("shared real logs absent")
-    code = main(["estimate", str(log), "--aircraft", str(SCENARIOS / "aircraft" / "uav_small.toml"),
-                 "--out", str(tmp_path / "o"), "--quiet"])
+    code = main(
+        [
+            "estimate",
+            str(log),
+            "--aircraft",
+            str(SCENARIOS / "aircraft" / "uav_small.toml"),
+            "--out",
+            str(tmp_path / "o"),
+            "--quiet",
+        ]
+    )
     err = capsys.readouterr().err.strip().splitlines()
     assert code != 0 and err and err[-1].startswith("fsid: error:")
     assert "no control-input activity" in err[-1]

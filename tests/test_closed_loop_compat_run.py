@@ -15,6 +15,7 @@ longitudinal Cmalpha 2.4, lateral 2.8). Before the scenario logged commanded sur
 ran 6 JSBSim substeps, Cm0/Cmde ended 4.1/5.3 std off (surface noise, errors in variables)
 and Cmalpha/Cmde 3.0/2.6 with the CRB alone.
 """
+
 from __future__ import annotations
 
 import json
@@ -41,14 +42,14 @@ def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("se_run")
     run_scenario(SCENARIO, out, methods=["oem"], quiet=True)
     truth = json.loads((out / "truth.json").read_text())
-    return (out, truth, json.loads((out / "report.json").read_text()),
-            json.loads((out / "checks.json").read_text()))
+    return (out, truth, json.loads((out / "report.json").read_text()), json.loads((out / "checks.json").read_text()))
 
 
 def _errors_in_std(mj):
     """|estimate - truth| / std per derivative (report.json's error_in_std)."""
-    return {k: v["error_in_std"] for k, v in mj["parameters"].items()
-            if v.get("error_in_std") is not None and "[" not in k}
+    return {
+        k: v["error_in_std"] for k, v in mj["parameters"].items() if v.get("error_in_std") is not None and "[" not in k
+    }
 
 
 def _fit_longitudinal(fd, truth):
@@ -56,8 +57,11 @@ def _fit_longitudinal(fd, truth):
     tr = {k: float(v) for k, v in truth["derivatives"].items()}
     res, val, _ = identify(fd, ac, ["oem"], tr, Progress(10, quiet=True), axes=("longitudinal",))
     r = res["oem"]
-    err = {n: float((r.params[n] - tr[n]) / r.std[n]) for n in r.params.index
-           if n in tr and np.isfinite(r.std[n]) and r.std[n] > 0}
+    err = {
+        n: float((r.params[n] - tr[n]) / r.std[n])
+        for n in r.params.index
+        if n in tr and np.isfinite(r.std[n]) and r.std[n] > 0
+    }
     tic = {o: d["TIC"] for o, d in val["oem"]["fit"]["per_output"].items()}
     return err, tic, val["oem"], r
 
@@ -65,7 +69,7 @@ def _fit_longitudinal(fd, truth):
 def test_compatibility_stage_recovers_the_injected_errors(run):
     out, truth, rep, checks = run
     comp = checks["flight.mcap"]["compatibility"]
-    assert set(checks) == {"flight.bin", "flight.mcap"}          # existing keys kept
+    assert set(checks) == {"flight.bin", "flight.mcap"}  # existing keys kept
     assert comp["status"] == "ok" and comp["data_for_estimation"] == "compatibility-corrected"
     assert rep["compatibility"]["applied"] == json.loads(json.dumps(comp["applied"]))
     assert "Sensor compatibility" in (out / "report.md").read_text()
@@ -136,7 +140,7 @@ def test_sensor_correction_uncertainty_reaches_the_derivatives(run):
             if p["std"] is None:
                 continue
             assert p["consider_std"] is not None and p["consider_std"] >= 0.0, n
-            assert p["total_std"] == pytest.approx((p["std"]**2 + p["consider_std"]**2) ** 0.5)
+            assert p["total_std"] == pytest.approx((p["std"] ** 2 + p["consider_std"] ** 2) ** 0.5)
             if p.get("truth") is not None:
                 assert p["error_in_std"] == pytest.approx(abs(p["estimate"] - p["truth"]) / p["total_std"])
     cla = rep["methods"]["longitudinal-oem"]["parameters"]["CLalpha"]
@@ -153,7 +157,7 @@ def test_correction_matters_and_matches_the_true_correction(run):
     raw_err, raw_tic, raw_val, _ = _fit_longitudinal(fd, truth)
     cor_err = _errors_in_std(rep["methods"]["longitudinal-oem"])
     worse = {n: round(raw_err[n], 1) for n in cor_err if abs(raw_err[n]) > 10.0 and abs(cor_err[n]) < 6.0}
-    assert len(worse) >= 3, (raw_err, cor_err)          # measured: CL0, CLalpha, CLde, Cm0, Cmalpha, Cmde
+    assert len(worse) >= 3, (raw_err, cor_err)  # measured: CL0, CLalpha, CLde, Cm0, Cmalpha, Cmde
     assert max(abs(e) for e in raw_err.values()) > 5 * max(abs(e) for e in cor_err.values())
     te = pd.Series(truth_errors(truth))
     exact = CompatibilityResult(None, te, te * 0 + 1.0).corrected(fd, keep_times=True)
@@ -178,8 +182,9 @@ def test_stage_reports_instead_of_ending_the_run():
     assert out is no_imu and doc["status"] == "skipped" and "IMU" in doc["reason"]
     assert doc["data_for_estimation"] == "as logged" and doc["applied"] == {}
     zero = np.zeros_like(t)
-    ground = FlightData({c: Channel(t, zero, "") for c in ("ax", "ay", "az", "p", "q", "r", "V",
-                                                          "phi", "theta")}, {}, [])
+    ground = FlightData(
+        {c: Channel(t, zero, "") for c in ("ax", "ay", "az", "p", "q", "r", "V", "phi", "theta")}, {}, []
+    )
     out, doc = compatibility_stage(ground, None, pr)
     assert out is ground and doc["status"] == "skipped"
     assert "no span of the log is in forward flight" in doc["reason"]
@@ -198,8 +203,7 @@ def test_default_segments_are_in_forward_flight():
     v = np.where(t < 60.0, 1.0, 30.0)
     chans = {"V": Channel(t, v, "m/s")}
     spans = default_segments(FlightData(chans, {}, []))
-    assert [(s.t0, s.t1) for s in spans] == [(60.0, 80.0), (80.0, 100.0), (100.0, 120.0),
-                                             (120.0, 129.9)]
+    assert [(s.t0, s.t1) for s in spans] == [(60.0, 80.0), (80.0, 100.0), (100.0, 120.0), (120.0, 129.9)]
     modes = [SegmentSpec("MANUAL", 0.0, 58.0, "mode"), SegmentSpec("FBWA", 58.0, 129.9, "mode")]
     assert [s.name for s in default_segments(FlightData(chans, {}, modes))] == ["FBWA"]
     # ground modes only: the pieces in flight
@@ -225,10 +229,9 @@ def test_no_correction_when_the_air_data_show_turbulence(run, tmp_path):
     (measured on longitudinal_3211_turbulence, truth 0: scale_alpha -0.25 at 16 std, bias_V
     -3.3 m/s at 10 std); its residuals on alpha and beta are 3.7 and 2.2 times their noise
     level (calm flights: 0.93-1.01), so nothing is applied and the report says why."""
-    from sim import fly, load_scenario
-
     from pipeline.compatibility import ADEQUACY, correct_for_estimation
     from pipeline.writers import write_mcap, write_truth_json
+    from sim import fly, load_scenario
 
     res = fly(load_scenario(SCENARIO.parent / "longitudinal_3211_turbulence.toml"))
     write_mcap(tmp_path / "flight.mcap", res)

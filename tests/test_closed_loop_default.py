@@ -10,6 +10,7 @@ every std is a total one: CD0's grows 5x (Cramér-Rao 5.7e-5 alone, conditional 
 values; benchmarks/correction_uncertainty_mc.py measured the trim CD0's scatter at 4.4-6x
 its conditional std). Measured (seed 1): trim CD0/CL0/Cm0 0.57/1.32/1.48 std (2.9/2.1/2.8
 with the conditional std, held to 4 before), the 15 lateral derivatives within 1.7."""
+
 import json
 from pathlib import Path
 
@@ -18,8 +19,23 @@ import pytest
 from pipeline.run import run_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
-LATERAL = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
-           "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
+LATERAL = (
+    "CYbeta",
+    "CYp",
+    "CYr",
+    "CYda",
+    "CYdr",
+    "Clbeta",
+    "Clp",
+    "Clr",
+    "Clda",
+    "Cldr",
+    "Cnbeta",
+    "Cnp",
+    "Cnr",
+    "Cnda",
+    "Cndr",
+)
 TRIM = ("CD0", "CL0", "Cm0")
 
 
@@ -31,8 +47,11 @@ def demo_run(tmp_path_factory):
 
 
 def _errors(m, names=None):
-    return {k: round(v["error_in_std"], 2) for k, v in m["parameters"].items()
-            if v.get("truth") is not None and (names is None or k in names)}
+    return {
+        k: round(v["error_in_std"], 2)
+        for k, v in m["parameters"].items()
+        if v.get("truth") is not None and (names is None or k in names)
+    }
 
 
 def _fit_and_match(m):
@@ -62,7 +81,7 @@ def test_demo_lateral_oem(demo_run):
     held = m["validation"]["held_estimates"]
     assert held["status"] == "propagated" and len(held["held"]) == held["refits"] == 11, held
     cd0 = m["parameters"]["CD0"]
-    assert cd0["consider_std"] > 2 * cd0["std"], cd0          # the held drag polar dominates
+    assert cd0["consider_std"] > 2 * cd0["std"], cd0  # the held drag polar dominates
     tic = _fit_and_match(m)
     assert {"beta", "p", "r", "phi", "ay"} <= set(tic)
 

@@ -24,6 +24,7 @@ What is asserted is what was measured to hold; what does not hold is stated, not
   linear models only (the built-in longitudinal model is nonlinear) and is not among the
   scenario's methods.
 """
+
 import json
 from pathlib import Path
 
@@ -85,8 +86,10 @@ def test_turbulence_derivatives_within_3_std_and_tic(turbulence, method):
         # with CLalphadot, Cmalphadot free FEM could not separate them from CLq, Cmq on
         # these 3-2-1-1s (CLq -13.4 +- 4.3, CLalphadot 11.8 +- 4.3): held at 0 and said so
         assert "CLalphadot" not in m["parameters"]
-        assert any(n.startswith("CLalphadot, Cmalphadot held at 0: this flight does not "
-                                "separate them") for n in m["validation"]["problem"]["notes"])
+        assert any(
+            n.startswith("CLalphadot, Cmalphadot held at 0: this flight does not separate them")
+            for n in m["validation"]["problem"]["notes"]
+        )
 
 
 def _air_data_proof_of_match(rep, method):
@@ -206,10 +209,14 @@ def test_report_names_how_each_std_was_computed(unstable):
 
 def test_methods_that_suit_the_scenario():
     assert scenario_methods({"turbulence": {"model": "off"}}) == ["oem", "ls"]
-    assert scenario_methods({"turbulence": {"model": "milspec", "sigma_w": 0.5}}) == \
-        ["oem", "fem", "ekf", "ukf"]
-    assert scenario_methods({"sas": {"k_alpha": 1.0}, "turbulence": {"model": "off"}}) == \
-        ["soem", "decouple", "fem", "ekf", "ukf"]
+    assert scenario_methods({"turbulence": {"model": "milspec", "sigma_w": 0.5}}) == ["oem", "fem", "ekf", "ukf"]
+    assert scenario_methods({"sas": {"k_alpha": 1.0}, "turbulence": {"model": "off"}}) == [
+        "soem",
+        "decouple",
+        "fem",
+        "ekf",
+        "ukf",
+    ]
 
 
 def test_command_line_accepts_every_method():
@@ -219,4 +226,4 @@ def test_command_line_accepts_every_method():
     assert args.method == names
     args = p.parse_args(["estimate", "log.bin", "--aircraft", "a.toml", "--method", "ukf"])
     assert args.method == ["ukf"]
-    assert p.parse_args(["run", "s.toml"]).method is None       # the scenario decides
+    assert p.parse_args(["run", "s.toml"]).method is None  # the scenario decides

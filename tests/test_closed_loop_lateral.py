@@ -3,6 +3,7 @@ lateral_doublets_calm -> JSBSim -> flight.mcap/.bin -> ingest -> output error an
 error -> validation, with the truth known. Aileron/rudder maneuvers only, so output error
 fits the lateral model driven by the measured V, alpha, theta, q (no longitudinal
 estimates to hold)."""
+
 import json
 from pathlib import Path
 
@@ -12,8 +13,23 @@ from pipeline.cli import main
 from pipeline.run import run_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
-LATERAL = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
-           "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
+LATERAL = (
+    "CYbeta",
+    "CYp",
+    "CYr",
+    "CYda",
+    "CYdr",
+    "Clbeta",
+    "Clp",
+    "Clr",
+    "Clda",
+    "Cldr",
+    "Cnbeta",
+    "Cnp",
+    "Cnr",
+    "Cnda",
+    "Cndr",
+)
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +60,7 @@ def test_lateral_oem_fit_and_proof_of_match(lateral_run):
     assert set(tic) == {"beta", "p", "r", "phi", "ay"}
     assert max(tic.values()) < 0.1, tic
     pom = m["validation"]["proof_of_match"]
-    assert [s["name"] for s in pom["segments"]] == ["auto_da_4+auto_dr_2"]   # cross-controlled
+    assert [s["name"] for s in pom["segments"]] == ["auto_da_4+auto_dr_2"]  # cross-controlled
     assert pom["all_pass"], pom
 
 
@@ -108,8 +124,9 @@ def test_lateral_oem_from_the_written_ardupilot_bin(lateral_out, tmp_path):
     sideslip per window, pipeline.flow_angles); ailerons and rudder from RCOU PWM. Every
     lateral derivative within 3 std (seed 21: worst CYda 2.14, with the vane 1.99) and the
     held-out cross-controlled maneuver matched."""
-    code = main(["estimate", str(lateral_out / "flight.bin"), "--model", "lateral",
-                 "--out", str(tmp_path / "bin"), "--quiet"])
+    code = main(
+        ["estimate", str(lateral_out / "flight.bin"), "--model", "lateral", "--out", str(tmp_path / "bin"), "--quiet"]
+    )
     assert code == 0
     rep = json.loads((tmp_path / "bin" / "report.json").read_text())
     assert rep["meta"]["flow_angles"]["status"] == "reconstructed"

@@ -108,6 +108,7 @@ amplitude; in the aircraft's axes and with every maneuver fitted it does as well
 as at 1.5 over seeds 31-38 (3/8 seeds within 3 reported std either way, the empirical std
 a median 0.65 of the 1.5 deg one), so the scenario flies 3 deg.
 """
+
 import json
 import re
 from pathlib import Path
@@ -118,14 +119,44 @@ from pipeline.run import run_scenario
 
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "multiaxis_multisine_turbulence.toml"
 METHODS = ("fem", "ekf", "ukf")
-LONG = ("CD0", "CDalpha", "CDalpha2", "CL0", "CLalpha", "CLq", "CLde", "Cm0", "Cmalpha", "Cmq",
-        "Cmde", "CLalphadot", "Cmalphadot")
-LAT = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
-       "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
+LONG = (
+    "CD0",
+    "CDalpha",
+    "CDalpha2",
+    "CL0",
+    "CLalpha",
+    "CLq",
+    "CLde",
+    "Cm0",
+    "Cmalpha",
+    "Cmq",
+    "Cmde",
+    "CLalphadot",
+    "Cmalphadot",
+)
+LAT = (
+    "CYbeta",
+    "CYp",
+    "CYr",
+    "CYda",
+    "CYdr",
+    "Clbeta",
+    "Clp",
+    "Clr",
+    "Clda",
+    "Cldr",
+    "Cnbeta",
+    "Cnp",
+    "Cnr",
+    "Cnda",
+    "Cndr",
+)
 #: longitudinal derivatives measured more than 3 std from the truth (|error|/std, seed 31)
-LONG_OFF = {"fem": {},
-            "ekf": {"Cmalphadot": 6.17, "Cmalpha": 4.7, "CLq": 4.23, "Cmq": 3.91, "CL0": 3.6},
-            "ukf": {"Cmalphadot": 5.52, "CLq": 4.39, "Cmalpha": 4.12, "CL0": 3.64, "Cmde": 3.0}}
+LONG_OFF = {
+    "fem": {},
+    "ekf": {"Cmalphadot": 6.17, "Cmalpha": 4.7, "CLq": 4.23, "Cmq": 3.91, "CL0": 3.6},
+    "ukf": {"Cmalphadot": 5.52, "CLq": 4.39, "Cmalpha": 4.12, "CL0": 3.64, "Cmde": 3.0},
+}
 
 
 @pytest.fixture(scope="module")
@@ -188,13 +219,26 @@ def test_longitudinal_multiaxis_model(report, method):
             assert r > m["validation"]["uncertainty"]["widened"]["threshold"]
 
 
-@pytest.mark.parametrize("method", [
-    "fem",
-    *(pytest.param(m, marks=pytest.mark.xfail(strict=True, reason=(
-        "measured (seed 31) Cmalphadot 6.2, 5.5, CLq 4.2, 4.4, Cmalpha 4.7, 4.1, CL0 3.6, "
-        "3.6 std, EKF Cmq 3.9, UKF Cmde 3.005 (EKF, UKF: process noise fixed at twice the "
-        "turbulence level, not estimated as in FEM; within 3 std on none of seeds 31-38)")))
-      for m in ("ekf", "ukf"))])
+@pytest.mark.parametrize(
+    "method",
+    [
+        "fem",
+        *(
+            pytest.param(
+                m,
+                marks=pytest.mark.xfail(
+                    strict=True,
+                    reason=(
+                        "measured (seed 31) Cmalphadot 6.2, 5.5, CLq 4.2, 4.4, Cmalpha 4.7, 4.1, CL0 3.6, "
+                        "3.6 std, EKF Cmq 3.9, UKF Cmde 3.005 (EKF, UKF: process noise fixed at twice the "
+                        "turbulence level, not estimated as in FEM; within 3 std on none of seeds 31-38)"
+                    ),
+                ),
+            )
+            for m in ("ekf", "ukf")
+        ),
+    ],
+)
 def test_longitudinal_all_within_3_std(report, method):
     errs = _errors(report, f"longitudinal-{method}", LONG)
     assert max(errs.values()) <= 3.0, errs
@@ -241,13 +285,16 @@ def test_lateral_fem_gust_model(report):
     assert set(corners) == {"da", "dr"} and all(3.0 < float(v) < 15.0 for v in corners.values())
 
 
-@pytest.mark.xfail(strict=True, reason="lateral |error|/std > 3 (seed 31): EKF Clbeta 7.7, Cnda 7.6, "
-                   "Cnp 4.2, Clp 3.4 (Clp, Clda with their std the maneuver scatter, 8.3x and 6.9x "
-                   "the filter's P; 28 and 20 of P's std off; 6 passes); UKF Clp 6.5, Clda 4.5, Cnp "
-                   "3.7, Cnda 3.6 (8 passes): the parameter-in-the-state "
-                   "filters miss Clbeta by 6.7/4.8 std on data their own model makes with this "
-                   "flight's roll gust (benchmarks/lateral_gust_filters_mc.py; see the module "
-                   "docstring)")
+@pytest.mark.xfail(
+    strict=True,
+    reason="lateral |error|/std > 3 (seed 31): EKF Clbeta 7.7, Cnda 7.6, "
+    "Cnp 4.2, Clp 3.4 (Clp, Clda with their std the maneuver scatter, 8.3x and 6.9x "
+    "the filter's P; 28 and 20 of P's std off; 6 passes); UKF Clp 6.5, Clda 4.5, Cnp "
+    "3.7, Cnda 3.6 (8 passes): the parameter-in-the-state "
+    "filters miss Clbeta by 6.7/4.8 std on data their own model makes with this "
+    "flight's roll gust (benchmarks/lateral_gust_filters_mc.py; see the module "
+    "docstring)",
+)
 @pytest.mark.parametrize("method", ("ekf", "ukf"))
 def test_lateral_all_within_3_std(report, method):
     errs = _errors(report, f"lateral-{method}", LAT)
@@ -267,8 +314,12 @@ def test_methods_cross_check_finds_what_the_truth_finds(report):
     Cramér-Rao bound): the EKF's and UKF's CLq (4.2, 4.4 std off the truth) are within the
     combined std of it; with the Cramér-Rao bounds they had been flagged (4.4, 4.7)."""
     ag = report["agreement"]
-    flagged = {(r["parameter"], r["method_a"], r["method_b"])
-               for axis in ("longitudinal", "lateral") for r in ag[axis]["table"] if r["flag"]}
+    flagged = {
+        (r["parameter"], r["method_a"], r["method_b"])
+        for axis in ("longitudinal", "lateral")
+        for r in ag[axis]["table"]
+        if r["flag"]
+    }
     assert {("Clbeta", "lateral-fem", "lateral-ekf"), ("Cnda", "lateral-fem", "lateral-ekf")} <= flagged, flagged
     for name, a, b in flagged:
         errs = [report["methods"][k]["parameters"][name]["error_in_std"] for k in (a, b)]
@@ -276,8 +327,7 @@ def test_methods_cross_check_finds_what_the_truth_finds(report):
     # filter error is the method to trust here: the EKF's disagreement is a FAIL reason
     # (test_filters_fail_where_they_disagree_with_filter_error), no longer a note
     reasons = report["methods"]["lateral-ekf"]["verdict"]["reasons"]
-    assert any(r.startswith("disagrees with filter error (lateral-fem)") and "Clbeta" in r
-               for r in reasons), reasons
+    assert any(r.startswith("disagrees with filter error (lateral-fem)") and "Clbeta" in r for r in reasons), reasons
     wide = report["methods"]["lateral-ekf"]["validation"]["uncertainty"]["widened"]["parameters"]
     assert report["methods"]["lateral-ekf"]["std_method"] == "filter-covariance|scatter"
     assert {"Clp", "Clda"} <= set(wide) and min(wide["Clp"], wide["Clda"]) > 4.0, wide
@@ -298,8 +348,11 @@ def test_filters_fail_where_they_disagree_with_filter_error(report, method):
         assert vd["level"] == "FAIL" and vd["ok"] is False, vd
         assert any(r.endswith("std from the truth") for r in vd["reasons"]), vd
         flagged = (m["validation"]["agreement"]["flagged"]).get(f"{axis}-fem") or {}
-        why = [(r, lv) for r, lv in zip(vd["reasons"], vd["reason_levels"])
-               if r.startswith(f"disagrees with filter error ({axis}-fem) by more than 3 combined std")]
+        why = [
+            (r, lv)
+            for r, lv in zip(vd["reasons"], vd["reason_levels"])
+            if r.startswith(f"disagrees with filter error ({axis}-fem) by more than 3 combined std")
+        ]
         assert len(why) == (1 if flagged else 0), (flagged, vd["reasons"])
         for r, lv in why:
             assert lv == "FAIL" and r.endswith(FILTER_ERROR_TRUST), r
@@ -308,34 +361,65 @@ def test_filters_fail_where_they_disagree_with_filter_error(report, method):
         fem = report["methods"][f"{axis}-fem"]["verdict"]
         assert not any("filter error" in r for r in fem["reasons"]), fem
     if method == "ekf":
-        r = next(r for r in report["methods"]["lateral-ekf"]["verdict"]["reasons"]
-                 if r.startswith("disagrees with filter error"))
+        r = next(
+            r
+            for r in report["methods"]["lateral-ekf"]["verdict"]["reasons"]
+            if r.startswith("disagrees with filter error")
+        )
         assert "Clbeta (" in r and "Cnda (" in r, r
 
 
-@pytest.mark.parametrize("key", [
-    "lateral-ekf",
-    *(pytest.param(k, marks=pytest.mark.xfail(strict=True, reason=(
-        "seed 31: within 3 combined std of filter error on every derivative (largest z: "
-        "longitudinal EKF Cmalphadot 2.65, UKF CL0 2.53; lateral UKF tau_pg 1.79, Clp 1.74) "
-        "while 5.5-6.5 std off the truth: sqrt(std_a^2 + std_b^2), conservative for two fits "
-        "of one flight, with FEM's std its maneuver scatter, does not separate them; their "
-        "FAIL is the truth's alone, on a real log they would PASS")))
-      for k in ("longitudinal-ekf", "longitudinal-ukf", "lateral-ukf"))])
+@pytest.mark.parametrize(
+    "key",
+    [
+        "lateral-ekf",
+        *(
+            pytest.param(
+                k,
+                marks=pytest.mark.xfail(
+                    strict=True,
+                    reason=(
+                        "seed 31: within 3 combined std of filter error on every derivative (largest z: "
+                        "longitudinal EKF Cmalphadot 2.65, UKF CL0 2.53; lateral UKF tau_pg 1.79, Clp 1.74) "
+                        "while 5.5-6.5 std off the truth: sqrt(std_a^2 + std_b^2), conservative for two fits "
+                        "of one flight, with FEM's std its maneuver scatter, does not separate them; their "
+                        "FAIL is the truth's alone, on a real log they would PASS"
+                    ),
+                ),
+            )
+            for k in ("longitudinal-ekf", "longitudinal-ukf", "lateral-ukf")
+        ),
+    ],
+)
 def test_filter_error_reason_fails_the_filters_without_the_truth(report, key):
     """Without the truth (a real log) only the disagreement with filter error can fail an
     EKF/UKF whose proof of match passes: each fit's verdict carries it (seed 31: the
     lateral EKF, Clbeta 3.6 and Cnda 3.4 combined std from FEM)."""
     vd = report["methods"][key]["verdict"]
-    assert any(r.startswith("disagrees with filter error") and lv == "FAIL"
-               for r, lv in zip(vd["reasons"], vd["reason_levels"])), vd["reasons"]
+    assert any(
+        r.startswith("disagrees with filter error") and lv == "FAIL"
+        for r, lv in zip(vd["reasons"], vd["reason_levels"])
+    ), vd["reasons"]
 
 
-@pytest.mark.parametrize("method", [
-    "fem", "ukf", pytest.param("ekf", marks=pytest.mark.xfail(strict=True, reason=(
-        "lateral proof of match fails (seed 31): EKF p 2.0 deg/s on the multisine, 3.6 on "
-        "the aileron doublet (band 1.5): its Clp and Clda are 28 and 20 filter-P std off; its "
-        "longitudinal model passes")))])
+@pytest.mark.parametrize(
+    "method",
+    [
+        "fem",
+        "ukf",
+        pytest.param(
+            "ekf",
+            marks=pytest.mark.xfail(
+                strict=True,
+                reason=(
+                    "lateral proof of match fails (seed 31): EKF p 2.0 deg/s on the multisine, 3.6 on "
+                    "the aileron doublet (band 1.5): its Clp and Clda are 28 and 20 filter-P std off; its "
+                    "longitudinal model passes"
+                ),
+            ),
+        ),
+    ],
+)
 def test_proof_of_match_on_the_calm_validation_flight(report, method):
     """The scenario's [validation_flight], in calm air, carries the proof of match (the
     model is fitted to all 4 maneuvers of the turbulent flight): the open-loop simulation,
@@ -355,25 +439,31 @@ def test_proof_of_match_on_the_calm_validation_flight(report, method):
         assert len(pm["segments"]) == n_val
         assert all(sg["name"].startswith("validation flight: ") for sg in pm["segments"])
         # every channel judged (airspeed has no default band)
-        assert all(d["pass"] is not None for sg in pm["segments"]
-                   for c, d in sg["channels"].items() if c != "V")
-        assert any("every maneuver of this flight fitted" in n
-                   for n in m["validation"]["problem"]["notes"])
-        errs = {sg["name"]: {c: round(d["max_abs_error_display"], 2) for c, d in sg["channels"].items()}
-                for sg in pm["segments"]}
+        assert all(d["pass"] is not None for sg in pm["segments"] for c, d in sg["channels"].items() if c != "V")
+        assert any("every maneuver of this flight fitted" in n for n in m["validation"]["problem"]["notes"])
+        errs = {
+            sg["name"]: {c: round(d["max_abs_error_display"], 2) for c, d in sg["channels"].items()}
+            for sg in pm["segments"]
+        }
         assert pm["all_pass"], f"{axis} {method}: {errs}"
 
 
-@pytest.mark.xfail(strict=True, reason=REFERENCE_FEM + "longitudinal-fem's first calm-air "
-                   "segment has no prediction uncertainty (its sensitivity simulation fails)")
+@pytest.mark.xfail(
+    strict=True,
+    reason=REFERENCE_FEM + "longitudinal-fem's first calm-air "
+    "segment has no prediction uncertainty (its sensitivity simulation fails)",
+)
 def test_proof_of_match_failures_are_set_against_the_estimates_uncertainty(report):
     """Every fit's calm-air proof of match has the prediction's own std from its
     derivatives' covariance (filter error's noise parameters left out); the lateral EKF's
     failure on p is noted against it (seed 31: within 2 std on the multisine, 0.14 deg/s
     beyond on the aileron doublet, its std there up to 1.9 deg/s)."""
     for key, m in report["methods"].items():
-        free = [n for n, p in m["parameters"].items() if p.get("std") is not None
-                and "[" not in n and not n.startswith(("F_", "G_"))]
+        free = [
+            n
+            for n, p in m["parameters"].items()
+            if p.get("std") is not None and "[" not in n and not n.startswith(("F_", "G_"))
+        ]
         for sg in m["validation"]["proof_of_match"]["segments"]:
             pu = sg["prediction_uncertainty"]
             assert pu["k"] == 2.0 and 0 < pu["parameters"] <= len(free), (key, pu, free)
@@ -385,10 +475,25 @@ def test_proof_of_match_failures_are_set_against_the_estimates_uncertainty(repor
 def _lateral_ls_notes(log: Path, out: Path, *extra: str) -> list[str]:
     from pipeline.cli import main
 
-    assert main(["estimate", str(log), "--model", "lateral", "--method", "ls", "--no-compat",
-                 "--quiet", "--out", str(out), *extra]) == 0
-    return json.loads((out / "report.json").read_text())["methods"]["ls"]["validation"][
-        "problem"]["notes"]
+    assert (
+        main(
+            [
+                "estimate",
+                str(log),
+                "--model",
+                "lateral",
+                "--method",
+                "ls",
+                "--no-compat",
+                "--quiet",
+                "--out",
+                str(out),
+                *extra,
+            ]
+        )
+        == 0
+    )
+    return json.loads((out / "report.json").read_text())["methods"]["ls"]["validation"]["problem"]["notes"]
 
 
 def test_raw_inputs_keep_the_logged_surfaces(run_dir, tmp_path):
@@ -401,17 +506,16 @@ def test_raw_inputs_keep_the_logged_surfaces(run_dir, tmp_path):
     raw = _lateral_ls_notes(log, tmp_path / "raw", "--raw-inputs")
     assert any(n.startswith("control inputs low-passed") for n in smooth), smooth
     assert not any(n.startswith("control inputs") for n in raw), raw
-    reps = [json.loads((tmp_path / k / "report.json").read_text())["methods"]["ls"]
-            for k in ("smooth", "raw")]
+    reps = [json.loads((tmp_path / k / "report.json").read_text())["methods"]["ls"] for k in ("smooth", "raw")]
     est = [{n: p["estimate"] for n, p in r["parameters"].items()} for r in reps]
     assert est[0] == est[1]
-    pom = [r["validation"]["proof_of_match"]["segments"][0]["channels"]["p"]["max_abs_error_display"]
-           for r in reps]
+    pom = [r["validation"]["proof_of_match"]["segments"][0]["channels"]["p"]["max_abs_error_display"] for r in reps]
     assert pom[0] != pom[1]
 
 
-@pytest.mark.xfail(strict=True, reason=REFERENCE_FEM + "the UKF with filter error's noise model "
-                   "ends 5.6 std off on the lateral axis")
+@pytest.mark.xfail(
+    strict=True, reason=REFERENCE_FEM + "the UKF with filter error's noise model ends 5.6 std off on the lateral axis"
+)
 def test_estimate_without_the_turbulence_level(run_dir, report, tmp_path):
     """``fsid estimate flight.mcap --method fem --validate-with validation.mcap``: the
     real-log path, where no Dryden level is known. Its gust models start from light
@@ -426,17 +530,32 @@ def test_estimate_without_the_turbulence_level(run_dir, report, tmp_path):
     from pipeline.cli import main
 
     out = tmp_path / "est"
-    assert main(["estimate", str(run_dir / "flight.mcap"), "--method", "fem", "--method", "ukf",
-                 "--no-compat", "--quiet", "--validate-with", str(run_dir / "validation.mcap"),
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "estimate",
+                str(run_dir / "flight.mcap"),
+                "--method",
+                "fem",
+                "--method",
+                "ukf",
+                "--no-compat",
+                "--quiet",
+                "--validate-with",
+                str(run_dir / "validation.mcap"),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     rep = json.loads((out / "report.json").read_text())
     # the UKF takes filter error's noise model: its F (pipeline.run.filter_process_noise)
     # and the roll gust's time constant held at FEM's estimate (GUST_NOISE_PARAMETERS;
     # with tau_pg free it ended at 0.38 s against FEM's 0.46 and Clp 3.0 std off)
     ukf = rep["methods"]["lateral-ukf"]
     tau = rep["methods"]["lateral-fem"]["parameters"]["tau_pg"]["estimate"]
-    assert f"tau_pg = {tau:.4g} held at filter error's estimate" in " ".join(
-        ukf["validation"]["problem"]["notes"])
+    assert f"tau_pg = {tau:.4g} held at filter error's estimate" in " ".join(ukf["validation"]["problem"]["notes"])
     worst = max(abs(ukf["parameters"][n]["error_in_std"]) for n in LAT)
     assert worst < 3.0 and ukf["validation"]["proof_of_match"]["all_pass"], worst
     for axis, names in (("longitudinal", LONG), ("lateral", LAT)):
@@ -444,14 +563,14 @@ def test_estimate_without_the_turbulence_level(run_dir, report, tmp_path):
         assert m["converged"]
         for n in names:
             assert m["parameters"][n]["estimate"] == pytest.approx(
-                ran["parameters"][n]["estimate"], abs=0.05 * ran["parameters"][n]["std"]), n
+                ran["parameters"][n]["estimate"], abs=0.05 * ran["parameters"][n]["std"]
+            ), n
         pm = m["validation"]["proof_of_match"]
         assert pm["mode"] == "air-data" and pm["all_pass"], pm["segments"]
     assert rep["methods"]["lateral-fem"]["parameters"]["F_p_g"]["estimate"] > 0.05
 
 
-@pytest.mark.xfail(strict=True, reason=REFERENCE_FEM + "longitudinal worst 3.01-3.07 total std "
-                   "(limit 3.0)")
+@pytest.mark.xfail(strict=True, reason=REFERENCE_FEM + "longitudinal worst 3.01-3.07 total std (limit 3.0)")
 def test_estimate_from_the_bin_without_vanes(tmp_path):
     """The ArduPilot log of the same flight (flight.bin, ``fsid simulate``): its AOA/SSA are
     the autopilot's estimates, so alpha and beta are rebuilt from the 10 Hz flight path,
@@ -487,20 +606,33 @@ def test_estimate_from_the_bin_without_vanes(tmp_path):
 
     run, _ = simulate(SCENARIO, tmp_path / "sim", progress=False)
     out = tmp_path / "est"
-    assert main(["estimate", str(run / "flight.bin"), "--method", "fem", "--no-compat",
-                 "--quiet", "--validate-with", str(run / "validation.bin"),
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "estimate",
+                str(run / "flight.bin"),
+                "--method",
+                "fem",
+                "--no-compat",
+                "--quiet",
+                "--validate-with",
+                str(run / "validation.bin"),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     rep = json.loads((out / "report.json").read_text())
     assert rep["meta"]["flow_angles"]["channels"] == ["alpha", "beta"]
     wu = rep["meta"]["flow_angles"]["wind_uncertainty"]
     assert wu["parts"] == ["wind north", "wind east", "vertical wind", "airspeed scale"]
-    cal = rep["meta"]["flow_angles"]["airspeed_scale"]      # the pitot has no error here
+    cal = rep["meta"]["flow_angles"]["airspeed_scale"]  # the pitot has no error here
     assert cal["status"] == "estimated" and not cal["applied"] and cal["carried"], cal
     assert abs(cal["estimate"]) < 3 * cal["std"] and set(wu["std_airspeed_scale"].values()) == {cal["std"]}
     assert set(wu["methods"].values()) == {"propagated"}
     assert 0.4 < wu["std_mps"]["longitudinal-fem"]["vertical wind"] < 1.2, wu["std_mps"]
-    for axis, names, angle, state in (("longitudinal", LONG, "alpha", "alpha_k"),
-                                      ("lateral", LAT, "beta", "beta_k")):
+    for axis, names, angle, state in (("longitudinal", LONG, "alpha", "alpha_k"), ("lateral", LAT, "beta", "beta_k")):
         m = rep["methods"][f"{axis}-fem"]
         assert KINEMATIC_NOTE.format(angle=angle, state=state) in m["validation"]["problem"]["notes"]
         assert "rebuilt with" in m["consider_source"]
@@ -510,7 +642,11 @@ def test_estimate_from_the_bin_without_vanes(tmp_path):
     crb = rep["methods"]["longitudinal-fem"]["validation"]["uncertainty"]["per_parameter"]
     # the trim terms the mean vertical gust moves: within 3 total std, 6-10 CRB std off
     for n in ("CL0", "Cm0", "CD0"):
-        assert (abs(ps[n]["error_in_std"]) < 3.0
-                < abs(ps[n]["estimate"] - ps[n]["truth"]) / crb[n]["crb_std"]), (n, ps[n])
-    assert "grid 50 Hz; slower channels at their own samples only" in rep["methods"][
-        "longitudinal-fem"]["validation"]["problem"]["notes"]
+        assert abs(ps[n]["error_in_std"]) < 3.0 < abs(ps[n]["estimate"] - ps[n]["truth"]) / crb[n]["crb_std"], (
+            n,
+            ps[n],
+        )
+    assert (
+        "grid 50 Hz; slower channels at their own samples only"
+        in rep["methods"]["longitudinal-fem"]["validation"]["problem"]["notes"]
+    )

@@ -14,6 +14,7 @@ elevator multisines only, the longitudinal FEM went from Cmalpha, Cmde, Cm0 21-2
 to within 2.6 (proof of match passes): tests/test_closed_loop_filters.py shows the
 longitudinal case on the built-in longitudinal_3211_turbulence.
 """
+
 import json
 import re
 import sys
@@ -22,8 +23,23 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-LAT = ("CYbeta", "CYp", "CYr", "CYda", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
-       "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
+LAT = (
+    "CYbeta",
+    "CYp",
+    "CYr",
+    "CYda",
+    "CYdr",
+    "Clbeta",
+    "Clp",
+    "Clr",
+    "Clda",
+    "Cldr",
+    "Cnbeta",
+    "Cnp",
+    "Cnr",
+    "Cnda",
+    "Cndr",
+)
 
 
 def _aileron_rudder_flight(folder: Path, seed: int) -> Path:
@@ -50,8 +66,15 @@ def test_lateral_filter_error_fits_the_gust_model(lateral_flight, tmp_path):
     from pipeline.run import estimate_log
 
     out = tmp_path / "est"
-    estimate_log(lateral_flight / "flight.mcap", out, methods=["fem"], model="lateral",
-                 compat=False, quiet=True, validation_log=[lateral_flight / "validation.mcap"])
+    estimate_log(
+        lateral_flight / "flight.mcap",
+        out,
+        methods=["fem"],
+        model="lateral",
+        compat=False,
+        quiet=True,
+        validation_log=[lateral_flight / "validation.mcap"],
+    )
     rep = json.loads((out / "report.json").read_text())
     m = rep["methods"]["fem"]
     assert m["model"] == "lateral-measured" and m["converged"]
@@ -83,13 +106,13 @@ def test_filter_error_restarts_when_it_does_not_converge(tmp_path):
 
     run = _aileron_rudder_flight(tmp_path, 37)
     truth_doc = json.loads((run / "truth.json").read_text())
-    fd, ac = flow_angle_stage(read_log(run / "flight.bin"),
-                              AircraftConstants.from_truth(truth_doc), quiet_progress())[:2]
+    fd, ac = flow_angle_stage(read_log(run / "flight.bin"), AircraftConstants.from_truth(truth_doc), quiet_progress())[
+        :2
+    ]
     pb = multiaxis_problem(fd, ac, "lateral", gust_states=True, rate_hz=50.0, hold_out=0)
     pb.inputs = "linear"
     attach_logged_noise(fd, pb)
-    res, val = fit_and_validate(pb, "fem", "lateral axis", truth_doc["derivatives"],
-                                quiet_progress())
+    res, val = fit_and_validate(pb, "fem", "lateral axis", truth_doc["derivatives"], quiet_progress())
     # filter error as the reference algorithm converges from these starts itself; the
     # restart is taken only when it does not, and then says so
     note = [n for n in val["problem"]["notes"] if n.startswith("filter error did not converge")]

@@ -2,6 +2,7 @@
 regressions whose answer is known: unbiased with unequal maneuvers (where the uncorrected
 sandwich is not), as wide as the true scatter when the parameters differ between
 maneuvers, and silent on a parameter one maneuver alone identifies."""
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -29,8 +30,7 @@ def _fit(X, y):
     Xa, ya = np.vstack(X), np.concatenate(y)
     M = Xa.T @ Xa / SIGMA**2
     beta = np.linalg.solve(M, Xa.T @ ya / SIGMA**2)
-    parts = [segment_parts(Xj[:, None, :], (yj - Xj @ beta)[:, None], np.array([[SIGMA**-2]]))
-             for Xj, yj in zip(X, y)]
+    parts = [segment_parts(Xj[:, None, :], (yj - Xj @ beta)[:, None], np.array([[SIGMA**-2]])) for Xj, yj in zip(X, y)]
     return beta, parts, np.linalg.inv(M)
 
 
@@ -45,7 +45,7 @@ def test_exact_model_gives_the_cramer_rao_bound_on_average():
         r = cluster_covariance([p[0] for p in parts], [p[1] for p in parts])
         cr2.append(np.diag(r.cov))
         s = np.stack([p[1] for p in parts])
-        cr0.append(np.diag(Minv @ s.T @ s @ Minv))        # the sandwich without the leverage
+        cr0.append(np.diag(Minv @ s.T @ s @ Minv))  # the sandwich without the leverage
     crb = np.diag(Minv)
     assert np.allclose(r.crb_std, np.sqrt(crb))
     # unbiased (mean of 2000 draws: ~2 % Monte Carlo spread), where the plain sandwich is low
@@ -64,14 +64,13 @@ def test_parameters_that_differ_between_maneuvers_widen_it_to_their_scatter():
     beta0, tau = np.array([0.5, -1.0, 2.0]), 0.02
     est, var = [], []
     for _ in range(1500):
-        y = [Xj @ (beta0 + tau * rng.standard_normal(3)) + SIGMA * rng.standard_normal(len(Xj))
-             for Xj in X]
+        y = [Xj @ (beta0 + tau * rng.standard_normal(3)) + SIGMA * rng.standard_normal(len(Xj)) for Xj in X]
         beta, parts, Minv = _fit(X, y)
         r = cluster_covariance([p[0] for p in parts], [p[1] for p in parts])
         est.append(beta)
         var.append(np.diag(r.cov))
     emp = np.var(est, axis=0, ddof=1)
-    assert np.all(emp / np.diag(Minv) > 4.0)             # the bound is far too small (6.6-45x)
+    assert np.all(emp / np.diag(Minv) > 4.0)  # the bound is far too small (6.6-45x)
     # the robust variance finds most of the scatter: all of it (0.78, 0.93) where no
     # maneuver carries more than 55 % of the parameter, half (0.47) where the longest
     # carries 78 % (its own offset is in its estimate and hardly in its residuals)
@@ -135,8 +134,9 @@ def test_the_maneuvers_expose_output_error_in_turbulence():
         wide = vo["uncertainty"]["widened"]["parameters"]
         assert oem.std_method == "crb|scatter" and {"Cmalpha", "Cmq", "Cmde"} <= set(wide), wide
         worst_wide.append(max(abs(oem.params[n] - ex.truth[n]) / oem.std[n] for n in names))
-        assert any(n.startswith("the 4 maneuvers scatter more than 3x") and "Cmq" in n
-                   for n in vo["verdict"]["notes"]), vo["verdict"]["notes"]
+        assert any(
+            n.startswith("the 4 maneuvers scatter more than 3x") and "Cmq" in n for n in vo["verdict"]["notes"]
+        ), vo["verdict"]["notes"]
         # the per-maneuver biases and initial states: one maneuver each, no scatter to measure
         pp = vo["uncertainty"]["per_parameter"]
         assert pp["bias_az[0]"]["cluster_std"] is None and pp["bias_az[0]"]["max_share"] > 0.95
@@ -155,19 +155,18 @@ def test_maneuver_own_parameters_are_profiled_out_exactly():
 
     rng = np.random.default_rng(7)
     X = _design(rng)
-    for Xj in X:                                         # no constant: the offsets are that
+    for Xj in X:  # no constant: the offsets are that
         Xj[:, 0] = rng.standard_normal(len(Xj))
-    X[0][:, 1] = 0.0                                     # maneuver 0 leaves regressor 1 at 0
+    X[0][:, 1] = 0.0  # maneuver 0 leaves regressor 1 at 0
     G, n_sh = len(X), 3
-    n_p = n_sh + G                                       # shared, then one offset per maneuver
-    y = [Xj @ np.array([0.5, -1.0, 2.0]) + 0.3 * j + SIGMA * rng.standard_normal(len(Xj))
-         for j, Xj in enumerate(X)]
-    rows = [np.column_stack([Xj, np.ones(len(Xj))]) for Xj in X]          # [x, offset_j]
+    n_p = n_sh + G  # shared, then one offset per maneuver
+    y = [Xj @ np.array([0.5, -1.0, 2.0]) + 0.3 * j + SIGMA * rng.standard_normal(len(Xj)) for j, Xj in enumerate(X)]
+    rows = [np.column_stack([Xj, np.ones(len(Xj))]) for Xj in X]  # [x, offset_j]
     A = np.zeros((sum(map(len, X)), n_p))
     r0 = 0
     for j, R in enumerate(rows):
-        A[r0:r0 + len(R), :n_sh] = R[:, :n_sh]
-        A[r0:r0 + len(R), n_sh + j] = 1.0
+        A[r0 : r0 + len(R), :n_sh] = R[:, :n_sh]
+        A[r0 : r0 + len(R), n_sh + j] = 1.0
         r0 += len(R)
     M = A.T @ A / SIGMA**2
     theta = np.linalg.solve(M, A.T @ np.concatenate(y) / SIGMA**2)

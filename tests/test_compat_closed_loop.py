@@ -6,6 +6,7 @@ Known limit (reported): the simulator's truth has the IMU signals about half a 1
 step (5 ms) out of time with its velocities (seen as a 5 ms apparent air-data delay and a
 -1.2 % alpha scale in noise-free truth), so the delay is checked against 3 std plus 5 ms.
 """
+
 from __future__ import annotations
 
 import json
@@ -31,7 +32,7 @@ def flight():
         pytest.skip("scenario sensor_errors_calm not available")
     from tests._simdata import written
 
-    d = written(SCENARIO.stem)          # flown and written once per session (shared, read only)
+    d = written(SCENARIO.stem)  # flown and written once per session (shared, read only)
     return d, json.loads((d / "truth.json").read_text())
 
 
@@ -46,8 +47,9 @@ def test_compatibility_recovers_injected_errors(flight, name):
     assert [s.axis for s in auto] == ["de", "da", "da", "dr", "de", "da", "da", "dr"]
     assert [(a.t0, a.t1) for a in auto[2:4]] == [(auto[3].t0, auto[3].t1)] * 2
     sens = truth["sensors"]
-    res = reconstruct(fd, estimate=ESTIMATE, imu_position=sens["imu"]["position_m"],
-                      boom_position=sens["airdata"]["position_m"])
+    res = reconstruct(
+        fd, estimate=ESTIMATE, imu_position=sens["imu"]["position_m"], boom_position=sens["airdata"]["position_m"]
+    )
     assert res.result.converged
     tab = res.table(truth_errors(truth))
     assert list(tab.index) == ESTIMATE
@@ -64,7 +66,8 @@ def test_compatibility_recovers_injected_errors(flight, name):
     # corrected channels are available to the next stage
     cor = res.corrected(fd)
     assert cor["p"].values[100] == pytest.approx(
-        (fd["p"].values[100] - tab.loc["bias_p", "estimate"]) / (1 + tab.loc["scale_p", "estimate"]))
+        (fd["p"].values[100] - tab.loc["bias_p", "estimate"]) / (1 + tab.loc["scale_p", "estimate"])
+    )
     assert cor["alpha"].t[0] == pytest.approx(fd["alpha"].t[0] - tab.loc["delay_air", "estimate"])
     doc = res.to_dict(truth_errors(truth))
     assert doc["status"] == "ok" and set(doc["parameters"]) == set(ESTIMATE)
@@ -77,8 +80,13 @@ def test_compatibility_with_the_filters_agrees(flight, method):
     d, truth = flight
     fd = read_log(d / "flight.bin")
     sens = truth["sensors"]
-    res = reconstruct(fd, estimate=ESTIMATE, method=method, imu_position=sens["imu"]["position_m"],
-                      boom_position=sens["airdata"]["position_m"])
+    res = reconstruct(
+        fd,
+        estimate=ESTIMATE,
+        method=method,
+        imu_position=sens["imu"]["position_m"],
+        boom_position=sens["airdata"]["position_m"],
+    )
     tab = res.table(truth_errors(truth))
     assert res.settings["method"] == method and np.all(tab["std"] > 0)
     err = (tab["estimate"] - tab["truth"]).abs()
@@ -94,14 +102,19 @@ def test_reconstruct_accepts_dataframe_segments(flight):
     segs = [s for s in fd.segments if s.kind == "auto"][:3]
     cols = ["ax", "ay", "az", "p", "q", "r", "V", "alpha", "beta", "phi", "theta", "psi", "h"]
     frames = [fd.resample(50.0, cols, t0=s.t0, t1=s.t1, span="union", unwrap=True) for s in segs]
-    res = reconstruct(frames, estimate=["bias_p", "bias_q", "bias_r", "bias_alpha"],
-                      imu_position=truth["sensors"]["imu"]["position_m"],
-                      boom_position=truth["sensors"]["airdata"]["position_m"])
+    res = reconstruct(
+        frames,
+        estimate=["bias_p", "bias_q", "bias_r", "bias_alpha"],
+        imu_position=truth["sensors"]["imu"]["position_m"],
+        boom_position=truth["sensors"]["airdata"]["position_m"],
+    )
     assert len(res.segments) == 3 and res.settings["rate_hz"] == pytest.approx(50.0)
     tab = res.table(truth_errors(truth))
     # gyro biases are the best-determined errors: within 0.02 deg/s of the injected ones
-    assert np.all((tab.loc[["bias_p", "bias_q", "bias_r"], "estimate"]
-                   - tab.loc[["bias_p", "bias_q", "bias_r"], "truth"]).abs() < np.radians(0.02))
+    assert np.all(
+        (tab.loc[["bias_p", "bias_q", "bias_r"], "estimate"] - tab.loc[["bias_p", "bias_q", "bias_r"], "truth"]).abs()
+        < np.radians(0.02)
+    )
 
 
 def test_overlapping_windows_are_fitted_once(flight):
@@ -115,9 +128,12 @@ def test_overlapping_windows_are_fitted_once(flight):
     auto = [s for s in fd.segments if s.kind == "auto"]
     da, dr = auto[2], auto[3]
     assert (da.axis, dr.axis) == ("da", "dr") and (da.t0, da.t1) == (dr.t0, dr.t1)
-    kw = {"estimate": ["bias_ay", "bias_r", "bias_beta", "scale_beta"],
-          "imu_position": truth["sensors"]["imu"]["position_m"],
-          "boom_position": truth["sensors"]["airdata"]["position_m"], "delay": "none"}
+    kw = {
+        "estimate": ["bias_ay", "bias_r", "bias_beta", "scale_beta"],
+        "imu_position": truth["sensors"]["imu"]["position_m"],
+        "boom_position": truth["sensors"]["airdata"]["position_m"],
+        "delay": "none",
+    }
     once = reconstruct(fd, segments=[da], **kw)
     twice = reconstruct(fd, segments=[da, dr], **kw)
     assert [s.name for s in twice.segments] == [f"{da.name}+{dr.name}"]

@@ -1,6 +1,7 @@
 """Consider covariance: uncertainty a fit held as exact (the sensor corrections applied
 before it) added to the Cramér-Rao bound - EstimationResult.total_std, the table's
 error in std, and the compatibility document's correction covariance."""
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -10,14 +11,31 @@ from pipeline.correction_uncertainty import correction_covariance
 
 
 def _result(consider=None):
-    model = Model(states=["x"], inputs=["u"], outputs=["x"],
-                  parameters=[Parameter("a", -1.0), Parameter("b", 2.0), Parameter("c", 0.5, free=False)],
-                  f=lambda x, u, p, c: (p.a * x[0] + p.b * u[0],), g=lambda x, u, p, c: (x[0],))
-    cov = np.array([[0.04, 0.01], [0.01, 0.09]])        # std 0.2, 0.3
-    return EstimationResult("oem", model, ["a", "b", "c"], np.array([-1.5, 2.0, 0.5]),
-                            np.array([True, True, False]), cov, np.eye(1), True, 3,
-                            pd.DataFrame(), [], [], consider_cov=consider,
-                            consider_source="test")
+    model = Model(
+        states=["x"],
+        inputs=["u"],
+        outputs=["x"],
+        parameters=[Parameter("a", -1.0), Parameter("b", 2.0), Parameter("c", 0.5, free=False)],
+        f=lambda x, u, p, c: (p.a * x[0] + p.b * u[0],),
+        g=lambda x, u, p, c: (x[0],),
+    )
+    cov = np.array([[0.04, 0.01], [0.01, 0.09]])  # std 0.2, 0.3
+    return EstimationResult(
+        "oem",
+        model,
+        ["a", "b", "c"],
+        np.array([-1.5, 2.0, 0.5]),
+        np.array([True, True, False]),
+        cov,
+        np.eye(1),
+        True,
+        3,
+        pd.DataFrame(),
+        [],
+        [],
+        consider_cov=consider,
+        consider_source="test",
+    )
 
 
 def test_without_consider_total_std_is_the_crb():
@@ -30,11 +48,11 @@ def test_without_consider_total_std_is_the_crb():
 
 
 def test_consider_widens_the_std_and_the_error_uses_it():
-    r = _result(np.array([[0.09, 0.0], [0.0, 0.16]]))    # consider std 0.3, 0.4
+    r = _result(np.array([[0.09, 0.0], [0.0, 0.16]]))  # consider std 0.3, 0.4
     assert r.consider_std["a"] == pytest.approx(0.3) and np.isnan(r.consider_std["c"])
     assert r.total_std["a"] == pytest.approx(np.hypot(0.2, 0.3))
     assert r.total_std["b"] == pytest.approx(0.5)
-    assert r.std["b"] == pytest.approx(0.3)              # the CRB itself unchanged
+    assert r.std["b"] == pytest.approx(0.3)  # the CRB itself unchanged
     tab = r.table({"a": -1.0, "b": 2.6})
     assert tab.loc["b", "error_in_std"] == pytest.approx(0.6 / 0.5)
     assert tab.loc["a", "consider_std"] == pytest.approx(0.3)
@@ -44,10 +62,10 @@ def test_consider_widens_the_std_and_the_error_uses_it():
 
 
 def test_correction_covariance_from_the_document():
-    doc = {"applied": {"bias_q": {"estimate": 0.01, "std": 0.002},
-                       "scale_alpha": {"estimate": 0.08, "std": 0.005}},
-           "applied_correlation": {"names": ["scale_alpha", "bias_q"],
-                                   "matrix": [[1.0, -0.5], [-0.5, 1.0]]}}
+    doc = {
+        "applied": {"bias_q": {"estimate": 0.01, "std": 0.002}, "scale_alpha": {"estimate": 0.08, "std": 0.005}},
+        "applied_correlation": {"names": ["scale_alpha", "bias_q"], "matrix": [[1.0, -0.5], [-0.5, 1.0]]},
+    }
     names, est, C = correction_covariance(doc)
     assert names == ["bias_q", "scale_alpha"] and list(est) == [0.01, 0.08]
     np.testing.assert_allclose(C, [[4e-6, -0.5 * 0.002 * 0.005], [-0.5 * 0.002 * 0.005, 2.5e-5]])
@@ -58,10 +76,10 @@ def test_correction_covariance_from_the_document():
 
 
 def _doc():
-    return {"applied": {"bias_q": {"estimate": 0.01, "std": 0.002},
-                        "scale_alpha": {"estimate": 0.08, "std": 0.005}},
-            "applied_correlation": {"names": ["bias_q", "scale_alpha"],
-                                    "matrix": [[1.0, 0.3], [0.3, 1.0]]}}
+    return {
+        "applied": {"bias_q": {"estimate": 0.01, "std": 0.002}, "scale_alpha": {"estimate": 0.08, "std": 0.005}},
+        "applied_correlation": {"names": ["bias_q", "scale_alpha"], "matrix": [[1.0, 0.3], [0.3, 1.0]]},
+    }
 
 
 def test_propagate_builds_j_c_jt_from_the_refits():
@@ -73,7 +91,7 @@ def test_propagate_builds_j_c_jt_from_the_refits():
     t = np.arange(0.0, 1.0, 0.01)
     fd = FlightData({"q": Channel(t, np.zeros_like(t), "rad/s")}, {}, [])
     res = _result()
-    Jtrue = np.array([[2.0, -1.0], [0.5, 4.0]])        # d(a, b) / d(bias_q, scale_alpha)
+    Jtrue = np.array([[2.0, -1.0], [0.5, 4.0]])  # d(a, b) / d(bias_q, scale_alpha)
     est0 = np.array([0.01, 0.08])
 
     def refit(fd_j, starts):

@@ -1,10 +1,10 @@
 """Equation error: OLS, TLS, recursive LS and Fourier-transform regression on known regressions."""
+
 import numpy as np
 import pandas as pd
 import pytest
 
-from estimators import (EstimationResult, FourierRegression, IdentifiabilityError, LeastSquares,
-                        RecursiveLeastSquares)
+from estimators import EstimationResult, FourierRegression, IdentifiabilityError, LeastSquares, RecursiveLeastSquares
 from estimators.equation_error import RecursiveDFT
 
 TRUTH = {"alpha": 1.5, "qhat": -0.7, "de": 0.3}
@@ -14,9 +14,13 @@ DT = 0.02
 def data(seed=1, n=2000, bias=0.4, noise=0.1):
     rng = np.random.default_rng(seed)
     t = np.arange(n) * DT
-    X = np.column_stack([np.sin(0.7 * t) + 0.3 * rng.standard_normal(n),
-                         np.cos(1.9 * t) + 0.5 * rng.standard_normal(n),
-                         rng.standard_normal(n)])
+    X = np.column_stack(
+        [
+            np.sin(0.7 * t) + 0.3 * rng.standard_normal(n),
+            np.cos(1.9 * t) + 0.5 * rng.standard_normal(n),
+            rng.standard_normal(n),
+        ]
+    )
     y = X @ np.array(list(TRUTH.values())) + bias + noise * rng.standard_normal(n)
     return pd.DataFrame(X, columns=list(TRUTH), index=pd.Index(t, name="t")), y
 
@@ -56,7 +60,7 @@ def test_tls_handles_errors_in_regressors_where_ols_is_biased():
     Xt = rng.standard_normal((n, 3)) * [1.0, 0.8, 1.2]
     theta = np.array(list(TRUTH.values()))
     yt = Xt @ theta
-    sd = 0.3                                          # equal noise on every column of [X y]
+    sd = 0.3  # equal noise on every column of [X y]
     X = Xt + sd * rng.standard_normal(Xt.shape)
     y = yt + sd * rng.standard_normal(n)
     tls = LeastSquares(list(TRUTH), method="tls").fit(X, y)
@@ -67,8 +71,7 @@ def test_tls_handles_errors_in_regressors_where_ols_is_biased():
     # TLS std from the errors-in-variables covariance is larger than OLS's naive one
     assert tls.std["alpha"] > ols.std["alpha"]
     # with an intercept and column scaling (noise std per column)
-    tls_b = LeastSquares(list(TRUTH), method="tls", intercept=True,
-                         scale=[sd, sd, sd, sd]).fit(X, y + 0.4)
+    tls_b = LeastSquares(list(TRUTH), method="tls", intercept=True, scale=[sd, sd, sd, sd]).fit(X, y + 0.4)
     within(tls_b, {**TRUTH, "bias": 0.4})
 
 
@@ -92,11 +95,11 @@ def test_rls_without_forgetting_equals_ols_and_update_matches_fit():
 def test_rls_forgetting_tracks_a_parameter_change():
     X, y = data(seed=3, n=3000, bias=0.0)
     y = y.copy()
-    y[1500:] += 0.5 * X["alpha"].to_numpy()[1500:]    # alpha derivative jumps 1.5 -> 2.0
+    y[1500:] += 0.5 * X["alpha"].to_numpy()[1500:]  # alpha derivative jumps 1.5 -> 2.0
     fixed = RecursiveLeastSquares(forgetting=1.0).fit(X, y)
     forget = RecursiveLeastSquares(forgetting=0.99).fit(X, y)
     assert abs(forget.params["alpha"] - 2.0) < 3 * forget.std["alpha"] + 0.01
-    assert abs(fixed.params["alpha"] - 2.0) > 0.2      # the infinite memory averages the two
+    assert abs(fixed.params["alpha"] - 2.0) > 0.2  # the infinite memory averages the two
     assert forget.extra["trajectory"]["alpha"].iloc[1400] == pytest.approx(1.5, abs=0.05)
 
 
@@ -106,15 +109,17 @@ def test_ftr_recovers_truth_and_matches_ols_on_the_same_band():
     band = (0.05, 4.0)
     ftr = FourierRegression(band=band).fit(X, y, dt=DT)
     assert ftr.method == "ftr"
-    within(ftr, TRUTH)                                 # bias drops out at w > 0
+    within(ftr, TRUTH)  # bias drops out at w > 0
     # OLS on the same data band-passed to exactly the FTR frequencies (DFT bins) gives the
     # same estimates (Parseval)
     f = np.fft.rfftfreq(N, DT)
     keep = np.isin(np.round(f / (f[1])), np.round(ftr.extra["frequencies"] / f[1]))
+
     def bandpass(v):
         F = np.fft.rfft(v)
         F[~keep] = 0.0
         return np.fft.irfft(F, N)
+
     Xb = pd.DataFrame({c: bandpass(X[c].to_numpy()) for c in X.columns}, index=X.index)
     ols_band = LeastSquares().fit(Xb, bandpass(y))
     np.testing.assert_allclose(ftr.values, ols_band.values, rtol=1e-9, atol=1e-12)

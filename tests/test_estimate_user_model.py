@@ -1,6 +1,7 @@
 """``fsid estimate LOG --model FILE.py:NAME``: a user model on a simulated log written by the
 product's own writers (no mocks), its one-line errors, and where the built-in models get
 the aircraft and the sensor positions from (pipeline.aircraft_setup)."""
+
 import json
 import shutil
 import textwrap
@@ -76,8 +77,7 @@ def flight(tmp_path_factory):
     from pipeline.writers import write_dataflash, write_mcap, write_truth_json
 
     out = tmp_path_factory.mktemp("sim")
-    result = sim.fly(sim.load_scenario(SCENARIOS / "longitudinal_3211_calm.toml"), seed=4,
-                     workdir=out / ".jsbsim")
+    result = sim.fly(sim.load_scenario(SCENARIOS / "longitudinal_3211_calm.toml"), seed=4, workdir=out / ".jsbsim")
     write_mcap(out / "flight.mcap", result)
     write_dataflash(out / "flight.bin", result, airspeed="eas")
     write_truth_json(out / "truth.json", result)
@@ -92,9 +92,16 @@ def _estimate(capsys, *args):
 
 def test_user_model_output_error_from_the_log(flight, tmp_path, capsys):
     out = tmp_path / "o"
-    code, err = _estimate(capsys, flight / "flight.mcap", "--model",
-                          f"{flight / 'sp_user.py'}:short_period_user", "--method", "oem",
-                          "--out", out)
+    code, err = _estimate(
+        capsys,
+        flight / "flight.mcap",
+        "--model",
+        f"{flight / 'sp_user.py'}:short_period_user",
+        "--method",
+        "oem",
+        "--out",
+        out,
+    )
     assert code == 0, err
     rep = json.loads((out / "report.json").read_text())
     assert rep["meta"]["model"].endswith("sp_user.py:short_period_user")
@@ -104,7 +111,7 @@ def test_user_model_output_error_from_the_log(flight, tmp_path, capsys):
     assert {"CLalpha", "CLde", "Cmalpha", "Cmq", "Cmde", "de0[0]", "bias_az[1]"} <= set(p)
     doc = json.loads((flight / "truth.json").read_text())
     truth = doc["derivatives"]
-    assert p["Cmq"]["truth"] == truth["Cmq"]           # truth.json next to the log -> report
+    assert p["Cmq"]["truth"] == truth["Cmq"]  # truth.json next to the log -> report
     # The linear short-period model leaves out the airspeed and pitch-attitude changes the
     # 3-2-1-1s cause (phugoid onset, gravity): measured on this flight (seed 4) Cmalpha
     # -0.355 (truth -0.38, 7 %), Cmq -4.63 (-3.6, 29 %), Cmde -0.492 (-0.5, 2 %),
@@ -118,13 +125,16 @@ def test_user_model_output_error_from_the_log(flight, tmp_path, capsys):
     assert (out / "report.md").stat().st_size > 0 and (out / "run.rrd").stat().st_size > 0
 
 
-@pytest.mark.parametrize("spec, words", [
-    ("missing.py:short_period_user", ["missing.py", "not found"]),
-    ("sp_user.py:nothing_here", ["defines no 'nothing_here'", "short_period_user"]),
-    ("sp_user.py:NOT_A_MODEL", ["is a int, not an estimators.Model"]),
-    ("sp_user.py:with_qdot", ["output(s) qdot not in the log", "the log has", "alpha"]),
-    ("sp_user.py", ["path/to/file.py:name"]),
-])
+@pytest.mark.parametrize(
+    "spec, words",
+    [
+        ("missing.py:short_period_user", ["missing.py", "not found"]),
+        ("sp_user.py:nothing_here", ["defines no 'nothing_here'", "short_period_user"]),
+        ("sp_user.py:NOT_A_MODEL", ["is a int, not an estimators.Model"]),
+        ("sp_user.py:with_qdot", ["output(s) qdot not in the log", "the log has", "alpha"]),
+        ("sp_user.py", ["path/to/file.py:name"]),
+    ],
+)
 def test_user_model_errors_are_one_line(flight, tmp_path, capsys, spec, words):
     spec = str(flight / spec)
     code, err = _estimate(capsys, flight / "flight.mcap", "--model", spec, "--out", tmp_path / "o")
@@ -135,14 +145,21 @@ def test_user_model_errors_are_one_line(flight, tmp_path, capsys, spec, words):
 
 
 def test_equation_error_is_refused_for_a_user_model(flight, tmp_path, capsys):
-    code, err = _estimate(capsys, flight / "flight.mcap", "--model",
-                          f"{flight / 'sp_user.py'}:short_period_user", "--method", "ls",
-                          "--out", tmp_path / "o")
+    code, err = _estimate(
+        capsys,
+        flight / "flight.mcap",
+        "--model",
+        f"{flight / 'sp_user.py'}:short_period_user",
+        "--method",
+        "ls",
+        "--out",
+        tmp_path / "o",
+    )
     assert code != 0 and len(err) == 1 and "not available for a user model" in err[0]
 
 
 def test_builtin_model_needs_an_aircraft_without_truth_json(flight, tmp_path, capsys):
-    shutil.copy(flight / "flight.mcap", tmp_path / "flight.mcap")     # no truth.json here
+    shutil.copy(flight / "flight.mcap", tmp_path / "flight.mcap")  # no truth.json here
     code, err = _estimate(capsys, tmp_path / "flight.mcap", "--out", tmp_path / "o")
     assert code != 0 and len(err) == 1 and err[0].startswith("fsid: error:")
     assert "--aircraft" in err[0]
@@ -157,16 +174,18 @@ def _aircraft(tmp_path, extra=""):
 def test_sensor_positions_precedence(flight, tmp_path):
     said = []
     # 1. the aircraft TOML's [sensors] table beats truth.json next to the log
-    ac_toml = _aircraft(tmp_path, """
+    ac_toml = _aircraft(
+        tmp_path,
+        """
         [sensors.airdata]
         position_m = [1.0, 0.0, 0.05]
-        """)
+        """,
+    )
     fd_mcap = read_log(flight / "flight.mcap")
-    ac, name, truth = aircraft_for_log(flight / "flight.mcap", ac_toml, fd_mcap, required=True,
-                                       say=said.append)
+    ac, name, truth = aircraft_for_log(flight / "flight.mcap", ac_toml, fd_mcap, required=True, say=said.append)
     assert name == "uav_small" and truth is not None
     assert ac.airdata == (1.0, 0.0, 0.05)
-    assert ac.imu == pytest.approx((0.10, 0.0, 0.02))                # 2. truth.json (sensors.imu)
+    assert ac.imu == pytest.approx((0.10, 0.0, 0.02))  # 2. truth.json (sensors.imu)
     # no --aircraft: the aircraft and both positions from truth.json, and it says so
     said.clear()
     ac, _, _ = aircraft_for_log(flight / "flight.mcap", None, fd_mcap, required=True, say=said.append)
@@ -186,8 +205,9 @@ def test_sensor_positions_precedence(flight, tmp_path):
     # 4. nothing known: zeros and a note that the vane is assumed at the CG
     shutil.copy(flight / "flight.mcap", alone / "flight.mcap")
     said.clear()
-    ac, _, _ = aircraft_for_log(alone / "flight.mcap", UAV, read_log(alone / "flight.mcap"),
-                                required=True, say=said.append)
+    ac, _, _ = aircraft_for_log(
+        alone / "flight.mcap", UAV, read_log(alone / "flight.mcap"), required=True, say=said.append
+    )
     assert ac.airdata == (0.0, 0.0, 0.0) and ac.imu == (0.0, 0.0, 0.0)
     assert any("vane/boom assumed at the CG" in s for s in said)
     # a user model needs no aircraft
@@ -195,20 +215,36 @@ def test_sensor_positions_precedence(flight, tmp_path):
 
 
 def test_aircraft_sensor_table_is_checked(tmp_path):
-    bad = _aircraft(tmp_path, """
+    bad = _aircraft(
+        tmp_path,
+        """
         [sensors.airdata]
         position_m = [1.0, 0.0]
-        """)
+        """,
+    )
     with pytest.raises(FsidError, match=r"sensors\.airdata\.position_m: must be \[x, y, z\]"):
         aircraft_for_log(tmp_path / "x.mcap", bad, None, required=True)
 
 
 def test_proof_of_match_options_reach_the_report(flight, tmp_path, capsys):
     out = tmp_path / "o"
-    code, err = _estimate(capsys, flight / "flight.mcap", "--model",
-                          f"{flight / 'sp_user.py'}:short_period_user", "--method", "oem",
-                          "--no-compat", "--band-rate", "0.05", "--band-accel", "0.2",
-                          "--proof-of-match", "air-data", "--out", out)
+    code, err = _estimate(
+        capsys,
+        flight / "flight.mcap",
+        "--model",
+        f"{flight / 'sp_user.py'}:short_period_user",
+        "--method",
+        "oem",
+        "--no-compat",
+        "--band-rate",
+        "0.05",
+        "--band-accel",
+        "0.2",
+        "--proof-of-match",
+        "air-data",
+        "--out",
+        out,
+    )
     assert code == 0, err
     pm = json.loads((out / "report.json").read_text())["methods"]["oem"]["validation"]["proof_of_match"]
     assert pm["mode"] == "air-data" and pm["driven"] == ["alpha"]
@@ -222,8 +258,9 @@ def test_proof_of_match_options_reach_the_report(flight, tmp_path, capsys):
 
 
 def test_a_non_positive_band_is_one_line(flight, tmp_path, capsys):
-    code, err = _estimate(capsys, flight / "flight.mcap", "--model", "longitudinal",
-                          "--band-rate", "-1", "--out", tmp_path / "o")
+    code, err = _estimate(
+        capsys, flight / "flight.mcap", "--model", "longitudinal", "--band-rate", "-1", "--out", tmp_path / "o"
+    )
     assert code != 0 and len(err) == 1 and err[0].startswith("fsid: error:")
     assert "band rate_deg_s must be > 0" in err[0]
 
@@ -234,9 +271,18 @@ def test_progress_counts_every_stage_once(flight, tmp_path, capsys):
     stage applies), n running 1..N."""
     import re
 
-    code = main(["estimate", str(flight / "flight.mcap"), "--model",
-                 f"{flight / 'sp_user.py'}:short_period_user", "--method", "oem",
-                 "--out", str(tmp_path / "o")])
+    code = main(
+        [
+            "estimate",
+            str(flight / "flight.mcap"),
+            "--model",
+            f"{flight / 'sp_user.py'}:short_period_user",
+            "--method",
+            "oem",
+            "--out",
+            str(tmp_path / "o"),
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 0, err
     stages = [(int(a), int(b)) for a, b in re.findall(r"^\[(\d+)/(\d+)\]", err, flags=re.M)]

@@ -1,13 +1,13 @@
 """Filter-error method: linear and nonlinear forms in turbulence, Riccati/discretisation
 pieces against scipy, reduction to output error in calm air."""
+
 import numpy as np
 import pytest
 from scipy import integrate, linalg
 
 from estimators import EstimationResult, FilterError, OutputError
 from estimators.fem import continuous_gain, discretize, expm, input_integrals
-from estimators.process_noise_examples import (turbulent_longitudinal_example,
-                                               turbulent_short_period_example)
+from estimators.process_noise_examples import turbulent_longitudinal_example, turbulent_short_period_example
 
 
 def within(res, truth, k=3.0):
@@ -45,7 +45,7 @@ def test_linear_fem_in_turbulence_recovers_parameters_and_noise(sp, fem):
 
 def test_fem_result_contents(sp, fem):
     assert fem.free_names[-2:] == ["F_alpha", "F_q"]
-    assert not any(n.startswith("G_") for n in fem.names)     # R is not a parameter
+    assert not any(n.startswith("G_") for n in fem.names)  # R is not a parameter
     K = fem.extra["gain"][0]
     assert K.shape == (2, 4) and np.all(np.isfinite(K))
     seg = sp.segments[1]
@@ -54,8 +54,7 @@ def test_fem_result_contents(sp, fem):
     Bm = fem.extra["innovation_cov"][0]
     np.testing.assert_allclose(np.diag(fem.R), np.diag(Bm), rtol=0.15)
     # the measurement noise the gain implies, R - C P C^T, against the simulated noise
-    np.testing.assert_allclose(np.sqrt(np.diag(fem.extra["measurement_noise"])), sp.noise_std,
-                               rtol=0.25)
+    np.testing.assert_allclose(np.sqrt(np.diag(fem.extra["measurement_noise"])), sp.noise_std, rtol=0.25)
     assert fem.extra["F"][0, 0] == pytest.approx(fem.params["F_alpha"])
     text = fem.summary(truth=sp.truth)
     assert "FEM" in text and "F_alpha" in text
@@ -65,7 +64,7 @@ def test_riccati_and_discretisation_match_scipy():
     rng = np.random.default_rng(0)
     n, m, h = 3, 2, 0.05
     A = rng.standard_normal((n, n))
-    A[0, 0] = 1.5                                    # unstable is fine
+    A[0, 0] = 1.5  # unstable is fine
     FF = np.diag([0.1, 0.0, 0.3]) ** 2
     Phi, Gam, Qd = discretize(A, FF, h)
     np.testing.assert_allclose(Phi, linalg.expm(A * h), rtol=1e-12)
@@ -73,8 +72,9 @@ def test_riccati_and_discretisation_match_scipy():
     ts = np.linspace(0, h, 2001)
     E = np.array([linalg.expm(A * s) for s in ts])
     np.testing.assert_allclose(Gam, integrate.simpson(E, x=ts, axis=0), rtol=1e-8)
-    np.testing.assert_allclose(Qd, integrate.simpson(E @ FF @ E.transpose(0, 2, 1), x=ts, axis=0),
-                               rtol=1e-7, atol=1e-14)
+    np.testing.assert_allclose(
+        Qd, integrate.simpson(E @ FF @ E.transpose(0, 2, 1), x=ts, axis=0), rtol=1e-7, atol=1e-14
+    )
     # first-order hold: Gamma1 = int e^{A(h-s)} s/h ds
     Phi1, G0, G1 = input_integrals(A, h)
     E1 = np.array([linalg.expm(A * (h - s)) * s / h for s in ts])
@@ -96,8 +96,9 @@ def test_riccati_and_discretisation_match_scipy():
 def test_without_process_noise_fem_is_output_error():
     calm = turbulent_short_period_example(seed=4, sigma_alpha=0.0, sigma_q=0.0)
     # output error's R is diagonal: so is this filter error's
-    fem = FilterError(calm.model, process_noise={"alpha": 0.0, "q": 0.0}, estimate_F=False,
-                      full_R=False).fit(calm.segments)
+    fem = FilterError(calm.model, process_noise={"alpha": 0.0, "q": 0.0}, estimate_F=False, full_R=False).fit(
+        calm.segments
+    )
     oem = OutputError(calm.model).fit(calm.segments)
     names = oem.free_names
     d = (fem.params[names] - oem.params[names]).abs() / oem.std[names]
@@ -122,7 +123,7 @@ def test_compiled_filter_loop_with_selected_outputs():
     from estimators.fem import output_kernel
 
     ex = turbulent_longitudinal_example(seed=5, n=300)
-    keep = [o for o in ex.model.outputs if o != "qdot"][::-1]      # a subset, reordered
+    keep = [o for o in ex.model.outputs if o != "qdot"][::-1]  # a subset, reordered
     rows = [ex.model.outputs.index(o) for o in keep]
     model = ex.model.select_outputs(keep).select_outputs(keep[1:])  # twice: composed
     segs = [Segment(t=s.t, u=s.u, z=s.z[:, rows[1:]], x0=s.x0) for s in ex.segments]
@@ -149,8 +150,8 @@ def test_coloured_innovation_bounds(sp, fem):
     mk = {n: np.sqrt(short.extra["mk_cov"][i, i]) for i, n in enumerate(names)}
     crb_err = {n: abs(short.params[n] - v) / short.std[n] for n, v in truth.items()}
     mk_err = {n: abs(short.params[n] - v) / mk[n] for n, v in truth.items()}
-    assert max(crb_err.values()) > 4.0, crb_err             # the bound the model believes
-    assert max(mk_err.values()) < 3.0, mk_err               # the bound the innovations give
+    assert max(crb_err.values()) > 4.0, crb_err  # the bound the model believes
+    assert max(mk_err.values()) < 3.0, mk_err  # the bound the innovations give
     assert min(mk[n] / short.std[n] for n in ("Cmalpha", "Cmq", "Cmde")) > 2.0
 
 
@@ -165,10 +166,11 @@ def test_multi_rate_outputs_keep_their_information(sp, fem, form):
     measured outputs)."""
     from estimators import Segment
     from estimators.fem import output_patterns, pattern_gains
+
     segs = []
     for s in sp.segments:
         z = s.z.copy()
-        z[np.arange(s.n) % 5 != 0, 0] = np.nan               # the first output at 1/5 the rate
+        z[np.arange(s.n) % 5 != 0, 0] = np.nan  # the first output at 1/5 the rate
         segs.append(Segment(t=s.t, u=s.u, z=z, x0=s.x0, name=s.name))
     res = FilterError(sp.model, process_noise={"alpha": 0.01, "q": 0.01}, form=form).fit(segs)
     assert res.converged

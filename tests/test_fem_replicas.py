@@ -3,12 +3,12 @@
 recovers the truth (the reference's estimates) within 3 std, process noise included, and
 fails, if at all, only with a typed EstimationError. The scatter over seeds against the
 reported std is benchmarks/fem_replicas.py's."""
+
 import numpy as np
 import pytest
 
 from estimators import EstimationError, FilterError
-from estimators.replicas import (HFB320_F_START, LATERAL_F_START, hfb320_replica,
-                                 lateral_replica)
+from estimators.replicas import HFB320_F_START, LATERAL_F_START, hfb320_replica, lateral_replica
 
 CASES = {"hfb320": (hfb320_replica, HFB320_F_START), "lateral": (lateral_replica, LATERAL_F_START)}
 
@@ -23,7 +23,7 @@ def test_replica_recovers_truth(case):
     ex = make(0)
     res = FilterError(ex.model, process_noise=f_start).fit(ex.segments)
     assert res.converged, res.message
-    assert not any(n.startswith("G_") for n in res.names)        # R is not a parameter
+    assert not any(n.startswith("G_") for n in res.names)  # R is not a parameter
     off = {n: abs(res.params[n] - v) / res.std[n] for n, v in _truth(ex).items()}
     assert max(off.values()) < 3.0, {n: round(v, 2) for n, v in off.items() if v >= 3.0}
     # the process noise moved from its start to the truth: F_V from 0.02 to 0.36 m/s/sqrt(s)
@@ -31,8 +31,7 @@ def test_replica_recovers_truth(case):
     assert abs(res.params[f_name] - f_start[f_name[2:]]) > 5 * res.std[f_name]
     # R is the innovations' covariance at the estimates
     E = np.concatenate([r.to_numpy() for r in res.residuals])
-    np.testing.assert_allclose(np.diag(res.extra["innovation_cov"][0]), np.mean(E ** 2, axis=0),
-                               rtol=0.02)
+    np.testing.assert_allclose(np.diag(res.extra["innovation_cov"][0]), np.mean(E**2, axis=0), rtol=0.02)
     assert np.all(np.diag(res.extra["measurement_noise"]) >= 0.0)
 
 
@@ -44,8 +43,7 @@ def test_replica_from_a_hostile_start_fails_typed_or_fits(case):
     ex = make(3)
     F = {s: 20 * ex.process_noise[i, i] for i, s in enumerate(ex.model.states)}
     try:
-        res = FilterError(ex.model, process_noise=F,
-                          measurement_noise=ex.noise_std / 100).fit(ex.segments)
+        res = FilterError(ex.model, process_noise=F, measurement_noise=ex.noise_std / 100).fit(ex.segments)
     except EstimationError:
         return
     assert np.all(np.isfinite(res.params.to_numpy()))
@@ -56,8 +54,9 @@ def test_diagonal_R_is_the_reference_option():
     full = FilterError(ex.model, process_noise=HFB320_F_START).fit(ex.segments)
     diag = FilterError(ex.model, process_noise=HFB320_F_START, full_R=False).fit(ex.segments)
     R = diag.extra["innovation_cov"][0]
-    assert np.all(R == np.diag(np.diag(R))) and np.any(full.extra["innovation_cov"][0] != np.diag(
-        np.diag(full.extra["innovation_cov"][0])))
+    assert np.all(R == np.diag(np.diag(R))) and np.any(
+        full.extra["innovation_cov"][0] != np.diag(np.diag(full.extra["innovation_cov"][0]))
+    )
     # the derivatives agree; the process noise of the diagonal R makes up for the
     # correlations it ignores
     d = max(abs(full.params[n] - diag.params[n]) / full.std[n] for n in ex.truth)

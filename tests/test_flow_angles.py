@@ -13,6 +13,7 @@ passes. Before the compatibility model had the wind, this flight had bias_az, sc
 bias_V, bias_beta, scale_beta and delay_air "significant" and applied, and Cmalpha 44,
 CLalpha 40 std off.
 """
+
 from __future__ import annotations
 
 import json
@@ -23,14 +24,22 @@ import pytest
 
 from pipeline.errors import FsidError
 from pipeline.flightdata import Channel, FlightData
-from pipeline.flow_angles import (SCALE_STD_MAX, _body_axes, correlation_time, fit_wind,
-                                  markov_mean_std, reconstruct_flow_angles, wind_uncertainty)
+from pipeline.flow_angles import (
+    SCALE_STD_MAX,
+    _body_axes,
+    correlation_time,
+    fit_wind,
+    markov_mean_std,
+    reconstruct_flow_angles,
+    wind_uncertainty,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _kinematics(seed: int, turn_rate: float, n: int = 3000, V: float = 25.0,
-                wind=(3.0, -6.0), beta_std=np.deg2rad(1.0)):
+def _kinematics(
+    seed: int, turn_rate: float, n: int = 3000, V: float = 25.0, wind=(3.0, -6.0), beta_std=np.deg2rad(1.0)
+):
     """A flight at 10 Hz with a known wind: heading turning at turn_rate (rad/s), bank
     for it, alpha 4 deg, a random sideslip; returns t, vg (n, 3), V (n,), axes, truth."""
     rng = np.random.default_rng(seed)
@@ -42,7 +51,7 @@ def _kinematics(seed: int, turn_rate: float, n: int = 3000, V: float = 25.0,
     beta = beta_std * np.sin(0.7 * t + rng.uniform(0, 6)) + 0.3 * beta_std * rng.standard_normal(n)
     vb = V * np.column_stack([np.cos(alpha) * np.cos(beta), np.sin(beta), np.sin(alpha) * np.cos(beta)])
     axes = _body_axes(phi, theta, psi)
-    va = np.einsum("nji,nj->ni", axes, vb)            # body -> NED: transpose of T_bn
+    va = np.einsum("nji,nj->ni", axes, vb)  # body -> NED: transpose of T_bn
     vg = va + np.array([wind[0], wind[1], 0.0]) + 0.1 * rng.standard_normal((n, 3))
     Vm = V + 0.3 * rng.standard_normal(n)
     return t, vg, Vm, axes, {"phi": phi, "theta": theta, "psi": psi, "alpha": alpha, "beta": beta}
@@ -57,7 +66,7 @@ def test_wind_fit_recovers_a_known_wind(turn_rate):
     en, ee = (w.north[0] - 3.0) / w.std_north[0], (w.east[0] + 6.0) / w.std_east[0]
     assert abs(en) < 3.0 and abs(ee) < 3.0, (w.north, w.east, w.std_north, w.std_east)
     assert max(w.std_north[0], w.std_east[0]) < 0.3
-    assert 0.2 < w.airspeed_rms < 0.5          # the 0.3 m/s pitot noise
+    assert 0.2 < w.airspeed_rms < 0.5  # the 0.3 m/s pitot noise
 
 
 def test_wind_fit_follows_a_changing_wind():
@@ -92,7 +101,7 @@ def test_wind_fit_estimates_a_pitot_scale_factor_in_a_turn(seed):
     assert abs(w.north[0] - 3.0) < 3 * w.std_north[0] and abs(w.east[0] + 6.0) < 3 * w.std_east[0]
     held = fit_wind(t, vg, 1.03 * V, axes, window_s=1e9)
     assert not held.scale_estimated and held.scale == 0.0
-    assert held.airspeed_rms > 2 * w.airspeed_rms          # 0.75 m/s of scale error in it
+    assert held.airspeed_rms > 2 * w.airspeed_rms  # 0.75 m/s of scale error in it
 
 
 def test_wind_fit_leaves_the_scale_factor_alone_in_straight_flight():
@@ -101,7 +110,7 @@ def test_wind_fit_leaves_the_scale_factor_alone_in_straight_flight():
     t, vg, V, axes, _ = _kinematics(3, 0.0)
     w = fit_wind(t, vg, 1.03 * V, axes, window_s=1e9, scale=None)
     assert not w.scale_estimated and w.scale == 0.0 and w.std_scale > SCALE_STD_MAX
-    assert w.north[0] - 3.0 == pytest.approx(-0.03 * 25.0, abs=0.05)   # the tail wind took it
+    assert w.north[0] - 3.0 == pytest.approx(-0.03 * 25.0, abs=0.05)  # the tail wind took it
 
 
 def test_rebuilt_flight_carries_the_calibrated_airspeed():
@@ -110,7 +119,7 @@ def test_rebuilt_flight_carries_the_calibrated_airspeed():
     out, doc = reconstruct_flow_angles(fd)
     cal = doc["airspeed_scale"]
     assert cal["status"] == "estimated" and cal["applied"] and abs(cal["estimate"] - 0.03) < 3 * cal["std"]
-    assert np.array_equal(fd["V"].values, 1.03 * V)               # the input is not modified
+    assert np.array_equal(fd["V"].values, 1.03 * V)  # the input is not modified
     assert np.allclose(out["V"].values, 1.03 * V / (1 + cal["estimate"]))
     assert "calibrated" in out["V"].notes and "/ (1 + 0.03" in out["V"].source
     assert wind_uncertainty(doc, [(0.0, 300.0)])["airspeed scale"] == cal["std"]
@@ -120,7 +129,7 @@ def test_rebuilt_flight_carries_the_calibrated_airspeed():
     moved, mdoc = reconstruct_flow_angles(fd, wind_offset=(0.0, 0.0, 0.0, 0.01))
     assert np.allclose(moved["V"].values, 1.03 * V / (1 + cal["estimate"] + 0.01))
     assert mdoc["airspeed_scale_offset"] == 0.01
-    assert mdoc["wind"]["north_mps"][0] != doc["wind"]["north_mps"][0]   # the wind refitted
+    assert mdoc["wind"]["north_mps"][0] != doc["wind"]["north_mps"][0]  # the wind refitted
     # a straight flight: not identifiable, the airspeed as logged, nothing carried
     t, vg, V, _, tr = _kinematics(5, 0.0)
     out, doc = reconstruct_flow_angles(_flight(t, vg, V, tr))
@@ -137,12 +146,24 @@ def test_airspeed_calibration_rules():
 
     def fit(k, sd):
         z = np.zeros(1)
-        return WindFit(knots=z, north=z, east=z, std_north=z, std_east=z, airspeed_rms=0.3,
-                       beta_rms=0.01, n=100, scale=k, std_scale=sd, scale_estimated=True)
+        return WindFit(
+            knots=z,
+            north=z,
+            east=z,
+            std_north=z,
+            std_east=z,
+            airspeed_rms=0.3,
+            beta_rms=0.01,
+            n=100,
+            scale=k,
+            std_scale=sd,
+            scale_estimated=True,
+        )
+
     assert airspeed_calibration(fit(-0.03, 0.025))["status"] == "not identifiable"
     cal = airspeed_calibration(fit(0.05, 0.01))
     assert cal["status"] == "estimated" and cal["applied"] and cal["significance_std"] == pytest.approx(5.0)
-    assert not airspeed_calibration(fit(0.02, 0.01))["applied"]          # 2 std
+    assert not airspeed_calibration(fit(0.02, 0.01))["applied"]  # 2 std
     wild = airspeed_calibration(fit(SCALE_MAX + 0.05, 0.01))
     assert wild["status"] == "implausible" and not wild["applied"] and not wild["carried"]
 
@@ -170,7 +191,7 @@ def test_rebuilt_angles_match_the_true_ones_and_leave_the_input_alone():
     t, vg, V, _, tr = _kinematics(5, 0.05)
     fd = _flight(t, vg, V, tr)
     out, doc = reconstruct_flow_angles(fd)
-    assert "alpha" not in fd and "beta" not in fd             # the input is not modified
+    assert "alpha" not in fd and "beta" not in fd  # the input is not modified
     assert doc["status"] == "reconstructed" and doc["channels"] == ["alpha", "beta"]
     for k in ("alpha", "beta"):
         e = out[k].values - np.interp(out[k].t, t, tr[k])
@@ -185,7 +206,7 @@ def test_a_vertical_wind_shifts_the_rebuilt_alpha_by_w_over_v():
     """The reconstruction assumes no vertical wind: in a 1 m/s down-wind the rebuilt alpha
     sits 1/25 rad too high; rebuilt with the wind offset (0, 0, 1) it is the true one."""
     t, vg, V, _, tr = _kinematics(5, 0.05)
-    vg = vg + np.array([0.0, 0.0, 1.0])          # air moving down at 1 m/s
+    vg = vg + np.array([0.0, 0.0, 1.0])  # air moving down at 1 m/s
     fd = _flight(t, vg, V, tr)
     for offset, bias in (((0.0, 0.0, 0.0), 1.0 / 25.0), ((0.0, 0.0, 1.0), 0.0)):
         out, doc = reconstruct_flow_angles(fd, wind_offset=offset)
@@ -215,7 +236,7 @@ def test_mean_of_a_markov_process_over_spans():
     for k in range(1, n):
         x[:, k] = a * x[:, k - 1] + w[:, k]
     t = np.arange(n) * dt
-    m = (t < 5.0) | (t >= 7.0)                   # spans [0, 5) and [7, 12)
+    m = (t < 5.0) | (t >= 7.0)  # spans [0, 5) and [7, 12)
     mc = x[:, m].mean(axis=1).std()
     assert markov_mean_std(s, tau, [(0.0, 5.0), (7.0, 12.0)]) == pytest.approx(mc, rel=0.04), mc
 
@@ -238,19 +259,23 @@ def test_correlation_time_of_a_gust_under_white_noise():
 def test_wind_uncertainty_from_the_airspeed_residual():
     """The vertical wind's std: the airspeed residual above the pitot noise (sqrt(2.5^2 -
     1.5^2) = 2 m/s) as the gust level, its correlation time, over the fitted spans."""
-    doc = {"status": "reconstructed", "airspeed_residual_rms_mps": 2.5, "airspeed_noise_mps": 1.5,
-           "airspeed_residual_tau_s": 8.0,
-           "wind": {"std_north_mps": [0.2, 0.4], "std_east_mps": [0.3, 0.3]}}
+    doc = {
+        "status": "reconstructed",
+        "airspeed_residual_rms_mps": 2.5,
+        "airspeed_noise_mps": 1.5,
+        "airspeed_residual_tau_s": 8.0,
+        "wind": {"std_north_mps": [0.2, 0.4], "std_east_mps": [0.3, 0.3]},
+    }
     u = wind_uncertainty(doc, [(0.0, 60.0), (100.0, 160.0)])
     assert u["wind north"] == pytest.approx(0.3) and u["wind east"] == pytest.approx(0.3)
     assert u["vertical wind"] == pytest.approx(markov_mean_std(2.0, 8.0, [(0.0, 60.0), (100.0, 160.0)]))
     assert 0.2 < u["vertical wind"] < 2.0 * np.sqrt(2 * 8.0 / 120.0)
     # a residual slower than the vertical gust's largest scale (533.4 m at 25 m/s: 21.3 s)
     # is the horizontal wind changing: the time constant stops there
-    slow = wind_uncertainty({**doc, "airspeed_residual_tau_s": 300.0, "airspeed_mean_mps": 25.0},
-                            [(0.0, 60.0), (100.0, 160.0)])
-    assert slow["vertical wind"] == pytest.approx(
-        markov_mean_std(2.0, 533.4 / 25.0, [(0.0, 60.0), (100.0, 160.0)]))
+    slow = wind_uncertainty(
+        {**doc, "airspeed_residual_tau_s": 300.0, "airspeed_mean_mps": 25.0}, [(0.0, 60.0), (100.0, 160.0)]
+    )
+    assert slow["vertical wind"] == pytest.approx(markov_mean_std(2.0, 533.4 / 25.0, [(0.0, 60.0), (100.0, 160.0)]))
     assert wind_uncertainty({"status": "not needed"}, [(0.0, 1.0)]) == {}
 
 
@@ -279,8 +304,7 @@ def _fly_in_wind(d: Path, scenario: str):
     (d / "windy.toml").write_text(src + "\n[wind]\nnorth_mps = -4.0\neast_mps = 5.0\n")
     run_dir, result = simulate(d / "windy.toml", d / "run", progress=False)
     fd = read_log(run_dir / "flight.mcap")
-    (d / "novane.toml").write_text(plain_map_toml(fd, "fsid_mcap_without_vanes", ["mcap"],
-                                                  drop=("alpha", "beta")))
+    (d / "novane.toml").write_text(plain_map_toml(fd, "fsid_mcap_without_vanes", ["mcap"], drop=("alpha", "beta")))
     return run_dir, result
 
 
@@ -307,8 +331,14 @@ def test_estimate_without_vanes_in_wind(windy):
     from pipeline.run import estimate_log
 
     d, run_dir, _ = windy
-    estimate_log(run_dir / "flight.mcap", d / "est", map_path=str(d / "novane.toml"),
-                 methods=["oem"], model="longitudinal", quiet=True)
+    estimate_log(
+        run_dir / "flight.mcap",
+        d / "est",
+        map_path=str(d / "novane.toml"),
+        methods=["oem"],
+        model="longitudinal",
+        quiet=True,
+    )
     rep = json.loads((d / "est" / "report.json").read_text())
     flow = rep["meta"]["flow_angles"]
     assert flow["channels"] == ["alpha", "beta"]
@@ -323,8 +353,11 @@ def test_estimate_without_vanes_in_wind(windy):
     assert comp["status"] == "ok" and comp["wind_note"].startswith("wind held at north -3.99, east 5.00")
     assert comp["scope"].startswith("IMU errors only")
     m = rep["methods"]["oem"]
-    errs = {k: round(abs(v["error_in_std"]), 2) for k, v in m["parameters"].items()
-            if v.get("error_in_std") is not None and "[" not in k}
+    errs = {
+        k: round(abs(v["error_in_std"]), 2)
+        for k, v in m["parameters"].items()
+        if v.get("error_in_std") is not None and "[" not in k
+    }
     assert len(errs) == 11 and max(errs.values()) < 3.0, errs
     assert m["validation"]["proof_of_match"]["all_pass"]
 
@@ -341,8 +374,14 @@ def test_estimate_without_vanes_in_wind_and_turbulence(tmp_path):
     from pipeline.run import estimate_log
 
     run_dir, _ = _fly_in_wind(tmp_path, "longitudinal_3211_turbulence")
-    estimate_log(run_dir / "flight.mcap", tmp_path / "est", map_path=str(tmp_path / "novane.toml"),
-                 methods=["fem"], model="longitudinal", quiet=True)
+    estimate_log(
+        run_dir / "flight.mcap",
+        tmp_path / "est",
+        map_path=str(tmp_path / "novane.toml"),
+        methods=["fem"],
+        model="longitudinal",
+        quiet=True,
+    )
     rep = json.loads((tmp_path / "est" / "report.json").read_text())
     flow = rep["meta"]["flow_angles"]
     assert flow["airspeed_residual_rms_mps"] > 1.5 * flow["airspeed_noise_mps"]
@@ -350,8 +389,11 @@ def test_estimate_without_vanes_in_wind_and_turbulence(tmp_path):
     assert comp["applied"] == {} and comp["data_for_estimation"] == "as logged"
     assert "turbulence" in comp["note"] and comp["scope"].startswith("IMU errors only")
     m = rep["methods"]["fem"]
-    errs = {k: round(abs(v["error_in_std"]), 2) for k, v in m["parameters"].items()
-            if v.get("error_in_std") is not None and "[" not in k}
+    errs = {
+        k: round(abs(v["error_in_std"]), 2)
+        for k, v in m["parameters"].items()
+        if v.get("error_in_std") is not None and "[" not in k
+    }
     assert m["model"] == "longitudinal-measured"
     assert m["converged"] and len(errs) == 11 and max(errs.values()) < 3.0, errs
 
@@ -396,8 +438,17 @@ def test_gust_models_measure_a_rebuilt_angle_as_the_rigid_bodys(axis):
     from estimators.models.lateral import lateral_measured_longitudinal
     from estimators.models.longitudinal import longitudinal_measured_lateral
 
-    base = {"m": 1000.0, "Ixx": 1300.0, "Iyy": 1800.0, "Izz": 2600.0, "Ixz": 0.0, "S": 16.0,
-            "cbar": 1.5, "b": 11.0, "rho": 1.1}
+    base = {
+        "m": 1000.0,
+        "Ixx": 1300.0,
+        "Iyy": 1800.0,
+        "Izz": 2600.0,
+        "Ixz": 0.0,
+        "S": 16.0,
+        "cbar": 1.5,
+        "b": 11.0,
+        "rho": 1.1,
+    }
     if axis == "longitudinal":
         build, k, ik = longitudinal_measured_lateral, 1, 4
         x = np.array([60.0, 0.08, 0.05, 0.02, 0.06, 0.01, 0.003])

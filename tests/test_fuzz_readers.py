@@ -5,10 +5,10 @@ bytes, zeroed blocks, spliced garbage). The only exception allowed out of ``read
 the documented :class:`pipeline.readers.LogReadError`; and when a file is merely cut
 short, every record that lies wholly before the cut is kept.
 """
+
 from __future__ import annotations
 
 import os
-import struct
 import tempfile
 from pathlib import Path
 
@@ -19,26 +19,30 @@ from hypothesis import strategies as st
 
 from pipeline.flightdata import FlightData
 from pipeline.readers import LogReadError, read_log
-from pipeline.readers.synth import (demo_dataflash, encode_tlog, encode_ulog, write_json_mcap)
+from pipeline.readers.synth import demo_dataflash, encode_tlog, encode_ulog, write_json_mcap
 
 N_EXAMPLES = int(os.environ.get("FSID_FUZZ_EXAMPLES", "1000"))
-FUZZ = settings(max_examples=N_EXAMPLES, deadline=None, derandomize=True, database=None,
-                suppress_health_check=list(HealthCheck))
+FUZZ = settings(
+    max_examples=N_EXAMPLES, deadline=None, derandomize=True, database=None, suppress_health_check=list(HealthCheck)
+)
 
 
 def _mcap_bytes() -> bytes:
     with tempfile.TemporaryDirectory() as d:
         p = Path(d) / "s.mcap"
-        write_json_mcap(p, {"/imu": [{"t": i * 0.02, "p": 0.1 * i, "q": 0.0, "r": 1.0}
-                                     for i in range(30)],
-                            "/baro": [{"t": i * 0.1, "h": 10.0} for i in range(6)]})
+        write_json_mcap(
+            p,
+            {
+                "/imu": [{"t": i * 0.02, "p": 0.1 * i, "q": 0.0, "r": 1.0} for i in range(30)],
+                "/baro": [{"t": i * 0.1, "h": 10.0} for i in range(6)],
+            },
+        )
         return p.read_bytes()
 
 
 def _csv_bytes() -> bytes:
     t = np.arange(40) * 0.02
-    return ("t,p,q,phi\n" + "\n".join(f"{a:.2f},{np.sin(a):.5f},{np.cos(a):.5f},0.1" for a in t)
-            + "\n").encode()
+    return ("t,p,q,phi\n" + "\n".join(f"{a:.2f},{np.sin(a):.5f},{np.cos(a):.5f},0.1" for a in t) + "\n").encode()
 
 
 SEEDS = {
@@ -66,12 +70,12 @@ def mutated(draw, fmt: str):
         elif kind == "insert":
             data[i:i] = draw(st.binary(min_size=1, max_size=16))
         elif kind == "delete":
-            del data[i:i + draw(st.integers(1, 16))]
+            del data[i : i + draw(st.integers(1, 16))]
         elif kind == "zero":
             k = draw(st.integers(1, 64))
-            data[i:i + k] = bytes(len(data[i:i + k]))
+            data[i : i + k] = bytes(len(data[i : i + k]))
         else:
-            data[i:i + 8] = draw(st.binary(min_size=8, max_size=8))
+            data[i : i + 8] = draw(st.binary(min_size=8, max_size=8))
     return bytes(data)
 
 
@@ -123,16 +127,16 @@ def _df_offsets(data: bytes) -> list[tuple[int, int, int]]:
     return out
 
 
-@settings(max_examples=150, deadline=None, derandomize=True, database=None,
-          suppress_health_check=list(HealthCheck))
+@settings(max_examples=150, deadline=None, derandomize=True, database=None, suppress_health_check=list(HealthCheck))
 @given(st.integers(0, len(SEEDS["bin"]) - 1))
 def test_truncated_bin_keeps_every_complete_record(tmp_path_factory, cut):
     data = SEEDS["bin"]
     tmp = tmp_path_factory.mktemp("cut")
     fd = _read(tmp, "bin", data[:cut])
     recs = _df_offsets(data)
-    complete_imu0 = sum(1 for o, ln, mid in recs if mid == 0x10 and o + ln <= cut
-                        and data[o + 11] == 0)  # IMU instance byte (after TimeUS) == 0
+    complete_imu0 = sum(
+        1 for o, ln, mid in recs if mid == 0x10 and o + ln <= cut and data[o + 11] == 0
+    )  # IMU instance byte (after TimeUS) == 0
     if fd is None:
         assert complete_imu0 == 0
         return
@@ -142,8 +146,7 @@ def test_truncated_bin_keeps_every_complete_record(tmp_path_factory, cut):
         assert fd.meta["damage"] is not None and fd.meta["damage"]["offset"] < cut
 
 
-@settings(max_examples=100, deadline=None, derandomize=True, database=None,
-          suppress_health_check=list(HealthCheck))
+@settings(max_examples=100, deadline=None, derandomize=True, database=None, suppress_health_check=list(HealthCheck))
 @given(st.integers(0, len(SEEDS["tlog"]) - 1))
 def test_truncated_tlog_keeps_every_complete_packet(tmp_path_factory, cut):
     data = SEEDS["tlog"]
@@ -153,7 +156,7 @@ def test_truncated_tlog_keeps_every_complete_packet(tmp_path_factory, cut):
     i, att = 0, 0
     while i + 10 <= len(data):
         ln = data[i + 9] + 12
-        msgid = int.from_bytes(data[i + 8 + 7:i + 8 + 10], "little")
+        msgid = int.from_bytes(data[i + 8 + 7 : i + 8 + 10], "little")
         if i + 8 + ln <= cut and msgid == 30:  # ATTITUDE
             att += 1
         i += 8 + ln

@@ -1,6 +1,7 @@
 """pipeline.identify.usable_segments: the one place that cuts segment windows out of the
 multi-rate frame, leaves out found segments with gaps and refuses a given one with one clear
 message; pipeline.identify.multirate_frame: slower outputs at their own samples."""
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -12,7 +13,7 @@ from pipeline.identify import usable_segments
 
 def _frame():
     t = np.arange(0.0, 10.0, 0.01)
-    q = np.where(np.arange(t.size) % 4 == 0, np.sin(t), np.nan)      # a 25 Hz output
+    q = np.where(np.arange(t.size) % 4 == 0, np.sin(t), np.nan)  # a 25 Hz output
     return pd.DataFrame({"t": t, "q": q, "de": np.cos(t)})
 
 
@@ -40,15 +41,21 @@ def test_a_found_segment_that_is_unusable_is_left_out_and_named():
     stops with the error, and too few usable segments is one line naming those left out."""
     df = _frame()
     df.loc[250, "de"] = np.nan
-    a, b, c = (SegmentSpec("a", 0.5, 1.5, "auto", axis="de"), SegmentSpec("b", 2.0, 3.0, "auto", axis="de"),
-               SegmentSpec("c", 5.0, 7.0, "mode", mode="FBWA"))
+    a, b, c = (
+        SegmentSpec("a", 0.5, 1.5, "auto", axis="de"),
+        SegmentSpec("b", 2.0, 3.0, "auto", axis="de"),
+        SegmentSpec("c", 5.0, 7.0, "mode", mode="FBWA"),
+    )
     keep, notes, frames = usable_segments(df, [a, b, c], ["q"], ["de"], 1, "elevator maneuver")
     assert keep == [a, c] and set(frames) == {id(a), id(c)}
     assert notes == ["segment b (2.00-3.00 s) has gaps or NaN in ['de']: left out"]
     with pytest.raises(FsidError, match=r"segment t \(2.00-3.00 s\) has gaps or NaN in \['de'\]: cut it"):
         usable_segments(df, [a, SegmentSpec("t", 2.0, 3.0)], ["q"], ["de"], 1, "elevator maneuver")
-    with pytest.raises(FsidError, match=r"found 2 elevator maneuver segment\(s\), 1 usable, but need "
-                                        r"at least 2 .* - segment b \(2.00-3.00 s\) has gaps"):
+    with pytest.raises(
+        FsidError,
+        match=r"found 2 elevator maneuver segment\(s\), 1 usable, but need "
+        r"at least 2 .* - segment b \(2.00-3.00 s\) has gaps",
+    ):
         usable_segments(df, [a, b], ["q"], ["de"], 1, "elevator maneuver")
 
 
@@ -61,8 +68,9 @@ def test_a_found_segment_on_the_ground_is_left_out():
     a, b = SegmentSpec("a", 0.5, 1.5, "auto", axis="de"), SegmentSpec("b", 5.0, 7.0, "auto", axis="de")
     keep, notes, _ = usable_segments(df, [a, b], ["q"], ["de"], 0, "elevator maneuver")
     assert keep == [b]
-    assert notes == ["segment a (0.50-1.50 s) is on the ground or hovering (airspeed below 5 m/s "
-                     "for 100% of it): left out"]
+    assert notes == [
+        "segment a (0.50-1.50 s) is on the ground or hovering (airspeed below 5 m/s for 100% of it): left out"
+    ]
     t = SegmentSpec("t", 0.5, 1.5)
     assert usable_segments(df, [t, b], ["q"], ["de"], 0, "elevator maneuver")[0] == [t, b]
     assert usable_segments(df, [a, b], ["q"], ["de"], 0, "m", airborne=False)[0] == [a, b]
@@ -88,13 +96,17 @@ def test_the_longitudinal_problem_fits_the_usable_maneuvers():
     first = [s for s in fd.segments if s.axis == "de"][0]
     q = fd["q"]
     keep = (q.t < first.t0) | (q.t > first.t1)
-    cut = FlightData(channels={**fd.channels, "q": replace(q, t=q.t[keep], values=q.values[keep])},
-                     meta=dict(fd.meta), segments=list(fd.segments))
+    cut = FlightData(
+        channels={**fd.channels, "q": replace(q, t=q.t[keep], values=q.values[keep])},
+        meta=dict(fd.meta),
+        segments=list(fd.segments),
+    )
     full, part = longitudinal_problem(fd, ac, hold_out=0), longitudinal_problem(cut, ac, hold_out=0)
-    names = lambda pb: [s.name for s in pb.specs + pb.held_specs]   # noqa: E731
+    names = lambda pb: [s.name for s in pb.specs + pb.held_specs]  # noqa: E731
     assert first.name in names(full) and names(part) == [n for n in names(full) if n != first.name]
     assert [n for n in part.notes if n.endswith("left out")] == [
-        f"segment {first.name} ({first.t0:.2f}-{first.t1:.2f} s) has gaps or NaN in ['q']: left out"]
+        f"segment {first.name} ({first.t0:.2f}-{first.t1:.2f} s) has gaps or NaN in ['q']: left out"
+    ]
 
 
 def test_slow_outputs_off_the_grid_keep_every_sample():
@@ -108,10 +120,14 @@ def test_slow_outputs_off_the_grid_keep_every_sample():
     rng = np.random.default_rng(3)
     tf = np.arange(0.0, 20.0, 0.01)
     ts = np.arange(0.2, 19.8, 0.1) + 0.004 + 0.001 * rng.uniform(-1, 1, 196)
-    f = lambda t: np.sin(0.7 * t)                            # noqa: E731
-    fd = FlightData(channels={"q": Channel(t=tf, values=np.cos(tf), unit="rad/s"),
-                              "alpha": Channel(t=ts, values=f(ts), unit="rad"),
-                              "de": Channel(t=tf, values=0.1 * np.sin(tf), unit="rad")})
+    f = lambda t: np.sin(0.7 * t)  # noqa: E731
+    fd = FlightData(
+        channels={
+            "q": Channel(t=tf, values=np.cos(tf), unit="rad/s"),
+            "alpha": Channel(t=ts, values=f(ts), unit="rad"),
+            "de": Channel(t=tf, values=0.1 * np.sin(tf), unit="rad"),
+        }
+    )
     df, rate = multirate_frame(fd, ["q", "alpha"], ["de"])
     assert rate == pytest.approx(100.0, rel=1e-3)
     a = df["alpha"].to_numpy()
@@ -124,9 +140,21 @@ def test_slow_outputs_off_the_grid_keep_every_sample():
     assert np.max(np.abs(np.subtract.outer(df["t"].to_numpy()[kept], ts)).min(axis=1)) <= 0.005 + 1e-9
 
 
-@pytest.mark.parametrize("fastest, grid", [(400.0, 200.0), (200.0, 200.0), (100.0, 100.0),
-                                           (99.8, 99.8), (50.0, 100.0), (49.9, 99.8),
-                                           (40.0, 120.0), (25.0, 100.0), (4.1, 90.2), (3.0, 90.0)])
+@pytest.mark.parametrize(
+    "fastest, grid",
+    [
+        (400.0, 200.0),
+        (200.0, 200.0),
+        (100.0, 100.0),
+        (99.8, 99.8),
+        (50.0, 100.0),
+        (49.9, 99.8),
+        (40.0, 120.0),
+        (25.0, 100.0),
+        (4.1, 90.2),
+        (3.0, 90.0),
+    ],
+)
 def test_the_grid_runs_at_least_at_90_hz(fastest, grid):
     """pipeline.flightdata.fit_grid_rate: the fastest output's rate up to MAX_RATE_HZ; a
     slower one's smallest whole multiple that reaches 90 Hz (a 100 Hz IMU whose stamps
@@ -144,9 +172,13 @@ def test_a_25_hz_imu_is_compared_at_its_own_samples():
     from pipeline.identify import multirate_frame
 
     ts, tu = np.arange(0.0, 10.0, 0.04), np.arange(0.0, 10.0, 0.04)
-    fd = FlightData(channels={"q": Channel(t=ts, values=np.cos(ts), unit="rad/s"),
-                              "az": Channel(t=ts, values=np.sin(ts), unit="m/s^2"),
-                              "de": Channel(t=tu, values=0.1 * tu, unit="rad")})
+    fd = FlightData(
+        channels={
+            "q": Channel(t=ts, values=np.cos(ts), unit="rad/s"),
+            "az": Channel(t=ts, values=np.sin(ts), unit="m/s^2"),
+            "de": Channel(t=tu, values=0.1 * tu, unit="rad"),
+        }
+    )
     df, rate = multirate_frame(fd, ["q", "az"], ["de"])
     assert rate == pytest.approx(100.0)
     assert df["de"].notna().all() and np.allclose(df["de"], 0.1 * df["t"])
@@ -166,9 +198,11 @@ def test_accelerometers_are_left_out_inside_a_step_ramp():
     from pipeline.identify import multirate_frame
 
     t = np.arange(0.0, 2.0, 0.01)
-    chans = {"q": Channel(t=t, values=np.cos(t), unit="rad/s"),
-             "az": Channel(t=t, values=np.sin(t), unit="m/s^2"),
-             "de": Channel(t=t, values=np.zeros_like(t), unit="rad")}
+    chans = {
+        "q": Channel(t=t, values=np.cos(t), unit="rad/s"),
+        "az": Channel(t=t, values=np.sin(t), unit="m/s^2"),
+        "de": Channel(t=t, values=np.zeros_like(t), unit="rad"),
+    }
     steps = {"de": [[0.505, 0.515], [1.0, 1.04]]}
     df, _ = multirate_frame(FlightData(chans, {"input_steps": steps}), ["q", "az"], ["de"])
     blank = np.flatnonzero(df["az"].isna().to_numpy())

@@ -1,4 +1,5 @@
 """Readers on small files written with the real formats' own libraries/layouts."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -7,8 +8,7 @@ import pytest
 from pipeline.errors import FsidError
 from pipeline.readers import LogReadError, detect_format, read_log
 from pipeline.readers.dataflash import message_arrays, read_dataflash, scaled
-from pipeline.readers.synth import (demo_dataflash, encode_tlog, encode_ulog,
-                                    px4_surface_commands, write_json_mcap)
+from pipeline.readers.synth import demo_dataflash, encode_tlog, encode_ulog, px4_surface_commands, write_json_mcap
 
 
 @pytest.fixture(scope="module")
@@ -35,7 +35,7 @@ def test_dataflash_matches_dfreader_exactly(binfile):
         k = seen.get(name, 0)
         seen[name] = k + 1
         for col in m.get_fieldnames():
-            ours = scaled(arrays[name][k:k + 1], by_name[name], col)[0]
+            ours = scaled(arrays[name][k : k + 1], by_name[name], col)[0]
             assert ours == getattr(m, col), (name, k, col)
     assert seen["IMU"] == 600 and seen["ATT"] == 300 and damage is None
 
@@ -44,7 +44,7 @@ def test_dataflash_instances_units_modes_and_pwm(binfile):
     fd = read_log(binfile)
     assert fd.meta["tables"]["IMU[0]"] == 300 and fd.meta["tables"]["IMU[1]"] == 300
     raw = read_dataflash(binfile)
-    assert raw.tables["IMU[0]"].units["GyrX"] == "rad/s"   # from FMTU + UNIT
+    assert raw.tables["IMU[0]"].units["GyrX"] == "rad/s"  # from FMTU + UNIT
     assert raw.tables["ATT"].units["Roll"] == "deg"
     assert [m for _, m in fd.modes] == ["FBWA", "MANUAL"]
     arr = message_arrays(binfile)[0]["RCOU"]
@@ -60,9 +60,11 @@ def arr_att(p):
 
 def test_user_map_overrides_builtin(binfile, tmp_path):
     m = tmp_path / "m.toml"
-    m.write_text('[map]\nname = "mine"\nextends = "ardupilot_bin"\n'
-                 '[channels.p]\nsource = "IMU[1].GyrX"\nunit = "rad/s"\n'
-                 '[channels.V]\nsource = "ARSP.Airspeed"\nunit = "kt"\n')
+    m.write_text(
+        '[map]\nname = "mine"\nextends = "ardupilot_bin"\n'
+        '[channels.p]\nsource = "IMU[1].GyrX"\nunit = "rad/s"\n'
+        '[channels.V]\nsource = "ARSP.Airspeed"\nunit = "kt"\n'
+    )
     fd = read_log(binfile, map=m)
     arrays = message_arrays(binfile)[0]
     imu = arrays["IMU"]
@@ -75,9 +77,11 @@ def test_user_map_overrides_builtin(binfile, tmp_path):
         read_log(binfile, map=bad)
     # a source that applies when the log has a parameter (SERVO2_TRIM is in this log)
     cond = tmp_path / "cond.toml"
-    cond.write_text('[map]\nname = "cond"\nextends = "ardupilot_bin"\n'
-                    '[channels.p]\nsource = "IMU.GyrX"\nunit = "rad/s"\n'
-                    'source_if = { SERVO2_TRIM = ["IMU[1].GyrX"], NO_SUCH_PARAM = "IMU[2].GyrX" }\n')
+    cond.write_text(
+        '[map]\nname = "cond"\nextends = "ardupilot_bin"\n'
+        '[channels.p]\nsource = "IMU.GyrX"\nunit = "rad/s"\n'
+        'source_if = { SERVO2_TRIM = ["IMU[1].GyrX"], NO_SUCH_PARAM = "IMU[2].GyrX" }\n'
+    )
     assert np.allclose(read_log(binfile, map=cond)["p"].values, imu["GyrX"][imu["I"] == 1].astype(float))
     bad.write_text('[channels.p]\nsource = "IMU.GyrX"\nsource_if = ["IMU[1].GyrX"]\n')
     with pytest.raises(FsidError, match="source_if must be a table"):
@@ -149,15 +153,21 @@ def test_mcap_ros2_imu_flu_to_frd(tmp_path):
         w = Writer(fh)
         s = w.register_msgdef("sensor_msgs/msg/Imu", ROS_IMU)
         for i in range(30):
-            w.write_message(topic="/imu/data", schema=s, log_time=i * 10**7, publish_time=i * 10**7,
-                            message={"header": {"stamp": {"sec": 5, "nanosec": i * 10**7}, "frame_id": "b"},
-                                     "orientation": {"x": 0.0, "y": 0.0, "z": np.sin(yaw_enu / 2),
-                                                     "w": np.cos(yaw_enu / 2)},
-                                     "orientation_covariance": [0.0] * 9,
-                                     "angular_velocity": {"x": 0.1, "y": 0.2, "z": 0.3},
-                                     "angular_velocity_covariance": [0.0] * 9,
-                                     "linear_acceleration": {"x": 1.0, "y": 2.0, "z": 9.81},
-                                     "linear_acceleration_covariance": [0.0] * 9})
+            w.write_message(
+                topic="/imu/data",
+                schema=s,
+                log_time=i * 10**7,
+                publish_time=i * 10**7,
+                message={
+                    "header": {"stamp": {"sec": 5, "nanosec": i * 10**7}, "frame_id": "b"},
+                    "orientation": {"x": 0.0, "y": 0.0, "z": np.sin(yaw_enu / 2), "w": np.cos(yaw_enu / 2)},
+                    "orientation_covariance": [0.0] * 9,
+                    "angular_velocity": {"x": 0.1, "y": 0.2, "z": 0.3},
+                    "angular_velocity_covariance": [0.0] * 9,
+                    "linear_acceleration": {"x": 1.0, "y": 2.0, "z": 9.81},
+                    "linear_acceleration_covariance": [0.0] * 9,
+                },
+            )
         w.finish()
     fd = read_log(p)
     assert fd.meta["map"] == "ros2"
@@ -175,8 +185,12 @@ def test_mcap_protobuf(tmp_path):
     fdp = descriptor_pb2.FileDescriptorProto(name="rates.proto", package="demo")
     m = fdp.message_type.add(name="Rates")
     for k, n in enumerate(["t", "p", "q", "r"], 1):
-        m.field.add(name=n, number=k, type=descriptor_pb2.FieldDescriptorProto.TYPE_DOUBLE,
-                    label=descriptor_pb2.FieldDescriptorProto.LABEL_OPTIONAL)
+        m.field.add(
+            name=n,
+            number=k,
+            type=descriptor_pb2.FieldDescriptorProto.TYPE_DOUBLE,
+            label=descriptor_pb2.FieldDescriptorProto.LABEL_OPTIONAL,
+        )
     pool = descriptor_pool.DescriptorPool()
     pool.Add(fdp)
     cls = message_factory.GetMessageClass(pool.FindMessageTypeByName("demo.Rates"))
@@ -184,8 +198,9 @@ def test_mcap_protobuf(tmp_path):
     with open(p, "wb") as fh:
         w = Writer(fh)
         for i in range(40):
-            w.write_message("/rates", cls(t=1.0 + i * 0.02, p=0.5, q=-0.25, r=float(i)),
-                            log_time=i * 10**6, publish_time=i * 10**6)
+            w.write_message(
+                "/rates", cls(t=1.0 + i * 0.02, p=0.5, q=-0.25, r=float(i)), log_time=i * 10**6, publish_time=i * 10**6
+            )
         w.finish()
     fd = read_log(p)
     assert len(fd["r"]) == 40 and fd["r"].values[-1] == 39.0 and fd["q"].values[0] == -0.25
@@ -195,11 +210,16 @@ def test_mcap_protobuf(tmp_path):
 def test_csv_with_column_map(tmp_path):
     p = tmp_path / "d.csv"
     t = np.arange(50) * 0.02
-    p.write_text("time_ms;roll_deg;airspeed_kt\n" +
-                 "\n".join(f"{ti * 1000:.0f};{10 * np.sin(ti):.6f};{30:.1f}" for ti in t) + "\n")
+    p.write_text(
+        "time_ms;roll_deg;airspeed_kt\n"
+        + "\n".join(f"{ti * 1000:.0f};{10 * np.sin(ti):.6f};{30:.1f}" for ti in t)
+        + "\n"
+    )
     m = tmp_path / "m.toml"
-    m.write_text('[map]\nname = "mine"\n[channels.phi]\nsource = "csv.roll_deg"\nunit = "deg"\n'
-                 '[channels.V]\nsource = "csv.airspeed_kt"\nunit = "kt"\n')
+    m.write_text(
+        '[map]\nname = "mine"\n[channels.phi]\nsource = "csv.roll_deg"\nunit = "deg"\n'
+        '[channels.V]\nsource = "csv.airspeed_kt"\nunit = "kt"\n'
+    )
     fd = read_log(p, map=m, time_column="time_ms", time_scale=1e-3)
     assert np.allclose(fd["phi"].t, t)
     assert np.allclose(fd["phi"].values, np.radians(10 * np.sin(t)), atol=1e-7)
@@ -228,8 +248,9 @@ def test_resample_antialias_and_segments(binfile):
     t = np.arange(0, 60, 0.005)  # 200 Hz
     de = np.where((t > 20) & (t < 26), np.radians(5) * np.sign(np.sin(2 * np.pi * (t - 20) / 3)), 0.0)
     hf = np.sin(2 * np.pi * 41 * t)  # 41 Hz: aliases to 1 Hz at a 10 Hz output without the filter
-    fd = FlightData({"de": Channel(t, de, "rad"), "q": Channel(t, hf, "rad/s")},
-                    {"modes": [(0.0, "FBWA"), (30.0, "AUTO")]})
+    fd = FlightData(
+        {"de": Channel(t, de, "rad"), "q": Channel(t, hf, "rad/s")}, {"modes": [(0.0, "FBWA"), (30.0, "AUTO")]}
+    )
     df = fd.resample(10.0, ["q"])
     assert np.nanstd(df["q"]) < 0.01
     assert np.nanstd(fd.resample(10.0, ["q"], antialias=False)["q"]) > 0.5
@@ -257,14 +278,14 @@ def test_continuous_excitation_is_cut_into_pieces():
         mine = [s for s in segs if s.axis == axis]
         assert len(mine) == 4 and [s.name for s in mine] == [f"auto_{axis}_{k}" for k in range(4)]
         assert all(s.t1 - s.t0 <= MAX_AUTO_SEGMENT_S for s in mine)
-        assert mine[0].t0 < 10 and mine[-1].t1 > 209                 # the whole span covered
-        assert all(a.t1 == b.t0 for a, b in zip(mine, mine[1:]))      # without gaps or overlap
+        assert mine[0].t0 < 10 and mine[-1].t1 > 209  # the whole span covered
+        assert all(a.t1 == b.t0 for a, b in zip(mine, mine[1:]))  # without gaps or overlap
     lat = merge_overlapping(segs)
     assert len(lat) == 4 and all(set(s.axis.split("+")) == {"da", "dr"} for s in lat)
     assert all(s.t1 - s.t0 <= MAX_AUTO_SEGMENT_S for s in lat)
-    assert all(a.t1 <= b.t0 for a, b in zip(lat, lat[1:]))            # the data once
+    assert all(a.t1 <= b.t0 for a, b in zip(lat, lat[1:]))  # the data once
     assert len({s.name for s in lat}) == 4
-    assert len(fd.find_segments(max_duration=None)) == 2                # uncut on request
+    assert len(fd.find_segments(max_duration=None)) == 2  # uncut on request
 
 
 def test_px4_tlog_dialect(tmp_path):
@@ -274,10 +295,10 @@ def test_px4_tlog_dialect(tmp_path):
     p.write_bytes(encode_px4_tlog(n=60))
     fd = read_log(p)
     assert fd.meta["map"] == "px4_tlog" and fd.meta["info"]["autopilot"] == "px4"
-    assert fd.params["SYS_AUTOSTART"] == 1234.0      # INT32 decoded bytewise
+    assert fd.params["SYS_AUTOSTART"] == 1234.0  # INT32 decoded bytewise
     assert fd.params["FW_AIRSPD_TRIM"] == 15.0
     assert fd.modes and fd.modes[0][1] == "POSCTL"
-    assert fd["az"].values[0] == pytest.approx(-9.81, rel=1e-6)   # HIGHRES_IMU in SI
+    assert fd["az"].values[0] == pytest.approx(-9.81, rel=1e-6)  # HIGHRES_IMU in SI
     assert fd["p"].values[10] == pytest.approx(0.1, rel=1e-6)
     # ACTUATOR_CONTROL_TARGET: pitch -0.2 -> de = +0.2 * 30 deg (nose-up command = TE up)
     assert fd["de"].values[0] == pytest.approx(np.radians(6.0), rel=1e-6)
@@ -318,14 +339,20 @@ def test_mcap_ros2_std_msgs_array_with_user_map(tmp_path):
         w = Writer(fh)
         s = w.register_msgdef("std_msgs/msg/Float64MultiArray", F64_ARRAY)
         for i in range(25):
-            w.write_message(topic="/surfaces", schema=s, log_time=10**9 + i * 2 * 10**7,
-                            publish_time=0, message={"layout": {"dim": [], "data_offset": 0},
-                                                     "data": [0.5 * i, -1.0, 2.0]})
+            w.write_message(
+                topic="/surfaces",
+                schema=s,
+                log_time=10**9 + i * 2 * 10**7,
+                publish_time=0,
+                message={"layout": {"dim": [], "data_offset": 0}, "data": [0.5 * i, -1.0, 2.0]},
+            )
         w.finish()
     m = tmp_path / "m.toml"
-    m.write_text('[map]\nname = "surfaces"\nextends = "ros2"\n'
-                 '[channels.de]\nsource = "/surfaces.data[0]"\nunit = "deg"\n'
-                 '[channels.da]\nsource = "/surfaces.data[1]"\nunit = "deg"\nsign = -1\n')
+    m.write_text(
+        '[map]\nname = "surfaces"\nextends = "ros2"\n'
+        '[channels.de]\nsource = "/surfaces.data[0]"\nunit = "deg"\n'
+        '[channels.da]\nsource = "/surfaces.data[1]"\nunit = "deg"\nsign = -1\n'
+    )
     fd = read_log(p, map=m)
     assert fd.meta["time_base"].startswith("MCAP log_time")  # no header: log time, stated
     assert fd["de"].t[1] == pytest.approx(1.02)
@@ -358,5 +385,5 @@ def test_px4_control_allocation_surfaces(tmp_path, allocation):
         assert "CA_SV_CS*_TRQ_Y all 0" in fd.meta["unmapped"]["dr"]
         assert fd["de"].source.endswith("+0.5 x control[0] +0.5 x control[1]")
     assert fd.meta["servo_travel"]["de"] == {"deg": 30.0, "from": "assumed"}
-    np.testing.assert_allclose(fd["throttle"].values, 0.5)            # actuator_motors
+    np.testing.assert_allclose(fd["throttle"].values, 0.5)  # actuator_motors
     assert fd["throttle"].source == "actuator_motors.control[0]"

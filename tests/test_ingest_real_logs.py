@@ -3,6 +3,7 @@
 Expected numbers were taken independently from pymavlink (DFReader, mavutil) and pyulog
 over the same files, and from scipy's Rotation for the quaternion -> Euler conversion.
 """
+
 from __future__ import annotations
 
 import os
@@ -243,20 +244,18 @@ def test_tlog_autopilot_time_base(tlog_fd, tlog_recv):
     assert np.allclose(t[:8], [0, 0.239, 0.481, 0.719, 0.961, 1.959, 2.199, 2.439], atol=1e-6)
     assert np.all(np.diff(fd["phi"].t) > 0) and len(fd["phi"]) == 888
     i = np.flatnonzero(np.isclose(t, 1.959, atol=1e-6))[0]
-    assert fd["phi"].values[i] == pytest.approx(-0.0266, abs=1e-4)      # roll sent at 610541 ms
+    assert fd["phi"].values[i] == pytest.approx(-0.0266, abs=1e-4)  # roll sent at 610541 ms
     assert np.any(np.diff(tlog_recv["phi"].t) < 0.01)
     # the modes and VFR_HUD (no stamp) at the latest stamp sent before them: QLOITER's first
     # HEARTBEAT after 609.301766 s, CIRCLE 648.399359, GUIDED 694.456375, QLAND 732.449763
     rel = [m - fd["phi"].t[0] for m, _ in fd.modes]
-    assert np.allclose(rel, np.array([609.301766, 648.399359, 694.456375, 732.449763]) - 608.582,
-                       atol=1e-6)
+    assert np.allclose(rel, np.array([609.301766, 648.399359, 694.456375, 732.449763]) - 608.582, atol=1e-6)
     assert fd["V"].t[0] - fd["phi"].t[0] == pytest.approx(0.000234, abs=1e-6)
     jit = {c.channel: c.value for c in run_checks(fd) if c.check == "jitter"}
     jit_log = {c.channel: c.value for c in run_checks(tlog_recv) if c.check == "jitter"}
     # autopilot stamps are steadier than bursty arrivals, also for VFR_HUD's airspeed
     assert jit["phi"] < 0.5 * jit_log["phi"] and jit["V"] < 0.5 * jit_log["V"], (jit, jit_log)
-    assert not any(c.check in ("time_order", "duplicate_times") and c.status != "pass"
-                   for c in run_checks(fd))
+    assert not any(c.check in ("time_order", "duplicate_times") and c.status != "pass" for c in run_checks(fd))
 
 
 @pytest.mark.parametrize("name", [BIN.name, TLOG.name, ULG.name])

@@ -1,6 +1,7 @@
 """The built-in maps against what the sim's writers write: flight.bin and flight.mcap of
 one flight must ingest to the same canonical channels (SI units), and the automatic
 segments must find the scenario's maneuvers."""
+
 from __future__ import annotations
 
 import json
@@ -21,9 +22,13 @@ def files():
         pytest.skip("scenario not available")
     from tests._simdata import flown, written
 
-    d = written(SCENARIO.stem)          # flown and written once per session (shared)
-    return (read_log(d / "flight.bin"), read_log(d / "flight.mcap"),
-            json.loads((d / "truth.json").read_text()), flown(SCENARIO.stem))
+    d = written(SCENARIO.stem)  # flown and written once per session (shared)
+    return (
+        read_log(d / "flight.bin"),
+        read_log(d / "flight.mcap"),
+        json.loads((d / "truth.json").read_text()),
+        flown(SCENARIO.stem),
+    )
 
 
 def _at(a, b, name):
@@ -32,11 +37,23 @@ def _at(a, b, name):
 
 def test_same_channels_same_values(files):
     fb, fm, truth, res = files
-    assert set(fb.channels) == set(fm.channels) >= {"ax", "p", "phi", "V", "alpha", "beta", "h",
-                                                   "vn", "de", "da", "dr", "throttle"}
+    assert (
+        set(fb.channels)
+        == set(fm.channels)
+        >= {"ax", "p", "phi", "V", "alpha", "beta", "h", "vn", "de", "da", "dr", "throttle"}
+    )
     assert fb.meta["map"] == "ardupilot_bin" and fm.meta["map"] == "fsid_mcap"
-    for name, tol in [("ax", 1e-5), ("az", 1e-5), ("p", 1e-6), ("r", 1e-6), ("phi", 1e-6),
-                      ("alpha", 1e-6), ("beta", 1e-6), ("h", 1e-4), ("vn", 1e-5)]:
+    for name, tol in [
+        ("ax", 1e-5),
+        ("az", 1e-5),
+        ("p", 1e-6),
+        ("r", 1e-6),
+        ("phi", 1e-6),
+        ("alpha", 1e-6),
+        ("beta", 1e-6),
+        ("h", 1e-4),
+        ("vn", 1e-5),
+    ]:
         a, b = _at(fb, fm, name)
         assert np.max(np.abs(a - b)) < tol, name
     # true airspeed: ArduPilot logs EAS, the map multiplies by CTUN.E2T
@@ -59,8 +76,9 @@ def test_auto_segments_cover_the_maneuvers(files):
         auto = [s for s in fd.segments if s.kind == "auto"]
         # maneuvers flown together (cross-controlled rudder doublets: rudder and aileron
         # over one window) are one segment per axis, in axis order
-        mans = sorted((m for m in truth["maneuvers"] if m["axis"] in ("de", "da", "dr")),
-                      key=lambda m: (m["t_start"], m["axis"]))
+        mans = sorted(
+            (m for m in truth["maneuvers"] if m["axis"] in ("de", "da", "dr")), key=lambda m: (m["t_start"], m["axis"])
+        )
         assert len(auto) == len(mans)
         for s, m in zip(auto, mans):
             assert s.axis == m["axis"]
@@ -79,12 +97,33 @@ def test_aircraft_servo_travel_flies_and_decodes(tmp_path):
 
     ac = (SCENARIOS / "aircraft" / "uav_small.toml").read_text()
     (tmp_path / "ac.toml").write_text(ac + "\n[servos]\nde_travel_deg = 25.0\ndr_travel_deg = 40.0\n")
-    r = sim.fly(custom({"aircraft": str(tmp_path / "ac.toml"), "duration_s": 8.0,
-                        "trim": {"altitude_m": 150.0, "airspeed_mps": 30.0},
-                        "maneuver": [{"name": "d", "axis": "de", "shape": "doublet",
-                                      "amplitude_deg": 2.0, "pulse_s": 0.5, "start_s": 2.0},
-                                     {"name": "r", "axis": "dr", "shape": "doublet",
-                                      "amplitude_deg": 3.0, "pulse_s": 0.5, "start_s": 5.0}]}))
+    r = sim.fly(
+        custom(
+            {
+                "aircraft": str(tmp_path / "ac.toml"),
+                "duration_s": 8.0,
+                "trim": {"altitude_m": 150.0, "airspeed_mps": 30.0},
+                "maneuver": [
+                    {
+                        "name": "d",
+                        "axis": "de",
+                        "shape": "doublet",
+                        "amplitude_deg": 2.0,
+                        "pulse_s": 0.5,
+                        "start_s": 2.0,
+                    },
+                    {
+                        "name": "r",
+                        "axis": "dr",
+                        "shape": "doublet",
+                        "amplitude_deg": 3.0,
+                        "pulse_s": 0.5,
+                        "start_s": 5.0,
+                    },
+                ],
+            }
+        )
+    )
     assert r.meta["servo"]["travel_deg"] == {"de": 25.0, "da": 30.0, "dr": 40.0}
     write_dataflash(tmp_path / "flight.bin", r)
     fd = read_log(tmp_path / "flight.bin")
@@ -96,7 +135,7 @@ def test_aircraft_servo_travel_flies_and_decodes(tmp_path):
         late = ch.t > 0
         assert np.max(np.abs(ch.values - want)[late]) < 1e-6, axis
         k = np.rad2deg(want[late]) / step_deg
-        assert np.max(np.abs(k - np.round(k))) < 1e-3, axis          # flown on the PWM steps
+        assert np.max(np.abs(k - np.round(k))) < 1e-3, axis  # flown on the PWM steps
         assert np.ptp(want) > np.radians(3.5), axis
 
 
@@ -108,9 +147,9 @@ def _without(src: Path, dst: Path, drop: set[str]) -> Path:
     while i < len(data) - 3:
         t = data[i + 2]
         if t == 128:
-            lens[data[i + 3]], names[data[i + 3]] = data[i + 4], data[i + 5:i + 9].rstrip(b"\0").decode()
+            lens[data[i + 3]], names[data[i + 3]] = data[i + 4], data[i + 5 : i + 9].rstrip(b"\0").decode()
         if names.get(t) not in drop:
-            out += data[i:i + lens[t]]
+            out += data[i : i + lens[t]]
         i += lens[t]
     dst.write_bytes(bytes(out))
     return dst
@@ -135,9 +174,11 @@ def test_airspeed_without_a_sensor_is_the_autopilots_estimate(files, tmp_path):
     assert "V" not in fd.channels
     assert fd.meta["unmapped"]["V"] == "no ARSP[0] messages; fallback CTUN.As, CTUN.E2T: no CTUN messages"
     bad = tmp_path / "bad.toml"
-    bad.write_text('[map]\nextends = "ardupilot_bin"\n[channels.V]\nsource = "ARSP.Airspeed"\n'
-                   '[channels.V.fallback]\nsource = "CTUN.As"\n[channels.V.fallback.fallback]\n'
-                   'source = "X.y"\n')
+    bad.write_text(
+        '[map]\nextends = "ardupilot_bin"\n[channels.V]\nsource = "ARSP.Airspeed"\n'
+        '[channels.V.fallback]\nsource = "CTUN.As"\n[channels.V.fallback.fallback]\n'
+        'source = "X.y"\n'
+    )
     with pytest.raises(FsidError, match=r"\[channels.V.fallback\] cannot have a fallback"):
         load_map(bad)
 
@@ -158,9 +199,10 @@ def test_velocity_without_the_ekf_is_the_gps_receivers(files, tmp_path):
         a, b = _at(fb, fd, c)
         assert np.max(np.abs(a - b)) < 1e-4 * max(np.max(np.abs(a)), 1.0), c
         assert fd[c].derived.startswith("the GPS receiver's"), c
-    assert np.ptp(fd["ve"].values) > 1.0                    # the flight turns: east moves
+    assert np.ptp(fd["ve"].values) > 1.0  # the flight turns: east moves
     bad = tmp_path / "bad.toml"
-    bad.write_text('[map]\nextends = "ardupilot_bin"\n[channels.vn]\nsource = ["GPS.Spd", '
-                   '"GPS.GCrs"]\ntransform = "polr"\n')
+    bad.write_text(
+        '[map]\nextends = "ardupilot_bin"\n[channels.vn]\nsource = ["GPS.Spd", "GPS.GCrs"]\ntransform = "polr"\n'
+    )
     with pytest.raises(FsidError, match="transform 'polr' unknown"):
         load_map(bad)

@@ -10,6 +10,7 @@ the truth and passes the proof of match on both axes, as logged (``--input-dynam
 off``) the longitudinal ones are more than 10 std off (76). A refinement whose fits fail
 keeps equation error's values and says why.
 """
+
 from __future__ import annotations
 
 import json
@@ -29,15 +30,14 @@ def test_lag_is_exact_on_a_ramp():
     t = np.arange(0.0, 1.0, h)
     np.testing.assert_allclose(lagged(t, tau, h), t - tau * (1.0 - np.exp(-t / tau)), atol=1e-12)
     np.testing.assert_array_equal(lagged(t, 0.0, h), t)
-    rows = lagged(t, np.array([0.0, tau]), h)           # one lag per row
+    rows = lagged(t, np.array([0.0, tau]), h)  # one lag per row
     assert rows.shape == (2, t.size) and np.allclose(rows[1], lagged(t, tau, h))
 
 
 def test_cubic_reads_a_quadratic_exactly():
     t = np.arange(0.0, 1.0001, 0.01)
     x = np.linspace(0.013, 0.987, 57)
-    np.testing.assert_allclose(cubic_at(3 * t ** 2 - t + 1, 0.0, 0.01, x), 3 * x ** 2 - x + 1,
-                               atol=1e-12)
+    np.testing.assert_allclose(cubic_at(3 * t**2 - t + 1, 0.0, 0.01, x), 3 * x**2 - x + 1, atol=1e-12)
 
 
 def test_a_channel_takes_the_given_delay_and_lag():
@@ -45,11 +45,11 @@ def test_a_channel_takes_the_given_delay_and_lag():
     step = np.where(t >= 0.5, 0.1, 0.0)
     fd = FlightData({"de": Channel(t, step, "rad", "RCOU.C2"), "q": Channel(t, 0 * t, "rad/s")})
     out = with_input_dynamics(fd, {"de": {"delay_s": 0.03, "lag_s": LAG}})
-    np.testing.assert_array_equal(fd["de"].t, t)                    # the input is kept
+    np.testing.assert_array_equal(fd["de"].t, t)  # the input is kept
     np.testing.assert_array_equal(fd["de"].values, step)
-    np.testing.assert_array_equal(out["de"].t, t)                   # the log's time stamps
-    assert np.all(out["de"].values[t < 0.52] == 0.0)                  # the step 30 ms later
-    k = round((0.53 + 5 * LAG) / 0.01)                                # 5 tau after it
+    np.testing.assert_array_equal(out["de"].t, t)  # the log's time stamps
+    assert np.all(out["de"].values[t < 0.52] == 0.0)  # the step 30 ms later
+    k = round((0.53 + 5 * LAG) / 0.01)  # 5 tau after it
     assert out["de"].values[k] == pytest.approx(0.1 * (1 - np.exp(-5.0)), abs=2e-3)
     k = round((0.53 + LAG) / 0.01)
     assert out["de"].values[k] == pytest.approx(0.1 * (1 - np.exp(-1.0)), abs=5e-3)
@@ -65,10 +65,12 @@ def test_consider_covariance_is_the_applied_part_of_the_joint_one():
     names = ["de delay", "de lag", "da delay", "da lag", "dr delay", "dr lag"]
     sd = np.array([1.0, 2.0, 3.0, 0.0, 5.0, 6.0]) * 1e-3
     corr = np.eye(6)
-    corr[0, 2] = corr[2, 0] = 0.5                      # de delay ~ da delay
+    corr[0, 2] = corr[2, 0] = 0.5  # de delay ~ da delay
     cov = corr * np.outer(sd, sd)
-    doc = {"applied": {"da": {"delay_s": 0.01, "lag_s": 0.0}, "de": {"delay_s": 0.0, "lag_s": 0.05}},
-           "covariance": {"names": names, "matrix": cov.tolist()}}
+    doc = {
+        "applied": {"da": {"delay_s": 0.01, "lag_s": 0.0}, "de": {"delay_s": 0.0, "lag_s": 0.05}},
+        "covariance": {"names": names, "matrix": cov.tolist()},
+    }
     got, C, where = covariance(doc)
     assert got == ["da delay", "de delay", "de lag"]
     assert where["da delay"] == ("da", "delay_s") and where["de lag"] == ("de", "lag_s")
@@ -113,8 +115,9 @@ def test_servo_lag_found_from_the_commands(lagged_flight):
 def _worst(out, key):
     rep = json.loads((out / "report.json").read_text())
     pars = rep["methods"][key]["parameters"]
-    return max(abs(p["error_in_std"]) for n, p in pars.items()
-               if p.get("error_in_std") is not None and "[" not in n), rep
+    return max(
+        abs(p["error_in_std"]) for n, p in pars.items() if p.get("error_in_std") is not None and "[" not in n
+    ), rep
 
 
 def test_estimate_applies_the_servo_lag(lagged_flight, tmp_path, capsys):
@@ -166,14 +169,28 @@ def test_estimate_applies_the_servo_lag(lagged_flight, tmp_path, capsys):
 def test_a_failed_refinement_keeps_the_equation_error_values():
     from pipeline.input_dynamics import refine_by_output_error, summary
 
-    doc = {"status": "estimated", "applied": {"da": {"delay_s": 0.0, "lag_s": 0.05}},
-           "covariance": {"names": ["da delay", "da lag"], "matrix": [[1e-6, 0.0], [0.0, 4e-6]]},
-           "surfaces": {"da": {"delay_s": 0.0, "delay_std": 1e-3, "lag_s": 0.05, "lag_std": 2e-3,
-                               "equivalent_delay_s": 0.05, "equivalent_std": 2e-3, "applied": True,
-                               "at_bound": False, "significant": True}}}
+    doc = {
+        "status": "estimated",
+        "applied": {"da": {"delay_s": 0.0, "lag_s": 0.05}},
+        "covariance": {"names": ["da delay", "da lag"], "matrix": [[1e-6, 0.0], [0.0, 4e-6]]},
+        "surfaces": {
+            "da": {
+                "delay_s": 0.0,
+                "delay_std": 1e-3,
+                "lag_s": 0.05,
+                "lag_std": 2e-3,
+                "equivalent_delay_s": 0.05,
+                "equivalent_std": 2e-3,
+                "applied": True,
+                "at_bound": False,
+                "significant": True,
+            }
+        },
+    }
 
     def fit(dynamics, starts):
         raise np.linalg.LinAlgError("singular information matrix")
+
     before = json.dumps(doc, sort_keys=True)
     ref = refine_by_output_error(doc, fit)
     assert ref["status"] == "not refined" and "LinAlgError: singular information matrix" in ref["reason"]
@@ -193,4 +210,3 @@ def test_bad_setting_is_one_line(value, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert err.startswith("fsid estimate: error: argument --input-dynamics:") and value in err
-

@@ -7,6 +7,7 @@ servo outputs of an ArduPilot log), ``fsid estimate flight.bin``. Output error's
 bound alone leaves Cmq about 28 std off the truth (seed 1); with the steps' times carried,
 every derivative of both axes is within 3 total std.
 """
+
 from __future__ import annotations
 
 import copy
@@ -28,8 +29,14 @@ def _doublet_25hz(t_edges=(1.013, 1.513, 2.013), amp=np.radians(2.0)) -> FlightD
     u[(t >= t_edges[1]) & (t < t_edges[2])] = -amp
     sweep = np.radians(2.0) * np.sin(2 * np.pi * (0.2 + 0.5 * t) * t)
     fast = np.arange(0.0, 4.0, 0.01)
-    return FlightData({"de": Channel(t, u, "rad"), "da": Channel(t, sweep, "rad"),
-                       "dr": Channel(fast, np.where(fast > 1.0, amp, 0.0), "rad")}, {})
+    return FlightData(
+        {
+            "de": Channel(t, u, "rad"),
+            "da": Channel(t, sweep, "rad"),
+            "dr": Channel(fast, np.where(fast > 1.0, amp, 0.0), "rad"),
+        },
+        {},
+    )
 
 
 def test_steps_of_a_slow_input_are_found_with_their_timing_std():
@@ -44,7 +51,7 @@ def test_steps_of_a_slow_input_are_found_with_their_timing_std():
     # 40 ms are as unknown), a 50 Hz one on a 50 Hz grid does not (COARSE_INTERVAL_S)
     assert step_edges(fd, [(2.5, 4.0)], grid_step_s=0.01) == []
     assert len(step_edges(fd, [(0.0, 4.0)], grid_step_s=0.04)) == 3
-    half = FlightData({"de": Channel(fd["de"].t / 2, fd["de"].values, "rad")}, {})   # 50 Hz
+    half = FlightData({"de": Channel(fd["de"].t / 2, fd["de"].values, "rad")}, {})  # 50 Hz
     assert step_edges(half, [(0.0, 2.0)], grid_step_s=0.02) == []
 
 
@@ -54,7 +61,7 @@ def test_a_moved_step_moves_the_interpolated_ramp_and_leaves_the_log_alone():
     t = np.arange(1.4, 1.6, 0.0005)
     before = fd["de"].t.copy()
 
-    def centre(data):               # where the interpolated input crosses the step's middle
+    def centre(data):  # where the interpolated input crosses the step's middle
         u = np.interp(t, data["de"].t, data["de"].values)
         return t[np.argmin(np.abs(u - (fd["de"].values[e.k] + 0.5 * e.size)))]
 
@@ -80,8 +87,10 @@ def test_a_kink_is_timed_from_gyros_near_the_step_only(gyro_hz, timed):
     ts = np.arange(0.0, 4.0, 0.1)
     tg = np.arange(0.0, 4.0, 1.0 / gyro_hz)
     q = 0.05 * np.sin(0.8 * tg) + 0.6 * np.maximum(tg - step, 0.0) * np.exp(-2.0 * np.maximum(tg - step, 0.0))
-    gyro = {c: Channel(tg, v + np.radians(0.1) * rng.standard_normal(tg.size), "rad/s")
-            for c, v in (("p", 0.0 * tg), ("q", q), ("r", 0.0 * tg))}
+    gyro = {
+        c: Channel(tg, v + np.radians(0.1) * rng.standard_normal(tg.size), "rad/s")
+        for c, v in (("p", 0.0 * tg), ("q", q), ("r", 0.0 * tg))
+    }
     fd = FlightData({"de": Channel(ts, np.where(ts > step, np.radians(3.0), 0.0), "rad"), **gyro}, {})
     edges = step_edges(fd, [(0.0, 4.0)], grid_step_s=0.01)
     assert [(e.channel, round(e.t0, 2), round(e.t1, 2)) for e in edges] == [("de", 2.0, 2.1)]
@@ -111,8 +120,10 @@ def _slow_flight(tmp_path_factory, rates: dict[str, float], name: str):
     write_dataflash(d / "flight.bin", r)
     write_truth_json(d / "truth.json", r)
     t = r.truth["t"].to_numpy()
-    steps = {c: t[1:][np.abs(np.diff(r.truth[f"{c}_cmd"].to_numpy())) > 1e-6] - 0.5 * (t[1] - t[0])
-             for c in ("de", "da", "dr")}
+    steps = {
+        c: t[1:][np.abs(np.diff(r.truth[f"{c}_cmd"].to_numpy())) > 1e-6] - 0.5 * (t[1] - t[0])
+        for c in ("de", "da", "dr")
+    }
     return d, steps
 
 
@@ -135,9 +146,9 @@ def test_the_steps_are_timed_from_the_gyros(flight, min_share, request):
     3.7; errors rms 2.7, 0.5, 0.4 ms in 40 ms intervals); 25 Hz gyros, timed from the samples
     after the step (seeds 1-4, ad hoc: elevator 40 of 40 timed, 3.4 ms rms, error / std rms
     0.90; aileron 48 of 48, 1.7 ms, 0.48)."""
-    from pipeline.readers import read_log
     from pipeline.identify import MAX_RATE_HZ
     from pipeline.input_sampling import step_times, time_steps
+    from pipeline.readers import read_log
 
     d, truth = request.getfixturevalue(flight)
     fd = read_log(d / "flight.bin")
@@ -145,7 +156,7 @@ def test_the_steps_are_timed_from_the_gyros(flight, min_share, request):
     timed_fd, edges, doc = time_steps(fd, MAX_RATE_HZ)
     assert doc["steps"] == len(edges) >= 20 and doc["timed"] >= min_share * doc["steps"], doc
     for c in ("de", "da", "dr"):
-        np.testing.assert_array_equal(fd[c].t, before[c])            # the log as read
+        np.testing.assert_array_equal(fd[c].t, before[c])  # the log as read
     assert sorted(timed_fd.meta["input_steps"]) == ["da", "de", "dr"]
     z = []
     for e in edges:
@@ -158,9 +169,11 @@ def test_the_steps_are_timed_from_the_gyros(flight, min_share, request):
         # the ramp in the data: one 100 Hz grid step wide, where the spans say
         i = np.searchsorted(timed_fd[e.channel].t, centre)
         assert timed_fd[e.channel].t[i - 1] == pytest.approx(e.t0) and timed_fd[e.channel].t[i] == pytest.approx(e.t1)
-        assert e.t1 - e.t0 == pytest.approx(0.01) and [e.t0, e.t1, e.time_std] in timed_fd.meta["input_steps"][e.channel]
+        assert (
+            e.t1 - e.t0 == pytest.approx(0.01) and [e.t0, e.t1, e.time_std] in timed_fd.meta["input_steps"][e.channel]
+        )
     z = np.array(z)
-    assert np.sqrt(np.mean(z ** 2)) < 1.5 and np.max(np.abs(z)) < 4.0, z
+    assert np.sqrt(np.mean(z**2)) < 1.5 and np.max(np.abs(z)) < 4.0, z
     # every step with its time's std for the proof of match (step_times): an untimed one
     # over its whole sample interval, std None
     times = {}
@@ -212,8 +225,14 @@ def test_a_25_hz_log_throughout(tmp_path):
     from tests._simdata import SCENARIOS, custom
 
     raw = tomllib.loads((SCENARIOS / "default.toml").read_text())
-    for name, hz in {"imu": 25.0, "attitude": 25.0, "surfaces": 25.0, "airdata": 10.0,
-                     "gps": 5.0, "baro": 10.0}.items():
+    for name, hz in {
+        "imu": 25.0,
+        "attitude": 25.0,
+        "surfaces": 25.0,
+        "airdata": 10.0,
+        "gps": 5.0,
+        "baro": 10.0,
+    }.items():
         raw.setdefault("sensors", {}).setdefault(name, {})["rate_hz"] = hz
     r = sim.fly(custom(raw, "default_25hz"), seed=1)
     write_dataflash(tmp_path / "flight.bin", r)
@@ -223,11 +242,13 @@ def test_a_25_hz_log_throughout(tmp_path):
     steps = rep["meta"]["input_sampling"]
     assert steps["steps"] >= 20 and steps["timed"] >= 0.8 * steps["steps"], steps
     carried = steps["uncertainty"]
-    assert all(v["timed"] > 0 and v["time_std_s"] < 0.04 / np.sqrt(12.0)
-               for v in carried["channels"].values()), carried["channels"]
+    assert all(v["timed"] > 0 and v["time_std_s"] < 0.04 / np.sqrt(12.0) for v in carried["channels"].values()), (
+        carried["channels"]
+    )
     # each surface's steps also moved together by the part of their std from the kink model
     assert carried["shared"] == sorted(carried["channels"]) and carried["refits"] == 2 * (
-        carried["groups"] + len(carried["shared"]))
+        carried["groups"] + len(carried["shared"])
+    )
     dyn = rep["meta"]["input_dynamics"]
     assert dyn["applied"] == {} and set(dyn["not_estimated"]) == {"de", "da", "dr"}, dyn
     assert all("at >= 40 Hz, the log has it at 25 Hz" in v for v in dyn["not_estimated"].values())
@@ -254,31 +275,33 @@ def test_the_proof_of_match_moves_an_untimed_step_within_its_interval(tmp_path):
     t = np.round(np.arange(0.0, 3.0, 0.01), 10)
     amp = np.radians(2.0)
     exact = np.where(t >= 1.012, amp, 0.0)
-    exact[t == 1.01] = amp * 0.3               # a step at 1.012 read linearly: its area kept
+    exact[t == 1.01] = amp * 0.3  # a step at 1.012 read linearly: its area kept
     ramp = np.interp(t, [0.0, 1.0, 1.1, 3.0], [0.0, 0.0, amp, amp])
     train = roll_segment(t, exact, np.radians(0.05), seed=1)
     res = OutputError(roll_model(), inputs="linear").fit(train, estimate_x0=False)
     assert abs(res.params["Lda"] - 40.0) < 3 * res.std["Lda"]
     held = roll_segment(t, exact, np.radians(0.05), seed=2)
-    held.u = ramp[:, None]                     # what a 10 Hz log gives the fits
+    held.u = ramp[:, None]  # what a 10 Hz log gives the fits
     spans = {"da": [(1.0, 1.1, None)]}
 
     variants = timing_variants(held, ["da"], spans)
     assert len(variants) == len(TIMING_FRACTIONS)
     inside = (t > 1.0) & (t < 1.1)
-    np.testing.assert_array_equal(variants[0].u[inside, 0], amp)          # at the interval's start
-    np.testing.assert_array_equal(variants[-1].u[inside, 0], 0.0)         # at its end
+    np.testing.assert_array_equal(variants[0].u[inside, 0], amp)  # at the interval's start
+    np.testing.assert_array_equal(variants[-1].u[inside, 0], 0.0)  # at its end
     np.testing.assert_array_equal(variants[2].u[inside, 0], np.where(t[inside] < 1.05, 0.0, amp))
     np.testing.assert_array_equal(variants[0].u[~inside, 0], ramp[~inside])
-    assert timing_variants(held, ["da"], {"da": [(1.0, 1.01, None)]}) == []   # no grid sample inside
-    assert timing_variants(held, ["da"], {"de": [(1.0, 1.1, None)]}) == []    # not the model's input
+    assert timing_variants(held, ["da"], {"da": [(1.0, 1.01, None)]}) == []  # no grid sample inside
+    assert timing_variants(held, ["da"], {"de": [(1.0, 1.1, None)]}) == []  # not the model's input
     # a timed step, a ramp one grid step wide about 1.012 s, within 2 std (3 ms) either side
     timed = {"da": [(1.007, 1.017, 0.003)]}
     moved = timing_variants(train, ["da"], timed)
-    np.testing.assert_allclose([v.u[t == 1.01, 0][0] / amp for v in moved],
-                               np.clip((1.01 - (1.012 + np.array([-6, -3, 0, 3, 6]) * 1e-3)) / 0.01 + 0.5, 0, 1),
-                               atol=1e-12)
-    fine = timing_variants(train, ["da"], {"da": [(1.007, 1.017, 1e-5)]})     # 10 us: the fit's ramp
+    np.testing.assert_allclose(
+        [v.u[t == 1.01, 0][0] / amp for v in moved],
+        np.clip((1.01 - (1.012 + np.array([-6, -3, 0, 3, 6]) * 1e-3)) / 0.01 + 0.5, 0, 1),
+        atol=1e-12,
+    )
+    fine = timing_variants(train, ["da"], {"da": [(1.007, 1.017, 1e-5)]})  # 10 us: the fit's ramp
     assert max(np.max(np.abs(v.u - train.u)) for v in fine) == pytest.approx(0.002 * amp, rel=1e-6)
 
     plain = validate(res, held_out=[held])["proof_of_match"]
@@ -287,22 +310,31 @@ def test_the_proof_of_match_moves_an_untimed_step_within_its_interval(tmp_path):
     moved = validate(res, held_out=[held], step_times=[spans])["proof_of_match"]
     seg = moved["segments"][0]
     p = seg["channels"]["p"]
-    assert seg["input_timing"] == {"steps": 1, "untimed": 1, "timed_range_std": 2.0,
-                                   "fractions": list(TIMING_FRACTIONS), "envelope": True}
+    assert seg["input_timing"] == {
+        "steps": 1,
+        "untimed": 1,
+        "timed_range_std": 2.0,
+        "fractions": list(TIMING_FRACTIONS),
+        "envelope": True,
+    }
     assert p["pass"] and p["max_abs_error_display"] < 0.5, p
-    assert p["nominal_max_abs_error_display"] == pytest.approx(plain["segments"][0]["channels"]["p"]["max_abs_error_display"])
-    assert p["envelope_max_width_display"] > 4.0       # about 80 deg/s^2 over 90 ms, less the decay
+    assert p["nominal_max_abs_error_display"] == pytest.approx(
+        plain["segments"][0]["channels"]["p"]["max_abs_error_display"]
+    )
+    assert p["envelope_max_width_display"] > 4.0  # about 80 deg/s^2 over 90 ms, less the decay
     # run.rrd: the predictions' range beside the prediction, on the held-out samples
     rc = pytest.importorskip("rerun.chunk")
     from pipeline.recording import write_recording
-    path = write_recording(tmp_path / "run.rrd", {"oem": res},
-                           {"oem": validate(res, held_out=[held], step_times=[spans])})
+
+    path = write_recording(
+        tmp_path / "run.rrd", {"oem": res}, {"oem": validate(res, held_out=[held], step_times=[spans])}
+    )
     rows = {}
     for ch in rc.RrdReader(path).stream():
         if not ch.is_static:
             rows[ch.entity_path] = rows.get(ch.entity_path, 0) + ch.num_rows
     assert rows["/match/p/oem"] == rows["/match/p/oem/lower"] == rows["/match/p/oem/upper"] == t.size
-    wrong = copy.copy(res)                     # the same result with Lda 25 % low
+    wrong = copy.copy(res)  # the same result with Lda 25 % low
     wrong.values = np.where(np.array(res.names) == "Lda", 30.0, res.values)
     bad = validate(wrong, held_out=[held], step_times=[spans])["proof_of_match"]
     assert not bad["segments"][0]["channels"]["p"]["pass"]

@@ -1,14 +1,20 @@
 """Zero-phase smoothing of measured control inputs at their noise floor
 (pipeline.input_smoothing), on synthetic surface positions with known content."""
+
 import numpy as np
 import pandas as pd
 import pytest
 
+from pipeline.input_smoothing import (
+    INPUT_FILTER_ORDER,
+    MIN_CORNER_HZ,
+    MIN_SAMPLES,
+    control_input_corners,
+    input_corner_hz,
+    smooth_columns,
+    zero_phase,
+)
 from pipeline.readers import read_log
-
-from pipeline.input_smoothing import (INPUT_FILTER_ORDER, MIN_CORNER_HZ, MIN_SAMPLES,
-                                      control_input_corners, input_corner_hz, smooth_columns,
-                                      zero_phase)
 
 RATE = 100.0
 T = np.arange(0, 60, 1 / RATE)
@@ -36,7 +42,7 @@ def steps_3211(t):
 
 
 def rms(x):
-    return float(np.sqrt(np.mean(x ** 2)))
+    return float(np.sqrt(np.mean(x**2)))
 
 
 def test_corner_of_a_noisy_multisine_removes_the_noise_not_the_signal():
@@ -53,7 +59,7 @@ def test_corner_of_a_noisy_multisine_removes_the_noise_not_the_signal():
     # white noise keeps ~ sqrt(fc / 50 Hz) of its rms (0.2-0.4); the signal passes whole
     assert max(errs) < 0.45 and min(errs) > 0.15, errs
     passed = zero_phase(clean, RATE, fc, INPUT_FILTER_ORDER)
-    inner = slice(100, -100)                  # the record's ends: the padding's transient
+    inner = slice(100, -100)  # the record's ends: the padding's transient
     assert rms((passed - clean)[inner]) < 0.01 * rms(clean)
 
 
@@ -65,13 +71,14 @@ def test_steps_get_a_higher_corner_than_a_multisine():
 
 
 def test_no_noise_floor_no_smoothing():
-    assert input_corner_hz(T, multisine(T)) is None                  # noise-free
+    assert input_corner_hz(T, multisine(T)) is None  # noise-free
     # noise-free steps through an actuator: a steep roll-off up there, no white floor
     assert input_corner_hz(T, steps_3211(T)) is None
-    assert input_corner_hz(T, np.full(T.size, 0.01)) is None           # constant
-    short = T[:MIN_SAMPLES - 1]
-    assert input_corner_hz(short, multisine(short) + NOISE * np.random.default_rng(5)
-                           .standard_normal(short.size)) is None       # too short to judge
+    assert input_corner_hz(T, np.full(T.size, 0.01)) is None  # constant
+    short = T[: MIN_SAMPLES - 1]
+    assert (
+        input_corner_hz(short, multisine(short) + NOISE * np.random.default_rng(5).standard_normal(short.size)) is None
+    )  # too short to judge
     # white noise alone (a surface that did not move): the lowest corner
     noise = NOISE * np.random.default_rng(2).standard_normal(T.size)
     assert input_corner_hz(T, noise) == pytest.approx(MIN_CORNER_HZ)
@@ -79,7 +86,7 @@ def test_no_noise_floor_no_smoothing():
 
 def test_corner_on_jittered_native_times():
     rng = np.random.default_rng(3)
-    t = T + rng.uniform(-2e-3, 2e-3, T.size)                           # logger jitter
+    t = T + rng.uniform(-2e-3, 2e-3, T.size)  # logger jitter
     fc = input_corner_hz(t, multisine(t) + NOISE * rng.standard_normal(t.size))
     assert fc is not None and 2.0 <= fc <= 8.0
 
@@ -93,8 +100,8 @@ def test_smooth_columns_keeps_gaps_and_other_columns():
     assert np.isnan(out["da"].to_numpy()[1000:1010]).all()
     assert np.isfinite(out["da"].to_numpy()[:1000]).all()
     assert rms(out["da"].to_numpy()[:1000] - multisine(T[:1000])) < 0.5 * NOISE
-    assert np.array_equal(out["dr"].to_numpy(), x, equal_nan=True)    # not named: untouched
-    assert np.array_equal(df["da"].to_numpy(), x, equal_nan=True)     # input not modified
+    assert np.array_equal(out["dr"].to_numpy(), x, equal_nan=True)  # not named: untouched
+    assert np.array_equal(df["da"].to_numpy(), x, equal_nan=True)  # input not modified
 
 
 def test_clean_servo_steps_of_the_default_scenario_keep_their_samples():
@@ -107,5 +114,5 @@ def test_clean_servo_steps_of_the_default_scenario_keep_their_samples():
     fd = read_log(written("default") / "flight.mcap")
     truth = flown("default").truth
     assert control_input_corners(fd) == {}
-    for c in ("de", "da", "dr"):                      # the log is the true surface indeed
+    for c in ("de", "da", "dr"):  # the log is the true surface indeed
         assert rms(np.interp(truth["t"], fd[c].t, fd[c].values) - truth[c].to_numpy()) < 1e-6

@@ -1,12 +1,10 @@
 """Integrators: order of accuracy on a known ODE, batch consistency, compiled = numpy."""
-import warnings
 
 import numpy as np
 import pytest
 
-from estimators import Model, Parameter, Segment
+from estimators import Model, Parameter
 from estimators.jit import RhsKernel, kernel_for
-from estimators.model import Namespace
 
 
 def osc_f(x, u, p, c):
@@ -21,14 +19,21 @@ def osc_g(x, u, p, c):
 
 
 def oscillator(k=4.0):
-    return Model(states=["x1", "x2"], inputs=["w"], outputs=["x1", "x2"],
-                 parameters=[Parameter("k", k)], f=osc_f, g=osc_g, name="oscillator")
+    return Model(
+        states=["x1", "x2"],
+        inputs=["w"],
+        outputs=["x1", "x2"],
+        parameters=[Parameter("k", k)],
+        f=osc_f,
+        g=osc_g,
+        name="oscillator",
+    )
 
 
 def final_error(model, scheme, dt, T=2.0, **kw):
     t = np.arange(0.0, T + dt / 2, dt)
     U = np.zeros((t.size, 1))
-    P = np.array([[4.0, 9.0]])                      # a batch of two stiffnesses
+    P = np.array([[4.0, 9.0]])  # a batch of two stiffnesses
     x0 = np.array([[1.0, 1.0], [0.0, 0.0]])
     X = kernel_for(model).integrate(scheme, x0, U, t, P, {}, **kw)
     exact = np.cos(np.sqrt(P[0]) * t[-1])
@@ -55,13 +60,20 @@ def test_rkf45_meets_tolerance_with_coarse_samples():
 def test_default_inputs_at_each_stage_time():
     # x' = u with u a ramp: each stage reads the input at its own time, so Euler (one
     # stage, at t_k) sums the left samples and RK4 integrates the ramp exactly
-    m = Model(states=["x"], inputs=["u"], outputs=["x"], parameters=[Parameter("a", 1.0)],
-              f=lambda x, u, p, c: (p.a * u[0],), g=lambda x, u, p, c: (x[0],), name="ramp")
+    m = Model(
+        states=["x"],
+        inputs=["u"],
+        outputs=["x"],
+        parameters=[Parameter("a", 1.0)],
+        f=lambda x, u, p, c: (p.a * u[0],),
+        g=lambda x, u, p, c: (x[0],),
+        name="ramp",
+    )
     t = np.linspace(0, 1, 11)
     X = kernel_for(m).integrate("euler", np.zeros((1, 1)), t[:, None], t, np.ones((1, 1)), {})
     np.testing.assert_allclose(X[:, 0, 0], np.concatenate([[0.0], np.cumsum(t[:-1] * 0.1)]), atol=1e-12)
     X = kernel_for(m).integrate("rk4", np.zeros((1, 1)), t[:, None], t, np.ones((1, 1)), {})
-    np.testing.assert_allclose(X[:, 0, 0], t ** 2 / 2, atol=1e-12)
+    np.testing.assert_allclose(X[:, 0, 0], t**2 / 2, atol=1e-12)
 
 
 def test_default_rk4_step_matches_the_hand_computed_reference_step():
@@ -69,9 +81,15 @@ def test_default_rk4_step_matches_the_hand_computed_reference_step():
     u_k at the first stage, (u_k + u_k+1)/2 at the two middle ones, u_k+1 at the last. The
     input enters squared, so holding the interval's mean at every stage gives another
     number, which the default must not."""
-    m = Model(states=["x"], inputs=["u"], outputs=["x"], parameters=[Parameter("a", 2.0)],
-              f=lambda x, u, p, c: (-p.a * x[0] + u[0] * u[0],), g=lambda x, u, p, c: (x[0],),
-              name="squared-input")
+    m = Model(
+        states=["x"],
+        inputs=["u"],
+        outputs=["x"],
+        parameters=[Parameter("a", 2.0)],
+        f=lambda x, u, p, c: (-p.a * x[0] + u[0] * u[0],),
+        g=lambda x, u, p, c: (x[0],),
+        name="squared-input",
+    )
     a, h, x0, u0, u1 = 2.0, 0.1, 0.5, 1.0, 3.0
     um = 0.5 * (u0 + u1)
 
@@ -86,18 +104,21 @@ def test_default_rk4_step_matches_the_hand_computed_reference_step():
         k4 = f(x0 + h * k3, ud)
         return x0 + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
 
-    X = kernel_for(m).integrate("rk4", np.array([[x0]]), np.array([[u0], [u1]]),
-                                np.array([0.0, h]), np.array([[a]]), {})
+    X = kernel_for(m).integrate(
+        "rk4", np.array([[x0]]), np.array([[u0], [u1]]), np.array([0.0, h]), np.array([[a]]), {}
+    )
     assert X[1, 0, 0] == pytest.approx(rk4((u0, um, um, u1)), rel=1e-14)
-    assert abs(X[1, 0, 0] - rk4((um, um, um, um))) > 1e-3       # the old held-mean convention
-    held = kernel_for(m).integrate("rk4", np.array([[x0]]), np.array([[u0], [u1]]),
-                                   np.array([0.0, h]), np.array([[a]]), {}, inputs="hold")
+    assert abs(X[1, 0, 0] - rk4((um, um, um, um))) > 1e-3  # the old held-mean convention
+    held = kernel_for(m).integrate(
+        "rk4", np.array([[x0]]), np.array([[u0], [u1]]), np.array([0.0, h]), np.array([[a]]), {}, inputs="hold"
+    )
     assert held[1, 0, 0] == pytest.approx(rk4((u0, u0, u0, u0)), rel=1e-14)
     # every estimator defaults to the same convention
     from estimators import EKF, UKF, FilterError, OutputError
     from estimators.integrators import DEFAULT_INPUTS
+
     assert DEFAULT_INPUTS == "linear"
-    for cls in (OutputError, FilterError, EKF, UKF):   # (the unstable variants run OutputError)
+    for cls in (OutputError, FilterError, EKF, UKF):  # (the unstable variants run OutputError)
         assert cls(m).inputs == "linear", cls
 
 
@@ -117,7 +138,7 @@ def test_compiled_kernel_equals_numpy_path():
 
 
 def test_uncompilable_model_falls_back_with_warning():
-    class Gain:                             # an arbitrary Python object: numba cannot type it
+    class Gain:  # an arbitrary Python object: numba cannot type it
         value = 1.0
 
     gain = Gain()
@@ -125,40 +146,60 @@ def test_uncompilable_model_falls_back_with_warning():
     def f(x, u, p, c):
         return x[1], -gain.value * p.k * x[0]
 
-    m = Model(states=["x1", "x2"], inputs=["w"], outputs=["x1", "x2"],
-              parameters=[Parameter("k", 4.0)], f=f, g=osc_g, name="dicty")
+    m = Model(
+        states=["x1", "x2"],
+        inputs=["w"],
+        outputs=["x1", "x2"],
+        parameters=[Parameter("k", 4.0)],
+        f=f,
+        g=osc_g,
+        name="dicty",
+    )
     k = RhsKernel(m)
     t = np.linspace(0, 1, 51)
     with pytest.warns(RuntimeWarning, match="could not be compiled"):
-        X = k.integrate("rk4", np.array([[1.0], [0.0]]), np.zeros((51, 1)), t,
-                        np.array([[4.0]]), {})
+        X = k.integrate("rk4", np.array([[1.0], [0.0]]), np.zeros((51, 1)), t, np.array([[4.0]]), {})
     assert not k.compiled
     np.testing.assert_allclose(X[-1, 0, 0], np.cos(2.0), atol=1e-6)
 
 
 def test_divergence_fills_nan_and_stops():
-    m = Model(states=["x"], inputs=["w"], outputs=["x"], parameters=[Parameter("a", 1.0)],
-              f=lambda x, u, p, c: (p.a * x[0] * x[0],), g=lambda x, u, p, c: (x[0],), name="blowup")
-    t = np.linspace(0, 3, 301)                       # x' = x^2, x0 = 1 blows up at t = 1
+    m = Model(
+        states=["x"],
+        inputs=["w"],
+        outputs=["x"],
+        parameters=[Parameter("a", 1.0)],
+        f=lambda x, u, p, c: (p.a * x[0] * x[0],),
+        g=lambda x, u, p, c: (x[0],),
+        name="blowup",
+    )
+    t = np.linspace(0, 3, 301)  # x' = x^2, x0 = 1 blows up at t = 1
     X = kernel_for(m).integrate("rk4", np.ones((1, 1)), np.zeros((301, 1)), t, np.ones((1, 1)), {})
     finite = np.isfinite(X[:, 0, 0])
     assert finite[:90].all() and not finite[-1]
-    assert not finite[np.argmin(finite):].any()      # once non-finite, stays NaN
+    assert not finite[np.argmin(finite) :].any()  # once non-finite, stays NaN
 
 
 @pytest.mark.parametrize("scheme", ["euler", "rk2", "rk3", "rk4", "rkf45"])
 def test_input_interpolation_modes(scheme):
     # x' = u: 'hold' integrates a zero-order-held input exactly, 'linear' a sampled ramp
     # (Euler's one stage reads u_k: the left sum)
-    m = Model(states=["x"], inputs=["u"], outputs=["x"], parameters=[Parameter("a", 1.0)],
-              f=lambda x, u, p, c: (p.a * u[0],), g=lambda x, u, p, c: (x[0],), name="integrator")
+    m = Model(
+        states=["x"],
+        inputs=["u"],
+        outputs=["x"],
+        parameters=[Parameter("a", 1.0)],
+        f=lambda x, u, p, c: (p.a * u[0],),
+        g=lambda x, u, p, c: (x[0],),
+        name="integrator",
+    )
     t = np.linspace(0, 1, 11)
     u = np.where(t >= 0.5, 1.0, 0.0)
     k = kernel_for(m)
     X = k.integrate(scheme, np.zeros((1, 1)), u[:, None], t, np.ones((1, 1)), {}, inputs="hold")
     np.testing.assert_allclose(X[:, 0, 0], np.concatenate([[0], np.cumsum(u[:-1] * 0.1)]), atol=1e-9)
     X = k.integrate(scheme, np.zeros((1, 1)), t[:, None], t, np.ones((1, 1)), {}, inputs="linear")
-    exact = t ** 2 / 2 if scheme != "euler" else np.concatenate([[0.0], np.cumsum(t[:-1] * 0.1)])
+    exact = t**2 / 2 if scheme != "euler" else np.concatenate([[0.0], np.cumsum(t[:-1] * 0.1)])
     np.testing.assert_allclose(X[:, 0, 0], exact, atol=1e-9)
     with pytest.raises(Exception, match="unknown input interpolation"):
         k.integrate(scheme, np.zeros((1, 1)), t[:, None], t, np.ones((1, 1)), {}, inputs="average")

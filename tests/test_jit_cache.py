@@ -5,6 +5,7 @@ FSID_CACHE_DIR: a two-state model written to a file, fitted by output error and 
 filter-error method (nonlinear form: the compiled filter loop). numba's own counters say
 whether the compiled functions were loaded from the cache or compiled.
 """
+
 import json
 import os
 import subprocess
@@ -72,8 +73,13 @@ print(json.dumps(out))
 def _fit(tmp: Path, cache: Path, methods: str = "fem", **env) -> dict:
     e = {**os.environ, "FSID_CACHE_DIR": str(cache), **env}
     e.pop("FSID_JIT", None)
-    r = subprocess.run([sys.executable, str(tmp / "fit.py"), str(ROOT), str(tmp), methods],
-                       capture_output=True, text=True, env=e, timeout=300)
+    r = subprocess.run(
+        [sys.executable, str(tmp / "fit.py"), str(ROOT), str(tmp), methods],
+        capture_output=True,
+        text=True,
+        env=e,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     return json.loads(r.stdout.strip().splitlines()[-1])
 
@@ -157,13 +163,20 @@ def _typed() -> dict:
 def test_a_model_without_a_source_file_compiles_in_memory(tmp_path, monkeypatch):
     monkeypatch.setenv("FSID_CACHE_DIR", str(tmp_path))
     ns = _typed()
-    m = Model(states=["v"], inputs=["w"], outputs=["v"],
-              parameters=[Parameter("a", -1.0), Parameter("b", 1.0, free=False)],
-              f=ns["f1"], g=ns["g"], name="typed")
+    m = Model(
+        states=["v"],
+        inputs=["w"],
+        outputs=["v"],
+        parameters=[Parameter("a", -1.0), Parameter("b", 1.0, free=False)],
+        f=ns["f1"],
+        g=ns["g"],
+        name="typed",
+    )
     t = np.arange(0, 5, 0.05)
     seg = Segment(t=t, u=np.sin(t)[:, None], z=np.zeros((t.size, 1)), x0=np.zeros(1))
-    seg.z = (simulate_outputs(m.with_values({"a": -2.0}), seg).to_numpy()
-             + 1e-3 * np.random.default_rng(2).standard_normal((t.size, 1)))
+    seg.z = simulate_outputs(m.with_values({"a": -2.0}), seg).to_numpy() + 1e-3 * np.random.default_rng(
+        2
+    ).standard_normal((t.size, 1))
     res = OutputError(m).fit(seg, estimate_x0=False)
     assert abs(res.params["a"] + 2.0) < 3 * res.std["a"]
     k = kernel_for(m)
@@ -184,13 +197,25 @@ def test_models_sharing_g_get_their_own_filter_loop(tmp_path, monkeypatch):
     w = np.sign(np.sin(0.7 * t))[:, None]
     fits = []
     for f in (ns["f1"], ns["f2"]):
-        m = Model(states=["v"], inputs=["w"], outputs=["v"],
-                  parameters=[Parameter("a", -1.0), Parameter("b", 0.5)], f=f, g=ns["g"], name="shared-g")
+        m = Model(
+            states=["v"],
+            inputs=["w"],
+            outputs=["v"],
+            parameters=[Parameter("a", -1.0), Parameter("b", 0.5)],
+            f=f,
+            g=ns["g"],
+            name="shared-g",
+        )
         seg = Segment(t=t, u=w, z=np.zeros((t.size, 1)), x0=np.zeros(1))
-        truth = Model(states=["v"], inputs=["w"], outputs=["v"],
-                      parameters=[Parameter("a", -2.0), Parameter("b", 1.0)], f=ns["f1"], g=ns["g"])
-        seg.z = (simulate_outputs(truth, seg).to_numpy()
-                 + 1e-3 * np.random.default_rng(3).standard_normal((t.size, 1)))
+        truth = Model(
+            states=["v"],
+            inputs=["w"],
+            outputs=["v"],
+            parameters=[Parameter("a", -2.0), Parameter("b", 1.0)],
+            f=ns["f1"],
+            g=ns["g"],
+        )
+        seg.z = simulate_outputs(truth, seg).to_numpy() + 1e-3 * np.random.default_rng(3).standard_normal((t.size, 1))
         fits.append((m, FilterError(m, form="nonlinear", process_noise={"v": 1e-3}).fit(seg, estimate_x0=False)))
     (m1, r1), (m2, r2) = fits
     assert output_kernel(m1) is not output_kernel(m2)
@@ -202,8 +227,12 @@ def _module_files(root: Path, name: str, mb: float, age_days: float, now: float)
     """A fake kernel module in a cache folder: its .py, numba's index and object file (``mb``
     megabytes), last used ``age_days`` ago (its ``.used`` stamp)."""
     (root / "__pycache__").mkdir(parents=True, exist_ok=True)
-    files = [root / f"{name}.py", root / "__pycache__" / f"{name}.rhs-7.py311.nbi",
-             root / "__pycache__" / f"{name}.rhs-7.py311.1.nbc", root / f"{name}.used"]
+    files = [
+        root / f"{name}.py",
+        root / "__pycache__" / f"{name}.rhs-7.py311.nbi",
+        root / "__pycache__" / f"{name}.rhs-7.py311.1.nbc",
+        root / f"{name}.used",
+    ]
     for p in files:
         p.write_bytes(b"x" * (int(mb * 1e6) if p.suffix == ".nbc" else 10))
         t = now - age_days * 86400.0
@@ -214,10 +243,10 @@ def test_prune_removes_unused_then_least_recently_used_modules(tmp_path):
     from estimators.jit import prune_kernels
 
     now = 2.0e9
-    _module_files(tmp_path, "fsid_rhs_old", 0.1, 40.0, now)      # unused for 40 days
-    _module_files(tmp_path, "fsid_filter_mid", 2.0, 10.0, now)   # 2 MB, used 10 days ago
-    _module_files(tmp_path, "fsid_rhs_new", 2.0, 1.0, now)       # 2 MB, used yesterday
-    _module_files(tmp_path, "fsid_rhs_live", 2.0, 50.0, now)     # old, but loaded by this process
+    _module_files(tmp_path, "fsid_rhs_old", 0.1, 40.0, now)  # unused for 40 days
+    _module_files(tmp_path, "fsid_filter_mid", 2.0, 10.0, now)  # 2 MB, used 10 days ago
+    _module_files(tmp_path, "fsid_rhs_new", 2.0, 1.0, now)  # 2 MB, used yesterday
+    _module_files(tmp_path, "fsid_rhs_live", 2.0, 50.0, now)  # old, but loaded by this process
     (tmp_path / "notes.txt").write_text("not ours")
     (tmp_path / "fsid.py").write_text("not a kernel")
     os.utime(tmp_path / "notes.txt", (0, 0))
@@ -228,12 +257,10 @@ def test_prune_removes_unused_then_least_recently_used_modules(tmp_path):
     # within both limits nothing goes
     assert prune_kernels(tmp_path, max_age_days=60, max_mb=100, now=now) == []
     # 30 days: the old module goes with its numba files, the one in use stays
-    assert prune_kernels(tmp_path, max_age_days=30, max_mb=100, keep=["fsid_rhs_live"],
-                         now=now) == ["fsid_rhs_old"]
+    assert prune_kernels(tmp_path, max_age_days=30, max_mb=100, keep=["fsid_rhs_live"], now=now) == ["fsid_rhs_old"]
     assert names() == ["fsid", "fsid_filter_mid", "fsid_rhs_live", "fsid_rhs_new", "notes"]
     # 5 MB for 6 MB of kernels: the least recently used goes first, then no more than needed
-    assert prune_kernels(tmp_path, max_age_days=30, max_mb=5, keep=["fsid_rhs_live"],
-                         now=now) == ["fsid_filter_mid"]
+    assert prune_kernels(tmp_path, max_age_days=30, max_mb=5, keep=["fsid_rhs_live"], now=now) == ["fsid_filter_mid"]
     assert names() == ["fsid", "fsid_rhs_live", "fsid_rhs_new", "notes"]
 
 
@@ -247,7 +274,7 @@ def test_a_new_kernel_prunes_stale_ones_and_keeps_its_own(work, tmp_path):
     py = kernels / f"{first['module']}.py"
     mtime = py.stat().st_mtime
     assert (kernels / f"{first['module']}.used").is_file()
-    again = _fit(work, cache, "oem", FSID_CACHE_DAYS="0")     # nothing new written: no pruning
+    again = _fit(work, cache, "oem", FSID_CACHE_DAYS="0")  # nothing new written: no pruning
     assert again["misses"]["rk4"] == 0 and py.stat().st_mtime == mtime
     (work / "sp_model.py").write_text(MODEL.format(gain=1.1))
     try:

@@ -1,4 +1,5 @@
 """EKF and UKF parameter estimation: turbulent longitudinal case, segments, result contents."""
+
 import dataclasses
 
 import numpy as np
@@ -69,7 +70,7 @@ def test_result_holds_trajectories_innovations_and_settings(turb, ekf):
     # a-posteriori states follow the true (turbulent) states
     xs = ekf.extra["states"][0].to_numpy()
     assert np.sqrt(np.mean((xs[:, 1] - turb.states[0][:, 1]) ** 2)) < 2 * turb.noise_std[1]
-    np.testing.assert_allclose(ekf.extra["measurement_noise"], np.diag(turb.noise_std ** 2))
+    np.testing.assert_allclose(ekf.extra["measurement_noise"], np.diag(turb.noise_std**2))
     assert ekf.extra["gain"].shape == (4 + len(names), 7)
     assert "EKF" in ekf.summary(truth=turb.truth)
     # one history row per segment and pass; passes repeat until the estimates settle
@@ -83,8 +84,9 @@ def test_result_holds_trajectories_innovations_and_settings(turb, ekf):
 def test_missing_samples_and_defaults(turb):
     seg = turb.segments[0]
     z = seg.z.copy()
-    z[100:150, 0] = np.nan                    # airspeed drop-out
+    z[100:150, 0] = np.nan  # airspeed drop-out
     from estimators import Segment
+
     s2 = Segment(t=seg.t, u=seg.u, z=z, x0=seg.x0)
     res = EKF(turb.model, process_noise={"alpha": 0.005, "q": 0.01}).fit(s2)
     # default measurement noise comes from the data (second differences, adapted over the
@@ -99,9 +101,9 @@ def test_missing_samples_and_defaults(turb):
 
 def test_per_segment_biases_in_the_state():
     from estimators.process_noise_examples import turbulent_short_period_example
+
     ex = turbulent_short_period_example(seed=2)
-    res = EKF(ex.model, measurement_noise=ex.noise_std,
-              process_noise={"alpha": 0.004, "q": 0.008}).fit(ex.segments)
+    res = EKF(ex.model, measurement_noise=ex.noise_std, process_noise={"alpha": 0.004, "q": 0.008}).fit(ex.segments)
     within(res, ex.truth)
     tr = res.extra["trajectory"]
     # bias_az[1] does not move while segment 0 runs (it has no effect there) ...
@@ -120,16 +122,20 @@ def test_gust_state_starts_with_its_stationary_spread():
     from estimators.kalman import AugmentedModel
     from estimators.simulation import Layout
 
-    m = Model(states=["p", "g", "phi"], inputs=["u"], outputs=["p"],
-              parameters=[Parameter("Lp", -8.0), Parameter("tau", 0.4)],
-              f=lambda x, u, p, c: (p.Lp * (x[0] - x[1]) + u[0], -x[1] / p.tau, x[0]),
-              g=lambda x, u, p, c: (x[0],))
+    m = Model(
+        states=["p", "g", "phi"],
+        inputs=["u"],
+        outputs=["p"],
+        parameters=[Parameter("Lp", -8.0), Parameter("tau", 0.4)],
+        f=lambda x, u, p, c: (p.Lp * (x[0] - x[1]) + u[0], -x[1] / p.tau, x[0]),
+        g=lambda x, u, p, c: (x[0],),
+    )
     t = np.arange(0, 1, 0.02)
     seg = Segment(t=t, u=np.zeros((t.size, 1)), z=np.zeros((t.size, 1)), x0=[0.0, 0.0, 0.0])
     lay = Layout.build(m, [seg], False)
     aug = AugmentedModel(m, lay, seg, 0, "rk4")
     s = np.concatenate([lay.values[lay.x0idx[0]], lay.values[lay.free_idx]])
-    F, R = np.diag([0.0, 0.1, 0.0]), np.array([[0.003 ** 2]])
+    F, R = np.diag([0.0, 0.1, 0.0]), np.array([[0.003**2]])
     sd = np.sqrt(np.diag(EKF(m)._initial_state_cov(R, aug, s, F)))
     exact = 0.1 * np.sqrt(0.02 / (1 - np.exp(-2 * 0.02 / 0.4)))
     assert sd[1] == pytest.approx(exact, rel=1e-4) and sd[1] == pytest.approx(0.1 * np.sqrt(0.2), rel=0.03)
@@ -165,17 +171,17 @@ def test_a_pass_that_wanders_off_is_not_kept(turb, ekf):
     from estimators.kalman import _innovation_nll
 
     nu, S = np.array([0.3, -0.1]), np.array([[0.5, 0.1], [0.1, 0.2]])
-    assert _innovation_nll(nu, S) == pytest.approx(
-        0.5 * (nu @ np.linalg.inv(S) @ nu + np.log(0.5 * 0.2 - 0.01)))
+    assert _innovation_nll(nu, S) == pytest.approx(0.5 * (nu @ np.linalg.inv(S) @ nu + np.log(0.5 * 0.2 - 0.01)))
     seen = []
-    res = _KnockedOff(turb.model, passes=5, callback=lambda k, nll, p: seen.append((k, nll, p["Cmalpha"])),
-                      **settings(turb)).fit(turb.segments)
+    res = _KnockedOff(
+        turb.model, passes=5, callback=lambda k, nll, p: seen.append((k, nll, p["Cmalpha"])), **settings(turb)
+    ).fit(turb.segments)
     assert not res.converged and res.iterations == 3
     # every pass run is reported, the dropped one with its higher cost and flipped Cmalpha
     assert [k for k, _, _ in seen] == [0, 1, 2] and seen[2][1] > max(seen[0][1], seen[1][1])
     assert seen[2][2] > 0 > seen[1][2]
     assert res.extra["not_settled"].startswith("pass 3 raised the innovations' negative log-likelihood")
-    assert res.params["Cmalpha"] < 0                     # the knocked-off pass was dropped
+    assert res.params["Cmalpha"] < 0  # the knocked-off pass was dropped
     within(res, turb.truth)
     # a healthy run: every pass within the band, the last pass kept
     assert ekf.converged and "not_settled" not in ekf.extra
@@ -196,12 +202,11 @@ def test_compiled_segment_loop_is_the_python_loop(turb, case, cls):
     if case.startswith("adapted"):
         seg = turb.segments[0]
         z = seg.z.copy()
-        z[100:150, 0] = np.nan                # airspeed drop-out
-        z[300:310, :] = np.nan                # nothing measured
+        z[100:150, 0] = np.nan  # airspeed drop-out
+        z[300:310, :] = np.nan  # nothing measured
         segs = [Segment(t=seg.t, u=seg.u, z=z, x0=seg.x0), turb.segments[1]]
         # Cmq (truth -16, start -12.8) held above -14.5: projected onto the bound
-        params = [dataclasses.replace(p, bounds=(-14.5, -9.0)) if p.name == "Cmq" else p
-                  for p in turb.model.parameters]
+        params = [dataclasses.replace(p, bounds=(-14.5, -9.0)) if p.name == "Cmq" else p for p in turb.model.parameters]
         model = dataclasses.replace(turb.model, parameters=params)
         kw = dict(process_noise={"alpha": 0.005, "q": 0.01}, adapt_noise=True, passes=3)
     else:
@@ -270,8 +275,7 @@ def test_a_filter_pass_measures_its_segments_scatter():
     assert np.all(cl.ratio < 1.0), dict(zip(cl.names, cl.ratio))
     other = longitudinal(HFB320_CONSTANTS, values={**HFB320_TRUTH, "Cmde": 1.3 * HFB320_TRUTH["Cmde"]})
     segs = list(ex.segments)
-    _, z, _ = simulate_with_process_noise(other, segs[2], ex.process_noise, np.random.default_rng(101),
-                                          ex.noise_std)
+    _, z, _ = simulate_with_process_noise(other, segs[2], ex.process_noise, np.random.default_rng(101), ex.noise_std)
     segs[2] = dataclasses.replace(segs[2], z=z)
     res = EKF(ex.model, **settings(ex)).fit(segs)
     ratio = dict(zip(res.extra["cluster"].names, res.extra["cluster"].ratio))

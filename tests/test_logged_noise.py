@@ -1,5 +1,6 @@
 """Measurement noise for the filters from the log's native samples (pipeline.flightdata:
 FlightData.noise_std, resample_noise_gain; pipeline.run.attach_logged_noise)."""
+
 import numpy as np
 import pytest
 from scipy.signal import lfilter
@@ -12,7 +13,7 @@ def _roll_like(rng, n, rate):
     as a gyro sees it in turbulence: its curvature is large at 50 Hz."""
     h = 1.0 / rate
     w = rng.standard_normal(n)
-    g = lfilter([np.sqrt(2 * h / 0.44) * 0.05], [1, -np.exp(-h / 0.44)], w)   # p_g, 0.05 rad/s
+    g = lfilter([np.sqrt(2 * h / 0.44) * 0.05], [1, -np.exp(-h / 0.44)], w)  # p_g, 0.05 rad/s
     a = np.exp(-13.0 * h)
     return lfilter([1 - a], [1, -a], g)
 
@@ -20,8 +21,12 @@ def _roll_like(rng, n, rate):
 def test_noise_gain_of_the_resampling_matches_resampled_white_noise():
     rng = np.random.default_rng(3)
     t = np.arange(200_000) / 100.0
-    fd = FlightData(channels={"p": Channel(t, rng.standard_normal(t.size), "rad/s"),
-                              "phi": Channel(t[::2], rng.standard_normal(t.size // 2), "rad")})
+    fd = FlightData(
+        channels={
+            "p": Channel(t, rng.standard_normal(t.size), "rad/s"),
+            "phi": Channel(t[::2], rng.standard_normal(t.size // 2), "rad"),
+        }
+    )
     grid = fd.resample(50.0, ["p", "phi"])
     assert resample_noise_gain(100.0, 50.0) == pytest.approx(0.604, abs=0.002)
     assert np.std(grid["p"]) == pytest.approx(resample_noise_gain(100.0, 50.0), rel=0.02)
@@ -63,14 +68,18 @@ def test_attach_logged_noise_sets_the_outputs_that_are_channels():
     rng = np.random.default_rng(7)
     t = np.arange(20_000) / 100.0
     fd = FlightData(channels={"p": Channel(t, 0.002 * rng.standard_normal(t.size), "rad/s")})
-    seg = SimpleNamespace(z=np.column_stack([0.002 * rng.standard_normal(500),
-                                             0.5 * rng.standard_normal(500)]))
-    pb = SimpleNamespace(model=SimpleNamespace(outputs=["p", "ay"]), rate_hz=50.0,
-                         specs=[SegmentSpec("a", 10.0, 60.0, "time")], fit=[seg], noise_std={})
+    seg = SimpleNamespace(z=np.column_stack([0.002 * rng.standard_normal(500), 0.5 * rng.standard_normal(500)]))
+    pb = SimpleNamespace(
+        model=SimpleNamespace(outputs=["p", "ay"]),
+        rate_hz=50.0,
+        specs=[SegmentSpec("a", 10.0, 60.0, "time")],
+        fit=[seg],
+        noise_std={},
+    )
     attach_logged_noise(fd, pb)
     assert set(pb.noise_std) == {"p"}
     assert pb.noise_std["p"] == pytest.approx(0.002 * 0.604, rel=0.06)
     sd = measurement_noise_std(pb)
-    assert sd[0] == pb.noise_std["p"]                                     # from the log
-    assert sd[1] == pytest.approx(0.5, rel=0.1)                          # from the grid
+    assert sd[0] == pb.noise_std["p"]  # from the log
+    assert sd[1] == pytest.approx(0.5, rel=0.1)  # from the grid
     assert measurement_noise_std(pb, logged=False)[0] == pytest.approx(0.002, rel=0.1)

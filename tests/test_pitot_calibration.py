@@ -11,6 +11,7 @@ factor taken as 0 (as before; the along-track wind takes the airspeed error, the
 dynamic pressure keeps it): Cmalpha 46, Cnr 7.8 std off, both verdicts fail. The vanes' run (``fsid run``: flight.mcap, the
 compatibility stage estimates the air-data errors) is within 2.5 std.
 """
+
 from __future__ import annotations
 
 import json
@@ -44,9 +45,14 @@ def estimated(run, tmp_path_factory):
 
 def _worst(rep):
     """Largest |error| / std over each method's derivatives."""
-    return {k: max(abs(p["error_in_std"]) for n, p in m["parameters"].items()
-                   if p.get("error_in_std") is not None and "[" not in n)
-            for k, m in rep["methods"].items()}
+    return {
+        k: max(
+            abs(p["error_in_std"])
+            for n, p in m["parameters"].items()
+            if p.get("error_in_std") is not None and "[" not in n
+        )
+        for k, m in rep["methods"].items()
+    }
 
 
 def test_the_turn_calibrates_the_pitot_with_the_wind(estimated):
@@ -68,8 +74,9 @@ def test_the_calibrated_airspeed_gives_the_derivatives(estimated):
     assert set(rep["methods"]) == {"longitudinal-oem", "lateral-oem"}
     worst = _worst(rep)
     assert max(worst.values()) <= 3.0, worst
-    assert all(m["verdict"]["ok"] for m in rep["methods"].values()), \
-        {k: m["verdict"] for k, m in rep["methods"].items()}
+    assert all(m["verdict"]["ok"] for m in rep["methods"].values()), {
+        k: m["verdict"] for k, m in rep["methods"].items()
+    }
 
 
 def test_without_the_calibration_the_pitot_error_breaks_the_fit(run, tmp_path, monkeypatch):
@@ -91,8 +98,8 @@ def test_the_vanes_run_estimates_the_air_data_errors(run):
     worst = _worst(rep)
     assert max(worst.values()) <= 3.0, worst
     applied = rep["compatibility"]["applied"]
-    assert set(applied) == {"scale_V"}, applied       # the bias carried by the scale factor
-    k = applied["scale_V"]         # seed 1: 4.72 +- 0.21 %
+    assert set(applied) == {"scale_V"}, applied  # the bias carried by the scale factor
+    k = applied["scale_V"]  # seed 1: 4.72 +- 0.21 %
     assert EFFECTIVE_SCALE[0] - 3 * k["std"] < k["estimate"] < EFFECTIVE_SCALE[1] + 3 * k["std"], k
 
 
@@ -111,7 +118,7 @@ def test_fsid_check_of_the_bin_calibrates_the_pitot_and_checks_the_imu(run, tmp_
     comp = doc["compatibility"]
     assert comp["status"] == "ok" and comp["scope"].startswith("IMU errors only") and "airspeed" in comp
     assert not {"bias_V", "scale_V", "bias_alpha", "scale_alpha"} & set(comp["parameters"])
-    assert comp["applied"] == {}                     # the IMU has no error in this scenario
+    assert comp["applied"] == {}  # the IMU has no error in this scenario
     assert "pitot scale factor +4." in capsys.readouterr().out
 
 
@@ -149,8 +156,7 @@ def test_a_validation_flight_takes_the_fitted_flights_scale_factor(tmp_path, cap
     scen.write_text(text + VALIDATION_FLIGHT)
     run_dir, _ = simulate(scen, tmp_path / "sim", progress=False)
     out = tmp_path / "est"
-    estimate_log(run_dir / "flight.bin", out, methods=("oem",),
-                 validation_log=run_dir / "validation.bin")
+    estimate_log(run_dir / "flight.bin", out, methods=("oem",), validation_log=run_dir / "validation.bin")
     rep = json.loads((out / "report.json").read_text())
     cal = rep["meta"]["flow_angles"]["airspeed_scale"]
     assert cal["applied"] and EFFECTIVE_SCALE[0] < cal["estimate"] < EFFECTIVE_SCALE[1], cal

@@ -1,22 +1,31 @@
 """Covariance of estimates from a model fed its own measurements
 (estimators.pseudo_input_noise), against hand-computed values."""
+
 import numpy as np
 import pytest
 
 from estimators import Model, OutputError
 from estimators.model import Parameter, Segment
-from estimators.pseudo_input_noise import (PropagationError, adjoint_sums, onto_measured,
-                                           propagated_covariance,
-                                           pseudo_mixing)
+from estimators.pseudo_input_noise import (
+    PropagationError,
+    adjoint_sums,
+    onto_measured,
+    propagated_covariance,
+    pseudo_mixing,
+)
 from estimators.statistics import difference_noise_std
 
 
 def test_difference_noise_std_on_its_own_samples():
     rng = np.random.default_rng(0)
     t = np.arange(20000) * 0.01
-    z = np.column_stack([0.3 * t + 0.05 * rng.standard_normal(t.size),      # ramp + noise
-                         np.sin(0.5 * t) + 0.002 * rng.standard_normal(t.size)])
-    z[1::2, 1] = np.nan                                  # channel 1 at half the rate
+    z = np.column_stack(
+        [
+            0.3 * t + 0.05 * rng.standard_normal(t.size),  # ramp + noise
+            np.sin(0.5 * t) + 0.002 * rng.standard_normal(t.size),
+        ]
+    )
+    z[1::2, 1] = np.nan  # channel 1 at half the rate
     sd = difference_noise_std([z[:10000], z[10000:]])
     assert sd == pytest.approx([0.05, 0.002], rel=0.03)
     # a few steps (a control input's kinks) inflate the plain estimate, not the robust one
@@ -41,17 +50,25 @@ def test_pseudo_mixing_of_a_derived_pseudo_input():
 
 def _first_order(feedback: float, seed: int = 3) -> tuple[Model, Segment]:
     """x' = a x + b u + k (z_y - x), y = x: a pseudo-input z_y with gain k (1/s)."""
+
     def f(x, u, p, c):
         return (p.a * x[0] + p.b * u[0] + feedback * (u[1] - x[0]),)
 
     def g(x, u, p, c):
         return (x[0],)
-    m = Model(states=["x"], inputs=["u", "z_y"], outputs=["y"],
-              parameters=[Parameter("a", -1.0), Parameter("b", 2.0)], f=f, g=g)
+
+    m = Model(
+        states=["x"],
+        inputs=["u", "z_y"],
+        outputs=["y"],
+        parameters=[Parameter("a", -1.0), Parameter("b", 2.0)],
+        f=f,
+        g=g,
+    )
     t = np.arange(2000) * 0.01
     u = np.sign(np.sin(0.7 * t))
     clean = np.zeros_like(t)
-    for k in range(1, t.size):        # the true system (a = -1, b = 2), Euler at 0.01 s
+    for k in range(1, t.size):  # the true system (a = -1, b = 2), Euler at 0.01 s
         clean[k] = clean[k - 1] + 0.01 * (-clean[k - 1] + 2 * u[k - 1])
     z = clean + 0.05 * np.random.default_rng(seed).standard_normal(t.size)
     return m, Segment(t=t, u=np.column_stack([u, z]), z=z[:, None], x0=np.zeros(1))
@@ -60,8 +77,16 @@ def _first_order(feedback: float, seed: int = 3) -> tuple[Model, Segment]:
 def test_without_feedback_it_is_the_cramer_rao_covariance():
     m, seg = _first_order(0.0)
     res = OutputError(m).fit(seg)
-    cov, s2 = propagated_covariance(m, [seg], res.params.to_dict(), res.sensitivities,
-                                    [r.to_numpy() for r in res.residuals], res.R, res.information, ["y"])
+    cov, s2 = propagated_covariance(
+        m,
+        [seg],
+        res.params.to_dict(),
+        res.sensitivities,
+        [r.to_numpy() for r in res.residuals],
+        res.R,
+        res.information,
+        ["y"],
+    )
     assert s2 == pytest.approx(difference_noise_std([seg.z], robust=True) ** 2)
     # nothing fed back: the Cramér-Rao covariance, scaled from the residual variance to the
     # noise variance measured from the samples (the same within a few per cent)
@@ -101,7 +126,7 @@ def test_coefficients_of_filled_samples_go_back_to_the_measured_ones():
 
 def test_adjoint_sums_are_the_impulse_response_correlated_forward():
     rng = np.random.default_rng(1)
-    Ad = np.array([[1.0, 0.01], [0.0, 0.98]])          # an integrator chain: a pole at 1
+    Ad = np.array([[1.0, 0.01], [0.0, 0.98]])  # an integrator chain: a pole at 1
     Bd, Cd, Dd = rng.standard_normal((2, 2)), rng.standard_normal((3, 2)), rng.standard_normal((3, 2))
     a = rng.standard_normal((60, 3, 4))
     g = [Dd] + [Cd @ np.linalg.matrix_power(Ad, l - 1) @ Bd for l in range(1, 60)]

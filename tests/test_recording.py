@@ -1,6 +1,7 @@
 """run.rrd: passes `rerun rrd verify`, and rerun's own reader (rerun.chunk.RrdReader) finds
 the documented entity paths with the right sample counts and time lines; `fsid view` errors
 and serving the web viewer."""
+
 from __future__ import annotations
 
 import collections
@@ -25,7 +26,7 @@ from pipeline.validate import validate
 rr = pytest.importorskip("rerun")
 import rerun.chunk as rc  # noqa: E402
 
-N = 400          # samples per segment
+N = 400  # samples per segment
 DT = 0.02
 
 
@@ -43,6 +44,7 @@ def run(tmp_path_factory):
 
 def _rerun_cli() -> str:
     from pipeline.commands.view import rerun_binary
+
     return rerun_binary()
 
 
@@ -64,8 +66,7 @@ def test_rrd_verify(run):
     *_, path = run
     assert path.name == "run.rrd" and path.stat().st_size > 0
     assert not [p for p in path.parent.iterdir() if p.name.endswith(".tmp")]
-    p = subprocess.run([_rerun_cli(), "rrd", "verify", str(path)], capture_output=True, text=True,
-                       timeout=60)
+    p = subprocess.run([_rerun_cli(), "rrd", "verify", str(path)], capture_output=True, text=True, timeout=60)
     assert p.returncode == 0, p.stderr
     assert "verified without error" in p.stderr + p.stdout
 
@@ -102,15 +103,15 @@ def test_entity_paths_and_sample_counts(run):
             for k in ("data", "oem", "oem_linear"):
                 assert counts[f"{base}/{q}/{k}"] == n_w
     assert counts["/data/h"] == N
-    assert counts["/inverse/oem/de"] == N and "/inverse/oem/thrust" not in counts   # excited only
-    assert {"/README", "/summary/oem", "/outputs/q/measured"} <= static   # docs + series styles
-    assert rc.RrdReader(path).blueprints()                               # default layout sent
+    assert counts["/inverse/oem/de"] == N and "/inverse/oem/thrust" not in counts  # excited only
+    assert {"/README", "/summary/oem", "/outputs/q/measured"} <= static  # docs + series styles
+    assert rc.RrdReader(path).blueprints()  # default layout sent
 
 
 def test_time_lines_and_values(run):
     ex, res, v, path = run
     _, batches, _ = _read(path)
-    (b,) = batches["/outputs/q/measured"]                 # one send_columns call -> one chunk
+    (b,) = batches["/outputs/q/measured"]  # one send_columns call -> one chunk
     t = b.column("t").cast("int64").to_numpy() / 1e9
     seg = b.column("segment").to_numpy()
     z = np.concatenate(b.column("Scalars:scalars").to_pylist())
@@ -120,8 +121,9 @@ def test_time_lines_and_values(run):
     np.testing.assert_allclose(t, expect_t, atol=1e-9)
     np.testing.assert_array_equal(seg, np.repeat([0, 1], N))
     q = res.outputs.index("q")
-    np.testing.assert_allclose(z, np.concatenate([ex.segments[0].z[:, q], ex.segments[1].z[:, q]]),
-                               rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(
+        z, np.concatenate([ex.segments[0].z[:, q], ex.segments[1].z[:, q]]), rtol=1e-12, atol=1e-15
+    )
     (m,) = batches["/match/q/measured"]
     tm = m.column("t").cast("int64").to_numpy() / 1e9
     assert tm[0] == pytest.approx(2 * (span + SEGMENT_GAP))
@@ -176,8 +178,9 @@ def _block_sigint():
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
 
 
-@pytest.mark.parametrize("launcher", [None, _ignore_sigint, _block_sigint],
-                         ids=["plain", "sigint-ignored", "sigint-blocked"])
+@pytest.mark.parametrize(
+    "launcher", [None, _ignore_sigint, _block_sigint], ids=["plain", "sigint-ignored", "sigint-blocked"]
+)
 def test_view_serves_web_viewer_without_display(run, launcher):
     """fsid view serves the web viewer and stops on Ctrl-C - also when started with SIGINT
     ignored or blocked (inherited across exec from a script's background job or a test
@@ -185,10 +188,16 @@ def test_view_serves_web_viewer_without_display(run, launcher):
     *_, path = run
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     root = Path(__file__).resolve().parents[1]
-    proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "view", str(path.parent),
-                             "--web-port", "0", "--grpc-port", "0"], cwd=root, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                            start_new_session=True, preexec_fn=launcher)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pipeline.cli", "view", str(path.parent), "--web-port", "0", "--grpc-port", "0"],
+        cwd=root,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        start_new_session=True,
+        preexec_fn=launcher,
+    )
     try:
         line = proc.stdout.readline()
         m = re.search(r"(http://127\.0\.0\.1:(\d+)/\?url=\S+)", line)
@@ -203,7 +212,7 @@ def test_view_serves_web_viewer_without_display(run, launcher):
                 time.sleep(0.3)
         assert status == 200
     finally:
-        proc.send_signal(signal.SIGINT)            # fsid view stops its rerun child on Ctrl-C
+        proc.send_signal(signal.SIGINT)  # fsid view stops its rerun child on Ctrl-C
         try:
             proc.wait(timeout=30)
         except subprocess.TimeoutExpired:
@@ -221,15 +230,15 @@ def test_several_methods_and_filter_trajectories(run, tmp_path):
     ex, res, v, _ = run
     segs = ex.segments[:2]
     ekf = EKF(ex.model, measurement_noise=dict(zip(ex.model.outputs, ex.noise_std))).fit(segs)
-    X = pd.DataFrame({"alpha": segs[0].z[:, 1], "q": segs[0].z[:, 3], "de": segs[0].u[:, 0]},
-                     index=pd.Index(segs[0].t, name="t"))
+    X = pd.DataFrame(
+        {"alpha": segs[0].z[:, 1], "q": segs[0].z[:, 3], "de": segs[0].u[:, 0]}, index=pd.Index(segs[0].t, name="t")
+    )
     ls = LeastSquares(intercept=True, response="qdot").fit(X, segs[0].z[:, 4])
     results = {"oem": res, "ekf": ekf, "ls": ls}
     vals = {"oem": v, "ekf": validate(ekf, held_out=ex.segments[2:], truth=ex.truth), "ls": validate(ls)}
     assert vals["ls"]["modes"] is None and vals["ekf"]["proof_of_match"] is not None
     path = write_recording(tmp_path / "run.rrd", results, vals, truth=ex.truth)
-    p = subprocess.run([_rerun_cli(), "rrd", "verify", str(path)], capture_output=True, text=True,
-                       timeout=60)
+    p = subprocess.run([_rerun_cli(), "rrd", "verify", str(path)], capture_output=True, text=True, timeout=60)
     assert p.returncode == 0, p.stderr
     counts, batches, _ = _read(path)
     assert counts["/outputs/q/measured"] == counts["/outputs/q/ekf"] == 2 * N
@@ -259,16 +268,21 @@ def test_segment_layout_across_axes():
         return pd.DataFrame({"y": np.zeros(n)}, index=pd.Index(t, name="t")), SimpleNamespace(name=name)
 
     (p1, s1), (p2, _), (p3, s3) = seg(10, 101, "de_0"), seg(40, 101, "de_1"), seg(25, 51, "da_0")
-    results = {"lon": SimpleNamespace(predicted=[p1], segments=[s1]),
-               "lat": SimpleNamespace(predicted=[p3], segments=[s3])}
+    results = {
+        "lon": SimpleNamespace(predicted=[p1], segments=[s1]),
+        "lat": SimpleNamespace(predicted=[p3], segments=[s3]),
+    }
     vals = {"lon": {"arrays": {"match": [{"t": p2.index.to_numpy(), "name": "de_1"}]}}}
     lay = SegmentLayout(results, vals)
-    assert [lay.place(p.index, n) for p, n in ((p1, "de_0"), (p2, "de_1"), (p3, "da_0"))] == \
-        [(0.0, 0), (0.0, 1), (0.0, 2)]
+    assert [lay.place(p.index, n) for p, n in ((p1, "de_0"), (p2, "de_1"), (p3, "da_0"))] == [
+        (0.0, 0),
+        (0.0, 1),
+        (0.0, 2),
+    ]
     # synthetic maneuvers all starting at 0: end to end in order of appearance, 1 s apart
     (q1, r1), (q2, r2) = seg(0, 101, "a"), seg(0, 51, "b")
     lay = SegmentLayout({"m": SimpleNamespace(predicted=[q1, q2], segments=[r1, r2])}, {})
     assert lay.place(q1.index, "a") == (0.0, 0)
     assert lay.place(q2.index, "b") == (pytest.approx(10.0 + SEGMENT_GAP), 1)
-    o, k = lay.place(q2.index, "late")                      # unseen: appended after the end
+    o, k = lay.place(q2.index, "late")  # unseen: appended after the end
     assert k == 2 and o == pytest.approx(10.0 + SEGMENT_GAP + 5.0 + SEGMENT_GAP)

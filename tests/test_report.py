@@ -1,6 +1,7 @@
 """pipeline.validate and pipeline.report on a real OEM fit of the HFB-320-like example:
 proof of match passes on a held-out maneuver and fails for a wrong model; report.json
 carries exactly the result's numbers; report.md has the parameter table rows."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -38,7 +39,7 @@ def test_good_fit_passes_proof_of_match_on_held_out_segment(fitted):
     assert pm["all_pass"]
     chans = pm["segments"][0]["channels"]
     judged = {c for c, d in chans.items() if d["pass"] is not None}
-    assert judged == {"alpha", "theta", "q", "ax", "az"}     # V, qdot have no default band
+    assert judged == {"alpha", "theta", "q", "ax", "az"}  # V, qdot have no default band
     assert all(chans[c]["pass"] for c in judged)
     # display units: q in deg/s against the 1.5 deg/s band, az in g against 0.1 g
     assert chans["q"]["unit"] == "deg/s" and chans["q"]["tolerance_display"] == pytest.approx(1.5)
@@ -62,7 +63,7 @@ def test_wrong_model_fails_proof_of_match(fitted):
 
 def test_validation_contents(fitted):
     ex, res, v = fitted
-    json.dumps(json_ready(v), allow_nan=False)               # JSON-ready apart from arrays
+    json.dumps(json_ready(v), allow_nan=False)  # JSON-ready apart from arrays
     assert "arrays" not in json_ready(v)
     names = set(v["modes"]["table"])
     assert {"short period", "phugoid"} <= names
@@ -74,7 +75,7 @@ def test_validation_contents(fitted):
     assert v["residuals"]["all_white"]
     fr = v["frequency"]
     assert fr["inputs"] == ["de"] and fr["n_judged"] > 0
-    for key in ("q/de", "qdot/de", "az/de"):                   # well-excited, low-noise pairs
+    for key in ("q/de", "qdot/de", "az/de"):  # well-excited, low-noise pairs
         assert fr["table"][key]["pass"], (key, fr["table"][key])
     a = v["arrays"]
     assert a["psd"]["Pxx"].shape == (a["psd"]["f"].size, len(res.outputs))
@@ -92,8 +93,7 @@ def test_apriori_plausibility(fitted):
 
 def test_report_json_equals_result_numbers(fitted, tmp_path):
     ex, res, v = fitted
-    md, js = write_report(tmp_path, {"oem": res}, {"oem": v}, truth=ex.truth,
-                          meta={"scenario": "unit test", "seed": 0})
+    md, js = write_report(tmp_path, {"oem": res}, {"oem": v}, truth=ex.truth, meta={"scenario": "unit test", "seed": 0})
     assert md == tmp_path / "report.md" and js == tmp_path / "report.json"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json", "report.md"]  # no temp files
     rep = json.loads(js.read_text())
@@ -119,15 +119,20 @@ def test_report_json_equals_result_numbers(fitted, tmp_path):
 
 def test_report_md_has_table_rows_and_verdict(fitted, tmp_path):
     ex, res, v = fitted
-    md, js = write_report(tmp_path, {"oem": res, "wrong": _wrong(res)},
-                          {"oem": v, "wrong": validate(_wrong(res), held_out=ex.segments[1:],
-                                                       truth=ex.truth)}, truth=ex.truth)
+    md, js = write_report(
+        tmp_path,
+        {"oem": res, "wrong": _wrong(res)},
+        {"oem": v, "wrong": validate(_wrong(res), held_out=ex.segments[1:], truth=ex.truth)},
+        truth=ex.truth,
+    )
     text = md.read_text()
     rep = json.loads(js.read_text())
     for name in res.free_names:
         est, sd = float(res.params[name]), float(res.std[name])
-        row = (f"| {name} | {est:.6g} | {sd:.4g} | {100 * sd / abs(est):.2f} | "
-               f"{ex.truth[name]:.6g} | {abs(est - ex.truth[name]) / sd:.2f} |")
+        row = (
+            f"| {name} | {est:.6g} | {sd:.4g} | {100 * sd / abs(est):.2f} | "
+            f"{ex.truth[name]:.6g} | {abs(est - ex.truth[name]) / sd:.2f} |"
+        )
         assert row in text, row
     rows = param_rows(rep["methods"]["oem"], True)
     assert len(rows) == len(res.free_names)
@@ -140,9 +145,9 @@ def test_report_md_has_table_rows_and_verdict(fitted, tmp_path):
     assert "| short period |" in text and "Held-out segment **3211-1**: PASS" in text
     assert "| q | deg/s | 1.5 |" in text
     tic_q = v["fit"]["per_output"]["q"]["TIC"]
-    assert f"| q | deg/s | {tic_q:.4f} |" in text                  # fit table, display unit
+    assert f"| q | deg/s | {tic_q:.4f} |" in text  # fit table, display unit
     assert "### Inverse simulation" in text and "| de | deg |" in text
-    assert "Data preparation" not in text          # no problem notes given
+    assert "Data preparation" not in text  # no problem notes given
 
 
 def test_report_shows_how_the_data_were_prepared(fitted, tmp_path):
@@ -169,15 +174,21 @@ def test_methods_cross_check_flags_the_wrong_model(fitted, tmp_path):
     z = {(r["parameter"], r["method_a"], r["method_b"]): r["z"] for r in table}
     name = "Cmq"
     assert z[(name, "oem", "oem_b")] == pytest.approx(
-        abs(res.params[name] - other.params[name]) / math.hypot(res.std[name], other.std[name]))
+        abs(res.params[name] - other.params[name]) / math.hypot(res.std[name], other.std[name])
+    )
     assert max(z[(n, "oem", "oem_b")] for n in res.free_names) < 3.0
     flagged = {k for k, d in z.items() if d > 3.0}
     assert flagged == {(n, a, "wrong") for n in ("Cmalpha", "Cmq") for a in ("oem", "oem_b")}
-    assert vals["oem"]["agreement"]["flagged"] == {"wrong": {
-        "Cmalpha": pytest.approx(z[("Cmalpha", "oem", "wrong")]),
-        "Cmq": pytest.approx(z[("Cmq", "oem", "wrong")])}}
-    assert any(n.startswith("disagrees with wrong by more than 3 combined std on Cmalpha")
-               for n in vals["oem"]["verdict"]["notes"])
+    assert vals["oem"]["agreement"]["flagged"] == {
+        "wrong": {
+            "Cmalpha": pytest.approx(z[("Cmalpha", "oem", "wrong")]),
+            "Cmq": pytest.approx(z[("Cmq", "oem", "wrong")]),
+        }
+    }
+    assert any(
+        n.startswith("disagrees with wrong by more than 3 combined std on Cmalpha")
+        for n in vals["oem"]["verdict"]["notes"]
+    )
     assert set(vals["wrong"]["agreement"]["flagged"]) == {"oem", "oem_b"}
     assert not any("disagrees" in n for n in validate(res)["verdict"]["notes"])
     md, js = write_report(tmp_path, results, vals, agreement=ag)
@@ -201,10 +212,15 @@ def test_report_without_truth_or_validation(fitted, tmp_path):
 
 def test_report_lists_data_check_findings(fitted, tmp_path):
     ex, res, v = fitted
-    checks = json.dumps({"summary": {"pass": 3, "warn": 1, "fail": 0},
-                         "findings": [{"status": "pass", "check": "rate", "channel": "q", "message": "ok"},
-                                      {"status": "warn", "check": "excitation", "channel": "da",
-                                       "message": "aileron barely moves"}]})
+    checks = json.dumps(
+        {
+            "summary": {"pass": 3, "warn": 1, "fail": 0},
+            "findings": [
+                {"status": "pass", "check": "rate", "channel": "q", "message": "ok"},
+                {"status": "warn", "check": "excitation", "channel": "da", "message": "aileron barely moves"},
+            ],
+        }
+    )
     md, js = write_report(tmp_path, {"oem": res}, {"oem": v}, checks=checks)
     text = md.read_text()
     assert "## Data checks" in text and "pass: 3, warn: 1, fail: 0" in text
@@ -231,7 +247,8 @@ def test_inverse_simulation_on_log_times(fitted):
     inv = validate(shifted)["inverse_simulation"]
     assert "error" not in inv
     assert inv["per_input"]["de"]["ratio"] == pytest.approx(
-        v["inverse_simulation"]["per_input"]["de"]["ratio"], rel=1e-6)
+        v["inverse_simulation"]["per_input"]["de"]["ratio"], rel=1e-6
+    )
 
 
 def test_verdict_advises_filter_error_for_output_error_in_turbulence():
@@ -240,9 +257,12 @@ def test_verdict_advises_filter_error_for_output_error_in_turbulence():
     with white residuals."""
     from pipeline.validate import verdict
 
-    v = {"method": "oem", "converged": True,
-         "residuals": {"all_white": False, "whiteness": {"q": {"white": False}}},
-         "uncertainty": {"cluster": {"n_segments": 4, "flag_ratio": 3.0, "flagged": {"Cmq": 5.0}}}}
+    v = {
+        "method": "oem",
+        "converged": True,
+        "residuals": {"all_white": False, "whiteness": {"q": {"white": False}}},
+        "uncertainty": {"cluster": {"n_segments": 4, "flag_ratio": 3.0, "flagged": {"Cmq": 5.0}}},
+    }
     advice = "fit filter error too (--method fem)"
     assert any(advice in n for n in verdict(v)["notes"])
     assert any(advice in n for n in verdict({**v, "method": "oem-stabilized"})["notes"])
@@ -257,25 +277,33 @@ def test_verdict_advises_filter_error_for_output_error_in_turbulence():
 def _pom(**channels):
     """A proof of match of one held-out segment: channel -> (pass, beyond, std) in display
     units (beyond/std None: no prediction uncertainty)."""
-    ch = {c: {"pass": ok, "beyond_prediction_display": b, "prediction_std_max_display": sd,
-              "unit": "deg/s"} for c, (ok, b, sd) in channels.items()}
-    return {"all_pass": all(ok for ok, _, _ in channels.values()),
-            "segments": [{"name": "3211", "channels": ch,
-                          "prediction_uncertainty": {"parameters": 3, "k": 2.0}}]}
+    ch = {
+        c: {"pass": ok, "beyond_prediction_display": b, "prediction_std_max_display": sd, "unit": "deg/s"}
+        for c, (ok, b, sd) in channels.items()
+    }
+    return {
+        "all_pass": all(ok for ok, _, _ in channels.values()),
+        "segments": [{"name": "3211", "channels": ch, "prediction_uncertainty": {"parameters": 3, "k": 2.0}}],
+    }
 
 
 def _clean(method="ekf"):
     """A validation dict with nothing against the fit."""
-    return {"method": method, "converged": True,
-            "fit": {"tic_ok": True, "tic_limit": 0.1, "per_output": {"p": {"TIC": 0.03}}},
-            "proof_of_match": _pom(p=(True, 0.0, 0.2)),
-            "plausibility": {"truth": {"k": 3.0, "all_within": True,
-                                       "per_parameter": {"Clp": {"within": True}}}}}
+    return {
+        "method": method,
+        "converged": True,
+        "fit": {"tic_ok": True, "tic_limit": 0.1, "per_output": {"p": {"TIC": 0.03}}},
+        "proof_of_match": _pom(p=(True, 0.0, 0.2)),
+        "plausibility": {"truth": {"k": 3.0, "all_within": True, "per_parameter": {"Clp": {"within": True}}}},
+    }
 
 
 def _disagreeing(other="lateral-fem", method="fem", converged=True):
-    return {"k": 3.0, "flagged": {other: {"Clbeta": 7.7, "Cnda": 7.6}},
-            "against": {other: {"method": method, "converged": converged}}}
+    return {
+        "k": 3.0,
+        "flagged": {other: {"Clbeta": 7.7, "Cnda": 7.6}},
+        "against": {other: {"method": method, "converged": converged}},
+    }
 
 
 def test_verdict_levels_from_hand_made_validations():
@@ -290,19 +318,16 @@ def test_verdict_levels_from_hand_made_validations():
 
     within = verdict({**_clean(), "proof_of_match": _pom(p=(False, 0.0, 1.9), r=(True, 0.0, 0.1))})
     assert within["level"] == "CHECK" and not within["ok"], within
-    assert within["reasons"] == ["proof of match failed on p within 2 std of the prediction's "
-                                 "own uncertainty"]
+    assert within["reasons"] == ["proof of match failed on p within 2 std of the prediction's own uncertainty"]
     assert any("too imprecise" in n for n in within["notes"])
 
     beyond = verdict({**_clean(), "proof_of_match": _pom(p=(False, 0.0, 1.9), r=(False, 0.4, 0.1))})
     assert beyond["level"] == "FAIL" and beyond["reason_levels"] == ["FAIL", "CHECK"], beyond
-    assert beyond["reasons"][0] == ("proof of match failed on r beyond 2 std of the "
-                                    "prediction's own uncertainty")
+    assert beyond["reasons"][0] == ("proof of match failed on r beyond 2 std of the prediction's own uncertainty")
     unweighed = verdict({**_clean(), "proof_of_match": _pom(p=(False, None, None))})
     assert unweighed["level"] == "FAIL" and "no prediction uncertainty" in unweighed["reasons"][0]
 
-    tic = {"tic_ok": False, "tic_limit": 0.1, "per_output": {"p": {"TIC": 0.14}},
-           "tic_noise_floor": []}
+    tic = {"tic_ok": False, "tic_limit": 0.1, "per_output": {"p": {"TIC": 0.14}}, "tic_noise_floor": []}
     assert verdict({**_clean(), "fit": tic})["level"] == "CHECK"
     truth = {"k": 3.0, "all_within": False, "per_parameter": {"Clp": {"within": False}}}
     v = verdict({**_clean(), "fit": tic, "plausibility": {"truth": truth}})
@@ -310,7 +335,8 @@ def test_verdict_levels_from_hand_made_validations():
     assert v["reasons"][1] == "Clp more than 3 std from the truth"
     assert verdict({**_clean(), "converged": False})["level"] == "FAIL"
     assert verdict({"converged": False, "not_settled": "moved"})["reasons"] == [
-        "the filter passes did not settle: moved"]
+        "the filter passes did not settle: moved"
+    ]
 
 
 def test_verdict_fails_an_ekf_that_disagrees_with_filter_error():
@@ -325,16 +351,19 @@ def test_verdict_fails_an_ekf_that_disagrees_with_filter_error():
             assert v["level"] == "FAIL" and not v["ok"], v
             assert v["reasons"] == [
                 "disagrees with filter error (lateral-fem) by more than 3 combined std on "
-                f"Clbeta (7.7), Cnda (7.6): {FILTER_ERROR_TRUST}"], v
+                f"Clbeta (7.7), Cnda (7.6): {FILTER_ERROR_TRUST}"
+            ], v
             assert not any("disagrees" in n for n in v["notes"])
     assert "method to trust in turbulence" in FILTER_ERROR_TRUST
     # without the other's method name, its result key says it
     v = verdict({**_clean("ekf"), "agreement": {"k": 3.0, "flagged": {"fem-nl": {"Clp": 4.0}}}})
     assert v["level"] == "FAIL" and "filter error (fem-nl)" in v["reasons"][0], v
-    for val in ({**_clean("fem"), "agreement": _disagreeing("lateral-ekf", "ekf")},
-                {**_clean("oem"), "agreement": _disagreeing()},
-                {**_clean("ekf"), "agreement": _disagreeing("lateral-ukf", "ukf")},
-                {**_clean("ekf"), "agreement": _disagreeing(converged=False)}):
+    for val in (
+        {**_clean("fem"), "agreement": _disagreeing("lateral-ekf", "ekf")},
+        {**_clean("oem"), "agreement": _disagreeing()},
+        {**_clean("ekf"), "agreement": _disagreeing("lateral-ukf", "ukf")},
+        {**_clean("ekf"), "agreement": _disagreeing(converged=False)},
+    ):
         v = verdict(val)
         assert v["level"] == "PASS" and v["reasons"] == [], v
         assert v["notes"][0].startswith("disagrees with lateral-") and "Clbeta (7.7)" in v["notes"][0]
@@ -351,20 +380,22 @@ def test_report_shows_fail_for_an_ekf_that_disagrees_with_filter_error(fitted, t
     vals = {k: validate(r) for k, r in results.items()}
     ag = cross_check_methods(results, vals)
     assert vals["longitudinal-ekf"]["agreement"]["against"] == {
-        "longitudinal-fem": {"method": "fem", "converged": True}}
+        "longitudinal-fem": {"method": "fem", "converged": True}
+    }
     md, js = write_report(tmp_path, results, vals, agreement=ag)
     rep = json.loads(js.read_text())
     vd = rep["methods"]["longitudinal-ekf"]["verdict"]
     assert vd["level"] == "FAIL" and vd["ok"] is False, vd
-    assert vd["reasons"][0].startswith("disagrees with filter error (longitudinal-fem) by more "
-                                       "than 3 combined std on Cmalpha"), vd
+    assert vd["reasons"][0].startswith(
+        "disagrees with filter error (longitudinal-fem) by more than 3 combined std on Cmalpha"
+    ), vd
     assert rep["methods"]["longitudinal-fem"]["verdict"]["level"] == "PASS"
     text = md.read_text()
     assert "| longitudinal-ekf | FAIL |" in text and "| longitudinal-fem | PASS |" in text
-    ekf_md = text[text.index("## LONGITUDINAL-EKF"):]
+    ekf_md = text[text.index("## LONGITUDINAL-EKF") :]
     assert ekf_md.splitlines()[2].startswith(
-        "**Verdict: FAIL** - disagrees with filter error (longitudinal-fem) by more than 3 "
-        "combined std on Cmalpha"), ekf_md.splitlines()[2]
+        "**Verdict: FAIL** - disagrees with filter error (longitudinal-fem) by more than 3 combined std on Cmalpha"
+    ), ekf_md.splitlines()[2]
     assert "filter error is the method to trust in turbulence" in ekf_md.splitlines()[2]
 
 
@@ -373,7 +404,10 @@ def test_report_md_lists_the_milder_reasons_of_a_fail_apart():
     A verdict written before the levels (ok only) reads PASS or CHECK."""
     from pipeline.report import _verdict_reasons, verdict_level
 
-    vd = {"level": "FAIL", "reasons": ["TIC >= 0.1 on p", "Clp more than 3 std from the truth"],
-          "reason_levels": ["CHECK", "FAIL"]}
+    vd = {
+        "level": "FAIL",
+        "reasons": ["TIC >= 0.1 on p", "Clp more than 3 std from the truth"],
+        "reason_levels": ["CHECK", "FAIL"],
+    }
     assert _verdict_reasons(vd) == " - Clp more than 3 std from the truth; to check too: TIC >= 0.1 on p"
     assert verdict_level({"ok": True}) == "PASS" and verdict_level({"ok": False}) == "CHECK"

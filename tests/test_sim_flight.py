@@ -1,4 +1,5 @@
 """JSBSim flights: coefficient identity, trim, surface inputs, reproducibility, SAS, sensors."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -21,14 +22,22 @@ def test_jsbsim_coefficients_equal_the_truth_formula(name):
         assert np.all(np.isfinite(got))
         assert np.max(np.abs(got - v)) < 1e-12 * max(1.0, np.max(np.abs(v))), c
         assert np.std(got) > 0, f"{c} not excited"
-    if name == "multiaxis_multisine_turbulence":           # alphadot and rate terms really act
+    if name == "multiaxis_multisine_turbulence":  # alphadot and rate terms really act
         ac = r.aircraft
         assert ac.derivatives["CLalphadot"] != 0 and np.std(T["alphadot"]) > 0.01
         qS = T["qbar"] * ac.S
-        np.testing.assert_allclose(r.aero_terms["Cmalphadot"], qS * ac.cbar * ac.derivatives["Cmalphadot"]
-                                   * T["alphadot"] * ac.cbar / (2 * T["V"]), rtol=1e-9, atol=1e-12)
-        np.testing.assert_allclose(r.aero_terms["Clp"], qS * ac.b * ac.derivatives["Clp"]
-                                   * T["p_aero"] * ac.b / (2 * T["V"]), rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(
+            r.aero_terms["Cmalphadot"],
+            qS * ac.cbar * ac.derivatives["Cmalphadot"] * T["alphadot"] * ac.cbar / (2 * T["V"]),
+            rtol=1e-9,
+            atol=1e-12,
+        )
+        np.testing.assert_allclose(
+            r.aero_terms["Clp"],
+            qS * ac.b * ac.derivatives["Clp"] * T["p_aero"] * ac.b / (2 * T["V"]),
+            rtol=1e-9,
+            atol=1e-12,
+        )
         # aero rates are body rates minus turbulence rates
         np.testing.assert_allclose(T["q_aero"], T["q"] - T["q_turb"], atol=1e-12)
         assert np.std(T["q_turb"]) > 1e-3
@@ -90,9 +99,13 @@ def test_specific_force_is_that_of_the_cg():
     T = flown("longitudinal_3211_calm").truth
     ph, th, ps = (T[c].to_numpy() for c in ("phi", "theta", "psi"))
     cph, sph, cth, sth, cps, sps = np.cos(ph), np.sin(ph), np.cos(th), np.sin(th), np.cos(ps), np.sin(ps)
-    R = np.array([[cth * cps, cth * sps, -sth],
-                  [sph * sth * cps - cph * sps, sph * sth * sps + cph * cps, sph * cth],
-                  [cph * sth * cps + sph * sps, cph * sth * sps - sph * cps, cph * cth]])   # NED -> body
+    R = np.array(
+        [
+            [cth * cps, cth * sps, -sth],
+            [sph * sth * cps - cph * sps, sph * sth * sps + cph * cps, sph * cth],
+            [cph * sth * cps + sph * sps, cph * sth * sps - sph * cps, cph * cth],
+        ]
+    )  # NED -> body
     vned = np.vstack([T["vn"], T["ve"], T["vd"]])
     vb = np.einsum("ijn,jn->in", R, vned)
     w = np.vstack([T["p"], T["q"], T["r"]])
@@ -118,8 +131,10 @@ def test_surfaces_follow_the_designed_maneuvers(name):
     r = flown(name)
     T = r.truth
     u = input_histories(list(r.scenario.maneuvers), T["t"].to_numpy())
-    steps = {**{a: np.deg2rad(v) for a, v in r.meta["servo"]["step_deg"].items()},
-             "throttle": r.meta["servo"]["throttle_step"]}
+    steps = {
+        **{a: np.deg2rad(v) for a, v in r.meta["servo"]["step_deg"].items()},
+        "throttle": r.meta["servo"]["throttle_step"],
+    }
     trim0 = {"de": r.trim["de"], "da": 0.0, "dr": 0.0, "throttle": r.trim["throttle"]}
     # the servos take whole-microsecond PWM commands (after t = 0, the trim point)
     trim = {ax: _pwm_step(v, steps[ax]) for ax, v in trim0.items()}
@@ -190,9 +205,14 @@ def test_unstable_aircraft_is_held_by_the_sas_with_correlated_inputs():
 
 def test_sensor_tables_have_their_rates_and_columns():
     r = flown("default")
-    want = {"imu": (100.0, ["ax", "ay", "az", "p", "q", "r"]), "airdata": (50.0, ["V", "alpha", "beta"]),
-            "attitude": (50.0, ["phi", "theta", "psi"]), "baro": (20.0, ["h"]),
-            "surfaces": (100.0, ["de", "da", "dr", "throttle"]), "gps": (10.0, ["vn", "ve", "vd", "h"])}
+    want = {
+        "imu": (100.0, ["ax", "ay", "az", "p", "q", "r"]),
+        "airdata": (50.0, ["V", "alpha", "beta"]),
+        "attitude": (50.0, ["phi", "theta", "psi"]),
+        "baro": (20.0, ["h"]),
+        "surfaces": (100.0, ["de", "da", "dr", "throttle"]),
+        "gps": (10.0, ["vn", "ve", "vd", "h"]),
+    }
     assert set(r.sensors) == set(want)
     for k, (rate, cols) in want.items():
         df = r.sensors[k]
@@ -233,6 +253,7 @@ def test_airdata_delay_is_visible_in_the_data():
     r = flown("sensor_errors_calm")
     spec = r.scenario.sensors["airdata"]
     from sim.sensors import lever_arm_signals
+
     src = lever_arm_signals(r.truth, spec)
     t = r.sensors["airdata"]["t"].to_numpy()
     meas = (r.sensors["airdata"]["alpha"].to_numpy() - spec.bias[1]) / (1 + spec.scale[1])
@@ -245,6 +266,7 @@ def test_mounting_positions_add_the_rotation_terms():
     r = flown("lateral_doublets_calm")
     T = r.truth
     from sim.sensors import lever_arm_signals
+
     w = T[["p", "q", "r"]].to_numpy()
     wd = T[["pdot", "qdot", "rdot"]].to_numpy()
     for name in ("imu", "airdata"):
@@ -259,7 +281,7 @@ def test_mounting_positions_add_the_rotation_terms():
             v = T[["u", "v", "w"]].to_numpy() + np.cross(w, pos)
             np.testing.assert_allclose(got["alpha"], np.arctan2(v[:, 2], v[:, 0]), atol=1e-12)
             np.testing.assert_allclose(got["beta"], np.arcsin(v[:, 1] / np.linalg.norm(v, axis=1)), atol=1e-12)
-            assert np.max(np.abs(got["alpha"] - T["alpha"])) > 1e-3     # the boom really sees q x r
+            assert np.max(np.abs(got["alpha"] - T["alpha"])) > 1e-3  # the boom really sees q x r
 
 
 def test_flight_matches_the_continuous_equations():
@@ -284,9 +306,14 @@ def test_flight_matches_the_continuous_equations():
         CD = d["CD0"] + d["CDalpha"] * al + d["CDalpha2"] * al * al + d["CDde"] * de[i]
         Cm = d["Cm0"] + d["Cmalpha"] * al + d["Cmq"] * qh + d["Cmde"] * de[i]
         L, D, gam = qb * S * CL, qb * S * CD, th - al
-        return np.array([(thrust[i] * np.cos(al) - D) / m - g0 * np.sin(gam),
-                         q + (-L - thrust[i] * np.sin(al)) / (m * V) + g0 * np.cos(gam) / V, q,
-                         qb * S * c * Cm / Iyy])
+        return np.array(
+            [
+                (thrust[i] * np.cos(al) - D) / m - g0 * np.sin(gam),
+                q + (-L - thrust[i] * np.sin(al)) / (m * V) + g0 * np.cos(gam) / V,
+                q,
+                qb * S * c * Cm / Iyy,
+            ]
+        )
 
     x = np.array([T["V"][0], T["alpha"][0], T["theta"][0], T["q"][0]])
     out = [x]
@@ -298,7 +325,7 @@ def test_flight_matches_the_continuous_equations():
         k4 = f(x + h * k3, i + 2)
         x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         out.append(x)
-    y = np.array(out)[::2]                      # back on the 100 Hz grid
+    y = np.array(out)[::2]  # back on the 100 Hz grid
     keep = t <= 30.0 + 1e-9
     for j, name, tol in ((0, "V", 0.003), (1, "alpha", 0.002), (2, "theta", 0.002), (3, "q", 0.003)):
         ref = T[name].to_numpy()[keep]
@@ -316,7 +343,7 @@ def test_rigid_body_moments_use_the_truth_inertia_with_textbook_ixz():
     p, q, rr, pd, rd = (T[c] for c in ("p", "q", "r", "pdot", "rdot"))
     L = ac.Ixx * pd - ac.Ixz * (rd + p * q) + (ac.Izz - ac.Iyy) * q * rr
     N = ac.Izz * rd - ac.Ixz * (pd - q * rr) + (ac.Iyy - ac.Ixx) * p * q
-    M = ac.Iyy * T["qdot"] - (ac.Izz - ac.Ixx) * p * rr - ac.Ixz * (rr ** 2 - p ** 2)
+    M = ac.Iyy * T["qdot"] - (ac.Izz - ac.Ixx) * p * rr - ac.Ixz * (rr**2 - p**2)
     scale = np.max(np.abs(qSb * T["Cl"]))
     assert scale > 5.0
     assert np.max(np.abs(L - qSb * T["Cl"])) < 1e-5 * scale

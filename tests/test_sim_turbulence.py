@@ -1,5 +1,6 @@
 """Dryden turbulence: a 10-minute run has the scenario's intensity and the Dryden shape,
 and the gyros and vanes see it."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -9,14 +10,14 @@ from scipy.signal import coherence, welch
 import sim
 from tests._simdata import flown, turbulence_10min
 
-COMP = {"u": "gust_n", "v": "gust_e", "w": "gust_d"}   # no mean wind: Dryden axes = north, east, down
+COMP = {"u": "gust_n", "v": "gust_e", "w": "gust_d"}  # no mean wind: Dryden axes = north, east, down
 
 
 def test_dryden_parameters_follow_mil_f_8785c():
-    hi = sim.dryden_parameters(1500.0, 7.7, 3)           # above 2000 ft: POE table, L = 1750 ft
+    hi = sim.dryden_parameters(1500.0, 7.7, 3)  # above 2000 ft: POE table, L = 1750 ft
     assert hi["L_u"] == hi["L_w"] == pytest.approx(1750 * 0.3048)
     assert hi["sigma_w"] == pytest.approx(np.interp(1500 / 0.3048, [3750, 7500], [7.4, 6.7]) * 0.3048)
-    lo = sim.dryden_parameters(100.0, 10.0, 3)           # below 1000 ft: sigma_w = 0.1 W20, L_w = h
+    lo = sim.dryden_parameters(100.0, 10.0, 3)  # below 1000 ft: sigma_w = 0.1 W20, L_w = h
     h = 100 / 0.3048
     assert lo["sigma_w"] == pytest.approx(1.0) and lo["L_w"] == pytest.approx(100.0)
     assert lo["sigma_u"] == pytest.approx(1.0 / (0.177 + 0.000823 * h) ** 0.4)
@@ -83,5 +84,5 @@ def test_calm_scenarios_have_no_gusts_and_turbulent_ones_do():
     turb = flown("longitudinal_3211_turbulence")
     tu = turb.meta["turbulence"]
     assert tu["model"] == "milspec" and tu["jsbsim_turb_type"] == 3
-    assert tu["sigma_w"] == pytest.approx(0.5)          # 0.1 * W20 below 1000 ft
+    assert tu["sigma_w"] == pytest.approx(0.5)  # 0.1 * W20 below 1000 ft
     assert 0.3 < turb.truth["gust_d"].std() < 0.8

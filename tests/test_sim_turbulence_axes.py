@@ -2,6 +2,7 @@
 gusts' time histories along the flight path (q_g from w_g, r_g from v_g) but turns them,
 with the gusts, by the mean-wind azimuth - an aircraft heading east then gets its pitch
 gust as roll turbulence. axes = "aircraft" keeps them in the aircraft's axes."""
+
 from dataclasses import replace
 from pathlib import Path
 
@@ -27,8 +28,7 @@ def flights():
     wanders through every heading over the flight."""
     s = sim.load_scenario(ROOT / "scenarios" / "longitudinal_3211_turbulence.toml")
     s = replace(s, heading=np.pi / 2)
-    return {axes: sim.fly(replace(s, turbulence=replace(s.turbulence, axes=axes)))
-            for axes in ("wind", "aircraft")}
+    return {axes: sim.fly(replace(s, turbulence=replace(s.turbulence, axes=axes))) for axes in ("wind", "aircraft")}
 
 
 def test_aircraft_axes_pair_the_rotary_gusts_with_the_body_gusts(flights):
@@ -40,12 +40,13 @@ def test_aircraft_axes_pair_the_rotary_gusts_with_the_body_gusts(flights):
         T = r.truth
         assert r.meta["turbulence"]["axes"] == axes
         psi = np.unwrap(T["psi"].to_numpy())
-        assert np.ptp(psi) > np.pi / 2                  # the premise: the heading moves
+        assert np.ptp(psi) > np.pi / 2  # the premise: the heading moves
         V, b, dt = float(T["V"].mean()), r.aircraft.b, float(T["t"].iloc[1] - T["t"].iloc[0])
         q_model = _gradient_gust(T["gust_w"].to_numpy(), V, 4 * b / (np.pi * V), dt)
         r_model = _gradient_gust(T["gust_v"].to_numpy(), V, 3 * b / (np.pi * V), dt)
-        corr[axes] = {k: float(np.corrcoef(T[f"{k}_turb"], m)[0, 1])
-                      for k, m in (("p", q_model), ("q", q_model), ("r", r_model))}
+        corr[axes] = {
+            k: float(np.corrcoef(T[f"{k}_turb"], m)[0, 1]) for k, m in (("p", q_model), ("q", q_model), ("r", r_model))
+        }
     assert corr["aircraft"]["q"] > 0.8 and corr["aircraft"]["r"] > 0.8, corr
     assert abs(corr["aircraft"]["p"]) < 0.2, corr
     # JSBSim's own axes: the pairs come apart as the heading leaves north

@@ -2,6 +2,7 @@
 whose link delivers packets in bursts, one out of order and one twice, with an autopilot
 reboot and a 32-bit ``time_usec`` that wraps: every sample must land at its autopilot stamp.
 """
+
 from __future__ import annotations
 
 import json
@@ -13,9 +14,9 @@ import pytest
 
 from pipeline.readers.tlog import read_tlog
 
-RATE = 20.0            # Hz, samples per message type
-BURST = 0.5            # s, the link delivers what it buffered every 0.5 s
-T_UTC = 1.7e9          # s, receive clock at the first packet
+RATE = 20.0  # Hz, samples per message type
+BURST = 0.5  # s, the link delivers what it buffered every 0.5 s
+T_UTC = 1.7e9  # s, receive clock at the first packet
 
 
 def _flight(tmp_path, *, garbage: bool = False):
@@ -23,28 +24,30 @@ def _flight(tmp_path, *, garbage: bool = False):
     and rolls, the SERVO stamps (time_usec, wrapping), the VFR_HUD airspeeds."""
     os.environ.setdefault("MAVLINK20", "1")
     from pymavlink.dialects.v20 import ardupilotmega as mav
+
     m = mav.MAVLink(None, srcSystem=1, srcComponent=1)
-    packets = []                                        # (send time on the UTC clock, bytes)
-    att_at = []                                         # positions of the ATTITUDE packets
+    packets = []  # (send time on the UTC clock, bytes)
+    att_at = []  # positions of the ATTITUDE packets
     truth = {"att": [], "roll": [], "servo": [], "air": []}
-    boots = [(4290.0, 0.0, 200), (5.0, 30.0, 100)]      # (boot time at start, UTC start, samples)
+    boots = [(4290.0, 0.0, 200), (5.0, 30.0, 100)]  # (boot time at start, UTC start, samples)
     for b0, u0, n in boots:
         att, roll, air = [], [], []
         for i in range(n):
             tb, tu = b0 + i / RATE, T_UTC + u0 + i / RATE
             r = 0.1 * np.sin(0.7 * i / RATE) + 1e-4 * i
             ms = int(round(tb * 1e3))
-            usec = int(round(tb * 1e6)) % 2 ** 32            # SERVO_OUTPUT_RAW.time_usec: uint32
+            usec = int(round(tb * 1e6)) % 2**32  # SERVO_OUTPUT_RAW.time_usec: uint32
             if garbage and i == 50 and b0 > 1000:
-                ms = 1                                        # a reset stamp in mid-flight
+                ms = 1  # a reset stamp in mid-flight
             att_at.append(len(packets))
             packets.append((tu, m.attitude_encode(ms, r, 0.0, 0.0, 0.0, 0.0, 0.0).pack(m)))
-            packets.append((tu + 1e-4, m.servo_output_raw_encode(usec, 0, 1500 + i % 50, 1500, 1500,
-                                                                 1500, 0, 0, 0, 0).pack(m)))
+            packets.append(
+                (tu + 1e-4, m.servo_output_raw_encode(usec, 0, 1500 + i % 50, 1500, 1500, 1500, 0, 0, 0, 0).pack(m))
+            )
             packets.append((tu + 2e-4, m.vfr_hud_encode(20.0 + 0.01 * i, 20.0, 0, 50, 100.0, 0.0).pack(m)))
             if i % 20 == 0:
                 packets.append((tu + 3e-4, m.heartbeat_encode(1, 3, 81, 5 if b0 > 1000 else 10, 4).pack(m)))
-            att.append(round(tb * 1e3) * 1e-3)           # the sample time, stamp or not
+            att.append(round(tb * 1e3) * 1e-3)  # the sample time, stamp or not
             roll.append(r)
             air.append(20.0 + 0.01 * i)
         truth["att"].append(np.array(att))
@@ -121,10 +124,15 @@ def test_time_base_choices(tmp_path):
     # "boot" is an error
     os.environ.setdefault("MAVLINK20", "1")
     from pymavlink.dialects.v20 import ardupilotmega as mav
+
     m = mav.MAVLink(None, srcSystem=1, srcComponent=1)
     q = tmp_path / "nostamps.tlog"
-    q.write_bytes(b"".join(struct.pack(">Q", int((T_UTC + i * 0.1) * 1e6))
-                           + m.vfr_hud_encode(20.0, 20.0, 0, 50, 100.0, 0.0).pack(m) for i in range(10)))
+    q.write_bytes(
+        b"".join(
+            struct.pack(">Q", int((T_UTC + i * 0.1) * 1e6)) + m.vfr_hud_encode(20.0, 20.0, 0, 50, 100.0, 0.0).pack(m)
+            for i in range(10)
+        )
+    )
     raw = read_tlog(q)
     assert raw.time_base.endswith("no autopilot stamps found")
     assert raw.tables["VFR_HUD"].t[0] == pytest.approx(T_UTC, abs=1e-6)
@@ -148,9 +156,9 @@ def test_time_base_option_of_read_log_and_the_cli(tmp_path, capsys):
     assert read_log(p, time_base=None).channels["phi"].t.tolist() == auto.channels["phi"].t.tolist()
     t_auto, t_recv = auto.channels["phi"].t, recv.channels["phi"].t
     d_auto, d_recv = np.diff(t_auto), np.diff(t_recv)
-    assert np.sum(np.abs(d_auto - 0.05) > 1e-5) == 1                 # the stamps: 20 Hz exactly
-    assert np.sum(np.abs(d_recv - 0.05) > 1e-3) > 100                # but for the reboot; the
-    assert "receive" in recv.meta["time_base"]                       # link's bursts
+    assert np.sum(np.abs(d_auto - 0.05) > 1e-5) == 1  # the stamps: 20 Hz exactly
+    assert np.sum(np.abs(d_recv - 0.05) > 1e-3) > 100  # but for the reboot; the
+    assert "receive" in recv.meta["time_base"]  # link's bursts
     with pytest.raises(LogReadError, match=r"time base 'header' does not apply to a tlog log"):
         read_log(p, time_base="header")
     out = tmp_path / "chk"

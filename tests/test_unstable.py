@@ -1,11 +1,21 @@
 """Unstable aircraft (statically unstable short period flown with a SAS loop): plain output
 error reports divergence; stabilised OEM, eigenvalue transformation, equation decoupling,
 FEM, EKF and UKF recover every free derivative within 3 std."""
+
 import numpy as np
 import pytest
 
-from estimators import (EKF, UKF, EigenvalueTransformation, EquationDecoupling, FilterError,
-                        ModelDefinitionError, OutputError, SimulationDivergedError, StabilizedOutputError)
+from estimators import (
+    EKF,
+    UKF,
+    EigenvalueTransformation,
+    EquationDecoupling,
+    FilterError,
+    ModelDefinitionError,
+    OutputError,
+    SimulationDivergedError,
+    StabilizedOutputError,
+)
 from estimators.process_noise_examples import UNSTABLE_SP_FREE, unstable_short_period_example
 from estimators.stabilized import _linearisation
 
@@ -29,8 +39,8 @@ def within(res, truth, k=3.0):
 
 def test_the_example_is_unstable_and_the_sas_keeps_it_flying(calm):
     A, _ = _linearisation(calm.truth_model, calm.segments, None)
-    assert np.max(np.linalg.eigvals(A).real) > 0.5        # time to double < 1.4 s
-    assert np.all(np.abs(calm.segments[0].z[:, 0]) < np.radians(5))   # closed loop stays small
+    assert np.max(np.linalg.eigvals(A).real) > 0.5  # time to double < 1.4 s
+    assert np.all(np.abs(calm.segments[0].z[:, 0]) < np.radians(5))  # closed loop stays small
 
 
 def test_plain_output_error_reports_divergence_and_names_the_remedies(calm):
@@ -38,8 +48,14 @@ def test_plain_output_error_reports_divergence_and_names_the_remedies(calm):
         OutputError(calm.model).fit(calm.segments)
     msg = str(info.value)
     assert "diverged at t=" in msg
-    for name in ("StabilizedOutputError", "EigenvalueTransformation", "EquationDecoupling",
-                 "FilterError", "EKF", "UKF"):
+    for name in (
+        "StabilizedOutputError",
+        "EigenvalueTransformation",
+        "EquationDecoupling",
+        "FilterError",
+        "EKF",
+        "UKF",
+    ):
         assert name in msg
     assert info.value.segment == 0 and info.value.time is not None
 
@@ -50,7 +66,7 @@ def test_stabilized_output_error(calm):
     assert res.method == "oem-stabilized" and res.converged
     within(res, calm.truth)
     S = res.extra["S"]
-    assert S.shape == (2, 4) and np.all(S[:, 2:] == 0)     # feeds back alpha and q only
+    assert S.shape == (2, 4) and np.all(S[:, 2:] == 0)  # feeds back alpha and q only
     # the default S stabilises the linearised start model: A - S C has no unstable pole
     A, C = _linearisation(calm.model, calm.segments, None)
     assert np.max(np.linalg.eigvals(A).real) > 0
@@ -75,8 +91,9 @@ def test_equation_decoupling(calm):
     # std carry the noise of the fed-back measurements; the plain Cramér-Rao bounds are kept
     assert res.extra["crb_cov"].shape == (5, 5) and res.extra["std_method"] == "propagated"
     assert "measurement noise propagated" in res.message
-    assert EquationDecoupling(calm.model, states=["alpha"], std="crb").fit(calm.segments).extra.get(
-        "std_method") is None
+    assert (
+        EquationDecoupling(calm.model, states=["alpha"], std="crb").fit(calm.segments).extra.get("std_method") is None
+    )
     with pytest.raises(ModelDefinitionError, match="std must be one of"):
         StabilizedOutputError(calm.model, std="white")
 

@@ -11,20 +11,53 @@ filter error (default form), EKF and UKF (default passes) all recover every deri
 within 3 std; and what went wrong before: one EKF pass left Cm0/CmV 4.3-4.6 std off, the
 filter-error method's linear form put the derivatives up to 44 std off.
 """
+
 import numpy as np
 import pytest
 
-from estimators import EKF, UKF, FilterError, Model, ModelDefinitionError, OutputError, Parameter, Segment
-from estimators import simulate_outputs
+from estimators import (
+    EKF,
+    UKF,
+    FilterError,
+    Model,
+    ModelDefinitionError,
+    OutputError,
+    Parameter,
+    Segment,
+    simulate_outputs,
+)
 from estimators.datasets import multistep
 from estimators.jit import kernel_for
 
-CONSTANTS = dict(g0=9.80665, Sbym=4.028e-3, Scbyiy=8.0027e-4, Feiylt=-7.0153e-6, v0=104.67,
-                 rm=7472.0, sigmat=0.0524, rho=0.792)
-TRUTH = dict(CD0=0.1245, CDV=-0.0657, CDal=0.3146, CL0=-0.123, CLV=0.162, CLal=4.486,
-             Cm0=0.105, CmV=0.0194, Cmal=-1.06, Cmq=-54.5, Cmde=-1.70)
-START = dict(CD0=0.12, CDV=-0.065, CDal=0.32, CL0=-0.092, CLV=0.15, CLal=4.3,
-             Cm0=0.11, CmV=0.004, Cmal=-0.97, Cmq=-35.0, Cmde=-1.5)
+CONSTANTS = dict(
+    g0=9.80665, Sbym=4.028e-3, Scbyiy=8.0027e-4, Feiylt=-7.0153e-6, v0=104.67, rm=7472.0, sigmat=0.0524, rho=0.792
+)
+TRUTH = dict(
+    CD0=0.1245,
+    CDV=-0.0657,
+    CDal=0.3146,
+    CL0=-0.123,
+    CLV=0.162,
+    CLal=4.486,
+    Cm0=0.105,
+    CmV=0.0194,
+    Cmal=-1.06,
+    Cmq=-54.5,
+    Cmde=-1.70,
+)
+START = dict(
+    CD0=0.12,
+    CDV=-0.065,
+    CDal=0.32,
+    CL0=-0.092,
+    CLV=0.15,
+    CLal=4.3,
+    Cm0=0.11,
+    CmV=0.004,
+    Cmal=-0.97,
+    Cmq=-35.0,
+    Cmde=-1.5,
+)
 NOISE = np.array([0.1, 0.001, 0.0005, 0.0005, 0.002, 0.01, 0.05])
 
 
@@ -41,10 +74,11 @@ def f(x, u, p, c):
     V, alpha, theta, q = x
     de, Fe = u
     CD, CL, Cm = coefficients(x, u, p, c)
-    qbar = 0.5 * c.rho * V ** 2
+    qbar = 0.5 * c.rho * V**2
     Vdot = -c.Sbym * qbar * CD + Fe * np.cos(alpha + c.sigmat) / c.rm + c.g0 * np.sin(alpha - theta)
-    alphadot = (-c.Sbym * qbar * CL / V + q - Fe * np.sin(alpha + c.sigmat) / (c.rm * V)
-                + c.g0 * np.cos(alpha - theta) / V)
+    alphadot = (
+        -c.Sbym * qbar * CL / V + q - Fe * np.sin(alpha + c.sigmat) / (c.rm * V) + c.g0 * np.cos(alpha - theta) / V
+    )
     return Vdot, alphadot, q, c.Scbyiy * qbar * Cm + c.Feiylt * Fe
 
 
@@ -52,12 +86,18 @@ def g(x, u, p, c):
     V, alpha, theta, q = x
     de, Fe = u
     CD, CL, Cm = coefficients(x, u, p, c)
-    qbar = 0.5 * c.rho * V ** 2
+    qbar = 0.5 * c.rho * V**2
     Cx = CL * np.sin(alpha) - CD * np.cos(alpha)
     Cz = -CL * np.cos(alpha) - CD * np.sin(alpha)
-    return (V, alpha, theta, q, c.Scbyiy * qbar * Cm + c.Feiylt * Fe,
-            qbar * c.Sbym * Cx + Fe * np.cos(c.sigmat) / c.rm,
-            qbar * c.Sbym * Cz - Fe * np.sin(c.sigmat) / c.rm)
+    return (
+        V,
+        alpha,
+        theta,
+        q,
+        c.Scbyiy * qbar * Cm + c.Feiylt * Fe,
+        qbar * c.Sbym * Cx + Fe * np.cos(c.sigmat) / c.rm,
+        qbar * c.Sbym * Cz - Fe * np.sin(c.sigmat) / c.rm,
+    )
 
 
 def f_items(x, u, p, c):
@@ -67,10 +107,16 @@ def f_items(x, u, p, c):
 
 
 def model(values, f=f):
-    return Model(states=["V", "alpha", "theta", "q"], inputs=["de", "Fe"],
-                 outputs=["V", "alpha", "theta", "q", "qdot", "ax", "az"],
-                 parameters=[Parameter(k, v) for k, v in values.items()],
-                 constants=CONSTANTS, f=f, g=g, name="hfb320-tc04")
+    return Model(
+        states=["V", "alpha", "theta", "q"],
+        inputs=["de", "Fe"],
+        outputs=["V", "alpha", "theta", "q", "qdot", "ax", "az"],
+        parameters=[Parameter(k, v) for k, v in values.items()],
+        constants=CONSTANTS,
+        f=f,
+        g=g,
+        name="hfb320-tc04",
+    )
 
 
 def _inputs() -> tuple[np.ndarray, np.ndarray]:
@@ -99,6 +145,7 @@ def test_helper_functions_are_compiled_with_f(seg):
     OutputError(m).fit([seg])
     assert kernel_for(m).compiled
     from estimators.fem import output_kernel
+
     assert output_kernel(m) is not None
 
 
@@ -118,10 +165,11 @@ def test_filters_pass_until_settled(seg, cls):
     assert res.extra["pass_moves"][-1] <= 0.2 and res.extra["pass_moves"][1] > 1.0
     assert max(_off(res).values()) < 3.0, _off(res)
     assert "filter passes" in res.message and "not_settled" not in res.extra
-    capped = cls(model(START), max_passes=2).fit([seg])     # not enough passes: said so
+    capped = cls(model(START), max_passes=2).fit([seg])  # not enough passes: said so
     assert not capped.converged and capped.iterations == 2
     assert "still moved a parameter by" in capped.extra["not_settled"]
     from pipeline.validate import verdict
+
     v = verdict({"converged": capped.converged, "not_settled": capped.extra["not_settled"]})
     assert not v["ok"] and v["reasons"][0].startswith("the filter passes did not settle: the last of 2")
 
@@ -131,17 +179,27 @@ def test_filter_error_default_form_is_nonlinear_for_this_model(seg):
     assert res.method == "fem-nl" and res.settings["form"] == "nonlinear"
     assert res.converged and max(_off(res).values()) < 3.0, _off(res)
     # calm air: the process noise goes to (near) zero
-    assert all(res.params[f"F_{s}"] < 0.2 * v for s, v in
-               zip(("V", "alpha", "q"), FilterError(model(START), process_noise=["V", "alpha", "q"])
-                   ._noise_setup([seg])[1][[0, 1, 3]]))
+    assert all(
+        res.params[f"F_{s}"] < 0.2 * v
+        for s, v in zip(
+            ("V", "alpha", "q"),
+            FilterError(model(START), process_noise=["V", "alpha", "q"])._noise_setup([seg])[1][[0, 1, 3]],
+        )
+    )
     lin = FilterError(model(START), process_noise=["V", "alpha", "q"], form="linear").fit([seg])
-    assert max(_off(lin).values()) > 10.0                  # the linearisation is not this model
+    assert max(_off(lin).values()) > 10.0  # the linearisation is not this model
 
 
 def test_process_noise_names_need_measured_states(seg):
-    m = Model(states=["V", "alpha", "theta", "q"], inputs=["de", "Fe"],
-              outputs=["V", "alpha", "theta"], parameters=[Parameter(k, v) for k, v in TRUTH.items()],
-              constants=CONSTANTS, f=f, g=lambda x, u, p, c: (x[0], x[1], x[2]))
+    m = Model(
+        states=["V", "alpha", "theta", "q"],
+        inputs=["de", "Fe"],
+        outputs=["V", "alpha", "theta"],
+        parameters=[Parameter(k, v) for k, v in TRUTH.items()],
+        constants=CONSTANTS,
+        f=f,
+        g=lambda x, u, p, c: (x[0], x[1], x[2]),
+    )
     short = Segment(t=seg.t, u=seg.u, z=seg.z[:, :3], x0=seg.x0)
     for est in (EKF(m, process_noise=["q"]), FilterError(m, process_noise=["alpha", "q"])):
         with pytest.raises(ModelDefinitionError, match=r"\['q'\], not measured outputs"):
@@ -153,8 +211,7 @@ def test_process_noise_names_need_measured_states(seg):
 def test_constants_by_item_work_on_the_numpy_path(seg):
     with pytest.warns(RuntimeWarning, match="could not be compiled with numba"):
         y = simulate_outputs(model(TRUTH, f=f_items), seg)
-    np.testing.assert_allclose(y.to_numpy(), simulate_outputs(model(TRUTH), seg).to_numpy(),
-                               rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(y.to_numpy(), simulate_outputs(model(TRUTH), seg).to_numpy(), rtol=1e-12, atol=1e-12)
 
 
 def test_segments_without_x0_get_their_initial_state_estimated(seg):
@@ -173,11 +230,11 @@ def test_segments_without_x0_get_their_initial_state_estimated(seg):
 
 def test_initial_state_from_the_first_finite_sample(seg):
     z = seg.z.copy()
-    z[:3, 0] = np.nan                                      # airspeed starts late
+    z[:3, 0] = np.nan  # airspeed starts late
     s = Segment(t=seg.t, u=seg.u, z=z)
     m = model(START)
     np.testing.assert_allclose(s.initial_state(m), [z[3, 0], *z[0, 1:4]])
-    z[:, 2] = np.nan                                       # theta never measured
+    z[:, 2] = np.nan  # theta never measured
     with pytest.raises(ModelDefinitionError, match=r"\['theta'\] are not measured"):
         Segment(t=seg.t, u=seg.u, z=z).initial_state(m)
 
@@ -186,6 +243,7 @@ def _gusty_flight(seed: int, F_alpha: float = 0.004, F_q: float = 0.006) -> Segm
     """The same flight with white process noise on alpha and q (rad/sqrt(s)): Euler-Maruyama
     at 200 Hz, sampled at 10 Hz."""
     from estimators.model import Namespace
+
     rng = np.random.default_rng(seed)
     t, U = _inputs()
     de, Fe = U.T
@@ -245,7 +303,7 @@ def test_filters_adapt_the_measurement_noise(cls, kw):
     assert "adapted" not in held.extra
     assert held.std["Cmq"] > 3.0 * res.std["Cmq"]
     given = cls(model(START), process_noise=Q, measurement_noise=NOISE, passes=1, **kw).fit([seg])
-    assert "adapted" not in given.extra                  # "auto" keeps a given R
+    assert "adapted" not in given.extra  # "auto" keeps a given R
     np.testing.assert_allclose(np.sqrt(np.diag(given.extra["measurement_noise"])), NOISE)
 
 
@@ -253,10 +311,11 @@ def test_filters_adapt_the_process_noise_from_a_wrong_start():
     """adapt_noise=True adapts the process noise of the states that have some as well:
     started at half and twice the true F, it moves towards the truth."""
     seg = _gusty_flight(3)
-    res = EKF(model(TRUTH), process_noise={"alpha": 0.002, "q": 0.012}, measurement_noise=NOISE,
-              adapt_noise=True).fit([seg])
+    res = EKF(model(TRUTH), process_noise={"alpha": 0.002, "q": 0.012}, measurement_noise=NOISE, adapt_noise=True).fit(
+        [seg]
+    )
     F = np.diag(res.extra["process_noise"])
-    assert F[0] == 0.0 and F[2] == 0.0                    # states without noise keep none
+    assert F[0] == 0.0 and F[2] == 0.0  # states without noise keep none
     assert 0.003 < F[1] < 0.0055 and 0.004 < F[3] < 0.009, F
     with pytest.raises(ModelDefinitionError, match="give process_noise"):
         EKF(model(START), adapt_noise=True).fit([seg])
@@ -272,9 +331,17 @@ def test_filters_keep_the_parameters_within_their_bounds(seg, cls):
     std), reported as at the bound with no std, as output error reports it; an
     unbounded fit of the same data does not stop there."""
     values = {**START, "Cmq": -35.0}
-    m = Model(states=model(START).states, inputs=model(START).inputs, outputs=model(START).outputs,
-              parameters=[Parameter(k, v, bounds=(-40.0, 0.0) if k == "Cmq" else (-np.inf, np.inf))
-                          for k, v in values.items()], constants=CONSTANTS, f=f, g=g)
+    m = Model(
+        states=model(START).states,
+        inputs=model(START).inputs,
+        outputs=model(START).outputs,
+        parameters=[
+            Parameter(k, v, bounds=(-40.0, 0.0) if k == "Cmq" else (-np.inf, np.inf)) for k, v in values.items()
+        ],
+        constants=CONSTANTS,
+        f=f,
+        g=g,
+    )
     res = cls(m, measurement_noise=NOISE, max_passes=3).fit([seg])
     traj = res.extra["trajectory"][0]["Cmq"]
     assert traj.min() >= -40.0 and traj.max() <= 0.0
@@ -293,12 +360,12 @@ def test_filter_error_takes_jittered_timestamps_and_names_a_gap(seg):
     filter-error method uses the median interval for its gain), and the fit recovers
     the derivatives as on the exact grid; a gap is refused with where it is."""
     rng = np.random.default_rng(5)
-    t = seg.t + rng.uniform(-0.002, 0.002, seg.t.size)         # +-2 % of the 0.1 s step
+    t = seg.t + rng.uniform(-0.002, 0.002, seg.t.size)  # +-2 % of the 0.1 s step
     jit = Segment(t=t, u=seg.u, z=seg.z, x0=seg.x0)
     res = FilterError(model(START), process_noise=["alpha", "q"]).fit([jit])
     assert res.converged and max(_off(res).values()) < 3.0, _off(res)
     t_gap = seg.t.copy()
-    t_gap[300:] += 0.05                                        # one interval 50 % long
+    t_gap[300:] += 0.05  # one interval 50 % long
     with pytest.raises(ModelDefinitionError, match=r"at t=29\.9 s the step is 0\.15 s .* split the segment"):
         FilterError(model(START)).fit([Segment(t=t_gap, u=seg.u, z=seg.z, x0=seg.x0)])
 
@@ -309,7 +376,7 @@ def test_an_output_never_measured_is_named(seg, cls):
     naming it (output error had raised numpy's LinAlgError, filter error a singular
     information matrix naming every parameter); the Kalman filters skip it."""
     z = seg.z.copy()
-    z[:, 4] = np.nan                                           # qdot not logged
+    z[:, 4] = np.nan  # qdot not logged
     bad = Segment(t=seg.t, u=seg.u, z=z, x0=seg.x0)
     with pytest.raises(ModelDefinitionError, match=r"output \['qdot'\] has no finite sample in any segment"):
         cls(model(START)).fit([bad])
@@ -319,8 +386,15 @@ def test_an_output_never_measured_is_named(seg, cls):
 
 def _broken(f_bad):
     base = model(START)
-    return Model(states=base.states, inputs=base.inputs, outputs=base.outputs,
-                 parameters=base.parameters, constants=CONSTANTS, f=f_bad, g=g)
+    return Model(
+        states=base.states,
+        inputs=base.inputs,
+        outputs=base.outputs,
+        parameters=base.parameters,
+        constants=CONSTANTS,
+        f=f_bad,
+        g=g,
+    )
 
 
 def f_typo(x, u, p, c):
@@ -340,12 +414,14 @@ def test_mistakes_in_f_get_one_message(seg, cls):
     says what to fix, for every estimator (a bare AttributeError on Namespace and an
     IndexError from the integrator before)."""
     from estimators import UnknownNameError
+
     with pytest.raises(UnknownNameError, match=r"f or g uses 'CDx', which is not among the names here \(CD0, CDV"):
         cls(_broken(f_typo)).fit([seg])
     with pytest.raises(ModelDefinitionError, match=r"f\(\) returned 3 rows but the model has 4"):
         cls(_broken(f_three)).fit([seg])
     from estimators.model import Namespace
-    assert getattr(Namespace({"a": 1.0}), "b", None) is None       # still an AttributeError
+
+    assert getattr(Namespace({"a": 1.0}), "b", None) is None  # still an AttributeError
 
 
 @pytest.mark.parametrize("cls", [OutputError, FilterError, EKF, UKF])

@@ -1,12 +1,19 @@
 """Proof of match against tolerance bands, plausibility against a-priori values, inverse
 simulation."""
+
 import numpy as np
 import pandas as pd
 import pytest
 from scipy import signal
 
-from estimators.validation import (agreement, default_tolerances, inverse_simulation,
-                                   load_apriori, plausibility, proof_of_match)
+from estimators.validation import (
+    agreement,
+    default_tolerances,
+    inverse_simulation,
+    load_apriori,
+    plausibility,
+    proof_of_match,
+)
 from tests._roll import roll_model, roll_segment
 
 DEG = np.pi / 180
@@ -14,21 +21,20 @@ DEG = np.pi / 180
 
 def contrived():
     t = np.linspace(0, 10, 501)
-    meas = pd.DataFrame({"q": 0.1 * np.sin(t), "az": -9.81 + np.sin(2 * t),
-                         "theta": 0.05 * np.cos(t), "V": 50 + t})
+    meas = pd.DataFrame({"q": 0.1 * np.sin(t), "az": -9.81 + np.sin(2 * t), "theta": 0.05 * np.cos(t), "V": 50 + t})
     pred = meas.copy()
-    pred["q"] += 1.0 * DEG * np.sin(5 * t)       # within 1.5 deg/s everywhere
-    pred["az"] += 0.15 * 9.80665 * (t > 5)       # 0.15 g error on the second half
-    pred["theta"] += 1.0 * DEG                   # 1 deg constant bias, within 1.5 deg
-    pred["V"] += 3.0                             # no default band for V
+    pred["q"] += 1.0 * DEG * np.sin(5 * t)  # within 1.5 deg/s everywhere
+    pred["az"] += 0.15 * 9.80665 * (t > 5)  # 0.15 g error on the second half
+    pred["theta"] += 1.0 * DEG  # 1 deg constant bias, within 1.5 deg
+    pred["V"] += 3.0  # no default band for V
     return t, meas, pred
 
 
 def test_default_tolerances_in_si():
     tol = default_tolerances()
-    assert tol["q"] == pytest.approx(1.5 * DEG)            # rad/s
-    assert tol["az"] == pytest.approx(0.980665)            # m/s^2
-    assert tol["alpha"] == pytest.approx(0.02617993878)    # rad
+    assert tol["q"] == pytest.approx(1.5 * DEG)  # rad/s
+    assert tol["az"] == pytest.approx(0.980665)  # m/s^2
+    assert tol["alpha"] == pytest.approx(0.02617993878)  # rad
     assert default_tolerances(rate_deg_s=3.0)["p"] == pytest.approx(3 * DEG)
 
 
@@ -37,10 +43,10 @@ def test_proof_of_match_pass_fail_per_channel():
     df = proof_of_match(meas, pred)
     assert bool(df.loc["q", "pass"]) and bool(df.loc["theta", "pass"])
     assert not bool(df.loc["az", "pass"])
-    assert pd.isna(df.loc["V", "pass"])                       # not judged
+    assert pd.isna(df.loc["V", "pass"])  # not judged
     assert df.attrs["all_pass"] is False
     assert df.loc["az", "max_abs_error"] == pytest.approx(0.15 * 9.80665)
-    assert df.loc["az", "fraction_within"] == pytest.approx(251 / 501)   # t <= 5: samples 0..250
+    assert df.loc["az", "fraction_within"] == pytest.approx(251 / 501)  # t <= 5: samples 0..250
     assert df.loc["theta", "rms_error"] == pytest.approx(1.0 * DEG)
     # configurable: a wider az band, a V band
     df2 = proof_of_match(meas, pred, tolerances={"az": 0.2 * 9.80665, "V": 2.0})
@@ -64,8 +70,8 @@ def test_an_input_timing_envelope_judges_the_distance_from_the_range():
     pred = pd.DataFrame({"p": [0.0, 3.0, 0.0, 0.0, 0.0], "r": [0.0, 0.0, 0.0, 0.0, 4.0]}) * DEG
     lower = pred.copy()
     upper = pred.copy()
-    lower.loc[1, "p"] = -1.0 * DEG            # the measurement 1 deg/s inside the range
-    upper.loc[4, "r"] = 5.0 * DEG             # a range above the prediction: r stays 4 off
+    lower.loc[1, "p"] = -1.0 * DEG  # the measurement 1 deg/s inside the range
+    upper.loc[4, "r"] = 5.0 * DEG  # a range above the prediction: r stays 4 off
     plain = proof_of_match(meas, pred)
     assert not bool(plain.loc["p", "pass"]) and plain.loc["p", "max_abs_error"] == pytest.approx(3 * DEG)
     assert plain.loc["p", "envelope_max_width"] == 0.0
@@ -80,8 +86,8 @@ def test_an_input_timing_envelope_judges_the_distance_from_the_range():
     # an allowed bias is taken from the prediction itself, then the range judged
     shifted = meas + 0.5 * DEG
     db = proof_of_match(shifted, pred, envelope=(lower, upper), allowed_bias={"p": 0.2 * DEG})
-    assert db.loc["p", "bias_removed"] == pytest.approx(-0.1 * DEG)     # mean(z - y), within 0.2
-    assert db.loc["p", "max_abs_error"] == pytest.approx(0.6 * DEG)     # 0.5 + 0.1 off a 0-wide range
+    assert db.loc["p", "bias_removed"] == pytest.approx(-0.1 * DEG)  # mean(z - y), within 0.2
+    assert db.loc["p", "max_abs_error"] == pytest.approx(0.6 * DEG)  # 0.5 + 0.1 off a 0-wide range
     with pytest.raises(ValueError, match="envelope"):
         proof_of_match(meas, pred, envelope=(lower.iloc[:3], upper))
 
@@ -90,28 +96,38 @@ def test_white_noise_alone_fails_a_channel_in_5_percent_of_segments():
     """noise_std: the band widened by what the noise reaches over the channel's samples
     (noise_reach: all of n N(0, 1) samples within +-z with probability 95 %), so a perfect
     model is not failed for its data's noise; a model error beyond band + reach still is."""
-    from estimators.validation import noise_reach
     from scipy.stats import norm
 
+    from estimators.validation import noise_reach
+
     assert noise_reach(1) == pytest.approx(1.959964, abs=1e-6)
-    for n in (10, 1000):          # (1 - 2 Phi(-z))^n = 0.95
+    for n in (10, 1000):  # (1 - 2 Phi(-z))^n = 0.95
         assert (1 - 2 * norm.cdf(-noise_reach(n))) ** n == pytest.approx(0.95, abs=1e-12)
     sd, n, draws = 0.5 * DEG, 1000, 400
     rng = np.random.default_rng(3)
     meas = pd.DataFrame({"q": sd * rng.standard_normal(n)})
     pred = pd.DataFrame({"q": np.zeros(n)})
-    plain = proof_of_match(meas, pred)                  # 0.5 deg/s noise, 1.5 deg/s band
+    plain = proof_of_match(meas, pred)  # 0.5 deg/s noise, 1.5 deg/s band
     assert not bool(plain.loc["q", "pass"]) and plain.loc["q", "noise_allowance"] == 0.0
     df = proof_of_match(meas, pred, noise_std={"q": sd})
     assert bool(df.loc["q", "pass"])
     assert df.loc["q", "noise_allowance"] == pytest.approx(noise_reach(n) * sd)
-    fails = sum(not bool(proof_of_match(pd.DataFrame({"q": sd * rng.standard_normal(n)}), pred,
-                                        noise_std={"q": sd}).loc["q", "pass"]) for _ in range(draws))
+    fails = sum(
+        not bool(
+            proof_of_match(pd.DataFrame({"q": sd * rng.standard_normal(n)}), pred, noise_std={"q": sd}).loc["q", "pass"]
+        )
+        for _ in range(draws)
+    )
     # the 1.5 deg/s band comes on top of the reach: far fewer than 5 % fail; without it 5 %
     assert fails / draws < 0.01
-    zero = sum(not bool(proof_of_match(pd.DataFrame({"q": sd * rng.standard_normal(n)}), pred,
-                                       tolerances={"q": 0.0}, noise_std={"q": sd}).loc["q", "pass"])
-               for _ in range(draws))
+    zero = sum(
+        not bool(
+            proof_of_match(
+                pd.DataFrame({"q": sd * rng.standard_normal(n)}), pred, tolerances={"q": 0.0}, noise_std={"q": sd}
+            ).loc["q", "pass"]
+        )
+        for _ in range(draws)
+    )
     assert 0.02 < zero / draws < 0.09, zero / draws
     # a model 2.5 deg/s off over a tenth of the samples still fails (1.5 + 4.05 x 0.5 = 3.5)
     off = pred.copy()
@@ -144,29 +160,35 @@ def test_plausibility_flags_hand_computed(tmp_path):
     est = pd.Series({"Cmq": -20.0, "Cmde": 0.5, "Clp": -0.45, "CL0": 0.3})
     std = pd.Series({"Cmq": 3.0, "Cmde": 0.1, "Clp": 0.05, "CL0": 0.01})
     df = plausibility(est, std, path, k=3.0)
-    assert list(df.index) == ["Cmq", "Cmde", "Clp"]              # CL0 has no a-priori value
-    assert df.loc["Cmq", "combined_std"] == pytest.approx(5.0)   # sqrt(3^2 + 4^2)
+    assert list(df.index) == ["Cmq", "Cmde", "Clp"]  # CL0 has no a-priori value
+    assert df.loc["Cmq", "combined_std"] == pytest.approx(5.0)  # sqrt(3^2 + 4^2)
     assert df.loc["Cmq", "z"] == pytest.approx(1.0)
-    assert df.loc["Cmde", "z"] == pytest.approx(0.5 / np.sqrt(0.02))   # 3.54
+    assert df.loc["Cmde", "z"] == pytest.approx(0.5 / np.sqrt(0.02))  # 3.54
     assert df.loc["Clp", "z"] == pytest.approx(0.05 / np.sqrt(0.0125))
     assert df["flag"].tolist() == [False, True, False]
     assert plausibility(est, std, ap, k=4.0)["flag"].sum() == 0
 
 
 def test_method_agreement_hand_computed():
-    est = {"oem": ({"Cmq": -20.0, "Cmde": -1.0, "CL0": 0.3}, {"Cmq": 3.0, "Cmde": 0.03, "CL0": 0.01}),
-           "fem": ({"Cmq": -24.0, "Cmde": -1.2, "F_q": 0.1}, {"Cmq": 4.0, "Cmde": 0.04, "F_q": 0.01}),
-           "ekf": ({"Cmq": -21.0, "Cmde": -1.1}, {"Cmq": 1.0, "Cmde": np.nan})}
+    est = {
+        "oem": ({"Cmq": -20.0, "Cmde": -1.0, "CL0": 0.3}, {"Cmq": 3.0, "Cmde": 0.03, "CL0": 0.01}),
+        "fem": ({"Cmq": -24.0, "Cmde": -1.2, "F_q": 0.1}, {"Cmq": 4.0, "Cmde": 0.04, "F_q": 0.01}),
+        "ekf": ({"Cmq": -21.0, "Cmde": -1.1}, {"Cmq": 1.0, "Cmde": np.nan}),
+    }
     df = agreement(est, k=3.0)
     # pairs in the order given; CL0 and F_q in one method only; ekf's Cmde has no std
     assert [(r.parameter, r.method_a, r.method_b) for r in df.itertuples()] == [
-        ("Cmq", "oem", "fem"), ("Cmde", "oem", "fem"), ("Cmq", "oem", "ekf"), ("Cmq", "fem", "ekf")]
+        ("Cmq", "oem", "fem"),
+        ("Cmde", "oem", "fem"),
+        ("Cmq", "oem", "ekf"),
+        ("Cmq", "fem", "ekf"),
+    ]
     assert df["combined_std"].tolist() == pytest.approx([5.0, 0.05, np.sqrt(10.0), np.sqrt(17.0)])
     assert df["diff"].tolist() == pytest.approx([4.0, 0.2, 1.0, -3.0])
     assert df["z"].tolist() == pytest.approx([0.8, 4.0, 1 / np.sqrt(10), 3 / np.sqrt(17)])
     assert df["flag"].tolist() == [False, True, False, False]
     assert agreement(est, k=4.5)["flag"].sum() == 0
-    assert agreement({"oem": est["oem"]}).empty                    # nothing to compare
+    assert agreement({"oem": est["oem"]}).empty  # nothing to compare
 
 
 def test_load_apriori_errors_and_section(tmp_path):
@@ -178,8 +200,8 @@ def test_load_apriori_errors_and_section(tmp_path):
     assert ap.loc["Cmq", "value"] == -25.0
 
 
-A = np.array([[-1.0, 1.0], [-4.0, -1.4]])      # alpha, q
-B = np.array([[-0.1], [-6.0]])                 # elevator
+A = np.array([[-1.0, 1.0], [-4.0, -1.4]])  # alpha, q
+B = np.array([[-0.1], [-6.0]])  # elevator
 T = np.arange(0, 10, 0.02)
 U = (np.where((T > 1) & (T < 2), 0.05, 0) - np.where((T >= 2) & (T < 3), 0.05, 0))[:, None]
 
@@ -198,7 +220,7 @@ def test_inverse_simulation_exact_model_has_no_residual_inputs():
     r0 = inverse_simulation(A, B, np.eye(2), None, T, z)
     assert r0.u.shape == (T.size, 1)
     err = np.abs(r0.u - U)[:, 0]
-    assert np.median(err) < 0.002 and err.mean() < 0.005        # doublet amplitude 0.05
+    assert np.median(err) < 0.002 and err.mean() < 0.005  # doublet amplitude 0.05
     assert np.abs(r0.tracking_error).max() < 0.02
 
 
@@ -229,8 +251,8 @@ def test_the_pipeline_judges_a_held_out_maneuver_with_its_own_noise_level():
     segs = [roll_segment(t, da, 0.5 * DEG, seed) for seed in (5, 6)]
     res = OutputError(roll_model()).fit(segs[0], estimate_x0=False)
     p = validate(res, held_out=[segs[1]])["proof_of_match"]["segments"][0]["channels"]["p"]
-    assert p["pass"] and p["max_abs_error_display"] > 1.5, p                 # noise beyond the band
-    assert 0.5 * 3.0 < p["noise_allowance_display"] < 0.5 * 4.5, p           # about 3.8 sigma
+    assert p["pass"] and p["max_abs_error_display"] > 1.5, p  # noise beyond the band
+    assert 0.5 * 3.0 < p["noise_allowance_display"] < 0.5 * 4.5, p  # about 3.8 sigma
     wrong = copy.copy(res)
     wrong.values = np.where(np.array(res.names) == "Lda", 0.7 * float(res.params["Lda"]), res.values)
     q = validate(wrong, held_out=[segs[1]])["proof_of_match"]["segments"][0]["channels"]["p"]
@@ -259,11 +281,12 @@ def test_a_tic_at_the_noise_floor_is_noted_not_failed():
     assert fit["per_output"]["p"]["noise_std"] == pytest.approx(0.5 * DEG, rel=0.1)
     assert not any("TIC" in r for r in v["verdict"]["reasons"])
     assert any("noise floor" in n for n in v["verdict"]["notes"])
-    wrong = copy.copy(res)                     # the prediction of a model with Lda 70 % low
+    wrong = copy.copy(res)  # the prediction of a model with Lda 70 % low
     wrong.values = np.where(np.array(res.names) == "Lda", 0.3 * float(res.params["Lda"]), res.values)
     wrong.predicted = [simulate_outputs(wrong.model_with_estimates(), seg)]
-    wrong.residuals = [pd.DataFrame(seg.z - wrong.predicted[0].to_numpy(), index=wrong.predicted[0].index,
-                                    columns=["p"])]
+    wrong.residuals = [
+        pd.DataFrame(seg.z - wrong.predicted[0].to_numpy(), index=wrong.predicted[0].index, columns=["p"])
+    ]
     w = validate(wrong)["fit"]
     assert w["per_output"]["p"]["RMS"] > NOISE_FLOOR_RATIO * w["per_output"]["p"]["noise_std"]
     assert w["tic_noise_floor"] == [] and not w["tic_ok"]

@@ -1,4 +1,5 @@
 """Named modes of known linear systems, and the numerical linearisation."""
+
 import numpy as np
 import pytest
 
@@ -13,10 +14,10 @@ def test_short_period_2x2_hand_computed():
     row = m.table.loc["short period"]
     assert list(m.table.index) == ["short period"]
     assert row["eigenvalue"] == pytest.approx(complex(-1.2, np.sqrt(5.4 - 1.44)), rel=1e-12)
-    assert row["wn"] == pytest.approx(np.sqrt(5.4), rel=1e-12)            # 2.3238 rad/s
-    assert row["zeta"] == pytest.approx(2.4 / (2 * np.sqrt(5.4)), rel=1e-12)   # 0.5164
+    assert row["wn"] == pytest.approx(np.sqrt(5.4), rel=1e-12)  # 2.3238 rad/s
+    assert row["zeta"] == pytest.approx(2.4 / (2 * np.sqrt(5.4)), rel=1e-12)  # 0.5164
     assert row["period"] == pytest.approx(2 * np.pi / np.sqrt(3.96), rel=1e-12)  # 3.157 s
-    assert row["t_half"] == pytest.approx(np.log(2) / 1.2, rel=1e-12)     # 0.5776 s
+    assert row["t_half"] == pytest.approx(np.log(2) / 1.2, rel=1e-12)  # 0.5776 s
     assert np.isnan(row["t_double"]) and row["stable"]
     ev = m.eigenvectors["short period"]
     # eigenvector: q = (lambda + 1) alpha
@@ -28,15 +29,13 @@ def test_short_period_2x2_hand_computed():
 
 def charpoly_long(s, a):
     """det(sI - A) for the 4x4 [V, alpha, q, theta] structure, expanded by hand."""
-    d3 = (s - a[0, 0]) * ((s - a[1, 1]) * (s - a[2, 2]) - a[2, 1]) \
-        + a[0, 1] * (-a[1, 0] * (s - a[2, 2]) - a[2, 0])
+    d3 = (s - a[0, 0]) * ((s - a[1, 1]) * (s - a[2, 2]) - a[2, 1]) + a[0, 1] * (-a[1, 0] * (s - a[2, 2]) - a[2, 0])
     return s * d3 - a[0, 3] * (a[1, 0] * a[2, 1] + a[2, 0] * (s - a[1, 1]))
 
 
-A_LONG = np.array([[-0.03, 5.0, 0.0, -G],
-                   [-2 * G / V ** 2, -1.0, 1.0, 0.0],
-                   [0.001, -4.0, -1.4, 0.0],
-                   [0.0, 0.0, 1.0, 0.0]])
+A_LONG = np.array(
+    [[-0.03, 5.0, 0.0, -G], [-2 * G / V**2, -1.0, 1.0, 0.0], [0.001, -4.0, -1.4, 0.0], [0.0, 0.0, 1.0, 0.0]]
+)
 
 
 def test_longitudinal_4x4_short_period_and_phugoid():
@@ -51,7 +50,7 @@ def test_longitudinal_4x4_short_period_and_phugoid():
     assert sp["wn"] == pytest.approx(np.sqrt(5.4), rel=0.02)
     assert ph["wn"] == pytest.approx(np.sqrt(2) * G / V, rel=0.2)
     assert ph["zeta"] < 0.1 < sp["zeta"]
-    for _, row in t.iterrows():                     # hand formulas on each eigenvalue
+    for _, row in t.iterrows():  # hand formulas on each eigenvalue
         lam = row["eigenvalue"]
         assert row["wn"] == pytest.approx(abs(lam))
         assert row["zeta"] * row["wn"] == pytest.approx(-lam.real)
@@ -64,11 +63,8 @@ def test_longitudinal_4x4_short_period_and_phugoid():
 
 
 def test_lateral_4x4_roll_dutch_roll_unstable_spiral():
-    A = np.array([[-0.2, 0.05, -1.0, G / V],
-                  [-10.0, -3.0, 0.8, 0.0],
-                  [4.0, -0.2, -0.6, 0.0],
-                  [0.0, 1.0, 0.0, 0.0]])
-    A[1, 2] = 2.0          # strong Clr makes the spiral divergent
+    A = np.array([[-0.2, 0.05, -1.0, G / V], [-10.0, -3.0, 0.8, 0.0], [4.0, -0.2, -0.6, 0.0], [0.0, 1.0, 0.0, 0.0]])
+    A[1, 2] = 2.0  # strong Clr makes the spiral divergent
     m = modes(A, ["beta", "p", "r", "phi"])
     t = m.table
     assert set(t.index) == {"roll", "Dutch roll", "spiral"}
@@ -84,8 +80,7 @@ def test_lateral_4x4_roll_dutch_roll_unstable_spiral():
 
 def test_coupled_8_states_name_all_five_modes():
     Z = np.zeros((4, 4))
-    A_lat = np.array([[-0.2, 0.05, -1.0, G / V], [-10.0, -3.0, 0.8, 0.0],
-                      [4.0, -0.2, -0.6, 0.0], [0.0, 1.0, 0.0, 0.0]])
+    A_lat = np.array([[-0.2, 0.05, -1.0, G / V], [-10.0, -3.0, 0.8, 0.0], [4.0, -0.2, -0.6, 0.0], [0.0, 1.0, 0.0, 0.0]])
     A = np.block([[A_LONG, Z], [Z, A_lat]])
     m = modes(A, ["V", "alpha", "q", "theta", "beta", "p", "r", "phi"])
     assert list(m.table.index) == ["short period", "phugoid", "roll", "Dutch roll", "spiral"]
@@ -103,25 +98,26 @@ def test_mode_properties_real_and_zero_roots():
 def test_linearize_matches_analytic_jacobian():
     def f(x, u, p, c):
         V, alpha, q = x
-        de, = u
-        return (-p["k"] * V ** 2 + c["g"] * np.sin(alpha),
-                q - V * alpha * de,
-                p["m"] * alpha + 3.0 * de + 0.0 * V)
+        (de,) = u
+        return (-p["k"] * V**2 + c["g"] * np.sin(alpha), q - V * alpha * de, p["m"] * alpha + 3.0 * de + 0.0 * V)
 
     x0, u0 = np.array([50.0, 0.1, 0.02]), np.array([-0.05])
     p, c = {"k": 0.001, "m": -4.0}, {"g": 9.81}
     A, B = linearize(f, x0, u0, p, c)
     V, al, q = x0
     de = u0[0]
-    A_true = np.array([[-2 * 0.001 * V, 9.81 * np.cos(al), 0.0],
-                       [-al * de, -V * de, 1.0],
-                       [0.0, -4.0, 0.0]])
+    A_true = np.array([[-2 * 0.001 * V, 9.81 * np.cos(al), 0.0], [-al * de, -V * de, 1.0], [0.0, -4.0, 0.0]])
     B_true = np.array([[0.0], [-V * al], [3.0]])
     np.testing.assert_allclose(A, A_true, rtol=1e-7, atol=1e-9)
     np.testing.assert_allclose(B, B_true, rtol=1e-7, atol=1e-9)
     # a linear f returns its matrices; works on the stacked-array return form as well
-    Al, Bl = linearize(lambda x, u, p, c: A_LONG @ x + np.array([[0.0], [-0.1], [-6.0], [0.0]]) @ u,
-                       np.zeros(4), np.zeros(1), None, None)
+    Al, Bl = linearize(
+        lambda x, u, p, c: A_LONG @ x + np.array([[0.0], [-0.1], [-6.0], [0.0]]) @ u,
+        np.zeros(4),
+        np.zeros(1),
+        None,
+        None,
+    )
     np.testing.assert_allclose(Al, A_LONG, atol=1e-8)
     np.testing.assert_allclose(Bl[:, 0], [0.0, -0.1, -6.0, 0.0], atol=1e-8)
 

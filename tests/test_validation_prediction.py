@@ -2,14 +2,18 @@
 an unstable aircraft it must pass the TRUE model where the open-loop simulation cannot,
 and still fail models whose derivatives are wrong. Model-simulated data (process noise as
 the filters assume it), so every number here is known."""
+
 import numpy as np
 import pytest
 
 from estimators import ModelDefinitionError, Segment, simulate_outputs
 from estimators import validation as V
 from estimators.models import short_period
-from estimators.process_noise_examples import (SP_CONSTANTS, turbulent_longitudinal_example,
-                                               unstable_short_period_example)
+from estimators.process_noise_examples import (
+    SP_CONSTANTS,
+    turbulent_longitudinal_example,
+    unstable_short_period_example,
+)
 
 
 def _max_err(seg, y, outputs):
@@ -23,8 +27,7 @@ def gusty():
 
 
 def _driven(ex, model, seg):
-    return V.air_data_prediction(model, seg, process_noise=ex.process_noise,
-                                 measurement_noise=np.diag(ex.noise_std ** 2))
+    return V.air_data_prediction(model, seg, process_noise=ex.process_noise, measurement_noise=np.diag(ex.noise_std**2))
 
 
 def test_true_model_follows_the_gusts_the_simulation_cannot(gusty):
@@ -40,13 +43,11 @@ def test_true_model_follows_the_gusts_the_simulation_cannot(gusty):
     sim = _max_err(seg, simulate_outputs(m, seg), m.outputs)
     assert sim["theta"] > 2.5 * e["theta"] and sim["q"] > 1.8 * e["q"], (sim, e)
     # judged against the default bands, the true model passes
-    pm = V.proof_of_match(seg.z, dp.predicted.to_numpy(), names=m.outputs,
-                          tolerances={"alpha": np.nan})
+    pm = V.proof_of_match(seg.z, dp.predicted.to_numpy(), names=m.outputs, tolerances={"alpha": np.nan})
     assert pm.attrs["all_pass"], pm
 
 
-@pytest.mark.parametrize("name,factor,min_ratio", [("Cmalpha", 0.8, 5.0), ("Cmde", 0.8, 2.5),
-                                                    ("Cmq", 0.7, 1.6)])
+@pytest.mark.parametrize("name,factor,min_ratio", [("Cmalpha", 0.8, 5.0), ("Cmde", 0.8, 2.5), ("Cmq", 0.7, 1.6)])
 def test_wrong_moment_derivatives_show_in_the_predicted_pitch_rate(gusty, name, factor, min_ratio):
     seg, m = gusty.segments[0], gusty.truth_model
     ref = _max_err(seg, _driven(gusty, m, seg).predicted, m.outputs)["q"]

@@ -1,13 +1,19 @@
 """The held-out prediction's own uncertainty from the estimates' covariance
 (estimators.validation.prediction_band) and what the proof of match says with it."""
+
 import copy
 
 import numpy as np
 import pytest
 
 from estimators import Model, OutputError, Parameter, Segment
-from estimators.validation import (parameter_sensitivity, prediction_std, prediction_uncertainty,
-                                   proof_of_match, variance_shares)
+from estimators.validation import (
+    parameter_sensitivity,
+    prediction_std,
+    prediction_uncertainty,
+    proof_of_match,
+    variance_shares,
+)
 from tests._roll import roll_model, roll_segment
 
 DEG = np.pi / 180
@@ -23,14 +29,12 @@ def test_sensitivity_of_the_roll_model_is_the_analytic_one():
     so dp/dLda = -(da / Lp)(1 - e^(Lp t)) and dp/dLp = (Lda da / Lp^2)(1 - e^(Lp t)) +
     (Lda da / Lp) t e^(Lp t)."""
     seg, Lp, Lda, da = _step_segment(), -8.0, 40.0, 0.05
-    S = parameter_sensitivity(roll_model(), seg, {"Lp": Lp, "Lda": Lda}, ["Lp", "Lda"],
-                              inputs="linear")
+    S = parameter_sensitivity(roll_model(), seg, {"Lp": Lp, "Lda": Lda}, ["Lp", "Lda"], inputs="linear")
     t = seg.t
     e = np.exp(Lp * t)
     assert S.shape == (t.size, 1, 2)
     np.testing.assert_allclose(S[:, 0, 1], -(da / Lp) * (1 - e), rtol=1e-4, atol=1e-9)
-    np.testing.assert_allclose(S[:, 0, 0], Lda * da / Lp**2 * (1 - e) + Lda * da / Lp * t * e,
-                               rtol=1e-4, atol=1e-9)
+    np.testing.assert_allclose(S[:, 0, 0], Lda * da / Lp**2 * (1 - e) + Lda * da / Lp * t * e, rtol=1e-4, atol=1e-9)
     # the std of the prediction: |S| sigma for one parameter, sqrt(s^T P s) for two
     P = np.array([[0.25, -0.3], [-0.3, 4.0]])
     sd = prediction_std(S, P)
@@ -43,11 +47,20 @@ def test_what_a_refitted_bias_or_initial_state_takes_up_is_projected_out():
     """A shared output offset c and the segment's own bias move p alike: refitted, the bias
     takes the whole move, and c leaves the prediction no uncertainty; the initial state
     takes up part of Lp's (the same free response), never more than all of it."""
-    m = Model(states=["p"], inputs=["da"], outputs=["p"],
-              parameters=[Parameter("Lp", -8.0), Parameter("Lda", 40.0), Parameter("c", 0.0),
-                          Parameter("bias_p", 0.0, per_segment=True)],
-              f=lambda x, u, p, c: (p.Lp * x[0] + p.Lda * u[0],),
-              g=lambda x, u, p, c: (x[0] + p.c + p.bias_p,), name="roll-offset")
+    m = Model(
+        states=["p"],
+        inputs=["da"],
+        outputs=["p"],
+        parameters=[
+            Parameter("Lp", -8.0),
+            Parameter("Lda", 40.0),
+            Parameter("c", 0.0),
+            Parameter("bias_p", 0.0, per_segment=True),
+        ],
+        f=lambda x, u, p, c: (p.Lp * x[0] + p.Lda * u[0],),
+        g=lambda x, u, p, c: (x[0] + p.c + p.bias_p,),
+        name="roll-offset",
+    )
     seg = _step_segment()
     plain = parameter_sensitivity(m, seg, {}, ["c", "Lp"], inputs="linear")
     np.testing.assert_allclose(plain[:, 0, 0], 1.0, rtol=1e-6)
@@ -63,7 +76,7 @@ def test_variance_shares_hand_computed():
     """s = (1, 2), P = [[1, 0.5], [0.5, 4]]: P s = (2, 8.5), s^T P s = 19, shares 2/19 and
     17/19; a correlation that lowers the variance gives a negative share."""
     np.testing.assert_allclose(variance_shares([1.0, 2.0], [[1.0, 0.5], [0.5, 4.0]]), [2 / 19, 17 / 19])
-    sh = variance_shares([2.0, 1.0], [[1.0, -0.9], [-0.9, 1.0]])     # P s = (1.1, -0.8), var 1.4
+    sh = variance_shares([2.0, 1.0], [[1.0, -0.9], [-0.9, 1.0]])  # P s = (1.1, -0.8), var 1.4
     np.testing.assert_allclose(sh, [2.2 / 1.4, -0.8 / 1.4])
     assert not variance_shares([0.0, 0.0], np.eye(2)).any()
 
@@ -74,20 +87,19 @@ def test_prediction_uncertainty_hand_computed():
     ps = np.array([[1.0, 1.0, 1.0], [0.5, 2.0, 1.0]])
     top, beyond = prediction_uncertainty(excess, ps, k=2.0)
     np.testing.assert_allclose(top[:2], [1.0, 2.0])
-    np.testing.assert_allclose(beyond[:2], [1.0, 0.0])      # 2 - 2 x 0.5; 0.5 - 2 x 1 < 0
-    assert np.isnan(top[2]) and np.isnan(beyond[2])         # a channel not judged
+    np.testing.assert_allclose(beyond[:2], [1.0, 0.0])  # 2 - 2 x 0.5; 0.5 - 2 x 1 < 0
+    assert np.isnan(top[2]) and np.isnan(beyond[2])  # a channel not judged
 
 
 def test_proof_of_match_reports_the_prediction_uncertainty_without_changing_pass_fail():
-    t = np.linspace(0, 1, 11)
     z = np.zeros((11, 1))
     y = z.copy()
-    y[5, 0] = 2.0 * DEG                        # 0.5 deg/s beyond the 1.5 deg/s band
+    y[5, 0] = 2.0 * DEG  # 0.5 deg/s beyond the 1.5 deg/s band
     ps = np.full((11, 1), 0.1 * DEG)
     df = proof_of_match(z, y, ["p"], prediction_std=ps)
     assert not df.loc["p", "pass"]
     assert df.loc["p", "prediction_std_max"] == pytest.approx(0.1 * DEG)
-    assert df.loc["p", "beyond_prediction"] == pytest.approx(0.3 * DEG)   # 0.5 - 2 x 0.1
+    assert df.loc["p", "beyond_prediction"] == pytest.approx(0.3 * DEG)  # 0.5 - 2 x 0.1
     wide = proof_of_match(z, y, ["p"], prediction_std=10 * ps)
     assert not wide.loc["p", "pass"] and wide.loc["p", "beyond_prediction"] == 0.0
     plain = proof_of_match(z, y, ["p"])
@@ -122,7 +134,7 @@ def test_the_pipeline_tells_an_imprecise_estimate_from_a_wrong_model(tmp_path):
     assert seg["prediction_uncertainty"] == {"parameters": 2, "k": 2.0}
     assert p["pass"] is False and p["beyond_prediction_display"] > 3.0, p
     assert any("p by" in n and "not explained by their stated uncertainty" in n for n in v["verdict"]["notes"])
-    assert v["verdict"]["level"] == "FAIL", v["verdict"]         # the model shown wrong
+    assert v["verdict"]["level"] == "FAIL", v["verdict"]  # the model shown wrong
     # the same estimates, their covariance made 30 % on Lda: within the prediction's spread
     loose = copy.copy(wrong)
     i = loose.free_names.index("Lda")
@@ -132,19 +144,21 @@ def test_the_pipeline_tells_an_imprecise_estimate_from_a_wrong_model(tmp_path):
     p = v["proof_of_match"]["segments"][0]["channels"]["p"]
     assert p["pass"] is False and p["beyond_prediction_display"] == 0.0, p
     assert p["prediction_std_max_display"] > 2.0, p
-    assert any("within 2 std" in n and "too imprecise" in n and "worst miss mostly Lda" in n
-               for n in v["verdict"]["notes"]), v["verdict"]
-    assert v["verdict"]["level"] == "CHECK", v["verdict"]        # imprecise, not shown wrong
-    assert p["prediction_std_from"]["Lda"] > 0.9, p        # the 30 % std given to Lda
+    assert any(
+        "within 2 std" in n and "too imprecise" in n and "worst miss mostly Lda" in n for n in v["verdict"]["notes"]
+    ), v["verdict"]
+    assert v["verdict"]["level"] == "CHECK", v["verdict"]  # imprecise, not shown wrong
+    assert p["prediction_std_from"]["Lda"] > 0.9, p  # the 30 % std given to Lda
     # report.md: the failed channel's row carries the model std and 0 beyond it
     from pipeline.report import write_report
+
     md, js = write_report(tmp_path, {"oem": loose}, {"oem": v})
     text = md.read_text()
-    section = text[text.index("### Proof of match"):]
+    section = text[text.index("### Proof of match") :]
     row = next(line for line in section.splitlines() if line.startswith("| p | deg/s |"))
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[-3:] == [f"{p['prediction_std_max_display']:.4g}", "0", "FAIL"], row
-    summary = text[text.index("## Summary"):text.index("## Summary") + 600]
+    summary = text[text.index("## Summary") : text.index("## Summary") + 600]
     assert "| FAIL (within model std) |" in summary, summary
     md, _ = write_report(tmp_path, {"oem": wrong}, {"oem": validate(wrong, held_out=[held])})
     assert "| FAIL (beyond model std) |" in md.read_text()

@@ -1,4 +1,5 @@
 """Residual statistics, autocorrelation and the whiteness test (white vs AR(1) noise), PSD."""
+
 import numpy as np
 import pytest
 from scipy import signal, stats
@@ -13,9 +14,9 @@ def test_autocorrelation_hand_computed():
 
 
 def test_whiteness_statistic_hand_computed():
-    x = np.tile([1.0, -1.0], 10)            # N = 20, rho_1 = -19/20
+    x = np.tile([1.0, -1.0], 10)  # N = 20, rho_1 = -19/20
     w = whiteness(x, max_lag=1)
-    q = 20 * 22 * 0.95 ** 2 / 19
+    q = 20 * 22 * 0.95**2 / 19
     np.testing.assert_allclose(w.statistic, [q], rtol=1e-12)
     np.testing.assert_allclose(w.threshold, 3.841458820694124, rtol=1e-9)
     assert not w.white[0]
@@ -28,7 +29,7 @@ def test_whiteness_accepts_white_rejects_ar1():
     w = whiteness(white, max_lag=20, names=["q", "az"])
     assert w.white.all(), w.to_frame()
     assert np.all(w.statistic < w.threshold)
-    assert np.all(w.frac_outside <= 0.2)   # ~5 % of lags expected outside
+    assert np.all(w.frac_outside <= 0.2)  # ~5 % of lags expected outside
     # AR(1), phi = 0.5: rho_1 ~ 0.5 >> 1.96/sqrt(N)
     ar = signal.lfilter([1.0], [1.0, -0.5], rng.normal(size=(n, 2)), axis=0)
     c = whiteness(ar, max_lag=20)
@@ -50,10 +51,10 @@ def test_residual_stats_values():
 
 def test_psd_white_level_and_sine_peak():
     rng = np.random.default_rng(7)
-    fs, n, sigma = 100.0, 2 ** 15, 0.3
+    fs, n, sigma = 100.0, 2**15, 0.3
     f, p = psd(rng.normal(scale=sigma, size=n), fs)
     # one-sided PSD of white noise: 2 sigma^2 / fs
-    np.testing.assert_allclose(p[1:-1].mean(), 2 * sigma ** 2 / fs, rtol=0.05)
+    np.testing.assert_allclose(p[1:-1].mean(), 2 * sigma**2 / fs, rtol=0.05)
     t = np.arange(n) / fs
     f, p = psd(np.sin(2 * np.pi * 12.5 * t), fs, nperseg=1024, method="welch")
     assert f[np.argmax(p[:, 0])] == pytest.approx(12.5, abs=fs / 1024)
@@ -63,11 +64,10 @@ def test_psd_white_level_and_sine_peak():
 
 def test_whiteness_segments_pool_without_crossing_boundaries():
     rng = np.random.default_rng(8)
-    a, b = rng.normal(size=(1500, 1)), rng.normal(size=(1500, 1)) + 5.0   # different means
+    a, b = rng.normal(size=(1500, 1)), rng.normal(size=(1500, 1)) + 5.0  # different means
     pooled = whiteness([a, b], max_lag=10)
     assert pooled.white[0]
     # concatenated, the step in the mean between segments looks like strong colour
     assert not whiteness(np.vstack([a, b]), max_lag=10).white[0]
     # one segment as a list equals the plain call
-    np.testing.assert_allclose(whiteness([a], max_lag=10).statistic,
-                               whiteness(a, max_lag=10).statistic, rtol=1e-12)
+    np.testing.assert_allclose(whiteness([a], max_lag=10).statistic, whiteness(a, max_lag=10).statistic, rtol=1e-12)

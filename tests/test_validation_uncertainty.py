@@ -1,4 +1,5 @@
 """Cramér-Rao bounds and their Morelli-Klein correction for coloured residuals."""
+
 import numpy as np
 import pytest
 from scipy import signal
@@ -9,10 +10,13 @@ from estimators.validation.uncertainty import _middle
 N, FS = 4000, 50.0
 T = np.arange(N) / FS
 # sensitivities of 2 outputs to 3 parameters: two low-frequency signals and a bias-like one
-S = np.stack([np.stack([np.sin(2 * np.pi * 0.3 * T), np.cos(2 * np.pi * 0.7 * T) + 0.3,
-                        np.ones(N)], -1),
-              np.stack([0.5 * np.sin(2 * np.pi * 0.5 * T + 1), np.sin(2 * np.pi * 0.2 * T),
-                        0.2 * np.ones(N)], -1)], 1)                     # (N, 2, 3)
+S = np.stack(
+    [
+        np.stack([np.sin(2 * np.pi * 0.3 * T), np.cos(2 * np.pi * 0.7 * T) + 0.3, np.ones(N)], -1),
+        np.stack([0.5 * np.sin(2 * np.pi * 0.5 * T + 1), np.sin(2 * np.pi * 0.2 * T), 0.2 * np.ones(N)], -1),
+    ],
+    1,
+)  # (N, 2, 3)
 SIG = np.array([0.1, 0.5])
 PHI = 0.9
 
@@ -20,7 +24,7 @@ PHI = 0.9
 def coloured(rng, n=N):
     """AR(1) noise with phi = 0.9 and the variances SIG^2."""
     e = rng.normal(size=(n, 2))
-    return signal.lfilter([1.0], [1.0, -PHI], e, axis=0) * SIG * np.sqrt(1 - PHI ** 2)
+    return signal.lfilter([1.0], [1.0, -PHI], e, axis=0) * SIG * np.sqrt(1 - PHI**2)
 
 
 def test_crb_hand_computed():
@@ -37,10 +41,19 @@ def test_middle_term_equals_brute_force_double_sum():
     v[:, 1] += 0.5 * v[:, 0]
     Ri = np.linalg.inv(v.T @ v / n)
     W = np.einsum("ab,nbp->nap", Ri, s)
-    for L, win, unb in [(0, "none", False), (5, "none", False), (5, "bartlett", True),
-                        (n - 1, "none", True), (n - 1, "bartlett", False)]:
-        r = np.array([v[: n - k].T @ v[k:] / ((n - k) if unb else n)
-                      * ((1 - k / (L + 1)) if win == "bartlett" else 1.0) for k in range(L + 1)])
+    for L, win, unb in [
+        (0, "none", False),
+        (5, "none", False),
+        (5, "bartlett", True),
+        (n - 1, "none", True),
+        (n - 1, "bartlett", False),
+    ]:
+        r = np.array(
+            [
+                v[: n - k].T @ v[k:] / ((n - k) if unb else n) * ((1 - k / (L + 1)) if win == "bartlett" else 1.0)
+                for k in range(L + 1)
+            ]
+        )
         # full block-Toeplitz residual covariance, (n*no, n*no)
         big = np.zeros((n, no, n, no))
         for i in range(n):
@@ -70,7 +83,7 @@ def test_coloured_residuals_enlarge_bounds_like_monte_carlo():
     """For a linear model the estimate error is M^-1 sum S^T R^-1 v exactly: its scatter over
     realisations is the truth the corrected bound must approach, the plain CRB misses it."""
     rng = np.random.default_rng(3)
-    R = np.diag(SIG ** 2)
+    R = np.diag(SIG**2)
     Ri = np.linalg.inv(R)
     M = np.einsum("nap,ab,nbq->pq", S, Ri, S)
     Minv = np.linalg.inv(M)
@@ -79,7 +92,7 @@ def test_coloured_residuals_enlarge_bounds_like_monte_carlo():
     v = coloured(rng)
     r = morelli_klein(S, v, R=R, info=M)
     np.testing.assert_allclose(r.crb_std, np.sqrt(np.diag(Minv)))
-    assert np.all(r.ratio > 2.5)                       # much larger than the plain bound
+    assert np.all(r.ratio > 2.5)  # much larger than the plain bound
     np.testing.assert_allclose(r.std, empirical, rtol=0.3)
     assert np.all(empirical / r.crb_std > 2.5)
     # the bias-like parameter: theory sqrt((1 + phi) / (1 - phi)) = sqrt(19) for a mean

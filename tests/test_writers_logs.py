@@ -1,4 +1,5 @@
 """flight.mcap, flight.bin and truth.json read back with the mcap library and pymavlink."""
+
 from __future__ import annotations
 
 import json
@@ -11,7 +12,7 @@ from pipeline.writers import write_dataflash, write_mcap, write_truth_json
 from sim.sensors import lever_arm_signals
 from tests._simdata import flown, written
 
-NAME = "sensor_errors_calm"     # lever arms, biases, scale factors and a delay
+NAME = "sensor_errors_calm"  # lever arms, biases, scale factors and a delay
 
 
 @pytest.fixture(scope="module")
@@ -22,7 +23,7 @@ def mcap_messages():
     with open(written(NAME) / "flight.mcap", "rb") as fh:
         reader = make_reader(fh)
         summary = reader.get_summary()
-        for schema, channel, message in reader.iter_messages():
+        for _schema, channel, message in reader.iter_messages():
             out[channel.topic].append((message.log_time, json.loads(message.data)))
     return summary, out
 
@@ -52,8 +53,10 @@ def _truth_at(r, sensor, t):
     spec = r.scenario.sensors[sensor]
     src = lever_arm_signals(r.truth, spec)
     tt = r.truth["t"].to_numpy()
-    return {c: (1 + spec.scale[i]) * np.interp(np.maximum(t - spec.delay, 0), tt, src[c]) + spec.bias[i]
-            for i, c in enumerate(spec.channels)}, spec
+    return {
+        c: (1 + spec.scale[i]) * np.interp(np.maximum(t - spec.delay, 0), tt, src[c]) + spec.bias[i]
+        for i, c in enumerate(spec.channels)
+    }, spec
 
 
 def _within_noise(meas, want, sd, what):
@@ -86,10 +89,10 @@ def test_mcap_topics_schemas_units_and_rates(mcap_messages):
         assert np.array_equal(t, df["t"].to_numpy())
         assert np.array_equal(np.array([lt for lt, _ in rows]), np.round(t * 1e9).astype(np.int64))
         assert float(topics[f"/sensors/{name}"].metadata["rate_hz"]) == pytest.approx(1 / np.diff(t).mean())
-        for c in df.columns:                                   # JSON keeps every float bit
+        for c in df.columns:  # JSON keeps every float bit
             assert np.array_equal(np.array([m[c] for _, m in rows]), df[c].to_numpy()), (name, c)
     truth_rows = msgs["/truth"]
-    assert len(truth_rows) == len(r.truth.iloc[::2])            # 50 Hz of a 100 Hz flight
+    assert len(truth_rows) == len(r.truth.iloc[::2])  # 50 Hz of a 100 Hz flight
     tr = np.array([m["truth"]["CL"] for _, m in truth_rows])
     assert np.array_equal(tr, r.truth["CL"].to_numpy()[::2])
     # log times are in order across topics
@@ -127,8 +130,16 @@ def test_bin_has_the_ardupilot_layouts_units_and_params(bin_messages):
     assert params["FSID_ARSP_TAS"] == 1
     assert params["FSID_MAX_THRUST"] == flown(NAME).aircraft.max_thrust
     r = flown(NAME)
-    for name, sensor in (("IMU", "imu"), ("ATT", "attitude"), ("ARSP", "airdata"), ("AOA", "airdata"),
-                         ("BARO", "baro"), ("RCOU", "surfaces"), ("GPS", "gps"), ("CTUN", "attitude")):
+    for name, sensor in (
+        ("IMU", "imu"),
+        ("ATT", "attitude"),
+        ("ARSP", "airdata"),
+        ("AOA", "airdata"),
+        ("BARO", "baro"),
+        ("RCOU", "surfaces"),
+        ("GPS", "gps"),
+        ("CTUN", "attitude"),
+    ):
         t = _col(m[name], "TimeUS") * 1e-6
         assert len(t) == len(r.sensors[sensor]), name
         assert np.allclose(np.diff(t), 1 / r.meta["sensors"][sensor]["rate_hz"]), name
@@ -151,7 +162,7 @@ def test_bin_values_match_sensors_and_truth(bin_messages):
     np.testing.assert_allclose(tas, r.sensors["airdata"]["V"], rtol=2e-6)
     eas = _col(m["CTUN"], "As")
     np.testing.assert_allclose(eas * _col(m["CTUN"], "E2T"), np.interp(t_ct, t_ad, tas), rtol=2e-5)
-    assert 0.98 < np.median(eas / np.interp(t_ct, t_ad, tas)) < 0.995          # 150 m: rho < 1.225
+    assert 0.98 < np.median(eas / np.interp(t_ct, t_ad, tas)) < 0.995  # 150 m: rho < 1.225
     want, spec = _truth_at(r, "airdata", t_ad)
     _within_noise(tas, want["V"], spec.noise[0], "V")
     _within_noise(np.deg2rad(_col(m["AOA"], "AOA")), want["alpha"], spec.noise[1], "AOA")
@@ -187,7 +198,7 @@ def test_rcou_pwm_maps_back_to_the_commanded_deflections(bin_messages):
         flown_ = t > 0
         assert np.max(np.abs(defl - want)[flown_]) <= 1e-3 * step, axis
         assert np.max(np.abs(want / step - np.round(want / step))[flown_]) < 1e-3, axis
-        assert np.ptp(want) > np.deg2rad(3), axis                   # the maneuvers are in there
+        assert np.ptp(want) > np.deg2rad(3), axis  # the maneuvers are in there
     thr = (_col(m["RCOU"], "C3") - p["SERVO3_MIN"]) / (p["SERVO3_MAX"] - p["SERVO3_MIN"])
     assert np.max(np.abs(thr - np.interp(t, r.truth["t"], r.truth["throttle"]))[t > 0]) <= 1e-6
 
@@ -206,6 +217,7 @@ def test_truth_json_holds_the_truth_set_and_errors():
 
 def test_same_seed_gives_byte_identical_logs(tmp_path):
     import sim
+
     a = written("default")
     res = sim.fly(sim.load_scenario(flown("default").scenario.path))
     write_mcap(tmp_path / "flight.mcap", res)
@@ -230,8 +242,10 @@ def test_fsid_simulate_cli(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "not found" in err
     bad = tmp_path / "bad.toml"
-    bad.write_text('aircraft = "%s"\nduration_s = 10\n[trim]\naltitude_m = 100\nairspeed_kts = 50\n'
-                   % (flown("default").aircraft.path))
+    bad.write_text(
+        'aircraft = "%s"\nduration_s = 10\n[trim]\naltitude_m = 100\nairspeed_kts = 50\n'
+        % (flown("default").aircraft.path)
+    )
     assert main(["simulate", str(bad), "--out", str(tmp_path / "y")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "trim.airspeed_kts: wrong unit" in err
@@ -250,7 +264,7 @@ def test_bin_can_carry_equivalent_airspeed(tmp_path):
         elif m.get_type() == "CTUN":
             ctun.append(m.E2T)
     log.close()
-    tas = np.array(arsp) * np.array(ctun)            # same rate (50 Hz): airdata and attitude
+    tas = np.array(arsp) * np.array(ctun)  # same rate (50 Hz): airdata and attitude
     np.testing.assert_allclose(tas, r.sensors["airdata"]["V"], rtol=2e-5)
     with pytest.raises(ValueError, match="airspeed"):
         write_dataflash(tmp_path / "x.bin", r, airspeed="ias")
@@ -273,7 +287,10 @@ def test_mixed_tails_decode_to_the_same_deflections(tmp_path):
         for axis in ("de", "da", "dr"):
             step = r.aircraft.travel(axis) / 400
             np.testing.assert_array_equal(fd[axis].t, ref[axis].t)
-            assert np.max(np.abs(fd[axis].values - ref[axis].values)) <= step * (1.0 if axis in mixed else 1e-9), (tail, axis)
+            assert np.max(np.abs(fd[axis].values - ref[axis].values)) <= step * (1.0 if axis in mixed else 1e-9), (
+                tail,
+                axis,
+            )
             assert np.ptp(fd[axis].values) > np.deg2rad(3)
             assert fd[axis].source.startswith("mix of SERVOn_FUNCTION") == (axis in mixed), fd[axis].source
         assert fd.meta["servo_travel"][mixed[0]]["from"] == "log parameter FSID_TRAVEL_DE"
@@ -299,19 +316,28 @@ def test_mcap_bytes_as_the_mcap_writer_writes_them(tmp_path, monkeypatch, compre
     with open(tmp_path / "ours.mcap", "rb") as fh:
         reader = make_reader(fh)
         summary = reader.get_summary()
-        msgs = [(m.channel_id, m.log_time, m.publish_time, m.sequence, m.data)
-                for _, _, m in reader.iter_messages(log_time_order=False)]
+        msgs = [
+            (m.channel_id, m.log_time, m.publish_time, m.sequence, m.data)
+            for _, _, m in reader.iter_messages(log_time_order=False)
+        ]
         meta = list(reader.iter_metadata())
     assert len(summary.chunk_indexes) > (3 if chunk_size else 1)
     with open(tmp_path / "theirs.mcap", "wb") as fh:
-        w = Writer(fh, compression=getattr(CompressionType, compression.upper()),
-                   **({"chunk_size": chunk_size} if chunk_size else {}))
+        w = Writer(
+            fh,
+            compression=getattr(CompressionType, compression.upper()),
+            **({"chunk_size": chunk_size} if chunk_size else {}),
+        )
         w.start(profile="", library="fsid-sim")
         for cid, ch in summary.channels.items():
             sc = summary.schemas[ch.schema_id]
             assert w.register_schema(name=sc.name, encoding=sc.encoding, data=sc.data) == ch.schema_id
-            assert w.register_channel(topic=ch.topic, message_encoding=ch.message_encoding,
-                                      schema_id=ch.schema_id, metadata=ch.metadata) == cid
+            assert (
+                w.register_channel(
+                    topic=ch.topic, message_encoding=ch.message_encoding, schema_id=ch.schema_id, metadata=ch.metadata
+                )
+                == cid
+            )
         for cid, log_time, pub, seq, data in msgs:
             w.add_message(channel_id=cid, log_time=log_time, publish_time=pub, data=data, sequence=seq)
         w.add_metadata(meta[0].name, meta[0].metadata)

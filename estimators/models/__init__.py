@@ -4,10 +4,10 @@ Each builder takes the constants (mass, inertia, geometry, density, ...) from th
 and returns an :class:`estimators.Model`; start values and which parameters are free are
 arguments. The model functions are written so that numba compiles them.
 """
+
+from estimators.models.lateral import lateral_directional
 from estimators.models.longitudinal import LONGITUDINAL_DEFAULTS, longitudinal
 from estimators.models.short_period import short_period
-from estimators.models.lateral import lateral_directional
 from estimators.models.sixdof import SIXDOF_DEFAULTS, sixdof
 
-__all__ = ["longitudinal", "short_period", "lateral_directional", "sixdof",
-           "LONGITUDINAL_DEFAULTS", "SIXDOF_DEFAULTS"]
+__all__ = ["longitudinal", "short_period", "lateral_directional", "sixdof", "LONGITUDINAL_DEFAULTS", "SIXDOF_DEFAULTS"]

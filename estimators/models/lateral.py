@@ -13,9 +13,10 @@ Constants: m, Ixx, Izz, Ixz (kg m^2), S, b (m), rho, V (m/s); alpha0, theta0 (ra
 default 0), g; sensor positions from the CG (m, default 0): x_vane, z_vane (beta observed
 as beta + (r x - p z)/V) and x_imu, z_imu (ay + rdot x - pdot z).
 """
+
 from __future__ import annotations
 
-from typing import Iterable, Mapping
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 from numba.extending import register_jitable
@@ -24,12 +25,23 @@ from estimators.model import Model
 from estimators.models._build import make_parameters, require_constants
 
 DEFAULTS = {
-    "CYbeta": -0.5, "CYp": 0.0, "CYr": 0.0, "CYda": 0.0, "CYdr": 0.15,
-    "Clbeta": -0.08, "Clp": -0.45, "Clr": 0.1, "Clda": 0.15, "Cldr": 0.01,
-    "Cnbeta": 0.08, "Cnp": -0.05, "Cnr": -0.15, "Cnda": -0.01, "Cndr": -0.07,
+    "CYbeta": -0.5,
+    "CYp": 0.0,
+    "CYr": 0.0,
+    "CYda": 0.0,
+    "CYdr": 0.15,
+    "Clbeta": -0.08,
+    "Clp": -0.45,
+    "Clr": 0.1,
+    "Clda": 0.15,
+    "Cldr": 0.01,
+    "Cnbeta": 0.08,
+    "Cnp": -0.05,
+    "Cnr": -0.15,
+    "Cnda": -0.01,
+    "Cndr": -0.07,
 }
-DEFAULT_FREE = ("CYbeta", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr",
-                "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
+DEFAULT_FREE = ("CYbeta", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr", "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
 
 
 @register_jitable
@@ -52,8 +64,7 @@ def f(x, u, p, c):
     beta, pr, rr, phi = x
     da, dr = u
     Y, pdot, rdot = _moments(beta, pr, rr, da, dr, p, c)
-    betadot = (Y / (c.m * c.V) + pr * np.sin(c.alpha0) - rr * np.cos(c.alpha0)
-               + c.g * np.cos(c.theta0) / c.V * phi)
+    betadot = Y / (c.m * c.V) + pr * np.sin(c.alpha0) - rr * np.cos(c.alpha0) + c.g * np.cos(c.theta0) / c.V * phi
     return betadot, pdot, rdot, pr + np.tan(c.theta0) * rr
 
 
@@ -67,20 +78,37 @@ def g(x, u, p, c):
     return beta_s, pr, rr, phi, ay_s, pdot, rdot
 
 
-def lateral_directional(constants: Mapping[str, float], values: Mapping[str, float] | None = None,
-                        free: Iterable[str] | None = None,
-                        bounds: Mapping[str, tuple[float, float]] | None = None,
-                        output_biases: Iterable[str] = (), name: str = "lateral") -> Model:
+def lateral_directional(
+    constants: Mapping[str, float],
+    values: Mapping[str, float] | None = None,
+    free: Iterable[str] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    output_biases: Iterable[str] = (),
+    name: str = "lateral",
+) -> Model:
     """The linear lateral-directional model; see the module docstring."""
-    c = require_constants(constants, ("m", "Ixx", "Izz", "Ixz", "S", "b", "rho", "V"),
-                          "lateral-directional")
-    for k, v in {"g": 9.80665, "alpha0": 0.0, "theta0": 0.0, "x_vane": 0.0, "z_vane": 0.0,
-                 "x_imu": 0.0, "z_imu": 0.0}.items():
+    c = require_constants(constants, ("m", "Ixx", "Izz", "Ixz", "S", "b", "rho", "V"), "lateral-directional")
+    for k, v in {
+        "g": 9.80665,
+        "alpha0": 0.0,
+        "theta0": 0.0,
+        "x_vane": 0.0,
+        "z_vane": 0.0,
+        "x_imu": 0.0,
+        "z_imu": 0.0,
+    }.items():
         c.setdefault(k, v)
-    return Model(states=["beta", "p", "r", "phi"], inputs=["da", "dr"],
-                 outputs=["beta", "p", "r", "phi", "ay", "pdot", "rdot"],
-                 parameters=make_parameters(DEFAULTS, values, free, DEFAULT_FREE, bounds),
-                 constants=c, f=f, g=g, output_biases=list(output_biases), name=name)
+    return Model(
+        states=["beta", "p", "r", "phi"],
+        inputs=["da", "dr"],
+        outputs=["beta", "p", "r", "phi", "ay", "pdot", "rdot"],
+        parameters=make_parameters(DEFAULTS, values, free, DEFAULT_FREE, bounds),
+        constants=c,
+        f=f,
+        g=g,
+        output_biases=list(output_biases),
+        name=name,
+    )
 
 
 # -- lateral-directional model driven by the measured longitudinal motion ---------------------
@@ -101,14 +129,21 @@ def _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pa,
     Nm = qS * c.b * Cn
     gam = c.Ixx * c.Izz - c.Ixz * c.Ixz
     # rigid-body moment equations with Ixz coupling and the gyroscopic terms in q
-    pdot = (c.Izz * Lm + c.Ixz * Nm + c.Ixz * (c.Ixx - c.Iyy + c.Izz) * pr * qr
-            - (c.Izz * (c.Izz - c.Iyy) + c.Ixz * c.Ixz) * qr * rr) / gam
-    rdot = (c.Ixz * Lm + c.Ixx * Nm + (c.Ixx * (c.Ixx - c.Iyy) + c.Ixz * c.Ixz) * pr * qr
-            - c.Ixz * (c.Ixx - c.Iyy + c.Izz) * qr * rr) / gam
+    pdot = (
+        c.Izz * Lm
+        + c.Ixz * Nm
+        + c.Ixz * (c.Ixx - c.Iyy + c.Izz) * pr * qr
+        - (c.Izz * (c.Izz - c.Iyy) + c.Ixz * c.Ixz) * qr * rr
+    ) / gam
+    rdot = (
+        c.Ixz * Lm
+        + c.Ixx * Nm
+        + (c.Ixx * (c.Ixx - c.Iyy) + c.Ixz * c.Ixz) * pr * qr
+        - c.Ixz * (c.Ixx - c.Iyy + c.Izz) * qr * rr
+    ) / gam
     # vdot = p w - r u + g cos(theta) sin(phi) + fy with v = V sin(beta), u = V cos(alpha)
     # cos(beta), w = V sin(alpha) cos(beta); the term in Vdot sin(beta) is left out
-    betadot = (pr * np.sin(alpha) - rr * np.cos(alpha)
-               + (c.g * np.cos(theta) * np.sin(phi) + fy) / (V * np.cos(beta)))
+    betadot = pr * np.sin(alpha) - rr * np.cos(alpha) + (c.g * np.cos(theta) * np.sin(phi) + fy) / (V * np.cos(beta))
     phidot = pr + np.tan(theta) * (qr * np.sin(phi) + rr * np.cos(phi))
     return betadot, pdot, rdot, phidot, fy
 
@@ -116,18 +151,16 @@ def _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pa,
 def f_measured(x, u, p, c):
     beta, pr, rr, phi = x
     da, dr, V, alpha, theta, qr = u
-    bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p,
-                                              c, pr, rr)
+    bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pr, rr)
     return bd, pd, rd, phid
 
 
 def f_measured_gust(x, u, p, c):
     beta, pr, rr, phi, pg, beta_k, bgf = x
     da, dr, V, alpha, theta, qr = u
-    bg = beta - beta_k                    # gust sideslip, -v_g / V
+    bg = beta - beta_k  # gust sideslip, -v_g / V
     dgf = (bg - bgf) * np.pi * V / (4.0 * c.b)
-    bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p,
-                                              c, pr - pg, rr + dgf)
+    bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pr - pg, rr + dgf)
     # roll gust: first-order Markov, time constant tau_pg (s; Dryden 4 b / (pi V)); beta
     # (air-relative, driven by process noise) = beta_k (the rigid body's) + beta_g, beta_g
     # decaying with L_v / V, beta_gf lagging it by 4 b / (pi V): yaw gust r_g = -dgf
@@ -138,8 +171,7 @@ def g_measured_gust(x, u, p, c):
     beta, pr, rr, phi, pg, beta_k, bgf = x
     da, dr, V, alpha, theta, qr = u
     dgf = (beta - beta_k - bgf) * np.pi * V / (4.0 * c.b)
-    bm, pm, rm, phim, aym = _measured_outputs(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p,
-                                              c, pr - pg, rr + dgf)
+    bm, pm, rm, phim, aym = _measured_outputs(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pr - pg, rr + dgf)
     # a sideslip rebuilt from the flight path (kin_angles = 1) is the rigid body's
     return bm + c.kin_angles * (beta_k - bm), pm, rm, phim, aym
 
@@ -152,8 +184,7 @@ def g_measured(x, u, p, c):
 
 @register_jitable
 def _measured_outputs(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pa, ra):
-    bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p,
-                                              c, pa, ra)
+    bd, pd, rd, phid, fy = _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pa, ra)
     # vane at (x_vane, z_vane): v + r x - p z over V; accelerometer at (x_imu, z_imu):
     # fy + rdot x - pdot z + q (p x + r z)
     beta_s = beta + (rr * c.x_vane - pr * c.z_vane) / V
@@ -161,13 +192,15 @@ def _measured_outputs(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pa, 
     return beta_s, pr, rr, phi, ay_s
 
 
-def lateral_measured_longitudinal(constants: Mapping[str, float],
-                                  values: Mapping[str, float] | None = None,
-                                  free: Iterable[str] | None = None,
-                                  bounds: Mapping[str, tuple[float, float]] | None = None,
-                                  output_biases: Iterable[str] = (),
-                                  name: str = "lateral-measured",
-                                  rotary_gust: bool = False) -> Model:
+def lateral_measured_longitudinal(
+    constants: Mapping[str, float],
+    values: Mapping[str, float] | None = None,
+    free: Iterable[str] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    output_biases: Iterable[str] = (),
+    name: str = "lateral-measured",
+    rotary_gust: bool = False,
+) -> Model:
     """Lateral-directional model with the longitudinal motion as measured inputs.
 
     States beta, p, r, phi; inputs da, dr (rad), V (m/s), alpha, theta (rad), q (rad/s);
@@ -198,28 +231,43 @@ def lateral_measured_longitudinal(constants: Mapping[str, float],
         (CYr, Clr, Cnr). Constant ``kin_angles`` = 1 (default 0): the beta output is
         beta_k, for a sideslip rebuilt from the flight path (no vane:
         :mod:`pipeline.flow_angles`), which sees no gust."""
-    c = require_constants(constants, ("m", "Ixx", "Iyy", "Izz", "Ixz", "S", "b", "rho"),
-                          "lateral-directional (measured longitudinal)")
-    for k, v in {"g": 9.80665, "x_vane": 0.0, "z_vane": 0.0, "x_imu": 0.0, "z_imu": 0.0,
-                 "L_v": 533.4, "kin_angles": 0.0}.items():
+    c = require_constants(
+        constants, ("m", "Ixx", "Iyy", "Izz", "Ixz", "S", "b", "rho"), "lateral-directional (measured longitudinal)"
+    )
+    for k, v in {
+        "g": 9.80665,
+        "x_vane": 0.0,
+        "z_vane": 0.0,
+        "x_imu": 0.0,
+        "z_imu": 0.0,
+        "L_v": 533.4,
+        "kin_angles": 0.0,
+    }.items():
         c.setdefault(k, v)
     gust_free = rotary_gust and "tau_pg" in set(free or ())
     tau0 = dict(values or {}).get("tau_pg", 4.0 * c["b"] / (np.pi * 30.0))
-    params = make_parameters(DEFAULTS, {k: v for k, v in (values or {}).items() if k != "tau_pg"},
-                             None if free is None else [f for f in free if f != "tau_pg"],
-                             DEFAULT_FREE, bounds)
+    params = make_parameters(
+        DEFAULTS,
+        {k: v for k, v in (values or {}).items() if k != "tau_pg"},
+        None if free is None else [f for f in free if f != "tau_pg"],
+        DEFAULT_FREE,
+        bounds,
+    )
     if rotary_gust:
         from estimators.model import Parameter
+
         params.append(Parameter("tau_pg", float(tau0), gust_free, (0.02, 5.0)))
-    return Model(states=["beta", "p", "r", "phi"] + (["p_g", "beta_k", "beta_gf"] if rotary_gust
-                                                     else []),
-                 inputs=["da", "dr", "V", "alpha", "theta", "q"],
-                 outputs=["beta", "p", "r", "phi", "ay"],
-                 parameters=params,
-                 constants=c, f=f_measured_gust if rotary_gust else f_measured,
-                 g=g_measured_gust if rotary_gust else g_measured,
-                 output_biases=list(output_biases),
-                 name=name)
+    return Model(
+        states=["beta", "p", "r", "phi"] + (["p_g", "beta_k", "beta_gf"] if rotary_gust else []),
+        inputs=["da", "dr", "V", "alpha", "theta", "q"],
+        outputs=["beta", "p", "r", "phi", "ay"],
+        parameters=params,
+        constants=c,
+        f=f_measured_gust if rotary_gust else f_measured,
+        g=g_measured_gust if rotary_gust else g_measured,
+        output_biases=list(output_biases),
+        name=name,
+    )
 
 
 # -- per-segment airspeed correction of the pseudo-input V ------------------------------------
@@ -263,13 +311,19 @@ def with_airspeed_offset(model: Model) -> Model:
     nearly a common scale of all derivatives): fit it with the priors."""
     if list(model.inputs) != _MEASURED_INPUTS:
         from estimators.errors import ModelDefinitionError
-        raise ModelDefinitionError(f"with_airspeed_offset needs the inputs {_MEASURED_INPUTS}, "
-                         f"not {model.inputs}")
+
+        raise ModelDefinitionError(f"with_airspeed_offset needs the inputs {_MEASURED_INPUTS}, not {model.inputs}")
     from estimators.model import Parameter
+
     f_dv, g_dv = _offset_fg(model.f, model.g)
-    return Model(states=list(model.states), inputs=list(model.inputs),
-                 outputs=list(model.outputs),
-                 parameters=list(model.parameters) + [Parameter("dV", 0.0, True, per_segment=True,
-                                                                  unit="m/s")],
-                 constants=dict(model.constants), f=f_dv, g=g_dv,
-                 output_biases=list(model.output_biases), name=model.name)
+    return Model(
+        states=list(model.states),
+        inputs=list(model.inputs),
+        outputs=list(model.outputs),
+        parameters=list(model.parameters) + [Parameter("dV", 0.0, True, per_segment=True, unit="m/s")],
+        constants=dict(model.constants),
+        f=f_dv,
+        g=g_dv,
+        output_biases=list(model.output_biases),
+        name=model.name,
+    )

@@ -21,9 +21,10 @@ default 9.80665), sigmaT (rad, 0), zT (m, 0), and the sensor positions in body a
 from the CG (m, default 0): x_vane, z_vane (air data: V and alpha are observed there,
 u + q z, w - q x) and x_imu, z_imu (accelerometer: ax + qdot z - q^2 x, az - qdot x - q^2 z).
 """
+
 from __future__ import annotations
 
-from typing import Iterable, Mapping
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 from numba.extending import register_jitable
@@ -33,10 +34,20 @@ from estimators.model import Model
 from estimators.models._build import make_parameters, require_constants
 
 LONGITUDINAL_DEFAULTS: dict[str, float] = {
-    "CD0": 0.03, "CDalpha": 0.2, "CDalpha2": 0.0, "CDde": 0.0,
-    "CL0": 0.2, "CLalpha": 5.0, "CLq": 0.0, "CLde": 0.4,
-    "Cm0": 0.0, "Cmalpha": -0.8, "Cmq": -15.0, "Cmde": -1.5,
-    "CLalphadot": 0.0, "Cmalphadot": 0.0,
+    "CD0": 0.03,
+    "CDalpha": 0.2,
+    "CDalpha2": 0.0,
+    "CDde": 0.0,
+    "CL0": 0.2,
+    "CLalpha": 5.0,
+    "CLq": 0.0,
+    "CLde": 0.4,
+    "Cm0": 0.0,
+    "Cmalpha": -0.8,
+    "Cmq": -15.0,
+    "Cmde": -1.5,
+    "CLalphadot": 0.0,
+    "Cmalphadot": 0.0,
 }
 DEFAULT_FREE = ("CD0", "CDalpha", "CL0", "CLalpha", "CLde", "Cm0", "Cmalpha", "Cmq", "Cmde")
 
@@ -96,10 +107,14 @@ def g(x, u, p, c):
     return np.sqrt(ub * ub + wb * wb), np.arctan2(wb, ub), theta, q, qdot, ax_s, az_s
 
 
-def longitudinal(constants: Mapping[str, float], values: Mapping[str, float] | None = None,
-                 free: Iterable[str] | None = None,
-                 bounds: Mapping[str, tuple[float, float]] | None = None,
-                 output_biases: Iterable[str] = (), name: str = "longitudinal") -> Model:
+def longitudinal(
+    constants: Mapping[str, float],
+    values: Mapping[str, float] | None = None,
+    free: Iterable[str] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    output_biases: Iterable[str] = (),
+    name: str = "longitudinal",
+) -> Model:
     """The nonlinear longitudinal model.
 
     constants : m, Iyy, S, cbar, rho (SI); g, sigmaT, zT optional.
@@ -109,14 +124,28 @@ def longitudinal(constants: Mapping[str, float], values: Mapping[str, float] | N
     output_biases : outputs that get a per-segment bias ``bias_<output>[k]``.
     """
     c = require_constants(constants, ("m", "Iyy", "S", "cbar", "rho"), "longitudinal")
-    for k, v in {"g": 9.80665, "sigmaT": 0.0, "zT": 0.0, "x_vane": 0.0, "z_vane": 0.0,
-                 "x_imu": 0.0, "z_imu": 0.0}.items():
+    for k, v in {
+        "g": 9.80665,
+        "sigmaT": 0.0,
+        "zT": 0.0,
+        "x_vane": 0.0,
+        "z_vane": 0.0,
+        "x_imu": 0.0,
+        "z_imu": 0.0,
+    }.items():
         c.setdefault(k, v)
     params = make_parameters(LONGITUDINAL_DEFAULTS, values, free, DEFAULT_FREE, bounds)
-    return Model(states=["V", "alpha", "theta", "q"], inputs=["de", "thrust"],
-                 outputs=["V", "alpha", "theta", "q", "qdot", "ax", "az"],
-                 parameters=params, constants=c, f=f, g=g, output_biases=list(output_biases),
-                 name=name)
+    return Model(
+        states=["V", "alpha", "theta", "q"],
+        inputs=["de", "thrust"],
+        outputs=["V", "alpha", "theta", "q", "qdot", "ax", "az"],
+        parameters=params,
+        constants=c,
+        f=f,
+        g=g,
+        output_biases=list(output_biases),
+        name=name,
+    )
 
 
 # -- longitudinal model driven by the measured lateral-directional motion ---------------------
@@ -133,16 +162,21 @@ def _measured_lateral(V, alpha, theta, q, de, thrust, beta, pr, rr, phi, ay, rho
     L0, D0, M0 = _loads(V, alpha, qa, de, thrust, p, c, 0.0, rho)
     # alphadot = q - tan(beta) (p cos a + r sin a)
     #            + (g (cos a cos theta cos phi + sin a sin theta) + cos a fz - sin a fx) / (V cos b)
-    a0 = (q - sb / cb * (pr * ca + rr * sa)
-          + (c.g * (ca * ct * cp + sa * st) + (-L0 - thrust * np.sin(alpha + c.sigmaT)) / c.m)
-          / (V * cb))
+    a0 = (
+        q
+        - sb / cb * (pr * ca + rr * sa)
+        + (c.g * (ca * ct * cp + sa * st) + (-L0 - thrust * np.sin(alpha + c.sigmaT)) / c.m) / (V * cb)
+    )
     k = 0.5 * rho * V * V * c.S * p.CLalphadot * c.cbar / (2.0 * V) / (c.m * V * cb)
     adot = a0 / (1.0 + k)
     L, D, M = _loads(V, alpha, qa, de, thrust, p, c, adot, rho)
     # Vdot = g (-cos a cos b sin theta + sin b cos theta sin phi + sin a cos b cos theta cos phi)
     #        + cos b (cos a fx + sin a fz) + sin b fy, fy the measured lateral specific force
-    Vdot = (c.g * (-ca * cb * st + sb * ct * sp + sa * cb * ct * cp)
-            + cb * (thrust * np.cos(alpha + c.sigmaT) - D) / c.m + sb * ay)
+    Vdot = (
+        c.g * (-ca * cb * st + sb * ct * sp + sa * cb * ct * cp)
+        + cb * (thrust * np.cos(alpha + c.sigmaT) - D) / c.m
+        + sb * ay
+    )
     qdot = (M - (c.Ixx - c.Izz) * pr * rr - c.Ixz * (pr * pr - rr * rr)) / c.Iyy
     return Vdot, adot, q * cp - rr * sp, qdot, L, D
 
@@ -150,8 +184,7 @@ def _measured_lateral(V, alpha, theta, q, de, thrust, beta, pr, rr, phi, ay, rho
 def f_measured(x, u, p, c):
     V, alpha, theta, q = x
     de, thrust, beta, pr, rr, phi, ay, rho = u
-    Vd, ad, thd, qd, L, D = _measured_lateral(V, alpha, theta, q, de, thrust, beta, pr, rr,
-                                              phi, ay, rho, p, c, q)
+    Vd, ad, thd, qd, L, D = _measured_lateral(V, alpha, theta, q, de, thrust, beta, pr, rr, phi, ay, rho, p, c, q)
     return Vd, ad, thd, qd
 
 
@@ -159,10 +192,11 @@ def f_measured_gust(x, u, p, c):
     V, alpha, theta, q, alpha_k, agf, qgi = x
     de, thrust, beta, pr, rr, phi, ay, rho = u
     tau = 4.0 * c.b / (np.pi * V)
-    ag = alpha - alpha_k                  # gust angle of attack, -w_g / V
+    ag = alpha - alpha_k  # gust angle of attack, -w_g / V
     dgf = (ag - agf) / tau
-    Vd, ad, thd, qd, L, D = _measured_lateral(V, alpha, theta, q, de, thrust, beta, pr, rr, phi,
-                                              ay, rho, p, c, q + dgf - qgi)
+    Vd, ad, thd, qd, L, D = _measured_lateral(
+        V, alpha, theta, q, de, thrust, beta, pr, rr, phi, ay, rho, p, c, q + dgf - qgi
+    )
     # alpha (air-relative, driven by process noise) = alpha_k (the rigid body's) + alpha_g;
     # alpha_g decays with the Dryden time constant L_w / V; alpha_gf lags it by tau:
     # q_g = w_g'/V lagged + q_gi = -(alpha_g - alpha_gf) / tau + q_gi
@@ -179,16 +213,16 @@ def g_measured_gust(x, u, p, c):
     V, alpha, theta, q, alpha_k, agf, qgi = x
     de, thrust, beta, pr, rr, phi, ay, rho = u
     dgf = (alpha - alpha_k - agf) * np.pi * V / (4.0 * c.b)
-    Vm, am, thm, qm, qdm, axm, azm = _measured_outputs(V, alpha, theta, q, de, thrust, beta, pr,
-                                                       rr, phi, ay, rho, p, c, q + dgf - qgi)
+    Vm, am, thm, qm, qdm, axm, azm = _measured_outputs(
+        V, alpha, theta, q, de, thrust, beta, pr, rr, phi, ay, rho, p, c, q + dgf - qgi
+    )
     # an angle of attack rebuilt from the flight path (kin_angles = 1) is the rigid body's
     return Vm, am + c.kin_angles * (alpha_k - am), thm, qm, qdm, axm, azm
 
 
 @register_jitable
 def _measured_outputs(V, alpha, theta, q, de, thrust, beta, pr, rr, phi, ay, rho, p, c, qa):
-    Vd, ad, thd, qd, L, D = _measured_lateral(V, alpha, theta, q, de, thrust, beta, pr, rr,
-                                              phi, ay, rho, p, c, qa)
+    Vd, ad, thd, qd, L, D = _measured_lateral(V, alpha, theta, q, de, thrust, beta, pr, rr, phi, ay, rho, p, c, qa)
     sa, ca = np.sin(alpha), np.cos(alpha)
     cb = np.cos(beta)
     fx = (thrust * np.cos(c.sigmaT) + L * sa - D * ca) / c.m
@@ -202,17 +236,18 @@ def _measured_outputs(V, alpha, theta, q, de, thrust, beta, pr, rr, phi, ay, rho
     xi, zi = c.x_imu, c.z_imu
     ax = fx + qd * zi - q * q * xi - rr * (rr * xi - pr * zi)
     az = fz - qd * xi + pr * (rr * xi - pr * zi) - q * q * zi
-    return (np.sqrt(u_b * u_b + v_b * v_b + w_b * w_b), np.arctan2(w_b, u_b), theta, q, qd,
-            ax, az)
+    return (np.sqrt(u_b * u_b + v_b * v_b + w_b * w_b), np.arctan2(w_b, u_b), theta, q, qd, ax, az)
 
 
-def longitudinal_measured_lateral(constants: Mapping[str, float],
-                                  values: Mapping[str, float] | None = None,
-                                  free: Iterable[str] | None = None,
-                                  bounds: Mapping[str, tuple[float, float]] | None = None,
-                                  output_biases: Iterable[str] = (),
-                                  name: str = "longitudinal-measured",
-                                  rotary_gust: bool = False) -> Model:
+def longitudinal_measured_lateral(
+    constants: Mapping[str, float],
+    values: Mapping[str, float] | None = None,
+    free: Iterable[str] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    output_biases: Iterable[str] = (),
+    name: str = "longitudinal-measured",
+    rotary_gust: bool = False,
+) -> Model:
     """Longitudinal model with the lateral-directional motion as measured inputs (the
     mirror of :func:`estimators.models.lateral.lateral_measured_longitudinal`).
 
@@ -254,21 +289,36 @@ def longitudinal_measured_lateral(constants: Mapping[str, float],
         regressing JSBSim's own Cm on the gyro q instead of q - q_g gives Cm0 0.027,
         Cmalpha -0.49, Cmq -9.5, Cmde -0.76 for a truth of 0.04, -0.613, -12.4, -1.122 on
         multiaxis_multisine_turbulence (q_g 2.4 deg/s rms)."""
-    c = require_constants(constants, ("m", "Iyy", "S", "cbar", "rho"),
-                          "longitudinal (measured lateral)")
-    for k, v in {"g": 9.80665, "sigmaT": 0.0, "zT": 0.0, "x_vane": 0.0, "y_vane": 0.0,
-                 "z_vane": 0.0, "x_imu": 0.0, "z_imu": 0.0, "Ixx": 0.0, "Izz": 0.0,
-                 "Ixz": 0.0, "kin_angles": 0.0}.items():
+    c = require_constants(constants, ("m", "Iyy", "S", "cbar", "rho"), "longitudinal (measured lateral)")
+    for k, v in {
+        "g": 9.80665,
+        "sigmaT": 0.0,
+        "zT": 0.0,
+        "x_vane": 0.0,
+        "y_vane": 0.0,
+        "z_vane": 0.0,
+        "x_imu": 0.0,
+        "z_imu": 0.0,
+        "Ixx": 0.0,
+        "Izz": 0.0,
+        "Ixz": 0.0,
+        "kin_angles": 0.0,
+    }.items():
         c.setdefault(k, v)
     if rotary_gust and not c.get("b"):
         raise ModelDefinitionError("rotary_gust needs the span b (m) among the constants")
     params = make_parameters(LONGITUDINAL_DEFAULTS, values, free, DEFAULT_FREE, bounds)
     c.setdefault("L_w", 533.4)
-    return Model(states=(["V", "alpha", "theta", "q", "alpha_k", "alpha_gf", "q_gi"] if rotary_gust
-                         else ["V", "alpha", "theta", "q"]),
-                 inputs=["de", "thrust", "beta", "p", "r", "phi", "ay", "rho"],
-                 outputs=["V", "alpha", "theta", "q", "qdot", "ax", "az"],
-                 parameters=params, constants=c,
-                 f=f_measured_gust if rotary_gust else f_measured,
-                 g=g_measured_gust if rotary_gust else g_measured,
-                 output_biases=list(output_biases), name=name)
+    return Model(
+        states=(
+            ["V", "alpha", "theta", "q", "alpha_k", "alpha_gf", "q_gi"] if rotary_gust else ["V", "alpha", "theta", "q"]
+        ),
+        inputs=["de", "thrust", "beta", "p", "r", "phi", "ay", "rho"],
+        outputs=["V", "alpha", "theta", "q", "qdot", "ax", "az"],
+        parameters=params,
+        constants=c,
+        f=f_measured_gust if rotary_gust else f_measured,
+        g=g_measured_gust if rotary_gust else g_measured,
+        output_biases=list(output_biases),
+        name=name,
+    )

@@ -10,9 +10,10 @@ per-segment output biases). With qbar = rho V^2 / 2 and qhat = q cbar / (2 V):
 
 Constants: m, Iyy, S, cbar, rho, V (trim true airspeed, m/s).
 """
+
 from __future__ import annotations
 
-from typing import Iterable, Mapping
+from collections.abc import Iterable, Mapping
 
 from numba.extending import register_jitable
 
@@ -47,12 +48,24 @@ def g(x, u, p, c):
     return alpha, q, qdot, az
 
 
-def short_period(constants: Mapping[str, float], values: Mapping[str, float] | None = None,
-                 free: Iterable[str] | None = None,
-                 bounds: Mapping[str, tuple[float, float]] | None = None,
-                 output_biases: Iterable[str] = (), name: str = "short_period") -> Model:
+def short_period(
+    constants: Mapping[str, float],
+    values: Mapping[str, float] | None = None,
+    free: Iterable[str] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    output_biases: Iterable[str] = (),
+    name: str = "short_period",
+) -> Model:
     """The linear short-period model; see the module docstring for equations and units."""
     c = require_constants(constants, ("m", "Iyy", "S", "cbar", "rho", "V"), "short-period")
-    return Model(states=["alpha", "q"], inputs=["de"], outputs=["alpha", "q", "qdot", "az"],
-                 parameters=make_parameters(DEFAULTS, values, free, DEFAULT_FREE, bounds),
-                 constants=c, f=f, g=g, output_biases=list(output_biases), name=name)
+    return Model(
+        states=["alpha", "q"],
+        inputs=["de"],
+        outputs=["alpha", "q", "qdot", "az"],
+        parameters=make_parameters(DEFAULTS, values, free, DEFAULT_FREE, bounds),
+        constants=c,
+        f=f,
+        g=g,
+        output_biases=list(output_biases),
+        name=name,
+    )

@@ -23,9 +23,10 @@ lever-arm terms.
 Constants: m, Ixx, Iyy, Izz, Ixz (kg m^2), S (m^2), b, cbar (m), rho (kg/m^3); optional
 g (9.80665), zT, x_vane, y_vane, z_vane, x_imu, z_imu (0).
 """
+
 from __future__ import annotations
 
-from typing import Iterable, Mapping
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 from numba.extending import register_jitable
@@ -68,8 +69,7 @@ def _dynamics(u, v, w, pr, qr, rr, phi, theta, de, da, dr, thrust, p, c):
     fx0 = (qS * (CL * sa - CD * ca) + thrust) / c.m
     fz0 = qS * (-CL * ca - CD * sa) / c.m
     uw2 = u * u + w * w
-    a0 = (u * (qr * u - pr * v + c.g * ct * cp + fz0)
-          - w * (rr * v - qr * w - c.g * st + fx0)) / uw2
+    a0 = (u * (qr * u - pr * v + c.g * ct * cp + fz0) - w * (rr * v - qr * w - c.g * st + fx0)) / uw2
     adot = a0 / (1.0 + qS * p.CLalphadot * c.cbar / (2.0 * V) / (c.m * np.sqrt(uw2)))
     ah = adot * c.cbar / (2.0 * V)
     CL = CL + p.CLalphadot * ah
@@ -84,19 +84,26 @@ def _dynamics(u, v, w, pr, qr, rr, phi, theta, de, da, dr, thrust, p, c):
     vdot = pr * w - rr * u + c.g * ct * sp + fy
     wdot = qr * u - pr * v + c.g * ct * cp + fz
     gam = c.Ixx * c.Izz - c.Ixz * c.Ixz
-    pdot = (c.Izz * Lm + c.Ixz * Nm + c.Ixz * (c.Ixx - c.Iyy + c.Izz) * pr * qr
-            - (c.Izz * (c.Izz - c.Iyy) + c.Ixz * c.Ixz) * qr * rr) / gam
+    pdot = (
+        c.Izz * Lm
+        + c.Ixz * Nm
+        + c.Ixz * (c.Ixx - c.Iyy + c.Izz) * pr * qr
+        - (c.Izz * (c.Izz - c.Iyy) + c.Ixz * c.Ixz) * qr * rr
+    ) / gam
     qdot = (Mm - (c.Ixx - c.Izz) * pr * rr - c.Ixz * (pr * pr - rr * rr)) / c.Iyy
-    rdot = (c.Ixz * Lm + c.Ixx * Nm + (c.Ixx * (c.Ixx - c.Iyy) + c.Ixz * c.Ixz) * pr * qr
-            - c.Ixz * (c.Ixx - c.Iyy + c.Izz) * qr * rr) / gam
+    rdot = (
+        c.Ixz * Lm
+        + c.Ixx * Nm
+        + (c.Ixx * (c.Ixx - c.Iyy) + c.Ixz * c.Ixz) * pr * qr
+        - c.Ixz * (c.Ixx - c.Iyy + c.Izz) * qr * rr
+    ) / gam
     return udot, vdot, wdot, pdot, qdot, rdot, fx, fy, fz
 
 
 def f(x, u_in, p, c):
     u, v, w, pr, qr, rr, phi, theta = x
     de, da, dr, thrust = u_in
-    ud, vd, wd, pd, qd, rd, fx, fy, fz = _dynamics(u, v, w, pr, qr, rr, phi, theta,
-                                                   de, da, dr, thrust, p, c)
+    ud, vd, wd, pd, qd, rd, fx, fy, fz = _dynamics(u, v, w, pr, qr, rr, phi, theta, de, da, dr, thrust, p, c)
     phidot = pr + np.tan(theta) * (qr * np.sin(phi) + rr * np.cos(phi))
     thetadot = qr * np.cos(phi) - rr * np.sin(phi)
     return ud, vd, wd, pd, qd, rd, phidot, thetadot
@@ -105,8 +112,7 @@ def f(x, u_in, p, c):
 def g(x, u_in, p, c):
     u, v, w, pr, qr, rr, phi, theta = x
     de, da, dr, thrust = u_in
-    ud, vd, wd, pd, qd, rd, fx, fy, fz = _dynamics(u, v, w, pr, qr, rr, phi, theta,
-                                                   de, da, dr, thrust, p, c)
+    ud, vd, wd, pd, qd, rd, fx, fy, fz = _dynamics(u, v, w, pr, qr, rr, phi, theta, de, da, dr, thrust, p, c)
     # air data at (xv, yv, zv): velocity + omega x r
     ub = u + qr * c.z_vane - rr * c.y_vane
     vb = v + rr * c.x_vane - pr * c.z_vane
@@ -120,23 +126,44 @@ def g(x, u_in, p, c):
     return Vb, np.arctan2(wb, ub), np.arcsin(vb / Vb), pr, qr, rr, phi, theta, ax, ay, az
 
 
-def sixdof(constants: Mapping[str, float], values: Mapping[str, float] | None = None,
-           free: Iterable[str] | None = None,
-           bounds: Mapping[str, tuple[float, float]] | None = None,
-           output_biases: Iterable[str] = (), name: str = "sixdof") -> Model:
+def sixdof(
+    constants: Mapping[str, float],
+    values: Mapping[str, float] | None = None,
+    free: Iterable[str] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    output_biases: Iterable[str] = (),
+    name: str = "sixdof",
+) -> Model:
     """The nonlinear 6-DoF model; see the module docstring. ``free`` defaults to the
     derivatives the longitudinal and lateral builders estimate by default."""
-    c = require_constants(constants, ("m", "Ixx", "Iyy", "Izz", "Ixz", "S", "b", "cbar", "rho"),
-                          "six-degree-of-freedom")
-    for k, v in {"g": 9.80665, "zT": 0.0, "x_vane": 0.0, "y_vane": 0.0, "z_vane": 0.0,
-                 "x_imu": 0.0, "z_imu": 0.0}.items():
+    c = require_constants(
+        constants, ("m", "Ixx", "Iyy", "Izz", "Ixz", "S", "b", "cbar", "rho"), "six-degree-of-freedom"
+    )
+    for k, v in {
+        "g": 9.80665,
+        "zT": 0.0,
+        "x_vane": 0.0,
+        "y_vane": 0.0,
+        "z_vane": 0.0,
+        "x_imu": 0.0,
+        "z_imu": 0.0,
+    }.items():
         c.setdefault(k, v)
     from estimators.models.lateral import DEFAULT_FREE as LAT_FREE
     from estimators.models.longitudinal import DEFAULT_FREE as LONG_FREE
-    params = make_parameters(SIXDOF_DEFAULTS, values, free, tuple(LONG_FREE) + tuple(LAT_FREE),
-                             bounds)
-    return Model(states=STATES, inputs=INPUTS, outputs=OUTPUTS, parameters=params, constants=c,
-                 f=f, g=g, output_biases=list(output_biases), name=name)
+
+    params = make_parameters(SIXDOF_DEFAULTS, values, free, tuple(LONG_FREE) + tuple(LAT_FREE), bounds)
+    return Model(
+        states=STATES,
+        inputs=INPUTS,
+        outputs=OUTPUTS,
+        parameters=params,
+        constants=c,
+        f=f,
+        g=g,
+        output_biases=list(output_biases),
+        name=name,
+    )
 
 
 def body_velocity(V: float, alpha: float, beta: float) -> tuple[float, float, float]:

@@ -13,38 +13,81 @@ model driven by its measured air data: proof of match in turbulence, unstable ai
 :mod:`.plausibility` (estimates vs a-priori values, and between methods), :mod:`.inverse` (inverse simulation).
 Needs numpy, scipy and pandas (and the package's EKF for :mod:`.prediction`).
 """
+
 from __future__ import annotations
 
 from .cluster import FLAG_RATIO as cluster_flag_ratio
 from .cluster import ClusterResult, cluster_covariance, maneuver_scatter, segment_parts
 from .fit import TheilResult, det_r, fit_metrics, r_squared, residual_covariance, rms, theil
-from .frequency import (MismatchResult, SpectralEstimate, bode, freq_response, mismatch,
-                        spectral_estimate)
+from .frequency import MismatchResult, SpectralEstimate, bode, freq_response, mismatch, spectral_estimate
 from .inverse import InverseSimResult, inverse_simulation
-from .match import (DEFAULT_TOLERANCES, NOISE_ALPHA, PREDICTION_K, default_tolerances, noise_reach,
-                    prediction_uncertainty, proof_of_match)
+from .match import (
+    DEFAULT_TOLERANCES,
+    NOISE_ALPHA,
+    PREDICTION_K,
+    default_tolerances,
+    noise_reach,
+    prediction_uncertainty,
+    proof_of_match,
+)
 from .modes import ModeAnalysis, linearize, mode_properties, modes
 from .plausibility import agreement, load_apriori, plausibility
 from .prediction import AIR_DATA, DrivenPrediction, air_data_prediction, driving_states
 from .prediction_band import parameter_sensitivity, prediction_std, variance_shares
-from .residuals import (WhitenessResult, autocorrelation, autocovariance, psd,
-                        residual_stats, whiteness)
-from .uncertainty import (UncertaintyResult, correlation, correlation_flags, crb,
-                          morelli_klein)
+from .residuals import WhitenessResult, autocorrelation, autocovariance, psd, residual_stats, whiteness
+from .uncertainty import UncertaintyResult, correlation, correlation_flags, crb, morelli_klein
 
 __all__ = [
-    "TheilResult", "theil", "fit_metrics", "det_r", "r_squared", "rms", "residual_covariance",
-    "residual_stats", "autocovariance", "autocorrelation", "WhitenessResult", "whiteness", "psd",
-    "UncertaintyResult", "crb", "morelli_klein", "correlation", "correlation_flags",
-    "ClusterResult", "cluster_covariance", "maneuver_scatter", "segment_parts",
+    "TheilResult",
+    "theil",
+    "fit_metrics",
+    "det_r",
+    "r_squared",
+    "rms",
+    "residual_covariance",
+    "residual_stats",
+    "autocovariance",
+    "autocorrelation",
+    "WhitenessResult",
+    "whiteness",
+    "psd",
+    "UncertaintyResult",
+    "crb",
+    "morelli_klein",
+    "correlation",
+    "correlation_flags",
+    "ClusterResult",
+    "cluster_covariance",
+    "maneuver_scatter",
+    "segment_parts",
     "cluster_flag_ratio",
-    "ModeAnalysis", "modes", "mode_properties", "linearize",
-    "freq_response", "bode", "SpectralEstimate", "spectral_estimate", "MismatchResult",
+    "ModeAnalysis",
+    "modes",
+    "mode_properties",
+    "linearize",
+    "freq_response",
+    "bode",
+    "SpectralEstimate",
+    "spectral_estimate",
+    "MismatchResult",
     "mismatch",
-    "DEFAULT_TOLERANCES", "NOISE_ALPHA", "PREDICTION_K", "default_tolerances", "noise_reach",
-    "prediction_uncertainty", "proof_of_match",
-    "load_apriori", "plausibility", "agreement",
-    "InverseSimResult", "inverse_simulation",
-    "AIR_DATA", "DrivenPrediction", "air_data_prediction", "driving_states",
-    "parameter_sensitivity", "prediction_std", "variance_shares",
+    "DEFAULT_TOLERANCES",
+    "NOISE_ALPHA",
+    "PREDICTION_K",
+    "default_tolerances",
+    "noise_reach",
+    "prediction_uncertainty",
+    "proof_of_match",
+    "load_apriori",
+    "plausibility",
+    "agreement",
+    "InverseSimResult",
+    "inverse_simulation",
+    "AIR_DATA",
+    "DrivenPrediction",
+    "air_data_prediction",
+    "driving_states",
+    "parameter_sensitivity",
+    "prediction_std",
+    "variance_shares",
 ]

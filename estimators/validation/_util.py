@@ -1,4 +1,5 @@
 """Shared helpers of the validation package: array coercion and output names."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -8,9 +9,11 @@ import pandas as pd
 
 
 def _is_segment_list(a) -> bool:
-    return (isinstance(a, (list, tuple)) and len(a) > 0
-            and all(isinstance(x, (np.ndarray, pd.DataFrame, pd.Series)) and np.ndim(x) >= 1
-                    for x in a))
+    return (
+        isinstance(a, (list, tuple))
+        and len(a) > 0
+        and all(isinstance(x, (np.ndarray, pd.DataFrame, pd.Series)) and np.ndim(x) >= 1 for x in a)
+    )
 
 
 def as_2d(a, name: str = "array") -> np.ndarray:
@@ -21,8 +24,7 @@ def as_2d(a, name: str = "array") -> np.ndarray:
     """
     if _is_segment_list(a):
         return np.concatenate([as_2d(x, name) for x in a], axis=0)
-    arr = np.asarray(a.to_numpy() if isinstance(a, (pd.DataFrame, pd.Series)) else a,
-                     dtype=float)
+    arr = np.asarray(a.to_numpy() if isinstance(a, (pd.DataFrame, pd.Series)) else a, dtype=float)
     if arr.ndim == 1:
         arr = arr[:, None]
     if arr.ndim != 2:

@@ -38,6 +38,7 @@ What it cannot do:
   maneuvers) or 0.23-1.73 (3) in 90 % of cases and exceeds 3 with probability 0.003 or
   1e-4). The median over parameters pools them.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -49,8 +50,16 @@ import pandas as pd
 
 from estimators.sensitivity import add_block, as_sensitivity
 
-__all__ = ["ClusterResult", "cluster_covariance", "maneuver_scatter", "segment_block", "segment_parts",
-           "FLAG_RATIO", "MIN_SEGMENTS", "SHARE_LIMIT"]
+__all__ = [
+    "ClusterResult",
+    "cluster_covariance",
+    "maneuver_scatter",
+    "segment_block",
+    "segment_parts",
+    "FLAG_RATIO",
+    "MIN_SEGMENTS",
+    "SHARE_LIMIT",
+]
 
 #: robust std / Cramér-Rao bound above which a parameter is flagged
 FLAG_RATIO = 3.0
@@ -99,19 +108,29 @@ class ClusterResult:
         r = r[[not (n.endswith("]") and "[" in n) for n in r.index]].dropna()
         if r.empty:
             return {"median_ratio": None, "max_ratio": None, "max_parameter": None, "flagged": {}}
-        return {"median_ratio": float(r.median()), "max_ratio": float(r.max()),
-                "max_parameter": str(r.idxmax()),
-                "flagged": {n: float(v) for n, v in r[r > flag].sort_values(ascending=False).items()}}
+        return {
+            "median_ratio": float(r.median()),
+            "max_ratio": float(r.max()),
+            "max_parameter": str(r.idxmax()),
+            "flagged": {n: float(v) for n, v in r[r > flag].sort_values(ascending=False).items()},
+        }
 
     def to_frame(self) -> pd.DataFrame:
         """Rows per parameter: ``crb_std``, ``cluster_std``, ``ratio``, ``max_share``."""
-        return pd.DataFrame({"crb_std": self.crb_std, "cluster_std": self.std, "ratio": self.ratio,
-                             "max_share": self.share.max(axis=0)},
-                            index=pd.Index(self.names, name="parameter"))
+        return pd.DataFrame(
+            {
+                "crb_std": self.crb_std,
+                "cluster_std": self.std,
+                "ratio": self.ratio,
+                "max_share": self.share.max(axis=0),
+            },
+            index=pd.Index(self.names, name="parameter"),
+        )
 
 
-def segment_block(S: Any, e: np.ndarray, Winv: np.ndarray
-                  ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+def segment_block(
+    S: Any, e: np.ndarray, Winv: np.ndarray
+) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
     """One maneuver's information M_j = sum_i S_i^T W S_i and gradient part
     s_j = sum_i S_i^T W e_i for the parameters it depends on: ((cols, (m, m)), (cols, (m,))).
 
@@ -126,8 +145,10 @@ def segment_block(S: Any, e: np.ndarray, Winv: np.ndarray
     e0 = np.where(ok, e, 0.0)
     S0 = np.where(ok[:, :, None], b.values, 0.0)
     WS = np.matmul(np.asarray(Winv, dtype=float), S0)
-    return ((b.cols, np.einsum("nip,niq->pq", S0, WS, optimize=True)),
-            (b.cols, np.einsum("nip,ni->p", WS, e0, optimize=True)))
+    return (
+        (b.cols, np.einsum("nip,niq->pq", S0, WS, optimize=True)),
+        (b.cols, np.einsum("nip,ni->p", WS, e0, optimize=True)),
+    )
 
 
 def segment_parts(S: Any, e: np.ndarray, Winv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -176,8 +197,7 @@ def _pinv_scaled(A: np.ndarray) -> np.ndarray:
     return np.linalg.pinv(A * np.outer(D, D), hermitian=True) * np.outer(D, D)
 
 
-def _core(Mj: np.ndarray, sj: np.ndarray, M: np.ndarray, limit: float
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _core(Mj: np.ndarray, sj: np.ndarray, M: np.ndarray, limit: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(cov (p, p), crb std (p,), share (G, p)) of the module doc from the maneuvers'
     information Mj (G, p, p), scores sj (G, p) and the whole information M (p, p)."""
     G, p = sj.shape
@@ -191,8 +211,8 @@ def _core(Mj: np.ndarray, sj: np.ndarray, M: np.ndarray, limit: float
     w, V = np.linalg.eigh(M)
     if w.min(initial=np.inf) <= 1e-12 * max(w.max(initial=0.0), 1e-300):
         raise np.linalg.LinAlgError("the information matrix is singular: no covariance")
-    W = (V / np.sqrt(w)) @ V.T                   # M^-1/2
-    Wi = (V * np.sqrt(w)) @ V.T                  # M^1/2
+    W = (V / np.sqrt(w)) @ V.T  # M^-1/2
+    Wi = (V * np.sqrt(w)) @ V.T  # M^1/2
     Minv = W @ W
     share = np.stack([1.0 - np.diag(Minv) / _inverse_diagonal(M - Mj[j]) for j in range(G)])
     C = np.zeros((p, p))
@@ -206,9 +226,14 @@ def _core(Mj: np.ndarray, sj: np.ndarray, M: np.ndarray, limit: float
     return 0.5 * (cov + cov.T), np.sqrt(np.diag(Minv)) * D, share
 
 
-def cluster_covariance(M_parts: Sequence[Any], scores: Sequence[Any],
-                       M: np.ndarray | None = None, *, names: Sequence[str] | None = None,
-                       limit: float = SHARE_LIMIT) -> ClusterResult:
+def cluster_covariance(
+    M_parts: Sequence[Any],
+    scores: Sequence[Any],
+    M: np.ndarray | None = None,
+    *,
+    names: Sequence[str] | None = None,
+    limit: float = SHARE_LIMIT,
+) -> ClusterResult:
     """The cluster-robust covariance of the module doc, each maneuver a cluster.
 
     M_parts : per maneuver its information M_j, (n_p, n_p) or a pair (cols, block (m, m))
@@ -231,8 +256,9 @@ def cluster_covariance(M_parts: Sequence[Any], scores: Sequence[Any],
     """
     G = len(M_parts)
     if G < 2 or len(scores) != G:
-        raise ValueError(f"need one information part and one score per maneuver and at least "
-                         f"2 maneuvers (got {G} and {len(scores)})")
+        raise ValueError(
+            f"need one information part and one score per maneuver and at least 2 maneuvers (got {G} and {len(scores)})"
+        )
     parts = [_block(Mj, sj) for Mj, sj in zip(M_parts, scores)]
     if M is not None:
         n_p = np.shape(M)[0]
@@ -256,7 +282,7 @@ def cluster_covariance(M_parts: Sequence[Any], scores: Sequence[Any],
     Mj = np.zeros((G, p, p))
     sj = np.zeros((G, p))
     Mr = M[np.ix_(shared, shared)].copy()
-    owned: list[tuple[int, np.ndarray, np.ndarray]] = []   # (maneuver, own cols, M_oo^-1)
+    owned: list[tuple[int, np.ndarray, np.ndarray]] = []  # (maneuver, own cols, M_oo^-1)
     for j, (c, A, b) in enumerate(parts):
         o = own[c]
         pos = np.searchsorted(shared, c[~o])
@@ -306,12 +332,10 @@ def maneuver_scatter(result, min_segments: int = MIN_SEGMENTS) -> ClusterResult 
         return None
     try:
         Rinv = np.linalg.pinv(np.atleast_2d(np.asarray(result.R, dtype=float)))
-        parts = [segment_block(S, e.to_numpy(), Rinv)
-                 for S, e in zip(result.sensitivities, result.residuals)]
+        parts = [segment_block(S, e.to_numpy(), Rinv) for S, e in zip(result.sensitivities, result.residuals)]
         M = result.information
         if M is None or np.shape(M)[0] != len(result.free_names):
-            M = None                          # the sensitivities' own information
-        return cluster_covariance([p[0] for p in parts], [p[1] for p in parts], M,
-                                  names=result.free_names)
+            M = None  # the sensitivities' own information
+        return cluster_covariance([p[0] for p in parts], [p[1] for p in parts], M, names=result.free_names)
     except (ValueError, IndexError, np.linalg.LinAlgError):
-        return None                           # a diagnostic: never the reason a fit fails
+        return None  # a diagnostic: never the reason a fit fails

@@ -17,6 +17,7 @@ population standard deviations (1/N), rho the correlation coefficient of z and y
 
 A good model has TIC small (< 0.1 to 0.3), UM and US < 0.1 and UC near 1.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -29,8 +30,7 @@ from estimators.statistics import residual_covariance as _residual_covariance
 
 from ._util import as_2d, output_names
 
-__all__ = ["TheilResult", "theil", "residual_covariance", "det_r", "r_squared", "rms",
-           "fit_metrics"]
+__all__ = ["TheilResult", "theil", "residual_covariance", "det_r", "r_squared", "rms", "fit_metrics"]
 
 
 @dataclass(frozen=True)
@@ -70,7 +70,7 @@ def theil(z, y) -> TheilResult:
         U = np.sqrt(mse) / (np.sqrt(np.nanmean(z * z, axis=0)) + np.sqrt(np.nanmean(y * y, axis=0)))
         zm, ym = np.nanmean(z, axis=0), np.nanmean(y, axis=0)
         sz, sy = np.nanstd(z, axis=0), np.nanstd(y, axis=0)
-        cov = np.nanmean((z - zm) * (y - ym), axis=0)     # = rho s_z s_y
+        cov = np.nanmean((z - zm) * (y - ym), axis=0)  # = rho s_z s_y
         UM = (zm - ym) ** 2 / mse
         US = (sz - sy) ** 2 / mse
         UC = 2.0 * (sz * sy - cov) / mse
@@ -93,8 +93,7 @@ def r_squared(z, y) -> np.ndarray:
     shape (n_out,) (NaN for a constant measured output)."""
     z, y = _pair(z, y)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return 1.0 - np.nansum((z - y) ** 2, axis=0) / np.nansum((z - np.nanmean(z, axis=0)) ** 2,
-                                                                 axis=0)
+        return 1.0 - np.nansum((z - y) ** 2, axis=0) / np.nansum((z - np.nanmean(z, axis=0)) ** 2, axis=0)
 
 
 def rms(x) -> np.ndarray:
@@ -118,9 +117,19 @@ def fit_metrics(z, y, names: Sequence[str] | None = None) -> pd.DataFrame:
     r = rms(e)
     with np.errstate(invalid="ignore", divide="ignore"):
         nrms = r / (np.nanmax(z2, axis=0) - np.nanmin(z2, axis=0))
-    df = pd.DataFrame({"TIC": t.U, "UM": t.UM, "US": t.US, "UC": t.UC,
-                       "R2": r_squared(z2, y2), "RMS": r, "NRMS": nrms,
-                       "mean": np.nanmean(e, axis=0), "std": np.nanstd(e, axis=0)},
-                      index=pd.Index(names, name="output"))
+    df = pd.DataFrame(
+        {
+            "TIC": t.U,
+            "UM": t.UM,
+            "US": t.US,
+            "UC": t.UC,
+            "R2": r_squared(z2, y2),
+            "RMS": r,
+            "NRMS": nrms,
+            "mean": np.nanmean(e, axis=0),
+            "std": np.nanstd(e, axis=0),
+        },
+        index=pd.Index(names, name="output"),
+    )
     df.attrs["det_R"] = det_r(e)
     return df

@@ -4,6 +4,7 @@ mismatch (magnitude in dB, phase in deg) against configurable bounds.
 
 Array convention for responses: complex arrays of shape (n_w, n_out, n_in).
 """
+
 from __future__ import annotations
 
 import warnings
@@ -16,8 +17,7 @@ from scipy import signal
 
 from ._util import as_2d, fill_missing
 
-__all__ = ["freq_response", "bode", "SpectralEstimate", "spectral_estimate",
-           "MismatchResult", "mismatch"]
+__all__ = ["freq_response", "bode", "SpectralEstimate", "spectral_estimate", "MismatchResult", "mismatch"]
 
 
 def freq_response(A, B, C, D, w) -> np.ndarray:
@@ -30,11 +30,10 @@ def freq_response(A, B, C, D, w) -> np.ndarray:
     A = np.atleast_2d(np.asarray(A, dtype=float))
     B = np.asarray(B, dtype=float).reshape(A.shape[0], -1)
     C = np.asarray(C, dtype=float).reshape(-1, A.shape[0])
-    D = np.zeros((C.shape[0], B.shape[1])) if D is None else \
-        np.asarray(D, dtype=float).reshape(C.shape[0], B.shape[1])
+    D = np.zeros((C.shape[0], B.shape[1])) if D is None else np.asarray(D, dtype=float).reshape(C.shape[0], B.shape[1])
     w = np.atleast_1d(np.asarray(w, dtype=float))
     n = A.shape[0]
-    M = 1j * w[:, None, None] * np.eye(n) - A                       # (n_w, n, n)
+    M = 1j * w[:, None, None] * np.eye(n) - A  # (n_w, n, n)
     X = np.linalg.solve(M, np.broadcast_to(B.astype(complex), (w.size, *B.shape)))
     return C @ X + D
 
@@ -74,9 +73,15 @@ class SpectralEstimate:
         return 2 * np.pi * self.f
 
 
-def spectral_estimate(u, y, fs: float, nperseg: int | None = None,
-                      noverlap: int | None = None, window: str = "hann",
-                      detrend: str | bool = "constant") -> SpectralEstimate:
+def spectral_estimate(
+    u,
+    y,
+    fs: float,
+    nperseg: int | None = None,
+    noverlap: int | None = None,
+    window: str = "hann",
+    detrend: str | bool = "constant",
+) -> SpectralEstimate:
     """Frequency response and coherence from uniformly sampled input/output data.
 
     u: inputs (N, n_in) or (N,); y: outputs (N, n_out) or (N,); fs: sample rate (Hz).
@@ -92,8 +97,8 @@ def spectral_estimate(u, y, fs: float, nperseg: int | None = None,
     kw = dict(fs=fs, window=window, nperseg=nper, noverlap=noverlap, detrend=detrend, axis=-1)
     uT, yT = u.T, y.T
     # scipy: csd(x, y) = E[conj(X) Y]
-    f, Suu = signal.csd(uT[None, :, :], uT[:, None, :], **kw)      # [i, j] = E[U_i conj(U_j)]
-    _, Syu = signal.csd(uT[None, :, :], yT[:, None, :], **kw)      # [k, i] = E[Y_k conj(U_i)]
+    f, Suu = signal.csd(uT[None, :, :], uT[:, None, :], **kw)  # [i, j] = E[U_i conj(U_j)]
+    _, Syu = signal.csd(uT[None, :, :], yT[:, None, :], **kw)  # [k, i] = E[Y_k conj(U_i)]
     _, Syy = signal.welch(yT, **kw)
     Suu = np.moveaxis(Suu, -1, 0)
     Syu = np.moveaxis(Syu, -1, 0)
@@ -103,10 +108,9 @@ def spectral_estimate(u, y, fs: float, nperseg: int | None = None,
             H = Syu / Suu
         else:
             H = np.linalg.solve(np.swapaxes(Suu, 1, 2), np.swapaxes(Syu, 1, 2)).swapaxes(1, 2)
-        diag_u = np.real(np.diagonal(Suu, axis1=1, axis2=2))           # (n_f, n_in)
+        diag_u = np.real(np.diagonal(Suu, axis1=1, axis2=2))  # (n_f, n_in)
         coh = np.abs(Syu) ** 2 / (diag_u[:, None, :] * Syy[:, :, None])
-    return SpectralEstimate(f=f, H=H, coherence=np.clip(coh.real, 0.0, 1.0), Suu=Suu,
-                            Syu=Syu, Syy=Syy)
+    return SpectralEstimate(f=f, H=H, coherence=np.clip(coh.real, 0.0, 1.0), Suu=Suu, Syu=Syu, Syy=Syy)
 
 
 @dataclass(frozen=True)
@@ -125,10 +129,19 @@ class MismatchResult:
     table: pd.DataFrame
 
 
-def mismatch(H_model, H_data, w, coherence=None, *, mag_bound_db=3.0, phase_bound_deg=20.0,
-             min_coherence: float = 0.6, band: tuple[float, float] | None = None,
-             outputs: Sequence[str] | None = None, inputs: Sequence[str] | None = None
-             ) -> MismatchResult:
+def mismatch(
+    H_model,
+    H_data,
+    w,
+    coherence=None,
+    *,
+    mag_bound_db=3.0,
+    phase_bound_deg=20.0,
+    min_coherence: float = 0.6,
+    band: tuple[float, float] | None = None,
+    outputs: Sequence[str] | None = None,
+    inputs: Sequence[str] | None = None,
+) -> MismatchResult:
     """Compare a model response with a spectral estimate at the same frequencies.
 
     H_model, H_data: complex (n_w, n_out, n_in) (or (n_w,) for SISO); w: (n_w,) rad/s;
@@ -154,10 +167,13 @@ def mismatch(H_model, H_data, w, coherence=None, *, mag_bound_db=3.0, phase_boun
         used &= np.asarray(coherence) >= min_coherence
     if band is not None:
         used &= ((w >= band[0]) & (w <= band[1]))[:, None, None]
-    mb = np.broadcast_to(np.asarray(mag_bound_db, dtype=float).reshape(-1, 1, 1)
-                         if np.ndim(mag_bound_db) else mag_bound_db, Hm.shape)
-    pb = np.broadcast_to(np.asarray(phase_bound_deg, dtype=float).reshape(-1, 1, 1)
-                         if np.ndim(phase_bound_deg) else phase_bound_deg, Hm.shape)
+    mb = np.broadcast_to(
+        np.asarray(mag_bound_db, dtype=float).reshape(-1, 1, 1) if np.ndim(mag_bound_db) else mag_bound_db, Hm.shape
+    )
+    pb = np.broadcast_to(
+        np.asarray(phase_bound_deg, dtype=float).reshape(-1, 1, 1) if np.ndim(phase_bound_deg) else phase_bound_deg,
+        Hm.shape,
+    )
     ok = (np.abs(mag) <= mb) & (np.abs(ph) <= pb)
     n_out, n_in = Hm.shape[1:]
     outputs = list(outputs) if outputs is not None else [f"y{i}" for i in range(n_out)]
@@ -166,13 +182,19 @@ def mismatch(H_model, H_data, w, coherence=None, *, mag_bound_db=3.0, phase_boun
     absph = np.where(used, np.abs(ph), np.nan)
     n_used = used.sum(axis=0)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)       # all-NaN channels -> NaN
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN channels -> NaN
         max_mag = np.nanmax(absmag, axis=0)
         max_ph = np.nanmax(absph, axis=0)
     passed = np.all(ok | ~used, axis=0) & (n_used > 0)
     idx = pd.MultiIndex.from_product([outputs, inputs], names=["output", "input"])
-    table = pd.DataFrame({"max_mag_db": max_mag.ravel(), "max_phase_deg": max_ph.ravel(),
-                          "n_used": n_used.ravel(), "pass": passed.ravel()}, index=idx)
-    table.attrs.update(mag_bound_db=mag_bound_db, phase_bound_deg=phase_bound_deg,
-                       min_coherence=min_coherence)
+    table = pd.DataFrame(
+        {
+            "max_mag_db": max_mag.ravel(),
+            "max_phase_deg": max_ph.ravel(),
+            "n_used": n_used.ravel(),
+            "pass": passed.ravel(),
+        },
+        index=idx,
+    )
+    table.attrs.update(mag_bound_db=mag_bound_db, phase_bound_deg=phase_bound_deg, min_coherence=min_coherence)
     return MismatchResult(w=w, mag_db=mag, phase_deg=ph, used=used, table=table)

@@ -16,6 +16,7 @@ Default gain: K = bandwidth * pinv(Wt C B) Wt with Wt = diag(weights): the track
 errors of outputs that respond directly to the inputs (C B != 0) decay at about
 ``bandwidth`` rad/s (default min(20, 0.3/dt), so the sampled loop is stable); weights (default 1/std(z) per output) make units commensurable.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -43,8 +44,9 @@ class InverseSimResult:
     K: np.ndarray
 
 
-def inverse_simulation(A, B, C, D, t, z, u_ref=None, x0=None, *, K=None,
-                       bandwidth: float | None = None, weights=None) -> InverseSimResult:
+def inverse_simulation(
+    A, B, C, D, t, z, u_ref=None, x0=None, *, K=None, bandwidth: float | None = None, weights=None
+) -> InverseSimResult:
     """Inputs that make the linear model (A, B, C, D) follow measured outputs z.
 
     A (n, n), B (n, n_in), C (n_out, n), D (n_out, n_in) or None (continuous time), in perturbation
@@ -89,13 +91,14 @@ def inverse_simulation(A, B, C, D, t, z, u_ref=None, x0=None, *, K=None,
     Acl = Phi - GM @ K @ C
     rho = float(np.max(np.abs(np.linalg.eigvals(Acl))))
     if rho >= 1.0:
-        raise ValueError(f"inverse-simulation loop unstable (spectral radius {rho:.3g}): "
-                         f"lower bandwidth (now {bandwidth:g} rad/s at dt = {dt:g} s) or give K")
+        raise ValueError(
+            f"inverse-simulation loop unstable (spectral radius {rho:.3g}): "
+            f"lower bandwidth (now {bandwidth:g} rad/s at dt = {dt:g} s) or give K"
+        )
     ext = np.hstack([u_ref, z])
     sys = (Acl, np.hstack([GM, GM @ K]), np.eye(n), np.zeros((n, n_in + n_out)), dt)
     _, x, _ = signal.dlsim(sys, ext, t=t - t[0], x0=x0)
     x = np.asarray(x).reshape(t.size, n)
     u = (u_ref + (z - x @ C.T) @ K.T) @ M.T
     y = x @ C.T + u @ D.T
-    return InverseSimResult(t=t, u=u, residual_inputs=u - u_ref, y=y, x=x,
-                            tracking_error=z - y, K=K)
+    return InverseSimResult(t=t, u=u, residual_inputs=u - u_ref, y=y, x=x, tracking_error=z - y, K=K)

@@ -6,6 +6,7 @@ rates (p, q, r), 0.1 g on specific forces (ax, ay, az), 1.5 deg on angles (phi, 
 psi, alpha, beta). Other channels have no default and are reported but not judged unless
 a tolerance is given.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
@@ -15,15 +16,23 @@ import pandas as pd
 
 from ._util import as_2d, output_names
 
-__all__ = ["G0", "DEFAULT_TOLERANCES", "NOISE_ALPHA", "PREDICTION_K", "prediction_uncertainty",
-           "default_tolerances", "noise_reach", "proof_of_match"]
+__all__ = [
+    "G0",
+    "DEFAULT_TOLERANCES",
+    "NOISE_ALPHA",
+    "PREDICTION_K",
+    "prediction_uncertainty",
+    "default_tolerances",
+    "noise_reach",
+    "proof_of_match",
+]
 
 G0 = 9.80665  # m/s^2
 _DEG = np.pi / 180.0
 DEFAULT_TOLERANCES: Mapping[str, float] = {
-    **{k: 1.5 * _DEG for k in ("p", "q", "r")},                  # rad/s
-    **{k: 0.1 * G0 for k in ("ax", "ay", "az")},                 # m/s^2
-    **{k: 1.5 * _DEG for k in ("phi", "theta", "psi", "alpha", "beta")},   # rad
+    **{k: 1.5 * _DEG for k in ("p", "q", "r")},  # rad/s
+    **{k: 0.1 * G0 for k in ("ax", "ay", "az")},  # m/s^2
+    **{k: 1.5 * _DEG for k in ("phi", "theta", "psi", "alpha", "beta")},  # rad
 }
 
 
@@ -37,8 +46,9 @@ NOISE_ALPHA = 0.05
 PREDICTION_K = 2.0
 
 
-def prediction_uncertainty(excess: np.ndarray, prediction_std: np.ndarray,
-                           k: float = PREDICTION_K) -> tuple[np.ndarray, np.ndarray]:
+def prediction_uncertainty(
+    excess: np.ndarray, prediction_std: np.ndarray, k: float = PREDICTION_K
+) -> tuple[np.ndarray, np.ndarray]:
     """(std_max, beyond) per channel, (n_out,) each, over the judged samples (finite
     ``excess``): the prediction's largest std there, and how far the proof of match's
     misses reach beyond ``k`` of it, max(0, excess - k std) at worst (NaN for a channel
@@ -68,24 +78,30 @@ def noise_reach(n: int, alpha: float = NOISE_ALPHA) -> float:
     return float(-norm.ppf(-np.expm1(np.log1p(-alpha) / n) / 2.0))
 
 
-def default_tolerances(rate_deg_s: float = 1.5, accel_g: float = 0.1,
-                       angle_deg: float = 1.5) -> dict[str, float]:
+def default_tolerances(rate_deg_s: float = 1.5, accel_g: float = 0.1, angle_deg: float = 1.5) -> dict[str, float]:
     """Tolerance per canonical channel in SI units (rad/s, m/s^2, rad) from the bands
     given in deg/s, g and deg."""
-    return {**{k: rate_deg_s * _DEG for k in ("p", "q", "r")},
-            **{k: accel_g * G0 for k in ("ax", "ay", "az")},
-            **{k: angle_deg * _DEG for k in ("phi", "theta", "psi", "alpha", "beta")}}
+    return {
+        **{k: rate_deg_s * _DEG for k in ("p", "q", "r")},
+        **{k: accel_g * G0 for k in ("ax", "ay", "az")},
+        **{k: angle_deg * _DEG for k in ("phi", "theta", "psi", "alpha", "beta")},
+    }
 
 
-def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
-                   tolerances: Mapping[str, float] | None = None, *,
-                   required_fraction: float = 1.0,
-                   allowed_bias: Mapping[str, float] | None = None,
-                   envelope: tuple[object, object] | None = None,
-                   noise_std: Mapping[str, float] | None = None,
-                   noise_alpha: float = NOISE_ALPHA,
-                   prediction_std: object | None = None,
-                   prediction_k: float = PREDICTION_K) -> pd.DataFrame:
+def proof_of_match(
+    measured,
+    predicted,
+    names: Sequence[str] | None = None,
+    tolerances: Mapping[str, float] | None = None,
+    *,
+    required_fraction: float = 1.0,
+    allowed_bias: Mapping[str, float] | None = None,
+    envelope: tuple[object, object] | None = None,
+    noise_std: Mapping[str, float] | None = None,
+    noise_alpha: float = NOISE_ALPHA,
+    prediction_std: object | None = None,
+    prediction_k: float = PREDICTION_K,
+) -> pd.DataFrame:
     """Pass/fail per channel of predicted vs measured time histories.
 
     measured, predicted: (N, n_out) arrays or DataFrames (columns give the names), SI units.
@@ -139,16 +155,18 @@ def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
         lo, hi = (as_2d(a, f"envelope {w}") for a, w in zip(envelope, ("lower", "upper")))
         if lo.shape != y.shape or hi.shape != y.shape:
             raise ValueError(f"envelope {lo.shape}, {hi.shape} must have the predicted shape {y.shape}")
-        lo, hi = np.fmin(lo, y), np.fmax(hi, y)        # NaN bounds: the prediction alone
+        lo, hi = np.fmin(lo, y), np.fmax(hi, y)  # NaN bounds: the prediction alone
         zb = z - bias
         e = zb - np.clip(zb, lo, hi)
         width = hi - lo
     ae = np.abs(e)
-    present = np.isfinite(e)                      # NaN: no measurement at this sample
+    present = np.isfinite(e)  # NaN: no measurement at this sample
     sd = np.array([(noise_std or {}).get(n, np.nan) for n in names], dtype=float)
-    allow = np.where(np.isfinite(sd) & (sd > 0),
-                     [noise_reach(int(k), noise_alpha) for k in present.sum(axis=0)] * np.nan_to_num(sd),
-                     0.0)
+    allow = np.where(
+        np.isfinite(sd) & (sd > 0),
+        [noise_reach(int(k), noise_alpha) for k in present.sum(axis=0)] * np.nan_to_num(sd),
+        0.0,
+    )
     with np.errstate(invalid="ignore", divide="ignore"):
         frac = np.sum((ae <= tol + allow) & present, axis=0) / present.sum(axis=0)
     judged = np.isfinite(tol)
@@ -161,14 +179,22 @@ def proof_of_match(measured, predicted, names: Sequence[str] | None = None,
         pstd_max, beyond = prediction_uncertainty(excess, ps, prediction_k)
     passed = pd.array(np.where(judged, frac >= required_fraction, False), dtype="boolean")
     passed[~judged] = pd.NA
-    df = pd.DataFrame({"tolerance": tol, "bias_removed": bias, "max_abs_error": np.nanmax(ae, axis=0),
-                       "rms_error": np.sqrt(np.nanmean(e * e, axis=0)),
-                       "fraction_within": np.where(judged, frac, np.nan), "pass": passed,
-                       "nominal_max_abs_error": np.nanmax(nominal, axis=0),
-                       "envelope_max_width": np.max(np.where(present, width, 0.0), axis=0),
-                       "noise_allowance": allow, "prediction_std_max": pstd_max,
-                       "beyond_prediction": beyond},
-                      index=pd.Index(names, name="channel"))
+    df = pd.DataFrame(
+        {
+            "tolerance": tol,
+            "bias_removed": bias,
+            "max_abs_error": np.nanmax(ae, axis=0),
+            "rms_error": np.sqrt(np.nanmean(e * e, axis=0)),
+            "fraction_within": np.where(judged, frac, np.nan),
+            "pass": passed,
+            "nominal_max_abs_error": np.nanmax(nominal, axis=0),
+            "envelope_max_width": np.max(np.where(present, width, 0.0), axis=0),
+            "noise_allowance": allow,
+            "prediction_std_max": pstd_max,
+            "beyond_prediction": beyond,
+        },
+        index=pd.Index(names, name="channel"),
+    )
     df.attrs["all_pass"] = bool(judged.any() and df["pass"][judged].all())
     df.attrs["excess"] = excess
     return df

@@ -18,6 +18,7 @@ optional per-state scaling) decides its axis; within an axis:
   -> "heading", the fastest remaining -> roll, the slowest -> spiral.
 Anything else is called "longitudinal"/"lateral"/"other" with its index.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
@@ -52,9 +53,19 @@ def mode_properties(eigenvalues) -> pd.DataFrame:
         t_half = np.where(s < 0, np.log(2) / -s, np.nan)
         t_double = np.where(s > 0, np.log(2) / s, np.nan)
         tc = np.where(s != 0, 1.0 / np.abs(s), np.inf)
-    return pd.DataFrame({"real": s, "imag": w, "wn": wn, "zeta": zeta, "period": period,
-                         "t_half": t_half, "t_double": t_double, "time_constant": tc,
-                         "stable": s < 0})
+    return pd.DataFrame(
+        {
+            "real": s,
+            "imag": w,
+            "wn": wn,
+            "zeta": zeta,
+            "period": period,
+            "t_half": t_half,
+            "t_double": t_double,
+            "time_constant": tc,
+            "stable": s < 0,
+        }
+    )
 
 
 @dataclass(frozen=True)
@@ -78,8 +89,9 @@ class ModeAnalysis:
         return self.eigenvectors.abs()
 
 
-def modes(A, states: Sequence[str], *, scales: Mapping[str, float] | None = None,
-          zero_tol: float = 1e-6) -> ModeAnalysis:
+def modes(
+    A, states: Sequence[str], *, scales: Mapping[str, float] | None = None, zero_tol: float = 1e-6
+) -> ModeAnalysis:
     """Eigen-analysis of a state matrix A (n, n) (1/s) with named states, modes named.
 
     scales: optional divisor per state for the eigenvector content used in naming (e.g.
@@ -111,8 +123,7 @@ def modes(A, states: Sequence[str], *, scales: Mapping[str, float] | None = None
     osc = {j for j in reps if abs(lam[j].imag) > tol_im}
     name: dict[int, str] = {}
 
-    lon_osc = sorted((j for j in reps if axis[j] == "longitudinal" and j in osc),
-                     key=lambda j: abs(lam[j]))
+    lon_osc = sorted((j for j in reps if axis[j] == "longitudinal" and j in osc), key=lambda j: abs(lam[j]))
     has_speed = any(s in ix for s in _SPEED)
     if len(lon_osc) >= 2:
         name[lon_osc[-1]], name[lon_osc[0]] = "short period", "phugoid"
@@ -121,8 +132,7 @@ def modes(A, states: Sequence[str], *, scales: Mapping[str, float] | None = None
         if not has_speed:
             name[j] = "short period"
         elif "alpha" in ix and "theta" in ix:
-            name[j] = ("short period" if content[ix["alpha"], j] > 0.25 * content[ix["theta"], j]
-                       else "phugoid")
+            name[j] = "short period" if content[ix["alpha"], j] > 0.25 * content[ix["theta"], j] else "phugoid"
         else:
             name[j] = "short period" if abs(lam[j]) > 1.0 else "phugoid"
     lon_real = [j for j in reps if axis[j] == "longitudinal" and j not in osc]
@@ -137,15 +147,13 @@ def modes(A, states: Sequence[str], *, scales: Mapping[str, float] | None = None
     elif "phugoid" in named and "short period" not in named:
         kinds = ["short period (real)"] * len(lon_real)
     elif not named & {"short period", "phugoid"}:
-        n_sp = 2 if has_speed else len(lon_real)     # the two fastest real roots
-        kinds = ["short period (real)" if i < n_sp else "phugoid (real)"
-                 for i in range(len(lon_real))]
+        n_sp = 2 if has_speed else len(lon_real)  # the two fastest real roots
+        kinds = ["short period (real)" if i < n_sp else "phugoid (real)" for i in range(len(lon_real))]
     else:
         kinds = ["longitudinal"] * len(lon_real)
     name.update(zip(lon_real, kinds))
 
-    lat_osc = sorted((j for j in reps if axis[j] == "lateral" and j in osc),
-                     key=lambda j: -abs(lam[j]))
+    lat_osc = sorted((j for j in reps if axis[j] == "lateral" and j in osc), key=lambda j: -abs(lam[j]))
     if lat_osc:
         name[lat_osc[0]] = "Dutch roll"
     lat_real = [j for j in reps if axis[j] == "lateral" and j not in osc]
@@ -190,8 +198,9 @@ def _stack(out, trailing: tuple[int, ...]) -> np.ndarray:
     return np.stack([np.broadcast_to(np.asarray(o, dtype=float), trailing) for o in out])
 
 
-def linearize(f: Callable[..., Any], x0, u0, p, c, *, rel_step: float = 1e-5,
-              abs_step: float = 1e-5) -> tuple[np.ndarray, np.ndarray]:
+def linearize(
+    f: Callable[..., Any], x0, u0, p, c, *, rel_step: float = 1e-5, abs_step: float = 1e-5
+) -> tuple[np.ndarray, np.ndarray]:
     """Jacobians of a vectorised f(x, u, p, c) at (x0, u0) by central differences.
 
     f follows the estimators model convention: x (n_x, ...), u (n_u, ...), returns a tuple

@@ -12,6 +12,7 @@ A-priori TOML, one table per parameter (values per radian as in DESIGN.md sectio
 
 An optional top-level table ``[apriori]`` holding these tables is also accepted.
 """
+
 from __future__ import annotations
 
 import tomllib
@@ -41,8 +42,9 @@ def load_apriori(source: str | Path | Mapping) -> pd.DataFrame:
     rows = {}
     for name, entry in data.items():
         if not isinstance(entry, Mapping) or "value" not in entry:
-            raise ValueError(f"a-priori entry {name!r}: needs a table with 'value' and "
-                             f"'std' (or 'rel_std'); got {entry!r}")
+            raise ValueError(
+                f"a-priori entry {name!r}: needs a table with 'value' and 'std' (or 'rel_std'); got {entry!r}"
+            )
         v = float(entry["value"])
         if "std" in entry:
             s = float(entry["std"])
@@ -53,8 +55,7 @@ def load_apriori(source: str | Path | Mapping) -> pd.DataFrame:
         if not s >= 0:
             raise ValueError(f"a-priori entry {name!r}: std must be >= 0, got {s}")
         rows[name] = {"value": v, "std": s, "source": str(entry.get("source", ""))}
-    return pd.DataFrame.from_dict(rows, orient="index",
-                                  columns=["value", "std", "source"]).rename_axis("parameter")
+    return pd.DataFrame.from_dict(rows, orient="index", columns=["value", "std", "source"]).rename_axis("parameter")
 
 
 def plausibility(estimates, std, apriori, k: float = 3.0) -> pd.DataFrame:
@@ -72,13 +73,23 @@ def plausibility(estimates, std, apriori, k: float = 3.0) -> pd.DataFrame:
     e, s = est[names].to_numpy(), sd.reindex(names).fillna(0.0).to_numpy()
     a, sa = ap.loc[names, "value"].to_numpy(float), ap.loc[names, "std"].to_numpy(float)
     diff = e - a
-    comb = np.sqrt(s ** 2 + sa ** 2)
+    comb = np.sqrt(s**2 + sa**2)
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.abs(diff) / comb
     z = np.where((comb == 0) & (diff == 0), 0.0, z)
-    return pd.DataFrame({"estimate": e, "std": s, "apriori": a, "apriori_std": sa,
-                         "diff": diff, "combined_std": comb, "z": z, "flag": z > k},
-                        index=pd.Index(names, name="parameter"))
+    return pd.DataFrame(
+        {
+            "estimate": e,
+            "std": s,
+            "apriori": a,
+            "apriori_std": sa,
+            "diff": diff,
+            "combined_std": comb,
+            "z": z,
+            "flag": z > k,
+        },
+        index=pd.Index(names, name="parameter"),
+    )
 
 
 def agreement(estimates: Mapping[str, tuple[Any, Any]], k: float = 3.0) -> pd.DataFrame:
@@ -100,26 +111,51 @@ def agreement(estimates: Mapping[str, tuple[Any, Any]], k: float = 3.0) -> pd.Da
     ``diff`` (a - b), ``combined_std``, ``z``, ``flag``. Parameters whose std is missing or
     not finite in either method are left out.
     """
-    cols = ["parameter", "method_a", "method_b", "estimate_a", "std_a", "estimate_b", "std_b",
-            "diff", "combined_std", "z", "flag"]
-    series = {m: (pd.Series(e, dtype=float), pd.Series(s, dtype=float))
-              for m, (e, s) in estimates.items()}
+    cols = [
+        "parameter",
+        "method_a",
+        "method_b",
+        "estimate_a",
+        "std_a",
+        "estimate_b",
+        "std_b",
+        "diff",
+        "combined_std",
+        "z",
+        "flag",
+    ]
+    series = {m: (pd.Series(e, dtype=float), pd.Series(s, dtype=float)) for m, (e, s) in estimates.items()}
     parts = []
     names = list(series)
     for i, a in enumerate(names):
-        for b in names[i + 1:]:
+        for b in names[i + 1 :]:
             (ea, sa), (eb, sb) = series[a], series[b]
-            ok = [n for n in ea.index if n in eb.index and np.isfinite(sa.get(n, np.nan))
-                  and np.isfinite(sb.get(n, np.nan))]
+            ok = [
+                n
+                for n in ea.index
+                if n in eb.index and np.isfinite(sa.get(n, np.nan)) and np.isfinite(sb.get(n, np.nan))
+            ]
             if not ok:
                 continue
             ap = pd.DataFrame({"value": eb[ok], "std": sb[ok]})
             pl = plausibility(ea[ok], sa[ok], ap, k).reset_index()
-            parts.append(pd.DataFrame({
-                "parameter": pl["parameter"], "method_a": a, "method_b": b,
-                "estimate_a": pl["estimate"], "std_a": pl["std"], "estimate_b": pl["apriori"],
-                "std_b": pl["apriori_std"], "diff": pl["diff"],
-                "combined_std": pl["combined_std"], "z": pl["z"], "flag": pl["flag"]}))
+            parts.append(
+                pd.DataFrame(
+                    {
+                        "parameter": pl["parameter"],
+                        "method_a": a,
+                        "method_b": b,
+                        "estimate_a": pl["estimate"],
+                        "std_a": pl["std"],
+                        "estimate_b": pl["apriori"],
+                        "std_b": pl["apriori_std"],
+                        "diff": pl["diff"],
+                        "combined_std": pl["combined_std"],
+                        "z": pl["z"],
+                        "flag": pl["flag"],
+                    }
+                )
+            )
     if not parts:
         return pd.DataFrame(columns=cols)
     return pd.concat(parts, ignore_index=True)[cols]

@@ -25,10 +25,12 @@ airframe, q_turb ~2 deg/s rms on the small UAV in light turbulence), which acts 
 the damping derivatives; its effect on the rates remains in the residuals and sets how
 tight a band the true model can meet.
 """
+
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -62,9 +64,16 @@ def driving_states(model: Model, channels: Sequence[str] = AIR_DATA) -> list[str
     return [s for s in model.states if s in channels and s in model.outputs]
 
 
-def air_data_prediction(model: Model, segment: Segment, *, process_noise: Any = None,
-                        measurement_noise: Any = None, drive: Sequence[str] | None = None,
-                        integrator: str = "rk4", inputs: str = DEFAULT_INPUTS) -> DrivenPrediction:
+def air_data_prediction(
+    model: Model,
+    segment: Segment,
+    *,
+    process_noise: Any = None,
+    measurement_noise: Any = None,
+    drive: Sequence[str] | None = None,
+    integrator: str = "rk4",
+    inputs: str = DEFAULT_INPUTS,
+) -> DrivenPrediction:
     """Predict ``segment`` with the model driven by its measured air data (module doc).
 
     model: the identified model with its estimates as values; every parameter is held
@@ -85,7 +94,8 @@ def air_data_prediction(model: Model, segment: Segment, *, process_noise: Any = 
     if not drive:
         raise ModelDefinitionError(
             f"no air-data state to drive the prediction (states {model.states}, outputs "
-            f"{model.outputs}; air data: {', '.join(AIR_DATA)}): use the simulation proof of match")
+            f"{model.outputs}; air data: {', '.join(AIR_DATA)}): use the simulation proof of match"
+        )
     n = len(model.states)
     air = np.array([s in drive for s in model.states])
     keep = air | np.array([s not in model.outputs for s in model.states])
@@ -94,12 +104,16 @@ def air_data_prediction(model: Model, segment: Segment, *, process_noise: Any = 
     if not np.any(F[air][:, air]):
         F = np.diag(np.where(air, default_process_noise(model, [segment]), 0.0))
     z = np.where([o in drive for o in model.outputs], segment.z, np.nan)
-    hidden = Segment(t=segment.t, u=segment.u, z=z, x0=segment.initial_state(model),
-                     name=segment.name)
+    hidden = Segment(t=segment.t, u=segment.u, z=z, x0=segment.initial_state(model), name=segment.name)
     held = model.fixed([p.name for p in model.parameters])
-    res = EKF(held, integrator=integrator, inputs=inputs, process_noise=F,
-              measurement_noise=measurement_noise).fit(hidden)
+    res = EKF(held, integrator=integrator, inputs=inputs, process_noise=F, measurement_noise=measurement_noise).fit(
+        hidden
+    )
     pred = res.predicted[0]
-    return DrivenPrediction(predicted=pred, driven=[o for o in model.outputs if o in drive],
-                            judged=[o for o in model.outputs if o not in drive],
-                            filtered=res.extra["states"][0], process_noise=F)
+    return DrivenPrediction(
+        predicted=pred,
+        driven=[o for o in model.outputs if o in drive],
+        judged=[o for o in model.outputs if o not in drive],
+        filtered=res.extra["states"][0],
+        process_noise=F,
+    )

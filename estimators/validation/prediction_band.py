@@ -22,9 +22,10 @@ and the prediction's std from a parameter covariance P is sqrt(diag(S_perp P S_p
 per sample and output (:func:`prediction_std`). Pointwise: each sample's std, not a band
 the whole time history stays inside with a given probability.
 """
+
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -35,10 +36,18 @@ from estimators.simulation import Layout, simulate_batch
 __all__ = ["parameter_sensitivity", "prediction_std", "variance_shares"]
 
 
-def parameter_sensitivity(model: Model, segment: Segment, values: Mapping[str, float],
-                          names: Sequence[str], adjusted: Sequence[str] = (), *,
-                          weights: Sequence[float] | None = None, integrator: str = "rk4",
-                          inputs: str = DEFAULT_INPUTS, rel_step: float = 1e-6) -> np.ndarray:
+def parameter_sensitivity(
+    model: Model,
+    segment: Segment,
+    values: Mapping[str, float],
+    names: Sequence[str],
+    adjusted: Sequence[str] = (),
+    *,
+    weights: Sequence[float] | None = None,
+    integrator: str = "rk4",
+    inputs: str = DEFAULT_INPUTS,
+    rel_step: float = 1e-6,
+) -> np.ndarray:
     """dy/dtheta (N, n_out, len(names)) of ``model``'s simulation of ``segment`` (one
     segment: per-segment parameters and initial states by their layout names,
     ``bias_az[0]``, ``x0_q[0]``), at ``values`` (layout names; the model's values and the
@@ -51,19 +60,18 @@ def parameter_sensitivity(model: Model, segment: Segment, values: Mapping[str, f
     idx = {n: i for i, n in enumerate(lay.names)}
     missing = [n for n in [*names, *adjusted] if n not in idx]
     if missing:
-        raise ValueError(f"not parameters of the model on this segment: {missing} "
-                         f"(layout names: {lay.names})")
+        raise ValueError(f"not parameters of the model on this segment: {missing} (layout names: {lay.names})")
     cols = [idx[n] for n in [*names, *adjusted]]
     h = rel_step * np.maximum(np.abs(lay.values[cols]), 1.0)
     theta = np.repeat(lay.values[None, :], len(cols) + 1, axis=0)
     theta[np.arange(1, len(cols) + 1), cols] += h
     Y = simulate_batch(model, segment, theta, lay, 0, integrator, inputs=inputs)  # (N, m, B)
     S = (Y[:, :, 1:] - Y[:, :, :1]) / h
-    S_theta, S_a = S[:, :, :len(names)], S[:, :, len(names):]
+    S_theta, S_a = S[:, :, : len(names)], S[:, :, len(names) :]
     if not len(adjusted):
         return S_theta
     w = np.ones(len(model.outputs)) if weights is None else np.asarray(weights, dtype=float)
-    w = np.where(np.isfinite(segment.z), w[None, :], 0.0)                          # (N, m)
+    w = np.where(np.isfinite(segment.z), w[None, :], 0.0)  # (N, m)
     A = np.einsum("nma,nm,nmb->ab", S_a, w, S_a)
     B = np.einsum("nma,nm,nmp->ap", S_a, w, S_theta)
     return S_theta - np.einsum("nma,ap->nmp", S_a, np.linalg.pinv(A) @ B)

@@ -3,6 +3,7 @@
 Residuals are arrays of shape (N, n_out) (or (N,)) of e = z - y in output units, sampled
 uniformly; any method's residuals (output error, filter innovations) apply.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -13,10 +14,9 @@ import pandas as pd
 from scipy import fft as sfft
 from scipy import signal, stats
 
-from ._util import as_2d, fill_missing, output_names
+from ._util import as_2d, output_names
 
-__all__ = ["residual_stats", "autocovariance", "autocorrelation", "WhitenessResult",
-           "whiteness", "psd"]
+__all__ = ["residual_stats", "autocovariance", "autocorrelation", "WhitenessResult", "whiteness", "psd"]
 
 
 def residual_stats(residuals, names: Sequence[str] | None = None) -> pd.DataFrame:
@@ -27,9 +27,16 @@ def residual_stats(residuals, names: Sequence[str] | None = None) -> pd.DataFram
     m, s = np.nanmean(e, axis=0), np.nanstd(e, axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = m / s
-    return pd.DataFrame({"mean": m, "std": s, "rms": np.sqrt(np.nanmean(e * e, axis=0)),
-                         "mean_over_std": ratio, "N": np.isfinite(e).sum(axis=0)},
-                        index=pd.Index(names, name="output"))
+    return pd.DataFrame(
+        {
+            "mean": m,
+            "std": s,
+            "rms": np.sqrt(np.nanmean(e * e, axis=0)),
+            "mean_over_std": ratio,
+            "N": np.isfinite(e).sum(axis=0),
+        },
+        index=pd.Index(names, name="output"),
+    )
 
 
 def autocovariance(x, max_lag: int | None = None, *, demean: bool = True) -> np.ndarray:
@@ -81,14 +88,21 @@ class WhitenessResult:
 
     def to_frame(self) -> pd.DataFrame:
         """One row per output: Q, threshold, p_value, white, frac_outside."""
-        return pd.DataFrame({"Q": self.statistic, "threshold": self.threshold,
-                             "p_value": self.p_value, "white": self.white,
-                             "frac_outside": self.frac_outside},
-                            index=pd.Index(self.names, name="output"))
+        return pd.DataFrame(
+            {
+                "Q": self.statistic,
+                "threshold": self.threshold,
+                "p_value": self.p_value,
+                "white": self.white,
+                "frac_outside": self.frac_outside,
+            },
+            index=pd.Index(self.names, name="output"),
+        )
 
 
-def whiteness(residuals, max_lag: int | None = None, alpha: float = 0.05,
-              names: Sequence[str] | None = None) -> WhitenessResult:
+def whiteness(
+    residuals, max_lag: int | None = None, alpha: float = 0.05, names: Sequence[str] | None = None
+) -> WhitenessResult:
     """Whiteness test of residuals (N, n_out) by the Ljung-Box statistic over lags 1..max_lag.
 
     residuals may also be a list of (N_s, n_out) arrays, one per segment: each is demeaned
@@ -96,21 +110,32 @@ def whiteness(residuals, max_lag: int | None = None, alpha: float = 0.05,
     max_lag defaults to min(20, N // 5). alpha is the significance level (probability of
     rejecting truly white residuals). Returns a :class:`WhitenessResult`.
     """
-    segs = ([as_2d(r, "residuals") for r in residuals] if isinstance(residuals, (list, tuple))
-            else [as_2d(residuals, "residuals")])
+    segs = (
+        [as_2d(r, "residuals") for r in residuals]
+        if isinstance(residuals, (list, tuple))
+        else [as_2d(residuals, "residuals")]
+    )
     if any(np.isnan(s).any() for s in segs):
         # multi-rate data: each output is tested on its own samples (NaN = not measured),
         # lags counted in that output's sample intervals
-        cols = [_column_whiteness([s[np.isfinite(s[:, j]), j] for s in segs], max_lag, alpha)
-                for j in range(segs[0].shape[1])]
+        cols = [
+            _column_whiteness([s[np.isfinite(s[:, j]), j] for s in segs], max_lag, alpha)
+            for j in range(segs[0].shape[1])
+        ]
         first = residuals[0] if isinstance(residuals, (list, tuple)) else residuals
         m = min(c[4] for c in cols)
         return WhitenessResult(
             names=output_names(names, segs[0].shape[1], first),
-            statistic=np.array([c[0] for c in cols]), threshold=float(stats.chi2.ppf(1 - alpha, m)),
-            p_value=np.array([c[1] for c in cols]), white=np.array([c[2] for c in cols]),
-            max_lag=m, alpha=alpha, acf=np.column_stack([c[3][: m + 1] for c in cols]),
-            band=float(max(c[5] for c in cols)), frac_outside=np.array([c[6] for c in cols]))
+            statistic=np.array([c[0] for c in cols]),
+            threshold=float(stats.chi2.ppf(1 - alpha, m)),
+            p_value=np.array([c[1] for c in cols]),
+            white=np.array([c[2] for c in cols]),
+            max_lag=m,
+            alpha=alpha,
+            acf=np.column_stack([c[3][: m + 1] for c in cols]),
+            band=float(max(c[5] for c in cols)),
+            frac_outside=np.array([c[6] for c in cols]),
+        )
     n = sum(s.shape[0] for s in segs)
     if n < 10:
         raise ValueError("whiteness test needs at least 10 samples")
@@ -125,10 +150,18 @@ def whiteness(residuals, max_lag: int | None = None, alpha: float = 0.05,
     thr = float(stats.chi2.ppf(1.0 - alpha, m))
     band = float(stats.norm.ppf(1.0 - alpha / 2) / np.sqrt(n))
     first = residuals[0] if isinstance(residuals, (list, tuple)) else residuals
-    return WhitenessResult(names=output_names(names, segs[0].shape[1], first), statistic=q,
-                           threshold=thr, p_value=stats.chi2.sf(q, m), white=q <= thr,
-                           max_lag=m, alpha=alpha, acf=rho, band=band,
-                           frac_outside=np.mean(np.abs(rho[1:]) > band, axis=0))
+    return WhitenessResult(
+        names=output_names(names, segs[0].shape[1], first),
+        statistic=q,
+        threshold=thr,
+        p_value=stats.chi2.sf(q, m),
+        white=q <= thr,
+        max_lag=m,
+        alpha=alpha,
+        acf=rho,
+        band=band,
+        frac_outside=np.mean(np.abs(rho[1:]) > band, axis=0),
+    )
 
 
 def _column_whiteness(segs: list[np.ndarray], max_lag: int | None, alpha: float):
@@ -150,8 +183,7 @@ def _column_whiteness(segs: list[np.ndarray], max_lag: int | None, alpha: float)
     return q, float(stats.chi2.sf(q, m)), q <= thr, rho, m, band, float(np.mean(np.abs(rho[1:]) > band))
 
 
-def psd(x, fs: float, nperseg: int | None = None, *, method: str = "welch"
-        ) -> tuple[np.ndarray, np.ndarray]:
+def psd(x, fs: float, nperseg: int | None = None, *, method: str = "welch") -> tuple[np.ndarray, np.ndarray]:
     """One-sided power spectral density of each column of x (N, n) sampled at fs (Hz).
 
     method "welch" (Hann window, 50 % overlap, nperseg default min(N, 256)) or

@@ -10,6 +10,7 @@ residual autocorrelation matrices r(k) = E[v_i v_{i+k}^T] (r(-k) = r(k)^T),
 For white residuals r(k) = R delta_k and Cov = M^-1. The double sum is evaluated exactly
 for the chosen lag window by FFT convolution (O(N log N), not O(N^2)).
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -44,8 +45,10 @@ class UncertaintyResult:
 
     def to_frame(self) -> pd.DataFrame:
         """Rows per parameter: ``crb_std``, ``std`` (corrected), ``ratio``."""
-        return pd.DataFrame({"crb_std": self.crb_std, "std": self.std, "ratio": self.ratio},
-                            index=pd.Index(self.names, name="parameter"))
+        return pd.DataFrame(
+            {"crb_std": self.crb_std, "std": self.std, "ratio": self.ratio},
+            index=pd.Index(self.names, name="parameter"),
+        )
 
 
 def _segments(S, residuals) -> tuple[list[Sensitivity], list[np.ndarray]]:
@@ -62,17 +65,24 @@ def _segments(S, residuals) -> tuple[list[Sensitivity], list[np.ndarray]]:
         if v.ndim == 1:
             v = v[:, None]
         if s.values.shape[:2] != v.shape:
-            raise ValueError(f"S must be (N, n_out, n_p) matching residuals (N, n_out); "
-                             f"got S {s.shape}, residuals {v.shape}")
+            raise ValueError(
+                f"S must be (N, n_out, n_p) matching residuals (N, n_out); got S {s.shape}, residuals {v.shape}"
+            )
         Ss.append(s)
         vs.append(v)
     return Ss, vs
 
 
-def coloured_information(S: Sequence[np.ndarray], v: Sequence[np.ndarray],
-                         Rinv: Sequence[np.ndarray], present: Sequence[np.ndarray] | None = None,
-                         *, max_lag: int | str | None = "auto", window: str = "bartlett",
-                         unbiased: bool = False) -> tuple[np.ndarray, list[int]]:
+def coloured_information(
+    S: Sequence[np.ndarray],
+    v: Sequence[np.ndarray],
+    Rinv: Sequence[np.ndarray],
+    present: Sequence[np.ndarray] | None = None,
+    *,
+    max_lag: int | str | None = "auto",
+    window: str = "bartlett",
+    unbiased: bool = False,
+) -> tuple[np.ndarray, list[int]]:
     """The middle term of the Morelli-Klein sandwich, sum over segments of
     sum_i sum_j S_i^T R^-1 r(j-i) R^-1 S_j with r the residual autocorrelation (windowed,
     truncated at max_lag): the covariance of the score when the residuals are coloured.
@@ -99,8 +109,9 @@ def coloured_information(S: Sequence[np.ndarray], v: Sequence[np.ndarray],
         else:
             L = int(min(max(int(max_lag), 0), n - 1))
         lags.append(L)
-        add_block(mid, b.cols, _middle(b.values, r, Rinv[k], L, window, unbiased,
-                                       None if present is None else present[k]))
+        add_block(
+            mid, b.cols, _middle(b.values, r, Rinv[k], L, window, unbiased, None if present is None else present[k])
+        )
     return mid, lags
 
 
@@ -134,20 +145,27 @@ def _auto_lag(v: np.ndarray) -> int:
     with np.errstate(invalid="ignore", divide="ignore"):
         rho = np.abs(c / c[0])
     band = stats.norm.ppf(0.975) / np.sqrt(n)
-    inside = np.all(~(rho > band), axis=1)      # NaN (constant output) counts as inside
+    inside = np.all(~(rho > band), axis=1)  # NaN (constant output) counts as inside
     inside[0] = False
     first = int(np.argmax(inside)) if inside.any() else n - 1
     return int(min(n - 1, max(1, 3 * first)))
 
 
-def _middle(S: np.ndarray, v: np.ndarray, Rinv: np.ndarray, max_lag: int,
-            window: str, unbiased: bool, present: np.ndarray | None = None) -> np.ndarray:
+def _middle(
+    S: np.ndarray,
+    v: np.ndarray,
+    Rinv: np.ndarray,
+    max_lag: int,
+    window: str,
+    unbiased: bool,
+    present: np.ndarray | None = None,
+) -> np.ndarray:
     """sum_i sum_j W_i^T r(j-i) W_j for one segment, r windowed and truncated at max_lag.
     ``present`` (N, n_out) marks measured samples (v and S are zero elsewhere); each r(k)
     is then averaged over the pairs actually measured."""
     n, n_out, _ = S.shape
     L = int(max_lag)
-    W = np.einsum("ab,nbp->nap", Rinv, S)                         # (N, n_out, n_p)
+    W = np.einsum("ab,nbp->nap", Rinv, S)  # (N, n_out, n_p)
     # residual cross-correlations r_ab(k) = sum_i v_i[a] v_{i+k}[b] / (N or N-k), k = 0..L
     nfft = sfft.next_fast_len(2 * n - 1, real=True)
     V = sfft.rfft(v, nfft, axis=0)
@@ -171,16 +189,24 @@ def _middle(S: np.ndarray, v: np.ndarray, Rinv: np.ndarray, max_lag: int,
     h = np.zeros((m, n_out, n_out))
     h[: L + 1] = np.swapaxes(r, 1, 2)
     if L:
-        h[m - L:] = r[1:][::-1]
-    Y = sfft.irfft(np.einsum("fab,fbp->fap", sfft.rfft(h, m, axis=0), sfft.rfft(W, m, axis=0)),
-                   m, axis=0)[:n]
+        h[m - L :] = r[1:][::-1]
+    Y = sfft.irfft(np.einsum("fab,fbp->fap", sfft.rfft(h, m, axis=0), sfft.rfft(W, m, axis=0)), m, axis=0)[:n]
     mid = np.einsum("nap,naq->pq", W, Y)
     return 0.5 * (mid + mid.T)
 
 
-def morelli_klein(S, residuals, R=None, info=None, *, names: Sequence[str] | None = None,
-                  max_lag: int | str | None = "auto", window: str = "bartlett",
-                  unbiased: bool = False, prior_info=None) -> UncertaintyResult:
+def morelli_klein(
+    S,
+    residuals,
+    R=None,
+    info=None,
+    *,
+    names: Sequence[str] | None = None,
+    max_lag: int | str | None = "auto",
+    window: str = "bartlett",
+    unbiased: bool = False,
+    prior_info=None,
+) -> UncertaintyResult:
     """Cramér-Rao bounds corrected for coloured residuals (Morelli-Klein).
 
     S: output sensitivities dy/dtheta at the estimate, (N, n_out, n_p) (units of output per
@@ -210,16 +236,16 @@ def morelli_klein(S, residuals, R=None, info=None, *, names: Sequence[str] | Non
         R = _residual_covariance(vs, full=True)
     # missing measurements (NaN): no residual and no sensitivity there
     present = [np.isfinite(v) for v in vs]
-    Ss = [Sensitivity(np.where(ok[:, :, None], s.values, 0.0), s.cols, s.n_free)
-          for s, ok in zip(Ss, present)]
+    Ss = [Sensitivity(np.where(ok[:, :, None], s.values, 0.0), s.cols, s.n_free) for s, ok in zip(Ss, present)]
     vs = [np.where(ok, v, 0.0) for v, ok in zip(vs, present)]
     Rinv = np.linalg.inv(np.atleast_2d(np.asarray(R, dtype=float)))
     W = np.zeros((n_p, n_p)) if prior_info is None else np.asarray(prior_info, dtype=float)
     if info is None:
         info = _information(Ss, Rinv) + W
     Minv = np.linalg.pinv(np.asarray(info, dtype=float), hermitian=True)
-    mid, lags = coloured_information(Ss, vs, [Rinv] * len(Ss), present, max_lag=max_lag,
-                                     window=window, unbiased=unbiased)
+    mid, lags = coloured_information(
+        Ss, vs, [Rinv] * len(Ss), present, max_lag=max_lag, window=window, unbiased=unbiased
+    )
     mid = mid + W
     cov = Minv @ mid @ Minv
     cov = 0.5 * (cov + cov.T)
@@ -228,8 +254,7 @@ def morelli_klein(S, residuals, R=None, info=None, *, names: Sequence[str] | Non
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = std / crb_std
     names = list(names) if names is not None else [f"p{i}" for i in range(n_p)]
-    return UncertaintyResult(names=names, cov=cov, std=std, crb_cov=Minv, crb_std=crb_std,
-                             ratio=ratio, max_lag=lags)
+    return UncertaintyResult(names=names, cov=cov, std=std, crb_cov=Minv, crb_std=crb_std, ratio=ratio, max_lag=lags)
 
 
 def correlation(cov, names: Sequence[str] | None = None) -> pd.DataFrame:
@@ -243,8 +268,9 @@ def correlation(cov, names: Sequence[str] | None = None) -> pd.DataFrame:
     return pd.DataFrame(rho, index=list(names), columns=list(names))
 
 
-def correlation_flags(cov_or_corr, names: Sequence[str] | None = None,
-                      threshold: float = 0.9, *, is_corr: bool = False) -> pd.DataFrame:
+def correlation_flags(
+    cov_or_corr, names: Sequence[str] | None = None, threshold: float = 0.9, *, is_corr: bool = False
+) -> pd.DataFrame:
     """Parameter pairs with |rho| > threshold (default 0.9: near-linear dependence).
 
     Input: a covariance (or, with is_corr=True, a correlation) matrix, array or DataFrame.
@@ -253,13 +279,17 @@ def correlation_flags(cov_or_corr, names: Sequence[str] | None = None,
     if names is None and not isinstance(cov_or_corr, pd.DataFrame):
         names = [f"p{i}" for i in range(np.shape(cov_or_corr)[0])]
     if is_corr:
-        rho = cov_or_corr if isinstance(cov_or_corr, pd.DataFrame) else pd.DataFrame(
-            np.asarray(cov_or_corr, dtype=float), index=names, columns=names)
+        rho = (
+            cov_or_corr
+            if isinstance(cov_or_corr, pd.DataFrame)
+            else pd.DataFrame(np.asarray(cov_or_corr, dtype=float), index=names, columns=names)
+        )
     else:
         rho = correlation(cov_or_corr, names)
     R = rho.to_numpy()
     i, j = np.triu_indices(len(R), k=1)
     keep = np.abs(R[i, j]) > threshold
-    out = pd.DataFrame({"a": np.asarray(rho.index)[i[keep]], "b": np.asarray(rho.columns)[j[keep]],
-                        "rho": R[i, j][keep]})
+    out = pd.DataFrame(
+        {"a": np.asarray(rho.index)[i[keep]], "b": np.asarray(rho.columns)[j[keep]], "rho": R[i, j][keep]}
+    )
     return out.iloc[np.argsort(-np.abs(out["rho"].to_numpy()), kind="stable")].reset_index(drop=True)

@@ -1,6 +1,7 @@
 """``fsid check LOG``: ingest a log, run the data-quality checks (and, when the log has the
 channels, the sensor-compatibility reconstruction), write ``checks.json`` and the
 canonical data (``canonical.csv``: every canonical channel resampled to one time base)."""
+
 from __future__ import annotations
 
 import argparse
@@ -15,29 +16,46 @@ HELP = "ingest a flight log, check its data quality and sensor compatibility"
 
 def add_time_base_argument(parser: argparse.ArgumentParser) -> None:
     """``--time-base``: the time base of a .tlog or .mcap log (pipeline.readers.TIME_BASES)."""
-    parser.add_argument("--time-base", default=None, choices=["auto", "boot", "header", "log"],
-                        help="time base of a .tlog (auto = the autopilot's own stamps, boot = "
-                             "those only, log = the ground station's receive times) or .mcap "
-                             "(auto, header = the messages' header stamps, log = log times); "
-                             "default auto")
+    parser.add_argument(
+        "--time-base",
+        default=None,
+        choices=["auto", "boot", "header", "log"],
+        help="time base of a .tlog (auto = the autopilot's own stamps, boot = "
+        "those only, log = the ground station's receive times) or .mcap "
+        "(auto, header = the messages' header stamps, log = log times); "
+        "default auto",
+    )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", help="flight log: .mcap, .bin, .tlog, .ulg or .csv")
-    parser.add_argument("--map", default=None,
-                        help="channel map (built-in name or TOML file; default: built-in for the format)")
+    parser.add_argument(
+        "--map", default=None, help="channel map (built-in name or TOML file; default: built-in for the format)"
+    )
     parser.add_argument("--out", default=None, help="output folder (default: a new folder under ./runs/)")
-    parser.add_argument("--rate", type=float, default=None,
-                        help="rate of canonical.csv in Hz (default: fastest core channel, at most 100)")
-    parser.add_argument("--segments", default=None,
-                        help="'mode', 'auto' or time ranges 't0:t1,t0:t1' in s on the log's time base")
+    parser.add_argument(
+        "--rate",
+        type=float,
+        default=None,
+        help="rate of canonical.csv in Hz (default: fastest core channel, at most 100)",
+    )
+    parser.add_argument(
+        "--segments", default=None, help="'mode', 'auto' or time ranges 't0:t1,t0:t1' in s on the log's time base"
+    )
     add_time_base_argument(parser)
     parser.add_argument("--no-compat", action="store_true", help="skip the sensor-compatibility fit")
-    parser.add_argument("--imu-pos", default=None, metavar="X,Y,Z",
-                        help="IMU position from the CG, body axes, m (default: from a truth.json "
-                             "next to the log, else 0,0,0)")
-    parser.add_argument("--boom-pos", default=None, metavar="X,Y,Z",
-                        help="air-data boom position from the CG, body axes, m (default as --imu-pos)")
+    parser.add_argument(
+        "--imu-pos",
+        default=None,
+        metavar="X,Y,Z",
+        help="IMU position from the CG, body axes, m (default: from a truth.json next to the log, else 0,0,0)",
+    )
+    parser.add_argument(
+        "--boom-pos",
+        default=None,
+        metavar="X,Y,Z",
+        help="air-data boom position from the CG, body axes, m (default as --imu-pos)",
+    )
 
 
 def _vec(text: str | None, name: str):
@@ -106,12 +124,15 @@ def run(args: argparse.Namespace) -> int:
         quiet = Progress(2, quiet=True)
         rebuilt, _, logged, flow = flow_angle_stage(fd, None, quiet)
         extra["air_data_angles"] = flow
-        print(f"air-data angles: {summary(flow) if flow['status'] == 'reconstructed' else flow['status']}"
-              + (f" ({flow['reason']})" if flow.get("reason") else ""))
+        print(
+            f"air-data angles: {summary(flow) if flow['status'] == 'reconstructed' else flow['status']}"
+            + (f" ({flow['reason']})" if flow.get("reason") else "")
+        )
         imu, boom, origin = _positions(log, args)
         print("sensor compatibility (flight path reconstruction) ...")
-        extra["compatibility"] = compatibility_after_flow_angles(logged, rebuilt, flow, None, quiet,
-                                                                 positions=(imu, boom))[1]
+        extra["compatibility"] = compatibility_after_flow_angles(
+            logged, rebuilt, flow, None, quiet, positions=(imu, boom)
+        )[1]
         extra["compatibility"]["positions_from"] = origin
     out = new_run_dir("check", args.out)
     atomic_write_text(out / "checks.json", findings_to_json(findings, fd, extra))
@@ -128,8 +149,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"compatibility: {comp['status']}, {len(comp['parameters'])} sensor errors estimated")
         for n, row in comp["parameters"].items():
             sd = f"+- {row['std']:.2g}" if row.get("std") is not None else "(no std)"
-            print(f"  {n:12s} {row['estimate']: .5g} {sd} {row['unit']}"
-                  f"{'  (significant)' if row.get('applied') else ''}")
+            print(
+                f"  {n:12s} {row['estimate']: .5g} {sd} {row['unit']}{'  (significant)' if row.get('applied') else ''}"
+            )
         if comp.get("note"):
             print(f"  note: {comp['note']}")
     elif comp:

@@ -1,4 +1,5 @@
 """``fsid demo``: ``fsid run scenarios/default.toml`` into a fresh folder."""
+
 from __future__ import annotations
 
 import argparse

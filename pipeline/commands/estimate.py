@@ -1,46 +1,69 @@
 """``fsid estimate LOG [--model auto|longitudinal|lateral|FILE.py:NAME] [--aircraft AIRCRAFT.toml]
 [--method oem] [--map MAP] [--out DIR]``."""
+
 from __future__ import annotations
 
 import argparse
 
-from pipeline.paths import new_run_dir
-
 from pipeline.commands.check import add_time_base_argument
-from pipeline.commands.run import (METHOD_LIST, METHODS, add_input_arguments,
-                                   add_validation_arguments, validation_options)
+from pipeline.commands.run import (
+    METHOD_LIST,
+    METHODS,
+    add_input_arguments,
+    add_validation_arguments,
+    validation_options,
+)
+from pipeline.paths import new_run_dir
 
 HELP = "identify derivatives from a log with a built-in model (and an aircraft description) or your own model"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", help="flight log (.bin, .tlog, .ulg, .mcap, .csv)")
-    p.add_argument("--aircraft",
-                   help="aircraft TOML (geometry, mass, inertia, propulsion, optional "
-                        "[sensors.airdata|imu] position_m, optional [servos] de/da/dr_travel_deg "
-                        "to decode servo PWM, 30 deg assumed without; see scenarios/aircraft/): needed by "
-                        "the built-in models unless the log sits next to a truth.json from "
-                        "fsid run/simulate; offered to a user model's function")
-    p.add_argument("--model", default="auto", metavar="auto|longitudinal|lateral|FILE.py:NAME",
-                   help="built-in model: longitudinal (nonlinear, stability axes), lateral "
-                        "(6-DoF with the longitudinal estimates held when the log also has "
-                        "elevator maneuvers, else linear), or auto = every axis the log's "
-                        "maneuvers excite (default); or your own: FILE.py:NAME, an "
-                        "estimators.Model or a function (aircraft=None, flight=None) returning "
-                        "one, its inputs/outputs named as the log's canonical channels")
-    p.add_argument("--method", action="append", choices=list(METHODS),
-                   help="estimation method (repeat for several; default: oem). " + METHOD_LIST)
+    p.add_argument(
+        "--aircraft",
+        help="aircraft TOML (geometry, mass, inertia, propulsion, optional "
+        "[sensors.airdata|imu] position_m, optional [servos] de/da/dr_travel_deg "
+        "to decode servo PWM, 30 deg assumed without; see scenarios/aircraft/): needed by "
+        "the built-in models unless the log sits next to a truth.json from "
+        "fsid run/simulate; offered to a user model's function",
+    )
+    p.add_argument(
+        "--model",
+        default="auto",
+        metavar="auto|longitudinal|lateral|FILE.py:NAME",
+        help="built-in model: longitudinal (nonlinear, stability axes), lateral "
+        "(6-DoF with the longitudinal estimates held when the log also has "
+        "elevator maneuvers, else linear), or auto = every axis the log's "
+        "maneuvers excite (default); or your own: FILE.py:NAME, an "
+        "estimators.Model or a function (aircraft=None, flight=None) returning "
+        "one, its inputs/outputs named as the log's canonical channels",
+    )
+    p.add_argument(
+        "--method",
+        action="append",
+        choices=list(METHODS),
+        help="estimation method (repeat for several; default: oem). " + METHOD_LIST,
+    )
     p.add_argument("--map", help="channel map TOML extending the built-in one")
     add_time_base_argument(p)
-    p.add_argument("--inputs", default="linear", choices=["linear", "hold"],
-                   help="how control inputs vary between log samples (default: linear)")
+    p.add_argument(
+        "--inputs",
+        default="linear",
+        choices=["linear", "hold"],
+        help="how control inputs vary between log samples (default: linear)",
+    )
     p.add_argument("--out", help="output folder (default: a new folder under ./runs/)")
     p.add_argument("--no-compat", action="store_true", help="skip the sensor-compatibility stage")
-    p.add_argument("--validate-with", metavar="LOG2", action="append",
-                   help="a second flight log (same aircraft, channel map and sensors) for the "
-                        "proof of match: every maneuver of LOG is then fitted and the model "
-                        "is proved on LOG2's maneuvers (repeat for several flights; default: "
-                        "the last maneuver of each axis of LOG is held out)")
+    p.add_argument(
+        "--validate-with",
+        metavar="LOG2",
+        action="append",
+        help="a second flight log (same aircraft, channel map and sensors) for the "
+        "proof of match: every maneuver of LOG is then fitted and the model "
+        "is proved on LOG2's maneuvers (repeat for several flights; default: "
+        "the last maneuver of each axis of LOG is held out)",
+    )
     add_input_arguments(p)
     add_validation_arguments(p)
     p.add_argument("--quiet", action="store_true")
@@ -51,11 +74,21 @@ def run(args: argparse.Namespace) -> int:
     from pipeline.run import estimate_log
 
     out = new_run_dir("estimate", args.out)
-    paths = estimate_log(args.log, out, aircraft=args.aircraft, map_path=args.map,
-                         methods=args.method or ["oem"], inputs=args.inputs, model=args.model,
-                         quiet=args.quiet, compat=not args.no_compat,
-                         smooth_inputs=not args.raw_inputs, validation_log=args.validate_with,
-                         time_base=args.time_base, input_dynamics=args.input_dynamics,
-                         **validation_options(args))
+    paths = estimate_log(
+        args.log,
+        out,
+        aircraft=args.aircraft,
+        map_path=args.map,
+        methods=args.method or ["oem"],
+        inputs=args.inputs,
+        model=args.model,
+        quiet=args.quiet,
+        compat=not args.no_compat,
+        smooth_inputs=not args.raw_inputs,
+        validation_log=args.validate_with,
+        time_base=args.time_base,
+        input_dynamics=args.input_dynamics,
+        **validation_options(args),
+    )
     print_outputs(out, paths)
     return 0

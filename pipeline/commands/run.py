@@ -1,4 +1,5 @@
 """``fsid run SCENARIO [--out DIR] [--seed N]``."""
+
 from __future__ import annotations
 
 import argparse
@@ -8,9 +9,11 @@ from pipeline.paths import new_run_dir
 
 #: kept in step with pipeline.run.METHODS / METHOD_HELP (not imported: --help stays fast)
 METHODS = ("oem", "ls", "fem", "ekf", "ukf", "soem", "eigen", "decouple")
-METHOD_LIST = ("oem: output error; ls: equation error; fem: filter error; ekf/ukf: extended/"
-               "unscented Kalman filter; soem: stabilised output error; eigen: eigenvalue "
-               "transformation; decouple: equation decoupling")
+METHOD_LIST = (
+    "oem: output error; ls: equation error; fem: filter error; ekf/ukf: extended/"
+    "unscented Kalman filter; soem: stabilised output error; eigen: eigenvalue "
+    "transformation; decouple: equation decoupling"
+)
 
 HELP = "simulate a scenario, write its logs, ingest them, identify, validate, report"
 
@@ -19,14 +22,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", help="scenario TOML (see scenarios/)")
     p.add_argument("--out", help="output folder (default: a new folder under ./runs/)")
     p.add_argument("--seed", type=int, help="override the scenario's seed")
-    p.add_argument("--method", action="append", choices=list(METHODS),
-                   help="estimation method (repeat for several; default: the ones that suit the "
-                        "scenario - calm: oem ls; turbulence: oem fem ekf ukf; unstable with a "
-                        "SAS: soem decouple fem ekf ukf; eigen needs a linear model). " + METHOD_LIST)
-    p.add_argument("--no-compat", action="store_true",
-                   help="skip the sensor-compatibility stage (flight path reconstruction); by "
-                        "default sensor errors estimated at >= 3 std are removed from the data "
-                        "before estimation")
+    p.add_argument(
+        "--method",
+        action="append",
+        choices=list(METHODS),
+        help="estimation method (repeat for several; default: the ones that suit the "
+        "scenario - calm: oem ls; turbulence: oem fem ekf ukf; unstable with a "
+        "SAS: soem decouple fem ekf ukf; eigen needs a linear model). " + METHOD_LIST,
+    )
+    p.add_argument(
+        "--no-compat",
+        action="store_true",
+        help="skip the sensor-compatibility stage (flight path reconstruction); by "
+        "default sensor errors estimated at >= 3 std are removed from the data "
+        "before estimation",
+    )
     add_input_arguments(p)
     add_validation_arguments(p)
     p.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -42,52 +52,72 @@ def input_dynamics_setting(text: str) -> str | tuple[float, float]:
     except ValueError:
         vals = []
     if len(vals) not in (1, 2) or not all(math.isfinite(v) for v in vals):
-        raise argparse.ArgumentTypeError(f"{text!r}: give auto, off or DELAY[,LAG] in seconds "
-                                         "(e.g. 0.02,0.04)")
+        raise argparse.ArgumentTypeError(f"{text!r}: give auto, off or DELAY[,LAG] in seconds (e.g. 0.02,0.04)")
     delay, lag = vals[0], (vals[1] if len(vals) == 2 else 0.0)
     if abs(delay) > 1.0 or not 0.0 <= lag <= 1.0:
-        raise argparse.ArgumentTypeError(f"{text!r}: the delay must be within -1..1 s and the "
-                                         "lag within 0..1 s")
+        raise argparse.ArgumentTypeError(f"{text!r}: the delay must be within -1..1 s and the lag within 0..1 s")
     return delay, lag
 
 
 def add_input_arguments(p: argparse.ArgumentParser) -> None:
     """Data-preparation options shared by fsid run and fsid estimate."""
-    p.add_argument("--raw-inputs", action="store_true",
-                   help="use the logged surface positions (de, da, dr) as they are; by default "
-                        "those with a flat white noise floor are low-passed zero-phase where it "
-                        "begins (the corners are in the report's data preparation notes)")
-    p.add_argument("--input-dynamics", default="auto", type=input_dynamics_setting,
-                   metavar="auto|off|DELAY[,LAG]",
-                   help="the servo between a logged control input and its surface (a logged "
-                        "command leads the surface): auto = each surface's delay and first-order "
-                        "lag estimated from the maneuvers (equation error), applied where "
-                        "significant and refined by output error's fits when oem is among the "
-                        "methods, their std carried to the estimates (default); off = inputs "
-                        "as logged; DELAY[,LAG] = those, in seconds, for every surface")
+    p.add_argument(
+        "--raw-inputs",
+        action="store_true",
+        help="use the logged surface positions (de, da, dr) as they are; by default "
+        "those with a flat white noise floor are low-passed zero-phase where it "
+        "begins (the corners are in the report's data preparation notes)",
+    )
+    p.add_argument(
+        "--input-dynamics",
+        default="auto",
+        type=input_dynamics_setting,
+        metavar="auto|off|DELAY[,LAG]",
+        help="the servo between a logged control input and its surface (a logged "
+        "command leads the surface): auto = each surface's delay and first-order "
+        "lag estimated from the maneuvers (equation error), applied where "
+        "significant and refined by output error's fits when oem is among the "
+        "methods, their std carried to the estimates (default); off = inputs "
+        "as logged; DELAY[,LAG] = those, in seconds, for every surface",
+    )
 
 
 def add_validation_arguments(p: argparse.ArgumentParser) -> None:
     """Proof-of-match options shared by fsid run and fsid estimate."""
-    p.add_argument("--band-rate", type=float, metavar="DEG_S",
-                   help="proof-of-match band on p, q, r in deg/s (default 1.5, or the scenario's)")
-    p.add_argument("--band-accel", type=float, metavar="G",
-                   help="proof-of-match band on ax, ay, az in g (default 0.1)")
-    p.add_argument("--band-angle", type=float, metavar="DEG",
-                   help="proof-of-match band on alpha, beta, phi, theta, psi in deg (default 1.5)")
-    p.add_argument("--proof-of-match", default="auto", choices=["auto", "simulation", "air-data"],
-                   help="held-out prediction: open-loop simulation, or the model driven by its "
-                        "measured air data (turbulence, unstable aircraft); auto picks air-data "
-                        "for fem/ekf/ukf and unstable models (default)")
+    p.add_argument(
+        "--band-rate",
+        type=float,
+        metavar="DEG_S",
+        help="proof-of-match band on p, q, r in deg/s (default 1.5, or the scenario's)",
+    )
+    p.add_argument("--band-accel", type=float, metavar="G", help="proof-of-match band on ax, ay, az in g (default 0.1)")
+    p.add_argument(
+        "--band-angle",
+        type=float,
+        metavar="DEG",
+        help="proof-of-match band on alpha, beta, phi, theta, psi in deg (default 1.5)",
+    )
+    p.add_argument(
+        "--proof-of-match",
+        default="auto",
+        choices=["auto", "simulation", "air-data"],
+        help="held-out prediction: open-loop simulation, or the model driven by its "
+        "measured air data (turbulence, unstable aircraft); auto picks air-data "
+        "for fem/ekf/ukf and unstable models (default)",
+    )
 
 
 def validation_options(args: argparse.Namespace) -> dict:
     """bands and pom keywords for run_scenario / estimate_log from the parsed options."""
-    bands = {k: v for k, v in (("rate_deg_s", args.band_rate), ("accel_g", args.band_accel),
-                               ("angle_deg", args.band_angle)) if v is not None}
+    bands = {
+        k: v
+        for k, v in (("rate_deg_s", args.band_rate), ("accel_g", args.band_accel), ("angle_deg", args.band_angle))
+        if v is not None
+    }
     bad = [k for k, v in bands.items() if not v > 0]
     if bad:
         from pipeline.errors import FsidError
+
         raise FsidError(f"proof-of-match band {bad[0]} must be > 0: give a positive number")
     return {"bands": bands, "pom": args.proof_of_match}
 
@@ -102,9 +132,16 @@ def run(args: argparse.Namespace) -> int:
     from pipeline.run import run_scenario
 
     out = new_run_dir("run", args.out)
-    paths = run_scenario(args.scenario, out, seed=args.seed, methods=args.method,
-                         quiet=args.quiet, compat=not args.no_compat,
-                         smooth_inputs=not args.raw_inputs, input_dynamics=args.input_dynamics,
-                         **validation_options(args))
+    paths = run_scenario(
+        args.scenario,
+        out,
+        seed=args.seed,
+        methods=args.method,
+        quiet=args.quiet,
+        compat=not args.no_compat,
+        smooth_inputs=not args.raw_inputs,
+        input_dynamics=args.input_dynamics,
+        **validation_options(args),
+    )
     print_outputs(out, paths)
     return 0

@@ -8,6 +8,7 @@ DIR/validation.mcap``).
 SCENARIO is a path to a scenario TOML or the name of a built-in one (``default``,
 ``longitudinal_3211_calm``, ... in the repository's ``scenarios/`` folder).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -37,17 +38,20 @@ def resolve_scenario(arg: str | Path) -> Path:
     cand = SCENARIO_DIR / f"{p.stem if p.suffix == '.toml' else arg}.toml"
     if p.parent == Path(".") and cand.is_file():
         return cand
-    raise FsidError(f"scenario {arg!s} not found: give a scenario .toml path or a built-in name "
-                    f"({', '.join(builtin_scenarios())})")
+    raise FsidError(
+        f"scenario {arg!s} not found: give a scenario .toml path or a built-in name ({', '.join(builtin_scenarios())})"
+    )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scenario", help="scenario .toml file or built-in name (e.g. default)")
     parser.add_argument("--out", metavar="DIR", help="output folder (default: a new folder under ./runs/)")
-    parser.add_argument("--seed", type=int, metavar="N", help="seed for turbulence and sensor noise "
-                        "(default: the scenario's seed)")
-    parser.add_argument("--keep-jsbsim", action="store_true",
-                        help="keep the generated JSBSim aircraft XML in DIR/jsbsim")
+    parser.add_argument(
+        "--seed", type=int, metavar="N", help="seed for turbulence and sensor noise (default: the scenario's seed)"
+    )
+    parser.add_argument(
+        "--keep-jsbsim", action="store_true", help="keep the generated JSBSim aircraft XML in DIR/jsbsim"
+    )
 
 
 class _Progress:
@@ -68,8 +72,13 @@ class _Progress:
             print(file=sys.stderr)
 
 
-def simulate(scenario_path: str | Path, out: str | Path | None = None, seed: int | None = None,
-             keep_jsbsim: bool = False, progress: bool = True):
+def simulate(
+    scenario_path: str | Path,
+    out: str | Path | None = None,
+    seed: int | None = None,
+    keep_jsbsim: bool = False,
+    progress: bool = True,
+):
     """Fly ``scenario_path`` and write flight.mcap, flight.bin and truth.json into the run
     folder (and validation.mcap, validation.bin when the scenario has a validation flight).
     Returns (run folder, SimResult). ScenarioError becomes FsidError."""
@@ -108,8 +117,10 @@ def run(args: argparse.Namespace) -> int:
     run_dir, result = simulate(args.scenario, args.out, args.seed, args.keep_jsbsim)
     dt = time.perf_counter() - t0
     s = result.scenario
-    print(f"simulated {s.name} ({s.aircraft.name}, {s.duration:g} s, seed {result.meta['seed']}, "
-          f"{len(result.maneuvers)} maneuvers) in {dt:.1f} s")
+    print(
+        f"simulated {s.name} ({s.aircraft.name}, {s.duration:g} s, seed {result.meta['seed']}, "
+        f"{len(result.maneuvers)} maneuvers) in {dt:.1f} s"
+    )
     for f in ("flight.mcap", "flight.bin", "truth.json", "validation.mcap", "validation.bin"):
         if (run_dir / f).exists():
             print(f"wrote {run_dir / f}")

@@ -5,6 +5,7 @@ With a display (``DISPLAY`` or ``WAYLAND_DISPLAY`` set) the native viewer opens;
 ``rerun RUN.rrd --serve-web --bind 127.0.0.1 --web-viewer-port W --port G``. The command
 runs until the viewer closes or Ctrl-C. RUN_DIR may also be the .rrd file itself.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -24,16 +25,22 @@ HELP = "open a run's recording (run.rrd) in the rerun viewer, or serve the web v
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("run_dir", metavar="RUN_DIR",
-                        help="folder written by 'fsid run/estimate/demo' (or a .rrd file)")
-    parser.add_argument("--web", action="store_true",
-                        help="serve the web viewer even when a display is available")
-    parser.add_argument("--bind", default="127.0.0.1",
-                        help="address the web viewer listens on (default: 127.0.0.1, this machine only)")
-    parser.add_argument("--web-port", type=int, default=9090,
-                        help="HTTP port of the web viewer (default 9090; 0 picks a free one)")
-    parser.add_argument("--grpc-port", type=int, default=9876,
-                        help="gRPC port the web viewer reads the recording from (default 9876; 0 picks a free one)")
+    parser.add_argument(
+        "run_dir", metavar="RUN_DIR", help="folder written by 'fsid run/estimate/demo' (or a .rrd file)"
+    )
+    parser.add_argument("--web", action="store_true", help="serve the web viewer even when a display is available")
+    parser.add_argument(
+        "--bind", default="127.0.0.1", help="address the web viewer listens on (default: 127.0.0.1, this machine only)"
+    )
+    parser.add_argument(
+        "--web-port", type=int, default=9090, help="HTTP port of the web viewer (default 9090; 0 picks a free one)"
+    )
+    parser.add_argument(
+        "--grpc-port",
+        type=int,
+        default=9876,
+        help="gRPC port the web viewer reads the recording from (default 9876; 0 picks a free one)",
+    )
 
 
 def rrd_path(run_dir: str | os.PathLike) -> Path:
@@ -42,10 +49,13 @@ def rrd_path(run_dir: str | os.PathLike) -> Path:
     rrd = p if p.suffix == ".rrd" else p / "run.rrd"
     if not rrd.is_file():
         if not p.exists():
-            raise FsidError(f"run folder '{p}' not found; give the folder that 'fsid run' or "
-                            "'fsid demo' printed (it holds run.rrd)")
-        raise FsidError(f"no recording at '{rrd}'; run 'fsid run SCENARIO --out {p}' (or "
-                        "'fsid demo') to write one, or give the path of a .rrd file")
+            raise FsidError(
+                f"run folder '{p}' not found; give the folder that 'fsid run' or 'fsid demo' printed (it holds run.rrd)"
+            )
+        raise FsidError(
+            f"no recording at '{rrd}'; run 'fsid run SCENARIO --out {p}' (or "
+            "'fsid demo') to write one, or give the path of a .rrd file"
+        )
     return rrd
 
 
@@ -61,8 +71,10 @@ def rerun_binary() -> str:
         pass
     exe = shutil.which("rerun")
     if exe is None:
-        raise FsidError("the rerun viewer is not installed; run 'make setup' (or "
-                        "'pip install rerun-sdk==0.41.*') in the project's environment")
+        raise FsidError(
+            "the rerun viewer is not installed; run 'make setup' (or "
+            "'pip install rerun-sdk==0.41.*') in the project's environment"
+        )
     return exe
 
 
@@ -85,14 +97,12 @@ def web_url(web_port: int, grpc_port: int, host: str = "127.0.0.1") -> str:
     return f"http://{host}:{web_port}/?url={quote(proxy, safe='')}"
 
 
-def command(rrd: Path, *, web: bool, bind: str = "127.0.0.1", web_port: int = 9090,
-            grpc_port: int = 9876) -> list[str]:
+def command(rrd: Path, *, web: bool, bind: str = "127.0.0.1", web_port: int = 9090, grpc_port: int = 9876) -> list[str]:
     """argv of the rerun CLI: native viewer on the file, or serve it to the web viewer."""
     exe = rerun_binary()
     if not web:
         return [exe, str(rrd)]
-    return [exe, str(rrd), "--serve-web", "--bind", bind, "--web-viewer-port", str(web_port),
-            "--port", str(grpc_port)]
+    return [exe, str(rrd), "--serve-web", "--bind", bind, "--web-viewer-port", str(web_port), "--port", str(grpc_port)]
 
 
 def sigint_stops() -> None:
@@ -121,8 +131,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         proc = subprocess.Popen(argv)
     except OSError as exc:
-        raise FsidError(f"could not start the rerun viewer '{argv[0]}': {exc}; reinstall "
-                        "rerun-sdk ('make setup')") from None
+        raise FsidError(
+            f"could not start the rerun viewer '{argv[0]}': {exc}; reinstall rerun-sdk ('make setup')"
+        ) from None
     try:
         rc = proc.wait()
     except KeyboardInterrupt:
@@ -134,7 +145,13 @@ def run(args: argparse.Namespace) -> int:
         print("viewer stopped", file=sys.stderr)
         return 0
     if rc != 0:
-        raise FsidError(f"the rerun viewer exited with status {rc} on '{rrd}'"
-                        + ("; the ports may be taken: try --web-port 0 --grpc-port 0" if web else
-                           "; try 'fsid view --web' to use the web viewer"), exit_code=1)
+        raise FsidError(
+            f"the rerun viewer exited with status {rc} on '{rrd}'"
+            + (
+                "; the ports may be taken: try --web-port 0 --grpc-port 0"
+                if web
+                else "; try 'fsid view --web' to use the web viewer"
+            ),
+            exit_code=1,
+        )
     return 0

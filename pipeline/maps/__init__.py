@@ -79,14 +79,15 @@ Control surfaces: positive de = trailing edge down, positive da = right aileron 
 edge up (roll right ... negative Cl), positive dr = trailing edge left. Altitude ``h`` is
 positive up.
 """
+
 from __future__ import annotations
 
 import copy
 import tomllib
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -96,14 +97,43 @@ from pipeline.readers.base import RawLog, Table
 
 #: source unit -> factor to SI (the canonical unit of the channel)
 UNIT_FACTORS: dict[str, float] = {
-    "m/s^2": 1.0, "m/s/s": 1.0, "mG": 9.80665e-3, "g": 9.80665, "cm/s^2": 0.01,
-    "rad/s": 1.0, "deg/s": np.pi / 180, "mrad/s": 1e-3, "cdeg/s": np.pi / 18000,
-    "rad/s^2": 1.0, "deg/s^2": np.pi / 180,
-    "rad": 1.0, "deg": np.pi / 180, "cdeg": np.pi / 18000, "mrad": 1e-3,
-    "m/s": 1.0, "cm/s": 0.01, "mm/s": 1e-3, "km/h": 1 / 3.6, "kt": 0.514444, "ft/s": 0.3048,
-    "m": 1.0, "cm": 0.01, "mm": 1e-3, "ft": 0.3048, "km": 1000.0,
-    "Pa": 1.0, "hPa": 100.0, "mbar": 100.0, "kPa": 1000.0,
-    "kg/m^3": 1.0, "N": 1.0, "-": 1.0, "%": 0.01, "s": 1.0, "ms": 1e-3, "us": 1e-6,
+    "m/s^2": 1.0,
+    "m/s/s": 1.0,
+    "mG": 9.80665e-3,
+    "g": 9.80665,
+    "cm/s^2": 0.01,
+    "rad/s": 1.0,
+    "deg/s": np.pi / 180,
+    "mrad/s": 1e-3,
+    "cdeg/s": np.pi / 18000,
+    "rad/s^2": 1.0,
+    "deg/s^2": np.pi / 180,
+    "rad": 1.0,
+    "deg": np.pi / 180,
+    "cdeg": np.pi / 18000,
+    "mrad": 1e-3,
+    "m/s": 1.0,
+    "cm/s": 0.01,
+    "mm/s": 1e-3,
+    "km/h": 1 / 3.6,
+    "kt": 0.514444,
+    "ft/s": 0.3048,
+    "m": 1.0,
+    "cm": 0.01,
+    "mm": 1e-3,
+    "ft": 0.3048,
+    "km": 1000.0,
+    "Pa": 1.0,
+    "hPa": 100.0,
+    "mbar": 100.0,
+    "kPa": 1000.0,
+    "kg/m^3": 1.0,
+    "N": 1.0,
+    "-": 1.0,
+    "%": 0.01,
+    "s": 1.0,
+    "ms": 1e-3,
+    "us": 1e-6,
     "pwm": 1.0,
 }
 
@@ -130,13 +160,13 @@ class ChannelRule:
     pwm: dict | None = None
     transform: str | None = None
     component: str | None = None
-    scale_param: str | None = None      #: multiply by this log parameter (missing -> no channel)
-    unless_param: str | None = None     #: product transform: skip the 2nd factor if param != 0
-    derived: str | None = None          #: why it is no independent measurement (Channel.derived)
+    scale_param: str | None = None  #: multiply by this log parameter (missing -> no channel)
+    unless_param: str | None = None  #: product transform: skip the 2nd factor if param != 0
+    derived: str | None = None  #: why it is no independent measurement (Channel.derived)
     #: {parameter: sources}: when the log has that parameter, those sources replace ``sources``
     source_if: dict[str, list[str]] = field(default_factory=dict)
     #: the rule to try when this one fills nothing (``[channels.NAME.fallback]``)
-    fallback: "ChannelRule | None" = None
+    fallback: ChannelRule | None = None
 
     def scaled(self, x: np.ndarray, unit: str | None = None) -> np.ndarray:
         """Logged values ``x`` in the canonical unit: (x scale + offset), converted from
@@ -161,7 +191,7 @@ class ChannelMap:
     header: dict = field(default_factory=dict)
     origin: str = ""
 
-    def merged(self, other: "ChannelMap") -> "ChannelMap":
+    def merged(self, other: ChannelMap) -> ChannelMap:
         """A copy of self with ``other``'s rules added / overriding."""
         out = copy.deepcopy(self)
         out.rules.update(copy.deepcopy(other.rules))
@@ -172,16 +202,16 @@ class ChannelMap:
 
 def builtin_names() -> list[str]:
     """Names of the built-in maps (the TOML files shipped in this package)."""
-    return sorted(p.name[:-5] for p in resources.files(__name__).iterdir()
-                  if p.name.endswith(".toml"))
+    return sorted(p.name[:-5] for p in resources.files(__name__).iterdir() if p.name.endswith(".toml"))
 
 
 def _source_if(spec, origin: str, name: str) -> dict[str, list[str]]:
     if spec is None:
         return {}
     if not isinstance(spec, dict) or not all(isinstance(v, (str, list)) for v in spec.values()):
-        raise FsidError(f"channel map {origin}: [channels.{name}] source_if must be a table "
-                        "{PARAMETER = [\"MESSAGE.field\", ...]}")
+        raise FsidError(
+            f"channel map {origin}: [channels.{name}] source_if must be a table {{PARAMETER = [\"MESSAGE.field\", ...]}}"
+        )
     return {str(k): [v] if isinstance(v, str) else [str(x) for x in v] for k, v in spec.items()}
 
 
@@ -194,31 +224,42 @@ def _rule(name: str, spec, origin: str, what: str = "") -> ChannelRule:
     """One ``[channels.NAME]`` table (``what``: ".fallback" for its fallback) as a rule."""
     where = f"[channels.{name}{what}]"
     if not isinstance(spec, dict) or "source" not in spec:
-        raise FsidError(f"channel map {origin}: {where} needs a 'source' "
-                        "(\"MESSAGE.field\" or a list of them)")
+        raise FsidError(f"channel map {origin}: {where} needs a 'source' (\"MESSAGE.field\" or a list of them)")
     src = spec["source"]
     sources = [src] if isinstance(src, str) else [str(s) for s in src]
     unit = str(spec.get("unit", CANONICAL_UNITS.get(name, "-")))
     if unit not in UNIT_FACTORS:
-        raise FsidError(f"channel map {origin}: {where} unit '{unit}' unknown; "
-                        f"use one of {', '.join(sorted(UNIT_FACTORS))}")
+        raise FsidError(
+            f"channel map {origin}: {where} unit '{unit}' unknown; use one of {', '.join(sorted(UNIT_FACTORS))}"
+        )
     for src_ in sources:
         parts = src_.split()
         if len(parts) > 1 and parts[1] not in UNIT_FACTORS:
-            raise FsidError(f"channel map {origin}: {where} source '{src_}' has "
-                            f"unknown unit '{parts[1]}'")
+            raise FsidError(f"channel map {origin}: {where} source '{src_}' has unknown unit '{parts[1]}'")
     if spec.get("transform") not in TRANSFORMS:
-        raise FsidError(f"channel map {origin}: {where} transform '{spec.get('transform')}' "
-                        f"unknown; use one of {', '.join(t for t in TRANSFORMS if t)}")
+        raise FsidError(
+            f"channel map {origin}: {where} transform '{spec.get('transform')}' "
+            f"unknown; use one of {', '.join(t for t in TRANSFORMS if t)}"
+        )
     fb = spec.get("fallback")
     if fb is not None and what:
         raise FsidError(f"channel map {origin}: {where} cannot have a fallback of its own")
-    return ChannelRule(name, sources, unit, float(spec.get("scale", 1.0)),
-                       float(spec.get("offset", 0.0)), float(spec.get("sign", 1.0)),
-                       spec.get("pwm"), spec.get("transform"), spec.get("component"),
-                       spec.get("scale_param"), spec.get("unless_param"),
-                       spec.get("derived"), _source_if(spec.get("source_if"), origin, name),
-                       None if fb is None else _rule(name, fb, origin, ".fallback"))
+    return ChannelRule(
+        name,
+        sources,
+        unit,
+        float(spec.get("scale", 1.0)),
+        float(spec.get("offset", 0.0)),
+        float(spec.get("sign", 1.0)),
+        spec.get("pwm"),
+        spec.get("transform"),
+        spec.get("component"),
+        spec.get("scale_param"),
+        spec.get("unless_param"),
+        spec.get("derived"),
+        _source_if(spec.get("source_if"), origin, name),
+        None if fb is None else _rule(name, fb, origin, ".fallback"),
+    )
 
 
 def _parse(doc: dict, origin: str) -> ChannelMap:
@@ -229,11 +270,12 @@ def _parse(doc: dict, origin: str) -> ChannelMap:
     rules: dict[str, ChannelRule] = {}
     for name, spec in chans.items():
         rules[name] = _rule(name, spec, origin)
-    return ChannelMap(str(head.get("name", Path(origin).stem)), rules,
-                      list(head.get("formats", [])), dict(head), origin)
+    return ChannelMap(
+        str(head.get("name", Path(origin).stem)), rules, list(head.get("formats", [])), dict(head), origin
+    )
 
 
-def load_map(spec: "str | Path | ChannelMap | None", fmt: str | None = None) -> ChannelMap:
+def load_map(spec: str | Path | ChannelMap | None, fmt: str | None = None) -> ChannelMap:
     """Load a map: a built-in name, a TOML path, a ChannelMap, or None (built-in for ``fmt``).
 
     A user map with ``extends = "<builtin>"`` (or, for a known format, no ``extends`` and
@@ -258,8 +300,7 @@ def load_map(spec: "str | Path | ChannelMap | None", fmt: str | None = None) -> 
         return own
     path = Path(s)
     if not path.is_file():
-        raise FsidError(f"channel map '{s}' not found: give a TOML file or one of "
-                        f"{', '.join(builtin_names())}")
+        raise FsidError(f"channel map '{s}' not found: give a TOML file or one of {', '.join(builtin_names())}")
     try:
         doc = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
@@ -346,13 +387,11 @@ def _no_output(rule: ChannelRule) -> str:
     cfg = dict(rule.pwm or {})
     if cfg.get("function") is None:
         return f"no servo output configured for {rule.name}"
-    wanted = [f"{cfg['function']:g}"] + ["/".join(f"{f:g}" for f in m.get("functions", ()))
-                                         for m in cfg.get("mix", ())]
+    wanted = [f"{cfg['function']:g}"] + ["/".join(f"{f:g}" for f in m.get("functions", ())) for m in cfg.get("mix", ())]
     return f"no servo output configured for {rule.name} (no SERVOn_FUNCTION = {' or '.join(wanted)})"
 
 
-def _mixed_outputs(rule: ChannelRule, params: Mapping[str, float]
-                   ) -> tuple[list[int], list[float], list[float]] | None:
+def _mixed_outputs(rule: ChannelRule, params: Mapping[str, float]) -> tuple[list[int], list[float], list[float]] | None:
     """(outputs, functions, weights) of the first of the rule's ``pwm.mix`` entries whose
     every function is assigned to an output (SERVOn_FUNCTION), or None."""
     for mix in dict(rule.pwm or {}).get("mix", ()):
@@ -368,8 +407,9 @@ def _mixed_outputs(rule: ChannelRule, params: Mapping[str, float]
 DEFAULT_TRAVEL_DEG = 30.0
 
 
-def servo_travel(rule: ChannelRule, params: Mapping[str, float],
-                 given: tuple[float, str] | None = None) -> tuple[float, str]:
+def servo_travel(
+    rule: ChannelRule, params: Mapping[str, float], given: tuple[float, str] | None = None
+) -> tuple[float, str]:
     """(deg, where it came from) of a PWM surface channel's deflection at full servo travel:
     ``given`` (deg, origin), else the map's ``travel_deg`` (a number; or a log parameter's
     name, used when the log has it), else DEFAULT_TRAVEL_DEG with origin "assumed"."""
@@ -384,12 +424,13 @@ def servo_travel(rule: ChannelRule, params: Mapping[str, float],
     return DEFAULT_TRAVEL_DEG, "assumed"
 
 
-def _pwm(rule: ChannelRule, pwm: np.ndarray, params: dict, n: int | None,
-         travel_deg: float = DEFAULT_TRAVEL_DEG) -> tuple[np.ndarray, str]:
+def _pwm(
+    rule: ChannelRule, pwm: np.ndarray, params: dict, n: int | None, travel_deg: float = DEFAULT_TRAVEL_DEG
+) -> tuple[np.ndarray, str]:
     """Servo output n's pulses (us) -> deflection (rad) or throttle (0..1), and the note of
     its calibration."""
     cfg = dict(rule.pwm or {})
-    if cfg.get("normalised"):            # a -1..1 surface command (PX4 actuator controls)
+    if cfg.get("normalised"):  # a -1..1 surface command (PX4 actuator controls)
         return pwm * np.radians(travel_deg), ""
     note = ""
     if n is not None:
@@ -400,8 +441,12 @@ def _pwm(rule: ChannelRule, pwm: np.ndarray, params: dict, n: int | None,
         rev = _param(params, cfg.get("reversed", pre + "REVERSED"), 0.0)
         note = f" (SERVO{n}: min {lo:g} trim {tr:g} max {hi:g}{' reversed' if rev else ''})"
     else:
-        lo, hi, tr, rev = (float(cfg.get("min", 1100)), float(cfg.get("max", 1900)),
-                           float(cfg.get("trim", 1500)), float(cfg.get("reversed", 0)))
+        lo, hi, tr, rev = (
+            float(cfg.get("min", 1100)),
+            float(cfg.get("max", 1900)),
+            float(cfg.get("trim", 1500)),
+            float(cfg.get("reversed", 0)),
+        )
     if cfg.get("throttle"):
         x = (pwm - lo) / max(hi - lo, 1e-9)
         return np.clip(x, 0.0, 1.0), note
@@ -465,8 +510,12 @@ def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAV
         vals = (_quat_euler(*comps, rule.component or "phi") + rule.offset) * rule.sign
         if rule.component in ("phi", "psi"):
             vals = (vals + np.pi) % (2 * np.pi) - np.pi
-        return Channel(np.asarray(tabs[0].t[:n], float), vals, CANONICAL_UNITS.get(rule.name, "rad"),
-                       f"{rule.transform}({', '.join(rule.sources)}).{rule.component}")
+        return Channel(
+            np.asarray(tabs[0].t[:n], float),
+            vals,
+            CANONICAL_UNITS.get(rule.name, "rad"),
+            f"{rule.transform}({', '.join(rule.sources)}).{rule.component}",
+        )
     if rule.transform == "product":  # sources[0] x sources[1] (interpolated onto sources[0])
         a = _lookup(raw, rule.sources[0])
         if isinstance(a, str):
@@ -479,14 +528,22 @@ def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAV
             b = f"log parameter {rule.unless_param} says {rule.sources[0]} needs no factor"
         if isinstance(b, str):  # keep the first factor alone and say so
             vals = rule.scaled(va)
-            return Channel(np.asarray(tab.t, float), vals, CANONICAL_UNITS.get(rule.name, rule.unit),
-                           f"{rule.sources[0]} (without {rule.sources[1]}: {b})")
+            return Channel(
+                np.asarray(tab.t, float),
+                vals,
+                CANONICAL_UNITS.get(rule.name, rule.unit),
+                f"{rule.sources[0]} (without {rule.sources[1]}: {b})",
+            )
         f = _onto(tab.t, b, rule.sources[1])
         if isinstance(f, str):
             return f
         vals = rule.scaled(va * f)
-        return Channel(np.asarray(tab.t, float), vals, CANONICAL_UNITS.get(rule.name, rule.unit),
-                       f"{rule.sources[0]} x {rule.sources[1]}")
+        return Channel(
+            np.asarray(tab.t, float),
+            vals,
+            CANONICAL_UNITS.get(rule.name, rule.unit),
+            f"{rule.sources[0]} x {rule.sources[1]}",
+        )
     if rule.transform == "polar":  # speed sources[0] along the course sources[1] [deg]
         if len(rule.sources) != 2 or rule.component not in ("north", "east"):
             return "polar transform needs 2 sources (speed, course in deg) and component north or east"
@@ -498,14 +555,17 @@ def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAV
         if isinstance(b, str):
             return b
         # the course's cosine and sine interpolated (a course through 360 deg stays whole)
-        c, sn = (_onto(tab.t, (b[0], fn(np.radians(b[1]))), rule.sources[1])
-                 for fn in (np.cos, np.sin))
+        c, sn = (_onto(tab.t, (b[0], fn(np.radians(b[1]))), rule.sources[1]) for fn in (np.cos, np.sin))
         if isinstance(c, str):
             return c
         trig = (c if rule.component == "north" else sn) / np.maximum(np.hypot(c, sn), 1e-9)
         vals = rule.scaled(va * trig)
-        return Channel(np.asarray(tab.t, float), vals, CANONICAL_UNITS.get(rule.name, rule.unit),
-                       f"polar({rule.sources[0]}, {rule.sources[1]}).{rule.component}")
+        return Channel(
+            np.asarray(tab.t, float),
+            vals,
+            CANONICAL_UNITS.get(rule.name, rule.unit),
+            f"polar({rule.sources[0]}, {rule.sources[1]}).{rule.component}",
+        )
     reasons = []
     for src in rule.sources_for(raw.params):
         # the servo output whose calibration applies (function or channel of the pwm block)
@@ -545,12 +605,17 @@ def _apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAV
         notes = ""
         msg, fld = _split(src)
         logged = tab.units.get(fld)
-        if logged and unit in UNIT_FACTORS and logged in UNIT_FACTORS and \
-                UNIT_FACTORS[logged] != UNIT_FACTORS[unit] and rule.pwm is None:
-            notes = (f"the log's unit metadata (FMTU) gives {src} in {logged} but the map reads "
-                     f"it as {unit}; check the channel map")
-        return Channel(np.asarray(tab.t, dtype=np.float64), vals,
-                       CANONICAL_UNITS.get(rule.name, rule.unit), src + note, notes)
+        if (
+            logged
+            and unit in UNIT_FACTORS
+            and logged in UNIT_FACTORS
+            and UNIT_FACTORS[logged] != UNIT_FACTORS[unit]
+            and rule.pwm is None
+        ):
+            notes = f"the log's unit metadata (FMTU) gives {src} in {logged} but the map reads it as {unit}; check the channel map"
+        return Channel(
+            np.asarray(tab.t, dtype=np.float64), vals, CANONICAL_UNITS.get(rule.name, rule.unit), src + note, notes
+        )
     return "; ".join(dict.fromkeys(reasons))
 
 
@@ -577,38 +642,55 @@ def _torque_surface(raw: RawLog, rule: ChannelRule, src: str, travel_deg: float)
         return f"no control surface with a torque on {axis} (CA_SV_CS*_TRQ_{axis} all 0)"
     w = trq / np.sum(np.abs(trq))
     used = [(k, wk) for k, wk in zip(ks, w) if wk != 0.0]
-    got = _weighted_sum(raw, [(src.replace("{k}", str(k)), wk, k) for k, wk in used],
-                        lambda k, v: (v * rule.scale + rule.offset, ""))
+    got = _weighted_sum(
+        raw, [(src.replace("{k}", str(k)), wk, k) for k, wk in used], lambda k, v: (v * rule.scale + rule.offset, "")
+    )
     if isinstance(got, str):
         return got
     t0, total, _ = got
     name = src.split(".")[0]
-    return Channel(t0, total * np.radians(travel_deg) * rule.sign,
-                   CANONICAL_UNITS.get(rule.name, "rad"),
-                   f"{name} by CA_SV_CS*_TRQ_{axis}: "
-                   + " ".join(f"{wk:+.3g} x control[{k}]" for k, wk in used))
+    return Channel(
+        t0,
+        total * np.radians(travel_deg) * rule.sign,
+        CANONICAL_UNITS.get(rule.name, "rad"),
+        f"{name} by CA_SV_CS*_TRQ_{axis}: " + " ".join(f"{wk:+.3g} x control[{k}]" for k, wk in used),
+    )
 
 
-def _mixed_surface(raw: RawLog, rule: ChannelRule, src: str, outputs: Sequence[int],
-                   functions: Sequence[float], weights: Sequence[float],
-                   travel_deg: float) -> Channel | str:
+def _mixed_surface(
+    raw: RawLog,
+    rule: ChannelRule,
+    src: str,
+    outputs: Sequence[int],
+    functions: Sequence[float],
+    weights: Sequence[float],
+    travel_deg: float,
+) -> Channel | str:
     """A surface channel from mixed servos (``pwm.mix``): sum of weight x deflection of each
     output, each calibrated with its own SERVOn_MIN/MAX/TRIM/REVERSED and the channel's
     travel, on the first output's time base; then the rule's sign."""
     srcs = [src.split()[0].replace("{n}", str(n)) for n in outputs]
-    got = _weighted_sum(raw, list(zip(srcs, weights, outputs)), lambda n, v: _pwm(
-        rule, v * rule.scale + rule.offset, raw.params, n, travel_deg))
+    got = _weighted_sum(
+        raw,
+        list(zip(srcs, weights, outputs)),
+        lambda n, v: _pwm(rule, v * rule.scale + rule.offset, raw.params, n, travel_deg),
+    )
     if isinstance(got, str):
         return got
     t0, total, notes = got
     fns = "/".join(f"{f:g}" for f in functions)
-    return Channel(t0, total * rule.sign, CANONICAL_UNITS.get(rule.name, "rad"),
-                   f"mix of SERVOn_FUNCTION {fns}: " + " ".join(
-                       f"{w:+g} x {s_}{note}" for s_, w, note in zip(srcs, weights, notes)))
+    return Channel(
+        t0,
+        total * rule.sign,
+        CANONICAL_UNITS.get(rule.name, "rad"),
+        f"mix of SERVOn_FUNCTION {fns}: "
+        + " ".join(f"{w:+g} x {s_}{note}" for s_, w, note in zip(srcs, weights, notes)),
+    )
 
 
-def _weighted_sum(raw: RawLog, terms: Sequence[tuple[str, float, object]], convert
-                  ) -> tuple[np.ndarray, np.ndarray, list[str]] | str:
+def _weighted_sum(
+    raw: RawLog, terms: Sequence[tuple[str, float, object]], convert
+) -> tuple[np.ndarray, np.ndarray, list[str]] | str:
     """(t, sum of weight x values, notes) over ``terms`` (source, weight, key), each
     source's values passed through ``convert(key, values) -> (values, note)``, on the first
     source's time base (the others interpolated onto it); or why a source is missing."""
@@ -641,9 +723,9 @@ def plain_map_toml(fd, name: str, formats: Sequence[str], drop: Sequence[str] = 
     return "\n".join(lines)
 
 
-def apply_map(raw: RawLog, cmap: ChannelMap,
-              servo_travel_deg: Mapping[str, tuple[float, str]] | None = None
-              ) -> tuple[dict[str, Channel], dict[str, str], dict[str, dict]]:
+def apply_map(
+    raw: RawLog, cmap: ChannelMap, servo_travel_deg: Mapping[str, tuple[float, str]] | None = None
+) -> tuple[dict[str, Channel], dict[str, str], dict[str, dict]]:
     """All channels of ``cmap`` that the log can fill, for the others the reason, and for
     the surfaces decoded from servo PWM their deflection at full travel ({"deg", "from"}).
     ``servo_travel_deg``: channel -> (deg, origin) given by the caller (:func:`servo_travel`);
@@ -659,8 +741,9 @@ def apply_map(raw: RawLog, cmap: ChannelMap,
                     rules[f] = ChannelRule(f, [f"{tname}.{f}"], CANONICAL_UNITS[f])
     for name, rule in rules.items():
         surface = rule.pwm is not None and not dict(rule.pwm).get("throttle")
-        deg, origin = (servo_travel(rule, raw.params, (servo_travel_deg or {}).get(name))
-                       if surface else (DEFAULT_TRAVEL_DEG, ""))
+        deg, origin = (
+            servo_travel(rule, raw.params, (servo_travel_deg or {}).get(name)) if surface else (DEFAULT_TRAVEL_DEG, "")
+        )
         got, used = apply_rule(raw, rule, deg), rule
         if isinstance(got, str) and rule.fallback is not None:
             first, alt = got, apply_rule(raw, rule.fallback, deg)
@@ -668,9 +751,18 @@ def apply_map(raw: RawLog, cmap: ChannelMap,
                 got = f"{first}; fallback {', '.join(rule.fallback.sources)}: {alt}"
             else:
                 got, used = alt, rule.fallback
-                got.notes = "; ".join(filter(None, [got.notes, (
-                    f"from the fallback {got.source} ({', '.join(rule.sources)}: {first})"
-                    + (f": {used.derived}" if used.derived else ""))]))
+                got.notes = "; ".join(
+                    filter(
+                        None,
+                        [
+                            got.notes,
+                            (
+                                f"from the fallback {got.source} ({', '.join(rule.sources)}: {first})"
+                                + (f": {used.derived}" if used.derived else "")
+                            ),
+                        ],
+                    )
+                )
         if isinstance(got, str):
             why[name] = got
             continue
@@ -678,9 +770,18 @@ def apply_map(raw: RawLog, cmap: ChannelMap,
         if surface:
             travels[name] = {"deg": deg, "from": origin}
             if origin == "assumed":
-                got.notes = "; ".join(filter(None, [got.notes, (
-                    f"deflection from the servo command with {deg:g} deg at full servo travel assumed "
-                    f"(the control derivatives scale with it): give the aircraft TOML's "
-                    f"[servos] {name}_travel_deg")]))
+                got.notes = "; ".join(
+                    filter(
+                        None,
+                        [
+                            got.notes,
+                            (
+                                f"deflection from the servo command with {deg:g} deg at full servo travel assumed "
+                                f"(the control derivatives scale with it): give the aircraft TOML's "
+                                f"[servos] {name}_travel_deg"
+                            ),
+                        ],
+                    )
+                )
         chans[name] = got
     return chans, why, travels

@@ -13,6 +13,7 @@ The only exception a reader raises for a bad file is :class:`LogReadError` (a
 data is not an error: the data before it is kept and ``FlightData.meta['damage']`` says
 where reading stopped (pass ``strict=True`` to raise instead).
 """
+
 from __future__ import annotations
 
 import os
@@ -22,22 +23,34 @@ from pipeline.readers.base import TIME_BASES, Damage, LogReadError, RawLog, Tabl
 
 __all__ = ["read_log", "read_raw", "detect_format", "LogReadError", "RawLog", "Table", "Damage"]
 
-EXTENSIONS = {".mcap": "mcap", ".bin": "dataflash", ".tlog": "tlog", ".ulg": "ulog",
-              ".csv": "csv", ".txt": "csv", ".dat": "csv"}
+EXTENSIONS = {
+    ".mcap": "mcap",
+    ".bin": "dataflash",
+    ".tlog": "tlog",
+    ".ulg": "ulog",
+    ".csv": "csv",
+    ".txt": "csv",
+    ".dat": "csv",
+}
 
 
 def detect_format(path: str | os.PathLike) -> str:
-    """"mcap" | "dataflash" | "tlog" | "ulog" | "csv" from the content (then the extension)."""
+    """ "mcap" | "dataflash" | "tlog" | "ulog" | "csv" from the content (then the extension)."""
     path = Path(path)
     try:
         with open(path, "rb") as fh:
             head = fh.read(64)
     except OSError as exc:
-        raise LogReadError(f"cannot open {path}: {exc.strerror}; check the path",
-                           path=str(path), offset=None, where="open") from None
+        raise LogReadError(
+            f"cannot open {path}: {exc.strerror}; check the path", path=str(path), offset=None, where="open"
+        ) from None
     if not head:
-        raise LogReadError(f"{path} is empty (0 bytes); nothing to read — check the copy/download",
-                           path=str(path), offset=0, where="byte 0")
+        raise LogReadError(
+            f"{path} is empty (0 bytes); nothing to read — check the copy/download",
+            path=str(path),
+            offset=0,
+            where="byte 0",
+        )
     if head.startswith(b"\x89MCAP"):
         return "mcap"
     if head.startswith(b"ULog"):
@@ -51,8 +64,12 @@ def detect_format(path: str | os.PathLike) -> str:
         return "csv"
     if ext is not None:
         return ext
-    raise LogReadError(f"{path}: unknown log format (first bytes {head[:8].hex()}); supported: "
-                       ".mcap .bin .tlog .ulg .csv", path=str(path), offset=0, where="byte 0")
+    raise LogReadError(
+        f"{path}: unknown log format (first bytes {head[:8].hex()}); supported: .mcap .bin .tlog .ulg .csv",
+        path=str(path),
+        offset=0,
+        where="byte 0",
+    )
 
 
 def _looks_text(head: bytes) -> bool:
@@ -69,28 +86,40 @@ def read_raw(path: str | os.PathLike, fmt: str | None = None, **opts) -> RawLog:
     try:
         if fmt == "dataflash":
             from pipeline.readers.dataflash import read_dataflash
+
             return read_dataflash(path, **opts)
         if fmt == "tlog":
             from pipeline.readers.tlog import read_tlog
+
             return read_tlog(path, **opts)
         if fmt == "ulog":
             from pipeline.readers.ulog import read_ulog
+
             return read_ulog(path, **opts)
         if fmt == "mcap":
             from pipeline.readers.mcap import read_mcap
+
             return read_mcap(path, **opts)
         if fmt == "csv":
             from pipeline.readers.csvlog import read_csv
+
             return read_csv(path, **opts)
     except LogReadError:
         raise
     except MemoryError:
-        raise LogReadError(f"{path}: out of memory while reading ({fmt}); the file header "
-                           "probably claims absurd sizes", path=str(path), where="reading") from None
+        raise LogReadError(
+            f"{path}: out of memory while reading ({fmt}); the file header probably claims absurd sizes",
+            path=str(path),
+            where="reading",
+        ) from None
     except Exception as exc:  # safety net: a damaged file must end in the documented error
-        err = LogReadError(f"{path}: the {fmt} reader could not decode this file "
-                           f"({type(exc).__name__}: {exc}); it is probably damaged — please "
-                           "report it if it opens elsewhere", path=str(path), where="decoding")
+        err = LogReadError(
+            f"{path}: the {fmt} reader could not decode this file "
+            f"({type(exc).__name__}: {exc}); it is probably damaged — please "
+            "report it if it opens elsewhere",
+            path=str(path),
+            where="decoding",
+        )
         err.internal = True
         raise err from exc
     raise LogReadError(f"{path}: no reader for format '{fmt}'", path=str(path), where="dispatch")
@@ -98,6 +127,7 @@ def read_raw(path: str | os.PathLike, fmt: str | None = None, **opts) -> RawLog:
 
 def _builtin() -> list[str]:
     from pipeline.maps import builtin_names
+
     return builtin_names()
 
 
@@ -134,21 +164,34 @@ def read_log(path: str | os.PathLike, map=None, **opts):
     if time_base is not None:
         if time_base not in TIME_BASES.get(fmt, ()):
             choices = "; ".join(f"a .{f} log: {', '.join(c)}" for f, c in TIME_BASES.items())
-            raise LogReadError(f"{path}: time base {time_base!r} does not apply to a {fmt} log; "
-                               f"the time base is chosen for {choices} (leave it out for the "
-                               "default)", path=str(path), where="options")
+            raise LogReadError(
+                f"{path}: time base {time_base!r} does not apply to a {fmt} log; "
+                f"the time base is chosen for {choices} (leave it out for the "
+                "default)",
+                path=str(path),
+                where="options",
+            )
         opts["time_base"] = time_base
     raw = read_raw(path, fmt, **opts)
     map_fmt = raw.info.get("map_hint", raw.format)
-    cmap = load_map(map, raw.format) if map is not None else load_map(map_fmt if map_fmt in
-                                                                       _builtin() else None, raw.format)
+    cmap = (
+        load_map(map, raw.format)
+        if map is not None
+        else load_map(map_fmt if map_fmt in _builtin() else None, raw.format)
+    )
     chans, why, travels = apply_map(raw, cmap, travel)
     meta = {
-        "source": str(path), "format": raw.format, "map": cmap.name,
-        "time_base": raw.time_base, "params": raw.params, "modes": raw.modes,
-        "damage": raw.damage.as_dict() if raw.damage else None, "unmapped": why,
+        "source": str(path),
+        "format": raw.format,
+        "map": cmap.name,
+        "time_base": raw.time_base,
+        "params": raw.params,
+        "modes": raw.modes,
+        "damage": raw.damage.as_dict() if raw.damage else None,
+        "unmapped": why,
         "servo_travel": travels,
-        "info": raw.info, "tables": {k: len(v) for k, v in raw.tables.items()},
+        "info": raw.info,
+        "tables": {k: len(v) for k, v in raw.tables.items()},
     }
     fd = FlightData(chans, meta, [])
     if isinstance(segments, (list, tuple)):

@@ -3,6 +3,7 @@
 Compiled with numba (a project dependency): the walk over record headers is a sequential
 byte loop that numpy cannot vectorise.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -53,6 +54,7 @@ def _walk_nb(buf, lengths):  # pragma: no cover - compiled
     if truncated < 0 and pos < n:
         truncated = pos
     return offs[:k].copy(), types[:k].copy(), first_bad, skipped, truncated
+
 
 @njit(cache=True, nogil=True)
 def _gather_nb(buf, offs, length):  # pragma: no cover - compiled

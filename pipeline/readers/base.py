@@ -3,15 +3,16 @@
 Every reader turns a file into ``dict[str, Table]`` (one table per message type / topic /
 instance) plus metadata; :mod:`pipeline.maps` then turns tables into canonical channels.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from pipeline.errors import FsidError
-
 
 #: the time bases a format's reader offers (its ``time_base``; the first is its default)
 TIME_BASES = {"tlog": ("auto", "boot", "log"), "mcap": ("auto", "header", "log")}
@@ -32,8 +33,9 @@ class LogReadError(FsidError):
         What was decoded before the damage (a ``FlightData`` or raw tables) when any.
     """
 
-    def __init__(self, message: str, *, path: str = "", offset: int | None = None,
-                 where: str = "", partial: Any = None) -> None:
+    def __init__(
+        self, message: str, *, path: str = "", offset: int | None = None, where: str = "", partial: Any = None
+    ) -> None:
         super().__init__(message)
         self.path = path
         self.offset = offset
@@ -42,10 +44,14 @@ class LogReadError(FsidError):
         self.internal = False  # True when raised by the safety net (a reader bug)
 
     @classmethod
-    def cannot_open(cls, path, exc: OSError) -> "LogReadError":
+    def cannot_open(cls, path, exc: OSError) -> LogReadError:
         """The error for a file the operating system will not open or read."""
-        return cls(f"cannot read {path}: {exc.strerror}; check the path and permissions",
-                   path=str(path), offset=0, where="open")
+        return cls(
+            f"cannot read {path}: {exc.strerror}; check the path and permissions",
+            path=str(path),
+            offset=0,
+            where="open",
+        )
 
 
 @dataclass
@@ -64,8 +70,13 @@ class Damage:
     skipped_bytes: int = 0
 
     def as_dict(self) -> dict:
-        return {"offset": int(self.offset), "where": self.where, "message": self.message,
-                "kept_records": int(self.kept), "skipped_bytes": int(self.skipped_bytes)}
+        return {
+            "offset": int(self.offset),
+            "where": self.where,
+            "message": self.message,
+            "kept_records": int(self.kept),
+            "skipped_bytes": int(self.skipped_bytes),
+        }
 
 
 @dataclass

@@ -13,6 +13,7 @@ Damage: bytes that do not start a known record are skipped (resynchronising on t
 header, like DFReader); the first such offset and an incomplete last record are reported
 in ``RawLog.damage``. Everything decoded is kept.
 """
+
 from __future__ import annotations
 
 import os
@@ -26,22 +27,55 @@ from pipeline.readers.base import Damage, LogReadError, RawLog, Table
 
 #: DataFlash format char -> (numpy dtype, multiplier applied by DFReader)
 FORMAT_CHARS: dict[str, tuple[object, float | None]] = {
-    "a": (("<i2", (32,)), None), "b": ("i1", None), "B": ("u1", None), "g": ("<f2", None),
-    "h": ("<i2", None), "H": ("<u2", None), "i": ("<i4", None), "I": ("<u4", None),
-    "f": ("<f4", None), "d": ("<f8", None), "n": ("S4", None), "N": ("S16", None),
-    "Z": ("S64", None), "c": ("<i2", 0.01), "C": ("<u2", 0.01), "e": ("<i4", 0.01),
-    "E": ("<u4", 0.01), "L": ("<i4", 1e-7), "M": ("i1", None), "q": ("<i8", None),
+    "a": (("<i2", (32,)), None),
+    "b": ("i1", None),
+    "B": ("u1", None),
+    "g": ("<f2", None),
+    "h": ("<i2", None),
+    "H": ("<u2", None),
+    "i": ("<i4", None),
+    "I": ("<u4", None),
+    "f": ("<f4", None),
+    "d": ("<f8", None),
+    "n": ("S4", None),
+    "N": ("S16", None),
+    "Z": ("S64", None),
+    "c": ("<i2", 0.01),
+    "C": ("<u2", 0.01),
+    "e": ("<i4", 0.01),
+    "E": ("<u4", 0.01),
+    "L": ("<i4", 1e-7),
+    "M": ("i1", None),
+    "q": ("<i8", None),
     "Q": ("<u8", None),
 }
 SCALED_CHARS = set("cCeEL")
-FMT_DTYPE = np.dtype([("h", "S3"), ("Type", "u1"), ("Length", "u1"), ("Name", "S4"),
-                      ("Format", "S16"), ("Columns", "S64")])
+FMT_DTYPE = np.dtype(
+    [("h", "S3"), ("Type", "u1"), ("Length", "u1"), ("Name", "S4"), ("Format", "S16"), ("Columns", "S64")]
+)
 
 #: ArduPilot UNIT labels -> our unit keys (pipeline.maps.UNIT_FACTORS)
-UNIT_LABELS = {"m/s/s": "m/s^2", "deg/s": "deg/s", "rad/s": "rad/s", "deg": "deg",
-               "degheading": "deg", "rad": "rad", "m/s": "m/s", "m": "m", "Pa": "Pa",
-               "%": "%", "s": "s", "cm": "cm", "cm/s": "cm/s", "mG": "mG", "N": "N",
-               "kg/m^3": "kg/m^3", "cdeg": "cdeg", "us": "us", "ms": "ms"}
+UNIT_LABELS = {
+    "m/s/s": "m/s^2",
+    "deg/s": "deg/s",
+    "rad/s": "rad/s",
+    "deg": "deg",
+    "degheading": "deg",
+    "rad": "rad",
+    "m/s": "m/s",
+    "m": "m",
+    "Pa": "Pa",
+    "%": "%",
+    "s": "s",
+    "cm": "cm",
+    "cm/s": "cm/s",
+    "mG": "mG",
+    "N": "N",
+    "kg/m^3": "kg/m^3",
+    "cdeg": "cdeg",
+    "us": "us",
+    "ms": "ms",
+}
 
 
 @dataclass
@@ -92,8 +126,9 @@ def _load_bytes(path: Path) -> np.ndarray:
     return np.memmap(path, dtype=np.uint8, mode="r")
 
 
-def scan_file(path: str | os.PathLike) -> tuple[np.ndarray, dict[int, MsgFormat], np.ndarray,
-                                                np.ndarray, Damage | None]:
+def scan_file(
+    path: str | os.PathLike,
+) -> tuple[np.ndarray, dict[int, MsgFormat], np.ndarray, np.ndarray, Damage | None]:
     """Scan a DataFlash file: (bytes, formats by id, record offsets, record ids, damage)."""
     path = Path(path)
     try:
@@ -108,8 +143,13 @@ def scan_file(path: str | os.PathLike) -> tuple[np.ndarray, dict[int, MsgFormat]
     if fmt_offs.size:
         recs = _scan.gather(buf, fmt_offs, 89).view(FMT_DTYPE).ravel()
         for r in recs:
-            mf = MsgFormat(int(r["Type"]), _cstr(r["Name"]), int(r["Length"]),
-                           _cstr(r["Format"]), [c for c in _cstr(r["Columns"]).split(",")])
+            mf = MsgFormat(
+                int(r["Type"]),
+                _cstr(r["Name"]),
+                int(r["Length"]),
+                _cstr(r["Format"]),
+                [c for c in _cstr(r["Columns"]).split(",")],
+            )
             mf.dtype = mf.build_dtype()
             formats[mf.id] = mf
     damage = None
@@ -118,18 +158,19 @@ def scan_file(path: str | os.PathLike) -> tuple[np.ndarray, dict[int, MsgFormat]
         cands = [x for x in (first_bad, truncated) if x >= 0]
         at = int(min(cands))
         if truncated >= 0 and at == truncated:
-            what = (f"incomplete last record at byte {at} ({buf.shape[0] - at} of its bytes "
-                    "present); the log was cut short")
+            what = (
+                f"incomplete last record at byte {at} ({buf.shape[0] - at} of its bytes present); the log was cut short"
+            )
         else:
             what = f"unreadable bytes from byte {at}; skipped {skipped} bytes in total"
         kept = int(np.searchsorted(offs, at))
-        damage = Damage(at, f"byte {at}", what, kept, int(skipped + (buf.shape[0] - truncated
-                                                                     if truncated >= 0 else 0)))
+        damage = Damage(
+            at, f"byte {at}", what, kept, int(skipped + (buf.shape[0] - truncated if truncated >= 0 else 0))
+        )
     return buf, formats, offs, ids, damage
 
 
-def message_arrays(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[int, MsgFormat],
-                                                     Damage | None]:
+def message_arrays(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[int, MsgFormat], Damage | None]:
     """Every message type as one structured array (raw field values, no scaling).
 
     Returns (name -> structured array of shape (n,), formats by id, damage). Field values
@@ -149,7 +190,7 @@ def message_arrays(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict
         mf = formats.get(int(mid))
         if mf is None or mf.dtype is None:
             continue
-        o = offs[order[bounds[k]:bounds[k + 1]]]
+        o = offs[order[bounds[k] : bounds[k + 1]]]
         block = _scan.gather(buf, o, mf.length)
         out[mf.name] = block.view(mf.dtype).reshape(-1)
     del order, sorted_ids
@@ -203,11 +244,33 @@ def _apply_fmtu(arrays: dict[str, np.ndarray], formats: dict[int, MsgFormat]) ->
                 mf.mults[col] = mult_of[m[j]]
 
 
-PLANE_MODES = {0: "MANUAL", 1: "CIRCLE", 2: "STABILIZE", 3: "TRAINING", 4: "ACRO", 5: "FBWA",
-               6: "FBWB", 7: "CRUISE", 8: "AUTOTUNE", 10: "AUTO", 11: "RTL", 12: "LOITER",
-               13: "TAKEOFF", 14: "AVOID_ADSB", 15: "GUIDED", 16: "INITIALISING", 17: "QSTABILIZE",
-               18: "QHOVER", 19: "QLOITER", 20: "QLAND", 21: "QRTL", 22: "QAUTOTUNE",
-               23: "QACRO", 24: "THERMAL", 25: "LOITERALTQLAND"}
+PLANE_MODES = {
+    0: "MANUAL",
+    1: "CIRCLE",
+    2: "STABILIZE",
+    3: "TRAINING",
+    4: "ACRO",
+    5: "FBWA",
+    6: "FBWB",
+    7: "CRUISE",
+    8: "AUTOTUNE",
+    10: "AUTO",
+    11: "RTL",
+    12: "LOITER",
+    13: "TAKEOFF",
+    14: "AVOID_ADSB",
+    15: "GUIDED",
+    16: "INITIALISING",
+    17: "QSTABILIZE",
+    18: "QHOVER",
+    19: "QLOITER",
+    20: "QLAND",
+    21: "QRTL",
+    22: "QAUTOTUNE",
+    23: "QACRO",
+    24: "THERMAL",
+    25: "LOITERALTQLAND",
+}
 
 
 def _time_of(arr: np.ndarray) -> np.ndarray:
@@ -248,12 +311,17 @@ def read_dataflash(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
     arrays, formats, damage = message_arrays(path)
     if not arrays:
         where = damage.where if damage else "byte 0"
-        raise LogReadError(f"{path}: no DataFlash records found ({where}); is this an ArduPilot "
-                           ".bin log? Check the file type or pass the right extension",
-                           path=str(path), offset=damage.offset if damage else 0, where=where)
+        raise LogReadError(
+            f"{path}: no DataFlash records found ({where}); is this an ArduPilot "
+            ".bin log? Check the file type or pass the right extension",
+            path=str(path),
+            offset=damage.offset if damage else 0,
+            where=where,
+        )
     if strict and damage is not None:
-        raise LogReadError(f"{path}: {damage.message}", path=str(path), offset=damage.offset,
-                           where=damage.where, partial=arrays)
+        raise LogReadError(
+            f"{path}: {damage.message}", path=str(path), offset=damage.offset, where=damage.where, partial=arrays
+        )
     _apply_fmtu(arrays, formats)
     by_name = {mf.name: mf for mf in formats.values()}
     tables: dict[str, Table] = {}
@@ -266,8 +334,7 @@ def read_dataflash(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
         if inst and inst in arr.dtype.names:
             for i in np.unique(arr[inst]):
                 sel = arr[arr[inst] == i]
-                tables[f"{name}[{int(i)}]"] = _make_table(f"{name}[{int(i)}]", sel, mf,
-                                                          t[arr[inst] == i])
+                tables[f"{name}[{int(i)}]"] = _make_table(f"{name}[{int(i)}]", sel, mf, t[arr[inst] == i])
         else:
             tables[name] = _make_table(name, arr, mf, t)
     params: dict[str, float] = {}
@@ -289,18 +356,28 @@ def read_dataflash(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
         t = _time_of(mode)
         num = mode["ModeNum"] if "ModeNum" in mode.dtype.names else mode["Mode"]
         for ti, n in zip(t, num):
-            name = PLANE_MODES.get(int(n), f"MODE{int(n)}") if "Copter" not in vehicle \
-                else f"MODE{int(n)}"
+            name = PLANE_MODES.get(int(n), f"MODE{int(n)}") if "Copter" not in vehicle else f"MODE{int(n)}"
             if not modes or modes[-1][1] != name:
                 modes.append((float(ti), name))
     if "Copter" in vehicle and modes:
         try:
             from pymavlink import mavutil
+
             mm = mavutil.mode_mapping_acm
             modes = [(t0, mm.get(int(n[4:]), n)) for t0, n in modes]
         except Exception:  # pragma: no cover
             pass
-    info = {"vehicle": vehicle, "message_counts": {k: int(v.shape[0]) for k, v in arrays.items()},
-            "has_fmtu": "FMTU" in arrays}
-    return RawLog(tables, "dataflash", params, modes,
-                  "TimeUS of each record (microseconds since autopilot boot), in s", damage, info)
+    info = {
+        "vehicle": vehicle,
+        "message_counts": {k: int(v.shape[0]) for k, v in arrays.items()},
+        "has_fmtu": "FMTU" in arrays,
+    }
+    return RawLog(
+        tables,
+        "dataflash",
+        params,
+        modes,
+        "TimeUS of each record (microseconds since autopilot boot), in s",
+        damage,
+        info,
+    )

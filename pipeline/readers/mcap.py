@@ -13,6 +13,7 @@ in ``RawLog.info['time_base_by_topic']``.
 Damage: reading stops at the first record that cannot be read; everything before it is
 kept and ``RawLog.damage`` holds the byte offset.
 """
+
 from __future__ import annotations
 
 import json
@@ -82,8 +83,7 @@ def _flatten(obj, prefix: str, out: dict) -> None:
 
 def _stamp(flat: dict) -> float | None:
     if "header.stamp.sec" in flat:
-        return flat["header.stamp.sec"] + flat.get("header.stamp.nanosec", flat.get(
-            "header.stamp.nsec", 0.0)) * 1e-9
+        return flat["header.stamp.sec"] + flat.get("header.stamp.nanosec", flat.get("header.stamp.nsec", 0.0)) * 1e-9
     if "header.stamp.seconds" in flat:  # foxglove-style protobuf
         return flat["header.stamp.seconds"] + flat.get("header.stamp.nanos", 0.0) * 1e-9
     if "timestamp.seconds" in flat:
@@ -95,12 +95,13 @@ def _stamp(flat: dict) -> float | None:
 
 def read_mcap(path: str | os.PathLike, *, strict: bool = False, time_base: str = "auto") -> RawLog:
     """Read an MCAP file into one table per topic (see module docstring)."""
-    from mcap.stream_reader import StreamReader
     from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
 
     if time_base not in TIME_BASES["mcap"]:
-        raise LogReadError(f"time_base must be auto, header or log (got {time_base!r})",
-                           path=str(path), where="options")
+        raise LogReadError(
+            f"time_base must be auto, header or log (got {time_base!r})", path=str(path), where="options"
+        )
     path = Path(path)
     try:
         fh = open(path, "rb")
@@ -173,11 +174,14 @@ def read_mcap(path: str | os.PathLike, *, strict: bool = False, time_base: str =
     finally:
         fh.close()
     if n_msgs == 0 and damage is not None and not channels:
-        raise LogReadError(f"{path}: not a readable MCAP file ({damage.message})", path=str(path),
-                           offset=damage.offset, where=damage.where)
+        raise LogReadError(
+            f"{path}: not a readable MCAP file ({damage.message})",
+            path=str(path),
+            offset=damage.offset,
+            where=damage.where,
+        )
     if strict and damage is not None:
-        raise LogReadError(f"{path}: {damage.message}", path=str(path), offset=damage.offset,
-                           where=damage.where)
+        raise LogReadError(f"{path}: {damage.message}", path=str(path), offset=damage.offset, where=damage.where)
     tables: dict[str, Table] = {}
     tb_by_topic: dict[str, str] = {}
     for topic, tc in cols.items():
@@ -194,21 +198,32 @@ def read_mcap(path: str | os.PathLike, *, strict: bool = False, time_base: str =
             tb_by_topic[topic] = "log_time (no header stamps)"
         else:
             tb_by_topic[topic] = "header stamp" if use_hdr else "log_time"
-        tables[topic] = Table(topic, ht if use_hdr else lt, arrs,
-                              {"__schema__": schema_of.get(topic, ""),
-                               "__encoding__": encoding_of.get(topic, "")})
+        tables[topic] = Table(
+            topic,
+            ht if use_hdr else lt,
+            arrs,
+            {"__schema__": schema_of.get(topic, ""), "__encoding__": encoding_of.get(topic, "")},
+        )
     for topic in undecodable:
         tables.setdefault(topic, Table(topic, np.zeros(0), {}, {"__schema__": schema_of.get(topic, "")}))
     kinds = set(tb_by_topic.values())
-    desc = ("header stamps (message header.stamp / t field), in s" if kinds == {"header stamp"}
-            else "MCAP log_time (ns since 1970), in s" if kinds <= {"log_time", "log_time (no header stamps)"}
-            else "per topic: header stamp where present, else MCAP log_time, in s")
+    desc = (
+        "header stamps (message header.stamp / t field), in s"
+        if kinds == {"header stamp"}
+        else "MCAP log_time (ns since 1970), in s"
+        if kinds <= {"log_time", "log_time (no header stamps)"}
+        else "per topic: header stamp where present, else MCAP log_time, in s"
+    )
     ros = any(e == "cdr" for e in encoding_of.values())
-    own = any(s.startswith("fsid") for s in schema_of.values()) or any(
-        t.startswith("/fsid") for t in tables)
-    info = {"time_base_by_topic": tb_by_topic, "schemas": schema_of, "encodings": encoding_of,
-            "undecodable": undecodable, "message_counts": dict(counts),
-            "map_hint": "fsid_mcap" if own or not ros else "ros2"}
+    own = any(s.startswith("fsid") for s in schema_of.values()) or any(t.startswith("/fsid") for t in tables)
+    info = {
+        "time_base_by_topic": tb_by_topic,
+        "schemas": schema_of,
+        "encodings": encoding_of,
+        "undecodable": undecodable,
+        "message_counts": dict(counts),
+        "map_hint": "fsid_mcap" if own or not ros else "ros2",
+    }
     return RawLog(tables, "mcap", {}, [], desc, damage, info)
 
 
@@ -222,8 +237,10 @@ def _decoder_for(ch, schema):
         return lambda data: json.loads(data)
     if enc == "cdr" and schema is not None:
         from mcap_ros2.decoder import DecoderFactory
+
         return DecoderFactory().decoder_for(enc, schema)
     if enc == "protobuf" and schema is not None:
         from mcap_protobuf.decoder import DecoderFactory
+
         return DecoderFactory().decoder_for(enc, schema)
     return None

@@ -4,32 +4,55 @@
 FMTU/UNIT/MULT optional); ``encode_tlog`` writes a MAVLink .tlog with pymavlink's own
 encoders; ``write_json_mcap`` an MCAP with JSON topics using the mcap Writer.
 """
+
 from __future__ import annotations
 
 import json
 import os
 import struct
-from typing import Iterable, Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from pipeline.readers.dataflash import FORMAT_CHARS
-
-_STRUCT = {"a": "64s", "b": "b", "B": "B", "h": "h", "H": "H", "i": "i", "I": "I", "f": "f",
-           "d": "d", "n": "4s", "N": "16s", "Z": "64s", "c": "h", "C": "H", "e": "i", "E": "I",
-           "L": "i", "M": "b", "q": "q", "Q": "Q", "g": "e"}
+_STRUCT = {
+    "a": "64s",
+    "b": "b",
+    "B": "B",
+    "h": "h",
+    "H": "H",
+    "i": "i",
+    "I": "I",
+    "f": "f",
+    "d": "d",
+    "n": "4s",
+    "N": "16s",
+    "Z": "64s",
+    "c": "h",
+    "C": "H",
+    "e": "i",
+    "E": "I",
+    "L": "i",
+    "M": "b",
+    "q": "q",
+    "Q": "Q",
+    "g": "e",
+}
 
 
 def fmt_record(mid: int, name: str, fmt: str, columns: Sequence[str]) -> bytes:
     """One FMT record (89 bytes) declaring message ``mid``."""
     length = 3 + struct.calcsize("<" + "".join(_STRUCT[c] for c in fmt))
-    return struct.pack("<BBBBB4s16s64s", 0xA3, 0x95, 0x80, mid, length, name.encode(),
-                       fmt.encode(), ",".join(columns).encode())
+    return struct.pack(
+        "<BBBBB4s16s64s", 0xA3, 0x95, 0x80, mid, length, name.encode(), fmt.encode(), ",".join(columns).encode()
+    )
 
 
-def encode_dataflash(messages: dict[str, tuple[int, str, Sequence[str], np.ndarray]],
-                     order: str = "interleave", units: dict[str, tuple[str, str]] | None = None,
-                     params: dict[str, float] | None = None) -> bytes:
+def encode_dataflash(
+    messages: dict[str, tuple[int, str, Sequence[str], np.ndarray]],
+    order: str = "interleave",
+    units: dict[str, tuple[str, str]] | None = None,
+    params: dict[str, float] | None = None,
+) -> bytes:
     """DataFlash bytes.
 
     messages : name -> (id, format chars, columns, rows) where rows is a structured-free
@@ -48,8 +71,7 @@ def encode_dataflash(messages: dict[str, tuple[int, str, Sequence[str], np.ndarr
         out.append(fmt_record(0x41, "UNIT", "QbZ", ["TimeUS", "Id", "Label"]))
         out.append(fmt_record(0x42, "MULT", "Qbd", ["TimeUS", "Id", "Mult"]))
         out.append(fmt_record(0x43, "FMTU", "QBNN", ["TimeUS", "FmtType", "UnitIds", "MultIds"]))
-        for uid, lab in (("s", "s"), ("E", "rad/s"), ("o", "m/s/s"), ("d", "deg"), ("#", "instance"),
-                         ("-", "")):
+        for uid, lab in (("s", "s"), ("E", "rad/s"), ("o", "m/s/s"), ("d", "deg"), ("#", "instance"), ("-", "")):
             out.append(struct.pack("<BBBQb64s", 0xA3, 0x95, 0x41, 0, ord(uid), lab.encode()))
         for mid_, m in (("F", 1e-6), ("0", 1.0), ("-", 0.0), ("B", 1e-2)):
             out.append(struct.pack("<BBBQbd", 0xA3, 0x95, 0x42, 0, ord(mid_), m))
@@ -84,19 +106,23 @@ def demo_dataflash(n: int = 200, seed: int = 0, rate_hz: float = 50.0) -> bytes:
         a = rng.normal([0, 0, -9.81], 0.2, (n, 3))
         imu.append(np.column_stack([t + i, np.full(n, i), g, a]))
     imu_rows = np.concatenate(imu)
-    att = np.column_stack([t, np.round(rng.normal(0, 5, n) * 100), np.round(rng.normal(2, 1, n) * 100),
-                           np.round((np.arange(n) * 0.5 % 360) * 100)])
+    att = np.column_stack(
+        [
+            t,
+            np.round(rng.normal(0, 5, n) * 100),
+            np.round(rng.normal(2, 1, n) * 100),
+            np.round((np.arange(n) * 0.5 % 360) * 100),
+        ]
+    )
     arsp = np.column_stack([t, 20 + rng.normal(0, 0.3, n)])
     aoa = np.column_stack([t, 3 + rng.normal(0, 0.5, n), rng.normal(0, 0.5, n)])
     baro = np.column_stack([t, 100 + rng.normal(0, 0.2, n)])
     pwm = np.clip(1500 + np.round(rng.normal(0, 100, (n, 4))), 1000, 2000)
     rcou = np.column_stack([t, pwm])
     mode = np.array([[t[0], 5, 5], [t[n // 2], 0, 0]])
-    params = {"SERVO1_FUNCTION": 4, "SERVO2_FUNCTION": 19, "SERVO3_FUNCTION": 70,
-              "SERVO4_FUNCTION": 21}
+    params = {"SERVO1_FUNCTION": 4, "SERVO2_FUNCTION": 19, "SERVO3_FUNCTION": 70, "SERVO4_FUNCTION": 21}
     for k in range(1, 5):
-        params.update({f"SERVO{k}_MIN": 1000, f"SERVO{k}_MAX": 2000, f"SERVO{k}_TRIM": 1500,
-                       f"SERVO{k}_REVERSED": 0})
+        params.update({f"SERVO{k}_MIN": 1000, f"SERVO{k}_MAX": 2000, f"SERVO{k}_TRIM": 1500, f"SERVO{k}_REVERSED": 0})
     msgs = {
         "IMU": (0x10, "QBffffff", ["TimeUS", "I", "GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ"], imu_rows),
         "ATT": (0x11, "Qccc", ["TimeUS", "Roll", "Pitch", "Yaw"], att),
@@ -110,8 +136,7 @@ def demo_dataflash(n: int = 200, seed: int = 0, rate_hz: float = 50.0) -> bytes:
     return encode_dataflash(msgs, units=units, params=params)
 
 
-def encode_tlog(n: int = 100, seed: int = 0, rate_hz: float = 20.0, t0: float = 1.7e9,
-                autopilot: int = 3) -> bytes:
+def encode_tlog(n: int = 100, seed: int = 0, rate_hz: float = 20.0, t0: float = 1.7e9, autopilot: int = 3) -> bytes:
     """A small .tlog: HEARTBEAT (mode change half way), ATTITUDE, SCALED_IMU, VFR_HUD,
     SERVO_OUTPUT_RAW, PARAM_VALUE — encoded with pymavlink."""
     os.environ.setdefault("MAVLINK20", "1")
@@ -125,20 +150,24 @@ def encode_tlog(n: int = 100, seed: int = 0, rate_hz: float = 20.0, t0: float = 
         out.extend(struct.pack(">Q", int(round(t * 1e6))))
         out.extend(msg.pack(m))
 
-    for k, (pid, val) in enumerate({"SERVO2_FUNCTION": 19.0, "SERVO2_MIN": 1000.0,
-                                    "SERVO2_MAX": 2000.0, "SERVO2_TRIM": 1500.0}.items()):
+    for k, (pid, val) in enumerate(
+        {"SERVO2_FUNCTION": 19.0, "SERVO2_MIN": 1000.0, "SERVO2_MAX": 2000.0, "SERVO2_TRIM": 1500.0}.items()
+    ):
         put(t0, m.param_value_encode(pid.encode(), val, 9, 4, k))
     for i in range(n):
         t = t0 + i / rate_hz
         if i % 10 == 0:
             mode = 5 if i < n // 2 else 10  # FBWA then AUTO (ArduPlane)
             put(t, m.heartbeat_encode(1, autopilot, 81, mode, 4))
-        put(t, m.attitude_encode(int(i * 1000 / rate_hz), 0.1 * np.sin(i / 10), 0.05, 1.0,
-                                 float(rng.normal(0, 0.1)), 0.02, -0.01))
+        put(
+            t,
+            m.attitude_encode(
+                int(i * 1000 / rate_hz), 0.1 * np.sin(i / 10), 0.05, 1.0, float(rng.normal(0, 0.1)), 0.02, -0.01
+            ),
+        )
         put(t, m.scaled_imu_encode(int(i * 1000 / rate_hz), 10, -20, -1000, 5, -5, 100, 0, 0, 0))
         put(t, m.vfr_hud_encode(20.0 + 0.01 * i, 21.0, 90, 50, 100.0, 0.0))
-        put(t, m.servo_output_raw_encode(int(i * 1e6 / rate_hz), 0, 1500, 1500 + (i % 20) * 10,
-                                         1100, 1500, 0, 0, 0, 0))
+        put(t, m.servo_output_raw_encode(int(i * 1e6 / rate_hz), 0, 1500, 1500 + (i % 20) * 10, 1100, 1500, 0, 0, 0, 0))
     return bytes(out)
 
 
@@ -150,8 +179,9 @@ def write_json_mcap(path: str | os.PathLike, topics: dict[str, Iterable[dict]]) 
         w = Writer(fh)
         w.start()
         for topic, msgs in topics.items():
-            sid = w.register_schema(name=f"fsid{topic.replace('/', '.')}", encoding="jsonschema",
-                                    data=b'{"type": "object"}')
+            sid = w.register_schema(
+                name=f"fsid{topic.replace('/', '.')}", encoding="jsonschema", data=b'{"type": "object"}'
+            )
             cid = w.register_channel(topic=topic, message_encoding="json", schema_id=sid)
             for msg in msgs:
                 ns = int(round(msg.get("t", 0.0) * 1e9))
@@ -172,8 +202,7 @@ def px4_surface_commands(i: int) -> tuple[float, float, float]:
     return 0.1, -0.2 * np.sin(i / 5), 0.3 * np.cos(i / 7)
 
 
-def encode_ulog(n: int = 100, rate_hz: float = 100.0, seed: int = 0,
-                allocation: str | None = None) -> bytes:
+def encode_ulog(n: int = 100, rate_hz: float = 100.0, seed: int = 0, allocation: str | None = None) -> bytes:
     """A minimal valid PX4 ULog: sensor_combined, vehicle_attitude, actuator_controls_0,
     vehicle_status; one parameter and sys_name info. ``allocation`` ("conventional" or
     "elevons", :data:`PX4_SURFACES`): PX4 1.14+ instead - no actuator_controls_0, the
@@ -225,10 +254,10 @@ def encode_ulog(n: int = 100, rate_hz: float = 100.0, seed: int = 0,
         cmd = px4_surface_commands(i)
         if surfaces:
             # the surfaces' commands whose torque is cmd: u = B^+ cmd, B the coefficients
-            B = np.array([trq for _, *trq in surfaces]).T          # (3, n_surfaces)
+            B = np.array([trq for _, *trq in surfaces]).T  # (3, n_surfaces)
             u = np.linalg.pinv(B) @ np.array(cmd)
             out += msg(b"D", struct.pack("<HQ8f", 2, ts, *u, *np.zeros(8 - len(u))))
-            out += msg(b"D", struct.pack("<HQ4f", 4, ts, 0.5, 0, 0, 0))      # motor 1 at half
+            out += msg(b"D", struct.pack("<HQ4f", 4, ts, 0.5, 0, 0, 0))  # motor 1 at half
         else:
             out += msg(b"D", struct.pack("<HQ8f", 2, ts, cmd[0], cmd[1], 0.0, 0.5, 0, 0, 0, 0))
         if i % 20 == 0:
@@ -257,9 +286,12 @@ def encode_px4_tlog(n: int = 60, rate_hz: float = 25.0, t0: float = 1.7e9) -> by
         t = t0 + i / rate_hz
         if i % 5 == 0:
             put(t, m.heartbeat_encode(1, 12, 81, posctl, 4))
-        put(t, m.highres_imu_encode(int(i * 1e6 / rate_hz), 0.5, -0.25, -9.81, 0.01 * i, 0.02, -0.03,
-                                    0, 0, 0, 1013.0, 0, 0, 20.0, 0))
+        put(
+            t,
+            m.highres_imu_encode(
+                int(i * 1e6 / rate_hz), 0.5, -0.25, -9.81, 0.01 * i, 0.02, -0.03, 0, 0, 0, 1013.0, 0, 0, 20.0, 0
+            ),
+        )
         put(t, m.attitude_encode(int(i * 1000 / rate_hz), 0.1, 0.05, 1.0, 0.0, 0.0, 0.0))
-        put(t, m.actuator_control_target_encode(int(i * 1e6 / rate_hz), 0,
-                                                [0.1, -0.2, 0.05, 0.6, 0, 0, 0, 0]))
+        put(t, m.actuator_control_target_encode(int(i * 1e6 / rate_hz), 0, [0.1, -0.2, 0.05, 0.6, 0, 0, 0, 0]))
     return bytes(out)

@@ -12,6 +12,7 @@ Time base: the autopilot's own stamps where messages carry them, on the receive 
 Damage: bytes that are not a valid timestamped packet are skipped until the next one;
 the first such offset is reported in ``RawLog.damage``.
 """
+
 from __future__ import annotations
 
 import os
@@ -32,6 +33,7 @@ _INT_TYPES = {1: "<B", 2: "<b", 3: "<H", 4: "<h", 5: "<I", 6: "<i"}
 def _mavlink():
     os.environ.setdefault("MAVLINK20", "1")
     from pymavlink.dialects.v20 import ardupilotmega as mav
+
     return mav
 
 
@@ -62,8 +64,9 @@ def _flatten(m, fields: list[str]) -> list:
     return out
 
 
-def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | None = None,
-              time_base: str = "auto") -> RawLog:
+def read_tlog(
+    path: str | os.PathLike, *, strict: bool = False, system: int | None = None, time_base: str = "auto"
+) -> RawLog:
     """Read a .tlog into one table per message type (fields flattened: ``controls[0]``).
 
     ``system``: MAVLink system id to keep (default: the autopilot's).
@@ -76,8 +79,9 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
     bursts, so intervals jitter and packets can arrive out of order).
     """
     if time_base not in TIME_BASES["tlog"]:
-        raise LogReadError(f"time_base must be 'auto', 'log' or 'boot' (got {time_base!r})",
-                           path=str(path), where="options")
+        raise LogReadError(
+            f"time_base must be 'auto', 'log' or 'boot' (got {time_base!r})", path=str(path), where="options"
+        )
     path = Path(path)
     try:
         data = path.read_bytes()
@@ -106,7 +110,7 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
             ts = struct.unpack_from(">Q", data, i)[0] * 1e-6
             if prev_ts is None or abs(ts - prev_ts) < 86400 * 7:
                 try:
-                    m = parser.decode(bytearray(data[i + 8:i + 8 + ln]))
+                    m = parser.decode(bytearray(data[i + 8 : i + 8 + ln]))
                     ok = m is not None
                 except Exception:
                     ok = False
@@ -139,13 +143,19 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
         seqs[(sysid, name)].append(kept)
     trailing = n - i if i < n else 0
     if kept == 0:
-        raise LogReadError(f"{path}: no MAVLink packets found (first bytes "
-                           f"{data[:12].hex()}); is this a .tlog?", path=str(path), offset=0,
-                           where="byte 0")
+        raise LogReadError(
+            f"{path}: no MAVLink packets found (first bytes {data[:12].hex()}); is this a .tlog?",
+            path=str(path),
+            offset=0,
+            where="byte 0",
+        )
     # the vehicle: a system sending autopilot heartbeats, else the busiest sender
     autop = [s for _, s, hb, _ in heartbeats if hb.autopilot != 8]
-    sysid = system if system is not None else (Counter(autop).most_common(1)[0][0] if autop
-                                               else senders.most_common(1)[0][0])
+    sysid = (
+        system
+        if system is not None
+        else (Counter(autop).most_common(1)[0][0] if autop else senders.most_common(1)[0][0])
+    )
     hbs = [(t, hb, k) for t, s, hb, k in heartbeats if s == sysid and hb.autopilot != 8]
     autopilot = hbs[0][1].autopilot if hbs else None
     tables: dict[str, Table] = {}
@@ -157,7 +167,7 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
         width = len(r[0])
         cols: dict[str, np.ndarray] = {}
         expanded = proto if len(proto) == width else _expand_names(mav, name, proto, width)
-        same = np.array([len(row) == width for row in r])      # rows of the first's layout
+        same = np.array([len(row) == width for row in r])  # rows of the first's layout
         arr_rows = [row for row, ok in zip(r, same) if ok]
         for c, col in enumerate(expanded):
             vals = [row[c] for row in arr_rows]
@@ -176,6 +186,7 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
     mode_seq: list[int] = []
     try:
         from pymavlink import mavutil
+
         for t, hb, k in hbs:
             name = mavutil.mode_string_v10(hb)
             if not modes or modes[-1][1] != name:
@@ -189,25 +200,36 @@ def read_tlog(path: str | os.PathLike, *, strict: bool = False, system: int | No
         if mapped is not None:
             tb_text, modes = mapped
         elif time_base == "boot":
-            raise LogReadError(f"{path}: no message carries an autopilot stamp (time_boot_ms "
-                               "or time_usec since boot); read it with time_base='log'",
-                               path=str(path), where="time base")
+            raise LogReadError(
+                f"{path}: no message carries an autopilot stamp (time_boot_ms "
+                "or time_usec since boot); read it with time_base='log'",
+                path=str(path),
+                where="time base",
+            )
         else:
             tb_text += ": no autopilot stamps found"
     damage = None
     if first_bad >= 0 or trailing:
         at = first_bad if first_bad >= 0 else i
-        damage = Damage(at, f"byte {at}", f"not a timestamped MAVLink packet from byte {at} "
-                        f"({skipped + trailing} bytes skipped)", kept, skipped + trailing)
+        damage = Damage(
+            at,
+            f"byte {at}",
+            f"not a timestamped MAVLink packet from byte {at} ({skipped + trailing} bytes skipped)",
+            kept,
+            skipped + trailing,
+        )
         if strict:
-            raise LogReadError(f"{path}: {damage.message}", path=str(path), offset=at,
-                               where=damage.where, partial=tables)
+            raise LogReadError(
+                f"{path}: {damage.message}", path=str(path), offset=at, where=damage.where, partial=tables
+            )
     ap = {MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot", MAV_AUTOPILOT_PX4: "px4"}.get(autopilot, "")
-    info = {"system": int(sysid), "autopilot": ap,
-            "message_counts": {k: len(v) for k, v in tables.items()},
-            "param_value_count": int(sum(len(r) for (s, nm), r in rows.items()
-                                         if nm == "PARAM_VALUE" and s == sysid)),
-            "map_hint": "px4_tlog" if ap == "px4" else "mavlink_tlog"}
+    info = {
+        "system": int(sysid),
+        "autopilot": ap,
+        "message_counts": {k: len(v) for k, v in tables.items()},
+        "param_value_count": int(sum(len(r) for (s, nm), r in rows.items() if nm == "PARAM_VALUE" and s == sysid)),
+        "map_hint": "px4_tlog" if ap == "px4" else "mavlink_tlog",
+    }
     return RawLog(tables, "tlog", par, modes, tb_text, damage, info)
 
 

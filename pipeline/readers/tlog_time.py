@@ -26,6 +26,7 @@ taken with the sample; :func:`boot_time_base` puts every message on that clock:
   back in place) and exact repeats (same stamp, same values: a packet heard on two links)
   are dropped.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -42,7 +43,7 @@ STAMP_TOLERANCE_S = 5.0
 LATENCY_BIN_S = 5.0
 #: an unstamped packet is placed by the stamped packets before it if the last arrived at most this much earlier (s)
 NEIGHBOUR_GAP_S = 2.0
-_WRAP32_S = 2 ** 32 * 1e-6
+_WRAP32_S = 2**32 * 1e-6
 
 
 def stamps(tab: Table) -> tuple[np.ndarray, str] | None:
@@ -52,9 +53,9 @@ def stamps(tab: Table) -> tuple[np.ndarray, str] | None:
         b, name = np.asarray(tab["time_boot_ms"], float) * 1e-3, "time_boot_ms"
     elif "time_usec" in tab:
         b, name = np.asarray(tab["time_usec"], float) * 1e-6, "time_usec"
-        if b.size and np.nanmax(b) >= 1e8:          # UNIX time, not since boot
+        if b.size and np.nanmax(b) >= 1e8:  # UNIX time, not since boot
             return None
-        if b.size and np.nanmax(b) < _WRAP32_S:      # maybe a 32-bit counter
+        if b.size and np.nanmax(b) < _WRAP32_S:  # maybe a 32-bit counter
             b = _unwrap32(b, tab.t)
     else:
         return None
@@ -75,7 +76,7 @@ def _unwrap32(b: np.ndarray, recv: np.ndarray) -> np.ndarray:
     for i in jumps:
         wrap = abs((recv[i + 1] - b[i + 1]) - (recv[i] - b[i]) - _WRAP32_S) < STAMP_TOLERANCE_S
         count = count + 1 if wrap else 0
-        add[i + 1:] = count * _WRAP32_S
+        add[i + 1 :] = count * _WRAP32_S
     return b + add
 
 
@@ -95,7 +96,7 @@ class BootClock:
     offsets: list[np.ndarray]
 
     @classmethod
-    def fit(cls, recv: np.ndarray, stamp: np.ndarray) -> "BootClock":
+    def fit(cls, recv: np.ndarray, stamp: np.ndarray) -> BootClock:
         """From every stamped packet's receive time and stamp [s] (1-D, any order)."""
         order = np.argsort(recv, kind="stable")
         r, o = recv[order], (recv - stamp)[order]
@@ -103,8 +104,7 @@ class BootClock:
         r, o = r[keep], o[keep]
         # epochs: the running median of the offset (31 packets) jumps at a reboot
         w = min(31, r.size) | 1
-        med = np.median(np.lib.stride_tricks.sliding_window_view(np.pad(o, w // 2, mode="edge"), w),
-                        axis=1)
+        med = np.median(np.lib.stride_tricks.sliding_window_view(np.pad(o, w // 2, mode="edge"), w), axis=1)
         cut = np.flatnonzero(np.abs(np.diff(med)) > EPOCH_JUMP_S)
         bounds = np.concatenate([[0], cut + 1, [r.size]])
         c, centres, offsets = [], [], []
@@ -139,8 +139,9 @@ class BootClock:
         return t, ok
 
 
-def _after_stamped(seq: np.ndarray, recv: np.ndarray, ref_seq: np.ndarray, ref_t: np.ndarray,
-                   ref_recv: np.ndarray, clock: BootClock) -> np.ndarray:
+def _after_stamped(
+    seq: np.ndarray, recv: np.ndarray, ref_seq: np.ndarray, ref_t: np.ndarray, ref_recv: np.ndarray, clock: BootClock
+) -> np.ndarray:
     """Times [s] of unstamped packets at file positions ``seq`` (n,) received at ``recv``:
     the latest stamp among the trusted stamped packets before them in the file (``ref_seq``
     sorted, their times ``ref_t`` and receive times ``ref_recv``) - a packet is sent after
@@ -160,8 +161,11 @@ def _drop_repeats(t: np.ndarray, columns: dict[str, np.ndarray]) -> np.ndarray:
     before in time and every column is a repeat."""
     same = np.diff(t) == 0
     for col in columns.values():
-        same &= (col[1:] == col[:-1]) if col.dtype != object else np.array(
-            [a == b for a, b in zip(col[1:], col[:-1])], bool)
+        same &= (
+            (col[1:] == col[:-1])
+            if col.dtype != object
+            else np.array([a == b for a, b in zip(col[1:], col[:-1])], bool)
+        )
     return np.concatenate([[True], ~same])
 
 
@@ -175,16 +179,16 @@ def _spread_ties(t: np.ndarray) -> np.ndarray:
     step = float(np.median(d[d > 0])) if np.any(d > 0) else 0.0
     start = np.concatenate([[True], d > 0])
     first = np.flatnonzero(start)
-    run = np.cumsum(start) - 1                         # run index of each sample
+    run = np.cumsum(start) - 1  # run index of each sample
     size = np.diff(np.concatenate([first, [t.size]]))
     nxt = np.concatenate([t[first[1:]], [t[first[-1]] + step]])
     pos = np.arange(t.size) - first[run]
     return t[first[run]] + pos * (nxt[run] - t[first[run]]) / size[run]
 
 
-def boot_time_base(tables: dict[str, Table], seq: dict[str, np.ndarray],
-                   modes: list[tuple[float, str]] = (), mode_seq: list[int] = ()
-                   ) -> tuple[str, list[tuple[float, str]]] | None:
+def boot_time_base(
+    tables: dict[str, Table], seq: dict[str, np.ndarray], modes: list[tuple[float, str]] = (), mode_seq: list[int] = ()
+) -> tuple[str, list[tuple[float, str]]] | None:
     """Put every table of a .tlog on the autopilot's clock (module docstring), in place.
 
     tables : message name -> :class:`Table` with receive times ``t`` [s].
@@ -197,17 +201,23 @@ def boot_time_base(tables: dict[str, Table], seq: dict[str, np.ndarray],
     own = {n: s for n, tab in tables.items() if (s := stamps(tab)) is not None}
     if not own:
         return None
-    clock = BootClock.fit(np.concatenate([tables[n].t for n in own]),
-                          np.concatenate([s[0] for s in own.values()]))
+    clock = BootClock.fit(np.concatenate([tables[n].t for n in own]), np.concatenate([s[0] for s in own.values()]))
     new_t, trusted = {}, {}
     for name in own:
         new_t[name], trusted[name] = clock.from_stamps(tables[name].t, own[name][0])
-    ref_seq, ref_t, ref_recv = (np.concatenate([a[n][trusted[n]] for n in own])
-                                for a in (seq, new_t, {n: tables[n].t for n in own}))
+    ref_seq, ref_t, ref_recv = (
+        np.concatenate([a[n][trusted[n]] for n in own]) for a in (seq, new_t, {n: tables[n].t for n in own})
+    )
     order = np.argsort(ref_seq, kind="stable")
     ref_seq, ref_t, ref_recv = ref_seq[order], ref_t[order], ref_recv[order]
-    place = lambda s, r: _after_stamped(np.asarray(s), np.asarray(r, float),  # noqa: E731
-                                        ref_seq, ref_t, ref_recv, clock)
+    place = lambda s, r: _after_stamped(
+        np.asarray(s),
+        np.asarray(r, float),  # noqa: E731
+        ref_seq,
+        ref_t,
+        ref_recv,
+        clock,
+    )
     untrusted = 0
     for name in tables:
         if name in own:
@@ -229,19 +239,22 @@ def boot_time_base(tables: dict[str, Table], seq: dict[str, np.ndarray],
                 dropped += int((~keep).sum())
                 t, cols = t[keep], {k: v[keep] for k, v in cols.items()}
         tab.t, tab.columns = _spread_ties(t), cols
-    mapped = ([(float(t), m) for t, (_, m) in zip(place(mode_seq, [t for t, _ in modes]), modes)]
-              if len(modes) else [])
+    mapped = [(float(t), m) for t, (_, m) in zip(place(mode_seq, [t for t, _ in modes]), modes)] if len(modes) else []
     fields = sorted({s[1] for s in own.values()})
     text = f"autopilot stamps ({' / '.join(fields)}) + the median receive offset {clock.c[0]:.3f} s"
     if clock.c.size > 1:
-        text += (f"; {clock.c.size - 1} autopilot reboot(s) at receive time "
-                 + ", ".join(f"{e:.1f}" for e in clock.edges) + " s, each boot with its own offset")
+        text += (
+            f"; {clock.c.size - 1} autopilot reboot(s) at receive time "
+            + ", ".join(f"{e:.1f}" for e in clock.edges)
+            + " s, each boot with its own offset"
+        )
     unstamped = sorted(n for n in tables if n not in own)
     if unstamped:
-        text += (f"; messages without stamps ({', '.join(unstamped[:4])}"
-                 f"{' ...' if len(unstamped) > 4 else ''}) at the latest stamp sent before them")
+        text += (
+            f"; messages without stamps ({', '.join(unstamped[:4])}"
+            f"{' ...' if len(unstamped) > 4 else ''}) at the latest stamp sent before them"
+        )
     text += f"; {reordered} samples reordered, {dropped} repeats dropped"
     if untrusted:
-        text += (f"; {untrusted} stamps more than {STAMP_TOLERANCE_S:g} s off the link's "
-                 "timing not trusted")
+        text += f"; {untrusted} stamps more than {STAMP_TOLERANCE_S:g} s off the link's timing not trusted"
     return text, mapped

@@ -5,6 +5,7 @@ fields keep pyulog's names (``gyro_rad[0]``, nested ``previous.x``). Time base: 
 ULog ``timestamp`` field (microseconds since PX4 boot), in s. Parameters: initial values
 updated by later changes. Flight modes: ``vehicle_status.nav_state`` names.
 """
+
 from __future__ import annotations
 
 import os
@@ -14,10 +15,25 @@ import numpy as np
 
 from pipeline.readers.base import Damage, LogReadError, RawLog, Table
 
-NAV_STATES = {0: "MANUAL", 1: "ALTCTL", 2: "POSCTL", 3: "AUTO_MISSION", 4: "AUTO_LOITER",
-              5: "AUTO_RTL", 10: "ACRO", 12: "DESCEND", 13: "TERMINATION", 14: "OFFBOARD",
-              15: "STAB", 17: "AUTO_TAKEOFF", 18: "AUTO_LAND", 19: "AUTO_FOLLOW_TARGET",
-              20: "AUTO_PRECLAND", 21: "ORBIT", 22: "AUTO_VTOL_TAKEOFF"}
+NAV_STATES = {
+    0: "MANUAL",
+    1: "ALTCTL",
+    2: "POSCTL",
+    3: "AUTO_MISSION",
+    4: "AUTO_LOITER",
+    5: "AUTO_RTL",
+    10: "ACRO",
+    12: "DESCEND",
+    13: "TERMINATION",
+    14: "OFFBOARD",
+    15: "STAB",
+    17: "AUTO_TAKEOFF",
+    18: "AUTO_LAND",
+    19: "AUTO_FOLLOW_TARGET",
+    20: "AUTO_PRECLAND",
+    21: "ORBIT",
+    22: "AUTO_VTOL_TAKEOFF",
+}
 
 
 def read_ulog(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
@@ -26,8 +42,9 @@ def read_ulog(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
     try:
         from pyulog import ULog
     except ImportError as exc:  # pragma: no cover
-        raise LogReadError(f"reading .ulg needs pyulog ({exc}); pip install pyulog",
-                           path=str(path), where="import") from None
+        raise LogReadError(
+            f"reading .ulg needs pyulog ({exc}); pip install pyulog", path=str(path), where="import"
+        ) from None
     size = path.stat().st_size if path.exists() else 0
     try:
         with open(path, "rb") as fh:
@@ -35,18 +52,26 @@ def read_ulog(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
     except OSError as exc:
         raise LogReadError.cannot_open(path, exc) from None
     if not head.startswith(b"ULog"):
-        raise LogReadError(f"{path}: not a ULog file (no 'ULog' magic at byte 0); is the "
-                           "extension right?", path=str(path), offset=0, where="byte 0")
+        raise LogReadError(
+            f"{path}: not a ULog file (no 'ULog' magic at byte 0); is the extension right?",
+            path=str(path),
+            offset=0,
+            where="byte 0",
+        )
     import contextlib
     import io
+
     try:
         with contextlib.redirect_stdout(io.StringIO()) as out:
             ulog = ULog(str(path))
         log_text = out.getvalue()
     except Exception as exc:  # pyulog raises many kinds on damaged input
-        raise LogReadError(f"{path}: ULog could not be parsed ({type(exc).__name__}: {exc}); "
-                           "the file is damaged before any data", path=str(path), offset=None,
-                           where="ULog header/definitions") from None
+        raise LogReadError(
+            f"{path}: ULog could not be parsed ({type(exc).__name__}: {exc}); the file is damaged before any data",
+            path=str(path),
+            offset=None,
+            where="ULog header/definitions",
+        ) from None
     tables: dict[str, Table] = {}
     for d in ulog.data_list:
         if "timestamp" not in d.data:
@@ -76,16 +101,22 @@ def read_ulog(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
                 modes.append((float(ti), nm))
     damage = None
     if getattr(ulog, "file_corruption", False) or "corrupt" in log_text.lower():
-        damage = Damage(-1, "ULog data section", "corrupted data in the ULog data section; "
-                        "pyulog skipped to the next valid message", sum(len(t) for t in tables.values()))
+        damage = Damage(
+            -1,
+            "ULog data section",
+            "corrupted data in the ULog data section; pyulog skipped to the next valid message",
+            sum(len(t) for t in tables.values()),
+        )
         if strict:
-            raise LogReadError(f"{path}: {damage.message}", path=str(path), where=damage.where,
-                               partial=tables)
+            raise LogReadError(f"{path}: {damage.message}", path=str(path), where=damage.where, partial=tables)
     if not tables:
-        raise LogReadError(f"{path}: ULog holds no data messages", path=str(path),
-                           where="ULog data section")
-    info = {"sys_name": ulog.msg_info_dict.get("sys_name", ""),
-            "ver_sw": ulog.msg_info_dict.get("ver_sw", ""), "size": size,
-            "message_counts": {k: len(v) for k, v in tables.items()}}
-    return RawLog(tables, "ulog", params, modes,
-                  "ULog timestamp field (microseconds since PX4 boot), in s", damage, info)
+        raise LogReadError(f"{path}: ULog holds no data messages", path=str(path), where="ULog data section")
+    info = {
+        "sys_name": ulog.msg_info_dict.get("sys_name", ""),
+        "ver_sw": ulog.msg_info_dict.get("ver_sw", ""),
+        "size": size,
+        "message_counts": {k: len(v) for k, v in tables.items()},
+    }
+    return RawLog(
+        tables, "ulog", params, modes, "ULog timestamp field (microseconds since PX4 boot), in s", damage, info
+    )

@@ -6,6 +6,7 @@
 
 All writes are atomic (temporary file + rename).
 """
+
 from pipeline.writers.dataflash import write_dataflash
 from pipeline.writers.mcap_json import TOPICS, write_mcap
 from pipeline.writers.truth_json import truth_dict, write_truth_json

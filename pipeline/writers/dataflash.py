@@ -38,17 +38,17 @@ What each message carries (sensor tables of the flight, see ``sim.sensors``):
 * PARM FSID_MAX_THRUST: the thrust model's maximum (N); thrust = throttle * FSID_MAX_THRUST
   along body x (ArduPilot has no thrust message).
 """
+
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 import numpy as np
 import pandas as pd
 
 from pipeline.paths import atomic_write_bytes
-
 from sim.aircraft import SERVO_SPAN_US
 from sim.scenario import THROTTLE_SPAN_US
 
@@ -58,9 +58,27 @@ SERVO_MIN_US, SERVO_MAX_US = SERVO_TRIM_US - SERVO_SPAN_US, SERVO_TRIM_US + SERV
 THROTTLE_MIN_US, THROTTLE_MAX_US = 1000, 1000 + THROTTLE_SPAN_US
 
 RHO0 = 1.225
-_DT = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "f": "<f4", "d": "<f8",
-       "n": "S4", "N": "S16", "Z": "S64", "c": "<i2", "C": "<u2", "e": "<i4", "E": "<u4", "L": "<i4",
-       "M": "u1", "q": "<i8", "Q": "<u8"}
+_DT = {
+    "b": "i1",
+    "B": "u1",
+    "h": "<i2",
+    "H": "<u2",
+    "i": "<i4",
+    "I": "<u4",
+    "f": "<f4",
+    "d": "<f8",
+    "n": "S4",
+    "N": "S16",
+    "Z": "S64",
+    "c": "<i2",
+    "C": "<u2",
+    "e": "<i4",
+    "E": "<u4",
+    "L": "<i4",
+    "M": "u1",
+    "q": "<i8",
+    "Q": "<u8",
+}
 
 
 @dataclass(frozen=True)
@@ -78,33 +96,96 @@ class MsgDef:
         return np.dtype([("h1", "u1"), ("h2", "u1"), ("id", "u1")] + [(c, _DT[f]) for c, f in zip(cols, self.fmt)])
 
 
-MSGS = {m.name: m for m in [
-    MsgDef(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns", "-b---", "-----"),
-    MsgDef(177, "UNIT", "QbZ", "TimeUS,Id,Label", "s--", "F--"),
-    MsgDef(178, "FMTU", "QBNN", "TimeUS,FmtType,UnitIds,MultIds", "s---", "F---"),
-    MsgDef(179, "MULT", "Qbd", "TimeUS,Id,Mult", "s--", "F--"),
-    MsgDef(64, "PARM", "QNff", "TimeUS,Name,Value,Default", "s---", "F---"),
-    MsgDef(91, "MSG", "QZ", "TimeUS,Message", "s-", "F-"),
-    MsgDef(20, "IMU", "QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz",
-           "s#EEEooo--O--zz", "F-000000-----00"),
-    MsgDef(21, "ATT", "QffffffB", "TimeUS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw,AEKF", "sddddhh-", "F000000-"),
-    MsgDef(22, "ARSP", "QBffcffBBffB", "TimeUS,I,Airspeed,DiffPress,Temp,RawPress,Offset,U,H,Hp,TR,Pri",
-           "s#nPOPP-----", "F-00B00-----"),
-    MsgDef(23, "AOA", "Qff", "TimeUS,AOA,SSA", "sdd", "F00"),
-    MsgDef(24, "BARO", "QBffcfIffB", "TimeUS,I,Alt,Press,Temp,CRt,SMS,Offset,GndTemp,Health",
-           "s#mPOnsmO-", "F-00B0C?0-"),
-    MsgDef(25, "RCOU", "QHHHHHHHHHHHHHH", "TimeUS,C1,C2,C3,C4,C5,C6,C7,C8,C9,C10,C11,C12,C13,C14",
-           "sYYYYYYYYYYYYYY", "F--------------"),
-    MsgDef(26, "GPS", "QBBIHBcLLeffffB", "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U",
-           "s#---SmDUmnhnh-", "F----0BGGB000--"),
-    MsgDef(27, "CTUN", "Qccccffffffi", "TimeUS,NavRoll,Roll,NavPitch,Pitch,ThO,RdrOut,ThD,As,SAs,E2T,GU",
-           "sdddd---nn-n", "FBBBB---00-B"),
-    MsgDef(28, "XKF1", "QBccCfffffffccce", "TimeUS,C,Roll,Pitch,Yaw,VN,VE,VD,dPD,PN,PE,PD,GX,GY,GZ,OH",
-           "s#ddhnnnnmmmkkkm", "F-BBB0000000BBBB"),
-]}
-UNITS = {"-": "", "?": "UNKNOWN", "#": "instance", "b": "B", "d": "deg", "D": "deglatitude", "E": "rad/s",
-         "h": "degheading", "k": "deg/s", "m": "m", "n": "m/s", "o": "m/s/s", "O": "degC", "P": "Pa",
-         "s": "s", "S": "satellites", "U": "deglongitude", "Y": "us", "z": "Hz"}
+MSGS = {
+    m.name: m
+    for m in [
+        MsgDef(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns", "-b---", "-----"),
+        MsgDef(177, "UNIT", "QbZ", "TimeUS,Id,Label", "s--", "F--"),
+        MsgDef(178, "FMTU", "QBNN", "TimeUS,FmtType,UnitIds,MultIds", "s---", "F---"),
+        MsgDef(179, "MULT", "Qbd", "TimeUS,Id,Mult", "s--", "F--"),
+        MsgDef(64, "PARM", "QNff", "TimeUS,Name,Value,Default", "s---", "F---"),
+        MsgDef(91, "MSG", "QZ", "TimeUS,Message", "s-", "F-"),
+        MsgDef(
+            20,
+            "IMU",
+            "QBffffffIIfBBHH",
+            "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz",
+            "s#EEEooo--O--zz",
+            "F-000000-----00",
+        ),
+        MsgDef(21, "ATT", "QffffffB", "TimeUS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw,AEKF", "sddddhh-", "F000000-"),
+        MsgDef(
+            22,
+            "ARSP",
+            "QBffcffBBffB",
+            "TimeUS,I,Airspeed,DiffPress,Temp,RawPress,Offset,U,H,Hp,TR,Pri",
+            "s#nPOPP-----",
+            "F-00B00-----",
+        ),
+        MsgDef(23, "AOA", "Qff", "TimeUS,AOA,SSA", "sdd", "F00"),
+        MsgDef(
+            24,
+            "BARO",
+            "QBffcfIffB",
+            "TimeUS,I,Alt,Press,Temp,CRt,SMS,Offset,GndTemp,Health",
+            "s#mPOnsmO-",
+            "F-00B0C?0-",
+        ),
+        MsgDef(
+            25,
+            "RCOU",
+            "QHHHHHHHHHHHHHH",
+            "TimeUS,C1,C2,C3,C4,C5,C6,C7,C8,C9,C10,C11,C12,C13,C14",
+            "sYYYYYYYYYYYYYY",
+            "F--------------",
+        ),
+        MsgDef(
+            26,
+            "GPS",
+            "QBBIHBcLLeffffB",
+            "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U",
+            "s#---SmDUmnhnh-",
+            "F----0BGGB000--",
+        ),
+        MsgDef(
+            27,
+            "CTUN",
+            "Qccccffffffi",
+            "TimeUS,NavRoll,Roll,NavPitch,Pitch,ThO,RdrOut,ThD,As,SAs,E2T,GU",
+            "sdddd---nn-n",
+            "FBBBB---00-B",
+        ),
+        MsgDef(
+            28,
+            "XKF1",
+            "QBccCfffffffccce",
+            "TimeUS,C,Roll,Pitch,Yaw,VN,VE,VD,dPD,PN,PE,PD,GX,GY,GZ,OH",
+            "s#ddhnnnnmmmkkkm",
+            "F-BBB0000000BBBB",
+        ),
+    ]
+}
+UNITS = {
+    "-": "",
+    "?": "UNKNOWN",
+    "#": "instance",
+    "b": "B",
+    "d": "deg",
+    "D": "deglatitude",
+    "E": "rad/s",
+    "h": "degheading",
+    "k": "deg/s",
+    "m": "m",
+    "n": "m/s",
+    "o": "m/s/s",
+    "O": "degC",
+    "P": "Pa",
+    "s": "s",
+    "S": "satellites",
+    "U": "deglongitude",
+    "Y": "us",
+    "z": "Hz",
+}
 MULTS = {"-": 0.0, "?": 1.0, "0": 1.0, "B": 1e-2, "C": 1e-3, "F": 1e-6, "G": 1e-7}
 
 
@@ -134,13 +215,16 @@ def _pwm_of(x: np.ndarray) -> np.ndarray:
 
 #: servo outputs of the tail layouts: output -> SERVOn_FUNCTION (ArduPilot: 4 aileron,
 #: 19 elevator, 21 rudder, 70 throttle, 77/78 elevon left/right, 79/80 V-tail left/right)
-TAILS = {"conventional": {1: 4, 2: 19, 3: 70, 4: 21},
-         "elevons": {1: 77, 2: 78, 3: 70, 4: 21},
-         "vtail": {1: 4, 2: 79, 3: 70, 4: 80}}
+TAILS = {
+    "conventional": {1: 4, 2: 19, 3: 70, 4: 21},
+    "elevons": {1: 77, 2: 78, 3: 70, 4: 21},
+    "vtail": {1: 4, 2: 79, 3: 70, 4: 80},
+}
 
 
-def _surface_outputs(tail: str, de: np.ndarray, da: np.ndarray, dr: np.ndarray,
-                     travel: Mapping[str, float]) -> dict[str, np.ndarray]:
+def _surface_outputs(
+    tail: str, de: np.ndarray, da: np.ndarray, dr: np.ndarray, travel: Mapping[str, float]
+) -> dict[str, np.ndarray]:
     """RCOU C1, C2, C4 pulses of the flown deflections (rad) in the tail layout. ArduPilot's
     normalised commands: elevator e = -de / travel (pitch up, trailing edge up), aileron
     a = da / travel, rudder r = -dr / travel; mixed outputs as its channel_function_mixer
@@ -154,8 +238,7 @@ def _surface_outputs(tail: str, de: np.ndarray, da: np.ndarray, dr: np.ndarray,
     return {"C1": _pwm_of(a), "C2": _pwm_of(e), "C4": _pwm_of(r)}
 
 
-def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas",
-                    tail: str = "conventional") -> None:
+def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas", tail: str = "conventional") -> None:
     """Write ``result`` (a :class:`sim.SimResult`) as an ArduPilot DataFlash log (atomic).
 
     airspeed: "tas" (default) or "eas" (ArduPilot's own semantics) for ARSP.Airspeed.
@@ -169,10 +252,10 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas",
         raise ValueError(f"airspeed must be 'eas' or 'tas', got {airspeed!r}")
     if tail not in TAILS:
         raise ValueError(f"tail must be one of {', '.join(TAILS)}, got {tail!r}")
-    travel = {a: result.aircraft.travel(a) for a in ("de", "da", "dr")}    # rad
+    travel = {a: result.aircraft.travel(a) for a in ("de", "da", "dr")}  # rad
     S, T = result.sensors, result.truth
     tt = T["t"].to_numpy()
-    blocks: list[tuple[np.ndarray, np.ndarray]] = []   # (TimeUS, records)
+    blocks: list[tuple[np.ndarray, np.ndarray]] = []  # (TimeUS, records)
 
     def add(name: str, t: np.ndarray, **cols) -> None:
         us = np.round(np.asarray(t) * 1e6).astype(np.uint64)
@@ -184,8 +267,22 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas",
     imu = S["imu"]
     ti = imu["t"].to_numpy()
     rate = result.meta["sensors"]["imu"]["rate_hz"]
-    add("IMU", ti, I=0, GyrX=imu["p"], GyrY=imu["q"], GyrZ=imu["r"], AccX=imu["ax"], AccY=imu["ay"],
-        AccZ=imu["az"], T=25.0, GH=1, AH=1, GHz=int(round(rate)), AHz=int(round(rate)))
+    add(
+        "IMU",
+        ti,
+        I=0,
+        GyrX=imu["p"],
+        GyrY=imu["q"],
+        GyrZ=imu["r"],
+        AccX=imu["ax"],
+        AccY=imu["ay"],
+        AccZ=imu["az"],
+        T=25.0,
+        GH=1,
+        AH=1,
+        GHz=int(round(rate)),
+        AHz=int(round(rate)),
+    )
     att = S["attitude"]
     ta = att["t"].to_numpy()
     roll, pitch = np.rad2deg(att["phi"].to_numpy()), np.rad2deg(att["theta"].to_numpy())
@@ -196,15 +293,38 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas",
     e2t_d = np.sqrt(RHO0 / truth_at("rho", td))
     v_as = ad["V"].to_numpy() / (e2t_d if airspeed == "eas" else 1.0)
     Tk, p = _isa(truth_at("h", td), truth_at("rho", td))
-    add("ARSP", td, I=0, Airspeed=v_as, DiffPress=0.5 * RHO0 * (ad["V"].to_numpy() / e2t_d) ** 2,
-        Temp=np.round((Tk - 273.15) * 100), RawPress=0.5 * RHO0 * (ad["V"].to_numpy() / e2t_d) ** 2,
-        Offset=0.0, U=1, H=1, Hp=1.0, TR=0.0, Pri=0)
+    add(
+        "ARSP",
+        td,
+        I=0,
+        Airspeed=v_as,
+        DiffPress=0.5 * RHO0 * (ad["V"].to_numpy() / e2t_d) ** 2,
+        Temp=np.round((Tk - 273.15) * 100),
+        RawPress=0.5 * RHO0 * (ad["V"].to_numpy() / e2t_d) ** 2,
+        Offset=0.0,
+        U=1,
+        H=1,
+        Hp=1.0,
+        TR=0.0,
+        Pri=0,
+    )
     add("AOA", td, AOA=np.rad2deg(ad["alpha"].to_numpy()), SSA=np.rad2deg(ad["beta"].to_numpy()))
     ba = S["baro"]
     tb = ba["t"].to_numpy()
     Tk, p = _isa(truth_at("h", tb), truth_at("rho", tb))
-    add("BARO", tb, I=0, Alt=ba["h"], Press=p, Temp=np.round((Tk - 273.15) * 100), CRt=-truth_at("vd", tb),
-        SMS=np.round(tb * 1000).astype(np.uint32), Offset=0.0, GndTemp=15.0, Health=1)
+    add(
+        "BARO",
+        tb,
+        I=0,
+        Alt=ba["h"],
+        Press=p,
+        Temp=np.round((Tk - 273.15) * 100),
+        CRt=-truth_at("vd", tb),
+        SMS=np.round(tb * 1000).astype(np.uint32),
+        Offset=0.0,
+        GndTemp=15.0,
+        Health=1,
+    )
     su = S["surfaces"]
     ts = su["t"].to_numpy()
     lim = result.aircraft.limits
@@ -213,28 +333,71 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas",
     dr = np.clip(truth_at("dr_cmd", ts), -lim["dr"], lim["dr"])
     thr = truth_at("throttle", ts)
     rc = {f"C{k}": 0 for k in range(5, 15)}
-    add("RCOU", ts, **_surface_outputs(tail, de, da, dr, travel),
+    add(
+        "RCOU",
+        ts,
+        **_surface_outputs(tail, de, da, dr, travel),
         C3=np.clip(np.round(THROTTLE_MIN_US + THROTTLE_SPAN_US * thr), THROTTLE_MIN_US, THROTTLE_MAX_US),
-        **rc)
+        **rc,
+    )
     gp = S["gps"]
     tg = gp["t"].to_numpy()
     vn, ve, vd = (gp[c].to_numpy() for c in ("vn", "ve", "vd"))
-    add("GPS", tg, I=0, Status=3, GMS=(np.round(tg * 1000).astype(np.int64) + 345_600_000) % 604_800_000,
-        GWk=2300, NSats=12, HDop=80, Lat=np.round(truth_at("lat", tg) * 1e7), Lng=np.round(truth_at("lon", tg) * 1e7),
-        Alt=np.round(gp["h"].to_numpy() * 100), Spd=np.hypot(vn, ve),
-        GCrs=np.mod(np.rad2deg(np.arctan2(ve, vn)), 360.0), VZ=vd, Yaw=0.0, U=1)
+    add(
+        "GPS",
+        tg,
+        I=0,
+        Status=3,
+        GMS=(np.round(tg * 1000).astype(np.int64) + 345_600_000) % 604_800_000,
+        GWk=2300,
+        NSats=12,
+        HDop=80,
+        Lat=np.round(truth_at("lat", tg) * 1e7),
+        Lng=np.round(truth_at("lon", tg) * 1e7),
+        Alt=np.round(gp["h"].to_numpy() * 100),
+        Spd=np.hypot(vn, ve),
+        GCrs=np.mod(np.rad2deg(np.arctan2(ve, vn)), 360.0),
+        VZ=vd,
+        Yaw=0.0,
+        U=1,
+    )
     pn = np.concatenate([[0.0], np.cumsum(0.5 * (T["vn"].to_numpy()[1:] + T["vn"].to_numpy()[:-1]) * np.diff(tt))])
     pe = np.concatenate([[0.0], np.cumsum(0.5 * (T["ve"].to_numpy()[1:] + T["ve"].to_numpy()[:-1]) * np.diff(tt))])
-    add("XKF1", tg, C=0, Roll=np.round(_at(att, "phi", tg) * 18000 / np.pi),
+    add(
+        "XKF1",
+        tg,
+        C=0,
+        Roll=np.round(_at(att, "phi", tg) * 18000 / np.pi),
         Pitch=np.round(_at(att, "theta", tg) * 18000 / np.pi),
-        Yaw=np.round(np.mod(np.rad2deg(np.unwrap(np.interp(tg, ta, np.unwrap(att["psi"].to_numpy())))), 360.0) * 100) % 36000,
-        VN=vn, VE=ve, VD=vd, dPD=vd, PN=np.interp(tg, tt, pn), PE=np.interp(tg, tt, pe),
-        PD=-(gp["h"].to_numpy() - result.trim["h"]), GX=0, GY=0, GZ=0, OH=0)
+        Yaw=np.round(np.mod(np.rad2deg(np.unwrap(np.interp(tg, ta, np.unwrap(att["psi"].to_numpy())))), 360.0) * 100)
+        % 36000,
+        VN=vn,
+        VE=ve,
+        VD=vd,
+        dPD=vd,
+        PN=np.interp(tg, tt, pn),
+        PE=np.interp(tg, tt, pe),
+        PD=-(gp["h"].to_numpy() - result.trim["h"]),
+        GX=0,
+        GY=0,
+        GZ=0,
+        OH=0,
+    )
     e2t_a = np.sqrt(RHO0 / truth_at("rho", ta))
     eas_a = np.interp(ta, td, ad["V"].to_numpy()) / e2t_a
-    add("CTUN", ta, Roll=np.round(roll * 100), Pitch=np.round(pitch * 100),
-        ThO=100 * truth_at("throttle", ta), RdrOut=-4500 * truth_at("dr_cmd", ta) / travel["dr"],
-        ThD=100 * truth_at("throttle", ta), As=eas_a, SAs=eas_a, E2T=e2t_a, GU=0)
+    add(
+        "CTUN",
+        ta,
+        Roll=np.round(roll * 100),
+        Pitch=np.round(pitch * 100),
+        ThO=100 * truth_at("throttle", ta),
+        RdrOut=-4500 * truth_at("dr_cmd", ta) / travel["dr"],
+        ThD=100 * truth_at("throttle", ta),
+        As=eas_a,
+        SAs=eas_a,
+        E2T=e2t_a,
+        GU=0,
+    )
 
     head = _header(result, travel, airspeed, tail)
     atomic_write_bytes(path, head + _interleave(blocks))
@@ -250,7 +413,7 @@ def _interleave(blocks: list[tuple[np.ndarray, np.ndarray]]) -> bytes:
     which, index = which[order], index[order]
     size = np.array([b[1].dtype.itemsize for b in blocks], dtype=np.int64)
     length = size[which]
-    start = np.cumsum(length) - length              # byte offset of each record in the body
+    start = np.cumsum(length) - length  # byte offset of each record in the body
     body = np.empty(int(length.sum()), dtype=np.uint8)
     for i, (_, rec) in enumerate(blocks):
         mine = which == i
@@ -263,35 +426,60 @@ def _header(result, travel: dict[str, float], airspeed: str, tail: str = "conven
     out = []
     for m in MSGS.values():
         length = m.dtype.itemsize
-        out.append(_records("FMT", 1, Type=m.id, Length=length, Name=m.name.encode(), Format=m.fmt.encode(),
-                            Columns=m.labels.encode()).tobytes())
+        out.append(
+            _records(
+                "FMT",
+                1,
+                Type=m.id,
+                Length=length,
+                Name=m.name.encode(),
+                Format=m.fmt.encode(),
+                Columns=m.labels.encode(),
+            ).tobytes()
+        )
     for uid, lab in UNITS.items():
         out.append(_records("UNIT", 1, TimeUS=0, Id=ord(uid), Label=lab.encode()).tobytes())
     for mid, mult in MULTS.items():
         out.append(_records("MULT", 1, TimeUS=0, Id=ord(mid), Mult=mult).tobytes())
     for m in MSGS.values():
-        out.append(_records("FMTU", 1, TimeUS=0, FmtType=m.id, UnitIds=m.units.encode(),
-                            MultIds=m.mults.encode()).tobytes())
+        out.append(
+            _records("FMTU", 1, TimeUS=0, FmtType=m.id, UnitIds=m.units.encode(), MultIds=m.mults.encode()).tobytes()
+        )
     params = {f"SERVO{k}_FUNCTION": fn for k, fn in TAILS[tail].items()}
     for k in (1, 2, 4):
-        params.update({f"SERVO{k}_MIN": SERVO_MIN_US, f"SERVO{k}_MAX": SERVO_MAX_US,
-                       f"SERVO{k}_TRIM": SERVO_TRIM_US, f"SERVO{k}_REVERSED": 0})
-    params.update({"SERVO3_MIN": THROTTLE_MIN_US, "SERVO3_MAX": THROTTLE_MAX_US,
-                   "SERVO3_TRIM": THROTTLE_MIN_US, "SERVO3_REVERSED": 0,
-                   **{f"FSID_TRAVEL_{a.upper()}": float(np.rad2deg(v)) for a, v in travel.items()},
-                   "FSID_MAX_THRUST": result.aircraft.max_thrust,
-                   "FSID_ARSP_TAS": 1.0 if airspeed == "tas" else 0.0, "AHRS_EKF_TYPE": 3})
+        params.update(
+            {
+                f"SERVO{k}_MIN": SERVO_MIN_US,
+                f"SERVO{k}_MAX": SERVO_MAX_US,
+                f"SERVO{k}_TRIM": SERVO_TRIM_US,
+                f"SERVO{k}_REVERSED": 0,
+            }
+        )
+    params.update(
+        {
+            "SERVO3_MIN": THROTTLE_MIN_US,
+            "SERVO3_MAX": THROTTLE_MAX_US,
+            "SERVO3_TRIM": THROTTLE_MIN_US,
+            "SERVO3_REVERSED": 0,
+            **{f"FSID_TRAVEL_{a.upper()}": float(np.rad2deg(v)) for a, v in travel.items()},
+            "FSID_MAX_THRUST": result.aircraft.max_thrust,
+            "FSID_ARSP_TAS": 1.0 if airspeed == "tas" else 0.0,
+            "AHRS_EKF_TYPE": 3,
+        }
+    )
     imu = getattr(result.scenario, "sensors", {}).get("imu")
-    if imu is not None:     # ArduPilot's IMU position from the CG (body axes, m)
+    if imu is not None:  # ArduPilot's IMU position from the CG (body axes, m)
         params.update(zip(("INS_POS1_X", "INS_POS1_Y", "INS_POS1_Z"), (float(v) for v in imu.position)))
     for k, v in params.items():
         out.append(_records("PARM", 1, TimeUS=0, Name=k.encode(), Value=float(v), Default=float(v)).tobytes())
-    notes = [f"fsid sim: scenario {result.scenario.name} seed {result.meta['seed']}",
-             f"fsid sim: aircraft {result.aircraft.name}",
-             "fsid sim: servo travel (deg at PWM MAX-TRIM) " + " ".join(
-                 f"{a} {np.rad2deg(v):.4g}" for a, v in travel.items()),
-             f"fsid sim: ARSP.Airspeed is {airspeed.upper()}; TAS = EAS * CTUN.E2T",
-             "fsid sim: thrust = throttle * FSID_MAX_THRUST (N) along body x"]
+    notes = [
+        f"fsid sim: scenario {result.scenario.name} seed {result.meta['seed']}",
+        f"fsid sim: aircraft {result.aircraft.name}",
+        "fsid sim: servo travel (deg at PWM MAX-TRIM) "
+        + " ".join(f"{a} {np.rad2deg(v):.4g}" for a, v in travel.items()),
+        f"fsid sim: ARSP.Airspeed is {airspeed.upper()}; TAS = EAS * CTUN.E2T",
+        "fsid sim: thrust = throttle * FSID_MAX_THRUST (N) along body x",
+    ]
     for n in notes:
         out.append(_records("MSG", 1, TimeUS=0, Message=n.encode()[:64]).tobytes())
     return b"".join(out)

@@ -25,6 +25,7 @@ Python call chain per message was most of the writer's time): the JSON of each t
 formatted at once and the message records, chunks and message indexes are assembled in
 batches; the other records are encoded by ``mcap.records``.
 """
+
 from __future__ import annotations
 
 import json
@@ -61,8 +62,7 @@ CHUNK_SIZE = 1024 * 1024
 _MAGIC = b"\x89MCAP0\r\n"
 #: Message record up to its data: opcode, record length, channel id, sequence, log and
 #: publish time (little-endian, packed: 31 bytes)
-_MSG_HEAD = np.dtype([("op", "u1"), ("len", "<u8"), ("channel", "<u2"), ("seq", "<u4"),
-                      ("log", "<u8"), ("pub", "<u8")])
+_MSG_HEAD = np.dtype([("op", "u1"), ("len", "<u8"), ("channel", "<u2"), ("seq", "<u4"), ("log", "<u8"), ("pub", "<u8")])
 _OP_MESSAGE, _OP_MESSAGE_INDEX = 0x05, 0x07
 _INDEX_ENTRY = np.dtype([("t", "<u8"), ("offset", "<u8")])
 
@@ -76,14 +76,20 @@ def _dumps(obj) -> bytes:
 def _schema(title: str, fields: list[str], units: dict[str, str], nested: str | None = None) -> bytes:
     props = {f: {"type": "number", "description": units.get(f, "")} for f in fields}
     if nested:
-        body = {"t": {"type": "number", "description": "s"},
-                nested: {"type": "object", "properties": props}}
+        body = {"t": {"type": "number", "description": "s"}, nested: {"type": "object", "properties": props}}
         req = ["t", nested]
     else:
         body = props
         req = fields
-    return json.dumps({"$schema": "https://json-schema.org/draft/2020-12/schema", "title": title,
-                       "type": "object", "properties": body, "required": req}).encode()
+    return json.dumps(
+        {
+            "$schema": "https://json-schema.org/draft/2020-12/schema",
+            "title": title,
+            "type": "object",
+            "properties": body,
+            "required": req,
+        }
+    ).encode()
 
 
 def _keys(cols) -> list[bytes]:
@@ -118,6 +124,7 @@ def _lines(df: pd.DataFrame) -> list[bytes]:
 
 def _encode(*records) -> bytes:
     from mcap.data_stream import RecordBuilder
+
     b = RecordBuilder()
     for r in records:
         r.write(b)
@@ -129,6 +136,7 @@ def _compressor(compression: str):
     if compression == "none":
         return "", None
     from mcap.exceptions import UnsupportedCompressionError
+
     if compression == "lz4":
         try:
             import lz4.frame
@@ -142,23 +150,45 @@ def _compressor(compression: str):
     return "zstd", zstandard.compress
 
 
-def _write_file(fh, channels: list[tuple[str, bytes, str, dict[str, str]]], chan: np.ndarray,
-                log_ns: np.ndarray, seq: np.ndarray, data: list[bytes], compression: str,
-                metadata: tuple[str, dict[str, str]], library: str) -> None:
+def _write_file(
+    fh,
+    channels: list[tuple[str, bytes, str, dict[str, str]]],
+    chan: np.ndarray,
+    log_ns: np.ndarray,
+    seq: np.ndarray,
+    data: list[bytes],
+    compression: str,
+    metadata: tuple[str, dict[str, str]],
+    library: str,
+) -> None:
     """Write an MCAP file as mcap.writer.Writer(fh, compression=...) does for: start(library),
     per channel i register_schema (title, "jsonschema", schema) then register_channel (topic,
     "json", metadata), add_message for every message in the given order, add_metadata,
     finish(). channels: (title, schema bytes, topic, channel metadata); chan (channel ids
     1..), log_ns (= publish time), seq, data: the messages in file order."""
-    from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, Metadata, MetadataIndex,
-                              Schema, Statistics, SummaryOffset)
     from mcap.opcode import Opcode
+    from mcap.records import (
+        Channel,
+        Chunk,
+        ChunkIndex,
+        DataEnd,
+        Footer,
+        Header,
+        Metadata,
+        MetadataIndex,
+        Schema,
+        Statistics,
+        SummaryOffset,
+    )
 
     comp_name, compress = _compressor(compression)
-    schemas = [Schema(id=i + 1, name=title, encoding="jsonschema", data=sch)
-               for i, (title, sch, _, _) in enumerate(channels)]
-    chans = [Channel(id=i + 1, topic=topic, message_encoding="json", schema_id=i + 1, metadata=meta)
-             for i, (_, _, topic, meta) in enumerate(channels)]
+    schemas = [
+        Schema(id=i + 1, name=title, encoding="jsonschema", data=sch) for i, (title, sch, _, _) in enumerate(channels)
+    ]
+    chans = [
+        Channel(id=i + 1, topic=topic, message_encoding="json", schema_id=i + 1, metadata=meta)
+        for i, (_, _, topic, meta) in enumerate(channels)
+    ]
     # a chunk opens with the schema and channel records when they were registered (the first)
     opening = _encode(*(r for pair in zip(schemas, chans) for r in pair))
 
@@ -172,9 +202,9 @@ def _write_file(fh, channels: list[tuple[str, bytes, str, dict[str, str]]], chan
     head["log"] = log_ns
     head["pub"] = log_ns
     records: list[bytes] = [b""] * (2 * n)
-    records[0::2] = head.view(f"V{_MSG_HEAD.itemsize}").tolist()     # one bytes object per header
+    records[0::2] = head.view(f"V{_MSG_HEAD.itemsize}").tolist()  # one bytes object per header
     records[1::2] = data
-    end = np.cumsum(size)                      # bytes of message records up to and including each
+    end = np.cumsum(size)  # bytes of message records up to and including each
     start = end - size
 
     out: list[bytes] = [_MAGIC, _encode(Header(profile="", library=library))]
@@ -183,35 +213,49 @@ def _write_file(fh, channels: list[tuple[str, bytes, str, dict[str, str]]], chan
 
     def close_chunk(a: int, b: int, base: bytes) -> None:
         nonlocal pos
-        body = base + b"".join(records[2 * a:2 * b])
+        body = base + b"".join(records[2 * a : 2 * b])
         packed = compress(body) if compress else body
         t = log_ns[a:b]
-        chunk = _encode(Chunk(compression=comp_name, data=packed, message_start_time=int(t.min()),
-                              message_end_time=max(0, int(t.max())), uncompressed_crc=zlib.crc32(body),
-                              uncompressed_size=len(body)))
+        chunk = _encode(
+            Chunk(
+                compression=comp_name,
+                data=packed,
+                message_start_time=int(t.min()),
+                message_end_time=max(0, int(t.max())),
+                uncompressed_crc=zlib.crc32(body),
+                uncompressed_size=len(body),
+            )
+        )
         chunk_start = pos
         out.append(chunk)
         pos += len(chunk)
         c = chan[a:b]
-        at = len(base) + start[a:b] - start[a]         # offset of each message in the chunk
+        at = len(base) + start[a:b] - start[a]  # offset of each message in the chunk
         ids, first = np.unique(c, return_index=True)
         offsets: dict[int, int] = {}
         index_len = 0
-        for cid in ids[np.argsort(first)].tolist():    # channels in order of first message
+        for cid in ids[np.argsort(first)].tolist():  # channels in order of first message
             mask = c == cid
             entries = np.empty(int(mask.sum()), dtype=_INDEX_ENTRY)
             entries["t"], entries["offset"] = t[mask], at[mask]
-            rec = (struct.pack("<BQHI", _OP_MESSAGE_INDEX, 6 + entries.nbytes, cid, entries.nbytes)
-                   + entries.tobytes())
+            rec = struct.pack("<BQHI", _OP_MESSAGE_INDEX, 6 + entries.nbytes, cid, entries.nbytes) + entries.tobytes()
             offsets[cid] = pos + index_len
             out.append(rec)
             index_len += len(rec)
         pos += index_len
-        chunk_indexes.append(ChunkIndex(message_start_time=int(t.min()), message_end_time=max(0, int(t.max())),
-                                        chunk_start_offset=chunk_start, chunk_length=len(chunk),
-                                        message_index_offsets=offsets, message_index_length=index_len,
-                                        compression=comp_name, compressed_size=len(packed),
-                                        uncompressed_size=len(body)))
+        chunk_indexes.append(
+            ChunkIndex(
+                message_start_time=int(t.min()),
+                message_end_time=max(0, int(t.max())),
+                chunk_start_offset=chunk_start,
+                chunk_length=len(chunk),
+                message_index_offsets=offsets,
+                message_index_length=index_len,
+                compression=comp_name,
+                compressed_size=len(packed),
+                uncompressed_size=len(body),
+            )
+        )
 
     # chunks close once they exceed CHUNK_SIZE (after the message that crossed it); the last
     # open one closes at the end, after the metadata record
@@ -236,14 +280,26 @@ def _write_file(fh, channels: list[tuple[str, bytes, str, dict[str, str]]], chan
     if n:
         ids, first, cnt = np.unique(chan, return_index=True, return_counts=True)
         counts = {int(ids[i]): int(cnt[i]) for i in np.argsort(first)}
-    stats = Statistics(message_count=n, schema_count=len(schemas), channel_count=len(chans), attachment_count=0,
-                       metadata_count=1, chunk_count=len(chunk_indexes),
-                       message_start_time=int(log_ns.min()) if n else 0,
-                       message_end_time=max(0, int(log_ns.max())) if n else 0, channel_message_counts=counts)
+    stats = Statistics(
+        message_count=n,
+        schema_count=len(schemas),
+        channel_count=len(chans),
+        attachment_count=0,
+        metadata_count=1,
+        chunk_count=len(chunk_indexes),
+        message_start_time=int(log_ns.min()) if n else 0,
+        message_end_time=max(0, int(log_ns.max())) if n else 0,
+        channel_message_counts=counts,
+    )
     summary_start = pos
-    groups = [(Opcode.SCHEMA, schemas), (Opcode.CHANNEL, chans), (Opcode.STATISTICS, [stats]),
-              (Opcode.CHUNK_INDEX, chunk_indexes), (Opcode.ATTACHMENT_INDEX, []),
-              (Opcode.METADATA_INDEX, [meta_index])]
+    groups = [
+        (Opcode.SCHEMA, schemas),
+        (Opcode.CHANNEL, chans),
+        (Opcode.STATISTICS, [stats]),
+        (Opcode.CHUNK_INDEX, chunk_indexes),
+        (Opcode.ATTACHMENT_INDEX, []),
+        (Opcode.METADATA_INDEX, [meta_index]),
+    ]
     summary: list[bytes] = []
     offsets_rec = []
     at = summary_start
@@ -255,15 +311,18 @@ def _write_file(fh, channels: list[tuple[str, bytes, str, dict[str, str]]], chan
     summary_offset_start = at
     summary.append(_encode(*offsets_rec))
     summary_data = b"".join(summary)
-    crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 8 + 8 + 4, summary_start, summary_offset_start),
-                     zlib.crc32(summary_data))
-    out += [summary_data, _encode(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start,
-                                         summary_crc=crc)), _MAGIC]
+    crc = zlib.crc32(
+        struct.pack("<BQQQ", Opcode.FOOTER, 8 + 8 + 4, summary_start, summary_offset_start), zlib.crc32(summary_data)
+    )
+    out += [
+        summary_data,
+        _encode(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc)),
+        _MAGIC,
+    ]
     fh.write(b"".join(out))
 
 
-def write_mcap(path: str | os.PathLike, result, truth_rate_hz: float | None = 50.0,
-               compression: str = "lz4") -> None:
+def write_mcap(path: str | os.PathLike, result, truth_rate_hz: float | None = 50.0, compression: str = "lz4") -> None:
     """Write ``result`` (a :class:`sim.SimResult`) as an MCAP file at ``path`` (atomic).
 
     truth_rate_hz: rate of the /truth and /controls topics (Hz, rounded to a decimation
@@ -286,26 +345,49 @@ def write_mcap(path: str | os.PathLike, result, truth_rate_hz: float | None = 50
     for name, df in result.sensors.items():
         spec = result.meta["sensors"][name]
         units = {"t": "s", **dict(zip(spec["channels"], spec["units"]))}
-        streams.append((f"/sensors/{name}", f"fsid.sensors.{name}", units, spec["rate_hz"],
-                        df["t"].to_numpy(), _lines(df), None))
-    ctrl = pd.DataFrame({"t": truth["t"], "de_cmd": truth["de_cmd"], "da_cmd": truth["da_cmd"],
-                         "dr_cmd": truth["dr_cmd"], "throttle": truth["throttle"], "thrust": truth["thrust"]})
-    streams.append(("/controls", "fsid.controls", {"t": "s", "de_cmd": "rad", "da_cmd": "rad", "dr_cmd": "rad",
-                                                    "throttle": "-", "thrust": "N"}, out_rate,
-                    ctrl["t"].to_numpy(), _lines(ctrl), None))
+        streams.append(
+            (f"/sensors/{name}", f"fsid.sensors.{name}", units, spec["rate_hz"], df["t"].to_numpy(), _lines(df), None)
+        )
+    ctrl = pd.DataFrame(
+        {
+            "t": truth["t"],
+            "de_cmd": truth["de_cmd"],
+            "da_cmd": truth["da_cmd"],
+            "dr_cmd": truth["dr_cmd"],
+            "throttle": truth["throttle"],
+            "thrust": truth["thrust"],
+        }
+    )
+    streams.append(
+        (
+            "/controls",
+            "fsid.controls",
+            {"t": "s", "de_cmd": "rad", "da_cmd": "rad", "dr_cmd": "rad", "throttle": "-", "thrust": "N"},
+            out_rate,
+            ctrl["t"].to_numpy(),
+            _lines(ctrl),
+            None,
+        )
+    )
     # {"t": t, "truth": {<every truth column, t first>}}: t written twice, as one table
     tt = truth["t"].to_numpy()
     keys = _keys(truth.columns)
-    tr_msgs = _json_rows(np.column_stack([tt, truth.to_numpy(dtype=np.float64)]),
-                         [b'{"t":', b',"truth":' + keys[0], *keys[1:]], b"}}")
-    streams.append(("/truth", "fsid.truth", {c: units_truth.get(c, "") for c in truth.columns},
-                    out_rate, tt, tr_msgs, "truth"))
+    tr_msgs = _json_rows(
+        np.column_stack([tt, truth.to_numpy(dtype=np.float64)]), [b'{"t":', b',"truth":' + keys[0], *keys[1:]], b"}}"
+    )
+    streams.append(
+        ("/truth", "fsid.truth", {c: units_truth.get(c, "") for c in truth.columns}, out_rate, tt, tr_msgs, "truth")
+    )
 
     channels = []
     for topic, title, units, rate, _, _, nested in streams:
         fields = [c for c in units if c != "t"] if nested else list(units)
-        meta = {"units": json.dumps(units), "rate_hz": repr(float(rate)), "frame": "body FRD, NED",
-                "description": TOPICS.get(topic, "")}
+        meta = {
+            "units": json.dumps(units),
+            "rate_hz": repr(float(rate)),
+            "frame": "body FRD, NED",
+            "description": TOPICS.get(topic, ""),
+        }
         channels.append((title, _schema(title, fields, units, nested), topic, meta))
     # every message in time order (ties: in stream order), numbered per channel
     times = np.concatenate([s[4] for s in streams])
@@ -319,7 +401,11 @@ def write_mcap(path: str | os.PathLike, result, truth_rate_hz: float | None = 50
         seq[mine] = np.arange(np.count_nonzero(mine))
     payloads = list(chain.from_iterable(s[5] for s in streams))
     data = list(itemgetter(*order.tolist())(payloads)) if len(order) > 1 else [payloads[k] for k in order]
-    info = {"scenario": result.scenario.name, "seed": str(result.meta["seed"]),
-            "aircraft": result.aircraft.name, "maneuvers": json.dumps(result.maneuvers)}
+    info = {
+        "scenario": result.scenario.name,
+        "seed": str(result.meta["seed"]),
+        "aircraft": result.aircraft.name,
+        "maneuvers": json.dumps(result.maneuvers),
+    }
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         _write_file(fh, channels, chan, ns, seq, data, compression, ("fsid", info), library="fsid-sim")

@@ -1,4 +1,5 @@
 """``truth.json``: what the synthetic flight really was (derivatives, trim, sensor errors, seed)."""
+
 from __future__ import annotations
 
 import json
@@ -32,27 +33,47 @@ def truth_dict(result) -> dict:
     """
     s = result.scenario
     m = result.meta
-    return _clean({
-        "format": "fsid-truth/1",
-        "scenario": {"name": s.name, "description": s.description, "path": str(s.path) if s.path else None,
-                     "duration_s": s.duration, "rate_hz": s.rate_hz,
-                     "trim_request": {"altitude_m": s.altitude, "airspeed_mps": s.airspeed,
-                                      "flight_path_rad": s.flight_path, "heading_rad": s.heading}},
-        "seed": m["seed"],
-        "aircraft": result.aircraft.to_dict(),
-        "derivatives": dict(result.aircraft.derivatives),
-        "trim": result.trim,
-        "maneuvers": [{"name": n, "axis": a, "t_start": t0, "t_end": t1} for n, a, t0, t1 in result.maneuvers],
-        "sensors": m["sensors"],
-        "turbulence": m["turbulence"],
-        "wind": m.get("wind"),
-        "sas": m.get("sas"),
-        "actuator_lag_s": m.get("actuator_lag_s"),
-        "servo": m.get("servo"),
-        "versions": m["versions"],
-        "units": {"angles": "rad", "rates": "rad/s", "lengths": "m", "speeds": "m/s", "mass": "kg",
-                  "inertia": "kg m^2", "force": "N", "time": "s", "truth_columns": m.get("truth_units")},
-    })
+    return _clean(
+        {
+            "format": "fsid-truth/1",
+            "scenario": {
+                "name": s.name,
+                "description": s.description,
+                "path": str(s.path) if s.path else None,
+                "duration_s": s.duration,
+                "rate_hz": s.rate_hz,
+                "trim_request": {
+                    "altitude_m": s.altitude,
+                    "airspeed_mps": s.airspeed,
+                    "flight_path_rad": s.flight_path,
+                    "heading_rad": s.heading,
+                },
+            },
+            "seed": m["seed"],
+            "aircraft": result.aircraft.to_dict(),
+            "derivatives": dict(result.aircraft.derivatives),
+            "trim": result.trim,
+            "maneuvers": [{"name": n, "axis": a, "t_start": t0, "t_end": t1} for n, a, t0, t1 in result.maneuvers],
+            "sensors": m["sensors"],
+            "turbulence": m["turbulence"],
+            "wind": m.get("wind"),
+            "sas": m.get("sas"),
+            "actuator_lag_s": m.get("actuator_lag_s"),
+            "servo": m.get("servo"),
+            "versions": m["versions"],
+            "units": {
+                "angles": "rad",
+                "rates": "rad/s",
+                "lengths": "m",
+                "speeds": "m/s",
+                "mass": "kg",
+                "inertia": "kg m^2",
+                "force": "N",
+                "time": "s",
+                "truth_columns": m.get("truth_units"),
+            },
+        }
+    )
 
 
 def write_truth_json(path: str | os.PathLike, result) -> None:
