@@ -1,11 +1,11 @@
 """What does the wind of the rebuilt air-data angles cost? A Monte Carlo over seeds of
 multiaxis_multisine_turbulence's ArduPilot log: for each seed JSBSim flies the scenario
 (light turbulence, a calm validation flight), the product writes flight.bin (no vane: alpha
-and beta are rebuilt from the 10 Hz GPS velocity, pipeline.flow_angles) and ``fsid
+and beta are rebuilt from the 10 Hz GPS velocity, pipeline.conditioning.flow_angles) and ``fsid
 estimate flight.bin --method fem --no-compat --validate-with validation.bin`` fits both
 axes. The reconstruction assumes no vertical wind; the uncertainty of the flight-mean
 vertical gust and of the fitted horizontal wind reaches the estimates as a consider part
-(pipeline.correction_uncertainty.wind).
+(pipeline.uncertainty.consider.wind).
 
 Per method and derivative: empirical std of the estimates over the seeds / mean Cramér-Rao
 std (``crb``) and / mean total std (``total``, the CRB with the wind's part; 1 = honest,
@@ -51,7 +51,7 @@ def one_flight(seed: int) -> list[dict]:
     """Rows (seed, key, parameter, estimate, std, total_std, truth, vertical) of one flight;
     ``vertical`` is the flight-mean vertical wind's std the fit was given [m/s]."""
     from pipeline.commands.simulate import simulate
-    from pipeline.run import estimate_log
+    from pipeline.jobs.run import estimate_log
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -3,7 +3,7 @@ scenarios/sensor_errors_calm.toml (IMU and air-data biases, scale factors, a 40 
 delay): for each seed JSBSim flies it, the product writes and reads flight.mcap, the
 compatibility stage removes the significant sensor errors, output error fits both axes, and
 the applied corrections' uncertainty is carried to the derivatives
-(pipeline.correction_uncertainty) - exactly ``fsid run --method oem``.
+(pipeline.uncertainty.consider) - exactly ``fsid run --method oem``.
 
 Per derivative: empirical std of the estimates over the seeds divided by the mean
 Cramér-Rao std (``crb``) and by the mean total std (``total``: CRB plus the corrections'
@@ -13,7 +13,7 @@ stage itself: per sensor error, the rms and mean of (estimate - truth) / std ove
 (honest: rms ~1, mean ~0) and on how many flights it was applied. Last line: the largest
 total ratio. ``--scenario`` flies another scenario (default.toml: error-free sensors, so
 every applied correction is a false one); ``--baseline yes`` first runs the stage as it
-was before it merged overlapping maneuver windows (pipeline.flightdata.merge_overlapping),
+was before it merged overlapping maneuver windows (pipeline.ingest.flightdata.merge_overlapping),
 fitting the cross-controlled rudder doublets' aileron and rudder windows each.
 
 Measured (seeds 500-511, 2026-11-24): empirical std / total std 0.62-1.41 over the 29
@@ -28,7 +28,7 @@ Measured 2026-11-26, ``--baseline yes`` (the same flights both ways):
   seeds 500-511: derivatives 0.57-1.37 (baseline 0.58-1.38). The stage's rms z 0.65-1.92
       (baseline 0.82-1.98): scale_beta 1.25 -> 0.91, bias_V and scale_V 1.52 -> 1.16,
       bias_q 1.56 -> 1.23, scale_p 1.45 -> 1.22, delay_air 1.36 -> 1.10; bias_ay's mean
-      -1.58 is JSBSim's Coriolis force (pipeline.compatibility.correct_for_estimation), on
+      -1.58 is JSBSim's Coriolis force (pipeline.conditioning.compatibility.correct_for_estimation), on
       top of the injected bias, so applied either way. 3 min 25 s.
   --scenario scenarios/default.toml, seeds 1-12: the stage's rms z 0.72-2.28 (baseline
       0.73-2.48): scale_ay 1.90 -> 1.39, delay_air 1.72 -> 1.22; false corrections 4 (bias_ay
@@ -64,8 +64,8 @@ def one_flight(seed: int, scenario: Path = SCENARIO, overlapping: bool = False) 
     compatibility stage's sensor errors as key "compatibility" (estimate, std, truth,
     applied). ``overlapping``: the baseline, the compatibility stage fitting the log's
     maneuver windows as detected (a window per surface, overlapping ones fitted each)."""
-    import pipeline.compatibility as compatibility
-    from pipeline.run import run_scenario
+    import pipeline.conditioning.compatibility as compatibility
+    from pipeline.jobs.run import run_scenario
 
     keep = compatibility.merge_overlapping
     if overlapping:

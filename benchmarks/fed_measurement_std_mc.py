@@ -3,7 +3,7 @@ of scenarios/unstable_short_period.toml (statically unstable UAV, pitch SAS, cal
 each seed JSBSim flies it, the product writes and reads flight.mcap and fits the
 longitudinal axis with ``soem`` and ``decouple`` - exactly ``fsid run --method soem
 --method decouple``. Both feed measured outputs back into the model; their reported std
-carry that measurement noise (estimators.pseudo_input_noise), the Cramér-Rao bounds do not.
+carry that measurement noise (estimators.output_error.pseudo_input_noise), the Cramér-Rao bounds do not.
 
 Per derivative: empirical std of the estimates over the seeds divided by the mean reported
 std (``reported``), by the mean Cramér-Rao std (``crb``) and by the mean Morelli-Klein std
@@ -42,7 +42,7 @@ METHODS = ["soem", "decouple"]
 
 def one_flight(seed: int) -> list[dict]:
     """Rows (seed, method, parameter, estimate, std, crb_std, mk_std, truth) of one run."""
-    from pipeline.run import run_scenario
+    from pipeline.jobs.run import run_scenario
 
     with tempfile.TemporaryDirectory() as tmp:
         run_scenario(SCENARIO, Path(tmp), seed=seed, methods=METHODS, quiet=True, compat=False)

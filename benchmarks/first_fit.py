@@ -8,7 +8,7 @@ is a new process (``sys.executable -c``) that imports estimators, loads the .npz
 the model and runs ``OutputError(model).fit([seg])`` with the default options; its wall
 time, interpreter start-up included, is what counts. Two ways:
 
-* cold: an empty private kernel cache: ``FSID_CACHE_DIR`` (estimators.jit's generated
+* cold: an empty private kernel cache: ``FSID_CACHE_DIR`` (estimators.compile.kernels's generated
   kernel modules) and ``NUMBA_CACHE_DIR`` (where numba then keeps the compiled code of
   every ``cache=True`` function, the kernel modules' included) both fresh temporary
   folders, so everything that is compiled is compiled in that run;

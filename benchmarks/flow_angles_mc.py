@@ -2,7 +2,7 @@
 flies scenarios/longitudinal_3211_calm.toml (or --scenario NAME, fitting --model
 longitudinal|lateral) in a steady wind (--wind north,east m/s; default -4,5), the product writes flight.mcap, and
 ``fsid estimate`` fits the axis with output error twice - from the logged vanes, and through a channel map without them, the
-angles rebuilt from the 10 Hz GPS velocity (pipeline.flow_angles). The compatibility stage
+angles rebuilt from the 10 Hz GPS velocity (pipeline.conditioning.flow_angles). The compatibility stage
 is off in both, so only the angles differ.
 
 Per derivative and source (``vanes``, ``rebuilt``): empirical std of the estimates over the
@@ -17,7 +17,7 @@ Measured (seeds 200-207, 2026-11-24):
       empirical/reported 0.60 and 0.75 - the level of alpha comes from 10 Hz GPS samples
       instead of 50 Hz vane samples, while az pins it as well).
   lateral_doublets_calm (--model lateral), since the lateral output error's V and alpha
-      are blended with the integrated IMU (pipeline.airdata_kinematics): 0.49-1.64 with
+      are blended with the integrated IMU (pipeline.conditioning.airdata_kinematics): 0.49-1.64 with
       the vanes, 0.47-1.72 rebuilt (Cnda 1.64 / 1.72, Cndr 1.37 / 1.52); |bias| <= 1.68 /
       1.41; reported std ratio 1.00. Before it: 0.55-2.16 with the vanes, 0.55-2.69 rebuilt;
       |bias| <= 1.23 / 1.19; reported std ratio 1.00-1.02. The lateral output error's
@@ -55,9 +55,9 @@ def one_flight(job: tuple[int, str, str, str]) -> list[dict]:
     seed, scenario, model, wind = job
     wn, we = (float(x) for x in wind.split(","))
     from pipeline.commands.simulate import simulate
-    from pipeline.maps import plain_map_toml
-    from pipeline.readers import read_log
-    from pipeline.run import estimate_log
+    from pipeline.ingest.maps import plain_map_toml
+    from pipeline.ingest.readers import read_log
+    from pipeline.jobs.run import estimate_log
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -1,10 +1,10 @@
 """Ingest speed: our DataFlash reader vs pymavlink's DFReader message loop.
 
 Writes a >= 100 MB synthetic ArduPlane .bin: the simulator flies ``scenarios/default.toml``,
-the sim's ``pipeline.writers.write_dataflash`` writes it (real ArduPlane layouts with
+the sim's ``pipeline.outputs.writers.write_dataflash`` writes it (real ArduPlane layouts with
 FMT/FMTU/UNIT/MULT/PARM), and its data records are repeated with TimeUS shifted by the
 flight duration until the file reaches the size (a long flight made of repeated laps).
-Without the simulator, a generator of the same layouts here is used. Then reads it with ``pipeline.readers.dataflash.message_arrays`` (in a subprocess, to
+Without the simulator, a generator of the same layouts here is used. Then reads it with ``pipeline.ingest.readers.dataflash.message_arrays`` (in a subprocess, to
 measure its peak memory) and with DFReader's ``recv_msg`` loop, checks identical values
 (exact per-type counts; every field of every 20th message of every type) and prints the
 speed ratio ours/DFReader last.
@@ -28,7 +28,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(HERE))
 
-from pipeline.readers.synth import fmt_record  # noqa: E402
+from pipeline.ingest.readers.synth import fmt_record  # noqa: E402
 
 # ArduPlane 4.x layouts (name, id, format, columns)
 LAYOUTS = [
@@ -111,7 +111,7 @@ def write_synthetic_bin(path: Path, target_mb: float, seed: int = 0) -> int:
 OURS = r"""
 import json, resource, sys, time
 sys.path.insert(0, {root!r})
-from pipeline.readers.dataflash import message_arrays, _scan
+from pipeline.ingest.readers.dataflash import message_arrays, _scan
 import numpy as np
 # compile once on a tiny buffer so timing is steady-state (numba caches to disk anyway)
 _scan.walk(np.zeros(8, np.uint8), np.zeros(256, np.int64))
@@ -122,7 +122,7 @@ dt = time.perf_counter() - t
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 counts = {{k: int(v.shape[0]) for k, v in arrays.items()}}
 del arrays
-from pipeline.readers import read_log
+from pipeline.ingest.readers import read_log
 t = time.perf_counter()
 fd = read_log({path!r})
 dt_fd = time.perf_counter() - t
@@ -158,7 +158,7 @@ def verify(path: Path, every: int = 20) -> int:
     """Compare every field of every ``every``-th message of each type; return how many."""
     from pymavlink import DFReader
 
-    from pipeline.readers.dataflash import message_arrays, scaled
+    from pipeline.ingest.readers.dataflash import message_arrays, scaled
 
     arrays, formats, _ = message_arrays(path)
     by_name = {f.name: f for f in formats.values()}
@@ -188,8 +188,8 @@ def verify(path: Path, every: int = 20) -> int:
 def write_sim_bin(path: Path, target_mb: float) -> int | None:
     """The sim's own writer, tiled to ``target_mb``; None when the simulator is unavailable."""
     try:
-        from pipeline.readers.dataflash import scan_file
-        from pipeline.writers import write_dataflash
+        from pipeline.ingest.readers.dataflash import scan_file
+        from pipeline.outputs.writers import write_dataflash
         from sim import fly, load_scenario
     except ImportError:
         return None
@@ -235,7 +235,7 @@ def main() -> int:
     path = Path(args.keep) if args.keep else Path(tmpdir) / "synthetic.bin"
     t = time.perf_counter()
     n = write_sim_bin(path, args.mb)
-    how = "sim flight (scenarios/default.toml) written by pipeline.writers.write_dataflash, tiled"
+    how = "sim flight (scenarios/default.toml) written by pipeline.outputs.writers.write_dataflash, tiled"
     if n is None:
         n = write_synthetic_bin(path, args.mb)
         how = "generator of ArduPlane IMU/ATT/ARSP/AOA/BARO/RCOU/GPS layouts (no simulator)"

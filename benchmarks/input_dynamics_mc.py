@@ -1,4 +1,4 @@
-"""How honest is the servo delay-and-lag estimate (pipeline.input_dynamics)? A Monte Carlo
+"""How honest is the servo delay-and-lag estimate (pipeline.conditioning.input_dynamics)? A Monte Carlo
 over seeds: JSBSim flies scenarios/default.toml (or --scenario NAME) with a first-order
 actuator lag ([actuators] lag_s = --lag, default 0.05 s), the product writes the ArduPilot
 .bin, whose RCOU carries the servo commands, and the delay and lag of each surface are
@@ -36,7 +36,7 @@ With the pipeline's refinement (--refine 1, 2026-11-25, the same seeds):
       within 3 std on 8/8 seeds (worst 1.07-2.58 longitudinal, 0.15-2.15 lateral).
 
 With ``--refine 1`` the delays and lags are the pipeline's (``estimate_log`` of the .bin:
-equation error refined by output error, pipeline.input_dynamics.refine_by_output_error);
+equation error refined by output error, pipeline.conditioning.input_dynamics.refine_by_output_error);
 ``mk`` is then output error's Morelli-Klein std, ``reported`` the std the pipeline carries
 (equation error's widened to the two methods' difference), and ``equivalent`` (delay +
 lag) is scored against equation error's equivalent std.
@@ -68,9 +68,9 @@ def one_flight(seed: int) -> list[dict]:
     import tomllib
 
     import sim
-    from pipeline.input_dynamics import estimate_input_dynamics
-    from pipeline.readers import read_log
-    from pipeline.writers import write_dataflash, write_truth_json
+    from pipeline.conditioning.input_dynamics import estimate_input_dynamics
+    from pipeline.ingest.readers import read_log
+    from pipeline.outputs.writers import write_dataflash, write_truth_json
 
     path = ROOT / "scenarios" / f"{OPTS['scenario']}.toml"
     raw = tomllib.loads(path.read_text())
@@ -83,7 +83,7 @@ def one_flight(seed: int) -> list[dict]:
         if refine:  # the pipeline's stage: equation error, then output error
             import json
 
-            from pipeline.run import estimate_log
+            from pipeline.jobs.run import estimate_log
 
             write_truth_json(Path(d) / "truth.json", res)
             estimate_log(Path(d) / "flight.bin", Path(d) / "out", quiet=True, compat=False)

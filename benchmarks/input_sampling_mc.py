@@ -5,14 +5,14 @@ ardupilot``: IMU and attitude at 25 Hz, air data and barometer 10, GPS 5): for e
 JSBSim flies it (its maneuvers 0-30 ms later by seed: the steps' phase against the
 surface samples varies), the product writes flight.bin and ``fsid estimate flight.bin`` fits both
 axes by output error, the steps' unknown times between the surface samples carried to the
-estimates (pipeline.correction_uncertainty.input_sampling).
+estimates (pipeline.uncertainty.consider.input_sampling).
 
 Per derivative: the estimates' empirical std over the seeds / mean Cramér-Rao std
 (``crb``, the baseline: the bound the fit alone reports) and / mean total std (``total``,
 with the steps' times carried); the bias in empirical std. Per seed the worst |error| /
 std both ways. Honest: total ~1 (95 % band about +-1.4/sqrt(n) for n seeds). Per axis the
 proof of match on the held-out maneuver: passed, and passed without the steps moved through
-the range of their time (pipeline.input_sampling.timing_variants: each sample judged by its
+the range of their time (pipeline.conditioning.input_sampling.timing_variants: each sample judged by its
 distance from the range of the predictions; without it, from the prediction with the steps
 as fitted).
 
@@ -21,13 +21,13 @@ Proof of match, measured 2026-11-26, seeds 1-12 (the same flights as below):
   --rates ardupilot: longitudinal 12/12 (12/12 without the steps moved), lateral 12/12
       (7/12 without: one sample of p or r at an aileron reversal, every step timed); each
       axis' verdict PASS on 12/12 (with the TIC of an output at its noise floor a note,
-      pipeline.validate.NOISE_FLOOR_RATIO; ad hoc, seed 3: the 5 Hz rebuilt beta's 0.103).
+      pipeline.validation.validate.NOISE_FLOOR_RATIO; ad hoc, seed 3: the 5 Hz rebuilt beta's 0.103).
   --rates ardupilot --surfaces-hz 10: longitudinal 10/12 (5/12), lateral 3/12 (0/12; the
       lateral fit of seed 1 misses p by up to 5 deg/s 0.3 s after a step too).
   Measured again 2026-11-26 (with the noise allowance of the bands), --rates ardupilot
       --surfaces-hz 10: longitudinal 12/12 (5/12 without the steps moved), lateral 7/12
       (0/12); each of the 5 lateral failures within 2 std of the prediction's own
-      uncertainty from the estimates' covariance (pipeline.validate: "beyond" 0), so the
+      uncertainty from the estimates' covariance (pipeline.validation.validate: "beyond" 0), so the
       verdict notes them as the estimates' imprecision. Seed 1 (ad hoc): p missed by 4.1
       deg/s even with the true surface positions, by 0.25 with the true derivatives.
   With the noise allowance from the second differences of the error against the
@@ -39,7 +39,7 @@ Proof of match, measured 2026-11-26, seeds 1-12 (the same flights as below):
 Measured 2026-11-26, seeds 1-12 (about 60 s on 2 cores each), the steps timed from the
 gyros with the kink's order chosen by BIC, each surface's steps also moved together by the
 part of their std from the kink model, the fits on a grid of at least 90 Hz (100 Hz here,
-pipeline.flightdata.fit_grid_rate) with the accelerometers left out inside the steps'
+pipeline.ingest.flightdata.fit_grid_rate) with the accelerometers left out inside the steps'
 ramps:
   25 Hz surfaces: worst |error| / total std per seed 0.67-3.59 (within 3 on 11/12
       longitudinal, 11/12 lateral - seed 6's lateral 3.59, the seed the floor below also
@@ -51,7 +51,7 @@ ramps:
       scatter little between seeds but share a bias of up to 3.3 times that scatter
       (Clp 3.3, Clbeta 3.0, Cldr -3.0, Clda -2.7: the kink model's timing error, alike for
       every flight), which the shared-timing part of the total std covers. The control-
-      input delays are not estimated from 25 Hz gyros (pipeline.input_dynamics.
+      input delays are not estimated from 25 Hz gyros (pipeline.conditioning.input_dynamics.
       MIN_RATE_HZ).
   --rates ardupilot --surfaces-hz 10 (ArduPilot's slowest RCOU beside the 25 Hz IMU): worst
       per seed 0.89-3.48 longitudinal, 0.92-3.20 lateral (11/12 and 11/12 within 3, seed 11
@@ -63,7 +63,7 @@ Before (session 24): the steps timed only where a gyro sampled inside their inte
       0.32-2.63 (CYbeta 2.63, CYdr 2.19).
   --surfaces-hz 100 (no input slower than the IMU, nothing to time: the floor): 0.57-2.91
       (CYbeta 2.77, Cnr 2.91, CYdr 2.05 - the compatibility stage's scale_ay applied on seed
-      6, pipeline.compatibility), within 3 on 12/12 and 11/12.
+      6, pipeline.conditioning.compatibility), within 3 on 12/12 and 11/12.
   --rates ardupilot (no step timed, each carried at h / sqrt(12), the 25 Hz grid): worst
       per seed 1.29-2.41 longitudinal (12/12), 1.36-6.58 lateral (7/12; CYbeta -1.10
       against -0.98 on seeds 2, 3, 7, 10, 11: the steps of a doublet untimed share a phase
@@ -104,8 +104,8 @@ ARDUPILOT_RATES = {"imu": 25.0, "attitude": 25.0, "airdata": 10.0, "gps": 5.0, "
 def one_flight(seed: int, surfaces_hz: float = 25.0, rates: str = "default") -> list[dict]:
     """Rows (seed, key, parameter, estimate, std, total_std, truth) of one flight."""
     import sim
-    from pipeline.run import estimate_log
-    from pipeline.writers import write_dataflash, write_truth_json
+    from pipeline.jobs.run import estimate_log
+    from pipeline.outputs.writers import write_dataflash, write_truth_json
 
     raw = tomllib.loads(SCENARIO.read_text())
     raw.setdefault("sensors", {}).setdefault("surfaces", {})["rate_hz"] = surfaces_hz

@@ -1,13 +1,13 @@
 """How the filters fare on the lateral model with the roll gust, on data that model itself
 generates: a Monte Carlo over noise draws on the inputs of one JSBSim flight of
-multiaxis_multisine_turbulence (the lateral problem of pipeline.identify.multiaxis_problem
+multiaxis_multisine_turbulence (the lateral problem of pipeline.problems.identify.multiaxis_problem
 with the gust states: 7 states, the measured longitudinal variables as inputs).
 
 Each draw simulates the lateral gust model (estimators.models.lateral, f_measured_gust /
 g_measured_gust) at the true derivatives on the flight's own inputs (Euler-Maruyama, 10
 sub-steps per 50 Hz sample), with white process noise on beta and r, the roll gust p_g and
 white sensor noise at the flight's logged levels, and fits it with the pipeline's own
-settings (pipeline.run.fit_problem: FEM with F estimated, EKF and UKF with twice the Dryden
+settings (pipeline.jobs.run.fit_problem: FEM with F estimated, EKF and UKF with twice the Dryden
 level, as on a simulated flight). Two gust variants:
 
 * ``markov``: p_g the first-order Markov process the model assumes, with the time constant
@@ -117,7 +117,7 @@ def fly_once(workdir: Path, seed: int) -> None:
     gust (p_turb.npy: rows t, p_turb) and true surface positions (surfaces.npy: rows t,
     da, dr; rad)."""
     import sim
-    from pipeline.writers import write_mcap, write_truth_json
+    from pipeline.outputs.writers import write_mcap, write_truth_json
 
     res = sim.fly(sim.load_scenario(SCENARIO), seed=seed, workdir=workdir / ".jsbsim")
     write_mcap(workdir / "flight.mcap", res)
@@ -152,7 +152,7 @@ def simulate(
     driven by each segment's inputs or by ``u_sim`` (one (n, n_u) array per segment: the
     inputs the simulated aircraft saw, when those are not the ones the fit is given)."""
     from estimators.model import Namespace, Segment
-    from pipeline.run import measurement_noise_std
+    from pipeline.jobs.run import measurement_noise_std
 
     m = pb.model
     vals = {p.name: p.value for p in m.parameters}
@@ -205,7 +205,7 @@ def one_draw(seed: int, *, workdir: Path, methods: list[str], variants: list[str
     name, estimate, std, truth)."""
     import copy
 
-    from pipeline.run import fit_problem, measurement_noise_std
+    from pipeline.jobs.run import fit_problem, measurement_noise_std
 
     fl = flight(workdir)
     rows = []

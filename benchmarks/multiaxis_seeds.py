@@ -14,7 +14,7 @@ band) and the largest Theil coefficient. The last line: the share of (seed, meth
 with every derivative within 3 std.
 
 Measured (2026-11-25, seeds 31-38, FEM, 34 s with the kernels cached) with the maneuver
-scatter as the std where it is significant (pipeline.validate.widen_by_scatter):
+scatter as the std where it is significant (pipeline.validation.validate.widen_by_scatter):
     longitudinal FEM  2.6 3.9 4.0 2.3 2.4 3.2 2.1 2.3 (5/8 within 3 reported std);
                       empirical / reported std up to 2.39 (Cmalphadot),
                       Cmq 1.30, Cmalpha 1.66; |bias| <= 0.83
@@ -112,7 +112,7 @@ METHODS = "fem,ekf,ukf"
 
 
 def one_seed(seed: int, methods: str = METHODS, scenario: str = str(SCENARIO)) -> list[dict]:
-    from pipeline.run import run_scenario
+    from pipeline.jobs.run import run_scenario
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)

@@ -1,7 +1,7 @@
 """Is the pitot's scale factor, estimated with the wind, honest? A Monte Carlo over seeds of
 pitot_wind_turn's ArduPilot log (small UAV in a (3, -4) m/s wind, pitot (1 + 0.03) V + 0.4
 m/s, a 210 deg turn): for each seed JSBSim flies the scenario, the product writes
-flight.bin (no vane: alpha and beta are rebuilt from the flight path, pipeline.flow_angles)
+flight.bin (no vane: alpha and beta are rebuilt from the flight path, pipeline.conditioning.flow_angles)
 and ``fsid estimate flight.bin`` fits both axes by output error - once as it is (the scale
 factor estimated with the wind, applied, its std carried), once with the scale factor
 taken as 0 (the baseline: flow_angles.SCALE_STD_MAX = 0, the run before this feature).
@@ -48,8 +48,8 @@ SCENARIO = ROOT / "scenarios" / "pitot_wind_turn.toml"
 def _estimate(log: Path, out: Path, calibrate: bool) -> dict:
     """report.json of ``fsid estimate log`` (output error), the scale factor estimated or
     (``calibrate`` False) taken as 0."""
-    import pipeline.flow_angles as flow_angles
-    from pipeline.run import estimate_log
+    import pipeline.conditioning.flow_angles as flow_angles
+    from pipeline.jobs.run import estimate_log
 
     keep = flow_angles.SCALE_STD_MAX
     flow_angles.SCALE_STD_MAX = keep if calibrate else 0.0
@@ -64,7 +64,7 @@ def one_flight(seed: int, scenario: Path = SCENARIO) -> list[dict]:
     """Rows (seed, variant, key, parameter, estimate, std, truth, scale, scale_std,
     effective) of one flight, both variants."""
     from pipeline.commands.simulate import simulate
-    from pipeline.readers import read_log
+    from pipeline.ingest.readers import read_log
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

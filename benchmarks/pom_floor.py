@@ -4,7 +4,7 @@ identified model against the TRUE model on the same held-out maneuver.
 JSBSim flies a scenario and the product writes and reads its flight.mcap; each axis the
 run would fit with a filter method (the multi-axis models with gust states when all axes
 move at once) is fitted with ``--method`` (default FEM) and validated on the held-out
-maneuver by the air-data-driven proof of match (``pipeline.validate``). The same result
+maneuver by the air-data-driven proof of match (``pipeline.validation.validate``). The same result
 with its derivatives replaced by the truth (noise, gust-state, initial-state and bias
 parameters kept) is validated the same way. Per judged channel: max |error| of the
 identified and of the true model (display units: deg, deg/s, g) and their ratio. A ratio
@@ -37,10 +37,16 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.identify import AircraftConstants, lateral_problem, longitudinal_problem, multi_axis, multiaxis_problem  # noqa: E402  # noqa: E402
-from pipeline.readers import read_log  # noqa: E402
-from pipeline.run import LAT_OUTPUTS, LONG_OUTPUTS, fit_problem, run_scenario  # noqa: E402
-from pipeline.validate import validate  # noqa: E402
+from pipeline.ingest.readers import read_log  # noqa: E402
+from pipeline.jobs.run import LAT_OUTPUTS, LONG_OUTPUTS, fit_problem, run_scenario  # noqa: E402
+from pipeline.problems.identify import (  # noqa: E402  # noqa: E402
+    AircraftConstants,
+    lateral_problem,
+    longitudinal_problem,
+    multi_axis,
+    multiaxis_problem,
+)
+from pipeline.validation.validate import validate  # noqa: E402
 
 
 def with_truth(res, truth: dict[str, float]):

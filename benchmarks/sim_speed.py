@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import sim  # noqa: E402
-from pipeline.writers import write_dataflash, write_mcap  # noqa: E402
+from pipeline.outputs.writers import write_dataflash, write_mcap  # noqa: E402
 
 
 def jsbsim_steps(scenario) -> float:

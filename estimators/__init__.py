@@ -32,29 +32,29 @@ _LAZY = {
     "FourierRegression": "estimators.equation_error",
     "LeastSquares": "estimators.equation_error",
     "RecursiveLeastSquares": "estimators.equation_error",
-    "FilterError": "estimators.fem",
-    "EKF": "estimators.kalman",
-    "UKF": "estimators.kalman",
+    "FilterError": "estimators.filters.filter_error",
+    "EKF": "estimators.filters.kalman",
+    "UKF": "estimators.filters.kalman",
     "Model": "estimators.model",
     "Parameter": "estimators.model",
     "Segment": "estimators.model",
-    "OutputError": "estimators.oem",
+    "OutputError": "estimators.output_error.oem",
     "EstimationResult": "estimators.results",
-    "EigenvalueTransformation": "estimators.stabilized",
-    "EquationDecoupling": "estimators.stabilized",
-    "StabilizedOutputError": "estimators.stabilized",
-    "simulate_outputs": "estimators.simulation",
+    "EigenvalueTransformation": "estimators.output_error.stabilized",
+    "EquationDecoupling": "estimators.output_error.stabilized",
+    "StabilizedOutputError": "estimators.output_error.stabilized",
+    "simulate_outputs": "estimators.simulation.simulate",
 }
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs
     from estimators.equation_error import FourierRegression, LeastSquares, RecursiveLeastSquares
-    from estimators.fem import FilterError
-    from estimators.kalman import EKF, UKF
+    from estimators.filters.filter_error import FilterError
+    from estimators.filters.kalman import EKF, UKF
     from estimators.model import Model, Parameter, Segment
-    from estimators.oem import OutputError
+    from estimators.output_error.oem import OutputError
+    from estimators.output_error.stabilized import EigenvalueTransformation, EquationDecoupling, StabilizedOutputError
     from estimators.results import EstimationResult
-    from estimators.simulation import simulate_outputs
-    from estimators.stabilized import EigenvalueTransformation, EquationDecoupling, StabilizedOutputError
+    from estimators.simulation.simulate import simulate_outputs
 
 __all__ = [
     "Model",
@@ -84,7 +84,7 @@ __all__ = [
 
 def __getattr__(name: str) -> Any:
     """A public name imported from its module on first use (then kept as an attribute);
-    a submodule (``estimators.fem``) imported on first attribute access."""
+    a submodule (``estimators.filters.filter_error``) imported on first attribute access."""
     mod = _LAZY.get(name)
     if mod is not None:
         value = getattr(importlib.import_module(mod), name)

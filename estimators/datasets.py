@@ -116,7 +116,7 @@ def longitudinal_example(
     with a different pulse width and sign), from trim at 100 m/s. Start values are the
     truth times (1 + start_offset) alternating in sign, so each is off by start_offset.
     """
-    from estimators.simulation import simulate_outputs
+    from estimators.simulation.simulate import simulate_outputs
 
     truth_model = longitudinal(HFB320_CONSTANTS, values=HFB320_TRUTH, free=free)
     x0, u0 = trim_level(truth_model, 100.0)

@@ -8,7 +8,7 @@ A model is a pair of vectorised Python functions (DESIGN.md section 4)::
 ``x`` unpacks by rows into the states (each row an array over the trailing batch/time
 dimensions), ``u`` into the inputs, ``p.NAME`` is a parameter value broadcasting against
 the trailing dimensions, ``c.NAME`` a constant. Functions written with numpy ufuncs and
-arithmetic are compiled with numba when possible (see :mod:`estimators.jit`); anything else
+arithmetic are compiled with numba when possible (see :mod:`estimators.compile.kernels`); anything else
 still runs through numpy.
 """
 
@@ -28,7 +28,7 @@ ModelFunction = Callable[[Any, Any, Any, Any], Any]
 #: a sample interval longer than GAP_FACTOR times the segment's median interval is a gap:
 #: the estimators step the model from sample to sample and would cross it in one step, as
 #: if the aircraft had flown on unobserved with the inputs interpolated across. Logger
-#: jitter and a few dropped samples stay below it (pipeline.checks warns of gaps from the
+#: jitter and a few dropped samples stay below it (pipeline.conditioning.checks warns of gaps from the
 #: same multiple); :meth:`Segment.split_at_gaps` cuts a segment there
 GAP_FACTOR = 5.0
 
@@ -221,7 +221,7 @@ class Model:
             out = g0(x, u, p, c)
             return tuple(out[i] for i in idx)
 
-        # the compiled filter loop (estimators.fem.output_kernel) calls g0 and picks these
+        # the compiled filter loop (estimators.filters.filter_error.output_kernel) calls g0 and picks these
         # rows itself: numba cannot build a tuple with a generator
         g.selects = (g0, tuple(idx))
 
@@ -284,7 +284,7 @@ class Model:
     ) -> Any:
         """Simulate the model over a segment with the given (or start) parameter values;
         returns a DataFrame of outputs on ``segment.t``."""
-        from estimators.simulation import simulate_outputs  # local: avoids a cycle
+        from estimators.simulation.simulate import simulate_outputs  # local: avoids a cycle
 
         return simulate_outputs(self, segment, params, integrator=integrator, **kw)
 
@@ -408,7 +408,7 @@ class Segment:
     def check_no_gaps(self, k: int | None = None, factor: float = GAP_FACTOR) -> None:
         """Raise ModelDefinitionError naming the first gap in ``t`` (its start time and
         length) and how many there are; ``k`` labels an unnamed segment by its index.
-        Every estimator calls it (through :meth:`estimators.simulation.Layout.build`)."""
+        Every estimator calls it (through :meth:`estimators.simulation.simulate.Layout.build`)."""
         idx = self._gap_index(factor)
         if not idx.size:
             return

@@ -20,12 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimators.compile.kernels import kernel_for
 from estimators.datasets import HFB320_CONSTANTS, HFB320_NOISE, HFB320_TRUTH, multistep, trim_level
-from estimators.jit import kernel_for
 from estimators.model import Model, Parameter, Segment
 from estimators.models import short_period
 from estimators.models.longitudinal import longitudinal
-from estimators.simulation import Layout
+from estimators.simulation.simulate import Layout
 
 
 @dataclass

@@ -71,7 +71,7 @@ _TMP: list[str] = []
 @functools.cache
 def written(name: str, seed: int | None = None) -> Path:
     """flight.mcap, flight.bin and truth.json of ``flown(name, seed)`` in a temp folder."""
-    from pipeline.writers import write_dataflash, write_mcap, write_truth_json
+    from pipeline.outputs.writers import write_dataflash, write_mcap, write_truth_json
 
     d = Path(tempfile.mkdtemp(prefix=f"fsid-{name}-"))
     _TMP.append(str(d))

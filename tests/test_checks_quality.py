@@ -8,11 +8,11 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.checks import findings_to_json, run_checks
 from pipeline.cli import main
-from pipeline.flightdata import Channel, FlightData, SegmentSpec
-from pipeline.readers import read_log
-from pipeline.readers.synth import demo_dataflash
+from pipeline.conditioning.checks import findings_to_json, run_checks
+from pipeline.ingest.flightdata import Channel, FlightData, SegmentSpec
+from pipeline.ingest.readers import read_log
+from pipeline.ingest.readers.synth import demo_dataflash
 
 
 def _flight() -> FlightData:

@@ -6,7 +6,7 @@ import json
 import pytest
 
 from pipeline.cli import main
-from pipeline.run import run_scenario
+from pipeline.jobs.run import run_scenario
 
 SCENARIOS = __import__("pathlib").Path(__file__).resolve().parents[1] / "scenarios"
 
@@ -60,7 +60,7 @@ def test_validation_on_the_held_out_maneuver(calm_run):
 def test_estimate_from_the_written_ardupilot_bin(calm_run, tmp_path):
     """The ArduPilot path of the same flight: ``fsid estimate flight.bin``. The .bin has no
     vane (its AOA/SSA are marked derived), so alpha comes from the GPS velocity and the
-    attitude (pipeline.flow_angles); the elevator is RCOU's whole-microsecond PWM, which
+    attitude (pipeline.conditioning.flow_angles); the elevator is RCOU's whole-microsecond PWM, which
     is what the sim flew (with continuous deflections and RCOU rounding them, Cmde was 4.6
     and CLalpha 4.3 std off on seed 11). The aircraft file states its servo travel, as a
     user's must (without it 30 deg is assumed, with a warning)."""

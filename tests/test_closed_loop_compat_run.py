@@ -8,7 +8,7 @@ within 3 std of the injected value (bias_r 2.7, bias_ay -2.4, bias_beta -2.2); 1
 significant and applied; the derivatives from the corrected data fit with TIC < 0.1 on
 every output and pass proof of match, while the same fit on the data as logged puts CL0,
 Cm0, Cmalpha, Cmde far off. The corrections' own uncertainty is carried to the derivatives
-(pipeline.correction_uncertainty: 13 refits, one per applied correction moved by one std;
+(pipeline.uncertainty.consider: 13 refits, one per applied correction moved by one std;
 CLalpha consider std 0.0048 beside a CRB of 0.0062, Cmalpha 0.0003 beside 0.0006), and
 every longitudinal and lateral derivative ends within 3 std of its total std (worst
 longitudinal Cmalpha 2.4, lateral 2.8). Before the scenario logged commanded surfaces and
@@ -26,10 +26,10 @@ import pandas as pd
 import pytest
 
 pytest.importorskip("jsbsim")
-from pipeline.compatibility import CompatibilityResult, truth_errors  # noqa: E402
-from pipeline.identify import AircraftConstants  # noqa: E402
-from pipeline.readers import read_log  # noqa: E402
-from pipeline.run import Progress, identify, run_scenario  # noqa: E402
+from pipeline.conditioning.compatibility import CompatibilityResult, truth_errors  # noqa: E402
+from pipeline.ingest.readers import read_log  # noqa: E402
+from pipeline.jobs.run import Progress, identify, run_scenario  # noqa: E402
+from pipeline.problems.identify import AircraftConstants  # noqa: E402
 
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "sensor_errors_calm.toml"
 #: the simulator's truth timing (module doc of test_compat_closed_loop): up to one 5 ms
@@ -172,8 +172,8 @@ def test_correction_matters_and_matches_the_true_correction(run):
 
 def test_stage_reports_instead_of_ending_the_run():
     """No IMU, no forward flight, switched off: the stage says why and hands the data on."""
-    from pipeline.flightdata import Channel, FlightData
-    from pipeline.run import compatibility_stage
+    from pipeline.ingest.flightdata import Channel, FlightData
+    from pipeline.jobs.run import compatibility_stage
 
     t = np.arange(0.0, 30.0, 0.01)
     pr = Progress(3, quiet=True)
@@ -196,8 +196,8 @@ def test_stage_reports_instead_of_ending_the_run():
 def test_default_segments_are_in_forward_flight():
     """A log that starts on the ground (or hovers) is reconstructed from its flight: the
     ground spans and ground modes are left out, the user's own ranges kept as given."""
-    from pipeline.compatibility import default_segments
-    from pipeline.flightdata import Channel, FlightData, SegmentSpec
+    from pipeline.conditioning.compatibility import default_segments
+    from pipeline.ingest.flightdata import Channel, FlightData, SegmentSpec
 
     t = np.arange(0.0, 130.0, 0.1)
     v = np.where(t < 60.0, 1.0, 30.0)
@@ -229,8 +229,8 @@ def test_no_correction_when_the_air_data_show_turbulence(run, tmp_path):
     (measured on longitudinal_3211_turbulence, truth 0: scale_alpha -0.25 at 16 std, bias_V
     -3.3 m/s at 10 std); its residuals on alpha and beta are 3.7 and 2.2 times their noise
     level (calm flights: 0.93-1.01), so nothing is applied and the report says why."""
-    from pipeline.compatibility import ADEQUACY, correct_for_estimation
-    from pipeline.writers import write_mcap, write_truth_json
+    from pipeline.conditioning.compatibility import ADEQUACY, correct_for_estimation
+    from pipeline.outputs.writers import write_mcap, write_truth_json
     from sim import fly, load_scenario
 
     res = fly(load_scenario(SCENARIO.parent / "longitudinal_3211_turbulence.toml"))

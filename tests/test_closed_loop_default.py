@@ -5,7 +5,7 @@ with the truth known.
 Longitudinal: the nonlinear longitudinal model. Lateral: the nonlinear 6-DoF model with the
 longitudinal estimates held; it re-estimates the trim coefficients CD0, CL0, Cm0 at the
 lateral windows' flight condition. The uncertainty of the held longitudinal estimates is
-carried to the lateral fit (pipeline.correction_uncertainty.held_estimates: 11 refits), so
+carried to the lateral fit (pipeline.uncertainty.consider.held_estimates: 11 refits), so
 every std is a total one: CD0's grows 5x (Cramér-Rao 5.7e-5 alone, conditional on the held
 values; benchmarks/correction_uncertainty_mc.py measured the trim CD0's scatter at 4.4-6x
 its conditional std). Measured (seed 1): trim CD0/CL0/Cm0 0.57/1.32/1.48 std (2.9/2.1/2.8
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.run import run_scenario
+from pipeline.jobs.run import run_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 LATERAL = (

@@ -17,7 +17,7 @@ What is asserted is what was measured to hold; what does not hold is stated, not
   by 18.6 deg/s on q even with the TRUE derivatives) passes. Decoupling needs the surface
   positions as commanded: with 0.05 deg of surface noise its Cm0/Cmalpha/Cmq/Cmde were
   2.2-3.6 std off. Stabilised OEM and decoupling feed measured outputs back into the model;
-  their std carry that measurement noise (estimators.pseudo_input_noise). With the
+  their std carry that measurement noise (estimators.output_error.pseudo_input_noise). With the
   Cramér-Rao bounds stabilised OEM was 5.4 std off on Cmalpha and 5.3 on CDalpha here, and
   over 12 flights its estimates scattered 2.2-7.2x those bounds, 0.8-1.3x the propagated
   std (benchmarks/fed_measurement_std_mc.py). The eigenvalue transformation is exact for
@@ -32,7 +32,7 @@ import numpy as np
 import pytest
 
 from pipeline.cli import build_parser
-from pipeline.run import run_scenario, scenario_methods
+from pipeline.jobs.run import run_scenario, scenario_methods
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 TURBULENCE_METHODS = ("fem", "ekf", "ukf")
@@ -115,7 +115,7 @@ def test_turbulence_proof_of_match(turbulence, method):
 
 
 def test_methods_cross_check_singles_out_output_error_in_turbulence(turbulence):
-    """Without the truth, the methods check each other (pipeline.validate.
+    """Without the truth, the methods check each other (pipeline.validation.validate.
     cross_check_methods): FEM, EKF and UKF agree within 3 combined std on every derivative,
     and output error, which takes the air as calm, disagrees with each of them - on Cm0,
     Cmq, Cmde, which the truth check puts 10-18 std off (seed of the scenario)."""
@@ -136,7 +136,7 @@ def test_maneuver_scatter_flags_output_error_in_turbulence(turbulence):
     scenario: CLalpha 6.8x, CL0 6.2x, CLq 5.3x, CLde 4.0x, Cmq 3.0x) and its verdict says
     so; filter error's agree within theirs (largest 2.6x, CDalpha), and so do the EKF's
     (from the information each segment adds to its parameter covariance,
-    estimators.kalman). What both maneuvers share (output error's Cm0, Cmde, 13-18 std off
+    estimators.filters.kalman). What both maneuvers share (output error's Cm0, Cmde, 13-18 std off
     the truth) no scatter can show: that takes the methods' cross-check."""
     oem = turbulence["methods"]["oem"]["validation"]
     fem = turbulence["methods"]["fem"]["validation"]
@@ -150,10 +150,10 @@ def test_maneuver_scatter_flags_output_error_in_turbulence(turbulence):
 
 def test_filters_on_a_log_take_the_process_noise_from_filter_error(turbulence, tmp_path, capsys):
     """fsid estimate on the same flight.mcap knows no turbulence level: EKF's process noise
-    is then twice FEM's maximum-likelihood estimate (pipeline.run.filters_process_noise),
+    is then twice FEM's maximum-likelihood estimate (pipeline.jobs.run.filters_process_noise),
     and every derivative stays within 3 std (with the data's default, 0.05 sqrt(var(diff
     z)/h), CLalpha ended 5.3 and Cmalpha 4.5 std off)."""
-    from pipeline.run import estimate_log
+    from pipeline.jobs.run import estimate_log
 
     out = tmp_path / "est"
     estimate_log(turbulence["_out"] / "flight.mcap", out, methods=["ekf"], compat=False)

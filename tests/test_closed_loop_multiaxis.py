@@ -8,7 +8,7 @@ The sensor-compatibility stage is skipped (``compat=False``, it takes ~2 min on 
 flight): it applies no correction here anyway (air-data residuals 5-6 x their noise level in
 the turbulence, so its estimates are not trusted and the data go to estimation as logged).
 
-Both axes are fitted with the multi-axis models (pipeline.identify.multiaxis_problem): each
+Both axes are fitted with the multi-axis models (pipeline.problems.identify.multiaxis_problem): each
 axis driven by the other axis' measured variables, air data at the boom's (x, y, z), and
 for the filters the Dryden gust states - JSBSim's aerodynamics see p - p_turb, q - q_turb
 (rotary turbulence 2.8 / 2.4 deg/s rms here), which a model of the gyro rates books on the
@@ -22,13 +22,13 @@ Now (3 deg multisines, every maneuver of the flight fitted, the proof of match o
 scenario's calm-air [validation_flight] - a 3-axis multisine, an elevator 3211, an aileron
 doublet - which the run flies into validation.mcap; seed 31): longitudinal FEM every
 derivative within 2.6 std (Cmde; its std the maneuver scatter where that is significantly
-beyond the Cramér-Rao bound, pipeline.validate.widen_by_scatter: with the bounds alone
+beyond the Cramér-Rao bound, pipeline.validation.validate.widen_by_scatter: with the bounds alone
 Cmalpha was 3.37 std off), lateral FEM within 2.9 (Cnp); every Theil
 coefficient below 0.1; the proof of match passes for FEM and UKF, and for the EKF's
 longitudinal model. EKF/UKF: longitudinal Cmalphadot 6.2/5.5, CLq 4.2/4.4, Cmalpha
 4.7/4.1, CL0 3.6/3.6 std off; lateral EKF Clbeta 7.7, Cnda 7.6, Cnp 4.2, Clp 3.4 (its
 Clp, Clda 28 and 20 filter-P std off, their maneuvers scattering 8.3x and 6.9x that: the
-std is the scatter, pipeline.validate.widen_by_scatter), UKF Clp 6.5, Clda 4.5.
+std is the scatter, pipeline.validation.validate.widen_by_scatter), UKF Clp 6.5, Clda 4.5.
 Over seeds 31-38 (benchmarks/multiaxis_seeds.py --methods fem): every derivative within 3
 reported std on 3/8 seeds (longitudinal) and 5/8 (lateral), 6/8 and 6/8 with the larger
 of the reported and the maneuver-scatter std; empirical / reported std up to 3.5
@@ -56,7 +56,7 @@ std (Clp); UKF all but Clp 5.9 within 3 std (8 passes); the EKF flipped Clp's si
 settled (Clp 14.9, Clda 7.1, Clbeta 5.6, CYbeta 5.4, CYp 5.2, Clr 5.2, CYda 3.6 std off).
 
 The measured surface positions drive the models low-passed where their noise floor begins
-(pipeline.input_smoothing; here de 9.5, da 6.0, dr 7.6 Hz): their 0.05 deg noise had
+(pipeline.conditioning.input_smoothing; here de 9.5, da 6.0, dr 7.6 Hz): their 0.05 deg noise had
 driven the model's roll mode as the aircraft never was, and the lateral FEM had put Clp and
 Clda 4.7 std off, both 23 % low (Cnp 3.6, Cnda 3.3), the EKF Clp 18.7, Clda 10.4, Clbeta
 8.0, the UKF Clp 6.5, Clda 3.6 (JSBSim's turbulence frame). Ad-hoc, the lateral model
@@ -115,7 +115,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.run import run_scenario
+from pipeline.jobs.run import run_scenario
 
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "multiaxis_multisine_turbulence.toml"
 METHODS = ("fem", "ekf", "ukf")
@@ -175,7 +175,7 @@ def test_no_input_dynamics_applied_in_the_gusts(report):
     """The MCAP logs the surfaces' own positions: no delay, no lag. Equation error in this
     flight's gusts is biased (its rates carry the gusts' response): the aileron's delay runs
     to the end of its range (216-228 ms with the range to 250 ms, seeds 31-33, ad hoc), so
-    an estimate there is not applied (pipeline.input_dynamics.DELAY_RANGE_S)."""
+    an estimate there is not applied (pipeline.conditioning.input_dynamics.DELAY_RANGE_S)."""
     dyn = report["meta"]["input_dynamics"]
     assert dyn["status"] == "estimated" and dyn["applied"] == {}
     assert dyn["surfaces"]["da"]["at_bound"], dyn["surfaces"]["da"]
@@ -206,7 +206,7 @@ def test_longitudinal_multiaxis_model(report, method):
         # the 4 fitted maneuvers' scatter (estimators.validation.cluster, from FEM's own
         # per-maneuver information; seed 31: median 1.76 of the Cramér-Rao bound, largest
         # 3.9 on CLq); where it is beyond an exact bound's 95 % limit (1.61x with 4
-        # maneuvers) it is the std (pipeline.validate.widen_by_scatter): CDalpha, CLalpha,
+        # maneuvers) it is the std (pipeline.validation.validate.widen_by_scatter): CDalpha, CLalpha,
         # CLq, Cmalpha, Cmq, CLalphadot, Cmalphadot 1.8-3.9x. With the Cramér-Rao bounds
         # Cmalpha was 3.37 std off; with these 1.54.
         cl = m["validation"]["uncertainty"]["cluster"]
@@ -302,12 +302,12 @@ def test_lateral_all_within_3_std(report, method):
 
 
 def test_methods_cross_check_finds_what_the_truth_finds(report):
-    """Without the truth, the run's methods check each other (pipeline.validate.
+    """Without the truth, the run's methods check each other (pipeline.validation.validate.
     cross_check_methods): the lateral EKF disagrees with FEM by more than 3 combined std
     (seed 31: on Clbeta and Cnda, 7.7 and 7.6 of its std off the truth), and every pair
     flagged holds a method that the truth check puts more than 3 std off. Its Clp and Clda
     (28 and 20 of its filter-P std off the truth, where its maneuvers scatter 8.3x and 6.9x
-    that P: the std is that scatter, pipeline.validate.widen_by_scatter) are within the
+    that P: the std is that scatter, pipeline.validation.validate.widen_by_scatter) are within the
     combined std of FEM's and the UKF's; with P they had been flagged too. The UKF's Clp
     (6.5 std off, low like FEM's 2.1) is no disagreement with FEM. On the longitudinal
     axis FEM's std is its maneuver scatter where that is significant (CLq 3.9x its
@@ -338,9 +338,9 @@ def test_filters_fail_where_they_disagree_with_filter_error(report, method):
     """The EKF's and UKF's verdicts are FAIL on both axes: in this coloured turbulence their
     white process noise puts them more than 3 std off the truth (the strict xfails above),
     and where they disagree with filter error of the same flight by more than 3 combined
-    std the verdict says so and why (pipeline.validate.REASON_LEVELS, DESIGN.md section 8;
+    std the verdict says so and why (pipeline.validation.validate.REASON_LEVELS, DESIGN.md section 8;
     seed 31: the lateral EKF on Clbeta and Cnda)."""
-    from pipeline.validate import FILTER_ERROR_TRUST
+    from pipeline.validation.validate import FILTER_ERROR_TRUST
 
     for axis in ("longitudinal", "lateral"):
         m = report["methods"][f"{axis}-{method}"]
@@ -519,7 +519,7 @@ def test_raw_inputs_keep_the_logged_surfaces(run_dir, tmp_path):
 def test_estimate_without_the_turbulence_level(run_dir, report, tmp_path):
     """``fsid estimate flight.mcap --method fem --validate-with validation.mcap``: the
     real-log path, where no Dryden level is known. Its gust models start from light
-    turbulence at the flight's altitude (pipeline.run.assumed_turbulence; before, the data
+    turbulence at the flight's altitude (pipeline.jobs.run.assumed_turbulence; before, the data
     default left the gust states at 0 and filter error stopped at a singular information
     matrix on the lateral axis, tau_pg); filter error lands where the run's did (which
     started from the scenario's level; ad hoc, from 0.3x and 3x that level too), and its
@@ -550,7 +550,7 @@ def test_estimate_without_the_turbulence_level(run_dir, report, tmp_path):
         == 0
     )
     rep = json.loads((out / "report.json").read_text())
-    # the UKF takes filter error's noise model: its F (pipeline.run.filter_process_noise)
+    # the UKF takes filter error's noise model: its F (pipeline.jobs.run.filter_process_noise)
     # and the roll gust's time constant held at FEM's estimate (GUST_NOISE_PARAMETERS;
     # with tau_pg free it ended at 0.38 s against FEM's 0.46 and Clp 3.0 std off)
     ukf = rep["methods"]["lateral-ukf"]
@@ -589,7 +589,7 @@ def test_estimate_from_the_bin_without_vanes(tmp_path):
     cannot see (ad hoc: -0.40 m/s over the flight, the air-relative alpha 0.45 deg above
     the inertial one). The reconstruction assumes no vertical wind; the uncertainty of
     that (and of the fitted horizontal wind) now reaches the estimates as a consider part
-    (pipeline.correction_uncertainty.wind): the vertical gust's level from the airspeed
+    (pipeline.uncertainty.consider.wind): the vertical gust's level from the airspeed
     residual above the pitot noise (2.07 m/s; truth 2.19), its time constant from the
     residual's correlation (6.8 s; L_w / V 8.0), averaged over the fitted maneuvers:
     0.76 m/s (longitudinal). With it CL0 is 1.05 total std off, Cm0 and CD0 under 1;
@@ -597,12 +597,12 @@ def test_estimate_from_the_bin_without_vanes(tmp_path):
     small there).
 
     The flight turns through 80 deg, enough for the wind fit to estimate the pitot's scale
-    factor with the wind (pipeline.flow_angles.airspeed_calibration): +2.99 +- 1.91 %
+    factor with the wind (pipeline.conditioning.flow_angles.airspeed_calibration): +2.99 +- 1.91 %
     (truth 0; the gusts colour the airspeed residual), not applied, and its std carried
     with the wind's: longitudinal within 1.85 std, lateral 3.04 (CYbeta)."""
     from pipeline.cli import main
     from pipeline.commands.simulate import simulate
-    from pipeline.identify import KINEMATIC_NOTE
+    from pipeline.problems.identify import KINEMATIC_NOTE
 
     run, _ = simulate(SCENARIO, tmp_path / "sim", progress=False)
     out = tmp_path / "est"

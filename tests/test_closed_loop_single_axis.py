@@ -1,5 +1,5 @@
 """One axis maneuvered in turbulence, from a log (no turbulence level known): the filters
-fit the gust models whatever the maneuvers (pipeline.run._method_problem), each axis driven
+fit the gust models whatever the maneuvers (pipeline.jobs.run._method_problem), each axis driven
 by the other axis' measured motion, with the Dryden gust states - the aerodynamics see
 p - p_turb whatever is flown.
 
@@ -63,7 +63,7 @@ def lateral_flight(tmp_path_factory):
 
 
 def test_lateral_filter_error_fits_the_gust_model(lateral_flight, tmp_path):
-    from pipeline.run import estimate_log
+    from pipeline.jobs.run import estimate_log
 
     out = tmp_path / "est"
     estimate_log(
@@ -96,13 +96,13 @@ def test_filter_error_restarts_when_it_does_not_converge(tmp_path):
     for -0.075, Clp -0.13 for -0.48); from there the earlier filter error wandered (F_p_g to 0, tau_pg
     to its bound) and stopped after 30 iterations with Clbeta 230 and CYbeta 204 std off
     the truth. It now refits with the process noise held first, then free
-    (pipeline.run._fem_restart), and keeps the fit of lower det R: converged, every
+    (pipeline.jobs.run._fem_restart), and keeps the fit of lower det R: converged, every
     derivative within 5.4 std (Cnbeta, CYbeta 4.9: the rebuilt sideslip's bias, the same
     as started from the truth)."""
-    from pipeline.correction_uncertainty import quiet_progress
-    from pipeline.identify import AircraftConstants, multiaxis_problem
-    from pipeline.readers import read_log
-    from pipeline.run import attach_logged_noise, fit_and_validate, flow_angle_stage
+    from pipeline.ingest.readers import read_log
+    from pipeline.jobs.run import attach_logged_noise, fit_and_validate, flow_angle_stage
+    from pipeline.problems.identify import AircraftConstants, multiaxis_problem
+    from pipeline.uncertainty.consider import quiet_progress
 
     run = _aileron_rudder_flight(tmp_path, 37)
     truth_doc = json.loads((run / "truth.json").read_text())

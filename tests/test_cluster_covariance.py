@@ -103,10 +103,10 @@ def test_the_maneuvers_expose_output_error_in_turbulence():
     the air as calm, puts a derivative 6-24 of its std off, and its maneuvers scatter
     far beyond its bounds (Cmalpha, Cmq, Cmde: variance 14-187x) - which the validation
     flags without knowing the truth, and where the scatter is significant reports as the
-    std (pipeline.validate.widen_by_scatter): output error is then within 3 of it."""
+    std (pipeline.validation.validate.widen_by_scatter): output error is then within 3 of it."""
     from estimators import FilterError, OutputError
     from estimators.process_noise_examples import turbulent_short_period_example
-    from pipeline.validate import validate
+    from pipeline.validation.validate import validate
 
     names = ["CLalpha", "CLde", "Cmalpha", "Cmq", "Cmde"]
     fem_ratio, worst_wide = [], []
@@ -130,7 +130,7 @@ def test_the_maneuvers_expose_output_error_in_turbulence():
         crb = pd.Series(np.sqrt(np.diag(oem.extra["crb_cov"])), index=oem.free_names)
         assert max(abs(oem.params[n] - ex.truth[n]) / crb[n] for n in names) > 3.0
         # where they scatter significantly more, the scatter is the std reported
-        # (pipeline.validate.widen_by_scatter): output error is then within it
+        # (pipeline.validation.validate.widen_by_scatter): output error is then within it
         wide = vo["uncertainty"]["widened"]["parameters"]
         assert oem.std_method == "crb|scatter" and {"Cmalpha", "Cmq", "Cmde"} <= set(wide), wide
         worst_wide.append(max(abs(oem.params[n] - ex.truth[n]) / oem.std[n] for n in names))

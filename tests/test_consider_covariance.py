@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from estimators import EstimationResult, Model, Parameter
-from pipeline.correction_uncertainty import correction_covariance
+from pipeline.uncertainty.consider import correction_covariance
 
 
 def _result(consider=None):
@@ -85,8 +85,8 @@ def _doc():
 def test_propagate_builds_j_c_jt_from_the_refits():
     """The refit sees the data corrected with one correction moved by its std; a fit whose
     estimates move linearly with the corrections gets exactly J C J^T."""
-    from pipeline.correction_uncertainty import propagate
-    from pipeline.flightdata import Channel, FlightData
+    from pipeline.ingest.flightdata import Channel, FlightData
+    from pipeline.uncertainty.consider import propagate
 
     t = np.arange(0.0, 1.0, 0.01)
     fd = FlightData({"q": Channel(t, np.zeros_like(t), "rad/s")}, {}, [])
@@ -110,8 +110,8 @@ def test_propagate_builds_j_c_jt_from_the_refits():
 
 
 def test_propagate_keeps_the_crb_when_a_refit_fails():
-    from pipeline.correction_uncertainty import propagate
-    from pipeline.flightdata import FlightData
+    from pipeline.ingest.flightdata import FlightData
+    from pipeline.uncertainty.consider import propagate
 
     res = _result()
 

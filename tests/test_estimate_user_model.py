@@ -1,6 +1,6 @@
 """``fsid estimate LOG --model FILE.py:NAME``: a user model on a simulated log written by the
 product's own writers (no mocks), its one-line errors, and where the built-in models get
-the aircraft and the sensor positions from (pipeline.aircraft_setup)."""
+the aircraft and the sensor positions from (pipeline.ingest.aircraft)."""
 
 import json
 import shutil
@@ -8,10 +8,10 @@ import textwrap
 
 import pytest
 
-from pipeline.aircraft_setup import aircraft_for_log
 from pipeline.cli import main
 from pipeline.errors import FsidError
-from pipeline.readers import read_log
+from pipeline.ingest.aircraft import aircraft_for_log
+from pipeline.ingest.readers import read_log
 
 ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
 SCENARIOS = ROOT / "scenarios"
@@ -74,7 +74,7 @@ def flight(tmp_path_factory):
     """longitudinal_3211_calm flown once: flight.mcap, flight.bin, truth.json in one folder,
     and the user model file next to it."""
     import sim
-    from pipeline.writers import write_dataflash, write_mcap, write_truth_json
+    from pipeline.outputs.writers import write_dataflash, write_mcap, write_truth_json
 
     out = tmp_path_factory.mktemp("sim")
     result = sim.fly(sim.load_scenario(SCENARIOS / "longitudinal_3211_calm.toml"), seed=4, workdir=out / ".jsbsim")

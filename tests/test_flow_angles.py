@@ -1,4 +1,4 @@
-"""Air-data angles from the flight path (pipeline.flow_angles) and flying in wind.
+"""Air-data angles from the flight path (pipeline.conditioning.flow_angles) and flying in wind.
 
 Unit part: the wind fit on kinematics built by hand (known wind, known sideslip), the
 errors. Closed loop: longitudinal_3211_calm flown in a 6.4 m/s steady wind ([wind],
@@ -22,9 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.errors import FsidError
-from pipeline.flightdata import Channel, FlightData
-from pipeline.flow_angles import (
+from pipeline.conditioning.flow_angles import (
     SCALE_STD_MAX,
     _body_axes,
     correlation_time,
@@ -33,6 +31,8 @@ from pipeline.flow_angles import (
     reconstruct_flow_angles,
     wind_uncertainty,
 )
+from pipeline.errors import FsidError
+from pipeline.ingest.flightdata import Channel, FlightData
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -142,7 +142,7 @@ def test_airspeed_calibration_rules():
     above SCALE_STD_MAX, as with 10 deg of weaving heading: 2.5 %) is not identifiable;
     significant and plausible is applied; beyond SCALE_MAX it is taken as 0, like one not
     identifiable (units or a blocked pitot, not a calibration)."""
-    from pipeline.flow_angles import SCALE_MAX, WindFit, airspeed_calibration
+    from pipeline.conditioning.flow_angles import SCALE_MAX, WindFit, airspeed_calibration
 
     def fit(k, sd):
         z = np.zeros(1)
@@ -296,8 +296,8 @@ def _fly_in_wind(d: Path, scenario: str):
     MCAP without the vanes. Returns (run folder, SimResult)."""
     pytest.importorskip("jsbsim")
     from pipeline.commands.simulate import simulate
-    from pipeline.maps import plain_map_toml
-    from pipeline.readers import read_log
+    from pipeline.ingest.maps import plain_map_toml
+    from pipeline.ingest.readers import read_log
 
     src = (ROOT / "scenarios" / f"{scenario}.toml").read_text()
     src = src.replace('aircraft = "aircraft/', f'aircraft = "{ROOT}/scenarios/aircraft/')
@@ -328,7 +328,7 @@ def test_sim_wind_is_steady_and_the_airspeed_air_relative(windy):
 
 
 def test_estimate_without_vanes_in_wind(windy):
-    from pipeline.run import estimate_log
+    from pipeline.jobs.run import estimate_log
 
     d, run_dir, _ = windy
     estimate_log(
@@ -371,7 +371,7 @@ def test_estimate_without_vanes_in_wind_and_turbulence(tmp_path):
     1.2 std; before, with the wings-level model on the rebuilt angles' 10 Hz grid, 3.6
     (CLde; with the vanes on its 50 Hz grid within 2.8); OEM, which has no gusts, up to
     13.6 std."""
-    from pipeline.run import estimate_log
+    from pipeline.jobs.run import estimate_log
 
     run_dir, _ = _fly_in_wind(tmp_path, "longitudinal_3211_turbulence")
     estimate_log(
@@ -402,8 +402,8 @@ def test_autopilot_angle_estimates_are_rebuilt(windy):
     """ArduPilot's AOA/SSA are its AHRS's estimate from the EKF velocity and wind (the map
     marks them ``derived``): fsid estimate rebuilds them like missing vanes, and the
     sensor-compatibility stage does not see them as air data."""
-    from pipeline.readers import read_log
-    from pipeline.run import Progress, flow_angle_stage
+    from pipeline.ingest.readers import read_log
+    from pipeline.jobs.run import Progress, flow_angle_stage
 
     _, run_dir, _ = windy
     fd = read_log(run_dir / "flight.bin")
@@ -415,8 +415,8 @@ def test_autopilot_angle_estimates_are_rebuilt(windy):
 
 def test_autopilot_angles_kept_when_they_cannot_be_rebuilt():
     """A real ArduPilot log on the ground (no forward flight): its AOA stays, and says so."""
-    from pipeline.readers import read_log
-    from pipeline.run import Progress, flow_angle_stage
+    from pipeline.ingest.readers import read_log
+    from pipeline.jobs.run import Progress, flow_angle_stage
 
     log = ROOT.parent / "shared" / "data" / "logs" / "ardupilot_plane_ground_truncated.BIN"
     if not log.is_file():

@@ -2,7 +2,7 @@
 
 Each format gets >= 1000 mutated inputs (truncation, flipped bytes, inserted/deleted
 bytes, zeroed blocks, spliced garbage). The only exception allowed out of ``read_log`` is
-the documented :class:`pipeline.readers.LogReadError`; and when a file is merely cut
+the documented :class:`pipeline.ingest.readers.LogReadError`; and when a file is merely cut
 short, every record that lies wholly before the cut is kept.
 """
 
@@ -17,9 +17,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pipeline.flightdata import FlightData
-from pipeline.readers import LogReadError, read_log
-from pipeline.readers.synth import demo_dataflash, encode_tlog, encode_ulog, write_json_mcap
+from pipeline.ingest.flightdata import FlightData
+from pipeline.ingest.readers import LogReadError, read_log
+from pipeline.ingest.readers.synth import demo_dataflash, encode_tlog, encode_ulog, write_json_mcap
 
 N_EXAMPLES = int(os.environ.get("FSID_FUZZ_EXAMPLES", "1000"))
 FUZZ = settings(

@@ -1,14 +1,14 @@
-"""pipeline.identify.usable_segments: the one place that cuts segment windows out of the
+"""pipeline.problems.identify.usable_segments: the one place that cuts segment windows out of the
 multi-rate frame, leaves out found segments with gaps and refuses a given one with one clear
-message; pipeline.identify.multirate_frame: slower outputs at their own samples."""
+message; pipeline.problems.identify.multirate_frame: slower outputs at their own samples."""
 
 import numpy as np
 import pandas as pd
 import pytest
 
 from pipeline.errors import FsidError
-from pipeline.flightdata import SegmentSpec
-from pipeline.identify import usable_segments
+from pipeline.ingest.flightdata import SegmentSpec
+from pipeline.problems.identify import usable_segments
 
 
 def _frame():
@@ -86,9 +86,9 @@ def test_the_longitudinal_problem_fits_the_usable_maneuvers():
     pytest.importorskip("jsbsim")
     from _simdata import written
 
-    from pipeline.flightdata import FlightData
-    from pipeline.identify import AircraftConstants, longitudinal_problem
-    from pipeline.readers import read_log
+    from pipeline.ingest.flightdata import FlightData
+    from pipeline.ingest.readers import read_log
+    from pipeline.problems.identify import AircraftConstants, longitudinal_problem
 
     d = written("default")
     fd = read_log(d / "flight.mcap")
@@ -114,8 +114,8 @@ def test_slow_outputs_off_the_grid_keep_every_sample():
     the fast outputs, with 1 ms jitter: every native sample is one grid sample, valued at
     its grid time, NaN in between. Keeping only samples within a quarter step of the grid
     (before) dropped nearly all of them."""
-    from pipeline.flightdata import Channel, FlightData
-    from pipeline.identify import multirate_frame
+    from pipeline.ingest.flightdata import Channel, FlightData
+    from pipeline.problems.identify import multirate_frame
 
     rng = np.random.default_rng(3)
     tf = np.arange(0.0, 20.0, 0.01)
@@ -156,11 +156,11 @@ def test_slow_outputs_off_the_grid_keep_every_sample():
     ],
 )
 def test_the_grid_runs_at_least_at_90_hz(fastest, grid):
-    """pipeline.flightdata.fit_grid_rate: the fastest output's rate up to MAX_RATE_HZ; a
+    """pipeline.ingest.flightdata.fit_grid_rate: the fastest output's rate up to MAX_RATE_HZ; a
     slower one's smallest whole multiple that reaches 90 Hz (a 100 Hz IMU whose stamps
     measure 99.8 Hz keeps its grid; it is not doubled)."""
-    from pipeline.flightdata import fit_grid_rate
-    from pipeline.identify import MAX_RATE_HZ
+    from pipeline.ingest.flightdata import fit_grid_rate
+    from pipeline.problems.identify import MAX_RATE_HZ
 
     assert fit_grid_rate(fastest, MAX_RATE_HZ) == pytest.approx(grid)
 
@@ -168,8 +168,8 @@ def test_the_grid_runs_at_least_at_90_hz(fastest, grid):
 def test_a_25_hz_imu_is_compared_at_its_own_samples():
     """Every output at 25 Hz (an ArduPilot IMU): the grid runs at 100 Hz, the inputs at
     every grid time, each output at its own samples only (every 4th row), NaN in between."""
-    from pipeline.flightdata import Channel, FlightData
-    from pipeline.identify import multirate_frame
+    from pipeline.ingest.flightdata import Channel, FlightData
+    from pipeline.problems.identify import multirate_frame
 
     ts, tu = np.arange(0.0, 10.0, 0.04), np.arange(0.0, 10.0, 0.04)
     fd = FlightData(
@@ -190,12 +190,12 @@ def test_a_25_hz_imu_is_compared_at_its_own_samples():
 
 def test_accelerometers_are_left_out_inside_a_step_ramp():
     """Where the fits' control input is a ramp standing in for a step between two slow
-    samples (meta["input_steps"] of pipeline.input_sampling.time_steps), the accelerometer
+    samples (meta["input_steps"] of pipeline.conditioning.input_sampling.time_steps), the accelerometer
     samples strictly inside it are NaN (the model's control force is part of the way
     through the step, the aircraft's was not); the gyros and every other sample stay; a
     surface's applied delay moves its spans with it."""
-    from pipeline.flightdata import Channel, FlightData
-    from pipeline.identify import multirate_frame
+    from pipeline.ingest.flightdata import Channel, FlightData
+    from pipeline.problems.identify import multirate_frame
 
     t = np.arange(0.0, 2.0, 0.01)
     chans = {

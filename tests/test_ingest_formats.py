@@ -6,9 +6,15 @@ import numpy as np
 import pytest
 
 from pipeline.errors import FsidError
-from pipeline.readers import LogReadError, detect_format, read_log
-from pipeline.readers.dataflash import message_arrays, read_dataflash, scaled
-from pipeline.readers.synth import demo_dataflash, encode_tlog, encode_ulog, px4_surface_commands, write_json_mcap
+from pipeline.ingest.readers import LogReadError, detect_format, read_log
+from pipeline.ingest.readers.dataflash import message_arrays, read_dataflash, scaled
+from pipeline.ingest.readers.synth import (
+    demo_dataflash,
+    encode_tlog,
+    encode_ulog,
+    px4_surface_commands,
+    write_json_mcap,
+)
 
 
 @pytest.fixture(scope="module")
@@ -243,7 +249,7 @@ def test_wrong_extension_and_empty(tmp_path):
 
 
 def test_resample_antialias_and_segments(binfile):
-    from pipeline.flightdata import Channel, FlightData
+    from pipeline.ingest.flightdata import Channel, FlightData
 
     t = np.arange(0, 60, 0.005)  # 200 Hz
     de = np.where((t > 20) & (t < 26), np.radians(5) * np.sign(np.sin(2 * np.pi * (t - 20) / 3)), 0.0)
@@ -265,8 +271,8 @@ def test_continuous_excitation_is_cut_into_pieces():
     """200 s of multisine on aileron and rudder (one span of activity each) give pieces of
     at most 60 s per surface, and the lateral windows (aileron and rudder merged) are cut
     again: 4 to fit and hold out, not one window the pipeline can neither fit nor prove."""
-    from pipeline.flightdata import MAX_AUTO_SEGMENT_S, Channel, FlightData
-    from pipeline.identify import merge_overlapping
+    from pipeline.ingest.flightdata import MAX_AUTO_SEGMENT_S, Channel, FlightData
+    from pipeline.problems.identify import merge_overlapping
 
     t = np.arange(0, 220, 0.02)
     on = (t > 10) & (t < 210)
@@ -289,7 +295,7 @@ def test_continuous_excitation_is_cut_into_pieces():
 
 
 def test_px4_tlog_dialect(tmp_path):
-    from pipeline.readers.synth import encode_px4_tlog
+    from pipeline.ingest.readers.synth import encode_px4_tlog
 
     p = tmp_path / "px4.tlog"
     p.write_bytes(encode_px4_tlog(n=60))
@@ -307,7 +313,7 @@ def test_px4_tlog_dialect(tmp_path):
 
 
 def test_dataflash_fmtu_unit_conflict_is_reported(binfile, tmp_path):
-    from pipeline.checks import run_checks
+    from pipeline.conditioning.checks import run_checks
 
     m = tmp_path / "m.toml"
     m.write_text('[map]\nextends = "ardupilot_bin"\n[channels.phi]\nsource = "ATT.Roll"\nunit = "rad"\n')

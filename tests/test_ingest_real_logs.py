@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.checks import run_checks
-from pipeline.readers import read_log
+from pipeline.conditioning.checks import run_checks
+from pipeline.ingest.readers import read_log
 
 
 def _logs_dir() -> Path:
@@ -232,7 +232,7 @@ def test_ulg_resample_common_base(ulg_fd):
 
 
 def test_tlog_autopilot_time_base(tlog_fd, tlog_recv):
-    """The default time base of a .tlog: the autopilot's stamps (pipeline.readers.tlog_time).
+    """The default time base of a .tlog: the autopilot's stamps (pipeline.ingest.readers.tlog_time).
     Expected numbers from mavutil over the file, in file order."""
     fd = tlog_fd
     assert fd.meta["time_base"].startswith("autopilot stamps")
@@ -279,7 +279,7 @@ def test_tlog_circles_calibrate_the_airspeed_with_the_wind(tlog_fd):
     """The quadplane's CIRCLE and loiter flight turns through 700 deg: the wind fit can tell
     a pitot scale factor from the wind (std 0.42 %), and SITL's simulated pitot has none
     (estimate -0.01 %, not applied, its std carried) in its near-calm air (0.1 m/s)."""
-    from pipeline.flow_angles import reconstruct_flow_angles
+    from pipeline.conditioning.flow_angles import reconstruct_flow_angles
 
     out, doc = reconstruct_flow_angles(tlog_fd)
     cal = doc["airspeed_scale"]

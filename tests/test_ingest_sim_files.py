@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 pytest.importorskip("jsbsim")
-from pipeline.readers import read_log  # noqa: E402
+from pipeline.ingest.readers import read_log  # noqa: E402
 
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "sensor_errors_calm.toml"
 
@@ -92,7 +92,7 @@ def test_aircraft_servo_travel_flies_and_decodes(tmp_path):
     and the built-in map decodes RCOU with them - the decoded deflections are what was
     flown (after the trim point); a map default of 30 deg would put de 20 % off."""
     import sim
-    from pipeline.writers import write_dataflash
+    from pipeline.outputs.writers import write_dataflash
     from tests._simdata import SCENARIOS, custom
 
     ac = (SCENARIOS / "aircraft" / "uav_small.toml").read_text()
@@ -160,7 +160,7 @@ def test_airspeed_without_a_sensor_is_the_autopilots_estimate(files, tmp_path):
     estimate CTUN.As x E2T, said to be one; without CTUN either, V is missing and both
     reasons are named. A fallback of a fallback is a map error."""
     from pipeline.errors import FsidError
-    from pipeline.maps import load_map
+    from pipeline.ingest.maps import load_map
     from tests._simdata import written
 
     fb = files[0]
@@ -189,7 +189,7 @@ def test_velocity_without_the_ekf_is_the_gps_receivers(files, tmp_path):
     equal what XKF1 held (the simulator logs the same GPS velocity in both). A transform
     the maps do not know is a map error."""
     from pipeline.errors import FsidError
-    from pipeline.maps import load_map
+    from pipeline.ingest.maps import load_map
     from tests._simdata import written
 
     fb = files[0]

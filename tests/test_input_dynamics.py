@@ -1,4 +1,4 @@
-"""The delay and lag between a logged control input and its surface (pipeline.input_dynamics).
+"""The delay and lag between a logged control input and its surface (pipeline.conditioning.input_dynamics).
 
 Hand-computed: the lag's ramp response, cubic reads of a quadratic, a channel moved by
 given dynamics. Closed loop: the default scenario flown with a 50 ms first-order servo lag
@@ -18,8 +18,8 @@ import json
 import numpy as np
 import pytest
 
-from pipeline.flightdata import Channel, FlightData
-from pipeline.input_dynamics import cubic_at, estimate_input_dynamics, lagged, with_input_dynamics
+from pipeline.conditioning.input_dynamics import cubic_at, estimate_input_dynamics, lagged, with_input_dynamics
+from pipeline.ingest.flightdata import Channel, FlightData
 
 LAG = 0.05
 
@@ -60,7 +60,7 @@ def test_a_channel_takes_the_given_delay_and_lag():
 def test_consider_covariance_is_the_applied_part_of_the_joint_one():
     """The refits move the applied surfaces' delays and lags; a lag at its bound 0 has no
     std and is left out; the cross-surface covariance of the joint fit is kept."""
-    from pipeline.input_dynamics import covariance
+    from pipeline.conditioning.input_dynamics import covariance
 
     names = ["de delay", "de lag", "da delay", "da lag", "dr delay", "dr lag"]
     sd = np.array([1.0, 2.0, 3.0, 0.0, 5.0, 6.0]) * 1e-3
@@ -84,7 +84,7 @@ def lagged_flight(tmp_path_factory):
     """The default scenario with a 50 ms servo lag, written as flight.bin / flight.mcap."""
     pytest.importorskip("jsbsim")
     import sim
-    from pipeline.writers import write_dataflash, write_mcap, write_truth_json
+    from pipeline.outputs.writers import write_dataflash, write_mcap, write_truth_json
     from tests._simdata import custom, scenario
 
     raw = dict(scenario("default").raw)
@@ -98,7 +98,7 @@ def lagged_flight(tmp_path_factory):
 
 
 def test_servo_lag_found_from_the_commands(lagged_flight):
-    from pipeline.readers import read_log
+    from pipeline.ingest.readers import read_log
 
     doc = estimate_input_dynamics(read_log(lagged_flight / "flight.bin"))
     assert set(doc["surfaces"]) == {"de", "da", "dr"} and set(doc["applied"]) == {"de", "da", "dr"}
@@ -167,7 +167,7 @@ def test_estimate_applies_the_servo_lag(lagged_flight, tmp_path, capsys):
 
 
 def test_a_failed_refinement_keeps_the_equation_error_values():
-    from pipeline.input_dynamics import refine_by_output_error, summary
+    from pipeline.conditioning.input_dynamics import refine_by_output_error, summary
 
     doc = {
         "status": "estimated",

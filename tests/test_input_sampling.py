@@ -1,6 +1,6 @@
-"""Control inputs logged more slowly than the fits' grid (pipeline.input_sampling): the
+"""Control inputs logged more slowly than the fits' grid (pipeline.conditioning.input_sampling): the
 steps of a 25 Hz surface log are found, moved exactly, and their unknown times carried to
-the estimates (pipeline.correction_uncertainty.input_sampling).
+the estimates (pipeline.uncertainty.consider.input_sampling).
 
 Closed loop: default.toml with its surfaces logged at 25 Hz beside the 100 Hz IMU (the
 servo outputs of an ArduPilot log), ``fsid estimate flight.bin``. Output error's Cramér-Rao
@@ -17,8 +17,8 @@ import tomllib
 import numpy as np
 import pytest
 
-from pipeline.flightdata import Channel, FlightData
-from pipeline.input_sampling import Edge, step_edges, with_edges_moved
+from pipeline.conditioning.input_sampling import Edge, step_edges, with_edges_moved
+from pipeline.ingest.flightdata import Channel, FlightData
 from tests._roll import roll_model, roll_segment
 
 
@@ -81,7 +81,7 @@ def test_a_kink_is_timed_from_gyros_near_the_step_only(gyro_hz, timed):
     3 std (100 and 25 Hz: none of the 25 Hz samples falls inside the step's interval),
     but not from 4 Hz telemetry gyros, whose samples within REFINE_MAX_HALF_S of the step
     are too few for the kink's model (it would have been fitted over 3 s)."""
-    from pipeline.input_sampling import refine_steps
+    from pipeline.conditioning.input_sampling import refine_steps
 
     step, rng = 2.063, np.random.default_rng(7)
     ts = np.arange(0.0, 4.0, 0.1)
@@ -109,7 +109,7 @@ def _slow_flight(tmp_path_factory, rates: dict[str, float], name: str):
     simulation) per input."""
     pytest.importorskip("jsbsim")
     import sim
-    from pipeline.writers import write_dataflash, write_truth_json
+    from pipeline.outputs.writers import write_dataflash, write_truth_json
     from tests._simdata import SCENARIOS, custom
 
     raw = tomllib.loads((SCENARIOS / "default.toml").read_text())
@@ -146,9 +146,9 @@ def test_the_steps_are_timed_from_the_gyros(flight, min_share, request):
     3.7; errors rms 2.7, 0.5, 0.4 ms in 40 ms intervals); 25 Hz gyros, timed from the samples
     after the step (seeds 1-4, ad hoc: elevator 40 of 40 timed, 3.4 ms rms, error / std rms
     0.90; aileron 48 of 48, 1.7 ms, 0.48)."""
-    from pipeline.identify import MAX_RATE_HZ
-    from pipeline.input_sampling import step_times, time_steps
-    from pipeline.readers import read_log
+    from pipeline.conditioning.input_sampling import step_times, time_steps
+    from pipeline.ingest.readers import read_log
+    from pipeline.problems.identify import MAX_RATE_HZ
 
     d, truth = request.getfixturevalue(flight)
     fd = read_log(d / "flight.bin")
@@ -185,7 +185,7 @@ def test_the_steps_are_timed_from_the_gyros(flight, min_share, request):
 
 
 def test_the_steps_times_reach_the_estimates(slow_surfaces):
-    from pipeline.run import estimate_log
+    from pipeline.jobs.run import estimate_log
 
     d, _ = slow_surfaces
     out = d / "est"
@@ -210,9 +210,9 @@ def test_a_25_hz_log_throughout(tmp_path):
     """IMU, attitude and surfaces at 25 Hz, air data 10, GPS 5 (an ArduPilot log's usual
     rates): no gyro sample falls inside a step's 40 ms, but the kink shows in the samples
     after it, so the steps are timed all the same (seed 1: 27 of 28), and the fits run on
-    a 100 Hz grid (pipeline.flightdata.fit_grid_rate) with each output at its own 25 Hz
+    a 100 Hz grid (pipeline.ingest.flightdata.fit_grid_rate) with each output at its own 25 Hz
     samples, so that a timed step is a 10 ms ramp where it was. The control inputs' delays
-    and lags are not estimated from 25 Hz gyros (pipeline.input_dynamics.MIN_RATE_HZ: the
+    and lags are not estimated from 25 Hz gyros (pipeline.conditioning.input_dynamics.MIN_RATE_HZ: the
     rudder's had come out at 57 ms and 79 ms, truth none, and were withdrawn).
     Seed 1: every derivative within 0.7 total std (the Cramér-Rao bound alone: Clda 9.3
     std off). Before (the steps untimed, each carried with h / sqrt(12), on the 25 Hz grid):
@@ -220,8 +220,8 @@ def test_a_25_hz_log_throughout(tmp_path):
     lateral fit was within 3 total std on 7 (CYbeta 12 % high on the 5 others), now on 12."""
     pytest.importorskip("jsbsim")
     import sim
-    from pipeline.run import estimate_log
-    from pipeline.writers import write_dataflash, write_truth_json
+    from pipeline.jobs.run import estimate_log
+    from pipeline.outputs.writers import write_dataflash, write_truth_json
     from tests._simdata import SCENARIOS, custom
 
     raw = tomllib.loads((SCENARIOS / "default.toml").read_text())
@@ -266,11 +266,11 @@ def test_the_proof_of_match_moves_an_untimed_step_within_its_interval(tmp_path):
     untimed: the fits' input is a ramp over 100 ms, 38 ms late at its middle, and the true
     model's prediction misses the measured roll rate by about 3 deg/s just after it (band
     1.5). With the step also at 0, 1/4 ... 1 of its interval the measurement lies within the
-    predictions' range (pipeline.input_sampling.timing_variants): the proof of match
+    predictions' range (pipeline.conditioning.input_sampling.timing_variants): the proof of match
     passes, and says what it did; a wrong Lda still fails it."""
     from estimators import OutputError
-    from pipeline.input_sampling import TIMING_FRACTIONS, timing_variants
-    from pipeline.validate import validate
+    from pipeline.conditioning.input_sampling import TIMING_FRACTIONS, timing_variants
+    from pipeline.validation.validate import validate
 
     t = np.round(np.arange(0.0, 3.0, 0.01), 10)
     amp = np.radians(2.0)
@@ -324,7 +324,7 @@ def test_the_proof_of_match_moves_an_untimed_step_within_its_interval(tmp_path):
     assert p["envelope_max_width_display"] > 4.0  # about 80 deg/s^2 over 90 ms, less the decay
     # run.rrd: the predictions' range beside the prediction, on the held-out samples
     rc = pytest.importorskip("rerun.chunk")
-    from pipeline.recording import write_recording
+    from pipeline.outputs.recording import write_recording
 
     path = write_recording(
         tmp_path / "run.rrd", {"oem": res}, {"oem": validate(res, held_out=[held], step_times=[spans])}

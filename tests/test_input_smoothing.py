@@ -1,11 +1,11 @@
 """Zero-phase smoothing of measured control inputs at their noise floor
-(pipeline.input_smoothing), on synthetic surface positions with known content."""
+(pipeline.conditioning.input_smoothing), on synthetic surface positions with known content."""
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from pipeline.input_smoothing import (
+from pipeline.conditioning.input_smoothing import (
     INPUT_FILTER_ORDER,
     MIN_CORNER_HZ,
     MIN_SAMPLES,
@@ -14,7 +14,7 @@ from pipeline.input_smoothing import (
     smooth_columns,
     zero_phase,
 )
-from pipeline.readers import read_log
+from pipeline.ingest.readers import read_log
 
 RATE = 100.0
 T = np.arange(0, 60, 1 / RATE)

@@ -2,7 +2,7 @@
 UAV in a steady (3, -4) m/s wind, pitot (1 + 0.03) V + 0.4 m/s, the default maneuvers and a
 210 deg turn) -> ``run_scenario`` writes flight.bin -> ``estimate_log`` rebuilds alpha and
 beta from the flight path and estimates the pitot's scale factor with the wind
-(pipeline.flow_angles.airspeed_calibration) -> output error on the calibrated airspeed.
+(pipeline.conditioning.flow_angles.airspeed_calibration) -> output error on the calibrated airspeed.
 
 Measured (seed 1): scale factor +4.37 +- 0.04 % (the pitot's 3 % plus its 0.4 m/s bias,
 4.2-4.4 % over the flight's 29-34 m/s), wind (3.01, -3.96) m/s; every derivative within
@@ -20,8 +20,8 @@ from pathlib import Path
 import pytest
 
 pytest.importorskip("jsbsim")
-import pipeline.flow_angles as flow_angles  # noqa: E402
-from pipeline.run import estimate_log, run_scenario  # noqa: E402
+import pipeline.conditioning.flow_angles as flow_angles  # noqa: E402
+from pipeline.jobs.run import estimate_log, run_scenario  # noqa: E402
 
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "pitot_wind_turn.toml"
 #: the pitot's scale factor the airspeed shows: (1.03 V + 0.4) / V - 1 over the flight's

@@ -1,12 +1,12 @@
 """Covariance of estimates from a model fed its own measurements
-(estimators.pseudo_input_noise), against hand-computed values."""
+(estimators.output_error.pseudo_input_noise), against hand-computed values."""
 
 import numpy as np
 import pytest
 
 from estimators import Model, OutputError
 from estimators.model import Parameter, Segment
-from estimators.pseudo_input_noise import (
+from estimators.output_error.pseudo_input_noise import (
     PropagationError,
     adjoint_sums,
     onto_measured,

@@ -1,4 +1,4 @@
-"""The .tlog time base (pipeline.readers.tlog_time) on a telemetry log written with pymavlink
+"""The .tlog time base (pipeline.ingest.readers.tlog_time) on a telemetry log written with pymavlink
 whose link delivers packets in bursts, one out of order and one twice, with an autopilot
 reboot and a 32-bit ``time_usec`` that wraps: every sample must land at its autopilot stamp.
 """
@@ -12,7 +12,7 @@ import struct
 import numpy as np
 import pytest
 
-from pipeline.readers.tlog import read_tlog
+from pipeline.ingest.readers.tlog import read_tlog
 
 RATE = 20.0  # Hz, samples per message type
 BURST = 0.5  # s, the link delivers what it buffered every 0.5 s
@@ -114,8 +114,8 @@ def test_a_reset_stamp_is_not_trusted(tmp_path):
 
 
 def test_time_base_choices(tmp_path):
-    from pipeline.readers.base import LogReadError
-    from pipeline.readers.synth import encode_tlog
+    from pipeline.ingest.readers.base import LogReadError
+    from pipeline.ingest.readers.synth import encode_tlog
 
     p, _ = _flight(tmp_path)
     with pytest.raises(LogReadError, match="time_base must be"):
@@ -149,7 +149,7 @@ def test_time_base_option_of_read_log_and_the_cli(tmp_path, capsys):
     """``read_log(time_base=)`` and ``fsid check --time-base``: the receive times on request,
     a time base the format does not offer is one line and exit code 2."""
     from pipeline.cli import main
-    from pipeline.readers import LogReadError, read_log
+    from pipeline.ingest.readers import LogReadError, read_log
 
     p, truth = _flight(tmp_path)
     auto, recv = read_log(p), read_log(p, time_base="log")

@@ -16,8 +16,8 @@ from estimators import (
     SimulationDivergedError,
     StabilizedOutputError,
 )
+from estimators.output_error.stabilized import _linearisation
 from estimators.process_noise_examples import UNSTABLE_SP_FREE, unstable_short_period_example
-from estimators.stabilized import _linearisation
 
 
 @pytest.fixture(scope="module")

@@ -26,8 +26,8 @@ from estimators import (
     Segment,
     simulate_outputs,
 )
+from estimators.compile.kernels import kernel_for
 from estimators.datasets import multistep
-from estimators.jit import kernel_for
 
 CONSTANTS = dict(
     g0=9.80665, Sbym=4.028e-3, Scbyiy=8.0027e-4, Feiylt=-7.0153e-6, v0=104.67, rm=7472.0, sigmat=0.0524, rho=0.792
@@ -144,7 +144,7 @@ def test_helper_functions_are_compiled_with_f(seg):
     m = model(START)
     OutputError(m).fit([seg])
     assert kernel_for(m).compiled
-    from estimators.fem import output_kernel
+    from estimators.filters.filter_error import output_kernel
 
     assert output_kernel(m) is not None
 
@@ -168,7 +168,7 @@ def test_filters_pass_until_settled(seg, cls):
     capped = cls(model(START), max_passes=2).fit([seg])  # not enough passes: said so
     assert not capped.converged and capped.iterations == 2
     assert "still moved a parameter by" in capped.extra["not_settled"]
-    from pipeline.validate import verdict
+    from pipeline.validation.validate import verdict
 
     v = verdict({"converged": capped.converged, "not_settled": capped.extra["not_settled"]})
     assert not v["ok"] and v["reasons"][0].startswith("the filter passes did not settle: the last of 2")

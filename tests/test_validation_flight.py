@@ -1,5 +1,5 @@
 """The proof of match on a second flight: a scenario's [validation_flight] (sim.scenario) and
-``fsid estimate LOG --validate-with LOG2`` (pipeline.run.identify(validation=...)): every
+``fsid estimate LOG --validate-with LOG2`` (pipeline.jobs.run.identify(validation=...)): every
 maneuver of the first log fitted, the model proved on the second's. Real JSBSim flights
 written by the product's writers and read back."""
 
@@ -11,7 +11,7 @@ import pytest
 
 import sim
 from pipeline.cli import main
-from pipeline.readers import read_log
+from pipeline.ingest.readers import read_log
 from tests._simdata import SCENARIOS, custom, scenario
 
 VALIDATION = {
@@ -69,7 +69,7 @@ def two_flights(tmp_path_factory):
     """longitudinal_3211_calm flown three times (seeds 4, 5, 6): flight.mcap with truth.json,
     and second.mcap, third.mcap in the same folder (validation flights: same aircraft and
     sensors)."""
-    from pipeline.writers import write_mcap, write_truth_json
+    from pipeline.outputs.writers import write_mcap, write_truth_json
 
     out = tmp_path_factory.mktemp("two")
     s = sim.load_scenario(SCENARIOS / "longitudinal_3211_calm.toml")
@@ -315,8 +315,8 @@ def test_the_instrument_errors_carry_to_the_validation_flight():
     same instruments); the biases, which change with every power-up, are not."""
     import numpy as np
 
-    from pipeline.flightdata import Channel, FlightData
-    from pipeline.run import with_instrument_errors_removed
+    from pipeline.ingest.flightdata import Channel, FlightData
+    from pipeline.jobs.run import with_instrument_errors_removed
 
     t = np.arange(0.0, 10.0, 0.02)
     fd = FlightData(
@@ -348,15 +348,15 @@ def test_the_instrument_errors_carry_to_the_validation_flight():
 
 
 def test_each_held_out_maneuver_keeps_its_own_flights_step_times():
-    """The control-input steps between slow samples (pipeline.input_sampling.step_times) that
+    """The control-input steps between slow samples (pipeline.conditioning.input_sampling.step_times) that
     the proof of match moves within their timing uncertainty are times of one flight: a
     maneuver proved on a validation flight takes that flight's, not the fitted flight's
     (their clocks overlap)."""
     import numpy as np
 
     from estimators import Model, Parameter, Segment
-    from pipeline.identify import Problem
-    from pipeline.run import with_validation_flight
+    from pipeline.jobs.run import with_validation_flight
+    from pipeline.problems.identify import Problem
 
     m = Model(
         states=["p"],

@@ -237,14 +237,14 @@ def test_inverse_simulation_reveals_control_effectiveness_error():
 
 
 def test_the_pipeline_judges_a_held_out_maneuver_with_its_own_noise_level():
-    """pipeline.validate: the held-out data's white-noise level (second differences) widens
+    """pipeline.validation.validate: the held-out data's white-noise level (second differences) widens
     each band by its reach; a true roll-rate model on data with 0.5 deg/s gyro noise passes
     (it failed on the noise alone: a 1.5 deg/s band, 3 sigma, over 300 samples), a 30 %
     wrong control derivative still fails."""
     import copy
 
     from estimators import OutputError
-    from pipeline.validate import validate
+    from pipeline.validation.validate import validate
 
     t = np.round(np.arange(0.0, 3.0, 0.01), 10)
     da = np.radians(4.0) * ((t >= 0.5) & (t < 1.5)) - np.radians(4.0) * ((t >= 1.5) & (t < 2.5))
@@ -260,14 +260,14 @@ def test_the_pipeline_judges_a_held_out_maneuver_with_its_own_noise_level():
 
 
 def test_a_tic_at_the_noise_floor_is_noted_not_failed():
-    """pipeline.validate: a channel the maneuver hardly moves (a 0.2 deg aileron doublet: p
+    """pipeline.validation.validate: a channel the maneuver hardly moves (a 0.2 deg aileron doublet: p
     about 1 deg/s against 0.5 deg/s of gyro noise) has TIC >= 0.1 with the true model; its
     residuals are its noise, so the verdict notes it (tic_noise_floor) instead of failing.
     A model whose residuals exceed the noise by more than NOISE_FLOOR_RATIO still fails."""
     import copy
 
     from estimators import OutputError, simulate_outputs
-    from pipeline.validate import NOISE_FLOOR_RATIO, validate
+    from pipeline.validation.validate import NOISE_FLOOR_RATIO, validate
 
     t = np.round(np.arange(0.0, 6.0, 0.01), 10)
     ph = t % 2

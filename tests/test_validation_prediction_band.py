@@ -117,12 +117,12 @@ def _fitted_roll(noise: float = 0.5 * DEG):
 
 
 def test_the_pipeline_tells_an_imprecise_estimate_from_a_wrong_model(tmp_path):
-    """pipeline.validate: Lda 30 % low fails the proof of match on p. With the fit's own
+    """pipeline.validation.validate: Lda 30 % low fails the proof of match on p. With the fit's own
     covariance (Lda known to about 0.5 %) that miss is far beyond the prediction's
     uncertainty: the verdict says the model misses. With a covariance that makes Lda 30 %
     uncertain the same miss is within 2 std of it: the verdict says the estimates are too
     imprecise. A consider part set after validation is taken in by the refresh."""
-    from pipeline.validate import refresh_prediction_uncertainty, validate
+    from pipeline.validation.validate import refresh_prediction_uncertainty, validate
 
     res, held = _fitted_roll()
     wrong = copy.copy(res)
@@ -150,7 +150,7 @@ def test_the_pipeline_tells_an_imprecise_estimate_from_a_wrong_model(tmp_path):
     assert v["verdict"]["level"] == "CHECK", v["verdict"]  # imprecise, not shown wrong
     assert p["prediction_std_from"]["Lda"] > 0.9, p  # the 30 % std given to Lda
     # report.md: the failed channel's row carries the model std and 0 beyond it
-    from pipeline.report import write_report
+    from pipeline.outputs.report import write_report
 
     md, js = write_report(tmp_path, {"oem": loose}, {"oem": v})
     text = md.read_text()
@@ -173,8 +173,8 @@ def test_run_rrd_holds_the_prediction_spread(tmp_path):
     """run.rrd: /match/p/<method>/model_lower|model_upper, the prediction -/+ 2 std, one
     value per held-out sample, read back with rerun's reader; their distance is 4 std."""
     rc = pytest.importorskip("rerun.chunk")
-    from pipeline.recording import write_recording
-    from pipeline.validate import validate
+    from pipeline.outputs.recording import write_recording
+    from pipeline.validation.validate import validate
 
     res, held = _fitted_roll()
     v = validate(res, held_out=[held])
@@ -200,7 +200,7 @@ def test_filter_error_results_get_the_band_from_their_model_parameters():
     the prediction's std comes from Lp, Lda alone. Its linear form ("transition matrix", no
     integrator) is validated with the simulation proof of match by RK4; it had raised."""
     from estimators import FilterError
-    from pipeline.validate import validate
+    from pipeline.validation.validate import validate
 
     res, held = _fitted_roll()
     fem = FilterError(roll_model()).fit(res.segments[0])

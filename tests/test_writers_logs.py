@@ -8,7 +8,7 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
-from pipeline.writers import write_dataflash, write_mcap, write_truth_json
+from pipeline.outputs.writers import write_dataflash, write_mcap, write_truth_json
 from sim.sensors import lever_arm_signals
 from tests._simdata import flown, written
 
@@ -276,7 +276,7 @@ def test_mixed_tails_decode_to_the_same_deflections(tmp_path):
     and the aileron / rudder as half their difference, to within the whole-microsecond
     rounding of each output (one PWM step, travel/400). Without the mix the elevator had
     come from output 2, an elevon, because the map's default channel was used."""
-    from pipeline.readers import read_log
+    from pipeline.ingest.readers import read_log
 
     r = flown(NAME)
     write_dataflash(tmp_path / "conv.bin", r)
@@ -306,7 +306,7 @@ def test_mcap_bytes_as_the_mcap_writer_writes_them(tmp_path, monkeypatch, compre
     from mcap.reader import make_reader
     from mcap.writer import CompressionType, Writer
 
-    import pipeline.writers.mcap_json as mj
+    import pipeline.outputs.writers.mcap_json as mj
 
     if chunk_size:
         monkeypatch.setattr(mj, "CHUNK_SIZE", chunk_size)

@@ -230,7 +230,7 @@ def lateral_measured_longitudinal(
         r_turb follows v_g'/V lagged, correlation 0.75) enters the aerodynamics as r - r_g
         (CYr, Clr, Cnr). Constant ``kin_angles`` = 1 (default 0): the beta output is
         beta_k, for a sideslip rebuilt from the flight path (no vane:
-        :mod:`pipeline.flow_angles`), which sees no gust."""
+        :mod:`pipeline.conditioning.flow_angles`), which sees no gust."""
     c = require_constants(
         constants, ("m", "Ixx", "Iyy", "Izz", "Ixz", "S", "b", "rho"), "lateral-directional (measured longitudinal)"
     )
@@ -306,7 +306,7 @@ def with_airspeed_offset(model: Model) -> Model:
     dynamic pressure, on lateral_doublets_calm), which scales every moment of that window
     and moves the derivatives by several of their Cramer-Rao bounds. With dV[k] free and an
     a-priori penalty N(0, that std) on it (OutputError(priors=...); see
-    pipeline.identify.airspeed_offset_priors) the bounds carry that uncertainty through
+    pipeline.problems.identify.airspeed_offset_priors) the bounds carry that uncertainty through
     the correlations. The data alone hardly determine dV (a common change of all dV[k] is
     nearly a common scale of all derivatives): fit it with the priors."""
     if list(model.inputs) != _MEASURED_INPUTS:

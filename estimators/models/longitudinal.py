@@ -274,7 +274,7 @@ def longitudinal_measured_lateral(
         alpha_k = -w_g / V the gust's, which decays with time constant L_w / V (constant
         ``L_w``, default 533.4 m = 1750 ft). Constant ``kin_angles`` = 1 (default 0):
         the alpha output is alpha_k, for an angle of attack rebuilt from the flight path
-        (no vane: :mod:`pipeline.flow_angles`), which sees the body's motion against the
+        (no vane: :mod:`pipeline.conditioning.flow_angles`), which sees the body's motion against the
         mean wind and no gust. The pitch rate of the air mass (rotary gust,
         the gust gradient along the airframe) is q_g = -s / (1 + tau s) alpha_g + q_gi,
         tau = 4 b / (pi V) (lag state alpha_gf; constant ``b``, span, needed), the

@@ -36,9 +36,9 @@ import numpy as np
 import pandas as pd
 
 from estimators.errors import ModelDefinitionError
-from estimators.integrators import DEFAULT_INPUTS
-from estimators.kalman import EKF, default_process_noise, process_noise_matrix
+from estimators.filters.kalman import EKF, default_process_noise, process_noise_matrix
 from estimators.model import Model, Segment
+from estimators.simulation.integrators import DEFAULT_INPUTS
 
 __all__ = ["AIR_DATA", "DrivenPrediction", "air_data_prediction", "driving_states"]
 
@@ -81,7 +81,7 @@ def air_data_prediction(
         mean, as sensor biases persist through a flight).
     process_noise: F of the identification ({state: std}, (n,) or (n, n); state unit per
         sqrt(s)); only its rows/columns of the driving and the unmeasured states are kept. None, or zero on
-        every driving state: the data default of :func:`estimators.kalman.default_process_noise`.
+        every driving state: the data default of :func:`estimators.filters.kalman.default_process_noise`.
     measurement_noise: R as :class:`~estimators.EKF` takes it ({output: std}, (n_out,) std
         or (n_out, n_out)); None: the data default (only the driving outputs' entries matter).
     drive: the states to drive (default :func:`driving_states`); each must be a measured

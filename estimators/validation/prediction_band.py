@@ -29,9 +29,9 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from estimators.integrators import DEFAULT_INPUTS
 from estimators.model import Model, Segment
-from estimators.simulation import Layout, simulate_batch
+from estimators.simulation.integrators import DEFAULT_INPUTS
+from estimators.simulation.simulate import Layout, simulate_batch
 
 __all__ = ["parameter_sensitivity", "prediction_std", "variance_shares"]
 

@@ -15,7 +15,7 @@ HELP = "ingest a flight log, check its data quality and sensor compatibility"
 
 
 def add_time_base_argument(parser: argparse.ArgumentParser) -> None:
-    """``--time-base``: the time base of a .tlog or .mcap log (pipeline.readers.TIME_BASES)."""
+    """``--time-base``: the time base of a .tlog or .mcap log (pipeline.ingest.readers.TIME_BASES)."""
     parser.add_argument(
         "--time-base",
         default=None,
@@ -101,9 +101,9 @@ def _segments(spec: str | None):
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.checks import findings_to_json, run_checks, summarize
+    from pipeline.conditioning.checks import findings_to_json, run_checks, summarize
+    from pipeline.ingest.readers import read_log
     from pipeline.paths import atomic_write_text, new_run_dir
-    from pipeline.readers import read_log
 
     log = Path(args.log)
     if not log.is_file():
@@ -118,8 +118,8 @@ def run(args: argparse.Namespace) -> int:
         # fitted wind and the pitot's scale factor where the headings allow; then the
         # compatibility reconstruction on the logged channels (IMU errors only without
         # vanes, the wind held), which errors that stage would remove: "applied"
-        from pipeline.flow_angles import summary
-        from pipeline.run import Progress, compatibility_after_flow_angles, flow_angle_stage
+        from pipeline.conditioning.flow_angles import summary
+        from pipeline.jobs.run import Progress, compatibility_after_flow_angles, flow_angle_stage
 
         quiet = Progress(2, quiet=True)
         rebuilt, _, logged, flow = flow_angle_stage(fd, None, quiet)

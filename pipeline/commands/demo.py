@@ -25,7 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from pipeline.commands.run import print_outputs
-    from pipeline.run import run_scenario
+    from pipeline.jobs.run import run_scenario
 
     out = new_run_dir("demo", args.out)
     paths = run_scenario(default_scenario(), out)

@@ -71,7 +71,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from pipeline.commands.run import print_outputs
-    from pipeline.run import estimate_log
+    from pipeline.jobs.run import estimate_log
 
     out = new_run_dir("estimate", args.out)
     paths = estimate_log(

@@ -7,7 +7,7 @@ import math
 
 from pipeline.paths import new_run_dir
 
-#: kept in step with pipeline.run.METHODS / METHOD_HELP (not imported: --help stays fast)
+#: kept in step with pipeline.jobs.run.METHODS / METHOD_HELP (not imported: --help stays fast)
 METHODS = ("oem", "ls", "fem", "ekf", "ukf", "soem", "eigen", "decouple")
 METHOD_LIST = (
     "oem: output error; ls: equation error; fem: filter error; ekf/ukf: extended/"
@@ -129,7 +129,7 @@ def print_outputs(out, paths) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.run import run_scenario
+    from pipeline.jobs.run import run_scenario
 
     out = new_run_dir("run", args.out)
     paths = run_scenario(

@@ -83,7 +83,7 @@ def simulate(
     folder (and validation.mcap, validation.bin when the scenario has a validation flight).
     Returns (run folder, SimResult). ScenarioError becomes FsidError."""
     import sim
-    from pipeline.writers import write_dataflash, write_mcap, write_truth_json
+    from pipeline.outputs.writers import write_dataflash, write_mcap, write_truth_json
 
     path = resolve_scenario(scenario_path)
     try:

@@ -1,0 +1,518 @@
+"""Data-quality checks on :class:`~pipeline.ingest.flightdata.FlightData`.
+
+Each check returns :class:`Finding` objects (status pass / warn / fail, the channel, the
+time span and one sentence a user understands). ``run_checks`` runs them all; findings
+never stop a run — a "fail" says the data will not support identification as it is.
+
+Per channel: sample rate and jitter, gaps, non-monotonic or duplicate times, NaN/Inf,
+saturation/clipping, stuck values, unit plausibility (degrees in a radian field, g in an
+m/s^2 field). Per file: damage (truncation), missing channels. Per segment: duration,
+ground-only data, and the excitation of each control axis.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from pipeline.ingest.flightdata import CONTROL_INPUTS, FlightData, SegmentSpec
+
+PASS, WARN, FAIL = "pass", "warn", "fail"
+#: channels system identification needs (missing ones are reported)
+CORE = ("ax", "ay", "az", "p", "q", "r", "phi", "theta", "psi", "V", "alpha", "beta", "h", "de", "da", "dr")
+#: channels with fast dynamics: should be sampled at >= MIN_RATE_HZ
+DYNAMIC = (
+    "ax",
+    "ay",
+    "az",
+    "p",
+    "q",
+    "r",
+    "phi",
+    "theta",
+    "psi",
+    "alpha",
+    "beta",
+    "V",
+    "de",
+    "da",
+    "dr",
+    "pdot",
+    "qdot",
+    "rdot",
+)
+MIN_RATE_HZ = 20.0
+ANGLES = ("phi", "theta", "psi", "alpha", "beta", "de", "da", "dr")
+MIN_EXCITATION_RAD = np.radians(1.0)
+#: commands/actuators: held values and full-deflection plateaus are normal, not faults
+COMMANDS = ("de", "da", "dr", "throttle", "thrust")
+
+
+@dataclass
+class Finding:
+    """One check result. ``t0``/``t1`` [s] on the log's time base (None: whole file)."""
+
+    status: str
+    check: str
+    channel: str | None
+    message: str
+    t0: float | None = None
+    t1: float | None = None
+    value: float | None = None
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        for k in ("t0", "t1", "value"):
+            if d[k] is not None:
+                d[k] = float(d[k]) if np.isfinite(d[k]) else None
+        return d
+
+
+def _span(t: np.ndarray) -> tuple[float | None, float | None]:
+    return (float(t[0]), float(t[-1])) if t.size else (None, None)
+
+
+def _runs(mask: np.ndarray) -> np.ndarray:
+    """(k, 2) start/stop indices (stop exclusive) of True runs."""
+    e = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
+    return e.reshape(-1, 2)
+
+
+def check_channel(name: str, t: np.ndarray, v: np.ndarray) -> list[Finding]:
+    """All per-channel checks for one channel (times t [s], values v in SI)."""
+    out: list[Finding] = []
+    n = t.size
+    a, b = _span(t)
+    if n < 2:
+        out.append(Finding(WARN, "samples", name, f"{name} has only {n} sample(s)", a, b, n))
+        return out
+    dt = np.diff(t)
+    # time order
+    back = int(np.sum(dt < 0))
+    dup = int(np.sum(dt == 0))
+    if back:
+        i = int(np.flatnonzero(dt < 0)[0])
+        out.append(
+            Finding(
+                FAIL,
+                "time_order",
+                name,
+                f"{name}: time goes backwards {back} time(s), "
+                f"first at t={t[i]:.3f} s; the log's clock jumped or records are out of order",
+                float(t[i]),
+                float(t[i + 1]),
+                back,
+            )
+        )
+    if dup:
+        i = int(np.flatnonzero(dt == 0)[0])
+        out.append(
+            Finding(
+                WARN,
+                "duplicate_times",
+                name,
+                f"{name}: {dup} duplicate time stamp(s), first at t={t[i]:.3f} s",
+                float(t[i]),
+                float(t[i]),
+                dup,
+            )
+        )
+    if not back and not dup:
+        out.append(Finding(PASS, "time_order", name, f"{name}: times strictly increasing", a, b))
+    pos = dt[dt > 0]
+    span = float(np.nanmax(t) - np.nanmin(t))
+    rate = (n - 1) / span if span > 0 else 0.0
+    med = float(np.median(pos)) if pos.size else np.nan
+    jitter = float(np.std(pos) / np.mean(pos)) if pos.size > 1 else 0.0
+    if name in DYNAMIC and rate < MIN_RATE_HZ:
+        out.append(
+            Finding(
+                WARN,
+                "rate",
+                name,
+                f"{name} is sampled at {rate:.1f} Hz; aircraft "
+                f"dynamics need >= {MIN_RATE_HZ:.0f} Hz (telemetry logs are usually too "
+                "slow: use the onboard log)",
+                a,
+                b,
+                rate,
+            )
+        )
+    else:
+        out.append(Finding(PASS, "rate", name, f"{name} sampled at {rate:.1f} Hz", a, b, rate))
+    if jitter > 0.25:
+        out.append(
+            Finding(
+                WARN,
+                "jitter",
+                name,
+                f"{name}: sample interval varies by {jitter:.0%} (std/mean of dt); samples arrive in bursts or irregularly",
+                a,
+                b,
+                jitter,
+            )
+        )
+    # gaps
+    if pos.size:
+        lim = max(5 * med, 0.1)
+        big = np.flatnonzero(dt > lim)
+        if big.size:
+            k = int(big[np.argmax(dt[big])])
+            out.append(
+                Finding(
+                    WARN,
+                    "gaps",
+                    name,
+                    f"{name}: {big.size} gap(s) longer than {lim:.3g} s, longest {dt[k]:.3g} s from t={t[k]:.3f} s",
+                    float(t[k]),
+                    float(t[k + 1]),
+                    float(dt[k]),
+                )
+            )
+    # NaN / Inf
+    bad = ~np.isfinite(v)
+    if bad.any():
+        frac = float(bad.mean())
+        i = int(np.flatnonzero(bad)[0])
+        out.append(
+            Finding(
+                FAIL if frac > 0.5 else WARN,
+                "finite",
+                name,
+                f"{name}: {int(bad.sum())} NaN/Inf value(s) ({frac:.1%}), first at t={t[i]:.3f} s",
+                float(t[i]),
+                b,
+                frac,
+            )
+        )
+    fin = v[np.isfinite(v)]
+    if fin.size < 2:
+        return out
+    lo, hi = float(fin.min()), float(fin.max())
+    # saturation / clipping: many samples pinned at the extreme with a run of >= 3
+    if hi > lo and name not in COMMANDS:
+        for edge, label in ((lo, "minimum"), (hi, "maximum")):
+            at = np.isfinite(v) & (v == edge)
+            frac = float(at.mean())
+            runs = _runs(at)
+            longest = int((runs[:, 1] - runs[:, 0]).max()) if runs.size else 0
+            if 0.01 < frac < 0.5 and longest >= 3 and at.sum() >= 5:
+                r0 = runs[np.argmax(runs[:, 1] - runs[:, 0])]
+                out.append(
+                    Finding(
+                        WARN,
+                        "saturation",
+                        name,
+                        f"{name}: {frac:.1%} of samples sit at "
+                        f"its {label} {edge:.4g} (longest run {longest} samples); the "
+                        "sensor or actuator may be clipping",
+                        float(t[r0[0]]),
+                        float(t[r0[1] - 1]),
+                        frac,
+                    )
+                )
+    # stuck: long run of identical values while the channel moves elsewhere
+    same = np.r_[False, np.diff(v) == 0]
+    runs = _runs(same)
+    if name in COMMANDS:
+        pass
+    elif runs.size and hi > lo:
+        lens = runs[:, 1] - runs[:, 0]
+        k = int(np.argmax(lens))
+        s0, s1 = max(runs[k, 0] - 1, 0), runs[k, 1] - 1
+        dur = float(t[s1] - t[s0])
+        if lens[k] >= 20 and dur >= 1.0 and dur > 0.2 * span:
+            out.append(
+                Finding(
+                    WARN,
+                    "stuck",
+                    name,
+                    f"{name} does not change for {dur:.2f} s "
+                    f"({lens[k] + 1} samples at {v[s0]:.4g}) from t={t[s0]:.3f} s; "
+                    "sensor stuck or output held",
+                    float(t[s0]),
+                    float(t[s1]),
+                    dur,
+                )
+            )
+    elif hi == lo and fin.size >= 20:
+        out.append(Finding(WARN, "stuck", name, f"{name} is constant ({lo:.4g}) over the whole log", a, b, 0.0))
+    # unit plausibility
+    amax = float(np.max(np.abs(fin)))
+    if name in ANGLES and amax > 2 * np.pi + 0.1:
+        out.append(
+            Finding(
+                FAIL,
+                "units",
+                name,
+                f"{name} reaches {amax:.3g} but is an angle in rad; "
+                "this looks like degrees in a radian field — set unit = \"deg\" in the map",
+                a,
+                b,
+                amax,
+            )
+        )
+    elif name in ("p", "q", "r") and amax > 20:
+        out.append(
+            Finding(
+                FAIL,
+                "units",
+                name,
+                f"{name} reaches {amax:.3g} rad/s; this looks like deg/s in a rad/s field — set unit = \"deg/s\" in the map",
+                a,
+                b,
+                amax,
+            )
+        )
+    elif name in ("ax", "ay", "az") and (amax > 400 or (amax < 2.5 and name == "az")):
+        hint = "mG" if amax > 400 else "g"
+        out.append(
+            Finding(
+                FAIL,
+                "units",
+                name,
+                f"{name} peaks at {amax:.3g} m/s^2; this looks like {hint} — set unit = \"{hint}\" in the map",
+                a,
+                b,
+                amax,
+            )
+        )
+    elif name == "V" and amax > 350:
+        out.append(
+            Finding(
+                FAIL,
+                "units",
+                name,
+                f"V reaches {amax:.4g} m/s; this looks like cm/s or km/h in a m/s field",
+                a,
+                b,
+                amax,
+            )
+        )
+    return out
+
+
+def check_file(fd: FlightData, required: Sequence[str] = CORE) -> list[Finding]:
+    """File-level findings: damage and missing channels."""
+    out: list[Finding] = []
+    dmg = fd.meta.get("damage")
+    if dmg:
+        out.append(
+            Finding(
+                WARN,
+                "damage",
+                None,
+                f"{dmg['message']}; kept the {dmg.get('kept_records', 0)} records before it",
+                None,
+                None,
+                float(dmg.get("offset", -1)),
+            )
+        )
+    else:
+        out.append(Finding(PASS, "damage", None, "the whole file was readable"))
+    why = fd.explain_missing(required)
+    for ch, reason in why.items():
+        out.append(
+            Finding(
+                WARN,
+                "missing",
+                ch,
+                f"{ch} is missing: {reason}; identification that needs {ch} cannot run (add it with --map)",
+            )
+        )
+    return out
+
+
+def _window(fd: FlightData, name: str, seg: SegmentSpec) -> np.ndarray:
+    c = fd.channels[name]
+    m = (c.t >= seg.t0) & (c.t <= seg.t1)
+    v = c.values[m]
+    return v[np.isfinite(v)]
+
+
+def slow_airspeed(v: np.ndarray) -> tuple[bool, str]:
+    """Whether airspeed samples ``v`` (m/s, finite) are below 5 m/s more than 90 % of the
+    time - on the ground or hovering - and a phrase that says how much."""
+    low = float(np.mean(np.asarray(v) < 5.0))
+    return low > 0.9, f"airspeed below 5 m/s for {low:.0%} of it"
+
+
+def no_forward_flight(fd: FlightData, seg: SegmentSpec) -> tuple[bool | None, str]:
+    """Whether ``seg`` holds no forward flight (on the ground or hovering), and why.
+
+    With airspeed: below 5 m/s for more than 90 % of the span. Without it, from the
+    altitude: within 2 m of a median within 5 m of 0, and no body rate above 0.3 rad/s.
+    None (unknown) when neither channel has samples in the span."""
+    if "V" in fd.channels:
+        v = _window(fd, "V", seg)
+        if v.size:
+            return slow_airspeed(v)
+    if "h" in fd.channels:
+        h = _window(fd, "h", seg)
+        rates = [_window(fd, c, seg) for c in ("p", "q", "r") if c in fd.channels]
+        if h.size:
+            still = all(r.size == 0 or np.max(np.abs(r)) < 0.3 for r in rates)
+            return (
+                bool(np.ptp(h) < 2.0 and abs(float(np.median(h))) < 5.0 and still),
+                f"altitude within {np.ptp(h):.2f} m of {np.median(h):.2f} m and no rotation",
+            )
+    return None, ""
+
+
+def check_segment(
+    fd: FlightData, seg: SegmentSpec, *, min_duration: float = 5.0, inputs: Iterable[str] = CONTROL_INPUTS
+) -> list[Finding]:
+    """Duration, ground-only data and excitation of each control axis in one segment."""
+    out: list[Finding] = []
+    label = f"segment {seg.name}"
+    if seg.duration < min_duration:
+        out.append(
+            Finding(
+                WARN,
+                "segment_duration",
+                None,
+                f"{label} lasts {seg.duration:.2f} s; maneuvers need >= {min_duration:.0f} s of data",
+                seg.t0,
+                seg.t1,
+                seg.duration,
+            )
+        )
+    else:
+        out.append(
+            Finding(PASS, "segment_duration", None, f"{label} lasts {seg.duration:.1f} s", seg.t0, seg.t1, seg.duration)
+        )
+    ground, why = no_forward_flight(fd, seg)
+    if ground:
+        out.append(
+            Finding(
+                WARN,
+                "ground",
+                None,
+                f"{label} has no forward flight ({why}): on the ground or hovering; it holds no aircraft flight dynamics",
+                seg.t0,
+                seg.t1,
+            )
+        )
+    stds = {}
+    for ax in inputs:
+        if ax in fd.channels:
+            x = _window(fd, ax, seg)
+            if x.size >= 3:
+                stds[ax] = float(np.std(x))
+    if stds:
+        moved = {k: v for k, v in stds.items() if v >= MIN_EXCITATION_RAD}
+        if moved:
+            out.append(
+                Finding(
+                    PASS,
+                    "excitation",
+                    ",".join(moved),
+                    f"{label}: excited " + ", ".join(f"{k} (std {np.degrees(v):.2f} deg)" for k, v in moved.items()),
+                    seg.t0,
+                    seg.t1,
+                    max(moved.values()),
+                )
+            )
+        else:
+            out.append(
+                Finding(
+                    WARN,
+                    "excitation",
+                    None,
+                    f"{label}: no control axis is moved "
+                    f"(largest std {np.degrees(max(stds.values())):.2f} deg, want >= "
+                    f"{np.degrees(MIN_EXCITATION_RAD):.0f} deg); nothing to identify here",
+                    seg.t0,
+                    seg.t1,
+                    max(stds.values()),
+                )
+            )
+        if seg.axis and seg.axis in stds and stds[seg.axis] < MIN_EXCITATION_RAD:
+            out.append(
+                Finding(
+                    WARN,
+                    "excitation",
+                    seg.axis,
+                    f"{label}: its own axis {seg.axis} hardly moves (std {np.degrees(stds[seg.axis]):.2f} deg)",
+                    seg.t0,
+                    seg.t1,
+                    stds[seg.axis],
+                )
+            )
+    return out
+
+
+def run_checks(
+    fd: FlightData, segments: Sequence[SegmentSpec] | None = None, required: Sequence[str] = CORE
+) -> list[Finding]:
+    """Every check on ``fd``; segments default to ``fd.segments`` (or the whole log)."""
+    out = check_file(fd, required)
+    for name, ch in fd.channels.items():
+        out.extend(check_channel(name, np.asarray(ch.t, float), np.asarray(ch.values, float)))
+        if getattr(ch, "notes", ""):
+            out.append(Finding(WARN, "units", name, f"{name}: {ch.notes}"))
+    segs = list(segments if segments is not None else fd.segments)
+    if not segs:
+        lo, hi = fd.span
+        if np.isfinite(lo):
+            segs = [SegmentSpec("whole_log", lo, hi, "time")]
+    for s in segs:
+        out.extend(check_segment(fd, s))
+    excited = {f.channel for f in out if f.check == "excitation" and f.status == PASS}
+    excited = {a for c in excited for a in (c or "").split(",")}
+    for ax in CONTROL_INPUTS:
+        if ax in fd.channels and ax not in excited:
+            out.append(
+                Finding(
+                    WARN,
+                    "excitation",
+                    ax,
+                    f"{ax} is never moved enough in any segment "
+                    f"(std >= {np.degrees(MIN_EXCITATION_RAD):.0f} deg); the derivatives "
+                    f"of {ax} cannot be identified from this log",
+                )
+            )
+    return out
+
+
+def summarize(findings: Sequence[Finding]) -> dict[str, int]:
+    """Counts per status."""
+    c = {PASS: 0, WARN: 0, FAIL: 0}
+    for f in findings:
+        c[f.status] = c.get(f.status, 0) + 1
+    return c
+
+
+def findings_to_json(findings: Sequence[Finding], fd: FlightData | None = None, extra: dict | None = None) -> str:
+    """The ``checks.json`` document: summary, findings, and (with ``fd``) the file's facts."""
+    doc: dict = {"summary": summarize(findings), "findings": [f.as_dict() for f in findings]}
+    if fd is not None:
+        doc["source"] = {
+            "path": fd.meta.get("source"),
+            "format": fd.meta.get("format"),
+            "map": fd.meta.get("map"),
+            "time_base": fd.meta.get("time_base"),
+            "damage": fd.meta.get("damage"),
+            "channels": {
+                k: {"samples": len(c), "rate_hz": c.rate_hz, "unit": c.unit, "source": c.source}
+                for k, c in fd.channels.items()
+            },
+            "missing": fd.meta.get("unmapped", {}),
+            "modes": [[float(t), m] for t, m in fd.modes],
+            "segments": [s.as_dict() for s in fd.segments],
+            "n_params": len(fd.params),
+        }
+    if extra:
+        doc.update(extra)
+    return json.dumps(doc, indent=2, default=_default)
+
+
+def _default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)

@@ -1,0 +1,205 @@
+"""Log readers: any supported log file -> :class:`pipeline.ingest.flightdata.FlightData`.
+
+``read_log(path, map=None, **opts)`` detects the format from the file's first bytes (the
+extension only breaks ties), reads it into raw tables with the format reader, converts
+them to canonical SI channels through a channel map (:mod:`pipeline.ingest.maps`) and attaches
+metadata (params, modes, time base, damage) and segments.
+
+Formats: MCAP (.mcap: JSON, ROS 2 CDR, protobuf), ArduPilot DataFlash (.bin), MAVLink
+telemetry (.tlog), PX4 ULog (.ulg), CSV/ASCII columns (.csv, .txt).
+
+The only exception a reader raises for a bad file is :class:`LogReadError` (a
+:class:`pipeline.errors.FsidError`) with ``.offset``/``.where``. Damage after some valid
+data is not an error: the data before it is kept and ``FlightData.meta['damage']`` says
+where reading stopped (pass ``strict=True`` to raise instead).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from pipeline.ingest.readers.base import TIME_BASES, Damage, LogReadError, RawLog, Table
+
+__all__ = ["read_log", "read_raw", "detect_format", "LogReadError", "RawLog", "Table", "Damage"]
+
+EXTENSIONS = {
+    ".mcap": "mcap",
+    ".bin": "dataflash",
+    ".tlog": "tlog",
+    ".ulg": "ulog",
+    ".csv": "csv",
+    ".txt": "csv",
+    ".dat": "csv",
+}
+
+
+def detect_format(path: str | os.PathLike) -> str:
+    """ "mcap" | "dataflash" | "tlog" | "ulog" | "csv" from the content (then the extension)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(64)
+    except OSError as exc:
+        raise LogReadError(
+            f"cannot open {path}: {exc.strerror}; check the path", path=str(path), offset=None, where="open"
+        ) from None
+    if not head:
+        raise LogReadError(
+            f"{path} is empty (0 bytes); nothing to read — check the copy/download",
+            path=str(path),
+            offset=0,
+            where="byte 0",
+        )
+    if head.startswith(b"\x89MCAP"):
+        return "mcap"
+    if head.startswith(b"ULog"):
+        return "ulog"
+    if head[:3] == b"\xa3\x95\x80":
+        return "dataflash"
+    if len(head) > 8 and head[8] in (0xFE, 0xFD):
+        return "tlog"
+    ext = EXTENSIONS.get(path.suffix.lower())
+    if ext == "csv" or (ext is None and _looks_text(head)):
+        return "csv"
+    if ext is not None:
+        return ext
+    raise LogReadError(
+        f"{path}: unknown log format (first bytes {head[:8].hex()}); supported: .mcap .bin .tlog .ulg .csv",
+        path=str(path),
+        offset=0,
+        where="byte 0",
+    )
+
+
+def _looks_text(head: bytes) -> bool:
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    return b"," in head or b"\t" in head or b" " in head
+
+
+def read_raw(path: str | os.PathLike, fmt: str | None = None, **opts) -> RawLog:
+    """Read a log into raw (unmapped) tables. ``opts`` go to the format reader."""
+    fmt = fmt or detect_format(path)
+    try:
+        if fmt == "dataflash":
+            from pipeline.ingest.readers.dataflash import read_dataflash
+
+            return read_dataflash(path, **opts)
+        if fmt == "tlog":
+            from pipeline.ingest.readers.tlog import read_tlog
+
+            return read_tlog(path, **opts)
+        if fmt == "ulog":
+            from pipeline.ingest.readers.ulog import read_ulog
+
+            return read_ulog(path, **opts)
+        if fmt == "mcap":
+            from pipeline.ingest.readers.mcap import read_mcap
+
+            return read_mcap(path, **opts)
+        if fmt == "csv":
+            from pipeline.ingest.readers.csvlog import read_csv
+
+            return read_csv(path, **opts)
+    except LogReadError:
+        raise
+    except MemoryError:
+        raise LogReadError(
+            f"{path}: out of memory while reading ({fmt}); the file header probably claims absurd sizes",
+            path=str(path),
+            where="reading",
+        ) from None
+    except Exception as exc:  # safety net: a damaged file must end in the documented error
+        err = LogReadError(
+            f"{path}: the {fmt} reader could not decode this file "
+            f"({type(exc).__name__}: {exc}); it is probably damaged — please "
+            "report it if it opens elsewhere",
+            path=str(path),
+            where="decoding",
+        )
+        err.internal = True
+        raise err from exc
+    raise LogReadError(f"{path}: no reader for format '{fmt}'", path=str(path), where="dispatch")
+
+
+def _builtin() -> list[str]:
+    from pipeline.ingest.maps import builtin_names
+
+    return builtin_names()
+
+
+def read_log(path: str | os.PathLike, map=None, **opts):
+    """Read any supported log into canonical :class:`~pipeline.ingest.flightdata.FlightData`.
+
+    Parameters
+    ----------
+    path : the log file (never modified)
+    map : channel map — None (built-in map for the detected format), a built-in map name,
+        a TOML path, or a :class:`pipeline.ingest.maps.ChannelMap`; user TOML maps with
+        ``[map] extends = "<builtin>"`` add to / override a built-in map
+    opts : ``strict`` (raise on damage), ``time_base`` (MCAP: "auto" | "header" | "log";
+        .tlog: "auto" | "boot" | "log", default the autopilot's own stamps,
+        :mod:`pipeline.ingest.readers.tlog_time`; ``TIME_BASES``; None is the default, a choice
+        the format does not offer is a LogReadError),
+        ``segments`` ("mode" | "auto" | list of (t0, t1) [s]; default: mode segments when
+        the log has modes, then automatic ones from control activity), ``servo_travel``
+        (surface -> (deg, origin): the deflection at full servo travel for surfaces
+        decoded from servo PWM, e.g. an aircraft TOML's ``[servos]``; see
+        :func:`pipeline.ingest.maps.servo_travel`; what was used is ``meta["servo_travel"]``)
+
+    Returns
+    -------
+    FlightData whose channels are canonical names in SI units (DESIGN.md section 3).
+    """
+    from pipeline.ingest.flightdata import FlightData
+    from pipeline.ingest.maps import apply_map, load_map
+
+    segments = opts.pop("segments", None)
+    travel = opts.pop("servo_travel", None)
+    fmt = opts.pop("format", None) or detect_format(path)
+    time_base = opts.pop("time_base", None)
+    if time_base is not None:
+        if time_base not in TIME_BASES.get(fmt, ()):
+            choices = "; ".join(f"a .{f} log: {', '.join(c)}" for f, c in TIME_BASES.items())
+            raise LogReadError(
+                f"{path}: time base {time_base!r} does not apply to a {fmt} log; "
+                f"the time base is chosen for {choices} (leave it out for the "
+                "default)",
+                path=str(path),
+                where="options",
+            )
+        opts["time_base"] = time_base
+    raw = read_raw(path, fmt, **opts)
+    map_fmt = raw.info.get("map_hint", raw.format)
+    cmap = (
+        load_map(map, raw.format)
+        if map is not None
+        else load_map(map_fmt if map_fmt in _builtin() else None, raw.format)
+    )
+    chans, why, travels = apply_map(raw, cmap, travel)
+    meta = {
+        "source": str(path),
+        "format": raw.format,
+        "map": cmap.name,
+        "time_base": raw.time_base,
+        "params": raw.params,
+        "modes": raw.modes,
+        "damage": raw.damage.as_dict() if raw.damage else None,
+        "unmapped": why,
+        "servo_travel": travels,
+        "info": raw.info,
+        "tables": {k: len(v) for k, v in raw.tables.items()},
+    }
+    fd = FlightData(chans, meta, [])
+    if isinstance(segments, (list, tuple)):
+        for a, b in segments:
+            fd.add_segment(a, b)
+    elif segments in (None, "mode", "auto"):
+        if segments in (None, "mode") and fd.modes:
+            fd.segments.extend(fd.mode_segments())
+        if segments in (None, "auto"):
+            fd.segments.extend(fd.find_segments())
+    return fd
