@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
 
-.PHONY: demo test bench clean
+.PHONY: demo test lint bench clean
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -22,8 +22,14 @@ $(TEST_STAMP): pyproject.toml | $(PY)
 demo: $(STAMP)
 	$(VENV)/bin/fsid demo
 
-test: $(TEST_STAMP)
+test: $(TEST_STAMP) lint
 	$(PY) -m pytest -q -n 2 --dist loadfile
+
+# the architecture's rules (pyproject.toml: [tool.ruff], [tool.importlinter]) before the tests
+lint: $(TEST_STAMP)
+	$(VENV)/bin/ruff check --quiet .
+	$(VENV)/bin/ruff format --check --quiet .
+	$(VENV)/bin/lint-imports --no-cache
 
 bench: $(STAMP)
 	$(PY) benchmarks/oem_speed.py

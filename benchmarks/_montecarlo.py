@@ -81,12 +81,13 @@ def range_line(tab: pd.DataFrame, group: str, extra: Mapping[str, str] | None = 
 def flown_problem(workdir: Path, axis: str, **kw) -> tuple[Any, dict]:
     """(the multi-axis ``axis`` problem with the gust states, the truth document) of the
     flight written into ``workdir`` (flight.mcap, truth.json): linear inputs, the log's
-    noise levels attached; ``kw`` go to pipeline.problems.identify.multiaxis_problem."""
+    noise levels attached; ``kw`` go to pipeline.problems.multiaxis.multiaxis_problem."""
     import json
 
+    from pipeline.ingest.constants import AircraftConstants
     from pipeline.ingest.readers import read_log
-    from pipeline.jobs.run import attach_logged_noise
-    from pipeline.problems.identify import AircraftConstants, multiaxis_problem
+    from pipeline.methods.noise import attach_logged_noise
+    from pipeline.problems import multiaxis_problem
 
     truth_doc = json.loads((Path(workdir) / "truth.json").read_text())
     fd = read_log(Path(workdir) / "flight.mcap")

@@ -50,8 +50,8 @@ SCENARIO = ROOT / "scenarios" / "multiaxis_multisine_turbulence.toml"
 def one_flight(seed: int) -> list[dict]:
     """Rows (seed, key, parameter, estimate, std, total_std, truth, vertical) of one flight;
     ``vertical`` is the flight-mean vertical wind's std the fit was given [m/s]."""
-    from pipeline.commands.simulate import simulate
-    from pipeline.jobs.run import estimate_log
+    from pipeline.jobs.estimate import estimate_log
+    from pipeline.jobs.simulate import simulate
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -65,7 +65,7 @@ def one_flight(seed: int, scenario: Path = SCENARIO, overlapping: bool = False) 
     applied). ``overlapping``: the baseline, the compatibility stage fitting the log's
     maneuver windows as detected (a window per surface, overlapping ones fitted each)."""
     import pipeline.conditioning.compatibility as compatibility
-    from pipeline.jobs.run import run_scenario
+    from pipeline.jobs.scenario import run_scenario
 
     keep = compatibility.merge_overlapping
     if overlapping:

@@ -42,7 +42,7 @@ METHODS = ["soem", "decouple"]
 
 def one_flight(seed: int) -> list[dict]:
     """Rows (seed, method, parameter, estimate, std, crb_std, mk_std, truth) of one run."""
-    from pipeline.jobs.run import run_scenario
+    from pipeline.jobs.scenario import run_scenario
 
     with tempfile.TemporaryDirectory() as tmp:
         run_scenario(SCENARIO, Path(tmp), seed=seed, methods=METHODS, quiet=True, compat=False)

@@ -20,7 +20,7 @@ fixed at twice the gust level, lost its way on some seeds (ratios 20-240 on CLal
 Cmalpha): not robust across flights.
 
 Measured (16 seeds from 100, 2026-11-24, --grid-noise) after FEM's measurement noise came
-from the log's native samples (pipeline.jobs.run.attach_logged_noise): FEM ratios 0.82-1.53
+from the log's native samples (pipeline.methods.noise.attach_logged_noise): FEM ratios 0.82-1.53
 (CD0 1.53, Cmq 1.28, Cm0 1.18, the others 0.82-1.09), |bias| <= 1.3; the same flights with
 the grid's second-difference noise (fem-grid): 0.83-2.02 (CD0 2.02, Cmq 1.51, Cm0 1.31,
 Cmde 1.24). Cmq stays 8 % low (-3.31 for -3.6) with either.
@@ -44,10 +44,12 @@ SCENARIO = ROOT / "scenarios" / "longitudinal_3211_turbulence.toml"
 
 def one_seed(seed: int, methods: list[str], work: Path) -> dict[str, tuple[dict, dict]]:
     import sim
+    from pipeline.ingest.constants import AircraftConstants
     from pipeline.ingest.readers import read_log
-    from pipeline.jobs.run import attach_logged_noise, fit_problem
+    from pipeline.methods.fitting import fit_problem
+    from pipeline.methods.noise import attach_logged_noise
     from pipeline.outputs.writers import write_mcap, write_truth_json
-    from pipeline.problems.identify import LONG_OUTPUTS, AircraftConstants, longitudinal_problem
+    from pipeline.problems import LONG_OUTPUTS, longitudinal_problem
 
     out = work / f"s{seed}"
     out.mkdir()

@@ -54,10 +54,10 @@ def one_flight(job: tuple[int, str, str, str]) -> list[dict]:
     (seed, scenario name, model, wind "north,east" in m/s)."""
     seed, scenario, model, wind = job
     wn, we = (float(x) for x in wind.split(","))
-    from pipeline.commands.simulate import simulate
     from pipeline.ingest.maps import plain_map_toml
     from pipeline.ingest.readers import read_log
-    from pipeline.jobs.run import estimate_log
+    from pipeline.jobs.estimate import estimate_log
+    from pipeline.jobs.simulate import simulate
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

@@ -83,7 +83,7 @@ def one_flight(seed: int) -> list[dict]:
         if refine:  # the pipeline's stage: equation error, then output error
             import json
 
-            from pipeline.jobs.run import estimate_log
+            from pipeline.jobs.estimate import estimate_log
 
             write_truth_json(Path(d) / "truth.json", res)
             estimate_log(Path(d) / "flight.bin", Path(d) / "out", quiet=True, compat=False)

@@ -3,10 +3,10 @@ pipeline's input smoothing (pipeline.conditioning.input_smoothing) gives back: a
 JSBSim flight of multiaxis_multisine_turbulence.
 
 Each draw simulates the lateral gust model (as benchmarks/lateral_gust_filters_mc.py: the
-lateral problem of pipeline.problems.identify.multiaxis_problem, the first-order roll gust with the
+lateral problem of pipeline.problems.multiaxis.multiaxis_problem, the first-order roll gust with the
 time constant and rms of JSBSim's p_turb on that flight, white process noise on beta and r,
 sensor noise at the flight's logged levels) driven by JSBSim's TRUE aileron and rudder
-positions, and fits it with filter error (pipeline.jobs.run.fit_problem) given
+positions, and fits it with filter error (pipeline.methods.fitting.fit_problem) given
 
 * ``true``: the true positions (the reference: no input noise);
 * ``logged``: the logged positions (0.05 deg sensor noise at 100 Hz), as logged;
@@ -55,9 +55,10 @@ def problems(workdir: Path) -> dict:
     """The lateral problem of the flight with the surfaces as logged ("logged") and
     smoothed ("smoothed", the flight() problem), and the true surfaces of each fit segment
     (rad, relative to the segment's first sample as the problem's)."""
+    from pipeline.ingest.constants import AircraftConstants
     from pipeline.ingest.readers import read_log
-    from pipeline.jobs.run import attach_logged_noise
-    from pipeline.problems.identify import AircraftConstants, multiaxis_problem
+    from pipeline.methods.noise import attach_logged_noise
+    from pipeline.problems import multiaxis_problem
 
     fl = flight(workdir)
     fd = read_log(workdir / "flight.mcap")
@@ -80,7 +81,7 @@ def problems(workdir: Path) -> dict:
 def one_draw(seed: int, *, workdir: Path, method: str) -> list[dict]:
     """One draw simulated with the true surfaces, fitted with each variant's surfaces:
     rows of (variant, name, estimate, std, truth)."""
-    from pipeline.jobs.run import fit_problem
+    from pipeline.methods.fitting import fit_problem
 
     fl, pbs = flight(workdir), problems(workdir)
     segs = simulate(pbs["smoothed"], fl["truth"], "markov", fl, np.random.default_rng(2000 + seed), u_sim=pbs["true_u"])

@@ -21,7 +21,7 @@ Proof of match, measured 2026-11-26, seeds 1-12 (the same flights as below):
   --rates ardupilot: longitudinal 12/12 (12/12 without the steps moved), lateral 12/12
       (7/12 without: one sample of p or r at an aileron reversal, every step timed); each
       axis' verdict PASS on 12/12 (with the TIC of an output at its noise floor a note,
-      pipeline.validation.validate.NOISE_FLOOR_RATIO; ad hoc, seed 3: the 5 Hz rebuilt beta's 0.103).
+      pipeline.validation.fit.NOISE_FLOOR_RATIO; ad hoc, seed 3: the 5 Hz rebuilt beta's 0.103).
   --rates ardupilot --surfaces-hz 10: longitudinal 10/12 (5/12), lateral 3/12 (0/12; the
       lateral fit of seed 1 misses p by up to 5 deg/s 0.3 s after a step too).
   Measured again 2026-11-26 (with the noise allowance of the bands), --rates ardupilot
@@ -104,7 +104,7 @@ ARDUPILOT_RATES = {"imu": 25.0, "attitude": 25.0, "airdata": 10.0, "gps": 5.0, "
 def one_flight(seed: int, surfaces_hz: float = 25.0, rates: str = "default") -> list[dict]:
     """Rows (seed, key, parameter, estimate, std, total_std, truth) of one flight."""
     import sim
-    from pipeline.jobs.run import estimate_log
+    from pipeline.jobs.estimate import estimate_log
     from pipeline.outputs.writers import write_dataflash, write_truth_json
 
     raw = tomllib.loads(SCENARIO.read_text())

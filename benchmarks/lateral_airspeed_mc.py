@@ -69,8 +69,8 @@ LATERAL = (
 def _fit(fd, ac, kinematic: bool) -> tuple[dict, dict, dict]:
     """Estimates, Cramér-Rao std and Morelli-Klein std (coloured residuals) by name."""
     from estimators.validation import morelli_klein
-    from pipeline.jobs.run import fit_problem
-    from pipeline.problems.identify import lateral_problem, with_airspeed_offsets
+    from pipeline.methods.fitting import fit_problem
+    from pipeline.problems import lateral_problem, with_airspeed_offsets
 
     pb = lateral_problem(fd, ac, measured_longitudinal=True, kinematic=kinematic)
     pb = with_airspeed_offsets(pb, fd)
@@ -89,9 +89,9 @@ def _fit(fd, ac, kinematic: bool) -> tuple[dict, dict, dict]:
 
 def one_flight(seed: int) -> list[dict]:
     """Rows (seed, source, parameter, estimate, std, truth) of the three fits of one seed."""
-    from pipeline.commands.simulate import simulate
+    from pipeline.ingest.constants import AircraftConstants
     from pipeline.ingest.readers import read_log
-    from pipeline.problems.identify import AircraftConstants
+    from pipeline.jobs.simulate import simulate
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

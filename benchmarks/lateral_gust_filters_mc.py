@@ -1,13 +1,13 @@
 """How the filters fare on the lateral model with the roll gust, on data that model itself
 generates: a Monte Carlo over noise draws on the inputs of one JSBSim flight of
-multiaxis_multisine_turbulence (the lateral problem of pipeline.problems.identify.multiaxis_problem
+multiaxis_multisine_turbulence (the lateral problem of pipeline.problems.multiaxis.multiaxis_problem
 with the gust states: 7 states, the measured longitudinal variables as inputs).
 
 Each draw simulates the lateral gust model (estimators.models.lateral, f_measured_gust /
 g_measured_gust) at the true derivatives on the flight's own inputs (Euler-Maruyama, 10
 sub-steps per 50 Hz sample), with white process noise on beta and r, the roll gust p_g and
 white sensor noise at the flight's logged levels, and fits it with the pipeline's own
-settings (pipeline.jobs.run.fit_problem: FEM with F estimated, EKF and UKF with twice the Dryden
+settings (pipeline.methods.fitting.fit_problem: FEM with F estimated, EKF and UKF with twice the Dryden
 level, as on a simulated flight). Two gust variants:
 
 * ``markov``: p_g the first-order Markov process the model assumes, with the time constant
@@ -152,7 +152,7 @@ def simulate(
     driven by each segment's inputs or by ``u_sim`` (one (n, n_u) array per segment: the
     inputs the simulated aircraft saw, when those are not the ones the fit is given)."""
     from estimators.model import Namespace, Segment
-    from pipeline.jobs.run import measurement_noise_std
+    from pipeline.methods.noise import measurement_noise_std
 
     m = pb.model
     vals = {p.name: p.value for p in m.parameters}
@@ -205,7 +205,8 @@ def one_draw(seed: int, *, workdir: Path, methods: list[str], variants: list[str
     name, estimate, std, truth)."""
     import copy
 
-    from pipeline.jobs.run import fit_problem, measurement_noise_std
+    from pipeline.methods.fitting import fit_problem
+    from pipeline.methods.noise import measurement_noise_std
 
     fl = flight(workdir)
     rows = []

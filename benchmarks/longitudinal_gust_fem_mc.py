@@ -1,6 +1,6 @@
 """Are filter error's longitudinal bounds honest on data its own gust model makes? A Monte
 Carlo over noise draws on the inputs of one JSBSim flight of multiaxis_multisine_turbulence
-(the longitudinal problem of pipeline.problems.identify.multiaxis_problem with the gust states: 7
+(the longitudinal problem of pipeline.problems.multiaxis.multiaxis_problem with the gust states: 7
 states V, alpha, theta, q, alpha_k, alpha_gf, q_gi; the measured lateral variables and the
 density as inputs; every maneuver fitted).
 
@@ -9,7 +9,7 @@ g_measured_gust) at the true derivatives on the flight's own inputs (Euler-Maruy
 SUBSTEPS sub-steps per sample, all draws of a process at once: the model functions are
 vectorised), with white process noise on V, alpha, q and q_gi at the levels FEM estimated
 on the JSBSim flight itself, and white sensor noise at the flight's logged levels, and fits
-it with the pipeline's filter error (pipeline.jobs.run.fit_problem, F estimated).
+it with the pipeline's filter error (pipeline.methods.fitting.fit_problem, F estimated).
 
 Per derivative: empirical std over the draws / mean reported std (1 = honest), the bias in
 empirical std, and the mean |error| / reported std. Then the same derivatives on the JSBSim
@@ -86,7 +86,7 @@ def flight(workdir: Path) -> dict:
     """The flown flight of ``workdir`` (once per process): its longitudinal problem (every
     maneuver fitted), the truth document and FEM's fit of the flight itself (its process
     noise is the draws')."""
-    from pipeline.jobs.run import fit_problem
+    from pipeline.methods.fitting import fit_problem
 
     pb, truth_doc = flown_problem(workdir, "longitudinal", hold_out=0)
     fem = fit_problem(pb, "fem", turbulence=truth_doc["turbulence"])
@@ -99,7 +99,7 @@ def simulate(pb, truth: dict, F: dict[str, float], rng: np.random.Generator, n_d
     derivatives on each segment's inputs (linear between samples), process noise F (state
     -> state unit per sqrt(s)), sensor noise at the problem's measurement-noise std."""
     from estimators.model import Namespace, Segment
-    from pipeline.jobs.run import measurement_noise_std
+    from pipeline.methods.noise import measurement_noise_std
 
     m = pb.model
     vals = {p.name: p.value for p in m.parameters}
@@ -136,7 +136,7 @@ def simulate(pb, truth: dict, F: dict[str, float], rng: np.random.Generator, n_d
 
 def one_draw(seed: int, *, workdir: Path) -> list[dict]:
     """One noise draw fitted by filter error: rows of (name, estimate, std, truth)."""
-    from pipeline.jobs.run import fit_problem
+    from pipeline.methods.fitting import fit_problem
 
     fl = flight(workdir)
     pb = copy.copy(fl["problem"])

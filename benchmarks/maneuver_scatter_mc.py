@@ -1,4 +1,4 @@
-"""How the maneuver-scatter std (estimators.validation.cluster) calibrates: the linear short
+"""How the maneuver-scatter std (estimators.covariance.cluster) calibrates: the linear short
 period in turbulence (estimators.process_noise_examples.turbulent_short_period_example,
 process noise on alpha and q, a 3-2-1-1 per maneuver), fitted by filter error (the right
 method: its Cramér-Rao bounds are honest) and by output error (which takes the air as calm:

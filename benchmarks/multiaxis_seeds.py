@@ -14,7 +14,7 @@ band) and the largest Theil coefficient. The last line: the share of (seed, meth
 with every derivative within 3 std.
 
 Measured (2026-11-25, seeds 31-38, FEM, 34 s with the kernels cached) with the maneuver
-scatter as the std where it is significant (pipeline.validation.validate.widen_by_scatter):
+scatter as the std where it is significant (pipeline.validation.uncertainty.widen_by_scatter):
     longitudinal FEM  2.6 3.9 4.0 2.3 2.4 3.2 2.1 2.3 (5/8 within 3 reported std);
                       empirical / reported std up to 2.39 (Cmalphadot),
                       Cmq 1.30, Cmalpha 1.66; |bias| <= 0.83
@@ -71,7 +71,7 @@ Earlier (1.5 deg, the last multisine held out of the fit), worst
                       Cmalphadot 7.57)
     lateral FEM       2.8 6.6 1.8 2.5 3.4 1.6 12.2 1.9 (5/8); 0.92-5.24 (Cnr 5.24, Cnp 3.74)
     EKF / UKF         0/8 on both axes (longitudinal Cmalpha 18.5-18.8 std on seeds 32, 37)
-  maneuver-scatter std (estimators.validation.cluster; the longitudinal fit has 3
+  maneuver-scatter std (estimators.covariance.cluster; the longitudinal fit has 3
   maneuvers, the lateral 2), FEM only (2026-11-25): empirical / scatter std longitudinal
   0.37-2.12, lateral 0.83-2.07; / the larger of reported and scatter 0.33-2.01
   (Cmalphadot 3.07 -> 2.01, Cmq 2.01 -> 1.33) and 0.57-1.59 (Cnbeta 2.15 -> 1.25, Cnr
@@ -112,7 +112,7 @@ METHODS = "fem,ekf,ukf"
 
 
 def one_seed(seed: int, methods: str = METHODS, scenario: str = str(SCENARIO)) -> list[dict]:
-    from pipeline.jobs.run import run_scenario
+    from pipeline.jobs.scenario import run_scenario
 
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)

@@ -49,7 +49,7 @@ def _estimate(log: Path, out: Path, calibrate: bool) -> dict:
     """report.json of ``fsid estimate log`` (output error), the scale factor estimated or
     (``calibrate`` False) taken as 0."""
     import pipeline.conditioning.flow_angles as flow_angles
-    from pipeline.jobs.run import estimate_log
+    from pipeline.jobs.estimate import estimate_log
 
     keep = flow_angles.SCALE_STD_MAX
     flow_angles.SCALE_STD_MAX = keep if calibrate else 0.0
@@ -63,8 +63,8 @@ def _estimate(log: Path, out: Path, calibrate: bool) -> dict:
 def one_flight(seed: int, scenario: Path = SCENARIO) -> list[dict]:
     """Rows (seed, variant, key, parameter, estimate, std, truth, scale, scale_std,
     effective) of one flight, both variants."""
-    from pipeline.commands.simulate import simulate
     from pipeline.ingest.readers import read_log
+    from pipeline.jobs.simulate import simulate
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

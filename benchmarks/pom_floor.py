@@ -37,16 +37,19 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from pipeline.ingest.constants import AircraftConstants  # noqa: E402
 from pipeline.ingest.readers import read_log  # noqa: E402
-from pipeline.jobs.run import LAT_OUTPUTS, LONG_OUTPUTS, fit_problem, run_scenario  # noqa: E402
-from pipeline.problems.identify import (  # noqa: E402  # noqa: E402
-    AircraftConstants,
+from pipeline.jobs.scenario import run_scenario  # noqa: E402
+from pipeline.methods.fitting import fit_problem  # noqa: E402
+from pipeline.problems import (  # noqa: E402  # noqa: E402
+    LAT_OUTPUTS,
+    LONG_OUTPUTS,
     lateral_problem,
     longitudinal_problem,
     multi_axis,
     multiaxis_problem,
 )
-from pipeline.validation.validate import validate  # noqa: E402
+from pipeline.validation import validate  # noqa: E402
 
 
 def with_truth(res, truth: dict[str, float]):

@@ -1,5 +1,5 @@
 """One axis maneuvered in turbulence, over seeds: filter error with the gust models (what the
-pipeline fits in turbulence and on logs: pipeline.jobs.run._method_problem) against the baseline
+pipeline fits in turbulence and on logs: pipeline.jobs.identify._Axis.method_problem) against the baseline
 in the same process, the models it fitted before when only one axis moved (the wings-level
 longitudinal model, the linear lateral one).
 
@@ -7,7 +7,7 @@ Each seed flies multiaxis_multisine_turbulence (light aircraft, 67 m/s, light Tu
 turbulence) twice, written and read back: its multisines on aileron and rudder only (the
 lateral axis is fitted) and on the elevator only, with the elevator sweep (the
 longitudinal axis). Both models are fitted by FEM on the same flight.mcap, every maneuver,
-through pipeline.jobs.run.fit_and_validate (the gust model's CLalphadot, Cmalphadot held at 0
+through pipeline.jobs.fit.fit_and_validate (the gust model's CLalphadot, Cmalphadot held at 0
 where the fit does not separate them from CLq, Cmq). Printed per axis and model: the worst
 |error| / std per seed, the seeds with every derivative within 3 std, and over the seeds
 empirical / reported std per derivative. The last line: the share of (seed, axis) fits
@@ -24,7 +24,7 @@ Measured (2026-11-25, seeds 31-42, 2 jobs, 1 min 12 s):
                 gust      6/12, worst 1.9-5.4 (Cmalphadot 5.4, 4.5, 4.1); |bias| <= 1.82
                           (Cmde); empirical / reported 0.69-2.74 (Cmalphadot 2.74, Cmq 2.44)
   fits with every derivative within 3 std: gust models 0.67, baseline 0.00.
-Then with the maneuver scatter as the std where it is significant (pipeline.validation.validate.
+Then with the maneuver scatter as the std where it is significant (pipeline.validation.uncertainty.
 widen_by_scatter; same seeds): gust models lateral 10/12, longitudinal 8/12 (worst 1.6-3.9),
 empirical / reported std 0.56-1.29 and 0.62-1.44 (Cmalphadot 2.74 -> about 1); baseline
 0/12 both (worst 5-50 std: its std widened up to honest, 0.24-1.69, its bias left).
@@ -33,7 +33,7 @@ With --log bin (seeds 31-38, 1 min 17 s; the Cramér-Rao std only, no wind part)
                           Cnr, Cnbeta); empirical / reported std 0.73-3.77. Seed 37 had
                           been 230 (Clbeta): filter error wandered from the equation-error
                           starts; it now restarts with the noise held first
-                          (pipeline.jobs.run._fem_restart)
+                          (pipeline.methods.fitting._fem_restart)
   longitudinal  baseline 0/8, worst 30-146 (CDalpha, CLalpha, CDalpha2, Cmalpha); gust 0/8,
                           worst 3.3-13.1 (Cmq, CDalpha, CL0): the rebuilt angles'
                           longitudinal bias (also on multiaxis flights,
@@ -113,12 +113,15 @@ def variant(axes: str, folder: Path) -> Path:
 
 
 def one_seed(seed: int, log: str = "mcap") -> list[dict]:
-    from pipeline.commands.simulate import simulate
     from pipeline.conditioning.flow_angles import rebuilt
+    from pipeline.ingest.constants import AircraftConstants
     from pipeline.ingest.readers import read_log
-    from pipeline.jobs.run import attach_logged_noise, fit_and_validate, flow_angle_stage
-    from pipeline.problems.identify import AircraftConstants, lateral_problem, longitudinal_problem, multiaxis_problem
-    from pipeline.uncertainty.consider import quiet_progress
+    from pipeline.jobs.fit import fit_and_validate
+    from pipeline.jobs.progress import quiet_progress
+    from pipeline.jobs.simulate import simulate
+    from pipeline.jobs.stages import flow_angle_stage
+    from pipeline.methods.noise import attach_logged_noise
+    from pipeline.problems import lateral_problem, longitudinal_problem, multiaxis_problem
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

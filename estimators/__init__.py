@@ -9,7 +9,7 @@ Public API (DESIGN.md section 4)::
 The names below are imported from their modules on first use (PEP 562), so
 ``from estimators import OutputError`` loads output error and what it needs, not the
 filters, the stabilised methods and scipy.signal with them: a fresh process reaches its
-first fit sooner (``benchmarks/first_fit.py``).
+first fit sooner.
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ _LAZY = {
     "LeastSquares": "estimators.equation_error",
     "RecursiveLeastSquares": "estimators.equation_error",
     "FilterError": "estimators.filters.filter_error",
-    "EKF": "estimators.filters.kalman",
-    "UKF": "estimators.filters.kalman",
+    "EKF": "estimators.filters.ekf",
+    "UKF": "estimators.filters.ukf",
     "Model": "estimators.model",
     "Parameter": "estimators.model",
     "Segment": "estimators.model",
@@ -43,18 +43,19 @@ _LAZY = {
     "EigenvalueTransformation": "estimators.output_error.stabilized",
     "EquationDecoupling": "estimators.output_error.stabilized",
     "StabilizedOutputError": "estimators.output_error.stabilized",
-    "simulate_outputs": "estimators.simulation.simulate",
+    "simulate_outputs": "estimators.simulation",
 }
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs
     from estimators.equation_error import FourierRegression, LeastSquares, RecursiveLeastSquares
+    from estimators.filters.ekf import EKF
     from estimators.filters.filter_error import FilterError
-    from estimators.filters.kalman import EKF, UKF
+    from estimators.filters.ukf import UKF
     from estimators.model import Model, Parameter, Segment
     from estimators.output_error.oem import OutputError
     from estimators.output_error.stabilized import EigenvalueTransformation, EquationDecoupling, StabilizedOutputError
     from estimators.results import EstimationResult
-    from estimators.simulation.simulate import simulate_outputs
+    from estimators.simulation import simulate_outputs
 
 __all__ = [
     "Model",

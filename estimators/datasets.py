@@ -1,4 +1,4 @@
-"""Model-simulated example problems with a known truth (for examples, tests, benchmarks).
+"""Model-simulated example problems with a known truth (for examples and for checking the estimators).
 
 The main one is a business-jet-class (HFB-320-like) longitudinal case: the nonlinear
 longitudinal model trimmed in level flight at 100 m/s, excited by an elevator 3-2-1-1,
@@ -17,6 +17,7 @@ from scipy import optimize
 
 from estimators.model import Model, Segment
 from estimators.models.longitudinal import longitudinal
+from estimators.simulation import simulate_outputs
 
 HFB320_CONSTANTS = {
     "m": 7472.0,
@@ -42,7 +43,7 @@ HFB320_TRUTH = {
     "Cmq": -16.0,
     "Cmde": -1.6,
 }
-#: the 11 parameters estimated in the benchmark problem
+#: the 11 parameters estimated in the example problem
 HFB320_FREE = ("CD0", "CDalpha", "CL0", "CLalpha", "CLq", "CLde", "Cm0", "Cmalpha", "Cmq", "Cmde", "CDde")
 #: white-noise standard deviation per output (V m/s, angles rad, q rad/s, qdot rad/s^2, ax az m/s^2)
 HFB320_NOISE = {
@@ -116,8 +117,6 @@ def longitudinal_example(
     with a different pulse width and sign), from trim at 100 m/s. Start values are the
     truth times (1 + start_offset) alternating in sign, so each is off by start_offset.
     """
-    from estimators.simulation.simulate import simulate_outputs
-
     truth_model = longitudinal(HFB320_CONSTANTS, values=HFB320_TRUTH, free=free)
     x0, u0 = trim_level(truth_model, 100.0)
     rng = np.random.default_rng(seed)

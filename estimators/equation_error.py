@@ -44,6 +44,7 @@ import numpy as np
 import pandas as pd
 
 from estimators import statistics as st
+from estimators.defaults import RLS_P0
 from estimators.errors import IdentifiabilityError, ModelDefinitionError
 from estimators.model import Model, Parameter
 from estimators.results import EstimationResult
@@ -259,7 +260,7 @@ class RecursiveLeastSquares(_RegressionBase):
     forgetting : lambda in (0, 1]; 1 = no forgetting (the final estimate equals OLS up to
         the diffuse start), 0.95-0.999 tracks slowly varying parameters (memory ~ 1/(1-lambda)
         samples).
-    p0 : initial P = p0 * I (large = diffuse, default 1e6).
+    p0 : initial P = p0 * I (large = diffuse, default RLS_P0 = 1e6).
     theta0 : start estimate (zeros by default).
 
     ``update(x, y)`` processes one sample (usable in real time) and returns the current
@@ -278,7 +279,7 @@ class RecursiveLeastSquares(_RegressionBase):
         forgetting: float = 1.0,
         intercept: bool = False,
         response: str = "y",
-        p0: float = 1e6,
+        p0: float = RLS_P0,
         theta0: Sequence[float] | None = None,
     ) -> None:
         super().__init__(regressors, intercept=intercept, response=response)

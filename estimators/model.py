@@ -21,16 +21,10 @@ from typing import Any
 
 import numpy as np
 
+from estimators.defaults import GAP_FACTOR
 from estimators.errors import BoundsError, ModelDefinitionError, UnknownNameError
 
 ModelFunction = Callable[[Any, Any, Any, Any], Any]
-
-#: a sample interval longer than GAP_FACTOR times the segment's median interval is a gap:
-#: the estimators step the model from sample to sample and would cross it in one step, as
-#: if the aircraft had flown on unobserved with the inputs interpolated across. Logger
-#: jitter and a few dropped samples stay below it (pipeline.conditioning.checks warns of gaps from the
-#: same multiple); :meth:`Segment.split_at_gaps` cuts a segment there
-GAP_FACTOR = 5.0
 
 
 @dataclass
@@ -221,7 +215,7 @@ class Model:
             out = g0(x, u, p, c)
             return tuple(out[i] for i in idx)
 
-        # the compiled filter loop (estimators.filters.filter_error.output_kernel) calls g0 and picks these
+        # the compiled filter loop (estimators.filters.kernels.output_kernel) calls g0 and picks these
         # rows itself: numba cannot build a tuple with a generator
         g.selects = (g0, tuple(idx))
 
@@ -278,15 +272,6 @@ class Model:
         p = Namespace(dict(zip(self.parameter_names, P)))
         out = self.f(x, u, p, Namespace(constants))
         return stack_rows(out, len(self.states), np.broadcast_shapes(x.shape[1:], P.shape[1:]), "f", self.states)
-
-    def simulate(
-        self, segment: Segment, params: Mapping[str, float] | None = None, integrator: str = "rk4", **kw
-    ) -> Any:
-        """Simulate the model over a segment with the given (or start) parameter values;
-        returns a DataFrame of outputs on ``segment.t``."""
-        from estimators.simulation.simulate import simulate_outputs  # local: avoids a cycle
-
-        return simulate_outputs(self, segment, params, integrator=integrator, **kw)
 
 
 def stack_rows(out: Any, n: int, shape: tuple[int, ...], which: str, names: Sequence[str]) -> np.ndarray:
@@ -360,7 +345,7 @@ class Segment:
         return self.t.size
 
     def _gap_index(self, factor: float = GAP_FACTOR) -> np.ndarray:
-        """Indices i whose interval t[i] -> t[i+1] is a gap (see :data:`GAP_FACTOR`)."""
+        """Indices i whose interval t[i] -> t[i+1] is a gap (see :data:`estimators.defaults.GAP_FACTOR`; :meth:`split_at_gaps` cuts a segment there)."""
         if not factor > 1.0:
             raise ModelDefinitionError(f"gap factor {factor!r} must exceed 1 (times the median interval)")
         dt = np.diff(self.t)
@@ -408,7 +393,7 @@ class Segment:
     def check_no_gaps(self, k: int | None = None, factor: float = GAP_FACTOR) -> None:
         """Raise ModelDefinitionError naming the first gap in ``t`` (its start time and
         length) and how many there are; ``k`` labels an unnamed segment by its index.
-        Every estimator calls it (through :meth:`estimators.simulation.simulate.Layout.build`)."""
+        Every estimator calls it (through :meth:`estimators.layout.Layout.build`)."""
         idx = self._gap_index(factor)
         if not idx.size:
             return

@@ -1,5 +1,5 @@
 """Model-simulated problems with process noise (turbulence) and an unstable aircraft, with
-known truth - for the filter-error / Kalman tests and benchmarks.
+known truth, for checking the filter-error and Kalman methods.
 
 * :func:`simulate_with_process_noise`: x_{k+1} = Phi_h(x_k) + F w_k h, w_k ~ N(0, I/h)
   (white noise of unit spectral density held over each step - the discrete model the
@@ -10,7 +10,7 @@ known truth - for the filter-error / Kalman tests and benchmarks.
   (Cmalpha > 0, time to double about 0.8 s) flown with an angle-of-attack and pitch-rate
   stability augmentation loop de = de_pilot + K_alpha alpha_m + K_q q_m on the measured
   (noisy) signals of the previous sample; the recorded input is the total elevator.
-* :func:`dryden_gust_longitudinal` (benchmark): a linear short period driven by a
+* :func:`dryden_short_period_example`: a linear short period driven by a
   Dryden-filtered vertical gust, with the gust filter as an extra state.
 """
 
@@ -19,13 +19,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import linalg
 
-from estimators.compile.kernels import kernel_for
+from estimators.compile import kernel_for
 from estimators.datasets import HFB320_CONSTANTS, HFB320_NOISE, HFB320_TRUTH, multistep, trim_level
+from estimators.layout import Layout
 from estimators.model import Model, Parameter, Segment
 from estimators.models import short_period
 from estimators.models.longitudinal import longitudinal
-from estimators.simulation.simulate import Layout
 
 
 @dataclass
@@ -213,7 +214,7 @@ def turbulent_short_period_example(
     return NoisyExample(model, truth_model, segs, truth, F, sd, states)
 
 
-# -- Dryden gust case (benchmark) -----------------------------------------------------------------
+# -- Dryden gust case -----------------------------------------------------------------------------
 def _sp_gust_f(x, u, p, c):
     alpha, q, g1, g2 = x
     (de,) = u
@@ -250,13 +251,11 @@ def dryden_short_period_model(
     w_g = kg (g1 + sqrt(3) tau g2); the gust adds w_g/V to the angle of attack in the
     aerodynamic coefficients. kg is set so that std(w_g) = sigma_w for the true noise
     intensity F_g2 = 1/tau^2 (returned). States alpha, q, g1, g2; outputs alpha, q, qdot, az."""
-    from scipy import linalg as _la
-
     c = dict(SP_CONSTANTS)
     tau = L / c["V"]
     A = np.array([[0.0, 1.0], [-1.0 / tau**2, -2.0 / tau]])
     Fg = 1.0 / tau**2
-    Pg = _la.solve_continuous_lyapunov(A, -np.array([[0.0, 0.0], [0.0, Fg**2]]))
+    Pg = linalg.solve_continuous_lyapunov(A, -np.array([[0.0, 0.0], [0.0, Fg**2]]))
     cvec = np.array([1.0, np.sqrt(3.0) * tau])
     kg = sigma_w / np.sqrt(cvec @ Pg @ cvec)
     c.update({"tau": tau, "r3tau": np.sqrt(3.0) * tau, "kg": kg})
@@ -288,11 +287,9 @@ def dryden_short_period_example(
     t = np.arange(n) * dt
     de = multistep(t, 1.0, 0.6, amplitude=np.radians(2.0)) + multistep(t, 12.0, 1.0, (1, -1), np.radians(1.5))
     # start in a random stationary gust state (not in calm air)
-    from scipy import linalg as _la
-
     tau = truth_model.constants["tau"]
     Ag = np.array([[0.0, 1.0], [-1.0 / tau**2, -2.0 / tau]])
-    Pg = _la.solve_continuous_lyapunov(Ag, -np.array([[0.0, 0.0], [0.0, Fg**2]]))
+    Pg = linalg.solve_continuous_lyapunov(Ag, -np.array([[0.0, 0.0], [0.0, Fg**2]]))
     g0 = np.linalg.cholesky(Pg) @ rng.standard_normal(2)
     seg = Segment(t=t, u=de[:, None], z=np.zeros((n, 4)), x0=np.array([0.0, 0.0, *g0]), name="dryden")
     X, Z, _ = simulate_with_process_noise(truth_model, seg, F, rng, sd)

@@ -9,11 +9,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from estimators.covariance.cluster import maneuver_scatter
+from estimators.defaults import CLUSTER_FLAG_RATIO, CORR_FLAG
 from estimators.model import Model, Segment
-
-#: correlation magnitude above which a pair of estimates is flagged
-CORR_FLAG = 0.9
-
 
 #: column label of ``std`` per ``EstimationResult.std_method`` (summary, report.md)
 STD_LABELS = {
@@ -250,8 +248,6 @@ class EstimationResult:
     def _scatter_lines(self) -> list[str]:
         """The maneuver-to-maneuver scatter against the Cramér-Rao bounds (2+ segments,
         estimators.validation.maneuver_scatter), for summary()."""
-        from estimators.validation.cluster import FLAG_RATIO, maneuver_scatter
-
         cl = maneuver_scatter(self)
         r = cl.ratio_summary() if cl is not None else {}
         if r.get("max_ratio") is None:
@@ -262,7 +258,7 @@ class EstimationResult:
         ]
         if r["flagged"]:
             out.append(
-                f"  above {FLAG_RATIO:g}x (the bound understates them): "
+                f"  above {CLUSTER_FLAG_RATIO:g}x (the bound understates them): "
                 + ", ".join(f"{n} {v:.1f}x" for n, v in r["flagged"].items())
             )
         return out

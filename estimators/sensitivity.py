@@ -3,8 +3,8 @@
 A fit of G maneuvers has the shared parameters plus each maneuver's own initial states
 and biases; maneuver k's outputs depend on the shared ones and its own only. Stored dense,
 the sensitivities of all maneuvers grow as G^2 (memory) and every product over them as
-G^3 (time): a 10-minute log with 44 lateral maneuvers (370 free parameters) spent more time
-forming F = sum S^T R^-1 S than simulating. :class:`Sensitivity` holds the columns a
+G^3 (time): with dozens of maneuvers, forming F = sum S^T R^-1 S would cost more than
+simulating. :class:`Sensitivity` holds the columns a
 segment depends on and where they sit among the free parameters; the sums scatter each
 segment's block into place (:func:`add_block`).
 """

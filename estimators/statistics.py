@@ -8,12 +8,9 @@ from typing import Any
 
 import numpy as np
 
+from estimators.defaults import SINGULAR_RTOL, UNINFORMED_RTOL
 from estimators.errors import IdentifiabilityError
 from estimators.sensitivity import add_block, as_sensitivity
-
-#: eigenvalue of the scaled information matrix (relative to its largest) below which a
-#: direction in parameter space counts as unidentifiable
-SINGULAR_RTOL = 1e-11
 
 
 def residual_covariance(residuals: Sequence[np.ndarray], full: bool = False) -> np.ndarray:
@@ -85,12 +82,12 @@ def unidentifiable(F: np.ndarray, names: Sequence[str], rtol: float = SINGULAR_R
     sensitivity at all, and those carrying the null directions of the scaled F.
 
     F_ii carries the parameter's units, so "no sensitivity" is F_ii at round-off of the
-    largest (1e-30: sensitivities 1e-15 of the largest), not a fraction of it that units
-    reach: filter error's process-noise F_alpha (values ~1e-4) had F_ii 3.5e16, and CLq's
-    24 (std 0.2, well identified) fell under the 1e-14 that this test used to take."""
+    largest (UNINFORMED_RTOL: sensitivities 1e-15 of the largest), not a fraction of it
+    that differing units alone reach (a process-noise parameter of order 1e-4 has an F_ii
+    many decades above a well identified derivative's)."""
     d = np.diag(F).copy()
     dmax = float(np.max(d)) if d.size else 0.0
-    zero = ~(d > 1e-30 * max(dmax, 1e-300))
+    zero = ~(d > UNINFORMED_RTOL * max(dmax, 1e-300))
     out = [names[i] for i in np.flatnonzero(zero)]
     keep = np.flatnonzero(~zero)
     if keep.size > 1:

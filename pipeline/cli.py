@@ -12,6 +12,7 @@ import importlib
 import os
 import sys
 
+from estimators.errors import EstimationError
 from pipeline.commands import COMMANDS
 from pipeline.errors import FsidError
 
@@ -55,8 +56,6 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # one clear line, never a traceback
         if os.environ.get("FSID_DEBUG"):
             raise
-        from estimators.errors import EstimationError
-
         if isinstance(exc, (FsidError, EstimationError)):
             print(f"fsid: error: {exc}", file=sys.stderr)
             return getattr(exc, "exit_code", 2)

@@ -12,10 +12,11 @@ Imports nothing else of the project (jsbsim, numpy, scipy, pandas only).
 
 from sim.aircraft import ALL_DERIVATIVES, DERIVATIVES, Aircraft, load_aircraft
 from sim.errors import ScenarioError
-from sim.flight import TRUTH_COLUMNS, TRUTH_UNITS, SimResult, fly
+from sim.flight import SimResult, fly
 from sim.maneuvers import Maneuver
 from sim.scenario import Scenario, load_scenario, scenario_from_dict
 from sim.sensors import SensorSpec
+from sim.truth import TRUTH_COLUMNS, TRUTH_UNITS
 from sim.turbulence import dryden_parameters, dryden_psd
 
 __all__ = [

@@ -1,7 +1,6 @@
 """Aircraft truth sets: geometry, mass, inertia, thrust model and aerodynamic derivatives.
 
-A truth set is a TOML file (``scenarios/aircraft/*.toml``). Every quantity carries its unit
-in the key name (``S_m2``, ``mass_kg``, ``Ixx_kgm2``...). Derivatives use the DESIGN.md names
+A truth set is a TOML file. Every quantity carries its unit in the key name (``S_m2``, ``mass_kg``, ``Ixx_kgm2``...). Derivatives use the DESIGN.md names
 and are per radian; rate derivatives are nondimensionalised with c/(2V) (pitch) and
 b/(2V) (roll, yaw), alphadot likewise with c/(2V).
 

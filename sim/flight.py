@@ -21,168 +21,21 @@ from sim.jsbsim_model import FcsConfig, write_jsbsim_root
 from sim.maneuvers import input_histories
 from sim.scenario import THROTTLE_SPAN_US, Scenario
 from sim.sensors import sample_sensor
+from sim.truth import AUX, FT, LBF, PROPS, PSF, SLUGFT3, TRUTH_UNITS, truth_table
 from sim.turbulence import dryden_parameters
-
-FT = 0.3048
-LBF = 4.4482216152605
-PSF = 47.880258980335840
-SLUGFT3 = 515.3788183931961
 
 #: JSBSim integrators (FGPropagate enum: 1 rectangular Euler, 2 trapezoidal, 3/4/5
 #: Adams-Bashforth 2/3/4). JSBSim's default Euler for the body rates adds a numerical
 #: pitch damping of order omega^2 dt/2 at 100 Hz - as large as the aerodynamic Mq of a
-#: small UAV - so a fitted Cmq would be half the truth. With Adams-Bashforth 2 and two
-#: substeps per sample (scenario key ``substeps``) an output-error fit of the
-#: continuous-time model to the noise-free truth lands within 0.15 % of every Cm/CL
-#: derivative (0.5 % with one substep); see tests/test_sim_flight.py.
+#: small UAV - so a fitted Cmq would be half the truth. Adams-Bashforth 2 with substeps
+#: per sample (scenario key ``substeps``) keeps that error small against the
+#: continuous-time model an estimator fits.
 INTEGRATORS: dict[str, int] = {
     "rate/rotational": 3,
     "rate/translational": 3,
     "position/rotational": 3,
     "position/translational": 4,
 }
-
-#: truth column -> (JSBSim property, factor to SI)
-_PROPS: dict[str, tuple[str, float]] = {
-    "p": ("velocities/p-rad_sec", 1.0),
-    "q": ("velocities/q-rad_sec", 1.0),
-    "r": ("velocities/r-rad_sec", 1.0),
-    "pdot": ("accelerations/pdot-rad_sec2", 1.0),
-    "qdot": ("accelerations/qdot-rad_sec2", 1.0),
-    "rdot": ("accelerations/rdot-rad_sec2", 1.0),
-    "phi": ("attitude/phi-rad", 1.0),
-    "theta": ("attitude/theta-rad", 1.0),
-    "psi": ("attitude/psi-rad", 1.0),
-    "V": ("velocities/vt-fps", FT),
-    "alpha": ("aero/alpha-rad", 1.0),
-    "beta": ("aero/beta-rad", 1.0),
-    "u": ("velocities/u-aero-fps", FT),
-    "v": ("velocities/v-aero-fps", FT),
-    "w": ("velocities/w-aero-fps", FT),
-    "vn": ("velocities/v-north-fps", FT),
-    "ve": ("velocities/v-east-fps", FT),
-    "vd": ("velocities/v-down-fps", FT),
-    "h": ("position/h-sl-ft", FT),
-    "qbar": ("aero/qbar-psf", PSF),
-    "rho": ("atmosphere/rho-slugs_ft3", SLUGFT3),
-    "de": ("fcs/de-pos-rad", 1.0),
-    "da": ("fcs/da-pos-rad", 1.0),
-    "dr": ("fcs/dr-pos-rad", 1.0),
-    "throttle": ("fcs/throttle-pos", 1.0),
-    "thrust": ("fcs/thrust-lbf", LBF),
-    "p_aero": ("velocities/p-aero-rad_sec", 1.0),
-    "q_aero": ("velocities/q-aero-rad_sec", 1.0),
-    "r_aero": ("velocities/r-aero-rad_sec", 1.0),
-    "alphadot": ("aero/alphadot-rad_sec", 1.0),
-    "p_turb": ("atmosphere/p-turb-rad_sec", 1.0),
-    "q_turb": ("atmosphere/q-turb-rad_sec", 1.0),
-    "r_turb": ("atmosphere/r-turb-rad_sec", 1.0),
-    "gust_n": ("atmosphere/turb-north-fps", FT),
-    "gust_e": ("atmosphere/turb-east-fps", FT),
-    "gust_d": ("atmosphere/turb-down-fps", FT),
-    "de_cmd": ("fcs/de-cmd-rad", 1.0),
-    "da_cmd": ("fcs/da-cmd-rad", 1.0),
-    "dr_cmd": ("fcs/dr-cmd-rad", 1.0),
-    "de_sas": ("fcs/de-sas-rad", 1.0),
-    "lat": ("position/lat-geod-deg", 1.0),
-    "lon": ("position/long-gc-deg", 1.0),
-}
-#: raw JSBSim helpers needed to form coefficients and specific forces
-_AUX = [
-    "simulation/sim-time-sec",
-    "forces/fbx-total-lbs",
-    "forces/fby-total-lbs",
-    "forces/fbz-total-lbs",
-    "inertia/mass-slugs",
-    "aero/qbar-psf",
-    "metrics/Sw-sqft",
-    "metrics/bw-ft",
-    "metrics/cbarw-ft",
-]
-
-#: truth columns, in order (DESIGN.md section 3 first, then the extras)
-TRUTH_COLUMNS: tuple[str, ...] = (
-    "t",
-    "ax",
-    "ay",
-    "az",
-    "p",
-    "q",
-    "r",
-    "pdot",
-    "qdot",
-    "rdot",
-    "phi",
-    "theta",
-    "psi",
-    "V",
-    "alpha",
-    "beta",
-    "u",
-    "v",
-    "w",
-    "vn",
-    "ve",
-    "vd",
-    "h",
-    "qbar",
-    "rho",
-    "de",
-    "da",
-    "dr",
-    "throttle",
-    "thrust",
-    "p_aero",
-    "q_aero",
-    "r_aero",
-    "alphadot",
-    "p_turb",
-    "q_turb",
-    "r_turb",
-    "gust_n",
-    "gust_e",
-    "gust_d",
-    "gust_u",
-    "gust_v",
-    "gust_w",
-    "CL",
-    "CD",
-    "CY",
-    "Cl",
-    "Cm",
-    "Cn",
-    "de_cmd",
-    "da_cmd",
-    "dr_cmd",
-    "de_sas",
-    "lat",
-    "lon",
-)
-
-#: SI unit of every truth column
-TRUTH_UNITS: dict[str, str] = {
-    "t": "s",
-    **{c: "m/s^2" for c in ("ax", "ay", "az")},
-    **{c: "rad/s" for c in ("p", "q", "r", "p_aero", "q_aero", "r_aero", "alphadot", "p_turb", "q_turb", "r_turb")},
-    **{c: "rad/s^2" for c in ("pdot", "qdot", "rdot")},
-    **{
-        c: "rad"
-        for c in ("phi", "theta", "psi", "alpha", "beta", "de", "da", "dr", "de_cmd", "da_cmd", "dr_cmd", "de_sas")
-    },
-    **{
-        c: "m/s"
-        for c in ("V", "u", "v", "w", "vn", "ve", "vd", "gust_n", "gust_e", "gust_d", "gust_u", "gust_v", "gust_w")
-    },
-    "h": "m",
-    "qbar": "Pa",
-    "rho": "kg/m^3",
-    "throttle": "-",
-    "thrust": "N",
-    **{c: "-" for c in ("CL", "CD", "CY", "Cl", "Cm", "Cn")},
-    "lat": "deg",
-    "lon": "deg",
-}
-
 
 #: ft/s, the mean wind that carries the turbulence azimuth (Turbulence.axes)
 _AXES_WIND_FPS = 1e-9
@@ -398,6 +251,46 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
     with _quiet_stdout():  # JSBSim prints trim diagnostics on fd 1
         fdm = _make_fdm(s, root)
         trim = _trim(fdm, s)
+    _configure_flight(fdm, s, trim)
+    pm = fdm.get_property_manager()
+    coef_names = [n for n in (x for v in DERIVATIVES.values() for x in v) if ac.derivatives[n] != 0.0]
+    # each property once (aero/qbar-psf is both a truth column and a coefficient reference)
+    props = list(dict.fromkeys([p for p, _ in PROPS.values()] + AUX + [f"aero/coefficient/{n}" for n in coef_names]))
+    nodes = [pm.get_node(p) for p in props]
+    missing = [p for p, n in zip(props, nodes) if n is None]
+    if missing:
+        raise RuntimeError(f"JSBSim properties missing: {missing}")
+    n_steps = int(round(s.duration * s.rate_hz))
+    tgrid = np.arange(n_steps + 1) / s.rate_hz
+    changes = _input_changes(s, pm, tgrid)
+    data = _run(fdm, s, [n.get_double_value for n in nodes], changes, n_steps, progress)
+    data = data.reshape(n_steps + 1, len(props))
+    truth, terms = truth_table(data, props, coef_names, ac)
+    # JSBSim accumulates dt (2.99999999999998 for 3.0); the exact grid is k/rate_hz
+    if np.max(np.abs(truth["t"].to_numpy() - tgrid)) > 1e-6:
+        raise RuntimeError("JSBSim time base drifted from the sample grid")
+    truth["t"] = tgrid
+    terms["t"] = tgrid
+    rng_seq = np.random.SeedSequence([int(s.seed), 0x5E45])
+    sensors = {}
+    for (name, spec), child in zip(s.sensors.items(), rng_seq.spawn(len(s.sensors))):
+        sensors[name] = sample_sensor(truth, spec, np.random.default_rng(child), s.duration)
+    mans = [(m.name, m.axis_label, round(float(m.t_start), 9), round(float(m.t_end), 9)) for m in s.maneuvers]
+    return SimResult(
+        scenario=s,
+        aircraft=ac,
+        truth=truth,
+        sensors=sensors,
+        maneuvers=mans,
+        trim=trim,
+        meta=_meta(s, trim),
+        aero_terms=terms,
+    )
+
+
+def _configure_flight(fdm, s: Scenario, trim: dict[str, float]) -> None:
+    """After the trim: whole-microsecond servo commands, the SAS on its trim reference,
+    the turbulence model and its seed."""
     # whole-microsecond servo commands from here on (the trim needs continuous ones): the
     # trim deflections move to their nearest PWM step, a small start-up transient as in flight
     fdm["fcs/servo-quantize"] = 1.0
@@ -409,25 +302,18 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
         fdm["atmosphere/turbulence/milspec/windspeed_at_20ft_AGL-fps"] = s.turbulence.windspeed_20ft / FT
         fdm["atmosphere/turbulence/milspec/severity"] = s.turbulence.poe_index
     fdm["simulation/randomseed"] = int(s.turbulence.seed) % 2**31
-    pm = fdm.get_property_manager()
-    coef_names = [n for n in (x for v in DERIVATIVES.values() for x in v) if ac.derivatives[n] != 0.0]
-    # each property once (aero/qbar-psf is both a truth column and a coefficient reference)
-    props = list(dict.fromkeys([p for p, _ in _PROPS.values()] + _AUX + [f"aero/coefficient/{n}" for n in coef_names]))
-    nodes = [pm.get_node(p) for p in props]
-    missing = [p for p, n in zip(props, nodes) if n is None]
-    if missing:
-        raise RuntimeError(f"JSBSim properties missing: {missing}")
-    getters = [n.get_double_value for n in nodes]
+
+
+def _input_changes(s: Scenario, pm, tgrid: np.ndarray) -> dict[int, list]:
+    """Sample k -> [(setter, value before, change)] of the maneuver inputs that change at
+    k. An input property is set only on the steps where its value changes; between two
+    samples it moves linearly over the JSBSim substeps (first-order hold, what an
+    estimator interpolating the sampled inputs assumes)."""
     setters = {
         ax: pm.get_node(f"fcs/{ax}-maneuver-rad" if ax != "throttle" else "fcs/throttle-maneuver")
         for ax in ("de", "da", "dr", "throttle")
     }
-    n_steps = int(round(s.duration * s.rate_hz))
-    tgrid = np.arange(n_steps + 1) / s.rate_hz
     inputs = input_histories(list(s.maneuvers), tgrid)
-    # set an input property only on the steps where its value changes; between two samples
-    # an input moves linearly over the JSBSim substeps (first-order hold, what an
-    # estimator interpolating the sampled inputs assumes)
     changes: dict[int, list] = {}
     for ax, hist in inputs.items():
         hist = hist.copy()
@@ -436,9 +322,15 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
         setv = setters[ax].set_double_value
         for k, a, b in zip(ks.tolist(), hist[ks - 1].tolist(), hist[ks].tolist()):
             changes.setdefault(k, []).append((setv, a, b - a))
-    # one row of len(props) values per sample, appended to a flat float64 buffer: the C-level
-    # map over the node getters avoids a Python list per sample (the loop's main overhead
-    # after JSBSim itself)
+    return changes
+
+
+def _run(fdm, s: Scenario, getters: list, changes: dict[int, list], n_steps: int, progress) -> np.ndarray:
+    """Fly n_steps samples of s.substeps JSBSim steps each; the properties read by
+    ``getters`` at the trim point and after every sample, flat ((n_steps + 1) x
+    len(getters),). One row per sample goes to a flat float64 buffer: the C-level map over
+    the node getters avoids a Python list per sample."""
+    pm = fdm.get_property_manager()
     buf = array("d")
     read = buf.extend
     read(map(call, getters))
@@ -470,17 +362,12 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
         read(map(call, getters))
         if progress is not None and k % every == 0:
             progress(k / n_steps)
-    data = np.frombuffer(buf, dtype=np.float64).reshape(n_steps + 1, len(props))
-    truth, terms = _truth_table(data, props, coef_names, ac)
-    # JSBSim accumulates dt (2.99999999999998 for 3.0); the exact grid is k/rate_hz
-    if np.max(np.abs(truth["t"].to_numpy() - tgrid)) > 1e-6:
-        raise RuntimeError("JSBSim time base drifted from the sample grid")
-    truth["t"] = tgrid
-    terms["t"] = tgrid
-    rng_seq = np.random.SeedSequence([int(s.seed), 0x5E45])
-    sensors = {}
-    for (name, spec), child in zip(s.sensors.items(), rng_seq.spawn(len(s.sensors))):
-        sensors[name] = sample_sensor(truth, spec, np.random.default_rng(child), s.duration)
+    return np.frombuffer(buf, dtype=np.float64)
+
+
+def _meta(s: Scenario, trim: dict[str, float]) -> dict:
+    """SimResult.meta: seed, sensors, turbulence (with its Dryden parameters), wind, SAS,
+    actuator lag, servos, software versions, truth units and the JSBSim settings."""
     turb = {
         "model": s.turbulence.model,
         "severity": s.turbulence.severity,
@@ -492,7 +379,13 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
     }
     if s.turbulence.model != "off":
         turb.update(dryden_parameters(s.altitude, s.turbulence.windspeed_20ft, s.turbulence.poe_index))
-    meta = {
+    sas = {
+        "k_alpha": s.sas_k_alpha,
+        "k_q_s": s.sas_k_q,
+        "alpha_ref_rad": trim["alpha"],
+        "feedback": "truth alpha and body pitch rate",
+    }
+    return {
         "seed": s.seed,
         "scenario": s.name,
         "rate_hz": s.rate_hz,
@@ -500,14 +393,7 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
         "sensors": {k: v.to_dict() for k, v in s.sensors.items()},
         "turbulence": turb,
         "wind": {"north_mps": s.wind[0], "east_mps": s.wind[1], "down_mps": 0.0},
-        "sas": {
-            "k_alpha": s.sas_k_alpha,
-            "k_q_s": s.sas_k_q,
-            "alpha_ref_rad": trim["alpha"],
-            "feedback": "truth alpha and body pitch rate",
-        }
-        if (s.sas_k_alpha or s.sas_k_q)
-        else None,
+        "sas": sas if (s.sas_k_alpha or s.sas_k_q) else None,
         "actuator_lag_s": s.actuator_lag,
         "servo": servo_meta(s),
         "versions": _versions(),
@@ -519,46 +405,3 @@ def _fly(s: Scenario, root: Path, progress) -> SimResult:
             "input_hold": "linear between samples (first-order hold over the substeps)",
         },
     }
-    mans = [(m.name, m.axis_label, round(float(m.t_start), 9), round(float(m.t_end), 9)) for m in s.maneuvers]
-    return SimResult(
-        scenario=s, aircraft=ac, truth=truth, sensors=sensors, maneuvers=mans, trim=trim, meta=meta, aero_terms=terms
-    )
-
-
-def _truth_table(data: np.ndarray, props: list[str], coef_names: list[str], ac: Aircraft):
-    col = {p: data[:, i] for i, p in enumerate(props)}
-    d: dict[str, np.ndarray] = {"t": col["simulation/sim-time-sec"]}
-    m = col["inertia/mass-slugs"]
-    for ax, f in (("ax", "fbx"), ("ay", "fby"), ("az", "fbz")):
-        d[ax] = col[f"forces/{f}-total-lbs"] / m * FT
-    for name, (p, k) in _PROPS.items():
-        d[name] = col[p] * k
-    # turbulence NED -> body axes (gust_u/v/w: air-mass velocity along body x/y/z)
-    ph, th, ps = d["phi"], d["theta"], d["psi"]
-    cph, sph, cth, sth, cps, sps = np.cos(ph), np.sin(ph), np.cos(th), np.sin(th), np.cos(ps), np.sin(ps)
-    gn, ge, gd = d["gust_n"], d["gust_e"], d["gust_d"]
-    d["gust_u"] = cth * cps * gn + cth * sps * ge - sth * gd
-    d["gust_v"] = (sph * sth * cps - cph * sps) * gn + (sph * sth * sps + cph * cps) * ge + sph * cth * gd
-    d["gust_w"] = (cph * sth * cps + sph * sps) * gn + (cph * sth * sps - sph * cps) * ge + cph * cth * gd
-    qs = col["aero/qbar-psf"] * col["metrics/Sw-sqft"]
-    ref = {
-        "CL": qs,
-        "CD": qs,
-        "CY": qs,
-        "Cl": qs * col["metrics/bw-ft"],
-        "Cm": qs * col["metrics/cbarw-ft"],
-        "Cn": qs * col["metrics/bw-ft"],
-    }
-    terms = {"t": d["t"]}
-    for coef, names in DERIVATIVES.items():
-        tot = np.zeros_like(d["t"])
-        unit = LBF if coef in ("CL", "CD", "CY") else LBF * FT
-        for n in names:
-            if n in coef_names:
-                term = col[f"aero/coefficient/{n}"]
-                tot = tot + term
-                terms[n] = term * unit
-        with np.errstate(divide="ignore", invalid="ignore"):
-            d[coef] = tot / ref[coef]
-    truth = pd.DataFrame({c: d[c] for c in TRUTH_COLUMNS})
-    return truth, pd.DataFrame(terms)

@@ -209,8 +209,8 @@ def aircraft_xml(aircraft: Aircraft, fcs: FcsConfig) -> str:
 
     Ixz: the truth set holds the textbook product of inertia (int x z dm, body axes, the
     tensor's off-diagonal is -Ixz). JSBSim 1.3 builds its tensor with the opposite sign of
-    the <ixz> element, so the element gets -Ixz (checked by the Euler-equation test in
-    tests/test_sim_flight.py)."""
+    the <ixz> element, so the element gets -Ixz (the flown rates then satisfy the Euler
+    equations with the truth set's Ixz)."""
     ac = aircraft
     loc0 = '<x>0</x><y>0</y><z>0</z>'
     return f"""<?xml version="1.0"?>

@@ -6,7 +6,7 @@ reported as a wrong unit. Loading validates everything and raises
 :class:`sim.ScenarioError` with one line naming the file, the key and the reason.
 Trimmability is checked when the scenario is flown (``sim.fly``), also as ScenarioError.
 
-Layout (see ``scenarios/default.toml`` for a commented example)::
+Layout::
 
     name, description, aircraft (path relative to the scenario file), duration_s,
     rate_hz (truth and input sample rate, default 100), substeps (JSBSim steps per sample,
@@ -40,7 +40,7 @@ Layout (see ``scenarios/default.toml`` for a commented example)::
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -121,8 +121,6 @@ class Scenario:
     def with_seed(self, seed: int) -> Scenario:
         """The same scenario with another seed (turbulence seed follows unless set apart;
         the validation flight keeps its offset from the scenario's seed)."""
-        from dataclasses import replace
-
         turb = self.turbulence
         if self.raw.get("turbulence", {}).get("seed") is None:
             turb = replace(turb, seed=int(seed))
@@ -340,27 +338,10 @@ def load_scenario(path: str | Path) -> Scenario:
     return scenario_from_dict(raw, path)
 
 
-def scenario_from_dict(raw: dict, path: Path) -> Scenario:
-    """Validate a parsed scenario; ``path`` is used for messages and relative aircraft paths."""
-    top = _Section(path, "", raw, _TOP)
-    ac_rel = top.text("aircraft")
-    ac_path = (path.parent / ac_rel) if not Path(ac_rel).is_absolute() else Path(ac_rel)
-    if not ac_path.exists():
-        raise top.fail("aircraft", f"file {ac_path} not found (paths are relative to the scenario file)")
-    aircraft = load_aircraft(ac_path)
-    duration = top.num("duration_s", positive=True)
-    rate = top.num("rate_hz", 100.0, lo=20.0, hi=1000.0)
-    substeps = top.integer("substeps", 2)
-    if not 1 <= substeps <= 20:
-        raise top.fail("substeps", f"must be between 1 and 20, got {substeps}")
-    seed = top.integer("seed", 0)
-    if "trim" not in raw:
-        raise top.fail("trim", "missing section")
-    trim = _Section(path, "trim", raw["trim"], {"altitude_m", "airspeed_mps", "flight_path_deg", "heading_deg"})
-    alt = trim.num("altitude_m", lo=10.0, hi=20000.0)
-    tas = trim.num("airspeed_mps", positive=True, hi=300.0)
-    gam = np.deg2rad(trim.num("flight_path_deg", 0.0, lo=-30.0, hi=30.0))
-    hdg = np.deg2rad(trim.num("heading_deg", 0.0, lo=-360.0, hi=360.0))
+def _maneuvers(top: _Section, path: Path, raw: dict, duration: float) -> list[Maneuver]:
+    """The [schedule] and [[maneuver]] tables: maneuvers without a start laid end to end
+    after lead_s with quiet_s between them; names unique, each inside the flight, none
+    overlapping another on the same axis."""
     sch = _Section(path, "schedule", raw.get("schedule", {}), {"lead_s", "quiet_s"})
     lead, quiet = sch.num("lead_s", 5.0, lo=0.0), sch.num("quiet_s", 10.0, lo=0.0)
     mans_raw = raw.get("maneuver", [])
@@ -384,6 +365,12 @@ def scenario_from_dict(raw: dict, path: Path) -> Scenario:
         for o in mans[:i]:
             if set(m.axes) & set(o.axes) and m.t_start < o.t_end - 1e-9 and o.t_start < m.t_end - 1e-9:
                 raise top.fail(f"maneuver[{i}]", f"{m.name!r} overlaps {o.name!r} on the same axis")
+    return mans
+
+
+def _turbulence_and_wind(path: Path, raw: dict, seed: int) -> tuple[Turbulence, tuple[float, float]]:
+    """The [turbulence] and [wind] tables (a mean wind cannot go with turbulence in the
+    aircraft's axes: it sets JSBSim's turbulence axes)."""
     tu = _Section(
         path, "turbulence", raw.get("turbulence", {}), {"model", "severity", "windspeed_20ft_mps", "seed", "axes"}
     )
@@ -405,13 +392,38 @@ def scenario_from_dict(raw: dict, path: Path) -> Scenario:
             "",
             "a mean wind sets JSBSim's turbulence axes; it cannot go with [turbulence] axes = \"aircraft\" (drop one of them)",
         )
+    return turb, wind
+
+
+def scenario_from_dict(raw: dict, path: Path) -> Scenario:
+    """Validate a parsed scenario; ``path`` is used for messages and relative aircraft paths."""
+    top = _Section(path, "", raw, _TOP)
+    ac_rel = top.text("aircraft")
+    ac_path = (path.parent / ac_rel) if not Path(ac_rel).is_absolute() else Path(ac_rel)
+    if not ac_path.exists():
+        raise top.fail("aircraft", f"file {ac_path} not found (paths are relative to the scenario file)")
+    aircraft = load_aircraft(ac_path)
+    duration = top.num("duration_s", positive=True)
+    rate = top.num("rate_hz", 100.0, lo=20.0, hi=1000.0)
+    substeps = top.integer("substeps", 2)
+    if not 1 <= substeps <= 20:
+        raise top.fail("substeps", f"must be between 1 and 20, got {substeps}")
+    seed = top.integer("seed", 0)
+    if "trim" not in raw:
+        raise top.fail("trim", "missing section")
+    trim = _Section(path, "trim", raw["trim"], {"altitude_m", "airspeed_mps", "flight_path_deg", "heading_deg"})
+    alt = trim.num("altitude_m", lo=10.0, hi=20000.0)
+    tas = trim.num("airspeed_mps", positive=True, hi=300.0)
+    gam = np.deg2rad(trim.num("flight_path_deg", 0.0, lo=-30.0, hi=30.0))
+    hdg = np.deg2rad(trim.num("heading_deg", 0.0, lo=-360.0, hi=360.0))
+    mans = _maneuvers(top, path, raw, duration)
+    turb, wind = _turbulence_and_wind(path, raw, seed)
     act = _Section(path, "actuators", raw.get("actuators", {}), {"lag_s", "pwm_servos"})
     pwm = act.t.get("pwm_servos", True)
     if not isinstance(pwm, bool):
         raise act.fail("pwm_servos", f"must be true or false, got {pwm!r}")
     sas = _Section(path, "sas", raw.get("sas", {}), {"k_alpha", "k_q_s"})
-    sens_raw = raw.get("sensors", {})
-    sens_sec = _Section(path, "sensors", sens_raw, set(SENSOR_SCHEMA))
+    sens_sec = _Section(path, "sensors", raw.get("sensors", {}), set(SENSOR_SCHEMA))
     sensors = {}
     for name in SENSOR_SCHEMA:
         tab = sens_sec.t.get(name, {})

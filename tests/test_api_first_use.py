@@ -32,7 +32,7 @@ from estimators import (
     simulate_outputs,
 )
 from estimators.datasets import multistep
-from estimators.output_error.oem import follow_note
+from estimators.output_error.diagnostics import follow_note
 from estimators.process_noise_examples import simulate_with_process_noise, turbulent_short_period_example
 
 METHODS = ("StabilizedOutputError", "EigenvalueTransformation", "EquationDecoupling", "FilterError")

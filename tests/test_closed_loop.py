@@ -6,7 +6,7 @@ import json
 import pytest
 
 from pipeline.cli import main
-from pipeline.jobs.run import run_scenario
+from pipeline.jobs.scenario import run_scenario
 
 SCENARIOS = __import__("pathlib").Path(__file__).resolve().parents[1] / "scenarios"
 

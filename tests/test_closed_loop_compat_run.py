@@ -26,10 +26,13 @@ import pandas as pd
 import pytest
 
 pytest.importorskip("jsbsim")
-from pipeline.conditioning.compatibility import CompatibilityResult, truth_errors  # noqa: E402
+from pipeline.conditioning.compatibility import CompatibilityResult  # noqa: E402
+from pipeline.conditioning.sensor_errors import truth_errors  # noqa: E402
+from pipeline.ingest.constants import AircraftConstants  # noqa: E402
 from pipeline.ingest.readers import read_log  # noqa: E402
-from pipeline.jobs.run import Progress, identify, run_scenario  # noqa: E402
-from pipeline.problems.identify import AircraftConstants  # noqa: E402
+from pipeline.jobs.identify import identify  # noqa: E402
+from pipeline.jobs.progress import Progress  # noqa: E402
+from pipeline.jobs.scenario import run_scenario  # noqa: E402
 
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "sensor_errors_calm.toml"
 #: the simulator's truth timing (module doc of test_compat_closed_loop): up to one 5 ms
@@ -173,7 +176,7 @@ def test_correction_matters_and_matches_the_true_correction(run):
 def test_stage_reports_instead_of_ending_the_run():
     """No IMU, no forward flight, switched off: the stage says why and hands the data on."""
     from pipeline.ingest.flightdata import Channel, FlightData
-    from pipeline.jobs.run import compatibility_stage
+    from pipeline.jobs.stages import compatibility_stage
 
     t = np.arange(0.0, 30.0, 0.01)
     pr = Progress(3, quiet=True)
@@ -229,7 +232,7 @@ def test_no_correction_when_the_air_data_show_turbulence(run, tmp_path):
     (measured on longitudinal_3211_turbulence, truth 0: scale_alpha -0.25 at 16 std, bias_V
     -3.3 m/s at 10 std); its residuals on alpha and beta are 3.7 and 2.2 times their noise
     level (calm flights: 0.93-1.01), so nothing is applied and the report says why."""
-    from pipeline.conditioning.compatibility import ADEQUACY, correct_for_estimation
+    from pipeline.conditioning.sensor_correction import ADEQUACY, correct_for_estimation
     from pipeline.outputs.writers import write_mcap, write_truth_json
     from sim import fly, load_scenario
 

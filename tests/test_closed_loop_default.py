@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.jobs.run import run_scenario
+from pipeline.jobs.scenario import run_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 LATERAL = (
@@ -89,7 +89,7 @@ def test_demo_lateral_oem(demo_run):
 @pytest.mark.parametrize("method", ["lateral-oem", "lateral-ls"])
 def test_demo_lateral_maneuvers_scatter_as_the_bounds_say(demo_run, method):
     """Calm air, the right model: the 3 lateral maneuvers disagree about as much as the
-    Cramér-Rao (OLS) bounds say (estimators.validation.cluster; seed 1, output error:
+    Cramér-Rao (OLS) bounds say (estimators.covariance.cluster; seed 1, output error:
     median ratio 0.63, the largest 1.67 on Cnda; equation error, its regressions clustered
     by window: 0.92, 1.88 on Cnp; ~2 degrees of freedom each), nothing flagged. (A
     delete-one-maneuver jackknife had put output error's Clbeta, Cnbeta and Cnp at 5-7x

@@ -32,7 +32,8 @@ import numpy as np
 import pytest
 
 from pipeline.cli import build_parser
-from pipeline.jobs.run import run_scenario, scenario_methods
+from pipeline.jobs.scenario import run_scenario
+from pipeline.methods.catalogue import scenario_methods
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 TURBULENCE_METHODS = ("fem", "ekf", "ukf")
@@ -115,7 +116,7 @@ def test_turbulence_proof_of_match(turbulence, method):
 
 
 def test_methods_cross_check_singles_out_output_error_in_turbulence(turbulence):
-    """Without the truth, the methods check each other (pipeline.validation.validate.
+    """Without the truth, the methods check each other (pipeline.validation.agreement.
     cross_check_methods): FEM, EKF and UKF agree within 3 combined std on every derivative,
     and output error, which takes the air as calm, disagrees with each of them - on Cm0,
     Cmq, Cmde, which the truth check puts 10-18 std off (seed of the scenario)."""
@@ -132,11 +133,11 @@ def test_methods_cross_check_singles_out_output_error_in_turbulence(turbulence):
 
 def test_maneuver_scatter_flags_output_error_in_turbulence(turbulence):
     """Without the truth and without a second method: output error's two maneuvers
-    disagree far beyond its Cramér-Rao bounds (estimators.validation.cluster; seed of the
+    disagree far beyond its Cramér-Rao bounds (estimators.covariance.cluster; seed of the
     scenario: CLalpha 6.8x, CL0 6.2x, CLq 5.3x, CLde 4.0x, Cmq 3.0x) and its verdict says
     so; filter error's agree within theirs (largest 2.6x, CDalpha), and so do the EKF's
     (from the information each segment adds to its parameter covariance,
-    estimators.filters.kalman). What both maneuvers share (output error's Cm0, Cmde, 13-18 std off
+    estimators.filters.parameter_filter). What both maneuvers share (output error's Cm0, Cmde, 13-18 std off
     the truth) no scatter can show: that takes the methods' cross-check."""
     oem = turbulence["methods"]["oem"]["validation"]
     fem = turbulence["methods"]["fem"]["validation"]
@@ -150,10 +151,10 @@ def test_maneuver_scatter_flags_output_error_in_turbulence(turbulence):
 
 def test_filters_on_a_log_take_the_process_noise_from_filter_error(turbulence, tmp_path, capsys):
     """fsid estimate on the same flight.mcap knows no turbulence level: EKF's process noise
-    is then twice FEM's maximum-likelihood estimate (pipeline.jobs.run.filters_process_noise),
+    is then twice FEM's maximum-likelihood estimate (pipeline.methods.fitting.filters_process_noise),
     and every derivative stays within 3 std (with the data's default, 0.05 sqrt(var(diff
     z)/h), CLalpha ended 5.3 and Cmalpha 4.5 std off)."""
-    from pipeline.jobs.run import estimate_log
+    from pipeline.jobs.estimate import estimate_log
 
     out = tmp_path / "est"
     estimate_log(turbulence["_out"] / "flight.mcap", out, methods=["ekf"], compat=False)

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from pipeline.cli import main
-from pipeline.jobs.run import run_scenario
+from pipeline.jobs.scenario import run_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 LATERAL = (
@@ -83,7 +83,7 @@ def test_lateral_oem_derivatives_within_3_std(lateral_run):
     pressure against bounds of 0.03-0.1 %), which output error would take as exact: Clda,
     Cldr, Cnp, Cnda, Cndr were 3.2-4.3 std off on seed 21 (Cnbeta 7.8 on seed 11). The
     model now has a per-maneuver correction dV[k] with the a-priori std sigma_V / sqrt(n)
-    (pipeline.problems.identify.with_airspeed_offsets), so the bounds include it: worst 2.55 std
+    (pipeline.problems.lateral.with_airspeed_offsets), so the bounds include it: worst 2.55 std
     on seed 21 (Cndr; was 4.3); seeds 5, 7, 11, 3, 13, 17: 1.9, 1.9, 2.8, 3.2, 3.5, 2.3 (were
     3.0, 1.5, 7.8, 3.7, 7.0, 2.4): a constant dV[k] leaves the noise's fluctuation inside a
     window, so seeds 3 and 13 still exceed 3 std. The pseudo-inputs V and alpha are now the
@@ -110,7 +110,7 @@ def test_lateral_ls_derivatives_and_proof_of_match(lateral_run):
     the held-out maneuver matched. Was 12-18 % low: np.gradient of the raw rates smeared
     the roll response at the surface steps (5-7 % on the noise-free truth) and vane noise
     on the nearly collinear beta regressor (errors in variables, CYbeta -10 %, CYdr
-    +15 %); see pipeline.problems.identify.lateral_regressions. Seed 5 lands Clr, Cnr at 3.1, 3.6
+    +15 %); see pipeline.problems.regressions.lateral_regressions. Seed 5 lands Clr, Cnr at 3.1, 3.6
     std (0.7 %)."""
     m = lateral_run["methods"]["ls"]
     d = _derivs(m)

@@ -1,5 +1,5 @@
 """One axis maneuvered in turbulence, from a log (no turbulence level known): the filters
-fit the gust models whatever the maneuvers (pipeline.jobs.run._method_problem), each axis driven
+fit the gust models whatever the maneuvers (pipeline.jobs.identify._Axis.method_problem), each axis driven
 by the other axis' measured motion, with the Dryden gust states - the aerodynamics see
 p - p_turb whatever is flown.
 
@@ -49,7 +49,7 @@ def _aileron_rudder_flight(folder: Path, seed: int) -> Path:
     sys.path.insert(0, str(ROOT / "benchmarks"))
     from single_axis_gusts_seeds import variant
 
-    from pipeline.commands.simulate import simulate
+    from pipeline.jobs.simulate import simulate
 
     scenario = variant('["da", "dr"]', folder)
     flown = scenario.read_text().partition("[turbulence]")[0]
@@ -63,7 +63,7 @@ def lateral_flight(tmp_path_factory):
 
 
 def test_lateral_filter_error_fits_the_gust_model(lateral_flight, tmp_path):
-    from pipeline.jobs.run import estimate_log
+    from pipeline.jobs.estimate import estimate_log
 
     out = tmp_path / "est"
     estimate_log(
@@ -96,13 +96,16 @@ def test_filter_error_restarts_when_it_does_not_converge(tmp_path):
     for -0.075, Clp -0.13 for -0.48); from there the earlier filter error wandered (F_p_g to 0, tau_pg
     to its bound) and stopped after 30 iterations with Clbeta 230 and CYbeta 204 std off
     the truth. It now refits with the process noise held first, then free
-    (pipeline.jobs.run._fem_restart), and keeps the fit of lower det R: converged, every
+    (pipeline.methods.fitting._fem_restart), and keeps the fit of lower det R: converged, every
     derivative within 5.4 std (Cnbeta, CYbeta 4.9: the rebuilt sideslip's bias, the same
     as started from the truth)."""
+    from pipeline.ingest.constants import AircraftConstants
     from pipeline.ingest.readers import read_log
-    from pipeline.jobs.run import attach_logged_noise, fit_and_validate, flow_angle_stage
-    from pipeline.problems.identify import AircraftConstants, multiaxis_problem
-    from pipeline.uncertainty.consider import quiet_progress
+    from pipeline.jobs.fit import fit_and_validate
+    from pipeline.jobs.progress import quiet_progress
+    from pipeline.jobs.stages import flow_angle_stage
+    from pipeline.methods.noise import attach_logged_noise
+    from pipeline.problems import multiaxis_problem
 
     run = _aileron_rudder_flight(tmp_path, 37)
     truth_doc = json.loads((run / "truth.json").read_text())

@@ -1,4 +1,4 @@
-"""The maneuver cluster-robust covariance (estimators.validation.cluster) on linear
+"""The maneuver cluster-robust covariance (estimators.covariance.cluster) on linear
 regressions whose answer is known: unbiased with unequal maneuvers (where the uncorrected
 sandwich is not), as wide as the true scatter when the parameters differ between
 maneuvers, and silent on a parameter one maneuver alone identifies."""
@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from estimators.validation.cluster import cluster_covariance, maneuver_scatter, segment_parts
+from estimators.covariance.cluster import cluster_covariance, maneuver_scatter, segment_parts
 
 SIGMA = 0.1
 SIZES = (30, 60, 120, 240)
@@ -103,10 +103,10 @@ def test_the_maneuvers_expose_output_error_in_turbulence():
     the air as calm, puts a derivative 6-24 of its std off, and its maneuvers scatter
     far beyond its bounds (Cmalpha, Cmq, Cmde: variance 14-187x) - which the validation
     flags without knowing the truth, and where the scatter is significant reports as the
-    std (pipeline.validation.validate.widen_by_scatter): output error is then within 3 of it."""
+    std (pipeline.validation.uncertainty.widen_by_scatter): output error is then within 3 of it."""
     from estimators import FilterError, OutputError
     from estimators.process_noise_examples import turbulent_short_period_example
-    from pipeline.validation.validate import validate
+    from pipeline.validation import validate
 
     names = ["CLalpha", "CLde", "Cmalpha", "Cmq", "Cmde"]
     fem_ratio, worst_wide = [], []
@@ -130,7 +130,7 @@ def test_the_maneuvers_expose_output_error_in_turbulence():
         crb = pd.Series(np.sqrt(np.diag(oem.extra["crb_cov"])), index=oem.free_names)
         assert max(abs(oem.params[n] - ex.truth[n]) / crb[n] for n in names) > 3.0
         # where they scatter significantly more, the scatter is the std reported
-        # (pipeline.validation.validate.widen_by_scatter): output error is then within it
+        # (pipeline.validation.uncertainty.widen_by_scatter): output error is then within it
         wide = vo["uncertainty"]["widened"]["parameters"]
         assert oem.std_method == "crb|scatter" and {"Cmalpha", "Cmq", "Cmde"} <= set(wide), wide
         worst_wide.append(max(abs(oem.params[n] - ex.truth[n]) / oem.std[n] for n in names))
@@ -150,8 +150,8 @@ def test_maneuver_own_parameters_are_profiled_out_exactly():
     parameters' Cramér-Rao std is the full inverse's, the offsets' too, their share is 1
     and their scatter NaN; the dense parts give the same numbers; a maneuver that leaves a
     shared regressor at 0 (no information on it there) does not make it its own."""
+    from estimators.covariance.cluster import segment_block
     from estimators.sensitivity import Sensitivity
-    from estimators.validation.cluster import segment_block
 
     rng = np.random.default_rng(7)
     X = _design(rng)

@@ -20,7 +20,9 @@ SCENARIO = ROOT / "scenarios" / "sensor_errors_calm.toml"
 SIM_TIMING_TOLERANCE_S = 0.005
 
 pytest.importorskip("jsbsim")
-from pipeline.conditioning.compatibility import AIR_PARAMS, reconstruct, truth_errors  # noqa: E402
+from pipeline.conditioning.compatibility import reconstruct  # noqa: E402
+from pipeline.conditioning.flight_path_model import AIR_PARAMS  # noqa: E402
+from pipeline.conditioning.sensor_errors import truth_errors  # noqa: E402
 from pipeline.ingest.readers import read_log  # noqa: E402
 
 ESTIMATE = [f"bias_{c}" for c in ("ax", "ay", "az", "p", "q", "r")] + ["scale_az", "scale_p"] + AIR_PARAMS

@@ -6,7 +6,7 @@ import pytest
 from scipy import integrate, linalg
 
 from estimators import EstimationResult, FilterError, OutputError
-from estimators.filters.filter_error import continuous_gain, discretize, expm, input_integrals
+from estimators.filters.steady_state import continuous_gain, discretize, expm, input_integrals
 from estimators.process_noise_examples import turbulent_longitudinal_example, turbulent_short_period_example
 
 
@@ -120,7 +120,7 @@ def test_compiled_filter_loop_with_selected_outputs():
     runs FEM's compiled filter loop - it had fallen back to the numpy loop, numba cannot
     compile the selection's generator - with the same estimates as the numpy loop."""
     from estimators import Segment
-    from estimators.filters.filter_error import output_kernel
+    from estimators.filters.kernels import output_kernel
 
     ex = turbulent_longitudinal_example(seed=5, n=300)
     keep = [o for o in ex.model.outputs if o != "qdot"][::-1]  # a subset, reordered
@@ -165,7 +165,7 @@ def test_multi_rate_outputs_keep_their_information(sp, fem, form):
     does not correct the states (its gain column is zero, the others are the gain of the
     measured outputs)."""
     from estimators import Segment
-    from estimators.filters.filter_error import output_patterns, pattern_gains
+    from estimators.filters.steady_state import output_patterns, pattern_gains
 
     segs = []
     for s in sp.segments:

@@ -27,10 +27,9 @@ from pipeline.conditioning.flow_angles import (
     _body_axes,
     correlation_time,
     fit_wind,
-    markov_mean_std,
     reconstruct_flow_angles,
-    wind_uncertainty,
 )
+from pipeline.conditioning.wind_uncertainty import markov_mean_std, wind_uncertainty
 from pipeline.errors import FsidError
 from pipeline.ingest.flightdata import Channel, FlightData
 
@@ -295,9 +294,9 @@ def _fly_in_wind(d: Path, scenario: str):
     """Fly a built-in scenario with a (-4, 5) m/s wind into ``d``; write a channel map of its
     MCAP without the vanes. Returns (run folder, SimResult)."""
     pytest.importorskip("jsbsim")
-    from pipeline.commands.simulate import simulate
     from pipeline.ingest.maps import plain_map_toml
     from pipeline.ingest.readers import read_log
+    from pipeline.jobs.simulate import simulate
 
     src = (ROOT / "scenarios" / f"{scenario}.toml").read_text()
     src = src.replace('aircraft = "aircraft/', f'aircraft = "{ROOT}/scenarios/aircraft/')
@@ -328,7 +327,7 @@ def test_sim_wind_is_steady_and_the_airspeed_air_relative(windy):
 
 
 def test_estimate_without_vanes_in_wind(windy):
-    from pipeline.jobs.run import estimate_log
+    from pipeline.jobs.estimate import estimate_log
 
     d, run_dir, _ = windy
     estimate_log(
@@ -371,7 +370,7 @@ def test_estimate_without_vanes_in_wind_and_turbulence(tmp_path):
     1.2 std; before, with the wings-level model on the rebuilt angles' 10 Hz grid, 3.6
     (CLde; with the vanes on its 50 Hz grid within 2.8); OEM, which has no gusts, up to
     13.6 std."""
-    from pipeline.jobs.run import estimate_log
+    from pipeline.jobs.estimate import estimate_log
 
     run_dir, _ = _fly_in_wind(tmp_path, "longitudinal_3211_turbulence")
     estimate_log(
@@ -403,7 +402,8 @@ def test_autopilot_angle_estimates_are_rebuilt(windy):
     marks them ``derived``): fsid estimate rebuilds them like missing vanes, and the
     sensor-compatibility stage does not see them as air data."""
     from pipeline.ingest.readers import read_log
-    from pipeline.jobs.run import Progress, flow_angle_stage
+    from pipeline.jobs.progress import Progress
+    from pipeline.jobs.stages import flow_angle_stage
 
     _, run_dir, _ = windy
     fd = read_log(run_dir / "flight.bin")
@@ -416,7 +416,8 @@ def test_autopilot_angle_estimates_are_rebuilt(windy):
 def test_autopilot_angles_kept_when_they_cannot_be_rebuilt():
     """A real ArduPilot log on the ground (no forward flight): its AOA stays, and says so."""
     from pipeline.ingest.readers import read_log
-    from pipeline.jobs.run import Progress, flow_angle_stage
+    from pipeline.jobs.progress import Progress
+    from pipeline.jobs.stages import flow_angle_stage
 
     log = ROOT.parent / "shared" / "data" / "logs" / "ardupilot_plane_ground_truncated.BIN"
     if not log.is_file():

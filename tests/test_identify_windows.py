@@ -1,6 +1,6 @@
-"""pipeline.problems.identify.usable_segments: the one place that cuts segment windows out of the
+"""pipeline.problems.windows.usable_segments: the one place that cuts segment windows out of the
 multi-rate frame, leaves out found segments with gaps and refuses a given one with one clear
-message; pipeline.problems.identify.multirate_frame: slower outputs at their own samples."""
+message; pipeline.problems.windows.multirate_frame: slower outputs at their own samples."""
 
 import numpy as np
 import pandas as pd
@@ -8,7 +8,7 @@ import pytest
 
 from pipeline.errors import FsidError
 from pipeline.ingest.flightdata import SegmentSpec
-from pipeline.problems.identify import usable_segments
+from pipeline.problems import usable_segments
 
 
 def _frame():
@@ -86,9 +86,10 @@ def test_the_longitudinal_problem_fits_the_usable_maneuvers():
     pytest.importorskip("jsbsim")
     from _simdata import written
 
+    from pipeline.ingest.constants import AircraftConstants
     from pipeline.ingest.flightdata import FlightData
     from pipeline.ingest.readers import read_log
-    from pipeline.problems.identify import AircraftConstants, longitudinal_problem
+    from pipeline.problems import longitudinal_problem
 
     d = written("default")
     fd = read_log(d / "flight.mcap")
@@ -115,7 +116,7 @@ def test_slow_outputs_off_the_grid_keep_every_sample():
     its grid time, NaN in between. Keeping only samples within a quarter step of the grid
     (before) dropped nearly all of them."""
     from pipeline.ingest.flightdata import Channel, FlightData
-    from pipeline.problems.identify import multirate_frame
+    from pipeline.problems import multirate_frame
 
     rng = np.random.default_rng(3)
     tf = np.arange(0.0, 20.0, 0.01)
@@ -160,7 +161,7 @@ def test_the_grid_runs_at_least_at_90_hz(fastest, grid):
     slower one's smallest whole multiple that reaches 90 Hz (a 100 Hz IMU whose stamps
     measure 99.8 Hz keeps its grid; it is not doubled)."""
     from pipeline.ingest.flightdata import fit_grid_rate
-    from pipeline.problems.identify import MAX_RATE_HZ
+    from pipeline.problems import MAX_RATE_HZ
 
     assert fit_grid_rate(fastest, MAX_RATE_HZ) == pytest.approx(grid)
 
@@ -169,7 +170,7 @@ def test_a_25_hz_imu_is_compared_at_its_own_samples():
     """Every output at 25 Hz (an ArduPilot IMU): the grid runs at 100 Hz, the inputs at
     every grid time, each output at its own samples only (every 4th row), NaN in between."""
     from pipeline.ingest.flightdata import Channel, FlightData
-    from pipeline.problems.identify import multirate_frame
+    from pipeline.problems import multirate_frame
 
     ts, tu = np.arange(0.0, 10.0, 0.04), np.arange(0.0, 10.0, 0.04)
     fd = FlightData(
@@ -195,7 +196,7 @@ def test_accelerometers_are_left_out_inside_a_step_ramp():
     through the step, the aircraft's was not); the gyros and every other sample stay; a
     surface's applied delay moves its spans with it."""
     from pipeline.ingest.flightdata import Channel, FlightData
-    from pipeline.problems.identify import multirate_frame
+    from pipeline.problems import multirate_frame
 
     t = np.arange(0.0, 2.0, 0.01)
     chans = {

@@ -271,8 +271,7 @@ def test_continuous_excitation_is_cut_into_pieces():
     """200 s of multisine on aileron and rudder (one span of activity each) give pieces of
     at most 60 s per surface, and the lateral windows (aileron and rudder merged) are cut
     again: 4 to fit and hold out, not one window the pipeline can neither fit nor prove."""
-    from pipeline.ingest.flightdata import MAX_AUTO_SEGMENT_S, Channel, FlightData
-    from pipeline.problems.identify import merge_overlapping
+    from pipeline.ingest.flightdata import MAX_AUTO_SEGMENT_S, Channel, FlightData, merge_overlapping
 
     t = np.arange(0, 220, 0.02)
     on = (t > 10) & (t < 210)

@@ -148,7 +148,7 @@ def test_the_steps_are_timed_from_the_gyros(flight, min_share, request):
     0.90; aileron 48 of 48, 1.7 ms, 0.48)."""
     from pipeline.conditioning.input_sampling import step_times, time_steps
     from pipeline.ingest.readers import read_log
-    from pipeline.problems.identify import MAX_RATE_HZ
+    from pipeline.problems import MAX_RATE_HZ
 
     d, truth = request.getfixturevalue(flight)
     fd = read_log(d / "flight.bin")
@@ -185,7 +185,7 @@ def test_the_steps_are_timed_from_the_gyros(flight, min_share, request):
 
 
 def test_the_steps_times_reach_the_estimates(slow_surfaces):
-    from pipeline.jobs.run import estimate_log
+    from pipeline.jobs.estimate import estimate_log
 
     d, _ = slow_surfaces
     out = d / "est"
@@ -220,7 +220,7 @@ def test_a_25_hz_log_throughout(tmp_path):
     lateral fit was within 3 total std on 7 (CYbeta 12 % high on the 5 others), now on 12."""
     pytest.importorskip("jsbsim")
     import sim
-    from pipeline.jobs.run import estimate_log
+    from pipeline.jobs.estimate import estimate_log
     from pipeline.outputs.writers import write_dataflash, write_truth_json
     from tests._simdata import SCENARIOS, custom
 
@@ -270,7 +270,7 @@ def test_the_proof_of_match_moves_an_untimed_step_within_its_interval(tmp_path):
     passes, and says what it did; a wrong Lda still fails it."""
     from estimators import OutputError
     from pipeline.conditioning.input_sampling import TIMING_FRACTIONS, timing_variants
-    from pipeline.validation.validate import validate
+    from pipeline.validation import validate
 
     t = np.round(np.arange(0.0, 3.0, 0.01), 10)
     amp = np.radians(2.0)

@@ -115,7 +115,7 @@ def test_default_rk4_step_matches_the_hand_computed_reference_step():
     assert held[1, 0, 0] == pytest.approx(rk4((u0, u0, u0, u0)), rel=1e-14)
     # every estimator defaults to the same convention
     from estimators import EKF, UKF, FilterError, OutputError
-    from estimators.simulation.integrators import DEFAULT_INPUTS
+    from estimators.integrators import DEFAULT_INPUTS
 
     assert DEFAULT_INPUTS == "linear"
     for cls in (OutputError, FilterError, EKF, UKF):  # (the unstable variants run OutputError)

@@ -44,7 +44,7 @@ import numpy as np
 sys.path[:0] = [sys.argv[1], sys.argv[2]]
 from estimators import FilterError, Model, OutputError, Parameter, Segment, simulate_outputs
 from estimators.compile.kernels import kernel_for
-from estimators.filters.filter_error import output_kernel
+from estimators.filters.kernels import output_kernel
 import sp_model as mod
 truth = dict(Za=-1.2, Zde=-0.15, Ma=-6.0, Mq=-2.5, Mde=-9.0)
 m = Model(states=["alpha", "q"], inputs=["de"], outputs=["alpha", "q"],
@@ -189,7 +189,7 @@ def test_models_sharing_g_get_their_own_filter_loop(tmp_path, monkeypatch):
     (which call the model's rhs) are not shared - the second fit sees its own f (input
     gain 2: the estimated b halves)."""
     from estimators import FilterError
-    from estimators.filters.filter_error import output_kernel
+    from estimators.filters.kernels import output_kernel
 
     monkeypatch.setenv("FSID_CACHE_DIR", str(tmp_path))
     ns = _typed()
@@ -240,7 +240,7 @@ def _module_files(root: Path, name: str, mb: float, age_days: float, now: float)
 
 
 def test_prune_removes_unused_then_least_recently_used_modules(tmp_path):
-    from estimators.compile.kernels import prune_kernels
+    from estimators.compile import prune_kernels
 
     now = 2.0e9
     _module_files(tmp_path, "fsid_rhs_old", 0.1, 40.0, now)  # unused for 40 days

@@ -119,8 +119,8 @@ def test_gust_state_starts_with_its_stationary_spread():
     - not 1e-3; a measured state with the sensor's std, an unmeasured one without noise
     with 1e-3, and ``state_std`` overrides."""
     from estimators import Model, Parameter, Segment
-    from estimators.filters.kalman import AugmentedModel
-    from estimators.simulation.simulate import Layout
+    from estimators.filters.augmented import AugmentedModel
+    from estimators.layout import Layout
 
     m = Model(
         states=["p", "g", "phi"],
@@ -168,7 +168,7 @@ def test_a_pass_that_wanders_off_is_not_kept(turb, ekf):
     """The passes' innovations' negative log-likelihood: a pass more than 3 std of it (the
     sum's spread for a consistent filter, sqrt(n_obs / 2)) above the best pass ends the
     passes with the best pass's estimates, labelled not settled."""
-    from estimators.filters.kalman import _innovation_nll
+    from estimators.filters.update import innovation_nll as _innovation_nll
 
     nu, S = np.array([0.3, -0.1]), np.array([[0.5, 0.1], [0.1, 0.2]])
     assert _innovation_nll(nu, S) == pytest.approx(0.5 * (nu @ np.linalg.inv(S) @ nu + np.log(0.5 * 0.2 - 0.01)))
@@ -191,13 +191,13 @@ def test_a_pass_that_wanders_off_is_not_kept(turb, ekf):
 @pytest.mark.parametrize("cls", [EKF, UKF])
 @pytest.mark.parametrize("case", ["adapted noise, a gap, a bound", "given noise, rkf45"])
 def test_compiled_segment_loop_is_the_python_loop(turb, case, cls):
-    """The compiled segment loops (estimators.filters.kalman._ekf_segment, _ukf_segment, in the
+    """The compiled segment loops (estimators.filters.loops.ekf_segment, _ukf_segment, in the
     model's filter kernel module) give what the per-sample Python loop gives: estimates,
     std, innovations' likelihood, adapted noise, gain, bound projections, predictions - with
     samples missing, a parameter held by its bound and the noise adapted between passes
     (covariance matching), or with the adaptive integrator."""
     from estimators import Segment
-    from estimators.filters.filter_error import output_kernel
+    from estimators.filters.kernels import output_kernel
 
     if case.startswith("adapted"):
         seg = turb.segments[0]
@@ -254,9 +254,9 @@ def test_gain_sensitivity_widens_the_roll_gust_bounds(cls):
 
 
 def test_a_filter_pass_measures_its_segments_scatter():
-    """estimators.filters.kalman keeps each segment's part of the parameters' information (what it
+    """estimators.filters.parameter_filter keeps each segment's part of the parameters' information (what it
     adds to P_theta^-1) and of the gradient at the pass's estimate, so the maneuvers'
-    scatter (estimators.validation.cluster) is known for the filters too. Four segments of
+    scatter (estimators.covariance.cluster) is known for the filters too. Four segments of
     one aircraft: every ratio of scatter to the filter's std below 1 (seed 1; 0.14-1.82
     over seeds 1-3, ad hoc: 3 degrees of freedom). One segment flown with Cmde 30 % larger:
     Cmde's ratio about 20 (seeds 1-3: 19-21), and pipeline.validation.validate reports the scatter
@@ -266,7 +266,7 @@ def test_a_filter_pass_measures_its_segments_scatter():
     from estimators.datasets import HFB320_CONSTANTS, HFB320_TRUTH
     from estimators.models import longitudinal
     from estimators.process_noise_examples import simulate_with_process_noise
-    from pipeline.validation.validate import validate
+    from pipeline.validation import validate
 
     ex = turbulent_longitudinal_example(seed=1, segments=4)
     same = EKF(ex.model, **settings(ex)).fit(ex.segments)

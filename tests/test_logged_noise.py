@@ -1,5 +1,5 @@
 """Measurement noise for the filters from the log's native samples (pipeline.ingest.flightdata:
-FlightData.noise_std, resample_noise_gain; pipeline.jobs.run.attach_logged_noise)."""
+FlightData.noise_std, resample_noise_gain; pipeline.methods.noise.attach_logged_noise)."""
 
 import numpy as np
 import pytest
@@ -63,7 +63,7 @@ def test_native_noise_estimate_beats_the_grid_estimate_on_a_fast_signal():
 def test_attach_logged_noise_sets_the_outputs_that_are_channels():
     from types import SimpleNamespace
 
-    from pipeline.jobs.run import attach_logged_noise, measurement_noise_std
+    from pipeline.methods.noise import attach_logged_noise, measurement_noise_std
 
     rng = np.random.default_rng(7)
     t = np.arange(20_000) / 100.0

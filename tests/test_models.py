@@ -6,7 +6,7 @@ from estimators import OutputError, Segment
 from estimators.datasets import multistep
 from estimators.models import longitudinal, sixdof
 from estimators.models.sixdof import body_velocity
-from estimators.simulation.simulate import simulate_outputs
+from estimators.simulation import simulate_outputs
 
 # Aerosonde-class UAV (scenarios/aircraft/uav_small.toml)
 C = {

@@ -15,7 +15,7 @@ from estimators import (
 )
 from estimators.datasets import HFB320_CONSTANTS, HFB320_FREE, HFB320_TRUTH, longitudinal_example, multistep
 from estimators.models import lateral_directional, longitudinal, short_period
-from estimators.simulation.simulate import simulate_outputs
+from estimators.simulation import simulate_outputs
 from estimators.validation import morelli_klein
 
 

@@ -21,7 +21,8 @@ import pytest
 
 pytest.importorskip("jsbsim")
 import pipeline.conditioning.flow_angles as flow_angles  # noqa: E402
-from pipeline.jobs.run import estimate_log, run_scenario  # noqa: E402
+from pipeline.jobs.estimate import estimate_log  # noqa: E402
+from pipeline.jobs.scenario import run_scenario  # noqa: E402
 
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "pitot_wind_turn.toml"
 #: the pitot's scale factor the airspeed shows: (1.03 V + 0.4) / V - 1 over the flight's
@@ -149,7 +150,7 @@ def test_a_validation_flight_takes_the_fitted_flights_scale_factor(tmp_path, cap
     validation flight's airspeed is calibrated with the fitted flight's scale factor
     (seed 1: +4.37 %; its own 12 deg of heading could not tell it), and the proof of match
     on it passes (worst derivative 2.7 / 2.0 std, ad hoc)."""
-    from pipeline.commands.simulate import simulate
+    from pipeline.jobs.simulate import simulate
 
     text = SCENARIO.read_text().replace('aircraft = "aircraft/', f'aircraft = "{SCENARIO.parent}/aircraft/')
     scen = tmp_path / "pitot_validation.toml"

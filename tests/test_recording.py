@@ -20,8 +20,9 @@ import pytest
 
 import estimators
 from estimators.datasets import longitudinal_example
-from pipeline.outputs.recording import SEGMENT_GAP, entity_part, segment_starts, write_recording
-from pipeline.validation.validate import validate
+from pipeline.outputs.recording import write_recording
+from pipeline.outputs.recording_layout import SEGMENT_GAP, entity_part, segment_starts
+from pipeline.validation import validate
 
 rr = pytest.importorskip("rerun")
 import rerun.chunk as rc  # noqa: E402
@@ -225,7 +226,7 @@ def test_several_methods_and_filter_trajectories(run, tmp_path):
     """OEM + EKF + a regression: measured once, one entity per method, the EKF parameter
     trajectory on t with +/- std, truth on both iteration and t."""
     from estimators.equation_error import LeastSquares
-    from estimators.filters.kalman import EKF
+    from estimators.filters.ekf import EKF
 
     ex, res, v, _ = run
     segs = ex.segments[:2]
@@ -261,7 +262,7 @@ def test_segment_layout_across_axes():
     overlapping ones (synthetic, all from t = 0) are laid end to end."""
     from types import SimpleNamespace
 
-    from pipeline.outputs.recording import SegmentLayout
+    from pipeline.outputs.recording_layout import SegmentLayout
 
     def seg(t0, n, name):
         t = t0 + np.arange(n) * 0.1

@@ -13,8 +13,9 @@ import pytest
 
 import estimators
 from estimators.datasets import longitudinal_example
-from pipeline.outputs.report import param_rows, write_report
-from pipeline.validation.validate import cross_check_methods, json_ready, validate
+from pipeline.outputs.method_section import param_rows
+from pipeline.outputs.report import write_report
+from pipeline.validation import cross_check_methods, json_ready, validate
 
 
 @pytest.fixture(scope="module")
@@ -255,7 +256,7 @@ def test_verdict_advises_filter_error_for_output_error_in_turbulence():
     """Output error with coloured residuals and maneuvers that scatter beyond the bound:
     the verdict's notes say to fit filter error too; not for filter error itself, nor
     with white residuals."""
-    from pipeline.validation.validate import verdict
+    from pipeline.validation import verdict
 
     v = {
         "method": "oem",
@@ -273,7 +274,7 @@ def test_verdict_advises_filter_error_for_output_error_in_turbulence():
     assert not any(advice in n for n in verdict(calm)["notes"])
 
 
-# -- verdict levels (pipeline.validation.validate.REASON_LEVELS) ------------------------------------------
+# -- verdict levels (pipeline.validation.verdict.REASON_LEVELS) ------------------------------------------
 def _pom(**channels):
     """A proof of match of one held-out segment: channel -> (pass, beyond, std) in display
     units (beyond/std None: no prediction uncertainty)."""
@@ -310,7 +311,7 @@ def test_verdict_levels_from_hand_made_validations():
     """PASS when clean; a proof-of-match miss within the prediction's own uncertainty and a
     TIC over the limit are CHECK; a miss beyond it (or with none to weigh it), a truth
     beyond k std and no convergence are FAIL; the level is the worst reason's, ok is PASS."""
-    from pipeline.validation.validate import LEVELS, REASON_LEVELS, verdict
+    from pipeline.validation import LEVELS, REASON_LEVELS, verdict
 
     assert LEVELS == ("PASS", "CHECK", "FAIL") and set(REASON_LEVELS.values()) <= set(LEVELS)
     v = verdict(_clean())
@@ -343,7 +344,7 @@ def test_verdict_fails_an_ekf_that_disagrees_with_filter_error():
     """An EKF or UKF more than k combined std from a converged filter-error fit (fem or
     fem-nl) of the same flight: FAIL, naming the parameters and why. Any other pair, and
     filter error's own verdict, keep a note; an unconverged filter error is no reference."""
-    from pipeline.validation.validate import FILTER_ERROR_TRUST, verdict
+    from pipeline.validation import FILTER_ERROR_TRUST, verdict
 
     for method in ("ekf", "ukf", "ukf-aug"):
         for fem in ("fem", "fem-nl"):
@@ -402,7 +403,7 @@ def test_report_shows_fail_for_an_ekf_that_disagrees_with_filter_error(fitted, t
 def test_report_md_lists_the_milder_reasons_of_a_fail_apart():
     """A FAIL with CHECK reasons too: the FAIL ones first, the others after 'to check too'.
     A verdict written before the levels (ok only) reads PASS or CHECK."""
-    from pipeline.outputs.report import _verdict_reasons, verdict_level
+    from pipeline.outputs.method_section import _verdict_reasons, verdict_level
 
     vd = {
         "level": "FAIL",

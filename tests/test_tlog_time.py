@@ -114,7 +114,7 @@ def test_a_reset_stamp_is_not_trusted(tmp_path):
 
 
 def test_time_base_choices(tmp_path):
-    from pipeline.ingest.readers.base import LogReadError
+    from pipeline.ingest.rawlog import LogReadError
     from pipeline.ingest.readers.synth import encode_tlog
 
     p, _ = _flight(tmp_path)

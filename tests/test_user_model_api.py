@@ -144,7 +144,7 @@ def test_helper_functions_are_compiled_with_f(seg):
     m = model(START)
     OutputError(m).fit([seg])
     assert kernel_for(m).compiled
-    from estimators.filters.filter_error import output_kernel
+    from estimators.filters.kernels import output_kernel
 
     assert output_kernel(m) is not None
 
@@ -168,7 +168,7 @@ def test_filters_pass_until_settled(seg, cls):
     capped = cls(model(START), max_passes=2).fit([seg])  # not enough passes: said so
     assert not capped.converged and capped.iterations == 2
     assert "still moved a parameter by" in capped.extra["not_settled"]
-    from pipeline.validation.validate import verdict
+    from pipeline.validation import verdict
 
     v = verdict({"converged": capped.converged, "not_settled": capped.extra["not_settled"]})
     assert not v["ok"] and v["reasons"][0].startswith("the filter passes did not settle: the last of 2")

@@ -1,5 +1,5 @@
 """The proof of match on a second flight: a scenario's [validation_flight] (sim.scenario) and
-``fsid estimate LOG --validate-with LOG2`` (pipeline.jobs.run.identify(validation=...)): every
+``fsid estimate LOG --validate-with LOG2`` (pipeline.jobs.identify.identify(validation=...)): every
 maneuver of the first log fitted, the model proved on the second's. Real JSBSim flights
 written by the product's writers and read back."""
 
@@ -316,7 +316,7 @@ def test_the_instrument_errors_carry_to_the_validation_flight():
     import numpy as np
 
     from pipeline.ingest.flightdata import Channel, FlightData
-    from pipeline.jobs.run import with_instrument_errors_removed
+    from pipeline.jobs.stages import with_instrument_errors_removed
 
     t = np.arange(0.0, 10.0, 0.02)
     fd = FlightData(
@@ -355,8 +355,8 @@ def test_each_held_out_maneuver_keeps_its_own_flights_step_times():
     import numpy as np
 
     from estimators import Model, Parameter, Segment
-    from pipeline.jobs.run import with_validation_flight
-    from pipeline.problems.identify import Problem
+    from pipeline.jobs.validation_flights import with_validation_flight
+    from pipeline.problems import Problem
 
     m = Model(
         states=["p"],

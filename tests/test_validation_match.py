@@ -244,7 +244,7 @@ def test_the_pipeline_judges_a_held_out_maneuver_with_its_own_noise_level():
     import copy
 
     from estimators import OutputError
-    from pipeline.validation.validate import validate
+    from pipeline.validation import validate
 
     t = np.round(np.arange(0.0, 3.0, 0.01), 10)
     da = np.radians(4.0) * ((t >= 0.5) & (t < 1.5)) - np.radians(4.0) * ((t >= 1.5) & (t < 2.5))
@@ -267,7 +267,7 @@ def test_a_tic_at_the_noise_floor_is_noted_not_failed():
     import copy
 
     from estimators import OutputError, simulate_outputs
-    from pipeline.validation.validate import NOISE_FLOOR_RATIO, validate
+    from pipeline.validation import NOISE_FLOOR_RATIO, validate
 
     t = np.round(np.arange(0.0, 6.0, 0.01), 10)
     ph = t % 2

@@ -122,7 +122,7 @@ def test_the_pipeline_tells_an_imprecise_estimate_from_a_wrong_model(tmp_path):
     uncertainty: the verdict says the model misses. With a covariance that makes Lda 30 %
     uncertain the same miss is within 2 std of it: the verdict says the estimates are too
     imprecise. A consider part set after validation is taken in by the refresh."""
-    from pipeline.validation.validate import refresh_prediction_uncertainty, validate
+    from pipeline.validation import refresh_prediction_uncertainty, validate
 
     res, held = _fitted_roll()
     wrong = copy.copy(res)
@@ -174,7 +174,7 @@ def test_run_rrd_holds_the_prediction_spread(tmp_path):
     value per held-out sample, read back with rerun's reader; their distance is 4 std."""
     rc = pytest.importorskip("rerun.chunk")
     from pipeline.outputs.recording import write_recording
-    from pipeline.validation.validate import validate
+    from pipeline.validation import validate
 
     res, held = _fitted_roll()
     v = validate(res, held_out=[held])
@@ -200,7 +200,7 @@ def test_filter_error_results_get_the_band_from_their_model_parameters():
     the prediction's std comes from Lp, Lda alone. Its linear form ("transition matrix", no
     integrator) is validated with the simulation proof of match by RK4; it had raised."""
     from estimators import FilterError
-    from pipeline.validation.validate import validate
+    from pipeline.validation import validate
 
     res, held = _fitted_roll()
     fem = FilterError(roll_model()).fit(res.segments[0])

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from estimators.covariance.uncertainty import _middle
 from estimators.validation import correlation, correlation_flags, crb, morelli_klein
-from estimators.validation.uncertainty import _middle
 
 N, FS = 4000, 50.0
 T = np.arange(N) / FS

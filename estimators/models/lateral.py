@@ -21,7 +21,8 @@ from collections.abc import Iterable, Mapping
 import numpy as np
 from numba.extending import register_jitable
 
-from estimators.model import Model
+from estimators.errors import ModelDefinitionError
+from estimators.model import Model, Parameter
 from estimators.models._build import make_parameters, require_constants
 
 DEFAULTS = {
@@ -219,18 +220,16 @@ def lateral_measured_longitudinal(
         the Dryden value, or ``values["tau_pg"]``; free when named in ``free``), to be
         driven by process noise (the filters); the aerodynamics see p - p_g (CYp, Clp,
         Cnp), the gyro p. Without it the roll damping of the gyro rate books the gust on
-        the roll derivatives: regressing
-        JSBSim's own Cl on the gyro p, r instead of p - p_g, r - r_g gives Clbeta -0.028,
-        Clp -0.088, Clda 0.079 for a truth of -0.092, -0.484, 0.229 on
-        multiaxis_multisine_turbulence (p_g 2.8 deg/s rms). Also the lateral gust in the
+        the roll derivatives (in turbulence, Clp and Clbeta come out a fraction of the
+        truth). Also the lateral gust in the
         states (states beta_k, beta_gf): ``beta`` stays the air-relative sideslip (the
         state process noise drives), beta_k the rigid body's part, beta_g = beta - beta_k
         = -v_g / V decays with L_v / V (constant ``L_v``, default 533.4 m), and the yaw
-        rate of the air mass r_g = -s / (1 + tau s) beta_g (tau = 4 b / (pi V); JSBSim's
-        r_turb follows v_g'/V lagged, correlation 0.75) enters the aerodynamics as r - r_g
+        rate of the air mass r_g = -s / (1 + tau s) beta_g (tau = 4 b / (pi V); the
+        MIL-F-8785C form, which JSBSim's r_turb follows approximately) enters the aerodynamics as r - r_g
         (CYr, Clr, Cnr). Constant ``kin_angles`` = 1 (default 0): the beta output is
-        beta_k, for a sideslip rebuilt from the flight path (no vane:
-        :mod:`pipeline.conditioning.flow_angles`), which sees no gust."""
+        beta_k, for a sideslip rebuilt from the flight path (no vane: from the inertial
+        velocity and a known wind), which sees no gust."""
     c = require_constants(
         constants, ("m", "Ixx", "Iyy", "Izz", "Ixz", "S", "b", "rho"), "lateral-directional (measured longitudinal)"
     )
@@ -254,8 +253,6 @@ def lateral_measured_longitudinal(
         bounds,
     )
     if rotary_gust:
-        from estimators.model import Parameter
-
         params.append(Parameter("tau_pg", float(tau0), gust_free, (0.02, 5.0)))
     return Model(
         states=["beta", "p", "r", "phi"] + (["p_g", "beta_k", "beta_gf"] if rotary_gust else []),
@@ -302,19 +299,14 @@ def with_airspeed_offset(model: Model) -> Model:
 
     What it is for: the measured airspeed is an input, and output error takes inputs as
     exact. The pitot noise that survives the pseudo-input low-pass moves each window's mean
-    airspeed by sigma_V / sqrt(n) (n pitot samples in the window: 0.02 m/s, 0.1 % in
-    dynamic pressure, on lateral_doublets_calm), which scales every moment of that window
-    and moves the derivatives by several of their Cramer-Rao bounds. With dV[k] free and an
-    a-priori penalty N(0, that std) on it (OutputError(priors=...); see
-    pipeline.problems.identify.airspeed_offset_priors) the bounds carry that uncertainty through
-    the correlations. The data alone hardly determine dV (a common change of all dV[k] is
+    airspeed by sigma_V / sqrt(n) (n pitot samples in the window), which scales every
+    moment of that window and can move the derivatives by several of their Cramer-Rao
+    bounds. With dV[k] free and an a-priori penalty N(0, that std) on it
+    (OutputError(priors=...)) the bounds carry that uncertainty through the
+    correlations. The data alone hardly determine dV (a common change of all dV[k] is
     nearly a common scale of all derivatives): fit it with the priors."""
     if list(model.inputs) != _MEASURED_INPUTS:
-        from estimators.errors import ModelDefinitionError
-
         raise ModelDefinitionError(f"with_airspeed_offset needs the inputs {_MEASURED_INPUTS}, not {model.inputs}")
-    from estimators.model import Parameter
-
     f_dv, g_dv = _offset_fg(model.f, model.g)
     return Model(
         states=list(model.states),

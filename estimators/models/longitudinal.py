@@ -253,8 +253,8 @@ def longitudinal_measured_lateral(
 
     States V, alpha, theta, q; inputs de (rad), thrust (N), beta (rad), p, r (rad/s),
     phi (rad), ay (m/s^2, lateral specific force), rho (kg/m^3, air density along the
-    flight: a phugoid of +-100 m moves it +-1.2 %, which with the mean density put CD0 4 %
-    and CLalpha 2 % off on multiaxis_multisine_turbulence); outputs V, alpha, theta, q,
+    flight: a phugoid's height change moves it by about a percent, enough to bias the
+    drag and lift derivatives fitted with the mean density); outputs V, alpha, theta, q,
     qdot, ax, az.
     The rigid-body equations of V, alpha, theta, q with sideslip, bank angle and the
     roll/yaw rates in them (tan(beta)(p cos a + r sin a) in alphadot, g cos theta cos phi,
@@ -274,21 +274,17 @@ def longitudinal_measured_lateral(
         alpha_k = -w_g / V the gust's, which decays with time constant L_w / V (constant
         ``L_w``, default 533.4 m = 1750 ft). Constant ``kin_angles`` = 1 (default 0):
         the alpha output is alpha_k, for an angle of attack rebuilt from the flight path
-        (no vane: :mod:`pipeline.conditioning.flow_angles`), which sees the body's motion against the
-        mean wind and no gust. The pitch rate of the air mass (rotary gust,
+        (no vane: from the inertial velocity and a known wind), which sees the body's
+        motion against the mean wind and no gust. The pitch rate of the air mass (rotary gust,
         the gust gradient along the airframe) is q_g = -s / (1 + tau s) alpha_g + q_gi,
         tau = 4 b / (pi V) (lag state alpha_gf; constant ``b``, span, needed), the
         MIL-F-8785C form on the gust along the aircraft's z axis (JSBSim's Tustin
-        turbulence applies it to the earth-vertical gust instead: its q_turb follows the
-        form on alpha_g with correlation 0.92, on the down gust 0.98, in a flight banking
-        7 deg rms; ad hoc, multiaxis_multisine_turbulence flown with elevator multisines,
-        seed 34); the rest, q_gi, is a first-order Markov
+        turbulence applies it to the earth-vertical gust instead, which differs from it
+        little at small bank angles); the rest, q_gi, is a first-order Markov
         process with time constant tau to be driven by its own process noise. The
         aerodynamics see q - q_g (CLq, Cmq), the gyro q. Without q_g the pitch damping
-        of the gyro rate books the rotary gust on the derivatives:
-        regressing JSBSim's own Cm on the gyro q instead of q - q_g gives Cm0 0.027,
-        Cmalpha -0.49, Cmq -9.5, Cmde -0.76 for a truth of 0.04, -0.613, -12.4, -1.122 on
-        multiaxis_multisine_turbulence (q_g 2.4 deg/s rms)."""
+        of the gyro rate books the rotary gust on the derivatives (in turbulence, Cmq and
+        Cmalpha come out well short of the truth)."""
     c = require_constants(constants, ("m", "Iyy", "S", "cbar", "rho"), "longitudinal (measured lateral)")
     for k, v in {
         "g": 9.80665,

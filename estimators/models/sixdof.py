@@ -33,7 +33,9 @@ from numba.extending import register_jitable
 
 from estimators.model import Model
 from estimators.models._build import make_parameters, require_constants
+from estimators.models.lateral import DEFAULT_FREE as LAT_FREE
 from estimators.models.lateral import DEFAULTS as LATERAL_DEFAULTS
+from estimators.models.longitudinal import DEFAULT_FREE as LONG_FREE
 from estimators.models.longitudinal import LONGITUDINAL_DEFAULTS
 
 SIXDOF_DEFAULTS: dict[str, float] = {**LONGITUDINAL_DEFAULTS, **LATERAL_DEFAULTS}
@@ -149,9 +151,6 @@ def sixdof(
         "z_imu": 0.0,
     }.items():
         c.setdefault(k, v)
-    from estimators.models.lateral import DEFAULT_FREE as LAT_FREE
-    from estimators.models.longitudinal import DEFAULT_FREE as LONG_FREE
-
     params = make_parameters(SIXDOF_DEFAULTS, values, free, tuple(LONG_FREE) + tuple(LAT_FREE), bounds)
     return Model(
         states=STATES,

@@ -7,8 +7,8 @@ twice: directly, and through the model's response to the noisy pseudo-inputs,
     e = v - G v_pseudo,     G = C (zI - A)^-1 B_pseudo + D_pseudo,
 
 so the residuals are coloured by the model itself and the Cramér-Rao bounds, which
-assume white residuals, are too small (4-6x for the moment derivatives of the unstable
-UAV in ``scenarios/unstable_short_period.toml``). To first order in the noise the
+assume white residuals, are too small (several times for the moment derivatives of an
+unstable aircraft). To first order in the noise the
 estimation error is theta_hat - theta = M^-1 sum_n T_n v_n with
 
     T_n[:, j] = a_n[j] - sum_k J_n[k, j] sum_{l>=0} sum_i g_l[i, k] a_{n+l}[i],
@@ -30,8 +30,6 @@ the two measured samples it came from. Inputs that are measurements themselves
 only. The noise variances s^2 come from the measurements themselves
 (:func:`estimators.statistics.difference_noise_std`, robust), not from the residuals,
 which also carry the noise's echo through the feedback.
-
-Measured: ``benchmarks/fed_measurement_std_mc.py`` (its docstring).
 """
 
 from __future__ import annotations
@@ -42,10 +40,11 @@ import numpy as np
 from scipy import signal
 
 from estimators import statistics as st
-from estimators.filters.filter_error import linearize_batch
+from estimators.defaults import FED_GROWTH_LIMIT, PSEUDO_FD_STEP
+from estimators.filters.linearize import linearize_batch
+from estimators.layout import Layout
 from estimators.model import Model, Segment
 from estimators.sensitivity import add_block, as_sensitivity
-from estimators.simulation.simulate import Layout
 
 
 class PropagationError(ValueError):
@@ -68,7 +67,7 @@ def pseudo_mixing(
         return J
     for j in range(r):
         zj = segment.z[:, j]
-        step = 1e-6 * max(float(np.nanmax(np.abs(zj))) if np.any(np.isfinite(zj)) else 1.0, 1e-3)
+        step = PSEUDO_FD_STEP * max(float(np.nanmax(np.abs(zj))) if np.any(np.isfinite(zj)) else 1.0, 1e-3)
         vals = []
         for sgn in (1.0, -1.0):
             z = segment.z.copy()
@@ -107,7 +106,7 @@ def _fed_system(
 ) -> tuple[np.ndarray, ...]:
     """G as a discrete system (Ad, Bd, Cd, Dd), inputs the columns ``pseudo_cols``: the fed
     model linearised at the segment's first sample, zero-order hold at its median step.
-    Raises PropagationError when G grows more than 1000-fold over the segment."""
+    Raises PropagationError when G grows more than FED_GROWTH_LIMIT-fold over the segment."""
     lay = Layout.build(model, [segment], values=values)
     P = lay.values[lay.pidx[0]][:, None]
     x0 = lay.values[lay.x0idx[0]][:, None]
@@ -116,10 +115,10 @@ def _fed_system(
     h = float(np.median(np.diff(segment.t)))
     Ad, Bd, Cd, Dd, _ = signal.cont2discrete((A, B, C, D), h, method="zoh")
     rho = float(np.max(np.abs(np.linalg.eigvals(Ad))))
-    if segment.n * np.log(max(rho, 1e-300)) > np.log(1e3):
+    if segment.n * np.log(max(rho, 1e-300)) > np.log(FED_GROWTH_LIMIT):
         raise PropagationError(
             f"the model fed with its measurements is not stable at the "
-            f"estimate: it grows {rho:.4f}x per sample, more than 1000x over "
+            f"estimate: it grows {rho:.4f}x per sample, more than {FED_GROWTH_LIMIT:g}x over "
             f"segment {segment.name or ''} ({segment.n} samples)"
         )
     return Ad, Bd, Cd, Dd

@@ -42,15 +42,17 @@ import numpy as np
 from scipy import linalg, signal
 
 from estimators import statistics as st
-from estimators.compile.kernels import kernel_for
+from estimators.compile import kernel_for
+from estimators.covariance.uncertainty import morelli_klein
+from estimators.defaults import SIGMA_MARGIN, STABILIZER_Q_SCALES
 from estimators.errors import ModelDefinitionError
-from estimators.filters.filter_error import linearize_batch
+from estimators.filters.linearize import linearize_batch
+from estimators.layout import Layout
 from estimators.model import Model, Segment
 from estimators.output_error.oem import OutputError
 from estimators.output_error.pseudo_input_noise import PropagationError, propagated_covariance
 from estimators.results import EstimationResult
 from estimators.sensitivity import add_block, as_sensitivity
-from estimators.simulation.simulate import Layout
 
 
 def _fill(z: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -179,8 +181,6 @@ class _TransformedOEM:
             except PropagationError as exc:
                 how, why = "morelli-klein", f" ({exc})"
         if how == "morelli-klein":
-            from estimators.validation.uncertainty import morelli_klein
-
             C = morelli_klein(S, E, R=res.R, info=M, max_lag=None, prior_info=W).cov
             note = "std: Morelli-Klein (coloured residuals from the fed-back measurements)" + why
         res.replace_cov(_on_free(res.cov, inner, C), how, note)
@@ -197,7 +197,7 @@ class StabilizedOutputError(_TransformedOEM):
         ``extra["noise_std"]``), falling back to "morelli-klein" (coloured residuals,
         all lags) when the fed model diverges over a segment; "crb" keeps the
         Cramér-Rao bounds, which assume white residuals and are several times too small
-        here (Cmalpha 6x on scenarios/unstable_short_period.toml).
+        here.
     integrator, **oem_options : as :class:`~estimators.OutputError`.
     """
 
@@ -233,7 +233,7 @@ class StabilizedOutputError(_TransformedOEM):
         # ill-conditioned for so small a Q (seen with a phugoid near the imaginary axis next
         # to an unstable short period), raise Q by decades until it solves
         P = None
-        for scale in (1e-9, 1e-7, 1e-5, 1e-3):
+        for scale in STABILIZER_Q_SCALES:
             Q = scale * np.eye(n) * max(float(np.max(np.abs(Rm))), 1e-12)
             try:
                 P = linalg.solve_continuous_are(A.T, Cm.T, Q, Rm)
@@ -326,7 +326,7 @@ class EigenvalueTransformation(_TransformedOEM):
     """Output error on data and model weighted by exp(-sigma (t - t0)).
 
     sigma : shift in 1/s; None = largest real eigenvalue part of the linearised start
-        model + 0.5 (see module docstring).
+        model + SIGMA_MARGIN (0.5, see module docstring).
     """
 
     method = "oem-eigenvalue-transform"
@@ -337,7 +337,7 @@ class EigenvalueTransformation(_TransformedOEM):
 
     def default_sigma(self, segments, start=None) -> float:
         A, _ = _linearisation(self.model, segments, start)
-        return max(float(np.max(np.linalg.eigvals(A).real)), 0.0) + 0.5
+        return max(float(np.max(np.linalg.eigvals(A).real)), 0.0) + SIGMA_MARGIN
 
     def _transform(self, segments, start):
         m = self.model

@@ -13,37 +13,21 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
+from scipy.stats import norm
+
+from estimators.defaults import NOISE_ALPHA, POM_ACCEL_G, POM_ANGLE_DEG, POM_RATE_DEG_S, PREDICTION_K
 
 from ._util import as_2d, output_names
 
-__all__ = [
-    "G0",
-    "DEFAULT_TOLERANCES",
-    "NOISE_ALPHA",
-    "PREDICTION_K",
-    "prediction_uncertainty",
-    "default_tolerances",
-    "noise_reach",
-    "proof_of_match",
-]
+__all__ = ["G0", "DEFAULT_TOLERANCES", "prediction_uncertainty", "default_tolerances", "noise_reach", "proof_of_match"]
 
 G0 = 9.80665  # m/s^2
 _DEG = np.pi / 180.0
 DEFAULT_TOLERANCES: Mapping[str, float] = {
-    **{k: 1.5 * _DEG for k in ("p", "q", "r")},  # rad/s
-    **{k: 0.1 * G0 for k in ("ax", "ay", "az")},  # m/s^2
-    **{k: 1.5 * _DEG for k in ("phi", "theta", "psi", "alpha", "beta")},  # rad
+    **{k: POM_RATE_DEG_S * _DEG for k in ("p", "q", "r")},  # rad/s
+    **{k: POM_ACCEL_G * G0 for k in ("ax", "ay", "az")},  # m/s^2
+    **{k: POM_ANGLE_DEG * _DEG for k in ("phi", "theta", "psi", "alpha", "beta")},  # rad
 }
-
-
-#: the chance that white measurement noise alone fails a channel of the proof of match
-#: when its level is given (``proof_of_match(noise_std=...)``)
-NOISE_ALPHA = 0.05
-
-
-#: a miss counts as within the prediction's own uncertainty up to this many of its std
-#: (``proof_of_match(prediction_std=...)``; pointwise, about 95 % per sample)
-PREDICTION_K = 2.0
 
 
 def prediction_uncertainty(
@@ -71,14 +55,14 @@ def noise_reach(n: int, alpha: float = NOISE_ALPHA) -> float:
     """z such that n independent N(0, 1) samples all lie within +-z with probability
     1 - alpha: z = -Phi^-1((1 - (1 - alpha)^(1/n)) / 2) (n = 1: 1.96; 1000: 4.05 for 5 %);
     0 for n < 1."""
-    from scipy.stats import norm
-
     if n < 1:
         return 0.0
     return float(-norm.ppf(-np.expm1(np.log1p(-alpha) / n) / 2.0))
 
 
-def default_tolerances(rate_deg_s: float = 1.5, accel_g: float = 0.1, angle_deg: float = 1.5) -> dict[str, float]:
+def default_tolerances(
+    rate_deg_s: float = POM_RATE_DEG_S, accel_g: float = POM_ACCEL_G, angle_deg: float = POM_ANGLE_DEG
+) -> dict[str, float]:
     """Tolerance per canonical channel in SI units (rad/s, m/s^2, rad) from the bands
     given in deg/s, g and deg."""
     return {
@@ -86,6 +70,48 @@ def default_tolerances(rate_deg_s: float = 1.5, accel_g: float = 0.1, angle_deg:
         **{k: accel_g * G0 for k in ("ax", "ay", "az")},
         **{k: angle_deg * _DEG for k in ("phi", "theta", "psi", "alpha", "beta")},
     }
+
+
+def _errors(
+    z: np.ndarray,
+    y: np.ndarray,
+    names: Sequence[str],
+    allowed_bias: Mapping[str, float] | None,
+    envelope: tuple[object, object] | None,
+) -> tuple[np.ndarray, ...]:
+    """(e, bias, nominal, width) for measured z and predicted y (N, n_out): the error judged
+    (N, n_out) after removing the allowed bias (n_out,), as the distance from the
+    envelope when one is given; the nominal error |z - bias - y| and the envelope's width
+    (zeros without one)."""
+    e = z - y
+    bmax = np.array([(allowed_bias or {}).get(n, 0.0) for n in names], dtype=float)
+    bias = np.clip(np.nanmean(e, axis=0), -bmax, bmax)
+    e = e - bias
+    nominal = np.abs(e)
+    width = np.zeros_like(e)
+    if envelope is not None:
+        lo, hi = (as_2d(a, f"envelope {w}") for a, w in zip(envelope, ("lower", "upper")))
+        if lo.shape != y.shape or hi.shape != y.shape:
+            raise ValueError(f"envelope {lo.shape}, {hi.shape} must have the predicted shape {y.shape}")
+        lo, hi = np.fmin(lo, y), np.fmax(hi, y)  # NaN bounds: the prediction alone
+        zb = z - bias
+        e = zb - np.clip(zb, lo, hi)
+        width = hi - lo
+    return e, bias, nominal, width
+
+
+def _noise_allowance(
+    present: np.ndarray, names: Sequence[str], noise_std: Mapping[str, float] | None, noise_alpha: float
+) -> np.ndarray:
+    """(n_out,) what the band widens by for white measurement noise: :func:`noise_reach`
+    over each channel's measured samples (``present`` (N, n_out)) times its std; 0 for a
+    channel without a positive std."""
+    sd = np.array([(noise_std or {}).get(n, np.nan) for n in names], dtype=float)
+    return np.where(
+        np.isfinite(sd) & (sd > 0),
+        [noise_reach(int(k), noise_alpha) for k in present.sum(axis=0)] * np.nan_to_num(sd),
+        0.0,
+    )
 
 
 def proof_of_match(
@@ -122,9 +148,7 @@ def proof_of_match(
         a sample is judged against is the tolerance plus the noise's reach over the
         channel's n measured samples, :func:`noise_reach` (n, ``noise_alpha``) x std, so
         that noise alone fails a channel in ``noise_alpha`` (5 %) of segments instead of
-        almost surely over a long one (a 0.5 deg/s gyro noise exceeds a 1.5 deg/s band
-        somewhere in 1000 samples with probability 0.93). ``noise_allowance`` says how
-        much was added (0 without).
+        almost surely over a long one. ``noise_allowance`` says how much was added.
     prediction_std: shaped as ``predicted``, the prediction's own std from the estimates'
         covariance (:func:`estimators.validation.prediction_band.prediction_std`). It does
         not change pass/fail; it says why a channel fails: ``prediction_std_max`` (its
@@ -145,28 +169,10 @@ def proof_of_match(
     names = output_names(names, z.shape[1], measured, predicted)
     tol_map = {**DEFAULT_TOLERANCES, **(tolerances or {})}
     tol = np.array([tol_map.get(n, np.nan) for n in names], dtype=float)
-    e = z - y
-    bmax = np.array([(allowed_bias or {}).get(n, 0.0) for n in names], dtype=float)
-    bias = np.clip(np.nanmean(e, axis=0), -bmax, bmax)
-    e = e - bias
-    nominal = np.abs(e)
-    width = np.zeros_like(e)
-    if envelope is not None:
-        lo, hi = (as_2d(a, f"envelope {w}") for a, w in zip(envelope, ("lower", "upper")))
-        if lo.shape != y.shape or hi.shape != y.shape:
-            raise ValueError(f"envelope {lo.shape}, {hi.shape} must have the predicted shape {y.shape}")
-        lo, hi = np.fmin(lo, y), np.fmax(hi, y)  # NaN bounds: the prediction alone
-        zb = z - bias
-        e = zb - np.clip(zb, lo, hi)
-        width = hi - lo
+    e, bias, nominal, width = _errors(z, y, names, allowed_bias, envelope)
     ae = np.abs(e)
     present = np.isfinite(e)  # NaN: no measurement at this sample
-    sd = np.array([(noise_std or {}).get(n, np.nan) for n in names], dtype=float)
-    allow = np.where(
-        np.isfinite(sd) & (sd > 0),
-        [noise_reach(int(k), noise_alpha) for k in present.sum(axis=0)] * np.nan_to_num(sd),
-        0.0,
-    )
+    allow = _noise_allowance(present, names, noise_std, noise_alpha)
     with np.errstate(invalid="ignore", divide="ignore"):
         frac = np.sum((ae <= tol + allow) & present, axis=0) / present.sum(axis=0)
     judged = np.isfinite(tol)

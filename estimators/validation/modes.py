@@ -28,6 +28,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from estimators.defaults import LINEARIZE_STEP, MODE_ZERO_TOL
+
 __all__ = ["LONGITUDINAL", "LATERAL", "ModeAnalysis", "mode_properties", "modes", "linearize"]
 
 LONGITUDINAL = frozenset({"V", "u", "w", "alpha", "q", "theta", "h", "vn", "vd", "x", "z"})
@@ -89,41 +91,55 @@ class ModeAnalysis:
         return self.eigenvectors.abs()
 
 
-def modes(
-    A, states: Sequence[str], *, scales: Mapping[str, float] | None = None, zero_tol: float = 1e-6
-) -> ModeAnalysis:
-    """Eigen-analysis of a state matrix A (n, n) (1/s) with named states, modes named.
+@dataclass(frozen=True)
+class _Roots:
+    """The eigen-decomposition :func:`modes` names: eigenvalues ``lam`` (n,), each
+    eigenvector's content per state ``content`` (n_states, n) (columns sum to 1), the
+    state index ``ix``, the representative roots ``reps`` (real ones, and of each complex
+    pair the one with positive imaginary part), their ``axis`` and the oscillatory ones
+    ``osc``; |lambda| below ``zero_tol`` counts as zero."""
 
-    scales: optional divisor per state for the eigenvector content used in naming (e.g.
-    {"V": 50.0} to compare a speed in m/s with angles in rad); states absent count as 1.
-    zero_tol: |lambda| below which a root counts as zero (1/s).
-    """
-    A = np.asarray(A, dtype=float)
-    states = list(states)
-    n = A.shape[0]
-    if A.shape != (n, n) or len(states) != n:
-        raise ValueError(f"A must be square with one name per state; got {A.shape}, {len(states)} names")
+    lam: np.ndarray
+    content: np.ndarray
+    ix: dict[str, int]
+    reps: list[int]
+    axis: dict[int, str]
+    osc: set[int]
+    zero_tol: float
+
+    def share(self, j: int, names) -> float:
+        """The content of root j in the states ``names`` (those present)."""
+        return float(sum(self.content[self.ix[s], j] for s in names if s in self.ix))
+
+    def of_axis(self, axis: str, oscillatory: bool) -> list[int]:
+        return [j for j in self.reps if self.axis[j] == axis and (j in self.osc) == oscillatory]
+
+
+def _roots(A: np.ndarray, states: list[str], scales: Mapping[str, float] | None, zero_tol: float):
+    """(:class:`_Roots`, eigenvectors (n, n)) of A with each root's axis decided by its
+    eigenvector content (scaled per state by ``scales``)."""
     lam, vec = np.linalg.eig(A)
     lam, vec = lam.astype(complex), vec.astype(complex)
     scale = np.array([float((scales or {}).get(s, 1.0)) for s in states])
     content = np.abs(vec / scale[:, None]) ** 2
     content /= content.sum(axis=0, keepdims=True)
     ix = {s: i for i, s in enumerate(states)}
-
-    def c(j: int, names) -> float:
-        return float(sum(content[ix[s], j] for s in names if s in ix))
-
-    # one representative per mode: real roots, and complex roots with imag > 0
     tol_im = 1e-9 * max(1.0, float(np.abs(lam).max(initial=0.0)))
-    reps = [j for j in range(n) if lam[j].imag > tol_im or abs(lam[j].imag) <= tol_im]
+    reps = [j for j in range(len(lam)) if lam[j].imag > tol_im or abs(lam[j].imag) <= tol_im]
     axis = {}
     for j in reps:
-        lon, lat = c(j, LONGITUDINAL), c(j, LATERAL)
+        lon = float(sum(content[ix[s], j] for s in LONGITUDINAL if s in ix))
+        lat = float(sum(content[ix[s], j] for s in LATERAL if s in ix))
         axis[j] = "other" if lon + lat < 0.5 else ("longitudinal" if lon >= lat else "lateral")
     osc = {j for j in reps if abs(lam[j].imag) > tol_im}
-    name: dict[int, str] = {}
+    return _Roots(lam, content, ix, reps, axis, osc, zero_tol), vec
 
-    lon_osc = sorted((j for j in reps if axis[j] == "longitudinal" and j in osc), key=lambda j: abs(lam[j]))
+
+def _longitudinal_names(r: _Roots) -> dict[int, str]:
+    """Names of the longitudinal roots (see the module docstring)."""
+    lam, content, ix = r.lam, r.content, r.ix
+    name: dict[int, str] = {}
+    lon_osc = sorted(r.of_axis("longitudinal", True), key=lambda j: abs(lam[j]))
     has_speed = any(s in ix for s in _SPEED)
     if len(lon_osc) >= 2:
         name[lon_osc[-1]], name[lon_osc[0]] = "short period", "phugoid"
@@ -135,9 +151,9 @@ def modes(
             name[j] = "short period" if content[ix["alpha"], j] > 0.25 * content[ix["theta"], j] else "phugoid"
         else:
             name[j] = "short period" if abs(lam[j]) > 1.0 else "phugoid"
-    lon_real = [j for j in reps if axis[j] == "longitudinal" and j not in osc]
+    lon_real = r.of_axis("longitudinal", False)
     for j in list(lon_real):
-        if abs(lam[j]) < zero_tol and c(j, {"h", "z"}) > 0.5:
+        if abs(lam[j]) < r.zero_tol and r.share(j, {"h", "z"}) > 0.5:
             name[j] = "height"
             lon_real.remove(j)
     lon_real.sort(key=lambda j: -abs(lam[j]))
@@ -152,13 +168,19 @@ def modes(
     else:
         kinds = ["longitudinal"] * len(lon_real)
     name.update(zip(lon_real, kinds))
+    return name
 
-    lat_osc = sorted((j for j in reps if axis[j] == "lateral" and j in osc), key=lambda j: -abs(lam[j]))
+
+def _lateral_names(r: _Roots) -> dict[int, str]:
+    """Names of the lateral-directional roots (see the module docstring)."""
+    lam = r.lam
+    name: dict[int, str] = {}
+    lat_osc = sorted(r.of_axis("lateral", True), key=lambda j: -abs(lam[j]))
     if lat_osc:
         name[lat_osc[0]] = "Dutch roll"
-    lat_real = [j for j in reps if axis[j] == "lateral" and j not in osc]
+    lat_real = r.of_axis("lateral", False)
     for j in list(lat_real):
-        if abs(lam[j]) < zero_tol and c(j, {"psi", "y"}) > 0.5:
+        if abs(lam[j]) < r.zero_tol and r.share(j, {"psi", "y"}) > 0.5:
             name[j] = "heading"
             lat_real.remove(j)
     lat_real.sort(key=lambda j: -abs(lam[j]))
@@ -166,22 +188,47 @@ def modes(
         name[lat_real[0]], name[lat_real[-1]] = "roll", "spiral"
     elif len(lat_real) == 1:
         j = lat_real[0]
-        name[j] = "roll" if c(j, {"p"}) >= c(j, {"phi"}) else "spiral"
+        name[j] = "roll" if r.share(j, {"p"}) >= r.share(j, {"phi"}) else "spiral"
+    return name
 
-    # unnamed leftovers take their axis as name; repeated names get a counter
-    for j in reps:
-        name.setdefault(j, axis[j])
-    counts = pd.Series([name[j] for j in reps]).value_counts()
+
+def _numbered(r: _Roots, name: dict[int, str]) -> dict[int, str]:
+    """``name`` with unnamed roots named after their axis and repeated names numbered
+    (fastest first)."""
+    for j in r.reps:
+        name.setdefault(j, r.axis[j])
+    counts = pd.Series([name[j] for j in r.reps]).value_counts()
     k_of: dict[str, int] = {}
-    for j in sorted(reps, key=lambda j: -abs(lam[j])):
+    for j in sorted(r.reps, key=lambda j: -abs(r.lam[j])):
         if counts[name[j]] > 1:
             k_of[name[j]] = k_of.get(name[j], 0) + 1
             name[j] = f"{name[j]} {k_of[name[j]]}"
+    return name
 
-    order = sorted(reps, key=lambda j: (axis[j] != "longitudinal", -abs(lam[j])))
-    props = mode_properties(lam[order])
-    props.insert(0, "eigenvalue", lam[order])
-    props["axis"] = [axis[j] for j in order]
+
+def modes(
+    A, states: Sequence[str], *, scales: Mapping[str, float] | None = None, zero_tol: float = MODE_ZERO_TOL
+) -> ModeAnalysis:
+    """Eigen-analysis of a state matrix A (n, n) (1/s) with named states, modes named.
+
+    scales: optional divisor per state for the eigenvector content used in naming (e.g.
+    {"V": 50.0} to compare a speed in m/s with angles in rad); states absent count as 1.
+    zero_tol: |lambda| below which a root counts as zero (1/s).
+    """
+    A = np.asarray(A, dtype=float)
+    states = list(states)
+    n = A.shape[0]
+    if A.shape != (n, n) or len(states) != n:
+        raise ValueError(f"A must be square with one name per state; got {A.shape}, {len(states)} names")
+    r, vec = _roots(A, states, scales, zero_tol)
+    name = _longitudinal_names(r)
+    name.update(_lateral_names(r))
+    name = _numbered(r, name)
+
+    order = sorted(r.reps, key=lambda j: (r.axis[j] != "longitudinal", -abs(r.lam[j])))
+    props = mode_properties(r.lam[order])
+    props.insert(0, "eigenvalue", r.lam[order])
+    props["axis"] = [r.axis[j] for j in order]
     props.index = pd.Index([name[j] for j in order], name="mode")
 
     v = vec[:, order]
@@ -189,7 +236,7 @@ def modes(
     v = v * np.exp(-1j * np.angle(v[big, np.arange(v.shape[1])]))
     v /= np.linalg.norm(v, axis=0)
     ev = pd.DataFrame(v, index=pd.Index(states, name="state"), columns=props.index)
-    return ModeAnalysis(table=props, eigenvalues=lam, eigenvectors=ev)
+    return ModeAnalysis(table=props, eigenvalues=r.lam, eigenvectors=ev)
 
 
 def _stack(out, trailing: tuple[int, ...]) -> np.ndarray:
@@ -199,7 +246,7 @@ def _stack(out, trailing: tuple[int, ...]) -> np.ndarray:
 
 
 def linearize(
-    f: Callable[..., Any], x0, u0, p, c, *, rel_step: float = 1e-5, abs_step: float = 1e-5
+    f: Callable[..., Any], x0, u0, p, c, *, rel_step: float = LINEARIZE_STEP, abs_step: float = LINEARIZE_STEP
 ) -> tuple[np.ndarray, np.ndarray]:
     """Jacobians of a vectorised f(x, u, p, c) at (x0, u0) by central differences.
 

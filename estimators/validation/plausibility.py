@@ -23,6 +23,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from estimators.defaults import PLAUSIBILITY_K
+
 __all__ = ["load_apriori", "plausibility", "agreement"]
 
 
@@ -58,7 +60,7 @@ def load_apriori(source: str | Path | Mapping) -> pd.DataFrame:
     return pd.DataFrame.from_dict(rows, orient="index", columns=["value", "std", "source"]).rename_axis("parameter")
 
 
-def plausibility(estimates, std, apriori, k: float = 3.0) -> pd.DataFrame:
+def plausibility(estimates, std, apriori, k: float = PLAUSIBILITY_K) -> pd.DataFrame:
     """Compare estimates (Series/dict by name) and their std with a-priori values.
 
     apriori: DataFrame from :func:`load_apriori` (``value``, ``std``), a TOML path or
@@ -92,7 +94,7 @@ def plausibility(estimates, std, apriori, k: float = 3.0) -> pd.DataFrame:
     )
 
 
-def agreement(estimates: Mapping[str, tuple[Any, Any]], k: float = 3.0) -> pd.DataFrame:
+def agreement(estimates: Mapping[str, tuple[Any, Any]], k: float = PLAUSIBILITY_K) -> pd.DataFrame:
     """Cross-check of several methods' estimates of the same parameters.
 
     estimates: {method: (estimates, std)}, each a Series/dict by parameter name (std: the

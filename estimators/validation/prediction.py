@@ -16,12 +16,12 @@ states, which only the process noise drives), none on the other measured states.
 is where the gusts enter, and it anchors an unstable short period), while the inertial
 responses - rates, attitudes, specific forces - are the model's own prediction: the
 filter never sees them, and an error in any moment or force derivative shows there in
-full (Cmalpha or Cmde 20-30 % off misses q by 5-20 deg/s on longitudinal_3211_turbulence,
-the true derivatives by ~1.5 deg/s). The air-data channels themselves are the filter's
+full (a moment derivative tens of percent off misses the pitch rate by several times what
+the true derivatives miss it by). The air-data channels themselves are the filter's
 one-step predictions and prove nothing; they are returned but must not be judged.
 
 What the air data cannot see is the rotary turbulence (the gust gradient along the
-airframe, q_turb ~2 deg/s rms on the small UAV in light turbulence), which acts through
+airframe, a few deg/s rms on a small UAV in light turbulence), which acts through
 the damping derivatives; its effect on the rates remains in the residuals and sets how
 tight a band the true model can meet.
 """
@@ -36,9 +36,10 @@ import numpy as np
 import pandas as pd
 
 from estimators.errors import ModelDefinitionError
-from estimators.filters.kalman import EKF, default_process_noise, process_noise_matrix
+from estimators.filters.ekf import EKF
+from estimators.filters.noise import default_process_noise, process_noise_matrix
+from estimators.integrators import DEFAULT_INPUTS
 from estimators.model import Model, Segment
-from estimators.simulation.integrators import DEFAULT_INPUTS
 
 __all__ = ["AIR_DATA", "DrivenPrediction", "air_data_prediction", "driving_states"]
 
@@ -81,7 +82,7 @@ def air_data_prediction(
         mean, as sensor biases persist through a flight).
     process_noise: F of the identification ({state: std}, (n,) or (n, n); state unit per
         sqrt(s)); only its rows/columns of the driving and the unmeasured states are kept. None, or zero on
-        every driving state: the data default of :func:`estimators.filters.kalman.default_process_noise`.
+        every driving state: the data default of :func:`estimators.filters.noise.default_process_noise`.
     measurement_noise: R as :class:`~estimators.EKF` takes it ({output: std}, (n_out,) std
         or (n_out, n_out)); None: the data default (only the driving outputs' entries matter).
     drive: the states to drive (default :func:`driving_states`); each must be a measured

@@ -4,11 +4,8 @@ A proof of match holds the identified model fixed and compares its simulation of
 maneuver it was not fitted to with the measurements. When a channel leaves its band, the
 engineer needs to know why: either the model's form (or its inputs) is wrong, or the
 derivatives are right within their uncertainty and that uncertainty alone moves the
-prediction beyond the band (too little information in the fitted maneuvers for this one:
-scenarios/default.toml with the surfaces logged at 10 Hz, ad hoc, seed 1: the lateral
-model missed p by 4.1 deg/s 0.3 s after a cross-controlled doublet's reversal even when
-driven by the true surface positions; with the true derivatives it stayed within 0.25
-deg/s, and the estimates were each within 2 of their total std).
+prediction beyond the band (too little information in the fitted maneuvers for this
+one: a maneuver that excites a combination of derivatives the fitted ones did not).
 
 To first order, a parameter error dtheta moves the prediction by S dtheta, S = dy/dtheta
 the prediction's sensitivity (N, n_out, n_p). The proof of match fits the held-out
@@ -29,9 +26,10 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from estimators.integrators import DEFAULT_INPUTS
+from estimators.layout import Layout
 from estimators.model import Model, Segment
-from estimators.simulation.integrators import DEFAULT_INPUTS
-from estimators.simulation.simulate import Layout, simulate_batch
+from estimators.simulation import simulate_batch
 
 __all__ = ["parameter_sensitivity", "prediction_std", "variance_shares"]
 

@@ -14,6 +14,8 @@ import pandas as pd
 from scipy import fft as sfft
 from scipy import signal, stats
 
+from estimators.defaults import WHITENESS_ALPHA
+
 from ._util import as_2d, output_names
 
 __all__ = ["residual_stats", "autocovariance", "autocorrelation", "WhitenessResult", "whiteness", "psd"]
@@ -101,7 +103,7 @@ class WhitenessResult:
 
 
 def whiteness(
-    residuals, max_lag: int | None = None, alpha: float = 0.05, names: Sequence[str] | None = None
+    residuals, max_lag: int | None = None, alpha: float = WHITENESS_ALPHA, names: Sequence[str] | None = None
 ) -> WhitenessResult:
     """Whiteness test of residuals (N, n_out) by the Ljung-Box statistic over lags 1..max_lag.
 

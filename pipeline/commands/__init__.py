@@ -1,8 +1,11 @@
-"""One module per ``fsid`` sub-command.
+"""One module per ``fsid`` sub-command, plus the options they share
+(:mod:`pipeline.commands.arguments`).
 
-Each module exposes ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``.
-``pipeline.cli`` imports them lazily, so a slow import (jsbsim, rerun) costs only the
-command that needs it.
+Each command module exposes ``HELP`` (one line), ``add_arguments(parser)`` and
+``run(args) -> int``. ``pipeline.cli`` builds the parser from every command, so a command
+module imports only light modules at its top (the argument helpers, the jobs' option
+dataclasses, the method catalogue); its ``run`` imports its job, which loads numba, scipy
+and pandas (and the simulator or rerun where needed), when the command is used.
 """
 
 #: sub-command name -> module under pipeline.commands

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from pipeline.commands.arguments import print_outputs
 from pipeline.errors import FsidError
 from pipeline.paths import new_run_dir
 
@@ -24,8 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.commands.run import print_outputs
-    from pipeline.jobs.run import run_scenario
+    from pipeline.jobs.scenario import run_scenario  # the job loads numba, scipy, pandas: on use only
 
     out = new_run_dir("demo", args.out)
     paths = run_scenario(default_scenario(), out)

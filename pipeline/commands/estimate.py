@@ -5,14 +5,15 @@ from __future__ import annotations
 
 import argparse
 
-from pipeline.commands.check import add_time_base_argument
-from pipeline.commands.run import (
-    METHOD_LIST,
-    METHODS,
+from pipeline.commands.arguments import (
     add_input_arguments,
+    add_time_base_argument,
     add_validation_arguments,
+    print_outputs,
     validation_options,
 )
+from pipeline.jobs.options import EstimateOptions
+from pipeline.methods.catalogue import METHOD_LIST, METHODS
 from pipeline.paths import new_run_dir
 
 HELP = "identify derivatives from a log with a built-in model (and an aircraft description) or your own model"
@@ -69,14 +70,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true")
 
 
-def run(args: argparse.Namespace) -> int:
-    from pipeline.commands.run import print_outputs
-    from pipeline.jobs.run import estimate_log
-
-    out = new_run_dir("estimate", args.out)
-    paths = estimate_log(
-        args.log,
-        out,
+def options(args: argparse.Namespace) -> EstimateOptions:
+    """The estimate's settings from the parsed command line."""
+    return EstimateOptions(
         aircraft=args.aircraft,
         map_path=args.map,
         methods=args.method or ["oem"],
@@ -90,5 +86,13 @@ def run(args: argparse.Namespace) -> int:
         input_dynamics=args.input_dynamics,
         **validation_options(args),
     )
+
+
+def run(args: argparse.Namespace) -> int:
+    from pipeline.jobs.estimate import estimate_log  # the job loads numba, scipy, pandas: on use only
+
+    opts = options(args)
+    out = new_run_dir("estimate", args.out)
+    paths = estimate_log(args.log, out, opts)
     print_outputs(out, paths)
     return 0

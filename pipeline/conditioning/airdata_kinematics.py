@@ -1,23 +1,16 @@
 """Airspeed, sideslip and angle of attack at the CG from the air data blended with the
 integrated IMU.
 
-Used by the lateral equation error (:func:`pipeline.problems.identify.lateral_regressions`): vane
-noise on the beta regressor, which cross-controlled maneuvers make nearly collinear with
-dr and r, biases every derivative (errors in variables: CYbeta -10 %, CYdr +15 %, Cnr
--8 %, Cndr -20 % from 0.2 deg of noise alone on the noise-free truth of
-lateral_doublets_calm). The blended sideslip is within 0.01-0.03 deg of the truth there.
+Used by the lateral equation error (the lateral regressions of :mod:`pipeline.problems`):
+vane noise on the beta regressor, which cross-controlled maneuvers make nearly collinear
+with dr and r, biases every derivative (errors in variables).
 
-Also the pseudo-inputs V and alpha of the lateral output error in calm air
-(``pipeline.problems.identify.lateral_problem(kinematic=True)``): output error takes its inputs as
-exact, and the pitot noise between 0.1 and 1 Hz, which the pitot low-passed at 1 Hz
-kept, scales every moment of a window; an alpha rebuilt from the 10 Hz GPS velocity (no
-vane) puts its noise into the kinematic coupling. On lateral_doublets_calm (16 + 16
-seeds, benchmarks/lateral_airspeed_mc.py) the empirical / Cramer-Rao std went from up to
-2.09 / 1.91 to 1.44 / 1.38; without vanes (8 seeds, benchmarks/flow_angles_mc.py) from
-2.69 to 1.72. The part below 0.1 Hz is the air data's either way (the per-maneuver
-correction dV with its prior covers the pitot's window mean). Blended on seed 21 there:
-V 0.02 m/s, beta 0.02-0.03 deg, alpha 0.01-0.03 deg rms from the truth (vane or rebuilt
-angles), against 0.2 deg for the vane or the rebuilt alpha (ad-hoc check).
+Also the pseudo-inputs V and alpha of the lateral output error in calm air (the lateral
+problem with ``kinematic=True``): output error takes its inputs as exact, and the pitot
+noise between 0.1 and 1 Hz, which the pitot low-passed at 1 Hz kept, scales every moment
+of a window; an alpha rebuilt from the 10 Hz GPS velocity (no vane) puts its noise into
+the kinematic coupling. The part below 0.1 Hz is the air data's either way (the
+per-maneuver correction dV with its prior covers the pitot's window mean).
 
 Both are complementary filters (zero-phase, second-order Butterworth at ``fc``): the air
 data below ``fc``, the integral of the kinematic rate above it.
@@ -38,6 +31,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
+from scipy.signal import butter, filtfilt
 
 G0 = 9.80665
 #: complementary-filter corners (Hz): below them the air data, above the IMU integral
@@ -48,8 +42,6 @@ CHANNELS = ("V", "alpha", "beta", "theta", "phi", "ax", "ay", "az", "p", "q", "r
 
 
 def _lowpass(x: np.ndarray, fc: float, rate: float) -> np.ndarray:
-    from scipy.signal import butter, filtfilt
-
     b, a = butter(2, fc / (0.5 * rate))
     return filtfilt(b, a, x, padtype="odd")
 

@@ -90,7 +90,22 @@ def check_channel(name: str, t: np.ndarray, v: np.ndarray) -> list[Finding]:
         out.append(Finding(WARN, "samples", name, f"{name} has only {n} sample(s)", a, b, n))
         return out
     dt = np.diff(t)
-    # time order
+    _check_time_order(out, name, t, dt)
+    span = _check_rate(out, name, t, dt)
+    _check_finite(out, name, t, v)
+    fin = v[np.isfinite(v)]
+    if fin.size < 2:
+        return out
+    lo, hi = float(fin.min()), float(fin.max())
+    _check_saturation(out, name, t, v, lo, hi)
+    _check_stuck(out, name, t, v, lo, hi, span, fin.size)
+    _check_units(out, name, t, fin)
+    return out
+
+
+def _check_time_order(out: list[Finding], name: str, t: np.ndarray, dt: np.ndarray) -> None:
+    """Times t [s] (n >= 2, intervals dt) going backwards or repeated."""
+    a, b = _span(t)
     back = int(np.sum(dt < 0))
     dup = int(np.sum(dt == 0))
     if back:
@@ -122,6 +137,12 @@ def check_channel(name: str, t: np.ndarray, v: np.ndarray) -> list[Finding]:
         )
     if not back and not dup:
         out.append(Finding(PASS, "time_order", name, f"{name}: times strictly increasing", a, b))
+
+
+def _check_rate(out: list[Finding], name: str, t: np.ndarray, dt: np.ndarray) -> float:
+    """Sample rate, jitter and gaps of times t [s] (n >= 2, intervals dt); returns their span [s]."""
+    n = t.size
+    a, b = _span(t)
     pos = dt[dt > 0]
     span = float(np.nanmax(t) - np.nanmin(t))
     rate = (n - 1) / span if span > 0 else 0.0
@@ -172,7 +193,12 @@ def check_channel(name: str, t: np.ndarray, v: np.ndarray) -> list[Finding]:
                     float(dt[k]),
                 )
             )
-    # NaN / Inf
+    return span
+
+
+def _check_finite(out: list[Finding], name: str, t: np.ndarray, v: np.ndarray) -> None:
+    """NaN / Inf values."""
+    b = _span(t)[1]
     bad = ~np.isfinite(v)
     if bad.any():
         frac = float(bad.mean())
@@ -188,11 +214,10 @@ def check_channel(name: str, t: np.ndarray, v: np.ndarray) -> list[Finding]:
                 frac,
             )
         )
-    fin = v[np.isfinite(v)]
-    if fin.size < 2:
-        return out
-    lo, hi = float(fin.min()), float(fin.max())
-    # saturation / clipping: many samples pinned at the extreme with a run of >= 3
+
+
+def _check_saturation(out: list[Finding], name: str, t: np.ndarray, v: np.ndarray, lo: float, hi: float) -> None:
+    """Saturation / clipping: many samples pinned at the extreme (lo or hi) with a run of >= 3."""
     if hi > lo and name not in COMMANDS:
         for edge, label in ((lo, "minimum"), (hi, "maximum")):
             at = np.isfinite(v) & (v == edge)
@@ -214,7 +239,13 @@ def check_channel(name: str, t: np.ndarray, v: np.ndarray) -> list[Finding]:
                         frac,
                     )
                 )
-    # stuck: long run of identical values while the channel moves elsewhere
+
+
+def _check_stuck(
+    out: list[Finding], name: str, t: np.ndarray, v: np.ndarray, lo: float, hi: float, span: float, n_finite: int
+) -> None:
+    """A long run of identical values while the channel moves elsewhere, or a constant channel."""
+    a, b = _span(t)
     same = np.r_[False, np.diff(v) == 0]
     runs = _runs(same)
     if name in COMMANDS:
@@ -238,9 +269,13 @@ def check_channel(name: str, t: np.ndarray, v: np.ndarray) -> list[Finding]:
                     dur,
                 )
             )
-    elif hi == lo and fin.size >= 20:
+    elif hi == lo and n_finite >= 20:
         out.append(Finding(WARN, "stuck", name, f"{name} is constant ({lo:.4g}) over the whole log", a, b, 0.0))
-    # unit plausibility
+
+
+def _check_units(out: list[Finding], name: str, t: np.ndarray, fin: np.ndarray) -> None:
+    """Unit plausibility from the largest finite magnitude (degrees in a radian field ...)."""
+    a, b = _span(t)
     amax = float(np.max(np.abs(fin)))
     if name in ANGLES and amax > 2 * np.pi + 0.1:
         out.append(
@@ -292,7 +327,6 @@ def check_channel(name: str, t: np.ndarray, v: np.ndarray) -> list[Finding]:
                 amax,
             )
         )
-    return out
 
 
 def check_file(fd: FlightData, required: Sequence[str] = CORE) -> list[Finding]:

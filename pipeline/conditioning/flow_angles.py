@@ -24,29 +24,24 @@ the wind along the track (:func:`fit_wind`, :func:`airspeed_calibration`): a tur
 tens of degrees does (std at k = 0 below :data:`SCALE_STD_MAX`; straight flight does not).
 Applied when significant (3 std), the V channel becomes V / (1 + k), so the models'
 airspeed and dynamic pressure are calibrated too; applied or not, its std is carried to
-the estimates with the wind's. Measured: pitot_wind_turn's .bin (3 % and 0.4 m/s, 210 deg
-of turn) +4.37 +- 0.04 % (the pitot's errors are 4.2-4.4 % over its airspeeds), every
-derivative within 2.8 std, against 46 std off with k taken as 0
-(tests/test_pitot_calibration.py); sensor_errors_calm's .bin (the same pitot, 16 deg of
-heading) +2.36 +- 0.68 %, worst 2.9 / 3.1 std, against 55 / 88 (ad hoc); the real
-quadplane SITL .tlog's circles (700 deg) -0.01 +- 0.42 %, not applied. A steady sideslip
-(asymmetric thrust) moves it: 1 deg of mean sideslip put a correct pitot at -0.55 +- 0.52 %
-and -0.30 +- 0.17 % over 45 and 90 deg of weaving heading (ad hoc, the unit test's
-kinematics, 10 draws each); with 10 deg the std is 2.5 % and k is not estimated.
+the estimates with the wind's. A steady sideslip (asymmetric thrust) moves it; with little
+heading change its std is large and k is not estimated.
 
-Assumptions, which the document names: no vertical wind (it would shift alpha by
-W_d / V; its uncertainty is carried to the estimates, :func:`wind_uncertainty`), a mean
-sideslip of zero over each window (a steady sideslip, e.g. from
-asymmetric thrust, is booked on the cross-track wind), a correct airspeed where the pitot's
-scale factor cannot be estimated (it is then booked on the along-track wind), and the inertial velocity at the body
+Assumptions, which the document names: no vertical wind (it would shift alpha by W_d / V;
+its uncertainty is carried to the estimates,
+:func:`pipeline.conditioning.wind_uncertainty.wind_uncertainty`), a mean sideslip of zero
+over each window (a steady sideslip, e.g. from asymmetric thrust, is booked on the
+cross-track wind), a correct airspeed where the pitot's scale factor cannot be estimated
+(it is then booked on the along-track wind), and the inertial velocity at the body
 origin, taken as the CG (the navigation filters, ArduPilot's EKF3 and PX4's EKF2, report
 it there, having moved the IMU's by its configured offset; the simulator's GPS sits at the
-CG): the rebuilt angles are the CG's, and the air-data position for them is (0, 0, 0). The angles carry the velocity channel's noise and sample times (a 10 Hz GPS
-gives 10 Hz angles; the estimators count only those samples, and the filters' common grid
-drops to that rate). They hold no gusts: in turbulence they are the rigid body's angles,
-not the ones the aerodynamics see, and the airspeed departs from the steady-wind fit
-(:func:`unsteady`: 2.1 x the pitot noise in light turbulence), which ``fsid estimate`` takes
-as the sign that the calm-air sensor-compatibility model does not hold.
+CG): the rebuilt angles are the CG's, and the air-data position for them is (0, 0, 0).
+The angles carry the velocity channel's noise and sample times (a 10 Hz GPS gives 10 Hz
+angles; the estimators count only those samples, and the filters' common grid drops to
+that rate). They hold no gusts: in turbulence they are the rigid body's angles, not the
+ones the aerodynamics see, and the airspeed departs from the steady-wind fit
+(:func:`unsteady`), which ``fsid estimate`` takes as the sign that the calm-air
+sensor-compatibility model does not hold.
 """
 
 from __future__ import annotations
@@ -67,12 +62,12 @@ BETA_STD = np.deg2rad(2.0)
 #: knot spacing of the wind [s]
 WINDOW_S = 120.0
 #: std [-] of the prior (mean 0) on the pitot's scale factor in the wind fit: a plausible
-#: range, weak beside what turning flight tells (std 0.02-0.2 % over 90-1400 deg of heading
-#: on the unit test's kinematics)
+#: range, weak beside what turning flight tells
 SCALE_PRIOR = 0.3
 #: the scale factor is estimated with the wind only when its std at 0 is at most this [-]
 SCALE_STD_MAX = 0.02
-#: ... applied when at least this many std from 0 (as a sensor error in pipeline.conditioning.compatibility)
+#: ... applied when at least this many std from 0 (as a sensor error in
+#: pipeline.conditioning.sensor_correction)
 SCALE_SIGNIFICANCE = 3.0
 #: ... and within +- this [-] (beyond: implausible for a pitot, something else is wrong)
 SCALE_MAX = 0.25
@@ -189,19 +184,7 @@ def fit_wind(
         x = np.concatenate([held.north, held.east, [0.0]])  # (north knots, east knots, k)
         knots, B = held.knots, _hat_basis(t, held.knots)
     else:
-        span = float(t[-1] - t[0])
-        nk = 1 if span < 1.5 * window_s else int(np.ceil(span / window_s)) + 1
-        knots = np.array([0.5 * (t[0] + t[-1])]) if nk == 1 else np.linspace(t[0], t[-1], nk)
-        B = _hat_basis(t, knots)  # (n, K)
-        used = B.sum(axis=0) > 0
-        if not used.all():  # knots in a gap of the data
-            knots = knots[used]
-            B = _hat_basis(t, knots)
-        # start: zero sideslip and the airspeed along the body x axis's horizontal direction
-        ex = axes[:, 0, :2] / np.linalg.norm(axes[:, 0, :2], axis=1, keepdims=True)
-        Vh = np.sqrt(np.maximum((V / (1.0 + scale)) ** 2 - vg[:, 2] ** 2, 0.0))
-        w0 = np.linalg.lstsq(B, vg[:, :2] - Vh[:, None] * ex, rcond=None)[0]  # (K, 2)
-        x = np.append(w0.T.reshape(-1), float(scale))
+        knots, B, x = _wind_start(t, vg, V, axes, window_s, scale)
     nk = knots.size
     free = np.arange(2 * nk + (scale is None))  # the columns estimated
     ey = axes[:, 1, :2]  # body y axis, horizontal part
@@ -235,7 +218,7 @@ def fit_wind(
     if scale is None:
         std_k = float(sd[-1])
     else:  # k freed here, the residuals taken as white: the headings' geometry, not a
-        # residual the held k makes coloured (sim, 386 deg: 0.4 % shrunk, 0.04 % fitted)
+        # residual the held k makes coloured
         P = np.linalg.pinv(M1 + M2 + np.diag(np.r_[np.zeros(2 * nk), SCALE_PRIOR**-2]))
         std_k = float(np.sqrt(P[-1, -1]))
     mag = np.maximum(mag, 1e-6)
@@ -253,6 +236,27 @@ def fit_wind(
         std_scale=std_k,
         scale_estimated=scale is None,
     )
+
+
+def _wind_start(
+    t: np.ndarray, vg: np.ndarray, V: np.ndarray, axes: np.ndarray, window_s: float, scale: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The wind's knots (K,) [s] every ``window_s`` over the data (none in a gap), their
+    interpolation weights (n, K) and the start of :func:`fit_wind` (north knots, east
+    knots, k): zero sideslip and the airspeed, less the scale factor ``scale``, along the
+    body x axis's horizontal direction."""
+    span = float(t[-1] - t[0])
+    nk = 1 if span < 1.5 * window_s else int(np.ceil(span / window_s)) + 1
+    knots = np.array([0.5 * (t[0] + t[-1])]) if nk == 1 else np.linspace(t[0], t[-1], nk)
+    B = _hat_basis(t, knots)  # (n, K)
+    used = B.sum(axis=0) > 0
+    if not used.all():  # knots in a gap of the data
+        knots = knots[used]
+        B = _hat_basis(t, knots)
+    ex = axes[:, 0, :2] / np.linalg.norm(axes[:, 0, :2], axis=1, keepdims=True)
+    Vh = np.sqrt(np.maximum((V / (1.0 + scale)) ** 2 - vg[:, 2] ** 2, 0.0))
+    w0 = np.linalg.lstsq(B, vg[:, :2] - Vh[:, None] * ex, rcond=None)[0]  # (K, 2)
+    return knots, B, np.append(w0.T.reshape(-1), float(scale))
 
 
 #: ``Channel.derived`` of an angle this module rebuilt
@@ -282,11 +286,13 @@ def reconstruct_flow_angles(
     """The flight with the missing ones of alpha, beta reconstructed from the flight path
     (module doc), and a JSON-ready document of what was done. The input is not modified.
     ``wind_offset`` (north, east, down [m/s], airspeed scale [-], the last optional, in
-    the order of :data:`WIND_PARTS`) moves the fitted wind before the angles are rebuilt
-    and the pitot's scale factor from where :func:`airspeed_calibration` put it (the refits
-    of :func:`wind_uncertainty`; down: a vertical wind). ``airspeed_scale`` holds the
-    pitot's scale factor there (another flight's, the same pitot) instead of estimating it.
-    Where a scale factor k is used, the V channel becomes the calibrated V / (1 + k).
+    the order of :data:`pipeline.conditioning.wind_uncertainty.WIND_PARTS`) moves the
+    fitted wind before the angles are rebuilt and the pitot's scale factor from where
+    :func:`airspeed_calibration` put it (the refits of
+    :func:`pipeline.conditioning.wind_uncertainty.wind_uncertainty`; down: a vertical
+    wind). ``airspeed_scale`` holds the pitot's scale factor there (another flight's, the
+    same pitot) instead of estimating it. Where a scale factor k is used, the V channel
+    becomes the calibrated V / (1 + k).
 
     Nothing to do (both angles logged): the same object and ``{"status": "not needed"}``.
     Raises FsidError naming the missing channels when an angle is missing and the flight
@@ -295,29 +301,7 @@ def reconstruct_flow_angles(
     todo = fd.missing(("alpha", "beta"))
     if not todo:
         return fd, {"status": "not needed"}
-    lacking = fd.missing(NEEDS)
-    if lacking:
-        raise FsidError(
-            f"the log has no {'/'.join(todo)} vane and lacks {lacking} to rebuild "
-            f"{'them' if len(todo) > 1 else 'it'} from the flight path "
-            f"({fd.meta.get('source', 'log')}): add the channels to the map (--map) "
-            "or use a model without air-data angles (--model path.py:name)"
-        )
-    t = np.asarray(fd["vn"].t, dtype=float)
-    vg = np.column_stack([_at(fd, c, t) for c in ("vn", "ve", "vd")])
-    V = _at(fd, "V", t)
-    phi, theta, psi = _at(fd, "phi", t, True), _at(fd, "theta", t), _at(fd, "psi", t, True)
-    ok = np.all(np.isfinite(vg), axis=1) & np.isfinite(V + phi + theta + psi)
-    vmin = max(3.0, 0.5 * float(np.percentile(V[ok], 95))) if ok.any() else np.inf
-    ok &= V >= vmin
-    if ok.sum() < 20:
-        raise FsidError(
-            f"cannot rebuild {'/'.join(todo)} from the flight path: fewer than 20 "
-            f"velocity samples in forward flight (airspeed >= {vmin:.1f} m/s) in "
-            f"{fd.meta.get('source', 'log')}"
-        )
-    t, vg, V = t[ok], vg[ok], V[ok]
-    axes = _body_axes(phi[ok], theta[ok], psi[ok])
+    t, vg, V, heading, axes, vmin = _flight_path(fd, todo)
     dn, de, dd, dk = (list(map(float, wind_offset)) + [0.0])[:4]
     fit = {"window_s": window_s, "beta_std": beta_std}
     tried = None  # the fit that tried to estimate k
@@ -346,6 +330,51 @@ def reconstruct_flow_angles(
     )
     Wn, We = wind.at(t)
     va = np.einsum("nij,nj->ni", axes, vg - np.column_stack([Wn + dn, We + de, np.full_like(Wn, dd)]))
+    out = _with_angles(fd, todo, t, va, k, cal)
+    doc = _document(fd, todo, t, V, heading, vmin, wind, cal)
+    if any((dn, de, dd, dk)):
+        doc["wind_offset_mps"] = [dn, de, dd]
+        doc["airspeed_scale_offset"] = dk
+    return out, doc
+
+
+def _flight_path(
+    fd: FlightData, todo: list[str]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """The flight path the angles ``todo`` are rebuilt from, on the velocity's samples in
+    forward flight: times t (n,) [s], inertial velocity vg (n, 3) [m/s], airspeed V (n,)
+    [m/s], unwrapped heading (n,) [rad], body axes (n, 3, 3) and the airspeed [m/s] that
+    counts as forward flight. Raises FsidError without the channels or forward flight."""
+    lacking = fd.missing(NEEDS)
+    if lacking:
+        raise FsidError(
+            f"the log has no {'/'.join(todo)} vane and lacks {lacking} to rebuild "
+            f"{'them' if len(todo) > 1 else 'it'} from the flight path "
+            f"({fd.meta.get('source', 'log')}): add the channels to the map (--map) "
+            "or use a model without air-data angles (--model path.py:name)"
+        )
+    t = np.asarray(fd["vn"].t, dtype=float)
+    vg = np.column_stack([_at(fd, c, t) for c in ("vn", "ve", "vd")])
+    V = _at(fd, "V", t)
+    phi, theta, psi = _at(fd, "phi", t, True), _at(fd, "theta", t), _at(fd, "psi", t, True)
+    ok = np.all(np.isfinite(vg), axis=1) & np.isfinite(V + phi + theta + psi)
+    vmin = max(3.0, 0.5 * float(np.percentile(V[ok], 95))) if ok.any() else np.inf
+    ok &= V >= vmin
+    if ok.sum() < 20:
+        raise FsidError(
+            f"cannot rebuild {'/'.join(todo)} from the flight path: fewer than 20 "
+            f"velocity samples in forward flight (airspeed >= {vmin:.1f} m/s) in "
+            f"{fd.meta.get('source', 'log')}"
+        )
+    axes = _body_axes(phi[ok], theta[ok], psi[ok])
+    return t[ok], vg[ok], V[ok], np.unwrap(psi[ok]), axes, vmin
+
+
+def _with_angles(
+    fd: FlightData, todo: list[str], t: np.ndarray, va: np.ndarray, k: float, cal: dict[str, Any]
+) -> FlightData:
+    """A copy of ``fd`` with the angles ``todo`` from the body-axis air velocity ``va``
+    (n, 3) [m/s] at times t [s], and V calibrated by the pitot's scale factor k [-]."""
     speed = np.linalg.norm(va, axis=1)
     angles = {"alpha": np.arctan2(va[:, 2], va[:, 0]), "beta": np.arcsin(np.clip(va[:, 1] / speed, -1.0, 1.0))}
     src = f"flight path ({fd['vn'].source or 'vn'}, attitude, V) minus the fitted wind"
@@ -367,9 +396,21 @@ def reconstruct_flow_angles(
             source=f"{v.source or 'V'} / (1 + {k:.5f})",
             notes=f"calibrated: the pitot's scale factor {100 * k:+.2f} % ({cal['status']}, pipeline.conditioning.flow_angles)",
         )
-    out = FlightData(channels=channels, meta=dict(fd.meta), segments=list(fd.segments))
-    heading = np.unwrap(psi[ok])
-    doc = {
+    return FlightData(channels=channels, meta=dict(fd.meta), segments=list(fd.segments))
+
+
+def _document(
+    fd: FlightData,
+    todo: list[str],
+    t: np.ndarray,
+    V: np.ndarray,
+    heading: np.ndarray,
+    vmin: float,
+    wind: WindFit,
+    cal: dict[str, Any],
+) -> dict[str, Any]:
+    """The JSON-ready document of :func:`reconstruct_flow_angles`."""
+    return {
         "status": "reconstructed",
         "channels": todo,
         "rate_hz": float(fd["vn"].rate_hz),
@@ -393,10 +434,6 @@ def reconstruct_flow_angles(
         f"{_SCALE_ASSUMED[cal['status']]}; angles at the CG (the navigation "
         "filter's velocity)",
     }
-    if any((dn, de, dd, dk)):
-        doc["wind_offset_mps"] = [dn, de, dd]
-        doc["airspeed_scale_offset"] = dk
-    return out, doc
 
 
 def airspeed_calibration(wind: WindFit) -> dict[str, Any]:
@@ -456,89 +493,10 @@ _SCALE_ASSUMED = {
 }
 
 
-def markov_mean_std(sigma: float, tau: float, spans: Any) -> float:
-    """Std of the time average, over the union of ``spans`` [(t0, t1), ...] [s], of a
-    stationary first-order Markov process of std ``sigma`` and time constant ``tau`` [s]
-    (autocovariance sigma^2 exp(-|dt| / tau)). Exact: with the merged spans [a_i, b_i]
-    of lengths L_i and total T, the variance is sigma^2 / T^2 sum_ij I_ij with
-    I_ii = 2 tau^2 (L_i / tau - 1 + exp(-L_i / tau)) and, for a_i < b_i <= a_j < b_j,
-    I_ij = tau^2 (exp((b_i - a_j)/tau) - exp((b_i - b_j)/tau) - exp((a_i - a_j)/tau)
-    + exp((a_i - b_j)/tau)). One span much longer than tau: sigma sqrt(2 tau / T);
-    much shorter: sigma."""
-    iv = sorted((float(a), float(b)) for a, b in spans if b > a)
-    merged: list[list[float]] = []
-    for a, b in iv:
-        if merged and a <= merged[-1][1]:
-            merged[-1][1] = max(merged[-1][1], b)
-        else:
-            merged.append([a, b])
-    if not merged or sigma <= 0.0 or tau <= 0.0:
-        return 0.0
-    a, b = np.array(merged).T
-    L = b - a
-    T = float(L.sum())
-    total = float(np.sum(2.0 * tau**2 * (L / tau - 1.0 + np.exp(-L / tau))))
-    i, j = np.triu_indices(a.size, k=1)
-    total += 2.0 * float(
-        np.sum(
-            tau**2
-            * (
-                np.exp((b[i] - a[j]) / tau)
-                - np.exp((b[i] - b[j]) / tau)
-                - np.exp((a[i] - a[j]) / tau)
-                + np.exp((a[i] - b[j]) / tau)
-            )
-        )
-    )
-    return float(sigma * np.sqrt(max(total, 0.0)) / T)
-
-
-#: names of the parts whose uncertainty :func:`wind_uncertainty` returns (the order of
-#: :func:`reconstruct_flow_angles`' ``wind_offset``)
-WIND_PARTS = ("wind north", "wind east", "vertical wind", "airspeed scale")
-#: the largest scale length of the vertical gust [m] (MIL-F-8785C: 1750 ft above 2000 ft,
-#: the altitude below): its time constant is at most this over the airspeed
-L_W_MAX = 533.4
-
-
-def wind_uncertainty(doc: dict[str, Any], spans: Any) -> dict[str, float]:
-    """The std [m/s] of the wind the rebuilt angles were computed with, over the fitted
-    ``spans`` [(t0, t1), ...] [s], by :data:`WIND_PARTS`: the horizontal wind's from its fit
-    (the mean over the knots of the std of each component, taken as one shift of all
-    knots; given the pitot's scale factor), the pitot's scale factor's [-] where it was
-    estimated (:func:`airspeed_calibration` ``carried``), and the mean vertical wind's,
-    which the reconstruction assumes zero. In
-    turbulence the vertical gust averaged over the fitted spans is not zero: it shifts
-    alpha by W_d / V and trades with CL0, Cm0, CD0 (multiaxis_multisine_turbulence's
-    .bin, seed 31: the flight-mean vertical gust -0.40 m/s, alpha 0.45 deg, CL0 9.6 std
-    off). Its std is :func:`markov_mean_std` of the vertical gust, taken as isotropic
-    with the horizontal one the airspeed residual shows: level sqrt(residual^2 -
-    pitot noise^2), time constant the residual's correlation time (MIL-F-8785C: below
-    2000 ft the vertical gust is weaker and shorter, so this errs on the large side), at
-    most :data:`L_W_MAX` over the mean airspeed (a slower residual is the horizontal wind
-    changing, not vertical turbulence). Not covered: vertical air motion that is no
-    turbulence (thermals, ridge lift, waves). Nothing rebuilt: {}."""
-    if doc.get("status") != "reconstructed":
-        return {}
-    w = doc["wind"]
-    res, noise = doc["airspeed_residual_rms_mps"], doc.get("airspeed_noise_mps") or 0.0
-    sigma = float(np.sqrt(max(res**2 - (noise if np.isfinite(noise) else 0.0) ** 2, 0.0)))
-    tau = float(doc.get("airspeed_residual_tau_s", 0.0))
-    if doc.get("airspeed_mean_mps"):
-        tau = min(tau, L_W_MAX / float(doc["airspeed_mean_mps"]))
-    cal = doc.get("airspeed_scale") or {}
-    return {
-        "wind north": float(np.mean(w["std_north_mps"])),
-        "wind east": float(np.mean(w["std_east_mps"])),
-        "vertical wind": markov_mean_std(sigma, tau, spans),
-        "airspeed scale": float(cal["std"]) if cal.get("carried") else 0.0,
-    }
-
-
 def unsteady(doc: dict[str, Any], limit: float = 1.5) -> str | None:
     """Why the steady wind does not explain the airspeed - its residual above ``limit`` x
-    the pitot's noise (1.07 on a windy calm flight, 2.1 in light turbulence) - or None when
-    it does or nothing was rebuilt."""
+    the pitot's noise (about 1 in calm air, a steady wind included) - or None when it does
+    or nothing was rebuilt."""
     if doc.get("status") != "reconstructed":
         return None
     res, noise = doc["airspeed_residual_rms_mps"], doc.get("airspeed_noise_mps") or float("nan")

@@ -8,9 +8,7 @@ unknown time between the two samples that bracket it: the linear ramp between th
 its expectation when that time is uniform over the interval (std h / sqrt(12), h the
 sample interval), but each step keeps its own timing error, and output error, which
 takes the inputs as exact, books those errors on the derivatives with a Cramér-Rao bound
-that knows nothing of them. Measured (default.toml, its surfaces logged at 25 Hz beside
-the 100 Hz IMU; seed 1, the .bin's fits; ad hoc): the longitudinal output error put Cmq
-11-28 std off the truth, whatever the phase of the 25 Hz samples against the steps.
+that knows nothing of them.
 
 This module finds those steps (:func:`step_edges`), times them from the gyro rates
 (:func:`refine_steps`: a step of a surface is a step of angular acceleration, a kink in the
@@ -19,12 +17,7 @@ and moves them in a log
 (:func:`with_edges_moved`), so :func:`pipeline.uncertainty.consider.input_sampling` can
 carry the remaining timing uncertainty to the estimates as a consider part, by refits, as
 it carries the sensor corrections' and the wind's. :func:`time_steps` runs it on a log as
-it is read (``fsid run``, ``fsid estimate`` and their validation flights). Measured on the
-25 Hz surfaces above (seeds 1-6, ad hoc): the timed steps are 2.7 (elevator), 0.5
-(aileron), 0.4 ms (rudder) rms from the truth, error / std rms 1.18, 1.13, 0.98; over 12
-seeds (benchmarks/input_sampling_mc.py) the fits are within 3 total std on 10-11 of 12
-(the untimed steps carried at h / sqrt(12): 12 of 12, with Cmq's total std 20 x its
-bound; the Cramér-Rao bound alone: 0 of 12) and the proof of match passes on seed 1.
+it is read (``fsid run``, ``fsid estimate`` and their validation flights).
 
 A step is a sample-to-sample change of a control input that stands out: at least
 ``STEP_RATIO`` times both neighbouring changes and at least ``MIN_STEP_RAD``; only changes
@@ -41,6 +34,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from estimators.model import Segment
+from estimators.statistics import difference_noise_std
 from pipeline.ingest.flightdata import CONTROL_INPUTS, Channel, FlightData, fit_grid_rate
 
 #: where in the range of its time the proof of match puts a step (:func:`timing_variants`)
@@ -161,9 +155,7 @@ REFINE_GRID = 81
 REFINE_MIN_SAMPLES = 6.5
 #: ... within this many seconds either side: the cubic and the kink's powers stand in for
 #: the aircraft's motion only over a fraction of its periods (a 4 Hz telemetry gyro would
-#: otherwise be fitted over 3 s). default.toml with 10 Hz surfaces, seeds 1-4 against
-#: JSBSim (ad hoc): with 0.3 s (3 intervals) the aileron's steps 4.5 ms rms (25 Hz gyros:
-#: 5.0), with 0.25 s 1.9 (2.2); the 25 Hz surfaces' as with 0.3
+#: otherwise be fitted over 3 s)
 REFINE_MAX_HALF_S = 0.25
 #: powers of (t - tau)+ after the kink tried; the one with the smaller BIC times the step
 KINK_ORDERS = (2, 3)
@@ -198,8 +190,8 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float) -> t
     rudder moved together) share a time. For each such interval, the gyro samples within
     REFINE_WINDOW intervals either side (at least REFINE_MIN_SAMPLES gyro samples: gyros as
     slow as the inputs sample nothing inside the interval, and the kink's time shows in
-    the samples after it; at most REFINE_MAX_HALF_S) are fitted per axis by a cubic in time plus a kink at a trial
-    time tau and its higher powers (KINK_ORDERS; weighted by each gyro's noise std, second
+    the samples after it; at most REFINE_MAX_HALF_S) are fitted per axis by a cubic in time
+    plus a kink at a trial time tau and its higher powers (KINK_ORDERS; weighted by each gyro's noise std, second
     differences over the log), tau on REFINE_GRID points over the interval. The order with
     the smaller BIC times the step; its std comes from the weighted residual sum of
     squares' curvature (Delta chi^2 = 1), scaled by the reduced chi^2 where that exceeds 1
@@ -209,11 +201,7 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float) -> t
     REFINE_SIGNIFICANCE std above the noise on some axis in either order's fit (the
     higher powers share the kink's slope's variance: a kink plain in the 2-power fit may
     stand at 6 std in the 3-power one) and the chosen order's best tau is inside the
-    interval; the others keep their interval. Measured (scenarios/default.toml, surfaces
-    and gyros at 25 Hz, seeds 1-4, against JSBSim's steps; ad hoc): elevator 40 of 40 steps
-    timed, 3.4 ms rms, aileron 48 of 48, 1.7 ms rms (each step's error / std rms 0.90 and
-    0.48); with the cubic and the first two powers alone the aileron's 25 Hz steps were
-    timed 26 of 48, 4.1 ms rms.
+    interval; the others keep their interval.
 
     A timed step becomes a ramp ``grid_step_s`` wide centred on its time (its two bracketing
     samples moved there: before and after them the input is flat), so that the fits' grid,
@@ -222,8 +210,6 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float) -> t
     the interval before it did not have. Returns (flight data with the timed steps, every
     edge as it now is in that data - a timed one with its ``time_std`` -, JSON-ready
     document)."""
-    from estimators.statistics import difference_noise_std
-
     gyro = [c for c in ("p", "q", "r") if c in fd.channels]
     doc: dict = {
         "steps": len(edges),
@@ -243,45 +229,17 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float) -> t
     rough = difference_noise_std([G])  # a noise-free, quantised gyro: robust 0
     noise = np.where(np.isfinite(noise) & (noise > 0), noise, np.where(np.isfinite(rough) & (rough > 0), rough, 1e-6))
     dt_gyro = float(np.median(np.diff(tg))) if tg.size > 1 else np.inf
+    W = G / noise  # the rates in units of their noise
     groups: dict[tuple[float, float], list[Edge]] = {}
     for e in edges:
         groups.setdefault((round(e.t0, 6), round(e.t1, 6)), []).append(e)
     timed: dict[Edge, Edge] = {}
     stds = []
     for (t0, t1), grp in groups.items():
-        h = t1 - t0
-        half = min(max(REFINE_WINDOW * h, REFINE_MIN_SAMPLES * dt_gyro), REFINE_MAX_HALF_S)
-        sel = (tg >= t0 - half) & (tg <= t1 + half)
-        if sel.sum() < 12:
-            continue  # too few gyro samples around the step
-        taus = np.linspace(t0, t1, REFINE_GRID)
-        fits = {}
-        for order in KINK_ORDERS:
-            rss, sig = _kink_profile(tg[sel], G[sel] / noise, taus, order)
-            i = int(np.argmin(rss))
-            if i in (0, taus.size - 1):  # no minimum inside the interval
-                fits[order] = dict(tau=float(taus[i]), sig=float(sig[i]), std=np.inf, bic=np.inf)
-                continue
-            a = 0.5 * (rss[i + 1] - 2 * rss[i] + rss[i - 1]) / (taus[1] - taus[0]) ** 2
-            off = 0.5 * (rss[i - 1] - rss[i + 1]) / (rss[i + 1] - 2 * rss[i] + rss[i - 1])
-            n_obs, n_par = 3 * int(sel.sum()), 3 * (4 + order) + 1
-            red = rss[i] / max(n_obs - n_par, 1)
-            fits[order] = dict(
-                tau=float(taus[i] + off * (taus[1] - taus[0])),
-                sig=float(sig[i]),
-                std=float(np.sqrt(max(red, 1.0) / a)) if a > 0 else np.inf,
-                bic=float(n_obs * np.log(max(rss[i], 1e-300) / n_obs) + n_par * np.log(n_obs)),
-            )
-        best = min(fits, key=lambda o: fits[o]["bic"])
-        if not np.isfinite(fits[best]["bic"]) or max(f["sig"] for f in fits.values()) < REFINE_SIGNIFICANCE:
+        got = _step_time(tg, W, t0, t1, dt_gyro)
+        if got is None:
             continue
-        tau, std = fits[best]["tau"], fits[best]["std"]
-        # the other order's time (an interval's end where it has no minimum inside) is the
-        # model's own uncertainty: the kink's shape after the step is a Taylor series of
-        # the aircraft's response
-        form = max([abs(f["tau"] - tau) for o, f in fits.items() if o != best], default=0.0)
-        std = min(max(float(np.hypot(std, form)), 1e-4), h / np.sqrt(12.0))
-        form = min(form, std)
+        tau, std, form = got
         a0, a1 = tau - 0.5 * grid_step_s, tau + 0.5 * grid_step_s
 
         def fits_between(e: Edge, a0: float = a0, a1: float = a1) -> bool:  # the ramp stays between the flat samples
@@ -306,6 +264,48 @@ def refine_steps(fd: FlightData, edges: Sequence[Edge], grid_step_s: float) -> t
         [timed.get(e, e) for e in edges],
         doc,
     )
+
+
+def _step_time(
+    tg: np.ndarray, W: np.ndarray, t0: float, t1: float, dt_gyro: float
+) -> tuple[float, float, float] | None:
+    """(time, std, form_std) [s] of a step in the interval (t0, t1) [s] from the gyro
+    samples ``W`` ((n, 3) rates / their noise std at times ``tg``, median interval
+    ``dt_gyro``) around it (:func:`refine_steps`), or None when it cannot be timed."""
+    h = t1 - t0
+    half = min(max(REFINE_WINDOW * h, REFINE_MIN_SAMPLES * dt_gyro), REFINE_MAX_HALF_S)
+    sel = (tg >= t0 - half) & (tg <= t1 + half)
+    if sel.sum() < 12:
+        return None  # too few gyro samples around the step
+    taus = np.linspace(t0, t1, REFINE_GRID)
+    fits = {}
+    for order in KINK_ORDERS:
+        rss, sig = _kink_profile(tg[sel], W[sel], taus, order)
+        i = int(np.argmin(rss))
+        if i in (0, taus.size - 1):  # no minimum inside the interval
+            fits[order] = dict(tau=float(taus[i]), sig=float(sig[i]), std=np.inf, bic=np.inf)
+            continue
+        a = 0.5 * (rss[i + 1] - 2 * rss[i] + rss[i - 1]) / (taus[1] - taus[0]) ** 2
+        off = 0.5 * (rss[i - 1] - rss[i + 1]) / (rss[i + 1] - 2 * rss[i] + rss[i - 1])
+        n_obs, n_par = 3 * int(sel.sum()), 3 * (4 + order) + 1
+        red = rss[i] / max(n_obs - n_par, 1)
+        fits[order] = dict(
+            tau=float(taus[i] + off * (taus[1] - taus[0])),
+            sig=float(sig[i]),
+            std=float(np.sqrt(max(red, 1.0) / a)) if a > 0 else np.inf,
+            bic=float(n_obs * np.log(max(rss[i], 1e-300) / n_obs) + n_par * np.log(n_obs)),
+        )
+    best = min(fits, key=lambda o: fits[o]["bic"])
+    if not np.isfinite(fits[best]["bic"]) or max(f["sig"] for f in fits.values()) < REFINE_SIGNIFICANCE:
+        return None
+    tau, std = fits[best]["tau"], fits[best]["std"]
+    # the other order's time (an interval's end where it has no minimum inside) is the
+    # model's own uncertainty: the kink's shape after the step is a Taylor series of
+    # the aircraft's response
+    form = max([abs(f["tau"] - tau) for o, f in fits.items() if o != best], default=0.0)
+    std = min(max(float(np.hypot(std, form)), 1e-4), h / np.sqrt(12.0))
+    form = min(form, std)
+    return tau, std, form
 
 
 def time_steps(fd: FlightData, max_rate_hz: float) -> tuple[FlightData, list[Edge], dict]:
@@ -343,7 +343,7 @@ def step_spans(meta: dict) -> list[tuple[float, float]]:
     the models see u(t - d)). At a grid time inside such a span the model's input is part of
     the way through the step while the aircraft's surface was either before or after it:
     an output the input reaches without dynamics (the accelerometers: the control forces)
-    is then off by up to the step's whole force, and :func:`pipeline.problems.identify.multirate_frame`
+    is then off by up to the step's whole force, and :func:`pipeline.problems.windows.multirate_frame`
     leaves those samples out (FEEDTHROUGH_OUTPUTS)."""
     return sorted((a, b) for rows in step_times(meta).values() for a, b, _ in rows)
 

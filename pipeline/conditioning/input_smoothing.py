@@ -3,12 +3,8 @@
 Output error and filter error take a model's inputs as exact. A measured control-surface
 position is not: its sensor noise drives the model's fast modes (the roll mode, the short
 period) in a way the aircraft never saw, and the fit answers by shrinking the control
-derivative and the damping together. On multiaxis_multisine_turbulence (surface noise
-0.05 deg at 100 Hz on 0.73 deg rms multisines) the lateral filter-error fit put Clp 4.7
-and Clda 4.7 std off, both about 23 % low; with the aileron and rudder positions
-low-passed where their noise floor begins (6.0 and 7.6 Hz there) 2.8 and 1.8
-(benchmarks/input_noise_mc.py: the roll derivatives' bias from the logged surfaces, 4-5 of
-their empirical std, gone with the smoothed ones).
+derivative and the damping together. Low-passed where their noise floor begins, the
+measured positions no longer bias the derivatives that way.
 
 The corner of each control input comes from its own spectrum at its native rate
 (:func:`input_corner_hz`): the white-noise floor is the upper half of the native band,
@@ -25,6 +21,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
+from scipy.signal import butter, sosfiltfilt
 
 from pipeline.ingest.flightdata import CONTROL_INPUTS, FlightData
 
@@ -53,8 +50,6 @@ def zero_phase(x: np.ndarray, rate_hz: float, fc: float, order: int = 2) -> np.n
     """Butterworth of ``order`` forwards and backwards at fc (Hz) on samples at rate_hz
     (gain 1 / (1 + (f / fc)^(2 order)), no phase); x unchanged when it is too short, has
     NaN, or fc is near the Nyquist frequency."""
-    from scipy.signal import sosfiltfilt
-
     if x.size < 16 or not np.all(np.isfinite(x)) or fc >= 0.45 * rate_hz:
         return x
     return sosfiltfilt(_butterworth(order, fc / (0.5 * rate_hz)), x, padtype="even")
@@ -64,10 +59,8 @@ def zero_phase(x: np.ndarray, rate_hz: float, fc: float, order: int = 2) -> np.n
 def _butterworth(order: int, wn: float) -> np.ndarray:
     """Second-order sections of a Butterworth low-pass at ``wn`` (of the Nyquist
     frequency), designed once per (order, wn): the problem builders filter each
-    maneuver's signals with the same few (ad hoc, a 480 s log's fsid estimate: 30 000
-    designs, 13 of its 145 s under the profiler)."""
-    from scipy.signal import butter
-
+    maneuver's signals with the same few, and designing a filter costs more than running
+    it on a maneuver."""
     return butter(order, wn, output="sos")
 
 

@@ -28,8 +28,12 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from pipeline.errors import FsidError
-from pipeline.problems.identify import AircraftConstants
+from pipeline.ingest.constants import AircraftConstants
+from sim.aircraft import load_aircraft
+from sim.errors import ScenarioError
 
 #: autopilot parameters holding the IMU position from the CG (body axes, m)
 IMU_PARAMS = (("INS_POS1_X", "INS_POS1_Y", "INS_POS1_Z"), ("EKF2_IMU_POS_X", "EKF2_IMU_POS_Y", "EKF2_IMU_POS_Z"))
@@ -53,11 +57,9 @@ def truth_next_to(log: str | Path) -> tuple[Path, dict] | None:
 
 def _aircraft(path: str | Path):
     """The aircraft of a TOML (sim.load_aircraft); a bad file is one FsidError."""
-    import sim
-
     try:
-        return sim.load_aircraft(path)
-    except sim.ScenarioError as exc:
+        return load_aircraft(path)
+    except ScenarioError as exc:
         raise FsidError(str(exc)) from None
 
 
@@ -103,8 +105,6 @@ def servo_travel_for(log: str | Path, aircraft: str | Path | None) -> dict[str, 
     """Surface -> (deg at full servo travel, origin) from the aircraft TOML's ``[servos]``
     or, without ``aircraft``, the truth.json next to the log; {} when neither gives it
     (the channel map and the log decide, :func:`pipeline.ingest.maps.servo_travel`)."""
-    import numpy as np
-
     if aircraft is not None:
         ac = _aircraft(aircraft)
         return {

@@ -12,6 +12,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
+from scipy.signal import butter, sosfiltfilt
+
+from estimators.statistics import difference_noise_std
 
 #: canonical channel name -> SI unit (DESIGN.md section 3)
 CANONICAL_UNITS: dict[str, str] = {
@@ -188,8 +191,6 @@ class FlightData:
         Native samples keep white noise white, and a fast signal's curvature (a rate
         driven by turbulence) leaks into the second differences less than on a slower
         grid."""
-        from estimators.statistics import difference_noise_std
-
         ch = self.channels[name]
         t, v = np.asarray(ch.t, dtype=float), np.asarray(ch.values, dtype=float)
         spans = windows if windows is not None else [(-np.inf, np.inf)]
@@ -378,9 +379,7 @@ def fit_grid_rate(fastest_hz: float, max_rate_hz: float) -> float:
     the smallest whole multiple of it that does (its samples stay on grid times; the
     outputs are compared at their own samples only). On the grid of a 25 Hz IMU the
     integration's 40 ms steps and the control inputs read as ramps over the steps between
-    their samples biased the derivatives (scenarios/default.toml at ArduPilot's rates, its
-    steps timed to the truth, seed 3, ad hoc: Clr, Cnbeta, Clbeta 4.7-5.0 std off the
-    truth on the 25 Hz grid, every one within 2 on a 100 Hz one)."""
+    their samples bias the derivatives."""
     if fastest_hz >= MIN_GRID_HZ:
         return float(min(fastest_hz, max_rate_hz))
     return float(min(fastest_hz * np.ceil(MIN_GRID_HZ / fastest_hz - 1e-9), max_rate_hz))
@@ -394,12 +393,10 @@ def merge_overlapping(specs: Sequence[SegmentSpec]) -> list[SegmentSpec]:
     (Cramer-Rao bounds too small by sqrt(2) for two) and, when one of them is the
     held-out window, fit the data the proof of match is run on. Every fit over a log's
     windows takes them through here: the axis problems, a user model's, and the
-    compatibility stage's reconstruction (which had fitted default's two aileron-and-
-    rudder doublets twice: scale_ay's estimate / std rms 1.9 over 12 seeds, applied at
-    4.7 "std" on an error-free flight). Found (auto) windows that
-    merge into one longer than :data:`MAX_AUTO_SEGMENT_S` (the
-    pieces of continuous excitation on both surfaces chain) are cut again, as
-    :meth:`FlightData.find_segments` cuts them, named ``auto_<axes>_<k>``."""
+    compatibility stage's reconstruction. Found (auto) windows that merge into one longer
+    than :data:`MAX_AUTO_SEGMENT_S` (the pieces of continuous excitation on both surfaces
+    chain) are cut again, as :meth:`FlightData.find_segments` cuts them, named
+    ``auto_<axes>_<k>``."""
     out: list[SegmentSpec] = []
     for s in sorted(specs, key=lambda s: s.t0):
         if out and s.t0 < out[-1].t1:
@@ -428,8 +425,6 @@ def _uniform(t: np.ndarray, v: np.ndarray, rate: float) -> tuple[np.ndarray, np.
 def _antialias_sos(native_hz: float, rate_hz: float) -> np.ndarray:
     """The anti-alias low-pass of :meth:`FlightData.resample` (applied forwards and
     backwards): 4th-order Butterworth at 0.4 x rate_hz, as second-order sections."""
-    from scipy.signal import butter
-
     return butter(4, min(0.4 * rate_hz / (0.5 * native_hz), 0.99), output="sos")
 
 
@@ -441,8 +436,6 @@ def resample_noise_gain(native_hz: float, rate_hz: float, antialias: bool = True
     noise std: the filter removes the band above 20 Hz.)"""
     if not (antialias and native_hz > 1.25 * rate_hz):
         return 1.0
-    from scipy.signal import sosfiltfilt
-
     n = int(40 * native_hz / rate_hz) * 2 + 201  # many times the filter's memory
     imp = np.zeros(n)
     imp[n // 2] = 1.0
@@ -469,8 +462,6 @@ def _resample_channel(
         vc = np.unwrap(vc)
     native = Channel(tc, vc, ch.unit).rate_hz if tc.size > 1 else 0.0
     if antialias and native > 1.25 * rate_hz and tc.size > 30:
-        from scipy.signal import sosfiltfilt
-
         tu, vu = _uniform(tc, vc, native)
         sos = _antialias_sos(native, rate_hz)
         if vu.size > 3 * (2 * sos.shape[0] + 1):

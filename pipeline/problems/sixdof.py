@@ -14,30 +14,58 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+import pandas as pd
 
 from estimators import Segment
 from estimators.models import sixdof
 from estimators.models.sixdof import body_velocity
-from pipeline.conditioning.input_smoothing import smoothed_control_inputs
+from pipeline.ingest.constants import AircraftConstants
 from pipeline.ingest.flightdata import FlightData, SegmentSpec
-from pipeline.problems.identify import (
-    LAT_FREE,
-    AircraftConstants,
-    Problem,
-    _first_valid,
-    lateral_specs,
-    lateral_starts,
-    longitudinal_starts,
-    mean_density,
-    multirate_frame,
-    thrust_signal,
-    usable_segments,
-    with_smoothed_inputs,
-)
+from pipeline.problems.lateral import LAT_FREE, lateral_specs
+from pipeline.problems.problem import Problem
+from pipeline.problems.regressions import lateral_starts, longitudinal_starts
+from pipeline.problems.windows import first_valid, grid_windows, mean_density, thrust_signal, with_smoothed_inputs
 
+#: measured outputs of the 6-DoF model: every flight state the loggers record
 SIXDOF_OUTPUTS = ("V", "alpha", "beta", "p", "q", "r", "phi", "theta", "ax", "ay", "az")
+#: control surfaces driving the 6-DoF model (with thrust)
 SIXDOF_INPUTS = ("de", "da", "dr")
+#: longitudinal coefficients estimated with the lateral ones: the lateral maneuvers' own trim
 TRIM_FREE = ("CL0", "CD0", "Cm0")
+
+
+def sixdof_constants(ac: AircraftConstants, rho: float) -> dict[str, float]:
+    """The 6-DoF model's constants: mass, inertia, geometry, the density ``rho`` (kg/m^3)
+    and the sensor positions."""
+    return {
+        "m": ac.mass,
+        "Ixx": ac.Ixx,
+        "Iyy": ac.Iyy,
+        "Izz": ac.Izz,
+        "Ixz": ac.Ixz,
+        "S": ac.S,
+        "b": ac.b,
+        "cbar": ac.cbar,
+        "rho": rho,
+        "x_vane": ac.airdata[0],
+        "y_vane": ac.airdata[1],
+        "z_vane": ac.airdata[2],
+        "x_imu": ac.imu[0],
+        "z_imu": ac.imu[2],
+    }
+
+
+def _sixdof_segment(s: SegmentSpec, w: pd.DataFrame, thrust: np.ndarray) -> Segment:
+    """Segment of window ``w``: inputs de, da, dr, thrust (N), initial states (body
+    velocity, rates, attitude) from the window's first samples."""
+    V, a, b, p, q, r, phi, th = first_valid(w, ["V", "alpha", "beta", "p", "q", "r", "phi", "theta"])
+    return Segment(
+        t=w["t"].to_numpy(),
+        u=np.column_stack([w["de"], w["da"], w["dr"], thrust]),
+        z=w[list(SIXDOF_OUTPUTS)].to_numpy(),
+        x0=[*body_velocity(V, a, b), p, q, r, phi, th],
+        name=s.name,
+    )
 
 
 def sixdof_lateral_problem(
@@ -60,29 +88,19 @@ def sixdof_lateral_problem(
     smooth_inputs : the segments' surface positions low-passed where their noise floor
         begins (:mod:`pipeline.conditioning.input_smoothing`); False: as logged.
     """
-    specs = lateral_specs(fd, SIXDOF_OUTPUTS + SIXDOF_INPUTS, segments, hold_out)
-    df, rate_hz = multirate_frame(fd, SIXDOF_OUTPUTS, list(SIXDOF_INPUTS) + ["throttle", "thrust", "rho", "h"], rate_hz)
-    smoothed, input_note = smoothed_control_inputs(fd, df, rate_hz, SIXDOF_INPUTS if smooth_inputs else ())
-    rho = mean_density(df)
-    c = {
-        "m": ac.mass,
-        "Ixx": ac.Ixx,
-        "Iyy": ac.Iyy,
-        "Izz": ac.Izz,
-        "Ixz": ac.Ixz,
-        "S": ac.S,
-        "b": ac.b,
-        "cbar": ac.cbar,
-        "rho": rho,
-        "x_vane": ac.airdata[0],
-        "y_vane": ac.airdata[1],
-        "z_vane": ac.airdata[2],
-        "x_imu": ac.imu[0],
-        "z_imu": ac.imu[2],
-    }
-    specs, left_out, frames = usable_segments(
-        df, specs, SIXDOF_OUTPUTS, SIXDOF_INPUTS, hold_out, "aileron/rudder maneuver"
+    g = grid_windows(
+        fd,
+        lateral_specs(fd, SIXDOF_OUTPUTS + SIXDOF_INPUTS, segments, hold_out),
+        SIXDOF_OUTPUTS,
+        SIXDOF_INPUTS,
+        list(SIXDOF_INPUTS) + ["throttle", "thrust", "rho", "h"],
+        rate_hz=rate_hz,
+        smooth=SIXDOF_INPUTS if smooth_inputs else (),
+        hold_out=hold_out,
+        what="aileron/rudder maneuver",
     )
+    specs, frames, rho = g.specs, g.frames, mean_density(g.frame)
+    c = sixdof_constants(ac, rho)
     held = specs[-hold_out:] if hold_out else []
     fit_specs = [s for s in specs if s not in held]
     thrust = {id(s): thrust_signal(frames[id(s)], ac) for s in specs}
@@ -93,40 +111,24 @@ def sixdof_lateral_problem(
         w = w.copy()
         w[["da", "dr"]] = w[["da", "dr"]] - w[["da", "dr"]].iloc[0]
         lat_frames.append(w.interpolate(limit_direction="both"))
-    lat_c = {**c, "V": float(np.nanmean(df["V"]))}
+    lat_c = {**c, "V": float(np.nanmean(g.frame["V"]))}
     start = {**{k: v for k, v in lon.items() if k[:2] in ("CL", "CD", "Cm")}, **lateral_starts(lat_frames, lat_c)}
     model = sixdof(c, values=start, free=list(free) + list(TRIM_FREE), output_biases=biases, name="sixdof-lateral")
-    with_smoothed_inputs(frames, specs, smoothed, SIXDOF_INPUTS)
-
-    def seg(s):
-        w = frames[id(s)]
-        V, a, b, p, q, r, phi, th = _first_valid(w, ["V", "alpha", "beta", "p", "q", "r", "phi", "theta"])
-        return Segment(
-            t=w["t"].to_numpy(),
-            u=np.column_stack([w["de"], w["da"], w["dr"], thrust[id(s)]]),
-            z=w[list(SIXDOF_OUTPUTS)].to_numpy(),
-            x0=[*body_velocity(V, a, b), p, q, r, phi, th],
-            name=s.name,
-        )
-
-    notes = (
-        [
-            f"nonlinear 6-DoF model on a {rate_hz:g} Hz grid, density {rho:.4f} kg/m^3",
-            "longitudinal derivatives held at "
-            + ("the longitudinal estimates" if longitudinal else "equation-error values")
-            + f" except {', '.join(TRIM_FREE)}",
-        ]
-        + ([input_note] if input_note else [])
-        + left_out
-    )
+    with_smoothed_inputs(frames, specs, g.smoothed, SIXDOF_INPUTS)
+    notes = [
+        f"nonlinear 6-DoF model on a {g.rate_hz:g} Hz grid, density {rho:.4f} kg/m^3",
+        "longitudinal derivatives held at "
+        + ("the longitudinal estimates" if longitudinal else "equation-error values")
+        + f" except {', '.join(TRIM_FREE)}",
+    ] + g.notes
     return Problem(
         "lateral",
         model,
-        [seg(s) for s in fit_specs],
-        [seg(s) for s in held],
+        [_sixdof_segment(s, frames[id(s)], thrust[id(s)]) for s in fit_specs],
+        [_sixdof_segment(s, frames[id(s)], thrust[id(s)]) for s in held],
         fit_specs,
         held,
         estimate_x0=True,
         notes=notes,
-        rate_hz=rate_hz,
+        rate_hz=g.rate_hz,
     )

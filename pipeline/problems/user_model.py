@@ -2,7 +2,7 @@
 
 ``name`` in the Python file is an :class:`estimators.Model`, or a function returning one.
 The function may take up to two positional arguments: the aircraft constants
-(:class:`pipeline.problems.identify.AircraftConstants`: mass, Ixx, Iyy, Izz, Ixz, S, b, cbar,
+(:class:`pipeline.ingest.constants.AircraftConstants`: mass, Ixx, Iyy, Izz, Ixz, S, b, cbar,
 max_thrust, airdata and imu positions; ``None`` when no aircraft is known) and the
 :class:`pipeline.ingest.flightdata.FlightData` of the log (e.g. for the trim airspeed of a
 linear model). A first argument without a default needs ``--aircraft``.
@@ -15,7 +15,8 @@ none is on an input); with two or more, the last is held out for proof of match.
 states are estimated per segment, started from the log where a state is a channel.
 
 Methods: everything that takes a model (oem, fem, ekf, ukf, soem, eigen, decouple); ``ls``
-(equation error) needs the coefficient regressions of a built-in model.
+(equation error) needs the coefficient regressions of a built-in model. This module builds
+the :class:`pipeline.problems.problem.Problem`; the jobs fit it as any other.
 """
 
 from __future__ import annotations
@@ -24,20 +25,21 @@ import hashlib
 import importlib.util
 import inspect
 import sys
-from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from estimators import Model, Segment
+from pipeline.conditioning.input_sampling import step_times
+from pipeline.conditioning.input_smoothing import smoothed_control_inputs
 from pipeline.errors import FsidError
-from pipeline.ingest.flightdata import FlightData
+from pipeline.ingest.flightdata import CONTROL_INPUTS, FlightData, merge_overlapping
+from pipeline.problems.problem import Problem
+from pipeline.problems.windows import first_valid, multirate_frame, usable_segments, with_smoothed_inputs
 
 #: --model values that select built-in models
 BUILTIN_MODELS = ("auto", "longitudinal", "lateral")
-#: methods that need a built-in model's regressions
-NEEDS_BUILTIN = {"ls": "equation error (ls) regresses the built-in models' force and moment coefficients"}
 
 
 def is_user_model(spec: str | None) -> bool:
@@ -162,25 +164,14 @@ def check_channels(fd: FlightData, model: Model) -> None:
         )
 
 
-def check_methods(methods: Sequence[str]) -> None:
-    bad = [m for m in methods if m in NEEDS_BUILTIN]
-    if bad:
-        raise FsidError(
-            f"method {', '.join(bad)} is not available for a user model: {NEEDS_BUILTIN[bad[0]]}; use oem, fem, ekf or ukf"
-        )
-
-
 def user_model_problem(
     fd: FlightData, model: Model, *, rate_hz: float | None = None, hold_out: int = 1, smooth_inputs: bool = True
-) -> Any:
-    """A :class:`pipeline.problems.identify.Problem` for a user model on the log's maneuvers; the
-    model's inputs among the surface positions (de, da, dr) low-passed where their noise
-    floor begins unless ``smooth_inputs`` is False (:mod:`pipeline.conditioning.input_smoothing`)."""
-    from pipeline.conditioning.input_sampling import step_times
-    from pipeline.conditioning.input_smoothing import smoothed_control_inputs
-    from pipeline.ingest.flightdata import CONTROL_INPUTS, merge_overlapping
-    from pipeline.problems.identify import Problem, _first_valid, multirate_frame, usable_segments, with_smoothed_inputs
-
+) -> Problem:
+    """A :class:`pipeline.problems.problem.Problem` for a user model on the log's maneuvers
+    (on a grid of ``rate_hz``, default the fastest channel's; the last ``hold_out`` of two or
+    more held out for the proof of match); the model's inputs among the surface positions
+    (de, da, dr) low-passed where their noise floor begins unless ``smooth_inputs`` is False
+    (:mod:`pipeline.conditioning.input_smoothing`)."""
     check_channels(fd, model)
     on_inputs = [s for s in fd.segments if s.axis in model.inputs]
     specs = merge_overlapping(on_inputs or list(fd.segments))
@@ -204,7 +195,7 @@ def user_model_problem(
 
     def seg(s):
         w = frames[id(s)]
-        x0 = np.array([_first_valid(w, [x])[0] if x in w and w[x].notna().any() else 0.0 for x in model.states])
+        x0 = np.array([first_valid(w, [x])[0] if x in w and w[x].notna().any() else 0.0 for x in model.states])
         return Segment(
             t=w["t"].to_numpy(),
             u=w[list(model.inputs)].to_numpy(),
@@ -236,103 +227,3 @@ def user_model_problem(
         rate_hz=rate,
         step_times=step_times(fd.meta),
     )
-
-
-def identify_user_model(
-    fd: FlightData,
-    model: Model,
-    methods: Sequence[str],
-    truth: Mapping[str, float] | None,
-    progress: Any,
-    inputs: str = "linear",
-    tolerances: Mapping[str, float] | None = None,
-    pom: str = "auto",
-    starts: Mapping[str, Any] | None = None,
-    smooth_inputs: bool = True,
-    validation: FlightData | Sequence[FlightData] | None = None,
-    fit_all: bool | None = None,
-) -> tuple[dict, dict, list]:
-    """Fit and validate a user model with each method; same return as
-    :func:`pipeline.jobs.run.identify` (results, validations, problems), keyed by method;
-    ``tolerances``, ``pom``, ``starts`` (refit only), ``smooth_inputs``, ``validation``
-    (a second flight, or several, for the proof of match) and ``fit_all`` as there."""
-    from pipeline.jobs.run import (
-        COMMON_GRID,
-        METHODS,
-        attach_logged_noise,
-        filters_process_noise,
-        fit_and_validate,
-        hold_out_count,
-        validation_flights,
-        validation_prefix,
-        with_validation_flight,
-    )
-
-    bad = [m for m in methods if m not in METHODS]
-    if bad:
-        raise FsidError(f"unknown method(s) {bad}: use some of {', '.join(METHODS)}")
-    check_methods(methods)
-    vflights = validation_flights(validation)
-    hold = hold_out_count(vflights, fit_all)
-
-    def proved_on_validation(pb: Any) -> Any:
-        """``pb`` with the validation flights' maneuvers (on its grid) held out."""
-        if not vflights or starts is not None:
-            return pb
-        vals = []
-        for k, vfd in enumerate(vflights):
-            try:
-                vals.append(user_model_problem(vfd, model, smooth_inputs=smooth_inputs, hold_out=0, rate_hz=pb.rate_hz))
-            except FsidError as exc:
-                raise FsidError(f"{validation_prefix(k, len(vflights))}{exc}") from None
-        return with_validation_flight(pb, vals, calm=False)
-
-    problem = proved_on_validation(user_model_problem(fd, model, smooth_inputs=smooth_inputs, hold_out=hold))
-    problem.inputs = inputs
-    for n in problem.notes:
-        if not progress.quiet:
-            print(f"note: {n}", file=progress.stream)
-    common = None
-    results, validations = {}, {}
-    filter_q: dict = {}
-    for m in methods:
-        pb = problem
-        if m in COMMON_GRID:
-            rate = min(fd[c].rate_hz for c in model.outputs)
-            if rate < 0.9 * problem.rate_hz:
-                if common is None:
-                    common = proved_on_validation(
-                        user_model_problem(fd, model, rate_hz=rate, smooth_inputs=smooth_inputs, hold_out=hold)
-                    )
-                    common.inputs = inputs
-                pb = common
-        if m == "fem":  # its R; EKF/UKF keep the grid's (fit_problem)
-            attach_logged_noise(fd, pb)
-        q, pb, noise = filters_process_noise(
-            fd,
-            pb,
-            m,
-            results.get("fem"),
-            filter_q,
-            progress,
-            quiet=starts is not None,
-            earlier=None if starts is None else starts.get(m),
-        )
-        done = fit_and_validate(
-            pb,
-            m,
-            f"user model {model.name!r}",
-            truth,
-            progress,
-            tolerances=tolerances,
-            pom=pom,
-            start=None if starts is None else starts.get(m, {}),
-            process_noise=q,
-        )
-        if done is not None:
-            results[m], validations[m] = done
-            if noise is not None:
-                results[m].extra["filters_noise"] = noise
-    if not results:
-        raise FsidError(f"every estimation method failed on the model {model.name!r} (see the notes above)")
-    return results, validations, [problem]

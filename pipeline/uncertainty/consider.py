@@ -15,20 +15,17 @@ can see. This module accounts for it as "consider" parameters (Schmidt):
     P_consider = J C J^T                                  (added to the CRB: total std)
 
 Each refit corrects the logged data with c_j moved by one std and repeats the run's fits
-exactly (same problems, same methods); maximum-likelihood and least-squares methods start
-from the run's estimates (``pipeline.jobs.run.START_FREE``), the EKF/UKF from their usual start.
-Output error instead takes one Gauss-Newton step from its estimates with the run's
+exactly (same problems, same methods) through a refit callable the job passes in;
+maximum-likelihood and least-squares methods start from the run's estimates
+(``Method.start_free`` of :mod:`pipeline.methods.catalogue`), the EKF/UKF from their usual
+start. Output error instead takes one Gauss-Newton step from its estimates with the run's
 sensitivities (:meth:`estimators.OutputError.step_from`): the first-order change J needs.
 A method whose refit fails or changes its parameter list keeps its CRB alone, and the
 document says so.
-
-Measured on sensor_errors_calm (13 corrections applied, longitudinal output error):
-see tests/test_closed_loop_compat_run.py.
 """
 
 from __future__ import annotations
 
-import io
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -36,6 +33,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from pipeline.conditioning.compatibility import CompatibilityResult
+from pipeline.conditioning.input_dynamics import covariance
+from pipeline.conditioning.input_sampling import with_edges_moved
+from pipeline.conditioning.wind_uncertainty import WIND_PARTS, wind_uncertainty
 from pipeline.ingest.flightdata import FlightData
 
 SOURCE = "the uncertainty of the sensor corrections applied before the fit"
@@ -149,8 +150,6 @@ def propagate(
     starts)`` repeats the run's fits on other flight data (``starts``: key -> the run's
     result, its estimates the start) and returns key -> result. Returns a JSON-ready document: refits,
     perturbation, per-key status, seconds. Nothing applied: an empty document."""
-    from pipeline.conditioning.compatibility import CompatibilityResult
-
     names, est, C = correction_covariance(doc)
     if not names or not results:
         return {}
@@ -194,8 +193,6 @@ def wind(
     east, down) [m/s] added to the wind) repeats the fits; each key then gets J C_key J^T.
     Returns a JSON-ready document (empty when no angle was rebuilt or no part is
     uncertain)."""
-    from pipeline.conditioning.flow_angles import WIND_PARTS, wind_uncertainty
-
     per = {key: wind_uncertainty(flow, fitted_spans(res)) for key, res in results.items()}
     if not results or not any(per.values()):
         return {}
@@ -287,8 +284,6 @@ def input_dynamics(
     and lag with their Morelli-Klein covariance, :func:`pipeline.conditioning.input_dynamics.covariance`):
     ``refit(dynamics)`` (surface -> {"delay_s", "lag_s"}) repeats the fits with one of
     them moved by its std. Returns a JSON-ready document (empty when nothing was applied)."""
-    from pipeline.conditioning.input_dynamics import covariance
-
     names, C, where = covariance(doc)
     if not names or not results:
         return {}
@@ -348,8 +343,6 @@ def input_sampling(
     random sign (fixed seed), which estimates J J^T without bias (the groups' cross terms
     have mean zero). Returns a JSON-ready document (empty when no input is slow or has no
     step in a fitted window)."""
-    from pipeline.conditioning.input_sampling import with_edges_moved
-
     edges = fitted_steps(steps, results)
     if not edges:
         return {}
@@ -416,10 +409,3 @@ def input_sampling(
         "methods": status,
         "seconds": time.perf_counter() - t0,
     }
-
-
-def quiet_progress() -> Any:
-    """A Progress that prints nothing (notes of the refits included)."""
-    from pipeline.jobs.run import Progress
-
-    return Progress(1, stream=io.StringIO(), quiet=True)

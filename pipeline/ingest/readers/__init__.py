@@ -19,7 +19,14 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from pipeline.ingest.readers.base import TIME_BASES, Damage, LogReadError, RawLog, Table
+from pipeline.ingest.flightdata import FlightData
+from pipeline.ingest.maps import apply_map, builtin_names, load_map
+from pipeline.ingest.rawlog import TIME_BASES, Damage, LogReadError, RawLog, Table
+from pipeline.ingest.readers.csvlog import read_csv
+from pipeline.ingest.readers.dataflash import read_dataflash
+from pipeline.ingest.readers.mcap import read_mcap
+from pipeline.ingest.readers.tlog import read_tlog
+from pipeline.ingest.readers.ulog import read_ulog
 
 __all__ = ["read_log", "read_raw", "detect_format", "LogReadError", "RawLog", "Table", "Damage"]
 
@@ -32,6 +39,8 @@ EXTENSIONS = {
     ".txt": "csv",
     ".dat": "csv",
 }
+#: format -> its reader (path, **opts) -> RawLog
+READERS = {"dataflash": read_dataflash, "tlog": read_tlog, "ulog": read_ulog, "mcap": read_mcap, "csv": read_csv}
 
 
 def detect_format(path: str | os.PathLike) -> str:
@@ -83,27 +92,11 @@ def _looks_text(head: bytes) -> bool:
 def read_raw(path: str | os.PathLike, fmt: str | None = None, **opts) -> RawLog:
     """Read a log into raw (unmapped) tables. ``opts`` go to the format reader."""
     fmt = fmt or detect_format(path)
+    reader = READERS.get(fmt)
+    if reader is None:
+        raise LogReadError(f"{path}: no reader for format '{fmt}'", path=str(path), where="dispatch")
     try:
-        if fmt == "dataflash":
-            from pipeline.ingest.readers.dataflash import read_dataflash
-
-            return read_dataflash(path, **opts)
-        if fmt == "tlog":
-            from pipeline.ingest.readers.tlog import read_tlog
-
-            return read_tlog(path, **opts)
-        if fmt == "ulog":
-            from pipeline.ingest.readers.ulog import read_ulog
-
-            return read_ulog(path, **opts)
-        if fmt == "mcap":
-            from pipeline.ingest.readers.mcap import read_mcap
-
-            return read_mcap(path, **opts)
-        if fmt == "csv":
-            from pipeline.ingest.readers.csvlog import read_csv
-
-            return read_csv(path, **opts)
+        return reader(path, **opts)
     except LogReadError:
         raise
     except MemoryError:
@@ -122,13 +115,6 @@ def read_raw(path: str | os.PathLike, fmt: str | None = None, **opts) -> RawLog:
         )
         err.internal = True
         raise err from exc
-    raise LogReadError(f"{path}: no reader for format '{fmt}'", path=str(path), where="dispatch")
-
-
-def _builtin() -> list[str]:
-    from pipeline.ingest.maps import builtin_names
-
-    return builtin_names()
 
 
 def read_log(path: str | os.PathLike, map=None, **opts):
@@ -154,9 +140,6 @@ def read_log(path: str | os.PathLike, map=None, **opts):
     -------
     FlightData whose channels are canonical names in SI units (DESIGN.md section 3).
     """
-    from pipeline.ingest.flightdata import FlightData
-    from pipeline.ingest.maps import apply_map, load_map
-
     segments = opts.pop("segments", None)
     travel = opts.pop("servo_travel", None)
     fmt = opts.pop("format", None) or detect_format(path)
@@ -177,7 +160,7 @@ def read_log(path: str | os.PathLike, map=None, **opts):
     cmap = (
         load_map(map, raw.format)
         if map is not None
-        else load_map(map_fmt if map_fmt in _builtin() else None, raw.format)
+        else load_map(map_fmt if map_fmt in builtin_names() else None, raw.format)
     )
     chans, why, travels = apply_map(raw, cmap, travel)
     meta = {

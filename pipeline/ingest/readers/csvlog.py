@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.ingest.readers.base import Damage, LogReadError, RawLog, Table
+from pipeline.ingest.rawlog import Damage, LogReadError, RawLog, Table
 
 TIME_NAMES = ("t", "time", "timestamp", "time_s", "Time", "TIME")
 
@@ -22,8 +22,6 @@ def read_csv(
     path: str | os.PathLike, *, strict: bool = False, time_column: str | None = None, time_scale: float = 1.0
 ) -> RawLog:
     """Read a column file into the table ``csv`` (see module docstring)."""
-    import pandas as pd
-
     path = Path(path)
     try:
         text = path.read_bytes()
@@ -82,7 +80,6 @@ def read_csv(
             where="header line",
         )
     t = cols[tcol] * float(time_scale)
-    del pd
     return RawLog(
         {"csv": Table("csv", t, cols)},
         "csv",

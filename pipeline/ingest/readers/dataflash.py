@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.ingest.rawlog import Damage, LogReadError, RawLog, Table
 from pipeline.ingest.readers import _scan
-from pipeline.ingest.readers.base import Damage, LogReadError, RawLog, Table
 
 #: DataFlash format char -> (numpy dtype, multiplier applied by DFReader)
 FORMAT_CHARS: dict[str, tuple[object, float | None]] = {

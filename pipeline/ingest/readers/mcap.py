@@ -24,8 +24,12 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
+from mcap_ros2.decoder import DecoderFactory as Ros2DecoderFactory
 
-from pipeline.ingest.readers.base import TIME_BASES, Damage, LogReadError, RawLog, Table
+from pipeline.ingest.rawlog import TIME_BASES, Damage, LogReadError, RawLog, Table
 
 _HEADER_TIME_FIELDS = ("header.stamp", "t", "timestamp")
 
@@ -93,11 +97,122 @@ def _stamp(flat: dict) -> float | None:
     return None
 
 
+class _Topics:
+    """Decoded messages per topic as compact per-field buffers (8 bytes a value), never
+    the decoded messages; their log and header times, schema and encoding."""
+
+    def __init__(self) -> None:
+        self.schemas: dict[int, Schema] = {}
+        self.channels: dict[int, Channel] = {}
+        self.decoders: dict[int, object] = {}
+        self.cols: dict[str, dict[str, array]] = defaultdict(lambda: defaultdict(lambda: array("d")))
+        self.log_t: dict[str, list] = defaultdict(list)
+        self.hdr_t: dict[str, list] = defaultdict(list)
+        self.counts: dict[str, int] = defaultdict(int)
+        self.schema_of: dict[str, str] = {}
+        self.encoding_of: dict[str, str] = {}
+        self.undecodable: dict[str, str] = {}
+        self.n_msgs = 0
+
+    def add(self, rec) -> bool:
+        """Take one record: a schema or channel is kept, a message decoded and flattened;
+        False for a message skipped (no channel or no decoder for it)."""
+        if isinstance(rec, Schema):
+            self.schemas[rec.id] = rec
+        elif isinstance(rec, Channel):
+            self.channels[rec.id] = rec
+        elif isinstance(rec, Message):
+            return self._message(rec)
+        return True
+
+    def _message(self, rec) -> bool:
+        ch = self.channels.get(rec.channel_id)
+        if ch is None:
+            return False
+        topic = ch.topic
+        dec = self.decoders.get(ch.id)
+        if dec is None and ch.id not in self.decoders:
+            dec = self.decoders[ch.id] = _decoder_for(ch, self.schemas.get(ch.schema_id))
+            sc = self.schemas.get(ch.schema_id)
+            self.schema_of[topic] = sc.name if sc else ""
+            self.encoding_of[topic] = ch.message_encoding
+            if dec is None:
+                self.undecodable[topic] = f"no decoder for message encoding '{ch.message_encoding}'"
+        if dec is None:
+            return False
+        try:
+            obj = dec(rec.data)
+        except Exception as exc:
+            raise _BadMessage(f"topic {topic}: message cannot be decoded ({exc})") from None
+        flat: dict[str, float] = {}
+        _flatten(obj, "", flat)
+        k = self.counts[topic]
+        tc = self.cols[topic]
+        for f, v in flat.items():
+            lst = tc[f]
+            if len(lst) < k:  # field absent in earlier messages
+                lst.extend([math.nan] * (k - len(lst)))
+            if len(lst) > k:  # duplicate key after flattening: keep the first
+                continue
+            lst.append(v)
+        self.counts[topic] = k + 1
+        self.log_t[topic].append(rec.log_time * 1e-9)
+        st = _stamp(flat)
+        self.hdr_t[topic].append(math.nan if st is None else st)
+        self.n_msgs += 1
+        return True
+
+    def tables(self, time_base: str) -> tuple[dict[str, Table], dict[str, str]]:
+        """One table per topic on its chosen time base, and that choice per topic."""
+        tables: dict[str, Table] = {}
+        tb_by_topic: dict[str, str] = {}
+        for topic, tc in self.cols.items():
+            n = self.counts[topic]
+            arrs = {}
+            for f, lst in tc.items():
+                if len(lst) < n:
+                    lst.extend([math.nan] * (n - len(lst)))
+                arrs[f] = np.frombuffer(lst, dtype=np.float64).copy()
+            lt = np.asarray(self.log_t[topic])
+            ht = np.asarray(self.hdr_t[topic])
+            use_hdr = time_base in ("auto", "header") and n > 0 and np.all(np.isfinite(ht)) and np.any(ht != 0)
+            if time_base == "header" and not use_hdr:
+                tb_by_topic[topic] = "log_time (no header stamps)"
+            else:
+                tb_by_topic[topic] = "header stamp" if use_hdr else "log_time"
+            tables[topic] = Table(
+                topic,
+                ht if use_hdr else lt,
+                arrs,
+                {"__schema__": self.schema_of.get(topic, ""), "__encoding__": self.encoding_of.get(topic, "")},
+            )
+        for topic in self.undecodable:
+            tables.setdefault(topic, Table(topic, np.zeros(0), {}, {"__schema__": self.schema_of.get(topic, "")}))
+        return tables, tb_by_topic
+
+
+def _stream(fh, topics: _Topics) -> Damage | None:
+    """Every record of the open file into ``topics``; the damage where reading stopped (the
+    offset after the last record taken)."""
+    last_good = 0
+    try:
+        reader = StreamReader(fh, skip_magic=False, record_size_limit=1 << 30)
+        for rec in reader.records:
+            if not topics.add(rec):
+                continue
+            try:
+                last_good = fh.tell()
+            except (OSError, ValueError):
+                pass
+    except Exception as exc:  # mcap raises many kinds on damaged input
+        at = last_good
+        msg = str(exc) or type(exc).__name__
+        return Damage(at, f"byte {at}", f"MCAP unreadable after byte {at}: {msg}", topics.n_msgs, 0)
+    return None
+
+
 def read_mcap(path: str | os.PathLike, *, strict: bool = False, time_base: str = "auto") -> RawLog:
     """Read an MCAP file into one table per topic (see module docstring)."""
-    from mcap.records import Channel, Message, Schema
-    from mcap.stream_reader import StreamReader
-
     if time_base not in TIME_BASES["mcap"]:
         raise LogReadError(
             f"time_base must be auto, header or log (got {time_base!r})", path=str(path), where="options"
@@ -107,73 +222,12 @@ def read_mcap(path: str | os.PathLike, *, strict: bool = False, time_base: str =
         fh = open(path, "rb")
     except OSError as exc:
         raise LogReadError.cannot_open(path, exc) from None
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    decoders: dict[int, object] = {}
-    # compact per-field buffers (8 bytes a value), never the decoded messages
-    cols: dict[str, dict[str, array]] = defaultdict(lambda: defaultdict(lambda: array("d")))
-    log_t: dict[str, list] = defaultdict(list)
-    hdr_t: dict[str, list] = defaultdict(list)
-    counts: dict[str, int] = defaultdict(int)
-    schema_of: dict[str, str] = {}
-    encoding_of: dict[str, str] = {}
-    undecodable: dict[str, str] = {}
-    damage = None
-    last_good = 0
-    n_msgs = 0
+    topics = _Topics()
     try:
-        reader = StreamReader(fh, skip_magic=False, record_size_limit=1 << 30)
-        for rec in reader.records:
-            if isinstance(rec, Schema):
-                schemas[rec.id] = rec
-            elif isinstance(rec, Channel):
-                channels[rec.id] = rec
-            elif isinstance(rec, Message):
-                ch = channels.get(rec.channel_id)
-                if ch is None:
-                    continue
-                topic = ch.topic
-                dec = decoders.get(ch.id)
-                if dec is None and ch.id not in decoders:
-                    dec = decoders[ch.id] = _decoder_for(ch, schemas.get(ch.schema_id))
-                    sc = schemas.get(ch.schema_id)
-                    schema_of[topic] = sc.name if sc else ""
-                    encoding_of[topic] = ch.message_encoding
-                    if dec is None:
-                        undecodable[topic] = f"no decoder for message encoding '{ch.message_encoding}'"
-                if dec is None:
-                    continue
-                try:
-                    obj = dec(rec.data)
-                except Exception as exc:
-                    raise _BadMessage(f"topic {topic}: message cannot be decoded ({exc})") from None
-                flat: dict[str, float] = {}
-                _flatten(obj, "", flat)
-                k = counts[topic]
-                tc = cols[topic]
-                for f, v in flat.items():
-                    lst = tc[f]
-                    if len(lst) < k:  # field absent in earlier messages
-                        lst.extend([math.nan] * (k - len(lst)))
-                    if len(lst) > k:  # duplicate key after flattening: keep the first
-                        continue
-                    lst.append(v)
-                counts[topic] = k + 1
-                log_t[topic].append(rec.log_time * 1e-9)
-                st = _stamp(flat)
-                hdr_t[topic].append(math.nan if st is None else st)
-                n_msgs += 1
-            try:
-                last_good = fh.tell()
-            except (OSError, ValueError):
-                pass
-    except Exception as exc:  # mcap raises many kinds on damaged input
-        at = last_good
-        msg = str(exc) or type(exc).__name__
-        damage = Damage(at, f"byte {at}", f"MCAP unreadable after byte {at}: {msg}", n_msgs, 0)
+        damage = _stream(fh, topics)
     finally:
         fh.close()
-    if n_msgs == 0 and damage is not None and not channels:
+    if topics.n_msgs == 0 and damage is not None and not topics.channels:
         raise LogReadError(
             f"{path}: not a readable MCAP file ({damage.message})",
             path=str(path),
@@ -182,30 +236,7 @@ def read_mcap(path: str | os.PathLike, *, strict: bool = False, time_base: str =
         )
     if strict and damage is not None:
         raise LogReadError(f"{path}: {damage.message}", path=str(path), offset=damage.offset, where=damage.where)
-    tables: dict[str, Table] = {}
-    tb_by_topic: dict[str, str] = {}
-    for topic, tc in cols.items():
-        n = counts[topic]
-        arrs = {}
-        for f, lst in tc.items():
-            if len(lst) < n:
-                lst.extend([math.nan] * (n - len(lst)))
-            arrs[f] = np.frombuffer(lst, dtype=np.float64).copy()
-        lt = np.asarray(log_t[topic])
-        ht = np.asarray(hdr_t[topic])
-        use_hdr = time_base in ("auto", "header") and n > 0 and np.all(np.isfinite(ht)) and np.any(ht != 0)
-        if time_base == "header" and not use_hdr:
-            tb_by_topic[topic] = "log_time (no header stamps)"
-        else:
-            tb_by_topic[topic] = "header stamp" if use_hdr else "log_time"
-        tables[topic] = Table(
-            topic,
-            ht if use_hdr else lt,
-            arrs,
-            {"__schema__": schema_of.get(topic, ""), "__encoding__": encoding_of.get(topic, "")},
-        )
-    for topic in undecodable:
-        tables.setdefault(topic, Table(topic, np.zeros(0), {}, {"__schema__": schema_of.get(topic, "")}))
+    tables, tb_by_topic = topics.tables(time_base)
     kinds = set(tb_by_topic.values())
     desc = (
         "header stamps (message header.stamp / t field), in s"
@@ -214,14 +245,15 @@ def read_mcap(path: str | os.PathLike, *, strict: bool = False, time_base: str =
         if kinds <= {"log_time", "log_time (no header stamps)"}
         else "per topic: header stamp where present, else MCAP log_time, in s"
     )
+    schema_of, encoding_of = topics.schema_of, topics.encoding_of
     ros = any(e == "cdr" for e in encoding_of.values())
     own = any(s.startswith("fsid") for s in schema_of.values()) or any(t.startswith("/fsid") for t in tables)
     info = {
         "time_base_by_topic": tb_by_topic,
         "schemas": schema_of,
         "encodings": encoding_of,
-        "undecodable": undecodable,
-        "message_counts": dict(counts),
+        "undecodable": topics.undecodable,
+        "message_counts": dict(topics.counts),
         "map_hint": "fsid_mcap" if own or not ros else "ros2",
     }
     return RawLog(tables, "mcap", {}, [], desc, damage, info)
@@ -236,11 +268,7 @@ def _decoder_for(ch, schema):
     if enc == "json":
         return lambda data: json.loads(data)
     if enc == "cdr" and schema is not None:
-        from mcap_ros2.decoder import DecoderFactory
-
-        return DecoderFactory().decoder_for(enc, schema)
+        return Ros2DecoderFactory().decoder_for(enc, schema)
     if enc == "protobuf" and schema is not None:
-        from mcap_protobuf.decoder import DecoderFactory
-
-        return DecoderFactory().decoder_for(enc, schema)
+        return ProtobufDecoderFactory().decoder_for(enc, schema)
     return None

@@ -13,6 +13,7 @@ import struct
 from collections.abc import Iterable, Sequence
 
 import numpy as np
+from mcap.writer import Writer
 
 _STRUCT = {
     "a": "64s",
@@ -173,8 +174,6 @@ def encode_tlog(n: int = 100, seed: int = 0, rate_hz: float = 20.0, t0: float = 
 
 def write_json_mcap(path: str | os.PathLike, topics: dict[str, Iterable[dict]]) -> None:
     """An MCAP with JSON messages; each message dict should hold ``t`` [s]."""
-    from mcap.writer import Writer
-
     with open(path, "wb") as fh:
         w = Writer(fh)
         w.start()

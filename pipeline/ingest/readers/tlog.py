@@ -18,11 +18,12 @@ from __future__ import annotations
 import os
 import struct
 from collections import Counter, defaultdict
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from pipeline.ingest.readers.base import TIME_BASES, Damage, LogReadError, RawLog, Table
+from pipeline.ingest.rawlog import TIME_BASES, Damage, LogReadError, RawLog, Table
 from pipeline.ingest.readers.tlog_time import boot_time_base
 
 MAV_AUTOPILOT_ARDUPILOTMEGA = 3
@@ -64,6 +65,121 @@ def _flatten(m, fields: list[str]) -> list:
     return out
 
 
+@dataclass
+class _Packets:
+    """The decoded packets of a .tlog, per (system id, message name): rows of flattened
+    field values, receive times [s] and packet numbers (order in the file); the
+    heartbeats (time, system, message, packet number), PARAM_VALUEs per system, packets
+    per sender; how many packets were kept, the first undecodable byte (-1: none), bytes
+    skipped, and where decoding stopped."""
+
+    rows: dict[tuple[int, str], list] = field(default_factory=lambda: defaultdict(list))
+    times: dict[tuple[int, str], list] = field(default_factory=lambda: defaultdict(list))
+    seqs: dict[tuple[int, str], list] = field(default_factory=lambda: defaultdict(list))
+    fields_of: dict[str, list[str]] = field(default_factory=dict)
+    heartbeats: list[tuple[float, int, object, int]] = field(default_factory=list)
+    params: dict[int, dict[str, float]] = field(default_factory=lambda: defaultdict(dict))
+    senders: Counter = field(default_factory=Counter)
+    kept: int = 0
+    first_bad: int = -1
+    skipped: int = 0
+    end: int = 0
+
+
+def _decode(data: bytes, mav, strict: bool) -> _Packets:
+    """Every timestamped MAVLink packet of ``data`` decoded; bytes that start none are
+    skipped one at a time (``strict``: decoding stops at the first)."""
+    parser = mav.MAVLink(None)
+    parser.robust_parsing = True
+    pk = _Packets()
+    n = len(data)
+    i = 0
+    prev_ts = None
+    while i + 8 < n:
+        ln = _packet_len(data, i + 8)
+        ok = False
+        if ln and i + 8 + ln <= n:
+            ts = struct.unpack_from(">Q", data, i)[0] * 1e-6
+            if prev_ts is None or abs(ts - prev_ts) < 86400 * 7:
+                try:
+                    m = parser.decode(bytearray(data[i + 8 : i + 8 + ln]))
+                    ok = m is not None
+                except Exception:
+                    ok = False
+        if not ok:
+            if pk.first_bad < 0:
+                pk.first_bad = i
+                if strict:
+                    break
+            pk.skipped += 1
+            i += 1
+            continue
+        prev_ts = ts
+        pk.kept += 1
+        i += 8 + ln
+        name = m.get_type()
+        if name == "BAD_DATA":
+            continue
+        sysid = m.get_srcSystem()
+        pk.senders[sysid] += 1
+        if name == "HEARTBEAT":
+            pk.heartbeats.append((ts, sysid, m, pk.kept))
+        elif name == "PARAM_VALUE":
+            pid = m.param_id if isinstance(m.param_id, str) else m.param_id.decode("ascii", "replace")
+            pk.params[sysid][pid.rstrip("\0")] = (m.param_value, m.param_type)
+        fl = pk.fields_of.get(name)
+        if fl is None:
+            fl = pk.fields_of[name] = list(m.get_fieldnames())
+        pk.rows[(sysid, name)].append(_flatten(m, fl))
+        pk.times[(sysid, name)].append(ts)
+        pk.seqs[(sysid, name)].append(pk.kept)
+    pk.end = i
+    return pk
+
+
+def _tables(pk: _Packets, sysid: int, mav) -> tuple[dict[str, Table], dict[str, np.ndarray]]:
+    """One table per message type of system ``sysid`` (rows of the first row's layout) and
+    each table's packet numbers."""
+    tables: dict[str, Table] = {}
+    seq_of: dict[str, np.ndarray] = {}
+    for (s, name), r in pk.rows.items():
+        if s != sysid or name in ("PARAM_VALUE", "STATUSTEXT"):
+            continue
+        proto = pk.fields_of[name]
+        width = len(r[0])
+        cols: dict[str, np.ndarray] = {}
+        expanded = proto if len(proto) == width else _expand_names(mav, name, proto, width)
+        same = np.array([len(row) == width for row in r])  # rows of the first's layout
+        arr_rows = [row for row, ok in zip(r, same) if ok]
+        for c, col in enumerate(expanded):
+            vals = [row[c] for row in arr_rows]
+            try:
+                cols[col] = np.asarray(vals, dtype=np.float64)
+            except (TypeError, ValueError):
+                cols[col] = np.asarray([str(v) for v in vals], dtype=object)
+        tables[name] = Table(name, np.asarray(pk.times[(s, name)])[same], cols)
+        seq_of[name] = np.asarray(pk.seqs[(s, name)])[same]
+    return tables, seq_of
+
+
+def _modes(hbs: list[tuple[float, object, int]]) -> tuple[list[tuple[float, str]], list[int]]:
+    """The flight modes (start time, name) of the vehicle's heartbeats and the packet
+    number of each change (pymavlink's mode tables)."""
+    modes: list[tuple[float, str]] = []
+    mode_seq: list[int] = []
+    try:
+        from pymavlink import mavutil
+
+        for t, hb, k in hbs:
+            name = mavutil.mode_string_v10(hb)
+            if not modes or modes[-1][1] != name:
+                modes.append((float(t), name))
+                mode_seq.append(k)
+    except Exception:  # pragma: no cover
+        pass
+    return modes, mode_seq
+
+
 def read_tlog(
     path: str | os.PathLike, *, strict: bool = False, system: int | None = None, time_base: str = "auto"
 ) -> RawLog:
@@ -88,61 +204,10 @@ def read_tlog(
     except OSError as exc:
         raise LogReadError.cannot_open(path, exc) from None
     mav = _mavlink()
-    parser = mav.MAVLink(None)
-    parser.robust_parsing = True
-    n = len(data)
-    i = 0
-    first_bad = -1
-    skipped = 0
-    prev_ts = None
-    rows: dict[tuple[int, str], list] = defaultdict(list)
-    times: dict[tuple[int, str], list] = defaultdict(list)
-    fields_of: dict[str, list[str]] = {}
-    seqs: dict[tuple[int, str], list] = defaultdict(list)
-    heartbeats: list[tuple[float, int, object, int]] = []
-    params: dict[int, dict[str, float]] = defaultdict(dict)
-    senders: Counter = Counter()
-    kept = 0
-    while i + 8 < n:
-        ln = _packet_len(data, i + 8)
-        ok = False
-        if ln and i + 8 + ln <= n:
-            ts = struct.unpack_from(">Q", data, i)[0] * 1e-6
-            if prev_ts is None or abs(ts - prev_ts) < 86400 * 7:
-                try:
-                    m = parser.decode(bytearray(data[i + 8 : i + 8 + ln]))
-                    ok = m is not None
-                except Exception:
-                    ok = False
-        if not ok:
-            if first_bad < 0:
-                first_bad = i
-                if strict:
-                    break
-            skipped += 1
-            i += 1
-            continue
-        prev_ts = ts
-        kept += 1
-        i += 8 + ln
-        name = m.get_type()
-        if name == "BAD_DATA":
-            continue
-        sysid = m.get_srcSystem()
-        senders[sysid] += 1
-        if name == "HEARTBEAT":
-            heartbeats.append((ts, sysid, m, kept))
-        elif name == "PARAM_VALUE":
-            pid = m.param_id if isinstance(m.param_id, str) else m.param_id.decode("ascii", "replace")
-            params[sysid][pid.rstrip("\0")] = (m.param_value, m.param_type)
-        fl = fields_of.get(name)
-        if fl is None:
-            fl = fields_of[name] = list(m.get_fieldnames())
-        rows[(sysid, name)].append(_flatten(m, fl))
-        times[(sysid, name)].append(ts)
-        seqs[(sysid, name)].append(kept)
+    pk = _decode(data, mav, strict)
+    n, i = len(data), pk.end
     trailing = n - i if i < n else 0
-    if kept == 0:
+    if pk.kept == 0:
         raise LogReadError(
             f"{path}: no MAVLink packets found (first bytes {data[:12].hex()}); is this a .tlog?",
             path=str(path),
@@ -150,50 +215,21 @@ def read_tlog(
             where="byte 0",
         )
     # the vehicle: a system sending autopilot heartbeats, else the busiest sender
-    autop = [s for _, s, hb, _ in heartbeats if hb.autopilot != 8]
+    autop = [s for _, s, hb, _ in pk.heartbeats if hb.autopilot != 8]
     sysid = (
         system
         if system is not None
-        else (Counter(autop).most_common(1)[0][0] if autop else senders.most_common(1)[0][0])
+        else (Counter(autop).most_common(1)[0][0] if autop else pk.senders.most_common(1)[0][0])
     )
-    hbs = [(t, hb, k) for t, s, hb, k in heartbeats if s == sysid and hb.autopilot != 8]
+    hbs = [(t, hb, k) for t, s, hb, k in pk.heartbeats if s == sysid and hb.autopilot != 8]
     autopilot = hbs[0][1].autopilot if hbs else None
-    tables: dict[str, Table] = {}
-    seq_of: dict[str, np.ndarray] = {}
-    for (s, name), r in rows.items():
-        if s != sysid or name in ("PARAM_VALUE", "STATUSTEXT"):
-            continue
-        proto = fields_of[name]
-        width = len(r[0])
-        cols: dict[str, np.ndarray] = {}
-        expanded = proto if len(proto) == width else _expand_names(mav, name, proto, width)
-        same = np.array([len(row) == width for row in r])  # rows of the first's layout
-        arr_rows = [row for row, ok in zip(r, same) if ok]
-        for c, col in enumerate(expanded):
-            vals = [row[c] for row in arr_rows]
-            try:
-                cols[col] = np.asarray(vals, dtype=np.float64)
-            except (TypeError, ValueError):
-                cols[col] = np.asarray([str(v) for v in vals], dtype=object)
-        tables[name] = Table(name, np.asarray(times[(s, name)])[same], cols)
-        seq_of[name] = np.asarray(seqs[(s, name)])[same]
+    tables, seq_of = _tables(pk, sysid, mav)
     par: dict[str, float] = {}
-    for pid, (val, ptype) in params.get(sysid, {}).items():
+    for pid, (val, ptype) in pk.params.get(sysid, {}).items():
         if autopilot == MAV_AUTOPILOT_PX4 and ptype in _INT_TYPES:
             val = struct.unpack("<i", struct.pack("<f", val))[0]
         par[pid] = float(val)
-    modes: list[tuple[float, str]] = []
-    mode_seq: list[int] = []
-    try:
-        from pymavlink import mavutil
-
-        for t, hb, k in hbs:
-            name = mavutil.mode_string_v10(hb)
-            if not modes or modes[-1][1] != name:
-                modes.append((float(t), name))
-                mode_seq.append(k)
-    except Exception:  # pragma: no cover
-        pass
+    modes, mode_seq = _modes(hbs)
     tb_text = "tlog receive timestamps (UTC, seconds since 1970)"
     if time_base != "log":
         mapped = boot_time_base(tables, seq_of, modes, mode_seq)
@@ -209,14 +245,14 @@ def read_tlog(
         else:
             tb_text += ": no autopilot stamps found"
     damage = None
-    if first_bad >= 0 or trailing:
-        at = first_bad if first_bad >= 0 else i
+    if pk.first_bad >= 0 or trailing:
+        at = pk.first_bad if pk.first_bad >= 0 else i
         damage = Damage(
             at,
             f"byte {at}",
-            f"not a timestamped MAVLink packet from byte {at} ({skipped + trailing} bytes skipped)",
-            kept,
-            skipped + trailing,
+            f"not a timestamped MAVLink packet from byte {at} ({pk.skipped + trailing} bytes skipped)",
+            pk.kept,
+            pk.skipped + trailing,
         )
         if strict:
             raise LogReadError(
@@ -227,7 +263,7 @@ def read_tlog(
         "system": int(sysid),
         "autopilot": ap,
         "message_counts": {k: len(v) for k, v in tables.items()},
-        "param_value_count": int(sum(len(r) for (s, nm), r in rows.items() if nm == "PARAM_VALUE" and s == sysid)),
+        "param_value_count": int(sum(len(r) for (s, nm), r in pk.rows.items() if nm == "PARAM_VALUE" and s == sysid)),
         "map_hint": "px4_tlog" if ap == "px4" else "mavlink_tlog",
     }
     return RawLog(tables, "tlog", par, modes, tb_text, damage, info)

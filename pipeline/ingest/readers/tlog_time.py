@@ -1,9 +1,9 @@
 """The time base of a MAVLink telemetry log: the autopilot's own sample stamps.
 
 A .tlog stamps each packet when the ground station received it. Over a telemetry link the
-packets arrive in bursts (the quadplane SITL log of tests/test_ingest_real_logs.py: 5
-packets within 50 ms, then nothing for up to 1.2 s, at 4 Hz telemetry) and sometimes out
-of order, so receive times put samples up to a second from where they were taken. Most
+packets arrive in bursts (several within tens of milliseconds, then nothing for up to a
+second) and sometimes out of order, so receive times put samples up to a second from
+where they were taken. Most
 messages carry the autopilot's own stamp (``time_boot_ms``, or ``time_usec`` since boot),
 taken with the sample; :func:`boot_time_base` puts every message on that clock:
 
@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.ingest.readers.base import Table
+from pipeline.ingest.rawlog import Table
 
 #: a jump of the receive offset larger than this (s) is a reboot of the autopilot
 EPOCH_JUMP_S = 10.0

@@ -8,12 +8,14 @@ updated by later changes. Flight modes: ``vehicle_status.nav_state`` names.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 from pathlib import Path
 
 import numpy as np
 
-from pipeline.ingest.readers.base import Damage, LogReadError, RawLog, Table
+from pipeline.ingest.rawlog import Damage, LogReadError, RawLog, Table
 
 NAV_STATES = {
     0: "MANUAL",
@@ -58,9 +60,6 @@ def read_ulog(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
             offset=0,
             where="byte 0",
         )
-    import contextlib
-    import io
-
     try:
         with contextlib.redirect_stdout(io.StringIO()) as out:
             ulog = ULog(str(path))

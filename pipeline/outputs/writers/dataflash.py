@@ -253,21 +253,42 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas", tail
     if tail not in TAILS:
         raise ValueError(f"tail must be one of {', '.join(TAILS)}, got {tail!r}")
     travel = {a: result.aircraft.travel(a) for a in ("de", "da", "dr")}  # rad
-    S, T = result.sensors, result.truth
-    tt = T["t"].to_numpy()
-    blocks: list[tuple[np.ndarray, np.ndarray]] = []  # (TimeUS, records)
+    log = _Log(result)
+    _imu_attitude(log)
+    _air_data(log, airspeed)
+    _baro(log)
+    _servos(log, tail, travel)
+    _gps_ekf(log)
+    _ctun(log, travel)
+    head = _header(result, travel, airspeed, tail)
+    atomic_write_bytes(path, head + _interleave(log.blocks))
 
-    def add(name: str, t: np.ndarray, **cols) -> None:
+
+class _Log:
+    """The records of a DataFlash log being written from a flight ``result``: blocks of
+    one message type each with their TimeUS, in the order added (records at the same time
+    keep that order); the flight's sensor tables ``S`` and truth table ``T``."""
+
+    def __init__(self, result) -> None:
+        self.result = result
+        self.S, self.T = result.sensors, result.truth
+        self.tt = self.T["t"].to_numpy()
+        self.blocks: list[tuple[np.ndarray, np.ndarray]] = []  # (TimeUS, records)
+
+    def add(self, name: str, t: np.ndarray, **cols) -> None:
         us = np.round(np.asarray(t) * 1e6).astype(np.uint64)
-        blocks.append((us, _records(name, len(us), TimeUS=us, **cols)))
+        self.blocks.append((us, _records(name, len(us), TimeUS=us, **cols)))
 
-    def truth_at(col: str, t: np.ndarray) -> np.ndarray:
-        return np.interp(t, tt, T[col].to_numpy())
+    def truth_at(self, col: str, t: np.ndarray) -> np.ndarray:
+        return np.interp(t, self.tt, self.T[col].to_numpy())
 
-    imu = S["imu"]
+
+def _imu_attitude(log: _Log) -> None:
+    """IMU (the IMU sensor) and ATT (the attitude sensor) records."""
+    imu = log.S["imu"]
     ti = imu["t"].to_numpy()
-    rate = result.meta["sensors"]["imu"]["rate_hz"]
-    add(
+    rate = log.result.meta["sensors"]["imu"]["rate_hz"]
+    log.add(
         "IMU",
         ti,
         I=0,
@@ -283,17 +304,21 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas", tail
         GHz=int(round(rate)),
         AHz=int(round(rate)),
     )
-    att = S["attitude"]
+    att = log.S["attitude"]
     ta = att["t"].to_numpy()
     roll, pitch = np.rad2deg(att["phi"].to_numpy()), np.rad2deg(att["theta"].to_numpy())
     yaw = np.mod(np.rad2deg(att["psi"].to_numpy()), 360.0)
-    add("ATT", ta, Roll=roll, Pitch=pitch, Yaw=yaw, DesYaw=yaw, AEKF=3)
-    ad = S["airdata"]
+    log.add("ATT", ta, Roll=roll, Pitch=pitch, Yaw=yaw, DesYaw=yaw, AEKF=3)
+
+
+def _air_data(log: _Log, airspeed: str) -> None:
+    """ARSP (the measured airspeed, TAS or EAS) and AOA (the vanes) records."""
+    ad = log.S["airdata"]
     td = ad["t"].to_numpy()
-    e2t_d = np.sqrt(RHO0 / truth_at("rho", td))
+    e2t_d = np.sqrt(RHO0 / log.truth_at("rho", td))
     v_as = ad["V"].to_numpy() / (e2t_d if airspeed == "eas" else 1.0)
-    Tk, p = _isa(truth_at("h", td), truth_at("rho", td))
-    add(
+    Tk, p = _isa(log.truth_at("h", td), log.truth_at("rho", td))
+    log.add(
         "ARSP",
         td,
         I=0,
@@ -308,42 +333,56 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas", tail
         TR=0.0,
         Pri=0,
     )
-    add("AOA", td, AOA=np.rad2deg(ad["alpha"].to_numpy()), SSA=np.rad2deg(ad["beta"].to_numpy()))
-    ba = S["baro"]
+    log.add("AOA", td, AOA=np.rad2deg(ad["alpha"].to_numpy()), SSA=np.rad2deg(ad["beta"].to_numpy()))
+
+
+def _baro(log: _Log) -> None:
+    """BARO records: the barometric altitude, ISA pressure and temperature."""
+    ba = log.S["baro"]
     tb = ba["t"].to_numpy()
-    Tk, p = _isa(truth_at("h", tb), truth_at("rho", tb))
-    add(
+    Tk, p = _isa(log.truth_at("h", tb), log.truth_at("rho", tb))
+    log.add(
         "BARO",
         tb,
         I=0,
         Alt=ba["h"],
         Press=p,
         Temp=np.round((Tk - 273.15) * 100),
-        CRt=-truth_at("vd", tb),
+        CRt=-log.truth_at("vd", tb),
         SMS=np.round(tb * 1000).astype(np.uint32),
         Offset=0.0,
         GndTemp=15.0,
         Health=1,
     )
-    su = S["surfaces"]
-    ts = su["t"].to_numpy()
-    lim = result.aircraft.limits
-    de = np.clip(truth_at("de_cmd", ts), -lim["de"], lim["de"])
-    da = np.clip(truth_at("da_cmd", ts), -lim["da"], lim["da"])
-    dr = np.clip(truth_at("dr_cmd", ts), -lim["dr"], lim["dr"])
-    thr = truth_at("throttle", ts)
+
+
+def _servos(log: _Log, tail: str, travel: Mapping[str, float]) -> None:
+    """RCOU records: the commanded deflections as servo pulses in the ``tail`` layout."""
+    ts = log.S["surfaces"]["t"].to_numpy()
+    lim = log.result.aircraft.limits
+    de = np.clip(log.truth_at("de_cmd", ts), -lim["de"], lim["de"])
+    da = np.clip(log.truth_at("da_cmd", ts), -lim["da"], lim["da"])
+    dr = np.clip(log.truth_at("dr_cmd", ts), -lim["dr"], lim["dr"])
+    thr = log.truth_at("throttle", ts)
     rc = {f"C{k}": 0 for k in range(5, 15)}
-    add(
+    log.add(
         "RCOU",
         ts,
         **_surface_outputs(tail, de, da, dr, travel),
         C3=np.clip(np.round(THROTTLE_MIN_US + THROTTLE_SPAN_US * thr), THROTTLE_MIN_US, THROTTLE_MAX_US),
         **rc,
     )
-    gp = S["gps"]
+
+
+def _gps_ekf(log: _Log) -> None:
+    """GPS records (the GPS sensor) and XKF1 (its velocities, the attitude, positions)."""
+    T, tt = log.T, log.tt
+    att = log.S["attitude"]
+    ta = att["t"].to_numpy()
+    gp = log.S["gps"]
     tg = gp["t"].to_numpy()
     vn, ve, vd = (gp[c].to_numpy() for c in ("vn", "ve", "vd"))
-    add(
+    log.add(
         "GPS",
         tg,
         I=0,
@@ -352,8 +391,8 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas", tail
         GWk=2300,
         NSats=12,
         HDop=80,
-        Lat=np.round(truth_at("lat", tg) * 1e7),
-        Lng=np.round(truth_at("lon", tg) * 1e7),
+        Lat=np.round(log.truth_at("lat", tg) * 1e7),
+        Lng=np.round(log.truth_at("lon", tg) * 1e7),
         Alt=np.round(gp["h"].to_numpy() * 100),
         Spd=np.hypot(vn, ve),
         GCrs=np.mod(np.rad2deg(np.arctan2(ve, vn)), 360.0),
@@ -363,7 +402,7 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas", tail
     )
     pn = np.concatenate([[0.0], np.cumsum(0.5 * (T["vn"].to_numpy()[1:] + T["vn"].to_numpy()[:-1]) * np.diff(tt))])
     pe = np.concatenate([[0.0], np.cumsum(0.5 * (T["ve"].to_numpy()[1:] + T["ve"].to_numpy()[:-1]) * np.diff(tt))])
-    add(
+    log.add(
         "XKF1",
         tg,
         C=0,
@@ -377,30 +416,34 @@ def write_dataflash(path: str | os.PathLike, result, airspeed: str = "tas", tail
         dPD=vd,
         PN=np.interp(tg, tt, pn),
         PE=np.interp(tg, tt, pe),
-        PD=-(gp["h"].to_numpy() - result.trim["h"]),
+        PD=-(gp["h"].to_numpy() - log.result.trim["h"]),
         GX=0,
         GY=0,
         GZ=0,
         OH=0,
     )
-    e2t_a = np.sqrt(RHO0 / truth_at("rho", ta))
+
+
+def _ctun(log: _Log, travel: Mapping[str, float]) -> None:
+    """CTUN records at the attitude's times: attitude, throttle, rudder, EAS and E2T."""
+    att, ad = log.S["attitude"], log.S["airdata"]
+    ta, td = att["t"].to_numpy(), ad["t"].to_numpy()
+    roll, pitch = np.rad2deg(att["phi"].to_numpy()), np.rad2deg(att["theta"].to_numpy())
+    e2t_a = np.sqrt(RHO0 / log.truth_at("rho", ta))
     eas_a = np.interp(ta, td, ad["V"].to_numpy()) / e2t_a
-    add(
+    log.add(
         "CTUN",
         ta,
         Roll=np.round(roll * 100),
         Pitch=np.round(pitch * 100),
-        ThO=100 * truth_at("throttle", ta),
-        RdrOut=-4500 * truth_at("dr_cmd", ta) / travel["dr"],
-        ThD=100 * truth_at("throttle", ta),
+        ThO=100 * log.truth_at("throttle", ta),
+        RdrOut=-4500 * log.truth_at("dr_cmd", ta) / travel["dr"],
+        ThD=100 * log.truth_at("throttle", ta),
         As=eas_a,
         SAs=eas_a,
         E2T=e2t_a,
         GU=0,
     )
-
-    head = _header(result, travel, airspeed, tail)
-    atomic_write_bytes(path, head + _interleave(blocks))
 
 
 def _interleave(blocks: list[tuple[np.ndarray, np.ndarray]]) -> bytes:

@@ -42,6 +42,22 @@ except ImportError:  # pragma: no cover - same messages, slower
 
 import numpy as np
 import pandas as pd
+from mcap.data_stream import RecordBuilder
+from mcap.exceptions import UnsupportedCompressionError
+from mcap.opcode import Opcode
+from mcap.records import (
+    Channel,
+    Chunk,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Header,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+    SummaryOffset,
+)
 
 from pipeline.paths import atomic_path
 
@@ -123,8 +139,6 @@ def _lines(df: pd.DataFrame) -> list[bytes]:
 
 
 def _encode(*records) -> bytes:
-    from mcap.data_stream import RecordBuilder
-
     b = RecordBuilder()
     for r in records:
         r.write(b)
@@ -135,8 +149,6 @@ def _compressor(compression: str):
     """(MCAP compression name, function bytes -> bytes) as mcap's Writer compresses chunks."""
     if compression == "none":
         return "", None
-    from mcap.exceptions import UnsupportedCompressionError
-
     if compression == "lz4":
         try:
             import lz4.frame
@@ -166,22 +178,6 @@ def _write_file(
     "json", metadata), add_message for every message in the given order, add_metadata,
     finish(). channels: (title, schema bytes, topic, channel metadata); chan (channel ids
     1..), log_ns (= publish time), seq, data: the messages in file order."""
-    from mcap.opcode import Opcode
-    from mcap.records import (
-        Channel,
-        Chunk,
-        ChunkIndex,
-        DataEnd,
-        Footer,
-        Header,
-        Metadata,
-        MetadataIndex,
-        Schema,
-        Statistics,
-        SummaryOffset,
-    )
-
-    comp_name, compress = _compressor(compression)
     schemas = [
         Schema(id=i + 1, name=title, encoding="jsonschema", data=sch) for i, (title, sch, _, _) in enumerate(channels)
     ]
@@ -191,7 +187,56 @@ def _write_file(
     ]
     # a chunk opens with the schema and channel records when they were registered (the first)
     opening = _encode(*(r for pair in zip(schemas, chans) for r in pair))
+    n = len(data)
+    records, start, end = _message_records(chan, log_ns, seq, data)
+    out = _Chunks([_MAGIC, _encode(Header(profile="", library=library))], records, start, chan, log_ns, compression)
+    # chunks close once they exceed CHUNK_SIZE (after the message that crossed it); the last
+    # open one closes at the end, after the metadata record
+    a, base = 0, opening
+    while a < n:
+        done = int(start[a])
+        b = int(np.searchsorted(end, CHUNK_SIZE - len(base) + done, side="right")) + 1
+        if b > n:
+            break
+        out.close(a, b, base)
+        a, base = b, b""
+    meta_rec = _encode(Metadata(name=metadata[0], metadata=metadata[1]))
+    meta_index = MetadataIndex(offset=out.pos, length=len(meta_rec), name=metadata[0])
+    out.append(meta_rec)
+    if a < n:
+        out.close(a, n, base)
+    out.append(_encode(DataEnd(data_section_crc=0)))
+    counts: dict[int, int] = {}
+    if n:
+        ids, first, cnt = np.unique(chan, return_index=True, return_counts=True)
+        counts = {int(ids[i]): int(cnt[i]) for i in np.argsort(first)}
+    stats = Statistics(
+        message_count=n,
+        schema_count=len(schemas),
+        channel_count=len(chans),
+        attachment_count=0,
+        metadata_count=1,
+        chunk_count=len(out.indexes),
+        message_start_time=int(log_ns.min()) if n else 0,
+        message_end_time=max(0, int(log_ns.max())) if n else 0,
+        channel_message_counts=counts,
+    )
+    groups = [
+        (Opcode.SCHEMA, schemas),
+        (Opcode.CHANNEL, chans),
+        (Opcode.STATISTICS, [stats]),
+        (Opcode.CHUNK_INDEX, out.indexes),
+        (Opcode.ATTACHMENT_INDEX, []),
+        (Opcode.METADATA_INDEX, [meta_index]),
+    ]
+    fh.write(b"".join(out.parts + _summary(groups, out.pos)))
 
+
+def _message_records(
+    chan: np.ndarray, log_ns: np.ndarray, seq: np.ndarray, data: list[bytes]
+) -> tuple[list[bytes], np.ndarray, np.ndarray]:
+    """The message records (header, data, header, data, ...) and each record's start and
+    end offset among them [bytes]."""
     n = len(data)
     size = np.fromiter(map(len, data), dtype=np.int64, count=n) + _MSG_HEAD.itemsize
     head = np.empty(n, dtype=_MSG_HEAD)
@@ -206,19 +251,42 @@ def _write_file(
     records[1::2] = data
     end = np.cumsum(size)  # bytes of message records up to and including each
     start = end - size
+    return records, start, end
 
-    out: list[bytes] = [_MAGIC, _encode(Header(profile="", library=library))]
-    pos = len(out[0]) + len(out[1])
-    chunk_indexes: list = []
 
-    def close_chunk(a: int, b: int, base: bytes) -> None:
-        nonlocal pos
-        body = base + b"".join(records[2 * a : 2 * b])
-        packed = compress(body) if compress else body
-        t = log_ns[a:b]
+class _Chunks:
+    """The file's data section as it is written: its parts, their total length ``pos``,
+    and the chunk indexes; :meth:`close` adds the chunk of messages a..b with their message
+    indexes, as mcap's Writer closes a chunk."""
+
+    def __init__(
+        self,
+        parts: list[bytes],
+        records: list[bytes],
+        start: np.ndarray,
+        chan: np.ndarray,
+        log_ns: np.ndarray,
+        compression: str,
+    ) -> None:
+        self.parts = parts
+        self.pos = sum(len(x) for x in parts)
+        self.indexes: list = []
+        self.records, self.start, self.chan, self.log_ns = records, start, chan, log_ns
+        self.comp_name, self.compress = _compressor(compression)
+
+    def append(self, rec: bytes) -> None:
+        self.parts.append(rec)
+        self.pos += len(rec)
+
+    def close(self, a: int, b: int, base: bytes) -> None:
+        """The chunk of messages a..b (after ``base``, the records that open it) and its
+        message indexes, one per channel in order of first message."""
+        body = base + b"".join(self.records[2 * a : 2 * b])
+        packed = self.compress(body) if self.compress else body
+        t = self.log_ns[a:b]
         chunk = _encode(
             Chunk(
-                compression=comp_name,
+                compression=self.comp_name,
                 data=packed,
                 message_start_time=int(t.min()),
                 message_end_time=max(0, int(t.max())),
@@ -226,11 +294,10 @@ def _write_file(
                 uncompressed_size=len(body),
             )
         )
-        chunk_start = pos
-        out.append(chunk)
-        pos += len(chunk)
-        c = chan[a:b]
-        at = len(base) + start[a:b] - start[a]  # offset of each message in the chunk
+        chunk_start = self.pos
+        self.append(chunk)
+        c = self.chan[a:b]
+        at = len(base) + self.start[a:b] - self.start[a]  # offset of each message in the chunk
         ids, first = np.unique(c, return_index=True)
         offsets: dict[int, int] = {}
         index_len = 0
@@ -239,11 +306,11 @@ def _write_file(
             entries = np.empty(int(mask.sum()), dtype=_INDEX_ENTRY)
             entries["t"], entries["offset"] = t[mask], at[mask]
             rec = struct.pack("<BQHI", _OP_MESSAGE_INDEX, 6 + entries.nbytes, cid, entries.nbytes) + entries.tobytes()
-            offsets[cid] = pos + index_len
-            out.append(rec)
+            offsets[cid] = self.pos + index_len
+            self.parts.append(rec)
             index_len += len(rec)
-        pos += index_len
-        chunk_indexes.append(
+        self.pos += index_len
+        self.indexes.append(
             ChunkIndex(
                 message_start_time=int(t.min()),
                 message_end_time=max(0, int(t.max())),
@@ -251,55 +318,16 @@ def _write_file(
                 chunk_length=len(chunk),
                 message_index_offsets=offsets,
                 message_index_length=index_len,
-                compression=comp_name,
+                compression=self.comp_name,
                 compressed_size=len(packed),
                 uncompressed_size=len(body),
             )
         )
 
-    # chunks close once they exceed CHUNK_SIZE (after the message that crossed it); the last
-    # open one closes at the end, after the metadata record
-    a, base = 0, opening
-    while a < n:
-        done = int(start[a])
-        b = int(np.searchsorted(end, CHUNK_SIZE - len(base) + done, side="right")) + 1
-        if b > n:
-            break
-        close_chunk(a, b, base)
-        a, base = b, b""
-    meta_rec = _encode(Metadata(name=metadata[0], metadata=metadata[1]))
-    meta_index = MetadataIndex(offset=pos, length=len(meta_rec), name=metadata[0])
-    out.append(meta_rec)
-    pos += len(meta_rec)
-    if a < n:
-        close_chunk(a, n, base)
-    out.append(_encode(DataEnd(data_section_crc=0)))
-    pos += len(out[-1])
 
-    counts: dict[int, int] = {}
-    if n:
-        ids, first, cnt = np.unique(chan, return_index=True, return_counts=True)
-        counts = {int(ids[i]): int(cnt[i]) for i in np.argsort(first)}
-    stats = Statistics(
-        message_count=n,
-        schema_count=len(schemas),
-        channel_count=len(chans),
-        attachment_count=0,
-        metadata_count=1,
-        chunk_count=len(chunk_indexes),
-        message_start_time=int(log_ns.min()) if n else 0,
-        message_end_time=max(0, int(log_ns.max())) if n else 0,
-        channel_message_counts=counts,
-    )
-    summary_start = pos
-    groups = [
-        (Opcode.SCHEMA, schemas),
-        (Opcode.CHANNEL, chans),
-        (Opcode.STATISTICS, [stats]),
-        (Opcode.CHUNK_INDEX, chunk_indexes),
-        (Opcode.ATTACHMENT_INDEX, []),
-        (Opcode.METADATA_INDEX, [meta_index]),
-    ]
+def _summary(groups: list[tuple[int, list]], summary_start: int) -> list[bytes]:
+    """The summary section (the record ``groups`` (opcode, records) from byte
+    ``summary_start``), its summary offsets, the footer with the summary's CRC, the magic."""
     summary: list[bytes] = []
     offsets_rec = []
     at = summary_start
@@ -314,12 +342,11 @@ def _write_file(
     crc = zlib.crc32(
         struct.pack("<BQQQ", Opcode.FOOTER, 8 + 8 + 4, summary_start, summary_offset_start), zlib.crc32(summary_data)
     )
-    out += [
+    return [
         summary_data,
         _encode(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc)),
         _MAGIC,
     ]
-    fh.write(b"".join(out))
 
 
 def write_mcap(path: str | os.PathLike, result, truth_rate_hz: float | None = 50.0, compression: str = "lz4") -> None:

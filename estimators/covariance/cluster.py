@@ -16,18 +16,15 @@ eigenvalues (0..1) are the maneuver's leverage. The factor (I - B_j)^(-1/2) is t
 Bell-McCaffrey ("CR2") correction: a fitted maneuver's residuals are smaller than its
 noise by its leverage, and without it a maneuver that carries most of the information on a
 parameter would hide its own scatter. For a linear model with white residuals E[Cov] is
-then exactly M^-1, however unequal the maneuvers (the delete-one-maneuver jackknife, by
-contrast, inflated the bounds of the default scenario's calm-air fit 5-7 times: its
-maneuvers excite different derivatives); when the estimates really differ between
-maneuvers, Cov grows with that difference (tests/test_cluster_covariance.py: parameters
-drawn anew for each of 4 maneuvers, estimates scattering 7-45x their Cramér-Rao variance:
-it finds 78-93 % of that variance where no maneuver carries more than 55 % of the
-parameter, 47 % where one carries 78 % - a maneuver's own offset sits in its estimate
-more than in its residuals).
+then exactly M^-1, however unequal the maneuvers (unlike the delete-one-maneuver
+jackknife, which inflates the bounds when the maneuvers excite different derivatives);
+when the estimates really differ between maneuvers, Cov grows with that difference - less
+than fully where one maneuver carries most of a parameter's information, since a
+maneuver's own offset sits in its estimate more than in its residuals.
 
 :func:`maneuver_scatter` gives it for a fit's result (output error from its sensitivities;
-filter error and the pipeline's equation error keep their own); the pipeline reports it
-beside the Cramér-Rao and Morelli-Klein std (``cluster_std``).
+filter error and equation error keep their own), to report beside the Cramér-Rao and
+Morelli-Klein std.
 
 What it cannot do:
 - a parameter that one maneuver alone identifies (that maneuver carries more than
@@ -48,29 +45,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from estimators.defaults import CLUSTER_FLAG_RATIO, CLUSTER_MIN_SEGMENTS, CLUSTER_SHARE_LIMIT
 from estimators.sensitivity import add_block, as_sensitivity
 
-__all__ = [
-    "ClusterResult",
-    "cluster_covariance",
-    "maneuver_scatter",
-    "segment_block",
-    "segment_parts",
-    "FLAG_RATIO",
-    "MIN_SEGMENTS",
-    "SHARE_LIMIT",
-]
-
-#: robust std / Cramér-Rao bound above which a parameter is flagged
-FLAG_RATIO = 3.0
-#: fewest maneuvers for which the covariance is reported: with 2 it has one degree of
-#: freedom, but still tells an honest bound from a 2-14x optimistic one (the linear short
-#: period in turbulence, benchmarks/maneuver_scatter_mc.py: with 2 maneuvers filter error
-#: flagged in 0 of 12 fits, output error in 11 of 12)
-MIN_SEGMENTS = 2
-#: a parameter whose information one maneuver carries more than this share of has no
-#: maneuver scatter to measure
-SHARE_LIMIT = 0.95
+__all__ = ["ClusterResult", "cluster_covariance", "maneuver_scatter", "segment_block", "segment_parts"]
 
 
 @dataclass(frozen=True)
@@ -85,7 +63,7 @@ class ClusterResult:
     cov: np.ndarray
     crb_std: np.ndarray
     share: np.ndarray
-    limit: float = SHARE_LIMIT
+    limit: float = CLUSTER_SHARE_LIMIT
 
     @property
     def std(self) -> np.ndarray:
@@ -100,7 +78,7 @@ class ClusterResult:
     def n_segments(self) -> int:
         return self.share.shape[0]
 
-    def ratio_summary(self, flag: float = FLAG_RATIO) -> dict:
+    def ratio_summary(self, flag: float = CLUSTER_FLAG_RATIO) -> dict:
         """Over the system parameters (not the per-segment ``name[k]``) with a ratio:
         ``median_ratio``, ``max_ratio``, ``max_parameter`` (None without any) and
         ``flagged`` ({name: ratio} above ``flag``, largest first)."""
@@ -232,7 +210,7 @@ def cluster_covariance(
     M: np.ndarray | None = None,
     *,
     names: Sequence[str] | None = None,
-    limit: float = SHARE_LIMIT,
+    limit: float = CLUSTER_SHARE_LIMIT,
 ) -> ClusterResult:
     """The cluster-robust covariance of the module doc, each maneuver a cluster.
 
@@ -249,10 +227,8 @@ def cluster_covariance(
     sandwich of the others, and their leverage is that of the others alone): their share
     is 1 and their covariance NaN, and the rest is worked in the space of the parameters
     several maneuvers share. Without that, G maneuvers with k own parameters each cost
-    O(G (p + G k)^3) time and G (p + G k)^2 memory: a simulated 30-minute log with 134
-    lateral maneuvers (1087 free parameters) held 4.7 GB in its validation, which ran for
-    more than 5 minutes; profiled, the validation takes 2.6 s and the whole fsid estimate
-    1 min 26 s at 1.56 GB (ad hoc).
+    O(G (p + G k)^3) time and G (p + G k)^2 memory, which a long log of a hundred maneuvers
+    or more cannot afford.
     """
     G = len(M_parts)
     if G < 2 or len(scores) != G:
@@ -318,10 +294,10 @@ def cluster_covariance(
     return ClusterResult(names=names, cov=cov, crb_std=crb, share=share, limit=limit)
 
 
-def maneuver_scatter(result, min_segments: int = MIN_SEGMENTS) -> ClusterResult | None:
+def maneuver_scatter(result, min_segments: int = CLUSTER_MIN_SEGMENTS) -> ClusterResult | None:
     """The maneuver cluster covariance of an :class:`~estimators.EstimationResult`: the one
     the fit kept (``extra["cluster"]``: filter error from its own per-segment information,
-    the pipeline's equation error from its regression windows), else from output error's
+    an equation-error fit from its regression windows), else from output error's
     sensitivities, residuals and R; None with fewer than ``min_segments`` segments, for a
     method that keeps neither (EKF, UKF), or when the information is singular."""
     if len(result.segments or []) < min_segments:

@@ -1,7 +1,9 @@
-"""Shared pieces of the log readers: the documented error and the raw message table.
+"""A log as its reader decoded it, before channel mapping: the raw message tables, the
+damage found, and the one error a reader raises.
 
-Every reader turns a file into ``dict[str, Table]`` (one table per message type / topic /
-instance) plus metadata; :mod:`pipeline.ingest.maps` then turns tables into canonical channels.
+Every reader (:mod:`pipeline.ingest.readers`) turns a file into ``dict[str, Table]`` (one
+table per message type / topic / instance) plus metadata; :mod:`pipeline.ingest.maps` then
+turns tables into canonical channels.
 """
 
 from __future__ import annotations

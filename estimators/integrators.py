@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from estimators.errors import ModelDefinitionError
+
 INTEGRATORS = ("euler", "rk2", "rk3", "rk4", "rkf45")
 #: how inputs vary inside a sample interval [t_k, t_k+1]: "linear" interpolates them at each
 #: integration stage's time (sampled continuous signals; the reference software's RK4), "hold"
@@ -40,8 +42,6 @@ ORDER = {"euler": 1, "rk2": 2, "rk3": 3, "rk4": 4, "rkf45": 5}
 def check_options(integrator: str, inputs: str) -> None:
     """Raise ModelDefinitionError naming the choices when ``integrator`` or ``inputs`` is
     not one of INTEGRATORS / INPUT_MODES (shared by every estimator's constructor)."""
-    from estimators.errors import ModelDefinitionError
-
     if integrator not in INTEGRATORS:
         raise ModelDefinitionError(f"unknown integrator {integrator!r}: use one of {INTEGRATORS}")
     if inputs not in INPUT_MODES:

@@ -1,0 +1,125 @@
+"""Why an output-error simulation failed or a fit does not follow the data.
+
+An unstable model integrated open loop runs away from the measurements long before it
+overflows (:func:`runaway`); a model that cannot track the flight leaves residuals that
+are coloured and large (:func:`follow_note`). Both point to the methods that keep the
+simulation bounded (:data:`UNSTABLE_METHODS`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from estimators.defaults import FOLLOW_LAG1, FOLLOW_SHARE, RUNAWAY_FACTOR
+from estimators.errors import SimulationDivergedError
+from estimators.model import Model, Segment
+
+DIVERGE_HINT = (
+    "Check the units and signs of the start values, set bounds, start closer "
+    "(e.g. from an equation-error fit, estimators.LeastSquares); for an unstable "
+    "aircraft use a method that keeps the simulation bounded: StabilizedOutputError "
+    "(stabilisation matrix S), EigenvalueTransformation (exp(-sigma t) weighting) "
+    "or EquationDecoupling (measured states as pseudo-inputs), or the filter "
+    "methods FilterError, EKF or UKF."
+)
+
+
+def runaway(seg: Segment, Y: np.ndarray) -> tuple[int, int] | None:
+    """(sample, output) where the simulated outputs Y (N, n_out) first run away from the
+    measured ones (see RUNAWAY_FACTOR), or None."""
+    with np.errstate(all="ignore"):
+        med = np.nanmedian(seg.z, axis=0) if np.any(np.isfinite(seg.z)) else np.zeros(Y.shape[1])
+        scale = np.nanmax(np.abs(seg.z - med), axis=0)
+    ok = np.isfinite(scale) & (scale > 0)
+    if not np.any(ok):
+        return None
+    bad = np.abs(Y[:, ok] - med[ok]) > RUNAWAY_FACTOR * scale[ok]
+    if not np.any(bad):
+        return None
+    i = int(np.argmax(bad.any(axis=1)))
+    return i, int(np.flatnonzero(ok)[np.argmax(bad[i])])
+
+
+def runaway_error(model: Model, seg: Segment, k: int, where: tuple[int, int], what: str) -> SimulationDivergedError:
+    """The error for segment k's simulated output that ran away at ``where`` (sample,
+    output) (:func:`runaway`); ``what`` says at which parameter values."""
+    i, o = where
+    return SimulationDivergedError(
+        f"the simulation of segment {seg.name or k} diverged at t={seg.t[i]:.4g} s (output "
+        f"{model.outputs[o]!r} ran away to more than {RUNAWAY_FACTOR:g} times the measured "
+        f"range; the model is unstable or far off) {what}. {DIVERGE_HINT}",
+        segment=k,
+        time=float(seg.t[i]),
+        state=model.outputs[o],
+    )
+
+
+#: the methods that keep the simulation of an unstable aircraft bounded, named in messages
+UNSTABLE_METHODS = "StabilizedOutputError, EigenvalueTransformation, EquationDecoupling or FilterError"
+
+
+def lag1_autocorrelation(E: Sequence[np.ndarray]) -> np.ndarray:
+    """(n_out,) lag-1 autocorrelation of residuals ``E`` (per segment (N_k, n_out)), each
+    output over its measured (finite) samples, demeaned per segment and pooled over the
+    segments as :func:`estimators.validation.whiteness` pools them; NaN without data."""
+    n_out = np.shape(E[0])[1]
+    rho = np.full(n_out, np.nan)
+    for j in range(n_out):
+        cols = [np.asarray(e, float)[:, j] for e in E]
+        cols = [c[np.isfinite(c)] for c in cols]
+        cols = [c - c.mean() for c in cols if c.size > 2]
+        if cols:
+            c0 = sum(float(c @ c) for c in cols)
+            c1 = sum(float(c[:-1] @ c[1:]) for c in cols)
+            if c0 > 0:
+                rho[j] = c1 / c0
+    return rho
+
+
+def _pooled_variance(X: Sequence[np.ndarray]) -> np.ndarray:
+    """(n,) variance of each column about its per-segment mean, finite samples only."""
+    ss = sum(np.nansum((x - np.nanmean(x, axis=0)) ** 2, axis=0) for x in X)
+    return ss / np.maximum(sum(np.isfinite(x).sum(axis=0) for x in X), 1)
+
+
+def follow_note(
+    outputs: Sequence[str], segments: Sequence[Segment], E: Sequence[np.ndarray], runaways: int = 0
+) -> tuple[str, dict[str, Any]]:
+    """A message, and its numbers, when an output-error fit did not follow the data: at
+    least half the outputs with residuals coloured and large (see FOLLOW_LAG1), or trial
+    parameter values whose simulation ran away (``runaways`` of them). Both mark a model
+    simulated open loop that cannot track the flight: an unstable aircraft, or strong
+    process noise (turbulence). Half the outputs are needed because one poorly modelled
+    channel is not the aircraft. ("", {}) otherwise."""
+    with np.errstate(all="ignore"):
+        rho = lag1_autocorrelation(E)
+        share = _pooled_variance(E) / _pooled_variance([s.z for s in segments])
+    bad = [j for j in range(len(outputs)) if rho[j] > FOLLOW_LAG1 and share[j] > FOLLOW_SHARE]
+    coloured = len(bad) >= max(1, int(np.ceil(len(outputs) / 2)))
+    if not coloured and not runaways:
+        return "", {}
+    why = []
+    if coloured:
+        why.append(
+            f"the residuals of {', '.join(outputs[j] for j in bad)} are far from white "
+            f"(lag-1 autocorrelation {', '.join(f'{rho[j]:.2f}' for j in bad)}) and "
+            f"leave {', '.join(f'{100 * min(share[j], 9.99):.0f}' for j in bad)} % of "
+            "their measured variance unexplained"
+        )
+    if runaways:
+        why.append(f"the simulation ran away for {runaways} trial parameter set{'s' if runaways > 1 else ''}")
+    msg = (
+        f"the model does not follow the data: {' and '.join(why)}. An unstable aircraft "
+        "(or strong turbulence) cannot be fitted by simulating it open loop: use "
+        f"{UNSTABLE_METHODS}"
+    )
+    info = {
+        "outputs": [outputs[j] for j in bad],
+        "runaways": int(runaways),
+        "lag1": dict(zip(outputs, rho.tolist())),
+        "unexplained": dict(zip(outputs, share.tolist())),
+    }
+    return msg, info

@@ -1,0 +1,97 @@
+"""``fsid check``: ingest a log, run the data-quality checks and (when the log has the
+channels) the air-data-angle and sensor-compatibility stages as ``fsid estimate`` runs
+them, write ``checks.json`` and the canonical data (``canonical.csv``: every canonical
+channel resampled to one time base)."""
+
+from __future__ import annotations
+
+import io
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from pipeline.conditioning.checks import findings_to_json, run_checks, summarize
+from pipeline.conditioning.flow_angles import summary as flow_summary
+from pipeline.ingest.readers import read_log
+from pipeline.jobs.progress import Progress
+from pipeline.jobs.stages import compatibility_after_flow_angles, flow_angle_stage
+from pipeline.paths import atomic_write_text, new_run_dir
+
+#: core channels whose fastest rate sets canonical.csv's (at most 100 Hz)
+CORE_CHANNELS = ("ax", "p", "phi", "V", "de")
+
+
+def check_log(
+    log: Path,
+    out: str | Path | None = None,
+    *,
+    map_path: str | None = None,
+    segments: Any = None,
+    time_base: str | None = None,
+    compat: bool = True,
+    rate: float | None = None,
+    positions: tuple[Sequence[float], Sequence[float], str] | None = None,
+) -> int:
+    """Check ``log`` (``segments``, ``map_path``, ``time_base``: how to read it) into the
+    run folder ``out``; ``compat``: with the air-data-angle and compatibility stages, the
+    sensors at ``positions`` (IMU, boom [m], where they came from); ``rate``: of
+    canonical.csv [Hz] (default: the fastest core channel, at most 100). Prints what it
+    found; returns 0."""
+    fd = read_log(log, map=map_path, segments=segments, time_base=time_base)
+    print(f"read {log} ({fd.meta['format']}, map {fd.meta['map']}): {len(fd.channels)} channels")
+    findings = run_checks(fd)
+    extra: dict = {}
+    if compat:
+        extra = _compatibility(fd, positions or ([0.0] * 3, [0.0] * 3, "default 0,0,0"))
+    out = new_run_dir("check", out)
+    atomic_write_text(out / "checks.json", findings_to_json(findings, fd, extra))
+    if rate is None:
+        rates = [c.rate_hz for k, c in fd.channels.items() if k in CORE_CHANNELS]
+        rate = min(max(rates), 100.0) if rates else 10.0
+    df = fd.resample(rate, span="union")
+    buf = io.StringIO()
+    df.to_csv(buf, index=False, float_format="%.9g")
+    atomic_write_text(out / "canonical.csv", buf.getvalue())
+    _print_compatibility(extra.get("compatibility", {}))
+    c = summarize(findings)
+    print(f"checks: {c['pass']} pass, {c['warn']} warn, {c['fail']} fail")
+    for f in findings:
+        if f.status == "fail":
+            print(f"  FAIL {f.check} {f.channel or ''}: {f.message}", file=sys.stderr)
+    print(f"wrote {out / 'checks.json'} and {out / 'canonical.csv'} ({len(df)} rows at {rate:g} Hz)")
+    return 0
+
+
+def _compatibility(fd: Any, positions: tuple[Sequence[float], Sequence[float], str]) -> dict[str, Any]:
+    """The same stages, estimates and rules as fsid estimate's: the air-data angles a log
+    lacks, or holds as an autopilot's estimate, rebuilt from the flight path with a fitted
+    wind and the pitot's scale factor where the headings allow; then the compatibility
+    reconstruction on the logged channels (IMU errors only without vanes, the wind held),
+    which errors that stage would remove: "applied". Returns the checks.json entries."""
+    quiet = Progress(2, quiet=True)
+    rebuilt, _, logged, flow = flow_angle_stage(fd, None, quiet)
+    print(
+        f"air-data angles: {flow_summary(flow) if flow['status'] == 'reconstructed' else flow['status']}"
+        + (f" ({flow['reason']})" if flow.get("reason") else "")
+    )
+    imu, boom, origin = positions
+    print("sensor compatibility (flight path reconstruction) ...")
+    comp = compatibility_after_flow_angles(logged, rebuilt, flow, None, quiet, positions=(imu, boom))[1]
+    comp["positions_from"] = origin
+    return {"air_data_angles": flow, "compatibility": comp}
+
+
+def _print_compatibility(comp: dict[str, Any]) -> None:
+    """The compatibility stage's estimates, one line each."""
+    if comp.get("status") in ("ok", "not converged"):
+        print(f"compatibility: {comp['status']}, {len(comp['parameters'])} sensor errors estimated")
+        for n, row in comp["parameters"].items():
+            sd = f"+- {row['std']:.2g}" if row.get("std") is not None else "(no std)"
+            print(
+                f"  {n:12s} {row['estimate']: .5g} {sd} {row['unit']}{'  (significant)' if row.get('applied') else ''}"
+            )
+        if comp.get("note"):
+            print(f"  note: {comp['note']}")
+    elif comp:
+        print(f"compatibility: {comp.get('status')}: {comp.get('reason', '')}")

@@ -1,0 +1,276 @@
+"""The estimate job: a log -> report and recording (DESIGN.md section 5): ingest, the
+aircraft, the air-data angles, the validation flights, the data-quality checks, the sensor
+compatibility, then the estimation stages of :mod:`pipeline.jobs.estimation`. ``fsid
+estimate`` runs it on a log (:func:`estimate_log`), ``fsid run`` on the log a simulated
+flight wrote (:mod:`pipeline.jobs.scenario`)."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from estimators import Model
+from estimators.validation import default_tolerances
+from pipeline.conditioning.checks import run_checks, summarize
+from pipeline.conditioning.flow_angles import assumptions as flow_assumptions
+from pipeline.conditioning.flow_angles import summary as flow_summary
+from pipeline.conditioning.input_dynamics import summary as dynamics_summary
+from pipeline.conditioning.input_sampling import summary as step_summary
+from pipeline.conditioning.input_sampling import time_steps
+from pipeline.conditioning.sensor_errors import truth_errors
+from pipeline.errors import FsidError
+from pipeline.ingest.aircraft import aircraft_for_log, servo_travel_for
+from pipeline.ingest.flightdata import FlightData
+from pipeline.ingest.readers import detect_format, read_log
+from pipeline.jobs.consider_stage import sampling_meta
+from pipeline.jobs.estimation import FitJob, Prepared, fit_stages
+from pipeline.jobs.identify import identified_axes
+from pipeline.jobs.options import AXES, EstimateOptions, FitOptions
+from pipeline.jobs.progress import Progress
+from pipeline.jobs.stages import compatibility_after_flow_angles, flow_angle_stage, with_flow_angles
+from pipeline.jobs.validation_flights import validation_flights, validation_prefix
+from pipeline.jobs.write import write_outputs
+from pipeline.methods.catalogue import check_methods
+from pipeline.problems import MAX_RATE_HZ
+from pipeline.problems.user_model import check_channels, is_user_model, load_user_model, split_spec
+from pipeline.uncertainty.consider import wind_summary
+
+
+@dataclass
+class Estimated:
+    """What :func:`estimate` found, for the outputs: the fits (``results``, key -> result)
+    and their ``validations``, the ``truth`` they were compared with (None for a real log),
+    the report's ``meta``, the log's data-quality ``findings`` (and their ``checks``
+    summary) on the ``data`` they were made on, the compatibility document ``comp``, and
+    the job's ``progress`` (its last stage, the outputs, still to come)."""
+
+    results: dict
+    validations: dict
+    truth: dict[str, float] | None
+    meta: dict[str, Any]
+    findings: list
+    checks: dict[str, int]
+    data: FlightData
+    comp: dict[str, Any]
+    progress: Progress
+
+
+def estimate_log(
+    log: str | Path, out: Path, options: EstimateOptions | None = None, **settings: Any
+) -> dict[str, Path]:
+    """``fsid estimate``: ``log`` -> report.md, report.json, run.rrd in ``out`` (see
+    :func:`estimate`); returns name -> path. ``options`` (default EstimateOptions()), or
+    its fields as keywords (``settings`` replace those of ``options``)."""
+    est = estimate(log, replace(options or EstimateOptions(), **settings))
+    return write_outputs(
+        out,
+        est.results,
+        est.validations,
+        est.truth,
+        est.progress,
+        checks=est.checks,
+        meta=est.meta,
+        compatibility=est.comp,
+    )
+
+
+def estimate(log: str | Path, opts: EstimateOptions) -> Estimated:
+    """The estimate job on ``log``, up to its outputs.
+
+    model: a built-in model (auto|longitudinal|lateral; needs ``aircraft``, or a truth.json
+    next to the log) or a user model ``path.py:name`` (:mod:`pipeline.problems.user_model`).
+    Aircraft and sensor positions: :mod:`pipeline.ingest.aircraft`; a truth.json next to
+    the log (a simulated flight) gives the aircraft and, for the report only, the true
+    derivatives and sensor errors. No turbulence level enters a fit: the EKF/UKF process
+    noise is the filter-error method's estimate. ``bands`` and ``pom`` set the proof of
+    match (defaults 1.5 deg/s, 0.1 g, 1.5 deg; auto mode). ``validation_log``: a second
+    flight, or a sequence of them, for the proof of match (each read with the same map and
+    servo travel, its air-data angles rebuilt the same way, the instruments' scale factors
+    and air-data delay removed from ``log`` removed from it too): every maneuver of ``log``
+    is fitted and the model proved on their maneuvers. ``time_base``: of a .tlog or .mcap
+    log and its validation flights of the same format. ``input_dynamics``: the
+    control-input delay and lag stage (auto, off or (delay, lag)); they go to the
+    validation flights too (the same servos)."""
+    user = is_user_model(opts.model)
+    if user:  # cheap checks before the log is read
+        split_spec(opts.model)
+    check_methods(opts.methods, user_model=user)
+    axes = AXES if opts.model == "auto" else (opts.model,)
+    vlogs = validation_flights(opts.validation_log)
+    t0 = time.perf_counter()
+    fd, steps, steps_doc = time_steps(
+        read_log(log, map=opts.map_path, servo_travel=servo_travel_for(log, opts.aircraft), time_base=opts.time_base),
+        MAX_RATE_HZ,
+    )
+    n_axes = 1 if user else identified_axes(fd, axes)
+    pr = Progress(stage_count(len(opts.methods), n_axes, len(vlogs), user), quiet=opts.quiet)
+    pr.stage(f"ingest {log}", since=t0)
+    pr.done(
+        f"{len(fd.channels)} channels, {len(fd.segments)} segments"
+        + (f"; {step_summary(steps_doc)}" if steps_doc else "")
+    )
+    ac, ac_name, truth_doc = _aircraft(log, opts, fd, user, pr)
+    truth = (
+        {k: float(v) for k, v in truth_doc["derivatives"].items()}
+        if truth_doc and truth_doc.get("derivatives")
+        else None
+    )
+    ac_sensors = ac
+    fd, ac, fd_logged, flow = flow_angle_stage(fd, ac, pr)
+    fd_vals, val_checks = _validation_flights(log, vlogs, fd, flow, ac_sensors, opts, pr)
+    um = _user_model(opts.model, ac, fd, pr) if user else None
+    pr.stage("data-quality checks")
+    findings = run_checks(fd)
+    summary = summarize(findings)
+    pr.done(str(summary))
+    meta = {"log": str(log), "aircraft": ac_name}
+    if fd_vals:
+        meta["validation flight"] = "; ".join(
+            f"{validation_prefix(k, len(vlogs))}{vlog}" if len(vlogs) > 1 else str(vlog) for k, vlog in enumerate(vlogs)
+        ) + (
+            f": the proof of match; every maneuver of {Path(log).name} fitted; data-quality "
+            "checks: " + "; ".join(", ".join(f"{k} {v}" for k, v in c.items()) for c in val_checks)
+        )
+    _servo_travel(fd, meta, pr, opts.quiet)
+    data = _corrected(fd, fd_logged, flow, ac_sensors, truth_doc, steps, meta, opts, pr)
+    meta["data"] = f"{Path(log).name}, {data.comp['data_for_estimation']}"
+    fit = FitOptions(
+        inputs=opts.inputs,
+        tolerances=default_tolerances(**(opts.bands or {})),
+        pom=opts.pom,
+        smooth_inputs=opts.smooth_inputs,
+        calm=opts.calm,
+        validation_calm=opts.validation_calm,
+    )
+    job = FitJob(ac, opts.methods, truth, fit, axes=axes, model=um)
+    results, validations, _, dyn_doc, sampling = fit_stages(pr, job, data, fd_vals, opts.input_dynamics, meta)
+    if user:
+        meta["model"] = opts.model
+    meta["control-input delay and lag"] = dynamics_summary(dyn_doc)
+    meta["input_dynamics"] = dyn_doc
+    meta.update(sampling_meta(steps_doc, sampling))
+    if "wind_uncertainty" in data.flow:
+        meta["flow_angles"]["wind_uncertainty"] = data.flow["wind_uncertainty"]
+        meta["air-data angles' wind"] = wind_summary(data.flow["wind_uncertainty"])
+    if truth is not None:
+        meta["truth"] = "truth.json next to the log"
+    return Estimated(results, validations, truth, meta, findings, summary, fd, data.comp, pr)
+
+
+def stage_count(n_methods: int, n_axes: int, n_validation: int, user: bool) -> int:
+    """The stages of :func:`estimate`, the outputs included: ingest, aircraft, air-data angles; per validation
+    flight its ingest and angles; the user model's loading; checks, compatibility, input
+    dynamics; a fit and its validation per method and axis; the uncertainty of what the fits
+    held, outputs."""
+    return 3 + 2 * n_validation + int(user) + 3 + 2 * max(n_axes, 1) * n_methods + 2
+
+
+def _aircraft(
+    log: str | Path, opts: EstimateOptions, fd: FlightData, user: bool, pr: Progress
+) -> tuple[Any, str | None, dict | None]:
+    """The aircraft stage: (constants, name, truth.json document next to the log or None),
+    with the notes of where they came from."""
+    pr.stage("aircraft and sensor positions")
+    notes: list[str] = []
+    ac, ac_name, truth_doc = aircraft_for_log(log, opts.aircraft, fd, required=not user, say=notes.append)
+    pr.done(ac_name or "none (user model)")
+    for n in notes if not opts.quiet else ():
+        print(n, file=pr.stream)
+    return ac, ac_name, truth_doc
+
+
+def _validation_flights(
+    log: str | Path, vlogs: list, fd: FlightData, flow: dict[str, Any], ac: Any, opts: EstimateOptions, pr: Progress
+) -> tuple[list[FlightData], list[dict]]:
+    """The validation flights read as ``log`` was (its map, servo travel and, for the same
+    format, time base), their air-data angles rebuilt with the fitted flight's pitot scale
+    factor, and their data-quality check summaries; a stage each for the ingest and the
+    angles."""
+    seen = {Path(log).resolve(): "the log being fitted"}
+    for vlog in vlogs:
+        if Path(vlog).resolve() in seen:
+            raise FsidError(
+                f"--validate-with {vlog}: that is {seen[Path(vlog).resolve()]}; "
+                "give another flight (or leave it out to hold out the last maneuver)"
+            )
+        seen[Path(vlog).resolve()] = "a validation flight already given"
+    # the same pitot: a validation flight takes the fitted flight's scale factor
+    cal = flow.get("airspeed_scale") or {}
+    k_pitot = cal["estimate"] if cal.get("applied") else (0.0 if cal.get("carried") else None)
+    fd_vals, val_checks = [], []
+    for vlog in vlogs:
+        pr.stage(f"ingest the validation flight {vlog}")
+        fv = time_steps(
+            read_log(
+                vlog,
+                map=opts.map_path,
+                servo_travel=servo_travel_for(vlog, opts.aircraft),
+                time_base=opts.time_base if detect_format(vlog) == fd.meta["format"] else None,
+            ),
+            MAX_RATE_HZ,
+        )[0]
+        pr.done(f"{len(fv.channels)} channels, {len(fv.segments)} segments")
+        fd_vals.append(flow_angle_stage(fv, ac, pr, airspeed_scale=k_pitot)[0])
+        val_checks.append(summarize(run_checks(fd_vals[-1])))
+    return fd_vals, val_checks
+
+
+def _user_model(spec: str, ac: Any, fd: FlightData, pr: Progress) -> Model:
+    """The user model ``spec`` loaded and checked against the log's channels (a stage,
+    before the slow ones: a bad model fails at once)."""
+    pr.stage(f"load model {spec}")
+    um = load_user_model(spec, ac, fd)
+    check_channels(fd, um)
+    pr.done(
+        f"{um.name}: {len(um.states)} states, {len(um.inputs)} inputs, "
+        f"{len(um.outputs)} outputs, {sum(p.free for p in um.parameters)} free parameters"
+    )
+    return um
+
+
+def _servo_travel(fd: FlightData, meta: dict[str, Any], pr: Progress, quiet: bool) -> None:
+    """The servo travel the surface positions were decoded with, into ``meta``; a note when
+    it was assumed (the control derivatives scale with it)."""
+    if not fd.meta.get("servo_travel"):
+        return
+    meta["servo_travel"] = fd.meta["servo_travel"]
+    assumed = [k for k, v in fd.meta["servo_travel"].items() if v["from"] == "assumed"]
+    if assumed and not quiet:
+        print(
+            f"note: {', '.join(assumed)} from servo commands with "
+            f"{fd.meta['servo_travel'][assumed[0]]['deg']:g} deg at full travel assumed; the "
+            f"control derivatives scale with it: give the aircraft TOML's [servos] "
+            f"({', '.join(a + '_travel_deg' for a in assumed)})",
+            file=pr.stream,
+        )
+
+
+def _corrected(
+    fd: FlightData,
+    fd_logged: FlightData,
+    flow: dict[str, Any],
+    ac: Any,
+    truth_doc: dict | None,
+    steps: list,
+    meta: dict[str, Any],
+    opts: EstimateOptions,
+    pr: Progress,
+) -> Prepared:
+    """The compatibility stage on the logged channels only (angles rebuilt from the GPS
+    velocity and attitude are no independent air data), then the angles rebuilt from the
+    corrected data (or, not rebuilt, the derived ones kept as logged)."""
+    fd_c, comp = compatibility_after_flow_angles(
+        fd_logged, fd, flow, ac, pr, enabled=opts.compat, truth=truth_errors(truth_doc) if truth_doc else None
+    )
+    if flow.get("status") == "reconstructed":
+        fd, flow = with_flow_angles(fd_c, flow)  # rebuilt from the corrected data
+        meta["air-data angles"] = flow_summary(flow)
+        meta["air-data angles assume"] = flow_assumptions(flow)
+        meta["flow_angles"] = {**flow, "data": comp["data_for_estimation"]}
+    else:  # derived angles not rebuilt: as logged
+        fd = replace(
+            fd_c, channels={**fd_c.channels, **{k: c for k, c in fd.channels.items() if k not in fd_c.channels}}
+        )
+    return Prepared(ready=fd, logged=fd_logged, corrected=fd_c, comp=comp, flow=flow, steps=steps)

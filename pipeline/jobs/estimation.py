@@ -1,0 +1,142 @@
+"""The estimation stages every fitting job ends with, once its data are corrected for the
+sensor errors: the control-input delays and lags, the fits and their validation
+(:func:`pipeline.jobs.identify.identify`) and the uncertainty of what the fits held as
+exact (:mod:`pipeline.jobs.consider_stage`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from estimators import Model
+from pipeline.conditioning.input_dynamics import with_input_dynamics
+from pipeline.ingest.constants import AircraftConstants
+from pipeline.ingest.flightdata import FlightData
+from pipeline.jobs.consider_stage import HeldAsExact, carry_consider_uncertainty
+from pipeline.jobs.identify import identify
+from pipeline.jobs.options import AXES, FitOptions
+from pipeline.jobs.progress import Progress, quiet_progress
+from pipeline.jobs.stages import (
+    input_dynamics_stage,
+    refine_input_dynamics_stage,
+    with_flow_angles,
+    with_instrument_errors_removed,
+)
+
+
+@dataclass(frozen=True)
+class FitJob:
+    """What a job fits: the aircraft (None for a user model), the methods, the built-in
+    ``axes`` or a user ``model``, how (``options``), and the truth the validation compares
+    with (derivative -> value; None for a real log)."""
+
+    ac: AircraftConstants | None
+    methods: Sequence[str]
+    truth: Mapping[str, float] | None
+    options: FitOptions
+    axes: Sequence[str] = AXES
+    model: Model | None = None
+
+    def fits(
+        self,
+        fd: FlightData,
+        progress: Progress,
+        *,
+        methods: Sequence[str] | None = None,
+        starts: Mapping[str, Any] | None = None,
+        validation: Sequence[FlightData] = (),
+        fit_all: bool | None = None,
+    ) -> tuple[dict, dict, list]:
+        """:func:`pipeline.jobs.identify.identify` of this job on ``fd`` (``methods``: some
+        of the job's)."""
+        return identify(
+            fd,
+            self.ac,
+            methods or self.methods,
+            self.truth,
+            progress,
+            axes=self.axes,
+            model=self.model,
+            options=self.options,
+            starts=starts,
+            validation=list(validation),
+            fit_all=fit_all,
+        )
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """A flight after the sensor-compatibility stage.
+
+    ready: the data the fits start from (corrected, air-data angles rebuilt), before the
+    control-input dynamics; logged: the data as logged (the corrections' refits correct it
+    again); corrected: the compatibility stage's data (angles not rebuilt); comp: its
+    document; flow: the air-data-angle stage's document ({} when there was none); steps:
+    the control-input steps logged more slowly than the fits' grid.
+    """
+
+    ready: FlightData
+    logged: FlightData
+    corrected: FlightData
+    comp: dict[str, Any]
+    flow: dict[str, Any]
+    steps: list
+
+
+def fit_stages(
+    pr: Progress,
+    job: FitJob,
+    data: Prepared,
+    validation: Sequence[FlightData],
+    input_dynamics: str | tuple[float, float],
+    meta: dict[str, Any],
+) -> tuple[dict, dict, list, dict, dict]:
+    """The control-input dynamics stage (refined by output error's fits), the fits of
+    ``job`` proved on the ``validation`` flights (corrected as the fitted flight: its
+    instrument errors, ``meta["validation flight corrections"]``, and input dynamics) or on
+    held-out maneuvers, and the consider stage. Returns (results, validations, problems,
+    the input dynamics' document, the step-timing part's document)."""
+    fd_before = data.ready
+    fd, dyn_doc = input_dynamics_stage(fd_before, pr, input_dynamics)
+    fit_all = bool(validation)
+
+    def fits(d: FlightData, starts: Mapping[str, Any], only: Sequence[str] | None = None) -> dict:
+        """The fits (of ``only`` methods, default all) repeated on ``d`` from ``starts``."""
+        return job.fits(d, quiet_progress(), methods=only, starts=starts, fit_all=fit_all)[0]
+
+    fd, dyn_doc = refine_input_dynamics_stage(
+        fd_before,
+        fd,
+        dyn_doc,
+        job.methods,
+        pr,
+        lambda dyn, starts: fits(with_input_dynamics(fd_before, dyn), {} if starts is None else starts, only=("oem",)),
+    )
+    applied = dict(dyn_doc["applied"])
+    vals = [with_input_dynamics(with_instrument_errors_removed(fv, data.comp, meta), applied) for fv in validation]
+    results, validations, problems = job.fits(fd, pr, validation=vals)
+    starts = dict(results)
+
+    def refit(fd_j: FlightData, st: Mapping[str, Any], wind_offset: Sequence[float] = (0.0, 0.0, 0.0)) -> dict:
+        """The fits repeated on corrected data ``fd_j`` (the angles rebuilt with
+        ``wind_offset``, the input dynamics applied as in the fits) from ``st``."""
+        return fits(with_input_dynamics(with_flow_angles(fd_j, data.flow, wind_offset)[0], dyn_doc["applied"]), st)
+
+    # the wind's refits (models that see an air-data angle): the corrected data the fits
+    # saw, the angles rebuilt with the wind moved
+    angles = any({"alpha", "beta"} & {*pb.model.inputs, *pb.model.outputs} for pb in problems)
+    held = HeldAsExact(
+        data.logged,
+        data.comp,
+        refit,
+        flow=data.flow,
+        wind_refit=(lambda offset: refit(data.corrected, starts, offset)) if angles else None,
+        dynamics=dyn_doc,
+        dynamics_refit=lambda dyn: fits(with_input_dynamics(fd_before, dyn), starts),
+        steps=data.steps,
+        inputs_data=fd_before,
+        inputs_refit=lambda d: fits(with_input_dynamics(d, dyn_doc["applied"]), starts),
+    )
+    sampling = carry_consider_uncertainty(held, results, validations, job.truth, pr)
+    return results, validations, problems, dyn_doc, sampling

@@ -1,0 +1,88 @@
+"""The settings of the jobs, as the commands build them from the command line (plain
+dataclasses: the command line reads them without loading the jobs)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+#: the axes of the built-in models
+AXES = ("longitudinal", "lateral")
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """How every fit of a job is made and proved.
+
+    inputs: how the inputs vary between samples (estimators.integrators.INPUT_MODES).
+    tolerances: proof-of-match bands per channel (SI; None: those of DESIGN.md section 8).
+    pom: the proof-of-match mode (auto, simulation, air-data).
+    smooth_inputs: the measured surface positions low-passed where a flat noise floor
+        begins (:mod:`pipeline.conditioning.input_smoothing`), else as logged.
+    calm: the flight is known to be flown in calm air (its flight plan says so): the filters
+        fit each axis' own model; otherwise (a real log) the air may be turbulent and the
+        filters fit the gust models. No turbulence level enters a fit: the methods derive
+        their noise levels from the data.
+    validation_calm: the validation flights are known to be flown in calm air (the automatic
+        proof-of-match mode is then the open-loop simulation whatever the method).
+    """
+
+    inputs: str = "linear"
+    tolerances: Mapping[str, float] | None = None
+    pom: str = "auto"
+    smooth_inputs: bool = True
+    calm: bool = False
+    validation_calm: bool = False
+
+
+@dataclass(frozen=True)
+class EstimateOptions:
+    """``fsid estimate``'s settings (see :func:`pipeline.jobs.estimate.estimate_log`).
+
+    aircraft: the aircraft TOML (None: a truth.json next to the log, or none for a user
+        model); map_path: a channel map; methods: the method names; inputs: how the inputs
+        vary between samples; model: auto, longitudinal, lateral or a user model
+        ``path.py:name``; quiet: no progress lines; compat: run the sensor-compatibility
+        stage; bands: proof-of-match bands (``rate_deg_s``, ``accel_g``, ``angle_deg``);
+        pom: the proof-of-match mode; smooth_inputs: see :class:`FitOptions`;
+        validation_log: a second flight, or several, for the proof of match; time_base: of
+        a .tlog or .mcap log; input_dynamics: auto, off or (delay, lag) [s]; calm,
+        validation_calm: the flight, the validation flights known to be flown in calm air (a
+        flight plan's, see :class:`FitOptions`; unknown for a real log).
+    """
+
+    aircraft: str | Path | None = None
+    map_path: str | None = None
+    methods: Sequence[str] = ("oem",)
+    inputs: str = "linear"
+    model: str = "auto"
+    quiet: bool = False
+    compat: bool = True
+    bands: Mapping[str, float] | None = None
+    pom: str = "auto"
+    smooth_inputs: bool = True
+    validation_log: str | Path | Sequence[str | Path] | None = None
+    time_base: str | None = None
+    input_dynamics: str | tuple[float, float] = "auto"
+    calm: bool = False
+    validation_calm: bool = False
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """``fsid run``'s settings (see :func:`pipeline.jobs.scenario.run_scenario`).
+
+    seed: instead of the scenario's; methods: the method names (None: those that suit the
+    flight plan); quiet, compat, bands, pom, smooth_inputs, input_dynamics: as in
+    :class:`EstimateOptions`.
+    """
+
+    seed: int | None = None
+    methods: Sequence[str] | None = None
+    quiet: bool = False
+    compat: bool = True
+    bands: Mapping[str, float] | None = None
+    pom: str = "auto"
+    smooth_inputs: bool = True
+    input_dynamics: str | tuple[float, float] = "auto"

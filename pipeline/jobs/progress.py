@@ -1,0 +1,66 @@
+"""Stage-by-stage progress of a job on stderr: '[2/7] ingest flight.bin ... 1.2 s'.
+
+A job counts its stages once, before the first one, from its plan (what it will run on
+which axes and methods); a stage that only some logs need is a substage of another, so the
+count holds whatever the data."""
+
+from __future__ import annotations
+
+import io
+import sys
+import time
+from typing import TextIO
+
+
+class Progress:
+    """Progress lines on ``stream`` (stderr): ``total`` stages, each started by
+    :meth:`stage` and ended by :meth:`done` with its duration; nothing printed when
+    ``quiet`` (notes written to ``stream`` by the stages still go there)."""
+
+    def __init__(self, total: int, stream: TextIO | None = None, quiet: bool = False) -> None:
+        self.total, self.n, self.stream, self.quiet = total, 0, stream or sys.stderr, quiet
+        self.t0 = time.perf_counter()
+        self._t = self.t0
+
+    def stage(self, text: str, since: float | None = None) -> Progress:
+        """Start the next stage (``since``: its start time, perf_counter, when its work ran
+        before the count was known)."""
+        self.n += 1
+        self._t = time.perf_counter() if since is None else since
+        if not self.quiet:
+            print(f"[{self.n}/{self.total}] {text} ...", end="", file=self.stream, flush=True)
+        return self
+
+    def substage(self, text: str) -> Progress:
+        """A second part of the stage just done, on a line of its own under it (counted
+        with that stage: a part that only some logs need keeps the count right)."""
+        self._t = time.perf_counter()
+        if not self.quiet:
+            print(
+                f"{' ' * (len(str(self.n)) + len(str(self.total)) + 3)} {text} ...",
+                end="",
+                file=self.stream,
+                flush=True,
+            )
+        return self
+
+    def tick(self, text: str) -> None:
+        """A step within the current stage, on its line (an iteration, a refit)."""
+        if not self.quiet:
+            print(f" {text}", end="", file=self.stream, flush=True)
+
+    def done(self, extra: str = "") -> None:
+        """End the current stage or substage: its duration and ``extra``."""
+        if not self.quiet:
+            dt = time.perf_counter() - self._t
+            print(f" {dt:.1f} s{(' - ' + extra) if extra else ''}", file=self.stream, flush=True)
+
+
+def quiet_progress() -> Progress:
+    """A Progress that prints nothing (notes of the refits included)."""
+    return Progress(1, stream=io.StringIO(), quiet=True)
+
+
+def counted(n: int, noun: str) -> str:
+    """``"1 maneuver"``, ``"3 maneuvers"``."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"

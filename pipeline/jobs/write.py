@@ -1,0 +1,44 @@
+"""The last stage of the fitting jobs: the methods' cross-check (their std final by now),
+then report.md, report.json and run.rrd."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from pipeline.jobs.progress import Progress
+from pipeline.outputs.recording import write_recording
+from pipeline.outputs.report import write_report
+from pipeline.validation import cross_check_methods
+
+
+def write_outputs(
+    out: Path,
+    results: dict,
+    validations: dict,
+    truth: Mapping[str, float] | None,
+    pr: Progress,
+    *,
+    checks: Any,
+    meta: Mapping[str, Any],
+    compatibility: Mapping[str, Any] | None = None,
+) -> dict[str, Path]:
+    """Write report.md, report.json and run.rrd of ``results`` (key -> result) and their
+    ``validations`` into ``out``, compared with ``truth`` where known; returns name ->
+    path."""
+    agreement = cross_check_methods(results, validations)
+    pr.stage("write report.md, report.json, run.rrd")
+    md, js = write_report(
+        out,
+        results,
+        validations,
+        truth=truth,
+        meta=meta,
+        checks=checks,
+        compatibility=compatibility,
+        agreement=agreement,
+    )
+    rrd = write_recording(out / "run.rrd", results, validations, truth=truth)
+    pr.done()
+    return {"report.md": md, "report.json": js, "run.rrd": rrd}

@@ -1,0 +1,130 @@
+"""Where things go in run.rrd: entity-path parts, colours, SI units of the series, and the
+place of every segment on the ``t`` and ``segment`` timelines (layout in the module doc of
+:mod:`pipeline.outputs.recording`)."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from estimators import EstimationResult
+from pipeline.validation import display_unit
+
+#: gap in s between segments laid end to end on the ``t`` timeline
+SEGMENT_GAP = 1.0
+#: colours of the methods and of measured/truth lines (RGB)
+COLORS = {
+    "measured": (40, 40, 40),
+    "truth": (200, 160, 0),
+    "data": (40, 40, 40),
+    "oem": (31, 119, 180),
+    "fem": (255, 127, 14),
+    "ekf": (44, 160, 44),
+    "ukf": (214, 39, 40),
+    "ls": (148, 103, 189),
+    "eq": (148, 103, 189),
+}
+#: colours of the other methods, in turn
+_PALETTE = [(140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
+
+
+def entity_part(name: str) -> str:
+    """One entity-path part from a name: characters outside [A-Za-z0-9_.-] become '_'."""
+    return re.sub(r"[^A-Za-z0-9_.\-]", "_", str(name))
+
+
+def method_color(key: str, order: Sequence[str]) -> tuple[int, int, int]:
+    """The colour of a method (or measured/truth/data line): its own in COLORS, else the
+    palette's by its place in ``order``."""
+    if key in COLORS:
+        return COLORS[key]
+    return _PALETTE[list(order).index(key) % len(_PALETTE)] if key in order else _PALETTE[0]
+
+
+def si_unit(channel: str) -> str:
+    """The SI unit of a canonical channel, for the legends (the series are SI)."""
+    fac, unit = display_unit(channel)
+    if fac == 1.0:
+        return unit
+    return {"deg": "rad", "deg/s": "rad/s", "deg/s^2": "rad/s^2", "g": "m/s^2"}[unit]
+
+
+def segment_starts(t_list: Sequence[np.ndarray], gap: float = SEGMENT_GAP) -> list[float]:
+    """Offset in s to add to each segment's own times (t, (N_k,)) on the shared ``t`` line:
+    0 for all when the segments are pairwise disjoint in time (pieces of one log), else end
+    to end in the given order, each ``gap`` s after the previous one ends."""
+    t_list = [np.asarray(t, dtype=float) for t in t_list]
+    spans = sorted((float(t[0]), float(t[-1])) for t in t_list)
+    if all(a1 < b0 for (_, a1), (b0, _) in zip(spans, spans[1:])):
+        return [0.0] * len(t_list)
+    offs, start = [], 0.0
+    for t in t_list:
+        offs.append(start - float(t[0]))
+        start += float(t[-1] - t[0]) + gap
+    return offs
+
+
+def _sig(t, name: str) -> tuple[float, float, int, str]:
+    """Identity of a segment: its name and its own times (first, last, count)."""
+    t = np.asarray(t, dtype=float)
+    return (round(float(t[0]), 9), round(float(t[-1]), 9), int(t.size), str(name))
+
+
+def segment_names(r: EstimationResult) -> list[str]:
+    """Names of a result's fitted segments: ``Segment.name``, or ``#k`` when unnamed or when
+    the result keeps no Segment objects (a regression)."""
+    segs = r.segments if len(r.segments) == len(r.predicted) else [None] * len(r.predicted)
+    return [(s.name if s is not None and s.name else f"#{k}") for k, s in enumerate(segs)]
+
+
+class SegmentLayout:
+    """Where every distinct segment sits on ``t`` and its ``segment`` index.
+
+    Segments are told apart by name and times (:func:`_sig`); the same maneuver fitted by
+    several methods is one segment. Order of first appearance: for each result its fitted
+    segments, then its held-out ones. Offsets from :func:`segment_starts` over that order."""
+
+    def __init__(self, results: Mapping[str, EstimationResult], validations: Mapping[str, Mapping[str, Any]]) -> None:
+        times: dict[tuple, np.ndarray] = {}
+        for m, r in results.items():
+            for p, name in zip(r.predicted, segment_names(r)):
+                times.setdefault(_sig(p.index, name), np.asarray(p.index, dtype=float))
+            for a in held_out_arrays(validations.get(m)):
+                times.setdefault(_sig(a["t"], a["name"]), np.asarray(a["t"], dtype=float))
+        offs = segment_starts(list(times.values())) if times else []
+        self.index = {k: i for i, k in enumerate(times)}
+        self.offset = dict(zip(times, offs))
+
+    def place(self, t, name: str) -> tuple[float, int]:
+        """(offset s, segment index) of segment ``name`` with own times t; unseen ones are
+        appended."""
+        k = _sig(t, name)
+        if k not in self.index:
+            end = max((s[1] + o for s, o in self.offset.items()), default=-SEGMENT_GAP)
+            self.index[k] = len(self.index)
+            overlap = any(not (k[1] < s[0] or s[1] < k[0]) for s in self.offset)
+            self.offset[k] = (end + SEGMENT_GAP - k[0]) if overlap or any(self.offset.values()) else 0.0
+        return self.offset[k], self.index[k]
+
+    def cat(
+        self, frames: Sequence[pd.DataFrame], names: Sequence[str], times: Sequence[Any] | None = None
+    ) -> tuple[np.ndarray, np.ndarray, pd.DataFrame]:
+        """Concatenate per-segment DataFrames on t (or with explicit own ``times``) of the
+        named segments into (t_run (N,), segment (N,), values)."""
+        times = [df.index for df in frames] if times is None else times
+        ts, sg = [], []
+        for df, t, name in zip(frames, times, names):
+            o, k = self.place(t, name)
+            ts.append(np.asarray(t, dtype=float) + o)
+            sg.append(np.full(len(df), k, dtype=np.int64))
+        vals = pd.concat([df.reset_index(drop=True) for df in frames], ignore_index=True)
+        return np.concatenate(ts), np.concatenate(sg), vals
+
+
+def held_out_arrays(v: Mapping[str, Any] | None) -> list[dict[str, Any]]:
+    """The proof-of-match ``arrays["match"]`` entries of a validation (empty without)."""
+    return list(((v or {}).get("arrays") or {}).get("match") or [])
