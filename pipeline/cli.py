@@ -11,6 +11,7 @@ import argparse
 import importlib
 import os
 import sys
+from importlib import metadata
 
 from estimators.errors import EstimationError
 from pipeline.commands import COMMANDS
@@ -26,11 +27,20 @@ def _load(name: str):
         raise
 
 
+def _version() -> str:
+    """The installed distribution's version (the source tree's pyproject when not installed)."""
+    try:
+        return metadata.version("fsid")
+    except metadata.PackageNotFoundError:
+        return "unknown (not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fsid",
         description="Flight-vehicle system identification: flight logs in, aerodynamic derivatives with Cramér-Rao bounds out.",
     )
+    parser.add_argument("--version", action="version", version=f"fsid {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
         mod = _load(name)

@@ -23,9 +23,25 @@ def new_run_dir(kind: str, out: str | os.PathLike | None = None) -> Path:
     return path
 
 
+def _umask() -> int:
+    """The process's file-creation mask (read by setting it and putting it back)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _publish(tmp: str | os.PathLike, path: Path) -> None:
+    """Give the temporary file the mode a plain ``open`` would (0666 less the umask, so
+    0644 by default: a team folder can read it; mkstemp makes 0600) and rename it onto
+    ``path``."""
+    os.chmod(tmp, 0o666 & ~_umask())
+    os.replace(tmp, path)
+
+
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
     """Write ``data`` to ``path`` through a temporary file in the same folder and a rename,
-    so a reader never sees a half-written file."""
+    so a reader never sees a half-written file. The file is readable by others (0644 under
+    the usual umask)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -34,7 +50,7 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        _publish(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -48,7 +64,8 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
 
 class atomic_path:
     """Context manager yielding a temporary path next to ``path``; renamed onto ``path``
-    on success, removed on failure. For writers that need a file name (mcap, rerun)."""
+    on success (with :func:`atomic_write_bytes`' mode), removed on failure. For writers that
+    need a file name (mcap, rerun)."""
 
     def __init__(self, path: str | os.PathLike) -> None:
         self.path = Path(path)
@@ -62,6 +79,6 @@ class atomic_path:
 
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is None:
-            os.replace(self.tmp, self.path)
+            _publish(self.tmp, self.path)
         elif self.tmp.exists():
             self.tmp.unlink()

@@ -1,0 +1,44 @@
+"""The command line's version flag, and output files others can read."""
+
+from __future__ import annotations
+
+import os
+import stat
+from importlib import metadata
+
+import pytest
+
+from pipeline.cli import main
+from pipeline.paths import atomic_path, atomic_write_text
+
+
+def test_version_prints_the_installed_version(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    assert capsys.readouterr().out.strip() == f"fsid {metadata.version('fsid')}"
+
+
+@pytest.fixture
+def umask_022():
+    old = os.umask(0o022)
+    yield
+    os.umask(old)
+
+
+def test_atomic_files_are_readable_by_others(tmp_path, umask_022):
+    text = atomic_write_text(tmp_path / "report.md", "x\n")
+    with atomic_path(tmp_path / "run.rrd") as tmp:
+        tmp.write_bytes(b"rrd")
+    for path in (text, tmp_path / "run.rrd"):
+        assert stat.S_IMODE(path.stat().st_mode) == 0o644, oct(path.stat().st_mode)
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_atomic_files_follow_a_stricter_umask(tmp_path):
+    old = os.umask(0o077)
+    try:
+        path = atomic_write_text(tmp_path / "private.json", "{}\n")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o600
