@@ -42,3 +42,16 @@ def test_atomic_files_follow_a_stricter_umask(tmp_path):
     finally:
         os.umask(old)
     assert stat.S_IMODE(path.stat().st_mode) == 0o600
+
+
+@pytest.mark.parametrize("command", ["check", "estimate"])
+def test_a_directory_given_as_a_log_is_named_so_before_any_output(command, tmp_path, capsys):
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    out = tmp_path / "out"
+    assert main([command, str(folder), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is a directory" in err and "not found" not in err, err
+    assert not out.exists()
+    assert main([command, str(folder / "missing.bin"), "--out", str(out)]) == 2
+    assert "not found" in capsys.readouterr().err

@@ -106,3 +106,17 @@ def print_outputs(out: Path, paths: dict[str, Path]) -> None:
     print(f"wrote {out}/")
     for name, path in paths.items():
         print(f"  {name:<12} {path}")
+
+
+LOG_KINDS = ".mcap/.bin/.tlog/.ulg/.csv"
+
+
+def log_file(arg: str | Path) -> Path:
+    """The log path a command was given, checked before any output folder is made: a
+    missing path and a directory each get their own message."""
+    path = Path(arg)
+    if path.is_dir():
+        raise FsidError(f"log '{path}' is a directory; give the path of a {LOG_KINDS} file inside it")
+    if not path.is_file():
+        raise FsidError(f"log '{path}' not found; give the path of a {LOG_KINDS} file")
+    return path

@@ -8,7 +8,7 @@ import argparse
 import json
 from pathlib import Path
 
-from pipeline.commands.arguments import add_time_base_argument
+from pipeline.commands.arguments import add_time_base_argument, log_file
 from pipeline.errors import FsidError
 
 HELP = "ingest a flight log, check its data quality and sensor compatibility"
@@ -90,9 +90,7 @@ def _segments(spec: str | None):
 def run(args: argparse.Namespace) -> int:
     from pipeline.jobs.check import check_log  # the job loads numba, scipy, pandas: on use only
 
-    log = Path(args.log)
-    if not log.is_file():
-        raise FsidError(f"log '{log}' not found; give the path of a .mcap/.bin/.tlog/.ulg/.csv file")
+    log = log_file(args.log)
     return check_log(
         log,
         args.out,

@@ -9,6 +9,7 @@ from pipeline.commands.arguments import (
     add_input_arguments,
     add_time_base_argument,
     add_validation_arguments,
+    log_file,
     print_outputs,
     validation_options,
 )
@@ -91,6 +92,7 @@ def options(args: argparse.Namespace) -> EstimateOptions:
 def run(args: argparse.Namespace) -> int:
     from pipeline.jobs.estimate import estimate_log  # the job loads numba, scipy, pandas: on use only
 
+    log_file(args.log)
     opts = options(args)
     out = new_run_dir("estimate", args.out)
     paths = estimate_log(args.log, out, opts)
