@@ -16,6 +16,7 @@ from importlib import metadata
 from estimators.errors import EstimationError
 from pipeline.commands import COMMANDS
 from pipeline.errors import FsidError
+from pipeline.jobs.progress import end_open_line
 
 
 def _load(name: str):
@@ -61,9 +62,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except KeyboardInterrupt:
+        end_open_line()
         print("fsid: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # one clear line, never a traceback
+        end_open_line()
         if os.environ.get("FSID_DEBUG"):
             raise
         if isinstance(exc, (FsidError, EstimationError)):

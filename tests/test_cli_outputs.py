@@ -55,3 +55,34 @@ def test_a_directory_given_as_a_log_is_named_so_before_any_output(command, tmp_p
     assert not out.exists()
     assert main([command, str(folder / "missing.bin"), "--out", str(out)]) == 2
     assert "not found" in capsys.readouterr().err
+
+
+def test_a_failed_estimate_leaves_error_txt_in_its_folder(tmp_path, capsys):
+    log = tmp_path / "flight.bin"
+    log.write_bytes(b"")  # an empty download
+    out = tmp_path / "out"
+    assert main(["estimate", str(log), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    text = (out / "error.txt").read_text()
+    assert text.startswith("fsid estimate failed: ") and "empty" in text, text
+    assert err.endswith(text.splitlines()[0].removeprefix("fsid estimate failed: ")), (err, text)
+    assert "no other output was written" in text
+    assert stat.S_IMODE((out / "error.txt").stat().st_mode) & 0o044 == 0o044
+
+
+def test_an_error_stands_on_its_own_line_after_an_open_stage(monkeypatch, capsys):
+    import sys
+
+    import pipeline.commands.check as check_command
+    from pipeline.errors import FsidError
+    from pipeline.jobs.progress import Progress
+
+    def failing_stage(args):
+        Progress(3, stream=sys.stderr).stage("ingest flight.bin")
+        raise FsidError("flight.bin: no IMU channels; give a map")
+
+    monkeypatch.setattr(check_command, "run", failing_stage)
+    assert main(["check", "flight.bin"]) == 2
+    assert (
+        capsys.readouterr().err == "[1/3] ingest flight.bin ...\nfsid: error: flight.bin: no IMU channels; give a map\n"
+    )

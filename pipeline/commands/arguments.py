@@ -5,9 +5,12 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from pipeline.errors import FsidError
+from pipeline.paths import atomic_write_text
 
 
 def add_time_base_argument(parser: argparse.ArgumentParser) -> None:
@@ -120,3 +123,29 @@ def log_file(arg: str | Path) -> Path:
     if not path.is_file():
         raise FsidError(f"log '{path}' not found; give the path of a {LOG_KINDS} file")
     return path
+
+
+@contextmanager
+def failure_recorded(out: Path, command: str) -> Iterator[None]:
+    """Run a job writing into ``out``; when it fails, ``out/error.txt`` says what failed
+    (the same message the command line prints: what, where, what to do) and which files
+    the job left there, so a folder never stays empty or unexplained. The error goes on."""
+    try:
+        yield
+    except Exception as exc:
+        left = sorted(p.name for p in out.iterdir() if not p.name.startswith(".") and p.name != "error.txt")
+        what = (
+            str(exc)
+            if isinstance(exc, FsidError) or type(exc).__module__.startswith("estimators")
+            else (f"unexpected {type(exc).__name__}: {exc} (rerun with FSID_DEBUG=1 for the traceback and report it)")
+        )
+        atomic_write_text(
+            out / "error.txt",
+            f"fsid {command} failed: {what}\n"
+            + (
+                f"files left here (partial, not a result): {', '.join(left)}\n"
+                if left
+                else "no other output was written\n"
+            ),
+        )
+        raise

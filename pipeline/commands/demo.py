@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pipeline.commands.arguments import print_outputs
+from pipeline.commands.arguments import failure_recorded, print_outputs
 from pipeline.errors import FsidError
 from pipeline.paths import new_run_dir
 
@@ -28,7 +28,8 @@ def run(args: argparse.Namespace) -> int:
     from pipeline.jobs.scenario import run_scenario  # the job loads numba, scipy, pandas: on use only
 
     out = new_run_dir("demo", args.out)
-    paths = run_scenario(default_scenario(), out)
+    with failure_recorded(out, "demo"):
+        paths = run_scenario(default_scenario(), out)
     print_outputs(out, paths)
     print(f"\nreport:    {paths['report.md']}\nrecording: {paths['run.rrd']}  (open with: fsid view {out})")
     return 0

@@ -9,6 +9,7 @@ from pipeline.commands.arguments import (
     add_input_arguments,
     add_time_base_argument,
     add_validation_arguments,
+    failure_recorded,
     log_file,
     print_outputs,
     validation_options,
@@ -95,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
     log_file(args.log)
     opts = options(args)
     out = new_run_dir("estimate", args.out)
-    paths = estimate_log(args.log, out, opts)
+    with failure_recorded(out, "estimate"):
+        paths = estimate_log(args.log, out, opts)
     print_outputs(out, paths)
     return 0

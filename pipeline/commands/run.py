@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import argparse
 
-from pipeline.commands.arguments import add_input_arguments, add_validation_arguments, print_outputs, validation_options
+from pipeline.commands.arguments import (
+    add_input_arguments,
+    add_validation_arguments,
+    failure_recorded,
+    print_outputs,
+    validation_options,
+)
 from pipeline.jobs.options import RunOptions
 from pipeline.methods.catalogue import METHOD_LIST, METHODS
 from pipeline.paths import new_run_dir
@@ -54,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
 
     opts = options(args)
     out = new_run_dir("run", args.out)
-    paths = run_scenario(args.scenario, out, opts)
+    with failure_recorded(out, "run"):
+        paths = run_scenario(args.scenario, out, opts)
     print_outputs(out, paths)
     return 0

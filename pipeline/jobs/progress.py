@@ -11,6 +11,20 @@ import sys
 import time
 from typing import TextIO
 
+#: the stream whose last progress line is still open (a stage started, not yet done)
+_open: list[TextIO] = []
+
+
+def end_open_line() -> None:
+    """End a progress line a failing stage left open, so that the error printed next
+    stands on its own line."""
+    while _open:
+        print(file=_open.pop(), flush=True)
+
+
+def _opened(stream: TextIO) -> None:
+    _open[:] = [stream]
+
 
 class Progress:
     """Progress lines on ``stream`` (stderr): ``total`` stages, each started by
@@ -29,6 +43,7 @@ class Progress:
         self._t = time.perf_counter() if since is None else since
         if not self.quiet:
             print(f"[{self.n}/{self.total}] {text} ...", end="", file=self.stream, flush=True)
+            _opened(self.stream)
         return self
 
     def substage(self, text: str) -> Progress:
@@ -42,6 +57,7 @@ class Progress:
                 file=self.stream,
                 flush=True,
             )
+            _opened(self.stream)
         return self
 
     def tick(self, text: str) -> None:
@@ -54,6 +70,7 @@ class Progress:
         if not self.quiet:
             dt = time.perf_counter() - self._t
             print(f" {dt:.1f} s{(' - ' + extra) if extra else ''}", file=self.stream, flush=True)
+            _open.clear()
 
 
 def quiet_progress() -> Progress:
