@@ -86,3 +86,18 @@ def test_an_error_stands_on_its_own_line_after_an_open_stage(monkeypatch, capsys
     assert (
         capsys.readouterr().err == "[1/3] ingest flight.bin ...\nfsid: error: flight.bin: no IMU channels; give a map\n"
     )
+
+
+def test_canonical_csv_keeps_epoch_time_to_the_microsecond(tmp_path):
+    import numpy as np
+    import pandas as pd
+
+    t = 1.7e9 + np.arange(0.0, 20.0, 0.01)  # an epoch-stamped log at 100 Hz
+    p = 0.1 * np.sin(2.0 * (t - t[0]))
+    log = tmp_path / "epoch.csv"
+    pd.DataFrame({"t": t, "p": p}).to_csv(log, index=False, float_format="%.6f")
+    out = tmp_path / "out"
+    assert main(["check", str(log), "--out", str(out), "--no-compat"]) == 0
+    back = pd.read_csv(out / "canonical.csv")
+    assert back["t"].nunique() == len(back) > 1500
+    assert np.allclose(np.diff(back["t"]), np.median(np.diff(back["t"])), atol=1e-5)

@@ -51,7 +51,9 @@ def check_log(
         rate = min(max(rates), 100.0) if rates else 10.0
     df = fd.resample(rate, span="union")
     buf = io.StringIO()
-    df.to_csv(buf, index=False, float_format="%.9g")
+    # time to the microsecond whatever its origin (an epoch-stamped log's 1.7e9 s would
+    # keep 9 digits, 1 s, under the values' format)
+    df.assign(t=df["t"].map("{:.6f}".format)).to_csv(buf, index=False, float_format="%.9g")
     atomic_write_text(out / "canonical.csv", buf.getvalue())
     _print_compatibility(extra.get("compatibility", {}))
     c = summarize(findings)
