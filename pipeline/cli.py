@@ -11,12 +11,13 @@ import argparse
 import importlib
 import os
 import sys
+import warnings
 from importlib import metadata
 
 from estimators.errors import EstimationError
 from pipeline.commands import COMMANDS
 from pipeline.errors import FsidError
-from pipeline.jobs.progress import end_open_line
+from pipeline.jobs.progress import end_open_line, where_stopped
 
 
 def _load(name: str):
@@ -60,10 +61,15 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        return int(args._run(args) or 0)
+        with warnings.catch_warnings():
+            # numpy's floating-point RuntimeWarnings (a NaN sample, an empty window) are
+            # handled where they matter; on the command line they are noise
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return int(args._run(args) or 0)
     except KeyboardInterrupt:
         end_open_line()
-        print("fsid: interrupted", file=sys.stderr)
+        where = where_stopped()
+        print(f"fsid: interrupted{' ' + where if where else ''}", file=sys.stderr)
         return 130
     except Exception as exc:  # one clear line, never a traceback
         end_open_line()

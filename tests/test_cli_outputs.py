@@ -101,3 +101,51 @@ def test_canonical_csv_keeps_epoch_time_to_the_microsecond(tmp_path):
     back = pd.read_csv(out / "canonical.csv")
     assert back["t"].nunique() == len(back) > 1500
     assert np.allclose(np.diff(back["t"]), np.median(np.diff(back["t"])), atol=1e-5)
+
+
+def test_numpy_runtime_warnings_stay_off_the_command_line(monkeypatch, capsys):
+    import numpy as np
+
+    import pipeline.commands.check as check_command
+
+    def noisy(args):
+        np.log(np.array([-1.0, 0.0]))  # invalid value, divide by zero
+        return 0
+
+    monkeypatch.setattr(check_command, "run", noisy)
+    assert main(["check", "x.bin"]) == 0
+    assert "Warning" not in capsys.readouterr().err
+
+
+def test_ctrl_c_says_where_it_stopped_and_marks_the_partial_outputs(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import threading
+    import time
+    from pathlib import Path
+
+    out = tmp_path / "run"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pipeline.cli", "run", "scenarios/default.toml", "--out", str(out)],
+        cwd=Path(__file__).resolve().parents[1],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    err: list[str] = []
+    reader = threading.Thread(target=lambda: err.extend(iter(lambda: proc.stderr.read(1), "")), daemon=True)
+    reader.start()
+    deadline = time.monotonic() + 120
+    while "in JSBSim ..." not in "".join(err) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    proc.wait(timeout=60)
+    reader.join(timeout=10)
+    text = "".join(err)
+    assert proc.returncode == 130, text
+    last = text.strip().splitlines()[-1]
+    assert last.startswith("fsid: interrupted during [2/") and "JSBSim" in last, text
+    marker = (out / "INTERRUPTED.txt").read_text()
+    assert marker.startswith("fsid run was interrupted (Ctrl-C) during [2/"), marker
+    assert not (out / "report.md").exists()

@@ -222,6 +222,44 @@ def test_view_serves_web_viewer_without_display(run, launcher):
     assert proc.returncode == 0
 
 
+def test_view_ends_its_rerun_server_on_sigterm(run):
+    """kill (SIGTERM) stops fsid view and the rerun server it started: no process of its
+    group is left holding the ports."""
+    *_, path = run
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pipeline.cli", "view", str(path.parent), "--web-port", "0", "--grpc-port", "0"],
+        cwd=Path(__file__).resolve().parents[1],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        line = proc.stdout.readline()
+        assert "serving" in line, line
+        time.sleep(2.0)  # the rerun child is up
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 0
+    deadline = time.monotonic() + 10
+    alive = True
+    while alive and time.monotonic() < deadline:
+        try:
+            os.killpg(proc.pid, 0)
+            time.sleep(0.2)
+        except ProcessLookupError:
+            alive = False
+    if alive:
+        os.killpg(proc.pid, signal.SIGKILL)
+    assert not alive, "the rerun server outlived fsid view"
+
+
 def test_several_methods_and_filter_trajectories(run, tmp_path):
     """OEM + EKF + a regression: measured once, one entity per method, the EKF parameter
     trajectory on t with +/- std, truth on both iteration and t."""

@@ -10,6 +10,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from pipeline.errors import FsidError
+from pipeline.jobs.progress import where_stopped
 from pipeline.paths import atomic_write_text
 
 
@@ -129,9 +130,19 @@ def log_file(arg: str | Path) -> Path:
 def failure_recorded(out: Path, command: str) -> Iterator[None]:
     """Run a job writing into ``out``; when it fails, ``out/error.txt`` says what failed
     (the same message the command line prints: what, where, what to do) and which files
-    the job left there, so a folder never stays empty or unexplained. The error goes on."""
+    the job left there, so a folder never stays empty or unexplained; an interruption
+    leaves ``INTERRUPTED.txt`` naming the stage and the partial files. The error goes on."""
     try:
         yield
+    except KeyboardInterrupt:
+        left = sorted(p.name for p in out.iterdir() if not p.name.startswith(".") and p.name != "INTERRUPTED.txt")
+        where = where_stopped()
+        atomic_write_text(
+            out / "INTERRUPTED.txt",
+            f"fsid {command} was interrupted (Ctrl-C){' ' + where if where else ''}; "
+            + (f"these files are partial, not a result: {', '.join(left)}\n" if left else "nothing else was written\n"),
+        )
+        raise
     except Exception as exc:
         left = sorted(p.name for p in out.iterdir() if not p.name.startswith(".") and p.name != "error.txt")
         what = (

@@ -105,14 +105,21 @@ def command(rrd: Path, *, web: bool, bind: str = "127.0.0.1", web_port: int = 90
     return [exe, str(rrd), "--serve-web", "--bind", bind, "--web-viewer-port", str(web_port), "--port", str(grpc_port)]
 
 
+def _terminate(signum: int, frame: object) -> None:
+    """SIGTERM (a service manager, ``kill``) stops the viewer as Ctrl-C does: the rerun
+    server is ended with it and its ports are freed."""
+    raise KeyboardInterrupt
+
+
 def sigint_stops() -> None:
     """Let Ctrl-C (SIGINT) reach this process even when whatever started it left SIGINT
     ignored (a background job of a script) or blocked (a test runner's worker thread):
-    both are inherited across exec, and the viewer would then never stop. Its rerun
-    child inherits the restored state."""
+    both are inherited across exec, and the viewer would then never stop. SIGTERM ends it
+    the same way. Its rerun child inherits the restored state."""
     signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _terminate)
     if hasattr(signal, "pthread_sigmask"):
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
 
 
 def run(args: argparse.Namespace) -> int:

@@ -13,6 +13,16 @@ from typing import TextIO
 
 #: the stream whose last progress line is still open (a stage started, not yet done)
 _open: list[TextIO] = []
+#: the last stage started in this process, "[n/N] text", and whether it finished
+_last: dict[str, object] = {}
+
+
+def where_stopped() -> str:
+    """Where a job stopped, for an interruption or an error: "during [3/12] fly 60 s in
+    JSBSim" (or "after ..." when that stage had finished); "" before any stage."""
+    if not _last:
+        return ""
+    return f"{'after' if _last['done'] else 'during'} {_last['label']}"
 
 
 def end_open_line() -> None:
@@ -44,6 +54,7 @@ class Progress:
         if not self.quiet:
             print(f"[{self.n}/{self.total}] {text} ...", end="", file=self.stream, flush=True)
             _opened(self.stream)
+        _last.update(label=f"[{self.n}/{self.total}] {text}", done=False)
         return self
 
     def substage(self, text: str) -> Progress:
@@ -71,6 +82,8 @@ class Progress:
             dt = time.perf_counter() - self._t
             print(f" {dt:.1f} s{(' - ' + extra) if extra else ''}", file=self.stream, flush=True)
             _open.clear()
+        if _last:
+            _last["done"] = True
 
 
 def quiet_progress() -> Progress:
