@@ -14,9 +14,8 @@ import sys
 import warnings
 from importlib import metadata
 
-from estimators.errors import EstimationError
 from pipeline.commands import COMMANDS
-from pipeline.errors import FsidError
+from pipeline.errors import USER_ERRORS, describe
 from pipeline.jobs.progress import end_open_line, where_stopped
 
 
@@ -75,13 +74,9 @@ def main(argv: list[str] | None = None) -> int:
         end_open_line()
         if os.environ.get("FSID_DEBUG"):
             raise
-        if isinstance(exc, (FsidError, EstimationError)):
-            print(f"fsid: error: {exc}", file=sys.stderr)
+        print(f"fsid: error: {describe(exc)}", file=sys.stderr)
+        if isinstance(exc, USER_ERRORS):
             return getattr(exc, "exit_code", 2)
-        print(
-            f"fsid: error: unexpected {type(exc).__name__}: {exc} (rerun with FSID_DEBUG=1 for the traceback and report it)",
-            file=sys.stderr,
-        )
         return 1
 
 

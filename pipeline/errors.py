@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from estimators.errors import EstimationError
+
 
 class FsidError(Exception):
     """A user-facing failure: the message says what went wrong, where, and what to do.
@@ -15,3 +17,15 @@ class FsidError(Exception):
         super().__init__(message)
         if exit_code is not None:
             self.exit_code = exit_code
+
+
+#: the errors whose message is written for the user (what, where, what to do)
+USER_ERRORS = (FsidError, EstimationError)
+
+
+def describe(exc: Exception) -> str:
+    """The one line the command line gives for ``exc``: a user error's own message, else
+    the unexpected error named, with how to see its traceback."""
+    if isinstance(exc, USER_ERRORS):
+        return str(exc)
+    return f"unexpected {type(exc).__name__}: {exc} (rerun with FSID_DEBUG=1 for the traceback and report it)"

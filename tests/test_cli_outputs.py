@@ -149,3 +149,18 @@ def test_ctrl_c_says_where_it_stopped_and_marks_the_partial_outputs(tmp_path):
     marker = (out / "INTERRUPTED.txt").read_text()
     assert marker.startswith("fsid run was interrupted (Ctrl-C) during [2/"), marker
     assert not (out / "report.md").exists()
+
+
+def test_a_refit_inside_a_stage_leaves_where_stopped_to_the_job(capsys):
+    import io
+
+    from pipeline.jobs.progress import Progress, quiet_progress, where_stopped
+
+    job = Progress(4, stream=io.StringIO())
+    job.stage("fit oem on longitudinal")
+    refit = quiet_progress()
+    refit.stage("refit")
+    refit.done()
+    assert where_stopped() == "during [1/4] fit oem on longitudinal"
+    job.done()
+    assert where_stopped() == "after [1/4] fit oem on longitudinal"

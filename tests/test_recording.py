@@ -179,6 +179,22 @@ def _block_sigint():
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
 
 
+def _start_view(run_dir: Path, launcher=None) -> subprocess.Popen:
+    """``fsid view RUN_DIR`` on free ports without a display, in its own process group
+    (``launcher``: run in the child before exec)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    return subprocess.Popen(
+        [sys.executable, "-m", "pipeline.cli", "view", str(run_dir), "--web-port", "0", "--grpc-port", "0"],
+        cwd=Path(__file__).resolve().parents[1],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        start_new_session=True,
+        preexec_fn=launcher,
+    )
+
+
 @pytest.mark.parametrize(
     "launcher", [None, _ignore_sigint, _block_sigint], ids=["plain", "sigint-ignored", "sigint-blocked"]
 )
@@ -187,18 +203,7 @@ def test_view_serves_web_viewer_without_display(run, launcher):
     ignored or blocked (inherited across exec from a script's background job or a test
     runner's worker: it had then never stopped, and was killed after 30 s)."""
     *_, path = run
-    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    root = Path(__file__).resolve().parents[1]
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "pipeline.cli", "view", str(path.parent), "--web-port", "0", "--grpc-port", "0"],
-        cwd=root,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-        start_new_session=True,
-        preexec_fn=launcher,
-    )
+    proc = _start_view(path.parent, launcher)
     try:
         line = proc.stdout.readline()
         m = re.search(r"(http://127\.0\.0\.1:(\d+)/\?url=\S+)", line)
@@ -226,16 +231,7 @@ def test_view_ends_its_rerun_server_on_sigterm(run):
     """kill (SIGTERM) stops fsid view and the rerun server it started: no process of its
     group is left holding the ports."""
     *_, path = run
-    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "pipeline.cli", "view", str(path.parent), "--web-port", "0", "--grpc-port", "0"],
-        cwd=Path(__file__).resolve().parents[1],
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-        start_new_session=True,
-    )
+    proc = _start_view(path.parent)
     try:
         line = proc.stdout.readline()
         assert "serving" in line, line

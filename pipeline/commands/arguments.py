@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from pipeline.errors import FsidError
+from pipeline.errors import FsidError, describe
 from pipeline.jobs.progress import where_stopped
 from pipeline.paths import atomic_write_text
 
@@ -126,6 +126,10 @@ def log_file(arg: str | Path) -> Path:
     return path
 
 
+#: the files :func:`failure_recorded` writes
+MARKERS = ("error.txt", "INTERRUPTED.txt")
+
+
 @contextmanager
 def failure_recorded(out: Path, command: str) -> Iterator[None]:
     """Run a job writing into ``out``; when it fails, ``out/error.txt`` says what failed
@@ -135,28 +139,24 @@ def failure_recorded(out: Path, command: str) -> Iterator[None]:
     try:
         yield
     except KeyboardInterrupt:
-        left = sorted(p.name for p in out.iterdir() if not p.name.startswith(".") and p.name != "INTERRUPTED.txt")
         where = where_stopped()
         atomic_write_text(
             out / "INTERRUPTED.txt",
             f"fsid {command} was interrupted (Ctrl-C){' ' + where if where else ''}; "
-            + (f"these files are partial, not a result: {', '.join(left)}\n" if left else "nothing else was written\n"),
+            + _partial(out, "these files are partial, not a result", "nothing else was written"),
         )
         raise
     except Exception as exc:
-        left = sorted(p.name for p in out.iterdir() if not p.name.startswith(".") and p.name != "error.txt")
-        what = (
-            str(exc)
-            if isinstance(exc, FsidError) or type(exc).__module__.startswith("estimators")
-            else (f"unexpected {type(exc).__name__}: {exc} (rerun with FSID_DEBUG=1 for the traceback and report it)")
-        )
         atomic_write_text(
             out / "error.txt",
-            f"fsid {command} failed: {what}\n"
-            + (
-                f"files left here (partial, not a result): {', '.join(left)}\n"
-                if left
-                else "no other output was written\n"
-            ),
+            f"fsid {command} failed: {describe(exc)}\n"
+            + _partial(out, "files left here (partial, not a result)", "no other output was written"),
         )
         raise
+
+
+def _partial(out: Path, some: str, none: str) -> str:
+    """The line naming the files a stopped job left in ``out`` (its markers and
+    temporary files left out)."""
+    left = sorted(p.name for p in out.iterdir() if not p.name.startswith(".") and p.name not in MARKERS)
+    return f"{some}: {', '.join(left)}\n" if left else f"{none}\n"

@@ -9,40 +9,49 @@ from __future__ import annotations
 import io
 import sys
 import time
+from dataclasses import dataclass
 from typing import TextIO
 
-#: the stream whose last progress line is still open (a stage started, not yet done)
-_open: list[TextIO] = []
-#: the last stage started in this process, "[n/N] text", and whether it finished
-_last: dict[str, object] = {}
+
+@dataclass
+class _Place:
+    """Where this process's job stands: the last stage it started ("[n/N] text"),
+    whether that stage finished, and the stream whose progress line is still open."""
+
+    label: str = ""
+    done: bool = False
+    open_on: TextIO | None = None
+
+
+_PLACE = _Place()
 
 
 def where_stopped() -> str:
     """Where a job stopped, for an interruption or an error: "during [3/12] fly 60 s in
     JSBSim" (or "after ..." when that stage had finished); "" before any stage."""
-    if not _last:
+    if not _PLACE.label:
         return ""
-    return f"{'after' if _last['done'] else 'during'} {_last['label']}"
+    return f"{'after' if _PLACE.done else 'during'} {_PLACE.label}"
 
 
 def end_open_line() -> None:
     """End a progress line a failing stage left open, so that the error printed next
     stands on its own line."""
-    while _open:
-        print(file=_open.pop(), flush=True)
-
-
-def _opened(stream: TextIO) -> None:
-    _open[:] = [stream]
+    if _PLACE.open_on is not None:
+        print(file=_PLACE.open_on, flush=True)
+        _PLACE.open_on = None
 
 
 class Progress:
     """Progress lines on ``stream`` (stderr): ``total`` stages, each started by
     :meth:`stage` and ended by :meth:`done` with its duration; nothing printed when
-    ``quiet`` (notes written to ``stream`` by the stages still go there)."""
+    ``quiet`` (notes written to ``stream`` by the stages still go there). ``nested``: a
+    Progress run inside another's stage (a refit), which leaves :func:`where_stopped`
+    to the job's own."""
 
-    def __init__(self, total: int, stream: TextIO | None = None, quiet: bool = False) -> None:
+    def __init__(self, total: int, stream: TextIO | None = None, quiet: bool = False, nested: bool = False) -> None:
         self.total, self.n, self.stream, self.quiet = total, 0, stream or sys.stderr, quiet
+        self.nested = nested
         self.t0 = time.perf_counter()
         self._t = self.t0
 
@@ -53,8 +62,9 @@ class Progress:
         self._t = time.perf_counter() if since is None else since
         if not self.quiet:
             print(f"[{self.n}/{self.total}] {text} ...", end="", file=self.stream, flush=True)
-            _opened(self.stream)
-        _last.update(label=f"[{self.n}/{self.total}] {text}", done=False)
+            _PLACE.open_on = self.stream
+        if not self.nested:
+            _PLACE.label, _PLACE.done = f"[{self.n}/{self.total}] {text}", False
         return self
 
     def substage(self, text: str) -> Progress:
@@ -68,7 +78,7 @@ class Progress:
                 file=self.stream,
                 flush=True,
             )
-            _opened(self.stream)
+            _PLACE.open_on = self.stream
         return self
 
     def tick(self, text: str) -> None:
@@ -81,14 +91,14 @@ class Progress:
         if not self.quiet:
             dt = time.perf_counter() - self._t
             print(f" {dt:.1f} s{(' - ' + extra) if extra else ''}", file=self.stream, flush=True)
-            _open.clear()
-        if _last:
-            _last["done"] = True
+            _PLACE.open_on = None
+        if not self.nested:
+            _PLACE.done = True
 
 
 def quiet_progress() -> Progress:
     """A Progress that prints nothing (notes of the refits included)."""
-    return Progress(1, stream=io.StringIO(), quiet=True)
+    return Progress(1, stream=io.StringIO(), quiet=True, nested=True)
 
 
 def counted(n: int, noun: str) -> str:
