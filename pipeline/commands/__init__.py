@@ -13,6 +13,7 @@ COMMANDS: dict[str, str] = {
     "demo": "demo",
     "simulate": "simulate",
     "check": "check",
+    "fields": "fields",
     "estimate": "estimate",
     "run": "run",
     "view": "view",
