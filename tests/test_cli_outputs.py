@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import stat
 from importlib import metadata
 
@@ -164,3 +165,13 @@ def test_a_refit_inside_a_stage_leaves_where_stopped_to_the_job(capsys):
     assert where_stopped() == "during [1/4] fit oem on longitudinal"
     job.done()
     assert where_stopped() == "after [1/4] fit oem on longitudinal"
+
+
+def test_fsid_run_counts_its_stages_once(tmp_path, capsys):
+    """One progress count for the flight and the estimate job: the total never changes
+    and the stages run 1..N."""
+    assert main(["run", "longitudinal_3211_calm", "--out", str(tmp_path / "run")]) == 0
+    counts = re.findall(r"^\[(\d+)/(\d+)\]", capsys.readouterr().err, flags=re.M)
+    totals = {int(n) for _, n in counts}
+    assert len(totals) == 1, totals
+    assert [int(k) for k, _ in counts] == list(range(1, totals.pop() + 1))

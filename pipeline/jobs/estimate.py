@@ -76,7 +76,7 @@ def estimate_log(
     )
 
 
-def estimate(log: str | Path, opts: EstimateOptions) -> Estimated:
+def estimate(log: str | Path, opts: EstimateOptions, count: Progress | None = None) -> Estimated:
     """The estimate job on ``log``, up to its outputs.
 
     model: a built-in model (auto|longitudinal|lateral; needs ``aircraft``, or a truth.json
@@ -92,7 +92,8 @@ def estimate(log: str | Path, opts: EstimateOptions) -> Estimated:
     is fitted and the model proved on their maneuvers. ``time_base``: of a .tlog or .mcap
     log and its validation flights of the same format. ``input_dynamics``: the
     control-input delay and lag stage (auto, off or (delay, lag)); they go to the
-    validation flights too (the same servos)."""
+    validation flights too (the same servos). ``count``: a job's Progress this one continues
+    (``fsid run``'s, whose total planned these stages), instead of its own."""
     user = is_user_model(opts.model)
     if user:  # cheap checks before the log is read
         split_spec(opts.model)
@@ -105,7 +106,8 @@ def estimate(log: str | Path, opts: EstimateOptions) -> Estimated:
         MAX_RATE_HZ,
     )
     n_axes = 1 if user else identified_axes(fd, axes)
-    pr = Progress(stage_count(len(opts.methods), n_axes, len(vlogs), user), quiet=opts.quiet)
+    stages = stage_count(len(opts.methods), n_axes, len(vlogs), user)
+    pr = count.plan(stages) if count is not None else Progress(stages, quiet=opts.quiet)
     pr.stage(f"ingest {log}", since=t0)
     pr.done(
         f"{len(fd.channels)} channels, {len(fd.segments)} segments"

@@ -51,8 +51,12 @@ BUILDERS = {
 def identified_axes(fd: FlightData, axes: Sequence[str] = AXES) -> int:
     """How many of ``axes`` the log's maneuvers excite (elevator: longitudinal; aileron or
     rudder: lateral): the fits a job makes per method, for its progress count."""
-    flown = {sg.axis for sg in fd.segments}
-    return sum(1 for name, (surfaces, _, _) in BUILDERS.items() if name in axes and flown & surfaces)
+    return planned_axes({sg.axis for sg in fd.segments}, axes)
+
+
+def planned_axes(surfaces: set[str | None], axes: Sequence[str] = AXES) -> int:
+    """How many of ``axes`` maneuvers moving ``surfaces`` (de, da, dr, ...) excite."""
+    return sum(1 for name, (moved, _, _) in BUILDERS.items() if name in axes and surfaces & moved)
 
 
 def identify(

@@ -55,6 +55,13 @@ class Progress:
         self.t0 = time.perf_counter()
         self._t = self.t0
 
+    def plan(self, remaining: int) -> Progress:
+        """Continue this count with a job of ``remaining`` more stages (``fsid run``: the
+        flight's stages, then the estimate job's). The total was planned from the flight
+        plan before the first stage; it changes only when the job counts differently."""
+        self.total = self.n + remaining
+        return self
+
     def stage(self, text: str, since: float | None = None) -> Progress:
         """Start the next stage (``since``: its start time, perf_counter, when its work ran
         before the count was known)."""

@@ -17,12 +17,16 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import sim
 from pipeline.conditioning.checks import findings_to_json, run_checks, summarize
 from pipeline.conditioning.input_sampling import time_steps
+from pipeline.errors import FsidError
 from pipeline.ingest.readers import read_log
-from pipeline.jobs.estimate import Estimated, estimate
+from pipeline.jobs.estimate import Estimated, estimate, stage_count
+from pipeline.jobs.identify import planned_axes
 from pipeline.jobs.options import EstimateOptions, RunOptions
-from pipeline.jobs.simulate import simulate
+from pipeline.jobs.progress import Progress
+from pipeline.jobs.simulate import flight_stages, resolve_scenario, simulate
 from pipeline.jobs.write import write_outputs
 from pipeline.methods.catalogue import check_methods, scenario_methods
 from pipeline.paths import atomic_write_text
@@ -41,12 +45,14 @@ def run_scenario(
     proof-of-match bands over the scenario's ``[validation]``. The scenario's validation
     flight, when it has one, is the proof of match.
 
-    Two progress counts: the flight (:func:`pipeline.jobs.simulate.simulate`), then the
-    estimate job (:func:`pipeline.jobs.estimate.estimate`)."""
+    One progress count, planned from the flight plan: the flight's stages
+    (:func:`pipeline.jobs.simulate.simulate`), then the estimate job's
+    (:func:`pipeline.jobs.estimate.estimate`)."""
     opts = replace(options or RunOptions(), **settings)
     if opts.methods:
         check_methods(opts.methods)
-    _, result = simulate(scenario_path, out, progress=False, seed=opts.seed, airspeed="eas", stages=not opts.quiet)
+    count = _planned_count(scenario_path, opts)
+    _, result = simulate(scenario_path, out, progress=False, seed=opts.seed, airspeed="eas", count=count)
     scenario, val = result.scenario, result.scenario.validation
     truth_doc = json.loads((out / "truth.json").read_text())
     est = estimate(
@@ -63,6 +69,7 @@ def run_scenario(
             calm=scenario.turbulence.model == "off",
             validation_calm=val is not None and val.turbulence.model == "off",
         ),
+        count=count,
     )
     checks = _write_checks(out, est, val is not None)
     meta = {
@@ -84,6 +91,22 @@ def run_scenario(
     return write_outputs(
         out, est.results, est.validations, est.truth, est.progress, checks=checks, meta=meta, compatibility=est.comp
     )
+
+
+def _planned_count(scenario_path: str | Path, opts: RunOptions) -> Progress:
+    """The run's one progress count, from its flight plan before anything is flown: the
+    flight's stages and the estimate job's, with the methods that suit the plan and the
+    axes its maneuvers move."""
+    try:
+        scenario = sim.load_scenario(resolve_scenario(scenario_path))
+    except sim.ScenarioError as exc:
+        raise FsidError(f"{exc} (fix the scenario file)") from None
+    plan = {"sas": bool(scenario.sas_k_alpha or scenario.sas_k_q), "turbulence": {"model": scenario.turbulence.model}}
+    methods = opts.methods or scenario_methods(plan)
+    val = scenario.validation is not None
+    n_axes = planned_axes({a for m in scenario.maneuvers for a in m.axes})
+    stages = flight_stages(val) + stage_count(len(methods), n_axes, int(val), user=False)
+    return Progress(stages, quiet=opts.quiet)
 
 
 def _write_checks(out: Path, est: Estimated, validation: bool) -> dict[str, dict[str, int]]:

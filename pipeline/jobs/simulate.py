@@ -56,6 +56,11 @@ class _Progress:
             print(file=sys.stderr)
 
 
+def flight_stages(validation: bool) -> int:
+    """The stages of :func:`simulate`: load, fly, write, and the validation flight's."""
+    return 3 + int(validation)
+
+
 def simulate(
     scenario_path: str | Path,
     out: str | Path | None = None,
@@ -65,6 +70,7 @@ def simulate(
     *,
     airspeed: str = "tas",
     stages: bool = False,
+    count: Progress | None = None,
 ) -> tuple[Path, sim.SimResult]:
     """Fly ``scenario_path`` (a path or a built-in name) and write flight.mcap, flight.bin
     and truth.json into the run folder ``out`` (default: a new one under ./runs/), and
@@ -72,7 +78,8 @@ def simulate(
     folder, SimResult). ScenarioError becomes FsidError. ``progress``: the flown fraction
     of a long flight on stderr; ``stages``: a progress line per stage instead (load, fly,
     write, the validation flight); ``airspeed``: the .bin's airspeed, "tas" or "eas"
-    (ArduPilot's own semantics, :func:`pipeline.outputs.writers.write_dataflash`)."""
+    (ArduPilot's own semantics, :func:`pipeline.outputs.writers.write_dataflash`); ``count``:
+    a job's Progress the stages continue (:func:`flight_stages` of them), instead of their own."""
     t0 = time.perf_counter()
     path = resolve_scenario(scenario_path)
     try:
@@ -82,7 +89,7 @@ def simulate(
     if seed is not None and seed < 0:
         raise FsidError(f"--seed {seed}: must be a non-negative integer")
     val = (scenario.with_seed(seed) if seed is not None else scenario).validation
-    pr = Progress(3 + (val is not None), quiet=not stages)
+    pr = count or Progress(flight_stages(val is not None), quiet=not stages)
     pr.stage(f"load scenario {scenario_path}", since=t0)
     pr.done(scenario.name)
     run_dir = new_run_dir("simulate", out)
