@@ -48,6 +48,13 @@ CANONICAL_UNITS: dict[str, str] = {
     "dr": "rad",
     "throttle": "-",
     "thrust": "N",
+    "x_n": "m",
+    "y_e": "m",
+    "z_d": "m",
+    "q_w": "-",
+    "q_x": "-",
+    "q_y": "-",
+    "q_z": "-",
 }
 
 #: channels holding angles that wrap at +-pi (interpolated unwrapped)
@@ -77,6 +84,9 @@ class Channel:
     #: why the channel is no independent measurement (an autopilot's estimate computed
     #: from other channels, e.g. ArduPilot's AOA from the EKF velocity and wind); "" = a sensor
     derived: str = ""
+    #: the stated white-noise std of a channel computed by the ingest (its unit; e.g. a pose's
+    #: smoothed derivative, :mod:`pipeline.ingest.pose`); None = estimate it from the samples
+    noise: float | None = None
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -188,10 +198,13 @@ class FlightData:
         over ``windows`` [(t0, t1) s] (default: all samples). With ``rate_hz``: the std the
         same noise has on a grid from :meth:`resample` at that rate
         (:func:`resample_noise_gain`). NaN with fewer than 4 samples in every window.
+        A channel with a stated ``Channel.noise`` (computed by the ingest) returns that.
         Native samples keep white noise white, and a fast signal's curvature (a rate
         driven by turbulence) leaks into the second differences less than on a slower
         grid."""
         ch = self.channels[name]
+        if ch.noise is not None:  # smoothed: its second differences would understate it
+            return float(ch.noise)
         t, v = np.asarray(ch.t, dtype=float), np.asarray(ch.values, dtype=float)
         spans = windows if windows is not None else [(-np.inf, np.inf)]
         parts = [v[(t >= a) & (t <= b)][:, None] for a, b in spans]

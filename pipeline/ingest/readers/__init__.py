@@ -21,6 +21,7 @@ from pathlib import Path
 
 from pipeline.ingest.flightdata import FlightData
 from pipeline.ingest.maps import apply_map, builtin_names, load_map
+from pipeline.ingest.pose import derive_pose_states, needs_pose_states
 from pipeline.ingest.rawlog import TIME_BASES, Damage, LogReadError, RawLog, Table
 from pipeline.ingest.readers.csvlog import read_csv
 from pipeline.ingest.readers.dataflash import read_dataflash
@@ -134,7 +135,11 @@ def read_log(path: str | os.PathLike, map=None, **opts):
         the log has modes, then automatic ones from control activity), ``servo_travel``
         (surface -> (deg, origin): the deflection at full servo travel for surfaces
         decoded from servo PWM, e.g. an aircraft TOML's ``[servos]``; see
-        :func:`pipeline.ingest.maps.servo_travel`; what was used is ``meta["servo_travel"]``)
+        :func:`pipeline.ingest.maps.servo_travel`; what was used is ``meta["servo_travel"]``),
+        ``pose`` (keywords for :func:`pipeline.ingest.pose.derive_pose_states`, e.g.
+        ``{"window_s": 0.2, "wind_ned": (0, 0, 0)}``, or False: a log with a pose (x_n y_e z_d,
+        q_w q_x q_y q_z) but without some flight state gets it derived from the pose; logged
+        channels win; ``meta["pose"]`` says how)
 
     Returns
     -------
@@ -142,6 +147,7 @@ def read_log(path: str | os.PathLike, map=None, **opts):
     """
     segments = opts.pop("segments", None)
     travel = opts.pop("servo_travel", None)
+    pose = opts.pop("pose", None)
     fmt = opts.pop("format", None) or detect_format(path)
     time_base = opts.pop("time_base", None)
     if time_base is not None:
@@ -177,6 +183,8 @@ def read_log(path: str | os.PathLike, map=None, **opts):
         "tables": {k: len(v) for k, v in raw.tables.items()},
     }
     fd = FlightData(chans, meta, [])
+    if pose is not False and needs_pose_states(fd):
+        fd = derive_pose_states(fd, **(pose or {}))
     if isinstance(segments, (list, tuple)):
         for a, b in segments:
             fd.add_segment(a, b)
