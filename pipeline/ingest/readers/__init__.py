@@ -6,7 +6,8 @@ them to canonical SI channels through a channel map (:mod:`pipeline.ingest.maps`
 metadata (params, modes, time base, damage) and segments.
 
 Formats: MCAP (.mcap: JSON, ROS 2 CDR, protobuf), ArduPilot DataFlash (.bin), MAVLink
-telemetry (.tlog), PX4 ULog (.ulg), CSV/ASCII columns (.csv, .txt).
+telemetry (.tlog), PX4 ULog (.ulg), CSV/ASCII columns (.csv, .txt), ragged time-series
+archives (.npz, :mod:`pipeline.ingest.readers.npz`).
 
 The only exception a reader raises for a bad file is :class:`LogReadError` (a
 :class:`pipeline.errors.FsidError`) with ``.offset``/``.where``. Damage after some valid
@@ -19,13 +20,14 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from pipeline.ingest.flightdata import FlightData
+from pipeline.ingest.flightdata import FlightData, SegmentSpec
 from pipeline.ingest.maps import apply_map, builtin_names, load_map
 from pipeline.ingest.pose import derive_pose_states, needs_pose_states
 from pipeline.ingest.rawlog import TIME_BASES, Damage, LogReadError, RawLog, Table
 from pipeline.ingest.readers.csvlog import read_csv
 from pipeline.ingest.readers.dataflash import read_dataflash
 from pipeline.ingest.readers.mcap import read_mcap
+from pipeline.ingest.readers.npz import read_npz
 from pipeline.ingest.readers.tlog import read_tlog
 from pipeline.ingest.readers.ulog import read_ulog
 
@@ -39,9 +41,17 @@ EXTENSIONS = {
     ".csv": "csv",
     ".txt": "csv",
     ".dat": "csv",
+    ".npz": "npz",
 }
 #: format -> its reader (path, **opts) -> RawLog
-READERS = {"dataflash": read_dataflash, "tlog": read_tlog, "ulog": read_ulog, "mcap": read_mcap, "csv": read_csv}
+READERS = {
+    "dataflash": read_dataflash,
+    "tlog": read_tlog,
+    "ulog": read_ulog,
+    "mcap": read_mcap,
+    "csv": read_csv,
+    "npz": read_npz,
+}
 
 
 def detect_format(path: str | os.PathLike) -> str:
@@ -65,6 +75,8 @@ def detect_format(path: str | os.PathLike) -> str:
         return "mcap"
     if head.startswith(b"ULog"):
         return "ulog"
+    if head.startswith(b"PK\x03\x04") and path.suffix.lower() == ".npz":
+        return "npz"
     if head[:3] == b"\xa3\x95\x80":
         return "dataflash"
     if len(head) > 8 and head[8] in (0xFE, 0xFD):
@@ -188,6 +200,8 @@ def read_log(path: str | os.PathLike, map=None, **opts):
     if isinstance(segments, (list, tuple)):
         for a, b in segments:
             fd.add_segment(a, b)
+    elif segments is None and raw.info.get("windows"):  # an archive's windows are its segments
+        fd.segments.extend(SegmentSpec(w["name"], w["t0"], w["t1"]) for w in raw.info["windows"])
     elif segments in (None, "mode", "auto"):
         if segments in (None, "mode") and fd.modes:
             fd.segments.extend(fd.mode_segments())
