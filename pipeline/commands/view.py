@@ -1,4 +1,5 @@
-"""``fsid view RUN_DIR``: open ``RUN_DIR/run.rrd`` in the rerun viewer.
+"""``fsid view RUN_DIR``: open the folder's recording in the rerun viewer: ``run.rrd``
+(``fsid run`` / ``estimate`` / ``demo``), else ``check.rrd`` (``fsid check``).
 
 With a display (``DISPLAY`` or ``WAYLAND_DISPLAY`` set) the native viewer opens; otherwise
 (or with ``--web``) rerun's own web viewer is served on localhost and the address printed:
@@ -21,12 +22,16 @@ from urllib.parse import quote
 
 from pipeline.errors import FsidError
 
-HELP = "open a run's recording (run.rrd) in the rerun viewer, or serve the web viewer"
+HELP = "open a run's or a check's recording (run.rrd, check.rrd) in the rerun viewer, or serve the web viewer"
+#: the recordings a folder may hold, the one opened first
+RECORDINGS = ("run.rrd", "check.rrd")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "run_dir", metavar="RUN_DIR", help="folder written by 'fsid run/estimate/demo' (or a .rrd file)"
+        "run_dir",
+        metavar="RUN_DIR",
+        help="folder written by 'fsid run/estimate/demo' (run.rrd) or 'fsid check' (check.rrd), or a .rrd file",
     )
     parser.add_argument("--web", action="store_true", help="serve the web viewer even when a display is available")
     parser.add_argument(
@@ -44,19 +49,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def rrd_path(run_dir: str | os.PathLike) -> Path:
-    """The recording of a run folder (or the given .rrd), or FsidError saying what to do."""
+    """The recording of a run or check folder (run.rrd, else check.rrd) or the given .rrd,
+    or FsidError saying what to do."""
     p = Path(run_dir)
-    rrd = p if p.suffix == ".rrd" else p / "run.rrd"
-    if not rrd.is_file():
-        if not p.exists():
-            raise FsidError(
-                f"run folder '{p}' not found; give the folder that 'fsid run' or 'fsid demo' printed (it holds run.rrd)"
-            )
+    if p.suffix == ".rrd":
+        if p.is_file():
+            return p
+        raise FsidError(f"recording '{p}' not found; give a folder written by 'fsid run', 'fsid check' or 'fsid demo'")
+    if not p.exists():
         raise FsidError(
-            f"no recording at '{rrd}'; run 'fsid run SCENARIO --out {p}' (or "
-            "'fsid demo') to write one, or give the path of a .rrd file"
+            f"run folder '{p}' not found; give the folder that 'fsid run', 'fsid check' or 'fsid demo' printed"
         )
-    return rrd
+    found = [p / name for name in RECORDINGS if (p / name).is_file()]
+    if found:
+        return found[0]
+    if (p / "checks.json").is_file():
+        raise FsidError(
+            f"no recording in '{p}' (no run.rrd or check.rrd): its checks.json was written before "
+            f"'fsid check' wrote check.rrd; run 'fsid check LOG --out {p}' again"
+        )
+    raise FsidError(
+        f"no recording in '{p}' (no {p / 'run.rrd'} or check.rrd); run 'fsid run SCENARIO --out {p}', "
+        f"'fsid estimate LOG --out {p}' or 'fsid check LOG --out {p}' to write one, or give a .rrd file"
+    )
 
 
 def rerun_binary() -> str:

@@ -9,6 +9,7 @@ from typing import Any
 
 from pipeline.jobs.progress import Progress
 from pipeline.outputs.recording import write_recording
+from pipeline.outputs.recording_flight import FlightRecord
 from pipeline.outputs.report import write_report
 from pipeline.validation import cross_check_methods
 
@@ -23,10 +24,11 @@ def write_outputs(
     checks: Any,
     meta: Mapping[str, Any],
     compatibility: Mapping[str, Any] | None = None,
+    flight: FlightRecord | None = None,
 ) -> dict[str, Path]:
     """Write report.md, report.json and run.rrd of ``results`` (key -> result) and their
-    ``validations`` into ``out``, compared with ``truth`` where known; returns name ->
-    path."""
+    ``validations`` into ``out``, compared with ``truth`` where known (``flight``: the whole
+    flight they were fitted on, for run.rrd); returns name -> path."""
     agreement = cross_check_methods(results, validations)
     pr.stage("write report.md, report.json, run.rrd")
     md, js = write_report(
@@ -39,6 +41,6 @@ def write_outputs(
         compatibility=compatibility,
         agreement=agreement,
     )
-    rrd = write_recording(out / "run.rrd", results, validations, truth=truth)
+    rrd = write_recording(out / "run.rrd", results, validations, truth=truth, flight=flight)
     pr.done()
     return {"report.md": md, "report.json": js, "run.rrd": rrd}

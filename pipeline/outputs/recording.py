@@ -1,4 +1,9 @@
-"""``run.rrd``: the run for review in the rerun viewer (rerun-sdk 0.41), written column-wise.
+"""``run.rrd`` and ``check.rrd``: a run, or a checked log, for review in the rerun viewer
+(rerun-sdk 0.41), written column-wise.
+
+``check.rrd`` (``fsid check``) holds the whole flight (the ``/flight`` entities below);
+``run.rrd`` (``fsid run`` / ``estimate`` / ``demo``) holds the fits and, when the job
+passes the flight, the same ``/flight`` entities.
 
 Every time history goes in with ONE ``send_columns`` call per entity (``rr.TimeColumn`` index
 columns + ``rr.Scalars.columns``), never one call per sample. Each series entity also gets a
@@ -41,21 +46,34 @@ keys of ``results`` such as ``oem``, ``<name>`` a parameter name with any charac
     /inverse/<method>/<in>                inverse simulation: residual input (needed - flown)
                                           on the first fitted segment, timelines t, segment
     /data/<channel>                       optional extra channels (``data=``), t, segment
+    /flight/info                          static TextDocument: the log, what t = 0 is (its
+                                          absolute start), channels, modes, windows, counts
+    /flight/channels/<channel>            every canonical channel of the whole flight at its
+                                          own samples, timeline t (channels above 200 Hz
+                                          thinned for display: min and max per bin)
+    /flight/mode                          StateChange track: the flight mode from each change
+                                          ('no modes logged' at 0 when the log has none)
+    /flight/maneuvers/<axis>              StateChange track per control axis: the window's
+                                          name from its start, an empty state at its end
+    /flight/findings                      TextLog: each data-quality finding at its start
+                                          (0 when it has none), level INFO/WARN/ERROR
 
 Values are SI (rad, rad/s, m/s, m/s^2, N ...) as in the data contract, not degrees.
 A time-series view plots against the time line selected in the time panel: ``t`` (the
 default) for time histories, ``iteration`` for parameter convergence, ``frequency`` for
 spectra and frequency responses. The blueprint sent with the file has one tab per group.
 
-Timelines: ``t`` (duration, s); ``segment`` (sequence) the index of the segment a sample
+Timelines: ``t`` (duration, s, from the log's start: its first sample is 0); ``segment`` (sequence) the index of the segment a sample
 belongs to; ``iteration`` (sequence) the optimiser iteration; ``frequency`` (sequence, mHz).
 Segments are told apart by name (``Segment.name``, or ``#k`` by position when unnamed) and
 their own times, so a maneuver fitted by several methods is one segment; they are numbered
 in order of first appearance: the first result's fitted segments, its held-out ones, then
 those of the next result not seen yet (another axis).
 When all segments are disjoint in time (pieces of one log) they keep their own times on
-``t``; when any overlap (e.g. each starts at 0) they are laid end to end in that order,
-each starting 1 s (:data:`SEGMENT_GAP`) after the previous one ends. A series' sample
+``t`` (counted from the log's start when the flight is recorded, so they sit on the whole
+flight's channels); when any overlap (e.g. each starts at 0) they are laid end to end in
+that order, each starting 1 s (:data:`SEGMENT_GAP`) after the previous one ends, the
+first at 0, or 1 s after the whole flight's end when it is recorded. A series' sample
 count is the sum of its segments' finite samples; measured data (outputs, inputs, held-out
 outputs) is written once per segment.
 
@@ -68,17 +86,35 @@ layout as the outputs) instead of the iteration history.
 from __future__ import annotations
 
 import uuid
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
 from estimators import EstimationResult
-from pipeline.outputs.recording_blueprint import build_blueprint
-from pipeline.outputs.recording_layout import SegmentLayout, entity_part
+from pipeline.outputs.recording_blueprint import build_blueprint, check_blueprint
+from pipeline.outputs.recording_flight import FlightRecord, write_flight
+from pipeline.outputs.recording_layout import SEGMENT_GAP, SegmentLayout, entity_part
 from pipeline.outputs.recording_series import SeriesWriter, extra_data, parameter_histories, spectra, time_histories
 from pipeline.paths import atomic_path
+
+
+@contextmanager
+def _recording(path: Path, application_id: str, recording_id: str | None) -> Iterator[Any]:
+    """A RecordingStream saving to a temporary file renamed onto ``path`` at the end."""
+    import rerun as rr
+
+    rec = rr.RecordingStream(application_id, recording_id=recording_id or str(uuid.uuid4()))
+    with atomic_path(path) as tmp:
+        rec.save(str(tmp))
+        try:
+            rec.send_recording_name(path.parent.name or path.stem)
+            yield rec
+        finally:
+            rec.flush()
+            rec.disconnect()
 
 
 def write_recording(
@@ -89,6 +125,7 @@ def write_recording(
     data: pd.DataFrame | Sequence[pd.DataFrame] | None = None,
     truth: Mapping[str, float] | None = None,
     inputs: Sequence[pd.DataFrame] | None = None,
+    flight: FlightRecord | None = None,
     application_id: str = "fsid",
     recording_id: str | None = None,
     blueprint: bool = True,
@@ -100,32 +137,49 @@ def write_recording(
     the spectra, frequency responses and proof-of-match histories; may be empty);
     data: optional extra channels, a DataFrame on t (s) or one per segment, SI units;
     truth: true parameter values; inputs: per fitted segment, DataFrames on t of the inputs
-    (default: the first result's segments' u under the model's input names).
+    (default: the first result's segments' u under the model's input names);
+    flight: the whole flight the results were fitted on (its channels, modes, maneuver
+    windows and findings under ``/flight``; the segments then sit on it).
     """
-    import rerun as rr
-
     if not results:
         raise ValueError("write_recording needs at least one result")
     validations = dict(validations or {})
     path = Path(path)
-    rec = rr.RecordingStream(application_id, recording_id=recording_id or str(uuid.uuid4()))
-    with atomic_path(path) as tmp:
-        rec.save(str(tmp))
-        try:
-            rec.send_recording_name(path.parent.name or "fsid run")
-            w = SeriesWriter(rec, list(results))
-            w.text("/README", __doc__ or "")
-            for m, r in results.items():
-                w.text(f"/summary/{entity_part(m)}", "```\n" + r.summary(dict(truth) if truth else None) + "\n```")
-            lay = SegmentLayout(results, validations)
-            time_histories(w, results, validations, inputs, lay)
-            parameter_histories(w, results, truth, lay)
-            spectra(w, results, validations)
-            if data is not None:
-                extra_data(w, data)
-            if blueprint:
-                rec.send_blueprint(build_blueprint(results, validations))
-        finally:
-            rec.flush()
-            rec.disconnect()
+    with _recording(path, application_id, recording_id) as rec:
+        w = SeriesWriter(rec, list(results))
+        w.text("/README", __doc__ or "")
+        for m, r in results.items():
+            w.text(f"/summary/{entity_part(m)}", "```\n" + r.summary(dict(truth) if truth else None) + "\n```")
+        origin = flight.origin if flight is not None and flight.duration > 0 else 0.0
+        start = flight.duration + SEGMENT_GAP if flight is not None and flight.duration > 0 else 0.0
+        lay = SegmentLayout(results, validations, origin=origin, start=start)
+        time_histories(w, results, validations, inputs, lay)
+        parameter_histories(w, results, truth, lay)
+        spectra(w, results, validations)
+        if data is not None:
+            extra_data(w, data)
+        if flight is not None:
+            write_flight(w, flight)
+        if blueprint:
+            rec.send_blueprint(build_blueprint(results, validations, flight))
+    return path
+
+
+def write_check_recording(
+    path: str | Path,
+    flight: FlightRecord,
+    *,
+    application_id: str = "fsid",
+    recording_id: str | None = None,
+    blueprint: bool = True,
+) -> Path:
+    """Write ``check.rrd``: the whole flight of ``fsid check`` (the ``/flight`` entities of
+    the module doc, and ``/README``); returns the path."""
+    path = Path(path)
+    with _recording(path, application_id, recording_id) as rec:
+        w = SeriesWriter(rec, [])
+        w.text("/README", __doc__ or "")
+        write_flight(w, flight)
+        if blueprint:
+            rec.send_blueprint(check_blueprint(flight))
     return path

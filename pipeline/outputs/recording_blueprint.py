@@ -1,6 +1,6 @@
-"""The blueprint sent with run.rrd: one tab per group of entities (outputs, residuals,
-inputs, parameters, proof of match, spectra, frequency response, inverse simulation,
-summary)."""
+"""The blueprints sent with run.rrd and check.rrd: one tab per group of entities (outputs,
+residuals, inputs, parameters, proof of match, spectra, frequency response, inverse
+simulation, summary; the whole flight and its findings)."""
 
 from __future__ import annotations
 
@@ -8,12 +8,18 @@ from collections.abc import Mapping
 from typing import Any
 
 from estimators import EstimationResult
+from pipeline.outputs.recording_flight import FlightRecord, flight_groups, maneuver_tracks
 from pipeline.outputs.recording_layout import entity_part
 
 
-def build_blueprint(results: Mapping[str, EstimationResult], validations: Mapping[str, Mapping[str, Any]]) -> Any:
-    """The rerun blueprint of a run's recording: its tabs (rerun.blueprint is imported here,
-    rerun being optional)."""
+def build_blueprint(
+    results: Mapping[str, EstimationResult],
+    validations: Mapping[str, Mapping[str, Any]],
+    flight: FlightRecord | None = None,
+) -> Any:
+    """The rerun blueprint of a run's recording: its tabs, the whole flight's before the
+    summary when ``flight`` is recorded (rerun.blueprint is imported here, rerun being
+    optional)."""
     import rerun.blueprint as rrb
 
     ins = list(dict.fromkeys(i for r in results.values() for i in r.model.inputs))
@@ -72,6 +78,8 @@ def build_blueprint(results: Mapping[str, EstimationResult], validations: Mappin
                 name="inverse simulation",
             )
         )
+    if flight is not None:
+        tabs += flight_tabs(flight)
     tabs.append(
         rrb.Vertical(
             rrb.TextDocumentView(origin="/README", name="layout"),
@@ -79,4 +87,38 @@ def build_blueprint(results: Mapping[str, EstimationResult], validations: Mappin
             name="summary",
         )
     )
+    return rrb.Blueprint(rrb.Tabs(*tabs), rrb.TimePanel(timeline="t"), collapse_panels=False)
+
+
+def flight_tabs(flight: FlightRecord) -> list[Any]:
+    """The whole flight's tabs: the mode and maneuver tracks over the channels' panels
+    (one per group, :data:`pipeline.outputs.recording_flight.CHANNEL_GROUPS`); the
+    findings' log beside the flight's info."""
+    import rerun.blueprint as rrb
+
+    tracks = ["$origin/mode", *[f"$origin/maneuvers/{a}" for a in maneuver_tracks(flight)]]
+    panels = [
+        rrb.TimeSeriesView(origin="/flight/channels", contents=[f"$origin/{entity_part(n)}" for n in names], name=group)
+        for group, names in flight_groups(flight).items()
+    ]
+    return [
+        rrb.Vertical(
+            rrb.StateTimelineView(origin="/flight", contents=tracks, name="flight modes and maneuvers"),
+            rrb.Grid(*panels, name="channels"),
+            row_shares=[1, 4],
+            name="flight",
+        ),
+        rrb.Horizontal(
+            rrb.TextLogView(origin="/flight/findings", name="data-quality findings"),
+            rrb.TextDocumentView(origin="/flight/info", name="the flight"),
+            name="findings",
+        ),
+    ]
+
+
+def check_blueprint(flight: FlightRecord) -> Any:
+    """The blueprint of check.rrd: the flight, the findings, the layout."""
+    import rerun.blueprint as rrb
+
+    tabs = [*flight_tabs(flight), rrb.TextDocumentView(origin="/README", name="layout")]
     return rrb.Blueprint(rrb.Tabs(*tabs), rrb.TimePanel(timeline="t"), collapse_panels=False)

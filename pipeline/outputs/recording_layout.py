@@ -53,18 +53,21 @@ def si_unit(channel: str) -> str:
     return {"deg": "rad", "deg/s": "rad/s", "deg/s^2": "rad/s^2", "g": "m/s^2"}[unit]
 
 
-def segment_starts(t_list: Sequence[np.ndarray], gap: float = SEGMENT_GAP) -> list[float]:
+def segment_starts(
+    t_list: Sequence[np.ndarray], gap: float = SEGMENT_GAP, origin: float = 0.0, start: float = 0.0
+) -> list[float]:
     """Offset in s to add to each segment's own times (t, (N_k,)) on the shared ``t`` line:
-    0 for all when the segments are pairwise disjoint in time (pieces of one log), else end
-    to end in the given order, each ``gap`` s after the previous one ends."""
+    ``-origin`` for all when the segments are pairwise disjoint in time (pieces of one log:
+    they keep their times, counted from ``origin``, the log's start), else end to end in
+    the given order from ``start``, each ``gap`` s after the previous one ends."""
     t_list = [np.asarray(t, dtype=float) for t in t_list]
     spans = sorted((float(t[0]), float(t[-1])) for t in t_list)
     if all(a1 < b0 for (_, a1), (b0, _) in zip(spans, spans[1:])):
-        return [0.0] * len(t_list)
-    offs, start = [], 0.0
+        return [-float(origin)] * len(t_list)
+    offs, at = [], float(start)
     for t in t_list:
-        offs.append(start - float(t[0]))
-        start += float(t[-1] - t[0]) + gap
+        offs.append(at - float(t[0]))
+        at += float(t[-1] - t[0]) + gap
     return offs
 
 
@@ -88,26 +91,40 @@ class SegmentLayout:
     several methods is one segment. Order of first appearance: for each result its fitted
     segments, then its held-out ones. Offsets from :func:`segment_starts` over that order."""
 
-    def __init__(self, results: Mapping[str, EstimationResult], validations: Mapping[str, Mapping[str, Any]]) -> None:
+    def __init__(
+        self,
+        results: Mapping[str, EstimationResult],
+        validations: Mapping[str, Mapping[str, Any]],
+        origin: float = 0.0,
+        start: float = 0.0,
+    ) -> None:
+        """``origin``: the log's start on its time base [s] (segments at their own times
+        are shown from it); ``start``: where segments laid end to end begin on ``t`` [s]
+        (after the whole flight when the recording shows it)."""
         times: dict[tuple, np.ndarray] = {}
         for m, r in results.items():
             for p, name in zip(r.predicted, segment_names(r)):
                 times.setdefault(_sig(p.index, name), np.asarray(p.index, dtype=float))
             for a in held_out_arrays(validations.get(m)):
                 times.setdefault(_sig(a["t"], a["name"]), np.asarray(a["t"], dtype=float))
-        offs = segment_starts(list(times.values())) if times else []
+        self.origin, self.start = float(origin), float(start)
+        offs = segment_starts(list(times.values()), origin=self.origin, start=self.start) if times else []
         self.index = {k: i for i, k in enumerate(times)}
         self.offset = dict(zip(times, offs))
 
     def place(self, t, name: str) -> tuple[float, int]:
-        """(offset s, segment index) of segment ``name`` with own times t; unseen ones are
-        appended."""
+        """(offset s, segment index) of segment ``name`` with own times t; unseen ones keep
+        their own times when they and every segment so far do, else are appended after the
+        last one."""
         k = _sig(t, name)
         if k not in self.index:
-            end = max((s[1] + o for s, o in self.offset.items()), default=-SEGMENT_GAP)
-            self.index[k] = len(self.index)
             overlap = any(not (k[1] < s[0] or s[1] < k[0]) for s in self.offset)
-            self.offset[k] = (end + SEGMENT_GAP - k[0]) if overlap or any(self.offset.values()) else 0.0
+            if overlap or any(o != -self.origin for o in self.offset.values()):
+                end = max((s[1] + o + SEGMENT_GAP for s, o in self.offset.items()), default=self.start)
+                self.offset[k] = max(end, self.start) - k[0]
+            else:
+                self.offset[k] = -self.origin
+            self.index[k] = len(self.index)
         return self.offset[k], self.index[k]
 
     def cat(

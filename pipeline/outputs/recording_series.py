@@ -54,10 +54,12 @@ class SeriesWriter:
         name: str | None = None,
         color=None,
     ) -> None:
-        """One entity, one send_columns call; non-finite samples are left out."""
+        """One entity, one send_columns call; non-finite samples (value or time) are left out."""
         rr = self.rr
         v = np.asarray(values, dtype=float).ravel()
         ok = np.isfinite(v)
+        if t is not None:
+            ok &= np.isfinite(np.asarray(t, dtype=float).ravel())
         idx = []
         if t is not None:
             idx.append(rr.TimeColumn("t", duration=np.asarray(t, dtype=float).ravel()[ok]))
@@ -75,6 +77,29 @@ class SeriesWriter:
     def text(self, path: str, body: str, media_type: str = "text/markdown") -> None:
         """A static text document."""
         self.rec.log(path, self.rr.TextDocument(body, media_type=media_type), static=True)
+
+    def states(self, path: str, t: Sequence[float], states: Sequence[str | None]) -> None:
+        """A state track on ``t`` [s] (rr.StateChange, one send_columns call): each state holds
+        from its time to the next; None ends the one before (an empty state)."""
+        rr = self.rr
+        col = rr.StateChange.columns(state=[s for s in states if s is not None])
+        self.rec.send_columns(
+            path,
+            indexes=[rr.TimeColumn("t", duration=np.asarray(t, dtype=float))],
+            columns=col.partition([0 if s is None else 1 for s in states]),
+        )
+        self.counts[path] = self.counts.get(path, 0) + len(states)
+
+    def events(self, path: str, t: Sequence[float], texts: Sequence[str], levels: Sequence[str]) -> None:
+        """Text-log entries at times ``t`` [s] with their levels (INFO, WARN, ERROR), one
+        send_columns call."""
+        rr = self.rr
+        self.rec.send_columns(
+            path,
+            indexes=[rr.TimeColumn("t", duration=np.asarray(t, dtype=float))],
+            columns=rr.TextLog.columns(text=list(texts), level=list(levels)),
+        )
+        self.counts[path] = self.counts.get(path, 0) + len(texts)
 
 
 class _Once:
