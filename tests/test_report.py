@@ -89,7 +89,7 @@ def test_apriori_plausibility(fitted):
     v = validate(res, apriori=ap)
     pl = v["plausibility"]["apriori"]
     assert pl["Cmq"]["flag"] is False and pl["Cmalpha"]["flag"] is True
-    assert any("a-priori" in n for n in v["verdict"]["notes"])
+    assert v["verdict"]["level"] == "FAIL" and any("Cmalpha" in r and "a-priori" in r for r in v["verdict"]["reasons"])
 
 
 def test_report_json_equals_result_numbers(fitted, tmp_path):

@@ -26,7 +26,7 @@ from estimators.defaults import NOISE_ALPHA, PREDICTION_K
 # imported now: these submodules share a name with a function of theirs, which must be
 # bound here after the submodule (importing it later would bind the module instead)
 from .modes import ModeAnalysis, linearize, mode_properties, modes
-from .plausibility import agreement, load_apriori, plausibility
+from .plausibility import SIGN_RULES, agreement, expected_signs, load_apriori, plausibility, sign_check
 
 #: the other public names -> (submodule, name there), imported on first use (PEP 562), so
 #: a module that needs one submodule (a result's summary needs :mod:`.cluster`) does not
@@ -132,6 +132,9 @@ __all__ = [
     "load_apriori",
     "plausibility",
     "agreement",
+    "SIGN_RULES",
+    "expected_signs",
+    "sign_check",
     "InverseSimResult",
     "inverse_simulation",
     "AIR_DATA",

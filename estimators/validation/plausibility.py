@@ -11,6 +11,11 @@ A-priori TOML, one table per parameter (values per radian as in DESIGN.md sectio
     source = "DATCOM"    # optional
 
 An optional top-level table ``[apriori]`` holding these tables is also accepted.
+
+:func:`sign_check` judges the derivatives whose sign physics or the control-surface sign
+convention fixes (:data:`SIGN_RULES`, :func:`expected_signs`): flagged where the estimate
+lies on the wrong side of zero by more than k of its own std, so an estimate near zero
+within its uncertainty is never flagged.
 """
 
 from __future__ import annotations
@@ -25,7 +30,57 @@ import pandas as pd
 
 from estimators.defaults import PLAUSIBILITY_K
 
-__all__ = ["load_apriori", "plausibility", "agreement"]
+__all__ = [
+    "CONTROL_DERIVATIVES",
+    "SIGN_REASONS",
+    "SIGN_RULES",
+    "agreement",
+    "expected_signs",
+    "load_apriori",
+    "plausibility",
+    "sign_check",
+]
+
+#: derivative -> the sign physics fixes (+1 positive, -1 negative) for a conventional
+#: aircraft: lift rises with alpha, side force opposes sideslip, dihedral effect,
+#: weathercock stability, roll, yaw and pitch damping, static stability in pitch
+#: (Cmalpha, dropped for an aircraft declared statically unstable), and the control
+#: derivatives in DESIGN.md's convention (de > 0 trailing edge down: more lift, nose
+#: down; da > 0 right aileron trailing edge up: roll right; dr > 0 trailing edge left:
+#: side force to the right, nose left)
+SIGN_RULES: dict[str, int] = {
+    "CLalpha": 1,
+    "CYbeta": -1,
+    "Clbeta": -1,
+    "Clp": -1,
+    "Cnbeta": 1,
+    "Cnr": -1,
+    "Cmq": -1,
+    "Cmalpha": -1,
+    "CLde": 1,
+    "Cmde": -1,
+    "Clda": 1,
+    "CYdr": 1,
+    "Cndr": -1,
+}
+#: what fixes each sign of :data:`SIGN_RULES`, for the verdict's sentences
+SIGN_REASONS: dict[str, str] = {
+    "CLalpha": "lift rises with angle of attack",
+    "CYbeta": "side force opposes sideslip",
+    "Clbeta": "dihedral effect",
+    "Clp": "roll damping",
+    "Cnbeta": "weathercock stability",
+    "Cnr": "yaw damping",
+    "Cmq": "pitch damping",
+    "Cmalpha": "static stability in pitch",
+    "CLde": "the elevator's sign convention",
+    "Cmde": "the elevator's sign convention",
+    "Clda": "the aileron's sign convention",
+    "CYdr": "the rudder's sign convention",
+    "Cndr": "the rudder's sign convention",
+}
+#: control input -> the derivatives of :data:`SIGN_RULES` whose sign its convention sets
+CONTROL_DERIVATIVES: dict[str, tuple[str, ...]] = {"de": ("CLde", "Cmde"), "da": ("Clda",), "dr": ("CYdr", "Cndr")}
 
 
 def load_apriori(source: str | Path | Mapping) -> pd.DataFrame:
@@ -161,3 +216,56 @@ def agreement(estimates: Mapping[str, tuple[Any, Any]], k: float = PLAUSIBILITY_
     if not parts:
         return pd.DataFrame(columns=cols)
     return pd.concat(parts, ignore_index=True)[cols]
+
+
+def expected_signs(
+    reversed_inputs: tuple[str, ...] | list[str] = (),
+    *,
+    unstable: bool = False,
+    declared: Mapping[str, float] | None = None,
+) -> dict[str, int]:
+    """The sign each derivative is expected to have: :data:`SIGN_RULES`, the control
+    derivatives of ``reversed_inputs`` (de, da, dr whose positive deflection is the
+    opposite of DESIGN.md's convention) negated, Cmalpha left out for an aircraft
+    declared statically ``unstable``; a ``declared`` value (a truth set's derivative
+    table, which defines its aircraft) sets its derivative's sign, 0 drops the rule."""
+    bad = [a for a in reversed_inputs if a not in CONTROL_DERIVATIVES]
+    if bad:
+        raise ValueError(f"reversed inputs {bad}: use {', '.join(CONTROL_DERIVATIVES)}")
+    signs = dict(SIGN_RULES)
+    for a in reversed_inputs:
+        for n in CONTROL_DERIVATIVES[a]:
+            signs[n] = -signs[n]
+    if unstable:
+        signs.pop("Cmalpha")
+    for n, v in (declared or {}).items():
+        if n in signs:
+            if float(v) == 0.0:
+                signs.pop(n)
+            else:
+                signs[n] = 1 if float(v) > 0 else -1
+    return signs
+
+
+def sign_check(estimates, std, signs: Mapping[str, int] | None = None, k: float = PLAUSIBILITY_K) -> pd.DataFrame:
+    """Each estimate whose sign is expected (``signs``: derivative -> +1/-1, default
+    :func:`expected_signs`) judged against it.
+
+    estimates, std: Series/dicts by name (per rad, as in DESIGN.md section 3); names without
+    an expected sign or with a std that is not finite (a held parameter) are left out.
+    Returns a DataFrame indexed by parameter: ``estimate``, ``std``, ``expected`` (+1/-1),
+    ``margin`` = expected * estimate / std (how many std the estimate lies on the expected
+    side of zero; negative: the wrong side) and ``flag`` (margin < -k: wrong sign beyond
+    its own uncertainty).
+    """
+    signs = expected_signs() if signs is None else signs
+    est, sd = pd.Series(estimates, dtype=float), pd.Series(std, dtype=float)
+    names = [n for n in est.index if n in signs and np.isfinite(sd.get(n, np.nan)) and np.isfinite(est[n])]
+    e, s = est[names].to_numpy(), sd[names].to_numpy()
+    sign = np.array([signs[n] for n in names], dtype=int)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        margin = np.where(s > 0, sign * e / np.where(s > 0, s, 1.0), np.sign(sign * e) * np.inf)
+    return pd.DataFrame(
+        {"estimate": e, "std": s, "expected": sign, "margin": margin, "flag": margin < -k},
+        index=pd.Index(names, name="parameter"),
+    )

@@ -17,4 +17,5 @@ COMMANDS: dict[str, str] = {
     "estimate": "estimate",
     "run": "run",
     "view": "view",
+    "aircraft": "aircraft",
 }

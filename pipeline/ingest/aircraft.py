@@ -1,6 +1,8 @@
 """Where ``fsid estimate`` gets the aircraft constants and the sensor positions from.
 
-Aircraft (mass, inertia, geometry, max thrust): ``--aircraft A.toml``; without it, the
+Aircraft (mass, inertia, geometry, thrust, a-priori values, sign conventions):
+``--aircraft A.toml``, an aircraft file (:mod:`pipeline.ingest.aircraft_file`,
+docs/aircraft.md); without it, the
 ``truth.json`` that ``fsid run`` / ``fsid simulate`` write next to the log (a simulated
 flight); a user model needs neither (its constants are in the model).
 
@@ -28,12 +30,9 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from pipeline.errors import FsidError
+from pipeline.ingest.aircraft_file import read_aircraft_file
 from pipeline.ingest.constants import AircraftConstants
-from sim.aircraft import load_aircraft
-from sim.errors import ScenarioError
 
 #: autopilot parameters holding the IMU position from the CG (body axes, m)
 IMU_PARAMS = (("INS_POS1_X", "INS_POS1_Y", "INS_POS1_Z"), ("EKF2_IMU_POS_X", "EKF2_IMU_POS_Y", "EKF2_IMU_POS_Z"))
@@ -55,19 +54,11 @@ def truth_next_to(log: str | Path) -> tuple[Path, dict] | None:
     return p, doc
 
 
-def _aircraft(path: str | Path):
-    """The aircraft of a TOML (sim.load_aircraft); a bad file is one FsidError."""
-    try:
-        return load_aircraft(path)
-    except ScenarioError as exc:
-        raise FsidError(str(exc)) from None
-
-
 def load_aircraft_toml(path: str | Path) -> tuple[AircraftConstants, str, dict]:
-    """(constants without sensor positions, aircraft name, sensor positions the TOML gives)."""
-    ac_obj = _aircraft(path)
-    sensors = dict(getattr(ac_obj, "sensors", None) or {})
-    return AircraftConstants.from_aircraft(ac_obj), ac_obj.name, sensors
+    """(constants without sensor positions, aircraft name, sensor positions the file gives)
+    of an aircraft file (:func:`pipeline.ingest.aircraft_file.read_aircraft_file`)."""
+    af = read_aircraft_file(path)
+    return af.constants, af.name, dict(af.sensors)
 
 
 def params_imu_position(params: Mapping[str, float]) -> tuple[tuple[float, float, float], str] | None:
@@ -106,11 +97,8 @@ def servo_travel_for(log: str | Path, aircraft: str | Path | None) -> dict[str, 
     or, without ``aircraft``, the truth.json next to the log; {} when neither gives it
     (the channel map and the log decide, :func:`pipeline.ingest.maps.servo_travel`)."""
     if aircraft is not None:
-        ac = _aircraft(aircraft)
-        return {
-            a: (round(float(np.rad2deg(v)), 9), f"aircraft TOML [servos] {a}_travel_deg")
-            for a, v in ac.servo_travel.items()
-        }
+        travel = read_aircraft_file(aircraft).servo_travel
+        return {a: (deg, f"aircraft TOML [servos] {key}") for a, (deg, key) in travel.items()}
     truth = truth_next_to(log)
     travel = ((truth[1].get("servo") or {}).get("travel_deg") or {}) if truth else {}
     return {a: (float(v), f"{truth[0]}") for a, v in travel.items()} if isinstance(travel, dict) else {}

@@ -1,18 +1,20 @@
 """The aircraft's constants as the models need them, and the ISA troposphere.
 
-:class:`AircraftConstants` is built from an aircraft description (an aircraft TOML or the
-``truth.json`` of a simulated flight) by :mod:`pipeline.ingest.aircraft`; the problem
+:class:`AircraftConstants` is built from an aircraft description (an aircraft file,
+:mod:`pipeline.ingest.aircraft_file`, or the ``truth.json`` of a simulated flight) by
+:mod:`pipeline.ingest.aircraft`; the problem
 builders read mass, inertia, geometry, thrust and sensor positions from it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from estimators.validation.plausibility import expected_signs
 from pipeline.errors import FsidError
 
 
@@ -23,6 +25,15 @@ class AircraftConstants:
     mass (kg), Ixx Iyy Izz Ixz (kg m^2), S (m^2), b, cbar (m), max_thrust (N, thrust =
     throttle * max_thrust when the log has no thrust channel), sensor positions from the
     CG in body axes (m): ``airdata`` and ``imu`` as (x, y, z).
+
+    What the owner knows beyond that (:mod:`pipeline.ingest.aircraft_file`):
+    ``thrust_table`` (throttle 0..1, thrust N): a measured throttle-to-thrust map,
+    interpolated linearly (:meth:`thrust`, used over ``max_thrust``); ``apriori``:
+    derivative -> {value, std, source} (per rad), for the plausibility check and, asked
+    for, as priors; ``reversed_inputs``: the surfaces (de, da, dr) whose positive
+    deflection is the opposite of DESIGN.md's convention; ``unstable``: statically
+    unstable in pitch (a positive Cmalpha no fault); ``derivatives``: a truth set's
+    derivative table (a simulated aircraft), whose signs the sign check takes as declared.
     """
 
     mass: float
@@ -36,6 +47,26 @@ class AircraftConstants:
     max_thrust: float | None = None
     airdata: tuple[float, float, float] = (0.0, 0.0, 0.0)
     imu: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    thrust_table: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    apriori: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    reversed_inputs: tuple[str, ...] = ()
+    unstable: bool = False
+    derivatives: Mapping[str, float] = field(default_factory=dict)
+
+    def thrust(self, throttle: np.ndarray) -> np.ndarray | None:
+        """Thrust (N) at ``throttle`` (0..1, any shape): the throttle-to-thrust table
+        interpolated linearly (held at its ends), else throttle * max_thrust; None when
+        neither is known."""
+        if self.thrust_table is not None:
+            return np.interp(np.asarray(throttle, dtype=float), *self.thrust_table)
+        if self.max_thrust:
+            return np.asarray(throttle, dtype=float) * self.max_thrust
+        return None
+
+    def expected_signs(self) -> dict[str, int]:
+        """Derivative -> the sign (+1/-1) the verdict expects of it for this aircraft
+        (:func:`estimators.validation.expected_signs`)."""
+        return expected_signs(self.reversed_inputs, unstable=self.unstable, declared=self.derivatives)
 
     @classmethod
     def from_truth(cls, truth: Mapping[str, Any]) -> AircraftConstants:
@@ -62,14 +93,7 @@ class AircraftConstants:
             max_thrust=_num(prop, "max_thrust_N", "max_thrust", default=None),
             airdata=pos("airdata"),
             imu=pos("imu"),
-        )
-
-    @classmethod
-    def from_aircraft(cls, aircraft: Any, sensors: Mapping[str, Sequence[float]] | None = None) -> AircraftConstants:
-        """From a :class:`sim.Aircraft` (an aircraft TOML) and optional sensor positions."""
-        d = aircraft.to_dict()
-        return cls.from_truth(
-            {"aircraft": d, "sensors": {k: {"position_m": list(v)} for k, v in (sensors or {}).items()}}
+            derivatives={k: float(v) for k, v in (truth.get("derivatives") or ac.get("derivatives") or {}).items()},
         )
 
 

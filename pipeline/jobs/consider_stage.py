@@ -12,7 +12,7 @@ from pipeline.conditioning.input_sampling import summary as step_summary
 from pipeline.ingest.flightdata import FlightData
 from pipeline.jobs.progress import Progress
 from pipeline.uncertainty.consider import fitted_steps, held_estimates, input_dynamics, input_sampling, propagate, wind
-from pipeline.validation import refresh_prediction_uncertainty, refresh_truth_check
+from pipeline.validation import refresh_plausibility, refresh_prediction_uncertainty, refresh_truth_check
 
 
 @dataclass
@@ -86,6 +86,7 @@ def carry_consider_uncertainty(
         if key in validations:
             refresh_prediction_uncertainty(validations[key], res)
             refresh_truth_check(validations[key], res, truth)
+            refresh_plausibility(validations[key], res)
     progress.done(
         "nothing held"
         if not parts

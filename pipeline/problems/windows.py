@@ -165,14 +165,16 @@ def with_smoothed_inputs(
 
 
 def thrust_signal(df: pd.DataFrame, ac: AircraftConstants) -> np.ndarray:
-    """Thrust (N) along the rows of ``df``: its thrust channel, else throttle * max_thrust."""
+    """Thrust (N) along the rows of ``df``: its thrust channel, else the throttle through
+    the aircraft's throttle-to-thrust map (:meth:`AircraftConstants.thrust`)."""
     if "thrust" in df and df["thrust"].notna().all():
         return df["thrust"].to_numpy()
-    if "throttle" in df and ac.max_thrust:
-        return df["throttle"].to_numpy() * ac.max_thrust
+    thrust = ac.thrust(df["throttle"].to_numpy()) if "throttle" in df else None
+    if thrust is not None:
+        return thrust
     raise FsidError(
-        "the log has neither a thrust channel nor throttle with a known max_thrust: "
-        "add [propulsion] max_thrust_N to the aircraft description"
+        "the log has neither a thrust channel nor throttle with a known throttle-to-thrust map: "
+        "add [propulsion] max_thrust_N (or a throttle = [...], thrust_N = [...] map) to the aircraft file"
     )
 
 

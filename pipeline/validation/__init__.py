@@ -7,6 +7,7 @@ from pipeline.validation.agreement import cross_check_methods
 from pipeline.validation.fit import NOISE_FLOOR_RATIO, TIC_LIMIT
 from pipeline.validation.json_values import json_ready, num
 from pipeline.validation.names import is_segment_parameter
+from pipeline.validation.plausibility import refresh_plausibility
 from pipeline.validation.proof_of_match import POM_MODES, pom_mode, refresh_prediction_uncertainty
 from pipeline.validation.settings import ValidationSettings
 from pipeline.validation.truth import TRUTH_K, refresh_truth_check
@@ -30,6 +31,7 @@ __all__ = [
     "json_ready",
     "num",
     "pom_mode",
+    "refresh_plausibility",
     "refresh_prediction_uncertainty",
     "refresh_truth_check",
     "validate",

@@ -57,8 +57,10 @@ Keys of the returned dict
     ``rms_residual``, ``max_abs_residual``, ``rms_input`` (SI), ``ratio`` (residual over
     flown input, rms), ``unit``/``rms_residual_display`` (deg for surfaces): the inputs the
     linearised model needs beyond the flown ones to follow the first fitted segment.
-``plausibility``: ``truth`` (per parameter: ``truth error error_in_std within``) and
-    ``apriori`` (per parameter: columns of :func:`estimators.validation.plausibility`).
+``plausibility``: ``truth`` (per parameter: ``truth error error_in_std within``),
+    ``k``, ``signs`` (per derivative whose sign is fixed: columns of
+    :func:`estimators.validation.sign_check`) and ``apriori`` (per parameter: columns of
+    :func:`estimators.validation.plausibility`), both on the total std.
 ``agreement``: set by :func:`~pipeline.validation.agreement.cross_check_methods` once every
     method of the run has its final std: ``k``, ``flagged`` (per other method of the same
     axis, the parameters where the two estimates differ by more than k combined std, with
@@ -91,8 +93,9 @@ from estimators import EstimationResult, Segment
 from estimators import validation as V
 from estimators.integrators import INTEGRATORS
 from pipeline.validation.fit import fit_summary, residual_analysis
-from pipeline.validation.json_values import frame_dict, num
+from pipeline.validation.json_values import num
 from pipeline.validation.linear import Linearisation, frequency_check, inverse_check, linear_model, mode_table
+from pipeline.validation.plausibility import plausibility_checks
 from pipeline.validation.proof_of_match import POM_MODES, match_held_out, pom_mode
 from pipeline.validation.settings import ValidationSettings
 from pipeline.validation.truth import truth_check
@@ -108,6 +111,7 @@ def validate(
     step_times: Sequence[Mapping[str, Any]] | None = None,
     truth: Mapping[str, float] | None = None,
     apriori: Any = None,
+    signs: Mapping[str, int] | None = None,
     **options: Any,
 ) -> dict[str, Any]:
     """Run the validation of :mod:`estimators.validation` on one result (see module doc).
@@ -137,7 +141,9 @@ def validate(
         ``input_timing`` of the segment and the channels' nominal error and envelope width
         say what it did).
     truth: true parameter values by name; apriori: a-priori values (TOML path, mapping or
-        DataFrame of :func:`estimators.validation.load_apriori`).
+        DataFrame of :func:`estimators.validation.load_apriori`); signs: derivative ->
+        expected sign +1/-1 (default :func:`estimators.validation.expected_signs` with the
+        truth's signs declared; :func:`~pipeline.validation.plausibility.plausibility_checks`).
     """
     s = replace(settings or ValidationSettings(), **options)
     integ = s.integrator or result.settings.get("integrator", "rk4")
@@ -165,9 +171,7 @@ def validate(
     plaus: dict[str, Any] = {}
     if truth:
         plaus["truth"] = truth_check(result, truth, s.truth_k)
-    if apriori is not None:
-        names = result.free_names
-        plaus["apriori"] = frame_dict(V.plausibility(result.params[names], result.std[names], apriori))
+    plaus.update(plausibility_checks(result, apriori, V.expected_signs(declared=truth) if signs is None else signs))
     out["plausibility"] = plaus
     out["verdict"] = verdict(out)
     out["arrays"] = arrays

@@ -7,6 +7,8 @@ from collections.abc import Mapping
 from typing import Any
 
 from estimators import validation as V
+from estimators.defaults import PLAUSIBILITY_K
+from estimators.validation.plausibility import SIGN_REASONS
 from pipeline.validation.fit import NOISE_FLOOR_RATIO
 from pipeline.validation.names import is_method
 
@@ -35,11 +37,16 @@ LEVELS = ("PASS", "CHECK", "FAIL")
 #: - ``proof of match none judged`` CHECK: no channel could be judged: unproven, not failed.
 #: - ``TIC`` CHECK: an output followed poorly (weakly excited or modelled) is a question for
 #:   the engineer, not evidence that the estimates are wrong.
+#: - ``wrong sign`` FAIL: a derivative whose sign physics or the declared control sign
+#:   convention fixes (:func:`estimators.validation.expected_signs`) estimated on the
+#:   wrong side of zero by more than k of its own std: no aircraft flies with it.
+#: - ``a priori`` FAIL: an estimate more than k combined std (its own and the a-priori
+#:   value's) from an a-priori value the aircraft file gives: the two cannot both hold.
 #:
 #: Notes set no level: coloured residuals, correlations, frequency-response mismatch, TIC
-#: at an output's noise floor, maneuver scatter, a-priori values (the uncertain knowledge
-#: identification replaces) and disagreements between other pairs of methods (neither of
-#: which is the one to trust): context that neither proves nor disproves the estimates.
+#: at an output's noise floor, maneuver scatter and disagreements between other pairs of
+#: methods (neither of which is the one to trust): context that neither proves nor
+#: disproves the estimates.
 REASON_LEVELS = {
     "not converged": "FAIL",
     "truth": "FAIL",
@@ -49,6 +56,8 @@ REASON_LEVELS = {
     "proof of match within": "CHECK",
     "proof of match none judged": "CHECK",
     "TIC": "CHECK",
+    "wrong sign": "FAIL",
+    "a priori": "FAIL",
 }
 #: why an EKF/UKF that disagrees with filter error fails (DESIGN.md section 8)
 FILTER_ERROR_TRUST = (
@@ -67,11 +76,11 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
     with their ``reason_levels``, and ``notes`` that set no level.
 
     Reasons: not converged; TIC over the limit; a failed proof of match, by whether its
-    misses are within the prediction's own uncertainty; truth beyond k std (when known); an
-    EKF/UKF disagreeing with filter error (``agreement`` from
-    :func:`~pipeline.validation.agreement.cross_check_methods`).
-    Notes: residual colour, correlations, frequency mismatch, a-priori values, other
-    methods' disagreement, and for an output-error method with coloured residuals and
+    misses are within the prediction's own uncertainty; truth beyond k std (when known); a
+    derivative of the wrong sign or an a-priori value disagreeing beyond k std
+    (:func:`_plausibility_reasons`); an EKF/UKF disagreeing with filter error
+    (``agreement`` from :func:`~pipeline.validation.agreement.cross_check_methods`).
+    Notes: residual colour, correlations, frequency mismatch, other methods' disagreement, and for an output-error method with coloured residuals and
     scattering maneuvers the advice to fit filter error."""
     reasons: list[Reason] = []
     notes: list[str] = []
@@ -89,11 +98,7 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
     if tr and tr["per_parameter"] and not tr["all_within"]:
         bad = [n for n, d in tr["per_parameter"].items() if not d["within"]]
         reasons.append(("truth", f"{', '.join(bad)} more than {tr['k']:g} std from the truth"))
-    ap = (v.get("plausibility") or {}).get("apriori")
-    if ap:
-        flagged = [n for n, d in ap.items() if d.get("flag")]
-        if flagged:
-            notes.append(f"disagree with a-priori values: {', '.join(flagged)}")
+    reasons += _plausibility_reasons(v.get("plausibility") or {})
     _judge_agreement(v, reasons, notes)
     notes += _uncertainty_notes(v)
     if v.get("correlations_flagged"):
@@ -111,6 +116,35 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
         "reason_levels": levels,
         "notes": notes,
     }
+
+
+def _plausibility_reasons(pl: Mapping[str, Any]) -> list[Reason]:
+    """A ``wrong sign`` reason per derivative flagged by the sign check (``signs``) and an
+    ``a priori`` reason per estimate flagged against its a-priori value (``apriori``),
+    each naming the derivative, its value and std and the rule broken (k: ``pl["k"]``)."""
+    k = float(pl.get("k", PLAUSIBILITY_K))
+    reasons: list[Reason] = []
+    for n, d in (pl.get("signs") or {}).items():
+        if d.get("flag"):
+            rel = ">" if d["expected"] > 0 else "<"
+            reasons.append(
+                (
+                    "wrong sign",
+                    f"{n} = {d['estimate']:.4g} +- {d['std']:.2g} has the wrong sign: {n} {rel} 0 "
+                    f"({SIGN_REASONS.get(n, 'declared')}), and it lies {-d['margin']:.1f} std beyond zero "
+                    f"(more than {k:g})",
+                )
+            )
+    for n, d in (pl.get("apriori") or {}).items():
+        if d.get("flag"):
+            reasons.append(
+                (
+                    "a priori",
+                    f"{n} = {d['estimate']:.4g} +- {d['std']:.2g} disagrees with its a-priori value "
+                    f"{d['apriori']:.4g} +- {d['apriori_std']:.2g} by {d['z']:.1f} combined std (more than {k:g})",
+                )
+            )
+    return reasons
 
 
 def _judge_tic(fit: Mapping[str, Any], reasons: list[Reason], notes: list[str]) -> None:
