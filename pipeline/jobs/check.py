@@ -16,6 +16,8 @@ from pipeline.conditioning.flow_angles import summary as flow_summary
 from pipeline.ingest.readers import read_log
 from pipeline.jobs.progress import Progress
 from pipeline.jobs.stages import compatibility_after_flow_angles, flow_angle_stage
+from pipeline.outputs.recording import write_check_recording
+from pipeline.outputs.recording_flight import FlightRecord
 from pipeline.paths import atomic_write_text, new_run_dir
 
 #: core channels whose fastest rate sets canonical.csv's (at most 100 Hz)
@@ -46,6 +48,7 @@ def check_log(
         extra = _compatibility(fd, positions or ([0.0] * 3, [0.0] * 3, "default 0,0,0"))
     out = new_run_dir("check", out)
     atomic_write_text(out / "checks.json", findings_to_json(findings, fd, extra))
+    write_check_recording(out / "check.rrd", FlightRecord(fd, findings))
     if rate is None:
         rates = [c.rate_hz for k, c in fd.channels.items() if k in CORE_CHANNELS]
         rate = min(max(rates), 100.0) if rates else 10.0
@@ -62,6 +65,7 @@ def check_log(
         if f.status == "fail":
             print(f"  FAIL {f.check} {f.channel or ''}: {f.message}", file=sys.stderr)
     print(f"wrote {out / 'checks.json'} and {out / 'canonical.csv'} ({len(df)} rows at {rate:g} Hz)")
+    print(f"recording: {out / 'check.rrd'}  (open with: fsid view {out})")
     return 0
 
 

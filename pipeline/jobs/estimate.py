@@ -33,6 +33,7 @@ from pipeline.jobs.stages import compatibility_after_flow_angles, flow_angle_sta
 from pipeline.jobs.validation_flights import validation_flights, validation_prefix
 from pipeline.jobs.write import write_outputs
 from pipeline.methods.catalogue import check_methods
+from pipeline.outputs.recording_flight import FlightRecord
 from pipeline.problems import MAX_RATE_HZ
 from pipeline.problems.user_model import check_channels, is_user_model, load_user_model, split_spec
 from pipeline.uncertainty.consider import wind_summary
@@ -73,6 +74,7 @@ def estimate_log(
         checks=est.checks,
         meta=est.meta,
         compatibility=est.comp,
+        flight=FlightRecord(est.data, est.findings),
     )
 
 

@@ -29,6 +29,7 @@ from pipeline.jobs.progress import Progress
 from pipeline.jobs.simulate import flight_stages, resolve_scenario, simulate
 from pipeline.jobs.write import write_outputs
 from pipeline.methods.catalogue import check_methods, scenario_methods
+from pipeline.outputs.recording_flight import FlightRecord
 from pipeline.paths import atomic_write_text
 from pipeline.problems import MAX_RATE_HZ
 
@@ -89,7 +90,15 @@ def run_scenario(
     if corrections is not None:
         meta["validation flight corrections"] = corrections
     return write_outputs(
-        out, est.results, est.validations, est.truth, est.progress, checks=checks, meta=meta, compatibility=est.comp
+        out,
+        est.results,
+        est.validations,
+        est.truth,
+        est.progress,
+        checks=checks,
+        meta=meta,
+        compatibility=est.comp,
+        flight=FlightRecord(est.data, est.findings),
     )
 
 
