@@ -94,8 +94,7 @@ def display_samples(t: np.ndarray, v: np.ndarray, max_hz: float = DISPLAY_MAX_HZ
     if t.size > 1 and np.any(np.diff(t) < 0):
         order = np.argsort(t, kind="stable")
         t, v = t[order], v[order]
-    span = float(t[-1] - t[0]) if t.size > 1 else 0.0
-    rate = (t.size - 1) / span if span > 0 else 0.0
+    rate = points_per_second(t)
     if rate <= max_hz:
         return t, v
     k = math.ceil(2.0 * rate / max_hz)
@@ -105,6 +104,15 @@ def display_samples(t: np.ndarray, v: np.ndarray, max_hz: float = DISPLAY_MAX_HZ
     idx = (pick + (np.arange(m) * k)[:, None]).ravel()
     idx = np.concatenate([idx[np.r_[True, np.diff(idx) > 0]], np.arange(m * k, t.size)])
     return t[idx], v[idx]
+
+
+def points_per_second(t: np.ndarray) -> float:
+    """Finite samples per second over their span (0 for fewer than two): what decides the
+    thinning for display (a bursty channel's median interval would overstate it)."""
+    t = np.asarray(t, dtype=float)
+    t = t[np.isfinite(t)]
+    span = float(t.max() - t.min()) if t.size > 1 else 0.0
+    return (t.size - 1) / span if span > 0 else 0.0
 
 
 def absolute_start(fd: FlightData, origin: float) -> str:
@@ -195,7 +203,7 @@ def flight_info(flight: FlightRecord) -> str:
         "|---|---|---|---|---|---|",
     ]
     for name, ch in fd.channels.items():
-        thin = ch.rate_hz > DISPLAY_MAX_HZ
+        thin = points_per_second(ch.t) > DISPLAY_MAX_HZ
         shown = f"min/max per bin, <= {DISPLAY_MAX_HZ:g} points/s" if thin else "every sample"
         lines.append(f"| {name} | {ch.unit or '-'} | {len(ch)} | {ch.rate_hz:.2f} | {ch.source} | {shown} |")
     lines += ["", "## Flight modes (`/flight/mode`)", ""]
