@@ -25,9 +25,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("log", help="flight log (.bin, .tlog, .ulg, .mcap, .csv)")
     p.add_argument(
         "--aircraft",
-        help="aircraft TOML (geometry, mass, inertia, propulsion, optional "
-        "[sensors.airdata|imu] position_m, optional [servos] de/da/dr_travel_deg "
-        "to decode servo PWM, 30 deg assumed without; see scenarios/aircraft/): needed by "
+        help="aircraft file ([geometry], [mass], optional [propulsion], [servos] de/da/dr_travel_deg "
+        "to decode servo PWM (30 deg assumed without), [sensors.airdata|imu] position_m, [signs], "
+        "[apriori]; fsid aircraft init writes a template, docs/aircraft.md): needed by "
         "the built-in models unless the log sits next to a truth.json from "
         "fsid run/simulate; offered to a user model's function",
     )
@@ -67,6 +67,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "is proved on LOG2's maneuvers (repeat for several flights; default: "
         "the last maneuver of each axis of LOG is held out)",
     )
+    p.add_argument(
+        "--priors",
+        action="store_true",
+        help="use the aircraft file's [apriori] values as priors of output error's fit (they "
+        "are always judged against: an estimate beyond 3 combined std of one fails the verdict)",
+    )
     add_input_arguments(p)
     add_validation_arguments(p)
     p.add_argument("--quiet", action="store_true")
@@ -86,6 +92,7 @@ def options(args: argparse.Namespace) -> EstimateOptions:
         validation_log=args.validate_with,
         time_base=args.time_base,
         input_dynamics=args.input_dynamics,
+        priors=args.priors,
         **validation_options(args),
     )
 

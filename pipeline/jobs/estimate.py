@@ -116,6 +116,12 @@ def estimate(log: str | Path, opts: EstimateOptions, count: Progress | None = No
         + (f"; {step_summary(steps_doc)}" if steps_doc else "")
     )
     ac, ac_name, truth_doc = _aircraft(log, opts, fd, user, pr)
+    if opts.priors and not (ac is not None and ac.apriori):
+        raise FsidError(
+            f"--priors: the aircraft ({opts.aircraft or 'truth.json next to the log'}) gives no "
+            "[apriori] values; add them to the aircraft file (e.g. Cmq = { value = -12.0, std = 4.0 }) "
+            "or leave --priors out"
+        )
     truth = (
         {k: float(v) for k, v in truth_doc["derivatives"].items()}
         if truth_doc and truth_doc.get("derivatives")
@@ -147,6 +153,9 @@ def estimate(log: str | Path, opts: EstimateOptions, count: Progress | None = No
         smooth_inputs=opts.smooth_inputs,
         calm=opts.calm,
         validation_calm=opts.validation_calm,
+        apriori=dict(ac.apriori) if ac is not None and ac.apriori else None,
+        priors=opts.priors,
+        signs=ac.expected_signs() if ac is not None else None,
     )
     job = FitJob(ac, opts.methods, truth, fit, axes=axes, model=um)
     results, validations, _, dyn_doc, sampling = fit_stages(pr, job, data, fd_vals, opts.input_dynamics, meta)

@@ -59,6 +59,7 @@ def fit_and_validate(
     start = start.params if earlier is not None else start
     refit = start is not None
     pb, alphadot = _alphadot_held(pb, start, held_alphadot)
+    pb = _with_priors(pb, options)
     if refit and spec.start_free and len(start):  # (then fit_problem's equation-error starts off)
         free = {p.name for p in pb.model.parameters if p.free}  # held values stay the problem's
         pb = replace(
@@ -97,10 +98,27 @@ def fit_and_validate(
         proof_of_match=options.pom,
         calm_air=calm_air,
         step_times=pb.held_out_step_times(),
+        apriori=options.apriori,
+        signs=options.signs,
     )
     v["problem"] = {"notes": list(pb.notes)}
     progress.done()
     return res, v
+
+
+def _with_priors(pb: Problem, options: FitOptions) -> Problem:
+    """``pb`` with the aircraft's a-priori values of its free parameters as priors when the
+    job asks for them (``options.priors``), and a note naming them."""
+    if not (options.priors and options.apriori):
+        return pb
+    free = {p.name for p in pb.model.parameters if p.free}
+    got = {n: (float(d["value"]), float(d["std"])) for n, d in options.apriori.items() if n in free}
+    if not got:
+        return pb
+    note = "a-priori values as priors (output error's a-priori penalty; other methods ignore them): " + ", ".join(
+        f"{n} {v:g} +- {sd:g}" for n, (v, sd) in got.items()
+    )
+    return replace(pb, priors={**pb.priors, **got}, notes=[*pb.notes, note])
 
 
 def _alphadot_held(pb: Problem, start: Any, held_alphadot: str | None) -> tuple[Problem, list[str]]:

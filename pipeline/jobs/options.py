@@ -26,6 +26,10 @@ class FitOptions:
         their noise levels from the data.
     validation_calm: the validation flights are known to be flown in calm air (the automatic
         proof-of-match mode is then the open-loop simulation whatever the method).
+    apriori: the aircraft's a-priori values (derivative -> {value, std, source}), judged
+        against by the validation; priors: also used as output error's priors.
+    signs: derivative -> the sign (+1/-1) the validation expects (None: the defaults,
+        :func:`estimators.validation.expected_signs`).
     """
 
     inputs: str = "linear"
@@ -34,6 +38,9 @@ class FitOptions:
     smooth_inputs: bool = True
     calm: bool = False
     validation_calm: bool = False
+    apriori: Mapping[str, Mapping[str, float | str]] | None = None
+    priors: bool = False
+    signs: Mapping[str, int] | None = None
 
 
 @dataclass(frozen=True)
@@ -49,7 +56,8 @@ class EstimateOptions:
         validation_log: a second flight, or several, for the proof of match; time_base: of
         a .tlog or .mcap log; input_dynamics: auto, off or (delay, lag) [s]; calm,
         validation_calm: the flight, the validation flights known to be flown in calm air (a
-        flight plan's, see :class:`FitOptions`; unknown for a real log).
+        flight plan's, see :class:`FitOptions`; unknown for a real log); priors: the
+        aircraft file's a-priori values used as output error's priors too.
     """
 
     aircraft: str | Path | None = None
@@ -67,6 +75,7 @@ class EstimateOptions:
     input_dynamics: str | tuple[float, float] = "auto"
     calm: bool = False
     validation_calm: bool = False
+    priors: bool = False
 
 
 @dataclass(frozen=True)
