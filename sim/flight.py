@@ -18,6 +18,7 @@ import pandas as pd
 from sim.aircraft import DERIVATIVES, SERVO_SPAN_US, Aircraft
 from sim.errors import ScenarioError
 from sim.jsbsim_model import FcsConfig, write_jsbsim_root
+from sim.lateral_trim import trim_with_asymmetry
 from sim.maneuvers import input_histories
 from sim.scenario import THROTTLE_SPAN_US, Scenario
 from sim.sensors import sample_sensor
@@ -187,7 +188,11 @@ def _trim(fdm, scenario: Scenario) -> dict[str, float]:
     where = f"{s.path}: trim"
     what = f"{s.aircraft.name} at {s.airspeed} m/s, {s.altitude} m, flight path {np.rad2deg(s.flight_path):.1f} deg"
     try:
-        fdm.do_trim(0)
+        # a laterally asymmetric aircraft trims with aileron, rudder and bank too; a
+        # symmetric one flies wings level at zero aileron and rudder
+        lateral = trim_with_asymmetry(fdm) if s.aircraft.asymmetric else {}
+        if not lateral:
+            fdm.do_trim(0)
     except jsbsim.TrimFailureError:
         thr = fdm["fcs/throttle-cmd-norm[0]"]
         hint = (
@@ -221,6 +226,7 @@ def _trim(fdm, scenario: Scenario) -> dict[str, float]:
         "wdot": fdm["accelerations/wdot-ft_sec2"] * FT,
         "qdot": fdm["accelerations/qdot-rad_sec2"],
         "jsbsim_mass_kg": fdm["inertia/mass-slugs"] * 14.593902937206364,
+        **lateral,
     }
 
 

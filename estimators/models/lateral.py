@@ -4,7 +4,7 @@ States  beta (rad), p, r (rad/s), phi (rad); inputs da, dr (rad);
 outputs beta, p, r, phi, ay (m/s^2), pdot, rdot (rad/s^2).
 With qbar = rho V^2 / 2, phat = p b / (2V), rhat = r b / (2V):
 
-    CY = CYbeta beta + CYp phat + CYr rhat + CYda da + CYdr dr        (likewise Cl, Cn)
+    CY = CY0 + CYbeta beta + CYp phat + CYr rhat + CYda da + CYdr dr        (likewise Cl, Cn)
     betadot = qbar S / (m V) CY + p sin(alpha0) - r cos(alpha0) + g cos(theta0) / V phi
     Ixx pdot - Ixz rdot = qbar S b Cl,   Izz rdot - Ixz pdot = qbar S b Cn
     phidot = p + tan(theta0) r,          ay = qbar S CY / m
@@ -12,6 +12,13 @@ With qbar = rho V^2 / 2, phat = p b / (2V), rhat = r b / (2V):
 Constants: m, Ixx, Izz, Ixz (kg m^2), S, b (m), rho, V (m/s); alpha0, theta0 (rad, trim,
 default 0), g; sensor positions from the CG (m, default 0): x_vane, z_vane (beta observed
 as beta + (r x - p z)/V) and x_imu, z_imu (ay + rdot x - pdot z).
+
+CY0, Cl0, Cn0 (start 0, held unless freed) are the trim-asymmetry terms: the coefficients
+at zero states and zero inputs. With inputs measured from the trim (the pipeline's
+convention) they are the aircraft's own asymmetry plus what its trimmed aileron and
+rudder produce, which a steady bank or sideslip balances; without them the model can only
+start from a balanced wings-level trim, and drifts in bank from any other.
+Which of them can be free alongside output biases: :func:`trim_terms`.
 """
 
 from __future__ import annotations
@@ -26,6 +33,9 @@ from estimators.model import Model, Parameter
 from estimators.models._build import make_parameters, require_constants
 
 DEFAULTS = {
+    "CY0": 0.0,
+    "Cl0": 0.0,
+    "Cn0": 0.0,
     "CYbeta": -0.5,
     "CYp": 0.0,
     "CYr": 0.0,
@@ -43,6 +53,23 @@ DEFAULTS = {
     "Cndr": -0.07,
 }
 DEFAULT_FREE = ("CYbeta", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr", "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr")
+#: the trim-asymmetry terms (constant side force, rolling and yawing moment coefficients)
+TRIM_TERMS = ("CY0", "Cl0", "Cn0")
+
+
+def trim_terms(beta_bias: bool, rate_biases: bool) -> tuple[str, ...]:
+    """The trim-asymmetry terms identifiable alongside per-segment initial states and
+    output biases: CY0, Cl0, Cn0 less one per free bias that can carry a steady offset.
+
+    Why: a steady state of the model with a constant sideslip offset (read by the vane
+    with its bias, ``beta_bias``) or a constant yaw rate with the roll rate that keeps the
+    bank (read by the gyros with theirs, ``rate_biases``) changes no output beyond those
+    biases, while it shifts the constant force and moments; each such offset makes one
+    combination of (CY0, Cl0, Cn0) unidentifiable. The terms kept are CY0 first (the side
+    force that a steady bank balances: a trim the sideslip and rate offsets cannot
+    imitate), then Cl0, then Cn0; the dropped ones are carried by those offsets (a
+    wings-level trim in a steady sideslip is a vane bias to this model)."""
+    return TRIM_TERMS[: 3 - int(beta_bias) - int(rate_biases)]
 
 
 @register_jitable
@@ -50,9 +77,9 @@ def _moments(beta, pr, rr, da, dr, p, c):
     qbar = 0.5 * c.rho * c.V * c.V
     ph = pr * c.b / (2.0 * c.V)
     rh = rr * c.b / (2.0 * c.V)
-    CY = p.CYbeta * beta + p.CYp * ph + p.CYr * rh + p.CYda * da + p.CYdr * dr
-    Cl = p.Clbeta * beta + p.Clp * ph + p.Clr * rh + p.Clda * da + p.Cldr * dr
-    Cn = p.Cnbeta * beta + p.Cnp * ph + p.Cnr * rh + p.Cnda * da + p.Cndr * dr
+    CY = p.CY0 + p.CYbeta * beta + p.CYp * ph + p.CYr * rh + p.CYda * da + p.CYdr * dr
+    Cl = p.Cl0 + p.Clbeta * beta + p.Clp * ph + p.Clr * rh + p.Clda * da + p.Cldr * dr
+    Cn = p.Cn0 + p.Cnbeta * beta + p.Cnp * ph + p.Cnr * rh + p.Cnda * da + p.Cndr * dr
     L = qbar * c.S * c.b * Cl
     N = qbar * c.S * c.b * Cn
     det = c.Ixx * c.Izz - c.Ixz * c.Ixz
@@ -121,9 +148,9 @@ def _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pa,
     qbar = 0.5 * c.rho * V * V
     ph = pa * c.b / (2.0 * V)
     rh = ra * c.b / (2.0 * V)
-    CY = p.CYbeta * beta + p.CYp * ph + p.CYr * rh + p.CYda * da + p.CYdr * dr
-    Cl = p.Clbeta * beta + p.Clp * ph + p.Clr * rh + p.Clda * da + p.Cldr * dr
-    Cn = p.Cnbeta * beta + p.Cnp * ph + p.Cnr * rh + p.Cnda * da + p.Cndr * dr
+    CY = p.CY0 + p.CYbeta * beta + p.CYp * ph + p.CYr * rh + p.CYda * da + p.CYdr * dr
+    Cl = p.Cl0 + p.Clbeta * beta + p.Clp * ph + p.Clr * rh + p.Clda * da + p.Cldr * dr
+    Cn = p.Cn0 + p.Cnbeta * beta + p.Cnp * ph + p.Cnr * rh + p.Cnda * da + p.Cndr * dr
     qS = qbar * c.S
     fy = qS * CY / c.m
     Lm = qS * c.b * Cl

@@ -3,7 +3,10 @@ with the linear lateral model, or with the measured longitudinal motion as its i
 
 Control inputs are taken relative to their value at the start of each window; start values
 come from an equation-error regression on the same windows, and the last maneuvers are held
-out for proof of match.
+out for proof of match. The trim-asymmetry terms identifiable with the output biases (CY0
+with the default biases; :func:`estimators.models.lateral.trim_terms`) are free by
+default: a real aircraft trims with aileron and rudder and a steady bank, which a model
+without them cannot hold, and its bank angle drifts off in every prediction.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import pandas as pd
 
 from estimators import Segment
 from estimators.models import lateral_directional
-from estimators.models.lateral import lateral_measured_longitudinal, with_airspeed_offset
+from estimators.models.lateral import lateral_measured_longitudinal, trim_terms, with_airspeed_offset
 from pipeline.conditioning.airdata_kinematics import V_CORNER_HZ, kinematic_air_data
 from pipeline.conditioning.flow_angles import rebuilt
 from pipeline.errors import FsidError
@@ -212,6 +215,7 @@ def lateral_problem(
     rotary_gust: bool = False,
     kinematic: bool = False,
     smooth_inputs: bool = True,
+    trim_asymmetry: bool = True,
 ) -> Problem:
     """Build the lateral-directional problem (linear model about the flight's mean
     airspeed, angle of attack and pitch attitude) from the aileron and rudder maneuvers;
@@ -231,8 +235,15 @@ def lateral_problem(
         attack rebuilt from the GPS velocity (no vane) puts its noise into the kinematic
         coupling. In turbulence the blend misses the gusts above 0.1 Hz.
     smooth_inputs : the segments' aileron and rudder low-passed where their noise floor
-        begins (:mod:`pipeline.conditioning.input_smoothing`); False: as logged."""
+        begins (:mod:`pipeline.conditioning.input_smoothing`); False: as logged.
+    trim_asymmetry : the trim-asymmetry terms free in addition to ``free`` (those
+        identifiable with ``biases``: :func:`estimators.models.lateral.trim_terms`);
+        False: held at 0 (a wings-level trim balanced at zero sideslip, or one the
+        sideslip bias alone takes)."""
     rotary_gust = rotary_gust and measured_longitudinal
+    if trim_asymmetry:
+        extra = trim_terms("beta" in biases, {"p", "r"} <= set(biases))
+        free = tuple(free) + tuple(n for n in extra if n not in free)
     q = ["q"] if measured_longitudinal else []
     g = grid_windows(
         fd,

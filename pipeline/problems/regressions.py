@@ -122,7 +122,8 @@ def _filled(df: pd.DataFrame, k: str) -> np.ndarray:
 def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]) -> list[Regression]:
     """Equation-error regressions: CY (from ay), Cl and Cn (from the differentiated roll and
     yaw rates with the inertia coupling) on [1, beta, p b/2V, r b/2V, da, dr]; the intercept
-    column is named None (no model parameter). The dynamic pressure and b/2V follow the
+    is the trim-asymmetry term CY0, Cl0, Cn0 (with the measured sideslip as regressor: the
+    vane's bias is in it, and the accelerometer's in CY0). The dynamic pressure and b/2V follow the
     measured airspeed sample by sample (column ``V`` when the frames have it, else the
     constant ``c["V"]``), as the airspeed wanders during cross-controlled sideslips.
     Columns ``V_kin``, ``beta_kin`` (:mod:`pipeline.conditioning.airdata_kinematics`), when present,
@@ -170,7 +171,8 @@ def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]) 
     for coef, ys in Y.items():
         y = np.concatenate(ys)
         ok = np.all(np.isfinite(A), axis=1) & np.isfinite(y)
-        names = [None] + [f"{coef}{n}" for n in ("beta", "p", "r", "da", "dr")]
+        # the intercept is the model's trim-asymmetry term (CY0, Cl0, Cn0), estimated when free
+        names = [f"{coef}{n}" for n in ("0", "beta", "p", "r", "da", "dr")]
         out.append(Regression(coef, names, A[ok], y[ok], window[ok]))
     return out
 
