@@ -16,6 +16,7 @@ import numpy as np
 from pipeline.conditioning.checks import Finding, summarize
 from pipeline.ingest.flightdata import FlightData, SegmentSpec
 from pipeline.outputs.recording_layout import entity_part
+from pipeline.outputs.recording_series import SeriesWriter
 
 #: channels faster than this [Hz] are thinned for display: per bin of samples its minimum
 #: and maximum are kept (peaks, spikes and clipping stay visible), at most this many
@@ -140,7 +141,7 @@ def _utc(seconds: float) -> str:
     return datetime.fromtimestamp(seconds, tz=UTC).isoformat(timespec="milliseconds").replace("+00:00", " UTC")
 
 
-def write_flight(w, flight: FlightRecord) -> None:
+def write_flight(w: SeriesWriter, flight: FlightRecord) -> None:
     """The whole flight into the recording of SeriesWriter ``w``: ``/flight/info``, every
     channel under ``/flight/channels``, ``/flight/mode``, ``/flight/maneuvers/<axis>`` and
     ``/flight/findings`` (one send_columns call per entity)."""
