@@ -7,20 +7,22 @@ never stop a run — a "fail" says the data will not support identification as i
 Per channel: sample rate and jitter, gaps, non-monotonic or duplicate times, NaN/Inf,
 saturation/clipping, stuck values, unit plausibility (degrees in a radian field, g in an
 m/s^2 field). Per file: damage (truncation), missing channels. Per segment: duration,
-ground-only data, and the excitation of each control axis.
+ground-only data, and the excitation of each control axis. Across channels: kinematic
+consistency (:mod:`.kinematics`: bank against turn, heading against course, rates against
+attitude), which finds a frame, handedness or sign defect.
 """
 
 from __future__ import annotations
 
 import json
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from pipeline.conditioning.findings import FAIL, PASS, WARN, Finding
+from pipeline.conditioning.kinematics import check_kinematics
 from pipeline.ingest.flightdata import CONTROL_INPUTS, FlightData, SegmentSpec
 
-PASS, WARN, FAIL = "pass", "warn", "fail"
 #: channels system identification needs (missing ones are reported)
 CORE = ("ax", "ay", "az", "p", "q", "r", "phi", "theta", "psi", "V", "alpha", "beta", "h", "de", "da", "dr")
 #: channels with fast dynamics: should be sampled at >= MIN_RATE_HZ
@@ -49,26 +51,6 @@ ANGLES = ("phi", "theta", "psi", "alpha", "beta", "de", "da", "dr")
 MIN_EXCITATION_RAD = np.radians(1.0)
 #: commands/actuators: held values and full-deflection plateaus are normal, not faults
 COMMANDS = ("de", "da", "dr", "throttle", "thrust")
-
-
-@dataclass
-class Finding:
-    """One check result. ``t0``/``t1`` [s] on the log's time base (None: whole file)."""
-
-    status: str
-    check: str
-    channel: str | None
-    message: str
-    t0: float | None = None
-    t1: float | None = None
-    value: float | None = None
-
-    def as_dict(self) -> dict:
-        d = asdict(self)
-        for k in ("t0", "t1", "value"):
-            if d[k] is not None:
-                d[k] = float(d[k]) if np.isfinite(d[k]) else None
-        return d
 
 
 def _span(t: np.ndarray) -> tuple[float | None, float | None]:
@@ -509,6 +491,7 @@ def run_checks(
                     f"of {ax} cannot be identified from this log",
                 )
             )
+    out.extend(check_kinematics(fd))
     return out
 
 

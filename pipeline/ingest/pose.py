@@ -52,6 +52,15 @@ DERIVED = ("vn", "ve", "vd", "h", "phi", "theta", "psi", "p", "q", "r", "ax", "a
 DERIVED += ("alpha", "beta")
 #: the derived channels that depend on the wind
 AIR = ("u", "v", "w", "V", "alpha", "beta")
+#: ``Channel.source`` of a derived state by the part of the pose it comes from
+SOURCES = {
+    "position": "pose position (x_n y_e z_d)",
+    "attitude": "pose attitude (q_w q_x q_y q_z)",
+    "both": "pose position and attitude",
+}
+_PART = {n: "position" for n in ("vn", "ve", "vd", "h")} | {
+    n: "attitude" for n in ("phi", "theta", "psi", "p", "q", "r")
+}
 #: standard gravity [m/s^2]
 G0 = 9.80665
 #: the smoothing window [s] and the local polynomial's order
@@ -81,6 +90,12 @@ def has_pose(fd: FlightData) -> bool:
     return not fd.missing(POSE)
 
 
+def pose_part(ch: Channel) -> str | None:
+    """The part of a pose ("position", "attitude" or "both") channel ``ch`` was derived
+    from by :func:`derive_pose_states`; None for a logged channel."""
+    return next((k for k, v in SOURCES.items() if ch.source == v and ch.noise is not None), None)
+
+
 def needs_pose_states(fd: FlightData) -> bool:
     """Whether a pose is there and some flight state it gives is not logged."""
     return has_pose(fd) and bool(fd.missing(DERIVED))
@@ -92,6 +107,7 @@ def derive_pose_states(
     window_s: float = DEFAULT_WINDOW_S,
     polyorder: int = POLYORDER,
     wind_ned: Sequence[float] = (0.0, 0.0, 0.0),
+    roll_sign: int = 1,
 ) -> FlightData:
     """A new FlightData with the flight states of ``fd``'s pose added (module docstring).
 
@@ -102,6 +118,9 @@ def derive_pose_states(
         samples, at least polyorder + 2)
     polyorder : order of the local polynomial (>= 2: the specific force is a 2nd derivative)
     wind_ned : constant wind (north, east, down) [m/s] for the air data; still air by default
+    roll_sign : -1 mirrors the pose's roll (phi -> -phi, theta and psi kept) before anything
+        is derived: the mend for an export whose roll is mirrored, which the kinematic checks
+        (:mod:`pipeline.conditioning.kinematics`: bank against turn) find
 
     Returns
     -------
@@ -117,7 +136,12 @@ def derive_pose_states(
     if not (window_s > 0 and 2 <= polyorder <= 5):
         raise FsidError(f"derive_pose_states: window_s {window_s!r} must be > 0 and polyorder {polyorder!r} in 2..5")
     wind = np.asarray(wind_ned, dtype=float).reshape(3)
+    if roll_sign not in (1, -1):
+        raise FsidError(f"derive_pose_states: roll_sign must be 1 or -1 (got {roll_sign!r})")
     t, pos, quat = _pose_samples(fd)
+    if roll_sign == -1:
+        phi, theta, psi = quat_to_euler(quat / np.linalg.norm(quat, axis=1)[:, None])
+        quat = euler_to_quat(-phi, theta, psi)
     dt = float(np.median(np.diff(t))) if t.size > 1 else float("nan")
     if not (t.size >= polyorder + 2 and dt > 0):
         raise FsidError(
@@ -141,18 +165,19 @@ def derive_pose_states(
         f"smoothing differentiation of the pose (Savitzky-Golay, {window} samples = {(window - 1) * dt:.3g} s, "
         f"order {polyorder})"
     )
+    if roll_sign == -1:
+        how += " with the pose's roll negated (roll_sign -1)"
     air = f"the wind {tuple(float(x) for x in wind)} m/s (NED) removed" if wind.any() else "still air assumed"
     chans = dict(fd.channels)
     for name in DERIVED:
         if name in fd.channels and len(fd.channels[name]):
             continue
-        src = "z_d" if name == "h" else "pose"
         why = how + (f"; air-relative with {air}" if name in AIR else "")
         chans[name] = Channel(
             tt.copy(),
             np.concatenate([p[name] for p in pieces]),
             CANONICAL_UNITS[name],
-            f"{src} (derived)",
+            SOURCES[_PART.get(name, "both")],
             derived=f"{why}; noise std {stated[name]:.3g} {CANONICAL_UNITS[name]} from the smoother's residual",
             noise=stated[name],
         )
@@ -167,6 +192,7 @@ def derive_pose_states(
         "noise": stated,
         "pieces": [(float(p["t"][0]), float(p["t"][-1])) for p in pieces],
         "wind_ned": [float(x) for x in wind],
+        "roll_sign": roll_sign,
         "derived": [n for n in DERIVED if n not in fd.channels or not len(fd.channels[n])],
     }
     return FlightData(chans, meta, list(fd.segments))
