@@ -138,6 +138,21 @@ def test_check_rrd_of_real_logs(name, tmp_path):
     assert rrd_path(tmp_path / "out") == tmp_path / "out" / "check.rrd"  # fsid view opens it
 
 
+def test_overlapping_windows_get_their_own_track():
+    from pipeline.outputs.recording_flight import FlightRecord, window_tracks
+
+    fd = FlightData()
+    fd.segments = [
+        SegmentSpec("a", 10.0, 30.0),
+        SegmentSpec("b", 20.0, 40.0),
+        SegmentSpec("c", 35.0, 50.0),
+        SegmentSpec("auto_de_0", 1.0, 5.0, "auto", axis="de"),
+        SegmentSpec("mode_0_X", 0.0, 100.0, "mode", mode="X"),  # a flight mode, no window
+    ]
+    tracks = {k: [s.name for s in v] for k, v in window_tracks(FlightRecord(fd)).items()}
+    assert tracks == {"de": ["auto_de_0"], "time": ["a", "c"], "time_2": ["b"]}
+
+
 def test_display_thinning_keeps_extremes_and_order():
     from pipeline.outputs.recording_flight import display_samples
 

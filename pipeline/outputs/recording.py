@@ -53,8 +53,10 @@ keys of ``results`` such as ``oem``, ``<name>`` a parameter name with any charac
                                           thinned for display: min and max per bin)
     /flight/mode                          StateChange track: the flight mode from each change
                                           ('no modes logged' at 0 when the log has none)
-    /flight/maneuvers/<axis>              StateChange track per control axis: the window's
-                                          name from its start, an empty state at its end
+    /flight/maneuvers/<axis>              StateChange track per control axis (``time`` for
+                                          windows given by time; ``<axis>_2`` ... for windows
+                                          overlapping an earlier one): the window's name from
+                                          its start, an empty state at its end
     /flight/findings                      TextLog: each data-quality finding at its start
                                           (0 when it has none), level INFO/WARN/ERROR
 

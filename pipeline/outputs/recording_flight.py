@@ -159,13 +159,10 @@ def write_flight(w: SeriesWriter, flight: FlightRecord) -> None:
         w.states("/flight/mode", [max(float(a) - t0, 0.0) for a, _ in modes], [str(m) for _, m in modes])
     else:
         w.states("/flight/mode", [0.0], [NO_MODES])
-    by_axis: dict[str, list[SegmentSpec]] = {}
-    for s in flight.windows():
-        by_axis.setdefault(s.axis or s.kind, []).append(s)
-    for axis, specs in by_axis.items():
+    for track, specs in window_tracks(flight).items():
         times = [x for s in specs for x in (s.t0 - t0, s.t1 - t0)]
         states = [x for s in specs for x in (s.name, None)]
-        w.states(f"/flight/maneuvers/{entity_part(axis)}", times, states)
+        w.states(f"/flight/maneuvers/{track}", times, states)
     if flight.findings:
         at = [f.t0 - t0 if f.t0 is not None and np.isfinite(f.t0) else 0.0 for f in flight.findings]
         w.events(
@@ -244,6 +241,21 @@ def flight_groups(flight: FlightRecord) -> dict[str, list[str]]:
     return out
 
 
+def window_tracks(flight: FlightRecord) -> dict[str, list[SegmentSpec]]:
+    """The maneuver windows by track (entity part), in order of their first window: one per
+    control axis (``time`` for windows given by time); windows overlapping an earlier one on
+    its track go to the next track of that axis (``<axis>_2``, ...), so each window ends
+    where it ends."""
+    lanes: dict[str, list[list[SegmentSpec]]] = {}
+    for s in flight.windows():
+        axis = lanes.setdefault(entity_part(s.axis or s.kind), [])
+        lane = next((x for x in axis if x[-1].t1 <= s.t0), None)
+        if lane is None:
+            axis.append(lane := [])
+        lane.append(s)
+    return {(a if k == 0 else f"{a}_{k + 1}"): lane for a, axis in lanes.items() for k, lane in enumerate(axis)}
+
+
 def maneuver_tracks(flight: FlightRecord) -> list[str]:
-    """The ``/flight/maneuvers/<axis>`` entity parts, in order of their first window."""
-    return list(dict.fromkeys(entity_part(s.axis or s.kind) for s in flight.windows()))
+    """The ``/flight/maneuvers/<track>`` entity parts (:func:`window_tracks`)."""
+    return list(window_tracks(flight))
