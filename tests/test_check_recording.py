@@ -153,6 +153,20 @@ def test_overlapping_windows_get_their_own_track():
     assert tracks == {"de": ["auto_de_0"], "time": ["a", "c"], "time_2": ["b"]}
 
 
+def test_the_absolute_start_is_stated_from_the_log_clock():
+    from pipeline.outputs.recording_flight import absolute_start
+
+    moved = FlightData(meta={"t0_abs": 1.7e9, "t0_kind": "epoch UTC"})  # times moved to the start
+    assert absolute_start(moved, 0.0) == (
+        "t = 0 is the log's first sample, 2023-11-14T22:13:20.000 UTC (1700000000.000000 s Unix epoch)"
+    )
+    boot = FlightData(meta={"t0_abs": 123.25, "t0_kind": "boot"})
+    assert absolute_start(boot, 0.0).endswith("123.250000 s on the log's own clock (boot)")
+    raw = FlightData(meta={"time_base": "MCAP log_time (ns since 1970), in s"})  # times as logged
+    assert absolute_start(raw, 1.7e9 + 0.5).endswith(": 2023-11-14T22:13:20.500 UTC")
+    assert "UTC" not in absolute_start(FlightData(meta={"time_base": "boot time, in s"}), 12.0)
+
+
 def test_display_thinning_keeps_extremes_and_order():
     from pipeline.outputs.recording_flight import display_samples
 
