@@ -51,7 +51,7 @@ def test_init_writes_a_template_the_pipeline_reads_back(tmp_path, capsys):
     af = read_aircraft_file(path)
     c = af.constants
     assert (c.S, c.b, c.cbar, c.mass, c.Iyy, c.Ixz) == (0.55, 2.0, 0.28, 5.5, 0.55, 0.0)
-    assert c.max_thrust is None and c.thrust_table == ((0.0, 0.25, 0.5, 0.75, 1.0), (0.0, 4.0, 11.0, 19.0, 26.0))
+    assert c.max_thrust == 26.0 and c.thrust_table == ((0.0, 0.25, 0.5, 0.75, 1.0), (0.0, 4.0, 11.0, 19.0, 26.0))
     np.testing.assert_allclose(c.thrust(np.array([0.125, 0.6, 1.0])), [2.0, 14.2, 26.0])
     assert c.apriori["Cmq"] == {"value": -12.0, "std": 4.0, "source": "DATCOM"}
     assert c.apriori["Clp"]["std"] == pytest.approx(0.135)  # rel_std 0.3 of 0.45
@@ -120,6 +120,7 @@ def _with(table: str, body: str) -> str:
         ("apriori", "Cmq = { value = -5.0 }\n", "apriori", "'std' or 'rel_std'"),
         ("apriori", "Cmqq = { value = -5.0, std = 1 }\n", "apriori.Cmqq", "unknown derivative"),
         ("propulsion", "throttle = [0, 0.5, 0.4]\nthrust_N = [0, 5, 9]\n", "propulsion.throttle", "rise"),
+        ("propulsion", "max_thrust_N = 20\nthrottle = [0, 1]\nthrust_N = [0, 20]\n", "propulsion", "not both"),
         ("servos", "de_travel_deg = 20\nde_deg_per_unit = 25\n", "servos.de_deg_per_unit", "give one"),
         ("", "statically_unstable = 'yes'\n", "statically_unstable", "true or false"),
     ],

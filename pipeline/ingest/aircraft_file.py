@@ -111,7 +111,8 @@ def read_aircraft_file(path: str | Path) -> AircraftFile:
         S=g["S_m2"],
         b=g["b_m"],
         cbar=g["cbar_m"],
-        max_thrust=max_thrust,
+        # with a map, max_thrust is its thrust at full throttle (what "thrust known" asks)
+        max_thrust=max_thrust if table is None else float(np.interp(1.0, *table)),
         thrust_table=table,
         apriori=_apriori(raw.get("apriori"), where),
         reversed_inputs=_signs(raw.get("signs"), where),
@@ -206,6 +207,8 @@ def _propulsion(raw: Any, where: _Where) -> tuple[float | None, tuple[tuple[floa
     if len(lin) == 2 and got[lin[0]] != got[lin[1]]:
         raise where.error("propulsion", "max_thrust_N and thrust_per_throttle_N are the same quantity: give one")
     scale = None
+    if lin and "throttle" in got:
+        raise where.error("propulsion", f"give {lin[0]} or the throttle/thrust_N map, not both")
     if lin:
         v = got[lin[0]]
         if not _is_number(v) or not v > 0:

@@ -28,7 +28,8 @@ class AircraftConstants:
 
     What the owner knows beyond that (:mod:`pipeline.ingest.aircraft_file`):
     ``thrust_table`` (throttle 0..1, thrust N): a measured throttle-to-thrust map,
-    interpolated linearly (:meth:`thrust`, used over ``max_thrust``); ``apriori``:
+    interpolated linearly (:meth:`thrust`; ``max_thrust`` is then its thrust at full
+    throttle); ``apriori``:
     derivative -> {value, std, source} (per rad), for the plausibility check and, asked
     for, as priors; ``reversed_inputs``: the surfaces (de, da, dr) whose positive
     deflection is the opposite of DESIGN.md's convention; ``unstable``: statically
