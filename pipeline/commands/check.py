@@ -1,6 +1,9 @@
-"""``fsid check LOG``: ingest a log, run the data-quality checks (and, when the log has the
-channels, the sensor-compatibility reconstruction), write ``checks.json`` and the
-canonical data (``canonical.csv``: every canonical channel resampled to one time base)."""
+"""``fsid check LOG [--aircraft A.toml]``: ingest a log, run the data-quality checks (and,
+when the log has the channels, the sensor-compatibility reconstruction), write
+``checks.json`` and the canonical data (``canonical.csv``: every canonical channel
+resampled to one time base), and end with whether each axis can be identified and why not
+(:mod:`pipeline.conditioning.identifiability`, the same verdict ``fsid estimate`` refuses
+with)."""
 
 from __future__ import annotations
 
@@ -11,13 +14,20 @@ from pathlib import Path
 from pipeline.commands.arguments import add_time_base_argument, log_file
 from pipeline.errors import FsidError
 
-HELP = "ingest a flight log, check its data quality and sensor compatibility"
+HELP = "ingest a flight log, check its data quality and sensor compatibility, and whether each axis can be identified"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("log", help="flight log: .mcap, .bin, .tlog, .ulg or .csv")
     parser.add_argument(
         "--map", default=None, help="channel map (built-in name or TOML file; default: built-in for the format)"
+    )
+    parser.add_argument(
+        "--aircraft",
+        default=None,
+        help="aircraft TOML: its [servos] travel decodes servo PWM (30 deg assumed without), its "
+        "[sensors.imu|airdata] position_m place the sensors, its [propulsion] max_thrust_N turns "
+        "throttle into thrust (default: a truth.json next to the log)",
     )
     parser.add_argument("--out", default=None, help="output folder (default: a new folder under ./runs/)")
     parser.add_argument(
@@ -35,7 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--imu-pos",
         default=None,
         metavar="X,Y,Z",
-        help="IMU position from the CG, body axes, m (default: from a truth.json next to the log, else 0,0,0)",
+        help="IMU position from the CG, body axes, m (default: the aircraft TOML's [sensors.imu], else a "
+        "truth.json next to the log, else 0,0,0)",
     )
     parser.add_argument(
         "--boom-pos",
@@ -58,10 +69,17 @@ def _vec(text: str | None, name: str):
 
 
 def _positions(log: Path, args) -> tuple[list[float], list[float], str]:
-    """(IMU, boom positions [m], where they came from): the command line's, else a
-    truth.json's next to the log, else 0,0,0."""
+    """(IMU, boom positions [m], where they came from): the command line's, else the
+    aircraft TOML's [sensors], else a truth.json's next to the log, else 0,0,0."""
     imu, boom = _vec(args.imu_pos, "--imu-pos"), _vec(args.boom_pos, "--boom-pos")
     origin = "command line" if imu or boom else "default 0,0,0"
+    if args.aircraft and (imu is None or boom is None):
+        from pipeline.ingest.aircraft import load_aircraft_toml  # loads the simulator's aircraft reader
+
+        sens = load_aircraft_toml(args.aircraft)[2]
+        if sens:
+            imu, boom = imu or sens.get("imu"), boom or sens.get("airdata")
+            origin = f"{args.aircraft} [sensors]"
     tj = log.parent / "truth.json"
     if (imu is None or boom is None) and tj.is_file():
         try:
@@ -100,4 +118,5 @@ def run(args: argparse.Namespace) -> int:
         compat=not args.no_compat,
         rate=args.rate,
         positions=None if args.no_compat else _positions(log, args),
+        aircraft=args.aircraft,
     )

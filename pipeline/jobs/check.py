@@ -13,6 +13,13 @@ from typing import Any
 
 from pipeline.conditioning.checks import findings_to_json, run_checks, summarize
 from pipeline.conditioning.flow_angles import summary as flow_summary
+from pipeline.conditioning.identifiability import (
+    bottom_line,
+    identifiability,
+    identifiability_findings,
+    identifiability_json,
+)
+from pipeline.ingest.aircraft import aircraft_for_log, servo_travel_for
 from pipeline.ingest.readers import read_log
 from pipeline.jobs.progress import Progress
 from pipeline.jobs.stages import compatibility_after_flow_angles, flow_angle_stage
@@ -34,18 +41,26 @@ def check_log(
     compat: bool = True,
     rate: float | None = None,
     positions: tuple[Sequence[float], Sequence[float], str] | None = None,
+    aircraft: str | Path | None = None,
 ) -> int:
     """Check ``log`` (``segments``, ``map_path``, ``time_base``: how to read it) into the
     run folder ``out``; ``compat``: with the air-data-angle and compatibility stages, the
     sensors at ``positions`` (IMU, boom [m], where they came from); ``rate``: of
-    canonical.csv [Hz] (default: the fastest core channel, at most 100). Prints what it
-    found; returns 0."""
-    fd = read_log(log, map=map_path, segments=segments, time_base=time_base)
+    canonical.csv [Hz] (default: the fastest core channel, at most 100); ``aircraft``: the
+    aircraft file (servo travel, max thrust; default: a truth.json next to the log). Prints
+    what it found and ends with the identifiability of each axis (checks.json
+    ``identifiability``; an axis that cannot be identified is a failed finding); returns 0."""
+    fd = read_log(
+        log, map=map_path, segments=segments, time_base=time_base, servo_travel=servo_travel_for(log, aircraft)
+    )
     print(f"read {log} ({fd.meta['format']}, map {fd.meta['map']}): {len(fd.channels)} channels")
     findings = run_checks(fd)
     extra: dict = {}
     if compat:
         extra = _compatibility(fd, positions or ([0.0] * 3, [0.0] * 3, "default 0,0,0"))
+    ident = identifiability(fd, findings, aircraft_for_log(log, aircraft, fd, required=False, say=lambda _: None)[0])
+    findings += identifiability_findings(ident)
+    extra["identifiability"] = identifiability_json(ident)
     out = new_run_dir("check", out)
     atomic_write_text(out / "checks.json", findings_to_json(findings, fd, extra))
     write_check_recording(out / "check.rrd", FlightRecord(fd, findings))
@@ -62,8 +77,10 @@ def check_log(
     c = summarize(findings)
     print(f"checks: {c['pass']} pass, {c['warn']} warn, {c['fail']} fail")
     for f in findings:
-        if f.status == "fail":
+        if f.status == "fail" and f.check != "identifiability":
             print(f"  FAIL {f.check} {f.channel or ''}: {f.message}", file=sys.stderr)
+    print("identifiability (built-in models; one maneuver per axis held out for the proof of match):")
+    print("\n".join(bottom_line(ident)))
     print(f"wrote {out / 'checks.json'} and {out / 'canonical.csv'} ({len(df)} rows at {rate:g} Hz)")
     print(f"recording: {out / 'check.rrd'}  (open with: fsid view {out})")
     return 0

@@ -16,6 +16,7 @@ from estimators.validation import default_tolerances
 from pipeline.conditioning.checks import run_checks, summarize
 from pipeline.conditioning.flow_angles import assumptions as flow_assumptions
 from pipeline.conditioning.flow_angles import summary as flow_summary
+from pipeline.conditioning.identifiability import identifiability, identifiable_axes, reason_lines
 from pipeline.conditioning.input_dynamics import summary as dynamics_summary
 from pipeline.conditioning.input_sampling import summary as step_summary
 from pipeline.conditioning.input_sampling import time_steps
@@ -135,6 +136,8 @@ def estimate(log: str | Path, opts: EstimateOptions, count: Progress | None = No
     findings = run_checks(fd)
     summary = summarize(findings)
     pr.done(str(summary))
+    if not user:  # refused before any fit, for the reasons fsid check gives
+        axes = _identifiable(fd, findings, ac, axes, log, opts, len(vlogs), pr)
     meta = {"log": str(log), "aircraft": ac_name}
     if fd_vals:
         meta["validation flight"] = "; ".join(
@@ -178,6 +181,32 @@ def stage_count(n_methods: int, n_axes: int, n_validation: int, user: bool) -> i
     dynamics; a fit and its validation per method and axis; the uncertainty of what the fits
     held, outputs."""
     return 3 + 2 * n_validation + int(user) + 3 + 2 * max(n_axes, 1) * n_methods + 2
+
+
+def _identifiable(
+    fd: FlightData,
+    findings: list,
+    ac: Any,
+    axes: tuple[str, ...],
+    log: str | Path,
+    opts: EstimateOptions,
+    n_validation: int,
+    pr: Progress,
+) -> tuple[str, ...]:
+    """Those of ``axes`` the flight can identify (:mod:`pipeline.conditioning.identifiability`,
+    the verdict fsid check ends with; a maneuver per axis held out unless there are
+    validation flights): FsidError with every reason, one line each, when none
+    can; else a note per reason an axis is left out, its fits taken out of the stage count."""
+    hold_out = 0 if n_validation else 1
+    ident = identifiability(fd, findings, ac, hold_out=hold_out, axes=axes)
+    ok = identifiable_axes(ident, axes, str(log))
+    for line in reason_lines(ident, [a for a in axes if a not in ok]) if not opts.quiet else ():
+        print(f"note: not identified: {line}", file=pr.stream)
+    n = len(opts.methods)
+    dropped = stage_count(n, identified_axes(fd, axes), 0, False) - stage_count(n, identified_axes(fd, ok), 0, False)
+    if dropped:
+        pr.plan(pr.total - pr.n - dropped)
+    return ok
 
 
 def _aircraft(
