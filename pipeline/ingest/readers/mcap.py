@@ -10,6 +10,13 @@ Time base (``time_base``): "header" uses ``header.stamp`` (ROS) or a top-level `
 ``log_time``; "auto" (default) prefers header stamps per topic. The choice per topic is
 in ``RawLog.info['time_base_by_topic']``.
 
+Poses: a ROS 2 pose message (``geometry_msgs/msg/PoseStamped``, ``PoseWithCovarianceStamped``,
+``nav_msgs/msg/Odometry``) follows REP 103, world ENU and body FLU; its table also gets the
+pose in the canonical frames, world NED and body FRD (DESIGN.md section 3), as columns
+``ned.x_n ned.y_e ned.z_d ned.q_w ned.q_x ned.q_y ned.q_z`` (:func:`ros_pose_ned`): a
+quaternion's change of frames mixes its components, which a channel map's per-field sign
+cannot express.
+
 Damage: reading stops at the first record that cannot be read; everything before it is
 kept and ``RawLog.damage`` holds the byte offset.
 """
@@ -32,6 +39,36 @@ from mcap_ros2.decoder import DecoderFactory as Ros2DecoderFactory
 from pipeline.ingest.rawlog import TIME_BASES, Damage, LogReadError, RawLog, Table
 
 _HEADER_TIME_FIELDS = ("header.stamp", "t", "timestamp")
+#: ROS 2 pose schemas -> the prefix of their geometry_msgs/Pose fields
+ROS_POSES = {
+    "geometry_msgs/msg/PoseStamped": "pose",
+    "geometry_msgs/msg/PoseWithCovarianceStamped": "pose.pose",
+    "nav_msgs/msg/Odometry": "pose.pose",
+}
+
+
+def ros_pose_ned(cols: dict[str, np.ndarray], prefix: str) -> dict[str, np.ndarray]:
+    """The pose in columns ``{prefix}.position.x`` ... ``{prefix}.orientation.w`` (REP 103:
+    world ENU, body FLU) as canonical columns ``ned.x_n`` ... ``ned.q_z`` (world NED, body
+    FRD, quaternion body -> NED, w first); {} when a field is missing.
+
+    Position: x_n = y, y_e = x, z_d = -z. Attitude: q_NED/FRD = a (x) q_ENU/FLU (x) b with
+    a = (0, 1, 1, 0)/sqrt 2 (ENU -> NED, half a turn about north-east) and b = (0, 1, 0, 0)
+    (FRD -> FLU, half a turn about x): (w + z, x + y, x - y, w - z)/sqrt 2."""
+    names = [f"{prefix}.position.{a}" for a in "xyz"] + [f"{prefix}.orientation.{a}" for a in "wxyz"]
+    if any(n not in cols for n in names):
+        return {}
+    x, y, z, qw, qx, qy, qz = (np.asarray(cols[n], dtype=float) for n in names)
+    s = 1.0 / np.sqrt(2.0)
+    return {
+        "ned.x_n": y,
+        "ned.y_e": x,
+        "ned.z_d": -z,
+        "ned.q_w": s * (qw + qz),
+        "ned.q_x": s * (qx + qy),
+        "ned.q_y": s * (qx - qy),
+        "ned.q_z": s * (qw - qz),
+    }
 
 
 class _Counting:
@@ -173,6 +210,9 @@ class _Topics:
                 if len(lst) < n:
                     lst.extend([math.nan] * (n - len(lst)))
                 arrs[f] = np.frombuffer(lst, dtype=np.float64).copy()
+            prefix = ROS_POSES.get(self.schema_of.get(topic, ""))
+            if prefix and self.encoding_of.get(topic) == "cdr":
+                arrs.update(ros_pose_ned(arrs, prefix))
             lt = np.asarray(self.log_t[topic])
             ht = np.asarray(self.hdr_t[topic])
             use_hdr = time_base in ("auto", "header") and n > 0 and np.all(np.isfinite(ht)) and np.any(ht != 0)
