@@ -189,7 +189,7 @@ def test_run_rrd_places_fits_on_the_whole_flight(tmp_path):
     import estimators
     from estimators.datasets import longitudinal_example
     from pipeline.outputs.recording import write_recording
-    from pipeline.outputs.recording_flight import FlightRecord
+    from pipeline.outputs.recording_flight import FlightRecord, planned_maneuvers
     from pipeline.outputs.recording_layout import SEGMENT_GAP
 
     ex = longitudinal_example(1, n=200, dt=0.02, segments=2)
@@ -200,12 +200,15 @@ def test_run_rrd_places_fits_on_the_whole_flight(tmp_path):
     fd = FlightData.from_frame(pd.DataFrame({"t": t, "q": np.zeros(t.size)}))
     fd.segments = [SegmentSpec(f"auto_de_{k}", s.t[0], s.t[-1], "auto", axis="de") for k, s in enumerate(segs)]
     fd.meta["modes"] = [(start - 5.0, "MANUAL"), (start + 12.0, "FBWA")]
-    path = write_recording(tmp_path / "run.rrd", {"oem": res}, flight=FlightRecord(fd))
+    plan = planned_maneuvers([("elevator_3211", "de", start + 1.0, start + 2.4), ("de_doublet", "de", 1012.0, 1013.0)])
+    path = write_recording(tmp_path / "run.rrd", {"oem": res}, flight=FlightRecord(fd, plan=plan))
     _verify(path)
     cols, _ = _read(path)
     np.testing.assert_allclose(cols["/outputs/q/measured"]["t"], np.concatenate([s.t - start for s in segs]))
     np.testing.assert_allclose(cols["/flight/maneuvers/de"]["t"], [0.0, 3.98, 10.0, 13.98], atol=1e-9)
     assert cols["/flight/mode"]["state"] == [["MANUAL"], ["FBWA"]]
+    assert cols["/flight/plan/de"]["state"] == [["elevator_3211"], [], ["de_doublet"], []]
+    np.testing.assert_allclose(cols["/flight/plan/de"]["t"], [1.0, 2.4, 12.0, 13.0], atol=1e-9)
     np.testing.assert_allclose(cols["/flight/mode"]["t"], [0.0, 12.0])  # a mode set before the data: at 0
     assert "/flight/findings" not in cols  # none given
     res0 = estimators.OutputError(ex.model).fit(ex.segments)  # both from t = 0: laid end to end

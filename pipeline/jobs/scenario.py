@@ -29,7 +29,7 @@ from pipeline.jobs.progress import Progress
 from pipeline.jobs.simulate import flight_stages, resolve_scenario, simulate
 from pipeline.jobs.write import write_outputs
 from pipeline.methods.catalogue import check_methods, scenario_methods
-from pipeline.outputs.recording_flight import FlightRecord
+from pipeline.outputs.recording_flight import FlightRecord, planned_maneuvers
 from pipeline.paths import atomic_write_text
 from pipeline.problems import MAX_RATE_HZ
 
@@ -98,7 +98,7 @@ def run_scenario(
         checks=checks,
         meta=meta,
         compatibility=est.comp,
-        flight=FlightRecord(est.data, est.findings),
+        flight=FlightRecord(est.data, est.findings, plan=planned_maneuvers(result.maneuvers)),
     )
 
 

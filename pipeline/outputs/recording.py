@@ -57,6 +57,8 @@ keys of ``results`` such as ``oem``, ``<name>`` a parameter name with any charac
                                           windows given by time; ``<axis>_2`` ... for windows
                                           overlapping an earlier one): the window's name from
                                           its start, an empty state at its end
+    /flight/plan/<axis>                   the maneuvers as designed, when known (a simulated
+                                          flight's plan), tracks as the windows'
     /flight/findings                      TextLog: each data-quality finding at its start
                                           (0 when it has none), level INFO/WARN/ERROR
 

@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from estimators import EstimationResult
-from pipeline.outputs.recording_flight import FlightRecord, flight_groups, maneuver_tracks
+from pipeline.outputs.recording_flight import FlightRecord, flight_groups, plan_tracks, window_tracks
 from pipeline.outputs.recording_layout import entity_part
 
 
@@ -96,7 +96,11 @@ def flight_tabs(flight: FlightRecord) -> list[Any]:
     findings' log beside the flight's info."""
     import rerun.blueprint as rrb
 
-    tracks = ["$origin/mode", *[f"$origin/maneuvers/{a}" for a in maneuver_tracks(flight)]]
+    tracks = [
+        "$origin/mode",
+        *[f"$origin/maneuvers/{a}" for a in window_tracks(flight)],
+        *[f"$origin/plan/{a}" for a in plan_tracks(flight)],
+    ]
     panels = [
         rrb.TimeSeriesView(origin="/flight/channels", contents=[f"$origin/{entity_part(n)}" for n in names], name=group)
         for group, names in flight_groups(flight).items()

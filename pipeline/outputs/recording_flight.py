@@ -57,11 +57,14 @@ class FlightRecord:
 
     data: the flight as ingested (canonical channels on the log's time base, its modes in
     ``meta["modes"]`` and the maneuver windows found in ``segments``); findings: the
-    data-quality checks made on it (:func:`pipeline.conditioning.checks.run_checks`).
+    data-quality checks made on it (:func:`pipeline.conditioning.checks.run_checks`);
+    plan: the maneuvers as designed, when known (a simulated flight's plan: name, axis and
+    span on the same time base), shown beside the windows found.
     """
 
     data: FlightData
     findings: Sequence[Finding] = field(default_factory=list)
+    plan: Sequence[SegmentSpec] = field(default_factory=list)
 
     @property
     def origin(self) -> float:
@@ -78,6 +81,12 @@ class FlightRecord:
     def windows(self) -> list[SegmentSpec]:
         """The maneuver windows: found from control activity or given by time, in time order."""
         return sorted((s for s in self.data.segments if s.kind in WINDOW_KINDS), key=lambda s: s.t0)
+
+
+def planned_maneuvers(maneuvers: Sequence[tuple[str, str, float, float]]) -> list[SegmentSpec]:
+    """A flight plan's maneuvers ((name, axis, t_start, t_end [s]), as a simulated flight
+    lists them) as spans for :attr:`FlightRecord.plan`."""
+    return [SegmentSpec(str(n), float(a), float(b), "plan", axis=str(ax)) for n, ax, a, b in maneuvers]
 
 
 def channel_group(name: str) -> str:
@@ -159,10 +168,11 @@ def write_flight(w: SeriesWriter, flight: FlightRecord) -> None:
         w.states("/flight/mode", [max(float(a) - t0, 0.0) for a, _ in modes], [str(m) for _, m in modes])
     else:
         w.states("/flight/mode", [0.0], [NO_MODES])
-    for track, specs in window_tracks(flight).items():
-        times = [x for s in specs for x in (s.t0 - t0, s.t1 - t0)]
-        states = [x for s in specs for x in (s.name, None)]
-        w.states(f"/flight/maneuvers/{track}", times, states)
+    for base, tracks in (("/flight/maneuvers", window_tracks(flight)), ("/flight/plan", plan_tracks(flight))):
+        for track, specs in tracks.items():
+            times = [x for s in specs for x in (s.t0 - t0, s.t1 - t0)]
+            states = [x for s in specs for x in (s.name, None)]
+            w.states(f"{base}/{track}", times, states)
     if flight.findings:
         at = [f.t0 - t0 if f.t0 is not None and np.isfinite(f.t0) else 0.0 for f in flight.findings]
         w.events(
@@ -219,6 +229,13 @@ def flight_info(flight: FlightRecord) -> str:
         ]
     else:
         lines.append("No maneuver windows found (no control input moved).")
+    if flight.plan:
+        lines += ["", "## Maneuvers as designed (`/flight/plan/<axis>`)", ""]
+        lines += ["| maneuver | axis | from [s] | to [s] |", "|---|---|---|---|"]
+        lines += [
+            f"| {s.name} | {s.axis} | {s.t0 - z:.2f} | {s.t1 - z:.2f} |"
+            for s in sorted(flight.plan, key=lambda s: s.t0)
+        ]
     c = summarize(flight.findings)
     lines += [
         "",
@@ -242,20 +259,25 @@ def flight_groups(flight: FlightRecord) -> dict[str, list[str]]:
 
 
 def window_tracks(flight: FlightRecord) -> dict[str, list[SegmentSpec]]:
-    """The maneuver windows by track (entity part), in order of their first window: one per
-    control axis (``time`` for windows given by time); windows overlapping an earlier one on
-    its track go to the next track of that axis (``<axis>_2``, ...), so each window ends
-    where it ends."""
-    lanes: dict[str, list[list[SegmentSpec]]] = {}
-    for s in flight.windows():
-        axis = lanes.setdefault(entity_part(s.axis or s.kind), [])
+    """The maneuver windows found by track (entity part): :func:`lanes` of
+    :meth:`FlightRecord.windows` (``time`` for windows given by time)."""
+    return lanes(flight.windows())
+
+
+def plan_tracks(flight: FlightRecord) -> dict[str, list[SegmentSpec]]:
+    """The designed maneuvers by track (entity part): :func:`lanes` of ``flight.plan``."""
+    return lanes(sorted(flight.plan, key=lambda s: s.t0))
+
+
+def lanes(specs: Sequence[SegmentSpec]) -> dict[str, list[SegmentSpec]]:
+    """Time-ordered spans by track, in order of their first span: one per control axis
+    (its kind without one); a span overlapping an earlier one on its track goes to the next
+    track of that axis (``<axis>_2``, ...), so each span ends where it ends."""
+    by_axis: dict[str, list[list[SegmentSpec]]] = {}
+    for s in specs:
+        axis = by_axis.setdefault(entity_part(s.axis or s.kind), [])
         lane = next((x for x in axis if x[-1].t1 <= s.t0), None)
         if lane is None:
             axis.append(lane := [])
         lane.append(s)
-    return {(a if k == 0 else f"{a}_{k + 1}"): lane for a, axis in lanes.items() for k, lane in enumerate(axis)}
-
-
-def maneuver_tracks(flight: FlightRecord) -> list[str]:
-    """The ``/flight/maneuvers/<track>`` entity parts (:func:`window_tracks`)."""
-    return list(window_tracks(flight))
+    return {(a if k == 0 else f"{a}_{k + 1}"): lane for a, axis in by_axis.items() for k, lane in enumerate(axis)}
