@@ -1,7 +1,10 @@
 """Trim-asymmetry terms of the lateral models (issue 37, item 6): an aircraft with a lateral
 asymmetry (scenarios/aircraft/uav_small_asymmetric.toml: CY0, Cl0, Cn0) trims with aileron,
-rudder and a steady bank; the lateral problem's free CY0 recovers the side force that bank
-balances, and the held-out bank angle is predicted closer than without it."""
+rudder and a steady bank. With inputs relative to the trim, the model's trim terms carry
+the trim's total side force (CY0; the bank balances it) and no moment (Cl0 = 0): the
+sideslip of the trim is the vane bias's. With the default biases (sideslip, rates, ay) the
+free CY0 recovers that side force and the held-out bank comes closer; with the gyros
+trusted (no rate biases: CY0 and Cl0 free) the proof of match passes only with them."""
 
 import json
 
@@ -12,6 +15,7 @@ from _simdata import SCENARIOS
 import sim
 from pipeline.ingest.constants import AircraftConstants
 from pipeline.ingest.readers import read_log
+from pipeline.jobs.fit import fit_and_validate
 from pipeline.jobs.progress import quiet_progress
 from pipeline.jobs.stages import flow_angle_stage
 from pipeline.methods.fitting import fit_problem
@@ -39,26 +43,55 @@ def test_asymmetric_aircraft_trims_with_aileron_rudder_and_bank(flight):
     assert np.max(np.abs(T["p"].to_numpy()[quiet])) < 1e-4
 
 
-def _fit(run, trim_asymmetry):
+def _problem(run, trim_asymmetry, biases=("beta", "p", "r", "ay")):
     truth = json.loads((run / "truth.json").read_text())
     fd, ac = flow_angle_stage(read_log(run / "flight.bin"), AircraftConstants.from_truth(truth), quiet_progress())[:2]
-    pb = lateral_problem(fd, ac, measured_longitudinal=True, kinematic=True, trim_asymmetry=trim_asymmetry)
+    pb = lateral_problem(
+        fd, ac, measured_longitudinal=True, kinematic=True, trim_asymmetry=trim_asymmetry, biases=biases
+    )
+    d, tr = truth["derivatives"], truth["trim"]
+    # the total side-force coefficient of the trim (the bank balances it): what CY0 carries
+    # with inputs relative to the trim and the trim's sideslip in the vane bias
+    cy_trim = d["CY0"] + d["CYbeta"] * tr["beta"] + d["CYda"] * tr["da"] + d["CYdr"] * tr["dr"]
+    return pb, cy_trim
+
+
+def _fit(run, trim_asymmetry):
+    pb, cy_trim = _problem(run, trim_asymmetry)
     res = fit_problem(pb, "oem")
     y, _ = _held_out_fit(res, pb.held_out[0], "rk4")
     err = np.nanmax(np.abs(pb.held_out[0].z - y.to_numpy()), axis=0)
-    return res, dict(zip(pb.model.outputs, err)), truth
+    return res, dict(zip(pb.model.outputs, err)), cy_trim
 
 
 def test_trim_side_force_estimated_and_held_out_bank_closer(flight):
     _, run = flight
-    res, err, truth = _fit(run, True)
+    res, err, cy_trim = _fit(run, True)
     res0, err0, _ = _fit(run, False)
-    d, tr = truth["derivatives"], truth["trim"]
-    # the side force in trim, balanced by the bank: what CY0 carries with inputs relative
-    # to the trim and the sideslip and rate offsets in the biases (ad hoc 0.0483)
-    cy_trim = d["CY0"] + d["CYbeta"] * tr["beta"] + d["CYda"] * tr["da"] + d["CYdr"] * tr["dr"]
     assert res.converged and res0.converged
-    assert "CY0" in res.free_names and "CY0" not in res0.free_names
+    assert "CY0" in res.free_names and not {"CY0", "Cl0", "Cn0"} & set(res0.free_names)
+    # ad hoc: CY0 0.0483 +- 0.0009 for 0.0483
     assert abs(res.params["CY0"] - cy_trim) < 3 * res.std["CY0"] and abs(res.params["CY0"] / cy_trim - 1) < 0.05
-    # held-out bank angle (ad hoc: 0.42 deg with the trim term, 0.68 without)
+    # held-out bank angle (ad hoc: 0.42 deg with the trim term, 0.68 without: the fit
+    # without it books the trim as a steady turn read by the gyros with their biases)
     assert np.degrees(err["phi"]) < 0.5 and np.degrees(err0["phi"]) > np.degrees(err["phi"]) + 0.15, (err, err0)
+
+
+def test_proof_of_match_passes_only_with_trim_terms_when_gyros_trusted(flight):
+    """Without rate biases the trim terms CY0 and Cl0 are free (trim_terms): estimated at the
+    trim's side force and zero moment, and the held-out maneuver passes; without them the
+    model has no way to hold the banked trim and the held-out yaw rate misses."""
+    _, run = flight
+    out = {}
+    for trim in (True, False):
+        pb, cy_trim = _problem(run, trim, biases=("beta", "ay"))
+        res, val = fit_and_validate(pb, "oem", "lateral axis", None, quiet_progress())
+        out[trim] = res, val["proof_of_match"]
+    res, pom = out[True]
+    assert {"CY0", "Cl0"} <= set(res.free_names) and "Cn0" not in res.free_names
+    # ad hoc: CY0 0.04850 +- 0.00008 for 0.04835, Cl0 -1.4e-7 +- 3.9e-7
+    assert abs(res.params["CY0"] / cy_trim - 1) < 0.01 and abs(res.params["Cl0"]) < 3 * res.std["Cl0"] + 1e-6
+    assert pom["all_pass"], pom
+    # ad hoc without: r misses by 3.1 deg/s (band 1.5), p 1.15 deg/s, phi 0.84 deg
+    seg = out[False][1]["segments"][0]["channels"]
+    assert not out[False][1]["all_pass"] and not seg["r"]["pass"], seg["r"]
