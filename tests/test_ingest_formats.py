@@ -116,7 +116,8 @@ def test_mcap_json_header_vs_log_time(tmp_path):
     fd = read_log(p)
     assert fd.meta["format"] == "mcap" and fd.meta["map"] == "fsid_mcap"
     assert np.allclose(fd["p"].values, 0.01 * np.arange(200))
-    assert fd["p"].t[0] == pytest.approx(100.0) and fd["h"].values[0] == 50.0
+    # seconds from the log's start; the header stamp of the start kept in meta
+    assert fd["p"].t[0] == 0.0 and fd.meta["t0_abs"] == pytest.approx(100.0) and fd["h"].values[0] == 50.0
     fd2 = read_log(p, time_base="log")
     assert "log_time" in fd2.meta["time_base"]
 
@@ -180,7 +181,7 @@ def test_mcap_ros2_imu_flu_to_frd(tmp_path):
     assert fd["p"].values[0] == pytest.approx(0.1) and fd["q"].values[0] == pytest.approx(-0.2)
     assert fd["r"].values[0] == pytest.approx(-0.3) and fd["az"].values[0] == pytest.approx(-9.81)
     assert fd["psi"].values[0] == pytest.approx(np.pi / 2 - yaw_enu)
-    assert fd["p"].t[3] == pytest.approx(5.03)
+    assert fd["p"].t[3] + fd.meta["t0_abs"] == pytest.approx(5.03)
     assert "h" in fd.meta["unmapped"]
 
 
@@ -210,7 +211,7 @@ def test_mcap_protobuf(tmp_path):
         w.finish()
     fd = read_log(p)
     assert len(fd["r"]) == 40 and fd["r"].values[-1] == 39.0 and fd["q"].values[0] == -0.25
-    assert fd["p"].t[1] == pytest.approx(1.02)
+    assert fd["p"].t[1] + fd.meta["t0_abs"] == pytest.approx(1.02)
 
 
 def test_csv_with_column_map(tmp_path):
@@ -360,7 +361,7 @@ def test_mcap_ros2_std_msgs_array_with_user_map(tmp_path):
     )
     fd = read_log(p, map=m)
     assert fd.meta["time_base"].startswith("MCAP log_time")  # no header: log time, stated
-    assert fd["de"].t[1] == pytest.approx(1.02)
+    assert fd["de"].t[1] + fd.meta["t0_abs"] == pytest.approx(1.02)
     assert np.allclose(fd["de"].values, np.radians(0.5 * np.arange(25)))
     assert np.allclose(fd["da"].values, np.radians(1.0))
     assert set(fd.missing(["p", "phi"])) == {"p", "phi"}

@@ -27,6 +27,35 @@ def add_time_base_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
+SEGMENTS_HELP = (
+    "maneuver windows: time ranges T0:T1 in seconds from the log's start (its first sample; "
+    "reports, errors and recordings use the same times), segment names as found in the log "
+    "(auto_de_0, mode_2_FBWA, ...), or both, comma-separated"
+)
+
+
+def segment_items(text: str) -> list[str | tuple[float, float]]:
+    """``--segments`` value: comma-separated items, each T0:T1 (seconds from the log's start)
+    or a segment name; FsidError naming the bad item."""
+    out: list[str | tuple[float, float]] = []
+    for part in (p.strip() for p in text.split(",")):
+        if ":" not in part:
+            if not part:
+                raise FsidError(f"--segments '{text}' has an empty item; e.g. --segments 10:30,45.5:70,auto_de_1")
+            out.append(part)
+            continue
+        try:
+            a, b = (float(x) for x in part.split(":"))
+        except ValueError:
+            raise FsidError(
+                f"--segments '{part}' is not T0:T1 (seconds from the log's start); e.g. --segments 10:30,45.5:70"
+            ) from None
+        if not (math.isfinite(a) and math.isfinite(b) and a < b):
+            raise FsidError(f"--segments '{part}': T0 must be below T1 (seconds from the log's start)")
+        out.append((a, b))
+    return out
+
+
 def input_dynamics_setting(text: str) -> str | tuple[float, float]:
     """``--input-dynamics`` value: auto, off, or DELAY[,LAG] in seconds (|delay| <= 1,
     0 <= lag <= 1)."""

@@ -11,7 +11,7 @@ import argparse
 import json
 from pathlib import Path
 
-from pipeline.commands.arguments import add_time_base_argument, log_file
+from pipeline.commands.arguments import SEGMENTS_HELP, add_time_base_argument, log_file, segment_items
 from pipeline.errors import FsidError
 
 HELP = "ingest a flight log, check its data quality and sensor compatibility, and whether each axis can be identified"
@@ -36,9 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="rate of canonical.csv in Hz (default: fastest core channel, at most 100)",
     )
-    parser.add_argument(
-        "--segments", default=None, help="'mode', 'auto' or time ranges 't0:t1,t0:t1' in s on the log's time base"
-    )
+    parser.add_argument("--segments", default=None, help=f"'mode', 'auto' or {SEGMENTS_HELP}")
     add_time_base_argument(parser)
     parser.add_argument("--no-compat", action="store_true", help="skip the sensor-compatibility fit")
     parser.add_argument(
@@ -95,14 +93,7 @@ def _positions(log: Path, args) -> tuple[list[float], list[float], str]:
 def _segments(spec: str | None):
     if spec is None or spec in ("mode", "auto"):
         return spec
-    out = []
-    for part in spec.split(","):
-        try:
-            a, b = part.split(":")
-            out.append((float(a), float(b)))
-        except ValueError:
-            raise FsidError(f"--segments '{part}' is not t0:t1 (seconds); e.g. --segments 10:30,45:70") from None
-    return out
+    return segment_items(spec)
 
 
 def run(args: argparse.Namespace) -> int:

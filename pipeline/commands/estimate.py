@@ -1,17 +1,19 @@
 """``fsid estimate LOG [--model auto|longitudinal|lateral|FILE.py:NAME] [--aircraft AIRCRAFT.toml]
-[--method oem] [--map MAP] [--out DIR]``."""
+[--method oem] [--map MAP] [--segments T0:T1,...] [--no-holdout] [--out DIR]``."""
 
 from __future__ import annotations
 
 import argparse
 
 from pipeline.commands.arguments import (
+    SEGMENTS_HELP,
     add_input_arguments,
     add_time_base_argument,
     add_validation_arguments,
     failure_recorded,
     log_file,
     print_outputs,
+    segment_items,
     validation_options,
 )
 from pipeline.jobs.options import EstimateOptions
@@ -67,6 +69,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "is proved on LOG2's maneuvers (repeat for several flights; default: "
         "the last maneuver of each axis of LOG is held out)",
     )
+    p.add_argument("--segments", metavar="T0:T1,...", help=SEGMENTS_HELP + " (default: the maneuvers found)")
+    p.add_argument(
+        "--no-holdout",
+        action="store_true",
+        help="fit every maneuver, holding none out (no proof of match unless --validate-with gives a flight)",
+    )
     p.add_argument(
         "--priors",
         action="store_true",
@@ -92,6 +100,8 @@ def options(args: argparse.Namespace) -> EstimateOptions:
         validation_log=args.validate_with,
         time_base=args.time_base,
         input_dynamics=args.input_dynamics,
+        segments=segment_items(args.segments) if args.segments else None,
+        hold_out=not args.no_holdout,
         priors=args.priors,
         **validation_options(args),
     )

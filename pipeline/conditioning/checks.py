@@ -22,6 +22,7 @@ import numpy as np
 from pipeline.conditioning.findings import FAIL, PASS, WARN, Finding
 from pipeline.conditioning.kinematics import check_kinematics
 from pipeline.ingest.flightdata import CONTROL_INPUTS, FlightData, SegmentSpec
+from pipeline.ingest.sampling import GAP_FACTOR, start_statement, typical_interval
 
 #: channels system identification needs (missing ones are reported)
 CORE = ("ax", "ay", "az", "p", "q", "r", "phi", "theta", "psi", "V", "alpha", "beta", "h", "de", "da", "dr")
@@ -122,14 +123,17 @@ def _check_time_order(out: list[Finding], name: str, t: np.ndarray, dt: np.ndarr
 
 
 def _check_rate(out: list[Finding], name: str, t: np.ndarray, dt: np.ndarray) -> float:
-    """Sample rate, jitter and gaps of times t [s] (n >= 2, intervals dt); returns their span [s]."""
-    n = t.size
+    """Sample rate, jitter and gaps of times t [s] (n >= 2, intervals dt); returns their span
+    [s]. Rate and jitter from the intervals between gaps (longer than GAP_FACTOR typical
+    intervals, :func:`pipeline.ingest.sampling.typical_interval`): a log paused between
+    maneuvers keeps its rate and is not irregular; its gaps are reported as such."""
     a, b = _span(t)
     pos = dt[dt > 0]
     span = float(np.nanmax(t) - np.nanmin(t))
-    rate = (n - 1) / span if span > 0 else 0.0
-    med = float(np.median(pos)) if pos.size else np.nan
-    jitter = float(np.std(pos) / np.mean(pos)) if pos.size > 1 else 0.0
+    med = typical_interval(t)
+    rate = 1.0 / med if np.isfinite(med) and med > 0 else 0.0
+    regular = pos[pos <= GAP_FACTOR * med] if np.isfinite(med) else pos
+    jitter = float(np.std(regular) / np.mean(regular)) if regular.size > 1 else 0.0
     if name in DYNAMIC and rate < MIN_RATE_HZ:
         out.append(
             Finding(
@@ -160,7 +164,7 @@ def _check_rate(out: list[Finding], name: str, t: np.ndarray, dt: np.ndarray) ->
         )
     # gaps
     if pos.size:
-        lim = max(5 * med, 0.1)
+        lim = max(GAP_FACTOR * med, 0.1)
         big = np.flatnonzero(dt > lim)
         if big.size:
             k = int(big[np.argmax(dt[big])])
@@ -512,6 +516,9 @@ def findings_to_json(findings: Sequence[Finding], fd: FlightData | None = None, 
             "format": fd.meta.get("format"),
             "map": fd.meta.get("map"),
             "time_base": fd.meta.get("time_base"),
+            "start": start_statement(fd.meta) or None,
+            "t0_abs": fd.meta.get("t0_abs"),
+            "t0_kind": fd.meta.get("t0_kind"),
             "damage": fd.meta.get("damage"),
             "channels": {
                 k: {"samples": len(c), "rate_hz": c.rate_hz, "unit": c.unit, "source": c.source}

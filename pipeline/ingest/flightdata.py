@@ -8,13 +8,15 @@ native sample times; :meth:`FlightData.resample` puts any subset on one common t
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
 from scipy.signal import butter, sosfiltfilt
 
 from estimators.statistics import difference_noise_std
+from pipeline.errors import FsidError
+from pipeline.ingest.sampling import sample_gaps, sample_rate, start_kind
 
 #: canonical channel name -> SI unit (DESIGN.md section 3)
 CANONICAL_UNITS: dict[str, str] = {
@@ -65,6 +67,9 @@ CONTROL_INPUTS = ("de", "da", "dr")
 #: of control activity are cut into pieces. 60 s keeps a designed maneuver whole (sweeps of
 #: 20-60 s, multisines of 10-20 s per cycle) and gives a continuous 200 s multisine 4 pieces
 MAX_AUTO_SEGMENT_S = 60.0
+#: the channels whose gaps end a maneuver window (:meth:`FlightData.find_segments`), besides
+#: the control input's own
+GAP_CHANNELS = ("p", "q", "r", "ax", "ay", "az")
 
 
 @dataclass
@@ -93,14 +98,14 @@ class Channel:
 
     @property
     def rate_hz(self) -> float:
-        """Mean sample rate [Hz]: (n - 1) / span (0 when fewer than two distinct times).
+        """Sample rate [Hz] from the sample stamps (:func:`sample_rate`): gaps between
+        maneuvers neither lower it nor count as irregular sampling."""
+        return sample_rate(self.t)
 
-        The mean, not the median interval, so bursty arrival times (telemetry) give the
-        real rate."""
-        if len(self.t) < 2:
-            return 0.0
-        span = float(np.nanmax(self.t) - np.nanmin(self.t))
-        return float((len(self.t) - 1) / span) if span > 0 else 0.0
+    def gaps(self) -> list[tuple[float, float]]:
+        """The gaps of this channel [(last sample before, first sample after) s]: intervals
+        longer than GAP_FACTOR typical intervals (:func:`sample_gaps`)."""
+        return sample_gaps(self.t)
 
 
 @dataclass
@@ -178,8 +183,42 @@ class FlightData:
         return (float(min(starts)), float(max(ends)))
 
     def rates(self) -> dict[str, float]:
-        """Median native rate of each channel [Hz]."""
+        """Native rate of each channel [Hz] (:func:`sample_rate` of its stamps)."""
         return {k: c.rate_hz for k, c in self.channels.items()}
+
+    def gaps(self, channels: Iterable[str] | None = None) -> list[tuple[float, float]]:
+        """The gaps of ``channels`` (default: all) merged [(start, end) s, sorted]: the
+        spans where one of them has no samples for longer than GAP_FACTOR of its typical
+        intervals (:func:`sample_gaps`). A maneuver window never spans one."""
+        spans = sorted(
+            g for c in (self.names if channels is None else channels) if c in self.channels for g in self[c].gaps()
+        )
+        out: list[tuple[float, float]] = []
+        for a, b in spans:
+            if out and a < out[-1][1]:
+                out[-1] = (out[-1][0], max(out[-1][1], b))
+            else:
+                out.append((a, b))
+        return out
+
+    def from_log_start(self) -> FlightData:
+        """This flight with its times in seconds from the log's start (its first sample over
+        all channels at t = 0): channels, flight modes and segments moved alike. Where t = 0
+        is on the log's own clock goes to ``meta["t0_abs"]`` [s] (added to an earlier one)
+        and its kind to ``meta["t0_kind"]`` (:func:`start_kind`; :func:`start_statement`
+        says it in one sentence). Raw epoch or boot stamps (1.7e9 s) are unreadable in
+        reports and lose precision in float text."""
+        lo = self.span[0]
+        shift = float(lo) if np.isfinite(lo) else 0.0
+        meta = dict(self.meta)
+        t0_abs = float(meta.get("t0_abs", 0.0)) + shift
+        meta.update(t0_abs=t0_abs, t0_kind=meta.get("t0_kind") or start_kind(t0_abs))
+        meta["modes"] = [(float(t) - shift, m) for t, m in self.modes]
+        return FlightData(
+            {k: replace(c, t=np.asarray(c.t, dtype=float) - shift) for k, c in self.channels.items()},
+            meta,
+            [replace(g, t0=g.t0 - shift, t1=g.t1 - shift) for g in self.segments],
+        )
 
     def missing(self, channels: Iterable[str]) -> list[str]:
         """Those of ``channels`` this flight does not have (or has with no samples)."""
@@ -311,7 +350,9 @@ class FlightData:
         excitation: a long multisine, minutes of piloted or autopilot activity) is cut into
         equal pieces no longer than that, each fitted with its own initial state: one
         segment of 200 s could be neither fitted by a simulation that drifts over minutes
-        nor held out for the proof of match (None: never cut).
+        nor held out for the proof of match (None: never cut). A gap in the input or in
+        the IMU channels (:meth:`gaps`, GAP_CHANNELS) ends a segment: a window never spans
+        one.
         """
         segs: list[SegmentSpec] = []
         for axis in inputs:
@@ -337,11 +378,60 @@ class FlightData:
                     merged[-1][1] = max(merged[-1][1], b)
                 else:
                     merged.append([a, b])
-            pieces = [p for a, b in merged if b - a >= min_duration for p in cut_span(a, b, max_duration)]
+            # a gap in the input or the IMU ends a maneuver (a logging pause between two)
+            cuts = self.gaps([axis, *GAP_CHANNELS])
+            merged = [
+                [a, b]
+                for a0, b0 in merged
+                for a, b in _between_gaps(a0, b0, cuts)
+                if b - a >= min_duration and active[(t >= a) & (t <= b)].any()
+            ]
+            pieces = [p for a, b in merged for p in cut_span(a, b, max_duration)]
             for k, (a, b) in enumerate(pieces):
                 segs.append(SegmentSpec(f"auto_{axis}_{k}", float(a), float(b), "auto", axis=axis))
         segs.sort(key=lambda s: s.t0)
         return segs
+
+    def chosen_segments(
+        self, items: Sequence[str | tuple[float, float]], *, per_axis: bool = True
+    ) -> list[SegmentSpec]:
+        """The segments a user chose: each item a time range (t0, t1) [s from the log's
+        start] or the name of a segment found in the log (``self.segments``, else its
+        flight-mode and automatic ones: ``auto_de_0``, ``mode_2_FBWA``, ...). A range's
+        control axes are those of the automatic segments it overlaps (else the inputs
+        moved in it by more than 0.2 deg std); with ``per_axis`` it gives one segment per
+        axis over the same span (the problem builders pick theirs by axis), else one
+        segment. FsidError for an empty or reversed range, one outside the log, or an
+        unknown name (the names found are listed)."""
+        found = self.segments or (self.mode_segments() + self.find_segments())
+        auto = [g for g in found if g.kind == "auto"] or self.find_segments()
+        lo, hi = self.span
+        out: list[SegmentSpec] = []
+        for item in items:
+            if isinstance(item, str):
+                hit = [g for g in found if g.name == item]
+                if not hit:
+                    names = ", ".join(g.name for g in found) or "none"
+                    raise FsidError(f"segment '{item}' is not in the log (found: {names}); give a name or T0:T1 in s")
+                out += hit
+                continue
+            a, b = (float(x) for x in item)
+            if not (np.isfinite(a) and np.isfinite(b) and a < b):
+                raise FsidError(
+                    f"segment {a:g}:{b:g} is empty or reversed; give T0:T1 with T0 < T1 in s from the start"
+                )
+            if b <= lo or a >= hi:
+                raise FsidError(
+                    f"segment {a:g}:{b:g} s is outside the log (0 to {hi - lo:.3f} s from its start); "
+                    "give times in seconds from the log's start"
+                )
+            axes = list(dict.fromkeys(g.axis for g in auto if g.axis and g.t0 < b and g.t1 > a))
+            axes = axes or [c for c in CONTROL_INPUTS if c in self and _window_std(self[c], a, b) > np.radians(0.2)]
+            name = f"time_{a:g}-{b:g}s"
+            out += [SegmentSpec(name, a, b, "time", axis=x) for x in (axes if per_axis else [None])] or [
+                SegmentSpec(name, a, b, "time")
+            ]
+        return out
 
     def segment_frames(
         self, rate_hz: float, channels: Sequence[str] | None = None, segments: Sequence[SegmentSpec] | None = None, **kw
@@ -371,6 +461,27 @@ class FlightData:
         for k, c in self.channels.items():
             lines.append(f"  {k:9s} {len(c):8d} samples {c.rate_hz:8.2f} Hz  [{c.unit}]  <- {c.source}")
         return "\n".join(lines)
+
+
+def _window_std(ch: Channel, a: float, b: float) -> float:
+    """Std of channel ``ch``'s finite samples within a..b [s] (0 with fewer than two)."""
+    v = np.asarray(ch.values, dtype=float)[(ch.t >= a) & (ch.t <= b)]
+    v = v[np.isfinite(v)]
+    return float(v.std()) if v.size > 1 else 0.0
+
+
+def _between_gaps(a: float, b: float, gaps: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The pieces of ``a..b`` [s] outside the ``gaps`` [(start, end) s, sorted]."""
+    out = []
+    for g0, g1 in gaps:
+        if g1 <= a or g0 >= b:
+            continue
+        if g0 > a:
+            out.append((a, g0))
+        a = g1
+    if b > a:
+        out.append((a, b))
+    return out
 
 
 def cut_span(t0: float, t1: float, max_duration: float | None = MAX_AUTO_SEGMENT_S) -> list[tuple[float, float]]:
@@ -415,7 +526,8 @@ def merge_overlapping(specs: Sequence[SegmentSpec]) -> list[SegmentSpec]:
         if out and s.t0 < out[-1].t1:
             a = out[-1]
             axes = "+".join(dict.fromkeys((a.axis or "").split("+") + [s.axis or ""]))
-            out[-1] = SegmentSpec(f"{a.name}+{s.name}", a.t0, max(a.t1, s.t1), a.kind, a.mode, axes)
+            name = a.name if s.name in a.name.split("+") else f"{a.name}+{s.name}"  # a range's copies per axis
+            out[-1] = SegmentSpec(name, a.t0, max(a.t1, s.t1), a.kind, a.mode, axes)
         else:
             out.append(s)
     cut: list[SegmentSpec] = []
@@ -473,7 +585,8 @@ def _resample_channel(
         tc, vc = tc[keep], vc[keep]
     if is_angle:
         vc = np.unwrap(vc)
-    native = Channel(tc, vc, ch.unit).rate_hz if tc.size > 1 else 0.0
+    native = sample_rate(tc) if tc.size > 1 else 0.0
+    stamps = tc  # the native samples, for the blanking below (the filtered ones are uniform)
     if antialias and native > 1.25 * rate_hz and tc.size > 30:
         tu, vu = _uniform(tc, vc, native)
         sos = _antialias_sos(native, rate_hz)
@@ -487,9 +600,9 @@ def _resample_channel(
     )
     # blank samples far from native data
     gap = max_gap if max_gap is not None else max(5.0 / native if native > 0 else 0.0, 2.0 / rate_hz)
-    idx = np.clip(np.searchsorted(tc, t), 1, max(tc.size - 1, 1))
-    if tc.size > 1:
-        near = np.minimum(np.abs(t - tc[idx - 1]), np.abs(tc[idx] - t))
+    idx = np.clip(np.searchsorted(stamps, t), 1, max(stamps.size - 1, 1))
+    if stamps.size > 1:
+        near = np.minimum(np.abs(t - stamps[idx - 1]), np.abs(stamps[idx] - t))
         out[near > gap] = np.nan
     if is_angle and not unwrap:
         out = (out + np.pi) % (2 * np.pi) - np.pi

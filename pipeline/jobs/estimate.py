@@ -25,6 +25,7 @@ from pipeline.errors import FsidError
 from pipeline.ingest.aircraft import aircraft_for_log, servo_travel_for
 from pipeline.ingest.flightdata import FlightData
 from pipeline.ingest.readers import detect_format, read_log
+from pipeline.ingest.sampling import start_statement
 from pipeline.jobs.consider_stage import sampling_meta
 from pipeline.jobs.estimation import FitJob, Prepared, fit_stages
 from pipeline.jobs.identify import identified_axes
@@ -108,6 +109,8 @@ def estimate(log: str | Path, opts: EstimateOptions, count: Progress | None = No
         read_log(log, map=opts.map_path, servo_travel=servo_travel_for(log, opts.aircraft), time_base=opts.time_base),
         MAX_RATE_HZ,
     )
+    if opts.segments:  # the user's windows, in seconds from the log's start
+        fd.segments = fd.chosen_segments(opts.segments)
     n_axes = 1 if user else identified_axes(fd, axes)
     stages = stage_count(len(opts.methods), n_axes, len(vlogs), user)
     pr = count.plan(stages) if count is not None else Progress(stages, quiet=opts.quiet)
@@ -138,7 +141,7 @@ def estimate(log: str | Path, opts: EstimateOptions, count: Progress | None = No
     pr.done(str(summary))
     if not user:  # refused before any fit, for the reasons fsid check gives
         axes = _identifiable(fd, findings, ac, axes, log, opts, len(vlogs), pr)
-    meta = {"log": str(log), "aircraft": ac_name}
+    meta = {"log": str(log), "aircraft": ac_name, "time": start_statement(fd.meta)}
     if fd_vals:
         meta["validation flight"] = "; ".join(
             f"{validation_prefix(k, len(vlogs))}{vlog}" if len(vlogs) > 1 else str(vlog) for k, vlog in enumerate(vlogs)
@@ -156,6 +159,7 @@ def estimate(log: str | Path, opts: EstimateOptions, count: Progress | None = No
         smooth_inputs=opts.smooth_inputs,
         calm=opts.calm,
         validation_calm=opts.validation_calm,
+        hold_out=opts.hold_out,
         apriori=dict(ac.apriori) if ac is not None and ac.apriori else None,
         priors=opts.priors,
         signs=ac.expected_signs() if ac is not None else None,
@@ -194,10 +198,10 @@ def _identifiable(
     pr: Progress,
 ) -> tuple[str, ...]:
     """Those of ``axes`` the flight can identify (:mod:`pipeline.conditioning.identifiability`,
-    the verdict fsid check ends with; a maneuver per axis held out unless there are
-    validation flights): FsidError with every reason, one line each, when none
+    the verdict fsid check ends with; a maneuver per axis held out unless validation flights
+    or ``opts.hold_out`` say otherwise): FsidError with every reason, one line each, when none
     can; else a note per reason an axis is left out, its fits taken out of the stage count."""
-    hold_out = 0 if n_validation else 1
+    hold_out = 0 if n_validation or not opts.hold_out else 1
     ident = identifiability(fd, findings, ac, hold_out=hold_out, axes=axes)
     ok = identifiable_axes(ident, axes, str(log))
     for line in reason_lines(ident, [a for a in axes if a not in ok]) if not opts.quiet else ():

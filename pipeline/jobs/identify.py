@@ -91,7 +91,7 @@ def identify(
     options = options or FitOptions()
     check_methods(methods, user_model=model is not None)
     vflights = validation_flights(validation)
-    hold = hold_out_count(vflights, fit_all)
+    hold = hold_out_count(vflights, fit_all) if options.hold_out else 0
     if model is not None:
         targets = [_UserModel(fd, model, vflights, hold, starts is not None, options, progress)]
         failed = f"every estimation method failed on the model {model.name!r} (see the notes above)"

@@ -26,6 +26,8 @@ class FitOptions:
         their noise levels from the data.
     validation_calm: the validation flights are known to be flown in calm air (the automatic
         proof-of-match mode is then the open-loop simulation whatever the method).
+    hold_out: the last maneuver of each axis is held out for the proof of match when there
+        is no validation flight; False: every maneuver is fitted (no proof of match).
     apriori: the aircraft's a-priori values (derivative -> {value, std, source}), judged
         against by the validation; priors: also used as output error's priors.
     signs: derivative -> the sign (+1/-1) the validation expects (None: the defaults,
@@ -38,6 +40,7 @@ class FitOptions:
     smooth_inputs: bool = True
     calm: bool = False
     validation_calm: bool = False
+    hold_out: bool = True
     apriori: Mapping[str, Mapping[str, float | str]] | None = None
     priors: bool = False
     signs: Mapping[str, int] | None = None
@@ -56,8 +59,11 @@ class EstimateOptions:
         validation_log: a second flight, or several, for the proof of match; time_base: of
         a .tlog or .mcap log; input_dynamics: auto, off or (delay, lag) [s]; calm,
         validation_calm: the flight, the validation flights known to be flown in calm air (a
-        flight plan's, see :class:`FitOptions`; unknown for a real log); priors: the
-        aircraft file's a-priori values used as output error's priors too.
+        flight plan's, see :class:`FitOptions`; unknown for a real log); segments: the
+        maneuver windows to fit (time ranges (t0, t1) [s from the log's start] or segment
+        names, :meth:`pipeline.ingest.flightdata.FlightData.chosen_segments`; None: those
+        found); hold_out: see :class:`FitOptions`; priors: the aircraft file's a-priori
+        values used as output error's priors too.
     """
 
     aircraft: str | Path | None = None
@@ -75,6 +81,8 @@ class EstimateOptions:
     input_dynamics: str | tuple[float, float] = "auto"
     calm: bool = False
     validation_calm: bool = False
+    segments: Sequence[str | tuple[float, float]] | None = None
+    hold_out: bool = True
     priors: bool = False
 
 

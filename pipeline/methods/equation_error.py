@@ -8,6 +8,7 @@ import numpy as np
 
 from estimators import EstimationResult, LeastSquares, OutputError
 from estimators.defaults import CLUSTER_MIN_SEGMENTS as MIN_SEGMENTS
+from estimators.errors import ModelDefinitionError
 from estimators.validation import ClusterResult, cluster_covariance
 from pipeline.problems import Problem
 
@@ -24,9 +25,12 @@ def equation_error(problem: Problem) -> EstimationResult:
     for coef, names, X, y, window in problem.regressions:
         keep = [i for i, n in enumerate(names) if n is not None]
         cols = [n if n is not None else "bias" for n in names]
-        res = LeastSquares(cols if names[0] is not None else cols[1:], intercept=names[0] is None, response=coef).fit(
-            X if names[0] is not None else X[:, 1:], y
-        )
+        try:
+            res = LeastSquares(
+                cols if names[0] is not None else cols[1:], intercept=names[0] is None, response=coef
+            ).fit(X if names[0] is not None else X[:, 1:], y)
+        except ModelDefinitionError as exc:  # too few rows: say which regression
+            raise ModelDefinitionError(f"equation error on {coef} of the fitted maneuvers: {exc}") from None
         regs.append(res)
         for i in keep:
             n = names[i]

@@ -45,27 +45,32 @@ def longitudinal_regressions(
     """Equation-error regressions of the longitudinal coefficients on the maneuver windows:
     CL, CD, Cm computed from the measured specific forces and the differentiated pitch rate,
     regressed on [1, alpha, q cbar/2V, de] (CL, Cm) and [1, alpha, alpha^2] (CD), NaN rows
-    removed."""
+    removed. One row per sample of the pitch rate (an IMU slower than the grid is NaN
+    between its samples; the rate is differentiated over its own samples), the other
+    channels read there (:func:`_at_rows`)."""
     rows = {"L": [], "D": [], "M": []}
     yL, yD, yM = [], [], []
     xv, zv = c.get("x_vane", 0.0), c.get("z_vane", 0.0)
     yv = c.get("y_vane", 0.0)
     xi, zi = c.get("x_imu", 0.0), c.get("z_imu", 0.0)
     for df, T in zip(frames, thrusts):
-        t = df["t"].to_numpy()
-        Vv, av, q, de = (df[k].to_numpy() for k in ("V", "alpha", "q", "de"))
-        qdot = np.gradient(q, t)
+        at = np.flatnonzero(np.isfinite(df["q"].to_numpy(dtype=float)))
+        t = df["t"].to_numpy()[at]
+        q = df["q"].to_numpy(dtype=float)[at]
+        Vv, av, de, ax, az = (_at_rows(df, k, at) for k in ("V", "alpha", "de", "ax", "az"))
+        T = np.asarray(T, dtype=float)[at] if np.ndim(T) else np.full(at.size, float(T))
+        qdot = np.gradient(q, t) if at.size > 1 else np.full(at.size, np.nan)
         # air data and accelerations moved from the sensors to the CG (the inverse of the
         # model's sensor terms): the vane reads alpha - q x_vane / V, which a regression
         # would otherwise book on CLq and Cmq
         u = Vv * np.cos(av) - q * zv
         w = Vv * np.sin(av) + q * xv
         if yv and "p" in df and "r" in df:  # wing-tip boom: + p y_vane in w, - r y_vane in u
-            u = u + df["r"].to_numpy() * yv
-            w = w - df["p"].to_numpy() * yv
+            u = u + _at_rows(df, "r", at) * yv
+            w = w - _at_rows(df, "p", at) * yv
         V, a = np.hypot(u, w), np.arctan2(w, u)
-        ax = df["ax"].to_numpy() - qdot * zi + q * q * xi
-        az = df["az"].to_numpy() + qdot * xi + q * q * zi
+        ax = ax - qdot * zi + q * q * xi
+        az = az + qdot * xi + q * q * zi
         qbar = 0.5 * c["rho"] * V**2
         CX = (c["m"] * ax - T) / (qbar * c["S"])
         CZ = c["m"] * az / (qbar * c["S"])
@@ -78,7 +83,10 @@ def longitudinal_regressions(
         yL.append(CL)
         rows["D"].append(np.column_stack([one, a, a * a]))
         yD.append(CD)
-        rows["M"].append(np.column_stack([one, a, qh, de]))
+        # the differentiated rate is the mean of qdot between the neighbouring samples: Cm's
+        # regressors are taken as the same means (else a 25 Hz IMU's elevator steps, sharp
+        # against a pitch acceleration averaged over 80 ms, bias Cmde and Cmq low)
+        rows["M"].append(np.column_stack([one, _span_means(t, a), _span_means(t, qh), _grid_span_means(df, "de", t)]))
         yM.append(Cm)
     out = []
     for key, coef, y, names in (
@@ -91,6 +99,35 @@ def longitudinal_regressions(
         ok = np.all(np.isfinite(X), axis=1) & np.isfinite(Y)
         out.append(Regression(coef, names, X[ok], Y[ok], _window_rows(rows[key])[ok]))
     return out
+
+
+def _spans(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(start, end) [s] of the span np.gradient differentiates over at each of the samples
+    ``t``: its neighbours (the sample itself at either end)."""
+    k = np.arange(t.size)
+    return t[np.maximum(k - 1, 0)], t[np.minimum(k + 1, t.size - 1)]
+
+
+def _span_means(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The mean over each sample's :func:`_spans` of ``x`` (samples at ``t``), linear
+    between the samples."""
+    if t.size < 2:
+        return x
+    a, b = _spans(t)
+    area = np.r_[0.0, np.cumsum(0.5 * (x[1:] + x[:-1]) * np.diff(t))]
+    return (np.interp(b, t, area) - np.interp(a, t, area)) / (b - a)
+
+
+def _grid_span_means(df: pd.DataFrame, k: str, t: np.ndarray) -> np.ndarray:
+    """The mean of column k of the grid ``df`` (linear between its samples, NaN between slow
+    ones filled) over the :func:`_spans` of the samples ``t``: an input changing between
+    them counts as much as it lasted."""
+    tg, x = df["t"].to_numpy(), _filled(df, k)
+    if t.size < 2:
+        return np.interp(t, tg, x)
+    a, b = _spans(t)
+    area = np.r_[0.0, np.cumsum(0.5 * (x[1:] + x[:-1]) * np.diff(tg))]
+    return (np.interp(b, tg, area) - np.interp(a, tg, area)) / (b - a)
 
 
 def longitudinal_starts(
@@ -117,6 +154,28 @@ def _filled(df: pd.DataFrame, k: str) -> np.ndarray:
         return x
     t = df["t"].to_numpy()
     return np.interp(t, t[ok], x[ok])
+
+
+def _at_rows(df: pd.DataFrame, k: str, rows: np.ndarray) -> np.ndarray:
+    """Column k at the rows ``rows`` of ``df``: its value where it has one, else linear
+    between its own neighbouring samples when those are no further apart than 1.5 of its
+    typical (median) spacing: a channel slower than the grid or on another phase is read
+    between its samples, never across a gap in them (a dropout, or the accelerometers left
+    out inside a control-input step, :data:`pipeline.problems.windows.FEEDTHROUGH_OUTPUTS`),
+    which stays NaN."""
+    x = df[k].to_numpy(dtype=float)
+    if np.isfinite(x[rows]).all():
+        return x[rows]
+    t = df["t"].to_numpy()
+    ok = np.flatnonzero(np.isfinite(x))
+    if ok.size < 2:
+        return x[rows]
+    spacing = np.diff(t[ok])
+    j = np.clip(np.searchsorted(t[ok], t[rows]), 1, ok.size - 1)  # the samples either side
+    near = spacing[j - 1] <= 1.5 * np.median(spacing)
+    out = np.interp(t[rows], t[ok], x[ok])
+    inside = (t[rows] >= t[ok[0]]) & (t[rows] <= t[ok[-1]])
+    return np.where(np.isfinite(x[rows]), x[rows], np.where(near & inside, out, np.nan))
 
 
 def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]) -> list[Regression]:

@@ -143,7 +143,8 @@ def read_log(path: str | os.PathLike, map=None, **opts):
         .tlog: "auto" | "boot" | "log", default the autopilot's own stamps,
         :mod:`pipeline.ingest.readers.tlog_time`; ``TIME_BASES``; None is the default, a choice
         the format does not offer is a LogReadError),
-        ``segments`` ("mode" | "auto" | list of (t0, t1) [s]; default: mode segments when
+        ``segments`` ("mode" | "auto" | list of (t0, t1) [s from the log's start] or
+        segment names, :meth:`FlightData.chosen_segments`; default: mode segments when
         the log has modes, then automatic ones from control activity), ``servo_travel``
         (surface -> (deg, origin): the deflection at full servo travel for surfaces
         decoded from servo PWM, e.g. an aircraft TOML's ``[servos]``; see
@@ -155,7 +156,9 @@ def read_log(path: str | os.PathLike, map=None, **opts):
 
     Returns
     -------
-    FlightData whose channels are canonical names in SI units (DESIGN.md section 3).
+    FlightData whose channels are canonical names in SI units (DESIGN.md section 3), its
+    times in seconds from the log's start (``meta["t0_abs"]``, ``meta["t0_kind"]``: where
+    that is on the log's clock, :meth:`FlightData.from_log_start`).
     """
     segments = opts.pop("segments", None)
     travel = opts.pop("servo_travel", None)
@@ -194,12 +197,11 @@ def read_log(path: str | os.PathLike, map=None, **opts):
         "info": raw.info,
         "tables": {k: len(v) for k, v in raw.tables.items()},
     }
-    fd = FlightData(chans, meta, [])
+    fd = FlightData(chans, meta, []).from_log_start()
     if pose is not False and needs_pose_states(fd):
         fd = derive_pose_states(fd, **(pose or {}))
     if isinstance(segments, (list, tuple)):
-        for a, b in segments:
-            fd.add_segment(a, b)
+        fd.segments = fd.chosen_segments(segments, per_axis=False)
     elif segments is None and raw.info.get("windows"):  # an archive's windows are its segments
         fd.segments.extend(SegmentSpec(w["name"], w["t0"], w["t1"]) for w in raw.info["windows"])
     elif segments in (None, "mode", "auto"):

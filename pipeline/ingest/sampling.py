@@ -1,0 +1,94 @@
+"""What a channel's sample stamps say: its rate, its gaps, and the clock the log runs on.
+
+A log's channels are stamped by the autopilot; the stamps, not their span, give the rate:
+a log paused between maneuvers keeps its rate, and its pauses (gaps) are segment
+boundaries. Times in the product are seconds from the log's start; where that start is on
+the log's own clock (Unix epoch or time since boot) is stated once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from datetime import UTC, datetime
+from typing import Any
+
+import numpy as np
+
+#: an interval between two samples longer than this many typical intervals is a gap (a
+#: logging pause between maneuvers, a dropout): a segment boundary that neither lowers a
+#: channel's rate nor counts as jitter. 5 keeps a few lost samples out of the rate too,
+#: while bursty arrival (telemetry: a few samples at once, then a pause of a few
+#: intervals) stays regular sampling
+GAP_FACTOR = 5.0
+#: a log whose first stamp is at least this [s] runs on a calendar clock (Unix epoch,
+#: UTC; 1e8 s is 1973); smaller ones count from the autopilot's boot or the log's start
+EPOCH_MIN_S = 1e8
+
+
+def _intervals(t: np.ndarray) -> np.ndarray:
+    """The positive intervals between the finite stamps ``t`` [s], in time order."""
+    t = np.asarray(t, dtype=float)
+    t = t[np.isfinite(t)]
+    dt = np.diff(t)
+    if np.any(dt < 0):
+        dt = np.diff(np.sort(t))
+    return dt[dt > 0]
+
+
+def typical_interval(t: np.ndarray) -> float:
+    """The typical interval between the stamps ``t`` [s]: the mean interval with the gaps
+    (longer than GAP_FACTOR typical intervals) left out, found by iterating from the mean
+    of all; NaN with fewer than two distinct stamps. The mean of the regular intervals, not
+    their median: bursty arrival (telemetry, a few samples at once) gives the real rate,
+    and a gap between maneuvers does not lower it."""
+    dt = _intervals(t)
+    if dt.size == 0:
+        return float("nan")
+    m = float(dt.mean())
+    for _ in range(50):  # m falls at each step; a few steps in practice
+        m_new = float(dt[dt <= GAP_FACTOR * m].mean())
+        if m_new >= m:
+            break
+        m = m_new
+    return m
+
+
+def sample_rate(t: np.ndarray) -> float:
+    """Sample rate [Hz] of the stamps ``t`` [s]: 1 / :func:`typical_interval` (0 with fewer
+    than two distinct stamps)."""
+    m = typical_interval(t)
+    return float(1.0 / m) if np.isfinite(m) and m > 0 else 0.0
+
+
+def sample_gaps(t: np.ndarray) -> list[tuple[float, float]]:
+    """The gaps of the stamps ``t`` [s]: (last stamp before, first stamp after) of every
+    interval longer than GAP_FACTOR typical intervals (:func:`typical_interval`)."""
+    t = np.asarray(t, dtype=float)
+    t = np.sort(t[np.isfinite(t)])
+    m = typical_interval(t)
+    if not np.isfinite(m):
+        return []
+    k = np.flatnonzero(np.diff(t) > GAP_FACTOR * m)
+    return [(float(t[i]), float(t[i + 1])) for i in k]
+
+
+def start_kind(t0_abs: float) -> str:
+    """The clock of a log whose first stamp is ``t0_abs`` [s]: "epoch UTC" (a calendar
+    clock, EPOCH_MIN_S or later) or "boot" (time since the autopilot's boot or the log's
+    own start)."""
+    return "epoch UTC" if t0_abs >= EPOCH_MIN_S else "boot"
+
+
+def start_statement(meta: Mapping[str, Any]) -> str:
+    """One sentence saying where t = 0 is on the log's own clock (``meta["t0_abs"]``,
+    ``meta["t0_kind"]`` of :meth:`FlightData.from_log_start`); "" when the log's times were
+    not moved."""
+    if "t0_abs" not in meta:
+        return ""
+    t0 = float(meta["t0_abs"])
+    if meta.get("t0_kind") == "epoch UTC":
+        when = datetime.fromtimestamp(t0, tz=UTC).isoformat(timespec="microseconds")
+        return (
+            f"times are seconds from the log's start; t = 0 is {when.replace('+00:00', ' UTC')} ({t0:.6f} s Unix epoch)"
+        )
+    return f"times are seconds from the log's start; t = 0 is {t0:.6f} s on the log's own clock (since boot)"
