@@ -1,0 +1,205 @@
+"""What every figure of report.md shares: size and resolution, colours, axis labels in
+display units, decimation of long series, and rendering to PNG bytes without pyplot.
+
+Figures are drawn on a :class:`matplotlib.figure.Figure` with the Agg canvas (no global
+pyplot state, no display) inside :func:`render`, which applies :data:`RC` for that figure only
+and returns the PNG bytes; :func:`save` writes them atomically (0644)."""
+
+from __future__ import annotations
+
+import io
+import math
+import re
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+
+matplotlib.use("Agg")
+
+from matplotlib import rc_context  # noqa: E402 - after the backend is chosen
+from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
+
+from pipeline.outputs.recording_layout import COLORS  # noqa: E402 - one colour per method for rrd and PNG
+from pipeline.paths import atomic_write_bytes  # noqa: E402
+from pipeline.validation import display_unit  # noqa: E402
+
+#: resolution of every PNG (dots per inch); with the sizes below about 1000-1400 px wide
+DPI = 110
+#: width of a full-width figure in inches
+WIDTH = 11.0
+#: most points drawn per line: longer series are thinned by a stride (the shape stays readable)
+MAX_POINTS = 1500
+#: matplotlib settings for the report's figures (applied per figure by :func:`render`)
+RC = {
+    "font.size": 8.5,
+    "axes.titlesize": 9,
+    "axes.labelsize": 8.5,
+    "legend.fontsize": 7.5,
+    "xtick.labelsize": 7.5,
+    "ytick.labelsize": 7.5,
+    "axes.grid": True,
+    "grid.alpha": 0.35,
+    "grid.linewidth": 0.5,
+    "lines.linewidth": 1.1,
+    "axes.spines.top": False,
+    "axes.spines.right": False,
+    "legend.frameon": False,
+    "path.simplify": True,
+    "axes.formatter.useoffset": False,
+    "axes.titlepad": 3.0,
+}
+#: colours of the data lines and bands (matplotlib colour specs)
+MEASURED = "#282828"
+TRUTH = "#c8a000"
+TOLERANCE = "#bdbdbd"
+APRIORI = "#7f7f7f"
+MISS = "#d62728"
+#: colours of methods not in the recording's table, in turn
+_PALETTE = ["#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"]
+
+
+def method_color(method: str, order: Sequence[str] = ()) -> str:
+    """The colour of an estimation method ("oem", "fem", ...; a result key's last part), the
+    one run.rrd uses; others from a palette by their place in ``order``."""
+    base = method.rsplit("-", 1)[-1]
+    if base in COLORS:
+        r, g, b = COLORS[base]
+        return f"#{r:02x}{g:02x}{b:02x}"
+    k = list(order).index(method) if method in order else 0
+    return _PALETTE[k % len(_PALETTE)]
+
+
+def scale_label(channel: str) -> tuple[float, str]:
+    """(factor, axis label) of a canonical channel in its display unit: ``q [deg/s]``;
+    a channel without a known unit is labelled by its name alone."""
+    fac, unit = display_unit(channel)
+    return fac, (f"{channel} [{unit}]" if unit != "SI" else channel)
+
+
+def series(t, y, factor: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """(t, y * factor) for a line: the finite samples only (a slower sensor on a faster grid
+    leaves NaN between its samples, which would break the line into nothing), thinned by a
+    stride to at most about :data:`MAX_POINTS`."""
+    t, y = np.asarray(t, dtype=float), np.asarray(y, dtype=float)
+    ok = np.isfinite(t) & np.isfinite(y)
+    t, y = t[ok], y[ok]
+    s = slice(None, None, max(1, math.ceil(t.size / MAX_POINTS)))
+    return t[s], y[s] * factor
+
+
+def file_part(name: str) -> str:
+    """A file-name part from a method key or segment name: characters outside
+    [A-Za-z0-9_.-] become '_'."""
+    return re.sub(r"[^A-Za-z0-9_.\-]", "_", str(name)) or "_"
+
+
+def grid_size(n_rows: int, row_height: float, extra: float = 0.9) -> tuple[float, float]:
+    """(width, height) in inches of a full-width figure of ``n_rows`` panel rows."""
+    return WIDTH, n_rows * row_height + extra
+
+
+def render(size: tuple[float, float], draw: Callable[[Figure], None]) -> bytes:
+    """PNG bytes of a new ``size`` (inches) figure drawn by ``draw(fig)`` under :data:`RC`."""
+    with rc_context(RC):
+        fig = Figure(figsize=size, dpi=DPI)
+        FigureCanvasAgg(fig)
+        draw(fig)
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=DPI, metadata={"Software": None}, pil_kwargs={"compress_level": 3})
+    return buf.getvalue()
+
+
+def save(path: Path, png: bytes) -> Path:
+    """Write the PNG bytes atomically (readable by others)."""
+    return atomic_write_bytes(path, png)
+
+
+#: most maneuvers laid side by side in one figure; more go to further figures
+MAX_MANEUVERS = 4
+
+
+def chunks(n: int, size: int = MAX_MANEUVERS) -> list[range]:
+    """Index ranges of at most ``size`` covering ``range(n)`` in order."""
+    return [range(i, min(i + size, n)) for i in range(0, n, size)]
+
+
+def panel_grid(fig: Figure, n_rows: int, n_cols: int = 1, *, top: float = 0.85, bottom: float = 0.45):
+    """A (n_rows, n_cols) array of axes sharing x per column, placed with fixed margins in
+    inches (``top`` above the first row for the titles and the figure legend, ``bottom``
+    for the x label; a y label and tick labels at the left of every column): no overlap
+    and no layout engine to pay for."""
+    w, h = fig.get_size_inches()
+    left, right, gap_x, gap_y = 0.85, 0.15, 0.75, 0.22
+    ax = fig.subplots(
+        n_rows,
+        n_cols,
+        sharex="col",
+        squeeze=False,
+        gridspec_kw={
+            "left": left / w,
+            "right": 1 - right / w,
+            "top": 1 - top / h,
+            "bottom": bottom / h,
+            "wspace": gap_x * n_cols / max(w - left - right - gap_x * (n_cols - 1), 1.0),
+            "hspace": gap_y * n_rows / max(h - top - bottom - gap_y * (n_rows - 1), 1.0),
+        },
+    )
+    for a in ax.flat:  # few ticks: readable in a small panel, and ticks are most of the drawing time
+        a.yaxis.set_major_locator(MaxNLocator(4))
+    return ax
+
+
+class Strip:
+    """Maneuvers laid end to end on one x axis, a small gap between them, so that one row of
+    panels shows them all: :meth:`x` places a maneuver's own times (s from the log's start),
+    :meth:`decorate` draws the separators, names and tick labels in those own times."""
+
+    def __init__(self, times: Sequence[np.ndarray], names: Sequence[str]) -> None:
+        spans = [(float(t[0]), float(t[-1])) if len(t) else (0.0, 0.0) for t in times]
+        self.gap = gap = 0.04 * max(sum(b - a for a, b in spans), 1e-9)
+        self.names, self.spans, self.offsets = list(names), spans, []
+        start = 0.0
+        for a, b in spans:
+            self.offsets.append(start - a)
+            start += (b - a) + gap
+
+    def x(self, k: int, t) -> np.ndarray:
+        """Maneuver ``k``'s times (s) on the strip."""
+        return np.asarray(t, dtype=float) + self.offsets[k]
+
+    def decorate(self, column, *, names: bool = True) -> None:
+        """Separators on every panel of ``column`` (axes top to bottom), the maneuvers' names
+        over the first, ticks in each maneuver's own time under the last."""
+        ticks, labels = [], []
+        for k, ((a, b), off) in enumerate(zip(self.spans, self.offsets)):
+            for v in MaxNLocator(3).tick_values(a, b):
+                if a <= v <= b:
+                    ticks.append(v + off)
+                    labels.append(f"{v:g}")
+            if k:
+                for ax in column:
+                    ax.axvline(a + off - self.gap / 2, color="0.3", lw=0.8)
+            if names:
+                column[0].text(
+                    (a + b) / 2 + off,
+                    1.03,
+                    self.names[k],
+                    transform=column[0].get_xaxis_transform(),
+                    ha="center",
+                    va="bottom",
+                    fontsize=8.5,
+                )
+        column[-1].set_xticks(ticks, labels)
+        column[-1].set_xlim(self.spans[0][0] + self.offsets[0], self.spans[-1][1] + self.offsets[-1])
+        column[-1].set_xlabel("time from the log's start [s] (maneuvers laid end to end)")
+
+
+def top_legend(fig: Figure, handles: list, labels: list, title: str) -> None:
+    """The figure's title and, under it, one legend row for all panels."""
+    h = fig.get_size_inches()[1]
+    fig.suptitle(title, y=1 - 0.08 / h, va="top", fontsize=10)
+    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 1 - 0.32 / h), ncol=max(len(labels), 1))
