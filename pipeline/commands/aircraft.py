@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     if args.action == "init":
         return _init(Path(args.path), args.force)
     if args.action == "check":
-        print(describe(read_aircraft_file(args.path)))
+        print(summary(read_aircraft_file(args.path)))
         return 0
     raise FsidError("fsid aircraft: give an action: init [PATH] (write a template) or check PATH")
 
@@ -59,7 +59,7 @@ def _init(path: Path, force: bool) -> int:
     return 0
 
 
-def describe(af: AircraftFile) -> str:
+def summary(af: AircraftFile) -> str:
     """What an aircraft file gives, in a few lines."""
     c = af.constants
     lines = [
