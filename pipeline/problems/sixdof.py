@@ -1,4 +1,5 @@
-"""Lateral-directional identification with the nonlinear 6-DoF model.
+"""Identification with the nonlinear 6-DoF model: the lateral-directional axis, and both
+axes at once (:func:`sixdof_problem`, e.g. a motion-capture pose's derived states).
 
 The linear lateral model of :mod:`estimators.models.lateral` holds airspeed, angle of
 attack and pitch attitude at their mean and linearises the kinematics; on a small UAV the
@@ -19,6 +20,7 @@ import pandas as pd
 from estimators import Segment
 from estimators.models import sixdof
 from estimators.models.sixdof import body_velocity
+from pipeline.errors import FsidError
 from pipeline.ingest.constants import AircraftConstants
 from pipeline.ingest.flightdata import FlightData, SegmentSpec
 from pipeline.problems.lateral import LAT_FREE, lateral_specs
@@ -32,6 +34,13 @@ SIXDOF_OUTPUTS = ("V", "alpha", "beta", "p", "q", "r", "phi", "theta", "ax", "ay
 SIXDOF_INPUTS = ("de", "da", "dr")
 #: longitudinal coefficients estimated with the lateral ones: the lateral maneuvers' own trim
 TRIM_FREE = ("CL0", "CD0", "Cm0")
+#: both axes' derivatives a full 6-DoF fit estimates by default, with the trim terms
+BOTH_AXES_FREE = (
+    *("CL0", "CLalpha", "CLde", "CD0", "CDalpha", "Cm0", "Cmalpha", "Cmq", "Cmde"),
+    *("CY0", "CYbeta", "Cl0", "Clbeta", "Clp", "Clr", "Clda", "Cldr", "Cn0", "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr"),
+)
+#: bounds that keep drag and thrust apart when the throttle hardly moves (both positive)
+POSITIVE = {"CD0": (0.0, np.inf), "kT": (0.0, np.inf)}
 
 
 def sixdof_constants(ac: AircraftConstants, rho: float) -> dict[str, float]:
@@ -131,4 +140,101 @@ def sixdof_lateral_problem(
         estimate_x0=True,
         notes=notes,
         rate_hz=g.rate_hz,
+    )
+
+
+def sixdof_segment(w: pd.DataFrame, name: str, inputs: Sequence[str], outputs: Sequence[str], states) -> Segment:
+    """Segment of the resampled window ``w``: the model's ``inputs`` and ``outputs`` columns,
+    initial states (body velocity from V, alpha, beta; the other ``states`` by name) from
+    the window's first valid samples."""
+    V, a, b = first_valid(w, ["V", "alpha", "beta"])
+    rest = [s for s in states if s not in ("u", "v", "w")]
+    return Segment(
+        t=w["t"].to_numpy(),
+        u=w[list(inputs)].to_numpy(),
+        z=w[list(outputs)].to_numpy(),
+        x0=[*body_velocity(V, a, b), *first_valid(w, rest)],
+        name=name,
+    )
+
+
+def _inputs_defined(w: pd.DataFrame) -> pd.DataFrame:
+    """``w`` without its leading and trailing rows where a control input is missing (a
+    grid point a rounding past the segment's last sample)."""
+    ok = w[list(SIXDOF_INPUTS)].notna().all(axis=1).to_numpy()
+    if not ok.any():
+        return w.iloc[:0]
+    first, last = np.flatnonzero(ok)[[0, -1]]
+    return w.iloc[first : last + 1].reset_index(drop=True)
+
+
+def sixdof_problem(
+    fd: FlightData,
+    ac: AircraftConstants,
+    segments: Sequence[SegmentSpec],
+    *,
+    held_out: Sequence[SegmentSpec] = (),
+    validation: FlightData | None = None,
+    start: Mapping[str, float] | None = None,
+    free: Sequence[str] = BOTH_AXES_FREE,
+    rate_hz: float = 100.0,
+    navigation: bool = False,
+) -> Problem:
+    """Both axes on the 6-DoF model, fitted to ``segments`` of ``fd`` on a ``rate_hz`` grid.
+
+    The measured outputs are the model's 11 (V alpha beta p q r phi theta ax ay az; with
+    ``navigation`` also psi x_n y_e z_d). Thrust: the log's thrust channel, else the
+    aircraft's throttle-to-thrust map, else the throttle itself with the model's kT (thrust
+    at full throttle, N, proportional) estimated, positive like CD0 (:data:`POSITIVE`).
+    ``start``: start values (default the model's); every segment has its own initial state.
+    ``held_out``: segments kept for validation, of ``validation`` (another flight) or ``fd``.
+    """
+    model_out = list(SIXDOF_OUTPUTS) + (["psi", "x_n", "y_e", "z_d"] if navigation else [])
+    need = model_out + list(SIXDOF_INPUTS)
+    missing = fd.missing(need)
+    if missing:
+        raise FsidError(
+            f"{fd.meta.get('source', 'the log')}: the 6-DoF problem needs {', '.join(missing)}; "
+            "a pose-only log gets them from its pose (pipeline.ingest.pose)"
+        )
+    frames = [
+        _inputs_defined(fd.resample(rate_hz, need + ["throttle", "thrust", "rho", "h"], t0=s.t0, t1=s.t1))
+        for s in segments
+    ]
+    held = [
+        _inputs_defined(
+            (validation or fd).resample(rate_hz, need + ["throttle", "thrust", "rho", "h"], t0=s.t0, t1=s.t1)
+        )
+        for s in held_out
+    ]
+    rho = mean_density(pd.concat(frames))
+    c = sixdof_constants(ac, rho)
+    known = ac.thrust(np.zeros(1)) is not None or all("thrust" in w and w["thrust"].notna().all() for w in frames)
+    for w in frames + held:
+        w["thrust_in"] = thrust_signal(w, ac) if known else w["throttle"]
+    values = dict(start or {})
+    model = sixdof(
+        c,
+        values=values,
+        free=list(free) + ([] if known else ["kT"]),
+        bounds={k: v for k, v in POSITIVE.items() if k != "kT" or not known},
+        throttle=not known,
+        navigation=navigation,
+        name="sixdof",
+    )
+    inputs = list(SIXDOF_INPUTS) + ["thrust_in"]
+    notes = [
+        f"nonlinear 6-DoF model, both axes, on a {rate_hz:g} Hz grid, density {rho:.4f} kg/m^3",
+        "thrust from " + ("the log or the aircraft's map" if known else "the throttle x kT (estimated)"),
+    ]
+    return Problem(
+        "sixdof",
+        model,
+        [sixdof_segment(w, s.name, inputs, model_out, model.states) for s, w in zip(segments, frames)],
+        [sixdof_segment(w, s.name, inputs, model_out, model.states) for s, w in zip(held_out, held)],
+        list(segments),
+        list(held_out),
+        estimate_x0=True,
+        notes=notes,
+        rate_hz=rate_hz,
     )

@@ -143,11 +143,11 @@ def read_npz(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
         tk = time[k, ok]
         if np.any(np.diff(tk) <= 0):
             raise _fail(path, f"window {k} ({names[k]}): time_s is not increasing", f"time_s[{k}]")
-        t = tk - tk[0] + start
+        t = np.round(tk - tk[0], 9) + start
         windows.append({"name": names[k], "t0": float(t[0]), "t1": float(t[-1]), "archive_t0": float(tk[0])})
         ts.append(t)
         cols.append(np.concatenate([pose[k, ok], u[k, ok]], axis=1))
-        start = float(t[-1]) + WINDOW_GAP_S
+        start = round(float(t[-1]) + WINDOW_GAP_S, 6)  # whole microseconds: no drift over windows
     if not ts:
         raise _fail(path, "no window has two valid samples", "valid_mask")
     t = np.concatenate(ts)
