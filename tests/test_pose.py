@@ -18,6 +18,7 @@ from scipy.integrate import cumulative_trapezoid
 
 from pipeline.conditioning.checks import FAIL, PASS, run_checks
 from pipeline.conditioning.kinematics import check_kinematics
+from pipeline.errors import FsidError
 from pipeline.ingest.flightdata import Channel, FlightData
 from pipeline.ingest.pose import POSE, derive_pose_states, euler_to_quat, pose_part, quat_to_euler
 from pipeline.ingest.readers import read_log
@@ -213,3 +214,16 @@ def test_ros2_pose_and_rc_mcap_becomes_flight_states(tmp_path):
     assert fd["V"].values.mean() == pytest.approx(tr["V"].to_numpy()[span].mean(), abs=0.05)
     turn = _kinematic(run_checks(fd), "coordinated_turn")
     assert turn and turn[0].status == PASS
+
+
+def test_a_pose_that_cannot_be_differentiated():
+    t = np.arange(4) * 0.01
+    short = FlightData({n: Channel(t, np.full(4, 1.0 if n == "q_w" else 0.0), "") for n in POSE}, {}, [])
+    with pytest.raises(FsidError, match="needs at least 5"):
+        derive_pose_states(short)
+    kept = derive_pose_states(short, strict=False)  # what the ingest does: the rest of the log stays
+    assert kept.names == short.names and "needs at least 5" in kept.meta["unmapped"]["p"]
+    t = np.arange(40) * 0.01
+    bad_q = FlightData({n: Channel(t, np.full(40, 3.0), "") for n in POSE}, {}, [])
+    with pytest.raises(FsidError, match=r"unit quaternion \(median \|q\| 6\)"):
+        derive_pose_states(bad_q)

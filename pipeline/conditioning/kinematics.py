@@ -244,7 +244,8 @@ def _coordinated_turn(fd: FlightData, heading) -> Finding | None:
         dt = float(df["t"].iloc[1] - df["t"].iloc[0])
         _, chid, vh = _course(df)
         phi = np.clip(df["phi"].to_numpy(), -np.radians(75), np.radians(75))
-        pairs.append((df, _smooth(G0 * np.tan(phi) / np.maximum(np.nan_to_num(vh), MIN_SPEED), dt) + 0 * vh, chid))
+        turn = _smooth(G0 * np.tan(phi) / np.maximum(np.nan_to_num(vh), MIN_SPEED), dt)
+        pairs.append((df, np.where(np.isfinite(vh), turn, np.nan), chid))
     rel = _relation(pairs)
     if rel is None or rel.n < MIN_SAMPLES or rel.spread < np.radians(1.0) or not np.isfinite(rel.r):
         return None
@@ -304,7 +305,9 @@ def _pitch_path(fd: FlightData) -> Finding | None:
     pairs = []
     for df in _stretches(fd, ("theta", "vn", "ve", "vd")):
         _, _, vh = _course(df)
-        pairs.append((df, df["theta"].to_numpy() + 0 * vh, np.arctan2(-df["vd"].to_numpy(), vh)))
+        pairs.append(
+            (df, np.where(np.isfinite(vh), df["theta"].to_numpy(), np.nan), np.arctan2(-df["vd"].to_numpy(), vh))
+        )
     rel = _relation(pairs)
     if rel is None or rel.n < MIN_SAMPLES or rel.spread < np.radians(2.0) or not np.isfinite(rel.r):
         return None

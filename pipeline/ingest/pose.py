@@ -48,8 +48,10 @@ POSITION = ("x_n", "y_e", "z_d")
 QUATERNION = ("q_w", "q_x", "q_y", "q_z")
 POSE = POSITION + QUATERNION
 #: what a pose becomes, in the order they are added
-DERIVED = ("vn", "ve", "vd", "h", "phi", "theta", "psi", "p", "q", "r", "ax", "ay", "az", "u", "v", "w", "V")
-DERIVED += ("alpha", "beta")
+DERIVED = (
+    *("vn", "ve", "vd", "h", "phi", "theta", "psi", "p", "q", "r"),
+    *("ax", "ay", "az", "u", "v", "w", "V", "alpha", "beta"),
+)
 #: the derived channels that depend on the wind
 AIR = ("u", "v", "w", "V", "alpha", "beta")
 #: ``Channel.source`` of a derived state by the part of the pose it comes from
@@ -108,6 +110,7 @@ def derive_pose_states(
     polyorder: int = POLYORDER,
     wind_ned: Sequence[float] = (0.0, 0.0, 0.0),
     roll_sign: int = 1,
+    strict: bool = True,
 ) -> FlightData:
     """A new FlightData with the flight states of ``fd``'s pose added (module docstring).
 
@@ -121,6 +124,9 @@ def derive_pose_states(
     roll_sign : -1 mirrors the pose's roll (phi -> -phi, theta and psi kept) before anything
         is derived: the mend for an export whose roll is mirrored, which the kinematic checks
         (:mod:`pipeline.conditioning.kinematics`: bank against turn) find
+    strict : False: a pose that cannot be differentiated (too few samples, no unit
+        quaternion) leaves ``fd`` as it is and says why in ``meta["pose"]["error"]`` and
+        ``meta["unmapped"]`` instead of raising (the ingest reads the rest of the log)
 
     Returns
     -------
@@ -133,45 +139,32 @@ def derive_pose_states(
             f"derive_pose_states: the flight lacks pose channel(s) {', '.join(fd.missing(POSE))}; "
             "map position x_n y_e z_d [m, NED] and quaternion q_w q_x q_y q_z (body -> NED) in the channel map"
         )
-    if not (window_s > 0 and 2 <= polyorder <= 5):
-        raise FsidError(f"derive_pose_states: window_s {window_s!r} must be > 0 and polyorder {polyorder!r} in 2..5")
+    if not (window_s > 0 and 2 <= polyorder <= 5 and roll_sign in (1, -1)):
+        raise FsidError(
+            f"derive_pose_states: window_s {window_s!r} must be > 0, polyorder {polyorder!r} in 2..5 "
+            f"and roll_sign {roll_sign!r} 1 or -1"
+        )
     wind = np.asarray(wind_ned, dtype=float).reshape(3)
-    if roll_sign not in (1, -1):
-        raise FsidError(f"derive_pose_states: roll_sign must be 1 or -1 (got {roll_sign!r})")
-    t, pos, quat = _pose_samples(fd)
-    if roll_sign == -1:
-        phi, theta, psi = quat_to_euler(quat / np.linalg.norm(quat, axis=1)[:, None])
-        quat = euler_to_quat(-phi, theta, psi)
-    dt = float(np.median(np.diff(t))) if t.size > 1 else float("nan")
-    if not (t.size >= polyorder + 2 and dt > 0):
-        raise FsidError(
-            f"derive_pose_states: {t.size} pose sample(s) at distinct times; need at least {polyorder + 2} "
-            "to differentiate the pose"
-        )
-    window = _odd_window(window_s / dt + 1, polyorder)
-    ok = np.isfinite(pos).all(axis=1)
-    spans = _pieces(t, ok, dt)
-    pieces = [_derive_piece(t[a:b], pos[a:b], quat[a:b], dt, window, polyorder, wind) for a, b in spans]
-    pieces = [p for p in pieces if p is not None]
-    if not pieces:
-        raise FsidError(
-            f"derive_pose_states: no stretch of the pose without gaps has {polyorder + 2} samples "
-            f"(median interval {dt:.4g} s); the pose cannot be differentiated"
-        )
+    try:
+        pieces, dt, window = _differentiate(fd, window_s, polyorder, wind, roll_sign)
+    except FsidError as exc:
+        if strict:
+            raise
+        meta = dict(fd.meta)
+        meta["pose"] = {"error": str(exc)}
+        meta["unmapped"] = dict(meta.get("unmapped") or {}) | {n: f"not derived: {exc}" for n in fd.missing(DERIVED)}
+        return FlightData(dict(fd.channels), meta, list(fd.segments))
     noise = _pooled_noise(pieces, window, polyorder, dt)
     stated = _stated_noise(noise, polyorder, pieces)
     tt = np.concatenate([p["t"] for p in pieces])
     how = (
         f"smoothing differentiation of the pose (Savitzky-Golay, {window} samples = {(window - 1) * dt:.3g} s, "
         f"order {polyorder})"
-    )
-    if roll_sign == -1:
-        how += " with the pose's roll negated (roll_sign -1)"
+    ) + (" with the pose's roll negated (roll_sign -1)" if roll_sign == -1 else "")
     air = f"the wind {tuple(float(x) for x in wind)} m/s (NED) removed" if wind.any() else "still air assumed"
     chans = dict(fd.channels)
-    for name in DERIVED:
-        if name in fd.channels and len(fd.channels[name]):
-            continue
+    added = fd.missing(DERIVED)
+    for name in added:
         why = how + (f"; air-relative with {air}" if name in AIR else "")
         chans[name] = Channel(
             tt.copy(),
@@ -193,9 +186,40 @@ def derive_pose_states(
         "pieces": [(float(p["t"][0]), float(p["t"][-1])) for p in pieces],
         "wind_ned": [float(x) for x in wind],
         "roll_sign": roll_sign,
-        "derived": [n for n in DERIVED if n not in fd.channels or not len(fd.channels[n])],
+        "derived": added,
     }
     return FlightData(chans, meta, list(fd.segments))
+
+
+def _differentiate(fd: FlightData, window_s: float, polyorder: int, wind: np.ndarray, roll_sign: int):
+    """The derived states of every gap-free piece of the pose, the grid interval [s] and the
+    window [samples]; FsidError when no piece can be differentiated."""
+    t, pos, quat = _pose_samples(fd)
+    if roll_sign == -1:
+        phi, theta, psi = quat_to_euler(quat / np.linalg.norm(quat, axis=1)[:, None])
+        quat = euler_to_quat(-phi, theta, psi)
+    dt = float(np.median(np.diff(t))) if t.size > 1 else float("nan")
+    if not (t.size >= polyorder + 2 and dt > 0):
+        raise FsidError(
+            f"the pose has {t.size} sample(s) at distinct times; it needs at least {polyorder + 2} to be differentiated"
+        )
+    ok = np.isfinite(pos).all(axis=1)
+    if not ok.any():
+        norm = np.linalg.norm(np.column_stack([fd[c].values for c in QUATERNION]), axis=1)
+        raise FsidError(
+            f"no pose sample has a finite position and a unit quaternion (median |q| "
+            f"{np.nanmedian(norm) if np.isfinite(norm).any() else float('nan'):.3g}); check the channel map of "
+            "x_n y_e z_d [m] and q_w q_x q_y q_z"
+        )
+    window = _odd_window(window_s / dt + 1, polyorder)
+    pieces = [_derive_piece(t[a:b], pos[a:b], quat[a:b], dt, window, polyorder, wind) for a, b in _pieces(t, ok, dt)]
+    pieces = [p for p in pieces if p is not None]
+    if not pieces:
+        raise FsidError(
+            f"no stretch of the pose without gaps has {polyorder + 2} samples (median interval {dt:.4g} s); "
+            "the pose cannot be differentiated"
+        )
+    return pieces, dt, window
 
 
 def _pose_samples(fd: FlightData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
