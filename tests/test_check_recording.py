@@ -211,6 +211,9 @@ def test_run_rrd_places_fits_on_the_whole_flight(tmp_path):
     np.testing.assert_allclose(cols["/flight/plan/de"]["t"], [1.0, 2.4, 12.0, 13.0], atol=1e-9)
     np.testing.assert_allclose(cols["/flight/mode"]["t"], [0.0, 12.0])  # a mode set before the data: at 0
     assert "/flight/findings" not in cols  # none given
+    fitted = cols["/flight/segments/fitted"]  # where the fits sit on the flight
+    assert fitted["state"] == [["#0"], [], ["#1"], []]
+    np.testing.assert_allclose(fitted["t"], [0.0, 3.98, 10.0, 13.98], atol=1e-9)
     res0 = estimators.OutputError(ex.model).fit(ex.segments)  # both from t = 0: laid end to end
     path = write_recording(tmp_path / "run0.rrd", {"oem": res0}, flight=FlightRecord(fd))
     cols, _ = _read(path)

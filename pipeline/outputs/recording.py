@@ -59,6 +59,8 @@ keys of ``results`` such as ``oem``, ``<name>`` a parameter name with any charac
                                           its start, an empty state at its end
     /flight/plan/<axis>                   the maneuvers as designed, when known (a simulated
                                           flight's plan), tracks as the windows'
+    /flight/segments/fitted, /held_out    (run.rrd) the fits' segments where they sit on t,
+                                          by name (``_2`` ... tracks for overlapping ones)
     /flight/findings                      TextLog: each data-quality finding at its start
                                           (0 when it has none), level INFO/WARN/ERROR
 
@@ -98,8 +100,9 @@ from typing import Any
 import pandas as pd
 
 from estimators import EstimationResult
+from pipeline.ingest.flightdata import SegmentSpec
 from pipeline.outputs.recording_blueprint import build_blueprint, check_blueprint
-from pipeline.outputs.recording_flight import FlightRecord, write_flight
+from pipeline.outputs.recording_flight import FlightRecord, write_flight, write_tracks
 from pipeline.outputs.recording_layout import SEGMENT_GAP, SegmentLayout, entity_part
 from pipeline.outputs.recording_series import SeriesWriter, extra_data, parameter_histories, spectra, time_histories
 from pipeline.paths import atomic_path
@@ -164,6 +167,8 @@ def write_recording(
             extra_data(w, data)
         if flight is not None:
             write_flight(w, flight)
+            spans = [SegmentSpec(n, a, b, "fit", axis="held_out" if h else "fitted") for n, a, b, h in lay.spans()]
+            write_tracks(w, "/flight/segments", spans)
         if blueprint:
             rec.send_blueprint(build_blueprint(results, validations, flight))
     return path

@@ -100,6 +100,7 @@ def flight_tabs(flight: FlightRecord) -> list[Any]:
         "$origin/mode",
         *[f"$origin/maneuvers/{a}" for a in window_tracks(flight)],
         *[f"$origin/plan/{a}" for a in plan_tracks(flight)],
+        "$origin/segments/**",
     ]
     panels = [
         rrb.TimeSeriesView(origin="/flight/channels", contents=[f"$origin/{entity_part(n)}" for n in names], name=group)

@@ -168,11 +168,8 @@ def write_flight(w: SeriesWriter, flight: FlightRecord) -> None:
         w.states("/flight/mode", [max(float(a) - t0, 0.0) for a, _ in modes], [str(m) for _, m in modes])
     else:
         w.states("/flight/mode", [0.0], [NO_MODES])
-    for base, tracks in (("/flight/maneuvers", window_tracks(flight)), ("/flight/plan", plan_tracks(flight))):
-        for track, specs in tracks.items():
-            times = [x for s in specs for x in (s.t0 - t0, s.t1 - t0)]
-            states = [x for s in specs for x in (s.name, None)]
-            w.states(f"{base}/{track}", times, states)
+    write_tracks(w, "/flight/maneuvers", flight.windows(), t0)
+    write_tracks(w, "/flight/plan", flight.plan, t0)
     if flight.findings:
         at = [f.t0 - t0 if f.t0 is not None and np.isfinite(f.t0) else 0.0 for f in flight.findings]
         w.events(
@@ -181,6 +178,14 @@ def write_flight(w: SeriesWriter, flight: FlightRecord) -> None:
             [finding_text(f, t0) for f in flight.findings],
             [FINDING_LEVELS.get(f.status, "INFO") for f in flight.findings],
         )
+
+
+def write_tracks(w: SeriesWriter, base: str, specs: Sequence[SegmentSpec], origin: float = 0.0) -> None:
+    """Spans (times [s] less ``origin``) as state tracks ``<base>/<track>`` (:func:`lanes`):
+    each span's name from its start, an empty state at its end."""
+    for track, lane in lanes(sorted(specs, key=lambda s: s.t0)).items():
+        times = [x for s in lane for x in (s.t0 - origin, s.t1 - origin)]
+        w.states(f"{base}/{track}", times, [x for s in lane for x in (s.name, None)])
 
 
 def finding_text(f: Finding, origin: float) -> str:

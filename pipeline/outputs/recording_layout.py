@@ -102,11 +102,14 @@ class SegmentLayout:
         are shown from it); ``start``: where segments laid end to end begin on ``t`` [s]
         (after the whole flight when the recording shows it)."""
         times: dict[tuple, np.ndarray] = {}
+        self.held_out: set[tuple] = set()
         for m, r in results.items():
             for p, name in zip(r.predicted, segment_names(r)):
                 times.setdefault(_sig(p.index, name), np.asarray(p.index, dtype=float))
             for a in held_out_arrays(validations.get(m)):
-                times.setdefault(_sig(a["t"], a["name"]), np.asarray(a["t"], dtype=float))
+                k = _sig(a["t"], a["name"])
+                times.setdefault(k, np.asarray(a["t"], dtype=float))
+                self.held_out.add(k)
         self.origin, self.start = float(origin), float(start)
         offs = segment_starts(list(times.values()), origin=self.origin, start=self.start) if times else []
         self.index = {k: i for i, k in enumerate(times)}
@@ -126,6 +129,10 @@ class SegmentLayout:
                 self.offset[k] = -self.origin
             self.index[k] = len(self.index)
         return self.offset[k], self.index[k]
+
+    def spans(self) -> list[tuple[str, float, float, bool]]:
+        """Every segment placed so far: (name, first and last time on ``t`` [s], held out)."""
+        return [(k[3], k[0] + o, k[1] + o, k in self.held_out) for k, o in self.offset.items()]
 
     def cat(
         self, frames: Sequence[pd.DataFrame], names: Sequence[str], times: Sequence[Any] | None = None
