@@ -262,7 +262,7 @@ def _coordinated_turn(fd: FlightData, heading) -> Finding | None:
 def _bank_frame(v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Unit velocity e (n, 3), the level right axis y0 and z0 = e x y0 (NaN when climbing
     or diving steeper than 84 deg)."""
-    e = v / np.linalg.norm(v, axis=1)[:, None]
+    e = v / np.maximum(np.linalg.norm(v, axis=1), 1e-9)[:, None]
     y0 = np.cross(np.array([0.0, 0.0, 1.0]), e)
     ny = np.linalg.norm(y0, axis=1)
     y0 = np.where((ny > 0.1)[:, None], y0 / np.maximum(ny, 1e-12)[:, None], np.nan)

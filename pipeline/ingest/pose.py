@@ -14,9 +14,10 @@ aircraft's motion. :func:`derive_pose_states` differentiates them by smoothing
 
 Window: a local cubic (``POLYORDER`` 3) over ``window_s`` (default 0.2 s: 21 samples at
 100 Hz), made odd in samples and at least ``POLYORDER + 2``. A cubic keeps a step response's
-curvature while 0.2 s averages 1 mm / 0.1 deg camera noise down to about 1.5 cm/s and
-0.4 deg/s; the filter's half-power point is near 6 Hz at 100 Hz, above the rigid-body
-modes of a small aircraft. The pose is put on a uniform grid (its median interval) piece
+curvature while 0.2 s averages 1 mm / 0.1 deg camera noise at 100 Hz down to about 1 cm/s
+and 1 deg/s; its half-power point is near 5 Hz, above the rigid-body modes of a small
+aircraft. Half the window leaves the rates' noise 2.5 times larger; twice the window
+rounds a doublet's rates off by more than the noise it removes. The pose is put on a uniform grid (its median interval) piece
 by piece: a gap longer than ``MAX_GAP_INTERVALS`` median intervals or a non-finite sample
 ends a piece, so nothing is differentiated across a gap. The quaternion's sign (q and -q
 are the same attitude) is made continuous before smoothing.
