@@ -177,3 +177,19 @@ def test_log_on_the_ground_is_refused_as_on_the_ground(tmp_path, capsys):
     refusal = err.split("be identified:\n", 1)[1]
     assert "alpha" not in refusal and "beta" not in refusal and "needs channels" not in err
     _same_story(ident, err)
+
+
+def test_pose_only_flight_has_its_states_and_its_windows_named():
+    """The Sport Cub motion-capture archive (pose and surface commands only, at 4-5 m/s):
+    the states derived from the pose count as present; its windows carry no control axis,
+    which is said, and given as time ranges the elevator ones make the longitudinal axis."""
+    npz = LOGS.parent / "sportcub" / "sportcub_mocap_4_17_26_train.npz"
+    if not npz.is_file():
+        pytest.skip(f"{npz} not present (shared real data)")
+    fd = read_log(npz)
+    res = identifiability(fd, run_checks(fd))
+    assert all(not r.missing for r in res.values())
+    assert res["longitudinal"].reasons[0].startswith("no elevator maneuvers found: de moves in the log's windows")
+    picked = FlightData(fd.channels, fd.meta, fd.chosen_segments([(0.0, 2.49), (6.48, 8.97)]))
+    lon = identifiability(picked, run_checks(picked))["longitudinal"]
+    assert lon.possible and [m.surfaces for m in lon.maneuvers] == ["de", "de"], lon.reasons

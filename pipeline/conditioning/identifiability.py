@@ -307,11 +307,14 @@ def _mode_at(fd: FlightData, t: float) -> str | None:
 def _maneuvers(fd: FlightData, needs: AxisNeeds) -> list[Maneuver]:
     """The axis' maneuver windows as the problems cut them: the found segments of its
     surfaces, overlapping ones merged; each in forward flight or not (the problems' window
-    rule), with samples of the outputs or not, and its largest surface std."""
+    rule; a window given by time counts as given), with samples of the outputs or not, and
+    its largest surface std."""
     specs = merge_overlapping([s for s in fd.segments if s.axis in needs.surfaces])
     out = []
     for s in specs:
-        if "V" in fd and _samples(fd, "V", s.t0, s.t1).size:
+        if s.kind == "time":  # a window given by time is fitted as given (the problems' rule)
+            airborne = True
+        elif "V" in fd and _samples(fd, "V", s.t0, s.t1).size:
             airborne = not slow_airspeed(_samples(fd, "V", s.t0, s.t1))[0]
         else:
             airborne = no_forward_flight(fd, s)[0] is not True
@@ -347,22 +350,18 @@ def _maneuver_reasons(
     )
     out = []
     lo, hi = fd.span
-    if np.isfinite(lo) and (hi - lo) < need * MANEUVER_S:
+    short = bool(np.isfinite(lo) and (hi - lo) < need * MANEUVER_S)
+    if short:
         out.append(f"too short: the log spans {hi - lo:.1f} s; {word} need >= {need * MANEUVER_S:g} s")
-    elif not ground and airborne_s < need * MANEUVER_S:
-        out.append(
-            f"too short: {airborne_s:.1f} s of forward flight (airspeed >= 5 m/s); "
-            f"{word} need >= {need * MANEUVER_S:g} s"
-        )
-    surf = "/".join(needs.surfaces)
     if not mans:
-        out.append(
-            f"no excitation: {surf} never moves like a maneuver (no {needs.maneuver} maneuvers found); "
-            "fly doublets or 3-2-1-1s on the axis"
-        )
-        return out
+        return out + [_no_maneuvers(fd, needs)]
     good = [m for m in mans if m.airborne and m.usable]
     if len(good) < need:
+        if not (short or ground) and airborne_s < need * MANEUVER_S:
+            out.append(
+                f"too short: {airborne_s:.1f} s of forward flight (airspeed >= 5 m/s); "
+                f"{word} need >= {need * MANEUVER_S:g} s"
+            )
         grounded = sum(not m.airborne for m in mans)
         gaps = sum(m.airborne and not m.usable for m in mans)
         parts = [f"{grounded} on the ground or hovering"] * bool(grounded) + [
@@ -376,6 +375,36 @@ def _maneuver_reasons(
     if good:
         out += _excitation_reasons(fd, needs, good)
     return out
+
+
+def _no_maneuvers(fd: FlightData, needs: AxisNeeds) -> str:
+    """Why the axis has no maneuver: its surfaces move in segments that carry no control
+    axis (windows a log or a user named; the fits take a window's axes from the surfaces
+    found moving), or they never move like a maneuver."""
+    surf = "/".join(needs.surfaces)
+    moved = {
+        s.name: std
+        for s in fd.segments
+        if s.axis is None
+        and (
+            std := max(
+                (float(np.std(x)) for c in needs.surfaces if c in fd and (x := _samples(fd, c, s.t0, s.t1)).size >= 3),
+                default=0.0,
+            )
+        )
+        >= MIN_EXCITATION_RAD
+    }
+    if moved:
+        names = ", ".join(list(moved)[:3]) + (f" and {len(moved) - 3} more" if len(moved) > 3 else "")
+        return (
+            f"no {needs.maneuver} maneuvers found: {surf} {'moves' if len(needs.surfaces) == 1 else 'move'} in the log's windows {names} (std up to "
+            f"{np.degrees(max(moved.values())):.1f} deg), but they carry no control axis: give them as time "
+            "ranges (--segments T0:T1,...) and their axes are found from the surfaces moved"
+        )
+    return (
+        f"no excitation: {surf} never {'moves' if len(needs.surfaces) == 1 else 'move'} like a maneuver "
+        f"(no {needs.maneuver} maneuvers found); fly doublets or 3-2-1-1s on the axis"
+    )
 
 
 def _excitation_reasons(fd: FlightData, needs: AxisNeeds, good: Sequence[Maneuver]) -> list[str]:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import io
 import sys
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -51,15 +52,26 @@ def check_log(
     aircraft file (servo travel, max thrust; default: a truth.json next to the log). Prints
     what it found and ends with the identifiability of each axis (checks.json
     ``identifiability``; an axis that cannot be identified is a failed finding); returns 0."""
+    picked = isinstance(segments, (list, tuple))
     fd = read_log(
-        log, map=map_path, segments=segments, time_base=time_base, servo_travel=servo_travel_for(log, aircraft)
+        log,
+        map=map_path,
+        segments=None if picked else segments,
+        time_base=time_base,
+        servo_travel=servo_travel_for(log, aircraft),
     )
+    by_axis = fd  # the windows as fsid estimate takes them: a range once per control axis moved in it
+    if picked:
+        by_axis = replace(fd, segments=fd.chosen_segments(segments))
+        fd.segments = fd.chosen_segments(segments, per_axis=False)
     print(f"read {log} ({fd.meta['format']}, map {fd.meta['map']}): {len(fd.channels)} channels")
     findings = run_checks(fd)
     extra: dict = {}
     if compat:
         extra = _compatibility(fd, positions or ([0.0] * 3, [0.0] * 3, "default 0,0,0"))
-    ident = identifiability(fd, findings, aircraft_for_log(log, aircraft, fd, required=False, say=lambda _: None)[0])
+    ident = identifiability(
+        by_axis, findings, aircraft_for_log(log, aircraft, fd, required=False, say=lambda _: None)[0]
+    )
     findings += identifiability_findings(ident)
     extra["identifiability"] = identifiability_json(ident)
     out = new_run_dir("check", out)
