@@ -193,3 +193,14 @@ def test_pose_only_flight_has_its_states_and_its_windows_named():
     picked = FlightData(fd.channels, fd.meta, fd.chosen_segments([(0.0, 2.49), (6.48, 8.97)]))
     lon = identifiability(picked, run_checks(picked))["longitudinal"]
     assert lon.possible and [m.surfaces for m in lon.maneuvers] == ["de", "de"], lon.reasons
+
+
+def test_a_log_with_nothing_to_fit_says_so_before_asking_for_an_aircraft(tmp_path, capsys):
+    log = _real("px4_vtol_ground_small.ulg")
+    assert main(["check", str(log), "--no-compat", "--out", str(tmp_path / "check")]) == 0
+    ident = json.loads((tmp_path / "check" / "checks.json").read_text())["identifiability"]
+    capsys.readouterr()
+    assert main(["estimate", str(log), "--out", str(tmp_path / "est")]) == 2
+    err = capsys.readouterr().err
+    assert "--aircraft" not in err.split("be identified:\n", 1)[1]
+    _same_story(ident, err)

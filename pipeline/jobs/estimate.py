@@ -119,7 +119,12 @@ def estimate(log: str | Path, opts: EstimateOptions, count: Progress | None = No
         f"{len(fd.channels)} channels, {len(fd.segments)} segments"
         + (f"; {step_summary(steps_doc)}" if steps_doc else "")
     )
-    ac, ac_name, truth_doc = _aircraft(log, opts, fd, user, pr)
+    try:
+        ac, ac_name, truth_doc = _aircraft(log, opts, fd, user, pr)
+    except FsidError:
+        if not user:  # a log with nothing to fit says so before it asks for an aircraft
+            _identifiable(fd, run_checks(fd), None, axes, log, opts, len(vlogs), pr)
+        raise
     if opts.priors and not (ac is not None and ac.apriori):
         raise FsidError(
             f"--priors: the aircraft ({opts.aircraft or 'truth.json next to the log'}) gives no "
