@@ -15,7 +15,8 @@ they agree better with one of them mirrored than as logged:
     (dv/dt - g, its part across the velocity) is the lift, perpendicular to the wings;
     its bank about the velocity against the attitude's bank about it.
 ``heading_course``
-    The heading psi follows the course chi = atan2(ve, vn) within the crab angle.
+    The heading psi follows the course chi = atan2(ve, vn) within the crab angle (a warning
+    only: a multicopter may fly sideways); it tells a mirrored roll from a mirrored track.
 ``pitch_path``
     The pitch theta and the flight-path angle gamma = atan2(-vd, V_h) rise and fall
     together in pitching manoeuvres.
@@ -176,11 +177,12 @@ def _one_source(fd: FlightData, names: tuple[str, ...]) -> bool:
 # ----------------------------------------------------------------- the checks
 def _heading_course(fd: FlightData) -> tuple[Finding, bool] | None:
     """psi against the course of the track: the circular mean of psi - chi (the crab angle)
-    is within 30 deg (pass), 30-60 deg (warn: strong wind or an offset), beyond (fail).
+    is within 30 deg (pass), 30-60 deg (warn: strong wind or an offset), beyond (warn: a
+    mirrored or offset heading or track, unless a multicopter flies sideways).
     Returns the finding and whether the heading follows the track."""
     diffs = []
     for df in _stretches(fd, ("psi", "vn", "ve")):
-        chi, _, vh = _course(df)
+        chi, _, _ = _course(df)
         d = np.angle(np.exp(1j * (df["psi"].to_numpy() - chi)))
         diffs.append(d[np.isfinite(d)])
     d = np.concatenate(diffs) if diffs else np.zeros(0)
@@ -199,10 +201,11 @@ def _heading_course(fd: FlightData) -> tuple[Finding, bool] | None:
         )
         return Finding(WARN, "heading_course", "psi", msg, value=mean), False
     msg = (
-        f"{what}: {mean:+.1f} deg apart on average; the aircraft flies sideways to its heading: the heading "
-        "or the track's axes are mirrored or offset (check the sign of psi, or y_e / ve, in the channel map)"
+        f"{what}: {mean:+.1f} deg apart on average; the aircraft flies sideways to its heading: for a "
+        "fixed wing the heading or the track's axes are mirrored or offset (check the sign of psi, or y_e / ve, "
+        "in the channel map); a multicopter may fly so"
     )
-    return Finding(FAIL, "heading_course", "psi,y_e", msg, value=mean), False
+    return Finding(WARN, "heading_course", "psi,y_e", msg, value=mean), False
 
 
 def _roll_advice(fd: FlightData, heading: tuple[Finding, bool] | None) -> tuple[str, str]:
