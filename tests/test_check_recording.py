@@ -209,6 +209,10 @@ def test_run_rrd_places_fits_on_the_whole_flight(tmp_path):
     assert cols["/flight/mode"]["state"] == [["MANUAL"], ["FBWA"]]
     assert cols["/flight/plan/de"]["state"] == [["elevator_3211"], [], ["de_doublet"], []]
     np.testing.assert_allclose(cols["/flight/plan/de"]["t"], [1.0, 2.4, 12.0, 13.0], atol=1e-9)
+    moved = fd.from_log_start()  # the reader's times from the start: the plan keeps the log's clock
+    assert moved.span[0] == 0.0 and moved.meta["t0_abs"] == start
+    path = write_recording(tmp_path / "moved.rrd", {"oem": res}, flight=FlightRecord(moved, plan=plan))
+    np.testing.assert_allclose(_read(path)[0]["/flight/plan/de"]["t"], [1.0, 2.4, 12.0, 13.0], atol=1e-9)
     np.testing.assert_allclose(cols["/flight/mode"]["t"], [0.0, 12.0])  # a mode set before the data: at 0
     assert "/flight/findings" not in cols  # none given
     fitted = cols["/flight/segments/fitted"]  # where the fits sit on the flight

@@ -59,7 +59,8 @@ class FlightRecord:
     ``meta["modes"]`` and the maneuver windows found in ``segments``); findings: the
     data-quality checks made on it (:func:`pipeline.conditioning.checks.run_checks`);
     plan: the maneuvers as designed, when known (a simulated flight's plan: name, axis and
-    span on the same time base), shown beside the windows found.
+    span on the log's own clock, moved as the reader moved the data: less
+    ``meta["t0_abs"]``), shown beside the windows found.
     """
 
     data: FlightData
@@ -169,7 +170,7 @@ def write_flight(w: SeriesWriter, flight: FlightRecord) -> None:
     else:
         w.states("/flight/mode", [0.0], [NO_MODES])
     write_tracks(w, "/flight/maneuvers", flight.windows(), t0)
-    write_tracks(w, "/flight/plan", flight.plan, t0)
+    write_tracks(w, "/flight/plan", flight.plan, t0 + float(fd.meta.get("t0_abs") or 0.0))
     if flight.findings:
         at = [f.t0 - t0 if f.t0 is not None and np.isfinite(f.t0) else 0.0 for f in flight.findings]
         w.events(
