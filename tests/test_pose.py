@@ -28,19 +28,22 @@ COMPARED = ("vn", "ve", "vd", "phi", "theta", "psi", "p", "q", "r", "ax", "ay", 
 
 
 @functools.cache
-def _truth():
-    return flown("lateral_doublets_calm").truth
+def _truth(scenario: str = "lateral_doublets_calm"):
+    return flown(scenario).truth
 
 
-def _pose(roll_sign: float = 1.0, seed: int = 0, **channels) -> FlightData:
-    """The truth as a noisy pose; ``roll_sign`` -1 mirrors the roll; extra logged channels."""
-    tr = _truth()
+def _pose(
+    roll_sign: float = 1.0, seed: int = 0, scenario: str = "lateral_doublets_calm", pitch_sign: float = 1.0, **channels
+) -> FlightData:
+    """A scenario's truth as a noisy pose; ``roll_sign`` / ``pitch_sign`` -1 mirror the roll /
+    the pitch; extra logged channels by name."""
+    tr = _truth(scenario)
     t = tr["t"].to_numpy()
     rng = np.random.default_rng(seed)
     pos = np.column_stack([cumulative_trapezoid(tr[c].to_numpy(), t, initial=0.0) for c in ("vn", "ve", "vd")])
     pos += NOISE_M * rng.standard_normal(pos.shape)
     ang = [tr[c].to_numpy() + np.radians(NOISE_DEG) * rng.standard_normal(t.size) for c in ("phi", "theta", "psi")]
-    quat = euler_to_quat(roll_sign * ang[0], ang[1], ang[2])
+    quat = euler_to_quat(roll_sign * ang[0], pitch_sign * ang[1], ang[2])
     chans = {n: Channel(t, v, "") for n, v in zip(POSE, [*pos.T, *quat.T])}
     chans |= {k: Channel(t, v, "") for k, v in channels.items()}
     return FlightData(chans, {}, [])
@@ -116,6 +119,16 @@ def test_mirrored_roll_is_flagged_with_its_channel_and_mended():
     assert _kinematic(findings, "heading_course")[0].status == PASS  # the heading is right: roll alone
     mended = check_kinematics(derive_pose_states(_pose(roll_sign=-1.0), roll_sign=-1))
     assert not [f for f in mended if f.status == FAIL]
+
+
+def test_mirrored_pitch_is_flagged_in_pitching_flight():
+    """longitudinal_3211_calm: elevator 3-2-1-1s move theta and the flight-path angle together."""
+    ok = check_kinematics(derive_pose_states(_pose(scenario="longitudinal_3211_calm")))
+    assert [(f.status, f.value > 0.9) for f in _kinematic(ok, "pitch_path")] == [(PASS, True)]
+    bad = check_kinematics(derive_pose_states(_pose(scenario="longitudinal_3211_calm", pitch_sign=-1.0)))
+    pitch = _kinematic(bad, "pitch_path")
+    assert len(pitch) == 1 and pitch[0].status == FAIL and pitch[0].value < -0.9
+    assert pitch[0].channel == "theta,z_d" and "z_d" in pitch[0].message
 
 
 def test_mirrored_gyro_and_accelerometer_axes_are_named():
