@@ -49,8 +49,8 @@ def _pose(
     return FlightData(chans, {}, [])
 
 
-def _errors(fd: FlightData, name: str) -> np.ndarray:
-    tr = _truth()
+def _errors(fd: FlightData, name: str, scenario: str = "lateral_doublets_calm") -> np.ndarray:
+    tr = _truth(scenario)
     ch = fd[name]
     e = ch.values - np.interp(ch.t, tr["t"].to_numpy(), tr[name].to_numpy())
     return np.angle(np.exp(1j * e)) if name == "psi" else e
@@ -76,6 +76,19 @@ def test_derived_states_match_truth_within_stated_noise():
     tr = _truth()
     logged = derive_pose_states(_pose(p=tr["p"].to_numpy()))
     assert logged["p"].noise is None and np.array_equal(logged["p"].values, tr["p"].to_numpy())
+
+
+def test_air_data_with_a_given_wind():
+    """pitot_wind_turn flies in a steady wind of (3, -4, 0) m/s (NED): given it, V alpha
+    beta match the air-relative truth; in still air V is off by metres per second."""
+    fd = _pose(scenario="pitot_wind_turn")
+    windy = derive_pose_states(fd, wind_ned=(3.0, -4.0, 0.0))
+    assert "the wind (3.0, -4.0, 0.0) m/s (NED) removed" in windy["V"].derived
+    for name in ("V", "alpha", "beta", "u", "v", "w"):
+        e = _errors(windy, name, "pitot_wind_turn")
+        assert np.sqrt(np.mean(e**2)) <= 1.3 * windy[name].noise, name
+    still = _errors(derive_pose_states(fd), "V", "pitot_wind_turn")
+    assert np.sqrt(np.mean(still**2)) > 2.0
 
 
 def test_gaps_and_quaternion_sign_flips():
