@@ -12,6 +12,7 @@ from __future__ import annotations
 import functools
 
 import numpy as np
+import pandas as pd
 import pytest
 from _simdata import flown
 from scipy.integrate import cumulative_trapezoid
@@ -132,6 +133,22 @@ def test_mirrored_roll_is_flagged_with_its_channel_and_mended():
     assert _kinematic(findings, "heading_course")[0].status == PASS  # the heading is right: roll alone
     mended = check_kinematics(derive_pose_states(_pose(roll_sign=-1.0), roll_sign=-1))
     assert not [f for f in mended if f.status == FAIL]
+
+
+def test_the_roll_is_mended_in_a_channel_map(tmp_path):
+    """The mend the finding names, as a user makes it: a map extending the log's own."""
+    fd = _pose(roll_sign=-1.0)
+    pd.DataFrame({"t": fd["q_w"].t} | {n: fd[n].values for n in POSE}).to_csv(tmp_path / "mocap.csv", index=False)
+    bad = [f.check for f in check_kinematics(read_log(tmp_path / "mocap.csv")) if f.status == FAIL]
+    assert bad == ["coordinated_turn", "lift_bank"]
+    user = tmp_path / "mended.toml"
+    user.write_text('[map]\nextends = "canonical_csv"\npose = { roll_sign = -1 }\n')
+    mended = read_log(tmp_path / "mocap.csv", map=user)
+    assert mended.meta["pose"]["roll_sign"] == -1
+    assert not [f for f in check_kinematics(mended) if f.status == FAIL]
+    user.write_text('[map]\nextends = "canonical_csv"\npose = { roll = -1 }\n')
+    with pytest.raises(FsidError, match=r"channel map canonical_csv\+mended: \[map\] pose must be a table"):
+        read_log(tmp_path / "mocap.csv", map=user)
 
 
 def test_mirrored_pitch_is_flagged_in_pitching_flight():

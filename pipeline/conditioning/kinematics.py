@@ -212,8 +212,8 @@ def _roll_advice(fd: FlightData, heading: tuple[Finding, bool] | None) -> tuple[
     """The channel(s) a reversed bank-vs-track relation concerns and what to change."""
     if heading is not None and heading[1]:
         mend = (
-            "negate the pose's roll before its states are derived (read_log(..., pose={'roll_sign': -1}), "
-            "pipeline.ingest.pose.derive_pose_states)"
+            "negate the pose's roll before its states are derived: pose = { roll_sign = -1 } under [map] in a "
+            "channel map extending this log's (--map), or read_log(..., pose={'roll_sign': -1})"
             if _pose_derived(fd, "phi")
             else "sign = -1 on phi in the channel map"
         )

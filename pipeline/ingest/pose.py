@@ -71,6 +71,8 @@ DEFAULT_WINDOW_S = 0.2
 POLYORDER = 3
 #: a pose interval longer than this many median intervals ends a piece
 MAX_GAP_INTERVALS = 3.0
+#: the keywords of derive_pose_states a channel map may set (``[map] pose = {...}``)
+MAP_OPTIONS = ("window_s", "polyorder", "wind_ned", "roll_sign")
 
 
 @dataclass
@@ -97,6 +99,20 @@ def pose_part(ch: Channel) -> str | None:
     """The part of a pose ("position", "attitude" or "both") channel ``ch`` was derived
     from by :func:`derive_pose_states`; None for a logged channel."""
     return next((k for k, v in SOURCES.items() if ch.source == v and ch.noise is not None), None)
+
+
+def map_pose_options(spec, map_name: str) -> dict:
+    """A channel map's ``[map] pose = { roll_sign = -1, window_s = 0.2, wind_ned = [3, -4, 0] }``
+    as keywords for :func:`derive_pose_states` ({} when absent): the place a user mends a
+    pose export for good (a user map extending the built-in one, ``--map``)."""
+    if spec is None:
+        return {}
+    if not isinstance(spec, dict) or set(spec) - set(MAP_OPTIONS):
+        raise FsidError(
+            f"channel map {map_name}: [map] pose must be a table with keys among {', '.join(MAP_OPTIONS)} "
+            f"(got {spec!r}), e.g. pose = {{ roll_sign = -1 }}"
+        )
+    return dict(spec)
 
 
 def needs_pose_states(fd: FlightData) -> bool:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from pipeline.ingest.flightdata import FlightData, SegmentSpec
 from pipeline.ingest.maps import apply_map, builtin_names, load_map
-from pipeline.ingest.pose import derive_pose_states, needs_pose_states
+from pipeline.ingest.pose import derive_pose_states, map_pose_options, needs_pose_states
 from pipeline.ingest.rawlog import TIME_BASES, Damage, LogReadError, RawLog, Table
 from pipeline.ingest.readers.csvlog import read_csv
 from pipeline.ingest.readers.dataflash import read_dataflash
@@ -152,7 +152,8 @@ def read_log(path: str | os.PathLike, map=None, **opts):
         ``pose`` (keywords for :func:`pipeline.ingest.pose.derive_pose_states`, e.g.
         ``{"window_s": 0.2, "wind_ned": (0, 0, 0)}``, or False: a log with a pose (x_n y_e z_d,
         q_w q_x q_y q_z) but without some flight state gets it derived from the pose; logged
-        channels win; ``meta["pose"]`` says how, or why a pose could not be used)
+        channels win; they override the channel map's ``[map] pose = {...}``; ``meta["pose"]``
+        says how, or why a pose could not be used)
 
     Returns
     -------
@@ -199,7 +200,8 @@ def read_log(path: str | os.PathLike, map=None, **opts):
     }
     fd = FlightData(chans, meta, []).from_log_start()
     if pose is not False and needs_pose_states(fd):
-        fd = derive_pose_states(fd, **({"strict": False} | (pose or {})))
+        chosen = map_pose_options(cmap.header.get("pose"), cmap.name) | (pose or {})
+        fd = derive_pose_states(fd, **({"strict": False} | chosen))
     if isinstance(segments, (list, tuple)):
         fd.segments = fd.chosen_segments(segments, per_axis=False)
     elif segments is None and raw.info.get("windows"):  # an archive's windows are its segments
