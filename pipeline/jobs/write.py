@@ -1,5 +1,5 @@
 """The last stage of the fitting jobs: the methods' cross-check (their std final by now),
-then report.md, report.json and run.rrd."""
+then report.md with its figures, report.html beside it, report.json and run.rrd."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.jobs.progress import Progress
+from pipeline.outputs.html import write_html
 from pipeline.outputs.recording import write_recording
 from pipeline.outputs.recording_flight import FlightRecord
 from pipeline.outputs.report import write_report
@@ -26,11 +27,12 @@ def write_outputs(
     compatibility: Mapping[str, Any] | None = None,
     flight: FlightRecord | None = None,
 ) -> dict[str, Path]:
-    """Write report.md, report.json and run.rrd of ``results`` (key -> result) and their
-    ``validations`` into ``out``, compared with ``truth`` where known (``flight``: the whole
-    flight they were fitted on, for run.rrd); returns name -> path."""
+    """Write report.md (its figures in ``out/figures``), report.html, report.json and run.rrd
+    of ``results`` (key -> result) and their ``validations`` into ``out``, compared with
+    ``truth`` where known (``flight``: the whole flight they were fitted on, for run.rrd);
+    returns name -> path (report.html and the figures are beside report.md)."""
     agreement = cross_check_methods(results, validations)
-    pr.stage("write report.md, report.json, run.rrd")
+    pr.stage("write report.md with its figures, report.html, report.json, run.rrd")
     md, js = write_report(
         out,
         results,
@@ -40,7 +42,9 @@ def write_outputs(
         checks=checks,
         compatibility=compatibility,
         agreement=agreement,
+        figures=True,
     )
+    write_html(out / "report.html", md)
     rrd = write_recording(out / "run.rrd", results, validations, truth=truth, flight=flight)
     pr.done()
     return {"report.md": md, "report.json": js, "run.rrd": rrd}

@@ -65,18 +65,49 @@ def _verdict_reasons(vd: Mapping[str, Any]) -> str:
     return " - " + "; ".join(fail) + ("; to check too: " + "; ".join(rest) if rest else "")
 
 
-def method_md(m: str, mj: Mapping[str, Any], with_truth: bool) -> list[str]:
+def method_md(
+    m: str, mj: Mapping[str, Any], with_truth: bool, figures: Mapping[str, list[str]] | None = None
+) -> list[str]:
     """The lines of method ``m``'s section from its report.json entry ``mj``; ``with_truth``:
-    the parameter table has the truth columns."""
+    the parameter table has the truth columns; ``figures``: report.md lines of its figures
+    per subsection ("parameters", "fit", "modes", "proof_of_match", "frequency",
+    :func:`pipeline.outputs.figures.section_markdown`), placed after that subsection."""
     v = mj.get("validation") or {}
+    fig = figures or {}
     L = _header_md(m, mj, v)
-    L += _parameters_md(mj, v, with_truth)
-    L += _fit_md(mj, v)
-    L += _modes_md(v.get("modes") or {})
-    L += _match_md(v.get("proof_of_match"))
-    L += _frequency_md(v.get("frequency"))
-    L += _inverse_md(v.get("inverse_simulation"))
-    L += _apriori_md((v.get("plausibility") or {}).get("apriori"))
+    L += _parameters_md(mj, v, with_truth) + fig.get("parameters", [])
+    err = v.get("errors") or {}
+    L += _fit_md(mj, v) + _failed_md(err, "fit", "residuals", "uncertainty") + fig.get("fit", [])
+    L += _modes_md(v.get("modes") or {}) + fig.get("modes", [])
+    L += (_failed_md(err, "proof_of_match") or _match_md(v.get("proof_of_match"))) + fig.get("proof_of_match", [])
+    L += (_failed_md(err, "frequency") or _frequency_md(v.get("frequency"))) + fig.get("frequency", [])
+    L += _failed_md(err, "inverse_simulation") or _inverse_md(v.get("inverse_simulation"))
+    L += _failed_md(err, "truth", "plausibility") + _apriori_md((v.get("plausibility") or {}).get("apriori"))
+    return L
+
+
+#: the validation's checks (its ``errors`` keys) as report.md names them; those with a
+#: section of their own get its heading over the line saying why they failed
+CHECK_TITLES = {
+    "fit": "Fit metrics",
+    "residuals": "Residual analysis",
+    "uncertainty": "Morelli-Klein and maneuver-scatter std",
+    "proof_of_match": "### Proof of match",
+    "frequency": "### Frequency response (model vs spectral estimate)",
+    "inverse_simulation": "### Inverse simulation",
+    "truth": "Comparison with the truth",
+    "plausibility": "Plausibility (signs, a-priori values)",
+}
+
+
+def _failed_md(errors: Mapping[str, str], *stages: str) -> list[str]:
+    """One line per check of ``stages`` that raised (the validation's ``errors``): what
+    failed and why, where its result would be; [] when none did."""
+    L: list[str] = []
+    for stage in (s for s in stages if s in errors):
+        title = CHECK_TITLES.get(stage, stage)
+        head, name = ([title, ""], title.lstrip("# ")) if title.startswith("#") else ([], title)
+        L += head + [f"**{name}: not computed** - {errors[stage]}", ""]
     return L
 
 

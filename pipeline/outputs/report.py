@@ -50,6 +50,7 @@ from pathlib import Path
 from typing import Any
 
 from estimators import EstimationResult
+from pipeline.outputs.figures import FigureRef, render_figures, section_markdown
 from pipeline.outputs.method_section import method_md
 from pipeline.outputs.run_sections import agreement_md, checks_md, compat_md, summary_md
 from pipeline.paths import atomic_write_text
@@ -111,8 +112,9 @@ def report_dict(
     }
 
 
-def report_markdown(rep: Mapping[str, Any]) -> str:
-    """report.md text from the report dict of :func:`report_dict`."""
+def report_markdown(rep: Mapping[str, Any], figures: Mapping[str, list[FigureRef]] | None = None) -> str:
+    """report.md text from the report dict of :func:`report_dict`; ``figures``: per method
+    its figures (:func:`pipeline.outputs.figures.render_figures`), linked in its section."""
     meta = rep.get("meta") or {}
     L = ["# System-identification report", ""]
     for k, x in meta.items():
@@ -126,7 +128,7 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
     L += checks_md(rep.get("checks"))
     L += compat_md(rep.get("compatibility"))
     for m, mj in rep["methods"].items():
-        L += method_md(m, mj, with_truth)
+        L += method_md(m, mj, with_truth, section_markdown((figures or {}).get(m, [])))
     return "\n".join(L).rstrip() + "\n"
 
 
@@ -140,8 +142,10 @@ def write_report(
     checks: Any = None,
     compatibility: Mapping[str, Any] | None = None,
     agreement: Mapping[str, Any] | None = None,
+    figures: bool = False,
 ) -> tuple[Path, Path]:
-    """Write ``out_dir/report.md`` and ``out_dir/report.json`` atomically.
+    """Write ``out_dir/report.md`` and ``out_dir/report.json`` atomically, with
+    ``figures`` the PNG figures in ``out_dir/figures/`` linked from report.md.
 
     results: method name -> result; validations: method name -> :func:`pipeline.validation.validate`
     output (missing ones are fine); truth: true parameter values; meta: flat
@@ -160,5 +164,6 @@ def write_report(
         results, validations, truth=truth, meta=meta, checks=checks, compatibility=compatibility, agreement=agreement
     )
     pj = atomic_write_text(out / "report.json", json.dumps(rep, indent=2, allow_nan=False) + "\n")
-    pm = atomic_write_text(out / "report.md", report_markdown(rep))
+    figs = render_figures(out / "figures", results, validations, truth) if figures else None
+    pm = atomic_write_text(out / "report.md", report_markdown(rep, figs))
     return pm, pj

@@ -1,9 +1,10 @@
 """What every figure of report.md shares: size and resolution, colours, axis labels in
 display units, decimation of long series, and rendering to PNG bytes without pyplot.
 
-Figures are drawn on a :class:`matplotlib.figure.Figure` with the Agg canvas (no global
-pyplot state, no display) inside :func:`render`, which applies :data:`RC` for that figure only
-and returns the PNG bytes; :func:`save` writes them atomically (0644)."""
+Figures are drawn on a :class:`matplotlib.figure.Figure` with its own Agg canvas (no pyplot,
+no backend switched: a notebook importing this keeps its own) inside :func:`render`, which
+applies :data:`RC` for that figure only and returns the PNG bytes; :func:`save` writes them
+atomically (0644)."""
 
 from __future__ import annotations
 
@@ -13,19 +14,15 @@ import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-import matplotlib
 import numpy as np
+from matplotlib import rc_context
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
-matplotlib.use("Agg")
-
-from matplotlib import rc_context  # noqa: E402 - after the backend is chosen
-from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-from matplotlib.ticker import MaxNLocator  # noqa: E402
-
-from pipeline.outputs.recording_layout import COLORS  # noqa: E402 - one colour per method for rrd and PNG
-from pipeline.paths import atomic_write_bytes  # noqa: E402
-from pipeline.validation import display_unit  # noqa: E402
+from pipeline.outputs.recording_layout import COLORS
+from pipeline.paths import atomic_write_bytes
+from pipeline.validation import display_unit
 
 #: resolution of every PNG (dots per inch); with the sizes below about 1000-1400 px wide
 DPI = 110
