@@ -43,11 +43,13 @@ def estimates_figure(
         names += [n for n in system_parameters(r) if n not in names]
     rows = max(1, math.ceil(len(names) / _COLUMNS))
     title = f"estimates{f' ({group})' if group else ''}"
+    against = [w for w, has in (("the truth", truth), ("the a-priori values", _apriori(validations))) if has]
     return make(
         folder,
         f"{file_part(group or 'all')}_estimates",
         "parameters",
-        f"{title}: {', '.join(results)} -/+ {K_BAR:g} std" + (", truth" if truth else "") + ", a-priori values",
+        f"{title}: {', '.join(results)}, each -/+ {K_BAR:g} std (total)"
+        + (f", against {' and '.join(against)}" if against else ""),
         (WIDTH, 1.55 * rows + 0.9),
         lambda fig: _draw(fig, names, results, validations, truth or {}, title),
     )
@@ -82,7 +84,14 @@ def _draw(
         rows,
         _COLUMNS,
         squeeze=False,
-        gridspec_kw={"left": 0.6 / w, "right": 1 - 0.15 / w, "top": 1 - 0.75 / h, "bottom": 0.3 / h, "hspace": 0.55},
+        gridspec_kw={
+            "left": 0.6 / w,
+            "right": 1 - 0.15 / w,
+            "top": 1 - 0.75 / h,
+            "bottom": 0.3 / h,
+            "hspace": 0.55,
+            "wspace": 0.5,
+        },
     )
     ax = ax.ravel()
     slots = keys + (["a priori"] if ap else [])

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
-from matplotlib.ticker import FuncFormatter, NullLocator
+from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
 
 from pipeline.outputs.figures.refs import FigureRef, NotDrawn, make
 from pipeline.outputs.figures.style import (
@@ -86,10 +86,15 @@ def _draw(fig: Figure, key: str, fr: Mapping[str, Any], pairs: list[tuple[int, i
             (f"model ({key})", fr["H_model"], color, "-", 1.3),
             ("linearised model G(jw)", fr["H_analytic"], color, "--", 1.0),
         )
+        ref = np.asarray(fr["H_model"])[keep, a_, b]
+        ref_phase = np.unwrap(np.angle(ref))
         for name, H, c, ls, lw in curves:
             h = np.asarray(H)[keep, a_, b] * gain
             ax[row, 0].plot(f[keep], _db(h), color=c, ls=ls, lw=lw, label=name)
-            ax[row, 1].plot(f[keep], np.degrees(np.unwrap(np.angle(h))), color=c, ls=ls, lw=lw, label=name)
+            # each phase as the model's unwrapped phase plus its wrapped difference from it: a
+            # difference reads as the check judges it, never as a 360 deg jump of one unwrap
+            ph = ref_phase + np.angle(np.asarray(H)[keep, a_, b] * np.conj(ref))
+            ax[row, 1].plot(f[keep], np.degrees(ph), color=c, ls=ls, lw=lw, label=name)
         u = used[keep, a_, b]
         h = np.asarray(fr["H_data"])[keep, a_, b] * gain
         ax[row, 0].plot(f[keep][u], _db(h)[u], ".", color=MEASURED, ms=5, label="points checked")
@@ -102,6 +107,7 @@ def _draw(fig: Figure, key: str, fr: Mapping[str, Any], pairs: list[tuple[int, i
         ax[row, 2].set_ylabel(f"{o}/{i} coherence")
     for a in ax.flat:  # log frequency, decades only, plain labels: minor ticks and mathtext cost most of the time
         a.set_xscale("log")
+        a.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
         a.xaxis.set_minor_locator(NullLocator())
         a.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:g}"))
     for c, name in enumerate(("magnitude", "phase", "coherence")):
