@@ -252,7 +252,7 @@ def sign_check(estimates, std, signs: Mapping[str, int] | None = None, k: float 
     :func:`expected_signs`) judged against it.
 
     estimates, std: Series/dicts by name (per rad, as in DESIGN.md section 3); names without
-    an expected sign or with a std that is not finite (a held parameter) are left out.
+    an expected sign or without a finite std > 0 (a held parameter) are left out.
     Returns a DataFrame indexed by parameter: ``estimate``, ``std``, ``expected`` (+1/-1),
     ``margin`` = expected * estimate / std (how many std the estimate lies on the expected
     side of zero; negative: the wrong side) and ``flag`` (margin < -k: wrong sign beyond
@@ -260,11 +260,10 @@ def sign_check(estimates, std, signs: Mapping[str, int] | None = None, k: float 
     """
     signs = expected_signs() if signs is None else signs
     est, sd = pd.Series(estimates, dtype=float), pd.Series(std, dtype=float)
-    names = [n for n in est.index if n in signs and np.isfinite(sd.get(n, np.nan)) and np.isfinite(est[n])]
+    names = [n for n in est.index if n in signs and sd.get(n, np.nan) > 0 and np.isfinite(sd[n] * est[n])]
     e, s = est[names].to_numpy(), sd[names].to_numpy()
     sign = np.array([signs[n] for n in names], dtype=int)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        margin = np.where(s > 0, sign * e / np.where(s > 0, s, 1.0), np.sign(sign * e) * np.inf)
+    margin = sign * e / s
     return pd.DataFrame(
         {"estimate": e, "std": s, "expected": sign, "margin": margin, "flag": margin < -k},
         index=pd.Index(names, name="parameter"),

@@ -141,7 +141,8 @@ def _plausibility_reasons(pl: Mapping[str, Any]) -> list[Reason]:
                 (
                     "a priori",
                     f"{n} = {d['estimate']:.4g} +- {d['std']:.2g} disagrees with its a-priori value "
-                    f"{d['apriori']:.4g} +- {d['apriori_std']:.2g} by {d['z']:.1f} combined std (more than {k:g})",
+                    f"{d['apriori']:.4g} +- {d['apriori_std']:.2g} by "
+                    f"{'infinitely many' if d['z'] is None else format(d['z'], '.1f')} combined std (more than {k:g})",
                 )
             )
     return reasons
