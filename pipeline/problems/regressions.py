@@ -45,9 +45,10 @@ def longitudinal_regressions(
     """Equation-error regressions of the longitudinal coefficients on the maneuver windows:
     CL, CD, Cm computed from the measured specific forces and the differentiated pitch rate,
     regressed on [1, alpha, q cbar/2V, de] (CL, Cm) and [1, alpha, alpha^2] (CD), NaN rows
-    removed. One row per sample of the pitch rate (an IMU slower than the grid is NaN
+    removed. Rows at the samples of the pitch rate (an IMU slower than the grid is NaN
     between its samples; the rate is differentiated over its own samples), the other
-    channels read there (:func:`_at_rows`)."""
+    channels read there (:func:`_at_rows`); those with air data of their own when most
+    have."""
     rows = {"L": [], "D": [], "M": []}
     yL, yD, yM = [], [], []
     xv, zv = c.get("x_vane", 0.0), c.get("z_vane", 0.0)
@@ -79,15 +80,20 @@ def longitudinal_regressions(
         Cm = c["Iyy"] * qdot / (qbar * c["S"] * c["cbar"])
         qh = q * c["cbar"] / (2 * V)
         one = np.ones_like(a)
-        rows["L"].append(np.column_stack([one, a, qh, de]))
-        yL.append(CL)
-        rows["D"].append(np.column_stack([one, a, a * a]))
-        yD.append(CD)
+        # rows where the air data are measured too (an air-data sensor slower than the IMU,
+        # on its clock) when at least half the rate's samples have them; else (another phase,
+        # another clock) every rate sample, the air data read between their own samples
+        own = np.isfinite(df["V"].to_numpy(dtype=float)[at]) & np.isfinite(df["alpha"].to_numpy(dtype=float)[at])
+        sel = own if own.sum() >= 0.5 * at.size else np.ones(at.size, dtype=bool)
+        rows["L"].append(np.column_stack([one, a, qh, de])[sel])
+        yL.append(CL[sel])
+        rows["D"].append(np.column_stack([one, a, a * a])[sel])
+        yD.append(CD[sel])
         # the differentiated rate is the mean of qdot between the neighbouring samples: Cm's
-        # regressors are taken as the same means (else a 25 Hz IMU's elevator steps, sharp
-        # against a pitch acceleration averaged over 80 ms, bias Cmde and Cmq low)
-        rows["M"].append(np.column_stack([one, _span_means(t, a), _span_means(t, qh), _grid_span_means(df, "de", t)]))
-        yM.append(Cm)
+        # regressors are their means over the same span (else a 25 Hz IMU's elevator steps,
+        # sharp against a pitch acceleration averaged over 80 ms, bias Cmde and Cmq low)
+        rows["M"].append(np.column_stack([one, _simpson_means(a), _simpson_means(qh), _span_means(df, "de", at)])[sel])
+        yM.append(Cm[sel])
     out = []
     for key, coef, y, names in (
         ("L", "CL", yL, ["CL0", "CLalpha", "CLq", "CLde"]),
@@ -101,33 +107,29 @@ def longitudinal_regressions(
     return out
 
 
-def _spans(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(start, end) [s] of the span np.gradient differentiates over at each of the samples
-    ``t``: its neighbours (the sample itself at either end)."""
-    k = np.arange(t.size)
-    return t[np.maximum(k - 1, 0)], t[np.minimum(k + 1, t.size - 1)]
+def _simpson_means(x: np.ndarray) -> np.ndarray:
+    """x's mean between each sample's neighbours by Simpson's rule, (x[k-1] + 4 x[k] +
+    x[k+1]) / 6 (the ends as they are): a smooth signal's mean over the span np.gradient
+    differentiates over, to second order in the sample interval."""
+    out = x.copy()
+    out[1:-1] = (x[:-2] + 4.0 * x[1:-1] + x[2:]) / 6.0
+    return out
 
 
-def _span_means(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """The mean over each sample's :func:`_spans` of ``x`` (samples at ``t``), linear
-    between the samples."""
-    if t.size < 2:
-        return x
-    a, b = _spans(t)
-    area = np.r_[0.0, np.cumsum(0.5 * (x[1:] + x[:-1]) * np.diff(t))]
-    return (np.interp(b, t, area) - np.interp(a, t, area)) / (b - a)
-
-
-def _grid_span_means(df: pd.DataFrame, k: str, t: np.ndarray) -> np.ndarray:
-    """The mean of column k of the grid ``df`` (linear between its samples, NaN between slow
-    ones filled) over the :func:`_spans` of the samples ``t``: an input changing between
-    them counts as much as it lasted."""
-    tg, x = df["t"].to_numpy(), _filled(df, k)
-    if t.size < 2:
-        return np.interp(t, tg, x)
-    a, b = _spans(t)
-    area = np.r_[0.0, np.cumsum(0.5 * (x[1:] + x[:-1]) * np.diff(tg))]
-    return (np.interp(b, tg, area) - np.interp(a, tg, area)) / (b - a)
+def _span_means(df: pd.DataFrame, k: str, at: np.ndarray) -> np.ndarray:
+    """Column k of the grid ``df`` (NaN between slow samples filled) averaged, for each of
+    the rows ``at`` (grid indices, increasing), over the grid samples strictly between its
+    neighbouring rows (at either end: from the row to the next one's): the span np.gradient
+    differentiates over, each grid sample standing for its own step. On rows at every grid
+    time that is the row's own value."""
+    x = _filled(df, k)
+    if at.size < 2:
+        return x[at]
+    lo = np.r_[at[0], at[:-2] + 1, at[-2] + 1]
+    hi = np.r_[at[1] - 1, at[2:] - 1, at[-1]]
+    hi = np.maximum(hi, lo)
+    csum = np.r_[0.0, np.cumsum(x)]
+    return (csum[hi + 1] - csum[lo]) / (hi - lo + 1)
 
 
 def longitudinal_starts(

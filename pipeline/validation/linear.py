@@ -56,6 +56,16 @@ def mode_table(result: EstimationResult, lin: Linearisation) -> dict[str, Any]:
     }
 
 
+def _between_samples(t: np.ndarray, y: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """Columns of ``y`` (N, n) kept where ``measured`` (N, n) and linear in ``t`` between
+    those samples (held before the first and after the last)."""
+    out = y.astype(float).copy()
+    for j in range(y.shape[1]):
+        if not measured[:, j].all():
+            out[:, j] = np.interp(t, t[measured[:, j]], y[measured[:, j], j])
+    return out
+
+
 def frequency_check(
     result: EstimationResult, lin: Linearisation, settings: ValidationSettings, integrator: str
 ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
@@ -78,16 +88,18 @@ def frequency_check(
     excited = [i for i in range(seg.u.shape[1]) if np.std(seg.u[:, i]) > 1e-12]
     if not excited:
         return None, None
-    z = seg.z
-    keep = np.all(np.isfinite(z), axis=0)
+    # an output slower than the grid (NaN between its samples) is read linearly between its
+    # samples, and the model's simulated output is read at the same samples the same way
+    measured = np.isfinite(seg.z)
+    keep = measured.sum(axis=0) >= 64
     outs = [o for o, kk in zip(result.outputs, keep) if kk]
     fs = 1.0 / float(np.median(dt))
     u = seg.u[:, excited]
-    se = V.spectral_estimate(u, z[:, keep], fs)
+    se = V.spectral_estimate(u, _between_samples(seg.t, seg.z[:, keep], measured[:, keep]), fs)
     y_sim = simulate_outputs(
         result.model_with_estimates(), seg, integrator=integrator, inputs=result.settings.get("inputs", DEFAULT_INPUTS)
     )
-    sm = V.spectral_estimate(u, y_sim.to_numpy()[:, keep], fs)
+    sm = V.spectral_estimate(u, _between_samples(seg.t, y_sim.to_numpy()[:, keep], measured[:, keep]), fs)
     w = se.w[1:]  # drop DC
     Hd, coh = se.H[1:], se.coherence[1:]
     Hm = sm.H[1:]

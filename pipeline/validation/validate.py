@@ -66,6 +66,11 @@ Keys of the returned dict
     axis, the parameters where the two estimates differ by more than k combined std, with
     that z) and ``against`` (per flagged method: its ``method`` name and whether it
     ``converged``).
+``errors``: stage -> "<type>: <message>" for each check that raised (``fit``, ``residuals``,
+    ``uncertainty``, ``modes``, ``frequency``, ``inverse_simulation``, ``proof_of_match``,
+    ``truth``, ``plausibility``); that check's entry is then None (``{"error": ...}`` for
+    the linearised model's), the others stand, and report.md says it where its result
+    would be.
 ``verdict``: ``level`` (PASS / CHECK / FAIL, :data:`~pipeline.validation.verdict.REASON_LEVELS`),
     ``ok`` (level PASS), ``reasons`` (short sentences) with their ``reason_levels``,
     ``notes``; see :func:`~pipeline.validation.verdict.verdict`.
@@ -82,13 +87,10 @@ Keys of the returned dict
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from typing import Any
 
-import numpy as np
-
-import estimators
 from estimators import EstimationResult, Segment
 from estimators import validation as V
 from estimators.integrators import INTEGRATORS
@@ -156,26 +158,50 @@ def validate(
         "det_R": num(result.cost),
         "correlations_flagged": num([list(f) for f in result.flagged_correlations]),
     }
-    arrays: dict[str, Any] = {}
-    out["fit"] = fit_summary(result, s.tic_limit)
-    out["residuals"], arrays["psd"] = residual_analysis(result)
-    out["uncertainty"] = parameter_uncertainty(result)
-    widen_by_scatter(result, out["uncertainty"])
-    lin = _linear_checks(result, s, integ, out, arrays)
-    out["proof_of_match"], arrays["match"] = None, []
     if s.proof_of_match not in POM_MODES:
         raise ValueError(f"proof_of_match={s.proof_of_match!r}: use one of {', '.join(POM_MODES)}")
+    arrays: dict[str, Any] = {}
+    errors: dict[str, str] = {}
+    out["fit"] = _attempt("fit", errors, lambda: fit_summary(result, s.tic_limit))
+    out["residuals"], arrays["psd"] = _attempt("residuals", errors, lambda: residual_analysis(result), (None, None))
+    out["uncertainty"] = _attempt("uncertainty", errors, lambda: parameter_uncertainty(result))
+    if out["uncertainty"] is not None:
+        _attempt("uncertainty", errors, lambda: widen_by_scatter(result, out["uncertainty"]))
+    lin = _linear_checks(result, s, integ, out, arrays)
+    errors.update({k: out[k]["error"] for k in LINEAR_CHECKS if isinstance(out[k], dict) and "error" in out[k]})
+    out["proof_of_match"], arrays["match"] = None, []
     if held_out:
-        mode = pom_mode(result, lin, s.calm_air) if s.proof_of_match == "auto" else s.proof_of_match
-        out["proof_of_match"], arrays["match"] = match_held_out(result, list(held_out), s, integ, mode, step_times)
+
+        def match() -> tuple[dict[str, Any], list]:
+            mode = pom_mode(result, lin, s.calm_air) if s.proof_of_match == "auto" else s.proof_of_match
+            return match_held_out(result, list(held_out), s, integ, mode, step_times)
+
+        out["proof_of_match"], arrays["match"] = _attempt("proof_of_match", errors, match, (None, []))
     plaus: dict[str, Any] = {}
     if truth:
-        plaus["truth"] = truth_check(result, truth, s.truth_k)
-    plaus.update(plausibility_checks(result, apriori, V.expected_signs(declared=truth) if signs is None else signs))
-    out["plausibility"] = plaus
+        plaus["truth"] = _attempt("truth", errors, lambda: truth_check(result, truth, s.truth_k))
+    expected = V.expected_signs(declared=truth) if signs is None else signs
+    plaus.update(_attempt("plausibility", errors, lambda: plausibility_checks(result, apriori, expected), {}))
+    out["plausibility"] = {k: x for k, x in plaus.items() if x is not None}
+    out["errors"] = errors
     out["verdict"] = verdict(out)
     out["arrays"] = arrays
     return out
+
+
+#: the checks on the linearised model (:func:`_linear_checks`), each ``{"error": ...}`` when it failed
+LINEAR_CHECKS = ("modes", "frequency", "inverse_simulation")
+
+
+def _attempt(stage: str, errors: dict[str, str], run: Callable[[], Any], fallback: Any = None) -> Any:
+    """``run()``, or ``fallback`` when it raises, with ``errors[stage]`` saying what failed
+    ("<type>: <message>"): one check that fails on a flight costs its own result, which
+    the report replaces by that line, not the validation's other results."""
+    try:
+        return run()
+    except Exception as exc:  # noqa: BLE001 - recorded and reported where its result would be
+        errors[stage] = f"{type(exc).__name__}: {exc}"
+        return fallback
 
 
 def _linear_checks(
@@ -197,12 +223,12 @@ def _linear_checks(
     if lin is not None:
         try:
             out["frequency"], arrays["freq"] = frequency_check(result, lin, s, integ)
-        except (ValueError, np.linalg.LinAlgError, estimators.EstimationError) as exc:
+        except Exception as exc:  # noqa: BLE001 - reported, not fatal
             out["frequency"] = {"error": f"{type(exc).__name__}: {exc}"}
     out["inverse_simulation"], arrays["inverse"] = None, None
     if lin is not None:
         try:
             out["inverse_simulation"], arrays["inverse"] = inverse_check(result, lin, s.inverse_bandwidth)
-        except (ValueError, np.linalg.LinAlgError) as exc:
+        except Exception as exc:  # noqa: BLE001 - reported, not fatal
             out["inverse_simulation"] = {"error": f"{type(exc).__name__}: {exc}"}
     return lin

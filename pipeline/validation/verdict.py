@@ -55,6 +55,7 @@ REASON_LEVELS = {
     "proof of match unweighed": "FAIL",
     "proof of match within": "CHECK",
     "proof of match none judged": "CHECK",
+    "validation error": "CHECK",
     "TIC": "CHECK",
     "wrong sign": "FAIL",
     "a priori": "FAIL",
@@ -66,6 +67,8 @@ FILTER_ERROR_TRUST = (
     "turbulence)"
 )
 
+#: checks whose failure to run is a note, not a reason: they inform, they do not prove
+NOTE_ONLY_CHECKS = ("modes", "frequency", "inverse_simulation")
 #: (kind of :data:`REASON_LEVELS`, sentence) of a verdict reason
 Reason = tuple[str, str]
 
@@ -101,6 +104,11 @@ def verdict(v: Mapping[str, Any]) -> dict[str, Any]:
     reasons += _plausibility_reasons(v.get("plausibility") or {})
     _judge_agreement(v, reasons, notes)
     notes += _uncertainty_notes(v)
+    for stage, why in (v.get("errors") or {}).items():  # a check that could not run (validate's errors)
+        if stage in NOTE_ONLY_CHECKS:
+            notes.append(f"{stage.replace('_', ' ')} not computed: {why}")
+        else:
+            reasons.append(("validation error", f"{stage.replace('_', ' ')} could not be computed ({why})"))
     if v.get("correlations_flagged"):
         notes.append("highly correlated: " + ", ".join(f"{a}~{b}" for a, b, _ in v["correlations_flagged"]))
     fr = v.get("frequency")
