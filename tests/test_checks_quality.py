@@ -11,7 +11,7 @@ import pytest
 from pipeline.cli import main
 from pipeline.conditioning.checks import findings_to_json, run_checks
 from pipeline.ingest.flightdata import Channel, FlightData, SegmentSpec
-from pipeline.ingest.readers import read_log
+from pipeline.ingest.readers import read_log, read_raw
 from pipeline.ingest.readers.synth import demo_dataflash
 
 
@@ -87,9 +87,18 @@ def test_fsid_check_cli_writes_checks_and_canonical_data(tmp_path, capsys):
     assert doc["source"]["format"] == "dataflash" and doc["source"]["map"] == "ardupilot_bin"
     assert doc["source"]["channels"]["p"]["samples"] == 400
     back = read_log(out / "canonical.csv")
-    ref = read_log(log).resample(50.0, span="union")  # what canonical.csv holds
+    fd = read_log(log)
+    ref = fd.resample(50.0, span="union")  # what canonical.csv holds
     assert np.allclose(back["p"].values, ref["p"].to_numpy(), rtol=1e-8, atol=1e-12)
-    assert np.allclose(back["p"].t, ref["t"].to_numpy())
+    # seconds from the log's start; where that is on the log's clock stated once, above
+    first = float(read_raw(log).tables["IMU[0]"].t[0])  # the log's first sample (1 s after boot)
+    assert fd.meta["t0_abs"] == pytest.approx(first, abs=1e-6) and fd.meta["t0_kind"] == "boot"
+    assert ref["t"].iloc[0] == 0.0 and np.allclose(back["p"].t, ref["t"].to_numpy())
+    head = (out / "canonical.csv").read_text().splitlines()[0]
+    assert (
+        head == f"# times are seconds from the log's start; t = 0 is {first:.6f} s on the log's own clock (since boot)"
+    )
+    assert doc["source"]["t0_abs"] == pytest.approx(first) and doc["source"]["start"] == head[2:]
     assert "wrote" in capsys.readouterr().out
 
 
