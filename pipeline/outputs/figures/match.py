@@ -116,7 +116,13 @@ def _panel(ax, a: Mapping[str, Any], j: int, o: str, d: Mapping[str, Any], t: np
     band = float(np.asarray(a["tolerance"], dtype=float)[j]) + (d.get("noise_allowance") or 0.0)
     if np.isfinite(band):
         ax.fill_between(
-            t, (y - band) * fac, (y + band) * fac, color=TOLERANCE, alpha=0.6, lw=0, label="model -/+ judging band"
+            t,
+            (y - band) * fac,
+            (y + band) * fac,
+            color=TOLERANCE,
+            alpha=0.6,
+            lw=0,
+            label="model -/+ (tolerance + noise allowance)",
         )
     ax.plot(*series(t, z, fac), color=MEASURED, lw=0.8, label="measured (held out)")
     ps = a.get("prediction_std")

@@ -19,6 +19,7 @@ ZETAS = (0.1, 0.3, 0.7)
 #: a mode slower than this fraction of the fastest one is shown in the zoomed panel
 SLOW = 0.12
 _MARKERS = "oxs^vD"
+_RAY_STYLES = (":", "--", "-.")
 
 
 def modes_figure(folder: Path, group: str, validations: Mapping[str, Mapping[str, Any]]) -> FigureRef:
@@ -71,6 +72,7 @@ def _draw(fig: Figure, validations: Mapping[str, Mapping[str, Any]], title: str)
         ax[0].plot([], [], _MARKERS[i % len(_MARKERS)], color=method_color(k, keys), label=k)[0]
         for i, k in enumerate(keys)
     ]
+    handles += [h for h in ax[0].get_lines() if str(h.get_label()).startswith("damping ratio")]
     fig.suptitle(f"{title}: eigenvalues (upper half; each has its conjugate)", y=1 - 0.08 / h, va="top", fontsize=10)
     fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 1 - 0.32 / h), ncol=len(handles))
 
@@ -90,11 +92,10 @@ def _plane(ax, pts: Mapping[str, Mapping[str, complex]], keys: list[str], labell
             if n not in named and labelled(p):
                 named.add(n)
                 ax.annotate(n, (p.real, p.imag), xytext=(6, 6), textcoords="offset points", fontsize=8)
-    for z in ZETAS:  # rays of constant damping ratio, labelled where they leave the box
+    for z, ls in zip(ZETAS, _RAY_STYLES):  # rays of constant damping ratio (named in the legend)
         c, s_ = z, np.sqrt(1.0 - z * z)
         t = min(-x0 / c, y1 / s_)
-        ax.plot([0, -t * c], [0, t * s_], color="0.6", lw=0.6, ls=":")
-        ax.annotate(f"zeta {z:g}", (-0.9 * t * c, 0.9 * t * s_), fontsize=7, color="0.45", ha="right")
+        ax.plot([0, -t * c], [0, t * s_], color="0.55", lw=0.8, ls=ls, label=f"damping ratio {z:g}")
     ax.axvline(0.0, color=MEASURED, lw=0.8)
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
