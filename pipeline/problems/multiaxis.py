@@ -37,7 +37,11 @@ def multiaxis_problem(
     data at the boom's full position. ``gust_states`` (the filters, in turbulence): the
     Dryden gust states of the models (rotary gusts q_g, p_g in the damping terms), with
     CLalphadot, Cmalphadot (longitudinal; identifiable once the gust angle of attack
-    separates alphadot from q) and the roll-gust time constant tau_pg (lateral) free."""
+    separates alphadot from q) and the roll-gust time constant tau_pg (lateral) free. The
+    lateral trim-asymmetry terms are free without the gust states only: the filters'
+    process noise on the sideslip and rate equations follows a constant force or moment,
+    leaving CY0 no signature but its ay offset, the common accelerometer bias (correlation
+    -0.98 in filter error, whose line search then stalls)."""
     extra = MULTIAXIS_FILTER_FREE[axis] if gust_states else ()
     if axis == "longitudinal":
         return longitudinal_problem(
@@ -59,4 +63,5 @@ def multiaxis_problem(
         free=LAT_FREE + extra,
         smooth_inputs=smooth_inputs,
         hold_out=hold_out,
+        trim_asymmetry=not gust_states,
     )
