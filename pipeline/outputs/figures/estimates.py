@@ -46,7 +46,7 @@ def estimates_figure(
     against = [w for w, has in (("the truth", truth), ("the a-priori values", _apriori(validations))) if has]
     return make(
         folder,
-        f"{file_part(group or 'all')}_estimates",
+        f"{file_part(group) + '_' if group else ''}estimates",
         "parameters",
         f"{title}: {', '.join(results)}, each -/+ {K_BAR:g} std (total)"
         + (f", against {' and '.join(against)}" if against else ""),

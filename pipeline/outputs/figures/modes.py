@@ -27,7 +27,7 @@ def modes_figure(folder: Path, group: str, validations: Mapping[str, Mapping[str
     title = f"modes{f' ({group})' if group else ''}"
     return make(
         folder,
-        f"{file_part(group or 'all')}_modes",
+        f"{file_part(group) + '_' if group else ''}modes",
         "modes",
         f"{title} of the linearised models: {', '.join(validations)}",
         (WIDTH, 4.4),
