@@ -69,6 +69,10 @@ def test_gaps_between_maneuvers_keep_the_rate_and_raise_no_jitter():
     found = gapped.find_segments()
     assert len({s.axis for s in found}) == 3
     assert all(not (s.t0 < a and s.t1 > b) for s in found for a, b in holes)
+    # with its maneuvers found, every pause lies between them: said, not warned
+    gapped.segments = found
+    between = [f for f in run_checks(gapped) if f.check == "gaps"]
+    assert between and all(f.status == "pass" and "between the maneuvers" in f.message for f in between)
     res = reconstruct(gapped, max_segments=2, estimate=("bias_p", "bias_q", "bias_r"), wind=False)
     assert res.settings["rate_hz"] == pytest.approx(100.0)
     assert np.all(np.abs(res.params[["bias_p", "bias_q", "bias_r"]].to_numpy()) < 0.01)
