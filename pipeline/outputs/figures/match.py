@@ -29,6 +29,7 @@ from pipeline.outputs.figures.style import (
     panel_grid,
     scale_label,
     series,
+    stride,
     top_legend,
 )
 
@@ -114,11 +115,12 @@ def _panel(ax, a: Mapping[str, Any], j: int, o: str, d: Mapping[str, Any], t: np
     bias = d.get("bias_removed") or 0.0
     y = a["predicted"][o].to_numpy(float) + bias
     band = float(np.asarray(a["tolerance"], dtype=float)[j]) + (d.get("noise_allowance") or 0.0)
+    k = stride(t.size)  # the bands thinned like the lines
     if np.isfinite(band):
         ax.fill_between(
-            t,
-            (y - band) * fac,
-            (y + band) * fac,
+            t[k],
+            (y[k] - band) * fac,
+            (y[k] + band) * fac,
             color=TOLERANCE,
             alpha=0.6,
             lw=0,
@@ -130,9 +132,9 @@ def _panel(ax, a: Mapping[str, Any], j: int, o: str, d: Mapping[str, Any], t: np
         sd = PREDICTION_K * ps[o].to_numpy(float)
         if np.isfinite(sd).any():
             ax.fill_between(
-                t,
-                (y - sd) * fac,
-                (y + sd) * fac,
+                t[k],
+                (y[k] - sd[k]) * fac,
+                (y[k] + sd[k]) * fac,
                 color=color,
                 alpha=0.3,
                 lw=0,

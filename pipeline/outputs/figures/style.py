@@ -77,6 +77,11 @@ def scale_label(channel: str) -> tuple[float, str]:
     return fac, (f"{channel} [{unit}]" if unit != "SI" else channel)
 
 
+def stride(n: int) -> slice:
+    """The slice that keeps at most about :data:`MAX_POINTS` of ``n`` samples, evenly."""
+    return slice(None, None, max(1, math.ceil(n / MAX_POINTS)))
+
+
 def series(t, y, factor: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """(t, y * factor) for a line: the finite samples only (a slower sensor on a faster grid
     leaves NaN between its samples, which would break the line into nothing), thinned by a
@@ -84,7 +89,7 @@ def series(t, y, factor: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     t, y = np.asarray(t, dtype=float), np.asarray(y, dtype=float)
     ok = np.isfinite(t) & np.isfinite(y)
     t, y = t[ok], y[ok]
-    s = slice(None, None, max(1, math.ceil(t.size / MAX_POINTS)))
+    s = stride(t.size)
     return t[s], y[s] * factor
 
 
@@ -150,6 +155,10 @@ def panel_grid(fig: Figure, n_rows: int, n_cols: int = 1, *, top: float = 0.85, 
     return ax
 
 
+#: width of one character of a maneuver's name over the panels, inches (8.5 pt, generous)
+_NAME_INCH = 0.075
+
+
 class Strip:
     """Maneuvers laid end to end on one x axis, a small gap between them, so that one row of
     panels shows them all: :meth:`x` places a maneuver's own times (s from the log's start),
@@ -168,30 +177,37 @@ class Strip:
         """Maneuver ``k``'s times (s) on the strip."""
         return np.asarray(t, dtype=float) + self.offsets[k]
 
-    def decorate(self, column, *, names: bool = True) -> None:
+    def decorate(self, column) -> None:
         """Separators on every panel of ``column`` (axes top to bottom), the maneuvers' names
-        over the first, ticks in each maneuver's own time under the last."""
+        over the first (on two staggered lines where they would not fit side by side), ticks
+        in each maneuver's own time under the last (fewer, or none, on a narrow maneuver)."""
+        fig = column[0].get_figure()
+        lo, hi = self.spans[0][0] + self.offsets[0], self.spans[-1][1] + self.offsets[-1]
+        inch = column[0].get_position().width * fig.get_size_inches()[0] / max(hi - lo, 1e-9)  # in per s
+        crowded = any(_NAME_INCH * len(n) > inch * (b - a + self.gap) for n, (a, b) in zip(self.names, self.spans))
         ticks, labels = [], []
         for k, ((a, b), off) in enumerate(zip(self.spans, self.offsets)):
-            for v in MaxNLocator(3).tick_values(a, b):
+            n_ticks = min(3, int(inch * (b - a) / 0.6))
+            for v in MaxNLocator(max(n_ticks, 1)).tick_values(a, b) if n_ticks else []:
                 if a <= v <= b:
                     ticks.append(v + off)
                     labels.append(f"{v:g}")
             if k:
                 for ax in column:
                     ax.axvline(a + off - self.gap / 2, color="0.3", lw=0.8)
-            if names:
-                column[0].text(
-                    (a + b) / 2 + off,
-                    1.03,
-                    self.names[k],
-                    transform=column[0].get_xaxis_transform(),
-                    ha="center",
-                    va="bottom",
-                    fontsize=8.5,
-                )
+            x, half = (a + b) / 2 + off, _NAME_INCH * len(self.names[k]) / 2 / inch
+            x, ha = (hi, "right") if x + half > hi else (lo, "left") if x - half < lo else (x, "center")
+            column[0].text(
+                x,
+                1.03 + (0.16 if crowded and k % 2 else 0.0),
+                self.names[k],
+                transform=column[0].get_xaxis_transform(),
+                ha=ha,
+                va="bottom",
+                fontsize=8.5,
+            )
         column[-1].set_xticks(ticks, labels)
-        column[-1].set_xlim(self.spans[0][0] + self.offsets[0], self.spans[-1][1] + self.offsets[-1])
+        column[-1].set_xlim(lo, hi)
         column[-1].set_xlabel("time from the log's start [s] (maneuvers laid end to end)")
 
 
