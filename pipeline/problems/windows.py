@@ -138,7 +138,8 @@ def usable_segments(
             f"found {len(specs)} {what} segment(s), {len(keep)} usable, but need at "
             f"least {1 + hold_out} (one to fit, {hold_out} to hold out)"
             + (f" - {'; '.join(faults[:2])}{more}" if faults else "")
-            + ": fly more maneuvers or give segments by time range"
+            + ": fly more maneuvers, give segments by time range (--segments T0:T1,... in s from the log's start)"
+            + (" or fit them all (--no-holdout)" if hold_out and len(keep) >= 1 else "")
         )
     return keep, [f"{f}: left out" for f in faults], frames
 
