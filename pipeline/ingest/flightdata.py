@@ -382,7 +382,10 @@ class FlightData:
                 hit = [g for g in found if g.name == item]
                 if not hit:
                     names = ", ".join(g.name for g in found) or "none"
-                    raise FsidError(f"segment '{item}' is not in the log (found: {names}); give a name or T0:T1 in s")
+                    raise FsidError(
+                        f"segment '{item}' is not in the log (found: {names}); give one of those names "
+                        "or a range T0:T1 in seconds from the log's start"
+                    )
                 out += hit
                 continue
             a, b = (float(x) for x in item)
