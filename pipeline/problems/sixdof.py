@@ -179,6 +179,7 @@ def sixdof_problem(
     free: Sequence[str] = BOTH_AXES_FREE,
     rate_hz: float = 100.0,
     navigation: bool = False,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
 ) -> Problem:
     """Both axes on the 6-DoF model, fitted to ``segments`` of ``fd`` on a ``rate_hz`` grid.
 
@@ -188,6 +189,7 @@ def sixdof_problem(
     at full throttle, N, proportional) estimated, positive like CD0 (:data:`POSITIVE`).
     ``start``: start values (default the model's); every segment has its own initial state.
     ``held_out``: segments kept for validation, of ``validation`` (another flight) or ``fd``.
+    ``bounds``: parameter bounds (a-priori limits) over :data:`POSITIVE`.
     """
     model_out = list(SIXDOF_OUTPUTS) + (["psi", "x_n", "y_e", "z_d"] if navigation else [])
     need = model_out + list(SIXDOF_INPUTS)
@@ -212,12 +214,13 @@ def sixdof_problem(
     known = ac.thrust(np.zeros(1)) is not None or all("thrust" in w and w["thrust"].notna().all() for w in frames)
     for w in frames + held:
         w["thrust_in"] = thrust_signal(w, ac) if known else w["throttle"]
-    values = dict(start or {})
+    values = {k: v for k, v in (start or {}).items() if k != "kT" or not known}
+    limits = {k: v for k, v in {**POSITIVE, **(bounds or {})}.items() if k != "kT" or not known}
     model = sixdof(
         c,
         values=values,
         free=list(free) + ([] if known else ["kT"]),
-        bounds={k: v for k, v in POSITIVE.items() if k != "kT" or not known},
+        bounds=limits,
         throttle=not known,
         navigation=navigation,
         name="sixdof",
