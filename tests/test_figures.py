@@ -109,7 +109,9 @@ def test_report_html_embeds_every_figure(run):
     out = run
     md = (out / "report.md").read_text()
     page = (out / "report.html").read_text()
-    assert page.count('src="data:image/png;base64,') == len(IMAGE.findall(md))
+    links = IMAGE.findall(md)
+    assert page.count('src="data:image/png;base64,') == len({p for _, p in links})  # each file once
+    assert page.count('<p class="figref"><a href="#fig-') == len(links) - len({p for _, p in links})
     assert page.count("<table>") == len(re.findall(r"^\|---", md, re.M))
     assert 'src="figures/' not in page  # nothing left to fetch: the page is one file
     assert (out / "report.html").stat().st_mode & 0o044 == 0o044
@@ -141,6 +143,7 @@ def test_markdown_html_converts_what_report_md_uses(tmp_path):
     md = (
         "# Title <x>\n\n- a: 1\n- b: `x_[k]` **bold**\n\nline one\nline two\n\n"
         "| h1 | h2 |\n|---|---|\n| 1 | a<b |\n\n![cap & co](f.png)\n\n![gone](nope.png)\n\n```\nraw <code>\n```\n"
+        "\n![again](f.png)\n"
     )
     page = markdown_html(md, tmp_path, "t")
     body = page[page.index("<body>") :]
@@ -148,7 +151,8 @@ def test_markdown_html_converts_what_report_md_uses(tmp_path):
     assert "<ul>\n<li>a: 1</li>\n<li>b: <code>x_[k]</code> <strong>bold</strong></li>\n</ul>" in body
     assert "<p>line one line two</p>" in body
     assert "<thead><tr><th>h1</th><th>h2</th></tr></thead>" in body and "<td>a&lt;b</td>" in body
-    assert '<img src="data:image/png;base64,iVBORw0KGgp4eA==" alt="cap &amp; co">' in body
+    assert '<figure id="fig-f_png"><img src="data:image/png;base64,iVBORw0KGgp4eA==" alt="cap &amp; co">' in body
+    assert '<p class="figref"><a href="#fig-f_png">Figure above: again</a></p>' in body
     assert "<figcaption>cap &amp; co</figcaption>" in body
     assert '[figure missing: nope.png]' in body
     assert "<pre><code>raw &lt;code&gt;</code></pre>" in body

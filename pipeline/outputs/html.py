@@ -4,7 +4,8 @@ base64 data URIs), to share as a single file.
 The converter covers the Markdown report.md is written in, no more: ATX headings, pipe
 tables (header, separator, rows), paragraphs, ``-``/``*`` and numbered lists, fenced code
 blocks, and inline code, ``**bold**``, images ``![caption](path)`` and links. Everything
-else is text, escaped."""
+else is text, escaped. An image that appears again (a figure shared by several methods'
+sections) is embedded once; its repeats link to it."""
 
 from __future__ import annotations
 
@@ -31,6 +32,7 @@ figure { margin: 1em 0; }
 figure img { max-width: 100%; height: auto; border: 1px solid #e2e2e2; }
 figcaption { color: #555; font-size: 13px; margin-top: .3em; }
 .missing { color: #a00; }
+.figref { font-size: 13px; }
 """
 _HEADING = re.compile(r"^(#{1,6})\s+(.*)$")
 _IMAGE_LINE = re.compile(r"^!\[([^\]]*)\]\(([^)\s]+)\)\s*$")
@@ -64,6 +66,7 @@ def _blocks(lines: list[str], base: Path | None) -> list[str]:
     """The HTML blocks of the Markdown lines."""
     out: list[str] = []
     para: list[str] = []
+    seen: set[str] = set()  # images already embedded: a repeat links to the first
     i = 0
 
     def flush() -> None:
@@ -89,7 +92,7 @@ def _blocks(lines: list[str], base: Path | None) -> list[str]:
             out.append(f"<h{n}>{_inline(m.group(2), base)}</h{n}>")
         elif m := _IMAGE_LINE.match(line):
             flush()
-            out.append(_figure(m.group(1), m.group(2), base))
+            out.append(_figure(m.group(1), m.group(2), base, seen))
         elif line.lstrip().startswith("|"):
             flush()
             j = i
@@ -138,13 +141,18 @@ def _table(lines: list[str], base: Path | None) -> str:
     return "\n".join(out)
 
 
-def _figure(caption: str, src: str, base: Path | None) -> str:
-    """An image on its own line: the picture embedded, its caption under it."""
+def _figure(caption: str, src: str, base: Path | None, seen: set[str]) -> str:
+    """An image on its own line: the picture embedded with its caption under it; an image
+    already embedded (a figure shared by several methods) links to its first place."""
     cap = html.escape(caption)
+    anchor = "fig-" + re.sub(r"[^A-Za-z0-9_-]", "_", src)
+    if src in seen:
+        return f'<p class="figref"><a href="#{anchor}">Figure above: {cap}</a></p>'
     uri = _data_uri(src, base)
     if uri is None:
         return f'<p class="missing">[figure missing: {html.escape(src)}] {cap}</p>'
-    return f'<figure><img src="{uri}" alt="{cap}"><figcaption>{cap}</figcaption></figure>'
+    seen.add(src)
+    return f'<figure id="{anchor}"><img src="{uri}" alt="{cap}"><figcaption>{cap}</figcaption></figure>'
 
 
 def _data_uri(src: str, base: Path | None) -> str | None:
