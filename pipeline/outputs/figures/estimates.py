@@ -15,7 +15,7 @@ from matplotlib.lines import Line2D
 
 from estimators import EstimationResult
 from pipeline.outputs.figures.refs import FigureRef, NotDrawn, make
-from pipeline.outputs.figures.style import APRIORI, TRUTH, WIDTH, file_part, method_color
+from pipeline.outputs.figures.style import APRIORI, TRUTH, WIDTH, file_part, method_color, top_legend
 from pipeline.validation import is_segment_parameter
 
 #: half-width of the error bars in std
@@ -135,5 +135,4 @@ def _draw(
         handles.append(Line2D([], [], color=APRIORI, marker="s", mfc="white", ls="", label="a priori"))
     if truth:
         handles.append(Line2D([], [], color=TRUTH, ls="--", label="truth"))
-    fig.suptitle(f"{title}: -/+ {K_BAR:g} std bars (total std)", y=1 - 0.08 / h, va="top", fontsize=10)
-    fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 1 - 0.32 / h), ncol=len(handles))
+    top_legend(fig, handles, [hd.get_label() for hd in handles], f"{title}: -/+ {K_BAR:g} std bars (total std)")

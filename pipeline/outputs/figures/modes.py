@@ -12,7 +12,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from pipeline.outputs.figures.refs import FigureRef, NotDrawn, make
-from pipeline.outputs.figures.style import MEASURED, WIDTH, file_part, method_color
+from pipeline.outputs.figures.style import MEASURED, WIDTH, file_part, method_color, top_legend
 
 #: damping ratios drawn as rays from the origin
 ZETAS = (0.1, 0.3, 0.7)
@@ -73,8 +73,9 @@ def _draw(fig: Figure, validations: Mapping[str, Mapping[str, Any]], title: str)
         for i, k in enumerate(keys)
     ]
     handles += [h for h in ax[0].get_lines() if str(h.get_label()).startswith("damping ratio")]
-    fig.suptitle(f"{title}: eigenvalues (upper half; each has its conjugate)", y=1 - 0.08 / h, va="top", fontsize=10)
-    fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 1 - 0.32 / h), ncol=len(handles))
+    top_legend(
+        fig, handles, [hd.get_label() for hd in handles], f"{title}: eigenvalues (upper half; each has its conjugate)"
+    )
 
 
 def _plane(ax, pts: Mapping[str, Mapping[str, complex]], keys: list[str], labelled) -> None:

@@ -212,7 +212,29 @@ class Strip:
 
 
 def top_legend(fig: Figure, handles: list, labels: list, title: str) -> None:
-    """The figure's title and, under it, one legend row for all panels."""
-    h = fig.get_size_inches()[1]
+    """The figure's title and, under it, the legend for all panels: one row when it fits the
+    width, else as many rows as it needs, the panels moved down to make room."""
+    w, h = fig.get_size_inches()
+    widths = [_LEGEND_ENTRY + _LEGEND_CHAR * len(str(lab)) for lab in labels]
+    ncol = max(len(labels), 1)
+    while ncol > 1 and _legend_width(widths, ncol) > w - 0.4:
+        ncol -= 1
+    rows = math.ceil(len(labels) / ncol) if labels else 1
     fig.suptitle(title, y=1 - 0.08 / h, va="top", fontsize=10)
-    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 1 - 0.32 / h), ncol=max(len(labels), 1))
+    fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 1 - 0.3 / h), ncol=ncol)
+    if rows > 1:
+        for gs in {id(a.get_gridspec()): a.get_gridspec() for a in fig.axes}.values():
+            gs.update(top=gs.top - _LEGEND_ROW * (rows - 1) / h)
+
+
+#: legend entry width in inches: handle and padding, and per character of its label (7.5 pt)
+_LEGEND_ENTRY, _LEGEND_CHAR = 0.6, 0.058
+#: height of one more legend row, inches
+_LEGEND_ROW = 0.19
+
+
+def _legend_width(widths: list[float], ncol: int) -> float:
+    """Width in inches of a legend of entries ``widths`` in ``ncol`` columns (filled column by
+    column, as matplotlib does)."""
+    rows = math.ceil(len(widths) / ncol)
+    return sum(max(widths[c * rows : (c + 1) * rows], default=0.0) for c in range(ncol))
