@@ -14,7 +14,7 @@ at 100 Hz; README there). What this script does, as a user would:
    check did not flag;
 4. identifies the 6-DoF model, both axes, on the 9 training windows (output error,
    :func:`pipeline.problems.sixdof.sixdof_problem`; thrust = kT x throttle estimated; the
-   lift slope floored a priori, :data:`BOUNDS`): derivatives with their Cramér-Rao std,
+   lift slope floored a priori, :data:`BOUNDS`; CLq free, :data:`FREE`): derivatives with their Cramér-Rao std,
    signs checked against the aircraft file's expected signs
    (:func:`estimators.validation.plausibility.expected_signs`), those held at a bound named;
 5. rolls the identified model out open loop from each validation window's initial state
@@ -45,7 +45,7 @@ from pipeline.ingest.aircraft_file import read_aircraft_file
 from pipeline.ingest.flightdata import FlightData
 from pipeline.ingest.pose import euler_to_quat, quat_to_dcm
 from pipeline.ingest.readers import read_log
-from pipeline.problems.sixdof import sixdof_problem
+from pipeline.problems.sixdof import BOTH_AXES_FREE, sixdof_problem
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "sportcub"
 TRAIN = DATA / "sportcub_mocap_4_17_26_train.npz"
@@ -59,6 +59,9 @@ BASELINES = {"hold the initial state": 0.200, "constant inertial velocity, attit
 #: coefficient falls as the pose's angle of attack rises, r = -0.9 in the elevator windows:
 #: a wing near stall, or unsteady lift the linear model lacks); every other derivative is free
 BOUNDS = {"CLalpha": (1.0, 10.0)}
+#: both axes' derivatives and CLq: the lift follows the pitch rate closely in these flights
+#: (an equation-error fit of CL gives CLq 35-60 in the elevator windows)
+FREE = (*BOTH_AXES_FREE, "CLq")
 #: start values: a small high-wing trainer (signs only matter to the start)
 START = {
     **dict(CL0=0.3, CLalpha=4.5, CLde=0.3, CD0=0.08, CDalpha=0.2, Cm0=0.0, Cmalpha=-0.5, Cmq=-10.0, Cmde=-0.5),
@@ -184,6 +187,7 @@ def main() -> int:
         start=START,
         navigation=True,
         bounds=BOUNDS,
+        free=FREE,
     )
     t0 = time.perf_counter()
     res = OutputError(problem.model, integrator="rk4").fit(problem.fit, estimate_x0=True)
