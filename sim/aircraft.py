@@ -9,17 +9,20 @@ Aerodynamic model (exactly what the generated JSBSim aircraft evaluates)::
     CL = CL0 + CLalpha*alpha + CLq*q_a*c/(2V) + CLalphadot*alphadot*c/(2V) + CLde*de
     CD = CD0 + CDalpha*alpha + CDalpha2*alpha**2 + CDde*de
     Cm = Cm0 + Cmalpha*alpha + Cmq*q_a*c/(2V) + Cmalphadot*alphadot*c/(2V) + Cmde*de
-    CY = CY0 + CYbeta*beta + CYp*p_a*b/(2V) + CYr*r_a*b/(2V) + CYda*da + CYdr*dr
-    Cl = Cl0 + Clbeta*beta + Clp*p_a*b/(2V) + Clr*r_a*b/(2V) + Clda*da + Cldr*dr
-    Cn = Cn0 + Cnbeta*beta + Cnp*p_a*b/(2V) + Cnr*r_a*b/(2V) + Cnda*da + Cndr*dr
+    CY = CYasym + CYbeta*beta + CYp*p_a*b/(2V) + CYr*r_a*b/(2V) + CYda*da + CYdr*dr
+    Cl = Clasym + Clbeta*beta + Clp*p_a*b/(2V) + Clr*r_a*b/(2V) + Clda*da + Cldr*dr
+    Cn = Cnasym + Cnbeta*beta + Cnp*p_a*b/(2V) + Cnr*r_a*b/(2V) + Cnda*da + Cndr*dr
 
 CL, CD act in stability axes (lift normal to, drag against the projection of the airspeed
 on the symmetry plane; JSBSim ``<axis name="Z|X" frame="STABILITY">``), CY along body y;
 Cl, Cm, Cn are body-axis moments about the CG (the aerodynamic reference point is the
 CG). With beta = 0 stability and wind axes coincide. p_a, q_a, r_a are the
-aerodynamic rates (body rates minus turbulence rates). CY0, Cl0, Cn0 (optional, default 0)
-are a lateral asymmetry (rigging, propeller torque and swirl): a truth set with any of them
-is trimmed with aileron and rudder offsets and a steady bank (:attr:`Aircraft.asymmetric`).
+aerodynamic rates (body rates minus turbulence rates). CYasym, Clasym, Cnasym (optional,
+default 0) are a lateral asymmetry (rigging, propeller torque and swirl): a truth set with
+any of them is trimmed with aileron and rudder offsets and a steady bank
+(:attr:`Aircraft.asymmetric`). They are named apart from the lateral models' trim terms
+CY0, Cl0, Cn0, a different quantity: those are taken with the controls relative to their
+trim, so they hold the trim's side force and moments, not the aircraft's constants.
 Thrust = throttle * max_thrust_N along body x through the CG, independent of airspeed and density.
 
 Optional tables: ``[sensors.airdata|imu] position_m = [x, y, z]`` (m from the CG, body
@@ -45,20 +48,32 @@ DERIVATIVES: dict[str, tuple[str, ...]] = {
     "CL": ("CL0", "CLalpha", "CLq", "CLalphadot", "CLde"),
     "CD": ("CD0", "CDalpha", "CDalpha2", "CDde"),
     "Cm": ("Cm0", "Cmalpha", "Cmq", "Cmalphadot", "Cmde"),
-    "CY": ("CY0", "CYbeta", "CYp", "CYr", "CYda", "CYdr"),
-    "Cl": ("Cl0", "Clbeta", "Clp", "Clr", "Clda", "Cldr"),
-    "Cn": ("Cn0", "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr"),
+    "CY": ("CYasym", "CYbeta", "CYp", "CYr", "CYda", "CYdr"),
+    "Cl": ("Clasym", "Clbeta", "Clp", "Clr", "Clda", "Cldr"),
+    "Cn": ("Cnasym", "Cnbeta", "Cnp", "Cnr", "Cnda", "Cndr"),
 }
 ALL_DERIVATIVES: tuple[str, ...] = tuple(n for names in DERIVATIVES.values() for n in names)
 #: derivatives that may be omitted (taken as zero)
-OPTIONAL_DERIVATIVES = {"CLalphadot", "Cmalphadot", "CDalpha2", "CDde", "CYp", "CYr", "CLq", "CY0", "Cl0", "Cn0"}
-#: the lateral asymmetry coefficients (optional; any non-zero one asks for a full trim)
-ASYMMETRY = ("CY0", "Cl0", "Cn0")
+OPTIONAL_DERIVATIVES = {
+    "CLalphadot",
+    "Cmalphadot",
+    "CDalpha2",
+    "CDde",
+    "CYp",
+    "CYr",
+    "CLq",
+    "CYasym",
+    "Clasym",
+    "Cnasym",
+}
+#: the lateral asymmetry coefficients (optional; any non-zero one asks for a lateral trim too)
+ASYMMETRY = ("CYasym", "Clasym", "Cnasym")
 
 #: regressor of each derivative, as a function of a truth table (columns named as in
 #: DESIGN.md section 3 plus p_aero, q_aero, r_aero, alphadot); c2v = c/(2V), b2v = b/(2V)
 _REGRESSOR = {
     "0": lambda d, c2v, b2v: np.ones_like(d["alpha"]),
+    "asym": lambda d, c2v, b2v: np.ones_like(d["alpha"]),
     "alpha": lambda d, c2v, b2v: d["alpha"],
     "alpha2": lambda d, c2v, b2v: d["alpha"] ** 2,
     "q": lambda d, c2v, b2v: d["q_aero"] * c2v,
@@ -117,7 +132,7 @@ class Aircraft:
 
     @property
     def asymmetric(self) -> bool:
-        """Whether the truth set has a lateral asymmetry (CY0, Cl0 or Cn0 non-zero): it then
+        """Whether the truth set has a lateral asymmetry (CYasym, Clasym or Cnasym non-zero): it then
         needs aileron and rudder to trim, and a steady bank to balance the side force."""
         return any(self.derivatives[n] != 0.0 for n in ASYMMETRY)
 

@@ -40,6 +40,7 @@ KGM2_2_SLUGFT2 = KG2SLUG * M2FT**2
 #: JSBSim property of each regressor
 _REG_PROPS = {
     "0": [],
+    "asym": [],
     "alpha": ["aero/alpha-rad"],
     "alpha2": ["aero/alpha-rad", "aero/alpha-rad"],
     "q": ["aero/ci2vel", "velocities/q-aero-rad_sec"],

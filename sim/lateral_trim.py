@@ -1,6 +1,6 @@
 """Trim of a laterally asymmetric aircraft: steady straight flight with aileron, rudder and bank.
 
-A truth set with CY0, Cl0 or Cn0 (:attr:`sim.aircraft.Aircraft.asymmetric`) needs aileron
+A truth set with CYasym, Clasym or Cnasym (:attr:`sim.aircraft.Aircraft.asymmetric`) needs aileron
 and rudder to hold its wings against the rolling and yawing moments, and a steady bank to
 balance the side force that remains, as a real aircraft with rigging or propeller
 asymmetry does. JSBSim's own full trim did not move the aileron and rudder of the

@@ -1,5 +1,5 @@
 """Trim-asymmetry terms of the lateral models (issue 37, item 6): an aircraft with a lateral
-asymmetry (scenarios/aircraft/uav_small_asymmetric.toml: CY0, Cl0, Cn0) trims with aileron,
+asymmetry (scenarios/aircraft/uav_small_asymmetric.toml: CYasym, Clasym, Cnasym) trims with aileron,
 rudder and a steady bank. With inputs relative to the trim, the model's trim terms carry
 the trim's total side force (CY0; the bank balances it) and no moment (Cl0 = 0): the
 sideslip of the trim is the vane bias's. With the default biases (sideslip, rates, ay) the
@@ -52,7 +52,7 @@ def _problem(run, trim_asymmetry, biases=("beta", "p", "r", "ay")):
     d, tr = truth["derivatives"], truth["trim"]
     # the total side-force coefficient of the trim (the bank balances it): what CY0 carries
     # with inputs relative to the trim and the trim's sideslip in the vane bias
-    cy_trim = d["CY0"] + d["CYbeta"] * tr["beta"] + d["CYda"] * tr["da"] + d["CYdr"] * tr["dr"]
+    cy_trim = d["CYasym"] + d["CYbeta"] * tr["beta"] + d["CYda"] * tr["da"] + d["CYdr"] * tr["dr"]
     return pb, cy_trim
 
 
