@@ -190,7 +190,7 @@ def main() -> int:
         free=FREE,
     )
     t0 = time.perf_counter()
-    res = OutputError(problem.model, integrator="rk4").fit(problem.fit, estimate_x0=True)
+    res = OutputError(problem.model, integrator="rk4", max_iter=150).fit(problem.fit, estimate_x0=True)
     print(
         f"fit: {len(problem.fit)} training windows, converged {res.converged} in {res.iterations} iterations, "
         f"{time.perf_counter() - t0:.1f} s"
