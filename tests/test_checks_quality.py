@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from pipeline.cli import main
@@ -94,11 +95,11 @@ def test_fsid_check_cli_writes_checks_and_canonical_data(tmp_path, capsys):
     first = float(read_raw(log).tables["IMU[0]"].t[0])  # the log's first sample (1 s after boot)
     assert fd.meta["t0_abs"] == pytest.approx(first, abs=1e-6) and fd.meta["t0_kind"] == "boot"
     assert ref["t"].iloc[0] == 0.0 and np.allclose(back["p"].t, ref["t"].to_numpy())
-    head = (out / "canonical.csv").read_text().splitlines()[0]
-    assert (
-        head == f"# times are seconds from the log's start; t = 0 is {first:.6f} s on the log's own clock (since boot)"
-    )
-    assert doc["source"]["t0_abs"] == pytest.approx(first) and doc["source"]["start"] == head[2:]
+    table = pd.read_csv(out / "canonical.csv")  # t_abs: the same instants on the log's own clock
+    assert list(table.columns[:2]) == ["t", "t_abs"] and np.allclose(table["t_abs"] - table["t"], first, atol=1e-6)
+    assert doc["source"]["t0_abs"] == pytest.approx(first)
+    stated = f"times are seconds from the log's start; t = 0 is {first:.6f} s on the log's own clock (since boot)"
+    assert doc["source"]["start"] == stated
     assert "wrote" in capsys.readouterr().out
 
 

@@ -80,8 +80,8 @@ def test_gaps_between_maneuvers_keep_the_rate_and_raise_no_jitter():
 
 def test_an_epoch_stamped_log_reads_from_zero_and_states_its_start(tmp_path):
     """A CSV stamped in Unix time: channels, segments and canonical.csv in seconds from
-    its start; where that is (UTC) in meta, checks.json and canonical.csv's first line;
-    fsid check --segments in those seconds."""
+    its start; where that is (UTC) in meta and checks.json, canonical.csv's t_abs column
+    on the log's clock; fsid check --segments in those seconds."""
     _, fd = _default()
     df = fd.resample(50.0, ["p", "q", "r", "ax", "ay", "az", "V", "de", "da", "dr"])
     log = tmp_path / "epoch.csv"
@@ -97,10 +97,10 @@ def test_an_epoch_stamped_log_reads_from_zero_and_states_its_start(tmp_path):
     segs = doc["source"]["segments"]
     assert [(s["name"], s["t0"], s["t1"]) for s in segs][0] == ("time_2-5s", 2.0, 5.0)
     assert segs[1]["name"] == "auto_de_1" and 5.0 < segs[1]["t0"] < 20.0
-    first, header = (out / "canonical.csv").read_text().splitlines()[:2]
-    assert first.startswith("# times are seconds from the log's start") and "2024-03-09T16:00:00" in first
+    header, row = (out / "canonical.csv").read_text().splitlines()[:2]
+    assert header.startswith("t,t_abs,") and row.startswith(f"0.000000,{EPOCH:.6f},")
     canon = read_log(out / "canonical.csv")
-    assert canon["p"].t[0] == 0.0 and header.startswith("t,")
+    assert canon["p"].t[0] == 0.0 and np.allclose(canon["p"].values[:50], back.resample(50.0, ["p"])["p"][:50])
 
 
 def test_segments_parse_as_ranges_and_names():

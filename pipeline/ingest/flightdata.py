@@ -373,8 +373,11 @@ class FlightData:
         axis over the same span (the problem builders pick theirs by axis), else one
         segment. FsidError for an empty or reversed range, one outside the log, or an
         unknown name (the names found are listed)."""
-        found = self.segments or (self.mode_segments() + self.find_segments())
-        auto = [g for g in found if g.kind == "auto"] or self.find_segments()
+        if not items:
+            return []
+        by_name = any(isinstance(item, str) for item in items)
+        found = (self.segments or (self.mode_segments() + self.find_segments())) if by_name else self.segments
+        auto = ([g for g in found if g.kind == "auto"] or self.find_segments()) if per_axis else []
         lo, hi = self.span
         out: list[SegmentSpec] = []
         for item in items:

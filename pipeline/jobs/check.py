@@ -22,7 +22,6 @@ from pipeline.conditioning.identifiability import (
 )
 from pipeline.ingest.aircraft import aircraft_for_log, servo_travel_for
 from pipeline.ingest.readers import read_log
-from pipeline.ingest.sampling import start_statement
 from pipeline.jobs.progress import Progress
 from pipeline.jobs.stages import compatibility_after_flow_angles, flow_angle_stage
 from pipeline.outputs.recording import write_check_recording
@@ -81,11 +80,13 @@ def check_log(
         rates = [c.rate_hz for k, c in fd.channels.items() if k in CORE_CHANNELS]
         rate = min(max(rates), 100.0) if rates else 10.0
     df = fd.resample(rate, span="union")
-    buf = io.StringIO(f"# {start_statement(fd.meta)}\n" if "t0_abs" in fd.meta else "")
-    buf.seek(0, io.SEEK_END)
-    # time to the microsecond (seconds from the log's start; the comment line above says
-    # where that is on the log's clock)
-    df.assign(t=df["t"].map("{:.6f}".format)).to_csv(buf, index=False, float_format="%.9g")
+    buf = io.StringIO()
+    # t: seconds from the log's start; t_abs: the same instants on the log's own clock
+    # (epoch or boot, meta t0_kind), to the microsecond whatever its size (1.7e9 s)
+    t_abs = (df["t"] + float(fd.meta.get("t0_abs", 0.0))).map("{:.6f}".format)
+    df = df.assign(t=df["t"].map("{:.6f}".format))
+    df.insert(1, "t_abs", t_abs)
+    df.to_csv(buf, index=False, float_format="%.9g")
     atomic_write_text(out / "canonical.csv", buf.getvalue())
     _print_compatibility(extra.get("compatibility", {}))
     c = summarize(findings)
