@@ -95,3 +95,61 @@ def test_proof_of_match_passes_only_with_trim_terms_when_gyros_trusted(flight):
     # ad hoc without: r misses by 3.1 deg/s (band 1.5), p 1.15 deg/s, phi 0.84 deg
     seg = out[False][1]["segments"][0]["channels"]
     assert not out[False][1]["all_pass"] and not seg["r"]["pass"], seg["r"]
+
+
+# -- the model's trim terms on their own (estimators, no simulator) ----------------------------
+_C = {"m": 13.5, "Ixx": 0.82, "Izz": 1.76, "Ixz": 0.12, "S": 0.55, "b": 2.9, "rho": 1.2, "V": 30.0}
+_TRUE = {"CY0": 0.02, "Cl0": 0.003, "Cn0": -0.002, "CYbeta": -0.98, "Clbeta": -0.12, "Clp": -0.26, "Cnbeta": 0.25}
+
+
+def _segments(model, seed):
+    """Two 8 s segments of aileron and rudder doublets from zero states (the trim terms
+    drive the motion off them too), outputs with noise."""
+    from estimators import Segment
+    from estimators.simulation import simulate_outputs
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 8.0, 0.02)
+    segs = []
+    for k, (a, b) in enumerate(((1.0, 0.0), (0.3, 1.0))):
+        u = np.zeros((t.size, 2))
+        u[:, 0] = a * np.radians(5) * (((t > 1) & (t < 1.5)) * 1.0 - ((t >= 1.5) & (t < 2)))
+        u[:, 1] = b * np.radians(8) * (((t > 3) & (t < 3.5)) * 1.0 - ((t >= 3.5) & (t < 4)))
+        seg = Segment(t=t, u=u, z=np.zeros((t.size, 5)), x0=[0.0, 0.0, 0.0, 0.0], name=f"s{k}")
+        y = simulate_outputs(model, seg).to_numpy()
+        segs.append(Segment(t=t, u=u, z=y + rng.normal(0, [0.003, 0.002, 0.002, 0.003, 0.05], y.shape), x0=seg.x0))
+    return segs
+
+
+def test_trim_terms_recovered_and_their_identifiability():
+    """Output error on the linear lateral model: all three trim terms within 3 std of the
+    truth without output biases; with the sideslip and rate biases free, all three are
+    singular (the steady offsets those biases carry) and the one trim_terms keeps (CY0) is
+    estimated."""
+    from estimators import OutputError
+    from estimators.errors import IdentifiabilityError
+    from estimators.models import lateral_directional
+    from estimators.models.lateral import DEFAULT_FREE, TRIM_TERMS, trim_terms
+
+    assert trim_terms(False, False) == TRIM_TERMS and trim_terms(True, False) == ("CY0", "Cl0")
+    assert trim_terms(True, True) == ("CY0",)
+    truth = lateral_directional(_C, values=_TRUE).select_outputs(["beta", "p", "r", "phi", "ay"])
+    segs = _segments(truth, 3)
+    fit = OutputError(
+        lateral_directional(_C, free=DEFAULT_FREE + TRIM_TERMS).select_outputs(["beta", "p", "r", "phi", "ay"])
+    ).fit(segs, estimate_x0=True)
+    for n in TRIM_TERMS:
+        assert abs(fit.params[n] - _TRUE[n]) < 3 * fit.std[n] and fit.std[n] < 0.1 * abs(_TRUE[n]), (n, fit.params[n])
+    biases = ["beta", "p", "r", "ay"]
+    with pytest.raises(IdentifiabilityError):
+        OutputError(
+            lateral_directional(_C, free=DEFAULT_FREE + TRIM_TERMS, output_biases=biases).select_outputs(
+                ["beta", "p", "r", "phi", "ay"]
+            )
+        ).fit(segs, estimate_x0=True)
+    one = OutputError(
+        lateral_directional(_C, free=DEFAULT_FREE + trim_terms(True, True), output_biases=biases).select_outputs(
+            ["beta", "p", "r", "phi", "ay"]
+        )
+    ).fit(segs, estimate_x0=True)
+    assert one.converged and np.isfinite(one.std["CY0"])
