@@ -63,8 +63,8 @@ def trim_terms(beta_bias: bool, rate_biases: bool) -> tuple[str, ...]:
 
     Why: a steady state of the model with a constant sideslip offset (read by the vane
     with its bias, ``beta_bias``) or a constant yaw rate with the roll rate that keeps the
-    bank (read by the gyros with theirs, ``rate_biases``) changes no output beyond those
-    biases, while it shifts the constant force and moments; each such offset makes one
+    bank (read by the gyros with theirs, ``rate_biases``: a yaw-rate bias, the roll rate's
+    share being tan(theta) of it) changes no output beyond those biases, while it shifts the constant force and moments; each such offset makes one
     combination of (CY0, Cl0, Cn0) unidentifiable. The terms kept are CY0 first (the side
     force that a steady bank balances: a trim the sideslip and rate offsets cannot
     imitate), then Cl0, then Cn0; the dropped ones are carried by those offsets (a

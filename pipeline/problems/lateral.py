@@ -6,7 +6,8 @@ come from an equation-error regression on the same windows, and the last maneuve
 out for proof of match. The trim-asymmetry terms identifiable with the output biases (CY0
 with the default biases; :func:`estimators.models.lateral.trim_terms`) are free by
 default: a real aircraft trims with aileron and rudder and a steady bank, which a model
-without them cannot hold, and its bank angle drifts off in every prediction.
+without them cannot hold (it books the trim as a steady turn the gyros read with a bias),
+and its bank and rates drift off in predictions.
 """
 
 from __future__ import annotations
@@ -242,7 +243,7 @@ def lateral_problem(
         sideslip bias alone takes)."""
     rotary_gust = rotary_gust and measured_longitudinal
     if trim_asymmetry:
-        extra = trim_terms("beta" in biases, {"p", "r"} <= set(biases))
+        extra = trim_terms("beta" in biases, "r" in biases)
         free = tuple(free) + tuple(n for n in extra if n not in free)
     q = ["q"] if measured_longitudinal else []
     g = grid_windows(

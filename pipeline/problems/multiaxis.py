@@ -40,8 +40,8 @@ def multiaxis_problem(
     separates alphadot from q) and the roll-gust time constant tau_pg (lateral) free. The
     lateral trim-asymmetry terms are free without the gust states only: the filters'
     process noise on the sideslip and rate equations follows a constant force or moment,
-    leaving CY0 no signature but its ay offset, the common accelerometer bias (correlation
-    -0.98 in filter error, whose line search then stalls)."""
+    leaving CY0 no signature but its ay offset, which the accelerometer biases also carry
+    (filter error's line search stalls on that near-singular pair)."""
     extra = MULTIAXIS_FILTER_FREE[axis] if gust_states else ()
     if axis == "longitudinal":
         return longitudinal_problem(
