@@ -47,11 +47,11 @@ from estimators.model import Model
 from estimators.models._build import make_parameters, require_constants
 from estimators.models.lateral import DEFAULT_FREE as LAT_FREE
 from estimators.models.lateral import DEFAULTS as LATERAL_DEFAULTS
+from estimators.models.lateral import TRIM_TERMS
 from estimators.models.longitudinal import DEFAULT_FREE as LONG_FREE
 from estimators.models.longitudinal import LONGITUDINAL_DEFAULTS
 
-#: the lateral trim terms and the thrust per unit of the thrust input
-TRIM_TERMS = ("CY0", "Cl0", "Cn0")
+#: start values: both axes' derivatives, the lateral trim terms, the thrust per unit of the thrust input
 SIXDOF_DEFAULTS: dict[str, float] = {
     **LONGITUDINAL_DEFAULTS,
     **{k: 0.0 for k in TRIM_TERMS},

@@ -19,6 +19,7 @@ import pandas as pd
 
 from estimators import Segment
 from estimators.models import sixdof
+from estimators.models.lateral import trim_terms
 from estimators.models.sixdof import body_velocity
 from pipeline.errors import FsidError
 from pipeline.ingest.constants import AircraftConstants
@@ -88,8 +89,13 @@ def sixdof_lateral_problem(
     free: Sequence[str] = LAT_FREE,
     biases: Sequence[str] = ("p", "q", "r", "ay"),
     smooth_inputs: bool = True,
+    trim_asymmetry: bool = True,
 ) -> Problem:
     """The lateral-directional problem on the 6-DoF model.
+
+    trim_asymmetry : free the trim-asymmetry terms identifiable beside ``biases``
+        (:func:`estimators.models.lateral.trim_terms`): a real aircraft trims with aileron and
+        rudder offsets and a steady sideslip.
 
     longitudinal : CL*, CD*, Cm* values to hold (default: equation-error values from the
         same windows). segments default to the log's aileron and rudder windows; the last
@@ -122,7 +128,8 @@ def sixdof_lateral_problem(
         lat_frames.append(w.interpolate(limit_direction="both"))
     lat_c = {**c, "V": float(np.nanmean(g.frame["V"]))}
     start = {**{k: v for k, v in lon.items() if k[:2] in ("CL", "CD", "Cm")}, **lateral_starts(lat_frames, lat_c)}
-    model = sixdof(c, values=start, free=list(free) + list(TRIM_FREE), output_biases=biases, name="sixdof-lateral")
+    asym = trim_terms("beta" in biases, bool({"p", "r"} & set(biases))) if trim_asymmetry else ()
+    model = sixdof(c, values=start, free=[*free, *TRIM_FREE, *asym], output_biases=biases, name="sixdof-lateral")
     with_smoothed_inputs(frames, specs, g.smoothed, SIXDOF_INPUTS)
     notes = [
         f"nonlinear 6-DoF model on a {g.rate_hz:g} Hz grid, density {rho:.4f} kg/m^3",
