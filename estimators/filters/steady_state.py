@@ -180,12 +180,17 @@ def discrete_gain(
     Mm = np.einsum("bji,jk,bkl->bil", C[idx], Ri, C[idx])
     X = P[idx].copy()
     eye = np.eye(n * n)
-    scale = np.abs(Q).reshape(idx.size, -1).max(axis=1) + 1e-300
+    q_scale = np.abs(Q).reshape(idx.size, -1).max(axis=1)
     done = np.zeros(idx.size, dtype=bool)
     with np.errstate(all="ignore"):
         for _ in range(max_iter):
             XM = X @ Mm
             f = Phi @ (X - XM @ X) @ Phi.transpose(0, 2, 1) + Q - X
+            # relative to the larger of Qd and P: with little process noise on an unstable
+            # mode P stays finite while Qd -> 0, and a residual relative to Qd alone would
+            # never settle (the column then keeping the continuous solution, a jump between
+            # the columns of one sensitivity batch)
+            scale = np.maximum(q_scale, np.abs(X).reshape(idx.size, -1).max(axis=1)) + 1e-300
             err = np.abs(f).reshape(idx.size, -1).max(axis=1) / scale
             done = np.isfinite(err) & (err < 1e-12)
             if np.all(done | ~np.isfinite(err)):
