@@ -12,8 +12,11 @@ its conditional std). Measured (seed 1): trim CD0/CL0/Cm0 0.57/1.32/1.48 std (2.
 with the conditional std, held to 4 before), the 15 lateral derivatives within 1.7."""
 
 import json
+import re
 from pathlib import Path
 
+import matplotlib.image as mpimg
+import numpy as np
 import pytest
 
 from pipeline.jobs.scenario import run_scenario
@@ -40,10 +43,29 @@ TRIM = ("CD0", "CL0", "Cm0")
 
 
 @pytest.fixture(scope="module")
-def demo_run(tmp_path_factory):
+def demo_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("default")
     run_scenario(SCENARIOS / "default.toml", out, methods=["oem", "ls"], quiet=True)
-    return json.loads((out / "report.json").read_text())
+    return out
+
+
+@pytest.fixture(scope="module")
+def demo_run(demo_dir):
+    return json.loads((demo_dir / "report.json").read_text())
+
+
+def test_demo_report_has_figures_that_exist_and_are_not_blank(demo_dir):
+    """The demo's report.md links at least four PNGs; each exists, decodes, and carries
+    ink on a fair share of its pixels; report.html embeds them."""
+    md = (demo_dir / "report.md").read_text()
+    links = sorted(set(re.findall(r"!\[[^\]]*\]\((figures/[^)]+\.png)\)", md)))
+    assert len(links) >= 4, links
+    for link in links:
+        img = mpimg.imread(demo_dir / link)[..., :3]
+        ink = np.any(np.abs(img - img[0, 0]) > 0.15, axis=2).mean()
+        assert img.shape[1] > 600 and 0.02 < ink < 0.6, (link, img.shape, ink)
+    html = (demo_dir / "report.html").read_text()
+    assert html.count("data:image/png;base64,") >= len({link for link in links})
 
 
 def _errors(m, names=None):

@@ -125,12 +125,7 @@ def estimate(log: str | Path, opts: EstimateOptions, count: Progress | None = No
         if not user:  # a log with nothing to fit says so before it asks for an aircraft
             _identifiable(fd, run_checks(fd), None, axes, log, opts, len(vlogs), pr)
         raise
-    if opts.priors and not (ac is not None and ac.apriori):
-        raise FsidError(
-            f"--priors: the aircraft ({opts.aircraft or 'truth.json next to the log'}) gives no "
-            "[apriori] values; add them to the aircraft file (e.g. Cmq = { value = -12.0, std = 4.0 }) "
-            "or leave --priors out"
-        )
+    _check_priors(opts, ac)
     truth = (
         {k: float(v) for k, v in truth_doc["derivatives"].items()}
         if truth_doc and truth_doc.get("derivatives")
@@ -157,7 +152,28 @@ def estimate(log: str | Path, opts: EstimateOptions, count: Progress | None = No
     _servo_travel(fd, meta, pr, opts.quiet)
     data = _corrected(fd, fd_logged, flow, ac_sensors, truth_doc, steps, meta, opts, pr)
     meta["data"] = f"{Path(log).name}, {data.comp['data_for_estimation']}"
-    fit = FitOptions(
+    job = FitJob(ac, opts.methods, truth, _fit_options(opts, ac), axes=axes, model=um)
+    results, validations, _, dyn_doc, sampling = fit_stages(pr, job, data, fd_vals, opts.input_dynamics, meta)
+    if user:
+        meta["model"] = opts.model
+    _fit_meta(meta, dyn_doc, sampling_meta(steps_doc, sampling), data.flow, truth is not None)
+    return Estimated(results, validations, truth, meta, findings, summary, fd, data.comp, pr)
+
+
+def _check_priors(opts: EstimateOptions, ac: Any) -> None:
+    """``--priors`` needs the aircraft's [apriori] values: one error when it has none."""
+    if opts.priors and not (ac is not None and ac.apriori):
+        raise FsidError(
+            f"--priors: the aircraft ({opts.aircraft or 'truth.json next to the log'}) gives no "
+            "[apriori] values; add them to the aircraft file (e.g. Cmq = { value = -12.0, std = 4.0 }) "
+            "or leave --priors out"
+        )
+
+
+def _fit_options(opts: EstimateOptions, ac: Any) -> FitOptions:
+    """The fits' settings from the job's options and the aircraft's a-priori values and
+    expected signs."""
+    return FitOptions(
         inputs=opts.inputs,
         tolerances=default_tolerances(**(opts.bands or {})),
         pom=opts.pom,
@@ -169,19 +185,19 @@ def estimate(log: str | Path, opts: EstimateOptions, count: Progress | None = No
         priors=opts.priors,
         signs=ac.expected_signs() if ac is not None else None,
     )
-    job = FitJob(ac, opts.methods, truth, fit, axes=axes, model=um)
-    results, validations, _, dyn_doc, sampling = fit_stages(pr, job, data, fd_vals, opts.input_dynamics, meta)
-    if user:
-        meta["model"] = opts.model
+
+
+def _fit_meta(meta: dict[str, Any], dyn_doc: Any, sampling: dict[str, Any], flow: dict[str, Any], truth: bool) -> None:
+    """What the fit stages add to the report's metadata: the input dynamics and sampling,
+    the rebuilt angles' wind uncertainty, where the truth came from."""
     meta["control-input delay and lag"] = dynamics_summary(dyn_doc)
     meta["input_dynamics"] = dyn_doc
-    meta.update(sampling_meta(steps_doc, sampling))
-    if "wind_uncertainty" in data.flow:
-        meta["flow_angles"]["wind_uncertainty"] = data.flow["wind_uncertainty"]
-        meta["air-data angles' wind"] = wind_summary(data.flow["wind_uncertainty"])
-    if truth is not None:
+    meta.update(sampling)
+    if "wind_uncertainty" in flow:
+        meta["flow_angles"]["wind_uncertainty"] = flow["wind_uncertainty"]
+        meta["air-data angles' wind"] = wind_summary(flow["wind_uncertainty"])
+    if truth:
         meta["truth"] = "truth.json next to the log"
-    return Estimated(results, validations, truth, meta, findings, summary, fd, data.comp, pr)
 
 
 def stage_count(n_methods: int, n_axes: int, n_validation: int, user: bool) -> int:
