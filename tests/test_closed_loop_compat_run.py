@@ -43,7 +43,7 @@ SIM_TIMING_TOLERANCE_S = 0.005
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("se_run")
-    run_scenario(SCENARIO, out, methods=["oem"], quiet=True)
+    run_scenario(SCENARIO, out, methods=["oem"], quiet=True, figures=False)
     truth = json.loads((out / "truth.json").read_text())
     return (out, truth, json.loads((out / "report.json").read_text()), json.loads((out / "checks.json").read_text()))
 

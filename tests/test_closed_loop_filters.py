@@ -42,7 +42,7 @@ UNSTABLE_METHODS = ("fem", "ekf", "ukf", "decouple", "soem")
 
 def _run(tmp_path_factory, name, methods):
     out = tmp_path_factory.mktemp(name)
-    run_scenario(SCENARIOS / f"{name}.toml", out, methods=list(methods), quiet=True)
+    run_scenario(SCENARIOS / f"{name}.toml", out, methods=list(methods), quiet=True, figures=False)
     rep = json.loads((out / "report.json").read_text())
     rep["_out"] = out
     return rep
@@ -157,7 +157,7 @@ def test_filters_on_a_log_take_the_process_noise_from_filter_error(turbulence, t
     from pipeline.jobs.estimate import estimate_log
 
     out = tmp_path / "est"
-    estimate_log(turbulence["_out"] / "flight.mcap", out, methods=["ekf"], compat=False)
+    estimate_log(turbulence["_out"] / "flight.mcap", out, methods=["ekf"], compat=False, figures=False)
     assert "process noise for the longitudinal filters from a filter-error fit" in capsys.readouterr().err
     rep = json.loads((out / "report.json").read_text())
     assert "turbulence" not in rep["meta"]

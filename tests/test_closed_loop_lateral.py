@@ -35,7 +35,7 @@ LATERAL = (
 @pytest.fixture(scope="module")
 def lateral_out(tmp_path_factory):
     out = tmp_path_factory.mktemp("lateral")
-    run_scenario(SCENARIOS / "lateral_doublets_calm.toml", out, methods=["oem", "ls"], quiet=True)
+    run_scenario(SCENARIOS / "lateral_doublets_calm.toml", out, methods=["oem", "ls"], quiet=True, figures=False)
     return out
 
 

@@ -158,7 +158,7 @@ LONG_OFF = {"fem": {}, "ekf": {}, "ukf": {}}
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("multiaxis")
-    run_scenario(SCENARIO, out, methods=list(METHODS), quiet=True, compat=False)
+    run_scenario(SCENARIO, out, methods=list(METHODS), quiet=True, compat=False, figures=False)
     return out
 
 

@@ -74,6 +74,7 @@ def test_lateral_filter_error_fits_the_gust_model(lateral_flight, tmp_path):
         compat=False,
         quiet=True,
         validation_log=[lateral_flight / "validation.mcap"],
+        figures=False,
     )
     rep = json.loads((out / "report.json").read_text())
     m = rep["methods"]["fem"]

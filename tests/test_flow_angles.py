@@ -337,6 +337,7 @@ def test_estimate_without_vanes_in_wind(windy):
         methods=["oem"],
         model="longitudinal",
         quiet=True,
+        figures=False,
     )
     rep = json.loads((d / "est" / "report.json").read_text())
     flow = rep["meta"]["flow_angles"]
@@ -380,6 +381,7 @@ def test_estimate_without_vanes_in_wind_and_turbulence(tmp_path):
         methods=["fem"],
         model="longitudinal",
         quiet=True,
+        figures=False,
     )
     rep = json.loads((tmp_path / "est" / "report.json").read_text())
     flow = rep["meta"]["flow_angles"]

@@ -189,7 +189,7 @@ def test_the_steps_times_reach_the_estimates(slow_surfaces):
 
     d, _ = slow_surfaces
     out = d / "est"
-    estimate_log(d / "flight.bin", out, methods=("oem",), quiet=True)
+    estimate_log(d / "flight.bin", out, methods=("oem",), quiet=True, figures=False)
     rep = json.loads((out / "report.json").read_text())
     doc = rep["meta"]["input_sampling"]
     assert doc["timed"] >= doc["steps"] - 2
@@ -237,7 +237,7 @@ def test_a_25_hz_log_throughout(tmp_path):
     r = sim.fly(custom(raw, "default_25hz"), seed=1)
     write_dataflash(tmp_path / "flight.bin", r)
     write_truth_json(tmp_path / "truth.json", r)
-    estimate_log(tmp_path / "flight.bin", tmp_path / "out", methods=("oem",), quiet=True)
+    estimate_log(tmp_path / "flight.bin", tmp_path / "out", methods=("oem",), quiet=True, figures=False)
     rep = json.loads((tmp_path / "out" / "report.json").read_text())
     steps = rep["meta"]["input_sampling"]
     assert steps["steps"] >= 20 and steps["timed"] >= 0.8 * steps["steps"], steps

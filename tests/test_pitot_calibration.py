@@ -33,14 +33,14 @@ EFFECTIVE_SCALE = (0.0415, 0.0440)
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("pitot_run")
-    run_scenario(SCENARIO, out, methods=["oem"], quiet=True)
+    run_scenario(SCENARIO, out, methods=["oem"], quiet=True, figures=False)
     return out, json.loads((out / "report.json").read_text())
 
 
 @pytest.fixture(scope="module")
 def estimated(run, tmp_path_factory):
     out = tmp_path_factory.mktemp("pitot_bin")
-    estimate_log(run[0] / "flight.bin", out, methods=("oem",), quiet=True)
+    estimate_log(run[0] / "flight.bin", out, methods=("oem",), quiet=True, figures=False)
     return json.loads((out / "report.json").read_text()), (out / "report.md").read_text()
 
 
@@ -84,7 +84,7 @@ def test_without_the_calibration_the_pitot_error_breaks_the_fit(run, tmp_path, m
     """The contrast: the scale factor not estimated (its std limit 0), the airspeed error
     goes into the wind and the dynamic pressure."""
     monkeypatch.setattr(flow_angles, "SCALE_STD_MAX", 0.0)
-    estimate_log(run[0] / "flight.bin", tmp_path, methods=("oem",), quiet=True)
+    estimate_log(run[0] / "flight.bin", tmp_path, methods=("oem",), quiet=True, figures=False)
     rep = json.loads((tmp_path / "report.json").read_text())
     assert rep["meta"]["flow_angles"]["airspeed_scale"]["status"] == "not identifiable"
     worst = _worst(rep)
@@ -157,7 +157,9 @@ def test_a_validation_flight_takes_the_fitted_flights_scale_factor(tmp_path, cap
     scen.write_text(text + VALIDATION_FLIGHT)
     run_dir, _ = simulate(scen, tmp_path / "sim", progress=False)
     out = tmp_path / "est"
-    estimate_log(run_dir / "flight.bin", out, methods=("oem",), validation_log=run_dir / "validation.bin")
+    estimate_log(
+        run_dir / "flight.bin", out, methods=("oem",), validation_log=run_dir / "validation.bin", figures=False
+    )
     rep = json.loads((out / "report.json").read_text())
     cal = rep["meta"]["flow_angles"]["airspeed_scale"]
     assert cal["applied"] and EFFECTIVE_SCALE[0] < cal["estimate"] < EFFECTIVE_SCALE[1], cal

@@ -84,6 +84,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_input_arguments(p)
     add_validation_arguments(p)
     p.add_argument("--quiet", action="store_true")
+    p.add_argument("--no-figures", action="store_true", help="write report.md without its figures (faster batch runs)")
 
 
 def options(args: argparse.Namespace) -> EstimateOptions:
@@ -95,6 +96,7 @@ def options(args: argparse.Namespace) -> EstimateOptions:
         inputs=args.inputs,
         model=args.model,
         quiet=args.quiet,
+        figures=not args.no_figures,
         compat=not args.no_compat,
         smooth_inputs=not args.raw_inputs,
         validation_log=args.validate_with,

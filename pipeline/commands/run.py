@@ -40,6 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_input_arguments(p)
     add_validation_arguments(p)
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--no-figures", action="store_true", help="write report.md without its figures (faster batch runs)")
 
 
 def options(args: argparse.Namespace) -> RunOptions:
@@ -48,6 +49,7 @@ def options(args: argparse.Namespace) -> RunOptions:
         seed=args.seed,
         methods=args.method,
         quiet=args.quiet,
+        figures=not args.no_figures,
         compat=not args.no_compat,
         smooth_inputs=not args.raw_inputs,
         input_dynamics=args.input_dynamics,

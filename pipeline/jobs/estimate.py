@@ -66,7 +66,8 @@ def estimate_log(
     """``fsid estimate``: ``log`` -> report.md, report.json, run.rrd in ``out`` (see
     :func:`estimate`); returns name -> path. ``options`` (default EstimateOptions()), or
     its fields as keywords (``settings`` replace those of ``options``)."""
-    est = estimate(log, replace(options or EstimateOptions(), **settings))
+    opts = replace(options or EstimateOptions(), **settings)
+    est = estimate(log, opts)
     return write_outputs(
         out,
         est.results,
@@ -77,6 +78,7 @@ def estimate_log(
         meta=est.meta,
         compatibility=est.comp,
         flight=FlightRecord(est.data, est.findings),
+        figures=opts.figures,
     )
 
 

@@ -43,6 +43,8 @@ class FitOptions:
     hold_out: bool = True
     apriori: Mapping[str, Mapping[str, float | str]] | None = None
     priors: bool = False
+    #: draw the report's figures (PNG; off for batch runs that read report.json only)
+    figures: bool = True
     signs: Mapping[str, int] | None = None
 
 
@@ -79,11 +81,15 @@ class EstimateOptions:
     validation_log: str | Path | Sequence[str | Path] | None = None
     time_base: str | None = None
     input_dynamics: str | tuple[float, float] = "auto"
+    #: draw the report's figures (PNG; off for batch runs that read report.json only)
+    figures: bool = True
     calm: bool = False
     validation_calm: bool = False
     segments: Sequence[str | tuple[float, float]] | None = None
     hold_out: bool = True
     priors: bool = False
+    #: draw the report's figures (PNG; off for batch runs that read report.json only)
+    figures: bool = True
 
 
 @dataclass(frozen=True)
@@ -103,3 +109,5 @@ class RunOptions:
     pom: str = "auto"
     smooth_inputs: bool = True
     input_dynamics: str | tuple[float, float] = "auto"
+    #: draw the report's figures (PNG; off for batch runs that read report.json only)
+    figures: bool = True

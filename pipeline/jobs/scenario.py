@@ -99,6 +99,7 @@ def run_scenario(
         meta=meta,
         compatibility=est.comp,
         flight=FlightRecord(est.data, est.findings, plan=planned_maneuvers(result.maneuvers)),
+        figures=opts.figures,
     )
 
 

@@ -26,13 +26,15 @@ def write_outputs(
     meta: Mapping[str, Any],
     compatibility: Mapping[str, Any] | None = None,
     flight: FlightRecord | None = None,
+    figures: bool = True,
 ) -> dict[str, Path]:
     """Write report.md (its figures in ``out/figures``), report.html, report.json and run.rrd
     of ``results`` (key -> result) and their ``validations`` into ``out``, compared with
     ``truth`` where known (``flight``: the whole flight they were fitted on, for run.rrd);
-    returns name -> path (report.html and the figures are beside report.md)."""
+    returns name -> path (report.html and the figures are beside report.md). ``figures``
+    False: report.md without them."""
     agreement = cross_check_methods(results, validations)
-    pr.stage("write report.md with its figures, report.html, report.json, run.rrd")
+    pr.stage(f"write report.md{' with its figures' if figures else ''}, report.html, report.json, run.rrd")
     md, js = write_report(
         out,
         results,
@@ -42,7 +44,7 @@ def write_outputs(
         checks=checks,
         compatibility=compatibility,
         agreement=agreement,
-        figures=True,
+        figures=figures,
     )
     write_html(out / "report.html", md)
     rrd = write_recording(out / "run.rrd", results, validations, truth=truth, flight=flight)
