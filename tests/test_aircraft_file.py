@@ -123,6 +123,7 @@ def _with(table: str, body: str) -> str:
         ("propulsion", "max_thrust_N = 20\nthrottle = [0, 1]\nthrust_N = [0, 20]\n", "propulsion", "not both"),
         ("servos", "de_travel_deg = 20\nde_deg_per_unit = 25\n", "servos.de_deg_per_unit", "give one"),
         ("", "statically_unstable = 'yes'\n", "statically_unstable", "true or false"),
+        ("", "stall_speed_mps = -3\n", "stall_speed_mps", "above 0"),
     ],
 )
 def test_a_bad_aircraft_file_is_one_clear_error(tmp_path, table, body, where, words):
@@ -134,6 +135,12 @@ def test_a_bad_aircraft_file_is_one_clear_error(tmp_path, table, body, where, wo
     assert f"aircraft file {p}: {where}:" in msg and words in msg and "\n" not in msg, msg
 
 
+def test_the_stall_speed_is_read(tmp_path):
+    p = tmp_path / "micro.toml"
+    p.write_text(_with("", "stall_speed_mps = 3.5\n"))
+    assert read_aircraft_file(p).constants.stall_speed == 3.5
+
+
 def test_declared_conventions_and_instability(tmp_path):
     p = tmp_path / "ac.toml"
     p.write_text(
@@ -142,7 +149,7 @@ def test_declared_conventions_and_instability(tmp_path):
         )
     )
     c = read_aircraft_file(p).constants
-    assert c.unstable and c.reversed_inputs == ("de",)
+    assert c.unstable and c.reversed_inputs == ("de",) and c.stall_speed is None
     signs = c.expected_signs()
     assert "Cmalpha" not in signs and signs["Cmde"] == 1 and signs["CLde"] == -1 and signs["Cndr"] == -1
 

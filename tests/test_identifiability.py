@@ -4,6 +4,7 @@ reasons ``fsid check`` ends with."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 
 from pipeline.cli import main
-from pipeline.conditioning.checks import run_checks
+from pipeline.conditioning.checks import airborne_speed, run_checks
 from pipeline.conditioning.identifiability import AXIS_NEEDS, identifiability, identifiable_axes
 from pipeline.errors import FsidError
 from pipeline.ingest.flightdata import FlightData
@@ -114,6 +115,23 @@ def test_good_simulated_flight_is_identifiable_on_both_axes(default_fd):
         assert r.possible and not r.reasons and not r.missing, (axis, r.reasons)
         assert len([m for m in r.maneuvers if m.airborne and m.usable]) >= 2
     assert identifiable_axes(res, ("longitudinal", "lateral"), "flight.bin") == ("longitudinal", "lateral")
+
+
+def test_the_aircraft_stall_speed_is_the_airborne_floor(default_fd):
+    """The same ~30 m/s flight is on the ground for an aircraft that stalls at 40 m/s, and
+    flying for one that stalls at 3 m/s (an indoor micro aircraft's floor, below the 5 m/s
+    default): one floor for the checks, the windows and the bottom line."""
+    assert airborne_speed(default_fd) == 5.0
+    for stall, flying in ((40.0, False), (3.0, True)):
+        fd = dataclasses.replace(default_fd, meta={**default_fd.meta, "stall_speed_mps": stall})
+        assert airborne_speed(fd) == stall
+        res = identifiability(fd, run_checks(fd))
+        for axis, r in res.items():
+            assert r.possible is flying, (stall, axis, r.reasons)
+            if not flying:
+                assert r.reasons[0].startswith(
+                    f"on the ground or hovering over the whole log (airspeed below {stall:g} m/s"
+                )
 
 
 def test_one_axis_left_is_fitted_without_the_other(default_fd):

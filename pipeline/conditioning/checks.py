@@ -354,23 +354,38 @@ def _window(fd: FlightData, name: str, seg: SegmentSpec) -> np.ndarray:
     return v[np.isfinite(v)]
 
 
-def slow_airspeed(v: np.ndarray) -> tuple[bool, str]:
-    """Whether airspeed samples ``v`` (m/s, finite) are below 5 m/s more than 90 % of the
-    time - on the ground or hovering - and a phrase that says how much."""
-    low = float(np.mean(np.asarray(v) < 5.0))
-    return low > 0.9, f"airspeed below 5 m/s for {low:.0%} of it"
+#: airspeed [m/s] below which a span is on the ground or hovering, for an aircraft whose
+#: stall speed is not known (:func:`airborne_speed`)
+AIRBORNE_MPS = 5.0
+
+
+def airborne_speed(fd: FlightData) -> float:
+    """The airspeed [m/s] below which this log's aircraft is not flying: its stall speed
+    when the aircraft file gives it (``fd.meta["stall_speed_mps"]``, set by the jobs once
+    the aircraft is known: a micro aircraft flies below 5 m/s), else :data:`AIRBORNE_MPS`.
+    The one floor for the checks, the fit windows and the identifiability bottom line."""
+    v = fd.meta.get("stall_speed_mps")
+    return float(v) if v else AIRBORNE_MPS
+
+
+def slow_airspeed(v: np.ndarray, floor: float = AIRBORNE_MPS) -> tuple[bool, str]:
+    """Whether airspeed samples ``v`` (m/s, finite) are below ``floor`` (m/s,
+    :func:`airborne_speed`) more than 90 % of the time - on the ground or hovering - and a
+    phrase that says how much."""
+    low = float(np.mean(np.asarray(v) < floor))
+    return low > 0.9, f"airspeed below {floor:g} m/s for {low:.0%} of it"
 
 
 def no_forward_flight(fd: FlightData, seg: SegmentSpec) -> tuple[bool | None, str]:
     """Whether ``seg`` holds no forward flight (on the ground or hovering), and why.
 
-    With airspeed: below 5 m/s for more than 90 % of the span. Without it, from the
+    With airspeed: below :func:`airborne_speed` for more than 90 % of the span. Without it, from the
     altitude: within 2 m of a median within 5 m of 0, and no body rate above 0.3 rad/s.
     None (unknown) when neither channel has samples in the span."""
     if "V" in fd.channels:
         v = _window(fd, "V", seg)
         if v.size:
-            return slow_airspeed(v)
+            return slow_airspeed(v, airborne_speed(fd))
     if "h" in fd.channels:
         h = _window(fd, "h", seg)
         rates = [_window(fd, c, seg) for c in ("p", "q", "r") if c in fd.channels]

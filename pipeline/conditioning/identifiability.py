@@ -11,7 +11,8 @@ different stories. Per axis (longitudinal, lateral) it asks what the axis' probl
   is never missing (the rho channel, else ISA at h, else sea level); thrust from a thrust
   channel or throttle times the aircraft's max_thrust;
 * forward flight: the airspeed rule of the checks and of the problems' windows
-  (:func:`pipeline.conditioning.checks.no_forward_flight`, 5 m/s): a log on the ground or
+  (:func:`pipeline.conditioning.checks.no_forward_flight`, :func:`~pipeline.conditioning.checks.airborne_speed`:
+  5 m/s or the aircraft's stall speed): a log on the ground or
   hovering holds no aircraft flight dynamics, whatever else it lacks;
 * sample rates: the channels that carry the axis' fastest mode (the short period, the roll
   mode) at :data:`RESPONSE_HZ`, the control inputs at :data:`INPUT_HZ`, the slower states at
@@ -35,7 +36,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.conditioning.checks import FAIL, MIN_EXCITATION_RAD, Finding, no_forward_flight, slow_airspeed
+from pipeline.conditioning.checks import (
+    FAIL,
+    MIN_EXCITATION_RAD,
+    Finding,
+    airborne_speed,
+    no_forward_flight,
+    slow_airspeed,
+)
 from pipeline.conditioning.flow_angles import NEEDS as FLIGHT_PATH_CHANNELS
 from pipeline.conditioning.flow_angles import reconstruct_flow_angles
 from pipeline.errors import FsidError
@@ -315,7 +323,7 @@ def _maneuvers(fd: FlightData, needs: AxisNeeds) -> list[Maneuver]:
         if s.kind == "time":  # a window given by time is fitted as given (the problems' rule)
             airborne = True
         elif "V" in fd and _samples(fd, "V", s.t0, s.t1).size:
-            airborne = not slow_airspeed(_samples(fd, "V", s.t0, s.t1))[0]
+            airborne = not slow_airspeed(_samples(fd, "V", s.t0, s.t1), airborne_speed(fd))[0]
         else:
             airborne = no_forward_flight(fd, s)[0] is not True
         usable = all(_samples(fd, c, s.t0, s.t1).size >= MIN_OUTPUT_SAMPLES for c in needs.outputs if c in fd)
@@ -325,8 +333,8 @@ def _maneuvers(fd: FlightData, needs: AxisNeeds) -> list[Maneuver]:
 
 
 def _airborne_seconds(fd: FlightData, ground: bool) -> float:
-    """Seconds of forward flight: where the airspeed is at least 5 m/s (the whole log
-    without airspeed, unless it is on the ground)."""
+    """Seconds of forward flight: where the airspeed is at least :func:`airborne_speed`
+    (the whole log without airspeed, unless it is on the ground)."""
     if ground:
         return 0.0
     if "V" not in fd or len(fd["V"]) < 2:
@@ -334,7 +342,8 @@ def _airborne_seconds(fd: FlightData, ground: bool) -> float:
         return float(hi - lo) if np.isfinite(lo) else 0.0
     t, v = np.asarray(fd["V"].t, float), np.asarray(fd["V"].values, float)
     dt = np.diff(t)
-    fast = (v[:-1] >= 5.0) & (v[1:] >= 5.0)
+    floor = airborne_speed(fd)
+    fast = (v[:-1] >= floor) & (v[1:] >= floor)
     return float(np.sum(np.where(fast, np.minimum(dt, 1.0), 0.0)))
 
 
@@ -359,7 +368,7 @@ def _maneuver_reasons(
     if len(good) < need:
         if not (short or ground) and airborne_s < need * MANEUVER_S:
             out.append(
-                f"too short: {airborne_s:.1f} s of forward flight (airspeed >= 5 m/s); "
+                f"too short: {airborne_s:.1f} s of forward flight (airspeed >= {airborne_speed(fd):g} m/s); "
                 f"{word} need >= {need * MANEUVER_S:g} s"
             )
         grounded = sum(not m.airborne for m in mans)

@@ -14,6 +14,8 @@ Tables (SI units; the unit is in each key's name):
 - ``[signs]`` (optional) the control sign conventions of the logged de, da, dr (default
   DESIGN.md's: :data:`CONVENTIONS`);
 - ``statically_unstable = true`` (optional, top level): a positive Cmalpha is no fault;
+- ``stall_speed_mps`` (optional, top level): below it for most of a span the aircraft is
+  on the ground or hovering (default 5 m/s: a micro aircraft flies slower);
 - ``[apriori]`` (optional) ``Cmq = { value = -12.0, std = 4.0, source = "DATCOM" }`` (or
   ``rel_std``): for the plausibility check and, with ``fsid estimate --priors``, as priors.
 
@@ -59,6 +61,7 @@ _TOP = (
     "description",
     "source",
     "statically_unstable",
+    "stall_speed_mps",
     "geometry",
     "mass",
     "propulsion",
@@ -102,6 +105,9 @@ def read_aircraft_file(path: str | Path) -> AircraftFile:
     unstable = raw.get("statically_unstable", False)
     if not isinstance(unstable, bool):
         raise where.error("statically_unstable", f"must be true or false, got {unstable!r}")
+    stall = raw.get("stall_speed_mps")
+    if stall is not None and (isinstance(stall, bool) or not isinstance(stall, (int, float)) or not stall > 0):
+        raise where.error("stall_speed_mps", f"must be a speed in m/s above 0, got {stall!r}")
     ac = AircraftConstants(
         mass=m["mass_kg"],
         Ixx=m["Ixx_kgm2"],
@@ -118,6 +124,7 @@ def read_aircraft_file(path: str | Path) -> AircraftFile:
         reversed_inputs=_signs(raw.get("signs"), where),
         unstable=unstable,
         derivatives=_derivatives(raw.get("derivatives"), where),
+        stall_speed=None if stall is None else float(stall),
     )
     return AircraftFile(
         constants=ac,

@@ -34,7 +34,9 @@ class AircraftConstants:
     for, as priors; ``reversed_inputs``: the surfaces (de, da, dr) whose positive
     deflection is the opposite of DESIGN.md's convention; ``unstable``: statically
     unstable in pitch (a positive Cmalpha no fault); ``derivatives``: a truth set's
-    derivative table (a simulated aircraft), whose signs the sign check takes as declared.
+    derivative table (a simulated aircraft), whose signs the sign check takes as declared;
+    ``stall_speed`` (m/s): below it for most of a span the aircraft is on the ground or
+    hovering (:func:`pipeline.conditioning.checks.airborne_speed`; default 5 m/s).
     """
 
     mass: float
@@ -53,6 +55,7 @@ class AircraftConstants:
     reversed_inputs: tuple[str, ...] = ()
     unstable: bool = False
     derivatives: Mapping[str, float] = field(default_factory=dict)
+    stall_speed: float | None = None
 
     def thrust(self, throttle: np.ndarray) -> np.ndarray | None:
         """Thrust (N) at ``throttle`` (0..1, any shape): the throttle-to-thrust table

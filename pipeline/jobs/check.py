@@ -64,13 +64,13 @@ def check_log(
         by_axis = replace(fd, segments=fd.chosen_segments(segments))
         fd.segments = fd.chosen_segments(segments, per_axis=False)
     print(f"read {log} ({fd.meta['format']}, map {fd.meta['map']}): {len(fd.channels)} channels")
+    ac = aircraft_for_log(log, aircraft, fd, required=False, say=lambda _: None)[0]
+    fd.meta["stall_speed_mps"] = by_axis.meta["stall_speed_mps"] = getattr(ac, "stall_speed", None)
     findings = run_checks(fd)
     extra: dict = {}
     if compat:
         extra = _compatibility(fd, positions or ([0.0] * 3, [0.0] * 3, "default 0,0,0"))
-    ident = identifiability(
-        by_axis, findings, aircraft_for_log(log, aircraft, fd, required=False, say=lambda _: None)[0]
-    )
+    ident = identifiability(by_axis, findings, ac)
     findings += identifiability_findings(ident)
     extra["identifiability"] = identifiability_json(ident)
     out = new_run_dir("check", out)

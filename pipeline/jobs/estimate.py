@@ -128,6 +128,7 @@ def estimate(log: str | Path, opts: EstimateOptions, count: Progress | None = No
             _identifiable(fd, run_checks(fd), None, axes, log, opts, len(vlogs), pr)
         raise
     _check_priors(opts, ac)
+    fd.meta["stall_speed_mps"] = getattr(ac, "stall_speed", None)  # the airborne floor
     truth = (
         {k: float(v) for k, v in truth_doc["derivatives"].items()}
         if truth_doc and truth_doc.get("derivatives")
@@ -136,6 +137,8 @@ def estimate(log: str | Path, opts: EstimateOptions, count: Progress | None = No
     ac_sensors = ac
     fd, ac, fd_logged, flow = flow_angle_stage(fd, ac, pr)
     fd_vals, val_checks = _validation_flights(log, vlogs, fd, flow, ac_sensors, opts, pr)
+    for vfd in fd_vals:  # the same aircraft
+        vfd.meta["stall_speed_mps"] = fd.meta["stall_speed_mps"]
     um = _user_model(opts.model, ac, fd, pr) if user else None
     pr.stage("data-quality checks")
     findings = run_checks(fd)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from pipeline.conditioning.checks import slow_airspeed
+from pipeline.conditioning.checks import AIRBORNE_MPS, airborne_speed, slow_airspeed
 from pipeline.conditioning.input_sampling import step_spans
 from pipeline.conditioning.input_smoothing import smoothed_control_inputs
 from pipeline.errors import FsidError
@@ -85,18 +85,23 @@ def _window(df: pd.DataFrame, spec: SegmentSpec) -> pd.DataFrame:
 
 
 def _window_fault(
-    w: pd.DataFrame, s: SegmentSpec, outputs: Sequence[str], others: Sequence[str], airborne: bool = True
+    w: pd.DataFrame,
+    s: SegmentSpec,
+    outputs: Sequence[str],
+    others: Sequence[str],
+    airborne: bool = True,
+    floor: float = AIRBORNE_MPS,
 ) -> str | None:
     """What makes window ``w`` of segment ``s`` unusable - fewer than 10 rows, an output
     with fewer than 10 samples (outputs may be slower than the grid: NaN between their
     samples), another channel (an input) with any NaN, and with ``airborne`` an airspeed
-    column below 5 m/s (:func:`pipeline.conditioning.checks.slow_airspeed`: a control check on the
-    ground, a hover) - or None."""
+    column below ``floor`` m/s (:func:`pipeline.conditioning.checks.slow_airspeed`: a control
+    check on the ground, a hover) - or None."""
     bad = [k for k in outputs if w[k].notna().sum() < 10] + [k for k in others if w[k].isna().any()]
     if len(w) < 10 or bad:
         return f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) has gaps or NaN in {bad}"
     if airborne and "V" in w:
-        slow, why = slow_airspeed(w["V"].dropna().to_numpy())
+        slow, why = slow_airspeed(w["V"].dropna().to_numpy(), floor)
         if slow:
             return f"segment {s.name} ({s.t0:.2f}-{s.t1:.2f} s) is on the ground or hovering ({why})"
     return None
@@ -110,6 +115,7 @@ def usable_segments(
     hold_out: int,
     what: str,
     airborne: bool = True,
+    floor: float = AIRBORNE_MPS,
 ) -> tuple[list[SegmentSpec], list[str], dict[int, pd.DataFrame]]:
     """(the segments of ``specs`` whose windows are usable, a note for each one left out,
     their rows of ``df`` by ``id(spec)``): the one place that cuts segment windows out of the
@@ -124,7 +130,7 @@ def usable_segments(
     keep, faults, frames = [], [], {}
     for s in specs:
         w = _window(df, s)
-        fault = _window_fault(w, s, outputs, others, airborne and s.kind != "time")
+        fault = _window_fault(w, s, outputs, others, airborne and s.kind != "time", floor)
         if fault is None:
             keep.append(s)
             frames[id(s)] = w
@@ -232,5 +238,5 @@ def grid_windows(
     ``hold_out`` and ``what`` as there): the first step of every built-in problem."""
     df, rate = multirate_frame(fd, outputs, grid_channels, rate_hz)
     smoothed, input_note = smoothed_control_inputs(fd, df, rate, smooth)
-    usable, left_out, frames = usable_segments(df, specs, outputs, inputs, hold_out, what)
+    usable, left_out, frames = usable_segments(df, specs, outputs, inputs, hold_out, what, floor=airborne_speed(fd))
     return GridWindows(df, rate, usable, frames, smoothed, ([input_note] if input_note else []) + left_out)
