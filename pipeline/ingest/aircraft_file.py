@@ -106,7 +106,7 @@ def read_aircraft_file(path: str | Path) -> AircraftFile:
     if not isinstance(unstable, bool):
         raise where.error("statically_unstable", f"must be true or false, got {unstable!r}")
     stall = raw.get("stall_speed_mps")
-    if stall is not None and (isinstance(stall, bool) or not isinstance(stall, (int, float)) or not stall > 0):
+    if stall is not None and not (_is_number(stall) and stall > 0):
         raise where.error("stall_speed_mps", f"must be a speed in m/s above 0, got {stall!r}")
     ac = AircraftConstants(
         mass=m["mass_kg"],
