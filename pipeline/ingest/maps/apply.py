@@ -21,17 +21,18 @@ from pipeline.ingest.maps.servo import (
     servo_travel,
     torque_surface,
 )
+from pipeline.ingest.pose import quat_to_euler
 from pipeline.ingest.rawlog import RawLog
+
+#: the Euler angles in the order :func:`pipeline.ingest.pose.quat_to_euler` returns them
+EULER = ("phi", "theta", "psi")
 
 
 def _quat_euler(w, x, y, z, comp: str) -> np.ndarray:
-    if comp == "phi":
-        return np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    if comp == "theta":
-        return np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
-    if comp == "psi":
-        return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    raise FsidError(f"quaternion component '{comp}' unknown; use phi, theta or psi")
+    """One Euler angle (``comp``: phi, theta or psi) of the quaternions w, x, y, z (body -> NED)."""
+    if comp not in EULER:
+        raise FsidError(f"quaternion component '{comp}' unknown; use phi, theta or psi")
+    return quat_to_euler(np.column_stack([w, x, y, z]))[EULER.index(comp)]
 
 
 def apply_rule(raw: RawLog, rule: ChannelRule, travel_deg: float = DEFAULT_TRAVEL_DEG) -> Channel | str:
