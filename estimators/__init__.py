@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 from estimators.errors import (
     BoundsError,
     ConvergenceError,
+    DependentOutputsError,
     EstimationError,
     IdentifiabilityError,
     ModelDefinitionError,
@@ -70,6 +71,7 @@ __all__ = [
     "SimulationDivergedError",
     "IdentifiabilityError",
     "ConvergenceError",
+    "DependentOutputsError",
     "UnknownNameError",
     "LeastSquares",
     "RecursiveLeastSquares",

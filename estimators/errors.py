@@ -18,6 +18,16 @@ class UnknownNameError(ModelDefinitionError, AttributeError):
     AttributeError too, so ``hasattr`` and ``getattr(p, name, default)`` work."""
 
 
+class DependentOutputsError(ModelDefinitionError):
+    """A full innovation covariance was asked for while some measured outputs are exact
+    functions of the others and the inputs: its determinant can be driven to zero, so it is
+    not identifiable. ``outputs`` names them."""
+
+    def __init__(self, message: str, *, outputs: list[str] | None = None) -> None:
+        super().__init__(message)
+        self.outputs = list(outputs or [])
+
+
 class BoundsError(ModelDefinitionError):
     """A start value lies outside its parameter's bounds."""
 

@@ -11,6 +11,8 @@ design through :func:`estimators.process_noise_examples.simulate_with_process_no
   process noise on V, alpha, theta, q (test case 4).
 * :func:`lateral_replica`: linear lateral-directional p, r with the lateral velocity as
   an input, 15 derivatives and 7 biases, process noise on p and r (test case 2).
+* :func:`unstable_replica`: the unstable short period in w and q flown closed loop with
+  process noise, az an exact function of the measured w, q and the elevator (test case 8).
 """
 
 from __future__ import annotations
@@ -275,5 +277,84 @@ def lateral_replica(seed: int = 0) -> NoisyExample:
         truth=dict(LATERAL_TRUTH),
         process_noise=F,
         noise_std=LATERAL_NOISE,
+        states=[X],
+    )
+
+
+#: the unstable short period of test case 8 (w (m/s), q (rad/s); dimensional derivatives):
+#: Mw > 0 makes it unstable (time to double about 1 s); Zq is held, as in the reference
+UNSTABLE_TRUTH = dict(Zw=-1.4249, Zq=-1.4768, Zde=-6.2632, Mw=0.2163, Mq=-3.7067, Mde=-12.784)
+UNSTABLE_START = dict(Zw=-1.2, Zq=-1.4768, Zde=-5.0, Mw=0.15, Mq=-3.0, Mde=-10.0)
+UNSTABLE_CONSTANTS = dict(U0=44.5)
+#: process noise on w and q (m/s and rad/s per sqrt(s)), and its start
+UNSTABLE_F = np.array([0.5, 0.02])
+UNSTABLE_F_START = {"w": 0.1, "q": 0.005}
+#: measurement-noise std of w (m/s) and q (rad/s); az is computed from the measured w and q
+UNSTABLE_NOISE = np.array([0.05, 0.002])
+#: the stability augmentation de = de_pilot + K_w w_m + K_q q_m on the measured signals
+UNSTABLE_FEEDBACK = (0.05, 0.1)
+
+
+def _uns_f(x, u, p, c):
+    w, q = x
+    (de,) = u
+    return p.Zw * w + (c.U0 + p.Zq) * q + p.Zde * de, p.Mw * w + p.Mq * q + p.Mde * de
+
+
+def _uns_g(x, u, p, c):
+    w, q = x
+    (de,) = u
+    return p.Zw * w + p.Zq * q + p.Zde * de, w, q
+
+
+def unstable_model(values: dict[str, float] | None = None) -> Model:
+    """The unstable short period of test case 8: states w (m/s), q (rad/s); input the
+    elevator (rad); outputs az (m/s^2), w, q. Zq is held at its value."""
+    values = UNSTABLE_START if values is None else values
+    return Model(
+        states=["w", "q"],
+        inputs=["de"],
+        outputs=["az", "w", "q"],
+        parameters=[Parameter(k, v, free=k != "Zq") for k, v in values.items()],
+        constants=UNSTABLE_CONSTANTS,
+        f=_uns_f,
+        g=_uns_g,
+        name="unstable-tc08",
+    )
+
+
+def unstable_replica(seed: int = 0) -> NoisyExample:
+    """40 s at 50 Hz (2001 samples) from x0 = 0: pilot elevator 3-2-1-1s and a doublet
+    through the stability augmentation (:data:`UNSTABLE_FEEDBACK`, closed on the
+    measurements of the sample before), process noise on w and q; the recorded elevator is
+    the total one and az is computed from the measured w, q and elevator (as in the
+    reference's data, an exact function of them)."""
+    t = np.arange(2001) * 0.02
+    pilot = (
+        multistep(t, 2.0, 0.5, amplitude=0.02)
+        + multistep(t, 15.0, 1.0, pattern=(1, -1), amplitude=-0.02)
+        + multistep(t, 26.0, 0.7, amplitude=-0.015)
+    )
+    seg = Segment(t=t, u=pilot[:, None], z=np.zeros((t.size, 3)), x0=np.zeros(2), name="tc08")
+    truth_model = unstable_model(UNSTABLE_TRUTH)
+    F = np.diag(UNSTABLE_F)
+    kw, kq = UNSTABLE_FEEDBACK
+
+    def feedback(i: int, z: np.ndarray) -> np.ndarray:
+        return np.array([pilot[i] + kw * z[1] + kq * z[2]])
+
+    sd = np.r_[0.0, UNSTABLE_NOISE]
+    rng = np.random.default_rng(seed)
+    X, Z, U = simulate_with_process_noise(truth_model, seg, F, rng, sd, feedback=feedback, substeps=10)
+    p = UNSTABLE_TRUTH
+    Z[:, 0] = p["Zw"] * Z[:, 1] + p["Zq"] * Z[:, 2] + p["Zde"] * U[:, 0]
+    seg.z, seg.u = Z, U
+    return NoisyExample(
+        model=unstable_model(),
+        truth_model=truth_model,
+        segments=[seg],
+        truth={k: v for k, v in UNSTABLE_TRUTH.items() if k != "Zq"},
+        process_noise=F,
+        noise_std=UNSTABLE_NOISE,
         states=[X],
     )

@@ -6,7 +6,7 @@ import pytest
 from scipy import integrate, linalg
 
 from estimators import EstimationResult, FilterError, OutputError
-from estimators.filters.steady_state import continuous_gain, discretize, expm, input_integrals
+from estimators.filters.steady_state import continuous_gain, expm, input_integrals
 from estimators.process_noise_examples import turbulent_longitudinal_example, turbulent_short_period_example
 
 
@@ -31,10 +31,15 @@ def noise_truth(ex):
     return {f"F_{s}": ex.process_noise[i, i] for i, s in enumerate(ex.model.states)}
 
 
-def test_linear_fem_in_turbulence_recovers_parameters_and_noise(sp, fem):
-    assert isinstance(fem, EstimationResult) and fem.method == "fem"
+def test_fem_in_turbulence_recovers_parameters_and_noise(sp, fem):
+    """The reference's criterion (diagonal R, the default) recovers the derivatives; the
+    process noise it gives is biased where the innovations are correlated (it ignores
+    their correlation), so F is checked on the full-R likelihood, identifiable here."""
+    assert isinstance(fem, EstimationResult) and fem.method == "fem-nl"
     assert fem.converged and fem.iterations <= 15
-    within(fem, {**sp.truth, **noise_truth(sp)})
+    within(fem, sp.truth)
+    full = FilterError(sp.model, process_noise={"alpha": 0.01, "q": 0.01}, full_R=True).fit(sp.segments)
+    within(full, {**sp.truth, **noise_truth(sp)})
     # output error on the same data: std too small for its errors
     oem = OutputError(sp.model).fit(sp.segments)
     worst = max(abs(oem.params[n] - sp.truth[n]) / oem.std[n] for n in oem.free_names)
@@ -60,25 +65,20 @@ def test_fem_result_contents(sp, fem):
     assert "FEM" in text and "F_alpha" in text
 
 
-def test_riccati_and_discretisation_match_scipy():
+def test_riccati_and_input_integrals_match_scipy():
     rng = np.random.default_rng(0)
     n, m, h = 3, 2, 0.05
     A = rng.standard_normal((n, n))
     A[0, 0] = 1.5  # unstable is fine
     FF = np.diag([0.1, 0.0, 0.3]) ** 2
-    Phi, Gam, Qd = discretize(A, FF, h)
-    np.testing.assert_allclose(Phi, linalg.expm(A * h), rtol=1e-12)
     np.testing.assert_allclose(expm(A * 3.0), linalg.expm(A * 3.0), rtol=1e-10)
     ts = np.linspace(0, h, 2001)
     E = np.array([linalg.expm(A * s) for s in ts])
-    np.testing.assert_allclose(Gam, integrate.simpson(E, x=ts, axis=0), rtol=1e-8)
-    np.testing.assert_allclose(
-        Qd, integrate.simpson(E @ FF @ E.transpose(0, 2, 1), x=ts, axis=0), rtol=1e-7, atol=1e-14
-    )
-    # first-order hold: Gamma1 = int e^{A(h-s)} s/h ds
+    # held input: Gamma0 = int e^{As} ds; first-order hold: Gamma1 = int e^{A(h-s)} s/h ds
     Phi1, G0, G1 = input_integrals(A, h)
     E1 = np.array([linalg.expm(A * (h - s)) * s / h for s in ts])
-    np.testing.assert_allclose(G0, Gam, rtol=1e-12)
+    np.testing.assert_allclose(Phi1, linalg.expm(A * h), rtol=1e-12)
+    np.testing.assert_allclose(G0, integrate.simpson(E, x=ts, axis=0), rtol=1e-8)
     np.testing.assert_allclose(G1, integrate.simpson(E1, x=ts, axis=0), rtol=1e-8)
     # the continuous Riccati equation with the innovation covariance R, batched
     C = rng.standard_normal((m, n))
@@ -131,20 +131,25 @@ def test_compiled_filter_loop_with_selected_outputs():
     fast = FilterError(model, **kw).fit(segs)
     assert output_kernel(model) is not None
     slow = FilterError(model, compiled=False, **kw).fit(segs)
-    np.testing.assert_allclose(fast.params.to_numpy(), slow.params.to_numpy(), rtol=1e-6, atol=1e-9)
+    # the same arithmetic in another order: rounding, compounded over the samples and the
+    # iterations, must stay negligible against each estimate's std on any machine
+    free = fast.free_names
+    np.testing.assert_array_less(np.abs(fast.params[free] - slow.params[free]), 1e-4 * fast.std[free])
     within(fast, ex.truth)
 
 
 def test_coloured_innovation_bounds(sp, fem):
     """Morelli-Klein on the innovations (extra["mk_cov"]): the right noise model gives
-    white innovations and the Cramér-Rao bounds back (ratio 0.94-1.00 measured); a filter
+    white innovations and about the Cramér-Rao bounds back; a filter
     that leaves out the pitch-rate process noise gets coloured innovations, derivatives
     4.5-7.6 CRB std off (Cmde, Cmq, Cmalpha), and bounds 3.5-4.4x wider that cover them."""
     names = fem.extra["mk_names"]
     assert names == list(fem.free_names)
     ratio = {n: np.sqrt(fem.extra["mk_cov"][i, i]) / fem.std[n] for i, n in enumerate(names)}
     truth = {n: v for n, v in sp.truth.items() if n in ratio and n.startswith("C")}
-    assert len(truth) == 5 and all(0.85 < ratio[n] < 1.15 for n in truth), ratio
+    # the diagonal R ignores the innovations' correlation between outputs, which the
+    # Morelli-Klein sandwich counts: the bounds it gives are up to a fifth tighter
+    assert len(truth) == 5 and all(0.75 < ratio[n] < 1.15 for n in truth), ratio
     short = FilterError(sp.model, process_noise={"alpha": 0.01}).fit(sp.segments)
     names = short.extra["mk_names"]
     mk = {n: np.sqrt(short.extra["mk_cov"][i, i]) for i, n in enumerate(names)}

@@ -215,16 +215,24 @@ def test_compiled_segment_loop_is_the_python_loop(turb, case, cls):
     a = cls(model, **kw).fit(segs)
     b = cls(model, compiled=False, **kw).fit(segs)
     assert hasattr(output_kernel(model), f"{a.method}_segment_rk4")
-    np.testing.assert_allclose(a.params.to_numpy(), b.params.to_numpy(), rtol=1e-7, atol=1e-10)
-    np.testing.assert_allclose(a.std.to_numpy(), b.std.to_numpy(), rtol=1e-6, atol=1e-12)
+    # The two loops do the same arithmetic in another order, so they differ by rounding,
+    # compounded over thousands of filter steps and the passes in a way that depends on the
+    # machine's instruction order. The tolerance follows from what the numbers are for:
+    # the difference must be negligible, 1e-4 or less, against the statistical uncertainty
+    # (each estimate's std, each output's residual std), whatever the machine.
+    free = [n for n in a.free_names if np.isfinite(a.std[n])]  # not those held by a bound
+    np.testing.assert_array_less(np.abs(a.params[free] - b.params[free]), 1e-4 * a.std[free])
+    np.testing.assert_allclose(a.params.to_numpy(), b.params.to_numpy(), rtol=1e-6)
+    np.testing.assert_allclose(a.std.to_numpy(), b.std.to_numpy(), rtol=1e-4, atol=1e-12)
     assert a.extra["innovation_nll"] == pytest.approx(b.extra["innovation_nll"], rel=1e-9)
     assert a.extra["innovation_count"] == b.extra["innovation_count"]
     assert a.extra["bound_hits"] == b.extra["bound_hits"] and a.at_bounds == b.at_bounds
     np.testing.assert_allclose(a.extra["measurement_noise"], b.extra["measurement_noise"], rtol=1e-7)
     np.testing.assert_allclose(a.extra["process_noise"], b.extra["process_noise"], rtol=1e-7)
     np.testing.assert_allclose(a.extra["gain"], b.extra["gain"], rtol=1e-3, atol=1e-7)
-    for x, y in zip(a.predicted, b.predicted):
-        np.testing.assert_allclose(x.to_numpy(), y.to_numpy(), rtol=1e-6, atol=1e-9)
+    for x, y, e in zip(a.predicted, b.predicted, a.residuals):
+        sd = np.nanstd(e.to_numpy(), axis=0)
+        assert np.all(np.abs(x.to_numpy() - y.to_numpy()) <= 1e-4 * sd), np.nanmax(np.abs(x - y) / sd)
     if case.startswith("adapted"):
         assert a.extra["bound_hits"].get("Cmq", 0) > 0, a.extra["bound_hits"]
         assert np.isnan(a.residuals[0]["V"].iloc[120]) and np.isfinite(a.predicted[0]["V"].iloc[120])

@@ -5,11 +5,11 @@ innovations for a fixed R).
 
 Per segment and column the model is linearised about the segment's start
 (:func:`~estimators.filters.linearize.linearize_batch`), the steady-state gain solved
-(:func:`~estimators.filters.steady_state.discrete_gain`) and the filter run: with the
-transition matrix and the input integrals (``form="linear"``,
-:func:`~estimators.filters.loops.kf_loop`) or with the integrator's prediction and the
-nonlinear g (``form="nonlinear"``, compiled in the model's filter kernel module or with
-numpy).
+from the continuous Riccati equation (:func:`~estimators.filters.steady_state.continuous_gain`,
+the reference software's) and the filter run: with the integrator's prediction and the
+model's g (``form="nonlinear"``, the default for linear and nonlinear models alike,
+compiled in the model's filter kernel module or with numpy) or with the transition matrix
+and the input integrals (``form="linear"``, :func:`~estimators.filters.loops.kf_loop`).
 """
 
 from __future__ import annotations
@@ -21,11 +21,11 @@ import numpy as np
 
 from estimators import statistics as st
 from estimators.compile import kernel_for
-from estimators.errors import ModelDefinitionError, SimulationDivergedError
+from estimators.errors import DependentOutputsError, ModelDefinitionError, SimulationDivergedError
 from estimators.filters.kernels import output_kernel
 from estimators.filters.linearize import linearize_batch
 from estimators.filters.loops import kf_loop_jit
-from estimators.filters.steady_state import discrete_gain, input_integrals, pattern_gains
+from estimators.filters.steady_state import continuous_gain, input_integrals, pattern_gains
 from estimators.integrators import INPUT_MODES
 from estimators.layout import Layout
 from estimators.model import Model, Segment
@@ -55,11 +55,63 @@ def sample_interval(seg: Segment, k: int = 0) -> float:
     return h
 
 
+#: fraction of an output's variance left by its least-squares fit on the other outputs and
+#: the inputs under which it counts as their exact function (measurement noise leaves far
+#: more; outputs computed from others, as angular accelerations often are, leave rounding)
+DEPENDENT_OUTPUT_TOL = 1e-6
+
+
+def dependent_outputs(model: Model, segments: Sequence[Segment]) -> list[str]:
+    """The measured outputs that are, to :data:`DEPENDENT_OUTPUT_TOL` of their variance,
+    affine functions of the other outputs and the inputs over the samples where every
+    output is measured (all segments, each with its own offset)."""
+    names = list(model.outputs)
+    m = len(names)
+    Z, X = [], []
+    for k, seg in enumerate(segments):
+        ok = np.all(np.isfinite(seg.z), axis=1) & np.all(np.isfinite(seg.u), axis=1)
+        Z.append(seg.z[ok])
+        ones = np.zeros((int(ok.sum()), len(segments)))
+        ones[:, k] = 1.0
+        X.append(np.hstack([seg.u[ok], ones]))
+    Z, X = np.vstack(Z), np.vstack(X)
+    if Z.shape[0] <= Z.shape[1] + X.shape[1]:
+        return []
+    out = []
+    for i in range(m):
+        zi = Z[:, i] - Z[:, i].mean()
+        var = float(zi @ zi)
+        if var <= 0.0:
+            continue
+        A = np.hstack([np.delete(Z, i, axis=1), X])
+        A = A / np.maximum(np.abs(A).max(axis=0), 1e-300)
+        coef = np.linalg.lstsq(A, Z[:, i], rcond=None)[0]
+        r = Z[:, i] - A @ coef
+        if float(r @ r) < DEPENDENT_OUTPUT_TOL * var:
+            out.append(names[i])
+    return out
+
+
+def check_full_R(model: Model, segments: Sequence[Segment]) -> None:
+    """Refuse a full innovation covariance when an output is an exact function of the
+    others (:func:`dependent_outputs`): its determinant then goes to zero at the cost of
+    every other term of the likelihood."""
+    dep = dependent_outputs(model, segments)
+    if dep:
+        raise DependentOutputsError(
+            f"full_R: the measured outputs {', '.join(dep)} are exact functions of the other outputs "
+            f"and the inputs (less than {DEPENDENT_OUTPUT_TOL:g} of their variance left by a linear fit), "
+            "so the determinant of a full innovation covariance can be driven to zero: use the "
+            "diagonal one (full_R=False, the default) or leave those outputs out",
+            outputs=dep,
+        )
+
+
 @dataclass
 class SegmentFilter:
     """The filter run of one segment for a batch of Bc phi columns (column 0 the base):
-    predicted outputs Y (Bc, N, m), steady-state gain K (Bc, n, m) and a-priori covariance
-    P (Bc, n, n), filtered states X (Bc, N, n), diag(C K) CK (Bc, m), the output matrix C
+    predicted outputs Y (Bc, N, m), steady-state gain K (Bc, n, m) and covariance
+    P (Bc, n, n), filtered states X (Bc, N, n), diag(K C) CK (Bc, n), the output matrix C
     (Bc, m, n) and the linearisation (A, B, C, D) of column 0."""
 
     Y: np.ndarray
@@ -120,8 +172,8 @@ class FemProblem:
         self, Phis: np.ndarray, R: np.ndarray, rows: Sequence[np.ndarray] | None = None, gain: bool = True
     ) -> list[SegmentFilter]:
         """For parameter columns Phis (Bc, n_phi) and innovation covariance R (m, m): per
-        segment the predicted outputs Y (Bc_k, N, m), gain K (Bc_k, n, m), P, diag(C K)
-        (Bc_k, m), filtered states and the linearisation of column 0. ``rows``: per segment
+        segment the predicted outputs Y (Bc_k, N, m), gain K (Bc_k, n, m), P, diag(K C)
+        (Bc_k, n), filtered states and the linearisation of column 0. ``rows``: per segment
         the columns of Phis to run (column 0 first; default all): a sensitivity batch needs
         only the parameters the segment depends on (:meth:`segment_rows`). ``gain`` False
         runs without a gain (K = 0: the output-error simulation)."""
@@ -144,7 +196,7 @@ class FemProblem:
             A, Bu, C, D, f0, y0 = linearize_batch(model, P, X0, seg.u[0], c)
             h = self.h[k]
             with np.errstate(all="ignore"):
-                Pp, Kg = discrete_gain(A, C, FF_all[idx], R, h)
+                Pp, Kg = continuous_gain(A, C, FF_all[idx], R, h)
             ok = np.all(np.isfinite(Kg.reshape(Bc, -1)), axis=1)
             Z = np.ascontiguousarray(seg.z)
             masks, pat = self.patterns[k]
@@ -174,7 +226,7 @@ class FemProblem:
                     )
             else:
                 Y, Xf = self._nonlinear_loop(seg, P, X0, Kg, Kp, pat, c)
-            CK = np.einsum("bij,bji->bi", C, Kg)
+            CK = np.einsum("bij,bji->bi", Kg, C)
             out.append(SegmentFilter(Y=Y, K=Kg, P=Pp, X=Xf, CK=CK, C=C, lin=(A[0], Bu[0], C[0], D[0])))
         return out
 
@@ -319,8 +371,8 @@ class FemProblem:
         return J if np.isfinite(J) else np.inf
 
     def constraint_ok(self, res) -> bool:
-        """diag(C K) <= 1 on every segment: the measurement noise R - C P C^T implied by the
-        gain keeps non-negative variances."""
+        """diag(K C) <= 1 on every segment: no state is corrected by more than its
+        predicted deviation (the reference software's constraint on the states)."""
         return all(np.all(r.CK[0] <= 1.0 + 1e-9) for r in res)
 
     def segment_rows(self, nphi: int) -> list[np.ndarray]:
@@ -333,7 +385,7 @@ class FemProblem:
 
     def sensitivity_batch(self, phi: np.ndarray, R: np.ndarray, rows: Sequence[np.ndarray]):
         """The perturbed filter runs of :meth:`difference_columns` for phi (column 0 the base) and their
-        steps; a column whose forward step makes the gain over-correct (diag(C K) > 1) or
+        steps; a column whose forward step makes the gain over-correct (diag(K C) > 1) or
         the prediction run away is run again with the step reversed."""
         Phis, hsteps = self.difference_columns(phi)
         batch = self.filter(Phis, R, rows=rows)

@@ -1,7 +1,7 @@
 """The filter-error method's relaxation between the innovation covariance R and the
 process noise F (Maine and Iliff): R in closed form from the innovations, F compensated
-for the change, and F scaled down where the gain would over-correct (diag(C K) > 1: the
-measurement noise R - C P C^T it implies would be negative).
+for the change, and F scaled down where the gain would over-correct a state
+(diag(K C) > 1).
 """
 
 from __future__ import annotations
@@ -36,9 +36,9 @@ def compensate(prob: FemProblem, phi: np.ndarray, R_old: np.ndarray, R_new: np.n
 
 
 def feasible_start(prob: FemProblem, phi: np.ndarray, res, R: np.ndarray) -> tuple[np.ndarray, Any]:
-    """The start with F scaled down, halving at most 30 times, until diag(C K) <= 1 and
-    the filter's predictions stay finite: a start F too large for the start R implies a
-    negative measurement noise, and its filter over-corrects every sample. The free F entries are scaled, else the fixed
+    """The start with F scaled down, halving at most 30 times, until diag(K C) <= 1 and
+    the filter's predictions stay finite: a start F too large for the start R over-corrects
+    the states at every sample. The free F entries are scaled, else the fixed
     ones; unchanged when already feasible."""
     for _ in range(30):
         if not prob.noisy or (prob.constraint_ok(res) and np.isfinite(prob.cost(res)[0])):
@@ -54,7 +54,7 @@ def feasible_start(prob: FemProblem, phi: np.ndarray, res, R: np.ndarray) -> tup
 
 def to_constraint(prob: FemProblem, phi: np.ndarray, res, R: np.ndarray, margin: float = 1e-4):
     """phi with its F scaled by the largest factor in (0, 1] (bisection, 30 steps) that
-    keeps diag(C K) <= 1 - margin for the innovation covariance R, and its filter run;
+    keeps diag(K C) <= 1 - margin for the innovation covariance R, and its filter run;
     (phi, None) when no factor does or F is not estimated."""
     if not prob.estimate_F or not prob.noisy:
         return phi, None
@@ -78,7 +78,7 @@ def relax(prob: FemProblem, phi, res, cost, Rh, R):
     """One relaxation update: R in closed form from the innovations (Rh) with F
     compensated for it (:func:`compensate`). When the compensated F raises det(R), it
     is halved back towards the old F (the reference software's rule); when the new R
-    makes the gain over-correct (diag(C K) > 1), F is scaled down until it does not.
+    makes the gain over-correct (diag(K C) > 1), F is scaled down until it does not.
     The first candidate that lowers det(R) is taken, else the feasible one of least
     det(R): R must follow the innovations, or the relaxation stalls on a stale R.
     Returns (phi, res, cost, Rh, R, the relative change of R)."""

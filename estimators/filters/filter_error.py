@@ -7,40 +7,39 @@ and Iliff's relaxation):
 
 * Linearisation: A = df/dx, B = df/du, C = dg/dx, D = dg/du by central differences about
   each segment's initial state and first input (the trim point), re-evaluated for every
-  parameter set; the affine parts f(x_r, u_r) - A x_r - B u_r and g(...) - C x_r - D u_r
-  are kept, so linear models with trim offsets and output biases are represented exactly.
+  parameter set.
 * Gain: P from A P + P A^T - P C^T (R h)^-1 C P + F F^T = 0 with R the innovation
   covariance and h the sample interval (Potter's method, ``continuous_gain``);
   K = P C^T R^-1.
-* ``form="linear"``: prediction x~_{k+1} = Phi x^_k + Gamma0 (B u_k + f_0)
-  + Gamma1 B (u_k+1 - u_k) (exact for inputs interpolated linearly between samples,
-  ``input_integrals``; Gamma1 is left out for held inputs); ``form="nonlinear"``:
-  prediction by one integrator step of the nonlinear f from x^_k (default RK4), outputs
-  g(x~_k) of the nonlinear g, and the constant gain of the linearisation at the trim point.
+* Prediction (``form="nonlinear"``, the default for linear and nonlinear models alike): one
+  integrator step of the model's f from x^_k (default RK4, inputs at the stage times),
+  outputs g(x~_k). ``form="linear"``: x~_{k+1} = Phi x^_k + Gamma0 (B u_k + f_0)
+  + Gamma1 B (u_k+1 - u_k) with the transition matrix of the linearisation (exact for
+  linear models and inputs interpolated linearly, ``input_integrals``).
 * Correction x^_k = x~_k + K (z_k - y~_k). A sample where only the outputs o are measured
   (NaN = missing: multi-rate data) is corrected with the gain of those outputs,
   K_o = P C_o^T R_oo^-1 (``pattern_gains``).
 
-Estimation, by relaxation:
+Estimation, by relaxation (the reference software's criterion, ml_fem2; Maine and Iliff):
 
 1. R, the diagonal covariance of the innovations, in closed form: R = diag(1/N sum nu nu^T)
-   (at the start from the start model run without a gain, or the given std).
+   (at the start from the start model run without a gain, or the given std); the cost is
+   det R.
 2. For that R, Gauss-Newton on phi = [theta, F]: M = sum S^T R^-1 S, g = sum S^T R^-1 nu,
    with S = d y~/d phi from forward differences (they include the gain's gradients
    dK/dphi), all perturbed parameter sets filtered in one batch; the step respects
-   diag(C K) <= 1 (the implied measurement noise R - C P C^T stays non-negative), step
-   halving on det(R), then Levenberg-Marquardt damping.
+   diag(K C) <= 1 on the states, linearised on the step (a violated row becomes an
+   equality), step halving on the weighted cost, then Levenberg-Marquardt damping.
 3. From the ``r_update_from``-th iteration on, R is re-estimated after each step and F
    compensated for the change (Maine and Iliff, ``relax``).
 
-R is full by default (``full_R``; the reference keeps its diagonal), and the sampled
-filter's P solves the discrete equation of ``discrete_gain`` (the reference's continuous
-form is its start). The Cramér-Rao bounds are those of phi with R estimated too
-(``marginal_information``).
+A full R (``full_R=True``) is the likelihood's other choice; it is refused
+(:class:`~estimators.errors.DependentOutputsError`) when a measured output is an exact
+function of the others and the inputs, where its determinant can be driven to zero. The
+Cramér-Rao bounds are the inverse of the final information matrix for the final R.
 
-The cost is det(R), the likelihood with R concentrated out; the fit has converged when its
-relative change and R's have settled. R is never a free parameter of the Gauss-Newton
-step, so it cannot collapse to zero.
+The fit has converged when det(R)'s relative change and R's have settled. R is never a
+free parameter of the Gauss-Newton step, so it cannot collapse to zero.
 
 Where the pieces are: :mod:`estimators.filters.steady_state` (discretisation, Riccati
 equations, gains), :mod:`estimators.filters.fem_problem` (the data, phi and the batched
@@ -65,11 +64,10 @@ import numpy as np
 import pandas as pd
 
 from estimators import statistics as st
-from estimators.errors import ModelDefinitionError
+from estimators.errors import EstimationError, IdentifiabilityError, ModelDefinitionError
 from estimators.filters.fem_information import FemCovariance, covariances, scoring
-from estimators.filters.fem_problem import FemProblem, SegmentFilter, sample_interval
+from estimators.filters.fem_problem import FemProblem, SegmentFilter, check_full_R, sample_interval
 from estimators.filters.fem_relaxation import R_SETTLED, feasible_start, relax
-from estimators.filters.linearize import is_affine
 from estimators.filters.noise import named_vector, process_noise_start
 from estimators.filters.steady_state import output_patterns
 from estimators.integrators import DEFAULT_INPUTS, check_options
@@ -117,16 +115,20 @@ def constrained_step(
 
 
 def cap_noise_step(prob: FemProblem, phi: np.ndarray, delta: np.ndarray, factor: float = 10.0) -> np.ndarray:
-    """delta scaled so that no process-noise entry grows more than ``factor``-fold in
-    one step: F's information can start out negligible (a small start gain), and an
-    unbounded Gauss-Newton step then throws F far beyond the data."""
+    """delta scaled so that no process-noise entry grows or shrinks more than
+    ``factor``-fold in one step: F's information can start out negligible (a small start
+    gain), and an unbounded Gauss-Newton step then throws F far beyond the data, or onto
+    zero, where its gradient vanishes with the gain and the fit cannot bring it back."""
     sl = prob.fslice()
     f, d = phi[sl], delta[sl]
-    grow = (d > 0) & (f > 0)
-    if not np.any(grow):
-        return delta
-    scale = np.min(np.where(grow, (factor - 1.0) * f / np.where(grow, d, 1.0), np.inf))
-    return delta * min(1.0, float(scale))
+    pos = f > 0
+    grow = (d > 0) & pos
+    shrink = (d < 0) & pos
+    with np.errstate(divide="ignore", invalid="ignore"):
+        up = np.where(grow, (factor - 1.0) * f / np.where(grow, d, 1.0), np.inf)
+        down = np.where(shrink, (1.0 - 1.0 / factor) * f / np.where(shrink, -d, 1.0), np.inf)
+    scale = float(min(np.min(up, initial=np.inf), np.min(down, initial=np.inf)))
+    return delta * min(1.0, scale)
 
 
 @dataclass
@@ -182,11 +184,10 @@ class FilterError:
     measurement_noise : start of the innovation covariance R as std per output
         ({output: std} or (n_out,)), the reference software's given output-error std;
         default: the residuals of the start model run without a gain (K = 0).
-    form : "auto" (default: "linear" when f and g are affine in x and u over the data,
-        :func:`~estimators.filters.linearize.is_affine`, else "nonlinear"), "linear"
+    form : "nonlinear" (default: integrator prediction of the model's f, linear or not,
+        gain of the linearisation at the trim point; the reference software's) or "linear"
         (transition matrix of the linearisation at each segment's start: exact for linear
-        models only) or "nonlinear" (integrator prediction, gain of the linearisation at
-        the trim point).
+        models only).
     integrator : the one-step predictor of the nonlinear form.
     max_iter, tol : Gauss-Newton iterations; stop when the relative change of det(R) is
         below ``tol`` after an iteration that updated R.
@@ -196,10 +197,10 @@ class FilterError:
         reference software waits until its third; from the first, a start R far from the
         innovations - the output-error residuals of a start in turbulence - weights the
         early steps less wrongly).
-    full_R : estimate the full innovation covariance (default; the likelihood's) or only
-        its diagonal (the reference software's): a diagonal R ignores the correlation the
-        process noise puts between the innovations, and the F that makes up for it is
-        biased.
+    full_R : estimate the full innovation covariance and minimise its determinant
+        instead of the diagonal's (default False: the reference software's criterion).
+        Refused when a measured output is an exact function of the others and the inputs
+        (:class:`~estimators.errors.DependentOutputsError`).
     inputs : input variation over a sample interval, as OutputError: "linear" (default) or
         "hold" (zero-order hold); the linear form discretises either exactly.
     compiled : run the nonlinear filter loop compiled with numba (f and g compiled; falls
@@ -215,7 +216,7 @@ class FilterError:
         process_noise: Any = None,
         estimate_F: bool = True,
         measurement_noise: Any = None,
-        form: str = "auto",
+        form: str = "nonlinear",
         integrator: str = "rk4",
         max_iter: int = 40,
         tol: float = 1e-4,
@@ -224,17 +225,16 @@ class FilterError:
         r_update_from: int = 1,
         inputs: str = DEFAULT_INPUTS,
         compiled: bool = True,
-        full_R: bool = True,
+        full_R: bool = False,
         callback=None,
     ) -> None:
-        if form not in ("auto", "linear", "nonlinear"):
-            raise ModelDefinitionError(f"form must be 'auto', 'linear' or 'nonlinear', not {form!r}")
+        if form not in ("linear", "nonlinear"):
+            raise ModelDefinitionError(f"form must be 'nonlinear' or 'linear', not {form!r}")
         check_options(integrator, inputs)
         self.model = model
         self.process_noise = process_noise
         self.estimate_F = estimate_F
         self.measurement_noise = measurement_noise
-        self.form_requested = form
         self.integrator = integrator
         self.max_iter = max_iter
         self.tol = tol
@@ -270,6 +270,23 @@ class FilterError:
         segments = [segments] if isinstance(segments, Segment) else list(segments)
         if not segments:
             raise ModelDefinitionError("fit() needs at least one segment")
+        try:
+            return self._fit(segments, estimate_x0, start)
+        except (np.linalg.LinAlgError, ValueError, ArithmeticError) as exc:
+            if isinstance(exc, EstimationError):
+                raise
+            # a matrix the numerics need is singular or not positive definite: an output
+            # predicted exactly, or the data do not determine some parameter
+            raise IdentifiabilityError(
+                f"filter error: the information or the innovation covariance became singular ({exc}); "
+                "check that every output is measured with noise and that the free parameters are "
+                "identifiable from these data (fix some, or fit output error first and start from it)"
+            ) from exc
+
+    def _fit(
+        self, segments: list[Segment], estimate_x0: bool | Sequence[str], start: Mapping[str, float] | None
+    ) -> EstimationResult:
+        """:meth:`fit` on a list of segments."""
         prob, phi = self._problem(segments, estimate_x0, start)
         R = self._start_R(prob, phi)
         seg_rows = prob.segment_rows(phi.size)
@@ -294,8 +311,8 @@ class FilterError:
         h = [sample_interval(seg, k) for k, seg in enumerate(segments)]
         patterns = [output_patterns(seg.z) for seg in segments]
         check_outputs_measured(self.model, segments, "filter error")
-        if self.form_requested == "auto":
-            self._set_form("linear" if is_affine(model, segments, lay) else "nonlinear")
+        if self.full_R:
+            check_full_R(model, segments)
         noisy, f0 = self._noise_setup(segments)
         start = dict(start) if start is not None else {}
         for i in noisy:  # an earlier fit's F (``start`` of a refit) over the default

@@ -1,16 +1,14 @@
 """Affine approximation of a model about a reference point, batched over parameter sets:
-f ~ A x + B u + f0, g ~ C x + D u + y0 by central differences, and the test whether a
-model is affine over its data (the filter-error method's choice of its linear form).
+f ~ A x + B u + f0, g ~ C x + D u + y0 by central differences.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 
 import numpy as np
 
-from estimators.layout import Layout
-from estimators.model import Model, Segment
+from estimators.model import Model
 
 
 def linearize_batch(
@@ -44,30 +42,3 @@ def linearize_batch(
     f0 = fv[:, :, 0].T - np.einsum("bij,bj->bi", A, x_r) - Bu @ ur
     y0 = gv[:, :, 0].T - np.einsum("bij,bj->bi", C, x_r) - D @ ur
     return A, Bu, C, D, f0, y0
-
-
-def is_affine(model: Model, segments: Sequence[Segment], layout: Layout, rtol: float = 1e-6) -> bool:
-    """Whether f and g are affine in (x, u) over the data: the linearisation (A, B, C, D)
-    about each segment's start equals the one about a point moved by the data's range
-    (measured states by their range in z, the others by 10 % of |x0| + 0.1, inputs by
-    their range in u), within ``rtol`` of the largest entry; parameters and initial
-    states are the layout's values."""
-    values = layout.values
-    for k, seg in enumerate(segments):
-        P = values[layout.pidx[k]][:, None]
-        x0 = values[layout.x0idx[k]]
-        dx = 0.1 * np.abs(x0) + 0.1
-        for i, s in enumerate(model.states):
-            z = seg.z[:, model.outputs.index(s)] if s in model.outputs else np.array([np.nan])
-            if np.any(np.isfinite(z)) and np.nanmax(z) > np.nanmin(z):
-                dx[i] = np.nanmax(z) - np.nanmin(z)
-        du = np.ptp(seg.u, axis=0)
-        du = np.where(du > 0, du, 0.1 * np.abs(seg.u[0]) + 0.1)
-        c = model.constants_for(seg)
-        a = linearize_batch(model, P, x0[:, None], seg.u[0], c)[:4]
-        b = linearize_batch(model, P, (x0 + 0.5 * dx)[:, None], seg.u[0] + 0.5 * du, c)[:4]
-        for ma, mb in zip(a, b):
-            scale = max(np.max(np.abs(ma)), np.max(np.abs(mb)), 1e-12)
-            if not np.all(np.isfinite(ma)) or not np.all(np.isfinite(mb)) or np.max(np.abs(ma - mb)) > rtol * scale:
-                return False
-    return True

@@ -85,8 +85,33 @@ def _pooled_variance(X: Sequence[np.ndarray]) -> np.ndarray:
     return ss / np.maximum(sum(np.isfinite(x).sum(axis=0) for x in X), 1)
 
 
+def slowest_mode(model: Model, segments: Sequence[Segment], params: np.ndarray) -> float:
+    """The largest real part (1/s) of the eigenvalues of df/dx at the first segment's
+    initial state and input for the model parameters ``params`` (n_p,), by central
+    differences; NaN when f is not finite there."""
+    seg = segments[0]
+    x0 = np.asarray(seg.initial_state(model), float)
+    n = x0.size
+    h = 1e-6 * np.maximum(np.abs(x0), 1.0)
+    X = np.repeat(x0[:, None], 2 * n, axis=1)
+    X[np.arange(n), np.arange(n)] += h
+    X[np.arange(n), n + np.arange(n)] -= h
+    U = np.repeat(np.asarray(seg.u[0], float)[:, None], 2 * n, axis=1)
+    P = np.repeat(np.asarray(params, float)[:, None], 2 * n, axis=1)
+    with np.errstate(all="ignore"):
+        fv = np.asarray(model.eval_f(X, U, P, model.constants_for(seg)), float)
+    A = (fv[:, :n] - fv[:, n:]) / (2 * h)
+    if not np.all(np.isfinite(A)):
+        return float("nan")
+    return float(np.max(np.linalg.eigvals(A).real))
+
+
 def follow_note(
-    outputs: Sequence[str], segments: Sequence[Segment], E: Sequence[np.ndarray], runaways: int = 0
+    outputs: Sequence[str],
+    segments: Sequence[Segment],
+    E: Sequence[np.ndarray],
+    runaways: int = 0,
+    sigma_max: float = float("nan"),
 ) -> tuple[str, dict[str, Any]]:
     """A message, and its numbers, when an output-error fit did not follow the data: at
     least half the outputs with residuals coloured and large (see FOLLOW_LAG1), or trial
@@ -97,11 +122,26 @@ def follow_note(
     with np.errstate(all="ignore"):
         rho = lag1_autocorrelation(E)
         share = _pooled_variance(E) / _pooled_variance([s.z for s in segments])
+    half = max(1, int(np.ceil(len(outputs) / 2)))
     bad = [j for j in range(len(outputs)) if rho[j] > FOLLOW_LAG1 and share[j] > FOLLOW_SHARE]
-    coloured = len(bad) >= max(1, int(np.ceil(len(outputs) / 2)))
-    if not coloured and not runaways:
+    coloured = len(bad) >= half
+    # an estimate that left the model just stable: a mode slower than the record, with
+    # residuals far from white (however small): the fit moved the model to the boundary
+    # rather than follow an unstable flight
+    record = max(float(s.t[-1] - s.t[0]) for s in segments)
+    white_off = [j for j in range(len(outputs)) if rho[j] > FOLLOW_LAG1]
+    boundary = bool(np.isfinite(sigma_max) and abs(sigma_max) * record < 1.0 and len(white_off) >= half)
+    if not coloured and not runaways and not boundary:
         return "", {}
     why = []
+    if boundary and not coloured:
+        bad = white_off
+        why.append(
+            f"the estimate leaves the model at the stability boundary (slowest mode's real part "
+            f"{sigma_max:.3g} 1/s, a time constant longer than the {record:.3g} s record) with the "
+            f"residuals of {', '.join(outputs[j] for j in bad)} far from white (lag-1 autocorrelation "
+            f"{', '.join(f'{rho[j]:.2f}' for j in bad)})"
+        )
     if coloured:
         why.append(
             f"the residuals of {', '.join(outputs[j] for j in bad)} are far from white "
@@ -114,12 +154,14 @@ def follow_note(
     msg = (
         f"the model does not follow the data: {' and '.join(why)}. An unstable aircraft "
         "(or strong turbulence) cannot be fitted by simulating it open loop: use "
-        f"{UNSTABLE_METHODS}"
+        f"{UNSTABLE_METHODS}. The Cramér-Rao std assume white residuals and are withdrawn (NaN; "
+        "extra['not_followed']['crb_std'] keeps them)"
     )
     info = {
         "outputs": [outputs[j] for j in bad],
         "runaways": int(runaways),
         "lag1": dict(zip(outputs, rho.tolist())),
         "unexplained": dict(zip(outputs, share.tolist())),
+        "slowest_mode": sigma_max,
     }
     return msg, info

@@ -29,7 +29,7 @@ from estimators.integrators import DEFAULT_INPUTS, check_options
 from estimators.layout import Layout
 from estimators.model import Model, Segment, check_outputs_measured
 from estimators.optim import FALLBACKS, OPTIMIZERS, GaussNewtonSettings, Outcome, minimise
-from estimators.output_error.diagnostics import follow_note
+from estimators.output_error.diagnostics import follow_note, slowest_mode
 from estimators.output_error.likelihood import (
     LikelihoodSettings,
     OutputErrorLikelihood,
@@ -225,7 +225,8 @@ class OutputError:
             # it to its middle term (estimators.validation.morelli_klein, prior_info)
             extra["prior_information"] = lik.prior_terms(outcome.theta[lik.layout.free_idx])[0]
         if self._check_follow:
-            note, info = follow_note(self.model.outputs, lik.segments, lin.E, lik.runaways)
+            sigma = slowest_mode(self.model, lik.segments, outcome.theta[lik.layout.pidx[0]])
+            note, info = follow_note(self.model.outputs, lik.segments, lin.E, lik.runaways, sigma)
             if note:
                 message = (message + "; " if message else "") + note
                 extra["not_followed"] = info
@@ -238,6 +239,9 @@ class OutputError:
         lin = lik.linearise(theta)
         cov, on_bound = self._covariance(lik, theta, lin.F)
         message, extra = self._notes(lik, outcome, lin)
+        if "not_followed" in extra:  # the bound of a model that misses the flight is no bound
+            extra["not_followed"]["crb_std"] = dict(zip(lay.free_names, np.sqrt(np.abs(np.diag(cov))).tolist()))
+            cov = np.full_like(cov, np.nan)
         return EstimationResult(
             method=self.method,
             model=self.model,

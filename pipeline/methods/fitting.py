@@ -21,6 +21,7 @@ from estimators import (
     OutputError,
     StabilizedOutputError,
 )
+from estimators.filters.fem_problem import dependent_outputs
 from pipeline.ingest.flightdata import FlightData
 from pipeline.methods.catalogue import METHODS, method_spec
 from pipeline.methods.equation_error import equation_error, raw_starts
@@ -85,7 +86,9 @@ def _equation_error(problem: Problem, model: Any, s: FitSettings) -> Any:
 
 def _filter_error(problem: Problem, model: Any, s: FitSettings) -> Any:
     """The nonlinear form (integrator prediction, gain of the linearisation at each
-    segment's start); process noise started from the turbulence level and estimated; R
+    segment's start); the full innovation covariance where no output is an exact function
+    of the others (the likelihood's: the reference's diagonal one biases derivatives where
+    the innovations are correlated, as turbulence makes them), else the diagonal; process noise started from the turbulence level and estimated; R
     started at the measurement-noise level and estimated by relaxation (no output-error run
     from equation-error starts that may diverge)."""
 
@@ -93,6 +96,7 @@ def _filter_error(problem: Problem, model: Any, s: FitSettings) -> Any:
         return FilterError(
             m,
             form="nonlinear",
+            full_R=not dependent_outputs(m, problem.fit),
             inputs=problem.inputs,
             process_noise=process_noise_std(problem, s.turbulence),
             measurement_noise=measurement_noise_std(problem),
