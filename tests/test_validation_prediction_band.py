@@ -204,7 +204,7 @@ def test_filter_error_results_get_the_band_from_their_model_parameters():
 
     res, held = _fitted_roll()
     fem = FilterError(roll_model()).fit(res.segments[0])
-    assert "F_p" in fem.free_names and fem.settings["integrator"] == "transition matrix"
+    assert "F_p" in fem.free_names and fem.settings["integrator"] == "rk4"
     seg = validate(fem, held_out=[held], proof_of_match="simulation")["proof_of_match"]["segments"][0]
     assert seg["prediction_uncertainty"] == {"parameters": 2, "k": 2.0}
     assert seg["all_pass"] and 0 < seg["channels"]["p"]["prediction_std_max_display"] < 1.0, seg

@@ -115,20 +115,20 @@ def constrained_step(
 
 
 def cap_noise_step(prob: FemProblem, phi: np.ndarray, delta: np.ndarray, factor: float = 10.0) -> np.ndarray:
-    """delta scaled so that no process-noise entry grows or shrinks more than
-    ``factor``-fold in one step: F's information can start out negligible (a small start
-    gain), and an unbounded Gauss-Newton step then throws F far beyond the data, or onto
-    zero, where its gradient vanishes with the gain and the fit cannot bring it back."""
+    """delta scaled so that no process-noise entry grows more than ``factor``-fold in one
+    step (F's information can start out negligible, a small start gain, and an unbounded
+    Gauss-Newton step then throws F far beyond the data), and each F entry's own step
+    limited so that it shrinks at most ``factor``-fold (a step onto F = 0, where F's
+    gradient vanishes with the gain, leaves the fit unable to bring it back)."""
     sl = prob.fslice()
     f, d = phi[sl], delta[sl]
-    pos = f > 0
-    grow = (d > 0) & pos
-    shrink = (d < 0) & pos
-    with np.errstate(divide="ignore", invalid="ignore"):
-        up = np.where(grow, (factor - 1.0) * f / np.where(grow, d, 1.0), np.inf)
-        down = np.where(shrink, (1.0 - 1.0 / factor) * f / np.where(shrink, -d, 1.0), np.inf)
-    scale = float(min(np.min(up, initial=np.inf), np.min(down, initial=np.inf)))
-    return delta * min(1.0, scale)
+    grow = (d > 0) & (f > 0)
+    if np.any(grow):
+        scale = np.min(np.where(grow, (factor - 1.0) * f / np.where(grow, d, 1.0), np.inf))
+        delta = delta * min(1.0, float(scale))
+    out = delta.copy()
+    out[sl] = np.where(f > 0, np.maximum(delta[sl], -(1.0 - 1.0 / factor) * f), delta[sl])
+    return out
 
 
 @dataclass

@@ -57,9 +57,14 @@ DEFAULT_FREE = ("CYbeta", "CYdr", "Clbeta", "Clp", "Clr", "Clda", "Cldr", "Cnbet
 TRIM_TERMS = ("CY0", "Cl0", "Cn0")
 
 
-def trim_terms(beta_bias: bool, rate_biases: bool) -> tuple[str, ...]:
+def trim_terms(beta_bias: bool, rate_biases: bool, ay_bias: bool = False) -> tuple[str, ...]:
     """The trim-asymmetry terms identifiable alongside per-segment initial states and
     output biases: CY0, Cl0, Cn0 less one per free bias that can carry a steady offset.
+
+    ``ay_bias`` (counted with ``rate_biases`` only, in the 6-DoF fit whose sideslip has no
+    bias): a lateral-accelerometer bias and a yaw-gyro bias together hold a wings-level
+    flat turn, a steady yaw rate the gyro bias hides with the side force the accelerometer
+    bias hides, which is what CY0 would otherwise carry: CY0 is dropped first.
 
     Why: a steady state of the model with a constant sideslip offset (read by the vane
     with its bias, ``beta_bias``) or a constant yaw rate with the roll rate that keeps the
@@ -69,7 +74,8 @@ def trim_terms(beta_bias: bool, rate_biases: bool) -> tuple[str, ...]:
     force that a steady bank balances: a trim the sideslip and rate offsets cannot
     imitate), then Cl0, then Cn0; the dropped ones are carried by those offsets (a
     wings-level trim in a steady sideslip is a vane bias to this model)."""
-    return TRIM_TERMS[: 3 - int(beta_bias) - int(rate_biases)]
+    terms = TRIM_TERMS[1:] if ay_bias and rate_biases else TRIM_TERMS
+    return terms[: len(terms) - int(beta_bias) - int(rate_biases)]
 
 
 @register_jitable

@@ -25,7 +25,7 @@ travel. Thrust acts along body x with its line ``zT`` (m) below the CG. The mome
 Ixz coupling and the gyroscopic terms. Optional CLalphadot, Cmalphadot (alphadot
 cbar/(2V); default 0 and held), alphadot solved algebraically for the lift's own
 alphadot term. Sensors away from the CG (m, body axes): the air
-data at (x_vane, y_vane, z_vane) and the accelerometer at (x_imu, 0, z_imu), with the full
+data at (x_vane, y_vane, z_vane) and the accelerometer at (x_imu, y_imu, z_imu), with the full
 lever-arm terms.
 
 With ``navigation`` the heading and the position are integrated too (psidot from the
@@ -33,7 +33,7 @@ Euler kinematics, position rate = body velocity rotated to NED): a rollout then 
 whole pose, in still air.
 
 Constants: m, Ixx, Iyy, Izz, Ixz (kg m^2), S (m^2), b, cbar (m), rho (kg/m^3); optional
-g (9.80665), zT, x_vane, y_vane, z_vane, x_imu, z_imu (0), k_de, k_da, k_dr (1).
+g (9.80665), zT, x_vane, y_vane, z_vane, x_imu, y_imu, z_imu (0), k_de, k_da, k_dr (1).
 """
 
 from __future__ import annotations
@@ -148,11 +148,14 @@ def _observations(u, v, w, pr, qr, rr, phi, theta, de, da, dr, thrust, p, c):
     vb = v + rr * c.x_vane - pr * c.z_vane
     wb = w + pr * c.y_vane - qr * c.x_vane
     Vb = np.sqrt(ub * ub + vb * vb + wb * wb)
-    # accelerometer at (xi, 0, zi): f + omegadot x r + omega x (omega x r)
-    xi, zi = c.x_imu, c.z_imu
-    ax = fx + qd * zi + qr * (-qr * xi) - rr * (rr * xi - pr * zi)
-    ay = fy + rd * xi - pd * zi + rr * (qr * zi) - pr * (-qr * xi)
-    az = fz - qd * xi + pr * (rr * xi - pr * zi) - qr * (qr * zi)
+    # accelerometer at r = (xi, yi, zi): f + omegadot x r + omega x (omega x r)
+    xi, yi, zi = c.x_imu, c.y_imu, c.z_imu
+    cx = qr * zi - rr * yi  # omega x r
+    cy = rr * xi - pr * zi
+    cz = pr * yi - qr * xi
+    ax = fx + qd * zi - rd * yi + qr * cz - rr * cy
+    ay = fy + rd * xi - pd * zi + rr * cx - pr * cz
+    az = fz + pd * yi - qd * xi + pr * cy - qr * cx
     return Vb, np.arctan2(wb, ub), np.arcsin(vb / Vb), pr, qr, rr, phi, theta, ax, ay, az
 
 
@@ -215,6 +218,7 @@ def sixdof(
         "y_vane": 0.0,
         "z_vane": 0.0,
         "x_imu": 0.0,
+        "y_imu": 0.0,
         "z_imu": 0.0,
         "k_de": 1.0,
         "k_da": 1.0,

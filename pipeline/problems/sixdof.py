@@ -61,6 +61,7 @@ def sixdof_constants(ac: AircraftConstants, rho: float) -> dict[str, float]:
         "y_vane": ac.airdata[1],
         "z_vane": ac.airdata[2],
         "x_imu": ac.imu[0],
+        "y_imu": ac.imu[1],
         "z_imu": ac.imu[2],
     }
 
@@ -128,7 +129,7 @@ def sixdof_lateral_problem(
         lat_frames.append(w.interpolate(limit_direction="both"))
     lat_c = {**c, "V": float(np.nanmean(g.frame["V"]))}
     start = {**{k: v for k, v in lon.items() if k[:2] in ("CL", "CD", "Cm")}, **lateral_starts(lat_frames, lat_c)}
-    asym = trim_terms("beta" in biases, bool({"p", "r"} & set(biases))) if trim_asymmetry else ()
+    asym = trim_terms("beta" in biases, bool({"p", "r"} & set(biases)), "ay" in biases) if trim_asymmetry else ()
     model = sixdof(c, values=start, free=[*free, *TRIM_FREE, *asym], output_biases=biases, name="sixdof-lateral")
     with_smoothed_inputs(frames, specs, g.smoothed, SIXDOF_INPUTS)
     notes = [
