@@ -2,7 +2,20 @@
 
 from __future__ import annotations
 
+import unicodedata
+
 from estimators.errors import EstimationError
+
+
+def visible(text: str) -> str:
+    """``text`` with its control and format characters (ESC, bidirectional overrides, NUL,
+    ...) written as escapes (``\\x1b``, ``\\u202e``): names read from a log or a file reach
+    the terminal and error.txt as text, never as commands to the terminal. Newlines and
+    tabs stay."""
+    return "".join(
+        c.encode("unicode_escape").decode("ascii") if c not in "\n\t" and unicodedata.category(c) in ("Cc", "Cf") else c
+        for c in text
+    )
 
 
 class FsidError(Exception):
@@ -27,5 +40,5 @@ def describe(exc: Exception) -> str:
     """The one line the command line gives for ``exc``: a user error's own message, else
     the unexpected error named, with how to see its traceback."""
     if isinstance(exc, USER_ERRORS):
-        return str(exc)
-    return f"unexpected {type(exc).__name__}: {exc} (rerun with FSID_DEBUG=1 for the traceback and report it)"
+        return visible(str(exc))
+    return visible(f"unexpected {type(exc).__name__}: {exc} (rerun with FSID_DEBUG=1 for the traceback and report it)")

@@ -2,14 +2,50 @@
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
+#: what fsid's commands write into an output folder besides logs: an earlier run's are
+#: removed when a new run takes the folder, so it never holds two runs' files side by side
+RUN_OUTPUTS = (
+    "report.json",
+    "report.md",
+    "report.html",
+    "run.rrd",
+    "check.rrd",
+    "checks.json",
+    "canonical.csv",
+    "figures",
+    "error.txt",
+    "INTERRUPTED.txt",
+)
+#: the flight logs ``fsid simulate`` writes: never written over without ``--force``
+LOG_OUTPUTS = ("flight.mcap", "flight.bin", "validation.mcap", "validation.bin", "truth.json")
+#: the file that marks an output folder as taken by a running fsid (its process id and command)
+LOCK = ".fsid.lock"
 
-def new_run_dir(kind: str, out: str | os.PathLike | None = None) -> Path:
-    """Return the output folder: ``out`` when given, else a new ``./runs/<kind>-<stamp>``."""
+
+def new_run_dir(
+    kind: str,
+    out: str | os.PathLike | None = None,
+    *,
+    inputs: Sequence[str | os.PathLike] = (),
+    logs: bool = False,
+    force: bool = False,
+) -> Path:
+    """The output folder, ready before any work: ``out`` when given, else a new
+    ``./runs/<kind>-<stamp>``; created and checked writable, locked for this process (a
+    second fsid is refused naming the one holding it; a lock whose process is gone is
+    taken over), and cleared of an earlier run's files (RUN_OUTPUTS, hidden temporary
+    files) other than this run's ``inputs``. ``logs``: the run writes LOG_OUTPUTS, refused
+    where they exist unless ``force``. Every refusal is an FsidError saying what to do."""
+    from pipeline.errors import FsidError
+
     if out is not None:
         path = Path(out)
     else:
@@ -19,8 +55,93 @@ def new_run_dir(kind: str, out: str | os.PathLike | None = None) -> Path:
         while path.exists():
             n += 1
             path = Path("runs") / f"{kind}-{stamp}-{n}"
-    path.mkdir(parents=True, exist_ok=True)
+    if path.exists() and not path.is_dir():
+        raise FsidError(f"--out {path} is a file, not a folder: give a folder for the results")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(dir=path, prefix=".fsid-probe.")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise FsidError(
+            f"cannot write into the output folder {path} ({exc.strerror or exc}): give a writable folder with --out"
+        ) from None
+    mine = {Path(p).resolve() for p in inputs}
+    written = RUN_OUTPUTS + (LOG_OUTPUTS if logs else ())
+    clash = [n for n in written if (path / n).resolve() in mine]
+    if clash:
+        raise FsidError(f"--out {path} would write over this run's input {path / clash[0]}: give another output folder")
+    if logs and not force:
+        there = [n for n in LOG_OUTPUTS if (path / n).exists()]
+        if there:
+            raise FsidError(f"{path} already holds {', '.join(there)}: give another --out, or --force to replace them")
+    _lock(path, kind)
+    _clear(path, mine)
     return path
+
+
+def _lock(path: Path, kind: str) -> None:
+    """Take ``path``'s LOCK for this process (released at exit), or FsidError naming the
+    live fsid that holds it."""
+    from pipeline.errors import FsidError
+
+    lock = path / LOCK
+    for _ in range(3):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                pid_text, _, what = lock.read_text().partition(" ")
+                pid = int(pid_text)
+            except (OSError, ValueError):
+                pid, what = -1, ""
+            if pid == os.getpid():
+                return  # this process's own earlier run into the folder
+            if pid > 0 and _alive(pid):
+                raise FsidError(
+                    f"{path} is in use by another fsid ({what.strip() or 'a run'}, process {pid}): wait for it "
+                    "to finish, or give another --out"
+                ) from None
+            try:
+                lock.unlink()  # its process is gone (killed): the lock is stale
+            except FileNotFoundError:
+                pass
+            continue
+        with os.fdopen(fd, "w") as fh:
+            fh.write(f"{os.getpid()} fsid {kind}\n")
+        atexit.register(_unlock, lock, os.getpid())
+        return
+    raise FsidError(f"could not take the output folder {path}: another fsid keeps taking it; give another --out")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _unlock(lock: Path, pid: int) -> None:
+    try:
+        if lock.read_text().split(" ")[0] == str(pid):
+            lock.unlink()
+    except (OSError, ValueError):
+        pass
+
+
+def _clear(path: Path, keep: set[Path]) -> None:
+    """Remove an earlier run's outputs (RUN_OUTPUTS) and hidden temporary files from
+    ``path``, except the paths in ``keep`` (this run's inputs)."""
+    for p in [path / n for n in RUN_OUTPUTS] + list(path.glob(".*.tmp")):
+        if p.resolve() in keep or not (p.exists() or p.is_symlink()):
+            continue
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            p.unlink(missing_ok=True)
 
 
 def _umask() -> int:

@@ -6,7 +6,7 @@ import pytest
 from scipy import integrate, linalg
 
 from estimators import EstimationResult, FilterError, OutputError
-from estimators.filters.steady_state import continuous_gain, expm, input_integrals
+from estimators.filters.steady_state import continuous_gain, discrete_gain, discretize, expm, input_integrals
 from estimators.process_noise_examples import turbulent_longitudinal_example, turbulent_short_period_example
 
 
@@ -91,6 +91,19 @@ def test_riccati_and_input_integrals_match_scipy():
         assert np.abs(res).max() < 1e-9 * np.abs(FF).max()
     P0, K0 = continuous_gain(A[None], C[None], np.zeros((1, n, n)), R, h)
     assert not P0.any() and not K0.any()
+    # the sampled filter's form (gain="discrete"): Qd by van Loan against quadrature, and
+    # P = Phi (P - P C^T R^-1 C P) Phi^T + Qd solved
+    Phi, Gam, Qd = discretize(A, FF, h)
+    np.testing.assert_allclose(Phi, linalg.expm(A * h), rtol=1e-12)
+    np.testing.assert_allclose(Gam, G0, rtol=1e-12)
+    np.testing.assert_allclose(
+        Qd, integrate.simpson(E @ FF @ E.transpose(0, 2, 1), x=ts, axis=0), rtol=1e-7, atol=1e-14
+    )
+    Pd, Kd = discrete_gain(A[None], C[None], FF[None], R, h)
+    Ri = np.linalg.inv(R)
+    res = Phi @ (Pd[0] - Pd[0] @ C.T @ Ri @ C @ Pd[0]) @ Phi.T + Qd - Pd[0]
+    assert np.abs(res).max() < 1e-10 * np.abs(Pd[0]).max()
+    np.testing.assert_allclose(Kd[0], Pd[0] @ C.T @ Ri, rtol=1e-12)
 
 
 def test_without_process_noise_fem_is_output_error():

@@ -6,7 +6,8 @@ innovations for a fixed R).
 Per segment and column the model is linearised about the segment's start
 (:func:`~estimators.filters.linearize.linearize_batch`), the steady-state gain solved
 from the continuous Riccati equation (:func:`~estimators.filters.steady_state.continuous_gain`,
-the reference software's) and the filter run: with the integrator's prediction and the
+the reference software's; ``gain="discrete"``: the sampled filter's,
+:func:`~estimators.filters.steady_state.discrete_gain`) and the filter run: with the integrator's prediction and the
 model's g (``form="nonlinear"``, the default for linear and nonlinear models alike,
 compiled in the model's filter kernel module or with numpy) or with the transition matrix
 and the input integrals (``form="linear"``, :func:`~estimators.filters.loops.kf_loop`).
@@ -25,7 +26,7 @@ from estimators.errors import DependentOutputsError, ModelDefinitionError, Simul
 from estimators.filters.kernels import output_kernel
 from estimators.filters.linearize import linearize_batch
 from estimators.filters.loops import kf_loop_jit
-from estimators.filters.steady_state import continuous_gain, input_integrals, pattern_gains
+from estimators.filters.steady_state import continuous_gain, discrete_gain, input_integrals, pattern_gains
 from estimators.integrators import INPUT_MODES
 from estimators.layout import Layout
 from estimators.model import Model, Segment
@@ -142,6 +143,7 @@ class FemProblem:
     inputs: str
     compiled: bool
     full_R: bool
+    gain: str
     estimate_F: bool
     fd_step: float
     h: list[float]
@@ -196,7 +198,7 @@ class FemProblem:
             A, Bu, C, D, f0, y0 = linearize_batch(model, P, X0, seg.u[0], c)
             h = self.h[k]
             with np.errstate(all="ignore"):
-                Pp, Kg = continuous_gain(A, C, FF_all[idx], R, h)
+                Pp, Kg = (discrete_gain if self.gain == "discrete" else continuous_gain)(A, C, FF_all[idx], R, h)
             ok = np.all(np.isfinite(Kg.reshape(Bc, -1)), axis=1)
             Z = np.ascontiguousarray(seg.z)
             masks, pat = self.patterns[k]

@@ -10,7 +10,7 @@ and Iliff's relaxation):
   parameter set.
 * Gain: P from A P + P A^T - P C^T (R h)^-1 C P + F F^T = 0 with R the innovation
   covariance and h the sample interval (Potter's method, ``continuous_gain``);
-  K = P C^T R^-1.
+  K = P C^T R^-1. ``gain="discrete"``: P of the sampled filter (``discrete_gain``).
 * Prediction (``form="nonlinear"``, the default for linear and nonlinear models alike): one
   integrator step of the model's f from x^_k (default RK4, inputs at the stage times),
   outputs g(x~_k). ``form="linear"``: x~_{k+1} = Phi x^_k + Gamma0 (B u_k + f_0)
@@ -201,6 +201,11 @@ class FilterError:
         instead of the diagonal's (default False: the reference software's criterion).
         Refused when a measured output is an exact function of the others and the inputs
         (:class:`~estimators.errors.DependentOutputsError`).
+    gain : "continuous" (default: the reference software's steady-state gain, P from the
+        continuous Riccati equation with R h for the measurement noise, exact as h -> 0) or
+        "discrete" (the sampled filter's own P, :func:`~estimators.filters.steady_state.discrete_gain`:
+        the right gain where a state is fast against the sample interval, as a gust
+        filter's is).
     inputs : input variation over a sample interval, as OutputError: "linear" (default) or
         "hold" (zero-order hold); the linear form discretises either exactly.
     compiled : run the nonlinear filter loop compiled with numba (f and g compiled; falls
@@ -226,10 +231,14 @@ class FilterError:
         inputs: str = DEFAULT_INPUTS,
         compiled: bool = True,
         full_R: bool = False,
+        gain: str = "continuous",
         callback=None,
     ) -> None:
         if form not in ("linear", "nonlinear"):
             raise ModelDefinitionError(f"form must be 'nonlinear' or 'linear', not {form!r}")
+        if gain not in ("continuous", "discrete"):
+            raise ModelDefinitionError(f"gain must be 'continuous' or 'discrete', not {gain!r}")
+        self.gain = gain
         check_options(integrator, inputs)
         self.model = model
         self.process_noise = process_noise
@@ -340,6 +349,7 @@ class FilterError:
             inputs=self.inputs,
             compiled=self.compiled,
             full_R=self.full_R,
+            gain=self.gain,
             estimate_F=self.estimate_F,
             fd_step=self.fd_step,
             h=h,
@@ -488,6 +498,8 @@ class FilterError:
                 "estimate_F": self.estimate_F,
                 "inputs": self.inputs,
                 "linearisation": "about x0 and u[0] of each segment",
+                "gain": self.gain,
+                "innovation_covariance": "full" if self.full_R else "diagonal",
             },
             extra={
                 "gain": [r.K[0] for r in batch],

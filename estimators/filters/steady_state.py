@@ -1,6 +1,7 @@
-"""Steady-state pieces of the filter-error method: the transition matrix and the input
-integrals of a sample interval, the continuous Riccati equation (Potter's method, the
-reference software's form) and the gains per pattern of measured outputs.
+"""Steady-state pieces of the filter-error method: discretisation of a linear system, the
+transition matrix and the input integrals of a sample interval, the Riccati equation
+(continuous form by Potter's method, the reference software's; the sampled filter's
+discrete form by Newton's method) and the gains per pattern of measured outputs.
 
 Shapes: a batch of B linearisations A (B, n, n), C (B, m, n); F F^T (B, n, n) the
 continuous process-noise spectral density; R (m, m) the innovation covariance; h the
@@ -74,6 +75,26 @@ def expm(M: np.ndarray) -> np.ndarray:
     return linalg.expm(M)
 
 
+def discretize(A: np.ndarray, FFt: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Phi = e^{A h}, Gamma = int_0^h e^{As} ds, Qd = int_0^h e^{As} F F^T e^{A^T s} ds (van
+    Loan) for one system: A (n, n), FFt (n, n), h (s)."""
+    n = A.shape[0]
+    M = np.zeros((2 * n, 2 * n))
+    M[:n, :n] = A
+    M[:n, n:] = np.eye(n)
+    E = expm(M * h)
+    Phi, Gam = E[:n, :n], E[:n, n:]
+    if not np.any(FFt):
+        return Phi, Gam, np.zeros((n, n))
+    V = np.zeros((2 * n, 2 * n))
+    V[:n, :n] = -A
+    V[:n, n:] = FFt
+    V[n:, n:] = A.T
+    W = expm(V * h)
+    Qd = Phi @ W[:n, n:]
+    return Phi, Gam, 0.5 * (Qd + Qd.T)
+
+
 def input_integrals(A: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Phi = e^{A h}, Gamma0 = int_0^h e^{As} ds and Gamma1 = int_0^h e^{A(h-s)} s ds / h for
     one system A (n, n): over a sample interval the input enters as Gamma0 B u_k for a held
@@ -128,6 +149,66 @@ def continuous_gain(
             except (np.linalg.LinAlgError, ValueError):
                 Pn[b] = np.nan
         P[noisy] = 0.5 * (Pn + Pn.transpose(0, 2, 1))
+    K = np.einsum("bij,bkj,kl->bil", P, C, Ri)
+    return P, K
+
+
+def discrete_gain(
+    A: np.ndarray, C: np.ndarray, FFt: np.ndarray, R: np.ndarray, h: float, max_iter: int = 12
+) -> tuple[np.ndarray, np.ndarray]:
+    """Steady-state a-priori P (B, n, n) and gain K = P C^T R^-1 (B, n, m) of the sampled
+    filter for a batch of linearisations A (B, n, n), C (B, m, n), process noise FFt
+    (B, n, n), the innovation covariance R (m, m) and the sample interval h (s).
+
+    P solves P = Phi (P - P C^T R^-1 C P) Phi^T + Qd (Phi, Qd of :func:`discretize`): the
+    Kalman filter's prediction of its own a-posteriori covariance when R is the innovation
+    covariance. Newton's method from the continuous form's solution
+    (:func:`continuous_gain`, the reference software's, which it approaches as h -> 0),
+    batched over columns; the continuous solution is kept for a column where Newton does
+    not settle. NaN where neither exists."""
+    Bc, n, _ = A.shape
+    P, K = continuous_gain(A, C, FFt, R, h)
+    noisy = np.any(FFt.reshape(Bc, -1) != 0.0, axis=1) & np.all(np.isfinite(P.reshape(Bc, -1)), axis=1)
+    if not np.any(noisy):
+        return P, K
+    idx = np.flatnonzero(noisy)
+    Ri = np.linalg.inv(R)
+    Phi = np.empty((idx.size, n, n))
+    Q = np.empty((idx.size, n, n))
+    for j, b in enumerate(idx):
+        Phi[j], _, Q[j] = discretize(A[b], FFt[b], h)
+    Mm = np.einsum("bji,jk,bkl->bil", C[idx], Ri, C[idx])
+    X = P[idx].copy()
+    eye = np.eye(n * n)
+    q_scale = np.abs(Q).reshape(idx.size, -1).max(axis=1)
+    done = np.zeros(idx.size, dtype=bool)
+    with np.errstate(all="ignore"):
+        for _ in range(max_iter):
+            XM = X @ Mm
+            f = Phi @ (X - XM @ X) @ Phi.transpose(0, 2, 1) + Q - X
+            # relative to the larger of Qd and P: with little process noise on an unstable
+            # mode P stays finite while Qd -> 0, and a residual relative to Qd alone would
+            # never settle (the column then keeping the continuous solution, a jump between
+            # the columns of one sensitivity batch)
+            scale = np.maximum(q_scale, np.abs(X).reshape(idx.size, -1).max(axis=1)) + 1e-300
+            err = np.abs(f).reshape(idx.size, -1).max(axis=1) / scale
+            done = np.isfinite(err) & (err < 1e-12)
+            if np.all(done | ~np.isfinite(err)):
+                break
+            PXM = Phi @ XM
+            J = (
+                np.einsum("bij,bkl->bikjl", Phi, Phi)
+                - np.einsum("bij,bkl->bikjl", Phi, PXM)
+                - np.einsum("bij,bkl->bikjl", PXM, Phi)
+            ).reshape(idx.size, n * n, n * n) - eye
+            try:
+                dX = np.linalg.solve(J, -f.reshape(idx.size, n * n, 1)).reshape(idx.size, n, n)
+            except np.linalg.LinAlgError:
+                break
+            X = X + np.where(done[:, None, None], 0.0, dX)
+            X = 0.5 * (X + X.transpose(0, 2, 1))
+    good = done & np.all(np.isfinite(X.reshape(idx.size, -1)), axis=1)
+    P[idx[good]] = X[good]
     K = np.einsum("bij,bkj,kl->bil", P, C, Ri)
     return P, K
 

@@ -14,6 +14,24 @@ from pipeline.jobs.progress import where_stopped
 from pipeline.paths import atomic_write_text
 
 
+def positive_number(upper: float = math.inf, unit: str = "") -> type:
+    """An argparse type: a finite number above 0 and at most ``upper`` (in ``unit``); the
+    error says what was given and what is accepted, before any work."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            v = math.nan
+        if not (math.isfinite(v) and 0 < v <= upper):
+            bound = f" and at most {upper:g}{' ' + unit if unit else ''}" if math.isfinite(upper) else ""
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number above 0{bound}")
+        return v
+
+    parse.__name__ = "number"
+    return parse
+
+
 def add_time_base_argument(parser: argparse.ArgumentParser) -> None:
     """``--time-base``: the time base of a .tlog or .mcap log (pipeline.ingest.readers.TIME_BASES)."""
     parser.add_argument(
@@ -100,14 +118,16 @@ def add_validation_arguments(p: argparse.ArgumentParser) -> None:
     """Proof-of-match options shared by fsid run and fsid estimate."""
     p.add_argument(
         "--band-rate",
-        type=float,
+        type=positive_number(),
         metavar="DEG_S",
         help="proof-of-match band on p, q, r in deg/s (default 1.5, or the scenario's)",
     )
-    p.add_argument("--band-accel", type=float, metavar="G", help="proof-of-match band on ax, ay, az in g (default 0.1)")
+    p.add_argument(
+        "--band-accel", type=positive_number(), metavar="G", help="proof-of-match band on ax, ay, az in g (default 0.1)"
+    )
     p.add_argument(
         "--band-angle",
-        type=float,
+        type=positive_number(),
         metavar="DEG",
         help="proof-of-match band on alpha, beta, phi, theta, psi in deg (default 1.5)",
     )

@@ -9,10 +9,20 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
-from pipeline.commands.arguments import SEGMENTS_HELP, add_time_base_argument, log_file, segment_items
+from pipeline.commands.arguments import (
+    SEGMENTS_HELP,
+    add_time_base_argument,
+    failure_recorded,
+    log_file,
+    positive_number,
+    segment_items,
+)
 from pipeline.errors import FsidError
+from pipeline.ingest.sampling import MAX_GRID_HZ
+from pipeline.paths import new_run_dir
 
 HELP = "ingest a flight log, check its data quality and sensor compatibility, and whether each axis can be identified"
 
@@ -32,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default=None, help="output folder (default: a new folder under ./runs/)")
     parser.add_argument(
         "--rate",
-        type=float,
+        type=positive_number(MAX_GRID_HZ, "Hz"),
         default=None,
         help="rate of canonical.csv in Hz (default: fastest core channel, at most 100)",
     )
@@ -61,7 +71,7 @@ def _vec(text: str | None, name: str):
         v = [float(x) for x in text.split(",")]
     except ValueError:
         v = []
-    if len(v) != 3:
+    if len(v) != 3 or not all(math.isfinite(x) for x in v):
         raise FsidError(f"{name} '{text}' is not three numbers x,y,z in metres; e.g. {name} 0.8,0,0.05")
     return v
 
@@ -100,14 +110,17 @@ def run(args: argparse.Namespace) -> int:
     from pipeline.jobs.check import check_log  # the job loads numba, scipy, pandas: on use only
 
     log = log_file(args.log)
-    return check_log(
-        log,
-        args.out,
-        map_path=args.map,
-        segments=_segments(args.segments),
-        time_base=args.time_base,
-        compat=not args.no_compat,
-        rate=args.rate,
-        positions=None if args.no_compat else _positions(log, args),
-        aircraft=args.aircraft,
-    )
+    given = [log] + [p for p in (args.map, args.aircraft) if p]
+    out = new_run_dir("check", args.out, inputs=[p for p in given if Path(p).exists()])
+    with failure_recorded(out, "check"):
+        return check_log(
+            log,
+            out,
+            map_path=args.map,
+            segments=_segments(args.segments),
+            time_base=args.time_base,
+            compat=not args.no_compat,
+            rate=args.rate,
+            positions=None if args.no_compat else _positions(log, args),
+            aircraft=args.aircraft,
+        )

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from pipeline.commands.arguments import (
     SEGMENTS_HELP,
@@ -42,7 +43,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "elevator maneuvers, else linear), or auto = every axis the log's "
         "maneuvers excite (default); or your own: FILE.py:NAME, an "
         "estimators.Model or a function (aircraft=None, flight=None) returning "
-        "one, its inputs/outputs named as the log's canonical channels",
+        "one, its inputs/outputs named as the log's canonical channels. "
+        "FILE.py is run as Python with your rights: give only files you trust",
     )
     p.add_argument(
         "--method",
@@ -114,7 +116,8 @@ def run(args: argparse.Namespace) -> int:
 
     log_file(args.log)
     opts = options(args)
-    out = new_run_dir("estimate", args.out)
+    given = [args.log] + [p for p in (args.validate_with, args.aircraft, args.map) if p]
+    out = new_run_dir("estimate", args.out, inputs=[p for p in given if Path(p).exists()])
     with failure_recorded(out, "estimate"):
         paths = estimate_log(args.log, out, opts)
     print_outputs(out, paths)

@@ -15,6 +15,9 @@ from __future__ import annotations
 import argparse
 import time
 
+from pipeline.commands.arguments import failure_recorded
+from pipeline.paths import new_run_dir
+
 HELP = "fly a scenario in JSBSim (Dryden turbulence, sensor models) and write flight.mcap, flight.bin, truth.json"
 
 
@@ -27,13 +30,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--keep-jsbsim", action="store_true", help="keep the generated JSBSim aircraft XML in DIR/jsbsim"
     )
+    parser.add_argument(
+        "--force", action="store_true", help="replace flight logs already in DIR (default: refuse to write over them)"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     from pipeline.jobs.simulate import simulate  # the job loads the simulator: on use only
 
     t0 = time.perf_counter()
-    run_dir, result = simulate(args.scenario, args.out, args.seed, args.keep_jsbsim)
+    out = new_run_dir("simulate", args.out, logs=True, force=args.force)
+    with failure_recorded(out, "simulate"):
+        run_dir, result = simulate(args.scenario, out, args.seed, args.keep_jsbsim, force=True)
     dt = time.perf_counter() - t0
     s = result.scenario
     print(

@@ -16,7 +16,15 @@ from scipy.signal import butter, sosfiltfilt
 
 from estimators.statistics import difference_noise_std
 from pipeline.errors import FsidError
-from pipeline.ingest.sampling import sample_gaps, sample_rate, start_kind
+from pipeline.ingest.sampling import (
+    GAP_FACTOR,
+    MAX_GRID_HZ,
+    contiguous,
+    sample_gaps,
+    sample_rate,
+    start_kind,
+    uniform_grid,
+)
 from pipeline.ingest.segments import MAX_AUTO_SEGMENT_S as MAX_AUTO_SEGMENT_S
 from pipeline.ingest.segments import RESPONSE_CHANNEL, between_gaps, cut_span, settled_end
 from pipeline.ingest.segments import SegmentSpec as SegmentSpec
@@ -240,7 +248,8 @@ class FlightData:
 
         Parameters
         ----------
-        rate_hz : output rate [Hz]
+        rate_hz : output rate [Hz], above 0 and at most MAX_GRID_HZ (else FsidError); spans
+            far from every sample are left out of the grid (:func:`uniform_grid`)
         channels : canonical names (default: all present); absent names are skipped
         t0, t1 : limits [s] (default from ``span``)
         span : "common" (overlap of the channels) or "union" (NaN where a channel has no data)
@@ -254,8 +263,11 @@ class FlightData:
         -------
         DataFrame with column ``t`` [s] and one column per channel, SI units; shape (N, 1 + n).
         """
-        if rate_hz <= 0:
-            raise ValueError("rate_hz must be positive")
+        if not 0 < rate_hz <= MAX_GRID_HZ:
+            raise FsidError(
+                f"a grid rate of {rate_hz:g} Hz: give a rate above 0 and at most {MAX_GRID_HZ:g} Hz "
+                "(the sensors' own rates are typically 10-1000 Hz)"
+            )
         names = [
             c
             for c in (channels if channels is not None else self.names)
@@ -271,8 +283,7 @@ class FlightData:
             lo, hi = float(starts.min()), float(ends.max())
         lo = lo if t0 is None else float(t0)
         hi = hi if t1 is None else float(t1)
-        n = int(np.floor((hi - lo) * rate_hz + 1e-9)) + 1 if hi >= lo else 0
-        t = lo + np.arange(n) / rate_hz
+        t = uniform_grid(lo, hi, rate_hz, [self.channels[c].t for c in names])
         out = {"t": t}
         for c in names:
             out[c] = _resample_channel(
@@ -529,11 +540,15 @@ def _resample_channel(
     native = sample_rate(tc) if tc.size > 1 else 0.0
     stamps = tc  # the native samples, for the blanking below (the filtered ones are uniform)
     if antialias and native > 1.25 * rate_hz and tc.size > 30:
-        tu, vu = _uniform(tc, vc, native)
+        # filtered on a uniform grid at the native rate, piece by piece between the gaps
         sos = _antialias_sos(native, rate_hz)
-        if vu.size > 3 * (2 * sos.shape[0] + 1):
-            vu = sosfiltfilt(sos, vu)
-        tc, vc = tu, vu
+        pieces = []
+        for sl in contiguous(tc, GAP_FACTOR / native):
+            tu, vu = _uniform(tc[sl], vc[sl], native)
+            if vu.size > 3 * (2 * sos.shape[0] + 1):
+                vu = sosfiltfilt(sos, vu)
+            pieces.append((tu, vu))
+        tc, vc = np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces])
     out = (
         np.interp(t, tc, vc, left=np.nan, right=np.nan)
         if tc.size > 1

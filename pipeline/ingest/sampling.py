@@ -23,6 +23,46 @@ GAP_FACTOR = 5.0
 #: a log whose first stamp is at least this [s] runs on a calendar clock (Unix epoch,
 #: UTC; 1e8 s is 1973); smaller ones count from the autopilot's boot or the log's start
 EPOCH_MIN_S = 1e8
+#: the fastest grid a log is put on [Hz]: above any sensor rate of a flight log, and a
+#: bound on the work a mistyped rate can ask for
+MAX_GRID_HZ = 10_000.0
+#: a uniform grid skips the spans farther than this [s] (or two grid periods) from every
+#: sample of its channels: a gap is a gap, never filled sample by sample (one stamp 1e7 s
+#: late would otherwise ask for 1e9 rows)
+GRID_GAP_S = 0.5
+
+
+def uniform_grid(lo: float, hi: float, rate_hz: float, stamps: list[np.ndarray]) -> np.ndarray:
+    """The times [s] lo + k / rate_hz in [lo, hi] of a grid for channels sampled at
+    ``stamps`` (one array per channel): every such time while the grid is at most a few
+    times the samples; else only those within GRID_GAP_S (or two grid periods) of a sample,
+    so the grid's size is bounded by the data's, not by the span of its stamps."""
+    if not hi >= lo:
+        return np.zeros(0)
+    total = sum(int(np.size(s)) for s in stamps)
+    n = int(np.floor((hi - lo) * rate_hz + 1e-9)) + 1
+    if n <= 4 * total + 1000:
+        return lo + np.arange(n) / rate_hz
+    g = max(GRID_GAP_S, 2.0 / rate_hz)
+    s = np.unique(np.concatenate([np.asarray(x, dtype=float) for x in stamps]))
+    s = s[np.isfinite(s) & (s >= lo - g) & (s <= hi + g)]
+    if s.size == 0:
+        return np.zeros(0)
+    cut = np.flatnonzero(np.diff(s) > 2 * g)
+    starts = np.maximum(np.r_[s[0], s[cut + 1]] - g, lo)
+    ends = np.minimum(np.r_[s[cut], s[-1]] + g, hi)
+    k0 = np.ceil((starts - lo) * rate_hz - 1e-9).astype(np.int64)
+    k1 = np.floor((ends - lo) * rate_hz + 1e-9).astype(np.int64)
+    keep = k1 >= k0
+    k = np.concatenate([np.arange(a, b + 1) for a, b in zip(k0[keep], k1[keep])] or [np.zeros(0, np.int64)])
+    return lo + k / rate_hz
+
+
+def contiguous(t: np.ndarray, max_gap: float) -> list[slice]:
+    """Slices of the sorted stamps ``t`` between intervals longer than ``max_gap`` [s]."""
+    cut = np.flatnonzero(np.diff(t) > max_gap) + 1
+    edges = np.r_[0, cut, t.size]
+    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
 
 def _intervals(t: np.ndarray) -> np.ndarray:

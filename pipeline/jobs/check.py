@@ -51,6 +51,8 @@ def check_log(
     aircraft file (servo travel, max thrust; default: a truth.json next to the log). Prints
     what it found and ends with the identifiability of each axis (checks.json
     ``identifiability``; an axis that cannot be identified is a failed finding); returns 0."""
+    given = [log] + [p for p in (map_path, aircraft) if p]
+    out = new_run_dir("check", out, inputs=[p for p in given if Path(p).exists()])
     picked = isinstance(segments, (list, tuple))
     fd = read_log(
         log,
@@ -73,7 +75,6 @@ def check_log(
     ident = identifiability(by_axis, findings, ac)
     findings += identifiability_findings(ident)
     extra["identifiability"] = identifiability_json(ident)
-    out = new_run_dir("check", out)
     atomic_write_text(out / "checks.json", findings_to_json(findings, fd, extra))
     write_check_recording(out / "check.rrd", FlightRecord(fd, findings))
     if rate is None:

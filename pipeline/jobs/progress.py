@@ -12,6 +12,8 @@ import time
 from dataclasses import dataclass
 from typing import TextIO
 
+from pipeline.errors import visible
+
 
 @dataclass
 class _Place:
@@ -68,7 +70,7 @@ class Progress:
         self.n += 1
         self._t = time.perf_counter() if since is None else since
         if not self.quiet:
-            print(f"[{self.n}/{self.total}] {text} ...", end="", file=self.stream, flush=True)
+            print(f"[{self.n}/{self.total}] {visible(text)} ...", end="", file=self.stream, flush=True)
             _PLACE.open_on = self.stream
         if not self.nested:
             _PLACE.label, _PLACE.done = f"[{self.n}/{self.total}] {text}", False
@@ -80,7 +82,7 @@ class Progress:
         self._t = time.perf_counter()
         if not self.quiet:
             print(
-                f"{' ' * (len(str(self.n)) + len(str(self.total)) + 3)} {text} ...",
+                f"{' ' * (len(str(self.n)) + len(str(self.total)) + 3)} {visible(text)} ...",
                 end="",
                 file=self.stream,
                 flush=True,
@@ -91,13 +93,13 @@ class Progress:
     def tick(self, text: str) -> None:
         """A step within the current stage, on its line (an iteration, a refit)."""
         if not self.quiet:
-            print(f" {text}", end="", file=self.stream, flush=True)
+            print(f" {visible(text)}", end="", file=self.stream, flush=True)
 
     def done(self, extra: str = "") -> None:
         """End the current stage or substage: its duration and ``extra``."""
         if not self.quiet:
             dt = time.perf_counter() - self._t
-            print(f" {dt:.1f} s{(' - ' + extra) if extra else ''}", file=self.stream, flush=True)
+            print(f" {dt:.1f} s{(' - ' + visible(extra)) if extra else ''}", file=self.stream, flush=True)
             _PLACE.open_on = None
         if not self.nested:
             _PLACE.done = True

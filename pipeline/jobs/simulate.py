@@ -71,6 +71,7 @@ def simulate(
     airspeed: str = "tas",
     stages: bool = False,
     count: Progress | None = None,
+    force: bool = True,
 ) -> tuple[Path, sim.SimResult]:
     """Fly ``scenario_path`` (a path or a built-in name) and write flight.mcap, flight.bin
     and truth.json into the run folder ``out`` (default: a new one under ./runs/), and
@@ -92,7 +93,7 @@ def simulate(
     pr = count or Progress(flight_stages(val is not None), quiet=not stages)
     pr.stage(f"load scenario {scenario_path}", since=t0)
     pr.done(scenario.name)
-    run_dir = new_run_dir("simulate", out)
+    run_dir = new_run_dir("simulate", out, inputs=[path], logs=True, force=force)
     workdir = run_dir if keep_jsbsim else None
     prog = _Progress(scenario.name, progress and scenario.duration >= 120.0)
     pr.stage(f"fly {scenario.duration:.0f} s in JSBSim")

@@ -88,7 +88,9 @@ def _filter_error(problem: Problem, model: Any, s: FitSettings) -> Any:
     """The nonlinear form (integrator prediction, gain of the linearisation at each
     segment's start); the full innovation covariance where no output is an exact function
     of the others (the likelihood's: the reference's diagonal one biases derivatives where
-    the innovations are correlated, as turbulence makes them), else the diagonal; process noise started from the turbulence level and estimated; R
+    the innovations are correlated, as turbulence makes them), else the diagonal; the
+    sampled filter's gain (the gust states are fast against the sample interval, where
+    the reference's continuous-form gain is off); process noise started from the turbulence level and estimated; R
     started at the measurement-noise level and estimated by relaxation (no output-error run
     from equation-error starts that may diverge)."""
 
@@ -97,6 +99,7 @@ def _filter_error(problem: Problem, model: Any, s: FitSettings) -> Any:
             m,
             form="nonlinear",
             full_R=not dependent_outputs(m, problem.fit),
+            gain="discrete",
             inputs=problem.inputs,
             process_noise=process_noise_std(problem, s.turbulence),
             measurement_noise=measurement_noise_std(problem),

@@ -4,14 +4,18 @@ base64 data URIs), to share as a single file.
 The converter covers the Markdown report.md is written in, no more: ATX headings, pipe
 tables (header, separator, rows), paragraphs, ``-``/``*`` and numbered lists, fenced code
 blocks, and inline code, ``**bold**``, images ``![caption](path)`` and links. Everything
-else is text, escaped. An image that appears again (a figure shared by several methods'
-sections) is embedded once; its repeats link to it."""
+else is text, escaped; character references (report.md writes text from data that way,
+:func:`pipeline.outputs.markdown.md_text`) stay references. An image that appears again (a
+figure shared by several methods' sections) is embedded once; its repeats link to it.
+
+Nothing in report.md can reach outside its folder: only PNG files inside the report's
+folder are embedded, and links go only to http(s) addresses or to relative paths inside
+the folder; any other target is shown as text."""
 
 from __future__ import annotations
 
 import base64
 import html
-import mimetypes
 import re
 from pathlib import Path
 
@@ -155,24 +159,42 @@ def _figure(caption: str, src: str, base: Path | None, seen: set[str]) -> str:
     return f'<figure id="{anchor}"><img src="{uri}" alt="{cap}"><figcaption>{cap}</figcaption></figure>'
 
 
+def _inside(src: str) -> bool:
+    """Whether ``src`` is a relative path that stays inside the report's folder (no scheme,
+    no root, no parent steps, no backslashes)."""
+    if not src or re.match(r"^[A-Za-z][A-Za-z0-9+.-]*:", src) or src.startswith(("/", "~")) or "\\" in src:
+        return False
+    return ".." not in Path(src).parts
+
+
+def _safe_href(href: str) -> bool:
+    """Whether a link may point at ``href``: an http(s) address or a path inside the folder."""
+    return bool(re.match(r"^https?://", href, re.IGNORECASE)) or _inside(href)
+
+
 def _data_uri(src: str, base: Path | None) -> str | None:
-    """A base64 data URI of the image file ``src`` (relative to ``base``), None when it
-    cannot be read."""
-    if base is None or re.match(r"^[a-z]+:", src):
+    """A base64 data URI of the PNG file ``src`` (a path inside ``base``, the report's
+    folder), None when it is anything else or cannot be read."""
+    if base is None or not _inside(src) or not src.lower().endswith(".png"):
         return None
     path = base / src
     try:
+        if not path.resolve().is_relative_to(base.resolve()):  # a link out of the folder
+            return None
         data = path.read_bytes()
     except OSError:
         return None
-    mime = mimetypes.guess_type(path.name)[0] or "application/octet-stream"
-    return f"data:{mime};base64," + base64.b64encode(data).decode("ascii")
+    if not data.startswith(b"\x89PNG\r\n\x1a\n"):
+        return None
+    return "data:image/png;base64," + base64.b64encode(data).decode("ascii")
 
 
 _CODE = re.compile(r"`([^`]+)`")
 _BOLD = re.compile(r"\*\*(.+?)\*\*")
 _INLINE_IMAGE = re.compile(r"!\[([^\]]*)\]\(([^)\s]+)\)")
 _LINK = re.compile(r"\[([^\]]+)\]\(([^)\s]+)\)")
+#: a character reference that html.escape turned into text: kept as a reference
+_REFERENCE = re.compile(r"&amp;(#[0-9]{1,7}|#x[0-9A-Fa-f]{1,6}|lt|gt|amp|quot);")
 
 
 def _inline(text: str, base: Path | None) -> str:
@@ -184,17 +206,27 @@ def _inline(text: str, base: Path | None) -> str:
         if k % 2:
             out.append(f"<code>{html.escape(part)}</code>")
             continue
-        s = html.escape(part, quote=False)
+        s = _REFERENCE.sub(r"&\1;", html.escape(part, quote=False))
         s = _BOLD.sub(r"<strong>\1</strong>", s)
         s = _INLINE_IMAGE.sub(lambda m: _inline_image(m.group(1), m.group(2), base), s)
-        s = _LINK.sub(lambda m: f'<a href="{html.escape(m.group(2))}">{m.group(1)}</a>', s)
+        s = _LINK.sub(lambda m: _link(m.group(1), m.group(2)), s)
         out.append(s)
     return "".join(out)
 
 
+def _link(text: str, href: str) -> str:
+    """A link (``text`` already escaped) to ``href`` when it is safe (:func:`_safe_href`),
+    else the text with its target shown."""
+    target = html.unescape(href)
+    if not _safe_href(target):
+        return f"{text} ({html.escape(target)})"
+    return f'<a href="{html.escape(target)}">{text}</a>'
+
+
 def _inline_image(alt: str, src: str, base: Path | None) -> str:
-    """An image inside a line of text, embedded when it can be read."""
+    """An image inside a line of text, embedded when it is a PNG of the report's folder."""
     uri = _data_uri(html.unescape(src), base)
+    alt = html.escape(html.unescape(alt))
     if uri is None:
-        return f'<span class="missing">[image missing: {src}]</span>'
+        return f'<span class="missing">[image missing: {html.escape(html.unescape(src))}] {alt}</span>'
     return f'<img src="{uri}" alt="{alt}" style="max-width:100%">'

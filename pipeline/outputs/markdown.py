@@ -1,4 +1,4 @@
-"""Markdown building blocks of report.md: table cells and tables."""
+"""Markdown building blocks of report.md: text from data, table cells and tables."""
 
 from __future__ import annotations
 
@@ -6,6 +6,22 @@ import math
 from typing import Any
 
 import numpy as np
+
+from pipeline.errors import visible
+
+#: the characters that would make text from a log or a file into Markdown or HTML syntax
+#: (links, images, tags, table cells), written as character references: renderers show the
+#: characters, and no link, image or tag comes of them
+_MD_SPECIAL = {"&": "&amp;", "<": "&lt;", ">": "&gt;", "[": "&#91;", "]": "&#93;", "|": "&#124;", "`": "&#96;"}
+
+
+def md_text(x: Any) -> str:
+    """``x`` as text safe to put into report.md: Markdown and HTML syntax characters as
+    character references, control characters as escapes
+    (:func:`pipeline.errors.visible`). For everything that comes from data or
+    configuration: log paths, aircraft, flight-mode, channel and parameter names."""
+    text = visible(str(x)).replace("\n", " ")
+    return "".join(_MD_SPECIAL.get(c, c) for c in text)
 
 
 def cell(x: Any, fmt: str = ".4g") -> str:

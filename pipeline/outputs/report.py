@@ -51,6 +51,7 @@ from typing import Any
 
 from estimators import EstimationResult
 from pipeline.outputs.figures import FigureRef, render_figures, section_markdown
+from pipeline.outputs.markdown import md_text
 from pipeline.outputs.method_section import method_md
 from pipeline.outputs.run_sections import agreement_md, checks_md, compat_md, summary_md
 from pipeline.paths import atomic_write_text
@@ -119,7 +120,7 @@ def report_markdown(rep: Mapping[str, Any], figures: Mapping[str, list[FigureRef
     L = ["# System-identification report", ""]
     for k, x in meta.items():
         if isinstance(x, (str, int, float, bool)) or x is None:
-            L.append(f"- {k}: {x}")
+            L.append(f"- {md_text(k)}: {md_text(x)}")
     if meta:
         L.append("")
     with_truth = bool(rep.get("truth"))

@@ -7,7 +7,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from pipeline.outputs.markdown import cell, table
+from pipeline.outputs.markdown import cell, md_text, table
 from pipeline.outputs.method_section import verdict_level
 
 #: what the levels mean (pipeline.validation.REASON_LEVELS), under the summary table
@@ -121,7 +121,7 @@ def _checks_body(checks: Mapping[str, Any]) -> list[str]:
     L: list[str] = []
     summary = checks.get("summary")
     if isinstance(summary, Mapping):
-        L += [", ".join(f"{k}: {x}" for k, x in summary.items()), ""]
+        L += [", ".join(f"{md_text(k)}: {md_text(x)}" for k, x in summary.items()), ""]
     findings = checks.get("findings")
     if isinstance(findings, list):
         bad = [f for f in findings if isinstance(f, Mapping) and f.get("status") != "pass"]
@@ -130,10 +130,10 @@ def _checks_body(checks: Mapping[str, Any]) -> list[str]:
                 ["status", "check", "channel", "message"],
                 [
                     [
-                        str(f.get("status")),
-                        str(f.get("check")),
-                        str(f.get("channel") or "-"),
-                        str(f.get("message")).replace("|", "/"),
+                        md_text(f.get("status")),
+                        md_text(f.get("check")),
+                        md_text(f.get("channel") or "-"),
+                        md_text(f.get("message")),
                     ]
                     for f in bad
                 ],
@@ -142,11 +142,11 @@ def _checks_body(checks: Mapping[str, Any]) -> list[str]:
         if k in ("summary", "findings"):
             continue
         if isinstance(x, (str, int, float, bool)):
-            L.append(f"- {k}: {x}")
+            L.append(f"- {md_text(k)}: {md_text(x)}")
         elif isinstance(x, Mapping) and ("summary" in x or "findings" in x):
-            L += ["", f"**{k}**: "] + _checks_body(x)
+            L += ["", f"**{md_text(k)}**: "] + _checks_body(x)
         elif isinstance(x, Mapping) and all(isinstance(y, (str, int, float, bool)) for y in x.values()):
-            L.append(f"- {k}: " + ", ".join(f"{a}: {b}" for a, b in x.items()))
+            L.append(f"- {md_text(k)}: " + ", ".join(f"{md_text(a)}: {md_text(b)}" for a, b in x.items()))
     return L
 
 
