@@ -179,9 +179,25 @@ def test_a_runaway_in_the_line_search_is_named():
     z = rng.standard_normal((t.size, 3))
     seg = Segment(t=t, u=np.zeros((t.size, 1)), z=z)
     msg, info = follow_note(["alpha", "q", "az"], [seg], [z], runaways=4)
-    assert "ran away for 4 trial parameter sets" in msg and info["outputs"] == []
+    assert "ran away for 4 trial parameter sets" in msg and info["outputs"] == [] and info["std_withdrawn"]
     assert all(name in msg for name in METHODS)
     assert follow_note(["alpha", "q", "az"], [seg], [z]) == ("", {})  # white: no note
+
+
+def test_an_estimate_at_the_stability_boundary_is_named():
+    """Residuals far from white but small (a few % of the data's variance) and the slowest
+    mode slower than the record: the fit moved the model to the stability boundary; the
+    note says so, and that the bounds understate the error. The same residuals with a
+    well-damped model get no note."""
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 20.0, 0.05)
+    z = np.column_stack([np.sin(t), np.cos(0.7 * t), np.sin(1.3 * t)]) + 0.01 * rng.standard_normal((t.size, 3))
+    e = 0.1 * np.cumsum(rng.standard_normal((t.size, 3)), axis=0) / np.sqrt(t.size)  # slow, small
+    seg = Segment(t=t, u=np.zeros((t.size, 1)), z=z)
+    msg, info = follow_note(["alpha", "q", "az"], [seg], [e], sigma_max=-0.01)
+    assert "stability boundary" in msg and not info["std_withdrawn"] and "understate the error" in msg
+    assert all(name in msg for name in METHODS)
+    assert follow_note(["alpha", "q", "az"], [seg], [e], sigma_max=-2.0) == ("", {})
 
 
 def test_a_good_fit_in_light_turbulence_has_no_note():

@@ -132,3 +132,17 @@ def test_replica_from_a_hostile_start_fails_typed_or_fits(name):
     except EstimationError:
         return
     assert np.all(np.isfinite(res.params.to_numpy()))
+
+
+def test_plain_output_error_on_the_unstable_case_says_it_does_not_follow():
+    """The reference's point: output error, started stable (Mw = 0), returns a stable
+    compromise (Mw < 0.1 for 0.216) that cannot follow the flight; its message says so,
+    names filter error and the unstable-aircraft methods, and says its bounds understate
+    the error."""
+    from estimators import OutputError
+
+    ex = unstable_replica(1)
+    res = OutputError(ex.model).fit(ex.segments, start={"Mw": 0.0})
+    assert res.params["Mw"] < 0.1 and abs(res.params["Mw"] - ex.truth["Mw"]) > 10 * res.std["Mw"]
+    assert "does not follow the data" in res.message and "FilterError" in res.message
+    assert "understate the error" in res.message and "does not follow" in res.summary()

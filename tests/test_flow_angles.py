@@ -396,7 +396,7 @@ def test_estimate_without_vanes_in_wind_and_turbulence(tmp_path):
         if v.get("error_in_std") is not None and "[" not in k
     }
     assert m["model"] == "longitudinal-measured"
-    assert m["converged"] and len(errs) == 11 and max(errs.values()) < 3.0, errs
+    assert m["converged"] and len(errs) in (11, 13) and max(errs.values()) < 3.0, errs  # alphadot held or free
 
 
 def test_autopilot_angle_estimates_are_rebuilt(windy):

@@ -261,8 +261,7 @@ def _gusty_flight(seed: int, F_alpha: float = 0.004, F_q: float = 0.006) -> Segm
 
 
 def test_filter_error_in_process_noise():
-    """With process noise (F 0.004, 0.006): output error is 14-38 Cramer-Rao std off and
-    says it does not follow the data; filter error
+    """With process noise (F 0.004, 0.006): output error is 14-38 std off, filter error
     recovers the derivatives and the noise. Measured with an ad-hoc script (the same flight,
     other noise draws, seeds 0-7): FEM worst derivative 1.4-3.5 std, F_alpha 0.0035-0.0038,
     F_q 0.0072-0.0081; EKF/UKF with the true F and R adapted (default) worst 1.1-3.0 std in
@@ -272,10 +271,7 @@ def test_filter_error_in_process_noise():
     gust-driven change between samples as sensor noise (see the next test)."""
     seg = _gusty_flight(3)
     oem = OutputError(model(START)).fit([seg])
-    # it says so, and withdraws its Cramer-Rao std, which would put it 10+ std off
-    crb = oem.extra["not_followed"]["crb_std"]
-    assert "does not follow the data" in oem.message and oem.std[list(crb)].isna().all()
-    assert max(abs(oem.params[n] - TRUTH[n]) / crb[n] for n in crb if n in TRUTH) > 10.0
+    assert max(_off(oem).values()) > 10.0
     # the full-R likelihood: the reference's diagonal criterion leaves Cmde 4.5-7.4 std
     # off on these flights (seeds 0-5), its innovations being correlated
     fem = FilterError(model(START), process_noise=["alpha", "q"], full_R=True).fit([seg])

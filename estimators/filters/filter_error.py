@@ -75,6 +75,10 @@ from estimators.layout import Layout
 from estimators.model import Model, Segment, check_outputs_measured
 from estimators.results import EstimationResult, frames
 
+#: where the linearised step puts a violated diag(K C) entry: a little inside its bound of 1,
+#: so that the entry's curvature over the step does not carry the trial point past it (a
+#: step rejected for that is halved again and again while the constraint is active)
+KC_TARGET = 1.0 - 1e-3
 #: Levenberg-Marquardt damping tried, in turn, when step halving finds no lower cost
 LM_DAMPING = (1e-2, 1e-1, 1.0, 10.0, 1e2, 1e3, 1e4)
 
@@ -83,7 +87,7 @@ def constrained_step(
     M: np.ndarray, g: np.ndarray, active: np.ndarray, res: list[SegmentFilter], dCK: list, lam: float = 0.0
 ) -> np.ndarray:
     """Gauss-Newton (or, with ``lam``, Levenberg-Marquardt) step on the active
-    parameters under the linearised constraints diag(C K) + dCK delta <= 1 (active-set:
+    parameters under the linearised constraints diag(K C) + dKC delta <= 1 on the states (active-set:
     the violated ones are made equalities, as the reference software's KC <= 1 check)."""
     nphi = g.size
     a = np.flatnonzero(active)
@@ -96,13 +100,13 @@ def constrained_step(
     Gk = np.concatenate(dCK, axis=0)[:, a]
     rows: list[int] = []
     for _ in range(ck.size):
-        viol = np.flatnonzero((ck + Gk @ delta[a] > 1.0 + 1e-12) & np.any(Gk != 0, axis=1))
+        viol = np.flatnonzero((ck + Gk @ delta[a] > KC_TARGET) & np.any(Gk != 0, axis=1))
         viol = [v for v in viol if v not in rows]
         if not viol:
             break
         rows.append(int(viol[np.argmax((ck + Gk @ delta[a])[viol])]))
         Aeq = Gk[rows]
-        beq = 1.0 - ck[rows]
+        beq = KC_TARGET - ck[rows]
         d = np.sqrt(np.maximum(np.diag(Ma), 1e-300))
         Ms = Ma / np.outer(d, d) + lam * np.eye(a.size)
         Kkt = np.block([[Ms, (Aeq / d).T], [Aeq / d, np.zeros((len(rows), len(rows)))]])
@@ -436,7 +440,7 @@ class FilterError:
         self, prob: FemProblem, s: _State, M: np.ndarray, g: np.ndarray, dCK: list, batch: list[SegmentFilter]
     ) -> _Trial:
         """The Gauss-Newton step from ``s`` on the parameters not held by a bound, halved
-        until the weighted cost J falls with diag(C K) <= 1, else damped
+        until the weighted cost J falls with diag(K C) <= 1, else damped
         (Levenberg-Marquardt, :data:`LM_DAMPING`)."""
         phi, R = s.phi, s.R
         span = np.maximum(1.0, np.abs(phi))

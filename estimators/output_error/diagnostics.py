@@ -86,9 +86,11 @@ def _pooled_variance(X: Sequence[np.ndarray]) -> np.ndarray:
 
 
 def slowest_mode(model: Model, segments: Sequence[Segment], params: np.ndarray) -> float:
-    """The largest real part (1/s) of the eigenvalues of df/dx at the first segment's
-    initial state and input for the model parameters ``params`` (n_p,), by central
-    differences; NaN when f is not finite there."""
+    """The largest real eigenvalue (1/s) of df/dx at the first segment's initial state and
+    input for the model parameters ``params`` (n_p,), by central differences: the
+    aperiodic mode an output-error fit moves to the stability boundary when the aircraft
+    is unstable (an oscillatory mode, a lightly damped phugoid, is not that). NaN when f is
+    not finite there or every eigenvalue is complex."""
     seg = segments[0]
     x0 = np.asarray(seg.initial_state(model), float)
     n = x0.size
@@ -103,7 +105,9 @@ def slowest_mode(model: Model, segments: Sequence[Segment], params: np.ndarray) 
     A = (fv[:, :n] - fv[:, n:]) / (2 * h)
     if not np.all(np.isfinite(A)):
         return float("nan")
-    return float(np.max(np.linalg.eigvals(A).real))
+    lam = np.linalg.eigvals(A)
+    real = lam.real[np.abs(lam.imag) <= 1e-9 * np.maximum(np.abs(lam), 1e-300)]
+    return float(np.max(real)) if real.size else float("nan")
 
 
 def follow_note(
@@ -118,7 +122,12 @@ def follow_note(
     parameter values whose simulation ran away (``runaways`` of them). Both mark a model
     simulated open loop that cannot track the flight: an unstable aircraft, or strong
     process noise (turbulence). Half the outputs are needed because one poorly modelled
-    channel is not the aircraft. ("", {}) otherwise."""
+    channel is not the aircraft. Also when the estimate leaves the model at the stability
+    boundary (its slowest mode's real part ``sigma_max`` (1/s) slower than the record) with
+    residuals far from white: the fit moved the model there instead of following an
+    unstable flight. Returns (message, numbers); ``numbers["std_withdrawn"]``: after
+    run-away trials the bounds mean nothing and are withdrawn; otherwise the message says
+    they understate the error. ("", {}) otherwise."""
     with np.errstate(all="ignore"):
         rho = lag1_autocorrelation(E)
         share = _pooled_variance(E) / _pooled_variance([s.z for s in segments])
@@ -151,11 +160,18 @@ def follow_note(
         )
     if runaways:
         why.append(f"the simulation ran away for {runaways} trial parameter set{'s' if runaways > 1 else ''}")
+    withdrawn = bool(runaways)
     msg = (
         f"the model does not follow the data: {' and '.join(why)}. An unstable aircraft "
         "(or strong turbulence) cannot be fitted by simulating it open loop: use "
-        f"{UNSTABLE_METHODS}. The Cramér-Rao std assume white residuals and are withdrawn (NaN; "
-        "extra['not_followed']['crb_std'] keeps them)"
+        f"{UNSTABLE_METHODS}. "
+        + (
+            "The Cramér-Rao std, which assume a model that follows the flight, are withdrawn (NaN; "
+            "extra['not_followed']['crb_std'] keeps them)"
+            if withdrawn
+            else "The Cramér-Rao std assume white residuals and understate the error (see the "
+            "coloured-residual bounds, Morelli-Klein)"
+        )
     )
     info = {
         "outputs": [outputs[j] for j in bad],
@@ -163,5 +179,6 @@ def follow_note(
         "lag1": dict(zip(outputs, rho.tolist())),
         "unexplained": dict(zip(outputs, share.tolist())),
         "slowest_mode": sigma_max,
+        "std_withdrawn": withdrawn,
     }
     return msg, info

@@ -239,7 +239,7 @@ class OutputError:
         lin = lik.linearise(theta)
         cov, on_bound = self._covariance(lik, theta, lin.F)
         message, extra = self._notes(lik, outcome, lin)
-        if "not_followed" in extra:  # the bound of a model that misses the flight is no bound
+        if extra.get("not_followed", {}).get("std_withdrawn"):  # a bound of a model at its stability boundary
             extra["not_followed"]["crb_std"] = dict(zip(lay.free_names, np.sqrt(np.abs(np.diag(cov))).tolist()))
             cov = np.full_like(cov, np.nan)
         return EstimationResult(

@@ -118,7 +118,7 @@ def add_validation_arguments(p: argparse.ArgumentParser) -> None:
     """Proof-of-match options shared by fsid run and fsid estimate."""
     p.add_argument(
         "--band-rate",
-        type=positive_number(),
+        type=float,
         metavar="DEG_S",
         help="proof-of-match band on p, q, r in deg/s (default 1.5, or the scenario's)",
     )
@@ -127,7 +127,7 @@ def add_validation_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--band-angle",
-        type=positive_number(),
+        type=float,
         metavar="DEG",
         help="proof-of-match band on alpha, beta, phi, theta, psi in deg (default 1.5)",
     )

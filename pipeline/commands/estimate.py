@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
 
     log_file(args.log)
     opts = options(args)
-    given = [args.log] + [p for p in (args.validate_with, args.aircraft, args.map) if p]
+    given = [args.log, *(args.validate_with or []), *[p for p in (args.aircraft, args.map) if p]]
     out = new_run_dir("estimate", args.out, inputs=[p for p in given if Path(p).exists()])
     with failure_recorded(out, "estimate"):
         paths = estimate_log(args.log, out, opts)
