@@ -2,7 +2,8 @@
 and gradient from a batch of perturbed filter runs (forward differences of the one-step
 predictions, the gain's gradients included), and at the estimate the Cramér-Rao covariance
 (the inverse of the final information for the innovation covariance there, as the
-reference software's), its Morelli-Klein correction for coloured
+reference software's; with the full R of the likelihood, the information with R estimated
+too), its Morelli-Klein correction for coloured
 innovations and the maneuvers' scatter (each segment a cluster).
 """
 
@@ -41,7 +42,7 @@ class SegmentScore:
 class FemCovariance:
     """The information and covariances at the filter-error estimate phi (n_phi,): the
     filter runs there (``batch``, column 0 the estimate), the information ``M`` for the
-    innovation covariance there, the Cramér-Rao covariance ``cov`` and its Morelli-Klein correction
+    innovation covariance there (with a full R: R estimated too), the Cramér-Rao covariance ``cov`` and its Morelli-Klein correction
     ``mk_cov`` (NaN rows and columns for phi on a bound, ``on_bound``), the lag of the
     innovations' autocorrelation used per segment ``mk_lags``, and the maneuvers'
     scatter ``cluster`` (None with one segment)."""
@@ -136,13 +137,80 @@ def scoring(
     return M, g, dCK, sens
 
 
+def marginal_information(
+    prob: FemProblem,
+    M: np.ndarray,
+    phi: np.ndarray,
+    batch,
+    R: np.ndarray,
+    S: Sequence[np.ndarray],
+    rows: Sequence[np.ndarray],
+    rel_step: float = 1e-4,
+) -> np.ndarray:
+    """The information on phi with R estimated too: the Schur complement
+    M - M_pr M_rr^-1 M_rp of the joint Fisher information over phi and the entries r of
+    R (its diagonal, and the off-diagonal ones when R is full). R enters the gain
+    (sensitivities S_r of the innovations, by forward differences) and the likelihood
+    directly (N/2 tr(R^-1 E_r R^-1 E_s)); leaving it out, as the reference software
+    does, understates the std of F, which trades against R. ``S`` and ``rows``: per
+    segment the innovation sensitivities of :func:`scoring` and their batch columns."""
+    m = R.shape[0]
+    pairs = [(i, j) for i in range(m) for j in range(i, m) if i == j or prob.full_R]
+    nphi = phi.size
+    nr = len(pairs)
+    Mpr = np.zeros((nphi, nr))
+    Mrr = np.zeros((nr, nr))
+    Es = []
+    for i, j in pairs:
+        E = np.zeros((m, m))
+        E[i, j] = E[j, i] = 1.0
+        Es.append(E)
+    for k, (seg, r) in enumerate(zip(prob.segments, batch)):
+        Y0 = r.Y[0]
+        S_phi = np.zeros((nphi, seg.n, m))
+        S_phi[rows[k][1:] - 1] = S[k]
+        S_r = np.zeros((nr, seg.n, m))
+        for a, (i, j) in enumerate(pairs):
+            d = rel_step * np.sqrt(R[i, i] * R[j, j])
+            rr = prob.filter(phi[None, :], R + d * Es[a])
+            if prob.constraint_ok(rr):  # else its gain over-corrects: no gradient
+                S_r[a] = (rr[k].Y[0] - Y0) / d
+        S_r = np.where(np.isfinite(S_r), S_r, 0.0)
+        masks, pat = prob.patterns[k]
+        E = seg.z - Y0
+        for p_, o in enumerate(masks):
+            used = (pat == p_) & np.all(np.isfinite(np.where(o, E, 0.0)), axis=1)
+            if not (o.any() and used.any()):
+                continue
+            Ri = np.linalg.inv(R[np.ix_(o, o)])
+            Lw = np.linalg.cholesky(Ri)
+            A = np.einsum("pnm,mk->pnk", S_phi[:, used][:, :, o], Lw).reshape(nphi, -1)
+            Bm = np.einsum("pnm,mk->pnk", S_r[:, used][:, :, o], Lw).reshape(nr, -1)
+            Mpr += A @ Bm.T
+            T = np.array([Ri @ Ea[np.ix_(o, o)] for Ea in Es])
+            Mrr += Bm @ Bm.T + 0.5 * used.sum() * np.einsum("aij,bji->ab", T, T)
+    with np.errstate(all="ignore"):
+        try:
+            out = M - Mpr @ np.linalg.solve(Mrr, Mpr.T)
+        except np.linalg.LinAlgError:
+            return M
+    out = 0.5 * (out + out.T)
+    # a valid Schur complement lies between 0 and M; anything else is a failed gradient
+    d = np.diag(out)
+    if not np.all(np.isfinite(out)) or np.any(d <= 0) or np.any(d > np.diag(M) * (1 + 1e-9)):
+        return M
+    return out
+
+
 def covariances(prob: FemProblem, phi: np.ndarray, R: np.ndarray, rows: Sequence[np.ndarray]) -> FemCovariance:
     """The information and covariances at the estimate phi for the innovation covariance
     R there; ``rows`` per segment the sensitivity batch's columns
     (:meth:`~estimators.filters.fem_problem.FemProblem.segment_rows`)."""
     batch, hsteps = prob.sensitivity_batch(phi, R, rows)
     parts: list[SegmentScore] = []
-    M, _, _, _ = scoring(prob, batch, R, hsteps, rows, keep=parts)
+    M, _, _, sens = scoring(prob, batch, R, hsteps, rows, keep=parts)
+    if prob.full_R:  # the likelihood's bound: R estimated too
+        M = marginal_information(prob, M, phi, batch, R, sens, rows)
     names = prob.names
     nphi = phi.size
     span = np.maximum(1.0, np.abs(phi))

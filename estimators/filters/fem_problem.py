@@ -112,7 +112,8 @@ def check_full_R(model: Model, segments: Sequence[Segment]) -> None:
 class SegmentFilter:
     """The filter run of one segment for a batch of Bc phi columns (column 0 the base):
     predicted outputs Y (Bc, N, m), steady-state gain K (Bc, n, m) and covariance
-    P (Bc, n, n), filtered states X (Bc, N, n), diag(K C) CK (Bc, n), the output matrix C
+    P (Bc, n, n), filtered states X (Bc, N, n), the constrained diagonal CK (diag(K C),
+    (Bc, n); with a full R diag(C K), (Bc, m)), the output matrix C
     (Bc, m, n) and the linearisation (A, B, C, D) of column 0."""
 
     Y: np.ndarray
@@ -228,7 +229,10 @@ class FemProblem:
                     )
             else:
                 Y, Xf = self._nonlinear_loop(seg, P, X0, Kg, Kp, pat, c)
-            CK = np.einsum("bij,bji->bi", Kg, C)
+            # the constraint: diag(K C) <= 1 on the states (the reference's), or with the
+            # full R of the likelihood diag(C K) <= 1 on the outputs (the implied
+            # measurement noise R - C P C^T non-negative)
+            CK = np.einsum("bij,bji->bi", C, Kg) if self.full_R else np.einsum("bij,bji->bi", Kg, C)
             out.append(SegmentFilter(Y=Y, K=Kg, P=Pp, X=Xf, CK=CK, C=C, lin=(A[0], Bu[0], C[0], D[0])))
         return out
 
@@ -373,8 +377,9 @@ class FemProblem:
         return J if np.isfinite(J) else np.inf
 
     def constraint_ok(self, res) -> bool:
-        """diag(K C) <= 1 on every segment: no state is corrected by more than its
-        predicted deviation (the reference software's constraint on the states)."""
+        """CK <= 1 on every segment: no state corrected by more than its predicted deviation
+        (diag(K C), the reference software's constraint), or with a full R no negative
+        implied measurement noise (diag(C K))."""
         return all(np.all(r.CK[0] <= 1.0 + 1e-9) for r in res)
 
     def segment_rows(self, nphi: int) -> list[np.ndarray]:

@@ -33,10 +33,12 @@ Estimation, by relaxation (the reference software's criterion, ml_fem2; Maine an
 3. From the ``r_update_from``-th iteration on, R is re-estimated after each step and F
    compensated for the change (Maine and Iliff, ``relax``).
 
-A full R (``full_R=True``) is the likelihood's other choice; it is refused
-(:class:`~estimators.errors.DependentOutputsError`) when a measured output is an exact
-function of the others and the inputs, where its determinant can be driven to zero. The
-Cramér-Rao bounds are the inverse of the final information matrix for the final R.
+The Cramér-Rao bounds are the inverse of the final information matrix for the final R.
+``full_R=True`` is the likelihood's criterion instead: the full R, diag(C K) <= 1 on the
+outputs (the implied measurement noise non-negative), the information with R estimated
+too; it is refused (:class:`~estimators.errors.DependentOutputsError`) when a measured
+output is an exact function of the others and the inputs, where its determinant can be
+driven to zero.
 
 The fit has converged when det(R)'s relative change and R's have settled. R is never a
 free parameter of the Gauss-Newton step, so it cannot collapse to zero.
@@ -75,10 +77,6 @@ from estimators.layout import Layout
 from estimators.model import Model, Segment, check_outputs_measured
 from estimators.results import EstimationResult, frames
 
-#: where the linearised step puts a violated diag(K C) entry: a little inside its bound of 1,
-#: so that the entry's curvature over the step does not carry the trial point past it (a
-#: step rejected for that is halved again and again while the constraint is active)
-KC_TARGET = 1.0 - 1e-3
 #: Levenberg-Marquardt damping tried, in turn, when step halving finds no lower cost
 LM_DAMPING = (1e-2, 1e-1, 1.0, 10.0, 1e2, 1e3, 1e4)
 
@@ -100,13 +98,13 @@ def constrained_step(
     Gk = np.concatenate(dCK, axis=0)[:, a]
     rows: list[int] = []
     for _ in range(ck.size):
-        viol = np.flatnonzero((ck + Gk @ delta[a] > KC_TARGET) & np.any(Gk != 0, axis=1))
+        viol = np.flatnonzero((ck + Gk @ delta[a] > 1.0 + 1e-12) & np.any(Gk != 0, axis=1))
         viol = [v for v in viol if v not in rows]
         if not viol:
             break
         rows.append(int(viol[np.argmax((ck + Gk @ delta[a])[viol])]))
         Aeq = Gk[rows]
-        beq = KC_TARGET - ck[rows]
+        beq = 1.0 - ck[rows]
         d = np.sqrt(np.maximum(np.diag(Ma), 1e-300))
         Ms = Ma / np.outer(d, d) + lam * np.eye(a.size)
         Kkt = np.block([[Ms, (Aeq / d).T], [Aeq / d, np.zeros((len(rows), len(rows)))]])
@@ -119,20 +117,27 @@ def constrained_step(
 
 
 def cap_noise_step(prob: FemProblem, phi: np.ndarray, delta: np.ndarray, factor: float = 10.0) -> np.ndarray:
-    """delta scaled so that no process-noise entry grows more than ``factor``-fold in one
-    step (F's information can start out negligible, a small start gain, and an unbounded
-    Gauss-Newton step then throws F far beyond the data), and each F entry's own step
-    limited so that it shrinks at most ``factor``-fold (a step onto F = 0, where F's
-    gradient vanishes with the gain, leaves the fit unable to bring it back)."""
+    """delta scaled so that no process-noise entry grows more than ``factor``-fold in
+    one step: F's information can start out negligible (a small start gain), and an
+    unbounded Gauss-Newton step then throws F far beyond the data."""
     sl = prob.fslice()
     f, d = phi[sl], delta[sl]
     grow = (d > 0) & (f > 0)
-    if np.any(grow):
-        scale = np.min(np.where(grow, (factor - 1.0) * f / np.where(grow, d, 1.0), np.inf))
-        delta = delta * min(1.0, float(scale))
-    out = delta.copy()
-    out[sl] = np.where(f > 0, np.maximum(delta[sl], -(1.0 - 1.0 / factor) * f), delta[sl])
-    return out
+    if not np.any(grow):
+        return delta
+    scale = np.min(np.where(grow, (factor - 1.0) * f / np.where(grow, d, 1.0), np.inf))
+    return delta * min(1.0, float(scale))
+
+
+def step_floor(prob: FemProblem, phi: np.ndarray, factor: float = 10.0) -> np.ndarray:
+    """The lower bounds of a trial point from ``phi``: the parameters' own, and each
+    positive process-noise entry at most ``factor``-fold smaller (a trial onto F = 0, where
+    F's gradient vanishes with the gain, leaves the fit unable to bring it back)."""
+    lo = prob.lo.copy()
+    sl = prob.fslice()
+    f = phi[sl]
+    lo[sl] = np.where(f > 0, np.maximum(lo[sl], f / factor), lo[sl])
+    return lo
 
 
 @dataclass
@@ -201,10 +206,11 @@ class FilterError:
         reference software waits until its third; from the first, a start R far from the
         innovations - the output-error residuals of a start in turbulence - weights the
         early steps less wrongly).
-    full_R : estimate the full innovation covariance and minimise its determinant
-        instead of the diagonal's (default False: the reference software's criterion).
-        Refused when a measured output is an exact function of the others and the inputs
-        (:class:`~estimators.errors.DependentOutputsError`).
+    full_R : the likelihood's criterion instead of the reference's (default False): the
+        full innovation covariance and the determinant of it, the implied measurement noise
+        R - C P C^T kept non-negative (diag(C K) <= 1 on the outputs) and R's own
+        uncertainty in the std. Refused when a measured output is an exact function of the
+        others and the inputs (:class:`~estimators.errors.DependentOutputsError`).
     gain : "continuous" (default: the reference software's steady-state gain, P from the
         continuous Riccati equation with R h for the measurement noise, exact as h -> 0) or
         "discrete" (the sampled filter's own P, :func:`~estimators.filters.steady_state.discrete_gain`:
@@ -448,9 +454,10 @@ class FilterError:
         at_hi = phi >= prob.hi - 1e-12 * span
         active = ~((at_lo & (g < 0)) | (at_hi & (g > 0)))
         trial = _Trial(cap_noise_step(prob, phi, constrained_step(M, g, active, batch, dCK)), prob.weighted(s.res, R))
+        lo = step_floor(prob, phi)
         alpha = 1.0
         for _ in range(self.step_halvings + 1):
-            trial.phi = np.clip(phi + alpha * trial.delta, prob.lo, prob.hi)
+            trial.phi = np.clip(phi + alpha * trial.delta, lo, prob.hi)
             trial.res = prob.filter(trial.phi[None, :], R)
             if prob.weighted(trial.res, R) < trial.J0 and prob.constraint_ok(trial.res):
                 trial.accepted, trial.alpha = True, alpha
@@ -458,7 +465,7 @@ class FilterError:
             alpha *= 0.5
         for lam in LM_DAMPING:
             step = cap_noise_step(prob, phi, constrained_step(M, g, active, batch, dCK, lam))
-            trial.phi = np.clip(phi + step, prob.lo, prob.hi)
+            trial.phi = np.clip(phi + step, lo, prob.hi)
             trial.res = prob.filter(trial.phi[None, :], R)
             if prob.weighted(trial.res, R) < trial.J0 and prob.constraint_ok(trial.res):
                 trial.accepted, trial.alpha = True, -lam  # recorded as a negative step: LM

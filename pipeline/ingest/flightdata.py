@@ -369,7 +369,8 @@ class FlightData:
                 t_end = t[min(b, t.size) - 1]
                 later = starts[starts > t_end]
                 limit = float(later[0]) if later.size else float(t[-1])
-                end = t_end + pad_after if sr is None else settled_end(t, sr, quiet, t_end, pad_after, limit)
+                peak = float(np.nanmax(sr[a:b], initial=0.0)) if sr is not None else np.nan
+                end = t_end + pad_after if sr is None else settled_end(t, sr, quiet, peak, t_end, pad_after, limit)
                 spans.append((t[a] - pad_before, end))
             merged: list[list[float]] = []
             for a, b in spans:
