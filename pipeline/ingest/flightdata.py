@@ -26,8 +26,8 @@ from pipeline.ingest.sampling import (
     uniform_grid,
 )
 from pipeline.ingest.segments import MAX_AUTO_SEGMENT_S as MAX_AUTO_SEGMENT_S
-from pipeline.ingest.segments import RESPONSE_CHANNEL, between_gaps, cut_span, settled_end
 from pipeline.ingest.segments import SegmentSpec as SegmentSpec
+from pipeline.ingest.segments import between_gaps, cut_span
 from pipeline.ingest.segments import merge_overlapping as merge_overlapping
 
 #: canonical channel name -> SI unit (DESIGN.md section 3)
@@ -327,10 +327,7 @@ class FlightData:
         Activity is the moving standard deviation of each input over ``window`` [s]; an
         input is active where it exceeds ``threshold`` [rad] (default: max(0.25 x its peak
         moving std, 0.2 deg)). Active spans are padded, merged per axis and kept when at
-        least ``min_duration`` [s] long. A span ends ``pad_after`` after its input stops,
-        or later where the body rate that answers that surface (RESPONSE_CHANNEL) has not yet
-        settled (:func:`~pipeline.ingest.segments.settled_end`): the window holds the
-        maneuver's response, not only its input. A span longer than ``max_duration`` [s] (continuous
+        least ``min_duration`` [s] long. A span longer than ``max_duration`` [s] (continuous
         excitation: a long multisine, minutes of piloted or autopilot activity) is cut into
         equal pieces no longer than that, each fitted with its own initial state: one
         segment of 200 s could be neither fitted by a simulation that drifts over minutes
@@ -338,40 +335,23 @@ class FlightData:
         the IMU channels (:meth:`gaps`, GAP_CHANNELS) ends a segment: a window never spans
         one.
         """
-        found = {}
+        segs: list[SegmentSpec] = []
         for axis in inputs:
             if axis not in self.channels or len(self.channels[axis]) < 3:
                 continue
-            resp = RESPONSE_CHANNEL.get(axis)
-            resp = resp if resp in self.channels and len(self.channels[resp]) >= 3 else None
-            df = self.resample(rate_hz, [axis] + ([resp] if resp else []), antialias=False)
+            df = self.resample(rate_hz, [axis], antialias=False)
             t, x = df["t"].to_numpy(), df[axis].to_numpy()
             if t.size < 3:
                 continue
             w = max(int(round(window * rate_hz)), 3)
-            s = np.nan_to_num(pd.Series(x).rolling(w, center=True, min_periods=2).std().to_numpy())
+            s = pd.Series(x).rolling(w, center=True, min_periods=2).std().to_numpy()
+            s = np.nan_to_num(s)
             thr = threshold if threshold is not None else max(0.25 * float(s.max()), np.radians(0.2))
             active = s > thr
             if not active.any():
                 continue
             edges = np.flatnonzero(np.diff(np.r_[0, active.astype(np.int8), 0]))
-            sr = (
-                pd.Series(df[resp].to_numpy()).rolling(w, center=True, min_periods=2).std().to_numpy() if resp else None
-            )
-            found[axis] = (t, active, edges, sr)
-        # a window runs on while the response settles, up to the next maneuver on any surface
-        starts = np.sort([t[a] - pad_before for t, _, e, _ in found.values() for a in e[::2]])
-        segs: list[SegmentSpec] = []
-        for axis, (t, active, edges, sr) in found.items():
-            quiet = float(np.nanmedian(sr[~active])) if sr is not None and (~active).any() else np.nan
-            spans = []
-            for a, b in zip(edges[::2], edges[1::2]):
-                t_end = t[min(b, t.size) - 1]
-                later = starts[starts > t_end]
-                limit = float(later[0]) if later.size else float(t[-1])
-                peak = float(np.nanmax(sr[a:b], initial=0.0)) if sr is not None else np.nan
-                end = t_end + pad_after if sr is None else settled_end(t, sr, quiet, peak, t_end, pad_after, limit)
-                spans.append((t[a] - pad_before, end))
+            spans = [(t[a] - pad_before, t[min(b, t.size) - 1] + pad_after) for a, b in zip(edges[::2], edges[1::2])]
             merged: list[list[float]] = []
             for a, b in spans:
                 a, b = max(a, t[0]), min(b, t[-1])

@@ -45,37 +45,6 @@ class SegmentSpec:
         }
 
 
-#: the body rate that answers each control surface: a found maneuver's window runs on
-#: after its input stops until that rate has settled
-RESPONSE_CHANNEL = {"de": "q", "da": "p", "dr": "r"}
-#: the longest a found window runs on after its input stops while the response has not
-#: settled [s] (a lightly damped Dutch roll or a slow roll subsidence)
-MAX_RESPONSE_S = 15.0
-#: the response has settled where its moving std is within this factor of its quiet level,
-#: or has fallen to this share of its peak in the maneuver
-SETTLED_FACTOR = 2.0
-SETTLED_SHARE = 0.1
-
-
-def settled_end(
-    t: np.ndarray, resp_std: np.ndarray, quiet: float, peak: float, t_end: float, pad_after: float, limit: float
-) -> float:
-    """Where a maneuver's window ends [s]: ``pad_after`` after its input stops at ``t_end``,
-    or later, while the response's moving std ``resp_std`` (on ``t``) is still above both
-    SETTLED_FACTOR x its ``quiet`` level and SETTLED_SHARE of its ``peak`` in the maneuver,
-    at the first sample where it has settled, but not into ``limit`` (the next maneuver's
-    window) nor beyond MAX_RESPONSE_S after ``t_end``."""
-    lo = t_end + pad_after
-    hi = min(limit, t_end + MAX_RESPONSE_S)
-    if hi <= lo or not np.isfinite(quiet):
-        return lo
-    after = (t >= lo) & (t <= hi)
-    calm = after & (resp_std <= max(SETTLED_FACTOR * quiet, SETTLED_SHARE * peak))
-    if not after.any():
-        return lo
-    return float(t[np.argmax(calm)]) if calm.any() else float(t[after][-1])
-
-
 def between_gaps(a: float, b: float, gaps: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
     """The pieces of ``a..b`` [s] outside the ``gaps`` [(start, end) s, sorted]."""
     out = []
