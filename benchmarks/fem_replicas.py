@@ -13,7 +13,14 @@ range of scatter/CRB over the derivatives (goal: inside [0.7, 1.4]). ``--full-R`
 full-R likelihood instead (refused on the unstable case, whose az is a function of w, q
 and de).
 
-MEASURED
+Measured on 2026-12-02, 10 seeds (``--seeds 10 --jobs 1``), the reference's criterion:
+every derivative within 3 std on 10/10 seeds (HFB-320), 9/10 (lateral), 8/10 (unstable),
+converged 30/30; scatter/CRB over the 31 derivatives 0.33-1.30 (median 0.81: the diagonal
+R's bounds are conservative where the innovations correlate); the process noise is
+biased low where they correlate (bias/scatter: lateral F_p -10.3, unstable F_w -10.0,
+HFB-320 F_alpha -4.0), no seed has every F within 3 std. Before (2026-11-27, full R,
+discrete gain, 40 seeds): 39/40 and 38/40 seeds within 3 std, F included, scatter/CRB
+0.82-1.29.
 """
 
 from __future__ import annotations
@@ -112,7 +119,7 @@ def main() -> float:
     bias = tab.index.get_level_values("name").str.match(r"^B[XY]\d")
     b = tab["scatter/CRB"][bias]
     if len(b):
-        print(f"the {len(b)} lateral biases: scatter/CRB {b.min():.2f}-{b.max():.2f} (their bound is conservative)")
+        print(f"the {len(b)} lateral biases: scatter/CRB {b.min():.2f}-{b.max():.2f}")
     noise = tab.index.get_level_values("name").str.startswith("F_")
     f = tab["bias/scatter"][noise]
     print(f"the {len(f)} process noises: bias/scatter {f.min():.2f} to {f.max():.2f}")
