@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import io
 import os
+import signal
 import sys
 import warnings
 from importlib import metadata
 
 from pipeline.commands import COMMANDS
-from pipeline.errors import USER_ERRORS, describe
+from pipeline.errors import USER_ERRORS, Terminated, describe
 from pipeline.jobs.progress import end_open_line, where_stopped
 
 
@@ -59,17 +61,25 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
+    previous = _on_sigterm()
     try:
         with warnings.catch_warnings():
             # numpy's floating-point RuntimeWarnings (a NaN sample, an empty window) are
             # handled where they matter; on the command line they are noise
             warnings.simplefilter("ignore", RuntimeWarning)
             return int(args._run(args) or 0)
-    except KeyboardInterrupt:
+    except BrokenPipeError:  # the reader of our output went away (fsid fields ... | head)
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nothing left to flush at exit
+        except (OSError, ValueError, io.UnsupportedOperation):
+            pass
+        return 0
+    except KeyboardInterrupt as exc:
         end_open_line()
         where = where_stopped()
-        print(f"fsid: interrupted{' ' + where if where else ''}", file=sys.stderr)
-        return 130
+        how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted"
+        print(f"fsid: {how}{' ' + where if where else ''}", file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
     except Exception as exc:  # one clear line, never a traceback
         end_open_line()
         if os.environ.get("FSID_DEBUG"):
@@ -78,6 +88,22 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(exc, USER_ERRORS):
             return getattr(exc, "exit_code", 2)
         return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _terminate(signum, frame) -> None:
+    raise Terminated()
+
+
+def _on_sigterm():
+    """SIGTERM taken as an interruption (:class:`pipeline.errors.Terminated`) while a
+    command runs; the handler before, or None where signals cannot be set (a thread)."""
+    try:
+        return signal.signal(signal.SIGTERM, _terminate)
+    except ValueError:
+        return None
 
 
 if __name__ == "__main__":

@@ -32,6 +32,11 @@ class FsidError(Exception):
             self.exit_code = exit_code
 
 
+class Terminated(KeyboardInterrupt):
+    """A termination signal (SIGTERM: ``timeout``'s and the schedulers' default) taken as
+    an interruption, so that the output folder says where the run stopped."""
+
+
 #: the errors whose message is written for the user (what, where, what to do)
 USER_ERRORS = (FsidError, EstimationError)
 

@@ -55,6 +55,9 @@ from sim.sensors import SENSOR_SCHEMA, SensorSpec, sensor_spec
 SEVERITY = {"light": (15 * 0.514444, 3), "moderate": (30 * 0.514444, 4), "severe": (45 * 0.514444, 6)}
 #: throttle PWM span (MIN 1000 - MAX 2000 us): the throttle command's resolution is 1/1000
 THROTTLE_SPAN_US = 1000
+#: the longest flight a scenario may ask for [s]: a day, far beyond any test flight, and a
+#: bound on the memory a mistyped duration can ask for (the truth table is held whole)
+MAX_DURATION_S = 86400.0
 
 
 @dataclass(frozen=True)
@@ -403,7 +406,7 @@ def scenario_from_dict(raw: dict, path: Path) -> Scenario:
     if not ac_path.exists():
         raise top.fail("aircraft", f"file {ac_path} not found (paths are relative to the scenario file)")
     aircraft = load_aircraft(ac_path)
-    duration = top.num("duration_s", positive=True)
+    duration = top.num("duration_s", positive=True, hi=MAX_DURATION_S)
     rate = top.num("rate_hz", 100.0, lo=20.0, hi=1000.0)
     substeps = top.integer("substeps", 2)
     if not 1 <= substeps <= 20:
@@ -483,7 +486,7 @@ def _validation_flight(path: Path, raw: dict, seed: int) -> Scenario:
     }
     sub.update(
         name=f"{raw.get('name', path.stem)}-validation",
-        duration_s=sec.num("duration_s", positive=True),
+        duration_s=sec.num("duration_s", positive=True, hi=MAX_DURATION_S),
         seed=sec.integer("seed", seed + 1),
         maneuver=sec.t["maneuver"],
     )

@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from pipeline.errors import FsidError, describe
+from pipeline.errors import FsidError, Terminated, describe
 from pipeline.jobs.progress import where_stopped
 from pipeline.paths import atomic_write_text
 
@@ -187,11 +187,12 @@ def failure_recorded(out: Path, command: str) -> Iterator[None]:
     leaves ``INTERRUPTED.txt`` naming the stage and the partial files. The error goes on."""
     try:
         yield
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         where = where_stopped()
+        how = "terminated (SIGTERM)" if isinstance(exc, Terminated) else "interrupted (Ctrl-C)"
         atomic_write_text(
             out / "INTERRUPTED.txt",
-            f"fsid {command} was interrupted (Ctrl-C){' ' + where if where else ''}; "
+            f"fsid {command} was {how}{' ' + where if where else ''}; "
             + _partial(out, "these files are partial, not a result", "nothing else was written"),
         )
         raise

@@ -72,6 +72,12 @@ def _import_file(path: Path) -> Any:
     sys.path.insert(0, here)  # the model file may import its neighbours
     try:
         spec.loader.exec_module(module)
+    except SystemExit as exc:  # the file ran as a script: it must not end fsid, and say nothing
+        sys.modules.pop(key, None)
+        raise FsidError(
+            f"--model: importing {path} called sys.exit({exc.code!r}); a model file defines the model "
+            "(put script code under if __name__ == '__main__':)"
+        ) from None
     except Exception as exc:
         sys.modules.pop(key, None)
         where = ""

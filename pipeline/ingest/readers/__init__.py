@@ -178,6 +178,13 @@ def read_log(path: str | os.PathLike, map=None, **opts):
             )
         opts["time_base"] = time_base
     raw = read_raw(path, fmt, **opts)
+    if not any(len(v) for k, v in raw.tables.items() if not k.startswith("UNKNOWN")):  # bytes no message decodes
+        raise LogReadError(
+            f"{path}: no data records in this {fmt} file (only headers or format definitions, or not "
+            f"a {fmt} log at all): give the flight's log",
+            path=str(path),
+            where="whole file",
+        )
     map_fmt = raw.info.get("map_hint", raw.format)
     cmap = (
         load_map(map, raw.format)

@@ -1,0 +1,97 @@
+"""Every failure says so where the results are (issue 44, items 5 and 7): a termination
+signal leaves INTERRUPTED.txt and exit 143, a model file that calls sys.exit is refused
+with the reason, a reader that closes the pipe ends the output quietly, and a scenario
+asking for an absurd duration is refused before any work."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from _simdata import ROOT, flown
+
+from pipeline.cli import main
+from pipeline.outputs.writers import write_dataflash
+from pipeline.paths import LOCK
+
+FSID = [sys.executable, "-m", "pipeline.cli"]
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory):
+    path = tmp_path_factory.mktemp("failures") / "flight.bin"
+    write_dataflash(path, flown("default"))
+    return path
+
+
+def test_sigterm_leaves_interrupted_txt(tmp_path):
+    out = tmp_path / "run"
+    p = subprocess.Popen([*FSID, "run", "default", "--out", str(out)], cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    t0 = time.time()
+    while not (out / LOCK).exists() and time.time() - t0 < 120:
+        time.sleep(0.1)
+    time.sleep(1.0)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 143, (p.returncode, err[-2000:])
+    assert "Traceback" not in err and "fsid: terminated (SIGTERM)" in err
+    text = (out / "INTERRUPTED.txt").read_text()
+    assert text.startswith("fsid run was terminated (SIGTERM)"), text
+    assert not (out / LOCK).exists()  # released at exit
+
+
+def test_a_model_file_that_exits_is_refused(log, tmp_path, capsys):
+    model = tmp_path / "script.py"
+    model.write_text("import sys\nsys.exit(0)\n")
+    rc = main(["estimate", str(log), "--model", f"{model}:m", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "called sys.exit(0)" in err and "__main__" in err, err
+    assert (tmp_path / "out" / "error.txt").exists()
+
+
+def test_a_closed_pipe_ends_quietly(log):
+    p = subprocess.run(
+        f"{sys.executable} -m pipeline.cli fields {log} | head -c 100",
+        shell=True,
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert len(p.stdout) == 100 and "Traceback" not in p.stderr and "BrokenPipe" not in p.stderr, p.stderr[-2000:]
+
+
+def test_absurd_duration_refused(tmp_path, capsys):
+    text = (ROOT / "scenarios" / "default.toml").read_text().replace("duration_s = 60.0", "duration_s = 1e12")
+    text = text.replace('aircraft = "aircraft/', f'aircraft = "{ROOT}/scenarios/aircraft/')
+    sc = tmp_path / "long.toml"
+    sc.write_text(text)
+    rc = main(["simulate", str(sc), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "duration_s" in err and "86400" in err, err
+    assert os.listdir(tmp_path / "out") in ([], ["error.txt"], [LOCK], sorted(["error.txt", LOCK]))
+
+
+def test_files_without_data_records_are_refused(tmp_path, capsys):
+    """A .bin of format definitions only and a PNG renamed .tlog: refused, not read as logs
+    with 0 rows."""
+    from test_hostile_time import _records
+
+    full = tmp_path / "full.bin"
+    write_dataflash(full, flown("default"))
+    buf = full.read_bytes()
+    first_data = next(o for o, n in _records(buf) if n != "FMT")
+    fmt_only = tmp_path / "fmt_only.bin"
+    fmt_only.write_bytes(buf[:first_data])
+    png = tmp_path / "picture.tlog"
+    png.write_bytes(b"\x89PNG\r\n\x1a\n" + os.urandom(3000))
+    for bad in (fmt_only, png):
+        rc = main(["check", str(bad), "--out", str(tmp_path / bad.stem)])
+        err = capsys.readouterr().err
+        assert rc == 2 and "no data records" in err, err
+        assert "Traceback" not in err and (tmp_path / bad.stem / "error.txt").exists()
