@@ -124,6 +124,12 @@ def _with(table: str, body: str) -> str:
         ("servos", "de_travel_deg = 20\nde_deg_per_unit = 25\n", "servos.de_deg_per_unit", "give one"),
         ("", "statically_unstable = 'yes'\n", "statically_unstable", "true or false"),
         ("", "stall_speed_mps = -3\n", "stall_speed_mps", "above 0"),
+        (
+            "mass",
+            "mass_kg = 13\nIxx_kgm2 = 0.8\nIyy_kgm2 = 1.1\nIzz_kgm2 = 1.7\nIxz_kgm2 = 1.5\n",
+            "mass.Ixz_kgm2",
+            "Ixz^2 >= Ixx Izz",
+        ),
     ],
 )
 def test_a_bad_aircraft_file_is_one_clear_error(tmp_path, table, body, where, words):

@@ -10,7 +10,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
 from _simdata import ROOT, flown
@@ -95,3 +94,29 @@ def test_files_without_data_records_are_refused(tmp_path, capsys):
         err = capsys.readouterr().err
         assert rc == 2 and "no data records" in err, err
         assert "Traceback" not in err and (tmp_path / bad.stem / "error.txt").exists()
+
+
+def test_one_sample_and_a_stamp_beyond_the_calendar(tmp_path, capsys):
+    one = tmp_path / "one.csv"
+    one.write_text("t,q,de\n0.0,0.1,0.0\n")
+    assert main(["check", str(one), "--out", str(tmp_path / "one")]) == 2
+    err = capsys.readouterr().err
+    assert "1 sample in its fullest channel" in err and "unexpected" not in err, err
+    big = tmp_path / "big.csv"  # epoch seconds near 2^64 us: year 586524
+    big.write_text("t,q,de\n18446744073709.0,0.1,0.0\n18446744073709.01,0.1,0.0\n18446744073709.02,0.1,0.0\n")
+    rc = main(["check", str(big), "--out", str(tmp_path / "big")])
+    err = capsys.readouterr()
+    assert rc in (0, 2) and "unexpected" not in err.err and "Traceback" not in err.err, err.err
+
+
+def test_bad_channel_maps_are_one_line(tmp_path, capsys, log):
+    loop = tmp_path / "loop.toml"
+    loop.write_text(f'[map]\nname = "loop"\nextends = "{loop}"\n')
+    minus = tmp_path / "minus.toml"
+    minus.write_text(
+        '[map]\nname = "minus"\nextends = "ardupilot_bin"\n[channels.q]\nsource = "IMU.GyrY"\nsign = "minus"\n'
+    )
+    for m, what in ((loop, "extends itself"), (minus, "sign = 'minus' is not a finite number")):
+        rc = main(["check", str(log), "--map", str(m), "--out", str(tmp_path / m.stem)])
+        err = capsys.readouterr().err
+        assert rc == 2 and what in err and "unexpected" not in err, err

@@ -105,6 +105,15 @@ def read_aircraft_file(path: str | Path) -> AircraftFile:
     unstable = raw.get("statically_unstable", False)
     if not isinstance(unstable, bool):
         raise where.error("statically_unstable", f"must be true or false, got {unstable!r}")
+    ixz = m.get("Ixz_kgm2", 0.0)
+    if ixz * ixz >= m["Ixx_kgm2"] * m["Izz_kgm2"]:
+        # the inertia tensor must be positive definite: Ixx Izz - Ixz^2 > 0 (the roll-yaw
+        # equations divide by it)
+        raise where.error(
+            "mass.Ixz_kgm2",
+            f"{ixz:g} kg m^2 with Ixx {m['Ixx_kgm2']:g} and Izz {m['Izz_kgm2']:g}: no body has "
+            "Ixz^2 >= Ixx Izz; check the value and its units (a product of inertia is a few % of Ixx)",
+        )
     stall = raw.get("stall_speed_mps")
     if stall is not None and not (_is_number(stall) and stall > 0):
         raise where.error("stall_speed_mps", f"must be a speed in m/s above 0, got {stall!r}")

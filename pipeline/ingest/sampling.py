@@ -119,6 +119,15 @@ def start_kind(t0_abs: float) -> str:
     return "epoch UTC" if t0_abs >= EPOCH_MIN_S else "boot"
 
 
+def utc_text(seconds: float, timespec: str = "microseconds") -> str | None:
+    """Seconds since 1970 as an ISO UTC time ("2026-11-30T10:00:00.000000 UTC"), or None
+    beyond any calendar date (a damaged stamp near 2^64 us)."""
+    try:
+        return datetime.fromtimestamp(seconds, tz=UTC).isoformat(timespec=timespec).replace("+00:00", " UTC")
+    except (ValueError, OverflowError, OSError):
+        return None
+
+
 def start_statement(meta: Mapping[str, Any]) -> str:
     """One sentence saying where t = 0 is on the log's own clock (``meta["t0_abs"]``,
     ``meta["t0_kind"]`` of :meth:`FlightData.from_log_start`); "" when the log's times were
@@ -127,8 +136,11 @@ def start_statement(meta: Mapping[str, Any]) -> str:
         return ""
     t0 = float(meta["t0_abs"])
     if meta.get("t0_kind") == "epoch UTC":
-        when = datetime.fromtimestamp(t0, tz=UTC).isoformat(timespec="microseconds")
-        return (
-            f"times are seconds from the log's start; t = 0 is {when.replace('+00:00', ' UTC')} ({t0:.6f} s Unix epoch)"
-        )
+        when = utc_text(t0)
+        if when is None:
+            return (
+                f"times are seconds from the log's start; t = 0 is {t0:.6g} s on the log's clock, "
+                "beyond any calendar date (a damaged time stamp?)"
+            )
+        return f"times are seconds from the log's start; t = 0 is {when} ({t0:.6f} s Unix epoch)"
     return f"times are seconds from the log's start; t = 0 is {t0:.6f} s on the log's own clock (since boot)"

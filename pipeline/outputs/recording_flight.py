@@ -9,12 +9,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
 
 import numpy as np
 
 from pipeline.conditioning.checks import Finding, summarize
 from pipeline.ingest.flightdata import FlightData, SegmentSpec
+from pipeline.ingest.sampling import utc_text
 from pipeline.outputs.recording_layout import entity_part
 from pipeline.outputs.recording_series import SeriesWriter
 
@@ -147,8 +147,9 @@ def absolute_start(fd: FlightData, origin: float) -> str:
 
 
 def _utc(seconds: float) -> str:
-    """Seconds since 1970 as an ISO UTC time to the millisecond."""
-    return datetime.fromtimestamp(seconds, tz=UTC).isoformat(timespec="milliseconds").replace("+00:00", " UTC")
+    """Seconds since 1970 as an ISO UTC time to the millisecond (or said to be beyond any
+    calendar date)."""
+    return utc_text(seconds, "milliseconds") or "beyond any calendar date (a damaged time stamp?)"
 
 
 def write_flight(w: SeriesWriter, flight: FlightRecord) -> None:

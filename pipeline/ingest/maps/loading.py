@@ -27,14 +27,22 @@ def builtin_names() -> list[str]:
     return sorted(p.name[:-5] for p in resources.files(__package__).iterdir() if p.name.endswith(".toml"))
 
 
-def load_map(spec: str | Path | ChannelMap | None, fmt: str | None = None) -> ChannelMap:
+def load_map(spec: str | Path | ChannelMap | None, fmt: str | None = None, _chain: tuple[str, ...] = ()) -> ChannelMap:
     """Load a map: a built-in name, a TOML path, a ChannelMap, or None (built-in for ``fmt``).
 
     A user map with ``extends = "<builtin>"`` (or, for a known format, no ``extends`` and
-    ``[map] override = true``) is merged over the built-in map.
+    ``[map] override = true``) is merged over the built-in map; a map that extends itself,
+    directly or through others, is an FsidError naming the chain.
     """
     if isinstance(spec, ChannelMap):
         return spec
+    if spec is not None:
+        if str(spec) in _chain:
+            raise FsidError(
+                f"channel map {_chain[0]} extends itself ({' -> '.join((*_chain, str(spec)))}): "
+                "give extends a built-in map"
+            )
+        _chain = (*_chain, str(spec))
     if spec is None:
         if fmt is None or fmt not in BUILTIN:
             raise FsidError(f"no built-in channel map for format '{fmt}'; pass --map FILE.toml")
@@ -46,7 +54,7 @@ def load_map(spec: str | Path | ChannelMap | None, fmt: str | None = None) -> Ch
         own = parse_map(doc, f"built-in map {s}")
         base = doc.get("map", {}).get("extends")
         if base:
-            merged = load_map(base, fmt).merged(own)
+            merged = load_map(base, fmt, _chain).merged(own)
             merged.name = own.name
             return merged
         return own
@@ -62,7 +70,7 @@ def load_map(spec: str | Path | ChannelMap | None, fmt: str | None = None) -> Ch
     if base is None and doc.get("map", {}).get("override") and fmt in BUILTIN:
         base = BUILTIN[fmt]
     if base:
-        return load_map(base, fmt).merged(user)
+        return load_map(base, fmt, _chain).merged(user)
     return user
 
 

@@ -84,6 +84,7 @@ positive up.
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -204,6 +205,15 @@ def _source_if(spec, origin: str, name: str) -> dict[str, list[str]]:
 TRANSFORMS = (None, "quat_wxyz", "quat_xyzw", "product", "polar")
 
 
+def _number(spec: dict, key: str, default: float, origin: str, where: str) -> float:
+    """``spec[key]`` as a finite number (``default`` when absent); FsidError naming the map,
+    the table and the value otherwise."""
+    v = spec.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise FsidError(f"channel map {origin}: {where} {key} = {v!r} is not a finite number; give a number")
+    return float(v)
+
+
 def parse_rule(name: str, spec, origin: str, what: str = "") -> ChannelRule:
     """One ``[channels.NAME]`` table (``what``: ".fallback" for its fallback) as a rule."""
     where = f"[channels.{name}{what}]"
@@ -228,13 +238,18 @@ def parse_rule(name: str, spec, origin: str, what: str = "") -> ChannelRule:
     fb = spec.get("fallback")
     if fb is not None and what:
         raise FsidError(f"channel map {origin}: {where} cannot have a fallback of its own")
+    scale, offset, sign = (
+        _number(spec, k, d, origin, where) for k, d in (("scale", 1.0), ("offset", 0.0), ("sign", 1.0))
+    )
+    if sign not in (1.0, -1.0):
+        raise FsidError(f"channel map {origin}: {where} sign {sign:g}: give 1 or -1")
     return ChannelRule(
         name,
         sources,
         unit,
-        float(spec.get("scale", 1.0)),
-        float(spec.get("offset", 0.0)),
-        float(spec.get("sign", 1.0)),
+        scale,
+        offset,
+        sign,
         spec.get("pwm"),
         spec.get("transform"),
         spec.get("component"),

@@ -130,6 +130,10 @@ def read_raw(path: str | os.PathLike, fmt: str | None = None, **opts) -> RawLog:
         raise err from exc
 
 
+#: the fewest samples a log's fullest channel may have to be read as a flight
+MIN_SAMPLES = 3
+
+
 def read_log(path: str | os.PathLike, map=None, **opts):
     """Read any supported log into canonical :class:`~pipeline.ingest.flightdata.FlightData`.
 
@@ -205,6 +209,14 @@ def read_log(path: str | os.PathLike, map=None, **opts):
         "info": raw.info,
         "tables": {k: len(v) for k, v in raw.tables.items()},
     }
+    most = max((len(c) for c in chans.values()), default=0)
+    if most < MIN_SAMPLES:
+        raise LogReadError(
+            f"{path}: {most} sample{'s' if most != 1 else ''} in its fullest channel, too few to check or fit "
+            f"(at least {MIN_SAMPLES}): give the flight's whole log",
+            path=str(path),
+            where="whole file",
+        )
     fd = FlightData(chans, meta, []).from_log_start()
     if pose is not False and needs_pose_states(fd):
         chosen = map_pose_options(cmap.header.get("pose"), cmap.name) | (pose or {})
