@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fsid: error: {describe(exc)}", file=sys.stderr)
         if isinstance(exc, USER_ERRORS):
             return getattr(exc, "exit_code", 2)
-        return 1
+        return 2 if describe(exc).startswith("cannot write") else 1
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import unicodedata
 
 from estimators.errors import EstimationError
@@ -37,6 +38,10 @@ class Terminated(KeyboardInterrupt):
     an interruption, so that the output folder says where the run stopped."""
 
 
+#: the write failures a user can act on: a full disk or quota, a file size limit, a
+#: read-only file system
+_WRITE_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS)
+
 #: the errors whose message is written for the user (what, where, what to do)
 USER_ERRORS = (FsidError, EstimationError)
 
@@ -46,4 +51,10 @@ def describe(exc: Exception) -> str:
     the unexpected error named, with how to see its traceback."""
     if isinstance(exc, USER_ERRORS):
         return visible(str(exc))
+    if isinstance(exc, OSError) and exc.errno in _WRITE_ERRNOS:
+        where = f" {exc.filename}" if exc.filename else ""
+        return visible(
+            f"cannot write{where}: {exc.strerror or exc}; free space on that disk (or raise the file size "
+            "limit), or give another --out"
+        )
     return visible(f"unexpected {type(exc).__name__}: {exc} (rerun with FSID_DEBUG=1 for the traceback and report it)")

@@ -120,3 +120,20 @@ def test_bad_channel_maps_are_one_line(tmp_path, capsys, log):
         rc = main(["check", str(log), "--map", str(m), "--out", str(tmp_path / m.stem)])
         err = capsys.readouterr().err
         assert rc == 2 and what in err and "unexpected" not in err, err
+
+
+def test_csv_time_column_and_scale_from_the_map(tmp_path):
+    """[map] time_column and time_scale reach the CSV reader: milliseconds under a default
+    name, and seconds under a name of the user's."""
+    from pipeline.ingest.readers import read_log
+
+    t = [0.0, 10.0, 20.0, 30.0, 40.0]
+    ms = tmp_path / "ms.csv"
+    ms.write_text("time,q\n" + "".join(f"{x},{0.01 * i}\n" for i, x in enumerate(t)))
+    own = tmp_path / "own.csv"
+    own.write_text("clock,q\n" + "".join(f"{x / 1000},{0.01 * i}\n" for i, x in enumerate(t)))
+    for path, head in ((ms, 'time_column = "time"\ntime_scale = 0.001'), (own, 'time_column = "clock"')):
+        m = tmp_path / f"{path.stem}.toml"
+        m.write_text(f'[map]\nname = "{path.stem}"\nextends = "canonical_csv"\n{head}\n')
+        fd = read_log(path, map=str(m), segments="auto")
+        assert fd["q"].t[-1] == pytest.approx(0.04), path

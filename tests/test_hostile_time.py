@@ -138,3 +138,26 @@ def test_csv_with_a_time_jump(tmp_path):
     df.to_csv(path, index=False)
     rc, mb = _peak_rss(["check", str(path), "--out", str(tmp_path / "out")])
     assert rc in (0, 1, 2, 3) and mb < 2000, (rc, mb)
+
+
+def test_a_full_disk_is_one_line(logs, tmp_path):
+    """Writes beyond a file size limit (RLIMIT_FSIZE; SIGXFSZ ignored, so the write fails
+    as on a full disk): one line naming the file and what to do, exit 2, no traceback."""
+    import signal
+
+    clean, _ = logs
+
+    def small_files():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, 64 * 1024))
+
+    p = subprocess.run(
+        [sys.executable, "-m", "pipeline.cli", "check", str(clean), "--out", str(tmp_path / "out")],
+        capture_output=True,
+        text=True,
+        preexec_fn=small_files,
+        timeout=600,
+    )
+    assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr[-2000:]
+    line = [s for s in p.stderr.splitlines() if s.startswith("fsid: error:")]
+    assert line and "cannot write" in line[0] and "--out" in line[0], p.stderr

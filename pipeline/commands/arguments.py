@@ -197,11 +197,14 @@ def failure_recorded(out: Path, command: str) -> Iterator[None]:
         )
         raise
     except Exception as exc:
-        atomic_write_text(
-            out / "error.txt",
-            f"fsid {command} failed: {describe(exc)}\n"
-            + _partial(out, "files left here (partial, not a result)", "no other output was written"),
-        )
+        try:
+            atomic_write_text(
+                out / "error.txt",
+                f"fsid {command} failed: {describe(exc)}\n"
+                + _partial(out, "files left here (partial, not a result)", "no other output was written"),
+            )
+        except OSError:  # the disk that failed the run fails this too: the terminal says it
+            pass
         raise
 
 

@@ -100,6 +100,7 @@ from typing import Any
 import pandas as pd
 
 from estimators import EstimationResult
+from pipeline.errors import FsidError
 from pipeline.ingest.flightdata import SegmentSpec
 from pipeline.outputs.recording_blueprint import build_blueprint, check_blueprint
 from pipeline.outputs.recording_flight import FlightRecord, write_flight, write_tracks
@@ -114,14 +115,20 @@ def _recording(path: Path, application_id: str, recording_id: str | None) -> Ite
     import rerun as rr
 
     rec = rr.RecordingStream(application_id, recording_id=recording_id or str(uuid.uuid4()))
-    with atomic_path(path) as tmp:
-        rec.save(str(tmp))
-        try:
-            rec.send_recording_name(path.parent.name or path.stem)
-            yield rec
-        finally:
-            rec.flush()
-            rec.disconnect()
+    try:
+        with atomic_path(path) as tmp:
+            rec.save(str(tmp))
+            try:
+                rec.send_recording_name(path.parent.name or path.stem)
+                yield rec
+            finally:
+                rec.flush()
+                rec.disconnect()
+    except RuntimeError as exc:  # rerun's file writer stopped: a full disk or a size limit
+        raise FsidError(
+            f"cannot write {path}: the recording's file writer stopped ({exc}); free space on that disk "
+            "(or raise the file size limit), or give another --out"
+        ) from None
 
 
 def write_recording(

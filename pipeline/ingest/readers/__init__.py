@@ -17,9 +17,11 @@ where reading stopped (pass ``strict=True`` to raise instead).
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
+from pipeline.errors import FsidError
 from pipeline.ingest.flightdata import FlightData, SegmentSpec
 from pipeline.ingest.maps import apply_map, builtin_names, load_map
 from pipeline.ingest.pose import derive_pose_states, map_pose_options, needs_pose_states
@@ -130,6 +132,22 @@ def read_raw(path: str | os.PathLike, fmt: str | None = None, **opts) -> RawLog:
         raise err from exc
 
 
+def _csv_time(cmap) -> dict:
+    """The CSV reader's time options from a user map's ``[map] time_column`` and
+    ``time_scale`` (the unit of the time column in seconds, e.g. 0.001 for ms)."""
+    head, out = cmap.header, {}
+    if "time_column" in head:
+        out["time_column"] = str(head["time_column"])
+    if "time_scale" in head:
+        v = head["time_scale"]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+            raise FsidError(
+                f"channel map {cmap.name}: [map] time_scale = {v!r}: give the time column's unit in s (> 0)"
+            )
+        out["time_scale"] = float(v)
+    return out
+
+
 #: the fewest samples a log's fullest channel may have to be read as a flight
 MIN_SAMPLES = 3
 
@@ -181,6 +199,8 @@ def read_log(path: str | os.PathLike, map=None, **opts):
                 where="options",
             )
         opts["time_base"] = time_base
+    if fmt == "csv" and map is not None:
+        opts.update(_csv_time(load_map(map, fmt)))
     raw = read_raw(path, fmt, **opts)
     if not any(len(v) for k, v in raw.tables.items() if not k.startswith("UNKNOWN")):  # bytes no message decodes
         raise LogReadError(
