@@ -137,3 +137,19 @@ def test_csv_time_column_and_scale_from_the_map(tmp_path):
         m.write_text(f'[map]\nname = "{path.stem}"\nextends = "canonical_csv"\n{head}\n')
         fd = read_log(path, map=str(m), segments="auto")
         assert fd["q"].t[-1] == pytest.approx(0.04), path
+
+
+def test_a_cut_short_ulog_is_damage(tmp_path):
+    """A .ulg cut to a tenth of its size ends inside a message: read, and said to be
+    damaged where (it had passed as 'whole file readable')."""
+    from pipeline.ingest.readers import read_log
+
+    src = ROOT.parent / "shared" / "data" / "logs" / "px4_vtol_ground_small.ulg"
+    if not src.exists():
+        pytest.skip("shared real logs absent")
+    data = src.read_bytes()
+    assert read_log(src).meta["damage"] is None
+    cut = tmp_path / "cut.ulg"
+    cut.write_bytes(data[: len(data) // 10])
+    dmg = read_log(cut).meta["damage"]
+    assert dmg is not None and 0 < dmg["offset"] < len(data) // 10 and "cut short" in dmg["message"]

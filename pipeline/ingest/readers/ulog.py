@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import io
 import os
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +37,25 @@ NAV_STATES = {
     21: "ORBIT",
     22: "AUTO_VTOL_TAKEOFF",
 }
+
+
+def _truncated_at(path: Path, size: int) -> int | None:
+    """The byte offset of the ULog message the file ends inside (a file cut short), or
+    None when it ends on a message boundary. Every message after the 16-byte file header
+    starts with its size (uint16) and type (uint8)."""
+    try:
+        data = path.read_bytes()
+    except OSError:
+        return None
+    pos = 16
+    n = len(data)
+    while pos + 3 <= n:
+        (msg_size,) = struct.unpack_from("<H", data, pos)
+        nxt = pos + 3 + msg_size
+        if nxt > n:
+            return pos
+        pos = nxt
+    return pos if pos < n else None
 
 
 def read_ulog(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
@@ -99,7 +119,18 @@ def read_ulog(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
             if not modes or modes[-1][1] != nm:
                 modes.append((float(ti), nm))
     damage = None
-    if getattr(ulog, "file_corruption", False) or "corrupt" in log_text.lower():
+    cut = _truncated_at(path, size)
+    if cut is not None:
+        damage = Damage(
+            cut,
+            f"byte {cut} of {size}",
+            f"the file ends inside a ULog message at byte {cut} of {size}: it was cut short (copied or "
+            "written before the log was closed); the data before that byte are kept",
+            sum(len(t) for t in tables.values()),
+        )
+        if strict:
+            raise LogReadError(f"{path}: {damage.message}", path=str(path), where=damage.where, partial=tables)
+    elif getattr(ulog, "file_corruption", False) or "corrupt" in log_text.lower():
         damage = Damage(
             -1,
             "ULog data section",
