@@ -153,3 +153,37 @@ def test_a_cut_short_ulog_is_damage(tmp_path):
     cut.write_bytes(data[: len(data) // 10])
     dmg = read_log(cut).meta["damage"]
     assert dmg is not None and 0 < dmg["offset"] < len(data) // 10 and "cut short" in dmg["message"]
+
+
+def test_a_forward_jump_of_the_tlog_receive_clock_is_not_a_reboot(tmp_path):
+    """The ground station's clock jumping an hour ahead half way through a .tlog: the
+    autopilot's stamps go on, so the flight's times do (no hour-long gap, every sample
+    kept), and the time base says what happened."""
+    import struct
+
+    import numpy as np
+
+    from pipeline.ingest.readers import read_log
+
+    src = ROOT.parent / "shared" / "data" / "logs" / "ardupilot_quadplane_sitl.tlog"
+    if not src.exists():
+        pytest.skip("shared real logs absent")
+    data = bytearray(src.read_bytes())
+    offs, i = [], 0
+    while i + 10 <= len(data):  # 8-byte receive stamp, then a MAVLink v1 or v2 packet
+        m, ln = data[i + 8], data[i + 9]
+        if m not in (0xFD, 0xFE):
+            i += 1
+            continue
+        offs.append(i)
+        i += 8 + (10 + ln + 2 + (13 if data[i + 10] & 1 else 0) if m == 0xFD else 6 + ln + 2)
+    for o in offs[len(offs) // 2 :]:
+        (t,) = struct.unpack_from(">Q", data, o)
+        struct.pack_into(">Q", data, o, t + 3600 * 10**6)
+    jumped = tmp_path / "jumped.tlog"
+    jumped.write_bytes(bytes(data))
+    a, b = read_log(src, segments=[]), read_log(jumped, segments=[])
+    for k in ("phi", "p", "V"):
+        assert len(b[k]) == len(a[k]) and np.max(np.diff(b[k].t)) < 10.0, k
+        np.testing.assert_allclose(b[k].t, a[k].t, atol=0.5)
+    assert "clock jumped" in b.meta["time_base"] and "reboot" not in b.meta["time_base"]

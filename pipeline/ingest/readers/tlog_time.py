@@ -84,16 +84,23 @@ def _unwrap32(b: np.ndarray, recv: np.ndarray) -> np.ndarray:
 class BootClock:
     """The receive-to-autopilot clock map of one .tlog (:meth:`fit`).
 
-    edges : (n_epochs - 1,) receive times [s] where an epoch (a boot) starts.
-    c : per epoch its median receive offset (receive - stamp) [s].
+    edges : (n_epochs - 1,) receive times [s] where an epoch starts: the receive offset
+        jumps there.
+    c : per epoch the offset [s] that puts its stamps on the log's clock: its median
+        receive offset (receive - stamp) after a reboot (the stamps start again); the
+        epoch before's after a jump of the ground station's clock (the stamps go on, so the
+        flight's times do too).
     centres, offsets : per epoch the latency line, bin centres [s] (receive time) and the
         median receive offset in each bin [s].
+    reboot : (n_epochs - 1,) whether each edge is an autopilot reboot (else a jump of the
+        receive clock).
     """
 
     edges: np.ndarray
     c: np.ndarray
     centres: list[np.ndarray]
     offsets: list[np.ndarray]
+    reboot: np.ndarray
 
     @classmethod
     def fit(cls, recv: np.ndarray, stamp: np.ndarray) -> BootClock:
@@ -107,15 +114,20 @@ class BootClock:
         med = np.median(np.lib.stride_tricks.sliding_window_view(np.pad(o, w // 2, mode="edge"), w), axis=1)
         cut = np.flatnonzero(np.abs(np.diff(med)) > EPOCH_JUMP_S)
         bounds = np.concatenate([[0], cut + 1, [r.size]])
-        c, centres, offsets = [], [], []
-        for a, b in zip(bounds[:-1], bounds[1:]):
+        st = stamp[order][keep]
+        c, centres, offsets, reboot = [], [], [], []
+        for e, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
             rr, oo = r[a:b], o[a:b]
-            c.append(float(np.median(oo)))
+            # a reboot starts the stamps again; where they go on, the receive clock jumped
+            again = e > 0 and np.median(st[a : a + w]) < np.median(st[max(bounds[e - 1], a - w) : a]) - EPOCH_JUMP_S
+            if e > 0:
+                reboot.append(bool(again))
+            c.append(float(np.median(oo)) if e == 0 or again else c[-1])
             k = np.floor((rr - rr[0]) / LATENCY_BIN_S).astype(int)
             bins = [k == j for j in np.unique(k)]
             centres.append(np.array([np.median(rr[s]) for s in bins]))
             offsets.append(np.array([np.median(oo[s]) for s in bins]))
-        return cls(0.5 * (r[cut] + r[cut + 1]), np.asarray(c), centres, offsets)
+        return cls(0.5 * (r[cut] + r[cut + 1]), np.asarray(c), centres, offsets, np.asarray(reboot, dtype=bool))
 
     def epoch(self, recv: np.ndarray) -> np.ndarray:
         """Epoch index (n,) of receive times ``recv`` [s]."""
@@ -242,11 +254,17 @@ def boot_time_base(
     mapped = [(float(t), m) for t, (_, m) in zip(place(mode_seq, [t for t, _ in modes]), modes)] if len(modes) else []
     fields = sorted({s[1] for s in own.values()})
     text = f"autopilot stamps ({' / '.join(fields)}) + the median receive offset {clock.c[0]:.3f} s"
-    if clock.c.size > 1:
+    if clock.reboot.any():
         text += (
-            f"; {clock.c.size - 1} autopilot reboot(s) at receive time "
-            + ", ".join(f"{e:.1f}" for e in clock.edges)
+            f"; {int(clock.reboot.sum())} autopilot reboot(s) at receive time "
+            + ", ".join(f"{e:.1f}" for e in clock.edges[clock.reboot])
             + " s, each boot with its own offset"
+        )
+    if (~clock.reboot).any():
+        text += (
+            "; the ground station's clock jumped at receive time "
+            + ", ".join(f"{e:.1f}" for e in clock.edges[~clock.reboot])
+            + " s (the autopilot's stamps went on: times follow them)"
         )
     unstamped = sorted(n for n in tables if n not in own)
     if unstamped:
