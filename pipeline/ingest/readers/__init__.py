@@ -152,6 +152,30 @@ def _csv_time(cmap) -> dict:
 MIN_SAMPLES = 3
 
 
+def _has_records(raw: RawLog, path, fmt: str) -> None:
+    """LogReadError unless ``raw`` has a decoded record (tables of bytes no message
+    decodes, ``UNKNOWN_*``, do not count)."""
+    if not any(len(v) for k, v in raw.tables.items() if not k.startswith("UNKNOWN")):
+        raise LogReadError(
+            f"{path}: no data records in this {fmt} file (only headers or format definitions, or not "
+            f"a {fmt} log at all): give the flight's log",
+            path=str(path),
+            where="whole file",
+        )
+
+
+def _has_samples(chans: dict, path) -> None:
+    """LogReadError unless the fullest mapped channel has MIN_SAMPLES samples."""
+    most = max((len(c) for c in chans.values()), default=0)
+    if most < MIN_SAMPLES:
+        raise LogReadError(
+            f"{path}: {most} sample{'s' if most != 1 else ''} in its fullest channel, too few to check or fit "
+            f"(at least {MIN_SAMPLES}): give the flight's whole log",
+            path=str(path),
+            where="whole file",
+        )
+
+
 def read_log(path: str | os.PathLike, map=None, **opts):
     """Read any supported log into canonical :class:`~pipeline.ingest.flightdata.FlightData`.
 
@@ -202,13 +226,7 @@ def read_log(path: str | os.PathLike, map=None, **opts):
     if fmt == "csv" and map is not None:
         opts.update(_csv_time(load_map(map, fmt)))
     raw = read_raw(path, fmt, **opts)
-    if not any(len(v) for k, v in raw.tables.items() if not k.startswith("UNKNOWN")):  # bytes no message decodes
-        raise LogReadError(
-            f"{path}: no data records in this {fmt} file (only headers or format definitions, or not "
-            f"a {fmt} log at all): give the flight's log",
-            path=str(path),
-            where="whole file",
-        )
+    _has_records(raw, path, fmt)
     map_fmt = raw.info.get("map_hint", raw.format)
     cmap = (
         load_map(map, raw.format)
@@ -229,14 +247,7 @@ def read_log(path: str | os.PathLike, map=None, **opts):
         "info": raw.info,
         "tables": {k: len(v) for k, v in raw.tables.items()},
     }
-    most = max((len(c) for c in chans.values()), default=0)
-    if most < MIN_SAMPLES:
-        raise LogReadError(
-            f"{path}: {most} sample{'s' if most != 1 else ''} in its fullest channel, too few to check or fit "
-            f"(at least {MIN_SAMPLES}): give the flight's whole log",
-            path=str(path),
-            where="whole file",
-        )
+    _has_samples(chans, path)
     fd = FlightData(chans, meta, []).from_log_start()
     if pose is not False and needs_pose_states(fd):
         chosen = map_pose_options(cmap.header.get("pose"), cmap.name) | (pose or {})

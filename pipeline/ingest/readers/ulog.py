@@ -58,6 +58,34 @@ def _truncated_at(path: Path, size: int) -> int | None:
     return pos if pos < n else None
 
 
+def _damage(path: Path, size: int, ulog, log_text: str, tables: dict, strict: bool) -> Damage | None:
+    """Where the file stops being readable: a file cut inside a message
+    (:func:`_truncated_at`), or corrupted data pyulog skipped; None when whole. With
+    ``strict`` a LogReadError instead."""
+    damage = None
+    cut = _truncated_at(path, size)
+    if cut is not None:
+        damage = Damage(
+            cut,
+            f"byte {cut} of {size}",
+            f"the file ends inside a ULog message at byte {cut} of {size}: it was cut short (copied or "
+            "written before the log was closed); the data before that byte are kept",
+            sum(len(t) for t in tables.values()),
+        )
+        if strict:
+            raise LogReadError(f"{path}: {damage.message}", path=str(path), where=damage.where, partial=tables)
+    elif getattr(ulog, "file_corruption", False) or "corrupt" in log_text.lower():
+        damage = Damage(
+            -1,
+            "ULog data section",
+            "corrupted data in the ULog data section; pyulog skipped to the next valid message",
+            sum(len(t) for t in tables.values()),
+        )
+        if strict:
+            raise LogReadError(f"{path}: {damage.message}", path=str(path), where=damage.where, partial=tables)
+    return damage
+
+
 def read_ulog(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
     """Read a PX4 .ulg into raw tables (see module docstring)."""
     path = Path(path)
@@ -118,27 +146,7 @@ def read_ulog(path: str | os.PathLike, *, strict: bool = False) -> RawLog:
             nm = NAV_STATES.get(int(ns), f"NAV_STATE_{int(ns)}")
             if not modes or modes[-1][1] != nm:
                 modes.append((float(ti), nm))
-    damage = None
-    cut = _truncated_at(path, size)
-    if cut is not None:
-        damage = Damage(
-            cut,
-            f"byte {cut} of {size}",
-            f"the file ends inside a ULog message at byte {cut} of {size}: it was cut short (copied or "
-            "written before the log was closed); the data before that byte are kept",
-            sum(len(t) for t in tables.values()),
-        )
-        if strict:
-            raise LogReadError(f"{path}: {damage.message}", path=str(path), where=damage.where, partial=tables)
-    elif getattr(ulog, "file_corruption", False) or "corrupt" in log_text.lower():
-        damage = Damage(
-            -1,
-            "ULog data section",
-            "corrupted data in the ULog data section; pyulog skipped to the next valid message",
-            sum(len(t) for t in tables.values()),
-        )
-        if strict:
-            raise LogReadError(f"{path}: {damage.message}", path=str(path), where=damage.where, partial=tables)
+    damage = _damage(path, size, ulog, log_text, tables, strict)
     if not tables:
         raise LogReadError(f"{path}: ULog holds no data messages", path=str(path), where="ULog data section")
     info = {
