@@ -358,3 +358,11 @@ def unstable_replica(seed: int = 0) -> NoisyExample:
         noise_std=UNSTABLE_NOISE,
         states=[X],
     )
+
+
+#: the replicas by name: (the function flying one for a seed, the reference's start of F)
+REPLICA_CASES = {
+    "hfb320": (hfb320_replica, HFB320_F_START),
+    "lateral": (lateral_replica, LATERAL_F_START),
+    "unstable": (unstable_replica, UNSTABLE_F_START),
+}

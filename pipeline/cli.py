@@ -17,7 +17,7 @@ import warnings
 from importlib import metadata
 
 from pipeline.commands import COMMANDS
-from pipeline.errors import USER_ERRORS, Terminated, describe
+from pipeline.errors import USER_ERRORS, Terminated, describe, is_write_failure
 from pipeline.jobs.progress import end_open_line, where_stopped
 
 
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fsid: error: {describe(exc)}", file=sys.stderr)
         if isinstance(exc, USER_ERRORS):
             return getattr(exc, "exit_code", 2)
-        return 2 if describe(exc).startswith("cannot write") else 1
+        return 2 if is_write_failure(exc) else 1
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)

@@ -41,6 +41,8 @@ class Terminated(KeyboardInterrupt):
 #: the write failures a user can act on: a full disk or quota, a file size limit, a
 #: read-only file system
 _WRITE_ERRNOS = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS)
+#: what to do about one
+WRITE_REMEDY = "free space on that disk (or raise the file size limit), or give another --out"
 
 #: the errors whose message is written for the user (what, where, what to do)
 USER_ERRORS = (FsidError, EstimationError)
@@ -51,10 +53,13 @@ def describe(exc: Exception) -> str:
     the unexpected error named, with how to see its traceback."""
     if isinstance(exc, USER_ERRORS):
         return visible(str(exc))
-    if isinstance(exc, OSError) and exc.errno in _WRITE_ERRNOS:
+    if is_write_failure(exc):
         where = f" {exc.filename}" if exc.filename else ""
-        return visible(
-            f"cannot write{where}: {exc.strerror or exc}; free space on that disk (or raise the file size "
-            "limit), or give another --out"
-        )
+        return visible(f"cannot write{where}: {exc.strerror or exc}; {WRITE_REMEDY}")
     return visible(f"unexpected {type(exc).__name__}: {exc} (rerun with FSID_DEBUG=1 for the traceback and report it)")
+
+
+def is_write_failure(exc: BaseException) -> bool:
+    """Whether ``exc`` is a write the user can make succeed (_WRITE_ERRNOS): a user error,
+    exit 2, not a bug."""
+    return isinstance(exc, OSError) and exc.errno in _WRITE_ERRNOS

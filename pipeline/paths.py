@@ -10,6 +10,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from pipeline.errors import FsidError
+
 #: what fsid's commands write into an output folder besides logs: an earlier run's are
 #: removed when a new run takes the folder, so it never holds two runs' files side by side
 RUN_OUTPUTS = (
@@ -34,7 +36,7 @@ def new_run_dir(
     kind: str,
     out: str | os.PathLike | None = None,
     *,
-    inputs: Sequence[str | os.PathLike] = (),
+    inputs: Sequence[str | os.PathLike | None] = (),
     logs: bool = False,
     force: bool = False,
 ) -> Path:
@@ -42,10 +44,9 @@ def new_run_dir(
     ``./runs/<kind>-<stamp>``; created and checked writable, locked for this process (a
     second fsid is refused naming the one holding it; a lock whose process is gone is
     taken over), and cleared of an earlier run's files (RUN_OUTPUTS, hidden temporary
-    files) other than this run's ``inputs``. ``logs``: the run writes LOG_OUTPUTS, refused
+    files) other than this run's ``inputs`` (paths; None and paths that do not exist, such
+    as a built-in map's name, are skipped). ``logs``: the run writes LOG_OUTPUTS, refused
     where they exist unless ``force``. Every refusal is an FsidError saying what to do."""
-    from pipeline.errors import FsidError
-
     if out is not None:
         path = Path(out)
     else:
@@ -66,7 +67,7 @@ def new_run_dir(
         raise FsidError(
             f"cannot write into the output folder {path} ({exc.strerror or exc}): give a writable folder with --out"
         ) from None
-    mine = {Path(p).resolve() for p in inputs}
+    mine = {Path(p).resolve() for p in inputs if p and Path(p).exists()}
     written = RUN_OUTPUTS + (LOG_OUTPUTS if logs else ())
     clash = [n for n in written if (path / n).resolve() in mine]
     if clash:
@@ -83,8 +84,6 @@ def new_run_dir(
 def _lock(path: Path, kind: str) -> None:
     """Take ``path``'s LOCK for this process (released at exit), or FsidError naming the
     live fsid that holds it."""
-    from pipeline.errors import FsidError
-
     lock = path / LOCK
     for _ in range(3):
         try:

@@ -16,21 +16,8 @@ import numpy as np
 import pytest
 
 from estimators import DependentOutputsError, EstimationError, FilterError
-from estimators.replicas import (
-    HFB320_F_START,
-    LATERAL_F_START,
-    UNSTABLE_F_START,
-    hfb320_replica,
-    lateral_model,
-    lateral_replica,
-    unstable_replica,
-)
-
-CASES = {
-    "hfb320": (hfb320_replica, HFB320_F_START),
-    "lateral": (lateral_replica, LATERAL_F_START),
-    "unstable": (unstable_replica, UNSTABLE_F_START),
-}
+from estimators.replicas import LATERAL_F_START, UNSTABLE_F_START, lateral_model, lateral_replica, unstable_replica
+from estimators.replicas import REPLICA_CASES as CASES
 
 
 def _noise_truth(ex):

@@ -7,7 +7,8 @@ and Iliff's relaxation):
 
 * Linearisation: A = df/dx, B = df/du, C = dg/dx, D = dg/du by central differences about
   each segment's initial state and first input (the trim point), re-evaluated for every
-  parameter set.
+  parameter set; the affine parts f(x_r, u_r) - A x_r - B u_r and g(...) - C x_r - D u_r
+  are kept, so linear models with trim offsets and output biases are represented exactly.
 * Gain: P from A P + P A^T - P C^T (R h)^-1 C P + F F^T = 0 with R the innovation
   covariance and h the sample interval (Potter's method, ``continuous_gain``);
   K = P C^T R^-1. ``gain="discrete"``: P of the sampled filter (``discrete_gain``).
@@ -85,8 +86,9 @@ def constrained_step(
     M: np.ndarray, g: np.ndarray, active: np.ndarray, res: list[SegmentFilter], dCK: list, lam: float = 0.0
 ) -> np.ndarray:
     """Gauss-Newton (or, with ``lam``, Levenberg-Marquardt) step on the active
-    parameters under the linearised constraints diag(K C) + dKC delta <= 1 on the states (active-set:
-    the violated ones are made equalities, as the reference software's KC <= 1 check)."""
+    parameters under the linearised constraints CK + dCK delta <= 1 (diag(K C) on the states,
+    with a full R diag(C K) on the outputs; active-set: the violated ones are made
+    equalities, as the reference software's KC <= 1 check)."""
     nphi = g.size
     a = np.flatnonzero(active)
     delta = np.zeros(nphi)
@@ -446,7 +448,7 @@ class FilterError:
         self, prob: FemProblem, s: _State, M: np.ndarray, g: np.ndarray, dCK: list, batch: list[SegmentFilter]
     ) -> _Trial:
         """The Gauss-Newton step from ``s`` on the parameters not held by a bound, halved
-        until the weighted cost J falls with diag(K C) <= 1, else damped
+        until the weighted cost J falls within the gain's constraint, else damped
         (Levenberg-Marquardt, :data:`LM_DAMPING`)."""
         phi, R = s.phi, s.R
         span = np.maximum(1.0, np.abs(phi))

@@ -15,6 +15,7 @@ import numpy as np
 
 from estimators.defaults import FOLLOW_LAG1, FOLLOW_SHARE, RUNAWAY_FACTOR
 from estimators.errors import SimulationDivergedError
+from estimators.filters.linearize import linearize_batch
 from estimators.model import Model, Segment
 
 DIVERGE_HINT = (
@@ -87,22 +88,15 @@ def _pooled_variance(X: Sequence[np.ndarray]) -> np.ndarray:
 
 def slowest_mode(model: Model, segments: Sequence[Segment], params: np.ndarray) -> float:
     """The largest real eigenvalue (1/s) of df/dx at the first segment's initial state and
-    input for the model parameters ``params`` (n_p,), by central differences: the
+    input for the model parameters ``params`` (n_p,) (:func:`linearize_batch`): the
     aperiodic mode an output-error fit moves to the stability boundary when the aircraft
     is unstable (an oscillatory mode, a lightly damped phugoid, is not that). NaN when f is
     not finite there or every eigenvalue is complex."""
     seg = segments[0]
     x0 = np.asarray(seg.initial_state(model), float)
-    n = x0.size
-    h = 1e-6 * np.maximum(np.abs(x0), 1.0)
-    X = np.repeat(x0[:, None], 2 * n, axis=1)
-    X[np.arange(n), np.arange(n)] += h
-    X[np.arange(n), n + np.arange(n)] -= h
-    U = np.repeat(np.asarray(seg.u[0], float)[:, None], 2 * n, axis=1)
-    P = np.repeat(np.asarray(params, float)[:, None], 2 * n, axis=1)
-    with np.errstate(all="ignore"):
-        fv = np.asarray(model.eval_f(X, U, P, model.constants_for(seg)), float)
-    A = (fv[:, :n] - fv[:, n:]) / (2 * h)
+    A = linearize_batch(
+        model, np.asarray(params, float)[:, None], x0[:, None], np.asarray(seg.u[0], float), model.constants_for(seg)
+    )[0][0]
     if not np.all(np.isfinite(A)):
         return float("nan")
     lam = np.linalg.eigvals(A)

@@ -122,9 +122,7 @@ def add_validation_arguments(p: argparse.ArgumentParser) -> None:
         metavar="DEG_S",
         help="proof-of-match band on p, q, r in deg/s (default 1.5, or the scenario's)",
     )
-    p.add_argument(
-        "--band-accel", type=positive_number(), metavar="G", help="proof-of-match band on ax, ay, az in g (default 0.1)"
-    )
+    p.add_argument("--band-accel", type=float, metavar="G", help="proof-of-match band on ax, ay, az in g (default 0.1)")
     p.add_argument(
         "--band-angle",
         type=float,

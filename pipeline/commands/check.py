@@ -110,8 +110,7 @@ def run(args: argparse.Namespace) -> int:
     from pipeline.jobs.check import check_log  # the job loads numba, scipy, pandas: on use only
 
     log = log_file(args.log)
-    given = [log] + [p for p in (args.map, args.aircraft) if p]
-    out = new_run_dir("check", args.out, inputs=[p for p in given if Path(p).exists()])
+    out = new_run_dir("check", args.out, inputs=[log, args.map, args.aircraft])
     with failure_recorded(out, "check"):
         return check_log(
             log,

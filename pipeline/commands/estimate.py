@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from pipeline.commands.arguments import (
     SEGMENTS_HELP,
@@ -116,8 +115,7 @@ def run(args: argparse.Namespace) -> int:
 
     log_file(args.log)
     opts = options(args)
-    given = [args.log, *(args.validate_with or []), *[p for p in (args.aircraft, args.map) if p]]
-    out = new_run_dir("estimate", args.out, inputs=[p for p in given if Path(p).exists()])
+    out = new_run_dir("estimate", args.out, inputs=[args.log, *(args.validate_with or []), args.aircraft, args.map])
     with failure_recorded(out, "estimate"):
         paths = estimate_log(args.log, out, opts)
     print_outputs(out, paths)

@@ -51,8 +51,7 @@ def check_log(
     aircraft file (servo travel, max thrust; default: a truth.json next to the log). Prints
     what it found and ends with the identifiability of each axis (checks.json
     ``identifiability``; an axis that cannot be identified is a failed finding); returns 0."""
-    given = [log] + [p for p in (map_path, aircraft) if p]
-    out = new_run_dir("check", out, inputs=[p for p in given if Path(p).exists()])
+    out = new_run_dir("check", out, inputs=[log, map_path, aircraft])
     picked = isinstance(segments, (list, tuple))
     fd = read_log(
         log,

@@ -100,7 +100,7 @@ from typing import Any
 import pandas as pd
 
 from estimators import EstimationResult
-from pipeline.errors import FsidError
+from pipeline.errors import WRITE_REMEDY, FsidError
 from pipeline.ingest.flightdata import SegmentSpec
 from pipeline.outputs.recording_blueprint import build_blueprint, check_blueprint
 from pipeline.outputs.recording_flight import FlightRecord, write_flight, write_tracks
@@ -125,10 +125,7 @@ def _recording(path: Path, application_id: str, recording_id: str | None) -> Ite
                 rec.flush()
                 rec.disconnect()
     except RuntimeError as exc:  # rerun's file writer stopped: a full disk or a size limit
-        raise FsidError(
-            f"cannot write {path}: the recording's file writer stopped ({exc}); free space on that disk "
-            "(or raise the file size limit), or give another --out"
-        ) from None
+        raise FsidError(f"cannot write {path}: the recording's file writer stopped ({exc}); {WRITE_REMEDY}") from None
 
 
 def write_recording(

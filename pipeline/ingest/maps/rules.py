@@ -205,7 +205,7 @@ def _source_if(spec, origin: str, name: str) -> dict[str, list[str]]:
 TRANSFORMS = (None, "quat_wxyz", "quat_xyzw", "product", "polar")
 
 
-def _number(spec: dict, key: str, default: float, origin: str, where: str) -> float:
+def finite_number(spec: Mapping, key: str, default: float, origin: str, where: str) -> float:
     """``spec[key]`` as a finite number (``default`` when absent); FsidError naming the map,
     the table and the value otherwise."""
     v = spec.get(key, default)
@@ -239,7 +239,7 @@ def parse_rule(name: str, spec, origin: str, what: str = "") -> ChannelRule:
     if fb is not None and what:
         raise FsidError(f"channel map {origin}: {where} cannot have a fallback of its own")
     scale, offset, sign = (
-        _number(spec, k, d, origin, where) for k, d in (("scale", 1.0), ("offset", 0.0), ("sign", 1.0))
+        finite_number(spec, k, d, origin, where) for k, d in (("scale", 1.0), ("offset", 0.0), ("sign", 1.0))
     )
     if sign not in (1.0, -1.0):
         raise FsidError(f"channel map {origin}: {where} sign {sign:g}: give 1 or -1")

@@ -17,13 +17,13 @@ where reading stopped (pass ``strict=True`` to raise instead).
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 
 from pipeline.errors import FsidError
 from pipeline.ingest.flightdata import FlightData, SegmentSpec
 from pipeline.ingest.maps import apply_map, builtin_names, load_map
+from pipeline.ingest.maps.rules import finite_number
 from pipeline.ingest.pose import derive_pose_states, map_pose_options, needs_pose_states
 from pipeline.ingest.rawlog import TIME_BASES, Damage, LogReadError, RawLog, Table
 from pipeline.ingest.readers.csvlog import read_csv
@@ -139,12 +139,12 @@ def _csv_time(cmap) -> dict:
     if "time_column" in head:
         out["time_column"] = str(head["time_column"])
     if "time_scale" in head:
-        v = head["time_scale"]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and v > 0):
+        v = finite_number(head, "time_scale", 1.0, cmap.name, "[map]")
+        if not v > 0:
             raise FsidError(
                 f"channel map {cmap.name}: [map] time_scale = {v!r}: give the time column's unit in s (> 0)"
             )
-        out["time_scale"] = float(v)
+        out["time_scale"] = v
     return out
 
 

@@ -39,7 +39,7 @@ NAV_STATES = {
 }
 
 
-def _truncated_at(path: Path, size: int) -> int | None:
+def _truncated_at(path: Path) -> int | None:
     """The byte offset of the ULog message the file ends inside (a file cut short), or
     None when it ends on a message boundary. Every message after the 16-byte file header
     starts with its size (uint16) and type (uint8)."""
@@ -62,8 +62,7 @@ def _damage(path: Path, size: int, ulog, log_text: str, tables: dict, strict: bo
     """Where the file stops being readable: a file cut inside a message
     (:func:`_truncated_at`), or corrupted data pyulog skipped; None when whole. With
     ``strict`` a LogReadError instead."""
-    damage = None
-    cut = _truncated_at(path, size)
+    cut = _truncated_at(path)
     if cut is not None:
         damage = Damage(
             cut,
@@ -72,8 +71,6 @@ def _damage(path: Path, size: int, ulog, log_text: str, tables: dict, strict: bo
             "written before the log was closed); the data before that byte are kept",
             sum(len(t) for t in tables.values()),
         )
-        if strict:
-            raise LogReadError(f"{path}: {damage.message}", path=str(path), where=damage.where, partial=tables)
     elif getattr(ulog, "file_corruption", False) or "corrupt" in log_text.lower():
         damage = Damage(
             -1,
@@ -81,8 +78,10 @@ def _damage(path: Path, size: int, ulog, log_text: str, tables: dict, strict: bo
             "corrupted data in the ULog data section; pyulog skipped to the next valid message",
             sum(len(t) for t in tables.values()),
         )
-        if strict:
-            raise LogReadError(f"{path}: {damage.message}", path=str(path), where=damage.where, partial=tables)
+    else:
+        return None
+    if strict:
+        raise LogReadError(f"{path}: {damage.message}", path=str(path), where=damage.where, partial=tables)
     return damage
 
 
