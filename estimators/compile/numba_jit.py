@@ -26,9 +26,9 @@ def load_numba():
         import numba as nb
 
         numba = nb
-        # numba's start leaves some 185,000 objects that the interpreter's last garbage
-        # collection at exit walks through (a quarter of a second, as long as a warm fit):
-        # frozen at exit, they are left to the process's end
+        # numba's start leaves a great many objects that the interpreter's last garbage
+        # collection at exit would walk through for nothing: frozen at exit, they are left
+        # to the process's end (benchmarks/first_fit.py measures the cost)
         atexit.register(gc.freeze)
     return numba
 
