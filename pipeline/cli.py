@@ -19,6 +19,7 @@ from importlib import metadata
 from pipeline.commands import COMMANDS
 from pipeline.errors import USER_ERRORS, Terminated, describe, is_write_failure
 from pipeline.jobs.progress import end_open_line, where_stopped
+from pipeline.paths import release_run_dirs
 
 
 def _load(name: str):
@@ -89,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
             return getattr(exc, "exit_code", 2)
         return 2 if is_write_failure(exc) else 1
     finally:
+        release_run_dirs()
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
 

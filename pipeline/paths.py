@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import atexit
 import os
+import secrets
 import shutil
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 from pipeline.errors import FsidError
@@ -28,8 +30,18 @@ RUN_OUTPUTS = (
 )
 #: the flight logs ``fsid simulate`` writes: never written over without ``--force``
 LOG_OUTPUTS = ("flight.mcap", "flight.bin", "validation.mcap", "validation.bin", "truth.json")
-#: the file that marks an output folder as taken by a running fsid (its process id and command)
+#: the file that marks an output folder as taken by a running fsid (its process id, command
+#: and run id)
 LOCK = ".fsid.lock"
+
+#: output folder (resolved) -> the id of the run this process is writing into it
+_RUN_IDS: dict[Path, str] = {}
+
+
+def run_id(out: str | os.PathLike) -> str | None:
+    """The id of this process's run into the output folder ``out`` (None: no run took it):
+    stamped on every file of the run so that files of two runs are never taken for one set."""
+    return _RUN_IDS.get(Path(out).resolve())
 
 
 def new_run_dir(
@@ -46,7 +58,8 @@ def new_run_dir(
     taken over), and cleared of an earlier run's files (RUN_OUTPUTS, hidden temporary
     files) other than this run's ``inputs`` (paths; None and paths that do not exist, such
     as a built-in map's name, are skipped). ``logs``: the run writes LOG_OUTPUTS, refused
-    where they exist unless ``force``. Every refusal is an FsidError saying what to do."""
+    where they exist unless ``force``. The run gets a new id (:func:`run_id`). Every refusal
+    is an FsidError saying what to do."""
     if out is not None:
         path = Path(out)
     else:
@@ -76,9 +89,21 @@ def new_run_dir(
         there = [n for n in LOG_OUTPUTS if (path / n).exists()]
         if there:
             raise FsidError(f"{path} already holds {', '.join(there)}: give another --out, or --force to replace them")
-    _lock(path, kind)
-    _clear(path, mine)
+    rid = _RUN_IDS.get(path.resolve())  # a stage of this process's run (fsid run's simulate)
+    if rid is None:
+        rid = f"{kind}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}-{secrets.token_hex(4)}"
+        _lock(path, f"{kind} {rid}")
+        _clear(path, mine)
+        _RUN_IDS[path.resolve()] = rid
     return path
+
+
+def release_run_dirs() -> None:
+    """Unlock the output folders this process took and forget their run ids: the end of a
+    command (a process that exits is released anyway)."""
+    for path in list(_RUN_IDS):
+        _unlock(path / LOCK, os.getpid())
+    _RUN_IDS.clear()
 
 
 def _lock(path: Path, kind: str) -> None:
@@ -94,8 +119,9 @@ def _lock(path: Path, kind: str) -> None:
                 pid = int(pid_text)
             except (OSError, ValueError):
                 pid, what = -1, ""
-            if pid == os.getpid():
-                return  # this process's own earlier run into the folder
+            if pid == os.getpid():  # this process's own earlier run into the folder
+                lock.write_text(f"{pid} fsid {kind}\n")
+                return
             if pid > 0 and _alive(pid):
                 raise FsidError(
                     f"{path} is in use by another fsid ({what.strip() or 'a run'}, process {pid}): wait for it "
@@ -134,13 +160,38 @@ def _unlock(lock: Path, pid: int) -> None:
 def _clear(path: Path, keep: set[Path]) -> None:
     """Remove an earlier run's outputs (RUN_OUTPUTS) and hidden temporary files from
     ``path``, except the paths in ``keep`` (this run's inputs)."""
-    for p in [path / n for n in RUN_OUTPUTS] + list(path.glob(".*.tmp")):
+    for p in [path / n for n in RUN_OUTPUTS] + list(path.glob(".*.tmp")) + list(path.glob(STAGE + "*")):
         if p.resolve() in keep or not (p.exists() or p.is_symlink()):
             continue
         if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)
         else:
             p.unlink(missing_ok=True)
+
+
+#: prefix of the hidden folder a run's files are written into before they are published
+STAGE = ".fsid-stage."
+
+
+@contextmanager
+def staged(out: str | os.PathLike, last: str) -> Iterator[Path]:
+    """A hidden folder inside ``out`` to write a set of files into; on leaving, every file
+    and folder written there is moved into ``out``, ``last`` (the file that says the set is
+    complete, e.g. report.json) after all the others. A reader of ``out`` never meets a
+    complete-looking partial set: a run killed while writing leaves only the hidden folder
+    (cleared by the next run); one stopped by an exception publishes what it wrote without
+    ``last`` unless ``last`` was written, and says so in error.txt."""
+    out = Path(out)
+    stage = Path(tempfile.mkdtemp(dir=out, prefix=STAGE))
+    try:
+        yield stage
+    finally:
+        names = sorted((p.name for p in stage.iterdir() if not p.name.startswith(".")), key=lambda n: n == last)
+        for n in names:
+            if (out / n).is_dir() and not (out / n).is_symlink():
+                shutil.rmtree(out / n)
+            os.replace(stage / n, out / n)
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 def _umask() -> int:

@@ -6,16 +6,20 @@ over its own input, and a failed check leaves error.txt."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
 import sys
 
 import pytest
+import rerun.chunk as rc
+from _simdata import flown
 
 from pipeline.cli import main
 from pipeline.errors import FsidError
-from pipeline.paths import LOCK, new_run_dir
+from pipeline.outputs.writers import write_dataflash
+from pipeline.paths import LOCK, new_run_dir, staged
 
 
 def test_a_folder_held_by_a_live_fsid_is_refused(tmp_path, capsys):
@@ -88,3 +92,53 @@ def test_check_refuses_its_own_input_and_records_a_failure(tmp_path, capsys):
     assert main(["check", str(bad), "--out", str(out)]) != 0
     assert (out / "error.txt").exists() and "fsid check failed" in (out / "error.txt").read_text()
     shutil.rmtree(out)
+
+
+def _check(log, out) -> None:
+    assert main(["check", str(log), "--no-compat", "--out", str(out)]) == 0
+
+
+def test_every_file_of_a_run_carries_its_id(tmp_path, capsys):
+    """Two runs into one folder: every file of the second carries the second's id (the
+    recording's id too), none of the first's is left, and the folder is unlocked after."""
+    log = tmp_path / "flight.bin"
+    write_dataflash(log, flown("default"))
+    out = tmp_path / "out"
+    ids = []
+    for _ in range(2):
+        _check(log, out)
+        rid = json.loads((out / "checks.json").read_text())["run_id"]
+        (rec,) = rc.RrdReader(out / "check.rrd").recordings()
+        assert rec.recording_id == rid
+        ids.append(rid)
+    assert ids[0] != ids[1] and ids[1].startswith("check-")
+    assert sorted(p.name for p in out.iterdir()) == ["canonical.csv", "check.rrd", "checks.json"]
+    capsys.readouterr()
+
+
+def test_a_set_appears_whole_or_without_its_last_file(tmp_path):
+    """staged(): a failure publishes what was written, without the file that says the set
+    is whole; a process killed while writing leaves only the hidden folder, which the next
+    run removes."""
+    with pytest.raises(RuntimeError):
+        with staged(tmp_path, "report.json") as stage:
+            (stage / "report.md").write_text("partial")
+            raise RuntimeError("figure failed")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.md"]
+    with staged(tmp_path, "report.json") as stage:
+        for name in ("report.json", "report.md", "run.rrd"):
+            (stage / name).write_text("new")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json", "report.md", "run.rrd"]
+    assert (tmp_path / "report.md").read_text() == "new"
+    killed = tmp_path / "killed"
+    killed.mkdir()
+    code = (
+        "import os, sys; from pipeline.paths import staged\n"
+        f"with staged({str(killed)!r}, 'report.json') as s:\n"
+        "    (s / 'report.md').write_text('x'); (s / 'report.json').write_text('x'); os._exit(9)\n"
+    )
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 9
+    assert [p.name for p in killed.iterdir() if not p.name.startswith(".")] == []  # nothing a reader sees
+    assert [p.name for p in killed.iterdir()]  # the hidden folder
+    new_run_dir("estimate", killed)
+    assert [p.name for p in killed.iterdir()] == [LOCK]

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from pipeline.errors import FsidError, Terminated, describe
 from pipeline.jobs.progress import where_stopped
-from pipeline.paths import atomic_write_text
+from pipeline.paths import atomic_write_text, run_id
 
 
 def positive_number(upper: float = math.inf, unit: str = "") -> type:
@@ -210,4 +210,5 @@ def _partial(out: Path, some: str, none: str) -> str:
     """The line naming the files a stopped job left in ``out`` (its markers and
     temporary files left out)."""
     left = sorted(p.name for p in out.iterdir() if not p.name.startswith(".") and p.name not in MARKERS)
-    return f"{some}: {', '.join(left)}\n" if left else f"{none}\n"
+    rid = run_id(out)
+    return (f"{some}: {', '.join(left)}\n" if left else f"{none}\n") + (f"run_id: {rid}\n" if rid else "")

@@ -26,7 +26,7 @@ from pipeline.jobs.progress import Progress
 from pipeline.jobs.stages import compatibility_after_flow_angles, flow_angle_stage
 from pipeline.outputs.recording import write_check_recording
 from pipeline.outputs.recording_flight import FlightRecord
-from pipeline.paths import atomic_write_text, new_run_dir
+from pipeline.paths import atomic_write_text, new_run_dir, run_id, staged
 
 #: core channels whose fastest rate sets canonical.csv's (at most 100 Hz)
 CORE_CHANNELS = ("ax", "p", "phi", "V", "de")
@@ -74,20 +74,15 @@ def check_log(
     ident = identifiability(by_axis, findings, ac)
     findings += identifiability_findings(ident)
     extra["identifiability"] = identifiability_json(ident)
-    atomic_write_text(out / "checks.json", findings_to_json(findings, fd, extra))
-    write_check_recording(out / "check.rrd", FlightRecord(fd, findings))
+    extra["run_id"] = rid = run_id(out)
     if rate is None:
         rates = [c.rate_hz for k, c in fd.channels.items() if k in CORE_CHANNELS]
         rate = min(max(rates), 100.0) if rates else 10.0
     df = fd.resample(rate, span="union")
-    buf = io.StringIO()
-    # t: seconds from the log's start; t_abs: the same instants on the log's own clock
-    # (epoch or boot, meta t0_kind), to the microsecond whatever its size (1.7e9 s)
-    t_abs = (df["t"] + float(fd.meta.get("t0_abs", 0.0))).map("{:.6f}".format)
-    df = df.assign(t=df["t"].map("{:.6f}".format))
-    df.insert(1, "t_abs", t_abs)
-    df.to_csv(buf, index=False, float_format="%.9g")
-    atomic_write_text(out / "canonical.csv", buf.getvalue())
+    with staged(out, "checks.json") as stage:  # checks.json last: it says the set is whole
+        write_check_recording(stage / "check.rrd", FlightRecord(fd, findings), recording_id=rid)
+        atomic_write_text(stage / "canonical.csv", _canonical_csv(df, fd))
+        atomic_write_text(stage / "checks.json", findings_to_json(findings, fd, extra))
     _print_compatibility(extra.get("compatibility", {}))
     c = summarize(findings)
     print(f"checks: {c['pass']} pass, {c['warn']} warn, {c['fail']} fail")
@@ -133,3 +128,15 @@ def _print_compatibility(comp: dict[str, Any]) -> None:
             print(f"  note: {comp['note']}")
     elif comp:
         print(f"compatibility: {comp.get('status')}: {comp.get('reason', '')}")
+
+
+def _canonical_csv(df, fd) -> str:
+    """canonical.csv's text: ``t`` seconds from the log's start and ``t_abs`` the same
+    instants on the log's own clock (epoch or boot, meta t0_kind), to the microsecond
+    whatever its size (1.7e9 s), then the resampled channels."""
+    buf = io.StringIO()
+    t_abs = (df["t"] + float(fd.meta.get("t0_abs", 0.0))).map("{:.6f}".format)
+    df = df.assign(t=df["t"].map("{:.6f}".format))
+    df.insert(1, "t_abs", t_abs)
+    df.to_csv(buf, index=False, float_format="%.9g")
+    return buf.getvalue()

@@ -30,7 +30,7 @@ from pipeline.jobs.simulate import flight_stages, resolve_scenario, simulate
 from pipeline.jobs.write import write_outputs
 from pipeline.methods.catalogue import check_methods, scenario_methods
 from pipeline.outputs.recording_flight import FlightRecord, planned_maneuvers
-from pipeline.paths import atomic_write_text
+from pipeline.paths import run_id
 from pipeline.problems import MAX_RATE_HZ
 
 
@@ -72,7 +72,7 @@ def run_scenario(
         ),
         count=count,
     )
-    checks = _write_checks(out, est, val is not None)
+    checks, checks_json = _checks(out, est, val is not None)
     meta = {
         "scenario": scenario.name,
         "log": "flight.mcap",
@@ -100,6 +100,7 @@ def run_scenario(
         compatibility=est.comp,
         flight=FlightRecord(est.data, est.findings, plan=planned_maneuvers(result.maneuvers)),
         figures=opts.figures,
+        files={"checks.json": checks_json},
     )
 
 
@@ -119,9 +120,10 @@ def _planned_count(scenario_path: str | Path, opts: RunOptions) -> Progress:
     return Progress(stages, quiet=opts.quiet)
 
 
-def _write_checks(out: Path, est: Estimated, validation: bool) -> dict[str, dict[str, int]]:
+def _checks(out: Path, est: Estimated, validation: bool) -> tuple[dict[str, dict[str, int]], str]:
     """checks.json: the data-quality findings of flight.bin, flight.mcap (with the
-    compatibility document) and validation.mcap; returns their summaries by file."""
+    compatibility document) and validation.mcap, each stamped with the run's id; returns
+    their summaries by file and the document's text."""
     fd_bin = read_log(out / "flight.bin")
     logs = {"flight.bin": (run_checks(fd_bin), fd_bin), "flight.mcap": (est.findings, est.data)}
     if validation:
@@ -129,5 +131,6 @@ def _write_checks(out: Path, est: Estimated, validation: bool) -> dict[str, dict
         logs["validation.mcap"] = (run_checks(fd_val), fd_val)
     checks = {name: json.loads(findings_to_json(f, fd)) for name, (f, fd) in logs.items()}
     checks["flight.mcap"]["compatibility"] = est.comp
-    atomic_write_text(out / "checks.json", json.dumps(checks, indent=2, default=str) + "\n")
-    return {name: summarize(f) for name, (f, _) in logs.items()}
+    for doc in checks.values():
+        doc["run_id"] = run_id(out)
+    return {name: summarize(f) for name, (f, _) in logs.items()}, json.dumps(checks, indent=2, default=str) + "\n"

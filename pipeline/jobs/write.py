@@ -12,6 +12,7 @@ from pipeline.outputs.html import write_html
 from pipeline.outputs.recording import write_recording
 from pipeline.outputs.recording_flight import FlightRecord
 from pipeline.outputs.report import write_report
+from pipeline.paths import atomic_write_text, run_id, staged
 from pipeline.validation import cross_check_methods
 
 
@@ -27,15 +28,29 @@ def write_outputs(
     compatibility: Mapping[str, Any] | None = None,
     flight: FlightRecord | None = None,
     figures: bool = True,
+    files: Mapping[str, str] | None = None,
 ) -> dict[str, Path]:
     """Write report.md (its figures in ``out/figures``), report.html, report.json and run.rrd
     of ``results`` (key -> result) and their ``validations`` into ``out``, compared with
     ``truth`` where known (``flight``: the whole flight they were fitted on, for run.rrd);
     returns name -> path (report.html and the figures are beside report.md). ``figures``
-    False: report.md without them."""
+    False: report.md without them; ``files``: more files of the set, name -> text. Every file carries the run's id (``meta["run_id"]``, the
+    recording's id) and the set appears in ``out`` at once, report.json last: a folder
+    holding report.json holds the whole set of one run."""
     agreement = cross_check_methods(results, validations)
-    pr.stage(f"write report.md{' with its figures' if figures else ''}, report.html, report.json, run.rrd")
-    md, js = write_report(
+    pr.stage(f"write report.md{' with its figures' if figures else ''}, report.html, run.rrd, report.json")
+    rid = run_id(out)
+    meta = {"run_id": rid, **meta} if rid else meta
+    with staged(out, "report.json") as stage:
+        for name, text in (files or {}).items():
+            atomic_write_text(stage / name, text)
+        _write_set(stage, results, validations, truth, meta, checks, compatibility, agreement, flight, figures, rid)
+    pr.done()
+    return {"report.md": out / "report.md", "report.json": out / "report.json", "run.rrd": out / "run.rrd"}
+
+
+def _write_set(out, results, validations, truth, meta, checks, compatibility, agreement, flight, figures, rid) -> None:
+    md, _ = write_report(
         out,
         results,
         validations,
@@ -47,6 +62,4 @@ def write_outputs(
         figures=figures,
     )
     write_html(out / "report.html", md)
-    rrd = write_recording(out / "run.rrd", results, validations, truth=truth, flight=flight)
-    pr.done()
-    return {"report.md": md, "report.json": js, "run.rrd": rrd}
+    write_recording(out / "run.rrd", results, validations, truth=truth, flight=flight, recording_id=rid)

@@ -145,7 +145,7 @@ def write_report(
     agreement: Mapping[str, Any] | None = None,
     figures: bool = False,
 ) -> tuple[Path, Path]:
-    """Write ``out_dir/report.md`` and ``out_dir/report.json`` atomically, with
+    """Write ``out_dir/report.md`` and then ``out_dir/report.json`` atomically, with
     ``figures`` the PNG figures in ``out_dir/figures/`` linked from report.md.
 
     results: method name -> result; validations: method name -> :func:`pipeline.validation.validate`
@@ -164,7 +164,7 @@ def write_report(
     rep = report_dict(
         results, validations, truth=truth, meta=meta, checks=checks, compatibility=compatibility, agreement=agreement
     )
-    pj = atomic_write_text(out / "report.json", json.dumps(rep, indent=2, allow_nan=False) + "\n")
     figs = render_figures(out / "figures", results, validations, truth) if figures else None
     pm = atomic_write_text(out / "report.md", report_markdown(rep, figs))
+    pj = atomic_write_text(out / "report.json", json.dumps(rep, indent=2, allow_nan=False) + "\n")
     return pm, pj
