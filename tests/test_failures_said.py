@@ -155,10 +155,12 @@ def test_a_cut_short_ulog_is_damage(tmp_path):
     assert dmg is not None and 0 < dmg["offset"] < len(data) // 10 and "cut short" in dmg["message"]
 
 
-def test_a_forward_jump_of_the_tlog_receive_clock_is_not_a_reboot(tmp_path):
-    """The ground station's clock jumping an hour ahead half way through a .tlog: the
-    autopilot's stamps go on, so the flight's times do (no hour-long gap, every sample
-    kept), and the time base says what happened."""
+@pytest.mark.parametrize("jump_s", [3600, -3600, -60])
+def test_a_jump_of_the_tlog_receive_clock_is_not_a_reboot(tmp_path, jump_s):
+    """The ground station's clock jumping an hour ahead, an hour back, or a minute back
+    (later packets then carry the receive times of earlier ones) half way through a .tlog:
+    the autopilot's stamps go on, so the flight's times do (no gap, every sample kept, in
+    place), and the time base says what happened."""
     import struct
 
     import numpy as np
@@ -179,7 +181,7 @@ def test_a_forward_jump_of_the_tlog_receive_clock_is_not_a_reboot(tmp_path):
         i += 8 + (10 + ln + 2 + (13 if data[i + 10] & 1 else 0) if m == 0xFD else 6 + ln + 2)
     for o in offs[len(offs) // 2 :]:
         (t,) = struct.unpack_from(">Q", data, o)
-        struct.pack_into(">Q", data, o, t + 3600 * 10**6)
+        struct.pack_into(">Q", data, o, t + jump_s * 10**6)
     jumped = tmp_path / "jumped.tlog"
     jumped.write_bytes(bytes(data))
     a, b = read_log(src, segments=[]), read_log(jumped, segments=[])

@@ -84,8 +84,13 @@ def _unwrap32(b: np.ndarray, recv: np.ndarray) -> np.ndarray:
 class BootClock:
     """The receive-to-autopilot clock map of one .tlog (:meth:`fit`).
 
-    edges : (n_epochs - 1,) receive times [s] where an epoch starts: the receive offset
-        jumps there.
+    Epochs follow the file's order, not the receive times: the ground station writes the
+    packets as they arrive, so where its clock jumps back, later packets carry earlier
+    receive times than packets before them in the file.
+
+    edges : (n_epochs - 1,) file positions (packet numbers) where an epoch starts: the
+        receive offset jumps there.
+    at : (n_epochs - 1,) the receive time [s] of each epoch's first packet (for messages).
     c : per epoch the offset [s] that puts its stamps on the log's clock: its median
         receive offset (receive - stamp) after a reboot (the stamps start again); the
         epoch before's after a jump of the ground station's clock (the stamps go on, so the
@@ -97,24 +102,26 @@ class BootClock:
     """
 
     edges: np.ndarray
+    at: np.ndarray
     c: np.ndarray
     centres: list[np.ndarray]
     offsets: list[np.ndarray]
     reboot: np.ndarray
 
     @classmethod
-    def fit(cls, recv: np.ndarray, stamp: np.ndarray) -> BootClock:
-        """From every stamped packet's receive time and stamp [s] (1-D, any order)."""
-        order = np.argsort(recv, kind="stable")
-        r, o = recv[order], (recv - stamp)[order]
-        keep = np.isfinite(o)
-        r, o = r[keep], o[keep]
+    def fit(cls, recv: np.ndarray, stamp: np.ndarray, seq: np.ndarray) -> BootClock:
+        """From every stamped packet's receive time and stamp [s] and file position (1-D,
+        any order)."""
+        order = np.argsort(seq, kind="stable")
+        r, o, q = recv[order], (recv - stamp)[order], seq[order]
+        keep = np.isfinite(o) & np.isfinite(r)
+        r, o, q = r[keep], o[keep], q[keep]
+        st = stamp[order][keep]
         # epochs: the running median of the offset (31 packets) jumps at a reboot
         w = min(31, r.size) | 1
         med = np.median(np.lib.stride_tricks.sliding_window_view(np.pad(o, w // 2, mode="edge"), w), axis=1)
         cut = np.flatnonzero(np.abs(np.diff(med)) > EPOCH_JUMP_S)
         bounds = np.concatenate([[0], cut + 1, [r.size]])
-        st = stamp[order][keep]
         c, centres, offsets, reboot = [], [], [], []
         for e, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
             rr, oo = r[a:b], o[a:b]
@@ -123,31 +130,34 @@ class BootClock:
             if e > 0:
                 reboot.append(bool(again))
             c.append(float(np.median(oo)) if e == 0 or again else c[-1])
+            srt = np.argsort(rr, kind="stable")
+            rr, oo = rr[srt], oo[srt]
             k = np.floor((rr - rr[0]) / LATENCY_BIN_S).astype(int)
             bins = [k == j for j in np.unique(k)]
             centres.append(np.array([np.median(rr[s]) for s in bins]))
             offsets.append(np.array([np.median(oo[s]) for s in bins]))
-        return cls(0.5 * (r[cut] + r[cut + 1]), np.asarray(c), centres, offsets, np.asarray(reboot, dtype=bool))
+        return cls(q[cut + 1], r[cut + 1], np.asarray(c), centres, offsets, np.asarray(reboot, dtype=bool))
 
-    def epoch(self, recv: np.ndarray) -> np.ndarray:
-        """Epoch index (n,) of receive times ``recv`` [s]."""
-        return np.searchsorted(self.edges, recv, side="right")
+    def epoch(self, seq: np.ndarray) -> np.ndarray:
+        """Epoch index (n,) of the packets at file positions ``seq``."""
+        return np.searchsorted(self.edges, seq, side="right")
 
-    def from_receive(self, recv: np.ndarray) -> np.ndarray:
-        """Times [s] of packets received at ``recv`` [s] by the latency line: the receive
-        time less the offset around then, plus the epoch's median offset."""
-        e = self.epoch(recv)
+    def from_receive(self, recv: np.ndarray, seq: np.ndarray) -> np.ndarray:
+        """Times [s] of packets received at ``recv`` [s] (file positions ``seq``) by the
+        latency line: the receive time less the offset around then, plus the epoch's
+        median offset."""
+        e = self.epoch(seq)
         out = np.empty(recv.shape)
         for k in np.unique(e):
             sel = e == k
             out[sel] = recv[sel] - np.interp(recv[sel], self.centres[k], self.offsets[k]) + self.c[k]
         return out
 
-    def from_stamps(self, recv: np.ndarray, stamp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def from_stamps(self, recv: np.ndarray, stamp: np.ndarray, seq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Times [s] of stamped packets (stamp + the epoch's offset) and a mask of the
         stamps trusted (within :data:`STAMP_TOLERANCE_S` of the latency line)."""
-        t = stamp + self.c[self.epoch(recv)]
-        ok = np.isfinite(t) & (np.abs(t - self.from_receive(recv)) <= STAMP_TOLERANCE_S)
+        t = stamp + self.c[self.epoch(seq)]
+        ok = np.isfinite(t) & (np.abs(t - self.from_receive(recv, seq)) <= STAMP_TOLERANCE_S)
         return t, ok
 
 
@@ -159,7 +169,7 @@ def _after_stamped(
     sorted, their times ``ref_t`` and receive times ``ref_recv``) - a packet is sent after
     every sample sent before it was taken - where the last of those arrived at most
     :data:`NEIGHBOUR_GAP_S` before; by the latency line elsewhere."""
-    t = clock.from_receive(recv)
+    t = clock.from_receive(recv, seq)
     if ref_seq.size == 0 or seq.size == 0:
         return t
     j = np.searchsorted(ref_seq, seq) - 1
@@ -213,10 +223,14 @@ def boot_time_base(
     own = {n: s for n, tab in tables.items() if (s := stamps(tab)) is not None}
     if not own:
         return None
-    clock = BootClock.fit(np.concatenate([tables[n].t for n in own]), np.concatenate([s[0] for s in own.values()]))
+    clock = BootClock.fit(
+        np.concatenate([tables[n].t for n in own]),
+        np.concatenate([s[0] for s in own.values()]),
+        np.concatenate([np.asarray(seq[n]) for n in own]),
+    )
     new_t, trusted = {}, {}
     for name in own:
-        new_t[name], trusted[name] = clock.from_stamps(tables[name].t, own[name][0])
+        new_t[name], trusted[name] = clock.from_stamps(tables[name].t, own[name][0], np.asarray(seq[name]))
     ref_seq, ref_t, ref_recv = (
         np.concatenate([a[n][trusted[n]] for n in own]) for a in (seq, new_t, {n: tables[n].t for n in own})
     )
@@ -257,13 +271,13 @@ def boot_time_base(
     if clock.reboot.any():
         text += (
             f"; {int(clock.reboot.sum())} autopilot reboot(s) at receive time "
-            + ", ".join(f"{e:.1f}" for e in clock.edges[clock.reboot])
+            + ", ".join(f"{e:.1f}" for e in clock.at[clock.reboot])
             + " s, each boot with its own offset"
         )
     if (~clock.reboot).any():
         text += (
             "; the ground station's clock jumped at receive time "
-            + ", ".join(f"{e:.1f}" for e in clock.edges[~clock.reboot])
+            + ", ".join(f"{e:.1f}" for e in clock.at[~clock.reboot])
             + " s (the autopilot's stamps went on: times follow them)"
         )
     unstamped = sorted(n for n in tables if n not in own)
