@@ -17,7 +17,7 @@ import warnings
 from importlib import metadata
 
 from pipeline.commands import COMMANDS
-from pipeline.errors import USER_ERRORS, Terminated, describe, is_write_failure
+from pipeline.errors import USER_ERRORS, Terminated, VisibleStream, describe, is_write_failure
 from pipeline.jobs.progress import end_open_line, where_stopped
 from pipeline.paths import release_run_dirs
 
@@ -63,6 +63,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     previous = _on_sigterm()
+    streams = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = VisibleStream(sys.stdout), VisibleStream(sys.stderr)
     try:
         with warnings.catch_warnings():
             # numpy's floating-point RuntimeWarnings (a NaN sample, an empty window) are
@@ -90,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
             return getattr(exc, "exit_code", 2)
         return 2 if is_write_failure(exc) else 1
     finally:
+        sys.stdout, sys.stderr = streams
         release_run_dirs()
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)

@@ -8,15 +8,32 @@ import unicodedata
 from estimators.errors import EstimationError
 
 
-def visible(text: str) -> str:
+def visible(text: str, keep: str = "\n\t") -> str:
     """``text`` with its control and format characters (ESC, bidirectional overrides, NUL,
     ...) written as escapes (``\\x1b``, ``\\u202e``): names read from a log or a file reach
-    the terminal and error.txt as text, never as commands to the terminal. Newlines and
-    tabs stay."""
+    the terminal and error.txt as text, never as commands to the terminal. The characters
+    in ``keep`` (newlines and tabs) stay."""
     return "".join(
-        c.encode("unicode_escape").decode("ascii") if c not in "\n\t" and unicodedata.category(c) in ("Cc", "Cf") else c
+        c.encode("unicode_escape").decode("ascii") if c not in keep and unicodedata.category(c) in ("Cc", "Cf") else c
         for c in text
     )
+
+
+class VisibleStream:
+    """A text stream writing through :func:`visible`: whatever a command prints, a name
+    from a log with control characters in it reaches the terminal as text. A write of a
+    lone carriage return (``print(..., end="\\r")`` of a progress line redrawing itself)
+    stays one."""
+
+    def __init__(self, stream) -> None:
+        self.stream = stream
+
+    def write(self, text: str) -> int:
+        self.stream.write(text if text == "\r" else visible(text))
+        return len(text)
+
+    def __getattr__(self, name: str):
+        return getattr(self.stream, name)
 
 
 class FsidError(Exception):

@@ -334,6 +334,16 @@ def check_file(fd: FlightData, required: Sequence[str] = CORE) -> list[Finding]:
         )
     else:
         out.append(Finding(PASS, "damage", None, "the whole file was readable"))
+    for ch, n in (fd.meta.get("untimed") or {}).items():
+        out.append(
+            Finding(
+                WARN,
+                "damage",
+                ch,
+                f"{ch}: {n} sample{'s' if n != 1 else ''} without a finite time (NaN or infinite) dropped; "
+                "the log's time field is damaged or blank there",
+            )
+        )
     why = fd.explain_missing(required)
     for ch, reason in why.items():
         out.append(

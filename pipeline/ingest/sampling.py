@@ -51,10 +51,14 @@ def uniform_grid(lo: float, hi: float, rate_hz: float, stamps: list[np.ndarray])
     cut = np.flatnonzero(np.diff(s) > 2 * g)
     starts = np.maximum(np.r_[s[0], s[cut + 1]] - g, lo)
     ends = np.minimum(np.r_[s[cut], s[-1]] + g, hi)
-    k0 = np.ceil((starts - lo) * rate_hz - 1e-9).astype(np.int64)
-    k1 = np.floor((ends - lo) * rate_hz + 1e-9).astype(np.int64)
-    keep = k1 >= k0
-    k = np.concatenate([np.arange(a, b + 1) for a, b in zip(k0[keep], k1[keep])] or [np.zeros(0, np.int64)])
+    k0 = np.ceil((starts - lo) * rate_hz - 1e-9)
+    k1 = np.floor((ends - lo) * rate_hz + 1e-9)
+    # grid steps beyond float64's integers (2^53: 2.8 million years at 100 Hz) have no place
+    keep = (k1 >= k0) & (k1 < 2.0**53)
+    k = np.concatenate(
+        [np.arange(a, b + 1, dtype=np.int64) for a, b in zip(k0[keep].astype(np.int64), k1[keep].astype(np.int64))]
+        or [np.zeros(0, np.int64)]
+    )
     return lo + k / rate_hz
 
 

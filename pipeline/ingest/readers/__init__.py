@@ -18,7 +18,10 @@ where reading stopped (pass ``strict=True`` to raise instead).
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from pathlib import Path
+
+import numpy as np
 
 from pipeline.errors import FsidError
 from pipeline.ingest.flightdata import FlightData, SegmentSpec
@@ -164,6 +167,19 @@ def _has_records(raw: RawLog, path, fmt: str) -> None:
         )
 
 
+def _timed(chans: dict) -> tuple[dict, dict[str, int]]:
+    """The channels without their samples whose time is NaN or infinite (a damaged or
+    blank time field: no place on any time line), and channel -> how many were dropped."""
+    out, untimed = {}, {}
+    for k, c in chans.items():
+        ok = np.isfinite(np.asarray(c.t, dtype=float))
+        if not ok.all():
+            untimed[k] = int((~ok).sum())
+            c = replace(c, t=c.t[ok], values=c.values[ok])
+        out[k] = c
+    return out, untimed
+
+
 def _has_samples(chans: dict, path) -> None:
     """LogReadError unless the fullest mapped channel has MIN_SAMPLES samples."""
     most = max((len(c) for c in chans.values()), default=0)
@@ -234,6 +250,7 @@ def read_log(path: str | os.PathLike, map=None, **opts):
         else load_map(map_fmt if map_fmt in builtin_names() else None, raw.format)
     )
     chans, why, travels = apply_map(raw, cmap, travel)
+    chans, untimed = _timed(chans)
     meta = {
         "source": str(path),
         "format": raw.format,
@@ -246,6 +263,7 @@ def read_log(path: str | os.PathLike, map=None, **opts):
         "servo_travel": travels,
         "info": raw.info,
         "tables": {k: len(v) for k, v in raw.tables.items()},
+        "untimed": untimed,
     }
     _has_samples(chans, path)
     fd = FlightData(chans, meta, []).from_log_start()
