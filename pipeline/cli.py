@@ -18,7 +18,7 @@ from importlib import metadata
 
 from pipeline.commands import COMMANDS
 from pipeline.errors import USER_ERRORS, Terminated, VisibleStream, describe, is_write_failure
-from pipeline.jobs.progress import end_open_line, where_stopped
+from pipeline.jobs.progress import end_open_line, new_job, where_stopped
 from pipeline.paths import release_run_dirs
 
 
@@ -63,6 +63,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     previous = _on_sigterm()
+    new_job()
     streams = sys.stdout, sys.stderr
     sys.stdout, sys.stderr = VisibleStream(sys.stdout), VisibleStream(sys.stderr)
     try:
@@ -99,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _terminate(signum, frame) -> None:
+    Terminated.requested = True
     raise Terminated()
 
 

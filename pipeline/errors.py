@@ -52,7 +52,12 @@ class FsidError(Exception):
 
 class Terminated(KeyboardInterrupt):
     """A termination signal (SIGTERM: ``timeout``'s and the schedulers' default) taken as
-    an interruption, so that the output folder says where the run stopped."""
+    an interruption, so that the output folder says where the run stopped.
+
+    ``requested`` stays set once the signal came: an exception raised while C code runs a
+    Python callback is lost there, so each progress step raises it again."""
+
+    requested = False
 
 
 #: the write failures a user can act on: a full disk or quota, a file size limit, a

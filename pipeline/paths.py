@@ -182,6 +182,7 @@ def staged(out: str | os.PathLike, last: str) -> Iterator[Path]:
     (cleared by the next run); one stopped by an exception publishes what it wrote without
     ``last`` unless ``last`` was written, and says so in error.txt."""
     out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
     stage = Path(tempfile.mkdtemp(dir=out, prefix=STAGE))
     try:
         yield stage

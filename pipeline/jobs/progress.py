@@ -12,7 +12,7 @@ import time
 from dataclasses import dataclass
 from typing import TextIO
 
-from pipeline.errors import visible
+from pipeline.errors import Terminated, visible
 
 
 @dataclass
@@ -40,8 +40,24 @@ def end_open_line() -> None:
     """End a progress line a failing stage left open, so that the error printed next
     stands on its own line."""
     if _PLACE.open_on is not None:
-        print(file=_PLACE.open_on, flush=True)
+        try:
+            print(file=_PLACE.open_on, flush=True)
+        except (ValueError, OSError):  # that stream is closed or gone
+            pass
         _PLACE.open_on = None
+
+
+def _raise_if_terminated() -> None:
+    """Raise the termination a callback may have swallowed (:class:`Terminated`)."""
+    if Terminated.requested:
+        raise Terminated()
+
+
+def new_job() -> None:
+    """Forget where an earlier job of this process stood (a command's start)."""
+    global _PLACE
+    _PLACE = _Place()
+    Terminated.requested = False
 
 
 class Progress:
@@ -67,6 +83,7 @@ class Progress:
     def stage(self, text: str, since: float | None = None) -> Progress:
         """Start the next stage (``since``: its start time, perf_counter, when its work ran
         before the count was known)."""
+        _raise_if_terminated()
         self.n += 1
         self._t = time.perf_counter() if since is None else since
         if not self.quiet:
@@ -79,6 +96,7 @@ class Progress:
     def substage(self, text: str) -> Progress:
         """A second part of the stage just done, on a line of its own under it (counted
         with that stage: a part that only some logs need keeps the count right)."""
+        _raise_if_terminated()
         self._t = time.perf_counter()
         if not self.quiet:
             print(
@@ -92,11 +110,13 @@ class Progress:
 
     def tick(self, text: str) -> None:
         """A step within the current stage, on its line (an iteration, a refit)."""
+        _raise_if_terminated()
         if not self.quiet:
             print(f" {visible(text)}", end="", file=self.stream, flush=True)
 
     def done(self, extra: str = "") -> None:
         """End the current stage or substage: its duration and ``extra``."""
+        _raise_if_terminated()
         if not self.quiet:
             dt = time.perf_counter() - self._t
             print(f" {dt:.1f} s{(' - ' + visible(extra)) if extra else ''}", file=self.stream, flush=True)
