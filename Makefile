@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test test-fast lint bench clean
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
@@ -22,8 +22,13 @@ $(TEST_STAMP): pyproject.toml | $(PY)
 demo: $(STAMP)
 	$(VENV)/bin/fsid demo
 
+# everything: the README's command and CI's
 test: $(TEST_STAMP) lint
-	$(PY) -m pytest -q -n 2 --dist loadfile
+	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
+
+# the edit loop: what is not marked slow (tests/conftest.py), under a minute on 2 cores
+test-fast: $(TEST_STAMP)
+	$(PY) -m pytest -q -n 2 --dist loadfile -m "not slow"
 
 # the architecture's rules (pyproject.toml: [tool.ruff], [tool.importlinter]) before the tests
 lint: $(TEST_STAMP)

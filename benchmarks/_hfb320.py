@@ -1,7 +1,7 @@
 """The HFB-320 longitudinal case of the reference software's test case 4, replicated by
 simulation, for :mod:`benchmarks.first_fit`.
 
-The model is the one of tests/test_user_model_api.py (states V m/s, alpha rad, theta rad,
+The model is the one of tests/estimators/test_user_model_api.py (states V m/s, alpha rad, theta rad,
 q rad/s; inputs elevator de rad and thrust N; outputs V, alpha, theta, q, qdot rad/s^2, ax
 and az m/s^2; 11 free derivatives), written as users write it: f and g share a helper.
 The data: 601 samples at 10 Hz from the reference's initial state, simulated at the
@@ -34,7 +34,7 @@ TRUTH = dict(
     Cmq=-34.710,
     Cmde=-1.5291,
 )
-#: start values (those of tests/test_user_model_api.py: 2-80 % off the truth there)
+#: start values (those of tests/estimators/test_user_model_api.py: 2-80 % off the truth there)
 START = dict(
     CD0=0.12,
     CDV=-0.065,

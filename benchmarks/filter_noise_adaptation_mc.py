@@ -1,5 +1,5 @@
 """What the EKF/UKF noise adaptation buys: a Monte Carlo over noise draws on the HFB-320
-flight with process noise of tests/test_user_model_api.py (the model written by hand
+flight with process noise of tests/estimators/test_user_model_api.py (the model written by hand
 through DESIGN section 4; 60 s at 10 Hz, two 3-2-1-1 elevator inputs and a thrust step,
 white process noise F_alpha 0.004, F_q 0.006 rad/sqrt(s), white sensor noise; starts 2-80 %
 off). Every filter is given the true process noise; they differ in the measurement noise:

@@ -25,7 +25,7 @@ in empirical std, worst mean |error|/std, mean error/std of Clp and Clda):
   smoothed  0.49-1.49, 0.75, 1.24 (CYbeta); Clp +0.11, Clda -0.12
 The logged surfaces bias the roll derivatives low together (Clp less negative, Clda
 smaller, by 4-5 of their empirical std; Cnp, Cnda likewise), as on the JSBSim flight
-itself (tests/test_closed_loop_multiaxis.py: Clp, Clda 4.7 std off before the smoothing);
+itself (tests/closed_loop/test_closed_loop_multiaxis.py: Clp, Clda 4.7 std off before the smoothing);
 smoothed, the fit is as good as given the true surfaces. The whole run takes ~2 min.
 
     python benchmarks/input_noise_mc.py [--seeds 8] [--seed-base 0] [--jobs 2]

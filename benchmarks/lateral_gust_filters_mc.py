@@ -62,7 +62,7 @@ Filter error is honest and unbiased on this model, and stays within 2 std with t
 flight's own roll gust. The parameter-in-the-state filters are not, on data their own
 model made: Clp is biased by 3.7-4 of its empirical std, and with the flight's gust the
 roll derivatives end 5-7 reported std off (on the JSBSim flight itself,
-tests/test_closed_loop_multiaxis.py: UKF 6.5, EKF 18.7; 6.0, 6.2 once the pipeline
+tests/closed_loop/test_closed_loop_multiaxis.py: UKF 6.5, EKF 18.7; 6.0, 6.2 once the pipeline
 smoothed the surface inputs, benchmarks/input_noise_mc.py). Given the true process noise the
 EKF is worse still (up to 10x too small a std; some draws wander off from the start of a
 segment where the gust is uncertain and the linearisation poor). JSBSim's p_turb is the

@@ -1,4 +1,4 @@
-"""The closed loop of tests/test_closed_loop_multiaxis.py over many seeds: for each seed
+"""The closed loop of tests/closed_loop/test_closed_loop_multiaxis.py over many seeds: for each seed
 ``fsid run scenarios/multiaxis_multisine_turbulence.toml`` (JSBSim flight in light Tustin
 turbulence, three simultaneous 3-axis multisines and an elevator sweep, logs written and
 read back, no compatibility stage as in the test) with FEM, EKF and UKF on both axes.
@@ -52,7 +52,7 @@ maneuver of the flight fitted, the proof of match on its calm validation flight:
   (its F on every state, tau_pg held): seed 31 EKF/UKF Cmde 6.6 / 6.8, Cm0 5.8 / 6.1, Cmq
   5.9 / 6.0 std off while FEM is within 2.6 - the same model and noise, so the gap is the
   parameter-in-the-state filter itself (as Ljung's gain sensitivity found, the docstring
-  of tests/test_closed_loop_multiaxis.py).
+  of tests/closed_loop/test_closed_loop_multiaxis.py).
   The same with 1.5 deg multisines (FEM only): longitudinal 1.8 3.5 4.2 3.0 4.1 3.1 5.4 2.8
   (3/8; 6/8), empirical / reported up to 3.29 (Cmalphadot), 1.90 (Cmq); lateral 5/8, 5/8;
   the 3 deg empirical std a median 0.65 of it (0.26-1.13 by derivative: Cmde 0.018 against

@@ -108,7 +108,7 @@ def _filter_error(problem: Problem, model: Any, s: FitSettings) -> Any:
         ).fit(problem.fit, estimate_x0=problem.estimate_x0, start=s.start)
 
     res = fem(model)
-    if not res.converged:
+    if not res.converged and s.start is None:  # a refit from an earlier estimate is not restarted
         res = _fem_restart(problem, model, res, fem)
     return res
 
