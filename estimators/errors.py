@@ -56,3 +56,14 @@ class IdentifiabilityError(EstimationError, ArithmeticError):
 
 class ConvergenceError(EstimationError, RuntimeError):
     """The optimiser could not reduce the cost from the start values."""
+
+
+#: what to try when a simulation runs away (output error's divergence messages)
+DIVERGE_HINT = (
+    "Check the units and signs of the start values, set bounds, start closer "
+    "(e.g. from an equation-error fit, estimators.LeastSquares); for an unstable "
+    "aircraft use a method that keeps the simulation bounded: StabilizedOutputError "
+    "(stabilisation matrix S), EigenvalueTransformation (exp(-sigma t) weighting) "
+    "or EquationDecoupling (measured states as pseudo-inputs), or the filter "
+    "methods FilterError, EKF or UKF."
+)

@@ -5,7 +5,19 @@ from __future__ import annotations
 import errno
 import unicodedata
 
-from estimators.errors import EstimationError
+from estimators.errors import DIVERGE_HINT, EstimationError
+
+#: the estimators' advice in Python-API terms -> what a command-line user does instead
+CLI_ADVICE = {
+    DIVERGE_HINT: (
+        "Check the units and signs of the log's channels and of the aircraft file's a-priori "
+        "values (they are the start values); for an unstable aircraft use --method fem, ekf or "
+        "ukf, which keep the simulation bounded."
+    ),
+    "Call Segment.split_at_gaps() and fit the pieces as a list of segments": (
+        "Give --segments that leave the gap out (fsid check lists the gaps)"
+    ),
+}
 
 
 def visible(text: str, keep: str = "\n\t") -> str:
@@ -70,11 +82,19 @@ WRITE_REMEDY = "free space on that disk (or raise the file size limit), or give 
 USER_ERRORS = (FsidError, EstimationError)
 
 
+def cli_advice(text: str) -> str:
+    """``text`` with the estimators' Python-API advice (:data:`CLI_ADVICE`) put in
+    command-line terms."""
+    for api, cli in CLI_ADVICE.items():
+        text = text.replace(api, cli)
+    return text
+
+
 def describe(exc: Exception) -> str:
     """The one line the command line gives for ``exc``: a user error's own message, else
     the unexpected error named, with how to see its traceback."""
     if isinstance(exc, USER_ERRORS):
-        return visible(str(exc))
+        return visible(cli_advice(str(exc)))
     if is_write_failure(exc):
         where = f" {exc.filename}" if exc.filename else ""
         return visible(f"cannot write{where}: {exc.strerror or exc}; {WRITE_REMEDY}")

@@ -14,18 +14,9 @@ from typing import Any
 import numpy as np
 
 from estimators.defaults import FOLLOW_LAG1, FOLLOW_SHARE, RUNAWAY_FACTOR
-from estimators.errors import SimulationDivergedError
+from estimators.errors import DIVERGE_HINT, SimulationDivergedError
 from estimators.filters.linearize import linearize_batch
 from estimators.model import Model, Segment
-
-DIVERGE_HINT = (
-    "Check the units and signs of the start values, set bounds, start closer "
-    "(e.g. from an equation-error fit, estimators.LeastSquares); for an unstable "
-    "aircraft use a method that keeps the simulation bounded: StabilizedOutputError "
-    "(stabilisation matrix S), EigenvalueTransformation (exp(-sigma t) weighting) "
-    "or EquationDecoupling (measured states as pseudo-inputs), or the filter "
-    "methods FilterError, EKF or UKF."
-)
 
 
 def runaway(seg: Segment, Y: np.ndarray) -> tuple[int, int] | None:

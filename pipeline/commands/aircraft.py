@@ -78,7 +78,8 @@ def summary(af: AircraftFile) -> str:
     pos = ", ".join(f"{n} ({', '.join(f'{x:g}' for x in p)}) m" for n, p in af.sensors.items())
     lines.append(f"  sensor positions: {pos or 'none given'}")
     rev = ", ".join(c.reversed_inputs)
-    lines.append(f"  sign conventions: {'reversed on ' + rev if rev else 'DESIGN.md convention'}")
+    own = "fsid's convention (docs/aircraft.md)"
+    lines.append(f"  sign conventions: {'reversed on ' + rev if rev else own}")
     signs = c.expected_signs()
     lines.append(
         "  signs the verdict expects: " + ", ".join(f"{n} {'>' if s > 0 else '<'} 0" for n, s in signs.items())

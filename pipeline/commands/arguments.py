@@ -159,7 +159,7 @@ def print_outputs(out: Path, paths: dict[str, Path]) -> None:
         print(f"  {name:<12} {path}")
 
 
-LOG_KINDS = ".mcap/.bin/.tlog/.ulg/.csv"
+LOG_KINDS = ".mcap/.bin/.tlog/.ulg/.csv/.npz"
 
 
 def log_file(arg: str | Path) -> Path:

@@ -24,7 +24,7 @@ HELP = "identify derivatives from a log with a built-in model (and an aircraft d
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("log", help="flight log (.bin, .tlog, .ulg, .mcap, .csv)")
+    p.add_argument("log", help="flight log: .mcap, .bin, .tlog, .ulg, .csv or .npz (an archive of named windows)")
     p.add_argument(
         "--aircraft",
         help="aircraft file ([geometry], [mass], optional [propulsion], [servos] de/da/dr_travel_deg "

@@ -13,7 +13,7 @@ HELP = "list a log's fields and the canonical channels a channel map makes of th
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("log", help="flight log: .mcap, .bin, .tlog, .ulg or .csv")
+    parser.add_argument("log", help="flight log: .mcap, .bin, .tlog, .ulg, .csv or .npz (an archive of named windows)")
     parser.add_argument(
         "--map", default=None, help="channel map (built-in name or TOML file; default: built-in for the format)"
     )

@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from estimators import EKF, UKF, OutputError, Segment
+from estimators.defaults import GAP_FACTOR
 from estimators.output_error.pseudo_input_noise import PropagationError, propagated_covariance
 from estimators.statistics import difference_noise_std
 from pipeline.conditioning.checks import no_forward_flight
@@ -142,17 +143,31 @@ def _segment_frames(
                 df.loc[~keep, ch] = np.nan
         inp = df[INPUTS].to_numpy()
         ok = np.all(np.isfinite(inp), axis=1)
-        df = df[ok].reset_index(drop=True)
-        if len(df) < 20:
-            continue
-        rates = df[["p", "q", "r"]].to_numpy()
-        acc = np.gradient(rates, df["t"].to_numpy(), axis=0)
-        df[["pdot", "qdot", "rdot"]] = acc
-        if np.any(imu_position != 0):
-            lev = _lever(df["t"].to_numpy(), rates, imu_position)
-            df[["ax", "ay", "az"]] = df[["ax", "ay", "az"]].to_numpy() - lev
-        frames.append((s, df))
+        pieces = [p for p in _pieces(df[ok].reset_index(drop=True)) if len(p) >= 20]
+        for j, df in enumerate(pieces):
+            rates = df[["p", "q", "r"]].to_numpy()
+            acc = np.gradient(rates, df["t"].to_numpy(), axis=0)
+            df[["pdot", "qdot", "rdot"]] = acc
+            if np.any(imu_position != 0):
+                lev = _lever(df["t"].to_numpy(), rates, imu_position)
+                df[["ax", "ay", "az"]] = df[["ax", "ay", "az"]].to_numpy() - lev
+            t = df["t"].to_numpy()
+            piece = s if len(pieces) == 1 else replace(s, name=f"{s.name}.{j}", t0=float(t[0]), t1=float(t[-1]))
+            frames.append((piece, df))
     return frames
+
+
+def _pieces(df: pd.DataFrame) -> list[pd.DataFrame]:
+    """The stretches of a segment's frame between gaps in its time (a gap in the log, or
+    samples dropped for a missing input): longer than GAP_FACTOR median intervals, the
+    estimators' rule (a model is not integrated across one)."""
+    t = df["t"].to_numpy()
+    if t.size < 2:
+        return [df]
+    dt = np.diff(t)
+    cut = np.flatnonzero(dt > GAP_FACTOR * np.median(dt)) + 1
+    edges = np.r_[0, cut, t.size]
+    return [df.iloc[a:b].reset_index(drop=True) for a, b in zip(edges[:-1], edges[1:])]
 
 
 def _x0(df: pd.DataFrame) -> np.ndarray:

@@ -316,7 +316,7 @@ def reconstruct_flow_angles(
                 "std": float("nan"),
                 "applied": False,
                 "carried": False,
-                "note": f"the pitot scale factor's fit with the wind failed ({exc}): taken as 0",
+                "note": f"the airspeed scale factor's fit with the wind failed ({exc}): taken as 0",
             }
     else:
         cal = {"status": "held", "estimate": float(airspeed_scale), "applied": bool(airspeed_scale)}
@@ -361,10 +361,14 @@ def _flight_path(
     vmin = max(3.0, 0.5 * float(np.percentile(V[ok], 95))) if ok.any() else np.inf
     ok &= V >= vmin
     if ok.sum() < 20:
+        where = (
+            f"in forward flight (airspeed >= {vmin:.1f} m/s)"
+            if np.isfinite(vmin)
+            else "where airspeed, attitude and the velocity are all logged"
+        )
         raise FsidError(
-            f"cannot rebuild {'/'.join(todo)} from the flight path: fewer than 20 "
-            f"velocity samples in forward flight (airspeed >= {vmin:.1f} m/s) in "
-            f"{fd.meta.get('source', 'log')}"
+            f"cannot rebuild {'/'.join(todo)} from the flight path: fewer than 20 velocity samples "
+            f"{where} in {fd.meta.get('source', 'log')}"
         )
     axes = _body_axes(phi[ok], theta[ok], psi[ok])
     return t[ok], vg[ok], V[ok], np.unwrap(psi[ok]), axes, vmin
@@ -453,7 +457,7 @@ def airspeed_calibration(wind: WindFit) -> dict[str, Any]:
             "std": sd,
             "applied": False,
             "carried": False,
-            "note": f"the headings do not separate a pitot scale factor from the wind "
+            "note": f"the headings do not separate an airspeed scale factor from the wind "
             f"(its std {100 * sd:.1f} %, > {100 * SCALE_STD_MAX:g} %): taken as 0",
         }
     sig = abs(est) / sd if sd > 0 else float("inf")
@@ -465,7 +469,7 @@ def airspeed_calibration(wind: WindFit) -> dict[str, Any]:
             "significance_std": sig,
             "applied": False,
             "carried": False,
-            "note": f"pitot scale factor {100 * est:+.1f} +- {100 * sd:.1f} % with the wind, "
+            "note": f"airspeed scale factor {100 * est:+.1f} +- {100 * sd:.1f} % with the wind, "
             f"beyond +-{100 * SCALE_MAX:g} %: something else is wrong (airspeed "
             "units, EAS for TAS, a blocked pitot?); taken as 0",
         }
@@ -478,7 +482,7 @@ def airspeed_calibration(wind: WindFit) -> dict[str, Any]:
         "significance_std": sig,
         "applied": applied,
         "carried": True,
-        "note": f"pitot scale factor {100 * est:+.2f} +- {100 * sd:.2f} % with the wind ({why}; "
+        "note": f"airspeed scale factor {100 * est:+.2f} +- {100 * sd:.2f} % with the wind ({why}; "
         "its std carried to the estimates)",
     }
 
@@ -524,7 +528,7 @@ def mean_wind(doc: dict[str, Any]) -> tuple[float, float] | None:
 #: what report.md says of the airspeed the rebuilt angles take as calibrated, when the
 #: pitot's scale factor could not be estimated
 AIRSPEED_CAVEAT = (
-    "a pitot scale factor or bias goes into the along-track wind, and the models' "
+    "a airspeed scale factor or bias goes into the along-track wind, and the models' "
     "airspeed and dynamic pressure keep it, outside the std (pitot_wind_turn's "
     ".bin, a 3 % scale factor and 0.4 m/s, with the scale factor not estimated: "
     "46 std off; estimated: within 2.8): calibrate the airspeed before "
@@ -560,12 +564,12 @@ def summary(doc: dict[str, Any]) -> str:
 
 
 def _scale_summary(cal: dict[str, Any]) -> str:
-    """The pitot scale factor's part of :func:`summary`."""
+    """The airspeed scale factor's part of :func:`summary`."""
     if cal.get("status") == "estimated":
         return (
-            f", pitot scale factor {100 * cal['estimate']:+.2f} +- {100 * cal['std']:.2f} % "
+            f", airspeed scale factor {100 * cal['estimate']:+.2f} +- {100 * cal['std']:.2f} % "
             f"({'applied' if cal['applied'] else 'not applied'})"
         )
     if cal.get("status") == "held":
-        return f", pitot scale factor {100 * cal['estimate']:+.2f} % (the fitted flight's)"
+        return f", airspeed scale factor {100 * cal['estimate']:+.2f} % (the fitted flight's)"
     return ""

@@ -313,7 +313,10 @@ def _apriori(raw: Any, where: _Where) -> dict[str, dict[str, Any]]:
     got = _table({"apriori": raw}, "apriori", where, True)
     for k, v in got.items():
         if k not in ALL_DERIVATIVES:
-            raise where.error(f"apriori.{k}", "unknown derivative; use the DESIGN.md names (e.g. Cmq, CLalpha)")
+            raise where.error(
+                f"apriori.{k}",
+                "unknown derivative; use fsid's names (e.g. Cmq, CLalpha; the table in docs/aircraft.md)",
+            )
         if isinstance(v, dict) and not all(_is_number(v[x]) for x in ("value", "std", "rel_std") if x in v):
             raise where.error(f"apriori.{k}", f"value and std must be numbers (per rad), got {v!r}")
     try:
@@ -333,7 +336,10 @@ def _derivatives(raw: Any, where: _Where) -> dict[str, float]:
     got = _table({"derivatives": raw}, "derivatives", where, True)
     for k, v in got.items():
         if k not in ALL_DERIVATIVES:
-            raise where.error(f"derivatives.{k}", "unknown derivative; use the DESIGN.md names (e.g. Cmq, CLalpha)")
+            raise where.error(
+                f"derivatives.{k}",
+                "unknown derivative; use fsid's names (e.g. Cmq, CLalpha; the table in docs/aircraft.md)",
+            )
         if not _is_number(v):
             raise where.error(f"derivatives.{k}", f"must be a number (per radian), got {v!r}")
     return {k: float(v) for k, v in got.items()}

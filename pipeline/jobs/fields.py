@@ -14,18 +14,22 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
+from pipeline.conditioning.checks import CORE
 from pipeline.ingest.flightdata import CANONICAL_UNITS
 from pipeline.ingest.maps import apply_map, load_map
 from pipeline.ingest.maps.loading import builtin_names
 from pipeline.ingest.rawlog import RawLog, Table
 from pipeline.ingest.readers import detect_format, read_raw
+from pipeline.ingest.sampling import sample_rate
+
+#: why a channel identification needs is missing when the map has no rule for it
+NOT_MAPPED = "not in the channel map (fill it from a field with a map of your own, below)"
 
 
 @dataclass
 class TableFields:
-    """One message table of a log: ``samples``, median ``rate_hz`` of its stamps, and its
+    """One message table of a log: ``samples``, ``rate_hz`` of its stamps (the rule of every
+    rate fsid states, :func:`pipeline.ingest.sampling.sample_rate`), and its
     ``fields`` with the canonical channel each one fills ("" when none)."""
 
     name: str
@@ -58,14 +62,6 @@ class LogFields:
             "channels": {k: {"source": s, "unit": u, "notes": n} for k, (s, u, n) in self.filled.items()},
             "unfilled": self.unfilled,
         }
-
-
-def _median_rate(t: np.ndarray) -> float:
-    """Median sample rate of one table's stamps [Hz] (0 for fewer than two distinct times):
-    the median interval, so gaps between flights or maneuvers do not lower it."""
-    dt = np.diff(np.asarray(t, dtype=float))
-    dt = dt[np.isfinite(dt) & (dt > 0)]
-    return float(1.0 / np.median(dt)) if dt.size else 0.0
 
 
 #: a ``TABLE.field`` reference inside a channel's source text (``IMU[0].GyrX``,
@@ -107,11 +103,12 @@ def list_fields(log: str | Path, map_spec: str | None = None, **read_opts) -> Lo
             hit = _match_table(raw, tname)
             if hit is not None and fname in tables[hit].fields:
                 tables[hit].fields[fname] = "+".join(filter(None, [tables[hit].fields[fname], name]))
-    return LogFields(str(log), raw.format, cmap.name, list(tables.values()), filled, dict(why))
+    unfilled = {n: NOT_MAPPED for n in CORE if n not in filled} | dict(why)
+    return LogFields(str(log), raw.format, cmap.name, list(tables.values()), filled, unfilled)
 
 
 def _table_fields(name: str, tab: Table) -> TableFields:
-    return TableFields(name, len(tab), round(_median_rate(tab.t), 3), {f: "" for f in tab.fields})
+    return TableFields(name, len(tab), round(sample_rate(tab.t), 3), {f: "" for f in tab.fields})
 
 
 def format_fields(lf: LogFields, *, all_fields: bool = True) -> str:

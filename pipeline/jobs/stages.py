@@ -68,7 +68,8 @@ def flow_angle_stage(
     if ac is not None and "alpha" in doc["channels"]:
         ac = replace(ac, airdata=(0.0, 0.0, 0.0))
         doc["airdata_position_m"] = [0.0, 0.0, 0.0]
-    pr.done(flow_summary(doc) + (f" (instead of {', '.join(derived)}: autopilot estimates)" if derived else ""))
+    instead = f" (instead of the logged {', '.join(derived)}: computed from other channels, not vanes)"
+    pr.done(flow_summary(doc) + (instead if derived else ""))
     return out, ac, base, doc
 
 
@@ -143,7 +144,7 @@ def compatibility_stage(
         )
         if airspeed is not None:
             out = replace(out, channels={**out.channels, "V": fd["V"]})
-            doc["airspeed"] = "calibrated by the air-data-angle stage's pitot scale factor"
+            doc["airspeed"] = "calibrated by the air-data-angle stage's airspeed scale factor"
         if imu_only:
             doc["scope"] = "IMU errors only: no air-data vanes in the log"
     except Exception as exc:  # noqa: BLE001 - the compatibility check must not cost the run

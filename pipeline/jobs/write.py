@@ -33,7 +33,7 @@ def write_outputs(
     """Write report.md (its figures in ``out/figures``), report.html, report.json and run.rrd
     of ``results`` (key -> result) and their ``validations`` into ``out``, compared with
     ``truth`` where known (``flight``: the whole flight they were fitted on, for run.rrd);
-    returns name -> path (report.html and the figures are beside report.md). ``figures``
+    returns name -> path (the figures are beside report.md, in ``figures/``). ``figures``
     False: report.md without them; ``files``: more files of the set, name -> text. Every file carries the run's id (``meta["run_id"]``, the
     recording's id) and the set appears in ``out`` at once, report.json last: a folder
     holding report.json holds the whole set of one run."""
@@ -46,7 +46,7 @@ def write_outputs(
             atomic_write_text(stage / name, text)
         _write_set(stage, results, validations, truth, meta, checks, compatibility, agreement, flight, figures, rid)
     pr.done()
-    return {"report.md": out / "report.md", "report.json": out / "report.json", "run.rrd": out / "run.rrd"}
+    return {name: out / name for name in ("report.md", "report.html", "report.json", "run.rrd")}
 
 
 def _write_set(out, results, validations, truth, meta, checks, compatibility, agreement, flight, figures, rid) -> None:

@@ -12,8 +12,8 @@ from pipeline.outputs.method_section import verdict_level
 
 #: what the levels mean (pipeline.validation.REASON_LEVELS), under the summary table
 VERDICT_LEGEND = (
-    "Verdict FAIL: the run shows the estimates wrong or unfinished (not converged, "
-    "off the truth, an EKF/UKF disagreeing with filter error, a proof-of-match "
+    "*What the verdicts mean.* FAIL: the run shows the estimates wrong or unfinished (not "
+    "converged, off the truth, an EKF/UKF disagreeing with filter error, a proof-of-match "
     "miss beyond the prediction's own uncertainty or with none to weigh it); "
     "CHECK: not proven right (a TIC over the limit, a miss within that "
     "uncertainty); PASS: neither."

@@ -236,7 +236,7 @@ def wind_summary(doc: Mapping[str, Any]) -> str:
     parts = []
     for n in doc["parts"]:
         if n == "airspeed scale":  # one value for the flight
-            parts.append(f"pitot scale factor +-{100 * max(doc['std_airspeed_scale'].values()):.2f} %")
+            parts.append(f"airspeed scale factor +-{100 * max(doc['std_airspeed_scale'].values()):.2f} %")
             continue
         lo, hi = min(v[n] for v in stds.values()), max(v[n] for v in stds.values())
         what = "flight-mean vertical wind (assumed 0)" if n == "vertical wind" else n

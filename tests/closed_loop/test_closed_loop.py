@@ -22,7 +22,7 @@ def test_run_writes_every_output(calm_run):
     out, paths, _ = calm_run
     for name in ("flight.mcap", "flight.bin", "truth.json", "checks.json", "report.md", "report.json", "run.rrd"):
         assert (out / name).stat().st_size > 0, name
-    assert set(paths) == {"report.md", "report.json", "run.rrd"}
+    assert set(paths) == {"report.md", "report.html", "report.json", "run.rrd"}
     checks = json.loads((out / "checks.json").read_text())
     assert set(checks) == {"flight.bin", "flight.mcap"}
     assert all(c["summary"]["fail"] == 0 for c in checks.values())

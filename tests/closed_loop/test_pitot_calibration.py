@@ -67,7 +67,7 @@ def test_the_turn_calibrates_the_pitot_with_the_wind(estimated):
     # its std reaches the derivatives with the wind's
     wu = flow["wind_uncertainty"]
     assert "airspeed scale" in wu["parts"] and set(wu["std_airspeed_scale"].values()) == {cal["std"]}
-    assert "pitot scale factor +4." in md and "calibrate the airspeed" not in md
+    assert "airspeed scale factor +4." in md and "calibrate the airspeed" not in md
 
 
 def test_the_calibrated_airspeed_gives_the_derivatives(estimated):
@@ -120,7 +120,7 @@ def test_fsid_check_of_the_bin_calibrates_the_pitot_and_checks_the_imu(run, tmp_
     assert comp["status"] == "ok" and comp["scope"].startswith("IMU errors only") and "airspeed" in comp
     assert not {"bias_V", "scale_V", "bias_alpha", "scale_alpha"} & set(comp["parameters"])
     assert comp["applied"] == {}  # the IMU has no error in this scenario
-    assert "pitot scale factor +4." in capsys.readouterr().out
+    assert "airspeed scale factor +4." in capsys.readouterr().out
 
 
 #: a straight second flight with the same pitot and wind (12 deg of heading: too little to
@@ -166,7 +166,7 @@ def test_a_validation_flight_takes_the_fitted_flights_scale_factor(tmp_path, cap
     # the validation flight's air-data-angle stage (its progress line) held that value
     said = capsys.readouterr()
     held = [ln for ln in (said.out + said.err).splitlines() if "(the fitted flight's)" in ln]
-    assert len(held) == 1 and f"pitot scale factor {100 * cal['estimate']:+.2f} %" in held[0], held
+    assert len(held) == 1 and f"airspeed scale factor {100 * cal['estimate']:+.2f} %" in held[0], held
     assert "validation.bin" in rep["meta"]["validation flight"]
     for key, m in rep["methods"].items():
         pom = m["validation"]["proof_of_match"]

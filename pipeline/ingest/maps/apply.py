@@ -169,6 +169,8 @@ def _first_source(raw: RawLog, rule: ChannelRule, travel_deg: float) -> Channel 
         unit = rule.unit
         if " " in src.strip():  # "MSG.field unit": a unit for this source only
             src, unit = src.split()[0], src.split()[1]
+        negated = src.startswith("-")  # "-MSG.field": this source's opposite (NED down -> up)
+        src = src.removeprefix("-")
         got = lookup(raw, src)
         if isinstance(got, str):
             reasons.append(got)
@@ -179,7 +181,7 @@ def _first_source(raw: RawLog, rule: ChannelRule, travel_deg: float) -> Channel 
             vals, note = pwm_deflection(rule, raw_v * rule.scale + rule.offset, raw.params, n, travel_deg)
             vals = vals * rule.sign
         else:
-            vals = rule.scaled(raw_v, unit)
+            vals = -rule.scaled(raw_v, unit) if negated else rule.scaled(raw_v, unit)
         notes = ""
         msg, fld = split_source(src)
         logged = tab.units.get(fld)
@@ -192,7 +194,11 @@ def _first_source(raw: RawLog, rule: ChannelRule, travel_deg: float) -> Channel 
         ):
             notes = f"the log's unit metadata (FMTU) gives {src} in {logged} but the map reads it as {unit}; check the channel map"
         return Channel(
-            np.asarray(tab.t, dtype=np.float64), vals, CANONICAL_UNITS.get(rule.name, rule.unit), src + note, notes
+            np.asarray(tab.t, dtype=np.float64),
+            vals,
+            CANONICAL_UNITS.get(rule.name, rule.unit),
+            ("-" if negated else "") + src + note,
+            notes,
         )
     return "; ".join(dict.fromkeys(reasons))
 

@@ -10,7 +10,8 @@ Map file format (all keys but ``source`` optional)::
 
     [channels.q]
     source = ["IMU[0].GyrY", "IMU.GyrY", "SCALED_IMU.ygyro mrad/s"]   # first present wins;
-                                            # a unit after a space applies to that source
+                                            # a unit after a space applies to that source,
+                                            # a leading "-" negates it ("-LOCAL_POSITION_NED.z m")
     unit = "rad/s"                          # unit of the *source* (converted to SI)
     scale = 1.0                             # si = to_si(unit)((raw * scale) + offset) * sign
     offset = 0.0

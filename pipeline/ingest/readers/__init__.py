@@ -59,6 +59,17 @@ READERS = {
 }
 
 
+#: files fsid reads that are not logs: given as the log, they are refused by name
+NOT_LOGS = {
+    ".toml": "TOML file (an aircraft, scenario or channel-map file?)",
+    ".json": "JSON file (a truth.json or a report?)",
+    ".py": "Python file (a model file? give it with --model FILE.py:NAME)",
+    ".md": "Markdown file",
+    ".html": "HTML file",
+    ".rrd": "rerun recording (open it with fsid view)",
+}
+
+
 def detect_format(path: str | os.PathLike) -> str:
     """ "mcap" | "dataflash" | "tlog" | "ulog" | "csv" from the content (then the extension)."""
     path = Path(path)
@@ -86,6 +97,14 @@ def detect_format(path: str | os.PathLike) -> str:
         return "dataflash"
     if len(head) > 8 and head[8] in (0xFE, 0xFD):
         return "tlog"
+    if path.suffix.lower() in NOT_LOGS:
+        raise LogReadError(
+            f"{path} is a {NOT_LOGS[path.suffix.lower()]}, not a flight log: give the log "
+            "(.mcap, .bin, .tlog, .ulg, .csv or .npz) as the first argument",
+            path=str(path),
+            offset=0,
+            where="file name",
+        )
     ext = EXTENSIONS.get(path.suffix.lower())
     if ext == "csv" or (ext is None and _looks_text(head)):
         return "csv"

@@ -1,0 +1,156 @@
+"""What a newcomer tripped over (issue 45, section 6), each fixed where it arose: one rule
+for every sample rate fsid states, the channels identification needs listed when a log
+lacks them, a configuration file given as the log named as such, the .npz archive in the
+help, and no reference to a design document users do not have."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.cli import build_parser, main
+from pipeline.conditioning.checks import run_checks
+from pipeline.ingest.readers import read_log
+from pipeline.ingest.sampling import sample_rate
+from pipeline.jobs.fields import list_fields
+
+TEMPLATE = "pipeline/ingest/aircraft_template.toml"
+
+
+def _bursty_csv(path):
+    """A CSV whose samples arrive in bursts (3 within 4 ms, then a pause): its median
+    interval (2 ms) says 500 Hz, its samples 10 a second."""
+    t = np.concatenate([k * 0.3 + np.array([0.0, 0.002, 0.004]) for k in range(60)])
+    rows = "\n".join(f"{x:.4f},{0.01 * i:.4f},0.0" for i, x in enumerate(t))
+    path.write_text("t,q,p\n" + rows + "\n")
+    return t
+
+
+def test_one_rate_rule_in_fields_and_checks(tmp_path):
+    log = tmp_path / "bursty.csv"
+    t = _bursty_csv(log)
+    lf = list_fields(log)
+    (table,) = lf.tables
+    rate = round(sample_rate(t), 3)
+    # samples per second over the record, not the median interval's 500 Hz
+    assert table.rate_hz == rate and rate == pytest.approx((t.size - 1) / (t[-1] - t[0]), rel=1e-3)
+    fd = read_log(log, segments=[])
+    checked = [f.value for f in run_checks(fd) if f.check == "rate" and f.channel == "q"]
+    assert checked == [pytest.approx(rate, rel=1e-3)]
+
+
+def test_mapped_only_lists_the_missing_control_surfaces(tmp_path, capsys):
+    log = tmp_path / "rates.csv"
+    _bursty_csv(log)
+    assert main(["fields", str(log), "--mapped-only"]) == 0
+    out = capsys.readouterr().out
+    missing = out.split("not filled by the map")[1]
+    for ch in ("de", "da", "dr", "alpha", "V"):
+        assert f"\n  {ch} " in missing, (ch, missing)
+    assert "\n  q " not in missing
+
+
+@pytest.mark.parametrize(
+    ("name", "said"), [("plane.toml", "TOML file"), ("truth.json", "JSON file"), ("model.py", "--model FILE.py:NAME")]
+)
+def test_a_configuration_file_given_as_the_log(tmp_path, capsys, name, said):
+    path = tmp_path / name
+    path.write_text("[aircraft]\nname = 'x'\n")
+    assert main(["check", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert said in err and "not a flight log" in err and "no numeric data lines" not in err, err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_npz_in_the_help_and_the_readme():
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    for cmd in ("check", "estimate", "fields"):
+        assert ".npz" in sub.choices[cmd].format_help(), cmd
+    assert ".npz" in open("README.md").read()
+
+
+def test_no_design_md_where_users_read(tmp_path, capsys):
+    text = open(TEMPLATE).read()
+    assert "DESIGN.md" not in text
+    path = tmp_path / "a.toml"
+    assert main(["aircraft", "init", str(path)]) == 0
+    assert main(["aircraft", "check", str(path)]) == 0
+    printed = capsys.readouterr()
+    assert "DESIGN.md" not in printed.out + printed.err and "docs/aircraft.md" in printed.out
+    bad = tmp_path / "b.toml"
+    bad.write_text(text.replace("[apriori]", "[apriori]\nCfoo = { value = 1.0, std = 1.0 }", 1))
+    assert main(["aircraft", "check", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "DESIGN.md" not in err and "docs/aircraft.md" in err, err
+
+
+def test_the_compatibility_stage_splits_its_windows_at_gaps():
+    """A window with a 3-s hole in the IMU record: the flight-path fit takes the two sides
+    as two segments (named <window>.0, .1) instead of asking the user to split them."""
+    from pipeline.conditioning.compatibility import _segment_frames
+    from pipeline.ingest.flightdata import Channel, FlightData, SegmentSpec
+
+    t = np.arange(0.0, 20.0, 0.02)
+    t = t[(t < 8.0) | (t >= 11.0)]
+    chans = {c: Channel(t, np.full(t.size, 0.1), "") for c in ("ax", "ay", "az", "p", "q", "r", "phi", "theta")}
+    fd = FlightData(chans, {}, [])
+    frames = _segment_frames(fd, [SegmentSpec("w", 0.0, 20.0)], 50.0, ["phi", "theta"], np.zeros(3))
+    assert [s.name for s, _ in frames] == ["w.0", "w.1"]
+    (a, da), (b, db) = frames
+    assert da["t"].iloc[-1] < 9.0 < 10.0 < db["t"].iloc[0] and a.t1 < 9.0 < 10.0 < b.t0
+
+
+def test_messages_in_command_line_terms():
+    """The estimators' Python-API advice reaches the command line in its own terms, and an
+    unset limit is not printed as 'airspeed >= inf m/s'."""
+    from estimators.errors import DIVERGE_HINT, SimulationDivergedError
+    from pipeline.conditioning.flow_angles import reconstruct_flow_angles
+    from pipeline.errors import FsidError, describe
+    from pipeline.ingest.flightdata import Channel, FlightData
+
+    line = describe(SimulationDivergedError(f"the simulation ran away at t=3 s. {DIVERGE_HINT}"))
+    assert "StabilizedOutputError" not in line and "stabilisation matrix" not in line
+    assert "--method fem, ekf or ukf" in line and line.startswith("the simulation ran away at t=3 s.")
+    t = np.arange(0.0, 30.0, 0.1)
+    chans = {c: Channel(t, np.zeros(t.size), "") for c in ("vn", "ve", "vd", "phi", "theta", "psi")}
+    chans["V"] = Channel(t, np.full(t.size, np.nan), "m/s")  # no airspeed logged in flight
+    with pytest.raises(FsidError) as err:
+        reconstruct_flow_angles(FlightData(chans, {}, []))
+    assert "inf" not in str(err.value) and "fewer than 20 velocity samples" in str(err.value), err.value
+
+
+def test_a_tlog_with_only_the_local_position_gives_h_and_the_velocity(tmp_path):
+    """A .tlog without GPS (LOCAL_POSITION_NED, no GLOBAL_POSITION_INT): h is the local
+    frame's height (-z, m) and vn/ve/vd its velocity in m/s (not read as cm/s)."""
+    import os
+    import struct
+
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink.dialects.v20 import ardupilotmega as mav
+
+    m = mav.MAVLink(None, srcSystem=1, srcComponent=1)
+    out = bytearray()
+    for i in range(50):
+        t = 1.7e9 + 0.1 * i
+        for msg in (
+            m.attitude_encode(100 * i, 0.0, 0.05, 1.0, 0.0, 0.0, 0.0),
+            m.local_position_ned_encode(100 * i, 1.0 * i, 0.0, -30.0 - 0.1 * i, 12.0, -3.0, -1.0),
+        ):
+            out += struct.pack(">Q", int(t * 1e6)) + msg.pack(m)
+    log = tmp_path / "indoor.tlog"
+    log.write_bytes(bytes(out))
+    fd = read_log(log, segments=[])
+    np.testing.assert_allclose(fd["h"].values, 30.0 + 0.1 * np.arange(50), rtol=1e-6)
+    np.testing.assert_allclose(fd["vn"].values, 12.0, rtol=1e-6)
+    np.testing.assert_allclose(fd["vd"].values, -1.0, rtol=1e-6)
+    assert fd["h"].source.startswith("-LOCAL_POSITION_NED.z")
+
+
+def test_the_verdict_legend_does_not_read_as_a_verdict():
+    from pipeline.outputs.run_sections import summary_md
+
+    rows = summary_md({"oem": {"verdict": {"level": "PASS"}, "converged": True, "det_R": 1e-9, "fit": {}}})
+    assert any(line.startswith("| oem") and "PASS" in line for line in rows)
+    assert not any(line.startswith("Verdict FAIL") for line in rows)
+    assert rows[-2].startswith("*What the verdicts mean.*")
