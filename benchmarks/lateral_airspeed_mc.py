@@ -46,24 +46,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from _montecarlo import fly, range_line, scatter_table, seed_arguments  # noqa: E402  (benchmarks/)
 
+from pipeline.problems.lateral import LAT_FREE  # noqa: E402
+
 SCENARIO = ROOT / "scenarios" / "lateral_doublets_calm.toml"
-LATERAL = (
-    "CYbeta",
-    "CYp",
-    "CYr",
-    "CYda",
-    "CYdr",
-    "Clbeta",
-    "Clp",
-    "Clr",
-    "Clda",
-    "Cldr",
-    "Cnbeta",
-    "Cnp",
-    "Cnr",
-    "Cnda",
-    "Cndr",
-)
+LATERAL = LAT_FREE
 
 
 def _fit(fd, ac, kinematic: bool) -> tuple[dict, dict, dict]:

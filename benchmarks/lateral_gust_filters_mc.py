@@ -88,24 +88,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from _montecarlo import flown_problem, fly, range_line, scatter_table, seed_arguments  # noqa: E402
 
+from pipeline.problems.lateral import LAT_FREE  # noqa: E402
+
 SCENARIO = ROOT / "scenarios" / "multiaxis_multisine_turbulence.toml"
-NAMES = (
-    "CYbeta",
-    "CYp",
-    "CYr",
-    "CYda",
-    "CYdr",
-    "Clbeta",
-    "Clp",
-    "Clr",
-    "Clda",
-    "Cldr",
-    "Cnbeta",
-    "Cnp",
-    "Cnr",
-    "Cnda",
-    "Cndr",
-)
+NAMES = LAT_FREE
 #: white process noise (state unit per sqrt(s)) of the draws besides the roll gust: FEM's
 #: estimates on the JSBSim flight (F_beta 0.020, F_r 0.005, F_p 0)
 OTHER_F = {"beta": 0.020, "r": 0.005}

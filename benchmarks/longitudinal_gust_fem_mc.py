@@ -51,22 +51,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from _montecarlo import flown_problem, fly, range_line, scatter_table, seed_arguments  # noqa: E402
 
+from pipeline.problems.longitudinal import LONG_FREE  # noqa: E402
+
 SCENARIO = ROOT / "scenarios" / "multiaxis_multisine_turbulence.toml"
-NAMES = (
-    "CD0",
-    "CDalpha",
-    "CDalpha2",
-    "CL0",
-    "CLalpha",
-    "CLq",
-    "CLde",
-    "Cm0",
-    "Cmalpha",
-    "Cmq",
-    "Cmde",
-    "CLalphadot",
-    "Cmalphadot",
-)
+NAMES = (*LONG_FREE, "CLalphadot", "Cmalphadot")
 SUBSTEPS = 10
 
 

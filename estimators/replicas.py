@@ -72,7 +72,8 @@ def _hfb_coefficients(x, u, p, c):
     return CD, CL, Cm
 
 
-def _hfb_f(x, u, p, c):
+def hfb320_f(x, u, p, c):
+    """The HFB-320 state derivatives (V, alpha, theta, q), as a user writes f."""
     V, alpha, theta, q = x
     de, Fe = u
     CD, CL, Cm = _hfb_coefficients(x, u, p, c)
@@ -84,7 +85,8 @@ def _hfb_f(x, u, p, c):
     return Vdot, alphadot, q, c.Scbyiy * qbar * Cm + c.Feiylt * Fe
 
 
-def _hfb_g(x, u, p, c):
+def hfb320_g(x, u, p, c):
+    """The HFB-320 outputs (V, alpha, theta, q, qdot, ax, az), as a user writes g."""
     V, alpha, theta, q = x
     de, Fe = u
     CD, CL, Cm = _hfb_coefficients(x, u, p, c)
@@ -102,10 +104,11 @@ def _hfb_g(x, u, p, c):
     )
 
 
-def hfb320_model(values: dict[str, float] | None = None) -> Model:
+def hfb320_model(values: dict[str, float] | None = None, f=hfb320_f) -> Model:
     """The HFB-320 longitudinal model of test case 4: states V (m/s), alpha, theta (rad),
     q (rad/s); inputs elevator (rad) and thrust (N); outputs V, alpha, theta, q, qdot, ax,
-    az (SI)."""
+    az (SI); every parameter free at ``values`` (default the reference's start values).
+    ``f``: another form of :func:`hfb320_f` (a test of the numpy fallback)."""
     values = HFB320_START if values is None else values
     return Model(
         states=["V", "alpha", "theta", "q"],
@@ -113,8 +116,8 @@ def hfb320_model(values: dict[str, float] | None = None) -> Model:
         outputs=["V", "alpha", "theta", "q", "qdot", "ax", "az"],
         parameters=[Parameter(k, v) for k, v in values.items()],
         constants=HFB320_CONSTANTS,
-        f=_hfb_f,
-        g=_hfb_g,
+        f=f,
+        g=hfb320_g,
         name="hfb320-tc04",
     )
 

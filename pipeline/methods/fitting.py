@@ -36,6 +36,11 @@ from pipeline.methods.noise import (
 )
 from pipeline.problems import Problem
 
+#: Gauss-Newton iterations of a filter-error refit from an earlier estimate (a consider
+#: part's): it moves the estimate by a fraction of its std, a few iterations from a
+#: converged fit; one from a fit that did not converge does not converge either
+FEM_REFIT_MAX_ITER = 10
+
 
 @dataclass(frozen=True)
 class FitSettings:
@@ -105,6 +110,7 @@ def _filter_error(problem: Problem, model: Any, s: FitSettings) -> Any:
             measurement_noise=measurement_noise_std(problem),
             estimate_F=estimate_F,
             callback=s.callback,
+            **({} if s.start is None else {"max_iter": FEM_REFIT_MAX_ITER}),
         ).fit(problem.fit, estimate_x0=problem.estimate_x0, start=s.start)
 
     res = fem(model)

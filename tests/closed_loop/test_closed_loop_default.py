@@ -20,25 +20,10 @@ import numpy as np
 import pytest
 
 from pipeline.jobs.scenario import run_scenario
+from pipeline.problems.lateral import LAT_FREE
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
-LATERAL = (
-    "CYbeta",
-    "CYp",
-    "CYr",
-    "CYda",
-    "CYdr",
-    "Clbeta",
-    "Clp",
-    "Clr",
-    "Clda",
-    "Cldr",
-    "Cnbeta",
-    "Cnp",
-    "Cnr",
-    "Cnda",
-    "Cndr",
-)
+LATERAL = LAT_FREE
 TRIM = ("CD0", "CL0", "Cm0")
 
 

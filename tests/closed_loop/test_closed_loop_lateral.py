@@ -11,25 +11,10 @@ import pytest
 
 from pipeline.cli import main
 from pipeline.jobs.scenario import run_scenario
+from pipeline.problems.lateral import LAT_FREE
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
-LATERAL = (
-    "CYbeta",
-    "CYp",
-    "CYr",
-    "CYda",
-    "CYdr",
-    "Clbeta",
-    "Clp",
-    "Clr",
-    "Clda",
-    "Cldr",
-    "Cnbeta",
-    "Cnp",
-    "Cnr",
-    "Cnda",
-    "Cndr",
-)
+LATERAL = LAT_FREE
 
 
 @pytest.fixture(scope="module")

@@ -116,41 +116,13 @@ from pathlib import Path
 import pytest
 
 from pipeline.jobs.scenario import run_scenario
+from pipeline.problems.lateral import LAT_FREE
+from pipeline.problems.longitudinal import LONG_FREE
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "multiaxis_multisine_turbulence.toml"
 METHODS = ("fem", "ekf", "ukf")
-LONG = (
-    "CD0",
-    "CDalpha",
-    "CDalpha2",
-    "CL0",
-    "CLalpha",
-    "CLq",
-    "CLde",
-    "Cm0",
-    "Cmalpha",
-    "Cmq",
-    "Cmde",
-    "CLalphadot",
-    "Cmalphadot",
-)
-LAT = (
-    "CYbeta",
-    "CYp",
-    "CYr",
-    "CYda",
-    "CYdr",
-    "Clbeta",
-    "Clp",
-    "Clr",
-    "Clda",
-    "Cldr",
-    "Cnbeta",
-    "Cnp",
-    "Cnr",
-    "Cnda",
-    "Cndr",
-)
+LONG = (*LONG_FREE, "CLalphadot", "Cmalphadot")
+LAT = LAT_FREE
 #: longitudinal derivatives measured more than 3 std from the truth (|error|/std, seed 31)
 LONG_OFF = {"fem": {}, "ekf": {}, "ukf": {}}
 

@@ -22,24 +22,10 @@ from pathlib import Path
 
 import pytest
 
+from pipeline.problems.lateral import LAT_FREE
+
 ROOT = Path(__file__).resolve().parents[2]
-LAT = (
-    "CYbeta",
-    "CYp",
-    "CYr",
-    "CYda",
-    "CYdr",
-    "Clbeta",
-    "Clp",
-    "Clr",
-    "Clda",
-    "Cldr",
-    "Cnbeta",
-    "Cnp",
-    "Cnr",
-    "Cnda",
-    "Cndr",
-)
+LAT = LAT_FREE
 
 
 def _aileron_rudder_flight(folder: Path, seed: int) -> Path:

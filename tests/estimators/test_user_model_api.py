@@ -1,8 +1,9 @@
 """A model written the way DESIGN.md section 4 shows, by hand, through every estimator.
 
-The model has the structure of Jategaonkar's HFB-320 longitudinal test case (FVSysID test
-case 4: speed terms CDV, CLV, CmV, thrust input with a lever arm, outputs V, alpha, theta,
-q, qdot, ax, az), with derivative values of that order. The data: 60 s at 10 Hz, two 3-2-1-1
+The model is Jategaonkar's HFB-320 longitudinal test case as :mod:`estimators.replicas`
+writes it (FVSysID test case 4: speed terms CDV, CLV, CmV, thrust input with a lever arm,
+outputs V, alpha, theta, q, qdot, ax, az), flown here at other derivative values of that
+order. The data: 60 s at 10 Hz, two 3-2-1-1
 elevator inputs and a thrust step, an 18 m/s speed change, white sensor noise. The f and g
 share a helper function, as users write them. Start values are 2-80 % off.
 
@@ -28,10 +29,12 @@ from estimators import (
 )
 from estimators.compile.kernels import kernel_for
 from estimators.datasets import multistep
+from estimators.replicas import HFB320_CONSTANTS as CONSTANTS
+from estimators.replicas import HFB320_START as START
+from estimators.replicas import hfb320_f as f
+from estimators.replicas import hfb320_g as g
+from estimators.replicas import hfb320_model
 
-CONSTANTS = dict(
-    g0=9.80665, Sbym=4.028e-3, Scbyiy=8.0027e-4, Feiylt=-7.0153e-6, v0=104.67, rm=7472.0, sigmat=0.0524, rho=0.792
-)
 TRUTH = dict(
     CD0=0.1245,
     CDV=-0.0657,
@@ -45,59 +48,7 @@ TRUTH = dict(
     Cmq=-54.5,
     Cmde=-1.70,
 )
-START = dict(
-    CD0=0.12,
-    CDV=-0.065,
-    CDal=0.32,
-    CL0=-0.092,
-    CLV=0.15,
-    CLal=4.3,
-    Cm0=0.11,
-    CmV=0.004,
-    Cmal=-0.97,
-    Cmq=-35.0,
-    Cmde=-1.5,
-)
 NOISE = np.array([0.1, 0.001, 0.0005, 0.0005, 0.002, 0.01, 0.05])
-
-
-def coefficients(x, u, p, c):
-    V, alpha, theta, q = x
-    de, Fe = u
-    CD = p.CD0 + p.CDV * V / c.v0 + p.CDal * alpha
-    CL = p.CL0 + p.CLV * V / c.v0 + p.CLal * alpha
-    Cm = p.Cm0 + p.CmV * V / c.v0 + p.Cmal * alpha + p.Cmq * q / c.v0 + p.Cmde * de
-    return CD, CL, Cm
-
-
-def f(x, u, p, c):
-    V, alpha, theta, q = x
-    de, Fe = u
-    CD, CL, Cm = coefficients(x, u, p, c)
-    qbar = 0.5 * c.rho * V**2
-    Vdot = -c.Sbym * qbar * CD + Fe * np.cos(alpha + c.sigmat) / c.rm + c.g0 * np.sin(alpha - theta)
-    alphadot = (
-        -c.Sbym * qbar * CL / V + q - Fe * np.sin(alpha + c.sigmat) / (c.rm * V) + c.g0 * np.cos(alpha - theta) / V
-    )
-    return Vdot, alphadot, q, c.Scbyiy * qbar * Cm + c.Feiylt * Fe
-
-
-def g(x, u, p, c):
-    V, alpha, theta, q = x
-    de, Fe = u
-    CD, CL, Cm = coefficients(x, u, p, c)
-    qbar = 0.5 * c.rho * V**2
-    Cx = CL * np.sin(alpha) - CD * np.cos(alpha)
-    Cz = -CL * np.cos(alpha) - CD * np.sin(alpha)
-    return (
-        V,
-        alpha,
-        theta,
-        q,
-        c.Scbyiy * qbar * Cm + c.Feiylt * Fe,
-        qbar * c.Sbym * Cx + Fe * np.cos(c.sigmat) / c.rm,
-        qbar * c.Sbym * Cz - Fe * np.sin(c.sigmat) / c.rm,
-    )
 
 
 def f_items(x, u, p, c):
@@ -107,16 +58,7 @@ def f_items(x, u, p, c):
 
 
 def model(values, f=f):
-    return Model(
-        states=["V", "alpha", "theta", "q"],
-        inputs=["de", "Fe"],
-        outputs=["V", "alpha", "theta", "q", "qdot", "ax", "az"],
-        parameters=[Parameter(k, v) for k, v in values.items()],
-        constants=CONSTANTS,
-        f=f,
-        g=g,
-        name="hfb320-tc04",
-    )
+    return hfb320_model(values, f=f)
 
 
 def _inputs() -> tuple[np.ndarray, np.ndarray]:
