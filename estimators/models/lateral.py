@@ -31,6 +31,7 @@ from numba.extending import register_jitable
 from estimators.errors import ModelDefinitionError
 from estimators.model import Model, Parameter
 from estimators.models._build import make_parameters, require_constants
+from estimators.models.aero import lateral_coefficients, roll_yaw_accelerations
 
 DEFAULTS = {
     "CY0": 0.0,
@@ -83,9 +84,7 @@ def _moments(beta, pr, rr, da, dr, p, c):
     qbar = 0.5 * c.rho * c.V * c.V
     ph = pr * c.b / (2.0 * c.V)
     rh = rr * c.b / (2.0 * c.V)
-    CY = p.CY0 + p.CYbeta * beta + p.CYp * ph + p.CYr * rh + p.CYda * da + p.CYdr * dr
-    Cl = p.Cl0 + p.Clbeta * beta + p.Clp * ph + p.Clr * rh + p.Clda * da + p.Cldr * dr
-    Cn = p.Cn0 + p.Cnbeta * beta + p.Cnp * ph + p.Cnr * rh + p.Cnda * da + p.Cndr * dr
+    CY, Cl, Cn = lateral_coefficients(beta, ph, rh, da, dr, p)
     L = qbar * c.S * c.b * Cl
     N = qbar * c.S * c.b * Cn
     det = c.Ixx * c.Izz - c.Ixz * c.Ixz
@@ -154,27 +153,12 @@ def _measured_dynamics(beta, pr, rr, phi, da, dr, V, alpha, theta, qr, p, c, pa,
     qbar = 0.5 * c.rho * V * V
     ph = pa * c.b / (2.0 * V)
     rh = ra * c.b / (2.0 * V)
-    CY = p.CY0 + p.CYbeta * beta + p.CYp * ph + p.CYr * rh + p.CYda * da + p.CYdr * dr
-    Cl = p.Cl0 + p.Clbeta * beta + p.Clp * ph + p.Clr * rh + p.Clda * da + p.Cldr * dr
-    Cn = p.Cn0 + p.Cnbeta * beta + p.Cnp * ph + p.Cnr * rh + p.Cnda * da + p.Cndr * dr
+    CY, Cl, Cn = lateral_coefficients(beta, ph, rh, da, dr, p)
     qS = qbar * c.S
     fy = qS * CY / c.m
     Lm = qS * c.b * Cl
     Nm = qS * c.b * Cn
-    gam = c.Ixx * c.Izz - c.Ixz * c.Ixz
-    # rigid-body moment equations with Ixz coupling and the gyroscopic terms in q
-    pdot = (
-        c.Izz * Lm
-        + c.Ixz * Nm
-        + c.Ixz * (c.Ixx - c.Iyy + c.Izz) * pr * qr
-        - (c.Izz * (c.Izz - c.Iyy) + c.Ixz * c.Ixz) * qr * rr
-    ) / gam
-    rdot = (
-        c.Ixz * Lm
-        + c.Ixx * Nm
-        + (c.Ixx * (c.Ixx - c.Iyy) + c.Ixz * c.Ixz) * pr * qr
-        - c.Ixz * (c.Ixx - c.Iyy + c.Izz) * qr * rr
-    ) / gam
+    pdot, rdot = roll_yaw_accelerations(Lm, Nm, pr, qr, rr, c)
     # vdot = p w - r u + g cos(theta) sin(phi) + fy with v = V sin(beta), u = V cos(alpha)
     # cos(beta), w = V sin(alpha) cos(beta); the term in Vdot sin(beta) is left out
     betadot = pr * np.sin(alpha) - rr * np.cos(alpha) + (c.g * np.cos(theta) * np.sin(phi) + fy) / (V * np.cos(beta))

@@ -32,6 +32,7 @@ from numba.extending import register_jitable
 from estimators.errors import ModelDefinitionError
 from estimators.model import Model
 from estimators.models._build import make_parameters, require_constants
+from estimators.models.aero import longitudinal_coefficients
 
 LONGITUDINAL_DEFAULTS: dict[str, float] = {
     "CD0": 0.03,
@@ -60,9 +61,7 @@ def _loads(V, alpha, q, de, thrust, p, c, adot, rho):
     qbar = 0.5 * rho * V * V
     qhat = q * c.cbar / (2.0 * V)
     ahat = adot * c.cbar / (2.0 * V)
-    CL = p.CL0 + p.CLalpha * alpha + p.CLq * qhat + p.CLde * de + p.CLalphadot * ahat
-    CD = p.CD0 + p.CDalpha * alpha + p.CDalpha2 * alpha * alpha + p.CDde * de
-    Cm = p.Cm0 + p.Cmalpha * alpha + p.Cmq * qhat + p.Cmde * de + p.Cmalphadot * ahat
+    CL, CD, Cm = longitudinal_coefficients(alpha, qhat, de, ahat, p)
     L = qbar * c.S * CL
     D = qbar * c.S * CD
     M = qbar * c.S * c.cbar * Cm + c.zT * thrust

@@ -45,6 +45,7 @@ from numba.extending import register_jitable
 
 from estimators.model import Model
 from estimators.models._build import make_parameters, require_constants
+from estimators.models.aero import lateral_coefficients, longitudinal_coefficients, roll_yaw_accelerations
 from estimators.models.lateral import DEFAULT_FREE as LAT_FREE
 from estimators.models.lateral import DEFAULTS as LATERAL_DEFAULTS
 from estimators.models.lateral import TRIM_TERMS
@@ -77,12 +78,8 @@ def _dynamics(u, v, w, pr, qr, rr, phi, theta, de, da, dr, thrust, p, c):
     ph = pr * c.b / (2.0 * V)
     qh = qr * c.cbar / (2.0 * V)
     rh = rr * c.b / (2.0 * V)
-    CL = p.CL0 + p.CLalpha * a + p.CLq * qh + p.CLde * de
-    CD = p.CD0 + p.CDalpha * a + p.CDalpha2 * a * a + p.CDde * de
-    CY = p.CY0 + p.CYbeta * b + p.CYp * ph + p.CYr * rh + p.CYda * da + p.CYdr * dr
-    Cl = p.Cl0 + p.Clbeta * b + p.Clp * ph + p.Clr * rh + p.Clda * da + p.Cldr * dr
-    Cm = p.Cm0 + p.Cmalpha * a + p.Cmq * qh + p.Cmde * de
-    Cn = p.Cn0 + p.Cnbeta * b + p.Cnp * ph + p.Cnr * rh + p.Cnda * da + p.Cndr * dr
+    CL, CD, Cm = longitudinal_coefficients(a, qh, de, 0.0, p)  # the alphadot terms below
+    CY, Cl, Cn = lateral_coefficients(b, ph, rh, da, dr, p)
     qS = qbar * c.S
     ca, sa = np.cos(a), np.sin(a)
     st, ct = np.sin(theta), np.cos(theta)
@@ -107,20 +104,8 @@ def _dynamics(u, v, w, pr, qr, rr, phi, theta, de, da, dr, thrust, p, c):
     udot = rr * v - qr * w - c.g * st + fx
     vdot = pr * w - rr * u + c.g * ct * sp + fy
     wdot = qr * u - pr * v + c.g * ct * cp + fz
-    gam = c.Ixx * c.Izz - c.Ixz * c.Ixz
-    pdot = (
-        c.Izz * Lm
-        + c.Ixz * Nm
-        + c.Ixz * (c.Ixx - c.Iyy + c.Izz) * pr * qr
-        - (c.Izz * (c.Izz - c.Iyy) + c.Ixz * c.Ixz) * qr * rr
-    ) / gam
+    pdot, rdot = roll_yaw_accelerations(Lm, Nm, pr, qr, rr, c)
     qdot = (Mm - (c.Ixx - c.Izz) * pr * rr - c.Ixz * (pr * pr - rr * rr)) / c.Iyy
-    rdot = (
-        c.Ixz * Lm
-        + c.Ixx * Nm
-        + (c.Ixx * (c.Ixx - c.Iyy) + c.Ixz * c.Ixz) * pr * qr
-        - c.Ixz * (c.Ixx - c.Iyy + c.Izz) * qr * rr
-    ) / gam
     return udot, vdot, wdot, pdot, qdot, rdot, fx, fy, fz
 
 
