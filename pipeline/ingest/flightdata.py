@@ -373,6 +373,12 @@ class FlightData:
         segs.sort(key=lambda s: s.t0)
         return segs
 
+    def moved_inputs(self, a: float, b: float) -> list[str]:
+        """The control inputs moved within a..b [s] by more than MOVED_RAD (std), the most
+        moved first: the axes of a window given by time or by name."""
+        std = {c: _window_std(self[c], a, b) for c in CONTROL_INPUTS if c in self}
+        return sorted((c for c, v in std.items() if v > MOVED_RAD), key=lambda c: -std[c])
+
     def chosen_segments(
         self, items: Sequence[str | tuple[float, float]], *, per_axis: bool = True
     ) -> list[SegmentSpec]:
@@ -413,7 +419,7 @@ class FlightData:
                     "give times in seconds from the log's start"
                 )
             axes = list(dict.fromkeys(g.axis for g in auto if g.axis and g.t0 < b and g.t1 > a))
-            axes = axes or [c for c in CONTROL_INPUTS if c in self and _window_std(self[c], a, b) > np.radians(0.2)]
+            axes = axes or self.moved_inputs(a, b)
             name = f"time_{a:g}-{b:g}s"
             out += [SegmentSpec(name, a, b, "time", axis=x) for x in (axes if per_axis else [None])] or [
                 SegmentSpec(name, a, b, "time")
@@ -448,6 +454,10 @@ class FlightData:
         for k, c in self.channels.items():
             lines.append(f"  {k:9s} {len(c):8d} samples {c.rate_hz:8.2f} Hz  [{c.unit}]  <- {c.source}")
         return "\n".join(lines)
+
+
+#: a control input moved by more than this std [rad] in a given window moves its axis
+MOVED_RAD = np.radians(0.2)
 
 
 def _window_std(ch: Channel, a: float, b: float) -> float:

@@ -19,7 +19,9 @@ MAX_AUTO_SEGMENT_S = 60.0
 class SegmentSpec:
     """A time span of the flight: ``t0 <= t <= t1`` [s from the log's start].
 
-    kind : "time" (user range), "mode" (one flight mode), "auto" (control activity)
+    kind : "time" (given: a user's range or an archive's named window), "mode" (one flight
+        mode), "auto" (control activity)
+    axis : the control input whose maneuver it is (None: none)
     """
 
     name: str

@@ -65,6 +65,9 @@ def check_log(
         by_axis = replace(fd, segments=fd.chosen_segments(segments))
         fd.segments = fd.chosen_segments(segments, per_axis=False)
     print(f"read {log} ({fd.meta['format']}, map {fd.meta['map']}): {len(fd.channels)} channels")
+    named = {w["name"] for w in (fd.meta.get("info") or {}).get("windows") or ()}
+    for sg in (g for g in fd.segments if g.name in named):
+        print(f"  window {sg.name}: {sg.t0:.2f}-{sg.t1:.2f} s, {sg.axis or 'no control input moved'}")
     ac = aircraft_for_log(log, aircraft, fd, required=False, say=lambda _: None)[0]
     fd.meta["stall_speed_mps"] = by_axis.meta["stall_speed_mps"] = getattr(ac, "stall_speed", None)
     findings = run_checks(fd)

@@ -5,6 +5,8 @@ help, and no reference to a design document users do not have."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -154,3 +156,20 @@ def test_the_verdict_legend_does_not_read_as_a_verdict():
     assert any(line.startswith("| oem") and "PASS" in line for line in rows)
     assert not any(line.startswith("Verdict FAIL") for line in rows)
     assert rows[-2].startswith("*What the verdicts mean.*")
+
+
+SPORTCUB = Path(__file__).resolve().parents[3] / "shared" / "data" / "sportcub"
+
+
+@pytest.mark.skipif(not (SPORTCUB / "sportcub_mocap_4_17_26_train.npz").is_file(), reason="shared data absent")
+def test_an_archives_named_windows_are_maneuvers_with_their_times(tmp_path, capsys):
+    """The Sport Cub archive's windows (elev_3211_*, aileron3211_*, rudder_3211_*): each a
+    maneuver of the axis its surface moves, printed with its times; the elevator ones make
+    the longitudinal axis identifiable."""
+    log = SPORTCUB / "sportcub_mocap_4_17_26_train.npz"
+    assert main(["check", str(log), "--no-compat", "--out", str(tmp_path / "out")]) in (0, 1)
+    out = capsys.readouterr().out
+    assert "  window elev_3211_1__elev_001: 0.00-2.49 s, de" in out
+    assert "  window aileron3211__ail_001:" in out and "s, da" in out
+    assert "longitudinal: identifiable (3 of 3 elevator maneuvers usable)" in out
+    assert "carry no control axis" not in out

@@ -57,6 +57,8 @@ def test_windows_become_segments_kept_apart(tmp_path):
     assert detect_format(f) == "npz"
     fd = read_log(f, servo_travel=TRAVEL, pose=False)
     assert [s.name for s in fd.segments] == ["first", "second"]
+    # named windows are given windows: their axis the input moved (the aileron step)
+    assert [(s.kind, s.axis) for s in fd.segments] == [("time", "da"), ("time", "da")]
     a, b = fd.segments
     assert a.t0 == 0.0 and a.t1 == pytest.approx(0.29)
     assert b.t0 == pytest.approx(0.29 + WINDOW_GAP_S) and b.duration == pytest.approx(0.19)

@@ -186,6 +186,13 @@ def _has_records(raw: RawLog, path, fmt: str) -> None:
         )
 
 
+def _named_window(fd: FlightData, name: str, t0: float, t1: float) -> SegmentSpec:
+    """An archive's named window as a segment given by time, its axis the control input
+    moved most in it (None where none moves): the fits take it as the user's range."""
+    moved = fd.moved_inputs(t0, t1)
+    return SegmentSpec(name, t0, t1, "time", axis=moved[0] if moved else None)
+
+
 def _timed(chans: dict) -> tuple[dict, dict[str, int]]:
     """The channels without their samples whose time is NaN or infinite (a damaged or
     blank time field: no place on any time line), and channel -> how many were dropped."""
@@ -292,7 +299,7 @@ def read_log(path: str | os.PathLike, map=None, **opts):
     if isinstance(segments, (list, tuple)):
         fd.segments = fd.chosen_segments(segments, per_axis=False)
     elif segments is None and raw.info.get("windows"):  # an archive's windows are its segments
-        fd.segments.extend(SegmentSpec(w["name"], w["t0"], w["t1"]) for w in raw.info["windows"])
+        fd.segments.extend(_named_window(fd, w["name"], w["t0"], w["t1"]) for w in raw.info["windows"])
     elif segments in (None, "mode", "auto"):
         if segments in (None, "mode") and fd.modes:
             fd.segments.extend(fd.mode_segments())
