@@ -173,3 +173,49 @@ def test_an_archives_named_windows_are_maneuvers_with_their_times(tmp_path, caps
     assert "  window aileron3211__ail_001:" in out and "s, da" in out
     assert "longitudinal: identifiable (3 of 3 elevator maneuvers usable)" in out
     assert "carry no control axis" not in out
+
+
+JOY = """std_msgs/Header header
+float32[] axes
+int32[] buttons
+================================================================================
+MSG: std_msgs/Header
+builtin_interfaces/Time stamp
+string frame_id
+================================================================================
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+"""
+
+
+def test_the_documented_joystick_map_reads_a_ros2_joy_topic(tmp_path):
+    """docs/channel-maps.md's joystick map, as written there, on a ROS 2 MCAP with a
+    sensor_msgs/Joy topic: the sticks become de, da, dr (times the aircraft's travel, the
+    documented signs) and throttle."""
+    import re
+
+    from mcap_ros2.writer import Writer
+
+    doc = open("docs/channel-maps.md").read()
+    block = doc.split("## ROS 2: the pilot's stick")[1]
+    (toml,) = re.findall(r"```toml\n(.*?)```", block.split("## ")[0], re.S)
+    (tmp_path / "joystick.toml").write_text(toml)
+    path = tmp_path / "joy.mcap"
+    with open(path, "wb") as fh:
+        w = Writer(fh)
+        s = w.register_msgdef("sensor_msgs/msg/Joy", JOY)
+        for i in range(50):
+            ns = i * 20_000_000
+            stamp = {"sec": ns // 10**9, "nanosec": ns % 10**9}
+            axes = [0.5, 0.5, 1.0 if i >= 25 else -1.0, -0.25]  # rudder, pitch back, throttle, roll left
+            w.write_message(
+                "/joy", s, {"header": {"stamp": stamp, "frame_id": ""}, "axes": axes, "buttons": []}, ns, ns
+            )
+        w.finish()
+    travel = {"de": (20.0, "test"), "da": (18.0, "test"), "dr": (25.0, "test")}
+    fd = read_log(path, map=tmp_path / "joystick.toml", servo_travel=travel, segments=[])
+    np.testing.assert_allclose(fd["de"].values, -np.radians(10.0), rtol=1e-6)  # 0.5 x 20 deg, pulled back: up
+    np.testing.assert_allclose(fd["da"].values, -np.radians(4.5), rtol=1e-6)
+    np.testing.assert_allclose(fd["dr"].values, -np.radians(12.5), rtol=1e-6)
+    assert fd["throttle"].values[0] == pytest.approx(0.0) and fd["throttle"].values[-1] == pytest.approx(1.0)
