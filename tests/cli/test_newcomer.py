@@ -219,3 +219,16 @@ def test_the_documented_joystick_map_reads_a_ros2_joy_topic(tmp_path):
     np.testing.assert_allclose(fd["da"].values, -np.radians(4.5), rtol=1e-6)
     np.testing.assert_allclose(fd["dr"].values, -np.radians(12.5), rtol=1e-6)
     assert fd["throttle"].values[0] == pytest.approx(0.0) and fd["throttle"].values[-1] == pytest.approx(1.0)
+
+
+def test_no_control_surface_shares_a_colour_with_a_method():
+    from matplotlib.colors import to_rgb
+
+    from pipeline.methods.catalogue import METHODS
+    from pipeline.outputs.figures.style import MEASURED, method_color
+    from pipeline.outputs.figures.time_histories import CONTROL_COLOR, CONTROL_STYLES
+
+    taken = {to_rgb(method_color(m, METHODS)) for m in METHODS} | {to_rgb(MEASURED)}
+    near = [c for c in taken if max(abs(a - b) for a, b in zip(c, to_rgb(CONTROL_COLOR))) < 0.08]
+    assert not near, near
+    assert len({dash for dash, _ in CONTROL_STYLES.values()}) == len(CONTROL_STYLES)

@@ -33,8 +33,10 @@ from pipeline.outputs.recording_layout import segment_names
 
 #: inputs shown under the outputs: the control surfaces (deg)
 CONTROLS = ("de", "da", "dr")
-#: colour and legend name of each control surface
-_CONTROL_STYLES = {"de": ("#6a3d9a", "de elevator"), "da": ("#33a02c", "da aileron"), "dr": ("#b15928", "dr rudder")}
+#: line style and legend name of each control surface: grey, told apart by the dash, so
+#: that no surface shares a colour with a method's model line
+CONTROL_COLOR = "#555555"
+CONTROL_STYLES = {"de": ("-", "de elevator"), "da": ("--", "da aileron"), "dr": ("-.", "dr rudder")}
 
 
 def time_history_figures(folder: Path, key: str, r: EstimationResult, fit: Mapping[str, Any]) -> list[FigureRef]:
@@ -95,10 +97,14 @@ def _draw_outputs(fig: Figure, key: str, r: EstimationResult, idx: list[int], na
         if controls and k < len(r.segments):
             seg = r.segments[k]
             for i in controls:
-                col, name = _CONTROL_STYLES[i]
+                dash, name = CONTROL_STYLES[i]
                 u = seg.u[:, list(r.model.inputs).index(i)]
                 ax[-1].plot(
-                    *series(strip.x(c, seg.t), u, 180.0 / np.pi), color=col, lw=1.0, label=name if c == 0 else None
+                    *series(strip.x(c, seg.t), u, 180.0 / np.pi),
+                    color=CONTROL_COLOR,
+                    ls=dash,
+                    lw=1.0,
+                    label=name if c == 0 else None,
                 )
     for j, o in enumerate(r.outputs):
         ax[j].set_ylabel(scale_label(o)[1])
