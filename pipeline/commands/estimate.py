@@ -17,8 +17,8 @@ from pipeline.commands.arguments import (
     validation_options,
 )
 from pipeline.jobs.options import EstimateOptions
-from pipeline.methods.catalogue import METHOD_LIST, METHODS
 from pipeline.paths import new_run_dir
+from pipeline.registry import METHOD_LIST, METHODS
 
 HELP = "identify derivatives from a log with a built-in model (and an aircraft description) or your own model"
 

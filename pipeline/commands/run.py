@@ -12,8 +12,8 @@ from pipeline.commands.arguments import (
     validation_options,
 )
 from pipeline.jobs.options import RunOptions
-from pipeline.methods.catalogue import METHOD_LIST, METHODS
 from pipeline.paths import new_run_dir
+from pipeline.registry import METHOD_LIST, METHODS
 
 HELP = "simulate a scenario, write its logs, ingest them, identify, validate, report"
 

@@ -34,10 +34,10 @@ from pipeline.jobs.progress import Progress
 from pipeline.jobs.stages import compatibility_after_flow_angles, flow_angle_stage, with_flow_angles
 from pipeline.jobs.validation_flights import validation_flights, validation_prefix
 from pipeline.jobs.write import write_outputs
-from pipeline.methods.catalogue import check_methods
 from pipeline.outputs.recording_flight import FlightRecord
 from pipeline.problems import MAX_RATE_HZ
 from pipeline.problems.user_model import check_channels, is_user_model, load_user_model, split_spec
+from pipeline.registry import check_methods
 from pipeline.uncertainty.consider import wind_summary
 
 

@@ -15,9 +15,9 @@ from pipeline.ingest.flightdata import FlightData
 from pipeline.jobs.options import FitOptions
 from pipeline.jobs.progress import Progress, counted, quiet_progress
 from pipeline.methods.alphadot import ALPHADOT_PAIRS, free_alphadot, inseparable_alphadot, unidentifiable_alphadot
-from pipeline.methods.catalogue import Method, method_spec
 from pipeline.methods.fitting import fit_problem
 from pipeline.problems import Problem, sixdof_lateral_problem
+from pipeline.registry import Method, method_spec
 from pipeline.validation import validate
 
 

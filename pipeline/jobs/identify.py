@@ -25,7 +25,6 @@ from pipeline.jobs.validation_flights import (
     validation_prefix,
     with_validation_flight,
 )
-from pipeline.methods.catalogue import SPECS, check_methods, result_key
 from pipeline.methods.fitting import filters_process_noise
 from pipeline.methods.noise import attach_logged_noise
 from pipeline.problems import (
@@ -40,6 +39,7 @@ from pipeline.problems import (
     with_airspeed_offsets,
 )
 from pipeline.problems.user_model import user_model_problem
+from pipeline.registry import SPECS, check_methods, result_key
 
 #: axis -> (control inputs that excite it, its problem builder, its outputs)
 BUILDERS = {

@@ -28,10 +28,10 @@ from pipeline.jobs.options import EstimateOptions, RunOptions
 from pipeline.jobs.progress import Progress
 from pipeline.jobs.simulate import flight_stages, resolve_scenario, simulate
 from pipeline.jobs.write import write_outputs
-from pipeline.methods.catalogue import check_methods, scenario_methods
 from pipeline.outputs.recording_flight import FlightRecord, planned_maneuvers
 from pipeline.paths import run_id
 from pipeline.problems import MAX_RATE_HZ
+from pipeline.registry import check_methods, scenario_methods
 
 
 def run_scenario(
@@ -40,7 +40,7 @@ def run_scenario(
     """``fsid run``: everything of DESIGN.md section 5 into ``out``; returns name -> path of
     the report and the recording. ``options`` (default RunOptions()), or its fields as
     keywords (``settings`` replace those of ``options``): ``methods`` default: the ones that
-    suit the flight plan (:func:`pipeline.methods.catalogue.scenario_methods`). ``compat``:
+    suit the flight plan (:func:`pipeline.registry.scenario_methods`). ``compat``:
     run the sensor-compatibility stage and estimate from its corrected data (its document
     goes to checks.json under ``flight.mcap.compatibility`` and to the report). ``bands``:
     proof-of-match bands over the scenario's ``[validation]``. The scenario's validation

@@ -1,5 +1,5 @@
-"""The estimation methods of the pipeline: which there are and what each needs
-(:mod:`.catalogue`, light: the command line reads it), how each fits a problem
+"""The estimation methods of the pipeline: which there are and what each needs is the
+registry (:mod:`pipeline.registry`, light: the command line reads it); here how each fits a problem
 (:mod:`.fitting`), the noise levels they start from (:mod:`.noise`), equation error on the
 built-in models' regressions (:mod:`.equation_error`) and when a fit holds the
 angle-of-attack-rate derivatives (:mod:`.alphadot`).

@@ -1,5 +1,5 @@
-"""How each method of :mod:`pipeline.methods.catalogue` fits a problem (:data:`FITTERS`,
-:func:`fit_problem`), and the process noise the Kalman filters take from a filter-error fit
+"""How each method of :mod:`pipeline.registry` fits a problem (the functions its
+entries name as ``fitter``, :func:`fit_problem`), and the process noise the Kalman filters take from a filter-error fit
 when no turbulence level is known (:func:`filters_process_noise`)."""
 
 from __future__ import annotations
@@ -23,7 +23,6 @@ from estimators import (
 )
 from estimators.filters.fem_problem import dependent_outputs
 from pipeline.ingest.flightdata import FlightData
-from pipeline.methods.catalogue import METHODS, method_spec
 from pipeline.methods.equation_error import equation_error, raw_starts
 from pipeline.methods.noise import (
     GUST_NOISE_PARAMETERS,
@@ -35,6 +34,7 @@ from pipeline.methods.noise import (
     process_noise_std,
 )
 from pipeline.problems import Problem
+from pipeline.registry import method_spec
 
 #: Gauss-Newton iterations of a filter-error refit from an earlier estimate (a consider
 #: part's): it moves the estimate by a fraction of its std, a few iterations from a
@@ -76,7 +76,7 @@ def fit_problem(
     if spec.unclamped_starts and problem.regressions:
         model = model.with_values(raw_starts(problem))
     settings = FitSettings(turbulence, process_noise, measurement_noise, callback, start)
-    return FITTERS[spec.name](problem, model, settings)
+    return spec.fit_function()(problem, model, settings)
 
 
 def _output_error(problem: Problem, model: Any, s: FitSettings) -> Any:
@@ -226,18 +226,9 @@ def _states_at_cg(model: Any):
     return pseudo
 
 
-#: method name -> its fit (problem, model with the method's start values, settings)
-FITTERS: dict[str, Callable[[Problem, Any, FitSettings], Any]] = {
-    "oem": _output_error,
-    "ls": _equation_error,
-    "fem": _filter_error,
-    "ekf": _kalman_filter(EKF),
-    "ukf": _kalman_filter(UKF),
-    "soem": _stabilized_output_error,
-    "eigen": _eigenvalue_transformation,
-    "decouple": _equation_decoupling,
-}
-assert tuple(FITTERS) == METHODS, "every method of the catalogue has its fit"
+#: the Kalman filters' fits (catalogue: fitter "pipeline.methods.fitting:_ekf", "..._ukf")
+_ekf = _kalman_filter(EKF)
+_ukf = _kalman_filter(UKF)
 
 
 def filters_process_noise(

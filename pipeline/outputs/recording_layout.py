@@ -12,24 +12,13 @@ import numpy as np
 import pandas as pd
 
 from estimators import EstimationResult
+from pipeline.registry import method_colour
 from pipeline.validation import display_unit
 
 #: gap in s between segments laid end to end on the ``t`` timeline
 SEGMENT_GAP = 1.0
-#: colours of the methods and of measured/truth lines (RGB)
-COLORS = {
-    "measured": (40, 40, 40),
-    "truth": (200, 160, 0),
-    "data": (40, 40, 40),
-    "oem": (31, 119, 180),
-    "fem": (255, 127, 14),
-    "ekf": (44, 160, 44),
-    "ukf": (214, 39, 40),
-    "ls": (148, 103, 189),
-    "eq": (148, 103, 189),
-}
-#: colours of the other methods, in turn
-_PALETTE = [(140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
+#: colours of the measured, truth and data lines (RGB); the methods' are the catalogue's
+COLORS = {"measured": (40, 40, 40), "truth": (200, 160, 0), "data": (40, 40, 40)}
 
 
 def entity_part(name: str) -> str:
@@ -38,11 +27,9 @@ def entity_part(name: str) -> str:
 
 
 def method_color(key: str, order: Sequence[str]) -> tuple[int, int, int]:
-    """The colour of a method (or measured/truth/data line): its own in COLORS, else the
-    palette's by its place in ``order``."""
-    if key in COLORS:
-        return COLORS[key]
-    return _PALETTE[list(order).index(key) % len(_PALETTE)] if key in order else _PALETTE[0]
+    """The colour of a measured/truth/data line (COLORS) or of a method or result key
+    (:func:`pipeline.registry.method_colour`)."""
+    return COLORS[key] if key in COLORS else method_colour(key, order)
 
 
 def si_unit(channel: str) -> str:

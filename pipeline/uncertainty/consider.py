@@ -17,7 +17,7 @@ can see. This module accounts for it as "consider" parameters (Schmidt):
 Each refit corrects the logged data with c_j moved by one std and repeats the run's fits
 exactly (same problems, same methods) through a refit callable the job passes in;
 maximum-likelihood and least-squares methods start from the run's estimates
-(``Method.start_free`` of :mod:`pipeline.methods.catalogue`), the EKF/UKF from their usual
+(``Method.start_free`` of :mod:`pipeline.registry`), the EKF/UKF from their usual
 start. Output error instead takes one Gauss-Newton step from its estimates with the run's
 sensitivities (:meth:`estimators.OutputError.step_from`): the first-order change J needs.
 A method whose refit fails or changes its parameter list keeps its CRB alone, and the

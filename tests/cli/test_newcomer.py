@@ -224,9 +224,9 @@ def test_the_documented_joystick_map_reads_a_ros2_joy_topic(tmp_path):
 def test_no_control_surface_shares_a_colour_with_a_method():
     from matplotlib.colors import to_rgb
 
-    from pipeline.methods.catalogue import METHODS
     from pipeline.outputs.figures.style import MEASURED, method_color
     from pipeline.outputs.figures.time_histories import CONTROL_COLOR, CONTROL_STYLES
+    from pipeline.registry import METHODS
 
     taken = {to_rgb(method_color(m, METHODS)) for m in METHODS} | {to_rgb(MEASURED)}
     near = [c for c in taken if max(abs(a - b) for a, b in zip(c, to_rgb(CONTROL_COLOR))) < 0.08]

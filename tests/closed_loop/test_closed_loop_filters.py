@@ -33,7 +33,7 @@ import pytest
 
 from pipeline.cli import build_parser
 from pipeline.jobs.scenario import run_scenario
-from pipeline.methods.catalogue import scenario_methods
+from pipeline.registry import scenario_methods
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
 TURBULENCE_METHODS = ("fem", "ekf", "ukf")

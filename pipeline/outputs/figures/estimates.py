@@ -16,6 +16,7 @@ from matplotlib.lines import Line2D
 from estimators import EstimationResult
 from pipeline.outputs.figures.refs import FigureRef, NotDrawn, make
 from pipeline.outputs.figures.style import APRIORI, TRUTH, WIDTH, file_part, method_color, top_legend
+from pipeline.registry import FitKey
 from pipeline.validation import is_segment_parameter
 
 #: half-width of the error bars in std
@@ -125,7 +126,7 @@ def _draw(
             a.axhline(float(truth[n]), color=TRUTH, lw=1.4, ls="--")
         a.set_title(n)
         a.set_xlim(-0.6, len(slots) - 0.4)
-        a.set_xticks(range(len(slots)), [s.rsplit("-", 1)[-1] for s in slots])
+        a.set_xticks(range(len(slots)), [FitKey.parse(s).method for s in slots])
         a.yaxis.get_major_formatter().set_powerlimits((-3, 4))
         a.locator_params(axis="y", nbins=4)
     for a in ax[len(names) :]:

@@ -20,8 +20,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from pipeline.outputs.recording_layout import COLORS
 from pipeline.paths import atomic_write_bytes
+from pipeline.registry import method_colour
 from pipeline.validation import display_unit
 
 #: resolution of every PNG (dots per inch); with the sizes below about 1000-1400 px wide
@@ -55,19 +55,13 @@ TRUTH = "#c8a000"
 TOLERANCE = "#bdbdbd"
 APRIORI = "#7f7f7f"
 MISS = "#d62728"
-#: colours of methods not in the recording's table, in turn
-_PALETTE = ["#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"]
 
 
 def method_color(method: str, order: Sequence[str] = ()) -> str:
-    """The colour of an estimation method ("oem", "fem", ...; a result key's last part), the
-    one run.rrd uses; others from a palette by their place in ``order``."""
-    base = method.rsplit("-", 1)[-1]
-    if base in COLORS:
-        r, g, b = COLORS[base]
-        return f"#{r:02x}{g:02x}{b:02x}"
-    k = list(order).index(method) if method in order else 0
-    return _PALETTE[k % len(_PALETTE)]
+    """The colour of an estimation method or result key ("oem", "lateral-fem", ...): the
+    catalogue's, the one run.rrd uses (:func:`pipeline.registry.method_colour`)."""
+    r, g, b = method_colour(method, order)
+    return f"#{r:02x}{g:02x}{b:02x}"
 
 
 def scale_label(channel: str) -> tuple[float, str]:

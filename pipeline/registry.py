@@ -1,14 +1,19 @@
-"""The estimation methods the pipeline runs, one :class:`Method` per name: what it is (help
-text), on which grid and model it is fitted, where its start values and noise levels come
-from, and how a refit of it starts. The fits themselves are :mod:`pipeline.methods.fitting`.
+"""The registry of the estimation methods the pipeline runs, one :class:`Method` per name:
+what it is (help text), on which grid and model it is fitted, where its start values and
+noise levels come from, how a refit of it starts, where its fit is and its colour; and
+:class:`FitKey`, what a fit's key ("lateral-oem") says. Adding a method is one entry here
+and its fit function.
 
-Light on purpose (standard library only): the command line takes its ``--method`` choices
-and help text from here without loading the numerical packages.
+Light on purpose (standard library only) and beside the layers (like errors.py and
+paths.py): the command line takes its ``--method`` choices and help text from here without
+loading the numerical packages, and every layer - jobs, methods, validation, figures,
+recordings - reads methods and keys from this one place.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import importlib
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -47,6 +52,10 @@ class Method:
         longitudinal estimates of this method when there are some, else the linear model
         driven by the measured longitudinal states with per-maneuver airspeed offsets),
         "measured" (driven by the measured longitudinal states) or "linear".
+    fitter: where its fit is, "module:function" ((problem, model, settings) -> result),
+        imported on first use (:meth:`fit_function`): the command line reads this table
+        without loading the numerical packages.
+    colour: its colour in the figures and the recordings (RGB 0-255; None: the palette's).
     """
 
     name: str
@@ -62,7 +71,17 @@ class Method:
     one_step_refit: bool = False
     regressions: str | None = None
     lateral: str = "linear"
+    fitter: str = ""
+    colour: tuple[int, int, int] | None = None
 
+    def fit_function(self) -> Callable[..., Any]:
+        """The function that fits a problem with this method (imported on first use)."""
+        module, _, name = self.fitter.partition(":")
+        return getattr(importlib.import_module(module), name)
+
+
+#: the module holding the methods' fits
+FITS = "pipeline.methods.fitting:"
 
 #: every method, in the order of ``--method``'s choices
 CATALOGUE: tuple[Method, ...] = (
@@ -75,6 +94,8 @@ CATALOGUE: tuple[Method, ...] = (
         refit_carry=("x0_",),
         one_step_refit=True,
         lateral="sixdof",
+        fitter=FITS + "_output_error",
+        colour=(31, 119, 180),
     ),
     Method(
         "ls",
@@ -84,6 +105,8 @@ CATALOGUE: tuple[Method, ...] = (
         unclamped_starts=False,
         regressions="equation error (ls) regresses the built-in models' force and moment coefficients",
         lateral="measured",
+        fitter=FITS + "_equation_error",
+        colour=(148, 103, 189),
     ),
     Method(
         "fem",
@@ -94,6 +117,8 @@ CATALOGUE: tuple[Method, ...] = (
         logged_noise=True,
         own_samples_grid=True,
         refit_carry=("x0_", "F_"),
+        fitter=FITS + "_filter_error",
+        colour=(255, 127, 14),
     ),
     Method(
         "ekf",
@@ -101,20 +126,38 @@ CATALOGUE: tuple[Method, ...] = (
         "ekf/ukf: extended/unscented Kalman filter",
         common_grid=True,
         noise_from="fem",
+        fitter=FITS + "_ekf",
+        colour=(44, 160, 44),
     ),
-    Method("ukf", "unscented Kalman filter with the parameters in the state", None, common_grid=True, noise_from="fem"),
-    Method("soem", "stabilised output error (unstable aircraft)", "soem: stabilised output error", start_free=True),
+    Method(
+        "ukf",
+        "unscented Kalman filter with the parameters in the state",
+        None,
+        common_grid=True,
+        noise_from="fem",
+        fitter=FITS + "_ukf",
+        colour=(214, 39, 40),
+    ),
+    Method(
+        "soem",
+        "stabilised output error (unstable aircraft)",
+        "soem: stabilised output error",
+        start_free=True,
+        fitter=FITS + "_stabilized_output_error",
+    ),
     Method(
         "eigen",
         "output error with eigenvalue transformation (unstable aircraft)",
         "eigen: eigenvalue transformation",
         start_free=True,
+        fitter=FITS + "_eigenvalue_transformation",
     ),
     Method(
         "decouple",
         "output error with equation decoupling (unstable aircraft)",
         "decouple: equation decoupling",
         start_free=True,
+        fitter=FITS + "_equation_decoupling",
     ),
 )
 #: name -> method
@@ -149,10 +192,57 @@ def check_methods(methods: Sequence[str], user_model: bool = False) -> None:
         )
 
 
+@dataclass(frozen=True)
+class FitKey:
+    """Which fit a result is: its ``axis`` ("" when one axis or a user model is fitted)
+    and its ``method`` (a catalogue name, or a variant such as "fem-nl"). As text
+    (:meth:`__str__`, the results' and report.json's key) "lateral-oem" or "oem";
+    :meth:`parse` reads it back - the one place that splits a key."""
+
+    axis: str
+    method: str
+
+    def __str__(self) -> str:
+        return f"{self.axis}-{self.method}" if self.axis else self.method
+
+    @classmethod
+    def parse(cls, key: str) -> FitKey:
+        """The key written by :meth:`__str__`: "axis-method" where the first part is an
+        axis (AXES) or any other group a caller chose ("long-oem") - not a method of the
+        catalogue, whose variants carry a "-" of their own ("fem-nl", "ukf-aug")."""
+        head, sep, rest = str(key).partition("-")
+        if sep and rest and (head in AXES or head not in SPECS):
+            return cls(head, rest)
+        return cls("", str(key))
+
+    @property
+    def base(self) -> str:
+        """The catalogue method it is a variant of ("fem" for "fem-nl")."""
+        return self.method.split("-")[0]
+
+
+#: the axes a built-in fit can be of (the first part of a result key)
+AXES = ("longitudinal", "lateral", "sixdof")
+
+
 def result_key(axis: str, method: str, several_axes: bool) -> str:
     """The key of a fit in the results and the report: the method's name, prefixed with the
-    axis ("lateral-oem") when several axes are fitted."""
-    return f"{axis}-{method}" if several_axes else method
+    axis ("lateral-oem") when several axes are fitted (:class:`FitKey` as text)."""
+    return str(FitKey(axis if several_axes else "", method))
+
+
+#: colours of methods without one of their own, in turn (RGB)
+PALETTE = [(140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
+
+
+def method_colour(key: str, order: Sequence[str] = ()) -> tuple[int, int, int]:
+    """The colour (RGB 0-255) of a method or result key ("lateral-fem" is fem's), the
+    figures' and the recordings' alike: the method's own, else the palette's by the key's
+    place in ``order``."""
+    spec = SPECS.get(FitKey.parse(key).base)
+    if spec is not None and spec.colour is not None:
+        return spec.colour
+    return PALETTE[list(order).index(key) % len(PALETTE)] if key in order else PALETTE[0]
 
 
 def scenario_methods(truth: Mapping[str, Any] | None) -> list[str]:
