@@ -5,7 +5,7 @@ verdicts are redone with the total std."""
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from pipeline.conditioning.input_sampling import summary as step_summary
@@ -28,6 +28,8 @@ class HeldAsExact:
     other delays and lags. steps: the control-input steps logged more slowly than the fits'
     grid (:func:`pipeline.conditioning.input_sampling.time_steps`' list); inputs_data: the
     data before the input dynamics; inputs_refit(data): the fits on data with steps moved.
+    held_fits: key -> :class:`pipeline.jobs.identify.HeldFit` of the fits that held
+    another axis' estimates.
     """
 
     fd_logged: FlightData
@@ -40,12 +42,13 @@ class HeldAsExact:
     steps: Sequence[Any] = ()
     inputs_data: FlightData | None = None
     inputs_refit: Callable[[FlightData], Mapping[str, Any]] | None = None
+    held_fits: Mapping[str, Any] = field(default_factory=dict)
 
 
 def carry_consider_uncertainty(
     held: HeldAsExact, results: dict, validations: dict, truth: Mapping[str, float] | None, progress: Progress
 ) -> dict[str, Any]:
-    """One stage: the other axis' estimates a fit held (``result.extra["held"]``, the 6-DoF
+    """One stage: the other axis' estimates a fit held (``held.held_fits``, the 6-DoF
     lateral output error holding the longitudinal derivatives; the doc goes to the
     validation's ``held_estimates``), the sensor corrections applied before estimation
     (``comp["propagation"]``), the wind of air-data angles rebuilt from the flight path
@@ -55,7 +58,7 @@ def carry_consider_uncertainty(
     then the truth checks and verdicts are redone with the total std. Returns the
     step-timing part's document (empty when no input is slow)."""
     comp, flow, dynamics = held.comp, held.flow, held.dynamics
-    kept = [k for k, r in results.items() if (r.extra or {}).get("held") is not None]
+    kept = [k for k in held.held_fits if k in results]
     rebuilt = (flow or {}).get("status") == "reconstructed" and held.wind_refit is not None
     delayed = bool(
         (dynamics or {}).get("status") == "estimated" and dynamics.get("applied") and held.dynamics_refit is not None
@@ -71,8 +74,7 @@ def carry_consider_uncertainty(
     progress.stage("uncertainty of what the fits held as exact" + (f" ({', '.join(parts)})" if parts else ""))
     for k in kept:
         r = results[k]
-        doc = held_estimates(r, r.extra["held_refit"], progress)
-        r.extra.pop("held_refit", None)
+        doc = held_estimates(r, held.held_fits[k].result, held.held_fits[k].refit, progress)
         if k in validations:
             validations[k]["held_estimates"] = doc
     if comp.get("applied"):

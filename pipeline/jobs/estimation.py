@@ -14,7 +14,7 @@ from pipeline.conditioning.input_dynamics import with_input_dynamics
 from pipeline.ingest.constants import AircraftConstants
 from pipeline.ingest.flightdata import FlightData
 from pipeline.jobs.consider_stage import HeldAsExact, carry_consider_uncertainty
-from pipeline.jobs.identify import identify
+from pipeline.jobs.identify import Identified, identify
 from pipeline.jobs.options import AXES, FitOptions
 from pipeline.jobs.progress import Progress, quiet_progress
 from pipeline.jobs.stages import (
@@ -47,7 +47,7 @@ class FitJob:
         starts: Mapping[str, Any] | None = None,
         validation: Sequence[FlightData] = (),
         fit_all: bool | None = None,
-    ) -> tuple[dict, dict, list]:
+    ) -> Identified:
         """:func:`pipeline.jobs.identify.identify` of this job on ``fd`` (``methods``: some
         of the job's)."""
         return identify(
@@ -103,7 +103,7 @@ def fit_stages(
 
     def fits(d: FlightData, starts: Mapping[str, Any], only: Sequence[str] | None = None) -> dict:
         """The fits (of ``only`` methods, default all) repeated on ``d`` from ``starts``."""
-        return job.fits(d, quiet_progress(), methods=only, starts=starts, fit_all=fit_all)[0]
+        return job.fits(d, quiet_progress(), methods=only, starts=starts, fit_all=fit_all).results
 
     fd, dyn_doc = refine_input_dynamics_stage(
         fd_before,
@@ -115,7 +115,8 @@ def fit_stages(
     )
     applied = dict(dyn_doc["applied"])
     vals = [with_input_dynamics(with_instrument_errors_removed(fv, data.comp, meta), applied) for fv in validation]
-    results, validations, problems = job.fits(fd, pr, validation=vals)
+    done = job.fits(fd, pr, validation=vals)
+    results, validations, problems = done.results, done.validations, done.problems
     starts = dict(results)
 
     def refit(fd_j: FlightData, st: Mapping[str, Any], wind_offset: Sequence[float] = (0.0, 0.0, 0.0)) -> dict:
@@ -137,6 +138,7 @@ def fit_stages(
         steps=data.steps,
         inputs_data=fd_before,
         inputs_refit=lambda d: fits(with_input_dynamics(d, dyn_doc["applied"]), starts),
+        held_fits=done.held,
     )
     sampling = carry_consider_uncertainty(held, results, validations, job.truth, pr)
     return results, validations, problems, dyn_doc, sampling

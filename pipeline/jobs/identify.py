@@ -59,6 +59,28 @@ def planned_axes(surfaces: set[str | None], axes: Sequence[str] = AXES) -> int:
     return sum(1 for name, (moved, _, _) in BUILDERS.items() if name in axes and surfaces & moved)
 
 
+@dataclass(frozen=True)
+class HeldFit:
+    """A fit that held another fit's estimates fixed (the 6-DoF lateral output error
+    holding the longitudinal derivatives): that fit's ``result``, and ``refit(values)``
+    repeating the holding fit with the held values moved (the consider stage)."""
+
+    result: Any
+    refit: Callable[[Mapping[str, float]], Any]
+
+
+@dataclass(frozen=True)
+class Identified:
+    """What :func:`identify` produced, by key: ``results`` and their ``validations``, the
+    ``problems`` fitted (one per axis or user model), and ``held``: the fits that hold
+    another axis' estimates (:class:`HeldFit`)."""
+
+    results: dict[str, Any]
+    validations: dict[str, dict]
+    problems: list[Problem]
+    held: dict[str, HeldFit] = field(default_factory=dict)
+
+
 def identify(
     fd: FlightData,
     ac: AircraftConstants | None,
@@ -72,12 +94,12 @@ def identify(
     starts: Mapping[str, Any] | None = None,
     validation: Any = None,
     fit_all: bool | None = None,
-) -> tuple[dict, dict, list[Problem]]:
+) -> Identified:
     """Estimate and validate every axis of ``axes`` the log excites with the built-in
     models, or the user ``model`` (an :class:`estimators.Model`, see
     :mod:`pipeline.problems.user_model`), with each method. Methods with a common grid get
-    the problem on the grid of its slowest output channel. Returns (results, validations,
-    problems); keys are the method names ("<axis>-<method>" once several axes are fitted).
+    the problem on the grid of its slowest output channel. Returns the :class:`Identified`
+    record; keys are the method names ("<axis>-<method>" once several axes are fitted).
     ``options``: how the fits are made and proved (default FitOptions()). ``starts`` (key
     -> parameter values or result): refit only, each fit starting there (see
     :func:`pipeline.jobs.fit.fit_and_validate`), no validation and no progress.
@@ -98,10 +120,10 @@ def identify(
     else:
         targets = _axes(fd, ac, axes, vflights, hold, starts is not None, options, progress)
         failed = "every estimation method failed on this log (see the notes above)"
-    results, validations = _fit_targets(fd, targets, methods, truth, progress, options, starts)
+    results, validations, held = _fit_targets(fd, targets, methods, truth, progress, options, starts)
     if not results:
         raise FsidError(failed)
-    return results, validations, [t.base for t in targets]
+    return Identified(results, validations, [t.base for t in targets], held)
 
 
 def _fit_targets(
@@ -112,9 +134,10 @@ def _fit_targets(
     progress: Progress,
     options: FitOptions,
     starts: Mapping[str, Any] | None,
-) -> tuple[dict, dict]:
-    """Every method on every target, in that order: (results, validations) by key."""
-    results, validations = {}, {}
+) -> tuple[dict, dict, dict[str, HeldFit]]:
+    """Every method on every target, in that order: (results, validations, the fits that
+    hold another axis' estimates) by key."""
+    results, validations, held = {}, {}, {}
     filter_q: dict[str, Any] = {}  # axis -> the fit the EKF/UKF take their noise from
     several = len(targets) > 1
     for target in targets:
@@ -156,9 +179,8 @@ def _fit_targets(
             if starts is None and pb.model.name.startswith("sixdof") and lon is not None:
                 # the longitudinal estimates this fit holds: their uncertainty is carried to
                 # it after the fits (pipeline.jobs.consider_stage)
-                results[key].extra["held"] = lon
-                results[key].extra["held_refit"] = held_refit(fd, target.ac, options, results[key], target.hold_out)
-    return results, validations
+                held[key] = HeldFit(lon, held_refit(fd, target.ac, options, results[key], target.hold_out))
+    return results, validations, held
 
 
 @dataclass

@@ -249,15 +249,14 @@ def wind_summary(doc: Mapping[str, Any]) -> str:
     )
 
 
-def held_estimates(result: Any, refit: Callable[[dict[str, float]], Any], progress: Any = None) -> dict[str, Any]:
+def held_estimates(
+    result: Any, held: Any, refit: Callable[[dict[str, float]], Any], progress: Any = None
+) -> dict[str, Any]:
     """Add to ``consider_cov`` of ``result`` the uncertainty of another fit's estimates it
-    held fixed (``result.extra["held"]``: that fit's result, e.g. the longitudinal output
-    error whose derivatives the 6-DoF lateral fit holds): each held estimate with a
-    Cramér-Rao std is moved by one std and ``refit(values)`` (the held values -> the refit
-    result) repeats the fit. Returns a JSON-ready document (empty when nothing is held)."""
-    held = (result.extra or {}).get("held")
-    if held is None:
-        return {}
+    held fixed (``held``: that fit's result, e.g. the longitudinal output error whose
+    derivatives the 6-DoF lateral fit holds): each held estimate with a Cramér-Rao std is
+    moved by one std and ``refit(values)`` (the held values -> the refit result) repeats
+    the fit. Returns a JSON-ready document."""
     t0 = time.perf_counter()
     names = [n for n in held.free_names if "[" not in n and np.isfinite(held.std[n])]
     idx = [held.free_names.index(n) for n in names]

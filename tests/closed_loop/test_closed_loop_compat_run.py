@@ -58,7 +58,8 @@ def _errors_in_std(mj):
 def _fit_longitudinal(fd, truth):
     ac = AircraftConstants.from_truth(truth)
     tr = {k: float(v) for k, v in truth["derivatives"].items()}
-    res, val, _ = identify(fd, ac, ["oem"], tr, Progress(10, quiet=True), axes=("longitudinal",))
+    done = identify(fd, ac, ["oem"], tr, Progress(10, quiet=True), axes=("longitudinal",))
+    res, val = done.results, done.validations
     r = res["oem"]
     err = {
         n: float((r.params[n] - tr[n]) / r.std[n])
