@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _ros2 import stamped
 
 from pipeline.cli import build_parser, main
 from pipeline.conditioning.checks import run_checks
@@ -175,18 +176,7 @@ def test_an_archives_named_windows_are_maneuvers_with_their_times(tmp_path, caps
     assert "carry no control axis" not in out
 
 
-JOY = """std_msgs/Header header
-float32[] axes
-int32[] buttons
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-"""
+JOY = stamped("float32[] axes\nint32[] buttons")
 
 
 def test_the_documented_joystick_map_reads_a_ros2_joy_topic(tmp_path):

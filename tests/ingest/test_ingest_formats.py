@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _ros2 import stamped
 
 from pipeline.errors import FsidError
 from pipeline.ingest.readers import LogReadError, detect_format, read_log
@@ -122,33 +123,16 @@ def test_mcap_json_header_vs_log_time(tmp_path):
     assert "log_time" in fd2.meta["time_base"]
 
 
-ROS_IMU = """std_msgs/Header header
-geometry_msgs/Quaternion orientation
+ROS_IMU = stamped(
+    """geometry_msgs/Quaternion orientation
 float64[9] orientation_covariance
 geometry_msgs/Vector3 angular_velocity
 float64[9] angular_velocity_covariance
 geometry_msgs/Vector3 linear_acceleration
-float64[9] linear_acceleration_covariance
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-================================================================================
-MSG: geometry_msgs/Quaternion
-float64 x
-float64 y
-float64 z
-float64 w
-================================================================================
-MSG: geometry_msgs/Vector3
-float64 x
-float64 y
-float64 z
-"""
+float64[9] linear_acceleration_covariance""",
+    "MSG: geometry_msgs/Quaternion\nfloat64 x\nfloat64 y\nfloat64 z\nfloat64 w",
+    "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z",
+)
 
 
 def test_mcap_ros2_imu_flu_to_frd(tmp_path):

@@ -14,6 +14,7 @@ import functools
 import numpy as np
 import pandas as pd
 import pytest
+from _ros2 import stamped
 from _simdata import flown
 from scipy.integrate import cumulative_trapezoid
 
@@ -172,45 +173,14 @@ def test_mirrored_gyro_and_accelerometer_axes_are_named():
     assert _kinematic(findings, "coordinated_turn")[0].status == PASS
 
 
-POSE_STAMPED = """std_msgs/Header header
-geometry_msgs/Pose pose
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-================================================================================
-MSG: geometry_msgs/Pose
-geometry_msgs/Point position
-geometry_msgs/Quaternion orientation
-================================================================================
-MSG: geometry_msgs/Point
-float64 x
-float64 y
-float64 z
-================================================================================
-MSG: geometry_msgs/Quaternion
-float64 x 0
-float64 y 0
-float64 z 0
-float64 w 1
-"""
+POSE_STAMPED = stamped(
+    "geometry_msgs/Pose pose",
+    "MSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation",
+    "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z",
+    "MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1",
+)
 
-RC_IN = """std_msgs/Header header
-uint8 rssi
-uint16[] channels
-================================================================================
-MSG: std_msgs/Header
-builtin_interfaces/Time stamp
-string frame_id
-================================================================================
-MSG: builtin_interfaces/Time
-int32 sec
-uint32 nanosec
-"""
+RC_IN = stamped("uint8 rssi\nuint16[] channels")
 
 
 def test_ros2_pose_and_rc_mcap_becomes_flight_states(tmp_path):
