@@ -18,6 +18,15 @@ compile either way (e.g. it uses Python objects numba does not know) or disagree
 numpy path is used and a warning says so. ``FSID_JIT=0`` switches compilation off. numba
 itself is imported on the first compile (:mod:`estimators.compile.numba_jit`). The
 generated modules are kept on disk between runs (:mod:`estimators.compile.cache`).
+
+Why source text (``inspect.getsource`` here, ``exec`` or an import in the cache): numba
+caches a compiled function on disk only when it holds no Python object, and a loop that
+takes the model's ``f`` as an argument holds it as one; a closure over ``f`` is compiled
+anew in every process. Written as a module whose globals are the model's compiled
+functions, the integrator loop calls them directly, and numba's own cache keeps the
+compiled module between runs (keyed by the file :mod:`estimators.compile.cache` names by a
+hash of everything it depends on). :func:`bound_source` takes the package's loops from
+their source, so each loop is written once, in :mod:`estimators.integrators`.
 """
 
 from __future__ import annotations
