@@ -48,7 +48,7 @@ from pipeline.conditioning.flow_angles import NEEDS as FLIGHT_PATH_CHANNELS
 from pipeline.conditioning.flow_angles import reconstruct_flow_angles
 from pipeline.errors import FsidError
 from pipeline.ingest.constants import AircraftConstants
-from pipeline.ingest.flightdata import FlightData, SegmentSpec, merge_overlapping
+from pipeline.ingest.flightdata import ANSWER_RAD_S, MOVED_RAD, FlightData, SegmentSpec, merge_overlapping
 
 #: the channels carrying the fastest rigid-body mode (short period, roll mode: up to about
 #: 2 Hz on light aircraft and small UAVs) need this rate [Hz]: some ten samples a period
@@ -66,7 +66,7 @@ MIN_OUTPUT_SAMPLES = 10
 #: a maneuver lasts about this long [s] (the checks' segment duration)
 MANEUVER_S = 5.0
 #: the body rate must answer the surface by this std [rad/s] at least ...
-MIN_RESPONSE_RAD_S = np.radians(0.5)
+MIN_RESPONSE_RAD_S = ANSWER_RAD_S
 #: ... and this many times its white-noise std
 RESPONSE_NOISE_RATIO = 3.0
 #: the angles the flight path can rebuild
@@ -410,6 +410,16 @@ def _no_maneuvers(fd: FlightData, needs: AxisNeeds) -> str:
             f"{np.degrees(max(moved.values())):.1f} deg), but they carry no control axis: give them as time "
             "ranges (--segments T0:T1,...) and their axes are found from the surfaces moved"
         )
+    idle = [s for s in fd.segments if s.kind == "time" and s.axis is None]
+    if idle:
+        names = ", ".join(f"{s.name} ({s.t0:.1f}-{s.t1:.1f} s)" for s in idle[:3]) + (
+            f" and {len(idle) - 3} more" if len(idle) > 3 else ""
+        )
+        return (
+            f"no {needs.maneuver} maneuvers found: the windows given, {names}, move no control input by "
+            f"{np.degrees(MOVED_RAD):.1f} deg (std) and no body rate by {np.degrees(ANSWER_RAD_S):.1f} deg/s, "
+            "so no axis takes them: give windows where the aircraft is maneuvered"
+        )
     return (
         f"no excitation: {surf} never {'moves' if len(needs.surfaces) == 1 else 'move'} like a maneuver "
         f"(no {needs.maneuver} maneuvers found); fly doublets or 3-2-1-1s on the axis"
@@ -417,33 +427,45 @@ def _no_maneuvers(fd: FlightData, needs: AxisNeeds) -> str:
 
 
 def _excitation_reasons(fd: FlightData, needs: AxisNeeds, good: Sequence[Maneuver]) -> list[str]:
-    """The surface moved enough in some usable maneuver, and a body rate answering it."""
+    """Some usable maneuver excites the axis - its surface moves by MIN_EXCITATION_RAD, or
+    a body rate answers by :func:`_response`'s floor (a pulse and the free motion after it:
+    the surface's std over the window is small, the aircraft's response is not) - and a
+    body rate answers a maneuver whose surface moved."""
     surf = "/".join(needs.surfaces)
-    moved = [m for m in good if m.excitation >= MIN_EXCITATION_RAD]
-    if not moved:
-        return [
-            f"no excitation: {surf} moves by at most {np.degrees(max(m.excitation for m in good)):.2f} deg (std) "
-            f"in its maneuvers in flight; want >= {np.degrees(MIN_EXCITATION_RAD):.0f} deg"
-        ]
     rates = [c for c in needs.rates if c in fd and fd[c].rate_hz >= RESPONSE_HZ]
+    response = {m.name: _response(fd, m, rates) for m in good}
+    moved = [m for m in good if m.excitation >= MIN_EXCITATION_RAD or response[m.name] >= 1.0]
+    if not moved:
+        answer = f" and {', '.join(rates)} {max(response.values()):.1f}x the response floor" if rates else ""
+        return [
+            f"no excitation: {surf} moves by at most {np.degrees(max(m.excitation for m in good)):.2f} deg (std)"
+            f"{answer} in its maneuvers in flight; want >= {np.degrees(MIN_EXCITATION_RAD):.0f} deg, or a body "
+            f"rate of >= {np.degrees(MIN_RESPONSE_RAD_S):.1f} deg/s and {RESPONSE_NOISE_RATIO:g}x its noise"
+        ]
     if not rates:  # absent, or too slow to tell a response from noise: said already
         return []
-    best = 0.0
-    for m in moved:
-        for c in rates:
-            x = _samples(fd, c, m.t0, m.t1)
-            if x.size < 4:
-                continue
-            noise = fd.noise_std(c, [(m.t0, m.t1)])
-            floor = max(MIN_RESPONSE_RAD_S, RESPONSE_NOISE_RATIO * (noise if np.isfinite(noise) else 0.0))
-            best = max(best, float(np.std(x)) / floor)
-    if best >= 1.0:
+    if max(response[m.name] for m in moved) >= 1.0:
         return []
     return [
         f"no response: {', '.join(rates)} hardly move in the {surf} maneuvers (std below "
         f"{np.degrees(MIN_RESPONSE_RAD_S):.1f} deg/s or {RESPONSE_NOISE_RATIO:g}x its noise): the surface "
         "does not act on the aircraft (on the ground, or not connected)"
     ]
+
+
+def _response(fd: FlightData, m: Maneuver, rates: Sequence[str]) -> float:
+    """The largest std of the body rates ``rates`` in maneuver ``m`` over their floor
+    (MIN_RESPONSE_RAD_S, or RESPONSE_NOISE_RATIO times the rate's white noise): >= 1 when
+    the aircraft answers; 0 without rates to tell."""
+    best = 0.0
+    for c in rates:
+        x = _samples(fd, c, m.t0, m.t1)
+        if x.size < 4:
+            continue
+        noise = fd.noise_std(c, [(m.t0, m.t1)])
+        floor = max(MIN_RESPONSE_RAD_S, RESPONSE_NOISE_RATIO * (noise if np.isfinite(noise) else 0.0))
+        best = max(best, float(np.std(x)) / floor)
+    return best
 
 
 def identifiability_json(result: Mapping[str, Identifiability]) -> dict:

@@ -379,6 +379,13 @@ class FlightData:
         std = {c: _window_std(self[c], a, b) for c in CONTROL_INPUTS if c in self}
         return sorted((c for c, v in std.items() if v > MOVED_RAD), key=lambda c: -std[c])
 
+    def answered_inputs(self, a: float, b: float) -> list[str]:
+        """The control inputs whose axis' body rate (AXIS_RATE) moves within a..b [s] by
+        more than ANSWER_RAD_S (std), the most moving first: the axes of a given window
+        whose surfaces hardly move - a pulse and the free motion after it (a phugoid)."""
+        std = {c: _window_std(self[r], a, b) for c, r in AXIS_RATE.items() if c in self and r in self}
+        return sorted((c for c, v in std.items() if v > ANSWER_RAD_S), key=lambda c: -std[c])
+
     def chosen_segments(
         self, items: Sequence[str | tuple[float, float]], *, per_axis: bool = True
     ) -> list[SegmentSpec]:
@@ -386,7 +393,8 @@ class FlightData:
         start] or the name of a segment found in the log (``self.segments``, else its
         flight-mode and automatic ones: ``auto_de_0``, ``mode_2_FBWA``, ...). A range's
         control axes are those of the automatic segments it overlaps (else the inputs
-        moved in it by more than 0.2 deg std); with ``per_axis`` it gives one segment per
+        moved in it by more than 0.2 deg std, else those whose body rate moves by more than
+        0.5 deg/s); with ``per_axis`` it gives one segment per
         axis over the same span (the problem builders pick theirs by axis), else one
         segment. FsidError for an empty or reversed range, one outside the log, or an
         unknown name (the names found are listed)."""
@@ -419,7 +427,7 @@ class FlightData:
                     "give times in seconds from the log's start"
                 )
             axes = list(dict.fromkeys(g.axis for g in auto if g.axis and g.t0 < b and g.t1 > a))
-            axes = axes or self.moved_inputs(a, b)
+            axes = axes or self.moved_inputs(a, b) or self.answered_inputs(a, b)
             name = f"time_{a:g}-{b:g}s"
             out += [SegmentSpec(name, a, b, "time", axis=x) for x in (axes if per_axis else [None])] or [
                 SegmentSpec(name, a, b, "time")
@@ -458,6 +466,11 @@ class FlightData:
 
 #: a control input moved by more than this std [rad] in a given window moves its axis
 MOVED_RAD = np.radians(0.2)
+#: a body rate moving by more than this std [rad/s] answers its axis (a given window's
+#: axis when no surface moves; the response a maneuver must cause)
+ANSWER_RAD_S = np.radians(0.5)
+#: the body rate that answers each control input
+AXIS_RATE = {"de": "q", "da": "p", "dr": "r"}
 
 
 def _window_std(ch: Channel, a: float, b: float) -> float:

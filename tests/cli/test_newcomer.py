@@ -172,7 +172,7 @@ def test_an_archives_named_windows_are_maneuvers_with_their_times(tmp_path, caps
     out = capsys.readouterr().out
     assert "  window elev_3211_1__elev_001: 0.00-2.49 s, de" in out
     assert "  window aileron3211__ail_001:" in out and "s, da" in out
-    assert "longitudinal: identifiable (3 of 3 elevator maneuvers usable)" in out
+    assert "longitudinal: identifiable (4 of 4 elevator maneuvers usable)" in out  # throttle window: q answers
     assert "carry no control axis" not in out
 
 

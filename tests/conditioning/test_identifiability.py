@@ -199,15 +199,23 @@ def test_log_on_the_ground_is_refused_as_on_the_ground(tmp_path, capsys):
 
 def test_pose_only_flight_has_its_states_and_its_windows_named():
     """The Sport Cub motion-capture archive (pose and surface commands only, at 4-5 m/s):
-    the states derived from the pose count as present; its windows carry no control axis,
-    which is said, and given as time ranges the elevator ones make the longitudinal axis."""
+    the states derived from the pose count as present; its named windows are maneuvers of
+    the surface they move, or of the axis whose rate answers (the elevator and throttle
+    ones make the longitudinal axis), and given as time ranges they are the same
+    maneuvers."""
     npz = LOGS.parent / "sportcub" / "sportcub_mocap_4_17_26_train.npz"
     if not npz.is_file():
         pytest.skip(f"{npz} not present (shared real data)")
     fd = read_log(npz)
     res = identifiability(fd, run_checks(fd))
     assert all(not r.missing for r in res.values())
-    assert res["longitudinal"].reasons[0].startswith("no elevator maneuvers found: de moves in the log's windows")
+    lon = res["longitudinal"]
+    assert lon.possible and [m.name for m in lon.maneuvers] == [
+        "elev_3211_1__elev_001",
+        "trim_2__elev_001",
+        "elev_3211_3__elev_001",
+        "throttle_cub1__thr_001",  # no surface moves; the pitch rate answers the throttle
+    ], lon.reasons
     picked = FlightData(fd.channels, fd.meta, fd.chosen_segments([(0.0, 2.49), (6.48, 8.97)]))
     lon = identifiability(picked, run_checks(picked))["longitudinal"]
     assert lon.possible and [m.surfaces for m in lon.maneuvers] == ["de", "de"], lon.reasons
@@ -222,3 +230,41 @@ def test_a_log_with_nothing_to_fit_says_so_before_asking_for_an_aircraft(tmp_pat
     err = capsys.readouterr().err
     assert "--aircraft" not in err.split("be identified:\n", 1)[1]
     _same_story(ident, err)
+
+
+def test_excitation_is_judged_by_the_response(default_fd):
+    """The elevator moved a tenth as far (a full-scale aircraft's small inputs): its
+    maneuvers still excite the axis, because the pitch rate answers far above its floor;
+    with the pitch rate flat as well, the axis is not excited and the reason names both."""
+    small = {**default_fd.channels, "de": dataclasses.replace(default_fd["de"], values=default_fd["de"].values * 0.1)}
+    fd = FlightData(small, default_fd.meta, default_fd.segments)
+    lon = identifiability(fd, run_checks(fd))["longitudinal"]
+    assert max(m.excitation for m in lon.maneuvers) < np.radians(1.0)  # under the surface rule
+    assert lon.possible, lon.reasons
+    q = default_fd["q"]
+    flat = FlightData(
+        {**small, "q": dataclasses.replace(q, values=np.zeros(len(q)))}, default_fd.meta, default_fd.segments
+    )
+    lon = identifiability(flat, run_checks(flat))["longitudinal"]
+    assert not lon.possible and any(w.startswith("no excitation: de moves by at most") for w in lon.reasons), (
+        lon.reasons
+    )
+
+
+def test_a_window_given_by_time_is_never_dropped_unsaid(default_fd):
+    """A window whose surfaces hardly move but whose pitch rate does (a phugoid after a
+    pulse) is an elevator window; one where nothing moves is named in the reason."""
+    chans = dict(default_fd.channels)
+    for c in ("de", "da", "dr"):
+        chans[c] = dataclasses.replace(chans[c], values=np.full(len(chans[c]), 0.01))
+    t = chans["q"].t
+    lo = float(t[0])
+    phugoid = {**chans, "q": dataclasses.replace(chans["q"], values=0.03 * np.sin(2 * np.pi * (t - lo) / 20.0))}
+    fd = FlightData(phugoid, default_fd.meta, [])
+    segs = fd.chosen_segments([(10.0, 50.0)])
+    assert "de" in {s.axis for s in segs} and {s.kind for s in segs} == {"time"}
+    still = {**chans, **{c: dataclasses.replace(chans[c], values=np.zeros(len(chans[c]))) for c in ("p", "q", "r")}}
+    fd = FlightData(still, default_fd.meta, [])
+    fd.segments = fd.chosen_segments([(10.0, 50.0)], per_axis=True)
+    lon = identifiability(fd, run_checks(fd))["longitudinal"]
+    assert any("the windows given, time_10-50s (10.0-50.0 s)" in w for w in lon.reasons), lon.reasons

@@ -188,8 +188,9 @@ def _has_records(raw: RawLog, path, fmt: str) -> None:
 
 def _named_window(fd: FlightData, name: str, t0: float, t1: float) -> SegmentSpec:
     """An archive's named window as a segment given by time, its axis the control input
-    moved most in it (None where none moves): the fits take it as the user's range."""
-    moved = fd.moved_inputs(t0, t1)
+    moved most in it, else the one whose body rate moves most (None where nothing moves):
+    the fits take it as the user's range."""
+    moved = fd.moved_inputs(t0, t1) or fd.answered_inputs(t0, t1)
     return SegmentSpec(name, t0, t1, "time", axis=moved[0] if moved else None)
 
 
