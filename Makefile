@@ -26,9 +26,10 @@ demo: $(STAMP)
 test: $(TEST_STAMP) lint
 	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
 
-# the edit loop: what is not marked slow (tests/conftest.py), under a minute on 2 cores
+# the edit loop: what is not marked slow (tests/conftest.py; closed_loop/ is slow whole,
+# so not even collected), under a minute on 2 cores
 test-fast: $(TEST_STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadfile -m "not slow"
+	$(PY) -m pytest -q -n 2 --dist loadfile -m "not slow" --ignore=tests/closed_loop
 
 # the architecture's rules (pyproject.toml: [tool.ruff], [tool.importlinter]) before the tests
 lint: $(TEST_STAMP)

@@ -78,6 +78,7 @@ def test_px4_ground_log_is_on_the_ground_not_lacking_alpha(tmp_path, capsys):
     _same_story(ident, err)
 
 
+@pytest.mark.slow
 def test_quadplane_telemetry_is_too_slow_and_lacks_the_rudder(tmp_path, capsys):
     ident, err, code = _check_then_estimate(_real("ardupilot_quadplane_sitl.tlog"), tmp_path, capsys)
     assert code != 0

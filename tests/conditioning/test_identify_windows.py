@@ -76,6 +76,7 @@ def test_a_found_segment_on_the_ground_is_left_out():
     assert usable_segments(df, [a, b], ["q"], ["de"], 0, "m", airborne=False)[0] == [a, b]
 
 
+@pytest.mark.slow
 def test_the_longitudinal_problem_fits_the_usable_maneuvers():
     """The default scenario's log with the pitch rate lost over its first elevator
     maneuver (a dropout): that maneuver is left out, named in the problem notes, and the

@@ -155,6 +155,7 @@ def unstable():
     return seg
 
 
+@pytest.mark.slow
 def test_output_error_on_an_unstable_aircraft_says_it_does_not_follow(unstable):
     # a start off by 20 %, Malpha at a stable value as an output-error user would try
     m = model({**{k: 0.8 * v for k, v in UNSTABLE.items()}, "Ma": 1.0})

@@ -57,6 +57,7 @@ def test_exact_model_gives_the_cramer_rao_bound_on_average():
     assert np.all((r.share > 0) & (r.share < 0.95)), r.share
 
 
+@pytest.mark.slow
 def test_parameters_that_differ_between_maneuvers_widen_it_to_their_scatter():
     """Each maneuver flown with its own parameters beta + delta_j (delta_j ~ N(0, tau^2)):
     the estimates scatter far beyond the Cramér-Rao bound, and the robust std follows."""
@@ -97,6 +98,7 @@ def test_bad_input():
         cluster_covariance([np.diag([1.0, 0.0])] * 3, [np.zeros(2)] * 3)
 
 
+@pytest.mark.slow
 def test_the_maneuvers_expose_output_error_in_turbulence():
     """The linear short period in turbulence, 4 maneuvers (estimators.process_noise_examples):
     filter error, the right method, scatters as its Cramér-Rao bounds say (over 8 seeds,

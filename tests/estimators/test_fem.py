@@ -128,6 +128,7 @@ def test_nonlinear_fem_in_turbulence():
     assert res.settings["linearisation"].startswith("about x0")
 
 
+@pytest.mark.slow
 def test_compiled_filter_loop_with_selected_outputs():
     """A model observing a subset of its outputs (Model.select_outputs: data without qdot)
     runs FEM's compiled filter loop - it had fallen back to the numpy loop, numba cannot

@@ -66,6 +66,7 @@ def test_result_object(fitted, example):
     assert d["parameters"]["Cmq"]["truth"] == -16.0 and d["converged"] is True
 
 
+@pytest.mark.slow
 def test_optimizer_and_jacobian_variants_agree(example, fitted):
     for kw in (
         {"optimizer": "levenberg-marquardt"},

@@ -60,6 +60,7 @@ def test_plain_output_error_reports_divergence_and_names_the_remedies(calm):
     assert info.value.segment == 0 and info.value.time is not None
 
 
+@pytest.mark.slow
 def test_stabilized_output_error(calm):
     est = StabilizedOutputError(calm.model)
     res = est.fit(calm.segments)
@@ -73,6 +74,7 @@ def test_stabilized_output_error(calm):
     assert np.max(np.linalg.eigvals(A - S @ C).real) < 0
 
 
+@pytest.mark.slow
 def test_eigenvalue_transformation(calm):
     res = EigenvalueTransformation(calm.model).fit(calm.segments)
     assert res.method == "oem-eigenvalue-transform" and res.converged

@@ -224,6 +224,7 @@ def test_filter_error_in_process_noise():
     assert ekf.converged and ekf.iterations > 2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cls, kw", [(EKF, {}), (UKF, {}), (UKF, {"augmented": True})])
 def test_filters_adapt_the_measurement_noise(cls, kw):
     """In process noise, with no measurement noise given, the filters adapt R between passes

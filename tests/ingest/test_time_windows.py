@@ -50,6 +50,7 @@ def _with_gaps(fd: FlightData) -> FlightData:
     return FlightData(chans, dict(fd.meta), [])
 
 
+@pytest.mark.slow
 def test_gaps_between_maneuvers_keep_the_rate_and_raise_no_jitter():
     """Six maneuvers 30 s apart: every channel keeps its native rate ((n - 1) / span read
     the 100 Hz IMU as about 20 Hz: a 25 Hz one fell under the compatibility stage's 20 Hz),

@@ -105,6 +105,7 @@ def test_check_rrd_modes_windows_and_findings(sim_check):
     assert excited and "s]" in excited[0][0]  # with its span in s from the start
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", REAL)
 def test_check_rrd_of_real_logs(name, tmp_path):
     log = LOGS / name

@@ -24,6 +24,7 @@ def test_dryden_parameters_follow_mil_f_8785c():
     assert lo["L_u"] == pytest.approx(h / (0.177 + 0.000823 * h) ** 1.2 * 0.3048)
 
 
+@pytest.mark.slow
 def test_gust_variance_matches_the_scenario_intensity():
     """Sample variance over 10 min (about 75 correlation times of the 533 m scale length
     at 67 m/s): pooled over u, v, w (same sigma above 2000 ft) within 20 %; each
