@@ -37,6 +37,7 @@ from pipeline.conditioning.flight_path_model import (
 from pipeline.conditioning.sensor_errors import remove_sensor_errors
 from pipeline.errors import FsidError
 from pipeline.ingest.flightdata import CANONICAL_UNITS, Channel, FlightData, SegmentSpec, merge_overlapping
+from pipeline.ingest.sampling import contiguous
 
 
 @dataclass
@@ -164,10 +165,7 @@ def _pieces(df: pd.DataFrame) -> list[pd.DataFrame]:
     t = df["t"].to_numpy()
     if t.size < 2:
         return [df]
-    dt = np.diff(t)
-    cut = np.flatnonzero(dt > GAP_FACTOR * np.median(dt)) + 1
-    edges = np.r_[0, cut, t.size]
-    return [df.iloc[a:b].reset_index(drop=True) for a, b in zip(edges[:-1], edges[1:])]
+    return [df.iloc[s].reset_index(drop=True) for s in contiguous(t, GAP_FACTOR * float(np.median(np.diff(t))))]
 
 
 def _x0(df: pd.DataFrame) -> np.ndarray:

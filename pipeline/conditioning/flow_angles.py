@@ -528,7 +528,7 @@ def mean_wind(doc: dict[str, Any]) -> tuple[float, float] | None:
 #: what report.md says of the airspeed the rebuilt angles take as calibrated, when the
 #: pitot's scale factor could not be estimated
 AIRSPEED_CAVEAT = (
-    "a airspeed scale factor or bias goes into the along-track wind, and the models' "
+    "an airspeed scale factor or bias goes into the along-track wind, and the models' "
     "airspeed and dynamic pressure keep it, outside the std (pitot_wind_turn's "
     ".bin, a 3 % scale factor and 0.4 m/s, with the scale factor not estimated: "
     "46 std off; estimated: within 2.8): calibrate the airspeed before "

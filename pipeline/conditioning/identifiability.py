@@ -65,9 +65,8 @@ STATE_HZ = 4.0
 MIN_OUTPUT_SAMPLES = 10
 #: a maneuver lasts about this long [s] (the checks' segment duration)
 MANEUVER_S = 5.0
-#: the body rate must answer the surface by this std [rad/s] at least ...
-MIN_RESPONSE_RAD_S = ANSWER_RAD_S
-#: ... and this many times its white-noise std
+#: the body rate must answer the surface by ANSWER_RAD_S (std) at least, and this many
+#: times its white-noise std
 RESPONSE_NOISE_RATIO = 3.0
 #: the angles the flight path can rebuild
 FLOW_ANGLES = ("alpha", "beta")
@@ -440,7 +439,7 @@ def _excitation_reasons(fd: FlightData, needs: AxisNeeds, good: Sequence[Maneuve
         return [
             f"no excitation: {surf} moves by at most {np.degrees(max(m.excitation for m in good)):.2f} deg (std)"
             f"{answer} in its maneuvers in flight; want >= {np.degrees(MIN_EXCITATION_RAD):.0f} deg, or a body "
-            f"rate of >= {np.degrees(MIN_RESPONSE_RAD_S):.1f} deg/s and {RESPONSE_NOISE_RATIO:g}x its noise"
+            f"rate of >= {np.degrees(ANSWER_RAD_S):.1f} deg/s and {RESPONSE_NOISE_RATIO:g}x its noise"
         ]
     if not rates:  # absent, or too slow to tell a response from noise: said already
         return []
@@ -448,14 +447,14 @@ def _excitation_reasons(fd: FlightData, needs: AxisNeeds, good: Sequence[Maneuve
         return []
     return [
         f"no response: {', '.join(rates)} hardly move in the {surf} maneuvers (std below "
-        f"{np.degrees(MIN_RESPONSE_RAD_S):.1f} deg/s or {RESPONSE_NOISE_RATIO:g}x its noise): the surface "
+        f"{np.degrees(ANSWER_RAD_S):.1f} deg/s or {RESPONSE_NOISE_RATIO:g}x its noise): the surface "
         "does not act on the aircraft (on the ground, or not connected)"
     ]
 
 
 def _response(fd: FlightData, m: Maneuver, rates: Sequence[str]) -> float:
     """The largest std of the body rates ``rates`` in maneuver ``m`` over their floor
-    (MIN_RESPONSE_RAD_S, or RESPONSE_NOISE_RATIO times the rate's white noise): >= 1 when
+    (ANSWER_RAD_S, or RESPONSE_NOISE_RATIO times the rate's white noise): >= 1 when
     the aircraft answers; 0 without rates to tell."""
     best = 0.0
     for c in rates:
@@ -463,7 +462,7 @@ def _response(fd: FlightData, m: Maneuver, rates: Sequence[str]) -> float:
         if x.size < 4:
             continue
         noise = fd.noise_std(c, [(m.t0, m.t1)])
-        floor = max(MIN_RESPONSE_RAD_S, RESPONSE_NOISE_RATIO * (noise if np.isfinite(noise) else 0.0))
+        floor = max(ANSWER_RAD_S, RESPONSE_NOISE_RATIO * (noise if np.isfinite(noise) else 0.0))
         best = max(best, float(np.std(x)) / floor)
     return best
 

@@ -34,9 +34,10 @@ def write_outputs(
     of ``results`` (key -> result) and their ``validations`` into ``out``, compared with
     ``truth`` where known (``flight``: the whole flight they were fitted on, for run.rrd);
     returns name -> path (the figures are beside report.md, in ``figures/``). ``figures``
-    False: report.md without them; ``files``: more files of the set, name -> text. Every file carries the run's id (``meta["run_id"]``, the
-    recording's id) and the set appears in ``out`` at once, report.json last: a folder
-    holding report.json holds the whole set of one run."""
+    False: report.md without them; ``files``: more files of the set, name -> text. Every
+    file carries the run's id (``meta["run_id"]``, the recording's id) and the set appears
+    in ``out`` at once, report.json last: a folder holding report.json holds the whole set
+    of one run."""
     agreement = cross_check_methods(results, validations)
     pr.stage(f"write report.md{' with its figures' if figures else ''}, report.html, run.rrd, report.json")
     rid = run_id(out)
@@ -44,22 +45,18 @@ def write_outputs(
     with staged(out, "report.json") as stage:
         for name, text in (files or {}).items():
             atomic_write_text(stage / name, text)
-        _write_set(stage, results, validations, truth, meta, checks, compatibility, agreement, flight, figures, rid)
+        md, _ = write_report(
+            stage,
+            results,
+            validations,
+            truth=truth,
+            meta=meta,
+            checks=checks,
+            compatibility=compatibility,
+            agreement=agreement,
+            figures=figures,
+        )
+        write_html(stage / "report.html", md)
+        write_recording(stage / "run.rrd", results, validations, truth=truth, flight=flight, recording_id=rid)
     pr.done()
     return {name: out / name for name in ("report.md", "report.html", "report.json", "run.rrd")}
-
-
-def _write_set(out, results, validations, truth, meta, checks, compatibility, agreement, flight, figures, rid) -> None:
-    md, _ = write_report(
-        out,
-        results,
-        validations,
-        truth=truth,
-        meta=meta,
-        checks=checks,
-        compatibility=compatibility,
-        agreement=agreement,
-        figures=figures,
-    )
-    write_html(out / "report.html", md)
-    write_recording(out / "run.rrd", results, validations, truth=truth, flight=flight, recording_id=rid)

@@ -1,6 +1,6 @@
-"""How each method of :mod:`pipeline.registry` fits a problem (the functions its
-entries name as ``fitter``, :func:`fit_problem`), and the process noise the Kalman filters take from a filter-error fit
-when no turbulence level is known (:func:`filters_process_noise`)."""
+"""How each method of :mod:`pipeline.registry` fits a problem (the functions its entries
+name as ``fitter``, :func:`fit_problem`), and the process noise the Kalman filters take
+from a filter-error fit when no turbulence level is known (:func:`filters_process_noise`)."""
 
 from __future__ import annotations
 
@@ -226,7 +226,7 @@ def _states_at_cg(model: Any):
     return pseudo
 
 
-#: the Kalman filters' fits (catalogue: fitter "pipeline.methods.fitting:_ekf", "..._ukf")
+#: the Kalman filters' fits (the registry's fitter "pipeline.methods.fitting:_ekf", "..._ukf")
 _ekf = _kalman_filter(EKF)
 _ukf = _kalman_filter(UKF)
 
