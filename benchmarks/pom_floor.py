@@ -28,11 +28,12 @@ ratio identified/true over the judged channels.
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import sys
 import tempfile
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -54,12 +55,7 @@ from pipeline.validation import validate  # noqa: E402
 
 def with_truth(res, truth: dict[str, float]):
     """A copy of ``res`` whose parameters named in ``truth`` take the true values."""
-    out = copy.copy(res)
-    out.values = res.values.copy()
-    for i, n in enumerate(res.names):
-        if n in truth:
-            out.values[i] = truth[n]
-    return out
+    return res.replace(values=np.array([truth.get(n, v) for n, v in zip(res.names, res.values)]))
 
 
 def main() -> None:

@@ -336,8 +336,7 @@ class RecursiveLeastSquares(_RegressionBase):
         res = self._result(
             model, theta, cov, s2, Xa, ya, index, extra={"trajectory": tr, "trajectory_std": trs, "P": self.P}
         )
-        res.settings["forgetting"] = lam
-        return res
+        return res.replace(settings={**res.settings, "forgetting": lam})
 
 
 def _rls_step(theta: np.ndarray, P: np.ndarray, x: np.ndarray, y: float, lam: float) -> tuple[np.ndarray, np.ndarray]:
@@ -470,6 +469,5 @@ class FourierRegression(_RegressionBase):
         res = self._result(
             model, theta, cov, s2, Xa, ya, index, information=A / s2, extra={"frequencies": freqs, "X_f": Xf, "Y_f": Yf}
         )
-        res.R = np.array([[s2]])
-        res.settings.update({"band": self.band, "n_frequencies": int(freqs.size), "dt": dt})
-        return res
+        settings = {**res.settings, "band": self.band, "n_frequencies": int(freqs.size), "dt": dt}
+        return res.replace(R=np.array([[s2]]), settings=settings)

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import dataclasses
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -30,9 +31,13 @@ def std_label(method: str) -> str:
     return STD_LABELS.get(method, f"std ({method})")
 
 
-@dataclass
+@dataclass(frozen=True)
 class EstimationResult:
     """Estimates, Cramér-Rao bounds and fit of one estimation run.
+
+    A result does not change after its fit: what comes later (another covariance, a
+    consider part, a note) makes a new result with :meth:`with_cov`, :meth:`with_consider`
+    or :meth:`with_extra`, so a result held by one stage reads the same in every other.
 
     Attributes
     ----------
@@ -41,9 +46,14 @@ class EstimationResult:
     names : (n_all,) expanded parameter names (``Cmq``, ``bias_az[0]``, ``x0_V[1]``).
     values : (n_all,) estimates (fixed parameters at their values).
     free : (n_all,) True where estimated.
-    cov : (n_free, n_free) parameter covariance (Cramér-Rao: inverse information matrix)
-        over the free parameters in ``names`` order; NaN rows/columns for parameters that
+    cov : (n_free, n_free) the reported parameter covariance over the free parameters in
+        ``names`` order (the one named ``cov_type``); NaN rows/columns for parameters that
         ended at a bound.
+    cov_type : the name of ``cov``: "crb" (Cramér-Rao, the inverse information matrix),
+        "filter-covariance" (EKF/UKF: the parameter block of P), "morelli-klein",
+        "propagated", "crb|scatter" (widened by the maneuver scatter), ...
+    covariances : every covariance the result carries, by name (``cov`` among them; the
+        fit's own first): views chosen by name like statsmodels' ``cov_type``.
     R : (n_outputs, n_outputs) measurement-noise (residual) covariance.
     converged, iterations, message : optimiser outcome.
     history : one row per iteration: cost, step length, and the free parameters.
@@ -82,6 +92,74 @@ class EstimationResult:
     extra: dict[str, Any] = field(default_factory=dict)
     consider_cov: np.ndarray | None = None
     consider_source: str = ""
+    cov_type: str = "crb"
+    covariances: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.cov_type not in self.covariances:
+            object.__setattr__(self, "covariances", {**self.covariances, self.cov_type: self.cov})
+
+    # -- new results from this one ----------------------------------------------------------
+    def replace(self, **changes: Any) -> EstimationResult:
+        """A copy with ``changes`` (``dataclasses.replace``)."""
+        return dataclasses.replace(self, **changes)
+
+    def with_cov(self, cov: np.ndarray, cov_type: str, note: str = "") -> EstimationResult:
+        """A copy that reports ``cov`` (n_free, n_free), named ``cov_type``, instead of the
+        current covariance, which stays a view by its name; ``note`` is appended to the
+        message."""
+        message = (self.message + "; " if self.message and note else self.message) + note
+        return dataclasses.replace(
+            self, cov=cov, cov_type=cov_type, covariances={**self.covariances, cov_type: cov}, message=message
+        )
+
+    def with_cov_type(self, cov_type: str) -> EstimationResult:
+        """A copy that reports the covariance view named ``cov_type`` (one of
+        ``covariances``, or "total")."""
+        return dataclasses.replace(self, cov=self.cov_of(cov_type), cov_type=cov_type)
+
+    def with_consider(self, cov: np.ndarray, source: str) -> EstimationResult:
+        """A copy with ``cov`` (n_free, n_free) added to the consider covariance and
+        ``source`` to what it accounts for."""
+        total = cov if self.consider_cov is None else self.consider_cov + cov
+        return dataclasses.replace(
+            self, consider_cov=total, consider_source="; ".join(x for x in (self.consider_source, source) if x)
+        )
+
+    def with_extra(self, **items: Any) -> EstimationResult:
+        """A copy with ``items`` added to ``extra``."""
+        return dataclasses.replace(self, extra={**self.extra, **items})
+
+    # -- covariance views -----------------------------------------------------------------
+    @property
+    def fit_cov_type(self) -> str:
+        """The name of the fit's own covariance ("crb" or "filter-covariance")."""
+        return next(iter(self.covariances))
+
+    @property
+    def fit_cov(self) -> np.ndarray:
+        """The fit's own covariance (Cramér-Rao bound or filter P), whatever ``cov`` reports."""
+        return self.covariances[self.fit_cov_type]
+
+    def cov_of(self, cov_type: str) -> np.ndarray:
+        """The covariance view named ``cov_type``: one of ``covariances``, or "total" (the
+        reported covariance plus the consider covariance)."""
+        if cov_type == "total":
+            return self.cov if self.consider_cov is None else self.cov + self.consider_cov
+        if cov_type not in self.covariances:
+            raise KeyError(f"no covariance {cov_type!r}: this result has {', '.join(self.covariances)} and total")
+        return self.covariances[cov_type]
+
+    def std_of(self, cov_type: str) -> pd.Series:
+        """Standard deviations of the view ``cov_type`` by expanded name (NaN for fixed
+        parameters and those at a bound)."""
+        return self._std(self.cov_of(cov_type), cov_type)
+
+    def _std(self, cov: np.ndarray, name: str = "std") -> pd.Series:
+        s = pd.Series(np.nan, index=self.names, name=name)
+        d = np.diag(cov)
+        s.loc[self.free_names] = np.sqrt(np.where(d >= 0, d, np.nan))
+        return s
 
     # -- parameter tables -----------------------------------------------------------------
     @property
@@ -95,29 +173,14 @@ class EstimationResult:
 
     @property
     def std(self) -> pd.Series:
-        """Standard deviations from ``cov``: the Cramér-Rao bounds unless ``replace_cov`` put
-        another covariance there (``extra["std_method"]`` says which); NaN for fixed
-        parameters and those at a bound."""
-        s = pd.Series(np.nan, index=self.names, name="std")
-        d = np.diag(self.cov)
-        s.loc[self.free_names] = np.sqrt(np.where(d >= 0, d, np.nan))
-        return s
+        """Standard deviations from ``cov`` (the view ``cov_type``); NaN for fixed parameters
+        and those at a bound."""
+        return self._std(self.cov)
 
     @property
     def std_method(self) -> str:
-        """How ``std`` was computed: "crb" (Cramér-Rao, the default), "filter-covariance"
-        (EKF/UKF: the parameter block of P), or what :meth:`replace_cov` named."""
-        return self.extra.get("std_method", "crb")
-
-    def replace_cov(self, cov: np.ndarray, how: str, note: str = "") -> None:
-        """Report ``cov`` (n_free, n_free) instead of the Cramér-Rao covariance, which is kept
-        in ``extra["crb_cov"]``; ``how`` names the method in ``extra["std_method"]``, ``note``
-        is appended to the message."""
-        self.extra["crb_cov"] = self.cov
-        self.extra["std_method"] = how
-        self.cov = cov
-        if note:
-            self.message = (self.message + "; " if self.message else "") + note
+        """How ``std`` was computed: ``cov_type``."""
+        return self.cov_type
 
     @property
     def consider_std(self) -> pd.Series | None:

@@ -233,8 +233,7 @@ class ParameterFilter:
         adapt_r, adapt_q = self._adapted(F)
         passes = Passes()
         res = self._run_passes(segments, lay, F, R, (adapt_r, adapt_q), passes)
-        self._finish(res, lay, passes, adapt_r, adapt_q)
-        return res
+        return self._finish(res, lay, passes, adapt_r, adapt_q)
 
     def _run_passes(
         self,
@@ -294,55 +293,62 @@ class ParameterFilter:
                 break
         return res
 
-    def _finish(self, res: EstimationResult, lay: Layout, passes: Passes, adapt_r: bool, adapt_q: bool) -> None:
+    def _finish(
+        self, res: EstimationResult, lay: Layout, passes: Passes, adapt_r: bool, adapt_q: bool
+    ) -> EstimationResult:
         """The fit's result from its last pass's: parameters held by a bound, the passes'
         history, whether they settled, and the message saying so."""
         moves, left = passes.moves, passes.left
         settled = not left and (self.passes != "auto" or moves[-1] <= self.pass_tol)
         n_done = len(moves)
-        self._mark_bounds(res, lay)
-        res.history = pd.DataFrame(passes.history)
-        res.iterations = n_done
-        res.converged = settled
-        res.extra["pass_moves"] = moves
-        res.extra["std_method"] = "filter-covariance"
+        at_bounds, cov = self._bounds_held(res, lay)
+        extra = {"pass_moves": moves}
         adapted = [w for w, on in (("measurement_noise", adapt_r), ("process_noise", adapt_q)) if on]
         what = f"{n_done} filter pass{'es' if n_done > 1 else ''}"
         if adapted:
             # extra's noise is the one the last pass ran with; the adaptation's relative
             # moves per pass
-            res.extra["noise_moves"] = passes.noise_moves
-            res.extra["adapted"] = adapted
+            extra.update(noise_moves=passes.noise_moves, adapted=adapted)
             what += f"; {' and '.join(w.replace('_', ' ') for w in adapted)} adapted"
         if left:
-            res.extra["not_settled"] = left
-            what += "; not settled: " + left
+            extra["not_settled"] = left
         elif not settled:
-            res.extra["not_settled"] = (
+            extra["not_settled"] = (
                 f"the last of {n_done} passes still moved a parameter by {moves[-1]:.2g} std "
                 f"(> {self.pass_tol:g}): raise max_passes, start closer or check the model"
             )
-            what += "; not settled: " + res.extra["not_settled"]
-        if res.at_bounds:
-            what += f"; at a bound (std NaN): {', '.join(res.at_bounds)}"
-        res.message = what + "; residuals are the innovations (a-priori)"
+        if "not_settled" in extra:
+            what += "; not settled: " + extra["not_settled"]
+        if at_bounds:
+            what += f"; at a bound (std NaN): {', '.join(at_bounds)}"
+        return res.replace(
+            history=pd.DataFrame(passes.history),
+            iterations=n_done,
+            converged=settled,
+            at_bounds=at_bounds,
+            cov=cov,
+            covariances={},
+            extra={**res.extra, **extra},
+            message=what + "; residuals are the innovations (a-priori)",
+        )
 
     @staticmethod
-    def _mark_bounds(res: EstimationResult, lay: Layout) -> None:
+    def _bounds_held(res: EstimationResult, lay: Layout) -> tuple[list[str], np.ndarray]:
         """Free parameters held by a bound: projected onto it during the last pass
-        (``extra["bound_hits"]``: updates per parameter) and ending within 3 std of it.
-        They go to ``res.at_bounds`` with their std NaN, as in output error: the bound, not
+        (``extra["bound_hits"]``: updates per parameter) and ending within 3 std of it, and
+        the covariance with their rows and columns NaN: as in output error, the bound, not
         the data, holds them there."""
         fi = lay.free_idx
         v, lo, hi = res.values[fi], lay.lower[fi], lay.upper[fi]
         sd = np.sqrt(np.maximum(np.diag(res.cov), 0.0))
         hit = np.array([n in res.extra.get("bound_hits", {}) for n in lay.free_names], dtype=bool)
         on = hit & ((v - lo <= 3.0 * sd) | (hi - v <= 3.0 * sd))
-        if np.any(on):
-            res.at_bounds = [lay.free_names[i] for i in np.flatnonzero(on)]
-            res.cov = res.cov.copy()
-            res.cov[on, :] = np.nan
-            res.cov[:, on] = np.nan
+        if not np.any(on):
+            return [], res.cov
+        cov = res.cov.copy()
+        cov[on, :] = np.nan
+        cov[:, on] = np.nan
+        return [lay.free_names[i] for i in np.flatnonzero(on)], cov
 
     # one filter pass -----------------------------------------------------------------------
     def _one_pass(
@@ -423,6 +429,7 @@ class ParameterFilter:
             residuals=frames([s.t for s in segments], E, model.outputs),
             message="one filter pass; residuals are the innovations (a-priori)",
             settings=self._settings(),
+            cov_type="filter-covariance",
             extra={
                 "trajectory": rec.traj,
                 "trajectory_std": rec.traj_std,

@@ -24,7 +24,7 @@ OEM's options apply (``**oem_options`` go to :class:`~estimators.OutputError`):
   problem (``extra["weights"]`` holds e^{-sigma t}). The weighted residuals have a
   variance falling as e^{-2 sigma t} while output error fits one R, so the reported std
   are the heteroscedasticity-consistent (sandwich) ones; the plain Cramér-Rao
-  covariance is kept in ``extra["crb_cov"]``.
+  covariance stays a view of the result (``cov_of("crb")``).
 * :class:`EquationDecoupling` - every state equation integrates only its own state; the
   other states that are measured enter it as pseudo-inputs (the measurements), so each
   equation is as stable as its diagonal term (e.g. Z_alpha, M_q for the short period).
@@ -133,27 +133,31 @@ class _TransformedOEM:
         oem._check_follow = False  # its note would recommend these methods themselves
         res = oem.fit(segs_t, estimate_x0=estimate_x0, R=R, start=start)
         if info.get("pseudo_outputs"):
-            self._fed_measurement_std(res, model_t, segs_t, info)
-        res.method = self.method
-        res.model = self.model
-        res.segments = segments
-        res.settings.update({k: v for k, v in info.items() if isinstance(v, (str, int, float, bool))})
-        res.extra.update({k: v for k, v in info.items() if k != "pseudo"})
+            res = self._fed_measurement_std(res, model_t, segs_t, info)
+        res = res.replace(
+            method=self.method,
+            model=self.model,
+            segments=segments,
+            settings={**res.settings, **{k: v for k, v in info.items() if isinstance(v, (str, int, float, bool))}},
+            extra={**res.extra, **{k: v for k, v in info.items() if k != "pseudo"}},
+        )
         return self._finish(res)
 
     def _finish(self, res: EstimationResult) -> EstimationResult:
         return res
 
-    def _fed_measurement_std(self, res: EstimationResult, model_t: Model, segs_t: list[Segment], info: dict) -> None:
-        """Replace the Cramér-Rao covariance, which assumes white residuals, by one that
+    def _fed_measurement_std(
+        self, res: EstimationResult, model_t: Model, segs_t: list[Segment], info: dict
+    ) -> EstimationResult:
+        """Report instead of the Cramér-Rao covariance, which assumes white residuals, one that
         carries the measurement noise fed back through the pseudo-inputs: ``std`` =
         "propagated" (:mod:`estimators.output_error.pseudo_input_noise`; falls back to Morelli-Klein when
         the pseudo-inputs are smoothed or the fed model diverges over a segment),
         "morelli-klein" (coloured residuals, all lags, Bartlett window) or "crb" (kept).
-        The Cramér-Rao covariance stays in ``extra["crb_cov"]``."""
+        The Cramér-Rao covariance stays a view ("crb")."""
         inner = np.flatnonzero(np.isfinite(np.diag(res.cov)))
         if self.std_method == "crb" or res.sensitivities is None or not inner.size:
-            return
+            return res
         S = [as_sensitivity(s).take(inner) for s in res.sensitivities]
         E = [r.to_numpy() for r in res.residuals]
         M = res.information[np.ix_(inner, inner)]
@@ -176,14 +180,14 @@ class _TransformedOEM:
                     info.get("pseudo"),
                     prior_info=W,
                 )
-                res.extra["noise_std"] = dict(zip(model_t.outputs, np.sqrt(s2).tolist()))
+                res = res.with_extra(noise_std=dict(zip(model_t.outputs, np.sqrt(s2).tolist())))
                 note = "std: measurement noise propagated through the fed-back measurements"
             except PropagationError as exc:
                 how, why = "morelli-klein", f" ({exc})"
         if how == "morelli-klein":
             C = morelli_klein(S, E, R=res.R, info=M, max_lag=None, prior_info=W).cov
             note = "std: Morelli-Klein (coloured residuals from the fed-back measurements)" + why
-        res.replace_cov(_on_free(res.cov, inner, C), how, note)
+        return res.with_cov(_on_free(res.cov, inner, C), how, note)
 
 
 class StabilizedOutputError(_TransformedOEM):
@@ -191,7 +195,7 @@ class StabilizedOutputError(_TransformedOEM):
 
     S : (n_states, n_outputs) stabilisation matrix in 1/s, {state: {output: gain}}, or None
         for the default (see module docstring). Outputs without a gain are not fed back.
-    std : the reported covariance (the Cramér-Rao one stays in ``extra["crb_cov"]``):
+    std : the reported covariance (the Cramér-Rao one stays a view, ``cov_of("crb")``):
         "propagated" (default) carries the measurement noise fed back into the model
         (:mod:`estimators.output_error.pseudo_input_noise`; the noise std it finds per output in
         ``extra["noise_std"]``), falling back to "morelli-klein" (coloured residuals,
@@ -399,7 +403,7 @@ class EigenvalueTransformation(_TransformedOEM):
             S = [as_sensitivity(s).take(inner) for s in res.sensitivities]
             E = [r.to_numpy() for r in res.residuals]
             C = sandwich_covariance(S, E, res.R, res.information[np.ix_(inner, inner)])
-            res.replace_cov(
+            return res.with_cov(
                 _on_free(res.cov, inner, C),
                 "sandwich",
                 "std: heteroscedasticity-consistent (sandwich) covariance of the weighted residuals",

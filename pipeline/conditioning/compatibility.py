@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pandas as pd
 
-from estimators import EKF, UKF, OutputError, Segment
+from estimators import EKF, UKF, EstimationResult, OutputError, Segment
 from estimators.defaults import GAP_FACTOR
 from estimators.output_error.pseudo_input_noise import PropagationError, propagated_covariance
 from estimators.statistics import difference_noise_std
@@ -351,7 +351,9 @@ def reconstruct(
     else:
         res, frames, params, std, tau_info = _profile_delay(fit, est)
     crb_std = std.copy()
-    carried = s.method not in ("ekf", "ukf") and _carry_imu_noise(res)
+    if s.method not in ("ekf", "ukf"):
+        res = _carry_imu_noise(res)
+    carried = res.std_method == "propagated"
     if carried:
         std = res.std[std.index].astype(float)
     return CompatibilityResult(
@@ -480,15 +482,15 @@ def _profile_delay(fit: _Fit, est: Sequence[str]):
     return res, frames, params, std, tau_info
 
 
-def _carry_imu_noise(res) -> bool:
-    """Replace the output-error fit's Cramér-Rao covariance (kept in extra["crb_cov"]) by one
-    that carries the noise of the IMU signals driving the kinematic model
+def _carry_imu_noise(res: EstimationResult) -> EstimationResult:
+    """The output-error fit reporting, instead of its Cramér-Rao covariance (kept as a view),
+    one that carries the noise of the IMU signals driving the kinematic model
     (:func:`estimators.output_error.pseudo_input_noise.propagated_covariance`): gyro noise
     integrates into the attitude and accelerometer noise into the velocities, which the
     white-residual bound ignores (the gyro biases' bound is then several times too small).
-    False (the bound kept) when it cannot be computed."""
+    ``res`` itself (the bound kept) when it cannot be computed."""
     if not getattr(res, "sensitivities", None) or res.information is None:
-        return False
+        return res
     try:
         cov, _ = propagated_covariance(
             res.model,
@@ -503,11 +505,10 @@ def _carry_imu_noise(res) -> bool:
             prior_info=(res.extra or {}).get("prior_information"),
         )
     except (PropagationError, ValueError, np.linalg.LinAlgError):
-        return False
+        return res
     if not np.all(np.isfinite(np.diag(cov))):
-        return False
-    res.replace_cov(cov, "propagated")
-    return True
+        return res
+    return res.with_cov(cov, "propagated")
 
 
 def _noise_levels(frames, outputs: Sequence[str]) -> dict[str, float]:

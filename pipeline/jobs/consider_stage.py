@@ -73,8 +73,7 @@ def carry_consider_uncertainty(
     parts += ["the times of the control-input steps between slow samples"] if slow else []
     progress.stage("uncertainty of what the fits held as exact" + (f" ({', '.join(parts)})" if parts else ""))
     for k in kept:
-        r = results[k]
-        doc = held_estimates(r, held.held_fits[k].result, held.held_fits[k].refit, progress)
+        doc = held_estimates(results, k, held.held_fits[k].result, held.held_fits[k].refit, progress)
         if k in validations:
             validations[k]["held_estimates"] = doc
     if comp.get("applied"):

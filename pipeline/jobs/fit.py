@@ -18,7 +18,7 @@ from pipeline.methods.alphadot import ALPHADOT_PAIRS, free_alphadot, inseparable
 from pipeline.methods.fitting import fit_problem
 from pipeline.problems import Problem, sixdof_lateral_problem
 from pipeline.registry import Method, method_spec
-from pipeline.validation import validate
+from pipeline.validation import validate, widened
 
 
 def fit_and_validate(
@@ -103,7 +103,7 @@ def fit_and_validate(
     )
     v["problem"] = {"notes": list(pb.notes)}
     progress.done()
-    return res, v
+    return widened(res, v["uncertainty"]), v
 
 
 def _with_priors(pb: Problem, options: FitOptions) -> Problem:
@@ -201,10 +201,9 @@ def _fit_holding_alphadot(
         )
         pb = replace(pb, model=pb.model.hold({b: 0.0 for b in alphadot}), notes=[*pb.notes, held])
         progress.substage(f"estimate {what} ({spec.name.upper()}, {pb.model.name} model, CLalphadot, Cmalphadot held)")
-        res = fit(pb)
-        res.extra["alphadot_held"] = held
+        res = fit(pb).with_extra(alphadot_held=held)
     elif held_alphadot and not [b for _, b in ALPHADOT_PAIRS if b in res.free_names]:
-        res.extra["alphadot_held"] = held_alphadot
+        res = res.with_extra(alphadot_held=held_alphadot)
     return res, pb
 
 

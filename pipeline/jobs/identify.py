@@ -175,7 +175,7 @@ def _fit_targets(
                 continue
             results[key], validations[key] = done
             if noise is not None:
-                results[key].extra["filters_noise"] = noise
+                results[key] = results[key].with_extra(filters_noise=noise)
             if starts is None and pb.model.name.startswith("sixdof") and lon is not None:
                 # the longitudinal estimates this fit holds: their uncertainty is carried to
                 # it after the fits (pipeline.jobs.consider_stage)

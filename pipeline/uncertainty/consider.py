@@ -27,7 +27,7 @@ document says so.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, MutableMapping
 from typing import Any
 
 import numpy as np
@@ -103,23 +103,21 @@ def _refit_jacobians(
 
 
 def _add_consider(
-    results: Mapping[str, Any],
+    results: MutableMapping[str, Any],
     J: Mapping[str, np.ndarray],
     C: Mapping[str, np.ndarray],
     status: Mapping[str, str],
     source: str,
 ) -> None:
-    """Add J C J^T to ``consider_cov`` of every result whose status is "propagated" (C by
-    key), and ``source`` to its ``consider_source``."""
-    for key, res in results.items():
+    """Replace every result whose status is "propagated" by one with J C J^T (C by key)
+    added to its consider covariance and ``source`` to what that accounts for."""
+    for key, res in list(results.items()):
         if status[key] == "propagated":
-            add = J[key] @ C[key] @ J[key].T
-            res.consider_cov = add if res.consider_cov is None else res.consider_cov + add
-            res.consider_source = "; ".join(x for x in (res.consider_source, source) if x)
+            results[key] = res.with_consider(J[key] @ C[key] @ J[key].T, source)
 
 
 def consider_by_refits(
-    results: Mapping[str, Any],
+    results: MutableMapping[str, Any],
     names: list[str],
     C: np.ndarray,
     refit_j: Callable[[int], Mapping[str, Any]],
@@ -141,7 +139,7 @@ def consider_by_refits(
 def propagate(
     fd_raw: FlightData,
     doc: Mapping[str, Any],
-    results: Mapping[str, Any],
+    results: MutableMapping[str, Any],
     refit: Callable[[FlightData, dict[str, Any]], Mapping[str, Any]],
     progress: Any = None,
 ) -> dict[str, Any]:
@@ -180,7 +178,7 @@ def fitted_spans(result: Any) -> list[tuple[float, float]]:
 
 def wind(
     flow: Mapping[str, Any],
-    results: Mapping[str, Any],
+    results: MutableMapping[str, Any],
     refit: Callable[[tuple[float, float, float]], Mapping[str, Any]],
     progress: Any = None,
 ) -> dict[str, Any]:
@@ -250,10 +248,14 @@ def wind_summary(doc: Mapping[str, Any]) -> str:
 
 
 def held_estimates(
-    result: Any, held: Any, refit: Callable[[dict[str, float]], Any], progress: Any = None
+    results: MutableMapping[str, Any],
+    key: str,
+    held: Any,
+    refit: Callable[[dict[str, float]], Any],
+    progress: Any = None,
 ) -> dict[str, Any]:
-    """Add to ``consider_cov`` of ``result`` the uncertainty of another fit's estimates it
-    held fixed (``held``: that fit's result, e.g. the longitudinal output error whose
+    """Add to the consider covariance of ``results[key]`` the uncertainty of another fit's
+    estimates it held fixed (``held``: that fit's result, e.g. the longitudinal output error whose
     derivatives the 6-DoF lateral fit holds): each held estimate with a Cramér-Rao std is
     moved by one std and ``refit(values)`` (the held values -> the refit result) repeats
     the fit. Returns a JSON-ready document."""
@@ -267,13 +269,15 @@ def held_estimates(
     def refit_j(j: int) -> Mapping[str, Any]:
         return {"r": refit({**base, names[j]: base[names[j]] + sd[j]})}
 
-    status = consider_by_refits({"r": result}, names, C, refit_j, "the held {name} + 1 std", HELD_SOURCE, progress)["r"]
+    one = {"r": results[key]}
+    status = consider_by_refits(one, names, C, refit_j, "the held {name} + 1 std", HELD_SOURCE, progress)["r"]
+    results[key] = one["r"]
     return {"held": names, "refits": len(names), "status": status, "seconds": time.perf_counter() - t0}
 
 
 def input_dynamics(
     doc: Mapping[str, Any],
-    results: Mapping[str, Any],
+    results: MutableMapping[str, Any],
     refit: Callable[[dict[str, dict[str, float]]], Mapping[str, Any]],
     progress: Any = None,
 ) -> dict[str, Any]:
@@ -322,7 +326,7 @@ def fitted_steps(steps: list, results: Mapping[str, Any]) -> list:
 
 def input_sampling(
     fd: FlightData,
-    results: Mapping[str, Any],
+    results: MutableMapping[str, Any],
     refit: Callable[[FlightData], Mapping[str, Any]],
     steps: list,
     progress: Any = None,

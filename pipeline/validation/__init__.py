@@ -11,7 +11,7 @@ from pipeline.validation.plausibility import refresh_plausibility
 from pipeline.validation.proof_of_match import POM_MODES, pom_mode, refresh_prediction_uncertainty
 from pipeline.validation.settings import ValidationSettings
 from pipeline.validation.truth import TRUTH_K, refresh_truth_check
-from pipeline.validation.uncertainty import widen_by_scatter
+from pipeline.validation.uncertainty import widen_by_scatter, widened
 from pipeline.validation.units import display_unit
 from pipeline.validation.validate import validate
 from pipeline.validation.verdict import FILTER_ERROR_TRUST, LEVELS, REASON_LEVELS, verdict
@@ -37,4 +37,5 @@ __all__ = [
     "validate",
     "verdict",
     "widen_by_scatter",
+    "widened",
 ]

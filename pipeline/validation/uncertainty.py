@@ -5,6 +5,7 @@ made the reported std where it significantly exceeds the bound."""
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -57,10 +58,8 @@ def parameter_uncertainty(result: EstimationResult) -> dict[str, Any] | None:
     else:
         return None
     crb = result.std[names].to_numpy()
-    if "crb_cov" in result.extra:  # std is not the Cramér-Rao bound (stabilised output error, widen_by_scatter)
-        crb = pd.Series(np.sqrt(np.clip(np.diag(result.extra["crb_cov"]), 0.0, None)), index=result.free_names)[
-            names
-        ].to_numpy()
+    if result.cov_type != result.fit_cov_type:  # std is not the bound (stabilised output error, widened)
+        crb = result.std_of(result.fit_cov_type)[names].to_numpy()
     df = pd.DataFrame({"crb_std": crb, "mk_std": mk, "ratio": mk / crb}, index=pd.Index(names, name="parameter"))
     cl = V.maneuver_scatter(result)
     if cl is not None:
@@ -85,24 +84,23 @@ def scatter_threshold(n_segments: int) -> float:
     return float(np.sqrt(chi2.ppf(SCATTER_CONFIDENCE, df) / df))
 
 
-def widen_by_scatter(result: EstimationResult, unc: dict[str, Any] | None) -> dict[str, float]:
+def widen_by_scatter(result: EstimationResult, unc: dict[str, Any] | None) -> EstimationResult:
     """Where the maneuvers of a fit scatter significantly more than its Cramér-Rao bounds
     allow (the ratio of :func:`parameter_uncertainty`'s ``cluster_std`` to the bound above
     :func:`scatter_threshold`, with at least SCATTER_MIN_SEGMENTS maneuvers), report the
-    scatter as that parameter's std: the result's covariance is scaled on those rows and
-    columns (correlations kept; the Cramér-Rao covariance stays in ``extra["crb_cov"]``,
-    ``std_method`` SCATTER_STD_METHOD) and ``unc["widened"]`` lists them. Returns
-    {parameter: ratio} (empty: nothing widened). Only results whose std is the Cramér-Rao
+    scatter as that parameter's std: ``unc["widened"]`` lists them and the result returned
+    reports the covariance scaled on those rows and columns (correlations kept; the bound
+    stays a view, ``cov_type`` SCATTER_STD_METHOD). Only results whose std is the Cramér-Rao
     bound or, for the EKF and UKF, the filter's parameter covariance (whose scatter the
     filter keeps from each segment's information, estimators.filters.kalman) are widened.
 
     The bound assumes the model exact; flight data scatter more from maneuver to maneuver
     (Jategaonkar: "a fudge factor of 5-10")."""
     if result.std_method not in SCATTER_STD_METHOD or not unc or not unc.get("cluster"):
-        return {}
+        return result
     n_seg = int(unc["cluster"]["n_segments"])
     if n_seg < SCATTER_MIN_SEGMENTS:
-        return {}
+        return result
     t = scatter_threshold(n_seg)
     names = result.free_names
     wide = {
@@ -114,10 +112,20 @@ def widen_by_scatter(result: EstimationResult, unc: dict[str, Any] | None) -> di
         and d["cluster_ratio"] > t
     }
     if not wide:
-        return {}
+        return result
+    unc["widened"] = {"threshold": t, "confidence": SCATTER_CONFIDENCE, "parameters": wide}
+    return widened(result, unc)
+
+
+def widened(result: EstimationResult, unc: Mapping[str, Any] | None) -> EstimationResult:
+    """``result`` reporting the covariance its validation's uncertainty (``unc``, as
+    :func:`widen_by_scatter` left it) widened to the maneuver scatter; ``result`` itself when
+    nothing was widened or it is widened already."""
+    wide = ((unc or {}).get("widened") or {}).get("parameters")
+    if not wide or result.std_method not in SCATTER_STD_METHOD:
+        return result
+    names = result.free_names
     D = np.ones(len(names))
     for n, r in wide.items():
         D[names.index(n)] = r
-    result.replace_cov(D[:, None] * result.cov * D[None, :], SCATTER_STD_METHOD[result.std_method])
-    unc["widened"] = {"threshold": t, "confidence": SCATTER_CONFIDENCE, "parameters": wide}
-    return wide
+    return result.with_cov(D[:, None] * result.cov * D[None, :], SCATTER_STD_METHOD[result.std_method])

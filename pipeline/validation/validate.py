@@ -118,9 +118,10 @@ def validate(
 ) -> dict[str, Any]:
     """Run the validation of :mod:`estimators.validation` on one result (see module doc).
     Where the fit's maneuvers scatter significantly beyond its Cramér-Rao bounds, the
-    result's covariance is widened in place to that scatter
-    (:func:`~pipeline.validation.uncertainty.widen_by_scatter`; ``result.std_method`` then
-    says so, the bound stays in ``extra["crb_cov"]``).
+    checks after the uncertainty judge the result with its covariance widened to that
+    scatter (:func:`~pipeline.validation.uncertainty.widen_by_scatter`), and the output's
+    ``uncertainty["widened"]`` says where: :func:`~pipeline.validation.uncertainty.widened`
+    gives that result (``std_method`` saying so, the bound kept as a view).
 
     settings: the bands, bounds and proof-of-match mode (:class:`ValidationSettings`);
         ``options``: any of its fields by keyword, over ``settings``.
@@ -166,7 +167,7 @@ def validate(
     out["residuals"], arrays["psd"] = _attempt("residuals", errors, lambda: residual_analysis(result), (None, None))
     out["uncertainty"] = _attempt("uncertainty", errors, lambda: parameter_uncertainty(result))
     if out["uncertainty"] is not None:
-        _attempt("uncertainty", errors, lambda: widen_by_scatter(result, out["uncertainty"]))
+        result = _attempt("uncertainty", errors, lambda: widen_by_scatter(result, out["uncertainty"]), result)
     lin = _linear_checks(result, s, integ, out, arrays)
     errors.update({k: out[k]["error"] for k in LINEAR_CHECKS if isinstance(out[k], dict) and "error" in out[k]})
     out["proof_of_match"], arrays["match"] = None, []

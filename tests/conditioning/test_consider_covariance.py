@@ -98,15 +98,18 @@ def test_propagate_builds_j_c_jt_from_the_refits():
         assert starts["m"] is not None
         c = np.array([fd_j.meta["compatibility"]["bias_q"], fd_j.meta["compatibility"]["scale_alpha"]])
         r = _result()
-        r.values = r.values.copy()
-        r.values[:2] += Jtrue @ (c - est0)
-        return {"m": r}
+        values = r.values.copy()
+        values[:2] += Jtrue @ (c - est0)
+        return {"m": r.replace(values=values)}
 
-    doc = propagate(fd, _doc(), {"m": res}, refit)
+    results = {"m": res}
+    doc = propagate(fd, _doc(), results, refit)
     assert doc["methods"] == {"m": "propagated"} and doc["refits"] == 2
     _, _, C = correction_covariance(_doc())
-    np.testing.assert_allclose(res.consider_cov, Jtrue @ C @ Jtrue.T, rtol=1e-6)
-    assert res.consider_source
+    # the results are replaced, the fit's own left as it was
+    assert res.consider_cov is None and results["m"] is not res
+    np.testing.assert_allclose(results["m"].consider_cov, Jtrue @ C @ Jtrue.T, rtol=1e-6)
+    assert results["m"].consider_source
 
 
 def test_propagate_keeps_the_crb_when_a_refit_fails():
@@ -118,7 +121,8 @@ def test_propagate_keeps_the_crb_when_a_refit_fails():
     def refit(fd_j, starts):
         raise RuntimeError("diverged")
 
-    doc = propagate(FlightData({}, {}, []), _doc(), {"m": res}, refit)
+    results = {"m": res}
+    doc = propagate(FlightData({}, {}, []), _doc(), results, refit)
     assert doc["methods"]["m"].startswith("not propagated") and "diverged" in doc["methods"]["m"]
-    assert res.consider_cov is None
+    assert results["m"] is res and res.consider_cov is None
     assert propagate(FlightData({}, {}, []), {"applied": {}}, {"m": res}, refit) == {}

@@ -10,7 +10,6 @@ every derivative of both axes is within 3 total std.
 
 from __future__ import annotations
 
-import copy
 import json
 import tomllib
 
@@ -336,7 +335,6 @@ def test_the_proof_of_match_moves_an_untimed_step_within_its_interval(tmp_path):
         if not ch.is_static:
             rows[ch.entity_path] = rows.get(ch.entity_path, 0) + ch.num_rows
     assert rows["/match/p/oem"] == rows["/match/p/oem/lower"] == rows["/match/p/oem/upper"] == t.size
-    wrong = copy.copy(res)  # the same result with Lda 25 % low
-    wrong.values = np.where(np.array(res.names) == "Lda", 30.0, res.values)
+    wrong = res.replace(values=np.where(np.array(res.names) == "Lda", 30.0, res.values))  # Lda 25 % low
     bad = validate(wrong, held_out=[held], step_times=[spans])["proof_of_match"]
     assert not bad["segments"][0]["channels"]["p"]["pass"]

@@ -275,7 +275,7 @@ def test_a_filter_pass_measures_its_segments_scatter():
     from estimators.datasets import HFB320_CONSTANTS, HFB320_TRUTH
     from estimators.models import longitudinal
     from estimators.process_noise_examples import simulate_with_process_noise
-    from pipeline.validation import validate
+    from pipeline.validation import validate, widened
 
     ex = turbulent_longitudinal_example(seed=1, segments=4)
     same = EKF(ex.model, **settings(ex)).fit(ex.segments)
@@ -291,5 +291,7 @@ def test_a_filter_pass_measures_its_segments_scatter():
     assert max(ratio, key=ratio.get) == "Cmde" and ratio["Cmde"] > 10.0, ratio
     std_p = res.std["Cmde"]
     out = validate(res)
+    assert res.std_method == "filter-covariance" and res.std["Cmde"] == std_p  # the fit's result unchanged
+    res = widened(res, out["uncertainty"])
     assert res.std_method == "filter-covariance|scatter" and "Cmde" in out["uncertainty"]["widened"]["parameters"]
     assert res.std["Cmde"] == pytest.approx(ratio["Cmde"] * std_p, rel=1e-6)

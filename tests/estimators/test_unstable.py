@@ -92,11 +92,10 @@ def test_equation_decoupling(calm):
     assert res.extra["decoupled_states"] == ["alpha"]
     within(res, calm.truth)
     # std carry the noise of the fed-back measurements; the plain Cramér-Rao bounds are kept
-    assert res.extra["crb_cov"].shape == (5, 5) and res.extra["std_method"] == "propagated"
+    assert res.cov_of("crb").shape == (5, 5) and res.std_method == "propagated"
+    assert set(res.covariances) == {"crb", "propagated"} and res.fit_cov_type == "crb"
     assert "measurement noise propagated" in res.message
-    assert (
-        EquationDecoupling(calm.model, states=["alpha"], std="crb").fit(calm.segments).extra.get("std_method") is None
-    )
+    assert EquationDecoupling(calm.model, states=["alpha"], std="crb").fit(calm.segments).std_method == "crb"
     with pytest.raises(ModelDefinitionError, match="std must be one of"):
         StabilizedOutputError(calm.model, std="white")
 

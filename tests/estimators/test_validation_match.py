@@ -241,7 +241,6 @@ def test_the_pipeline_judges_a_held_out_maneuver_with_its_own_noise_level():
     each band by its reach; a true roll-rate model on data with 0.5 deg/s gyro noise passes
     (it failed on the noise alone: a 1.5 deg/s band, 3 sigma, over 300 samples), a 30 %
     wrong control derivative still fails."""
-    import copy
 
     from estimators import OutputError
     from pipeline.validation import validate
@@ -253,8 +252,7 @@ def test_the_pipeline_judges_a_held_out_maneuver_with_its_own_noise_level():
     p = validate(res, held_out=[segs[1]])["proof_of_match"]["segments"][0]["channels"]["p"]
     assert p["pass"] and p["max_abs_error_display"] > 1.5, p  # noise beyond the band
     assert 0.5 * 3.0 < p["noise_allowance_display"] < 0.5 * 4.5, p  # about 3.8 sigma
-    wrong = copy.copy(res)
-    wrong.values = np.where(np.array(res.names) == "Lda", 0.7 * float(res.params["Lda"]), res.values)
+    wrong = res.replace(values=np.where(np.array(res.names) == "Lda", 0.7 * float(res.params["Lda"]), res.values))
     q = validate(wrong, held_out=[segs[1]])["proof_of_match"]["segments"][0]["channels"]["p"]
     assert not q["pass"], q
 
@@ -264,7 +262,6 @@ def test_a_tic_at_the_noise_floor_is_noted_not_failed():
     about 1 deg/s against 0.5 deg/s of gyro noise) has TIC >= 0.1 with the true model; its
     residuals are its noise, so the verdict notes it (tic_noise_floor) instead of failing.
     A model whose residuals exceed the noise by more than NOISE_FLOOR_RATIO still fails."""
-    import copy
 
     from estimators import OutputError, simulate_outputs
     from pipeline.validation import NOISE_FLOOR_RATIO, validate
@@ -281,12 +278,10 @@ def test_a_tic_at_the_noise_floor_is_noted_not_failed():
     assert fit["per_output"]["p"]["noise_std"] == pytest.approx(0.5 * DEG, rel=0.1)
     assert not any("TIC" in r for r in v["verdict"]["reasons"])
     assert any("noise floor" in n for n in v["verdict"]["notes"])
-    wrong = copy.copy(res)  # the prediction of a model with Lda 70 % low
-    wrong.values = np.where(np.array(res.names) == "Lda", 0.3 * float(res.params["Lda"]), res.values)
-    wrong.predicted = [simulate_outputs(wrong.model_with_estimates(), seg)]
-    wrong.residuals = [
-        pd.DataFrame(seg.z - wrong.predicted[0].to_numpy(), index=wrong.predicted[0].index, columns=["p"])
-    ]
+    wrong = res.replace(values=np.where(np.array(res.names) == "Lda", 0.3 * float(res.params["Lda"]), res.values))
+    pred = [simulate_outputs(wrong.model_with_estimates(), seg)]  # the prediction of a model with Lda 70 % low
+    resid = [pd.DataFrame(seg.z - pred[0].to_numpy(), index=pred[0].index, columns=["p"])]
+    wrong = wrong.replace(predicted=pred, residuals=resid)
     w = validate(wrong)["fit"]
     assert w["per_output"]["p"]["RMS"] > NOISE_FLOOR_RATIO * w["per_output"]["p"]["noise_std"]
     assert w["tic_noise_floor"] == [] and not w["tic_ok"]

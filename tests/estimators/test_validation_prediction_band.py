@@ -1,8 +1,6 @@
 """The held-out prediction's own uncertainty from the estimates' covariance
 (estimators.validation.prediction_band) and what the proof of match says with it."""
 
-import copy
-
 import numpy as np
 import pytest
 
@@ -125,9 +123,8 @@ def test_the_pipeline_tells_an_imprecise_estimate_from_a_wrong_model(tmp_path):
     from pipeline.validation import refresh_prediction_uncertainty, validate
 
     res, held = _fitted_roll()
-    wrong = copy.copy(res)
     lda = float(res.params["Lda"])
-    wrong.values = np.where(np.array(res.names) == "Lda", 0.7 * lda, res.values)
+    wrong = res.replace(values=np.where(np.array(res.names) == "Lda", 0.7 * lda, res.values))
     v = validate(wrong, held_out=[held])
     seg = v["proof_of_match"]["segments"][0]
     p = seg["channels"]["p"]
@@ -136,10 +133,10 @@ def test_the_pipeline_tells_an_imprecise_estimate_from_a_wrong_model(tmp_path):
     assert any("p by" in n and "not explained by their stated uncertainty" in n for n in v["verdict"]["notes"])
     assert v["verdict"]["level"] == "FAIL", v["verdict"]  # the model shown wrong
     # the same estimates, their covariance made 30 % on Lda: within the prediction's spread
-    loose = copy.copy(wrong)
-    i = loose.free_names.index("Lda")
-    loose.consider_cov = np.zeros_like(loose.cov)
-    loose.consider_cov[i, i] = (0.3 * lda) ** 2
+    i = wrong.free_names.index("Lda")
+    add = np.zeros_like(wrong.cov)
+    add[i, i] = (0.3 * lda) ** 2
+    loose = wrong.with_consider(add, "Lda 30 %")
     refresh_prediction_uncertainty(v, loose)
     p = v["proof_of_match"]["segments"][0]["channels"]["p"]
     assert p["pass"] is False and p["beyond_prediction_display"] == 0.0, p
