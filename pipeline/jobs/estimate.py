@@ -27,7 +27,7 @@ from pipeline.ingest.flightdata import FlightData
 from pipeline.ingest.readers import detect_format, read_log
 from pipeline.ingest.sampling import start_statement
 from pipeline.jobs.consider_stage import sampling_meta
-from pipeline.jobs.estimation import FitJob, Prepared, fit_stages
+from pipeline.jobs.estimation import FitJob, FlightContext, fit_stages
 from pipeline.jobs.identify import identified_axes
 from pipeline.jobs.options import AXES, EstimateOptions, FitOptions
 from pipeline.jobs.progress import Progress
@@ -155,14 +155,15 @@ def estimate(log: str | Path, opts: EstimateOptions, count: Progress | None = No
             "checks: " + "; ".join(", ".join(f"{k} {v}" for k, v in c.items()) for c in val_checks)
         )
     _servo_travel(fd, meta, pr, opts.quiet)
-    data = _corrected(fd, fd_logged, flow, ac_sensors, truth_doc, steps, meta, opts, pr)
-    meta["data"] = f"{Path(log).name}, {data.comp['data_for_estimation']}"
-    job = FitJob(ac, opts.methods, truth, _fit_options(opts, ac), axes=axes, model=um)
-    results, validations, _, dyn_doc, sampling = fit_stages(pr, job, data, fd_vals, opts.input_dynamics, meta)
+    ctx = _corrected(fd, fd_logged, flow, ac, ac_sensors, truth_doc, steps, meta, opts, pr)
+    meta["data"] = f"{Path(log).name}, {ctx.comp['data_for_estimation']}"
+    job = FitJob(ctx.ac, opts.methods, truth, _fit_options(opts, ctx.ac), axes=axes, model=um)
+    done = fit_stages(pr, job, ctx, fd_vals, opts.input_dynamics, meta)
     if user:
         meta["model"] = opts.model
-    _fit_meta(meta, dyn_doc, sampling_meta(steps_doc, sampling), data.flow, truth is not None)
-    return Estimated(results, validations, truth, meta, findings, summary, fd, data.comp, pr)
+    ctx = done.context
+    _fit_meta(meta, ctx.dynamics, sampling_meta(steps_doc, done.sampling), ctx.flow, truth is not None)
+    return Estimated(done.results, done.validations, truth, meta, findings, summary, fd, ctx.comp, pr)
 
 
 def _check_priors(opts: EstimateOptions, ac: Any) -> None:
@@ -324,17 +325,20 @@ def _corrected(
     fd_logged: FlightData,
     flow: dict[str, Any],
     ac: Any,
+    ac_sensors: Any,
     truth_doc: dict | None,
     steps: list,
     meta: dict[str, Any],
     opts: EstimateOptions,
     pr: Progress,
-) -> Prepared:
-    """The compatibility stage on the logged channels only (angles rebuilt from the GPS
-    velocity and attitude are no independent air data), then the angles rebuilt from the
-    corrected data (or, not rebuilt, the derived ones kept as logged)."""
+) -> FlightContext:
+    """The flight's context after the compatibility stage on the logged channels only
+    (angles rebuilt from the GPS velocity and attitude are no independent air data), then
+    the angles rebuilt from the corrected data (or, not rebuilt, the derived ones kept as
+    logged). ``ac``: the aircraft the fits use, ``ac_sensors``: its sensor positions as the
+    aircraft file gives them (the compatibility stage's)."""
     fd_c, comp = compatibility_after_flow_angles(
-        fd_logged, fd, flow, ac, pr, enabled=opts.compat, truth=truth_errors(truth_doc) if truth_doc else None
+        fd_logged, fd, flow, ac_sensors, pr, enabled=opts.compat, truth=truth_errors(truth_doc) if truth_doc else None
     )
     if flow.get("status") == "reconstructed":
         fd, flow = with_flow_angles(fd_c, flow)  # rebuilt from the corrected data
@@ -345,4 +349,4 @@ def _corrected(
         fd = replace(
             fd_c, channels={**fd_c.channels, **{k: c for k, c in fd.channels.items() if k not in fd_c.channels}}
         )
-    return Prepared(ready=fd, logged=fd_logged, corrected=fd_c, comp=comp, flow=flow, steps=steps)
+    return FlightContext(ac=ac, logged=fd_logged, corrected=fd_c, comp=comp, flow=flow, ready=fd, steps=steps)

@@ -4,8 +4,9 @@ dataclasses: the command line reads them without loading the jobs)."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import Any
 
 #: the axes of the built-in models
 AXES = ("longitudinal", "lateral")
@@ -43,29 +44,49 @@ class FitOptions:
     hold_out: bool = True
     apriori: Mapping[str, Mapping[str, float | str]] | None = None
     priors: bool = False
-    #: draw the report's figures (PNG; off for batch runs that read report.json only)
-    figures: bool = True
     signs: Mapping[str, int] | None = None
 
 
 @dataclass(frozen=True)
-class EstimateOptions:
-    """``fsid estimate``'s settings (see :func:`pipeline.jobs.estimate.estimate_log`).
+class EstimationSettings:
+    """What ``fsid estimate`` and ``fsid run`` share: how a flight is estimated and reported.
+
+    quiet: no progress lines; compat: run the sensor-compatibility stage; bands:
+    proof-of-match bands (``rate_deg_s``, ``accel_g``, ``angle_deg``); pom: the
+    proof-of-match mode; smooth_inputs: see :class:`FitOptions`; input_dynamics: auto, off
+    or (delay, lag) [s]; figures: draw the report's figures (PNG; off for batch runs that
+    read report.json only).
+    """
+
+    quiet: bool = False
+    compat: bool = True
+    bands: Mapping[str, float] | None = None
+    pom: str = "auto"
+    smooth_inputs: bool = True
+    input_dynamics: str | tuple[float, float] = "auto"
+    figures: bool = True
+
+    def shared(self) -> dict[str, Any]:
+        """This object's :class:`EstimationSettings` fields by name (to build another kind)."""
+        return {f.name: getattr(self, f.name) for f in fields(EstimationSettings)}
+
+
+@dataclass(frozen=True)
+class EstimateOptions(EstimationSettings):
+    """``fsid estimate``'s settings (see :func:`pipeline.jobs.estimate.estimate_log`):
+    :class:`EstimationSettings` and
 
     aircraft: the aircraft TOML (None: a truth.json next to the log, or none for a user
         model); map_path: a channel map; methods: the method names; inputs: how the inputs
         vary between samples; model: auto, longitudinal, lateral or a user model
-        ``path.py:name``; quiet: no progress lines; compat: run the sensor-compatibility
-        stage; bands: proof-of-match bands (``rate_deg_s``, ``accel_g``, ``angle_deg``);
-        pom: the proof-of-match mode; smooth_inputs: see :class:`FitOptions`;
-        validation_log: a second flight, or several, for the proof of match; time_base: of
-        a .tlog or .mcap log; input_dynamics: auto, off or (delay, lag) [s]; calm,
-        validation_calm: the flight, the validation flights known to be flown in calm air (a
-        flight plan's, see :class:`FitOptions`; unknown for a real log); segments: the
-        maneuver windows to fit (time ranges (t0, t1) [s from the log's start] or segment
-        names, :meth:`pipeline.ingest.flightdata.FlightData.chosen_segments`; None: those
-        found); hold_out: see :class:`FitOptions`; priors: the aircraft file's a-priori
-        values used as output error's priors too.
+        ``path.py:name``; validation_log: a second flight, or several, for the proof of
+        match; time_base: of a .tlog or .mcap log; calm, validation_calm: the flight, the
+        validation flights known to be flown in calm air (a flight plan's, see
+        :class:`FitOptions`; unknown for a real log); segments: the maneuver windows to fit
+        (time ranges (t0, t1) [s from the log's start] or segment names,
+        :meth:`pipeline.ingest.flightdata.FlightData.chosen_segments`; None: those found);
+        hold_out: see :class:`FitOptions`; priors: the aircraft file's a-priori values used
+        as output error's priors too.
     """
 
     aircraft: str | Path | None = None
@@ -73,41 +94,23 @@ class EstimateOptions:
     methods: Sequence[str] = ("oem",)
     inputs: str = "linear"
     model: str = "auto"
-    quiet: bool = False
-    compat: bool = True
-    bands: Mapping[str, float] | None = None
-    pom: str = "auto"
-    smooth_inputs: bool = True
     validation_log: str | Path | Sequence[str | Path] | None = None
     time_base: str | None = None
-    input_dynamics: str | tuple[float, float] = "auto"
-    #: draw the report's figures (PNG; off for batch runs that read report.json only)
-    figures: bool = True
     calm: bool = False
     validation_calm: bool = False
     segments: Sequence[str | tuple[float, float]] | None = None
     hold_out: bool = True
     priors: bool = False
-    #: draw the report's figures (PNG; off for batch runs that read report.json only)
-    figures: bool = True
 
 
 @dataclass(frozen=True)
-class RunOptions:
-    """``fsid run``'s settings (see :func:`pipeline.jobs.scenario.run_scenario`).
+class RunOptions(EstimationSettings):
+    """``fsid run``'s settings (see :func:`pipeline.jobs.scenario.run_scenario`):
+    :class:`EstimationSettings` and
 
     seed: instead of the scenario's; methods: the method names (None: those that suit the
-    flight plan); quiet, compat, bands, pom, smooth_inputs, input_dynamics: as in
-    :class:`EstimateOptions`.
+    flight plan).
     """
 
     seed: int | None = None
     methods: Sequence[str] | None = None
-    quiet: bool = False
-    compat: bool = True
-    bands: Mapping[str, float] | None = None
-    pom: str = "auto"
-    smooth_inputs: bool = True
-    input_dynamics: str | tuple[float, float] = "auto"
-    #: draw the report's figures (PNG; off for batch runs that read report.json only)
-    figures: bool = True

@@ -59,14 +59,9 @@ def run_scenario(
     est = estimate(
         out / "flight.mcap",
         EstimateOptions(
+            **{**opts.shared(), "bands": {**scenario.pom_bands, **(opts.bands or {})}},
             methods=list(opts.methods or scenario_methods(truth_doc)),
-            quiet=opts.quiet,
-            compat=opts.compat,
-            bands={**scenario.pom_bands, **(opts.bands or {})},
-            pom=opts.pom,
-            smooth_inputs=opts.smooth_inputs,
             validation_log=None if val is None else out / "validation.mcap",
-            input_dynamics=opts.input_dynamics,
             calm=scenario.turbulence.model == "off",
             validation_calm=val is not None and val.turbulence.model == "off",
         ),
