@@ -1,6 +1,6 @@
 """Is a change behaviour-neutral? report.json of ``fsid demo`` and of ``fsid run`` on every
 built-in scenario (seeds fixed by the scenarios), made by two revisions of the code and
-compared field by field, timing fields left out.
+compared field by field, timing fields and each run's own id left out.
 
 ``--base REV`` (default HEAD) is checked out into a temporary git worktree and run with the
 same interpreter, its tree first on the path; the other side is the working tree.
@@ -25,11 +25,13 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 #: keys whose values are wall-clock times (left out of the comparison)
 TIMING_KEYS = ("seconds", "elapsed", "wall", "duration", "timing_s", "created")
+#: keys that name one run (differ between any two runs by design)
+IDENTITY_KEYS = ("run_id",)
 
 
 def _timing(key: str) -> bool:
     k = key.lower()
-    return any(t in k for t in TIMING_KEYS)
+    return k in IDENTITY_KEYS or any(t in k for t in TIMING_KEYS)
 
 
 def differences(a, b, rtol: float = 0.0, path: str = "") -> list[str]:
@@ -98,7 +100,7 @@ def main() -> int:
         d = differences(json.loads(fa.read_text()), json.loads(fb.read_text()), a.rtol)
         same += not d
         print(f"{name}: {'identical' if not d else f'{len(d)} fields differ'}" + "".join(f"\n    {x}" for x in d[:8]))
-    print(f"{same}/{len(names) + 1} reports identical (timing fields left out) against {a.base}")
+    print(f"{same}/{len(names) + 1} reports identical (timing fields and run ids left out) against {a.base}")
     return 0 if same == len(names) + 1 else 1
 
 
