@@ -45,6 +45,12 @@ _LAZY = {
     "EquationDecoupling": "estimators.output_error.stabilized",
     "StabilizedOutputError": "estimators.output_error.stabilized",
     "simulate_outputs": "estimators.simulation",
+    "fourier_transform": "estimators.frequency.transform",
+    "frequency_response": "estimators.frequency.response",
+    "FrequencyResponse": "estimators.frequency.response",
+    "TransferFunction": "estimators.frequency.transfer",
+    "loes_parameters": "estimators.frequency.transfer",
+    "FrequencyOutputError": "estimators.frequency.output_error",
 }
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs
@@ -52,6 +58,10 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs
     from estimators.filters.ekf import EKF
     from estimators.filters.filter_error import FilterError
     from estimators.filters.ukf import UKF
+    from estimators.frequency.output_error import FrequencyOutputError
+    from estimators.frequency.response import FrequencyResponse, frequency_response
+    from estimators.frequency.transfer import TransferFunction, loes_parameters
+    from estimators.frequency.transform import fourier_transform
     from estimators.model import Model, Parameter, Segment
     from estimators.output_error.oem import OutputError
     from estimators.output_error.stabilized import EigenvalueTransformation, EquationDecoupling, StabilizedOutputError
@@ -82,6 +92,12 @@ __all__ = [
     "StabilizedOutputError",
     "EigenvalueTransformation",
     "EquationDecoupling",
+    "fourier_transform",
+    "frequency_response",
+    "FrequencyResponse",
+    "TransferFunction",
+    "loes_parameters",
+    "FrequencyOutputError",
 ]
 
 

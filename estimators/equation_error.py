@@ -46,6 +46,7 @@ import pandas as pd
 from estimators import statistics as st
 from estimators.defaults import RLS_P0
 from estimators.errors import IdentifiabilityError, ModelDefinitionError
+from estimators.frequency.transform import DETRENDS, fourier_transform
 from estimators.model import Model, Parameter
 from estimators.results import EstimationResult
 
@@ -351,8 +352,10 @@ def _rls_step(theta: np.ndarray, P: np.ndarray, x: np.ndarray, y: float, lam: fl
 class RecursiveDFT:
     """Recursive discrete Fourier transform at fixed frequencies (usable in real time).
 
-    X_k(w) = X_{k-1}(w) + x_k e^{-j w t_k} dt, with the rotation e^{-j w dt} carried
-    recursively (one complex multiply per frequency and sample). ``frequencies`` in Hz.
+    X_k(w) = X_{k-1}(w) + (x_k - x_0) e^{-j w t_k} dt, with the rotation e^{-j w dt}
+    carried recursively (one complex multiply per frequency and sample). Each channel's
+    first sample is subtracted (Morelli's real-time method: the trim drops out without a
+    record to detrend). ``frequencies`` in Hz.
     """
 
     def __init__(self, frequencies: Sequence[float], dt: float, n_channels: int) -> None:
@@ -362,11 +365,14 @@ class RecursiveDFT:
         self.rot = np.exp(-1j * self.w * self.dt)
         self.X = np.zeros((self.f.size, n_channels), dtype=complex)
         self.phase = np.ones(self.f.size, dtype=complex)  # e^{-j w t_k}, t_0 = 0
+        self.first: np.ndarray | None = None
         self.count = 0
 
     def update(self, x: Sequence[float]) -> np.ndarray:
         x = np.asarray(x, dtype=float).ravel()
-        self.X += np.outer(self.phase, x) * self.dt
+        if self.first is None:
+            self.first = x.copy()
+        self.X += np.outer(self.phase, x - self.first) * self.dt
         self.phase = self.phase * self.rot
         self.count += 1
         if self.count % 1000 == 0:  # re-normalise the carried rotation (round-off)
@@ -377,15 +383,19 @@ class RecursiveDFT:
 class FourierRegression(_RegressionBase):
     """Fourier-transform (frequency-domain equation-error) regression over a band.
 
-    band : (f_low, f_high) in Hz; frequencies ``np.arange(f_low, f_high + df/2, df)``.
-    df : frequency spacing in Hz (default: 1 / record length at fit time, i.e. DFT bins).
-    frequencies : explicit frequencies in Hz (overrides band/df).
+    frequencies : the frequencies in Hz; or band : (f_low, f_high) in Hz with frequencies
+        ``np.arange(f_low, f_high + df/2, df)``, df : their spacing in Hz (default: 1 /
+        record length at fit time).
+    detrend : of the whole-record transform (:func:`estimators.frequency.fourier_transform`:
+        "ends", the default, removes the line through the first and last samples).
     The intercept (a constant, i.e. zero frequency) drops out at w > 0 and is not
     estimated; biases and trim values need no removal.
 
-    ``fit(X, y, dt)`` transforms the whole record (recursive DFT) and solves;
-    ``update(x, y)`` (after ``start(dt, n_regressors)``) adds one sample and ``estimate()``
-    solves with what has been seen - the real-time form.
+    ``fit(X, y, dt)`` transforms the whole record (:func:`~estimators.frequency.fourier_transform`,
+    exact for the samples' cubic interpolant) and solves; ``update(x, y)`` (after
+    ``start(dt, n_regressors)``) adds one sample to a recursive DFT that subtracts each
+    channel's first sample, and ``estimate()`` solves with what has been seen - the
+    real-time form.
     """
 
     method = "ftr"
@@ -397,9 +407,13 @@ class FourierRegression(_RegressionBase):
         band: tuple[float, float] | None = None,
         df: float | None = None,
         frequencies: Sequence[float] | None = None,
+        detrend: str = "ends",
         response: str = "y",
     ) -> None:
         super().__init__(regressors, intercept=False, response=response)
+        if detrend not in DETRENDS:
+            raise ModelDefinitionError(f"detrend={detrend!r}: use one of {', '.join(DETRENDS)}")
+        self.detrend = detrend
         if frequencies is None and band is None:
             raise ModelDefinitionError("FourierRegression needs band=(f_low, f_high) or frequencies")
         if band is not None and not 0.0 <= band[0] < band[1]:
@@ -457,17 +471,19 @@ class FourierRegression(_RegressionBase):
                 raise ModelDefinitionError("give dt (s) or a DataFrame indexed by time")
             dt = float(np.median(np.diff(index)))
         N, n = Xa.shape
-        freqs = self._freqs(N * dt)
-        # recursive DFT over the record (vectorised over frequencies; the recursion over
-        # samples is the same sum as RecursiveDFT.update)
-        dft = RecursiveDFT(freqs, dt, n + 1)
-        D = np.column_stack([Xa, ya])
-        phase = np.exp(-1j * np.outer(dft.w, np.arange(N) * dt))  # (n_f, N)
-        dft.X = phase @ D * dt
-        Xf, Yf = dft.X[:, :-1], dft.X[:, -1]
+        t = np.arange(N) * dt if index is None else np.asarray(index, dtype=float)
+        freqs = self._freqs(t[-1] - t[0] + dt)
+        F = fourier_transform(t, np.column_stack([Xa, ya]), 2 * np.pi * freqs, self.detrend)
+        Xf, Yf = F[:, :-1], F[:, -1]
         theta, cov, s2, A = self._solve(Xf, Yf, model.parameter_names)
         res = self._result(
             model, theta, cov, s2, Xa, ya, index, information=A / s2, extra={"frequencies": freqs, "X_f": Xf, "Y_f": Yf}
         )
-        settings = {**res.settings, "band": self.band, "n_frequencies": int(freqs.size), "dt": dt}
+        settings = {
+            **res.settings,
+            "band": self.band,
+            "n_frequencies": int(freqs.size),
+            "dt": dt,
+            "detrend": self.detrend,
+        }
         return res.replace(R=np.array([[s2]]), settings=settings)

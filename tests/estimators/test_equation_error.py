@@ -108,10 +108,12 @@ def test_ftr_recovers_truth_and_matches_ols_on_the_same_band():
     N = len(y)
     band = (0.05, 4.0)
     ftr = FourierRegression(band=band).fit(X, y, dt=DT)
-    assert ftr.method == "ftr"
+    assert ftr.method == "ftr" and ftr.settings["detrend"] == "ends"
     within(ftr, TRUTH)  # bias drops out at w > 0
-    # OLS on the same data band-passed to exactly the FTR frequencies (DFT bins) gives the
-    # same estimates (Parseval)
+    # OLS on the data band-passed to exactly the FTR frequencies (DFT bins) is the plain
+    # DFT sum's regression (Parseval); the transform of the cubic interpolant differs from
+    # that sum at the record's ends and by its weight W(w dt), which moves the estimate by
+    # a fraction of its std, not more
     f = np.fft.rfftfreq(N, DT)
     keep = np.isin(np.round(f / (f[1])), np.round(ftr.extra["frequencies"] / f[1]))
 
@@ -122,15 +124,16 @@ def test_ftr_recovers_truth_and_matches_ols_on_the_same_band():
 
     Xb = pd.DataFrame({c: bandpass(X[c].to_numpy()) for c in X.columns}, index=X.index)
     ols_band = LeastSquares().fit(Xb, bandpass(y))
-    np.testing.assert_allclose(ftr.values, ols_band.values, rtol=1e-9, atol=1e-12)
-    # the real-time form (recursive DFT, sample by sample) ends at the same estimate
+    assert np.max(np.abs(ftr.values - ols_band.values) / ftr.std.to_numpy()) < 0.5
+    # the real-time form (recursive DFT, sample by sample, first samples subtracted) ends
+    # within a fraction of a std of the whole-record fit
     rt = FourierRegression(frequencies=ftr.extra["frequencies"])
     rt.start(DT, 3)
     for xk, yk in zip(X.to_numpy(), y):
         rt.update(xk, yk)
     theta, cov = rt.estimate()
-    np.testing.assert_allclose(theta, ftr.values, rtol=1e-8)
-    np.testing.assert_allclose(cov, ftr.cov, rtol=1e-6)
+    assert np.max(np.abs(theta - ftr.values) / ftr.std.to_numpy()) < 0.5
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)), ftr.std.to_numpy(), rtol=0.1)
 
 
 def test_recursive_dft_equals_fft_bins():
@@ -140,4 +143,5 @@ def test_recursive_dft_equals_fft_bins():
     d = RecursiveDFT(freqs, 0.01, 2)
     for xk in x:
         d.update(xk)
-    np.testing.assert_allclose(d.X, np.fft.rfft(x, axis=0)[3:9] * 0.01, rtol=1e-10, atol=1e-12)
+    # the first sample subtracted: at these (nonzero) bins only its k = 0 term differs
+    np.testing.assert_allclose(d.X, np.fft.rfft(x - x[0], axis=0)[3:9] * 0.01, rtol=1e-10, atol=1e-12)
