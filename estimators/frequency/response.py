@@ -16,8 +16,8 @@ estimate mixes them. Coherence is then the partial coherence of the output with 
 the other inputs removed; the multiple coherence says how much of each output all the
 inputs explain. The random error of |H| is Bendat & Piersol's, (Random Data, 4th ed., eq.
 9.90): eps = sqrt((1 - gamma^2_multiple) Gyy / (2 n (G_uu.rest) |H|^2)) with n the
-effective number of averages less the other inputs; the phase error in rad is the same
-number.
+effective number of averages less the other inputs and the multiple coherence's bias from
+few averages taken out; the phase error in rad is the same number.
 """
 
 from __future__ import annotations
@@ -55,6 +55,8 @@ class FrequencyResponse:
     multiple_coherence : (n_f, n_y) the share of each output's power all inputs explain.
     inputs, outputs : channel names.
     windows : (n_w,) the window lengths combined (s).
+    input_spectra : (n_f, n_u) the inputs' one-sided auto-spectra (units^2/Hz): where an
+        input carries power.
     n_averages : (n_f,) the averages behind each frequency: the effective numbers of the
         windows that resolve it, summed (their segments overlap in time but each window
         length resolves its own bandwidth; the random error's scatter over repeated
@@ -70,6 +72,7 @@ class FrequencyResponse:
     outputs: list[str] = field(default_factory=list)
     windows: np.ndarray = field(default_factory=lambda: np.zeros(0))
     n_averages: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    input_spectra: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     @property
     def w(self) -> np.ndarray:
@@ -115,6 +118,7 @@ class FrequencyResponse:
             [output],
             self.windows,
             self.n_averages,
+            self.input_spectra[:, i : i + 1],
         )
 
 
@@ -202,15 +206,39 @@ def _solve(G: np.ndarray, n_u: int, n_avg: np.ndarray) -> tuple[np.ndarray, ...]
             cond_uu[:, i] = Gii
             coh[:, :, i] = np.clip(np.abs(Giy) ** 2 / (Gii[:, None] * Gyy_r), 0.0, 1.0)
         n = np.maximum(n_avg - n_u + 1, 1.0)
-        noise = (1 - mult) * Gyy  # (n_f, n_y)
+        # the noise from the multiple coherence less its bias towards 1 from n averages
+        # (E[g^2] ~ gamma^2 + (1 - gamma^2)^2 / n, undone to first order: (n g^2 - 1) / (n - 1))
+        nn = n[:, None]
+        unbiased = np.where(nn > 1, np.clip((nn * mult - 1) / np.maximum(nn - 1, 1e-12), 0.0, 1.0), 0.0)
+        noise = (1 - unbiased) * Gyy  # (n_f, n_y)
         err = np.sqrt(noise[:, :, None] / (2 * n[:, None, None] * cond_uu[:, None, :] * np.abs(H) ** 2))
     return H, np.nan_to_num(coh), err, np.nan_to_num(mult)
 
 
+def _records(t, u, y) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray], float]:
+    """(times, inputs, outputs) per record and their common sample interval."""
+    many = isinstance(t, (list, tuple))
+    ts = [np.asarray(x, dtype=float) for x in t] if many else [np.asarray(t, dtype=float)]
+    us = list(u) if many else [u]
+    ys = list(y) if many else [y]
+    if not (len(ts) == len(us) == len(ys)) or not ts:
+        raise ModelDefinitionError(f"frequency_response: {len(ts)} time vectors, {len(us)} inputs, {len(ys)} outputs")
+    dts = [uniform_step(x, "frequency_response") for x in ts]
+    if max(dts) - min(dts) > 1e-6 * min(dts):
+        raise ModelDefinitionError(
+            f"frequency_response: the records are sampled at {min(dts):.6g} to {max(dts):.6g} s; resample them alike"
+        )
+    U = [_as_2d(a, x.size, "u") for a, x in zip(us, ts)]
+    Y = [_as_2d(b, x.size, "y") for b, x in zip(ys, ts)]
+    if len({a.shape[1] for a in U}) > 1 or len({b.shape[1] for b in Y}) > 1:
+        raise ModelDefinitionError("frequency_response: the records have different numbers of inputs or outputs")
+    return ts, U, Y, dts[0]
+
+
 def frequency_response(
-    t: np.ndarray,
-    u: np.ndarray,
-    y: np.ndarray,
+    t: np.ndarray | Sequence[np.ndarray],
+    u: np.ndarray | Sequence[np.ndarray],
+    y: np.ndarray | Sequence[np.ndarray],
     f: np.ndarray | None = None,
     *,
     windows: Sequence[float] | None = None,
@@ -219,53 +247,53 @@ def frequency_response(
 ) -> FrequencyResponse:
     """Frequency responses of the outputs ``y`` to the inputs ``u`` (module docstring).
 
-    t : (N,) uniformly sampled times (s).
-    u : (N,) or (N, n_u) inputs; y : (N,) or (N, n_y) outputs.
-    f : (n_f,) frequencies (Hz); default N_FREQUENCIES log-spaced from two periods of the
-        longest window to a fifth of the sample rate.
-    windows : window lengths (s); default :func:`default_windows` (a single length: plain
-        Welch averages).
+    t : (N,) uniformly sampled times (s), or a list of such records (maneuvers, the pieces
+        of a log between gaps) whose averages add up.
+    u : (N,) or (N, n_u) inputs; y : (N,) or (N, n_y) outputs (lists with a list t).
+    f : (n_f,) frequencies (Hz); default N_FREQUENCIES log-spaced from PERIODS_PER_WINDOW
+        periods of the longest window to a fifth of the sample rate.
+    windows : window lengths (s); default :func:`default_windows` of the longest record (a
+        single length: plain Welch averages).
     inputs, outputs : names (default u0.., y0..).
     """
-    t = np.asarray(t, dtype=float)
-    dt = uniform_step(t, "frequency_response")
-    U, Y = _as_2d(u, t.size, "u"), _as_2d(y, t.size, "y")
-    n_u = U.shape[1]
-    duration = t[-1] - t[0] + dt
-    T_w = np.sort(np.asarray(windows if windows is not None else default_windows(duration, dt), dtype=float))
-    Ls = np.unique(np.clip(np.round(T_w / dt).astype(int), 8, t.size))
-    if Ls[-1] < 8 or t.size < 8:
+    ts, Us, Ys, dt = _records(t, u, y)
+    n_u, n_y = Us[0].shape[1], Ys[0].shape[1]
+    longest = max(x.size for x in ts)
+    if longest < 8:
         raise ModelDefinitionError("frequency_response needs at least 8 samples")
+    duration = longest * dt
+    T_w = np.sort(np.asarray(windows if windows is not None else default_windows(duration, dt), dtype=float))
+    Ls = np.unique(np.clip(np.round(T_w / dt).astype(int), 8, longest))
     T_w = Ls * dt
     if f is None:
         f_lo = PERIODS_PER_WINDOW / T_w[-1]
         f = np.geomspace(f_lo, max(F_MAX_OF_RATE / dt, 1.01 * f_lo), N_FREQUENCIES)
     f = np.atleast_1d(np.asarray(f, dtype=float))
-    x = np.column_stack([U, Y])
-    n_f = f.size
-    num = np.zeros((n_f, x.shape[1], x.shape[1]), dtype=complex)
-    wsum = np.zeros(n_f)
+    n_f, n_c = f.size, n_u + n_y
+    num = np.zeros((n_f, n_c, n_c), dtype=complex)
     n_avg = np.zeros(n_f)
     for L in Ls:
-        fb, G, n_eff = _window_spectra(x, dt, int(L))
-        ok = (f >= PERIODS_PER_WINDOW / (L * dt)) & (f <= fb[-1])
-        if L == Ls[-1]:  # the longest window carries what no other resolves
-            ok |= (f < PERIODS_PER_WINDOW / (L * dt)) & (f >= fb[1])
-        if not np.any(ok):
-            continue
-        # the windows that resolve a frequency are averaged in proportion to their number
-        # of averages (the inverse variance of their spectra for a common coherence: a
-        # window's own coherence from few averages is biased towards 1 and would make the
-        # longest window look the most accurate)
-        num[ok] += n_eff * _interp(fb, G, f[ok])
-        wsum[ok] += n_eff
-        n_avg[ok] += n_eff
-    if np.any(wsum == 0):
+        for U, Y in zip(Us, Ys):
+            if U.shape[0] < L:
+                continue
+            fb, G, n_eff = _window_spectra(np.column_stack([U, Y]), dt, int(L))
+            ok = (f >= PERIODS_PER_WINDOW / (L * dt)) & (f <= fb[-1])
+            if L == Ls[-1]:  # the longest window carries what no other resolves
+                ok |= (f < PERIODS_PER_WINDOW / (L * dt)) & (f >= fb[1] * (1 - 1e-9))
+            if not np.any(ok):
+                continue
+            # the windows (and records) that resolve a frequency are averaged in proportion
+            # to their numbers of averages (the inverse variance of their spectra for a
+            # common coherence: a window's own coherence from few averages is biased towards
+            # 1 and would make the longest window look the most accurate)
+            num[ok] += n_eff * _interp(fb, G, f[ok])
+            n_avg[ok] += n_eff
+    if np.any(n_avg == 0):
         raise ModelDefinitionError(
-            f"frequency_response: no window resolves {f[wsum == 0].min():.4g} Hz to "
-            f"{f[wsum == 0].max():.4g} Hz of this {duration:.4g} s record"
+            f"frequency_response: no window resolves {f[n_avg == 0].min():.4g} Hz to "
+            f"{f[n_avg == 0].max():.4g} Hz of a {duration:.4g} s record"
         )
-    G = num / wsum[:, None, None]
+    G = num / n_avg[:, None, None]
     H, coh, err, mult = _solve(G, n_u, n_avg)
     return FrequencyResponse(
         f=f,
@@ -274,7 +302,8 @@ def frequency_response(
         random_error=err,
         multiple_coherence=mult,
         inputs=list(inputs) if inputs is not None else [f"u{i}" for i in range(n_u)],
-        outputs=list(outputs) if outputs is not None else [f"y{i}" for i in range(Y.shape[1])],
+        outputs=list(outputs) if outputs is not None else [f"y{i}" for i in range(n_y)],
         windows=T_w,
         n_averages=n_avg,
+        input_spectra=np.real(np.einsum("fii->fi", G[:, :n_u, :n_u])),
     )

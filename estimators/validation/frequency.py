@@ -113,6 +113,13 @@ def spectral_estimate(
     return SpectralEstimate(f=f, H=H, coherence=np.clip(coh.real, 0.0, 1.0), Suu=Suu, Syu=Syu, Syy=Syy)
 
 
+def _bound_array(b) -> np.ndarray:
+    """A bound as an array broadcastable to (n_w, n_out, n_in): a scalar, an envelope
+    (n_w,) or a full array."""
+    a = np.asarray(b, dtype=float)
+    return a.reshape(-1, 1, 1) if a.ndim == 1 else a
+
+
 @dataclass(frozen=True)
 class MismatchResult:
     """Model-vs-data mismatch per frequency, arrays (n_w, n_out, n_in):
@@ -146,8 +153,9 @@ def mismatch(
 
     H_model, H_data: complex (n_w, n_out, n_in) (or (n_w,) for SISO); w: (n_w,) rad/s;
     coherence: same shape as H_data, points below min_coherence are ignored (None: all
-    used); band: optional (w_min, w_max) rad/s. Bounds: scalars or arrays (n_w,) (an
-    envelope) in dB and deg. A channel passes when every used point is within both bounds
+    used); band: optional (w_min, w_max) rad/s. Bounds: scalars, arrays (n_w,) (an
+    envelope) or (n_w, n_out, n_in) (per pair, e.g. widened by the random error) in dB and
+    deg. A channel passes when every used point is within both bounds
     (and at least one point is used).
     """
     Hm = np.asarray(H_model, dtype=complex)
@@ -167,13 +175,7 @@ def mismatch(
         used &= np.asarray(coherence) >= min_coherence
     if band is not None:
         used &= ((w >= band[0]) & (w <= band[1]))[:, None, None]
-    mb = np.broadcast_to(
-        np.asarray(mag_bound_db, dtype=float).reshape(-1, 1, 1) if np.ndim(mag_bound_db) else mag_bound_db, Hm.shape
-    )
-    pb = np.broadcast_to(
-        np.asarray(phase_bound_deg, dtype=float).reshape(-1, 1, 1) if np.ndim(phase_bound_deg) else phase_bound_deg,
-        Hm.shape,
-    )
+    mb, pb = (np.broadcast_to(_bound_array(b), Hm.shape) for b in (mag_bound_db, phase_bound_deg))
     ok = (np.abs(mag) <= mb) & (np.abs(ph) <= pb)
     n_out, n_in = Hm.shape[1:]
     outputs = list(outputs) if outputs is not None else [f"y{i}" for i in range(n_out)]
@@ -196,5 +198,9 @@ def mismatch(
         },
         index=idx,
     )
-    table.attrs.update(mag_bound_db=mag_bound_db, phase_bound_deg=phase_bound_deg, min_coherence=min_coherence)
+    table.attrs.update(
+        mag_bound_db=mag_bound_db if np.ndim(mag_bound_db) == 0 else "per point",
+        phase_bound_deg=phase_bound_deg if np.ndim(phase_bound_deg) == 0 else "per point",
+        min_coherence=min_coherence,
+    )
     return MismatchResult(w=w, mag_db=mag, phase_deg=ph, used=used, table=table)

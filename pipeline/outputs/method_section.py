@@ -383,11 +383,14 @@ def _frequency_md(fr: Mapping[str, Any] | None) -> list[str]:
     if not (fr and fr.get("table")):
         return []
     b = fr["bounds"]
+    segs = fr.get("segments") or [fr.get("segment", "?")]
     L = [
-        "### Frequency response (model vs spectral estimate)",
+        "### Frequency response (model vs data, each input's response conditioned on the others)",
         "",
-        f"Segment {fr['segment']}; bounds {b['mag_db']} dB / {b['phase_deg']} deg where "
-        f"coherence >= {b['min_coherence']} and the input carries power.",
+        f"{'Segment' if len(segs) == 1 else 'Segments'} {', '.join(map(str, segs))}; bounds {b['mag_db']} dB / "
+        f"{b['phase_deg']} deg, or {b.get('random_errors', 3):g} random errors of the data's estimate where that "
+        f"is wider, where the partial coherence is >= {b['min_coherence']}, the input carries power and the "
+        f"estimate rests on {b.get('min_averages', 0):g} averages or more.",
         "",
     ]
     rows = [

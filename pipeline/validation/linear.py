@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from estimators import EstimationResult, Segment, simulate_outputs
+from estimators import EstimationResult, Segment, frequency_response, simulate_outputs
 from estimators import validation as V
 from estimators.integrators import DEFAULT_INPUTS
 from estimators.model import Namespace
@@ -22,6 +22,16 @@ _SPEEDS = ("V", "u", "vn", "vd")
 _BANDWIDTH_HALVINGS = 3
 
 #: (A, B, C, D, x0, u0) of :func:`linear_model`
+#: the frequency check's grid: log-spaced from about two periods of the longest segment to
+#: this (or a fifth of the sample rate)
+F_CHECK_MAX_HZ = 10.0
+F_CHECK_POINTS = 60
+#: a frequency-response mismatch within this many of the data's random errors is no failure
+RANDOM_ERROR_K = 3.0
+#: frequencies whose estimate rests on fewer averages are not judged (from one average the
+#: coherence is 1 whatever the data)
+MIN_AVERAGES = 1.5
+
 Linearisation = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
@@ -69,54 +79,73 @@ def _between_samples(t: np.ndarray, y: np.ndarray, measured: np.ndarray) -> np.n
 def frequency_check(
     result: EstimationResult, lin: Linearisation, settings: ValidationSettings, integrator: str
 ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
-    """Model vs data in the frequency domain on the longest fitted segment: (section, arrays),
-    (None, None) without uniform sampling or an excited input.
+    """Model vs data in the frequency domain over the fitted segments (those uniformly
+    sampled at one rate; their averages add up): (section, arrays), (None, None) without
+    uniform sampling or an excited input.
 
-    The data's response H_data is a Welch spectral estimate from the measured inputs and
-    outputs. The model is put through the SAME estimator (its simulated outputs with the same
-    inputs), so window leakage, the short record and the maneuver's transient affect both
-    alike and the mismatch shows the model alone. The model's outputs are a fresh simulation
-    of the identified model held fixed (not a filter's one-step predictions, which lean on
-    the data). The analytic G(jw) = C (jwI - A)^-1 B + D of the model linearised at the
-    first sample is kept alongside for the plots. Bounds from ``settings``."""
+    The data's responses are :func:`estimators.frequency_response`'s: with several inputs
+    each one's response conditioned on the others (aileron and rudder that move together
+    give each its own) and judged where its partial coherence is high. The model is put
+    through the SAME estimator (its simulated outputs with the same inputs), so window
+    leakage, the short record and the maneuver's transient affect both alike and the
+    mismatch shows the model alone. The model's outputs are a fresh simulation of the
+    identified model held fixed (not a filter's one-step predictions, which lean on the
+    data). The analytic G(jw) = C (jwI - A)^-1 B + D of the model linearised at the first
+    sample is kept alongside for the plots. Bounds from ``settings``."""
     A, B, C, D, _, _ = lin
-    k = int(np.argmax([s.t.size for s in result.segments]))
-    seg = result.segments[k]
-    dt = np.diff(seg.t)
-    if seg.t.size < 64 or np.ptp(dt) > 1e-6 * np.median(dt):
+    segs = [s for s in result.segments if s.t.size >= 64 and np.ptp(np.diff(s.t)) <= 1e-6 * np.median(np.diff(s.t))]
+    if not segs:
         return None, None  # needs uniform sampling
-    excited = [i for i in range(seg.u.shape[1]) if np.std(seg.u[:, i]) > 1e-12]
+    dts = [float(np.median(np.diff(s.t))) for s in segs]
+    segs = [s for s, d in zip(segs, dts) if abs(d - dts[0]) <= 1e-6 * dts[0]]  # one rate
+    excited = [i for i in range(segs[0].u.shape[1]) if max(np.std(s.u[:, i]) for s in segs) > 1e-12]
     if not excited:
         return None, None
     # an output slower than the grid (NaN between its samples) is read linearly between its
     # samples, and the model's simulated output is read at the same samples the same way
-    measured = np.isfinite(seg.z)
-    keep = measured.sum(axis=0) >= 64
+    measured = [np.isfinite(s.z) for s in segs]
+    keep = np.sum([m.sum(axis=0) for m in measured], axis=0) >= 64
+    keep &= np.all([m.any(axis=0) for m in measured], axis=0)
     outs = [o for o, kk in zip(result.outputs, keep) if kk]
-    fs = 1.0 / float(np.median(dt))
-    u = seg.u[:, excited]
-    se = V.spectral_estimate(u, _between_samples(seg.t, seg.z[:, keep], measured[:, keep]), fs)
-    y_sim = simulate_outputs(
-        result.model_with_estimates(), seg, integrator=integrator, inputs=result.settings.get("inputs", DEFAULT_INPUTS)
-    )
-    sm = V.spectral_estimate(u, _between_samples(seg.t, y_sim.to_numpy()[:, keep], measured[:, keep]), fs)
-    w = se.w[1:]  # drop DC
-    Hd, coh = se.H[1:], se.coherence[1:]
-    Hm = sm.H[1:]
-    G = V.freq_response(A, B[:, excited], C[keep], D[keep][:, excited], w)
-    # judge only where the input carries power: Welch coherence from a few averages is
-    # biased high, so spectral nulls of the input would otherwise count as evidence
-    suu = np.real(np.diagonal(se.Suu[1:], axis1=1, axis2=2))  # (n_f, n_in)
-    weak = suu < settings.input_power_fraction * suu.max(axis=0, keepdims=True)
-    coh_used = np.where(weak[:, None, :], 0.0, coh)
+    fs = 1.0 / dts[0]
+    span = max(float(s.t[-1] - s.t[0]) for s in segs)
+    # from a little above the lowest frequency the longest window (half the longest
+    # segment, rounded to samples) resolves
+    f = np.geomspace(2.2 / span, min(F_CHECK_MAX_HZ, fs / 5), F_CHECK_POINTS)
     ins = [result.model.inputs[i] for i in excited]
+    model = result.model_with_estimates()
+    how = result.settings.get("inputs", DEFAULT_INPUTS)
+    data, sim = [], []
+    for s, m in zip(segs, measured):
+        data.append(_between_samples(s.t, s.z[:, keep], m[:, keep]))
+        y_sim = simulate_outputs(model, s, integrator=integrator, inputs=how).to_numpy()
+        sim.append(_between_samples(s.t, y_sim[:, keep], m[:, keep]))
+    ts, us = [s.t for s in segs], [s.u[:, excited] for s in segs]
+    se = frequency_response(ts, us, data, f=f)
+    sm = frequency_response(ts, us, sim, f=f)
+    w = se.w
+    Hd, coh, Hm = se.H, se.coherence, sm.H
+    G = V.freq_response(A, B[:, excited], C[keep], D[keep][:, excited], w)
+    # judge only where the input carries power (its own spectrum a share of its peak) and
+    # the estimate rests on enough averages (the coherence of a few is biased towards 1,
+    # and the random error with it towards 0)
+    suu = se.input_spectra
+    weak = suu < settings.input_power_fraction * suu.max(axis=0, keepdims=True)
+    weak |= (se.n_averages < MIN_AVERAGES)[:, None]
+    coh_used = np.where(weak[:, None, :], 0.0, coh)
+    # a point is judged against the bounds or, where the data's estimate is less certain,
+    # against 3 of its random errors (of |H| in dB, of the phase in deg): a model that
+    # agrees with the data within their spread does not fail on it
+    eps = np.nan_to_num(se.random_error, nan=0.0, posinf=0.0)
+    mag_bound = np.maximum(settings.mag_bound_db, 20 * np.log10(1 + RANDOM_ERROR_K * eps))
+    phase_bound = np.maximum(settings.phase_bound_deg, np.degrees(RANDOM_ERROR_K * eps))
     mm = V.mismatch(
         Hm,
         Hd,
         w,
         coh_used,
-        mag_bound_db=settings.mag_bound_db,
-        phase_bound_deg=settings.phase_bound_deg,
+        mag_bound_db=mag_bound,
+        phase_bound_deg=phase_bound,
         min_coherence=settings.min_coherence,
         outputs=outs,
         inputs=ins,
@@ -126,11 +155,13 @@ def frequency_check(
     out = {
         "inputs": ins,
         "outputs": outs,
-        "segment": seg.name or f"segment {k}",
+        "segments": [s.name or f"segment {k}" for k, s in enumerate(segs)],
         "table": tab,
         "bounds": {
             "mag_db": settings.mag_bound_db,
             "phase_deg": settings.phase_bound_deg,
+            "random_errors": RANDOM_ERROR_K,
+            "min_averages": MIN_AVERAGES,
             "min_coherence": settings.min_coherence,
             "input_power_fraction": settings.input_power_fraction,
         },

@@ -57,6 +57,9 @@ def test_wrong_model_fails_proof_of_match(fitted):
     assert v["proof_of_match"]["segments"][0]["channels"]["q"]["pass"] is False
     assert not v["verdict"]["ok"]
     assert any("proof of match failed" in r for r in v["verdict"]["reasons"])
+    # the frequency check sees it too: the model's response off the data's beyond the
+    # bounds and the data's random error where it is judged
+    assert v["frequency"]["n_judged"] > 0 and not v["frequency"]["all_pass"], v["frequency"]["table"]
     # inverse simulation: the wrong model needs larger extra elevator to follow the data
     good = fitted[2]["inverse_simulation"]["per_input"]["de"]["ratio"]
     assert v["inverse_simulation"]["per_input"]["de"]["ratio"] > 1.5 * good
