@@ -23,6 +23,8 @@ STD_LABELS = {
     "sandwich": "std (sandwich)",
     "crb|scatter": "std (CRB or scatter)",
     "filter-covariance|scatter": "std (filter P or scatter)",
+    "crb|sandwich": "std (CRB or sandwich)",
+    "crb|sandwich|scatter": "std (CRB, sandwich or scatter)",
 }
 
 

@@ -139,6 +139,16 @@ CATALOGUE: tuple[Method, ...] = (
         colour=(214, 39, 40),
     ),
     Method(
+        "fdoe",
+        "output error in the frequency domain (band from the inputs' spectra; model linearised at each maneuver)",
+        "fdoe: frequency-domain output error",
+        start_free=True,
+        unclamped_starts=False,
+        lateral="measured",
+        fitter="pipeline.methods.frequency:frequency_output_error",
+        colour=(23, 190, 207),
+    ),
+    Method(
         "soem",
         "stabilised output error (unstable aircraft)",
         "soem: stabilised output error",

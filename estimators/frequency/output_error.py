@@ -26,6 +26,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from estimators.covariance.cluster import ClusterResult, cluster_covariance
 from estimators.errors import ModelDefinitionError
 from estimators.filters.linearize import linearize_batch
 from estimators.frequency.covariance import frequency_covariances
@@ -33,10 +34,10 @@ from estimators.frequency.transform import fourier_transform
 from estimators.model import Model, Segment
 from estimators.results import EstimationResult
 
-#: iterations, and the relative change of det(S) and the step (in std) that end them
+#: iterations, and the relative change of det(S) or the step (in std) that end them
 MAX_ITER = 50
-DET_RTOL = 1e-9
-STEP_STD_TOL = 1e-5
+DET_RTOL = 1e-8
+STEP_STD_TOL = 1e-3
 #: relative step of the parameter sensitivities (central differences)
 PARAM_STEP = 1e-5
 #: a parameter whose sensitivity is below this fraction of the largest is not in the band
@@ -49,7 +50,9 @@ class FrequencyOutputError:
     model : the Model (its linearisation is fitted).
     w : (n_f,) frequencies (rad/s), the same for every segment.
     detrend : of the transforms ("ends", "linear", "none").
-    x_ref, u_ref : the linearisation point (default zeros).
+    x_ref, u_ref : the linearisation point (default zeros); x_ref="initial" linearises
+        each segment about its own initial state and first input sample (a nonlinear
+        model flown from several trims).
     """
 
     method = "fdoe"
@@ -69,18 +72,29 @@ class FrequencyOutputError:
             raise ModelDefinitionError("FrequencyOutputError needs finite frequencies w (rad/s)")
         self.detrend = detrend
         n, m = len(model.states), len(model.inputs)
-        self.x_ref = np.zeros(n) if x_ref is None else np.asarray(x_ref, dtype=float).ravel()
+        self.per_segment = isinstance(x_ref, str)
+        if self.per_segment and x_ref != "initial":
+            raise ModelDefinitionError(f"x_ref={x_ref!r}: give values or 'initial'")
+        self.x_ref = np.zeros(n) if x_ref is None or self.per_segment else np.asarray(x_ref, dtype=float).ravel()
         self.u_ref = np.zeros(m) if u_ref is None else np.asarray(u_ref, dtype=float).ravel()
         if self.x_ref.size != n or self.u_ref.size != m:
             raise ModelDefinitionError(f"x_ref needs {n} values {model.states}, u_ref {m} {model.inputs}")
         self.max_iter = int(max_iter)
 
     # -- the model's response ----------------------------------------------------------------
-    def responses(self, P: np.ndarray, constants: Mapping[str, float]) -> np.ndarray:
-        """H (B, n_f, n_y, n_u) of the parameter columns P (n_p, B)."""
+    def responses(
+        self,
+        P: np.ndarray,
+        constants: Mapping[str, float],
+        x_ref: np.ndarray | None = None,
+        u_ref: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """H (B, n_f, n_y, n_u) of the parameter columns P (n_p, B), linearised about
+        (x_ref, u_ref) (default this object's)."""
         Bc = P.shape[1]
-        xr = np.repeat(self.x_ref[:, None], Bc, axis=1)
-        A, Bu, C, D, _, _ = linearize_batch(self.model, P, xr, self.u_ref, constants)
+        xr = np.repeat((self.x_ref if x_ref is None else x_ref)[:, None], Bc, axis=1)
+        ur = self.u_ref if u_ref is None else u_ref
+        A, Bu, C, D, _, _ = linearize_batch(self.model, P, xr, ur, constants)
         n = A.shape[1]
         jw = 1j * self.w[None, :, None, None] * np.eye(n)[None, None]
         X = np.linalg.solve(jw - A[:, None], np.broadcast_to(Bu[:, None], (Bc, self.w.size, *Bu.shape[1:])))
@@ -102,6 +116,11 @@ class FrequencyOutputError:
         U = [fourier_transform(s.t, s.u, self.w, self.detrend) for s in segs]
         Z = [fourier_transform(s.t, s.z, self.w, self.detrend) for s in segs]
         consts = [model.constants_for(s) for s in segs]
+        refs = (
+            [(s.initial_state(model), s.u[0].astype(float)) for s in segs]
+            if self.per_segment
+            else [(self.x_ref, self.u_ref)] * len(segs)
+        )
         names = model.parameter_names
         theta = np.array([float((start or {}).get(p.name, p.value)) for p in model.parameters])
         shared = np.array([not p.per_segment for p in model.parameters])
@@ -122,8 +141,8 @@ class FrequencyOutputError:
             P[idx, 1 + np.arange(idx.size)] += h
             P[idx, 1 + idx.size + np.arange(idx.size)] -= h
             vs, Js = [], []
-            for Uf, Zf, c in zip(U, Z, consts):
-                H = self.responses(P, c)  # (B, n_f, n_y, n_u)
+            for Uf, Zf, c, (xr, ur) in zip(U, Z, consts, refs):
+                H = self.responses(P, c, xr, ur)  # (B, n_f, n_y, n_u)
                 V = Zf[None] - np.einsum("bfyu,fu->bfy", H, Uf)
                 vs.append(V[0])
                 Js.append((V[1 : 1 + idx.size] - V[1 + idx.size :]).transpose(1, 2, 0) / (2 * h))
@@ -160,9 +179,9 @@ class FrequencyOutputError:
             history.append(
                 {"iteration": it, "det_S": det, "cost": c0, **dict(zip([names[i] for i in idx], theta[idx]))}
             )
-            if abs(det_old - det) <= DET_RTOL * abs(det) and np.all(
-                np.abs(step) <= STEP_STD_TOL * np.sqrt(np.abs(np.diag(np.linalg.pinv(M))))
-            ):
+            settled = abs(det_old - det) <= DET_RTOL * abs(det)
+            small = np.all(np.abs(step) <= STEP_STD_TOL * np.sqrt(np.abs(np.diag(np.linalg.pinv(M)))))
+            if settled or small:
                 converged = True
                 break
             det_old = det
@@ -175,7 +194,9 @@ class FrequencyOutputError:
                 alpha /= 2
             theta, v, J = trial, v_t, J_t
         S = (v.T @ v.conj()) / n_tot
-        covs = frequency_covariances(J, v, np.linalg.pinv(S, hermitian=True))
+        Si = np.linalg.pinv(S, hermitian=True)
+        covs = frequency_covariances(J, v, Si)
+        cluster = self._maneuver_scatter(J, v, Si, len(segs), [names[i] for i in idx])
         at = [names[i] for i in idx if theta[i] <= lo[i] or theta[i] >= hi[i]]
         if at:
             on = np.array([names[i] in at for i in idx])
@@ -209,8 +230,35 @@ class FrequencyOutputError:
             message="; ".join(notes)
             + ("" if converged else ("; " if notes else "") + f"stopped at max_iter={self.max_iter}"),
             settings={"detrend": self.detrend, "n_frequencies": int(self.w.size), "domain": "frequency"},
-            extra={"w": self.w, "S": S, "U_f": U, "Z_f": Z, "x_ref": self.x_ref, "u_ref": self.u_ref},
+            extra={
+                "w": self.w,
+                "S": S,
+                "U_f": U,
+                "Z_f": Z,
+                "x_ref": self.x_ref,
+                "u_ref": self.u_ref,
+                **({"cluster": cluster} if cluster is not None else {}),
+            },
         )
+
+    def _maneuver_scatter(
+        self, J: np.ndarray, v: np.ndarray, Si: np.ndarray, n_seg: int, names: list[str]
+    ) -> ClusterResult | None:
+        """The maneuver-cluster covariance (:func:`estimators.covariance.cluster.cluster_covariance`)
+        from each segment's information and score over its frequencies: how much the
+        maneuvers disagree beyond the bounds (None for one segment or a singular one)."""
+        if n_seg < 2:
+            return None
+        nf = self.w.size
+        M_parts, scores = [], []
+        for k in range(n_seg):
+            Jk, vk = J[k * nf : (k + 1) * nf], v[k * nf : (k + 1) * nf]
+            M_parts.append(np.real(np.einsum("fyp,yz,fzq->pq", Jk.conj(), Si, Jk)))
+            scores.append(np.real(np.einsum("fyp,yz,fz->p", Jk.conj(), Si, vk)))
+        try:
+            return cluster_covariance(M_parts, scores, names=names)
+        except (ValueError, np.linalg.LinAlgError):
+            return None
 
     @staticmethod
     def _expanded(names: list[str], shared: np.ndarray, n_seg: int) -> list[str]:

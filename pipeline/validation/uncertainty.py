@@ -22,7 +22,11 @@ SCATTER_CONFIDENCE = 0.95
 SCATTER_MIN_SEGMENTS = 3
 #: ``std_method`` of a result whose bounds the maneuver scatter widened, by the method of
 #: the bounds it widened (the Cramér-Rao bound; a Kalman filter's parameter covariance)
-SCATTER_STD_METHOD = {"crb": "crb|scatter", "filter-covariance": "filter-covariance|scatter"}
+SCATTER_STD_METHOD = {
+    "crb": "crb|scatter",
+    "filter-covariance": "filter-covariance|scatter",
+    "crb|sandwich": "crb|sandwich|scatter",
+}
 
 
 def parameter_uncertainty(result: EstimationResult) -> dict[str, Any] | None:
