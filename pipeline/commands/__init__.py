@@ -16,6 +16,7 @@ COMMANDS: dict[str, str] = {
     "fields": "fields",
     "estimate": "estimate",
     "run": "run",
+    "response": "response",
     "view": "view",
     "aircraft": "aircraft",
 }

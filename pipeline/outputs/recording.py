@@ -110,7 +110,7 @@ from pipeline.paths import atomic_path
 
 
 @contextmanager
-def _recording(path: Path, application_id: str, recording_id: str | None) -> Iterator[Any]:
+def open_recording(path: Path, application_id: str, recording_id: str | None) -> Iterator[Any]:
     """A RecordingStream saving to a temporary file renamed onto ``path`` at the end."""
     import rerun as rr
 
@@ -156,7 +156,7 @@ def write_recording(
         raise ValueError("write_recording needs at least one result")
     validations = dict(validations or {})
     path = Path(path)
-    with _recording(path, application_id, recording_id) as rec:
+    with open_recording(path, application_id, recording_id) as rec:
         w = SeriesWriter(rec, list(results))
         w.text("/README", __doc__ or "")
         for m, r in results.items():
@@ -189,7 +189,7 @@ def write_check_recording(
     """Write ``check.rrd``: the whole flight of ``fsid check`` (the ``/flight`` entities of
     the module doc, and ``/README``); returns the path."""
     path = Path(path)
-    with _recording(path, application_id, recording_id) as rec:
+    with open_recording(path, application_id, recording_id) as rec:
         w = SeriesWriter(rec, [])
         w.text("/README", __doc__ or "")
         write_flight(w, flight)
