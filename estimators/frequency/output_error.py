@@ -38,6 +38,8 @@ from estimators.results import EstimationResult
 MAX_ITER = 50
 DET_RTOL = 1e-8
 STEP_STD_TOL = 1e-3
+#: the residuals' weighting: the complex-Gaussian likelihood's S^-1, or the reference's conj(S)^-1
+WEIGHTINGS = ("likelihood", "conjugate")
 #: relative step of the parameter sensitivities (central differences)
 PARAM_STEP = 1e-5
 #: a parameter whose sensitivity is below this fraction of the largest is not in the band
@@ -50,6 +52,8 @@ class FrequencyOutputError:
     model : the Model (its linearisation is fitted).
     w : (n_f,) frequencies (rad/s), the same for every segment.
     detrend : of the transforms ("ends", "linear", "none").
+    weighting : "likelihood" (S^-1, default) or "conjugate" (conj(S)^-1, the reference
+        implementation's; for comparison).
     x_ref, u_ref : the linearisation point (default zeros); x_ref="initial" linearises
         each segment about its own initial state and first input sample (a nonlinear
         model flown from several trims).
@@ -65,6 +69,7 @@ class FrequencyOutputError:
         x_ref: Sequence[float] | None = None,
         u_ref: Sequence[float] | None = None,
         max_iter: int = MAX_ITER,
+        weighting: str = "likelihood",
     ) -> None:
         self.model = model
         self.w = np.asarray(w, dtype=float).ravel()
@@ -80,6 +85,9 @@ class FrequencyOutputError:
         if self.x_ref.size != n or self.u_ref.size != m:
             raise ModelDefinitionError(f"x_ref needs {n} values {model.states}, u_ref {m} {model.inputs}")
         self.max_iter = int(max_iter)
+        if weighting not in WEIGHTINGS:
+            raise ModelDefinitionError(f"weighting={weighting!r}: use one of {', '.join(WEIGHTINGS)}")
+        self.weighting = weighting
 
     # -- the model's response ----------------------------------------------------------------
     def responses(
@@ -166,7 +174,7 @@ class FrequencyOutputError:
         det_old = np.inf
         for it in range(1, self.max_iter + 1):
             S = (v.T @ v.conj()) / n_tot  # sum_k v_k v_k^H (n_y, n_y)
-            Si = np.linalg.pinv(S, hermitian=True)
+            Si = self._weight(S)
             det = float(np.real(np.linalg.det(S)))
 
             def cost(vv: np.ndarray, Si=Si) -> float:
@@ -194,7 +202,7 @@ class FrequencyOutputError:
                 alpha /= 2
             theta, v, J = trial, v_t, J_t
         S = (v.T @ v.conj()) / n_tot
-        Si = np.linalg.pinv(S, hermitian=True)
+        Si = self._weight(S)
         covs = frequency_covariances(J, v, Si)
         cluster = self._maneuver_scatter(J, v, Si, len(segs), [names[i] for i in idx])
         at = [names[i] for i in idx if theta[i] <= lo[i] or theta[i] >= hi[i]]
@@ -240,6 +248,10 @@ class FrequencyOutputError:
                 **({"cluster": cluster} if cluster is not None else {}),
             },
         )
+
+    def _weight(self, S: np.ndarray) -> np.ndarray:
+        """The residuals' weighting matrix: S^-1, or conj(S)^-1 (the reference's)."""
+        return np.linalg.pinv(S if self.weighting == "likelihood" else S.conj(), hermitian=True)
 
     def _maneuver_scatter(
         self, J: np.ndarray, v: np.ndarray, Si: np.ndarray, n_seg: int, names: list[str]
