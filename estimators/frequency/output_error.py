@@ -22,6 +22,7 @@ carries the "sandwich" covariance measured from the residuals
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -112,6 +113,35 @@ class FrequencyOutputError:
         """Estimate the free shared parameters from ``segments`` (uniformly sampled, complete
         outputs), starting from the model's values or ``start``."""
         segs = [segments] if isinstance(segments, Segment) else list(segments)
+        data = self._transformed(segs)
+        model, names = self.model, self.model.parameter_names
+        theta = np.array([float((start or {}).get(p.name, p.value)) for p in model.parameters])
+        shared = np.array([not p.per_segment for p in model.parameters])
+        free = np.array([p.free for p in model.parameters]) & shared
+        bounds = np.array([p.bounds for p in model.parameters], dtype=float).reshape(-1, 2)
+        notes = []
+        if np.any(~shared):
+            notes.append(
+                "per-segment parameters held at their start (they drop out of the band): "
+                + ", ".join(n for n, s in zip(names, shared) if not s)
+            )
+        idx = np.flatnonzero(free)
+        v, J = data.residuals(theta, idx)
+        norms = np.sqrt(np.sum(np.abs(J) ** 2, axis=(0, 1)))
+        null = norms <= NULL_SENSITIVITY * max(norms.max(initial=0.0), 1e-300)
+        if np.any(null):
+            notes.append("not in the band (no sensitivity), held: " + ", ".join(names[i] for i in idx[null]))
+            free[idx[null]] = False
+        idx = np.flatnonzero(free)
+        if idx.size == 0:
+            raise ModelDefinitionError("FrequencyOutputError: no free parameter moves the model's response")
+        theta, v, J, converged, history = self._iterate(data, theta, idx, bounds, (v, J[:, :, ~null]))
+        if not converged:
+            notes.append(f"stopped at max_iter={self.max_iter}")
+        return self._result(segs, data, theta, idx, free, shared, bounds, v, J, converged, history, notes)
+
+    def _transformed(self, segs: list[Segment]) -> _Transformed:
+        """The segments' input and output transforms, constants and linearisation points."""
         if not segs:
             raise ModelDefinitionError("fit() needs at least one segment")
         model = self.model
@@ -121,59 +151,36 @@ class FrequencyOutputError:
                 raise ModelDefinitionError(
                     f"segment {s.name!r}: the outputs have missing samples; the frequency domain needs complete records"
                 )
-        U = [fourier_transform(s.t, s.u, self.w, self.detrend) for s in segs]
-        Z = [fourier_transform(s.t, s.z, self.w, self.detrend) for s in segs]
-        consts = [model.constants_for(s) for s in segs]
         refs = (
             [(s.initial_state(model), s.u[0].astype(float)) for s in segs]
             if self.per_segment
             else [(self.x_ref, self.u_ref)] * len(segs)
         )
-        names = model.parameter_names
-        theta = np.array([float((start or {}).get(p.name, p.value)) for p in model.parameters])
-        shared = np.array([not p.per_segment for p in model.parameters])
-        free = np.array([p.free for p in model.parameters]) & shared
-        lo = np.array([p.bounds[0] if p.bounds else -np.inf for p in model.parameters], dtype=float)
-        hi = np.array([p.bounds[1] if p.bounds else np.inf for p in model.parameters], dtype=float)
-        notes = []
-        if np.any(~shared):
-            notes.append(
-                "per-segment parameters held at their start (they drop out of the band): "
-                + ", ".join(n for n, s in zip(names, shared) if not s)
-            )
+        return _Transformed(
+            self,
+            [fourier_transform(s.t, s.u, self.w, self.detrend) for s in segs],
+            [fourier_transform(s.t, s.z, self.w, self.detrend) for s in segs],
+            [model.constants_for(s) for s in segs],
+            refs,
+        )
 
-        def residuals(th: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            """v (n_tot, n_y) at th, and dv/dtheta (n_tot, n_y, len(idx))."""
-            h = PARAM_STEP * np.maximum(np.abs(th[idx]), 1e-3)
-            P = np.repeat(th[:, None], 1 + 2 * idx.size, axis=1)
-            P[idx, 1 + np.arange(idx.size)] += h
-            P[idx, 1 + idx.size + np.arange(idx.size)] -= h
-            vs, Js = [], []
-            for Uf, Zf, c, (xr, ur) in zip(U, Z, consts, refs):
-                H = self.responses(P, c, xr, ur)  # (B, n_f, n_y, n_u)
-                V = Zf[None] - np.einsum("bfyu,fu->bfy", H, Uf)
-                vs.append(V[0])
-                Js.append((V[1 : 1 + idx.size] - V[1 + idx.size :]).transpose(1, 2, 0) / (2 * h))
-            return np.concatenate(vs), np.concatenate(Js)
-
-        idx = np.flatnonzero(free)
-        v, J = residuals(theta, idx)
-        norms = np.sqrt(np.sum(np.abs(J) ** 2, axis=(0, 1)))
-        null = norms <= NULL_SENSITIVITY * max(norms.max(initial=0.0), 1e-300)
-        if np.any(null):
-            notes.append("not in the band (no sensitivity), held: " + ", ".join(names[i] for i in idx[null]))
-            free[idx[null]] = False
-            idx = idx[~null]
-            J = J[:, :, ~null]
-        if idx.size == 0:
-            raise ModelDefinitionError("FrequencyOutputError: no free parameter moves the model's response")
-        n_tot = v.shape[0]
-        history = []
-        converged, it = False, 0
-        S = (v.T @ v.conj()) / n_tot
+    def _iterate(
+        self,
+        data: _Transformed,
+        theta: np.ndarray,
+        idx: np.ndarray,
+        bounds: np.ndarray,
+        first: tuple[np.ndarray, np.ndarray],
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool, list[dict]]:
+        """Gauss-Newton on the free parameters ``idx`` with S re-estimated each iteration
+        and step halving, projected onto the bounds; (theta, v, J, converged, history)."""
+        names = self.model.parameter_names
+        lo, hi = bounds[idx, 0], bounds[idx, 1]
+        v, J = first
+        history: list[dict] = []
         det_old = np.inf
         for it in range(1, self.max_iter + 1):
-            S = (v.T @ v.conj()) / n_tot  # sum_k v_k v_k^H (n_y, n_y)
+            S = (v.T @ v.conj()) / v.shape[0]  # sum_k v_k v_k^H / n_f
             Si = self._weight(S)
             det = float(np.real(np.linalg.det(S)))
 
@@ -181,44 +188,52 @@ class FrequencyOutputError:
                 return 0.5 * float(np.real(np.einsum("fy,yz,fz->", vv.conj(), Si, vv)))
 
             M = np.real(np.einsum("fyp,yz,fzq->pq", J.conj(), Si, J))
-            g = np.real(np.einsum("fyp,yz,fz->p", J.conj(), Si, v))
-            step = -np.linalg.lstsq(M, g, rcond=None)[0]
+            step = -np.linalg.lstsq(M, np.real(np.einsum("fyp,yz,fz->p", J.conj(), Si, v)), rcond=None)[0]
             c0, alpha = cost(v), 1.0
-            history.append(
-                {"iteration": it, "det_S": det, "cost": c0, **dict(zip([names[i] for i in idx], theta[idx]))}
-            )
+            history.append({"iteration": it, "det_S": det, "cost": c0, **{names[i]: theta[i] for i in idx}})
             settled = abs(det_old - det) <= DET_RTOL * abs(det)
-            small = np.all(np.abs(step) <= STEP_STD_TOL * np.sqrt(np.abs(np.diag(np.linalg.pinv(M)))))
-            if settled or small:
-                converged = True
-                break
+            if settled or np.all(np.abs(step) <= STEP_STD_TOL * np.sqrt(np.abs(np.diag(np.linalg.pinv(M))))):
+                return theta, v, J, True, history
             det_old = det
             while True:
                 trial = theta.copy()
-                trial[idx] = np.clip(theta[idx] + alpha * step, lo[idx], hi[idx])
-                v_t, J_t = residuals(trial, idx)
+                trial[idx] = np.clip(theta[idx] + alpha * step, lo, hi)
+                v_t, J_t = data.residuals(trial, idx)
                 if cost(v_t) <= c0 or alpha < 1e-4:
                     break
                 alpha /= 2
             theta, v, J = trial, v_t, J_t
-        S = (v.T @ v.conj()) / n_tot
+        return theta, v, J, False, history
+
+    def _result(
+        self,
+        segs: list[Segment],
+        data: _Transformed,
+        theta: np.ndarray,
+        idx: np.ndarray,
+        free: np.ndarray,
+        shared: np.ndarray,
+        bounds: np.ndarray,
+        v: np.ndarray,
+        J: np.ndarray,
+        converged: bool,
+        history: list[dict],
+        notes: list[str],
+    ) -> EstimationResult:
+        """The result: covariance views ("crb", "sandwich"; NaN for a parameter on a bound),
+        the maneuvers' scatter, predictions and residuals per segment on f (Hz)."""
+        model, names = self.model, self.model.parameter_names
+        S = (v.T @ v.conj()) / v.shape[0]
         Si = self._weight(S)
         covs = frequency_covariances(J, v, Si)
         cluster = self._maneuver_scatter(J, v, Si, len(segs), [names[i] for i in idx])
-        at = [names[i] for i in idx if theta[i] <= lo[i] or theta[i] >= hi[i]]
-        if at:
-            on = np.array([names[i] in at for i in idx])
-            for k in covs:
-                covs[k] = covs[k].copy()
-                covs[k][on, :] = np.nan
-                covs[k][:, on] = np.nan
+        on = (theta[idx] <= bounds[idx, 0]) | (theta[idx] >= bounds[idx, 1])
+        for k in covs if np.any(on) else ():
+            covs[k] = covs[k].copy()
+            covs[k][on, :] = np.nan
+            covs[k][:, on] = np.nan
         f = pd.Index(self.w / (2 * np.pi), name="f_hz")
-        pred, res_f, k0 = [], [], 0
-        for Zf in Z:
-            vv = v[k0 : k0 + self.w.size]
-            k0 += self.w.size
-            pred.append(pd.DataFrame(Zf - vv, index=f, columns=model.outputs))
-            res_f.append(pd.DataFrame(vv, index=f, columns=model.outputs))
+        parts = np.split(v, len(segs))
         return EstimationResult(
             method=self.method,
             model=model,
@@ -229,20 +244,19 @@ class FrequencyOutputError:
             covariances=covs,
             R=np.real(S),
             converged=converged,
-            iterations=it,
+            iterations=len(history),
             history=pd.DataFrame(history),
-            predicted=pred,
-            residuals=res_f,
+            predicted=[pd.DataFrame(Zf - vv, index=f, columns=model.outputs) for Zf, vv in zip(data.Z, parts)],
+            residuals=[pd.DataFrame(vv, index=f, columns=model.outputs) for vv in parts],
             segments=segs,
-            at_bounds=at,
-            message="; ".join(notes)
-            + ("" if converged else ("; " if notes else "") + f"stopped at max_iter={self.max_iter}"),
+            at_bounds=[names[i] for i in idx[on]],
+            message="; ".join(notes),
             settings={"detrend": self.detrend, "n_frequencies": int(self.w.size), "domain": "frequency"},
             extra={
                 "w": self.w,
                 "S": S,
-                "U_f": U,
-                "Z_f": Z,
+                "U_f": data.U,
+                "Z_f": data.Z,
                 "x_ref": self.x_ref,
                 "u_ref": self.u_ref,
                 **({"cluster": cluster} if cluster is not None else {}),
@@ -285,3 +299,31 @@ class FrequencyOutputError:
         for v, s in zip(values, shared):
             out += [v] if s else [v] * n_seg
         return np.asarray(out, dtype=float)
+
+
+@dataclass(frozen=True)
+class _Transformed:
+    """The segments of one fit in the frequency domain: the inputs' and outputs'
+    transforms U, Z (per segment (n_f, n_u), (n_f, n_y)), their constants and
+    linearisation points (x_ref, u_ref)."""
+
+    fdoe: FrequencyOutputError
+    U: list[np.ndarray]
+    Z: list[np.ndarray]
+    constants: list[Mapping[str, float]]
+    refs: list[tuple[np.ndarray, np.ndarray]]
+
+    def residuals(self, theta: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """v (n_tot, n_y) at theta, and dv/dtheta (n_tot, n_y, len(idx)) by central
+        differences, every parameter column in one linearisation per segment."""
+        h = PARAM_STEP * np.maximum(np.abs(theta[idx]), 1e-3)
+        P = np.repeat(theta[:, None], 1 + 2 * idx.size, axis=1)
+        P[idx, 1 + np.arange(idx.size)] += h
+        P[idx, 1 + idx.size + np.arange(idx.size)] -= h
+        vs, Js = [], []
+        for Uf, Zf, c, (xr, ur) in zip(self.U, self.Z, self.constants, self.refs):
+            H = self.fdoe.responses(P, c, xr, ur)  # (B, n_f, n_y, n_u)
+            V = Zf[None] - np.einsum("bfyu,fu->bfy", H, Uf)
+            vs.append(V[0])
+            Js.append((V[1 : 1 + idx.size] - V[1 + idx.size :]).transpose(1, 2, 0) / (2 * h))
+        return np.concatenate(vs), np.concatenate(Js)

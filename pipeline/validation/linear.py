@@ -76,6 +76,24 @@ def _between_samples(t: np.ndarray, y: np.ndarray, measured: np.ndarray) -> np.n
     return out
 
 
+def _data_and_model_responses(
+    result: EstimationResult, segs: list[Segment], excited: list[int], keep: np.ndarray, f: np.ndarray, integrator: str
+) -> tuple[Any, Any]:
+    """The frequency responses (:func:`estimators.frequency_response`) of the measured
+    outputs ``keep`` to the inputs ``excited`` over ``segs``, and of the identified model's
+    simulated outputs read at the same samples."""
+    model = result.model_with_estimates()
+    how = result.settings.get("inputs", DEFAULT_INPUTS)
+    data, sim = [], []
+    for s in segs:
+        m = np.isfinite(s.z)
+        data.append(_between_samples(s.t, s.z[:, keep], m[:, keep]))
+        y_sim = simulate_outputs(model, s, integrator=integrator, inputs=how).to_numpy()
+        sim.append(_between_samples(s.t, y_sim[:, keep], m[:, keep]))
+    ts, us = [s.t for s in segs], [s.u[:, excited] for s in segs]
+    return frequency_response(ts, us, data, f=f), frequency_response(ts, us, sim, f=f)
+
+
 def frequency_check(
     result: EstimationResult, lin: Linearisation, settings: ValidationSettings, integrator: str
 ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
@@ -113,16 +131,7 @@ def frequency_check(
     # segment, rounded to samples) resolves
     f = np.geomspace(2.2 / span, min(F_CHECK_MAX_HZ, fs / 5), F_CHECK_POINTS)
     ins = [result.model.inputs[i] for i in excited]
-    model = result.model_with_estimates()
-    how = result.settings.get("inputs", DEFAULT_INPUTS)
-    data, sim = [], []
-    for s, m in zip(segs, measured):
-        data.append(_between_samples(s.t, s.z[:, keep], m[:, keep]))
-        y_sim = simulate_outputs(model, s, integrator=integrator, inputs=how).to_numpy()
-        sim.append(_between_samples(s.t, y_sim[:, keep], m[:, keep]))
-    ts, us = [s.t for s in segs], [s.u[:, excited] for s in segs]
-    se = frequency_response(ts, us, data, f=f)
-    sm = frequency_response(ts, us, sim, f=f)
+    se, sm = _data_and_model_responses(result, segs, excited, keep, f, integrator)
     w = se.w
     Hd, coh, Hm = se.H, se.coherence, sm.H
     G = V.freq_response(A, B[:, excited], C[keep], D[keep][:, excited], w)
