@@ -23,7 +23,7 @@ import numpy as np
 from pipeline.conditioning.findings import FAIL, PASS, WARN, Finding
 from pipeline.conditioning.kinematics import check_kinematics
 from pipeline.ingest.flightdata import CONTROL_INPUTS, FlightData, SegmentSpec
-from pipeline.ingest.sampling import GAP_FACTOR, start_statement, typical_interval
+from pipeline.ingest.sampling import GAP_FACTOR, response_floor_hz, start_statement, typical_interval
 
 #: channels system identification needs (missing ones are reported)
 CORE = ("ax", "ay", "az", "p", "q", "r", "phi", "theta", "psi", "V", "alpha", "beta", "h", "de", "da", "dr")
@@ -75,7 +75,7 @@ def check_channel(name: str, t: np.ndarray, v: np.ndarray) -> list[Finding]:
         return out
     dt = np.diff(t)
     _check_time_order(out, name, t, dt)
-    span = _check_rate(out, name, t, dt)
+    span = _check_rate(out, name, t, dt, v)
     _check_finite(out, name, t, v)
     fin = v[np.isfinite(v)]
     if fin.size < 2:
@@ -123,7 +123,7 @@ def _check_time_order(out: list[Finding], name: str, t: np.ndarray, dt: np.ndarr
         out.append(Finding(PASS, "time_order", name, f"{name}: times strictly increasing", a, b))
 
 
-def _check_rate(out: list[Finding], name: str, t: np.ndarray, dt: np.ndarray) -> float:
+def _check_rate(out: list[Finding], name: str, t: np.ndarray, dt: np.ndarray, v: np.ndarray) -> float:
     """Sample rate, jitter and gaps of times t [s] (n >= 2, intervals dt); returns their span
     [s]. Rate and jitter from the intervals between gaps (longer than GAP_FACTOR typical
     intervals, :func:`pipeline.ingest.sampling.typical_interval`): a log paused between
@@ -135,15 +135,15 @@ def _check_rate(out: list[Finding], name: str, t: np.ndarray, dt: np.ndarray) ->
     rate = 1.0 / med if np.isfinite(med) and med > 0 else 0.0
     regular = pos[pos <= GAP_FACTOR * med] if np.isfinite(med) else pos
     jitter = float(np.std(regular) / np.mean(regular)) if regular.size > 1 else 0.0
-    if name in DYNAMIC and rate < MIN_RATE_HZ:
+    need = response_floor_hz(t, v, MIN_RATE_HZ, 0.0) if name in DYNAMIC and rate < MIN_RATE_HZ else 0.0
+    if rate < need:
         out.append(
             Finding(
                 WARN,
                 "rate",
                 name,
-                f"{name} is sampled at {rate:.1f} Hz; aircraft "
-                f"dynamics need >= {MIN_RATE_HZ:.0f} Hz (telemetry logs are usually too "
-                "slow: use the onboard log)",
+                f"{name} is sampled at {rate:.1f} Hz; the motion it shows needs >= {need:.1f} Hz (ten samples "
+                "a period; telemetry logs are usually too slow: use the onboard log)",
                 a,
                 b,
                 rate,

@@ -15,8 +15,9 @@ different stories. Per axis (longitudinal, lateral) it asks what the axis' probl
   5 m/s or the aircraft's stall speed): a log on the ground or
   hovering holds no aircraft flight dynamics, whatever else it lacks;
 * sample rates: the channels that carry the axis' fastest mode (the short period, the roll
-  mode) at :data:`RESPONSE_HZ`, the control inputs at :data:`INPUT_HZ`, the slower states at
-  :data:`STATE_HZ`;
+  mode) at ten samples a period of the fastest motion their own spectra show (up to
+  :data:`RESPONSE_HZ`: a small UAV's 2 Hz modes; a business jet's 0.5 Hz modes ask for
+  less), the control inputs at :data:`INPUT_HZ`, the slower states at :data:`STATE_HZ`;
 * maneuvers: at least ``1 + hold_out`` of the axis' maneuver windows (found from its
   control surfaces, overlapping ones merged) in forward flight with samples of its
   outputs (one fitted, ``hold_out`` held out for the proof of match), enough forward
@@ -49,6 +50,7 @@ from pipeline.conditioning.flow_angles import reconstruct_flow_angles
 from pipeline.errors import FsidError
 from pipeline.ingest.constants import AircraftConstants
 from pipeline.ingest.flightdata import ANSWER_RAD_S, MOVED_RAD, FlightData, SegmentSpec, merge_overlapping
+from pipeline.ingest.sampling import response_floor_hz
 
 #: the channels carrying the fastest rigid-body mode (short period, roll mode: up to about
 #: 2 Hz on light aircraft and small UAVs) need this rate [Hz]: some ten samples a period
@@ -274,11 +276,31 @@ def _rate(fd: FlightData, ch: str) -> float:
     return fd["vn"].rate_hz if ch in FLOW_ANGLES and "vn" in fd else float("nan")
 
 
+def response_floors(fd: FlightData, channels: Sequence[str]) -> dict[str, float]:
+    """Channel -> the rate [Hz] it needs to carry the aircraft's motion it shows
+    (:func:`pipeline.ingest.sampling.response_floor_hz`: ten samples a period of its
+    fastest motion, at most RESPONSE_HZ, at least STATE_HZ)."""
+    return {
+        c: response_floor_hz(fd[c].t, fd[c].values, RESPONSE_HZ, STATE_HZ)
+        for c in channels
+        if c in fd and len(fd[c]) > 1
+    }
+
+
 def _rate_reasons(fd: FlightData, needs: AxisNeeds, missing: Sequence[str]) -> list[str]:
-    """A reason per class of needed channels sampled too slowly for what they must show."""
+    """A reason per class of needed channels sampled too slowly for what they must show
+    (the response channels: for the motion their own spectra show, :func:`response_floors`)."""
     present = [c for c in needs.channels if c not in missing]
+    floors = response_floors(fd, [c for c in needs.response if c in present])
+    slow = {c: (_rate(fd, c), floors[c]) for c in floors if _rate(fd, c) < floors[c]}
+    out = []
+    if slow:
+        listed = ", ".join(f"{c} {r:.1f} Hz (needs {need:.1f})" for c, (r, need) in slow.items())
+        out.append(
+            f"rate too low: {listed}; {needs.mode} them at ten samples a period of the motion they show "
+            f"(up to {RESPONSE_HZ:g} Hz; telemetry is usually too slow: use the onboard log)"
+        )
     classes = (
-        (needs.response, RESPONSE_HZ, f"{needs.mode} them at >= {RESPONSE_HZ:g} Hz"),
         (needs.surfaces, INPUT_HZ, f"a maneuver's steps need the control inputs at >= {INPUT_HZ:g} Hz"),
         (
             [c for c in present if c not in needs.response and c not in needs.surfaces],
@@ -286,16 +308,10 @@ def _rate_reasons(fd: FlightData, needs: AxisNeeds, missing: Sequence[str]) -> l
             f"the maneuvers' response needs the states at >= {STATE_HZ:g} Hz",
         ),
     )
-    out = []
     for chans, floor, what in classes:
-        slow = {c: _rate(fd, c) for c in chans if c in present and _rate(fd, c) < floor}
-        if slow:
-            listed = ", ".join(f"{c} {r:.1f} Hz" for c, r in slow.items())
-            out.append(
-                f"rate too low: {listed}; {what} (telemetry is usually too slow: use the onboard log)"
-                if floor == RESPONSE_HZ
-                else f"rate too low: {listed}; {what}"
-            )
+        slow_c = {c: _rate(fd, c) for c in chans if c in present and _rate(fd, c) < floor}
+        if slow_c:
+            out.append(f"rate too low: {', '.join(f'{c} {r:.1f} Hz' for c, r in slow_c.items())}; {what}")
     return out
 
 
@@ -431,7 +447,8 @@ def _excitation_reasons(fd: FlightData, needs: AxisNeeds, good: Sequence[Maneuve
     the surface's std over the window is small, the aircraft's response is not) - and a
     body rate answers a maneuver whose surface moved."""
     surf = "/".join(needs.surfaces)
-    rates = [c for c in needs.rates if c in fd and fd[c].rate_hz >= RESPONSE_HZ]
+    floors = response_floors(fd, needs.rates)
+    rates = [c for c in needs.rates if c in floors and fd[c].rate_hz >= floors[c]]
     response = {m.name: _response(fd, m, rates) for m in good}
     moved = [m for m in good if m.excitation >= MIN_EXCITATION_RAD or response[m.name] >= 1.0]
     if not moved:

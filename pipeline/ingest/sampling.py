@@ -104,6 +104,37 @@ def sample_rate(t: np.ndarray) -> float:
     return float(1.0 / m) if np.isfinite(m) and m > 0 else 0.0
 
 
+#: the rate a channel carrying the aircraft's motion needs: this many samples per period of
+#: the fastest motion it shows
+SAMPLES_PER_PERIOD = 10.0
+#: "the fastest motion it shows": the frequency below which this share of its (detrended)
+#: variance lies
+BANDWIDTH_SHARE = 0.95
+
+
+def response_floor_hz(t: np.ndarray, v: np.ndarray, ceiling: float, floor: float) -> float:
+    """The sample rate [Hz] a channel of the aircraft's motion (a body rate, an
+    acceleration) needs: SAMPLES_PER_PERIOD samples per period of the frequency below which
+    BANDWIDTH_SHARE of its variance lies, from its own spectrum (Welch, the samples read on
+    their own rate), within ``floor``..``ceiling``. A log too slow for its aircraft shows
+    its motion folded up to the Nyquist frequency, and sensor noise spreads to it too, so
+    either asks for the ceiling; the slow modes of a large aircraft ask for less.
+    ``ceiling`` with fewer than 64 finite samples."""
+    from scipy import signal  # on use: the readers import this module
+
+    t, v = np.asarray(t, dtype=float), np.asarray(v, dtype=float)
+    ok = np.isfinite(t) & np.isfinite(v)
+    rate = sample_rate(t[ok]) if ok.sum() >= 2 else 0.0
+    if ok.sum() < 64 or rate <= 0:
+        return float(ceiling)
+    tt = np.arange(t[ok][0], t[ok][-1], 1.0 / rate)
+    x = signal.detrend(np.interp(tt, t[ok], v[ok]))
+    f, P = signal.welch(x, fs=rate, nperseg=min(x.size, 256))
+    share = np.cumsum(P[1:]) / max(np.sum(P[1:]), 1e-300)
+    f_hi = float(f[1:][min(int(np.searchsorted(share, BANDWIDTH_SHARE)), f.size - 2)])
+    return float(np.clip(SAMPLES_PER_PERIOD * f_hi, floor, ceiling))
+
+
 def sample_gaps(t: np.ndarray) -> list[tuple[float, float]]:
     """The gaps of the stamps ``t`` [s]: (last stamp before, first stamp after) of every
     interval longer than GAP_FACTOR typical intervals (:func:`typical_interval`)."""

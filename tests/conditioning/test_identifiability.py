@@ -269,3 +269,36 @@ def test_a_window_given_by_time_is_never_dropped_unsaid(default_fd):
     fd.segments = fd.chosen_segments([(10.0, 50.0)], per_axis=True)
     lon = identifiability(fd, run_checks(fd))["longitudinal"]
     assert any("the windows given, time_10-50s (10.0-50.0 s)" in w for w in lon.reasons), lon.reasons
+
+
+def test_the_rate_rule_is_sized_by_the_motion_the_data_show():
+    """Ten samples a period of the fastest motion a channel shows (its own spectrum): a
+    business jet's 0.5 Hz short period logged at 10 Hz is enough; a small UAV's 2 Hz mode
+    logged at 10 Hz is not (folded up to the Nyquist frequency, it asks for the ceiling),
+    and at 100 Hz it is."""
+    from pipeline.ingest.sampling import response_floor_hz
+
+    rng = np.random.default_rng(0)
+
+    def q(mode_hz: float, rate: float) -> tuple[np.ndarray, np.ndarray]:
+        t = np.arange(0.0, 120.0, 1.0 / rate)
+        v = np.sin(2 * np.pi * mode_hz * t) * np.exp(-0.02 * (t % 20.0)) + 0.01 * rng.standard_normal(t.size)
+        return t, v
+
+    jet = response_floor_hz(*q(0.5, 10.0), 20.0, 4.0)
+    assert 4.0 <= jet <= 10.0, jet
+    assert response_floor_hz(*q(2.0, 10.0), 20.0, 4.0) == 20.0
+    assert response_floor_hz(*q(2.0, 100.0), 20.0, 4.0) == 20.0  # needs 20, has 100
+    assert response_floor_hz(np.arange(10.0), np.zeros(10), 20.0, 4.0) == 20.0  # too few samples to tell
+
+
+def test_a_small_uav_logged_at_10_hz_is_refused_with_the_rate_it_needs(default_fd):
+    slow = {k: (dataclasses.replace(c, t=c.t[::10], values=c.values[::10]) if k in ("q", "az") else c)
+            for k, c in default_fd.channels.items()}  # fmt: skip
+    fd = FlightData(slow, default_fd.meta, default_fd.segments)
+    lon = identifiability(fd, run_checks(fd))["longitudinal"]
+    assert not lon.possible
+    why = [r for r in lon.reasons if r.startswith("rate too low")]
+    assert why and "ten samples a period" in why[0], lon.reasons
+    need = float(why[0].split("q 10.0 Hz (needs ", 1)[1].split(")", 1)[0])
+    assert 10.0 < need <= 20.0, why
