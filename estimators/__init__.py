@@ -51,6 +51,8 @@ _LAZY = {
     "TransferFunction": "estimators.frequency.transfer",
     "loes_parameters": "estimators.frequency.transfer",
     "FrequencyOutputError": "estimators.frequency.output_error",
+    "StepwiseRegression": "estimators.structure",
+    "OrthogonalFunctions": "estimators.structure",
 }
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs
@@ -67,6 +69,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs
     from estimators.output_error.stabilized import EigenvalueTransformation, EquationDecoupling, StabilizedOutputError
     from estimators.results import EstimationResult
     from estimators.simulation import simulate_outputs
+    from estimators.structure import OrthogonalFunctions, StepwiseRegression
 
 __all__ = [
     "Model",
@@ -98,6 +101,8 @@ __all__ = [
     "TransferFunction",
     "loes_parameters",
     "FrequencyOutputError",
+    "StepwiseRegression",
+    "OrthogonalFunctions",
 ]
 
 
