@@ -27,6 +27,8 @@ from pipeline.ingest.sampling import GAP_FACTOR, response_floor_hz, start_statem
 
 #: channels system identification needs (missing ones are reported)
 CORE = ("ax", "ay", "az", "p", "q", "r", "phi", "theta", "psi", "V", "alpha", "beta", "h", "de", "da", "dr")
+#: the body rates and accelerations: their own spectra size the rate they need
+MOTION = ("ax", "ay", "az", "p", "q", "r", "pdot", "qdot", "rdot")
 #: channels with fast dynamics: should be sampled at >= MIN_RATE_HZ
 DYNAMIC = (
     "ax",
@@ -135,7 +137,12 @@ def _check_rate(out: list[Finding], name: str, t: np.ndarray, dt: np.ndarray, v:
     rate = 1.0 / med if np.isfinite(med) and med > 0 else 0.0
     regular = pos[pos <= GAP_FACTOR * med] if np.isfinite(med) else pos
     jitter = float(np.std(regular) / np.mean(regular)) if regular.size > 1 else 0.0
-    need = response_floor_hz(t, v, MIN_RATE_HZ, 0.0) if name in DYNAMIC and rate < MIN_RATE_HZ else 0.0
+    # the body rates and accelerations show the motion they carry (the rate they need comes
+    # from their own spectra, as the identifiability verdict's); attitudes, angles and
+    # surfaces are mostly slow trim and turns whatever modes ride on them: the fixed floor
+    need = 0.0
+    if name in DYNAMIC and rate < MIN_RATE_HZ:
+        need = response_floor_hz(t, v, MIN_RATE_HZ, 0.0) if name in MOTION else MIN_RATE_HZ
     if rate < need:
         out.append(
             Finding(

@@ -69,6 +69,7 @@ def test_conditioned_responses_recover_both_inputs_where_the_single_input_estima
     assert fr.select("p", "dr").H.shape == (30, 1, 1)
 
 
+@pytest.mark.slow  # 40 simulated flights: the edit loop's tier goes without it
 def test_random_error_matches_the_scatter_over_repeated_flights():
     """One input, noise of 30 % of the output: the stated normalised random error of |H|
     against the scatter of |H| over 40 repeated experiments (a new random input and noise
