@@ -197,3 +197,15 @@ def sample_sensor(truth: pd.DataFrame, spec: SensorSpec, rng: np.random.Generato
             x = np.angle(np.exp(1j * x))
         out[c] = x
     return pd.DataFrame(out)
+
+
+def default_noise_si() -> dict[str, float]:
+    """Channel -> the default 1-sigma white noise of its simulated sensor, SI units (rad,
+    rad/s, m/s, m/s^2): what a flight is assumed to measure with when nothing better is known
+    (an input design's predicted accuracy)."""
+    out: dict[str, float] = {}
+    for _, _, groups in _SENSORS.values():
+        for grp in groups.values():
+            for c in grp.channels:
+                out.setdefault(c, grp.noise * grp.si)  # the first sensor of a channel (baro before GPS)
+    return out

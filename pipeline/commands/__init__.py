@@ -17,6 +17,7 @@ COMMANDS: dict[str, str] = {
     "estimate": "estimate",
     "run": "run",
     "response": "response",
+    "design": "design",
     "view": "view",
     "aircraft": "aircraft",
 }

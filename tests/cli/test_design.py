@@ -1,0 +1,63 @@
+"""``fsid design``: orthogonal multisines for the flight and the accuracy they predict, from
+an aircraft file; the prediction scales as it must (double the amplitude, half the std)."""
+
+import json
+import os
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline.cli import main
+
+AIRCRAFT = "scenarios/aircraft/uav_small.toml"
+
+
+def _design(tmp_path, *extra: str) -> dict:
+    out = tmp_path / "d"
+    args = ["design", "--aircraft", AIRCRAFT, "--inputs", "de,da,dr", "--band", "0.1:2.0", "--duration", "20"]
+    assert main([*args, "--speed", "20", "--quiet", "--out", str(out), *extra]) == 0
+    return json.loads((out / "design.json").read_text()), out
+
+
+def test_design_writes_the_inputs_and_their_predicted_accuracy(tmp_path):
+    doc, out = _design(tmp_path)
+    U = pd.read_csv(out / "inputs.csv")
+    assert list(U.columns) == ["t", "de", "da", "dr", "de_deg", "da_deg", "dr_deg"] and len(U) == 1001
+    np.testing.assert_allclose(U[["de_deg", "da_deg", "dr_deg"]].abs().max(), 3.0)
+    np.testing.assert_array_equal(U[["de", "da", "dr"]].iloc[[0, -1]].to_numpy(), 0.0)
+    assert all(r <= 1.15 for r in doc["rpf"].values()) and len(doc["frequencies_hz"]["da"]) == 13
+    lon, lat = doc["predicted"]["longitudinal"]["parameters"], doc["predicted"]["lateral"]["parameters"]
+    assert {"CLalpha", "Cmalpha", "Cmq", "Cmde"} <= set(lon) and {"Clp", "Cnr", "Clda", "Cndr"} <= set(lat)
+    assert lon["Cmalpha"]["value"] == pytest.approx(-0.38)  # the truth set's derivative
+    assert all(0 < p["std"] < abs(p["value"]) for n, p in {**lon, **lat}.items() if n in ("Cmq", "Clp", "Cnr"))
+    for name in ("inputs.csv", "design.json", "report.md", "report.html", "figures/inputs.png"):
+        assert os.stat(out / name).st_mode & 0o044 == 0o044, name
+    assert "Predicted accuracy" in (out / "report.md").read_text()
+
+
+def test_twice_the_amplitude_halves_the_predicted_std(tmp_path):
+    """The bounds scale as 1 / amplitude for a model linear in the inputs' small motion."""
+    a, _ = _design(tmp_path / "a")
+    b, _ = _design(tmp_path / "b", "--amplitude", "de=6deg,da=6deg,dr=6deg")
+    for axis, names in (("longitudinal", ("Cmq", "Cmde", "CLalpha")), ("lateral", ("Clp", "Cnr", "Clda"))):
+        for n in names:
+            r = b["predicted"][axis]["parameters"][n]["std"] / a["predicted"][axis]["parameters"][n]["std"]
+            assert 0.4 < r < 0.6, (axis, n, r)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--inputs", "de,throttle"], "design inputs are de, da, dr"),
+        (["--inputs", "de", "--band", "2:1"], "0 <= LO < HI"),
+        (["--inputs", "de,da,dr", "--band", "0.1:0.15"], "harmonics"),
+        (["--inputs", "de", "--amplitude", "de=big"], "NAME=VALUE"),
+    ],
+)
+def test_bad_designs_end_in_one_line(tmp_path, capsys, extra, message):
+    base = ["design", "--aircraft", AIRCRAFT, "--band", "0.1:2.0", "--duration", "20", "--speed", "20"]
+    args = base + extra if "--band" not in extra else [a for a in base if a not in ("--band", "0.1:2.0")] + extra
+    assert main([*args, "--out", str(tmp_path / "d"), "--quiet"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
