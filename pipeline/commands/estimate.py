@@ -77,6 +77,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="fit every maneuver, holding none out (no proof of match unless --validate-with gives a flight)",
     )
     p.add_argument(
+        "--accept-low-rate",
+        action="store_true",
+        help="estimate an axis whose body rates or accelerations are logged slower than the motion they show "
+        "needs (ten samples a period), instead of refusing it; the report states the risk",
+    )
+    p.add_argument(
         "--priors",
         action="store_true",
         help="use the aircraft file's [apriori] values as priors of output error's fit (they "
@@ -105,6 +111,7 @@ def options(args: argparse.Namespace) -> EstimateOptions:
         input_dynamics=args.input_dynamics,
         segments=segment_items(args.segments) if args.segments else None,
         hold_out=not args.no_holdout,
+        accept_low_rate=args.accept_low_rate,
         priors=args.priors,
         **validation_options(args),
     )

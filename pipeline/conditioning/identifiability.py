@@ -158,6 +158,9 @@ class Identifiability:
     reasons: tuple[str, ...] = ()
     maneuvers: tuple[Maneuver, ...] = ()
     modes: tuple[tuple[float, str], ...] = field(default_factory=tuple)
+    #: the rate reasons taken as a risk instead (``accept_low_rate``): the estimate goes on
+    #: and its report says them
+    risks: tuple[str, ...] = ()
 
     def as_dict(self) -> dict:
         """The checks.json entry of the axis."""
@@ -167,6 +170,7 @@ class Identifiability:
             "reasons": list(self.reasons),
             "maneuvers": [m.as_dict() for m in self.maneuvers],
             "modes": [{"t0": float(t), "mode": name} for t, name in self.modes],
+            **({"risks": list(self.risks)} if self.risks else {}),
         }
 
 
@@ -177,11 +181,14 @@ def identifiability(
     *,
     hold_out: int = 1,
     axes: Iterable[str] = tuple(AXIS_NEEDS),
+    accept_low_rate: bool = False,
 ) -> dict[str, Identifiability]:
     """Axis -> :class:`Identifiability` of the flight ``fd`` as the estimate would fit it
     (module docstring), from the data-quality ``findings`` on it and, when given, the
     ``aircraft`` (its max_thrust stands in for a thrust channel). ``hold_out``: maneuvers
-    per axis held out for the proof of match (0 with validation flights)."""
+    per axis held out for the proof of match (0 with validation flights);
+    ``accept_low_rate``: channels slower than they need are a risk (``risks``), not a
+    reason the axis cannot be identified (the user's soft limit)."""
     angles = _flow_angles(fd)
     ground, ground_why = no_forward_flight(fd, _whole(fd))
     airborne_s = _airborne_seconds(fd, bool(ground))
@@ -192,12 +199,14 @@ def identifiability(
         if ground:
             reasons.insert(0, f"on the ground or hovering over the whole log ({ground_why}): no flight dynamics to fit")
         reasons += _failed_checks(findings, needs, missing)
-        reasons += _rate_reasons(fd, needs, missing)
+        rates = _rate_reasons(fd, needs, missing)
+        risks = tuple(rates) if accept_low_rate else ()
+        reasons += [] if accept_low_rate else rates
         mans = _maneuvers(fd, needs)
         if not (set(needs.surfaces) & set(missing)):
             reasons += _maneuver_reasons(fd, needs, mans, hold_out, airborne_s, bool(ground))
         out[axis] = Identifiability(
-            axis, not reasons and not missing, tuple(missing), tuple(reasons), tuple(mans), tuple(fd.modes)
+            axis, not reasons and not missing, tuple(missing), tuple(reasons), tuple(mans), tuple(fd.modes), risks
         )
     return out
 

@@ -147,6 +147,8 @@ def estimate(log: str | Path, opts: EstimateOptions, count: Progress | None = No
     if not user:  # refused before any fit, for the reasons fsid check gives
         axes = _identifiable(fd, findings, ac, axes, log, opts, len(vlogs), pr)
     meta = {"log": str(log), "aircraft": ac_name, "time": start_statement(fd.meta)}
+    if "rate risk" in fd.meta:
+        meta["rate risk"] = fd.meta["rate risk"]
     if fd_vals:
         meta["validation flight"] = "; ".join(
             f"{validation_prefix(k, len(vlogs))}{vlog}" if len(vlogs) > 1 else str(vlog) for k, vlog in enumerate(vlogs)
@@ -229,8 +231,15 @@ def _identifiable(
     or ``opts.hold_out`` say otherwise): FsidError with every reason, one line each, when none
     can; else a note per reason an axis is left out, its fits taken out of the stage count."""
     hold_out = 0 if n_validation or not opts.hold_out else 1
-    ident = identifiability(fd, findings, ac, hold_out=hold_out, axes=axes)
+    ident = identifiability(fd, findings, ac, hold_out=hold_out, axes=axes, accept_low_rate=opts.accept_low_rate)
     ok = identifiable_axes(ident, axes, str(log))
+    risks = list(dict.fromkeys(r for a in ok for r in ident[a].risks))
+    if risks:  # the user's soft limit: said now and in the report (fd.meta reaches its facts)
+        fd.meta["rate risk"] = (
+            "; ".join(risks) + " - estimated anyway (--accept-low-rate): the fastest motion is undersampled, "
+            "so the derivatives it carries may be biased and their std too small"
+        )
+        print(f"note: {fd.meta['rate risk']}", file=pr.stream)
     for line in reason_lines(ident, [a for a in axes if a not in ok]) if not opts.quiet else ():
         print(f"note: not identified: {line}", file=pr.stream)
     n = len(opts.methods)

@@ -86,7 +86,8 @@ class EstimateOptions(EstimationSettings):
         (time ranges (t0, t1) [s from the log's start] or segment names,
         :meth:`pipeline.ingest.flightdata.FlightData.chosen_segments`; None: those found);
         hold_out: see :class:`FitOptions`; priors: the aircraft file's a-priori values used
-        as output error's priors too.
+        as output error's priors too; accept_low_rate: estimate axes whose response
+        channels are slower than their motion needs, the risk stated in the report.
     """
 
     aircraft: str | Path | None = None
@@ -101,6 +102,7 @@ class EstimateOptions(EstimationSettings):
     segments: Sequence[str | tuple[float, float]] | None = None
     hold_out: bool = True
     priors: bool = False
+    accept_low_rate: bool = False
 
 
 @dataclass(frozen=True)

@@ -302,3 +302,15 @@ def test_a_small_uav_logged_at_10_hz_is_refused_with_the_rate_it_needs(default_f
     assert why and "ten samples a period" in why[0], lon.reasons
     need = float(why[0].split("q 10.0 Hz (needs ", 1)[1].split(")", 1)[0])
     assert 10.0 < need <= 20.0, why
+
+
+def test_accept_low_rate_turns_the_rate_refusal_into_a_stated_risk(default_fd):
+    """The user's soft limit (fsid estimate --accept-low-rate): the same 10 Hz q is no longer
+    a reason the axis cannot be identified; it stays as a risk, in checks.json's entry."""
+    slow = {k: (dataclasses.replace(c, t=c.t[::10], values=c.values[::10]) if k in ("q", "az") else c)
+            for k, c in default_fd.channels.items()}  # fmt: skip
+    fd = FlightData(slow, default_fd.meta, default_fd.segments)
+    lon = identifiability(fd, run_checks(fd), accept_low_rate=True)["longitudinal"]
+    assert lon.possible and not any(r.startswith("rate too low") for r in lon.reasons), lon.reasons
+    assert lon.risks and lon.risks[0].startswith("rate too low: q 10.0 Hz (needs")
+    assert lon.as_dict()["risks"] == list(lon.risks)
