@@ -16,6 +16,7 @@ from pipeline.commands.arguments import (
     segment_items,
     validation_options,
 )
+from pipeline.errors import FsidError
 from pipeline.jobs.options import EstimateOptions
 from pipeline.paths import new_run_dir
 from pipeline.registry import METHOD_LIST, METHODS
@@ -77,6 +78,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="fit every maneuver, holding none out (no proof of match unless --validate-with gives a flight)",
     )
     p.add_argument(
+        "--structure",
+        choices=("stepwise", "mof"),
+        default=None,
+        help="with --method ls: search each coefficient's regression for the structure the data ask for "
+        "(stepwise regression or multivariate orthogonal functions over the model's terms and alpha^2, "
+        "alpha*de, beta^2, ...); the report says what enters and why",
+    )
+    p.add_argument(
         "--accept-low-rate",
         action="store_true",
         help="estimate an axis whose body rates or accelerations are logged slower than the motion they show "
@@ -112,6 +121,7 @@ def options(args: argparse.Namespace) -> EstimateOptions:
         segments=segment_items(args.segments) if args.segments else None,
         hold_out=not args.no_holdout,
         accept_low_rate=args.accept_low_rate,
+        structure=args.structure,
         priors=args.priors,
         **validation_options(args),
     )
@@ -120,6 +130,8 @@ def options(args: argparse.Namespace) -> EstimateOptions:
 def run(args: argparse.Namespace) -> int:
     from pipeline.jobs.estimate import estimate_log  # the job loads numba, scipy, pandas: on use only
 
+    if args.structure and "ls" not in (args.method or []):
+        raise FsidError("--structure searches equation error's regressions: add --method ls")
     log_file(args.log)
     opts = options(args)
     out = new_run_dir("estimate", args.out, inputs=[args.log, *(args.validate_with or []), args.aircraft, args.map])

@@ -192,6 +192,7 @@ def _fit_options(opts: EstimateOptions, ac: Any) -> FitOptions:
         apriori=dict(ac.apriori) if ac is not None and ac.apriori else None,
         priors=opts.priors,
         signs=ac.expected_signs() if ac is not None else None,
+        structure=opts.structure,
     )
 
 

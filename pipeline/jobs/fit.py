@@ -102,6 +102,10 @@ def fit_and_validate(
         signs=options.signs,
     )
     v["problem"] = {"notes": list(pb.notes)}
+    if options.structure and spec.regressions:  # what structure the data ask for (the report's)
+        from pipeline.methods.structure import structure_search
+
+        res = res.with_extra(structure=structure_search(pb, options.structure))
     progress.done()
     return widened(res, v["uncertainty"]), v
 

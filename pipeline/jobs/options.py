@@ -33,6 +33,8 @@ class FitOptions:
         against by the validation; priors: also used as output error's priors.
     signs: derivative -> the sign (+1/-1) the validation expects (None: the defaults,
         :func:`estimators.validation.expected_signs`).
+    structure: "stepwise" or "mof": equation error's regressions also searched for the
+        structure the data ask for (:mod:`pipeline.methods.structure`).
     """
 
     inputs: str = "linear"
@@ -45,6 +47,7 @@ class FitOptions:
     apriori: Mapping[str, Mapping[str, float | str]] | None = None
     priors: bool = False
     signs: Mapping[str, int] | None = None
+    structure: str | None = None
 
 
 @dataclass(frozen=True)
@@ -87,7 +90,8 @@ class EstimateOptions(EstimationSettings):
         :meth:`pipeline.ingest.flightdata.FlightData.chosen_segments`; None: those found);
         hold_out: see :class:`FitOptions`; priors: the aircraft file's a-priori values used
         as output error's priors too; accept_low_rate: estimate axes whose response
-        channels are slower than their motion needs, the risk stated in the report.
+        channels are slower than their motion needs, the risk stated in the report;
+        structure: see :class:`FitOptions`.
     """
 
     aircraft: str | Path | None = None
@@ -103,6 +107,7 @@ class EstimateOptions(EstimationSettings):
     hold_out: bool = True
     priors: bool = False
     accept_low_rate: bool = False
+    structure: str | None = None
 
 
 @dataclass(frozen=True)

@@ -83,7 +83,44 @@ def method_md(
     L += (_failed_md(err, "frequency") or _frequency_md(v.get("frequency"))) + fig.get("frequency", [])
     L += _failed_md(err, "inverse_simulation") or _inverse_md(v.get("inverse_simulation"))
     L += _failed_md(err, "truth", "plausibility") + _apriori_md((v.get("plausibility") or {}).get("apriori"))
+    L += _structure_md(mj.get("structure"))
     return L
+
+
+def _structure_md(st: Mapping[str, Any] | None) -> list[str]:
+    """What structure each coefficient's data ask for (``--structure``)."""
+    if not st:
+        return []
+    rows = []
+    for coef, d in st.items():
+        if "error" in d:
+            rows.append([coef, "-", "-", "-", d["error"]])
+            continue
+        how = "F to enter" if d["method"] == "stepwise" else "PSE after"
+        entered = [s for s in d["steps"] if s.get("action", "add") == "add" and s.get("term") not in ("bias", "")]
+        why = ", ".join(
+            f"{s['term']} {s['F']:.3g}" if d["method"] == "stepwise" else f"{s['term']} {s['PSE']:.3g}" for s in entered
+        )
+        rows.append(
+            [
+                coef,
+                ", ".join(d["selected"]) or "-",
+                ", ".join(d["added"]) or "-",
+                ", ".join(d["not_needed"]) or "-",
+                f"{how}: {why}",
+            ]
+        )
+    method = next((d["method"] for d in st.values() if "method" in d), "")
+    return [
+        f"### Model structure ({'stepwise regression' if method == 'stepwise' else 'multivariate orthogonal functions'})",
+        "",
+        "The equation-error regressions searched over the model's terms and nonlinear ones of the same variables; "
+        "'the model lacks' are terms the data select that the built-in model has not, 'not needed' its terms the "
+        "data do not select.",
+        "",
+        *table(["coefficient", "selected", "the model lacks", "not needed", "why"], rows),
+        "",
+    ]
 
 
 #: the validation's checks (its ``errors`` keys) as report.md names them; those with a

@@ -85,6 +85,7 @@ def method_json(
     # the measurement noise std a fed-back-measurement method inferred per output
     d["std_method"] = result.std_method
     d["noise_std"] = result.extra.get("noise_std")
+    d["structure"] = result.extra.get("structure")  # equation error's structure search, when asked
     d["fit"] = (val.get("fit") or {}).get("per_output", {})
     d["validation"] = val
     d["verdict"] = val.get("verdict") or verdict({"converged": result.converged})
