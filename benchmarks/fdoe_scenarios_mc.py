@@ -8,10 +8,12 @@ phugoid that carries them (docs/frequency-domain.md).
     python benchmarks/fdoe_scenarios_mc.py [--seeds 8] [--seed-base 100] [--jobs 2]
 
 Measured (seeds 100-107, 2 jobs), empirical / reported std over the five short-period
-derivatives: calm air oem 0.74-1.15, fdoe 0.39-1.45 (Cmq 0.39: its sandwich std
-conservative; |bias| <= 2.25 empirical std, Cmq); turbulence oem 6.17-8.08 (output error
-takes the air as calm: filter error is the method there), fdoe 0.70-2.02 (Cmalpha 2.02,
-CLalpha 1.85: the gusts' share of the residuals is not white across the band).
+derivatives: calm air oem 0.74-1.15, fdoe 0.37-1.38 (Cmq 0.37: its sandwich std
+conservative; |bias| <= 2.31 empirical std, Cmq); turbulence oem 6.17-8.08 (output error
+takes the air as calm: filter error is the method there), fdoe 0.62-2.03 (Cmalpha 2.03,
+CLalpha 1.8: the gust response leaks across a finite record's frequencies, which neither
+bound counts; spacing the frequencies by the shortest maneuver's 1/T instead of the
+longest's changed this by less than 0.1).
 """
 
 from __future__ import annotations

@@ -36,7 +36,9 @@ MAX_FREQUENCIES = 200
 
 def input_band(segments: list[Segment]) -> tuple[float, float, float]:
     """(f_low, f_high, df) in Hz: where the maneuvers' inputs carry power (module constants)
-    and the spacing 1/T of the longest maneuver."""
+    and the spacing 1/T of the shortest maneuver: closer frequencies share that maneuver's
+    resolution, their residuals correlated, and the bounds that count each frequency as
+    independent would be too small."""
     dt = float(np.median(np.diff(segments[0].t)))
     T = max(s.t[-1] - s.t[0] + dt for s in segments)
     n = int(2 ** np.ceil(np.log2(T / dt)))
@@ -52,7 +54,8 @@ def input_band(segments: list[Segment]) -> tuple[float, float, float]:
     on = np.flatnonzero((power >= BAND_POWER * power.max()) & (f >= lo_res))
     f_hi = min(float(f[on[-1]]) if on.size else BAND_MAX_HZ, BAND_MAX_HZ, 0.2 / dt)
     f_lo = max(float(f[on[0]]) if on.size else lo_res, lo_res)
-    return f_lo, max(f_hi, 2 * f_lo), lo_res
+    df = 1.0 / min(s.t[-1] - s.t[0] + dt for s in segments)
+    return f_lo, max(f_hi, f_lo + 2 * df), df
 
 
 def _complete(seg: Segment) -> Segment:
