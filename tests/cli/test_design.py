@@ -36,6 +36,7 @@ def test_design_writes_the_inputs_and_their_predicted_accuracy(tmp_path):
     assert "Predicted accuracy" in (out / "report.md").read_text()
 
 
+@pytest.mark.slow  # two designs: the edit loop's tier goes without it
 def test_twice_the_amplitude_halves_the_predicted_std(tmp_path):
     """The bounds scale as 1 / amplitude for a model linear in the inputs' small motion."""
     a, _ = _design(tmp_path / "a")
