@@ -82,8 +82,10 @@ def _draw(fig: Figure, fr: FrequencyResponse, fits: Mapping[str, Mapping[str, An
             )
         ax[row, 2].set_ylim(0.0, 1.05)
         ax[row, 0].set_ylabel(f"{o}/{u} [dB]\n({_unit(o)} per {_unit(u)})")
-        ax[row, 1].set_ylabel(f"{o}/{u} phase [deg]")
-        ax[row, 2].set_ylabel(f"{o}/{u} coherence")
+        # the pair is named once, on the magnitude; the other columns' titles say what they
+        # hold, so their labels stay short and clear of the panel to their left
+        ax[row, 1].set_ylabel("deg")
+        ax[row, 2].set_ylabel("")
     for a in ax.flat:
         a.set_xscale("log")
         a.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))

@@ -103,8 +103,10 @@ def _draw(fig: Figure, key: str, fr: Mapping[str, Any], pairs: list[tuple[int, i
             ax[row, 2].axhline(min_coh, color="0.5", lw=0.8, ls=":", label="least coherence checked")
         ax[row, 2].set_ylim(0.0, 1.05)
         ax[row, 0].set_ylabel(f"{o}/{i} [dB]\n({_unit(o)} per {_unit(i)})")
-        ax[row, 1].set_ylabel(f"{o}/{i} phase [deg]")
-        ax[row, 2].set_ylabel(f"{o}/{i} coherence")
+        # the pair is named once, on the magnitude; the other columns' titles say what they
+        # hold, so their labels stay short and clear of the panel to their left
+        ax[row, 1].set_ylabel("deg")
+        ax[row, 2].set_ylabel("")
     for a in ax.flat:  # log frequency, decades only, plain labels: minor ticks and mathtext cost most of the time
         a.set_xscale("log")
         a.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
