@@ -55,6 +55,7 @@ def test_estimate_from_the_bin_without_vanes(tmp_path):
                 "--model",
                 "longitudinal",
                 "--no-compat",
+                "--no-figures",
                 "--quiet",
                 "--validate-with",
                 str(run / "validation.bin"),

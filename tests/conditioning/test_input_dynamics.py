@@ -126,7 +126,7 @@ def test_estimate_applies_the_servo_lag(lagged_flight, tmp_path, capsys):
     from pipeline.cli import main
 
     log = lagged_flight / "flight.bin"
-    base = ["estimate", str(log), "--model", "longitudinal", "--no-compat", "--quiet"]
+    base = ["estimate", str(log), "--model", "longitudinal", "--no-compat", "--no-figures", "--quiet"]
     # both axes (the lateral output error holds the longitudinal estimates)
     assert main(base[:2] + base[4:] + ["--out", str(tmp_path / "auto")]) == 0
     for key in ("longitudinal-oem", "lateral-oem"):
