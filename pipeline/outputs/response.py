@@ -11,11 +11,18 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
-from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
 
 from estimators import FrequencyResponse
 from pipeline.outputs.figures.refs import make
-from pipeline.outputs.figures.style import MEASURED, grid_size, panel_grid, scale_label, top_legend
+from pipeline.outputs.figures.style import (
+    MEASURED,
+    bode_axes,
+    grid_size,
+    panel_grid,
+    scale_label,
+    top_legend,
+    unit_text,
+)
 from pipeline.outputs.html import write_html
 from pipeline.outputs.markdown import table
 from pipeline.paths import atomic_write_text
@@ -27,11 +34,6 @@ FIT_COLOUR = "tab:orange"
 def _gain(o: str, i: str) -> float:
     """Display units per display unit of a pair (deg/s per deg, g per deg)."""
     return scale_label(o)[0] / scale_label(i)[0]
-
-
-def _unit(channel: str) -> str:
-    label = scale_label(channel)[1]
-    return label.split("[", 1)[1].rstrip("]") if "[" in label else "-"
 
 
 def response_frame(fr: FrequencyResponse) -> pd.DataFrame:
@@ -81,19 +83,12 @@ def _draw(fig: Figure, fr: FrequencyResponse, fits: Mapping[str, Mapping[str, An
                 fr.f, fr.multiple_coherence[:, k], color="0.55", lw=0.9, ls="--", label="multiple coherence"
             )
         ax[row, 2].set_ylim(0.0, 1.05)
-        ax[row, 0].set_ylabel(f"{o}/{u} [dB]\n({_unit(o)} per {_unit(u)})")
+        ax[row, 0].set_ylabel(f"{o}/{u} [dB]\n({unit_text(o)} per {unit_text(u)})")
         # the pair is named once, on the magnitude; the other columns' titles say what they
         # hold, so their labels stay short and clear of the panel to their left
         ax[row, 1].set_ylabel("deg")
         ax[row, 2].set_ylabel("")
-    for a in ax.flat:
-        a.set_xscale("log")
-        a.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
-        a.xaxis.set_minor_locator(NullLocator())
-        a.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:g}"))
-    for c, name in enumerate(("magnitude", "phase", "coherence")):
-        ax[0, c].set_title(name)
-        ax[-1, c].set_xlabel("frequency [Hz]")
+    bode_axes(ax)
     handles, labels = [], []
     for a in (ax[0, 0], ax[0, 2]):
         h, lab = a.get_legend_handles_labels()

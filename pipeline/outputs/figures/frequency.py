@@ -11,17 +11,18 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
-from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
 
 from pipeline.outputs.figures.refs import FigureRef, NotDrawn, make
 from pipeline.outputs.figures.style import (
     MEASURED,
+    bode_axes,
     file_part,
     grid_size,
     method_color,
     panel_grid,
     scale_label,
     top_legend,
+    unit_text,
 )
 
 #: the frequency axis ends at this multiple of the highest frequency the check used
@@ -63,12 +64,6 @@ def _db(h: np.ndarray) -> np.ndarray:
         return np.where(m > 0, 20.0 * np.log10(m), np.nan)
 
 
-def _unit(channel: str) -> str:
-    """The display unit of a channel ("-" when it has none)."""
-    label = scale_label(channel)[1]
-    return label.split("[", 1)[1].rstrip("]") if "[" in label else "-"
-
-
 def _draw(fig: Figure, key: str, fr: Mapping[str, Any], pairs: list[tuple[int, int]], min_coh: float | None) -> None:
     """Rows: output/input pairs; columns: magnitude, phase, coherence; x: frequency (Hz, log)."""
     if not pairs:
@@ -102,19 +97,12 @@ def _draw(fig: Figure, key: str, fr: Mapping[str, Any], pairs: list[tuple[int, i
         if min_coh is not None:
             ax[row, 2].axhline(min_coh, color="0.5", lw=0.8, ls=":", label="least coherence checked")
         ax[row, 2].set_ylim(0.0, 1.05)
-        ax[row, 0].set_ylabel(f"{o}/{i} [dB]\n({_unit(o)} per {_unit(i)})")
+        ax[row, 0].set_ylabel(f"{o}/{i} [dB]\n({unit_text(o)} per {unit_text(i)})")
         # the pair is named once, on the magnitude; the other columns' titles say what they
         # hold, so their labels stay short and clear of the panel to their left
         ax[row, 1].set_ylabel("deg")
         ax[row, 2].set_ylabel("")
-    for a in ax.flat:  # log frequency, decades only, plain labels: minor ticks and mathtext cost most of the time
-        a.set_xscale("log")
-        a.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
-        a.xaxis.set_minor_locator(NullLocator())
-        a.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:g}"))
-    for c, name in enumerate(("magnitude", "phase", "coherence")):
-        ax[0, c].set_title(name)
-        ax[-1, c].set_xlabel("frequency [Hz]")
+    bode_axes(ax)
     h0, l0 = ax[0, 0].get_legend_handles_labels()
     h2, l2 = ax[0, 2].get_legend_handles_labels()
     top_legend(fig, h0 + h2, l0 + l2, f"{key}: frequency responses")

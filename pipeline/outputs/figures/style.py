@@ -71,6 +71,29 @@ def scale_label(channel: str) -> tuple[float, str]:
     return fac, (f"{channel} [{unit}]" if unit != "SI" else channel)
 
 
+def unit_text(channel: str) -> str:
+    """The display unit of a channel ("-" when it has none)."""
+    label = scale_label(channel)[1]
+    return label.split("[", 1)[1].rstrip("]") if "[" in label else "-"
+
+
+def bode_axes(ax) -> None:
+    """The shared decoration of a frequency-response grid (rows: pairs; columns:
+    magnitude, phase, coherence): log frequency with plain labels at 1, 2, 5 per decade
+    (minor ticks and mathtext cost most of the drawing time), the column titles and the
+    frequency label under the last row."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
+
+    for a in ax.flat:
+        a.set_xscale("log")
+        a.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        a.xaxis.set_minor_locator(NullLocator())
+        a.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:g}"))
+    for c, name in enumerate(("magnitude", "phase", "coherence")):
+        ax[0, c].set_title(name)
+        ax[-1, c].set_xlabel("frequency [Hz]")
+
+
 def stride(n: int) -> slice:
     """The slice that keeps at most about :data:`MAX_POINTS` of ``n`` samples, evenly."""
     return slice(None, None, max(1, math.ceil(n / MAX_POINTS)))
