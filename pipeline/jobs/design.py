@@ -30,6 +30,7 @@ from pipeline.ingest.aircraft_file import read_aircraft_file
 from pipeline.ingest.constants import isa_density
 from pipeline.jobs.progress import Progress
 from pipeline.paths import atomic_write_text, new_run_dir, run_id, staged
+from pipeline.validation.json_values import num
 from sim.maneuvers import orthogonal_multisines
 from sim.sensors import default_noise_si
 
@@ -96,7 +97,7 @@ def _bounds(model: Any, t: np.ndarray, u: np.ndarray, x0: np.ndarray, noise: Map
     except EstimationError as exc:
         raise FsidError(f"the predicted accuracy cannot be computed: {exc}") from None
     params = {
-        n: {"value": float(res.params[n]), "std": _num(res.std[n]), "rel_std_pct": _num(res.rel_std[n])}
+        n: {"value": float(res.params[n]), "std": num(res.std[n]), "rel_std_pct": num(res.rel_std[n])}
         for n in res.free_names
     }
     return {
@@ -105,11 +106,6 @@ def _bounds(model: Any, t: np.ndarray, u: np.ndarray, x0: np.ndarray, noise: Map
         "noise_std": dict(zip(m.outputs, sd[keep].tolist())),
         "parameters": params,
     }
-
-
-def _num(x: float) -> float | None:
-    """A JSON number, None where not finite (a relative std of a derivative assumed 0)."""
-    return float(x) if np.isfinite(x) else None
 
 
 def design(out: str | Path | None, opts: DesignOptions) -> dict[str, Path]:

@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from estimators import EstimationError, FrequencyResponse, TransferFunction, frequency_response, loes_parameters
+from estimators.frequency.response import PERIODS_PER_WINDOW
 from pipeline.conditioning.checks import airborne_speed
 from pipeline.errors import FsidError
 from pipeline.ingest.aircraft import servo_travel_for
@@ -29,6 +30,7 @@ from pipeline.ingest.readers import read_log
 from pipeline.ingest.sampling import contiguous
 from pipeline.jobs.progress import Progress
 from pipeline.paths import atomic_write_text, new_run_dir, run_id, staged
+from pipeline.validation.json_values import num
 
 #: a stretch shorter than this (s) is left out (its longest window, half of it, resolves
 #: little below 5 Hz)
@@ -120,7 +122,7 @@ def analyse(recs: Sequence[pd.DataFrame], inputs: Sequence[str], outputs: Sequen
     log-spaced grid over ``band`` (default: the longest window's resolution to a fifth of
     the rate, at most 10 Hz)."""
     T = max(len(r) for r in recs) / rate
-    lo, hi = band if band else (5.0 / (T / 2), min(10.0, rate / 5))
+    lo, hi = band if band else (PERIODS_PER_WINDOW / (T / 2), min(10.0, rate / 5))
     if not 0 < lo < hi:
         raise FsidError(f"--band {lo:g}:{hi:g} Hz is empty: give LO:HI with 0 < LO < HI")
     f = np.geomspace(lo, hi, 100)
@@ -211,10 +213,6 @@ def response_log(log: Path, out: str | Path | None, opts: ResponseOptions) -> di
     return {name: out / rel for name, rel in {**paths, "response.json": "response.json"}.items()}
 
 
-def _num(x: float) -> float | None:
-    return float(x) if np.isfinite(x) else None
-
-
 def response_json(fr: FrequencyResponse, fits: dict[str, dict[str, Any]], meta: dict[str, Any]) -> dict[str, Any]:
     """The response as a JSON document: per pair magnitude (dB), phase (deg), coherence and
     random error on f (Hz), the multiple coherence per output, the fits."""
@@ -223,8 +221,7 @@ def response_json(fr: FrequencyResponse, fits: dict[str, dict[str, Any]], meta: 
         for u in fr.inputs:
             p = fr.pair(o, u)
             pairs[f"{o}/{u}"] = {
-                c: [_num(x) for x in p[c].to_numpy()]
-                for c in ("magnitude_db", "phase_deg", "coherence", "random_error")
+                c: num(p[c].to_numpy()) for c in ("magnitude_db", "phase_deg", "coherence", "random_error")
             }
     return {
         **meta,
@@ -233,6 +230,6 @@ def response_json(fr: FrequencyResponse, fits: dict[str, dict[str, Any]], meta: 
         "f_hz": [float(x) for x in fr.f],
         "windows_s": [float(x) for x in fr.windows],
         "pairs": pairs,
-        "multiple_coherence": {o: [_num(x) for x in fr.multiple_coherence[:, k]] for k, o in enumerate(fr.outputs)},
+        "multiple_coherence": {o: num(fr.multiple_coherence[:, k]) for k, o in enumerate(fr.outputs)},
         "fits": {k: {kk: vv for kk, vv in v.items() if kk != "H"} for k, v in fits.items()},
     }
