@@ -77,16 +77,22 @@ def _between_samples(t: np.ndarray, y: np.ndarray, measured: np.ndarray) -> np.n
 
 
 def _data_and_model_responses(
-    result: EstimationResult, segs: list[Segment], excited: list[int], keep: np.ndarray, f: np.ndarray, integrator: str
+    result: EstimationResult,
+    segs: list[Segment],
+    measured: list[np.ndarray],
+    excited: list[int],
+    keep: np.ndarray,
+    f: np.ndarray,
+    integrator: str,
 ) -> tuple[Any, Any]:
     """The frequency responses (:func:`estimators.frequency_response`) of the measured
-    outputs ``keep`` to the inputs ``excited`` over ``segs``, and of the identified model's
-    simulated outputs read at the same samples."""
+    outputs ``keep`` (``measured``: per segment where each output has samples) to the
+    inputs ``excited`` over ``segs``, and of the identified model's simulated outputs read
+    at the same samples."""
     model = result.model_with_estimates()
     how = result.settings.get("inputs", DEFAULT_INPUTS)
     data, sim = [], []
-    for s in segs:
-        m = np.isfinite(s.z)
+    for s, m in zip(segs, measured):
         data.append(_between_samples(s.t, s.z[:, keep], m[:, keep]))
         y_sim = simulate_outputs(model, s, integrator=integrator, inputs=how).to_numpy()
         sim.append(_between_samples(s.t, y_sim[:, keep], m[:, keep]))
@@ -131,7 +137,7 @@ def frequency_check(
     # segment, rounded to samples) resolves
     f = np.geomspace(2.2 / span, min(F_CHECK_MAX_HZ, fs / 5), F_CHECK_POINTS)
     ins = [result.model.inputs[i] for i in excited]
-    se, sm = _data_and_model_responses(result, segs, excited, keep, f, integrator)
+    se, sm = _data_and_model_responses(result, segs, measured, excited, keep, f, integrator)
     w = se.w
     Hd, coh, Hm = se.H, se.coherence, sm.H
     G = V.freq_response(A, B[:, excited], C[keep], D[keep][:, excited], w)
