@@ -77,8 +77,8 @@ def test_estimate_from_the_bin_without_vanes(tmp_path):
     m = rep["methods"]["fem"]  # one axis: the key is the method
     assert KINEMATIC_NOTE.format(angle="alpha", state="alpha_k") in m["validation"]["problem"]["notes"]
     assert "rebuilt with" in m["consider_source"]
-    # seed 31 measured 3.01-3.07 (machine to machine): within 3.5 total std, as the lateral
-    # axis of the same flight (4.3 before the pitot's scale was carried)
+    # this seed's longitudinal fit ends near 3 total std, the last digits machine-dependent:
+    # the lateral axis' limit of the same flight, 3.5
     worst = max(abs(m["parameters"][n]["error_in_std"]) for n in LONG)
     assert m["converged"] and worst < 3.5, worst
     ps = rep["methods"]["fem"]["parameters"]

@@ -5,37 +5,13 @@ error in std, and the compatibility document's correction covariance."""
 import numpy as np
 import pandas as pd
 import pytest
+from _results import small_result
 
-from estimators import EstimationResult, Model, Parameter
 from pipeline.uncertainty.consider import correction_covariance
 
 
 def _result(consider=None):
-    model = Model(
-        states=["x"],
-        inputs=["u"],
-        outputs=["x"],
-        parameters=[Parameter("a", -1.0), Parameter("b", 2.0), Parameter("c", 0.5, free=False)],
-        f=lambda x, u, p, c: (p.a * x[0] + p.b * u[0],),
-        g=lambda x, u, p, c: (x[0],),
-    )
-    cov = np.array([[0.04, 0.01], [0.01, 0.09]])  # std 0.2, 0.3
-    return EstimationResult(
-        "oem",
-        model,
-        ["a", "b", "c"],
-        np.array([-1.5, 2.0, 0.5]),
-        np.array([True, True, False]),
-        cov,
-        np.eye(1),
-        True,
-        3,
-        pd.DataFrame(),
-        [],
-        [],
-        consider_cov=consider,
-        consider_source="test",
-    )
+    return small_result(consider, "test")
 
 
 def test_without_consider_total_std_is_the_crb():

@@ -4,30 +4,12 @@ every covariance stays a view chosen by name (statsmodels' cov_type)."""
 import dataclasses
 
 import numpy as np
-import pandas as pd
 import pytest
-
-from estimators import EstimationResult, Model, Parameter
-
-
-def _result() -> EstimationResult:
-    model = Model(
-        states=["x"],
-        inputs=["u"],
-        outputs=["x"],
-        parameters=[Parameter("a", -1.0), Parameter("b", 2.0), Parameter("c", 0.5, free=False)],
-        f=lambda x, u, p, c: (p.a * x[0] + p.b * u[0],),
-        g=lambda x, u, p, c: (x[0],),
-    )
-    cov = np.array([[0.04, 0.01], [0.01, 0.09]])  # std 0.2, 0.3
-    return EstimationResult(
-        "oem", model, ["a", "b", "c"], np.array([-1.5, 2.0, 0.5]), np.array([True, True, False]), cov,
-        np.eye(1), True, 3, pd.DataFrame(), [], [],
-    )  # fmt: skip
+from _results import small_result
 
 
 def test_a_result_cannot_be_changed_in_place():
-    r = _result()
+    r = small_result()
     with pytest.raises(dataclasses.FrozenInstanceError):
         r.cov = np.eye(2)
     with pytest.raises(dataclasses.FrozenInstanceError):
@@ -35,7 +17,7 @@ def test_a_result_cannot_be_changed_in_place():
 
 
 def test_covariances_are_views_chosen_by_name():
-    r = _result()
+    r = small_result()
     assert r.cov_type == r.std_method == r.fit_cov_type == "crb" and list(r.covariances) == ["crb"]
     wide = r.with_cov(4.0 * r.cov, "crb|scatter", note="widened")
     # the original keeps its covariance; the new one reports the wider and keeps the bound
@@ -51,7 +33,7 @@ def test_covariances_are_views_chosen_by_name():
 
 
 def test_consider_parts_add_up_in_new_results_and_total_is_a_view():
-    r = _result()
+    r = small_result()
     one = r.with_consider(np.diag([0.05, 0.0]), "sensor corrections")
     two = one.with_consider(np.diag([0.04, 0.07]), "wind")
     assert r.consider_cov is None and one.consider_source == "sensor corrections"
