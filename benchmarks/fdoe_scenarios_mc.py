@@ -33,7 +33,7 @@ SHORT_PERIOD = ("CLalpha", "CLde", "Cmalpha", "Cmq", "Cmde")
 
 
 def one_flight(seed: int) -> list[dict]:
-    """Rows (scenario, key, parameter, estimate, std, truth) of fdoe and oem on both flights."""
+    """Rows (scenario, key, parameter, estimate, std, truth) of oem, fdoe and fdls on both flights."""
     from pipeline.jobs.scenario import run_scenario
 
     rows = []
@@ -43,7 +43,7 @@ def one_flight(seed: int) -> list[dict]:
                 ROOT / "scenarios" / f"{name}.toml",
                 Path(tmp),
                 seed=seed,
-                methods=["oem", "fdoe"],
+                methods=["oem", "fdoe", "fdls"],
                 quiet=True,
                 figures=False,
             )

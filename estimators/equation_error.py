@@ -487,3 +487,42 @@ class FourierRegression(_RegressionBase):
             "detrend": self.detrend,
         }
         return res.replace(R=np.array([[s2]]), settings=settings)
+
+    def fit_records(self, records: Sequence[tuple[np.ndarray, Any, Any]]) -> EstimationResult:
+        """The regression over several records (maneuvers) at once: each (t, X, y) with t
+        (N_k,) uniformly sampled in s, X (N_k, n) (or a DataFrame) and y (N_k,), transformed
+        on its own at the frequencies (from ``band`` at the shortest record's 1/T unless
+        given), their equations stacked and solved together. The result's covariances:
+        "crb", s^2 (Re X^H X)^-1 (the reference's, the stated std), and "sandwich", measured
+        from the residuals frequency by frequency
+        (:func:`estimators.frequency.covariance.frequency_covariances`), which holds where the
+        equation error's level changes across the band."""
+        from estimators.frequency.covariance import frequency_covariances
+
+        if not records:
+            raise ModelDefinitionError("fit_records needs at least one (t, X, y) record")
+        designed = [(np.asarray(t, dtype=float), *self._design(X, y)) for t, X, y in records]
+        names, model = designed[0][3], designed[0][4]
+        T = min(t[-1] - t[0] + float(np.median(np.diff(t))) for t, *_ in designed)
+        freqs = self._freqs(T)
+        w = 2 * np.pi * freqs
+        F = [fourier_transform(t, np.column_stack([Xa, ya]), w, self.detrend) for t, Xa, ya, *_ in designed]
+        Xf = np.concatenate([f[:, :-1] for f in F])
+        Yf = np.concatenate([f[:, -1] for f in F])
+        theta, cov, s2, A = self._solve(Xf, Yf, names)
+        covs = frequency_covariances(-Xf[:, None, :], (Yf - Xf @ theta)[:, None], np.array([[1.0 / s2]]))
+        Xa = np.vstack([d[1] for d in designed])
+        ya = np.concatenate([d[2] for d in designed])
+        res = self._result(
+            model,
+            theta,
+            cov,
+            s2,
+            Xa,
+            ya,
+            np.concatenate([t for t, *_ in designed]),
+            information=A / s2,
+            extra={"frequencies": freqs, "X_f": Xf, "Y_f": Yf, "n_records": len(records)},
+        )
+        settings = {**res.settings, "band": self.band, "n_frequencies": int(freqs.size), "detrend": self.detrend}
+        return res.replace(covariances={"crb": cov, "sandwich": covs["sandwich"]}, settings=settings)

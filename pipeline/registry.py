@@ -149,6 +149,17 @@ CATALOGUE: tuple[Method, ...] = (
         colour=(23, 190, 207),
     ),
     Method(
+        "fdls",
+        "equation error in the frequency domain: the coefficient regressions over the inputs' band",
+        "fdls: frequency-domain equation error",
+        start_free=True,
+        unclamped_starts=False,
+        regressions="frequency-domain equation error (fdls) regresses the built-in models' force and moment coefficients",
+        lateral="measured",
+        fitter="pipeline.methods.frequency:frequency_equation_error",
+        colour=(188, 189, 34),
+    ),
+    Method(
         "soem",
         "stabilised output error (unstable aircraft)",
         "soem: stabilised output error",

@@ -4,6 +4,8 @@ estimates as start values for the other methods."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from estimators import EstimationResult, LeastSquares, OutputError
@@ -11,32 +13,44 @@ from estimators.defaults import CLUSTER_MIN_SEGMENTS as MIN_SEGMENTS
 from estimators.errors import ModelDefinitionError
 from estimators.validation import ClusterResult, cluster_covariance
 from pipeline.problems import Problem
+from pipeline.problems.regressions import Regression
 
 
-def equation_error(problem: Problem) -> EstimationResult:
-    """``ls``: ordinary least squares of the problem's coefficient regressions, returned on
-    the problem's dynamic model so that validation, report and recording treat it as any
-    other method: the derivatives (free, with their OLS std s^2 (X^T X)^-1) are the
-    regression estimates; per-segment initial states and output biases are then fitted by
-    output error with every derivative held (they are not part of the regression), and the
-    predictions and residuals are that simulation's."""
+def ordinary_least_squares(reg: Regression) -> tuple[EstimationResult, ClusterResult | None]:
+    """One coefficient regression by OLS (the intercept, a trim term or the unnamed bias,
+    estimated with it) and its maneuver scatter."""
+    coef, names, X, y = reg.coef, reg.names, reg.X, reg.y
+    cols = [n if n is not None else "bias" for n in names]
+    try:
+        res = LeastSquares(cols if names[0] is not None else cols[1:], intercept=names[0] is None, response=coef).fit(
+            X if names[0] is not None else X[:, 1:], y
+        )
+    except ModelDefinitionError as exc:  # too few rows: say which regression
+        raise ModelDefinitionError(f"equation error on {coef} of the fitted maneuvers: {exc}") from None
+    return res, _regression_clusters(X, y, reg.window, cols, res)
+
+
+def equation_error(
+    problem: Problem,
+    regress: Callable[[Regression], tuple[EstimationResult, ClusterResult | None]] = ordinary_least_squares,
+) -> EstimationResult:
+    """``ls``: the problem's coefficient regressions (by ``regress``: OLS, or the
+    frequency-domain regression of ``fdls``), returned on the problem's dynamic model so
+    that validation, report and recording treat it as any other method: the derivatives
+    (free, with the regressions' covariance) are the regression estimates; per-segment
+    initial states and output biases are then fitted by output error with every derivative
+    held (they are not part of the regression), and the predictions and residuals are that
+    simulation's."""
     model = problem.model
     est, var, regs, clusters = {}, {}, [], []
-    for coef, names, X, y, window in problem.regressions:
-        keep = [i for i, n in enumerate(names) if n is not None]
-        cols = [n if n is not None else "bias" for n in names]
-        try:
-            res = LeastSquares(
-                cols if names[0] is not None else cols[1:], intercept=names[0] is None, response=coef
-            ).fit(X if names[0] is not None else X[:, 1:], y)
-        except ModelDefinitionError as exc:  # too few rows: say which regression
-            raise ModelDefinitionError(f"equation error on {coef} of the fitted maneuvers: {exc}") from None
+    for reg in problem.regressions:
+        res, cluster = regress(reg)
         regs.append(res)
-        for i in keep:
-            n = names[i]
-            est[n] = float(res.params[n])
-            var[n] = float(res.std[n]) ** 2
-        clusters.append(_regression_clusters(X, y, window, cols, res))
+        for n in reg.names:
+            if n is not None and n in res.names:
+                est[n] = float(res.params[n])
+                var[n] = float(res.std[n]) ** 2
+        clusters.append(cluster)
     free = [p.name for p in model.parameters if p.free and not p.per_segment and p.name in est]
     held = model.with_values({n: est[n] for n in free}).fixed(free)
     sim = OutputError(held, inputs=problem.inputs, fallback="never").fit(problem.fit, estimate_x0=problem.estimate_x0)
@@ -133,7 +147,8 @@ def raw_starts(problem: Problem) -> dict[str, float]:
     show it."""
     out = {}
     free = {p.name for p in problem.model.parameters if p.free}
-    for _, names, X, y, _ in problem.regressions:
+    for reg in problem.regressions:
+        names, X, y = reg.names, reg.X, reg.y
         sol = np.linalg.lstsq(X, y, rcond=None)[0]
         out.update({n: float(v) for n, v in zip(names, sol) if n is not None and n in free})
     return out

@@ -1,17 +1,23 @@
-"""Frequency-domain output error as a pipeline method ("fdoe"): the band from the
-maneuvers' input spectra, the built-in or user model linearised at each maneuver's start
-(:class:`estimators.FrequencyOutputError`), and a time-domain view of the fit for the
-validation (the same checks and proof of match as every method)."""
+"""The frequency-domain methods of the pipeline, on the band from the maneuvers' input
+spectra: output error ("fdoe": the built-in or user model linearised at each maneuver's
+start, :class:`estimators.FrequencyOutputError`) and equation error ("fdls": the built-in
+models' coefficient regressions transformed maneuver by maneuver,
+:meth:`estimators.FourierRegression.fit_records`); each with a time-domain view of the fit
+for the validation (the same checks and proof of match as every method)."""
 
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import partial
 from typing import Any
 
 import numpy as np
 
-from estimators import EstimationResult, FrequencyOutputError, OutputError, Segment
+from estimators import EstimationResult, FourierRegression, FrequencyOutputError, OutputError, Segment
+from estimators.validation import ClusterResult
+from pipeline.methods.equation_error import equation_error
 from pipeline.problems import Problem
+from pipeline.problems.regressions import Regression
 
 #: the band: where the inputs' summed spectrum (each input scaled to its own peak) reaches
 #: this share of its peak (every frequency weighs alike in the frequency domain, so where
@@ -58,6 +64,24 @@ def input_band(segments: list[Segment]) -> tuple[float, float, float]:
     return f_lo, max(f_hi, f_lo + 2 * df), df
 
 
+def band_frequencies(segments: list[Segment]) -> tuple[np.ndarray, float, float]:
+    """(f, f_low, f_high): the frequencies (Hz) of a fit on ``segments``, spaced by the
+    shortest maneuver's 1/T over :func:`input_band` (at least 8, at most MAX_FREQUENCIES)."""
+    f_lo, f_hi, df = input_band(segments)
+    n = int(min(MAX_FREQUENCIES, np.floor((f_hi - f_lo) / df) + 1))
+    return np.linspace(f_lo, f_hi, max(n, 8)), f_lo, f_hi
+
+
+def larger_std(covs: dict[str, np.ndarray]) -> np.ndarray:
+    """The reported covariance: per parameter the larger of the "crb" and "sandwich" std
+    (the reference's bound, or the sandwich where the residuals' level across the band makes
+    that larger), correlations those of the Cramér-Rao bound."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        D = np.sqrt(np.diag(covs["sandwich"]) / np.diag(covs["crb"]))
+    D = np.where(np.isfinite(D), np.maximum(D, 1.0), 1.0)
+    return D[:, None] * covs["crb"] * D[None, :]
+
+
 def _complete(seg: Segment) -> Segment:
     """The segment with outputs slower than its grid read linearly between their samples
     (the frequency domain needs complete records)."""
@@ -76,9 +100,7 @@ def frequency_output_error(problem: Problem, model: Any, s: Any) -> EstimationRe
     maneuver's own parameters (initial states, biases) with those derivatives held, whose
     predictions and residuals the validation judges."""
     segs = [_complete(sg) for sg in problem.fit]
-    f_lo, f_hi, df = input_band(segs)
-    n = int(min(MAX_FREQUENCIES, np.floor((f_hi - f_lo) / df) + 1))
-    f = np.linspace(f_lo, f_hi, max(n, 8))
+    f, f_lo, f_hi = band_frequencies(segs)
     trim = {p.name: p.value for p in model.parameters if p.free and p.name in TRIM_TERMS}
     fd_model = model.hold(trim) if trim else model
     fdoe = FrequencyOutputError(fd_model, 2 * np.pi * f, detrend=DETREND, x_ref="initial").fit(segs, start=s.start)
@@ -95,12 +117,7 @@ def frequency_output_error(problem: Problem, model: Any, s: Any) -> EstimationRe
     free = np.array([n in fdoe.free_names for n in td.names])
     order = [fdoe.free_names.index(n) for n in np.array(td.names)[free]]
     covs = {k: c[np.ix_(order, order)] for k, c in fdoe.covariances.items()}
-    # the reported std: the reference's bound, or the sandwich where the residuals' level
-    # across the band makes that larger (correlations kept)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        D = np.sqrt(np.diag(covs["sandwich"]) / np.diag(covs["crb"]))
-    D = np.where(np.isfinite(D), np.maximum(D, 1.0), 1.0)
-    covs[REPORTED] = D[:, None] * covs["crb"] * D[None, :]
+    covs[REPORTED] = larger_std(covs)
     return EstimationResult(
         method="fdoe",
         model=model,
@@ -129,3 +146,46 @@ def frequency_output_error(problem: Problem, model: Any, s: Any) -> EstimationRe
             "time_domain_fit": "initial states and per-maneuver parameters with the derivatives held",
         },
     )
+
+
+def frequency_equation_error(problem: Problem, model: Any, s: Any) -> EstimationResult:
+    """``fdls``: the problem's coefficient regressions in the frequency domain (module
+    docstring) on the fdoe band; the intercepts (trim terms, biases) drop out of it and are
+    held. Per derivative the reported std is the larger of the regression's Cramér-Rao and
+    sandwich std."""
+    f, f_lo, f_hi = band_frequencies([_complete(sg) for sg in problem.fit])
+    res = equation_error(problem, partial(_fourier_regression, f=f))
+    problem.notes.append(
+        f"frequency-domain equation error on {f_lo:.3g}-{f_hi:.3g} Hz ({f.size} frequencies per maneuver); "
+        "the intercepts (trim terms) drop out of the band and are held"
+    )
+    coefs = ", ".join(r.outputs[0] for r in res.extra["regressions"])
+    return res.replace(
+        method="fdls",
+        cov_type=REPORTED,
+        covariances={REPORTED: res.cov},
+        message=f"frequency-domain equation error on {coefs}; predictions: the model with these derivatives, "
+        "initial states and biases fitted",
+        settings={**res.settings, "optimizer": "fourier regression", "band_hz": [f_lo, f_hi], "domain": "frequency"},
+    )
+
+
+def _fourier_regression(reg: Regression, f: np.ndarray) -> tuple[EstimationResult, ClusterResult | None]:
+    """One coefficient regression in the frequency domain: each maneuver's rows (resampled
+    onto a uniform grid where rows were dropped) transformed on their own, the intercept
+    column left out; the covariance reported is :func:`larger_std`'s."""
+    cols = list(reg.names[1:])
+    records = []
+    for k in np.unique(reg.window):
+        rows = reg.window == k
+        t, X, y = reg.t[rows], reg.X[rows][:, 1:], reg.y[rows]
+        if t.size < 2 * len(cols) + 2:
+            continue
+        dt = float(np.median(np.diff(t)))
+        if np.max(np.abs(np.diff(t) - dt)) > 1e-6 * dt:
+            grid = np.arange(t[0], t[-1] + 0.5 * dt, dt)
+            X = np.column_stack([np.interp(grid, t, x) for x in X.T])
+            y, t = np.interp(grid, t, y), grid
+        records.append((t, X, y))
+    res = FourierRegression(cols, frequencies=f, detrend=DETREND, response=reg.coef).fit_records(records)
+    return res.with_cov(larger_std(dict(res.covariances)), REPORTED), None

@@ -24,14 +24,16 @@ LATERAL_LS_CORNER_HZ = 3.0
 class Regression(NamedTuple):
     """One equation-error regression on the maneuver windows: the coefficient, the
     parameter names of X's columns (None: an intercept that is no model parameter), X
-    (N, k), y (N,) and the window (N,) each row comes from (0, 1, ... in the order given:
-    the maneuver clusters of estimators.covariance.cluster)."""
+    (N, k), y (N,), the window (N,) each row comes from (0, 1, ... in the order given:
+    the maneuver clusters of estimators.covariance.cluster) and its time t (N,) in s (the
+    frequency-domain regression transforms each window's rows)."""
 
     coef: str
     names: list
     X: np.ndarray
     y: np.ndarray
     window: np.ndarray
+    t: np.ndarray
 
 
 def _window_rows(parts: Sequence[np.ndarray]) -> np.ndarray:
@@ -50,7 +52,7 @@ def longitudinal_regressions(
     channels read there (:func:`_at_rows`); those with air data of their own when most
     have."""
     rows = {"L": [], "D": [], "M": []}
-    yL, yD, yM = [], [], []
+    yL, yD, yM, times = [], [], [], []
     xv, zv = c.get("x_vane", 0.0), c.get("z_vane", 0.0)
     yv = c.get("y_vane", 0.0)
     xi, zi = c.get("x_imu", 0.0), c.get("z_imu", 0.0)
@@ -85,6 +87,7 @@ def longitudinal_regressions(
         # another clock) every rate sample, the air data read between their own samples
         own = np.isfinite(df["V"].to_numpy(dtype=float)[at]) & np.isfinite(df["alpha"].to_numpy(dtype=float)[at])
         sel = own if own.sum() >= 0.5 * at.size else np.ones(at.size, dtype=bool)
+        times.append(t[sel])
         rows["L"].append(np.column_stack([one, a, qh, de])[sel])
         yL.append(CL[sel])
         rows["D"].append(np.column_stack([one, a, a * a])[sel])
@@ -95,6 +98,7 @@ def longitudinal_regressions(
         rows["M"].append(np.column_stack([one, _simpson_means(a), _simpson_means(qh), _span_means(df, "de", at)])[sel])
         yM.append(Cm[sel])
     out = []
+    t_rows = np.concatenate(times) if times else np.zeros(0)
     for key, coef, y, names in (
         ("L", "CL", yL, ["CL0", "CLalpha", "CLq", "CLde"]),
         ("D", "CD", yD, ["CD0", "CDalpha", "CDalpha2"]),
@@ -103,7 +107,7 @@ def longitudinal_regressions(
         X = np.vstack(rows[key])
         Y = np.concatenate(y)
         ok = np.all(np.isfinite(X), axis=1) & np.isfinite(Y)
-        out.append(Regression(coef, names, X[ok], Y[ok], _window_rows(rows[key])[ok]))
+        out.append(Regression(coef, names, X[ok], Y[ok], _window_rows(rows[key])[ok], t_rows[ok]))
     return out
 
 
@@ -138,7 +142,8 @@ def longitudinal_starts(
     """Equation-error start values: least squares of CL, CD, Cm computed from the measured
     specific forces and the differentiated pitch rate on the maneuver windows."""
     sol = {}
-    for _, names, X, Y, _ in longitudinal_regressions(frames, c, thrusts):
+    for reg in longitudinal_regressions(frames, c, thrusts):
+        names, X, Y = reg.names, reg.X, reg.y
         beta = np.linalg.lstsq(X, Y, rcond=None)[0]
         sol.update(zip(names, beta))
     # keep the signs that make a flyable start (stable pitch damping, positive lift slope)
@@ -192,7 +197,7 @@ def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]) 
     in variables, nearly collinear with dr and r in cross-controlled maneuvers) biases
     CYbeta, CYdr and Cndr. Slow outputs (NaN between their samples) are interpolated, then
     every signal is low-passed at LATERAL_LS_CORNER_HZ."""
-    X, Y = [], {"CY": [], "Cl": [], "Cn": []}
+    X, Y, times = [], {"CY": [], "Cl": [], "Cn": []}, []
     for df in frames:
         t = df["t"].to_numpy()
         kin = "beta_kin" in df and "V_kin" in df
@@ -222,19 +227,21 @@ def lateral_regressions(frames: Sequence[pd.DataFrame], c: Mapping[str, float]) 
         # there, so the OLS covariance s^2 (X^T X)^-1 is not 4x too optimistic
         rate = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 else 1.0
         keep = slice(None, None, max(1, int(rate / (4.0 * LATERAL_LS_CORNER_HZ))))
+        times.append(t[keep])
         X.append(np.column_stack([np.ones_like(p), beta, p * k, r * k, da, dr])[keep])
         Y["CY"].append((c["m"] * ay / (qbar * c["S"]))[keep])
         Y["Cl"].append((L / (qbar * c["S"] * c["b"]))[keep])
         Y["Cn"].append((N / (qbar * c["S"] * c["b"]))[keep])
     A = np.vstack(X)
     window = _window_rows(X)
+    t_rows = np.concatenate(times) if times else np.zeros(0)
     out = []
     for coef, ys in Y.items():
         y = np.concatenate(ys)
         ok = np.all(np.isfinite(A), axis=1) & np.isfinite(y)
         # the intercept is the model's trim-asymmetry term (CY0, Cl0, Cn0), estimated when free
         names = [f"{coef}{n}" for n in ("0", "beta", "p", "r", "da", "dr")]
-        out.append(Regression(coef, names, A[ok], y[ok], window[ok]))
+        out.append(Regression(coef, names, A[ok], y[ok], window[ok], t_rows[ok]))
     return out
 
 
@@ -245,7 +252,8 @@ def lateral_starts(
     differentiated roll and yaw rates with the inertia coupling) on the maneuver windows
     (``regressions``: those of :func:`lateral_regressions` when already formed)."""
     out: dict[str, float] = {}
-    for _, names, A, y, _ in regressions if regressions is not None else lateral_regressions(frames, c):
+    for reg in regressions if regressions is not None else lateral_regressions(frames, c):
+        names, A, y = reg.names, reg.X, reg.y
         sol = np.linalg.lstsq(A, y, rcond=None)[0]
         for name, v in zip(names[1:], sol[1:]):
             out[name] = float(v)

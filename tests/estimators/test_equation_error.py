@@ -136,6 +136,20 @@ def test_ftr_recovers_truth_and_matches_ols_on_the_same_band():
     np.testing.assert_allclose(np.sqrt(np.diag(cov)), ftr.std.to_numpy(), rtol=0.1)
 
 
+def test_ftr_over_several_records():
+    # records of different lengths and biases: each transformed on its own, one solution
+    parts = [data(seed=s, n=n, bias=b) for s, n, b in ((5, 900, 0.2), (6, 1200, -0.5), (7, 1500, 1.0))]
+    f = np.arange(0.1, 4.0, 1.0 / (900 * DT))
+    res = FourierRegression(frequencies=f).fit_records([(X.index.to_numpy(), X, y) for X, y in parts])
+    within(res, TRUTH)
+    assert set(res.covariances) == {"crb", "sandwich"} and res.extra["n_records"] == 3
+    assert len(res.extra["Y_f"]) == 3 * f.size
+    # one record: the whole-record fit at the same frequencies
+    X, y = parts[0]
+    one = FourierRegression(frequencies=f).fit_records([(X.index.to_numpy(), X, y)])
+    np.testing.assert_allclose(one.values, FourierRegression(frequencies=f).fit(X, y).values, rtol=1e-12)
+
+
 def test_recursive_dft_equals_fft_bins():
     rng = np.random.default_rng(0)
     x = rng.standard_normal((256, 2))

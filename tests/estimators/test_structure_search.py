@@ -19,7 +19,9 @@ def _problem(seed: int = 0) -> SimpleNamespace:
     a, qh, de = rng.uniform(-0.05, 0.25, n), rng.normal(0, 0.01, n), rng.normal(0, 0.05, n)
     CL = 0.25 + 4.8 * a - 5.0 * a**2 + 0.4 * de + 0.01 * rng.standard_normal(n)  # no CLq, a bend
     X = np.column_stack([np.ones(n), a, qh, de])
-    return SimpleNamespace(regressions=[Regression("CL", ["CL0", "CLalpha", "CLq", "CLde"], X, CL, np.zeros(n, int))])
+    return SimpleNamespace(
+        regressions=[Regression("CL", ["CL0", "CLalpha", "CLq", "CLde"], X, CL, np.zeros(n, int), np.arange(n) * 0.02)]
+    )
 
 
 @pytest.mark.parametrize("how", ["stepwise", "mof"])
