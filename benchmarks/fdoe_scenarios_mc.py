@@ -1,6 +1,6 @@
-"""Frequency-domain output error (``fsid run --method fdoe``) on the built-in longitudinal
-scenarios over seeds, in calm air and in turbulence, beside time-domain output error on the
-same flights: per method and derivative the estimates' empirical std over the seeds / the
+"""Frequency-domain output and equation error (``fsid run --method fdoe``, ``fdls``) on the
+built-in longitudinal scenarios over seeds, in calm air and in turbulence, beside
+time-domain output error on the same flights: per method and derivative the estimates' empirical std over the seeds / the
 mean std the product reported (1 = honest; the goal is 0.8-1.25), and the bias in empirical
 std. The drag terms are left out of the headline: the band of a 3-2-1-1 flight misses the
 phugoid that carries them (docs/frequency-domain.md).
@@ -8,12 +8,11 @@ phugoid that carries them (docs/frequency-domain.md).
     python benchmarks/fdoe_scenarios_mc.py [--seeds 8] [--seed-base 100] [--jobs 2]
 
 Measured (seeds 100-107, 2 jobs), empirical / reported std over the five short-period
-derivatives: calm air oem 0.74-1.15, fdoe 0.37-1.38 (Cmq 0.37: its sandwich std
-conservative; |bias| <= 2.31 empirical std, Cmq); turbulence oem 6.17-8.08 (output error
-takes the air as calm: filter error is the method there), fdoe 0.62-2.03 (Cmalpha 2.03,
-CLalpha 1.8: the gust response leaks across a finite record's frequencies, which neither
-bound counts; spacing the frequencies by the shortest maneuver's 1/T instead of the
-longest's changed this by less than 0.1).
+derivatives: calm air oem 0.74-1.15, fdoe 0.30-0.81, fdls 0.40-0.69 (the frequency-domain
+std conservative there; |bias| <= 2.31 and 2.55 empirical std, Cmq); turbulence oem
+6.17-8.08 (output error takes the air as calm: filter error is the method there), fdoe
+0.51-1.21, fdls 0.40-0.74 (|bias| <= 3.15 empirical std, 1.5 reported, Cmq). Before the
+sandwich's leverage correction fdoe in turbulence was 0.62-2.03 (Cmalpha 2.03, CLalpha 1.8).
 """
 
 from __future__ import annotations
