@@ -18,12 +18,12 @@ the same process.
 
     python benchmarks/frequency_domain.py [--runs 5] [--seeds 200]
 
-Measured (--runs 3 --seeds 40, this 2-core machine): OEM/FDOE wall time 1.7 at 1000
+Measured (--runs 3 --seeds 40, this 2-core machine): OEM/FDOE wall time 1.8 at 1000
 samples, 3.8 at 6000 (FDOE's cost barely grows with N); frequency_response on one hour at
-100 Hz 1.7 s; conditioned responses worst 1.5-1.6 dB, 7-12 deg (median 0.1-0.2 dB, 0.5-1.3
+100 Hz 1.2 s; conditioned responses worst 1.5-1.6 dB, 7-12 deg (median 0.1-0.2 dB, 0.5-1.3
 deg) where the single-input estimate misses by 12.4 dB; scatter / CRB 0.74-0.95 in white
-noise, 0.73-0.97 in correlated coloured noise, scatter / sandwich 0.95-1.30; the conjugate
-weighting's scatter 0.93-1.20 of the likelihood's.
+noise, 0.73-0.97 in correlated coloured noise, scatter / sandwich (leverage-corrected)
+0.76-1.11; the conjugate weighting's scatter 0.93-1.20 of the likelihood's.
 """
 
 from __future__ import annotations

@@ -226,7 +226,10 @@ def orthogonal_multisines(
     value, or per input).
 
     Returns a DataFrame on t (s, index "t", 0..duration in steps of dt) with one column per
-    input; ``attrs["frequencies"][name]`` (Hz) and ``attrs["rpf"][name]``.
+    input; ``attrs["frequencies"][name]`` (Hz) and ``attrs["rpf"][name]``; and the closed
+    form u(t) = scale sum_k sin(2 pi f_k t + phase_k) for players that evaluate it at their
+    own times: ``attrs["phases"][name]`` (rad) and ``attrs["scale"][name]`` (the input's
+    unit).
     """
     import pandas as pd
 
@@ -246,7 +249,7 @@ def orthogonal_multisines(
     n = int(round(n_steps))
     t = np.arange(n + 1) * dt
     amp = amplitude if isinstance(amplitude, dict) else {u: float(amplitude) for u in inputs}
-    cols, freqs, rpfs = {}, {}, {}
+    cols, freqs, rpfs, phases, scales = {}, {}, {}, {}, {}
     for i, name in enumerate(inputs):
         k = k_all[i :: len(inputs)]
         ph = min_peak_phases(k, seed=i)
@@ -260,9 +263,13 @@ def orthogonal_multisines(
         ph = ph + 2 * np.pi * k * tau / duration
         u = np.sin(2 * np.pi * np.outer(t, k / duration) + ph).sum(axis=1)
         u[0] = u[-1] = 0.0  # zero to round-off already: exactly at both ends
-        u *= amp[name] / np.max(np.abs(u))
+        scales[name] = amp[name] / np.max(np.abs(u))
+        u *= scales[name]
         cols[name], freqs[name], rpfs[name] = u, k / duration, relative_peak_factor(u[:-1])
+        phases[name] = np.mod(ph, 2 * np.pi)
     df = pd.DataFrame(cols, index=pd.Index(t, name="t"))
     df.attrs["frequencies"] = freqs
     df.attrs["rpf"] = rpfs
+    df.attrs["phases"] = phases
+    df.attrs["scale"] = scales
     return df
