@@ -7,7 +7,9 @@ mass and a-priori derivatives (the models' defaults where it gives none), trimme
 flight's airspeed and flown with the designed inputs; its Cramér-Rao bounds at those values
 with the simulated sensors' default noise (:func:`sim.sensors.default_noise_si`) are each
 derivative's predicted std for one such maneuver. Writes inputs.csv, design.json,
-figures/inputs.png, report.md and report.html, published whole with design.json last.
+fsid_player.lua (an ArduPilot Lua script that flies the design:
+:mod:`pipeline.outputs.lua_player`), figures/inputs.png, report.md and report.html,
+published whole with design.json last.
 """
 
 from __future__ import annotations
@@ -28,7 +30,9 @@ from estimators.models.longitudinal import longitudinal
 from pipeline.errors import FsidError
 from pipeline.ingest.aircraft_file import read_aircraft_file
 from pipeline.ingest.constants import isa_density
+from pipeline.ingest.maps import DEFAULT_TRAVEL_DEG
 from pipeline.jobs.progress import Progress
+from pipeline.outputs.lua_player import PITCH_LIMIT_DEG, ROLL_LIMIT_DEG, SWITCH_OPTION
 from pipeline.paths import atomic_write_text, new_run_dir, run_id, staged
 from pipeline.validation.json_values import num
 from sim.maneuvers import orthogonal_multisines
@@ -108,6 +112,26 @@ def _bounds(model: Any, t: np.ndarray, u: np.ndarray, x0: np.ndarray, noise: Map
     }
 
 
+def _player(inputs: Sequence[str], servo_travel: Mapping[str, tuple[float, str]]) -> dict[str, Any]:
+    """The Lua player's document: its file, each surface's travel (deg at full servo throw)
+    and where that came from, its switch and attitude limits."""
+    travel = {u: servo_travel[u][0] if u in servo_travel else DEFAULT_TRAVEL_DEG for u in inputs}
+    missing = [u for u in inputs if u not in servo_travel]
+    return {
+        "file": "fsid_player.lua",
+        "travel_deg": travel,
+        "travel_from": (
+            "the aircraft file's [servos]"
+            if not missing
+            else f"assumed {DEFAULT_TRAVEL_DEG:g} deg for {', '.join(missing)}, which the aircraft file's [servos] "
+            f"does not give ({missing[0]}_travel_deg = ...): the played deflections scale with it"
+        ),
+        "switch_option": SWITCH_OPTION,
+        "roll_limit_deg": ROLL_LIMIT_DEG,
+        "pitch_limit_deg": PITCH_LIMIT_DEG,
+    }
+
+
 def design(out: str | Path | None, opts: DesignOptions) -> dict[str, Path]:
     """``fsid design`` into ``out`` (module docstring); returns name -> path."""
     from pipeline.outputs.design import write_design  # matplotlib: on use only
@@ -148,6 +172,7 @@ def design(out: str | Path | None, opts: DesignOptions) -> dict[str, Path]:
         "apriori_from": "the aircraft file's [apriori] (a truth set's [derivatives]) where given, else the built-in "
         "models' defaults",
         "predicted": pred,
+        "player": _player(opts.inputs, ac_file.servo_travel),
     }
     with staged(out, "design.json") as stage:
         paths = write_design(stage, U, doc)

@@ -13,6 +13,7 @@ from matplotlib.figure import Figure
 from pipeline.outputs.figures.refs import make
 from pipeline.outputs.figures.style import panel_grid, top_legend
 from pipeline.outputs.html import write_html
+from pipeline.outputs.lua_player import player_script
 from pipeline.outputs.markdown import cell, table
 from pipeline.paths import atomic_write_text
 
@@ -73,13 +74,26 @@ def _markdown(doc: dict[str, Any], fig: Any) -> str:
         ]
         L += [f"### {axis} ({d['model']} model; outputs {', '.join(d['outputs'])})", ""]
         L += table(["derivative", "assumed value", "predicted std", "rel. std %"], rows) + [""]
+    pl = doc["player"]
+    L += [
+        "## Flying it",
+        "",
+        f"`{pl['file']}`: an ArduPilot Lua script (copy it to the autopilot's `APM/scripts/`, set `SCR_ENABLE = 1`) "
+        f"that adds these inputs to the surface outputs while the RC switch with `RCx_OPTION = {pl['switch_option']}` "
+        f"is high. Surface travel at full servo throw: "
+        + ", ".join(f"{u} {d:g} deg" for u, d in pl["travel_deg"].items())
+        + f" ({pl['travel_from']}). It stops when the switch goes low, when |bank| > {pl['roll_limit_deg']:g} deg or "
+        f"|pitch| > {pl['pitch_limit_deg']:g} deg, and at the end; it needs one output per surface (no elevon or "
+        "V-tail mixing) and clamps every pulse to the servo's MIN/MAX.",
+        "",
+    ]
     L += [*fig.markdown()] if fig is not None else []
     return "\n".join(L) + "\n"
 
 
 def write_design(folder: Path, U: pd.DataFrame, doc: dict[str, Any]) -> dict[str, str]:
-    """inputs.csv, figures/inputs.png, report.md, report.html into ``folder``; returns
-    name -> path relative to it."""
+    """inputs.csv, the Lua player (doc["player"]["file"]), figures/inputs.png, report.md,
+    report.html into ``folder``; returns name -> path relative to it."""
     csv = U.copy()
     for c in U.columns:
         csv[f"{c}_deg"] = np.degrees(U[c])
@@ -93,9 +107,11 @@ def write_design(folder: Path, U: pd.DataFrame, doc: dict[str, Any]) -> dict[str
         (9.0, 1.0 + 1.8 * len(U.columns)),
         lambda f: _draw(f, U),
     )
+    pl = doc["player"]
+    atomic_write_text(folder / pl["file"], player_script(U, pl["travel_deg"], tuple(doc["band_hz"])))
     atomic_write_text(folder / "report.md", _markdown(doc, fig))
     write_html(folder / "report.html", folder / "report.md")
-    out = {"inputs.csv": "inputs.csv", "report.md": "report.md", "report.html": "report.html"}
+    out = {"inputs.csv": "inputs.csv", pl["file"]: pl["file"], "report.md": "report.md", "report.html": "report.html"}
     if fig.path:
         out["inputs.png"] = fig.path
     return out

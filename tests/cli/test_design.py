@@ -31,9 +31,16 @@ def test_design_writes_the_inputs_and_their_predicted_accuracy(tmp_path):
     assert {"CLalpha", "Cmalpha", "Cmq", "Cmde"} <= set(lon) and {"Clp", "Cnr", "Clda", "Cndr"} <= set(lat)
     assert lon["Cmalpha"]["value"] == pytest.approx(-0.38)  # the truth set's derivative
     assert all(0 < p["std"] < abs(p["value"]) for n, p in {**lon, **lat}.items() if n in ("Cmq", "Clp", "Cnr"))
-    for name in ("inputs.csv", "design.json", "report.md", "report.html", "figures/inputs.png"):
+    for name in ("inputs.csv", "design.json", "fsid_player.lua", "report.md", "report.html", "figures/inputs.png"):
         assert os.stat(out / name).st_mode & 0o044 == 0o044, name
     assert "Predicted accuracy" in (out / "report.md").read_text()
+    # the player: the aircraft file gives no [servos], which the report says; the design's
+    # harmonics in the script (its sequence is run in tests/outputs/test_lua_player.py)
+    pl = doc["player"]
+    assert pl["file"] == "fsid_player.lua" and pl["travel_deg"] == {"de": 30.0, "da": 30.0, "dr": 30.0}
+    assert "assumed 30 deg for de, da, dr" in pl["travel_from"] and "Flying it" in (out / "report.md").read_text()
+    lua = (out / "fsid_player.lua").read_text()
+    assert "RCx_OPTION = 300" in lua and f"{doc['frequencies_hz']['da'][-1]:.17g}" in lua
 
 
 @pytest.mark.slow  # two designs: the edit loop's tier goes without it
