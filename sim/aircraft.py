@@ -6,7 +6,7 @@ b/(2V) (roll, yaw), alphadot likewise with c/(2V).
 
 Aerodynamic model (exactly what the generated JSBSim aircraft evaluates)::
 
-    CL = CL0 + CLalpha*alpha + CLq*q_a*c/(2V) + CLalphadot*alphadot*c/(2V) + CLde*de
+    CL = CL0 + CLalpha*alpha + CLalpha2*alpha**2 + CLq*q_a*c/(2V) + CLalphadot*alphadot*c/(2V) + CLde*de
     CD = CD0 + CDalpha*alpha + CDalpha2*alpha**2 + CDde*de
     Cm = Cm0 + Cmalpha*alpha + Cmq*q_a*c/(2V) + Cmalphadot*alphadot*c/(2V) + Cmde*de
     CY = CYasym + CYbeta*beta + CYp*p_a*b/(2V) + CYr*r_a*b/(2V) + CYda*da + CYdr*dr
@@ -45,7 +45,7 @@ from sim.errors import ScenarioError
 
 #: derivative names per force/moment coefficient, in DESIGN.md order
 DERIVATIVES: dict[str, tuple[str, ...]] = {
-    "CL": ("CL0", "CLalpha", "CLq", "CLalphadot", "CLde"),
+    "CL": ("CL0", "CLalpha", "CLalpha2", "CLq", "CLalphadot", "CLde"),
     "CD": ("CD0", "CDalpha", "CDalpha2", "CDde"),
     "Cm": ("Cm0", "Cmalpha", "Cmq", "Cmalphadot", "Cmde"),
     "CY": ("CYasym", "CYbeta", "CYp", "CYr", "CYda", "CYdr"),
@@ -58,6 +58,7 @@ OPTIONAL_DERIVATIVES = {
     "CLalphadot",
     "Cmalphadot",
     "CDalpha2",
+    "CLalpha2",
     "CDde",
     "CYp",
     "CYr",
