@@ -85,8 +85,8 @@ class Autopilot:
 
 @pytest.fixture(scope="module")
 def design():
-    U = orthogonal_multisines(["de", "da", "dr"], (0.1, 2.0), 10.0, 0.02, {"de": 0.05, "da": 0.06, "dr": 0.04})
-    return U, player_script(U, TRAVEL, (0.1, 2.0))
+    U = orthogonal_multisines(["de", "da", "dr"], (0.2, 1.5), 10.0, 0.02, {"de": 0.05, "da": 0.06, "dr": 0.04})
+    return U, player_script(U, TRAVEL, (0.2, 1.5))
 
 
 def test_the_played_pulses_read_back_as_the_design(design):
@@ -120,7 +120,7 @@ def test_the_played_pulses_read_back_as_the_design(design):
         resolution = 0.5 / half * math.radians(TRAVEL[u])
         # linear interpolation of the 50 Hz design between its samples differs from the
         # closed form by at most (2 pi f_max)^2 dt^2 / 8 of the amplitude
-        interp = (2 * np.pi * 2.0) ** 2 * 0.02**2 / 8 * np.max(np.abs(U[u])) * len(U.attrs["frequencies"][u])
+        interp = (2 * np.pi * 1.5) ** 2 * 0.02**2 / 8 * np.max(np.abs(U[u])) * len(U.attrs["frequencies"][u])
         assert np.max(np.abs(played - designed)) <= resolution + interp + 1e-12, u
         assert np.ptp(played) > 0.8 * np.ptp(U[u])  # it moves as much as designed
         assert (mine["timeout"] == 50).all()
