@@ -46,7 +46,8 @@ import pandas as pd
 from estimators import statistics as st
 from estimators.defaults import RLS_P0
 from estimators.errors import IdentifiabilityError, ModelDefinitionError
-from estimators.frequency.transform import DETRENDS, fourier_transform
+from estimators.frequency.stream import StreamingFourierTransform, derivative_transform, linear_fourier_transform
+from estimators.frequency.transform import DETRENDS, detrended, fourier_transform, uniform_step
 from estimators.model import Model, Parameter
 from estimators.results import EstimationResult
 
@@ -391,11 +392,18 @@ class FourierRegression(_RegressionBase):
     The intercept (a constant, i.e. zero frequency) drops out at w > 0 and is not
     estimated; biases and trim values need no removal.
 
+    response_derivative : regress the time derivative of y (a rate whose derivative the
+        equation needs: q for the pitching moment) through its transform jw Y + the record's
+        end terms, exact for the samples' interpolant, instead of a differentiated signal.
+
     ``fit(X, y, dt)`` transforms the whole record (:func:`~estimators.frequency.fourier_transform`,
-    exact for the samples' cubic interpolant) and solves; ``update(x, y)`` (after
+    exact for the samples' cubic interpolant; samples at irregular times, a DataFrame's
+    index: :func:`~estimators.frequency.stream.linear_fourier_transform`, exact for their
+    piecewise-linear interpolant) and solves. The real-time form: ``update(x, y)`` (after
     ``start(dt, n_regressors)``) adds one sample to a recursive DFT that subtracts each
-    channel's first sample, and ``estimate()`` solves with what has been seen - the
-    real-time form.
+    channel's first sample; ``update(x, y, t)`` (after ``start(None, n_regressors)``, with
+    ``detrend="none"``) adds a sample at its own time to the irregular transform, which
+    then equals ``fit`` on the same samples; ``estimate()`` solves with what has been seen.
     """
 
     method = "ftr"
@@ -409,8 +417,11 @@ class FourierRegression(_RegressionBase):
         frequencies: Sequence[float] | None = None,
         detrend: str = "ends",
         response: str = "y",
+        response_derivative: bool = False,
     ) -> None:
         super().__init__(regressors, intercept=False, response=response)
+        self.response_derivative = bool(response_derivative)
+        self._stream: StreamingFourierTransform | None = None
         if detrend not in DETRENDS:
             raise ModelDefinitionError(f"detrend={detrend!r}: use one of {', '.join(DETRENDS)}")
         self.detrend = detrend
@@ -437,19 +448,58 @@ class FourierRegression(_RegressionBase):
         return f
 
     # real-time form
-    def start(self, dt: float, n_regressors: int) -> None:
-        self._dft = RecursiveDFT(self._freqs(None), dt, n_regressors + 1)
+    def start(self, dt: float | None, n_regressors: int) -> None:
+        """Start the real-time form: samples every ``dt`` s (a recursive DFT), or at their
+        own times (``dt`` None: the irregular transform; needs ``detrend="none"``)."""
+        if dt is None:
+            if self.detrend != "none":
+                raise ModelDefinitionError(
+                    "samples at their own times are transformed as they are: use FourierRegression(detrend='none') "
+                    "and give the constants their own regressors"
+                )
+            if self.frequencies is None:
+                raise ModelDefinitionError("give the frequencies for real-time use at the samples' own times")
+            self._stream, self._dft = StreamingFourierTransform(2 * np.pi * self.frequencies, n_regressors + 1), None
+        else:
+            self._dft, self._stream = RecursiveDFT(self._freqs(None), dt, n_regressors + 1), None
 
-    def update(self, x: Sequence[float], y: float) -> None:
-        if self._dft is None:
+    def update(self, x: Sequence[float], y: float, t: float | None = None) -> None:
+        """Add one sample: regressors ``x``, response ``y`` (at time ``t`` s in the
+        irregular form)."""
+        row = np.concatenate([np.asarray(x, float).ravel(), [float(y)]])
+        if self._stream is not None:
+            if t is None:
+                raise ModelDefinitionError("started for samples at their own times: give update(x, y, t)")
+            self._stream.update(t, row)
+        elif self._dft is not None:
+            self._dft.update(row)
+        else:
             raise ModelDefinitionError("call start(dt, n_regressors) before update()")
-        self._dft.update(np.concatenate([np.asarray(x, float).ravel(), [float(y)]]))
 
     def estimate(self) -> tuple[np.ndarray, np.ndarray]:
         """(theta, cov) from the transforms accumulated so far."""
+        if self._stream is not None:
+            Xf = self._stream.X[:, :-1]
+            Yf = self._stream.derivative()[:, -1] if self.response_derivative else self._stream.X[:, -1]
+            return self._solve(Xf, Yf)[:2]
         Xf = self._dft.X[:, :-1]
         Yf = self._dft.X[:, -1]
+        if self.response_derivative:
+            raise ModelDefinitionError("response_derivative needs the samples' own times: start(None, n_regressors)")
         return self._solve(Xf, Yf)[:2]
+
+    def _transform(self, t: np.ndarray, Xa: np.ndarray, ya: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """The regressors' and the response's (or its derivative's) transforms (n_f, n + 1)
+        of one record: cubic on a uniform grid, piecewise-linear at irregular times."""
+        data = np.column_stack([Xa, ya])
+        try:
+            uniform_step(t)
+            F = fourier_transform(t, data, w, self.detrend)
+        except ModelDefinitionError:  # irregular times (or too few for the cubic weights)
+            F = linear_fourier_transform(t, detrended(t, data, self.detrend), w)
+        if self.response_derivative:
+            F[:, -1] = derivative_transform(t, detrended(t, ya, self.detrend), w, F[:, -1])
+        return F
 
     def _solve(self, Xf: np.ndarray, Yf: np.ndarray, names: Sequence[str] | None = None):
         n = Xf.shape[1]
@@ -473,7 +523,7 @@ class FourierRegression(_RegressionBase):
         N, n = Xa.shape
         t = np.arange(N) * dt if index is None else np.asarray(index, dtype=float)
         freqs = self._freqs(t[-1] - t[0] + dt)
-        F = fourier_transform(t, np.column_stack([Xa, ya]), 2 * np.pi * freqs, self.detrend)
+        F = self._transform(t, Xa, ya, 2 * np.pi * freqs)
         Xf, Yf = F[:, :-1], F[:, -1]
         theta, cov, s2, A = self._solve(Xf, Yf, model.parameter_names)
         res = self._result(
@@ -506,7 +556,7 @@ class FourierRegression(_RegressionBase):
         T = min(t[-1] - t[0] + float(np.median(np.diff(t))) for t, *_ in designed)
         freqs = self._freqs(T)
         w = 2 * np.pi * freqs
-        F = [fourier_transform(t, np.column_stack([Xa, ya]), w, self.detrend) for t, Xa, ya, *_ in designed]
+        F = [self._transform(t, Xa, ya, w) for t, Xa, ya, *_ in designed]
         Xf = np.concatenate([f[:, :-1] for f in F])
         Yf = np.concatenate([f[:, -1] for f in F])
         theta, cov, s2, A = self._solve(Xf, Yf, names)
