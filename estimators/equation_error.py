@@ -476,6 +476,13 @@ class FourierRegression(_RegressionBase):
         else:
             raise ModelDefinitionError("call start(dt, n_regressors) before update()")
 
+    def update_many(self, X: np.ndarray, y: np.ndarray, t: np.ndarray) -> None:
+        """Add samples (rows of ``X``, ``y``) at their own times ``t`` at once (the same as
+        one :meth:`update` each, vectorised; after ``start(None, n_regressors)``)."""
+        if self._stream is None:
+            raise ModelDefinitionError("update_many adds samples at their own times: start(None, n_regressors) first")
+        self._stream.update_many(t, np.column_stack([np.asarray(X, float), np.asarray(y, float)]))
+
     def estimate(self) -> tuple[np.ndarray, np.ndarray]:
         """(theta, cov) from the transforms accumulated so far."""
         if self._stream is not None:

@@ -127,6 +127,27 @@ class StreamingFourierTransform:
         self.count += 1
         return self.X
 
+    def update_many(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Add the samples ``x`` (N, n_channels) at times ``t`` (N,) at once: the same sum as
+        N calls of :meth:`update`, vectorised over the new intervals."""
+        t = np.asarray(t, dtype=float).ravel()
+        x = np.asarray(x, dtype=float).reshape(t.size, -1)
+        if t.size == 0:
+            return self.X
+        if self.t_last is None:
+            self.update(t[0], x[0])
+            t, x = t[1:], x[1:]
+            if t.size == 0:
+                return self.X
+        tt = np.r_[self.t_last, t]
+        if not np.all(np.diff(tt) > 0):
+            raise ModelDefinitionError("StreamingFourierTransform: the new samples' times must increase after the last")
+        xx = np.vstack([self.x_last[None, :], x])
+        self.X += linear_fourier_transform(tt, xx, self.w) if tt.size > 1 else 0.0
+        self.t_last, self.x_last = float(tt[-1]), xx[-1].copy()
+        self.count += t.size
+        return self.X
+
     def derivative(self) -> np.ndarray:
         """The transform of the channels' time derivative over the samples so far."""
         if self.t_last is None:

@@ -18,6 +18,7 @@ COMMANDS: dict[str, str] = {
     "run": "run",
     "response": "response",
     "design": "design",
+    "live": "live",
     "view": "view",
     "aircraft": "aircraft",
 }

@@ -212,3 +212,14 @@ def _partial(out: Path, some: str, none: str) -> str:
     left = sorted(p.name for p in out.iterdir() if not p.name.startswith(".") and p.name not in MARKERS)
     rid = run_id(out)
     return (f"{some}: {', '.join(left)}\n" if left else f"{none}\n") + (f"run_id: {rid}\n" if rid else "")
+
+
+def band_hz(text: str) -> tuple[float, float]:
+    """A ``--band LO:HI`` value (Hz): 0 <= LO < HI, or one clear error."""
+    try:
+        lo, hi = (float(x) for x in text.split(":"))
+    except ValueError:
+        raise FsidError(f"--band '{text}' is not LO:HI in Hz; e.g. --band 0.1:2.0") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo < hi):
+        raise FsidError(f"--band {text}: give 0 <= LO < HI in Hz")
+    return lo, hi

@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from pipeline.commands.arguments import failure_recorded, positive_number, print_outputs
+from pipeline.commands.arguments import band_hz, failure_recorded, positive_number, print_outputs
 from pipeline.errors import FsidError
 from pipeline.paths import new_run_dir
 
@@ -30,16 +30,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--altitude", type=float, default=100.0, help="altitude in m (ISA density; default 100)")
     parser.add_argument("--out", default=None, help="output folder (default: a new folder under ./runs/)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
-
-
-def _band(text: str) -> tuple[float, float]:
-    try:
-        lo, hi = (float(x) for x in text.split(":"))
-    except ValueError:
-        raise FsidError(f"--band '{text}' is not LO:HI in Hz; e.g. --band 0.1:2.0") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo < hi):
-        raise FsidError(f"--band {text}: give 0 <= LO < HI in Hz")
-    return lo, hi
 
 
 def _amplitudes(text: str | None) -> dict[str, float] | None:
@@ -66,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     opts = DesignOptions(
         aircraft=args.aircraft,
         inputs=[s.strip() for s in args.inputs.split(",") if s.strip()],
-        band=_band(args.band),
+        band=band_hz(args.band),
         duration=args.duration,
         rate=args.rate,
         amplitude=_amplitudes(args.amplitude),

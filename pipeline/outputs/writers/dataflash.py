@@ -465,29 +465,10 @@ def _interleave(blocks: list[tuple[np.ndarray, np.ndarray]]) -> bytes:
     return body.tobytes()
 
 
-def _header(result, travel: dict[str, float], airspeed: str, tail: str = "conventional") -> bytes:
-    out = []
-    for m in MSGS.values():
-        length = m.dtype.itemsize
-        out.append(
-            _records(
-                "FMT",
-                1,
-                Type=m.id,
-                Length=length,
-                Name=m.name.encode(),
-                Format=m.fmt.encode(),
-                Columns=m.labels.encode(),
-            ).tobytes()
-        )
-    for uid, lab in UNITS.items():
-        out.append(_records("UNIT", 1, TimeUS=0, Id=ord(uid), Label=lab.encode()).tobytes())
-    for mid, mult in MULTS.items():
-        out.append(_records("MULT", 1, TimeUS=0, Id=ord(mid), Mult=mult).tobytes())
-    for m in MSGS.values():
-        out.append(
-            _records("FMTU", 1, TimeUS=0, FmtType=m.id, UnitIds=m.units.encode(), MultIds=m.mults.encode()).tobytes()
-        )
+def log_parameters(result, travel: Mapping[str, float], airspeed: str = "tas", tail: str = "conventional") -> dict:
+    """The autopilot parameters a simulated flight's log carries (name -> value): the servo
+    functions and calibration of the ``tail`` layout, the surfaces' travel (FSID_TRAVEL_*,
+    deg), the thrust model, the airspeed's kind, the IMU position."""
     params = {f"SERVO{k}_FUNCTION": fn for k, fn in TAILS[tail].items()}
     for k in (1, 2, 4):
         params.update(
@@ -513,6 +494,33 @@ def _header(result, travel: dict[str, float], airspeed: str, tail: str = "conven
     imu = getattr(result.scenario, "sensors", {}).get("imu")
     if imu is not None:  # ArduPilot's IMU position from the CG (body axes, m)
         params.update(zip(("INS_POS1_X", "INS_POS1_Y", "INS_POS1_Z"), (float(v) for v in imu.position)))
+    return params
+
+
+def _header(result, travel: dict[str, float], airspeed: str, tail: str = "conventional") -> bytes:
+    out = []
+    for m in MSGS.values():
+        length = m.dtype.itemsize
+        out.append(
+            _records(
+                "FMT",
+                1,
+                Type=m.id,
+                Length=length,
+                Name=m.name.encode(),
+                Format=m.fmt.encode(),
+                Columns=m.labels.encode(),
+            ).tobytes()
+        )
+    for uid, lab in UNITS.items():
+        out.append(_records("UNIT", 1, TimeUS=0, Id=ord(uid), Label=lab.encode()).tobytes())
+    for mid, mult in MULTS.items():
+        out.append(_records("MULT", 1, TimeUS=0, Id=ord(mid), Mult=mult).tobytes())
+    for m in MSGS.values():
+        out.append(
+            _records("FMTU", 1, TimeUS=0, FmtType=m.id, UnitIds=m.units.encode(), MultIds=m.mults.encode()).tobytes()
+        )
+    params = log_parameters(result, travel, airspeed, tail)
     for k, v in params.items():
         out.append(_records("PARM", 1, TimeUS=0, Name=k.encode(), Value=float(v), Default=float(v)).tobytes())
     notes = [
