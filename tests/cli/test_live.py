@@ -149,3 +149,25 @@ def test_a_udp_stream_ends_where_the_whole_record_regression_is(flight, aircraft
     # (this log has no height): a few per cent, more than its std over 30 s
     assert est["CLalpha"]["value"] == pytest.approx(TRUTH["CLalpha"], rel=0.05)
     assert doc["update_latency_s"] < 1.0
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ([], "give a MAVLink SOURCE"),
+        (["udpin:127.0.0.1:1", "--replay", "x.tlog"], "one of them"),
+        (["notasource", "--aircraft", "a.toml"], "not a MAVLink source"),
+        (["udpin:127.0.0.1:1"], "needs --aircraft"),
+        (["--replay", "missing.tlog"], "missing.tlog"),
+        (["--replay", "x.tlog", "--speed", "fast"], "--speed"),
+    ],
+)
+def test_bad_live_inputs_end_in_one_line(tmp_path, capsys, monkeypatch, args, message):
+    from pipeline.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "x.tlog").write_bytes(b"")
+    (tmp_path / "a.toml").write_text("")
+    assert main(["live", *args, "--out", str(tmp_path / "o")]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0] and "Traceback" not in err[0], err
