@@ -140,13 +140,19 @@ def _lock(path: Path, kind: str) -> None:
 
 
 def _alive(pid: int) -> bool:
+    """Whether process ``pid`` still runs: a zombie (killed, not yet reaped by its parent:
+    a Dask worker killed under its nanny) holds no folder."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:
         return True
-    return True
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii", errors="replace") as fh:
+            return fh.read().rsplit(")", 1)[-1].split()[0] != "Z"
+    except OSError:  # no /proc (macOS, Windows): kill(pid, 0) is all there is
+        return True
 
 
 def _unlock(lock: Path, pid: int) -> None:

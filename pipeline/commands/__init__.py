@@ -19,6 +19,8 @@ COMMANDS: dict[str, str] = {
     "response": "response",
     "design": "design",
     "live": "live",
+    "batch": "batch",
+    "campaign": "campaign",
     "view": "view",
     "aircraft": "aircraft",
 }

@@ -12,16 +12,10 @@ import json
 import math
 from pathlib import Path
 
-from pipeline.commands.arguments import (
-    SEGMENTS_HELP,
-    add_time_base_argument,
-    failure_recorded,
-    log_file,
-    positive_number,
-    segment_items,
-)
+from pipeline.commands.arguments import SEGMENTS_HELP, add_time_base_argument, log_file, positive_number, segment_items
 from pipeline.errors import FsidError
 from pipeline.ingest.sampling import MAX_GRID_HZ
+from pipeline.jobs.failures import failure_recorded
 from pipeline.paths import new_run_dir
 
 HELP = "ingest a flight log, check its data quality and sensor compatibility, and whether each axis can be identified"

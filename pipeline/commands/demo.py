@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pipeline.commands.arguments import failure_recorded, print_outputs
+from pipeline.commands.arguments import print_outputs
 from pipeline.errors import FsidError
+from pipeline.jobs.failures import failure_recorded
 from pipeline.paths import new_run_dir
 
 HELP = "the main job on the built-in default scenario (no arguments needed)"

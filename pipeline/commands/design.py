@@ -8,8 +8,9 @@ from __future__ import annotations
 import argparse
 import math
 
-from pipeline.commands.arguments import band_hz, failure_recorded, positive_number, print_outputs
+from pipeline.commands.arguments import band_hz, positive_number, print_outputs
 from pipeline.errors import FsidError
+from pipeline.jobs.failures import failure_recorded
 from pipeline.paths import new_run_dir
 
 HELP = "design mutually orthogonal multisine inputs and predict the accuracy they give"

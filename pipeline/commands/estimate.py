@@ -10,13 +10,13 @@ from pipeline.commands.arguments import (
     add_input_arguments,
     add_time_base_argument,
     add_validation_arguments,
-    failure_recorded,
     log_file,
     print_outputs,
     segment_items,
     validation_options,
 )
 from pipeline.errors import FsidError
+from pipeline.jobs.failures import failure_recorded
 from pipeline.jobs.options import EstimateOptions
 from pipeline.paths import new_run_dir
 from pipeline.registry import METHOD_LIST, METHODS

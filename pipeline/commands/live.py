@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import argparse
 
-from pipeline.commands.arguments import band_hz, failure_recorded, log_file, positive_number, print_outputs
+from pipeline.commands.arguments import band_hz, log_file, positive_number, print_outputs
 from pipeline.errors import FsidError
+from pipeline.jobs.failures import failure_recorded
 from pipeline.paths import new_run_dir
 
 HELP = "identify while flying: frequency-domain equation error per axis on a MAVLink stream or a replayed log"

@@ -8,16 +8,10 @@ from __future__ import annotations
 import argparse
 import math
 
-from pipeline.commands.arguments import (
-    SEGMENTS_HELP,
-    add_time_base_argument,
-    failure_recorded,
-    log_file,
-    print_outputs,
-    segment_items,
-)
+from pipeline.commands.arguments import SEGMENTS_HELP, add_time_base_argument, log_file, print_outputs, segment_items
 from pipeline.errors import FsidError
 from pipeline.ingest.flightdata import CANONICAL_UNITS
+from pipeline.jobs.failures import failure_recorded
 from pipeline.paths import new_run_dir
 
 HELP = "frequency responses (Bode, coherence, random error) of outputs to inputs, with a transfer-function/LOES fit"

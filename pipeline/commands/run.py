@@ -4,13 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from pipeline.commands.arguments import (
-    add_input_arguments,
-    add_validation_arguments,
-    failure_recorded,
-    print_outputs,
-    validation_options,
-)
+from pipeline.commands.arguments import add_input_arguments, add_validation_arguments, print_outputs, validation_options
+from pipeline.jobs.failures import failure_recorded
 from pipeline.jobs.options import RunOptions
 from pipeline.paths import new_run_dir
 from pipeline.registry import METHOD_LIST, METHODS

@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from pipeline.commands.arguments import failure_recorded
+from pipeline.jobs.failures import failure_recorded
 from pipeline.paths import new_run_dir
 
 HELP = "fly a scenario in JSBSim (Dryden turbulence, sensor models) and write flight.mcap, flight.bin, truth.json"

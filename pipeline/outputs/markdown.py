@@ -39,3 +39,9 @@ def table(head: list[str], rows: list[list[str]]) -> list[str]:
     out = ["| " + " | ".join(head) + " |", "|" + "|".join("---" for _ in head) + "|"]
     out += ["| " + " | ".join(r) + " |" for r in rows]
     return out + [""]
+
+
+def one_line(text: Any) -> str:
+    """A reason for a table cell: one line, no table bars, at most 200 characters."""
+    s = " ".join(str(text or "").split()).replace("|", "/")
+    return s if len(s) <= 200 else s[:199] + "..."
