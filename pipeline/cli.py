@@ -1,5 +1,6 @@
 """The ``fsid`` command line, one sub-command per module of :mod:`pipeline.commands` (demo,
-simulate, check, fields, estimate, run, response, design, live, view, aircraft).
+simulate, check, fields, estimate, run, response, design, live, batch, campaign, view,
+aircraft).
 
 Every failure the user can act on arrives as :class:`pipeline.errors.FsidError` (or one of
 the estimators' typed errors) and ends in one line on stderr and a non-zero exit, never a
