@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from pipeline.commands.arguments import band_hz, positive_number, print_outputs
+from pipeline.commands.arguments import band_hz, log_file, positive_number, print_outputs
 from pipeline.errors import FsidError
 from pipeline.jobs.failures import failure_recorded
 from pipeline.paths import new_run_dir
@@ -29,6 +29,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--speed", type=positive_number(400.0, "m/s"), default=None, help="trim airspeed in m/s")
     parser.add_argument("--altitude", type=float, default=100.0, help="altitude in m (ISA density; default 100)")
+    parser.add_argument(
+        "--log",
+        default=None,
+        help="a previous flight of the aircraft: the prediction adds the new flight's information to what it knows",
+    )
     parser.add_argument("--out", default=None, help="output folder (default: a new folder under ./runs/)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
 
@@ -63,9 +68,10 @@ def run(args: argparse.Namespace) -> int:
         amplitude=_amplitudes(args.amplitude),
         speed=args.speed,
         altitude=args.altitude,
+        log=str(log_file(args.log)) if args.log else None,
         quiet=args.quiet,
     )
-    out = new_run_dir("design", args.out, inputs=[args.aircraft])
+    out = new_run_dir("design", args.out, inputs=[args.aircraft, args.log])
     with failure_recorded(out, "design"):
         paths = design(out, opts)
     print_outputs(out, paths)

@@ -46,7 +46,8 @@ SURFACES = {"de": "longitudinal", "da": "lateral", "dr": "lateral"}
 class DesignOptions:
     """``fsid design``'s settings: the aircraft file, the ``inputs`` (de, da, dr), the
     ``band`` (Hz), ``duration`` (s), the output ``rate`` (Hz), each input's peak
-    ``amplitude`` (rad), the trim ``speed`` (m/s) and ``altitude`` (m, ISA density)."""
+    ``amplitude`` (rad), the trim ``speed`` (m/s) and ``altitude`` (m, ISA density); ``log``:
+    a previous flight whose information the new one adds to (:func:`with_previous`)."""
 
     aircraft: str | Path
     inputs: Sequence[str]
@@ -56,6 +57,7 @@ class DesignOptions:
     amplitude: Mapping[str, float] | None = None
     speed: float | None = None
     altitude: float = 100.0
+    log: str | Path | None = None
     quiet: bool = False
 
 
@@ -109,7 +111,45 @@ def _bounds(model: Any, t: np.ndarray, u: np.ndarray, x0: np.ndarray, noise: Map
         "outputs": list(m.outputs),
         "noise_std": dict(zip(m.outputs, sd[keep].tolist())),
         "parameters": params,
+        "_cov": (list(res.free_names), np.asarray(res.cov)),
     }
+
+
+def with_previous(pred: dict[str, dict[str, Any]], log: str | Path, aircraft: str | Path) -> str:
+    """Add to each axis's prediction what a previous flight ``log`` already knows and what
+    the new one adds: output error on the log (``fsid estimate``'s job), its covariance of
+    the derivatives both fits share, and per derivative its std, the std of both flights
+    together (their information added: (C_log^-1 + C_design^-1)^-1 over the shared ones, each
+    marginal over its own other parameters) and the gain std_log / std_both. Returns a note."""
+    from pipeline.jobs.estimate import estimate  # the estimate job: on use only
+    from pipeline.jobs.options import EstimateOptions
+
+    try:
+        est = estimate(log, EstimateOptions(aircraft=aircraft, methods=["oem"], quiet=True, figures=False))
+    except FsidError as exc:
+        return f"the previous log {log} gives no estimate to add to: {exc}"
+    notes = []
+    for axis, d in pred.items():
+        names, Cd = d["_cov"]
+        fits = [r for r in est.results.values() if r.converged]
+        best = max(fits, key=lambda r: len(set(r.free_names) & set(names)), default=None)
+        common = [n for n in names if best is not None and n in best.free_names]
+        if not common:
+            notes.append(f"{axis}: the previous log has no fit of these derivatives")
+            continue
+        i_d = [names.index(n) for n in common]
+        i_p = [best.free_names.index(n) for n in common]
+        Cp = np.asarray(best.cov)[np.ix_(i_p, i_p)]
+        Cd_c = Cd[np.ix_(i_d, i_d)]
+        both = np.linalg.inv(np.linalg.inv(Cp) + np.linalg.inv(Cd_c))
+        for k, n in enumerate(common):
+            p = d["parameters"][n]
+            p["previous_estimate"] = float(best.params[n])
+            p["previous_std"] = num(float(np.sqrt(Cp[k, k])))
+            p["combined_std"] = num(float(np.sqrt(both[k, k])))
+            p["gain"] = num(float(np.sqrt(Cp[k, k] / both[k, k])))
+        d["previous"] = {"log": str(log), "fit": best.method, "derivatives": common}
+    return "; ".join(notes)
 
 
 def _player(inputs: Sequence[str], servo_travel: Mapping[str, tuple[float, str]]) -> dict[str, Any]:
@@ -140,7 +180,7 @@ def design(out: str | Path | None, opts: DesignOptions) -> dict[str, Path]:
     bad = [u for u in opts.inputs if u not in SURFACES]
     if bad:
         raise FsidError(f"--inputs {', '.join(bad)}: design inputs are {', '.join(SURFACES)}")
-    pr = Progress(3, quiet=opts.quiet)
+    pr = Progress(3 + (opts.log is not None), quiet=opts.quiet)
     pr.stage(f"design {', '.join(opts.inputs)} in {opts.band[0]:g}-{opts.band[1]:g} Hz over {opts.duration:g} s")
     amp = {u: (opts.amplitude or {}).get(u, np.radians(3.0)) for u in opts.inputs}
     try:
@@ -157,6 +197,13 @@ def design(out: str | Path | None, opts: DesignOptions) -> dict[str, Path]:
     rho = float(isa_density(opts.altitude))
     pred = predicted_accuracy(U, ac, speed, rho, default_noise_si())
     pr.done(", ".join(f"{a}: {len(d['parameters'])} derivatives" for a, d in pred.items()))
+    previous_note = ""
+    if opts.log is not None:
+        pr.stage(f"what the previous flight {Path(opts.log).name} knows, and what this one adds")
+        previous_note = with_previous(pred, opts.log, opts.aircraft)
+        pr.done(previous_note or "output error on it, the information of both flights added")
+    for d in pred.values():
+        d.pop("_cov", None)
     pr.stage("write inputs.csv, design.json, figures, report.md, report.html")
     doc = {
         "run_id": run_id(out),
@@ -172,6 +219,7 @@ def design(out: str | Path | None, opts: DesignOptions) -> dict[str, Path]:
         "apriori_from": "the aircraft file's [apriori] (a truth set's [derivatives]) where given, else the built-in "
         "models' defaults",
         "predicted": pred,
+        **({"previous_log": str(opts.log), "previous_note": previous_note} if opts.log is not None else {}),
         "player": _player(opts.inputs, ac_file.servo_travel),
     }
     with staged(out, "design.json") as stage:

@@ -67,13 +67,28 @@ def _markdown(doc: dict[str, Any], fig: Any) -> str:
         "scatter; turbulence and model error add to it).",
         "",
     ]
+    if doc.get("previous_log"):
+        L += [
+            f"With the previous flight {doc['previous_log']}: its output-error std of each derivative both fits "
+            "share, and the std of both flights together (their information added); the gain is how many times "
+            "smaller the std gets." + (f" {doc['previous_note']}." if doc.get("previous_note") else ""),
+            "",
+        ]
     for axis, d in doc["predicted"].items():
+        prev = "previous" in d
         rows = [
             [n, f"{p['value']:.4g}", cell(p["std"], ".3g"), cell(p["rel_std_pct"], ".1f")]
+            + (
+                [cell(p.get("previous_std"), ".3g"), cell(p.get("combined_std"), ".3g"), cell(p.get("gain"), ".2f")]
+                if prev
+                else []
+            )
             for n, p in d["parameters"].items()
         ]
+        head = ["derivative", "assumed value", "predicted std", "rel. std %"]
+        head += ["previous flight std", "both flights std", "gain"] if prev else []
         L += [f"### {axis} ({d['model']} model; outputs {', '.join(d['outputs'])})", ""]
-        L += table(["derivative", "assumed value", "predicted std", "rel. std %"], rows) + [""]
+        L += table(head, rows) + [""]
     pl = doc["player"]
     L += [
         "## Flying it",

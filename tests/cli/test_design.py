@@ -69,3 +69,24 @@ def test_bad_designs_end_in_one_line(tmp_path, capsys, extra, message):
     assert main([*args, "--out", str(tmp_path / "d"), "--quiet"]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0], err
+
+
+@pytest.mark.slow  # output error on the previous flight
+def test_a_previous_flight_adds_its_information(tmp_path):
+    """--log: what a flown 3-2-1-1 flight knows per derivative, and both flights together:
+    their information added, so no combined std exceeds either flight's (where the two
+    flights' correlations differ the two together can do much better than either)."""
+    pytest.importorskip("jsbsim")
+    from _simdata import written
+
+    log = written("longitudinal_3211_calm") / "flight.mcap"
+    doc, out = _design(tmp_path, "--log", str(log))
+    lon = doc["predicted"]["longitudinal"]
+    assert lon["previous"]["fit"] == "oem" and {"Cmq", "Cmalpha", "CLalpha"} <= set(lon["previous"]["derivatives"])
+    for n in lon["previous"]["derivatives"]:
+        p = lon["parameters"][n]
+        assert p["combined_std"] <= min(p["std"], p["previous_std"]) * (1 + 1e-9), (n, p)
+        assert p["gain"] == pytest.approx(p["previous_std"] / p["combined_std"])
+    assert abs(lon["parameters"]["Cmq"]["previous_estimate"] - (-3.6)) < 0.5
+    assert "previous" not in doc["predicted"]["lateral"]  # the flight flew no lateral maneuver
+    assert "has no fit" in doc["previous_note"] and "previous flight std" in (out / "report.md").read_text()
