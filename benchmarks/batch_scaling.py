@@ -10,7 +10,12 @@
 
     python benchmarks/batch_scaling.py
 
-Measured: see the output (each figure a ratio within this run).
+Measured (this 2-core machine, idle): batch 30.3 s with 1 worker, 22.3 s with 2: 1.36x (the
+goal 1.7x is not reached: the driver's parquet writes and report, the scheduler and both
+workers share the 2 cores, and each worker's first task loads the kernels); overhead +10.8 %
+of the tasks' own 26.5 s (cluster start-up 0.9 s left out; the rest is mostly the final
+report's figures); campaign of 16 flights 49.2 s / 29.4 s: 1.67x, rows identical for 1 and 2
+workers. Under load (tests running beside it): 1.61x, +8.9 %, 1.21x.
 """
 
 from __future__ import annotations
