@@ -20,6 +20,7 @@ def _design(tmp_path, *extra: str) -> dict:
     return json.loads((out / "design.json").read_text()), out
 
 
+@pytest.mark.slow  # a design and its prediction: the edit loop's tier goes without it
 def test_design_writes_the_inputs_and_their_predicted_accuracy(tmp_path):
     doc, out = _design(tmp_path)
     U = pd.read_csv(out / "inputs.csv")

@@ -44,6 +44,7 @@ def test_time_histories_give_the_truth_within_the_bounds(method):
     assert abs(hq["omega_sp"] - WN) < 0.1 and abs(hq["zeta_sp"] - ZETA) < 0.05 and abs(hq["tau"] - TAU) < 0.01
 
 
+@pytest.mark.slow  # a Monte Carlo of fits: the edit loop's tier goes without it
 def test_output_error_bounds_hold_over_noise_draws():
     """Over 30 noise draws output error is unbiased, and the scatter agrees with both the
     reference's Cramér-Rao std (M = Re sum dv^H dv / s2) and the sandwich std within the

@@ -69,6 +69,7 @@ def sim_check(tmp_path_factory):
     return _check(written("lateral_doublets_calm") / "flight.mcap", tmp_path_factory.mktemp("check"))
 
 
+@pytest.mark.slow  # a simulated flight checked and recorded: the edit loop's tier goes without it
 def test_check_rrd_holds_every_channel_at_its_samples_from_the_start(sim_check):
     fd, _, cols, static = sim_check
     t0 = fd.span[0]
@@ -83,6 +84,7 @@ def test_check_rrd_holds_every_channel_at_its_samples_from_the_start(sim_check):
     assert static["/flight/channels/p"][0]["SeriesLines:names"] == [["p [rad/s]"]]  # legend with the unit
 
 
+@pytest.mark.slow  # a simulated flight checked and recorded: the edit loop's tier goes without it
 def test_check_rrd_modes_windows_and_findings(sim_check):
     fd, doc, cols, _ = sim_check
     t0 = fd.span[0]
