@@ -212,6 +212,30 @@ def test_a_worker_killed_mid_task_runs_again_elsewhere(logs, cluster, tmp_path):
     assert not df.duplicated(["name", "method", "parameter"]).any()
 
 
+def test_ctrl_c_leaves_a_consistent_results_file(logs, cluster, tmp_path):
+    """Ctrl-C once a task has finished: exit 130, results.parquet readable with the finished
+    logs, the report says where it stopped, INTERRUPTED.txt says it was interrupted."""
+    out = tmp_path / "c"
+    cmd = [sys.executable, "-m", "pipeline.cli", "batch", *map(str, logs[:3]), "--method", "ls", "--no-figures"]
+    proc = subprocess.Popen(
+        [*cmd, "--scheduler", cluster[0], "--out", str(out)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 180
+    while time.monotonic() < deadline and not (out / "results.parquet").exists():
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=180)
+    assert proc.returncode == 130, stderr
+    df = pd.read_parquet(out / "results.parquet")
+    assert (df["status"] == "ok").all() and 1 <= df["name"].nunique() <= 3
+    assert not df.duplicated(["name", "method", "parameter"]).any()
+    assert "interrupted" in (out / "batch.md").read_text() and (out / "INTERRUPTED.txt").exists()
+
+
 def test_the_scheduler_gone_keeps_the_finished_results(logs, cluster, tmp_path):
     """Last in this module: it stops the cluster's scheduler."""
     address, _, scheduler = cluster
