@@ -50,9 +50,15 @@ def dask_client(scheduler: str | None, workers: int | None, quiet: bool = True) 
             client.close()
         return
     n = workers or default_workers()
-    cluster = LocalCluster(
-        n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=40 if quiet else 30
-    )
+    try:
+        cluster = LocalCluster(
+            n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=40 if quiet else 30
+        )
+    except (RuntimeError, OSError, TimeoutError) as exc:
+        raise FsidError(
+            f"could not start a local Dask cluster of {n} workers ({exc}); start one by hand (dask scheduler, "
+            "dask worker) and give --scheduler, or fewer --workers"
+        ) from None
     client = Client(cluster)
     _quiet_logs()
     try:
