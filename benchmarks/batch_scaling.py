@@ -6,7 +6,8 @@
    sum of its tasks' own estimate times, less 1 (scheduling, serialisation, imports; the
    goal: <= 5 %), and those task times over the same estimates run directly in this
    process with its kernels warm;
-3. campaign: a 16-seed campaign of a 26 s scenario (``--method ls``), 1 worker over 2.
+3. campaign: 16 seeds of ``scenarios/longitudinal_short_calm.toml`` (26 s, ``--method ls``),
+   1 worker over 2.
 
     python benchmarks/batch_scaling.py
 
@@ -31,34 +32,6 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
-
-SHORT = """name = "short"
-aircraft = "{aircraft}"
-duration_s = 26.0
-rate_hz = 100.0
-seed = 1
-[trim]
-altitude_m = 150.0
-airspeed_mps = 30.0
-flight_path_deg = 0.0
-[schedule]
-lead_s = 3.0
-quiet_s = 8.0
-[[maneuver]]
-name = "a"
-axis = "de"
-shape = "3211"
-amplitude_deg = 2.0
-pulse_s = 0.3
-[[maneuver]]
-name = "b"
-axis = "de"
-shape = "3211"
-amplitude_deg = -2.0
-pulse_s = 0.4
-[turbulence]
-model = "off"
-"""
 
 
 def timed(args: list[str]) -> float:
@@ -110,8 +83,7 @@ def main() -> None:
             f"{tasks.sum():.1f} s: {100 * over:+.1f} %; tasks' time over the same estimates in this process "
             f"{tasks.sum() / sum(direct):.2f}x (the worker's first task loads the kernels)"
         )
-        sc = tmp / "short.toml"
-        sc.write_text(SHORT.format(aircraft=ROOT / "scenarios" / "aircraft" / "uav_small.toml"))
+        sc = ROOT / "scenarios" / "longitudinal_short_calm.toml"
         cbase = ["campaign", str(sc), "--seeds", "1:16", "--method", "ls", "--quiet"]
         cw = {n: timed([*cbase, "--workers", str(n), "--out", str(tmp / f"c{n}")]) for n in (1, 2)}
         a, b = (pd.read_parquet(tmp / f"c{n}" / "campaign.parquet").drop(columns="seconds") for n in (1, 2))

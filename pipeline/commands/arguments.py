@@ -178,3 +178,13 @@ def band_hz(text: str) -> tuple[float, float]:
     if not (math.isfinite(lo) and math.isfinite(hi) and 0 <= lo < hi):
         raise FsidError(f"--band {text}: give 0 <= LO < HI in Hz")
     return lo, hi
+
+
+def add_cluster_arguments(parser: argparse.ArgumentParser) -> None:
+    """Where a command's Dask tasks run: ``--scheduler ADDR`` or a local cluster of
+    ``--workers N`` (one or the other)."""
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--scheduler", default=None, metavar="ADDR", help="an existing Dask scheduler, tcp://host:8786")
+    where.add_argument(
+        "--workers", type=positive_number(1024, "workers"), default=None, help="local cluster size (default: the cores)"
+    )

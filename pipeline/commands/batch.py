@@ -16,7 +16,7 @@ from importlib import metadata
 from pathlib import Path
 
 from pipeline.commands import estimate as estimate_command
-from pipeline.commands.arguments import log_file, positive_number, print_outputs
+from pipeline.commands.arguments import add_cluster_arguments, log_file, print_outputs
 from pipeline.errors import FsidError
 from pipeline.jobs.failures import failure_recorded
 from pipeline.paths import new_run_dir
@@ -40,11 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--map", default=None, help="channel map for every log")
     parser.add_argument("--segments", default=None, metavar="T0:T1,...", help="windows for every log")
     parser.add_argument("--no-figures", action="store_true", help="the logs' reports without figures (faster)")
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", default=None, metavar="ADDR", help="an existing Dask scheduler, tcp://host:8786")
-    where.add_argument(
-        "--workers", type=positive_number(1024, "workers"), default=None, help="local cluster size (default: the cores)"
-    )
+    add_cluster_arguments(parser)
     parser.add_argument("--quiet", action="store_true")
     parser.add_argument("--out", default=None, help="output folder (default: a new folder under ./runs/)")
 

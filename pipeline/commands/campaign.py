@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pipeline.commands.arguments import positive_number, print_outputs
+from pipeline.commands.arguments import add_cluster_arguments, print_outputs
 from pipeline.errors import FsidError
 from pipeline.jobs.failures import failure_recorded
 from pipeline.paths import new_run_dir
@@ -32,11 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "every combination is flown",
     )
     parser.add_argument("--method", action="append", choices=METHODS, help="estimation method (repeatable)")
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--scheduler", default=None, metavar="ADDR", help="an existing Dask scheduler, tcp://host:8786")
-    where.add_argument(
-        "--workers", type=positive_number(1024, "workers"), default=None, help="local cluster size (default: the cores)"
-    )
+    add_cluster_arguments(parser)
     parser.add_argument("--quiet", action="store_true")
     parser.add_argument("--out", default=None, help="output folder (default: a new folder under ./runs/)")
 

@@ -13,6 +13,7 @@ batch.html show each log's status and, per derivative, its estimates across the 
 from __future__ import annotations
 
 import hashlib
+import json
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -25,7 +26,8 @@ from pipeline.errors import USER_ERRORS, describe
 from pipeline.jobs.dask_cluster import as_finished, dask_client
 from pipeline.jobs.failures import failure_recorded
 from pipeline.jobs.options import EstimateOptions
-from pipeline.paths import atomic_path, new_run_dir, release_run_dirs, run_id
+from pipeline.jobs.task_rows import report_rows, write_rows
+from pipeline.paths import new_run_dir, release_run_dirs, run_id
 
 #: the results' columns, in order
 COLUMNS = (
@@ -101,7 +103,7 @@ def estimate_task(entry: BatchEntry, out_root: str, version: str) -> list[dict[s
         new_run_dir("estimate", out, inputs=[entry.log, *entry.inputs])
         with failure_recorded(out, "estimate"):
             estimate_log(entry.log, out, entry.options)
-        rows = report_rows(out / "report.json")
+        rows = report_rows(json.loads((out / "report.json").read_text()))
         status, reason = "ok", ""
     except Exception as exc:  # noqa: BLE001 - every failure of one log is that log's record
         rows, status = [], "refused" if isinstance(exc, USER_ERRORS) else "crashed"
@@ -114,43 +116,9 @@ def estimate_task(entry: BatchEntry, out_root: str, version: str) -> list[dict[s
     return [{**base, **r, "status": status, "reason": reason, "seconds": seconds} for r in rows]
 
 
-def report_rows(path: Path) -> list[dict[str, Any]]:
-    """One row per method and parameter of a report.json."""
-    import json
-
-    rep = json.loads(path.read_text())
-    rows = []
-    for key, m in rep.get("methods", {}).items():
-        pom = (m.get("validation") or {}).get("proof_of_match") or {}
-        verdict = (m.get("verdict") or {}).get("level")
-        for name, p in (m.get("parameters") or {}).items():
-            rows.append(
-                {
-                    "method": key,
-                    "parameter": name,
-                    "estimate": p.get("estimate"),
-                    "std": p.get("std"),
-                    "total_std": p.get("total_std", p.get("std")),
-                    "verdict": verdict,
-                    "proof_of_match": {True: "pass", False: "fail"}.get(pom.get("all_pass"), "none"),
-                }
-            )
-    return rows
-
-
-def _frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
-    df = pd.DataFrame(rows, columns=list(COLUMNS))
-    for c in ("estimate", "std", "total_std", "seconds"):
-        df[c] = pd.to_numeric(df[c], errors="coerce")
-    return df
-
-
 def write_results(path: Path, rows: list[dict[str, Any]]) -> pd.DataFrame:
-    """results.parquet of ``rows`` (sorted by log and row), written atomically."""
-    df = _frame(rows).sort_values(["name", "method", "parameter"], na_position="first", kind="stable")
-    with atomic_path(path) as tmp:
-        df.to_parquet(tmp, index=False)
-    return df
+    """results.parquet of ``rows``, by log and row (:func:`pipeline.jobs.task_rows.write_rows`)."""
+    return write_rows(path, rows, COLUMNS, ("name", "method", "parameter"))
 
 
 def _earlier(path: Path, entries: Sequence[BatchEntry], version: str, out: Path) -> dict[str, list[dict]]:

@@ -30,6 +30,7 @@ import pandas as pd
 
 from pipeline.errors import USER_ERRORS, FsidError, describe
 from pipeline.jobs.dask_cluster import as_finished, dask_client
+from pipeline.jobs.task_rows import report_rows, write_rows
 from pipeline.paths import atomic_path, atomic_write_text, new_run_dir, release_run_dirs, run_id
 
 COLUMNS = (
@@ -175,7 +176,8 @@ def flight_task(flight: Flight, methods: Sequence[str] | None) -> list[dict[str,
     try:
         with tempfile.TemporaryDirectory(prefix="fsid-campaign-") as tmp:
             run_scenario(flight.scenario, Path(tmp), seed=flight.seed, methods=methods, quiet=True, figures=False)
-            rows = _rows(json.loads((Path(tmp) / "report.json").read_text()))
+            rep = json.loads((Path(tmp) / "report.json").read_text())
+            rows = [r for r in report_rows(rep) if r["truth"] is not None]
         status, reason = "ok", ""
     except Exception as exc:  # noqa: BLE001 - a flight's failure is that flight's record
         rows, status, reason = [], "refused" if isinstance(exc, USER_ERRORS) else "crashed", describe(exc)
@@ -185,38 +187,6 @@ def flight_task(flight: Flight, methods: Sequence[str] | None) -> list[dict[str,
     if not rows:
         return [{**base, "status": status, "reason": reason, "seconds": seconds}]
     return [{**base, **r, "status": status, "reason": reason, "seconds": seconds} for r in rows]
-
-
-def _rows(rep: Mapping[str, Any]) -> list[dict[str, Any]]:
-    rows = []
-    for key, m in rep.get("methods", {}).items():
-        verdict = (m.get("verdict") or {}).get("level")
-        for name, p in (m.get("parameters") or {}).items():
-            if p.get("truth") is None:
-                continue
-            rows.append(
-                {
-                    "method": key,
-                    "parameter": name,
-                    "estimate": p.get("estimate"),
-                    "std": p.get("std"),
-                    "total_std": p.get("total_std", p.get("std")),
-                    "truth": p.get("truth"),
-                    "verdict": verdict,
-                }
-            )
-    return rows
-
-
-def frame(rows: list[dict[str, Any]]) -> pd.DataFrame:
-    """The rows as a frame in a fixed order (variant, seed, method, parameter): the same
-    whichever worker finished first."""
-    df = pd.DataFrame(rows, columns=list(COLUMNS))
-    for c in ("estimate", "std", "total_std", "truth", "seconds"):
-        df[c] = pd.to_numeric(df[c], errors="coerce")
-    return df.sort_values(["variant", "seed", "method", "parameter"], na_position="first", kind="stable").reset_index(
-        drop=True
-    )
 
 
 def summary(df: pd.DataFrame) -> pd.DataFrame:
@@ -298,7 +268,6 @@ def campaign(out: str | Path, opts: CampaignOptions) -> dict[str, Path]:
 
 
 def _write(path: Path, rows: list[dict[str, Any]]) -> pd.DataFrame:
-    df = frame(rows)
-    with atomic_path(path) as tmp:
-        df.to_parquet(tmp, index=False)
-    return df
+    """campaign.parquet of ``rows`` in a fixed order (variant, seed, method, parameter): the
+    same whichever worker finished first."""
+    return write_rows(path, rows, COLUMNS, ("variant", "seed", "method", "parameter"))

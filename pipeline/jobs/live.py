@@ -157,6 +157,7 @@ def _stream(out: Path, opts: LiveOptions, disp: _Display) -> tuple[LiveIdentific
     if not opts.quiet:
         print(f"receiving {opts.source} into {path} (Ctrl-C to stop)", flush=True)
     li, fd, t_now, stopped = None, None, 0.0, "Ctrl-C"
+    travel = servo_travel_for(path, opts.aircraft)  # the aircraft file, read once
     latency = 0.0
     try:
         while True:
@@ -168,7 +169,7 @@ def _stream(out: Path, opts: LiveOptions, disp: _Display) -> tuple[LiveIdentific
                 continue
             received = rx.last_receive
             try:
-                fd = read_log(path, opts.map_path, servo_travel=servo_travel_for(path, opts.aircraft))
+                fd = read_log(path, opts.map_path, servo_travel=travel)
             except (FsidError, LogReadError):  # too little yet to read: wait for more
                 continue
             if li is None:
@@ -183,7 +184,7 @@ def _stream(out: Path, opts: LiveOptions, disp: _Display) -> tuple[LiveIdentific
         rx.close()
     if fd is not None and li is not None:
         try:
-            fd = read_log(path, opts.map_path, servo_travel=servo_travel_for(path, opts.aircraft))
+            fd = read_log(path, opts.map_path, servo_travel=travel)
         except (FsidError, LogReadError):
             pass
         li.update(fd, final=True)

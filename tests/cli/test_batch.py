@@ -136,43 +136,8 @@ def test_batch_on_a_scheduler_then_the_rerun_skips(logs, cluster, tmp_path, caps
     pd.testing.assert_frame_equal(lo[["parameter", "estimate"]].reset_index(drop=True), mine)
 
 
-def _short_scenario(tmp_path: Path) -> Path:
-    """A 26 s flight (two elevator 3-2-1-1s): the campaign's flights short."""
-    p = tmp_path / "short.toml"
-    p.write_text(
-        f"""name = "short"
-aircraft = "{ROOT / "scenarios" / "aircraft" / "uav_small.toml"}"
-duration_s = 26.0
-rate_hz = 100.0
-seed = 1
-[trim]
-altitude_m = 150.0
-airspeed_mps = 30.0
-flight_path_deg = 0.0
-[schedule]
-lead_s = 3.0
-quiet_s = 8.0
-[[maneuver]]
-name = "a"
-axis = "de"
-shape = "3211"
-amplitude_deg = 2.0
-pulse_s = 0.3
-[[maneuver]]
-name = "b"
-axis = "de"
-shape = "3211"
-amplitude_deg = -2.0
-pulse_s = 0.4
-[turbulence]
-model = "off"
-"""
-    )
-    return p
-
-
 def test_a_campaign_is_the_same_on_any_number_of_workers(cluster, tmp_path):
-    sc = _short_scenario(tmp_path)
+    sc = ROOT / "scenarios" / "longitudinal_short_calm.toml"  # 26 s: the campaign's flights short
     a, b = tmp_path / "two", tmp_path / "one"
     base = ["campaign", str(sc), "--method", "ls", "--quiet"]
     assert main([*base, "--seeds", "1:8", "--scheduler", cluster[0], "--out", str(a)]) == 0
@@ -187,10 +152,11 @@ def test_a_campaign_is_the_same_on_any_number_of_workers(cluster, tmp_path):
     assert "Monte Carlo campaign" in (a / "campaign.md").read_text()
 
 
-def test_a_worker_killed_mid_task_runs_again_elsewhere(logs, cluster, tmp_path):
-    address, workers, _ = cluster
-    out = tmp_path / "k"
-    cmd = [sys.executable, "-m", "pipeline.cli", "batch", *map(str, logs[:2]), "--method", "ls", "--no-figures"]
+def _batch_running(logs, address: str, out: Path, *, until: str, timeout: float = 180.0) -> subprocess.Popen:
+    """``fsid batch`` of ``logs`` (ls, no figures) on the scheduler at ``address`` in a
+    process of its own, returned once ``until`` (a glob under ``out``) matches: a task has
+    started (``*/.fsid.lock``, a worker holds a log's folder) or finished (``results.parquet``)."""
+    cmd = [sys.executable, "-m", "pipeline.cli", "batch", *map(str, logs), "--method", "ls", "--no-figures"]
     proc = subprocess.Popen(
         [*cmd, "--scheduler", address, "--out", str(out)],
         cwd=ROOT,
@@ -198,11 +164,17 @@ def test_a_worker_killed_mid_task_runs_again_elsewhere(logs, cluster, tmp_path):
         stderr=subprocess.PIPE,
         text=True,
     )
-    # a task has started when a log's folder is locked by a worker
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and not any(out.glob("*/.fsid.lock")):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and not any(out.glob(until)):
         time.sleep(0.05)
-    assert any(out.glob("*/.fsid.lock")), "no task started"
+    assert any(out.glob(until)), f"nothing matched {until} in {timeout:g} s"
+    return proc
+
+
+def test_a_worker_killed_mid_task_runs_again_elsewhere(logs, cluster, tmp_path):
+    address, workers, _ = cluster
+    out = tmp_path / "k"
+    proc = _batch_running(logs[:2], address, out, until="*/.fsid.lock", timeout=120)
     os.kill(workers[0].pid, signal.SIGKILL)
     stdout, stderr = proc.communicate(timeout=300)
     assert proc.returncode == 0, stderr
@@ -216,17 +188,7 @@ def test_ctrl_c_leaves_a_consistent_results_file(logs, cluster, tmp_path):
     """Ctrl-C once a task has finished: exit 130, results.parquet readable with the finished
     logs, the report says where it stopped, INTERRUPTED.txt says it was interrupted."""
     out = tmp_path / "c"
-    cmd = [sys.executable, "-m", "pipeline.cli", "batch", *map(str, logs[:3]), "--method", "ls", "--no-figures"]
-    proc = subprocess.Popen(
-        [*cmd, "--scheduler", cluster[0], "--out", str(out)],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    deadline = time.monotonic() + 180
-    while time.monotonic() < deadline and not (out / "results.parquet").exists():
-        time.sleep(0.05)
+    proc = _batch_running(logs[:3], cluster[0], out, until="results.parquet")
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=180)
     assert proc.returncode == 130, stderr
@@ -240,18 +202,7 @@ def test_the_scheduler_gone_keeps_the_finished_results(logs, cluster, tmp_path):
     """Last in this module: it stops the cluster's scheduler."""
     address, _, scheduler = cluster
     out = tmp_path / "g"
-    cmd = [sys.executable, "-m", "pipeline.cli", "batch", *map(str, logs[:3]), "--method", "ls", "--no-figures"]
-    proc = subprocess.Popen(
-        [*cmd, "--scheduler", address, "--out", str(out)],
-        cwd=ROOT,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    deadline = time.monotonic() + 180
-    while time.monotonic() < deadline and not (out / "results.parquet").exists():
-        time.sleep(0.05)
-    assert (out / "results.parquet").exists(), "no task finished"
+    proc = _batch_running(logs[:3], address, out, until="results.parquet")
     scheduler.kill()
     stdout, stderr = proc.communicate(timeout=180)
     assert proc.returncode != 0
